@@ -1,0 +1,1 @@
+"""Control laws: pure functions of (time, state, reference, memory, parameters), no I/O."""
