@@ -14,3 +14,27 @@ def spawn():
         yield spawner
     finally:
         spawner.stop_all()
+
+
+def _vcan_skip_reason() -> str | None:
+    """Why ``vcan`` tests cannot run in this process, or None when vcan0 is usable here."""
+    from tools.vcan_guest.native import native_vcan_status
+
+    usable, reason = native_vcan_status()
+    if usable:
+        return None
+    return (
+        f"{reason}: vcan tests run in the QEMU guest lane instead "
+        "(tests/test_vcan_lane.py; python -m tools.vcan_guest run -- python -m pytest -m vcan)"
+    )
+
+
+def pytest_collection_modifyitems(config, items):
+    vcan_items = [item for item in items if item.get_closest_marker("vcan")]
+    if not vcan_items:
+        return
+    reason = _vcan_skip_reason()
+    if reason is None:
+        return
+    for item in vcan_items:
+        item.add_marker(pytest.mark.skip(reason=reason))

@@ -1,0 +1,86 @@
+"""Report generation time for a 60 s run at 1 kHz (60,000 samples).
+
+The folder is simulated once (``hil.sim``, the paper's circle at Ts = 1 ms) or, with
+``--synthetic``, written by ``hil.report.synthetic`` as a run folder with per-sample latencies
+(both paths) and wake-up lateness. Times ``hil report`` (load, metrics, certificate, 9-11
+figures, report.html/md/json) without the ideal trajectory, median of repeats, and once with
+it (a second simulation at Ts/10 dominates that figure).
+
+    python bench/bench_report.py              # simulated folder, 3 repeats, plus --ideal once
+    python bench/bench_report.py --quick      # synthetic folder, 1 repeat, no ideal
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from hil.report.build import analyse, write_report
+from hil.report.folder import load_folder
+from hil.report.ideal import ideal_from_simulator
+from hil.report.synthetic import write_synthetic_folder
+
+SCENARIO = """
+[reference]
+kind = "circle"
+vd = 0.5
+wd = 0.2
+
+[initial]
+x = -1.0
+y = 1.0
+theta = 0.0
+
+[timing]
+ts = 0.001
+
+[run]
+duration = 60.0
+"""
+
+
+def make_folder(root: Path, synthetic: bool) -> Path:
+    if synthetic:
+        return write_synthetic_folder(root / "synthetic", duration=60.0, rate=1000.0, run=True)
+    from hil.scenario import loads_scenario
+    from hil.sim import simulate, write_run_folder
+
+    t0 = time.perf_counter()
+    result = simulate(loads_scenario(SCENARIO, root))
+    print(f"simulated the 60 s folder in {time.perf_counter() - t0:.1f} s")
+    return write_run_folder(result, root / "sim")
+
+
+def once(folder: Path, ideal: bool) -> float:
+    t0 = time.perf_counter()
+    rep = analyse(load_folder(folder), ideal=ideal_from_simulator if ideal else None)
+    write_report(rep, folder)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--synthetic", action="store_true")
+    ap.add_argument("--repeats", type=int, default=None)
+    ap.add_argument("--no-ideal", action="store_true", help="skip the timing with --ideal")
+    a = ap.parse_args()
+    repeats = a.repeats or (1 if a.quick else 3)
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = make_folder(Path(tmp), a.synthetic or a.quick)
+        rows = len((folder / "trace.csv").read_text().splitlines()) - 1
+        times = [once(folder, ideal=False) for _ in range(repeats)]
+        print(
+            f"samples {rows}; report without ideal: median {statistics.median(times):.2f} s "
+            f"over {repeats} (all: {', '.join(f'{t:.2f}' for t in times)})"
+        )
+        if not (a.quick or a.no_ideal or a.synthetic):
+            seconds = once(folder, True)
+            print(f"report with the ideal trajectory (Ts/10 simulation): {seconds:.2f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,359 @@
+"""The unified tracking-and-stabilization sliding-mode law of Li et al. 2024, eqs. (4)-(10), (19).
+
+One source serves one robot on plain floats (real-time path) and N robots on numpy arrays of
+shape (N,) (batch path) through :mod:`controller_service.mathns`.
+
+Law (DESIGN.md section 1, signs restored):
+
+- errors (4): xe = cos th (x-xd) + sin th (y-yd), ye = -sin th (x-xd) + cos th (y-yd),
+  theta_e = th - thd. theta_e is NOT wrapped: the law uses half angles (period 4 pi), so
+  wrapping would make it jump; give th and thd unwrapped (continuous).
+- time-varying signal: r = sqrt(1 + xe^2 + ye^2), f = rho tanh(r - 1) sin t (t is the law
+  clock passed to ``update``), xi = eta f, g = r' = (xe (v - vd cos theta_e) + ye vd sin
+  theta_e)/r, f' = rho sin t (1 - tanh^2(r - 1)) g + rho cos t tanh(r - 1),
+  xi' = -(vd^2 + wd^2) xi + eta f'.
+- virtual controls (7): alpha_v = vd cos xi - z1,
+  alpha_w = xi' + wd - (lam vd / r)(xe sin((theta_e + xi)/2) + ye cos((theta_e + xi)/2)) - z2.
+- torques (10): tau1 = -varpi1 sign(v - alpha_v), tau2 = -varpi2 sign(w - alpha_w);
+  boundary layer (19): the sign is replaced by clip(v_tilde / eps1, -1, 1) (same for tau2),
+  i.e. sign outside |v_tilde| < eps1 and linear inside.
+
+Memory-advance rule (``update`` returns the memory at t + dt from the samples at t):
+
+- eta' = -(vd^2 + wd^2) eta is integrated exactly for vd, wd held over dt:
+  eta(t + dt) = eta(t) exp(-(vd^2 + wd^2) dt);
+- the adaptive laws (8), z1' = (l1/2)(xe/r - z1/m1), z2' = (l2/2)(sin((theta_e - xi)/2) -
+  z2/m2), by one explicit Euler step with the sampled right-hand sides, then clamped to
+  |z1| <= m1, |z2| <= m2, which (8) guarantees in continuous time (|xe/r| < 1,
+  |sin| <= 1) and which the Euler step keeps anyway whenever dt l/(2m) <= 1.
+
+Bad input: a non-finite state, reference sample, memory or clock gives zero torque, telemetry
+``nonfinite = 1`` and the memory unchanged (element-wise on the batch path). Torques never
+exceed varpi1, varpi2 in magnitude.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from controller_service.design import check_unified
+from controller_service.laws.base import (
+    ControlOutput,
+    DesignContext,
+    ReferenceSample,
+    RobotState,
+)
+from controller_service.mathns import ARRAY_MATH, FLOAT_MATH
+
+TELEMETRY_KEYS = (
+    "xe",
+    "ye",
+    "theta_e",
+    "xi",
+    "v_tilde",
+    "w_tilde",
+    "z1",
+    "z2",
+    "eta",
+    "alpha_v",
+    "alpha_w",
+    "nonfinite",
+)
+
+
+@dataclass(frozen=True)
+class UnifiedParams:
+    """Gains of the unified law: (8)'s m1, m2, l1, l2, (7)'s lam, the signal's rho, and the
+    boundary-layer widths eps1, eps2 of (19) (None = the pure sign law (10)). Table 1 defaults."""
+
+    m1: float = 0.5
+    m2: float = 0.5
+    l1: float = 0.5
+    l2: float = 0.5
+    lam: float = 1.0
+    rho: float = 1.0
+    eps1: float | None = None
+    eps2: float | None = None
+
+
+class UnifiedMemory(NamedTuple):
+    """The law's internal states: eta of the time-varying signal and the adaptive z1, z2 (8)."""
+
+    eta: Any
+    z1: Any
+    z2: Any
+
+
+class UnifiedSignals(NamedTuple):
+    """Every intermediate signal of (4)-(7) at one instant (for telemetry and tests)."""
+
+    xe: Any
+    ye: Any
+    theta_e: Any
+    r: Any
+    f: Any
+    xi: Any
+    dxi: Any
+    alpha_v: Any
+    alpha_w: Any
+
+
+def unified_signals(
+    ns: Any,
+    t: Any,
+    state: RobotState,
+    ref: ReferenceSample,
+    memory: UnifiedMemory,
+    lam: float,
+    rho: float,
+) -> UnifiedSignals:
+    """Errors (4), the time-varying signal xi and its derivative, and alpha_v, alpha_w (7).
+
+    ``state.v`` enters only through g = r' (the measured v); ``ns`` is FLOAT_MATH or ARRAY_MATH.
+    """
+    sin, cos = ns.sin, ns.cos
+    th = state.theta
+    vd = ref.vd
+    wd = ref.wd
+    eta = memory.eta
+    dx = state.x - ref.xd
+    dy = state.y - ref.yd
+    c = cos(th)
+    s = sin(th)
+    xe = c * dx + s * dy
+    ye = c * dy - s * dx
+    the = th - ref.thetad
+    r = ns.sqrt(1.0 + xe * xe + ye * ye)
+    tanh_r = ns.tanh(r - 1.0)
+    sin_t = sin(t)
+    f = rho * tanh_r * sin_t
+    xi = eta * f
+    q = vd * vd + wd * wd
+    g = (xe * (state.v - vd * cos(the)) + ye * vd * sin(the)) / r
+    df = rho * (sin_t * (1.0 - tanh_r * tanh_r) * g + cos(t) * tanh_r)
+    dxi = eta * df - q * xi
+    half = 0.5 * (the + xi)
+    alpha_v = vd * cos(xi) - memory.z1
+    alpha_w = dxi + wd - (lam * vd / r) * (xe * sin(half) + ye * cos(half)) - memory.z2
+    return UnifiedSignals(xe, ye, the, r, f, xi, dxi, alpha_v, alpha_w)
+
+
+def lyapunov_v(sig: UnifiedSignals, memory: UnifiedMemory, params: UnifiedParams, ns: Any) -> Any:
+    """V of the proof of Theorem 1: (r - 1) + (4/lam)(1 - cos((theta_e - xi)/2))
+    + z1^2/l1 + 2 z2^2/(l2 lam)."""
+    lam = params.lam
+    return (
+        (sig.r - 1.0)
+        + (4.0 / lam) * (1.0 - ns.cos(0.5 * (sig.theta_e - sig.xi)))
+        + memory.z1 * memory.z1 / params.l1
+        + 2.0 * memory.z2 * memory.z2 / (params.l2 * lam)
+    )
+
+
+def _all_finite_float(values: tuple[float, ...]) -> bool:
+    # x - x is 0.0 for finite x and NaN for inf/NaN; one pass, no function calls per value.
+    acc = 0.0
+    for value in values:
+        acc += value - value
+    return acc == 0.0
+
+
+class UnifiedController:
+    """The unified law (10) (``name = "unified"``) or its boundary-layer variant (19)
+    (``name = "unified_boundary"``, when eps1 and eps2 are given).
+
+    The design is checked when the controller is built (Assumption 2, (9), (11), (12)); a
+    violation raises :class:`controller_service.design.DesignError`.
+    """
+
+    def __init__(self, params: UnifiedParams, context: DesignContext) -> None:
+        if (params.eps1 is None) != (params.eps2 is None):
+            raise ValueError("unified_boundary needs both eps1 and eps2 (or neither)")
+        check_unified(params, context)
+        self.params = params
+        self.context = context
+        self.name = "unified" if params.eps1 is None else "unified_boundary"
+        lim = context.limits
+        self._varpi1 = float(lim.varpi1)
+        self._varpi2 = float(lim.varpi2)
+        self._lam = float(params.lam)
+        self._rho = float(params.rho)
+        self._m1 = float(params.m1)
+        self._m2 = float(params.m2)
+        self._half_l1 = 0.5 * float(params.l1)
+        self._half_l2 = 0.5 * float(params.l2)
+        self._boundary = params.eps1 is not None
+        self._inv_eps1 = 1.0 / params.eps1 if params.eps1 is not None else 0.0
+        self._inv_eps2 = 1.0 / params.eps2 if params.eps2 is not None else 0.0
+
+    def initial_memory(self, n: int | None = None, z1: float = 0.0, z2: float = 0.0) -> Any:
+        """eta(0) = 1 and the given z1(0), z2(0), clamped to |z1| <= m1, |z2| <= m2 as (8)
+        requires."""
+        z1 = min(max(float(z1), -self._m1), self._m1)
+        z2 = min(max(float(z2), -self._m2), self._m2)
+        if n is None:
+            return UnifiedMemory(1.0, z1, z2)
+        return UnifiedMemory(np.ones(n), np.full(n, z1), np.full(n, z2))
+
+    def signals(
+        self, t: Any, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
+    ) -> UnifiedSignals:
+        ns = (
+            ARRAY_MATH
+            if isinstance(state.x, np.ndarray) or isinstance(memory.eta, np.ndarray)
+            else FLOAT_MATH
+        )
+        return unified_signals(ns, t, state, ref, memory, self._lam, self._rho)
+
+    def update(
+        self, t: float, dt: float, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
+    ) -> tuple[ControlOutput, UnifiedMemory]:
+        """Torques (10) or (19) at law time t and the memory advanced to t + dt (module doc)."""
+        if (
+            isinstance(state.x, np.ndarray)
+            or isinstance(memory.eta, np.ndarray)
+            or isinstance(ref.xd, np.ndarray)
+        ):
+            return self._update_array(t, dt, state, ref, memory)
+        if not _all_finite_float((t, dt, *state, *ref[:5], *memory)):
+            return self._reject_float(memory)
+        try:
+            return self._update_float(t, dt, state, ref, memory)
+        except (ValueError, OverflowError, ZeroDivisionError):
+            # Finite but huge input overflows math functions (sin(inf), exp(1e308)).
+            return self._reject_float(memory)
+
+    def _reject_float(self, memory: UnifiedMemory) -> tuple[ControlOutput, UnifiedMemory]:
+        telemetry = dict.fromkeys(TELEMETRY_KEYS, 0.0)
+        telemetry["nonfinite"] = 1.0
+        return ControlOutput(0.0, 0.0, telemetry), memory
+
+    def _update_float(
+        self, t: float, dt: float, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
+    ) -> tuple[ControlOutput, UnifiedMemory]:
+        ns = FLOAT_MATH
+        sig = unified_signals(ns, t, state, ref, memory, self._lam, self._rho)
+        v_tilde = state.v - sig.alpha_v
+        w_tilde = state.omega - sig.alpha_w
+        if self._boundary:
+            tau1 = -self._varpi1 * ns.clip(v_tilde * self._inv_eps1, -1.0, 1.0)
+            tau2 = -self._varpi2 * ns.clip(w_tilde * self._inv_eps2, -1.0, 1.0)
+        else:
+            tau1 = -self._varpi1 * ns.sign(v_tilde)
+            tau2 = -self._varpi2 * ns.sign(w_tilde)
+        vd, wd = ref.vd, ref.wd
+        z1, z2 = memory.z1, memory.z2
+        m1, m2 = self._m1, self._m2
+        eta_next = memory.eta * ns.exp(-(vd * vd + wd * wd) * dt)
+        z1_next = ns.clip(z1 + dt * self._half_l1 * (sig.xe / sig.r - z1 / m1), -m1, m1)
+        z2_next = ns.clip(
+            z2 + dt * self._half_l2 * (ns.sin(0.5 * (sig.theta_e - sig.xi)) - z2 / m2), -m2, m2
+        )
+        # Finite inputs can still overflow (e.g. |x - xd| ~ 1e200 makes r infinite).
+        if not _all_finite_float((tau1, tau2, eta_next, z1_next, z2_next, v_tilde, w_tilde)):
+            return self._reject_float(memory)
+        telemetry = {
+            "xe": sig.xe,
+            "ye": sig.ye,
+            "theta_e": sig.theta_e,
+            "xi": sig.xi,
+            "v_tilde": v_tilde,
+            "w_tilde": w_tilde,
+            "z1": z1,
+            "z2": z2,
+            "eta": memory.eta,
+            "alpha_v": sig.alpha_v,
+            "alpha_w": sig.alpha_w,
+            "nonfinite": 0.0,
+        }
+        return ControlOutput(tau1, tau2, telemetry), UnifiedMemory(eta_next, z1_next, z2_next)
+
+    def _update_array(
+        self, t: Any, dt: Any, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
+    ) -> tuple[ControlOutput, UnifiedMemory]:
+        ns = ARRAY_MATH
+        fields = (
+            *(np.asarray(value, dtype=float) for value in state),
+            *(np.asarray(value, dtype=float) for value in ref[:5]),
+            *(np.asarray(value, dtype=float) for value in memory),
+            np.asarray(t, dtype=float),
+            np.asarray(dt, dtype=float),
+        )
+        shape = np.broadcast_shapes(*(f.shape for f in fields))
+        fields = tuple(np.broadcast_to(f, shape) for f in fields)
+        ok = np.ones(shape, dtype=bool)
+        for f in fields:
+            ok &= np.isfinite(f)
+        # Zeros stand in for bad elements so the arithmetic stays quiet; those outputs are masked.
+        clean = [np.where(ok, f, 0.0) for f in fields]
+        st = RobotState(*clean[0:5])
+        rf = ReferenceSample(*clean[5:10])
+        mem = UnifiedMemory(*clean[10:13])
+        t_arr, dt_arr = clean[13], clean[14]
+        with np.errstate(all="ignore"):
+            sig = unified_signals(ns, t_arr, st, rf, mem, self._lam, self._rho)
+            v_tilde = st.v - sig.alpha_v
+            w_tilde = st.omega - sig.alpha_w
+            if self._boundary:
+                tau1 = -self._varpi1 * ns.clip(v_tilde * self._inv_eps1, -1.0, 1.0)
+                tau2 = -self._varpi2 * ns.clip(w_tilde * self._inv_eps2, -1.0, 1.0)
+            else:
+                tau1 = -self._varpi1 * ns.sign(v_tilde)
+                tau2 = -self._varpi2 * ns.sign(w_tilde)
+            vd, wd = rf.vd, rf.wd
+            m1, m2 = self._m1, self._m2
+            eta_next = mem.eta * ns.exp(-(vd * vd + wd * wd) * dt_arr)
+            z1_next = ns.clip(
+                mem.z1 + dt_arr * self._half_l1 * (sig.xe / sig.r - mem.z1 / m1), -m1, m1
+            )
+            z2_next = ns.clip(
+                mem.z2
+                + dt_arr * self._half_l2 * (ns.sin(0.5 * (sig.theta_e - sig.xi)) - mem.z2 / m2),
+                -m2,
+                m2,
+            )
+            for value in (tau1, tau2, eta_next, z1_next, z2_next, v_tilde, w_tilde):
+                ok &= np.isfinite(value)
+        zero = np.zeros(shape)
+        telemetry = {
+            "xe": np.where(ok, sig.xe, zero),
+            "ye": np.where(ok, sig.ye, zero),
+            "theta_e": np.where(ok, sig.theta_e, zero),
+            "xi": np.where(ok, sig.xi, zero),
+            "v_tilde": np.where(ok, v_tilde, zero),
+            "w_tilde": np.where(ok, w_tilde, zero),
+            "z1": np.where(ok, mem.z1, zero),
+            "z2": np.where(ok, mem.z2, zero),
+            "eta": np.where(ok, mem.eta, zero),
+            "alpha_v": np.where(ok, sig.alpha_v, zero),
+            "alpha_w": np.where(ok, sig.alpha_w, zero),
+            "nonfinite": np.where(ok, 0.0, 1.0),
+        }
+        old = fields[10:13]
+        new_memory = UnifiedMemory(
+            np.where(ok, eta_next, old[0]),
+            np.where(ok, z1_next, old[1]),
+            np.where(ok, z2_next, old[2]),
+        )
+        out = ControlOutput(np.where(ok, tau1, zero), np.where(ok, tau2, zero), telemetry)
+        return out, new_memory
+
+    def resolved_table(self) -> dict[str, Any]:
+        """Every parameter actually used, as a scenario's [controller] table."""
+        p = self.params
+        table: dict[str, Any] = {
+            "law": self.name,
+            "m1": p.m1,
+            "m2": p.m2,
+            "l1": p.l1,
+            "l2": p.l2,
+            "lam": p.lam,
+            "rho": p.rho,
+        }
+        if p.eps1 is not None:
+            table["eps1"] = p.eps1
+            table["eps2"] = p.eps2
+        return table

@@ -1,0 +1,197 @@
+"""The real-time shell's timing primitives: scheduling set-up and an absolute-deadline clock.
+
+The control law (7)-(10) is sampled: its guarantees under sampling need the longest gap Ts
+between sample times and the sample-to-apply latency delta small and known (DESIGN.md, "Beyond
+the paper"). So the loop
+
+- wakes on absolute deadlines ``start + k * period`` of ``CLOCK_MONOTONIC`` (no drift: a late
+  wake-up never shifts later deadlines), sleeping with ``clock_nanosleep(TIMER_ABSTIME)`` up to
+  ``spin_ns`` before the deadline and spinning the rest when that measurably helps;
+- where permitted runs SCHED_FIFO, pinned to one CPU, with memory locked (``mlockall``) and the
+  garbage collector frozen and disabled, and reports what it got.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import gc
+import os
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+CLOCK_MONOTONIC = 1
+TIMER_ABSTIME = 1
+MCL_CURRENT = 1
+MCL_FUTURE = 2
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
+
+
+def _load_libc() -> ctypes.CDLL | None:
+    try:
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+    except OSError:
+        return None
+
+
+_LIBC = _load_libc()
+_NANOSLEEP = getattr(_LIBC, "clock_nanosleep", None) if _LIBC is not None else None
+
+
+def sleep_until_ns(deadline_ns: int) -> None:
+    """Sleep until ``time.monotonic_ns() >= deadline_ns`` (absolute, immune to drift)."""
+    if _NANOSLEEP is not None:
+        ts = _Timespec(deadline_ns // 1_000_000_000, deadline_ns % 1_000_000_000)
+        # EINTR: a signal handler ran; the loop above re-checks the clock, so just return.
+        _NANOSLEEP(CLOCK_MONOTONIC, TIMER_ABSTIME, ctypes.byref(ts), None)
+        return
+    delay = deadline_ns - time.monotonic_ns()
+    if delay > 0:
+        time.sleep(delay / 1e9)
+
+
+def wait_until_ns(deadline_ns: int, spin_ns: int = 0) -> int:
+    """Sleep to ``deadline_ns - spin_ns``, spin the rest; returns the wake-up time (ns)."""
+    if spin_ns > 0:
+        sleep_until_ns(deadline_ns - spin_ns)
+        now = time.monotonic_ns()
+        while now < deadline_ns:
+            now = time.monotonic_ns()
+        return now
+    sleep_until_ns(deadline_ns)
+    return time.monotonic_ns()
+
+
+@dataclass
+class Tick:
+    """One wake-up: cycle index k, its deadline, when the loop woke, and cycles skipped."""
+
+    k: int
+    deadline_ns: int
+    wake_ns: int
+    skipped: int
+
+
+class DeadlineClock:
+    """Absolute deadlines ``start_ns + k * period_ns``.
+
+    A cycle that starts after its successor's deadline is a deadline miss; the clock then
+    resumes at the newest deadline already passed and counts the slots it skipped, so a stall
+    never produces a burst of catch-up cycles with stale data.
+    """
+
+    def __init__(self, period_ns: int, start_ns: int, spin_ns: int = 0) -> None:
+        if period_ns <= 0:
+            raise ValueError("period must be positive")
+        self.period_ns = int(period_ns)
+        self.start_ns = int(start_ns)
+        self.spin_ns = max(0, int(spin_ns))
+        self.k = -1
+        self.misses = 0
+        self.skipped = 0
+
+    def next(self) -> Tick:
+        k = self.k + 1
+        deadline = self.start_ns + k * self.period_ns
+        wake = wait_until_ns(deadline, self.spin_ns)
+        skipped = 0
+        late_slots = (wake - deadline) // self.period_ns
+        if late_slots >= 1:
+            self.misses += 1
+            skipped = int(late_slots)
+            self.skipped += skipped
+            k += skipped
+            deadline = self.start_ns + k * self.period_ns
+        self.k = k
+        return Tick(k, deadline, wake, skipped)
+
+
+@dataclass
+class SchedulingReport:
+    """What the process asked for and what it got (published in Status and the summary)."""
+
+    requested: str = "other"
+    policy: str = "SCHED_OTHER"
+    priority: int = 0
+    affinity: list[int] | None = None
+    mlockall: bool = False
+    gc_frozen: bool = False
+    helper_threads: int = 0
+    errors: dict[str, str] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def setup_scheduling(
+    scheduling: str = "fifo",
+    priority: int = 80,
+    cpu: int | None = None,
+    lock_memory: bool = True,
+    freeze_gc: bool = True,
+) -> SchedulingReport:
+    """Apply what the platform permits; never fail because a privilege is missing."""
+    report = SchedulingReport(requested=scheduling)
+    if scheduling == "fifo":
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            report.policy = "SCHED_FIFO"
+            report.priority = priority
+        except (PermissionError, OSError, AttributeError) as exc:
+            report.errors["fifo"] = str(exc)
+        else:
+            # Every other thread of the process (Zenoh's runtime, the CAN readers) one step
+            # below: they take the GIL to deliver messages, and a SCHED_OTHER thread holding
+            # the GIL while preempted by outside load stalls the loop (priority inversion).
+            report.helper_threads = _raise_helper_threads(priority - 1)
+    if cpu is not None:
+        try:
+            os.sched_setaffinity(0, {cpu})
+        except (OSError, ValueError) as exc:
+            report.errors["affinity"] = str(exc)
+    try:
+        report.affinity = sorted(os.sched_getaffinity(0))
+    except OSError:
+        report.affinity = None
+    if lock_memory and _LIBC is not None:
+        if _LIBC.mlockall(MCL_CURRENT | MCL_FUTURE) == 0:
+            report.mlockall = True
+        else:
+            report.errors["mlockall"] = os.strerror(ctypes.get_errno())
+    if freeze_gc:
+        # Everything built so far moves to the permanent generation; with the collector off
+        # no cycle pays for a full collection mid-period.
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        report.gc_frozen = True
+    return report
+
+
+def _raise_helper_threads(priority: int) -> int:
+    """SCHED_FIFO at ``priority`` for every thread of this process but the caller."""
+    me = threading.get_native_id()
+    n = 0
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return 0
+    for tid in tids:
+        if tid == me:
+            continue
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(max(1, priority)))
+            n += 1
+        except OSError:
+            pass
+    return n
+
+
+def restore_gc() -> None:
+    gc.enable()
+    gc.unfreeze()

@@ -1,0 +1,350 @@
+"""References: the virtual robot (3) xd' = vd cos thd, yd' = vd sin thd, thd' = wd.
+
+Every reference samples its pose, velocities and accelerations at a time t
+(:class:`ReferenceSample`) and reports its own maxima, the quantities bounded by Assumption 2:
+``mu1 = max |vd|``, ``mu2 = max |wd|``, ``k1 = max |vd'|``, ``k2 = max |wd'|``.
+
+Kinds (the scenario's [reference] table, see :func:`build_reference`):
+
+- ``circle``: constant vd, wd from (x0, y0, theta0), in closed form.
+- ``point``: the virtual robot at rest at (x, y, theta): pure stabilization.
+- ``circle_then_stop``: the circle until ``stop_time``; then vd and wd ramp linearly to zero
+  over one common duration tau = max(|vd|/a1, |wd|/a2), where a1, a2 are the allowed
+  decelerations (the table's k1, k2, default 1.0 each, the paper's k1 = k2), and the virtual
+  robot rests where it stopped. Because vd/wd stays constant during the ramp the path stays on
+  the same circle, so the pose is continuous and in closed form. (A pose jump at the stop would
+  leave an error the law practically never removes: after 70 s of circling eta ~ 1e-9.)
+- ``lemniscate``: the figure eight of Gerono, xd = x0 + a sin(phi), yd = y0 + (a/2) sin(2 phi),
+  phi = 2 pi t / period, from flat outputs (Remark 1): thd = atan2(yd', xd') (made continuous),
+  vd = |(xd', yd')| > 0, wd = (yd'' xd' - xd'' yd')/vd^2; its maxima are computed on a grid of
+  LEMNISCATE_GRID points over one period and raised by the relative margin LEMNISCATE_MARGIN so
+  that they bound the values between grid points.
+- ``csv``: a table with columns t, xd, yd, thetad, vd, wd (header row; t strictly increasing),
+  interpolated linearly, holding the first row before the start and the last row past the end;
+  vd', wd' are the slopes of the table's segments (0 outside it).
+"""
+
+from __future__ import annotations
+
+import bisect
+import csv
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from controller_service.laws.base import ReferenceSample
+
+LEMNISCATE_GRID = 20001
+LEMNISCATE_MARGIN = 1e-4
+DEFAULT_DECELERATION = 1.0
+
+
+@runtime_checkable
+class Reference(Protocol):
+    """A virtual robot (3): ``sample(t)`` and its own maxima mu1, mu2, k1, k2."""
+
+    mu1: float
+    mu2: float
+    k1: float
+    k2: float
+
+    def sample(self, t: float) -> ReferenceSample: ...
+
+
+def _arc_pose(
+    x0: float, y0: float, theta0: float, vd: float, wd: float, heading: float, distance: float
+) -> tuple[float, float]:
+    """Position on the circle (or line if wd = 0) of curvature wd/vd through (x0, y0, theta0),
+    at ``heading`` (circle) or after ``distance`` along the line."""
+    if wd != 0.0:
+        radius = vd / wd
+        return (
+            x0 + radius * (math.sin(heading) - math.sin(theta0)),
+            y0 - radius * (math.cos(heading) - math.cos(theta0)),
+        )
+    return x0 + distance * math.cos(theta0), y0 + distance * math.sin(theta0)
+
+
+@dataclass(frozen=True)
+class Circle:
+    """Constant vd, wd from (x0, y0, theta0): the paper's tracking reference (vd = 0.5,
+    wd = 0.2)."""
+
+    vd: float = 0.5
+    wd: float = 0.2
+    x0: float = 0.0
+    y0: float = 0.0
+    theta0: float = 0.0
+
+    @property
+    def mu1(self) -> float:
+        return abs(self.vd)
+
+    @property
+    def mu2(self) -> float:
+        return abs(self.wd)
+
+    k1 = 0.0
+    k2 = 0.0
+
+    def sample(self, t: float) -> ReferenceSample:
+        heading = self.theta0 + self.wd * t
+        xd, yd = _arc_pose(self.x0, self.y0, self.theta0, self.vd, self.wd, heading, self.vd * t)
+        return ReferenceSample(xd, yd, heading, self.vd, self.wd, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Point:
+    """The virtual robot at rest at (x, y, theta): the stabilization task."""
+
+    x: float = 0.0
+    y: float = 0.0
+    theta: float = 0.0
+    mu1 = 0.0
+    mu2 = 0.0
+    k1 = 0.0
+    k2 = 0.0
+
+    def sample(self, t: float) -> ReferenceSample:
+        return ReferenceSample(self.x, self.y, self.theta, 0.0, 0.0, 0.0, 0.0)
+
+
+class CircleThenStop:
+    """The circle until ``stop_time``, then a linear ramp of vd and wd to zero over
+    tau = max(|vd|/decel1, |wd|/decel2), then rest (module docstring)."""
+
+    def __init__(
+        self,
+        vd: float = 0.5,
+        wd: float = 0.2,
+        x0: float = 0.0,
+        y0: float = 0.0,
+        theta0: float = 0.0,
+        stop_time: float = 70.0,
+        decel1: float = DEFAULT_DECELERATION,
+        decel2: float = DEFAULT_DECELERATION,
+    ) -> None:
+        if not (decel1 > 0.0 and decel2 > 0.0):
+            raise ValueError("circle_then_stop: decelerations k1, k2 must be > 0")
+        if not (stop_time >= 0.0):
+            raise ValueError("circle_then_stop: stop_time must be >= 0")
+        self.vd, self.wd = float(vd), float(wd)
+        self.x0, self.y0, self.theta0 = float(x0), float(y0), float(theta0)
+        self.stop_time = float(stop_time)
+        self.ramp = max(abs(self.vd) / decel1, abs(self.wd) / decel2)
+        self.mu1 = abs(self.vd)
+        self.mu2 = abs(self.wd)
+        self.k1 = abs(self.vd) / self.ramp if self.ramp > 0.0 else 0.0
+        self.k2 = abs(self.wd) / self.ramp if self.ramp > 0.0 else 0.0
+
+    def rest_pose(self) -> tuple[float, float, float]:
+        """Where the virtual robot comes to rest (x, y, theta); choose x0, y0, theta0 from it
+        to make the stop land on a given point, e.g. the paper's (0, 0, 0)."""
+        s = self.sample(self.stop_time + self.ramp + 1.0)
+        return s.xd, s.yd, s.thetad
+
+    def _progress(self, t: float) -> tuple[float, float, float]:
+        """(scale s of vd and wd, elapsed 'full-speed-equivalent' time, ramp-phase flag):
+        heading = theta0 + wd * equivalent, distance = vd * equivalent."""
+        if t <= self.stop_time:
+            return 1.0, t, 0.0
+        s = min(t - self.stop_time, self.ramp)
+        if self.ramp == 0.0:
+            return 0.0, self.stop_time, 0.0
+        if t - self.stop_time >= self.ramp:
+            return 0.0, self.stop_time + 0.5 * self.ramp, 0.0
+        return 1.0 - s / self.ramp, self.stop_time + s - s * s / (2.0 * self.ramp), 1.0
+
+    def sample(self, t: float) -> ReferenceSample:
+        scale, equivalent, ramping = self._progress(t)
+        heading = self.theta0 + self.wd * equivalent
+        xd, yd = _arc_pose(
+            self.x0, self.y0, self.theta0, self.vd, self.wd, heading, self.vd * equivalent
+        )
+        dvd = -self.k1 * math.copysign(1.0, self.vd) * ramping if self.vd != 0.0 else 0.0
+        dwd = -self.k2 * math.copysign(1.0, self.wd) * ramping if self.wd != 0.0 else 0.0
+        return ReferenceSample(xd, yd, heading, self.vd * scale, self.wd * scale, dvd, dwd)
+
+
+class Lemniscate:
+    """The figure eight of Gerono built from flat outputs (Remark 1), module docstring."""
+
+    def __init__(
+        self, scale: float = 2.0, period: float = 60.0, x0: float = 0.0, y0: float = 0.0
+    ) -> None:
+        if not (scale > 0.0 and math.isfinite(scale)):
+            raise ValueError("lemniscate: scale must be a finite number > 0")
+        if not (period > 0.0 and math.isfinite(period)):
+            raise ValueError("lemniscate: period must be a finite number > 0")
+        self.scale, self.period = float(scale), float(period)
+        self.x0, self.y0 = float(x0), float(y0)
+        self.omega = 2.0 * math.pi / self.period
+        grid = np.linspace(0.0, self.period, LEMNISCATE_GRID)
+        samples = [self.sample(float(t)) for t in grid]
+        margin = 1.0 + LEMNISCATE_MARGIN
+        self.mu1 = margin * max(abs(s.vd) for s in samples)
+        self.mu2 = margin * max(abs(s.wd) for s in samples)
+        self.k1 = margin * max(abs(s.dvd) for s in samples)
+        self.k2 = margin * max(abs(s.dwd) for s in samples)
+
+    def sample(self, t: float) -> ReferenceSample:
+        a, w = self.scale, self.omega
+        phi = w * t
+        s1, c1 = math.sin(phi), math.cos(phi)
+        s2, c2 = math.sin(2.0 * phi), math.cos(2.0 * phi)
+        dx, dy = a * w * c1, a * w * c2
+        ddx, ddy = -a * w * w * s1, -2.0 * a * w * w * s2
+        dddx, dddy = -a * w**3 * c1, -4.0 * a * w**3 * c2
+        speed2 = dx * dx + dy * dy
+        vd = math.sqrt(speed2)
+        num = ddy * dx - ddx * dy
+        wd = num / speed2
+        dvd = (dx * ddx + dy * ddy) / vd
+        dnum = dddy * dx - dddx * dy
+        dwd = (dnum * speed2 - num * 2.0 * (dx * ddx + dy * ddy)) / (speed2 * speed2)
+        # atan2 of the velocity turned by +90 degrees never crosses the branch cut (c1 = 0
+        # implies c2 = -1), so this heading is continuous for all t.
+        thetad = math.atan2(c1, -c2) - 0.5 * math.pi
+        return ReferenceSample(self.x0 + a * s1, self.y0 + 0.5 * a * s2, thetad, vd, wd, dvd, dwd)
+
+
+CSV_COLUMNS = ("t", "xd", "yd", "thetad", "vd", "wd")
+
+
+class CsvReference:
+    """A recorded reference: linear interpolation, holding the end rows (module docstring)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        rows = _read_csv(self.path)
+        self.t = [row[0] for row in rows]
+        self.columns = [[row[i] for row in rows] for i in range(1, 6)]
+        vd, wd = self.columns[3], self.columns[4]
+        self.dvd = [(vd[i + 1] - vd[i]) / (self.t[i + 1] - self.t[i]) for i in range(len(rows) - 1)]
+        self.dwd = [(wd[i + 1] - wd[i]) / (self.t[i + 1] - self.t[i]) for i in range(len(rows) - 1)]
+        self.mu1 = max(abs(v) for v in vd)
+        self.mu2 = max(abs(v) for v in wd)
+        self.k1 = max((abs(v) for v in self.dvd), default=0.0)
+        self.k2 = max((abs(v) for v in self.dwd), default=0.0)
+
+    def sample(self, t: float) -> ReferenceSample:
+        times = self.t
+        if t <= times[0]:
+            return ReferenceSample(*(col[0] for col in self.columns), 0.0, 0.0)
+        if t >= times[-1]:
+            return ReferenceSample(*(col[-1] for col in self.columns), 0.0, 0.0)
+        i = bisect.bisect_right(times, t) - 1
+        w = (t - times[i]) / (times[i + 1] - times[i])
+        values = (col[i] + w * (col[i + 1] - col[i]) for col in self.columns)
+        return ReferenceSample(*values, self.dvd[i], self.dwd[i])
+
+
+def _read_csv(path: Path) -> list[tuple[float, ...]]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ValueError(f"csv reference {path}: cannot read ({exc.strerror})") from exc
+    reader = csv.reader(text.splitlines())
+    try:
+        header = [name.strip() for name in next(reader)]
+    except StopIteration:
+        raise ValueError(f"csv reference {path}: empty file (no header row)") from None
+    missing = [name for name in CSV_COLUMNS if name not in header]
+    if missing:
+        raise ValueError(f"csv reference {path}: missing column(s) {', '.join(missing)}")
+    index = [header.index(name) for name in CSV_COLUMNS]
+    rows: list[tuple[float, ...]] = []
+    for line_no, raw in enumerate(reader, start=2):
+        if not raw or all(not cell.strip() for cell in raw):
+            continue
+        values = []
+        for name, i in zip(CSV_COLUMNS, index, strict=True):
+            cell = raw[i].strip() if i < len(raw) else ""
+            try:
+                value = float(cell)
+            except ValueError:
+                raise ValueError(
+                    f"csv reference {path}: row {line_no} column {name}: {cell!r} is not a number"
+                ) from None
+            if not math.isfinite(value):
+                raise ValueError(
+                    f"csv reference {path}: row {line_no} column {name}: {cell!r} is not finite"
+                )
+            values.append(value)
+        if rows and not values[0] > rows[-1][0]:
+            raise ValueError(
+                f"csv reference {path}: row {line_no} column t: {values[0]!r} is not after the "
+                f"previous row's {rows[-1][0]!r} (t must increase strictly)"
+            )
+        rows.append(tuple(values))
+    if not rows:
+        raise ValueError(f"csv reference {path}: no data rows")
+    return rows
+
+
+_DESIGN_BOUND_KEYS = ("mu1", "mu2", "k1", "k2")
+_KINDS: dict[str, tuple[dict[str, Any], tuple[str, ...]]] = {
+    # kind: (keys with their defaults (None = required), extra allowed keys)
+    "circle": ({"vd": 0.5, "wd": 0.2, "x0": 0.0, "y0": 0.0, "theta0": 0.0}, ()),
+    "point": ({"x": 0.0, "y": 0.0, "theta": 0.0}, ()),
+    "circle_then_stop": (
+        {"vd": 0.5, "wd": 0.2, "x0": 0.0, "y0": 0.0, "theta0": 0.0, "stop_time": 70.0},
+        (),
+    ),
+    "lemniscate": ({"scale": 2.0, "period": 60.0, "x0": 0.0, "y0": 0.0}, ()),
+    "csv": ({"path": None}, ()),
+}
+
+
+def _number(kind: str, key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"[reference] {kind}: {key} must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"[reference] {kind}: {key} must be finite, got {value!r}")
+    return value
+
+
+def build_reference(table: Mapping[str, Any], base_dir: Path) -> Reference:
+    """The reference named by a scenario's [reference] table (CONTRACT.md).
+
+    Unknown kinds, unknown keys, missing required keys and non-numbers raise ValueError naming
+    them. The design bounds mu1, mu2, k1, k2 are allowed in every kind (the loader reads them);
+    circle_then_stop also uses k1, k2 as its deceleration rates (default 1.0 each).
+    """
+    if "kind" not in table:
+        raise ValueError("[reference]: missing key 'kind'")
+    kind = table["kind"]
+    if kind not in _KINDS:
+        raise ValueError(
+            f"[reference]: unknown kind {kind!r} (expected one of {', '.join(_KINDS)})"
+        )
+    defaults, _extra = _KINDS[kind]
+    allowed = {"kind", *defaults, *_DESIGN_BOUND_KEYS}
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise ValueError(f"[reference] {kind}: unknown key(s) {', '.join(unknown)}")
+    for key in _DESIGN_BOUND_KEYS:
+        if key in table and _number(kind, key, table[key]) < 0.0:
+            raise ValueError(f"[reference] {kind}: {key} must be >= 0")
+    if kind == "csv":
+        if "path" not in table:
+            raise ValueError("[reference] csv: missing key 'path'")
+        if not isinstance(table["path"], str):
+            raise ValueError("[reference] csv: path must be a string")
+        path = Path(table["path"])
+        return CsvReference(path if path.is_absolute() else Path(base_dir) / path)
+    values = {key: _number(kind, key, table.get(key, default)) for key, default in defaults.items()}
+    if kind == "circle":
+        return Circle(**values)
+    if kind == "point":
+        return Point(**values)
+    if kind == "circle_then_stop":
+        decel1 = _number(kind, "k1", table.get("k1", DEFAULT_DECELERATION))
+        decel2 = _number(kind, "k2", table.get("k2", DEFAULT_DECELERATION))
+        return CircleThenStop(**values, decel1=decel1, decel2=decel2)
+    return Lemniscate(**values)

@@ -1,0 +1,162 @@
+"""Build a controller from a scenario's [controller] table (CONTRACT.md).
+
+``law`` selects it:
+
+- ``"unified"`` / ``"unified_boundary"``: :class:`UnifiedController` with m1, m2, l1, l2, lam,
+  rho (Table 1 defaults: 0.5, 0.5, 0.5, 0.5, 1, 1; lam and rho may be ``"auto"``, see
+  :func:`controller_service.design.resolve_auto`) and, for the boundary layer (19), eps1, eps2
+  (default 0.1 each). The design is checked; a violation raises
+  :class:`controller_service.design.DesignError` (a ValueError).
+- ``"jiang1997"``: [7] with the sub-table [controller.jiang1997] c1, c2 (7, 0.1).
+- ``"jiang2001"``: [19] with [controller.jiang2001] stab_eps, track_lam.
+- ``"package.module:Class"``: a user's controller, built as ``Class(params, context)`` where
+  params is the whole [controller] table without ``law``; it must satisfy the Controller
+  protocol of :mod:`controller_service.laws.base`.
+
+Sub-tables of the other baselines may sit beside any law and are ignored; any other unknown key
+is refused with a ValueError naming it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import math
+import weakref
+from collections.abc import Mapping
+from typing import Any
+
+from controller_service.design import resolve_auto
+from controller_service.laws.base import Controller, DesignContext
+from controller_service.laws.jiang1997 import Jiang1997Controller
+from controller_service.laws.jiang2001 import Jiang2001Controller
+from controller_service.laws.unified import UnifiedController, UnifiedParams
+
+TABLE1 = {"m1": 0.5, "m2": 0.5, "l1": 0.5, "l2": 0.5, "lam": 1.0, "rho": 1.0}
+EPS_DEFAULT = {"eps1": 0.1, "eps2": 0.1}
+BUILTIN_LAWS = ("unified", "unified_boundary", "jiang1997", "jiang2001")
+_BASELINE_TABLES = ("jiang1997", "jiang2001")
+
+# Tables of user controllers (whose objects cannot be asked for one) and notes of auto lam/rho.
+_user_tables: weakref.WeakKeyDictionary[Any, dict[str, Any]] = weakref.WeakKeyDictionary()
+_notes: weakref.WeakKeyDictionary[Any, tuple[str, ...]] = weakref.WeakKeyDictionary()
+
+
+def _number(key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"[controller] {key} must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"[controller] {key} must be finite, got {value!r}")
+    return value
+
+
+def _build_unified(law: str, table: Mapping[str, Any], context: DesignContext) -> UnifiedController:
+    keys = dict(TABLE1)
+    if law == "unified_boundary":
+        keys.update(EPS_DEFAULT)
+    unknown = sorted(set(table) - set(keys) - {"law", *_BASELINE_TABLES})
+    if unknown:
+        hint = (
+            " (eps1, eps2 need law = 'unified_boundary')" if {"eps1", "eps2"} & set(unknown) else ""
+        )
+        raise ValueError(f"[controller] {law}: unknown key(s) {', '.join(unknown)}{hint}")
+    values: dict[str, Any] = {}
+    for key, default in keys.items():
+        value = table.get(key, default)
+        if key in ("lam", "rho") and value == "auto":
+            values[key] = value
+        else:
+            values[key] = _number(key, value)
+    resolved = resolve_auto(values, context)
+    controller = UnifiedController(UnifiedParams(**resolved.params), context)
+    if resolved.notes:
+        _notes[controller] = resolved.notes
+    return controller
+
+
+def _build_user(path: str, table: Mapping[str, Any], context: DesignContext) -> Controller:
+    module_name, _, class_name = path.partition(":")
+    if not module_name or not class_name:
+        raise ValueError(
+            f"[controller] law {path!r}: expected one of {', '.join(BUILTIN_LAWS)} "
+            "or an import path 'package.module:Class'"
+        )
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ValueError(
+            f"[controller] law {path!r}: cannot import {module_name!r}: {exc}"
+        ) from exc
+    cls = module
+    for part in class_name.split("."):
+        cls = getattr(cls, part, None)
+        if cls is None:
+            raise ValueError(f"[controller] law {path!r}: {module_name} has no {class_name!r}")
+    params = {k: v for k, v in table.items() if k != "law"}
+    try:
+        controller = cls(params, context)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"[controller] law {path!r}: building it failed: {exc}") from exc
+    missing = [
+        name
+        for name in ("name", "initial_memory", "update")
+        if not hasattr(controller, name)
+        or (name != "name" and not callable(getattr(controller, name)))
+    ]
+    if missing or not isinstance(controller, Controller):
+        raise ValueError(
+            f"[controller] law {path!r}: the object does not satisfy the Controller protocol "
+            f"(missing or not callable: {', '.join(missing) or '?'}; see "
+            "controller_service.laws.base.Controller)"
+        )
+    # An object that is not weak-referenceable falls back to its class path in the table.
+    with contextlib.suppress(TypeError):
+        _user_tables[controller] = {"law": path, **params}
+    return controller
+
+
+def build_controller(table: Mapping[str, Any], context: DesignContext) -> Controller:
+    """The controller named by ``table["law"]`` (default "unified"), checked and ready."""
+    law = table.get("law", "unified")
+    if not isinstance(law, str):
+        raise ValueError(f"[controller] law must be a string, got {law!r}")
+    if law in ("unified", "unified_boundary"):
+        return _build_unified(law, table, context)
+    if law in _BASELINE_TABLES:
+        unknown = sorted(set(table) - {"law", *_BASELINE_TABLES})
+        if unknown:
+            raise ValueError(
+                f"[controller] {law}: unknown key(s) {', '.join(unknown)} "
+                f"(its parameters go in [controller.{law}])"
+            )
+        sub = table.get(law, {})
+        if not isinstance(sub, Mapping):
+            raise ValueError(f"[controller.{law}] must be a table")
+        cls = Jiang1997Controller if law == "jiang1997" else Jiang2001Controller
+        return cls(sub, context)
+    return _build_user(law, table, context)
+
+
+def resolved_controller_table(controller: Any) -> dict[str, Any]:
+    """Every parameter the controller actually uses (auto lam/rho resolved), as a
+    [controller] table for scenario.resolved.toml."""
+    resolved = getattr(controller, "resolved_table", None)
+    if callable(resolved):
+        return dict(resolved())
+    try:
+        table = _user_tables.get(controller)
+    except TypeError:
+        table = None
+    if table is not None:
+        return dict(table)
+    cls = type(controller)
+    return {"law": f"{cls.__module__}:{cls.__qualname__}"}
+
+
+def resolved_notes(controller: Any) -> tuple[str, ...]:
+    """How "auto" lam/rho were resolved (empty when nothing was auto)."""
+    try:
+        return _notes.get(controller, ())
+    except TypeError:
+        return ()

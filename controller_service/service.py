@@ -1,0 +1,572 @@
+"""The controller service: the scenario's law (7)-(10)/(19) on the wall clock, over Zenoh and CAN.
+
+Functional core, thin shell:
+
+- :class:`ControlCore` (pure, no I/O, explicit time): one sample in, torques out. It evaluates
+  the reference (3) at the law clock ``t``, calls ``Controller.update`` (memory passed
+  explicitly), and guards the output: a non-finite torque becomes 0 and is counted, a finite one
+  is clamped to |tau1| <= varpi1, |tau2| <= varpi2 (2).
+- :class:`ControllerService` (the shell): receives State on Zenoh, wakes on absolute deadlines
+  (``trigger = "periodic"``) or on each fresh state (``"on_state"``, and lockstep), publishes
+  TorqueCommand on Zenoh and Set_Input_Torque frames on the CAN bus (after the drive lifecycle),
+  Telemetry and Status, and keeps the stale-state watchdog. Every hop is time-stamped into a
+  log written to ``controller_log.msgpack`` at exit (``hil run`` turns it into the timing
+  figures).
+
+The law clock ``t`` is the state's sample time since the run's epoch (an ns value shared by both
+processes); in lockstep it is the virtual time ``state_seq * Ts`` so the law sees exactly the
+simulator's sample times.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgpack
+
+from controller_service.laws.base import Controller, Limits, RobotState
+from controller_service.realtime import DeadlineClock, SchedulingReport, setup_scheduling
+from protocol import keys
+from protocol.messages import (
+    FLAG_STOP,
+    FLAG_WATCHDOG_ZERO,
+    STATUS_FAULT,
+    STATUS_WATCHDOG_TRIPPED,
+    State,
+    Status,
+    Telemetry,
+    TorqueCommand,
+    decode_counted,
+    encode,
+)
+from protocol.rejections import RejectionCounter
+from protocol.sequence import SequenceTracker
+
+LOG_FIELDS = (
+    "k",  # cycle index (periodic) or state seq (on_state)
+    "deadline_ns",
+    "wake_ns",
+    "state_seq",
+    "state_sample_ns",
+    "state_send_ns",
+    "state_recv_ns",
+    "compute_start_ns",
+    "compute_end_ns",
+    "zenoh_send_ns",
+    "can_send_ns",
+    "cmd_seq",
+    "tau1",
+    "tau2",
+    "flags",
+)
+FLAG_NO_SEND = 1 << 8  # log only: a tick that found no fresh state and sent nothing
+TELEMETRY_FIELDS = ("xe", "ye", "theta_e", "xi", "v_tilde", "w_tilde", "z1", "z2", "eta")
+
+
+@dataclass
+class ControlCore:
+    """One robot's law at sample times: explicit memory, guarded torques (2)."""
+
+    controller: Controller
+    reference: Any
+    dt: float
+    limits: Limits
+    rejections: RejectionCounter = field(default_factory=RejectionCounter)
+    memory: Any = None
+
+    def __post_init__(self) -> None:
+        if self.memory is None:
+            self.memory = self.controller.initial_memory(None)
+
+    def step(self, t: float, state: RobotState) -> tuple[float, float, dict[str, float]]:
+        ref = self.reference.sample(t)
+        out, self.memory = self.controller.update(t, self.dt, state, ref, self.memory)
+        tau1, tau2 = self.guard(out.tau1, out.tau2)
+        return tau1, tau2, dict(out.telemetry)
+
+    def guard(self, tau1: Any, tau2: Any) -> tuple[float, float]:
+        """Non-finite -> 0 (counted); finite -> clamped to the limits (2) (counted)."""
+        a = float(tau1)
+        b = float(tau2)
+        lim = self.limits
+        if not math.isfinite(a):
+            self.rejections.count("non_finite_tau1")
+            a = 0.0
+        if not math.isfinite(b):
+            self.rejections.count("non_finite_tau2")
+            b = 0.0
+        if abs(a) > lim.varpi1:
+            self.rejections.count("clamped_tau1")
+            a = math.copysign(lim.varpi1, a)
+        if abs(b) > lim.varpi2:
+            self.rejections.count("clamped_tau2")
+            b = math.copysign(lim.varpi2, b)
+        return a, b
+
+
+@dataclass
+class Received:
+    state: State
+    recv_ns: int
+
+
+class CanCommandPath:
+    """The controller's CAN edge: HostLifecycle for both drives, torques as Set_Input_Torque.
+
+    A reader thread feeds heartbeats to the lifecycle (under a lock) and ticks it; the control
+    loop only encodes and sends the two torque frames, stamping each send per node so the
+    plant's arrivals can be matched to this send log in per-node order.
+    """
+
+    def __init__(self, bus: Any, lifecycle: Any, geometry: Any) -> None:
+        from protocol.can.drive_link import from_message, to_message
+
+        self.bus = bus
+        self.lifecycle = lifecycle
+        self.geometry = geometry
+        self._to = to_message
+        self._from = from_message
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self.sent_frames = 0
+        self.send_errors = 0
+        self.arm_sends = 0  # lifecycle sequences sent: each holds one zero torque per node
+        self.rearms = 0
+        self.torque_log: list[tuple[int, int, int]] = []  # (node, send_ns, control-log row)
+        self._thread = threading.Thread(target=self._reader, name="can-reader", daemon=True)
+
+    def start(self) -> None:
+        with self._lock:
+            frames = self.lifecycle.start(time.monotonic())
+            self.arm_sends += 1
+        self._send(frames)
+        self._thread.start()
+
+    def _send(self, frames: list[Any], row: int = -1) -> int:
+        """Send frames; every Set_Input_Torque is logged per node with the control-log row it
+        carries (-1: a lifecycle zero), so arrivals can be matched in per-node order."""
+        from protocol.can.codec import Cmd, split_id
+
+        stamp = 0
+        for f in frames:
+            try:
+                self.bus.send(self._to(f), timeout=0.05)
+                stamp = time.monotonic_ns()
+                self.sent_frames += 1
+            except Exception:
+                self.send_errors += 1
+                continue
+            node, cmd = split_id(f.arbitration_id)
+            if cmd == Cmd.SET_INPUT_TORQUE:
+                self.torque_log.append((node, stamp, row))
+        return stamp
+
+    def _reader(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self.bus.recv(timeout=0.05)
+            except Exception:
+                if self._stop.is_set():
+                    return
+                continue
+            now = time.monotonic()
+            with self._lock:
+                if msg is not None:
+                    self.lifecycle.receive(now, self._from(msg))
+                frames = self.lifecycle.tick(now)
+                if frames:
+                    self.arm_sends += 1  # a re-sent lifecycle (it carries a zero torque)
+                elif self.lifecycle.fault_reason and not self._stop.is_set():
+                    # A drive faulted (e.g. heartbeats late on a stalled host): re-arm rather
+                    # than stay silent for the rest of the run; counted.
+                    frames = self.lifecycle.start(now)
+                    self.arm_sends += 1
+                    self.rearms += 1
+            if frames:
+                self._send(frames)
+
+    @property
+    def active(self) -> bool:
+        from protocol.can.drive_profile import Phase
+
+        return self.lifecycle.phase is Phase.ACTIVE
+
+    def send_torques(self, tau1: float, tau2: float, row: int = -1) -> int:
+        """Send both wheel torques; returns the send time (0 when the drives are not armed)."""
+        from protocol.can.wheel_mapping import motor_torques
+
+        q = motor_torques(self.geometry, tau1, tau2)
+        with self._lock:
+            frames = self.lifecycle.torque_frames(q.right, q.left)
+        if not frames:
+            return 0
+        return self._send(frames, row)
+
+    def close(self) -> None:
+        with self._lock:
+            frames = self.lifecycle.stop()
+        self._send(frames)
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        with contextlib.suppress(Exception):  # a bus already gone is fine on the way out
+            self.bus.shutdown()
+
+
+class ControllerService:
+    """The shell around :class:`ControlCore` (see the module docstring)."""
+
+    def __init__(
+        self,
+        core: ControlCore,
+        session: Any,
+        robot_id: str,
+        epoch_ns: int,
+        rate_hz: float,
+        trigger: str = "periodic",
+        lockstep: bool = False,
+        state_timeout: float = 0.05,
+        can_path: CanCommandPath | None = None,
+        law_name: str = "unified",
+        spin_ns: int = 0,
+    ) -> None:
+        from hil.run.zsession import payload_bytes, publisher
+
+        self.core = core
+        self.session = session
+        self.robot_id = robot_id
+        self.epoch_ns = int(epoch_ns)
+        self.period_ns = round(1e9 / rate_hz)
+        self.trigger = "on_state" if lockstep else trigger
+        self.lockstep = lockstep
+        self.state_timeout_ns = int(state_timeout * 1e9)
+        self.can_path = can_path
+        self.law_name = law_name
+        self.spin_ns = spin_ns
+        self.rejections = RejectionCounter()
+        self.tracker = SequenceTracker()
+        self._payload = payload_bytes
+        self._pub_cmd = publisher(session, keys.torque_key(robot_id))
+        self._pub_tel = publisher(session, keys.telemetry_key(robot_id))
+        self._pub_status = publisher(session, keys.status_key(robot_id))
+        self._newest: Received | None = None
+        self._last_used_seq = -1
+        self._last_fresh_ns = time.monotonic_ns()
+        self._stale = False
+        self.stale_entries = 0
+        self._cmd_seq = 0
+        self._last_cmd: bytes | None = None
+        self._tel_seq = 0
+        self._status_seq = 0
+        self._lock = threading.Lock()
+        self.log: list[tuple] = []
+        self.scheduling = SchedulingReport()
+        self.clock: DeadlineClock | None = None
+        self.cycles = 0
+        self.states_seen = 0
+        self._sub = session.declare_subscriber(keys.state_key(robot_id), self._on_state)
+
+    # --- receive ------------------------------------------------------------------------
+    def _on_state(self, sample: Any) -> None:
+        recv_ns = time.monotonic_ns()
+        msg = decode_counted(self._payload(sample), self.rejections, State)
+        if msg is None:
+            return
+        if msg.robot_id != self.robot_id:
+            self.rejections.count("wrong_robot")
+            return
+        with self._lock:
+            if not self.tracker.observe(msg.seq).fresh:
+                if self.lockstep and msg.seq == self._last_used_seq and self._last_cmd:
+                    # The plant re-sent the state because our command was lost: answer again
+                    # with the same command (same seq), never recompute (memory moved on).
+                    self._pub_cmd.put(self._last_cmd)
+                return
+            self.states_seen += 1
+            rec = Received(msg, recv_ns)
+            self._newest = rec
+            if self.trigger == "on_state":
+                self._cycle(msg.seq, recv_ns, recv_ns, rec)
+
+    # --- one control cycle -----------------------------------------------------------------
+    def _law_time(self, st: State) -> float:
+        if self.lockstep:
+            return st.seq * self.core.dt
+        return (st.sample_time_ns - self.epoch_ns) / 1e9
+
+    def _cycle(self, k: int, deadline_ns: int, wake_ns: int, rec: Received | None) -> None:
+        flags = 0
+        if rec is not None and rec.state.seq > self._last_used_seq:
+            st = rec.state
+            self._last_used_seq = st.seq
+            self._last_fresh_ns = rec.recv_ns
+            if self._stale:
+                self._stale = False
+            c0 = time.monotonic_ns()
+            tau1, tau2, tel = self.core.step(
+                self._law_time(st), RobotState(st.x, st.y, st.theta, st.v, st.omega)
+            )
+            c1 = time.monotonic_ns()
+            state_seq, sample_ns, send_state_ns, recv_ns = (
+                st.seq,
+                st.sample_time_ns,
+                st.send_time_ns,
+                rec.recv_ns,
+            )
+        elif wake_ns - self._last_fresh_ns > self.state_timeout_ns:
+            if not self._stale:
+                self._stale = True
+                self.stale_entries += 1
+            flags |= FLAG_WATCHDOG_ZERO
+            tau1 = tau2 = 0.0
+            tel = {}
+            c0 = c1 = time.monotonic_ns()
+            state_seq = max(self._last_used_seq, 0)
+            sample_ns = send_state_ns = recv_ns = 0
+        else:
+            # No new sample and not yet stale: the last command stands. The tick is still
+            # logged, so wake-up lateness and jitter cover every cycle.
+            self.log.append(
+                (k, deadline_ns, wake_ns, -1, 0, 0, 0, 0, 0, 0, 0, -1, 0.0, 0.0, FLAG_NO_SEND)
+            )
+            return
+        zsend, csend = self._publish(state_seq, sample_ns, c0, tau1, tau2, flags, tel)
+        self.cycles += 1
+        self.log.append(
+            (
+                k,
+                deadline_ns,
+                wake_ns,
+                state_seq,
+                sample_ns,
+                send_state_ns,
+                recv_ns,
+                c0,
+                c1,
+                zsend,
+                csend,
+                self._cmd_seq - 1,
+                tau1,
+                tau2,
+                flags,
+            )
+        )
+
+    def _publish(
+        self,
+        state_seq: int,
+        sample_ns: int,
+        c0: int,
+        tau1: float,
+        tau2: float,
+        flags: int,
+        tel: dict[str, Any],
+    ) -> tuple[int, int]:
+        send_ns = time.monotonic_ns()
+        cmd = TorqueCommand(
+            self.robot_id,
+            self._cmd_seq,
+            state_seq,
+            sample_ns,
+            c0,
+            send_ns,
+            tau1,
+            tau2,
+            self.law_name,
+            flags,
+        )
+        self._cmd_seq += 1
+        self._last_cmd = encode(cmd)
+        self._pub_cmd.put(self._last_cmd)
+        csend = (
+            self.can_path.send_torques(tau1, tau2, len(self.log))
+            if self.can_path is not None
+            else 0
+        )
+        if tel and all(n in tel for n in TELEMETRY_FIELDS):
+            try:
+                self._pub_tel.put(
+                    encode(
+                        Telemetry(
+                            self.robot_id,
+                            self._tel_seq,
+                            sample_ns,
+                            *(float(tel[n]) for n in TELEMETRY_FIELDS),
+                        )
+                    )
+                )
+                self._tel_seq += 1
+            except ValueError:
+                self.rejections.count("telemetry_unencodable")
+        return send_ns, csend
+
+    def publish_status(self, state: str = "running") -> None:
+        flags = STATUS_WATCHDOG_TRIPPED if self._stale else 0
+        if self.can_path is not None and self.can_path.lifecycle.fault_reason:
+            flags |= STATUS_FAULT
+        counters = {
+            "cycles": self.cycles,
+            "states": self.states_seen,
+            "stale_entries": self.stale_entries,
+            "rejections": self.rejections.total + self.core.rejections.total,
+            "deadline_misses": self.clock.misses if self.clock else 0,
+            "sched_fifo": int(self.scheduling.policy == "SCHED_FIFO"),
+            "mlockall": int(self.scheduling.mlockall),
+            "gc_frozen": int(self.scheduling.gc_frozen),
+        }
+        if self.can_path is not None:
+            counters["can_active"] = int(self.can_path.active)
+        msg = Status(
+            self.robot_id,
+            self._status_seq,
+            time.monotonic_ns(),
+            "controller",
+            state,
+            flags,
+            counters,
+        )
+        self._status_seq += 1
+        self._pub_status.put(encode(msg))
+
+    # --- main loop -----------------------------------------------------------------------
+    def run(self, stop: Any, end_ns: int | None, scheduling: SchedulingReport) -> None:
+        """Run until ``stop`` is truthy or ``end_ns`` (monotonic) passes."""
+        self.scheduling = scheduling
+        status_every_ns = 200_000_000
+        self._last_fresh_ns = max(self._last_fresh_ns, self.epoch_ns)
+        next_status = time.monotonic_ns()
+        if self.trigger == "periodic":
+            # Start on the epoch's grid so the controller's ticks keep a fixed phase to the
+            # plant's sensor ticks (no drift between the two processes).
+            now = time.monotonic_ns()
+            start = self.epoch_ns + max(0, -(-(now - self.epoch_ns) // self.period_ns)) * (
+                self.period_ns
+            )
+            # Half a period after the plant's sample: the state (sent ~0.2-0.5 ms after its
+            # sample on a loaded host) is then in hand at the tick in most cycles.
+            start += self.period_ns // 2
+            self.clock = DeadlineClock(self.period_ns, start, self.spin_ns)
+            while not stop and (end_ns is None or time.monotonic_ns() < end_ns):
+                tick = self.clock.next()
+                self._cycle(tick.k, tick.deadline_ns, tick.wake_ns, self._newest)
+                if tick.wake_ns >= next_status:
+                    next_status = tick.wake_ns + status_every_ns
+                    self.publish_status()
+        else:
+            while not stop and (end_ns is None or time.monotonic_ns() < end_ns):
+                time.sleep(0.01)
+                now = time.monotonic_ns()
+                if not self.lockstep and now - self._last_fresh_ns > self.state_timeout_ns:
+                    with self._lock:
+                        self._cycle(-1, now, now, None)
+                if now >= next_status:
+                    next_status = now + status_every_ns
+                    self.publish_status()
+        self.publish_status("stopped")
+
+    def send_stop(self) -> None:
+        """A last zero command flagged STOP, so the plant idles at once."""
+        self._publish(max(self._last_used_seq, 0), 0, time.monotonic_ns(), 0.0, 0.0, FLAG_STOP, {})
+
+    def write_log(self, path: str | Path, extra: dict[str, Any]) -> None:
+        data = {
+            "fields": list(LOG_FIELDS),
+            "rows": self.log,
+            "period_ns": self.period_ns,
+            "epoch_ns": self.epoch_ns,
+            "trigger": self.trigger,
+            "lockstep": self.lockstep,
+            "scheduling": self.scheduling.as_dict(),
+            "deadline_misses": self.clock.misses if self.clock else 0,
+            "skipped_cycles": self.clock.skipped if self.clock else 0,
+            "state_counts": self.tracker.counts.as_dict(),
+            "rejections": {**self.rejections.snapshot(), **self.core.rejections.snapshot()},
+            "stale_entries": self.stale_entries,
+            "commands_sent": self._cmd_seq,
+            "can": None
+            if self.can_path is None
+            else {
+                "phase": self.can_path.lifecycle.phase.value,
+                "fault": self.can_path.lifecycle.fault_reason,
+                "frames_sent": self.can_path.sent_frames,
+                "arm_sends": self.can_path.arm_sends,
+                "rearms": self.can_path.rearms,
+                "torque_log": self.can_path.torque_log,
+                "send_errors": self.can_path.send_errors,
+                "rejections": self.can_path.lifecycle.rejections.snapshot(),
+            },
+            **extra,
+        }
+        Path(path).write_bytes(msgpack.packb(data, use_bin_type=True))
+
+
+def main_from_settings(settings_path: str) -> int:
+    """Entry of ``python -m controller_service --settings run_settings.json``."""
+    from hil.run.settings import RunSettings
+    from hil.run.wiring import build_control_core, open_can_bus
+    from hil.run.zsession import open_session
+    from hil.supervisor import stop_on_signals
+
+    s = RunSettings.load(settings_path)
+    core, law_name = build_control_core(s)
+    session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
+    can_path = None
+    bus = open_can_bus(s)
+    if bus is not None:
+        from protocol.can.drive_profile import HostLifecycle
+        from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit
+
+        geom = RobotGeometry(**s.robot)
+        lim = core.limits
+        lifecycle = HostLifecycle(
+            node_right=int(s.can.get("node_right", 1)),
+            node_left=int(s.can.get("node_left", 0)),
+            torque_limit=motor_torque_limit(geom, lim.varpi1, lim.varpi2),
+        )
+        can_path = CanCommandPath(bus, lifecycle, geom)
+    from hil.run.startgate import StartGate
+
+    epoch_ns = s.epoch_ns
+    gate = StartGate(session, s.robot_id, "controller")
+    if can_path is not None:
+        can_path.start()  # arm the drives while waiting: the plant answers before the epoch
+    svc = ControllerService(
+        core,
+        session,
+        s.robot_id,
+        epoch_ns,
+        s.rate_hz,
+        trigger=s.trigger,
+        lockstep=s.lockstep,
+        state_timeout=s.state_timeout,
+        can_path=can_path,
+        law_name=law_name,
+        spin_ns=int(s.spin_us * 1000),
+    )
+    with stop_on_signals() as stop:
+        if epoch_ns == 0:
+            got = gate.wait(stop)
+            if got is None:
+                session.close()
+                return 1
+            epoch_ns = svc.epoch_ns = got
+        end_ns = None if s.lockstep else epoch_ns + int((s.duration + 2.0) * 1e9)
+        sched = setup_scheduling(s.scheduling, cpu=s.cpu_controller)
+        print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
+        try:
+            svc.run(stop, end_ns, sched)
+        finally:
+            from controller_service.realtime import restore_gc
+
+            restore_gc()
+            svc.send_stop()
+            if can_path is not None:
+                can_path.close()
+            svc.write_log(Path(s.out_dir) / "controller_log.msgpack", {})
+            session.close()
+    return 0

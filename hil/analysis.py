@@ -1,0 +1,375 @@
+"""Sampling-effect metrics: what the sampled, delayed loop did to the sliding-mode law.
+
+Pure functions of arrays (a trace's columns) and numbers; no files, no clocks. The paper's
+guarantees (Proposition 1, (13)-(18)) are continuous-time: the law (10) switches the torque on the
+sign of the sliding variables v~ = v - alpha_v and w~ = w - alpha_w, and under sampling those
+variables no longer stay at zero but chatter in a *quasi-sliding band* whose width grows with the
+sampling period and delay. The figures here measure that band, the switching rate of tau1 and
+tau2, the constraints (2) against their limits and against the sampled-data bound, the tracking
+error (4) and the deviation from the ideal (finely sampled) trajectory.
+
+Definitions (also in docs/reports.md):
+
+- reaching time: the first sample at which the sliding variable crosses zero (changes sign or is
+  exactly zero) or enters the boundary layer |s| <= threshold (eps1/eps2 of (19), 0 for (10));
+  the reaching phase of sliding-mode control ends at the first hit of the manifold s = 0.
+- band: over the samples after the reaching time, ``band_p99`` = p99 of |s| and ``band_max`` =
+  max |s|; also ``band_spread`` = max(s) - min(s).
+- switching rate: sign changes of a torque per second (zero samples skipped).
+- percentile: numpy's default ("linear", Hyndman-Fan type 7) percentile, written out so that the
+  figure is the same on every path; :func:`hdr_percentiles` gives the HDR-histogram figures the
+  recorder uses, equal to nearest-rank percentiles within the histogram's precision.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+PERCENTILES: tuple[float, ...] = (50.0, 90.0, 99.0, 99.9)
+# summary.json counts a violation beyond 1e-9 relative (CONTRACT.md); use the same tolerance.
+LIMIT_REL_TOL = 1e-9
+
+
+# --------------------------------------------------------------------------- percentiles
+
+
+def percentile(values: Iterable[float] | np.ndarray, q: float) -> float:
+    """The q-th percentile (0 <= q <= 100) by linear interpolation between closest ranks.
+
+    Identical to ``numpy.percentile(values, q)`` (method "linear"), including numpy's choice of
+    interpolating from the upper neighbour when the fraction is >= 0.5, which keeps results
+    monotone in q and exact at the sample values.
+    """
+    data = np.sort(np.asarray(values, dtype=float).ravel())
+    n = data.size
+    if n == 0:
+        raise ValueError("percentile of an empty sample")
+    if not 0.0 <= q <= 100.0:
+        raise ValueError(f"percentile {q} outside [0, 100]")
+    h = (n - 1) * (np.float64(q) / 100.0)
+    lo = math.floor(h)
+    hi = min(lo + 1, n - 1)
+    frac = float(h - lo)
+    a, b = float(data[lo]), float(data[hi])
+    diff = b - a
+    if frac >= 0.5:
+        return b - diff * (1.0 - frac)
+    return a + diff * frac
+
+
+def percentiles(
+    values: Iterable[float] | np.ndarray, qs: Sequence[float] = PERCENTILES
+) -> dict[str, float]:
+    """p50, p90, p99, p999 and max (keys as in summary.json's timing object)."""
+    data = np.asarray(values, dtype=float).ravel()
+    out = {_pkey(q): percentile(data, q) for q in qs}
+    out["max"] = float(np.max(data))
+    return out
+
+
+def _pkey(q: float) -> str:
+    return "p" + (f"{q:g}".replace(".", ""))
+
+
+def nearest_rank(values: Iterable[float] | np.ndarray, q: float) -> float:
+    """The nearest-rank percentile with HdrHistogram's rank rule: the value of rank
+    ``max(1, int(q/100 * n + 0.5))`` in the sorted sample."""
+    data = np.sort(np.asarray(values, dtype=float).ravel())
+    rank = max(1, int(q / 100.0 * data.size + 0.5))
+    return float(data[min(rank, data.size) - 1])
+
+
+def hdr_percentiles(
+    values_us: Iterable[int] | np.ndarray,
+    qs: Sequence[float] = PERCENTILES,
+    significant_figures: int = 3,
+    highest_us: int = 60_000_000,
+) -> dict[str, float]:
+    """Percentiles of integer microsecond values through an HDR histogram (as the recorder
+    keeps them). Each equals :func:`nearest_rank` within ``hdr_relative_precision``."""
+    from hdrh.histogram import HdrHistogram
+
+    hist = HdrHistogram(1, highest_us, significant_figures)
+    data = np.asarray(values_us, dtype=np.int64).ravel()
+    for value in data:
+        hist.record_value(max(1, int(value)))
+    out = {_pkey(q): float(hist.get_value_at_percentile(q)) for q in qs}
+    out["max"] = float(hist.get_max_value())
+    return out
+
+
+def hdr_relative_precision(significant_figures: int = 3) -> float:
+    """Worst relative error of an HDR histogram's value at the given significant figures: the
+    sub-bucket count is the power of two >= 2 * 10**figures, half of it spans one unit."""
+    sub_bucket_count = 2 ** math.ceil(math.log2(2 * 10**significant_figures))
+    return 1.0 / (sub_bucket_count // 2)
+
+
+# --------------------------------------------------------------------------- angles and errors
+
+
+def wrap_angle(a: np.ndarray | float) -> np.ndarray:
+    """Wrap to (-pi, pi]."""
+    w = np.mod(np.asarray(a, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
+    return np.where(w <= -np.pi, w + 2.0 * np.pi, w)
+
+
+def position_error(x: np.ndarray, y: np.ndarray, xd: np.ndarray, yd: np.ndarray) -> np.ndarray:
+    """Euclidean distance to the virtual robot (3): sqrt(xe^2 + ye^2) of (4)."""
+    return np.hypot(np.asarray(x) - np.asarray(xd), np.asarray(y) - np.asarray(yd))
+
+
+def heading_error(theta: np.ndarray, thetad: np.ndarray) -> np.ndarray:
+    """theta_e = theta - theta_d of (4), wrapped to (-pi, pi]."""
+    return wrap_angle(np.asarray(theta) - np.asarray(thetad))
+
+
+def body_errors(
+    x: np.ndarray, y: np.ndarray, theta: np.ndarray, xd: np.ndarray, yd: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """xe, ye of (4): the position error in the robot's frame."""
+    dx, dy = np.asarray(x) - xd, np.asarray(y) - yd
+    c, s = np.cos(theta), np.sin(theta)
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+# --------------------------------------------------------------------------- band and switching
+
+
+@dataclass(frozen=True)
+class Band:
+    """The quasi-sliding band of one sliding variable (v~ or w~ of (10))."""
+
+    reaching_time: float | None  # s from the trace's start; None: never reached the manifold
+    band_p99: float | None
+    band_max: float | None
+    band_spread: float | None
+    samples_after: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def reaching_index(s: np.ndarray, threshold: float = 0.0) -> int | None:
+    """Index of the first sample on or across the manifold s = 0 (see the module docstring)."""
+    s = np.asarray(s, dtype=float)
+    if s.size == 0:
+        return None
+    inside = np.abs(s) <= threshold
+    signs = np.sign(s)
+    crossed = np.zeros(s.size, dtype=bool)
+    crossed[1:] = signs[1:] * signs[:-1] < 0
+    hit = np.flatnonzero(inside | crossed)
+    return int(hit[0]) if hit.size else None
+
+
+def quasi_sliding_band(t: np.ndarray, s: np.ndarray, threshold: float = 0.0) -> Band:
+    """Reaching time and band of s after it (p99 |s|, max |s|, max(s) - min(s))."""
+    t = np.asarray(t, dtype=float)
+    s = np.asarray(s, dtype=float)
+    k = reaching_index(s, threshold)
+    if k is None:
+        return Band(None, None, None, None, 0)
+    after = s[k:]
+    mag = np.abs(after)
+    return Band(
+        reaching_time=float(t[k] - t[0]),
+        band_p99=percentile(mag, 99.0),
+        band_max=float(mag.max()),
+        band_spread=float(after.max() - after.min()),
+        samples_after=int(after.size),
+    )
+
+
+def switching_rate(t: np.ndarray, tau: np.ndarray) -> float:
+    """Sign changes of tau per second over the trace (zero samples skipped)."""
+    t = np.asarray(t, dtype=float)
+    signs = np.sign(np.asarray(tau, dtype=float))
+    signs = signs[signs != 0.0]
+    duration = float(t[-1] - t[0]) if t.size > 1 else 0.0
+    if duration <= 0.0 or signs.size < 2:
+        return 0.0
+    return float(np.count_nonzero(signs[1:] != signs[:-1]) / duration)
+
+
+# --------------------------------------------------------------------------- constraints
+
+
+@dataclass(frozen=True)
+class ConstraintFigure:
+    """One constraint of (2): the measured peak against its limit and (velocities) the
+    sampled-data bound of DESIGN.md / the certificate."""
+
+    name: str
+    peak: float
+    limit: float
+    bound: float | None
+
+    @property
+    def ratio(self) -> float:
+        """peak / limit: above 1 the constraint (2) is broken (overshoot = ratio - 1)."""
+        return self.peak / self.limit if self.limit > 0 else math.inf
+
+    @property
+    def held(self) -> bool:
+        return self.peak <= self.limit * (1.0 + LIMIT_REL_TOL)
+
+    @property
+    def within_bound(self) -> bool | None:
+        if self.bound is None:
+            return None
+        return self.peak <= self.bound * (1.0 + LIMIT_REL_TOL)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "peak": self.peak,
+            "limit": self.limit,
+            "ratio": self.ratio,
+            "held": self.held,
+            "bound": self.bound,
+            "within_bound": self.within_bound,
+        }
+
+
+def design_note_bounds(
+    *,
+    mu1: float,
+    mu2: float,
+    m1: float,
+    m2: float,
+    lam: float,
+    rho: float,
+    c2: float,
+    varpi1: float,
+    varpi2: float,
+    s1: float,
+    s2: float,
+    ts: float,
+    delay: float,
+) -> tuple[float, float]:
+    """The sampled-data bound as stated in DESIGN.md (before its caveats):
+    |v| <= mu1 + m1 + (varpi1 + s1)(Ts + delta),
+    |w| <= mu2 + lam mu1 + m2 + rho c2 + (varpi2 + s2)(Ts + delta).
+    Used only when the certificate module (controller_service.certificate) is not installed."""
+    gap = ts + delay
+    return (
+        mu1 + m1 + (varpi1 + s1) * gap,
+        mu2 + lam * mu1 + m2 + rho * c2 + (varpi2 + s2) * gap,
+    )
+
+
+# --------------------------------------------------------------------------- ideal trajectory
+
+
+def deviation_from_ideal(
+    t: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    t_ideal: np.ndarray,
+    x_ideal: np.ndarray,
+    y_ideal: np.ndarray,
+) -> np.ndarray:
+    """Distance at each sample time between the trace and the ideal trajectory (the same
+    scenario simulated at a fine period, standing in for continuous time), the ideal one
+    linearly interpolated onto the trace's times."""
+    xi = np.interp(t, t_ideal, x_ideal)
+    yi = np.interp(t, t_ideal, y_ideal)
+    return np.hypot(np.asarray(x) - xi, np.asarray(y) - yi)
+
+
+def timing_gaps(sample_times: np.ndarray) -> np.ndarray:
+    """Gaps between successive sample times (the Ts the loop really had)."""
+    st = np.asarray(sample_times, dtype=float)
+    return np.diff(st) if st.size > 1 else np.zeros(0)
+
+
+# --------------------------------------------------------------------------- whole trace
+
+
+def last_fraction_rms(t: np.ndarray, e: np.ndarray, fraction: float = 0.1) -> float:
+    """RMS of e over the last ``fraction`` of the run (as summary.json's rms_position_error)."""
+    t = np.asarray(t, dtype=float)
+    e = np.asarray(e, dtype=float)
+    start = t[-1] - fraction * (t[-1] - t[0])
+    tail = e[t >= start]
+    return float(np.sqrt(np.mean(tail**2))) if tail.size else float("nan")
+
+
+def _peak(values: np.ndarray) -> float:
+    """max |x|, ignoring missing (NaN) samples: a run's trace has gaps where no command was in
+    force; an all-missing column has no peak (0)."""
+    mag = np.abs(np.asarray(values, dtype=float))
+    known = mag[~np.isnan(mag)]  # an infinite velocity is a broken limit, not a gap
+    return float(known.max()) if known.size else 0.0
+
+
+def sampling_effects(
+    trace: Mapping[str, np.ndarray],
+    *,
+    phi1: float,
+    phi2: float,
+    varpi1: float,
+    varpi2: float,
+    v_bound: float | None = None,
+    w_bound: float | None = None,
+    eps1: float = 0.0,
+    eps2: float = 0.0,
+    ideal: Mapping[str, np.ndarray] | None = None,
+    sliding: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
+) -> dict[str, Any]:
+    """Every sampling-effect figure of one trace (columns of trace.csv as arrays).
+
+    Needs t, x, y, theta, v, omega, xd, yd, thetad, tau1, tau2; the bands use the trace's
+    v_tilde / w_tilde columns, else ``sliding`` (name -> (t, values), e.g. a run's recorded
+    telemetry), else are marked unavailable (None)."""
+    t = np.asarray(trace["t"], dtype=float)
+    pos = position_error(trace["x"], trace["y"], trace["xd"], trace["yd"])
+    head = heading_error(trace["theta"], trace["thetad"])
+    out: dict[str, Any] = {
+        "duration": float(t[-1] - t[0]) if t.size else 0.0,
+        "samples": int(t.size),
+        "tracking": {
+            "final_position_error": float(pos[-1]),
+            "final_heading_error": float(head[-1]),
+            "max_position_error": float(pos.max()),
+            "rms_position_error_last10": last_fraction_rms(t, pos),
+        },
+    }
+    bands: dict[str, Any] = {}
+    for name, eps in (("v_tilde", eps1), ("w_tilde", eps2)):
+        col = trace.get(name)
+        if col is not None:
+            bands[name] = quasi_sliding_band(t, col, eps).as_dict()
+        elif sliding and name in sliding and len(sliding[name][0]) > 1:
+            ts_, s_ = sliding[name]
+            bands[name] = quasi_sliding_band(ts_, s_, eps).as_dict()
+        else:
+            bands[name] = None
+    out["bands"] = bands
+    out["switching_rate"] = {
+        "tau1": switching_rate(t, trace["tau1"]),
+        "tau2": switching_rate(t, trace["tau2"]),
+    }
+    cons = [
+        ConstraintFigure("v", _peak(trace["v"]), phi1, v_bound),
+        ConstraintFigure("omega", _peak(trace["omega"]), phi2, w_bound),
+        ConstraintFigure("tau1", _peak(trace["tau1"]), varpi1, None),
+        ConstraintFigure("tau2", _peak(trace["tau2"]), varpi2, None),
+    ]
+    out["constraints"] = {c.name: c.as_dict() for c in cons}
+    if ideal is not None:
+        dev = deviation_from_ideal(t, trace["x"], trace["y"], ideal["t"], ideal["x"], ideal["y"])
+        out["deviation_from_ideal"] = {
+            "max": float(dev.max()),
+            "rms": float(np.sqrt(np.mean(dev**2))),
+            "final": float(dev[-1]),
+        }
+    else:
+        out["deviation_from_ideal"] = None
+    return out

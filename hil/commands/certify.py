@@ -1,0 +1,172 @@
+"""``hil certify SCENARIO.toml --ts S --delay S [--json]``: the sampled-data certificate.
+
+Checks Assumption 2, (9), (11), (12) and the bound of docs/sampled_data_bound.md for the
+scenario's unified law, says whether (2) is guaranteed at that period and worst delay and, if
+not, proposes the nearest admissible parameters. Exit 0 held, 1 not held, 2 bad input.
+Defaults: --ts = [timing] ts, --delay = [timing] delay + the jitter's bound (uniform: jitter;
+normal: 4 standard deviations, as the report does).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from types import SimpleNamespace
+from typing import Any
+
+import typer
+
+from hil.errors import BadInput, NegativeVerdict
+
+_UNIFIED = ("unified", "unified_boundary")
+_GAINS = ("m1", "m2", "l1", "l2", "lam", "rho")
+_IGNORED = ("law", "jiang1997", "jiang2001")
+
+
+def _worst_delay(timing: Any) -> float:
+    spread = 4.0 * timing.jitter if timing.jitter_kind == "normal" else timing.jitter
+    return float(timing.delay + spread)
+
+
+def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
+    from controller_service.design import DesignError, resolve_auto
+    from controller_service.registry import EPS_DEFAULT, TABLE1
+
+    law = table.get("law", "unified")
+    if law not in _UNIFIED:
+        raise BadInput(f"[controller] law = {law!r}: the certificate covers the unified laws only")
+    boundary = law == "unified_boundary"
+    allowed = set(_GAINS) | set(_IGNORED) | (set(EPS_DEFAULT) if boundary else set())
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise BadInput(f"[controller] unknown key(s) for {law}: {', '.join(unknown)}")
+    values: dict[str, Any] = {**TABLE1, **({**EPS_DEFAULT} if boundary else {})}
+    values.update({k: v for k, v in table.items() if k in values})
+    for key, value in values.items():
+        if value == "auto" and key in ("lam", "rho"):
+            continue
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise BadInput(f"[controller] {key} must be a number, got {value!r}")
+        if not math.isfinite(float(value)):
+            raise BadInput(f"[controller] {key} must be finite, got {value!r}")
+    try:
+        resolved = resolve_auto(values, context)
+    except DesignError as exc:
+        raise NegativeVerdict(f"certificate not held: {exc}") from exc
+    return SimpleNamespace(**resolved.params), boundary, list(resolved.notes)
+
+
+def _table(cert: Any, title: str) -> Any:
+    from rich.table import Table
+
+    table = Table(title=title)
+    for column in ("condition", "value", "bound", "margin", "held"):
+        table.add_column(column, justify="left" if column == "condition" else "right")
+    for c in cert.conditions:
+        mark = "info" if c.kind == "info" else ("yes" if c.held else "NO")
+        if c.kind == "info" and not c.held:
+            mark = "info: no"
+        table.add_row(c.name, f"{c.value:.6g}", f"{c.bound:.6g}", f"{c.margin:.4g}", mark)
+    return table
+
+
+def certify_scenario(
+    path: str, ts: float | None, delay: float | None
+) -> tuple[Any, Any, dict[str, Any]]:
+    """(certificate, proposal or None, facts) for a scenario file; BadInput on bad input."""
+    from controller_service.certificate import CertificateError, certify, propose
+    from hil.scenario import build_reference, design_context, load_scenario
+
+    scenario = load_scenario(path)
+    context = design_context(scenario, build_reference(scenario))
+    params, boundary, notes = _params(dict(scenario.controller), context)
+    ts_used = scenario.timing.ts if ts is None else ts
+    delay_used = _worst_delay(scenario.timing) if delay is None else delay
+    init = scenario.initial
+    try:
+        cert = certify(
+            params,
+            context,
+            ts_used,
+            delay_used,
+            boundary,
+            v0=init.v,
+            w0=init.omega,
+            watchdog_timeout=scenario.realtime.command_timeout,
+        )
+        proposal = None
+        if not cert.held:
+            proposal = propose(
+                params, context, ts_used, delay_used, boundary, v0=init.v, w0=init.omega
+            )
+    except CertificateError as exc:
+        raise BadInput(str(exc)) from exc
+    facts = {
+        "scenario": str(path),
+        "law": "unified_boundary" if boundary else "unified",
+        "params": dict(vars(params)),
+        "auto_notes": notes,
+    }
+    return cert, proposal, facts
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("certify")
+    def certify_command(
+        scenario: str = typer.Argument(..., help="Scenario TOML file."),
+        ts: float = typer.Option(
+            None,
+            "--ts",
+            help="Longest gap between sample times of "
+            "successive applied commands, s (default: [timing] ts).",
+        ),
+        delay: float = typer.Option(
+            None,
+            "--delay",
+            help="Worst sample-to-apply latency, s (default: [timing] delay + jitter bound).",
+        ),
+        as_json: bool = typer.Option(False, "--json", help="Print the certificate as JSON."),
+    ) -> None:
+        """Is (2) guaranteed for the sampled, delayed loop? (docs/sampled_data_bound.md)"""
+        cert, proposal, facts = certify_scenario(scenario, ts, delay)
+        if as_json:
+            out = {**facts, "certificate": cert.to_dict()}
+            if proposal is not None:
+                out["proposal"] = {
+                    "params": None if proposal.params is None else dict(vars(proposal.params)),
+                    "reason": proposal.reason,
+                    "changes": {k: list(v) for k, v in proposal.changes.items()},
+                }
+            typer.echo(json.dumps(out, indent=2))
+        else:
+            from rich.console import Console
+
+            console = Console()
+            law = facts["law"]
+            console.print(
+                _table(
+                    cert,
+                    f"{law}: certificate at ts = {cert.ts:g} s, "
+                    f"delay = {cert.delay:g} s (age D = {cert.age:g} s)",
+                )
+            )
+            console.print(
+                f"|v| <= {cert.v_bound:.6g} (phi1 = {cert.phi1:g}), "
+                f"|w| <= {cert.w_bound:.6g} (phi2 = {cert.phi2:g})"
+            )
+            for note in [*facts["auto_notes"], *cert.notes]:
+                console.print(f"- {note}")
+            verdict = "GUARANTEED" if cert.held else "NOT guaranteed"
+            console.print(f"(2) is {verdict} at this period and worst delay.")
+            if proposal is not None:
+                if proposal.params is None:
+                    console.print(f"No admissible design: {proposal.reason}")
+                else:
+                    changes = ", ".join(
+                        f"{k} {a:.6g} -> {b:.6g}" for k, (a, b) in proposal.changes.items()
+                    )
+                    console.print(f"Nearest admissible design: {changes}")
+        if not cert.held:
+            raise NegativeVerdict(
+                "certificate not held: " + ", ".join(c.name for c in cert.failed())
+            )

@@ -1,0 +1,32 @@
+"""``hil compare DIR_A DIR_B``: two run or simulation folders side by side."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("compare")
+    def compare(
+        dir_a: Annotated[Path, typer.Argument(help="First run or simulation folder (A).")],
+        dir_b: Annotated[Path, typer.Argument(help="Second folder (B).")],
+        out: Annotated[
+            Path | None,
+            typer.Option("--out", help="Where to write (default: a new folder under runs/)."),
+        ] = None,
+    ) -> None:
+        """Overlaid trajectories, v, ω, τ1, τ2 and position error of two folders (the Zenoh
+        path against the CAN path, two rates, a run against its simulation) and a table of
+        summary figures with their differences (B - A): compare.html, compare.md,
+        compare.json, PNG + CSV per figure. Exit 0, or 2 when a folder is not a run."""
+        from hil.report.compare import build_compare
+        from hil.report.folder import load_folder
+
+        fa, fb = load_folder(dir_a), load_folder(dir_b)
+        target = out or Path("runs") / time.strftime("compare-%Y%m%d-%H%M%S")
+        build_compare(fa, fb, target)
+        typer.echo(f"compare: {target / 'compare.html'}")

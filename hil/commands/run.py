@@ -1,0 +1,89 @@
+"""``hil run``: the controller and the emulated robot as two real processes (see hil.run)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from hil.errors import NegativeVerdict
+
+
+class RunInterrupted(Exception):  # noqa: N818 - not an error: a user's Ctrl-C
+    """Ctrl-C/SIGTERM ended the run early; the folder was written. Exit code 130 (as a shell
+    reports SIGINT), carried the way :func:`hil.cli.main` maps click-style exit codes."""
+
+    exit_code = 130
+
+    def show(self) -> None:
+        typer.echo(f"interrupted: run folder written to {self}", err=True)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("run")
+    def run(
+        scenario: Annotated[
+            Path | None,
+            typer.Argument(help="Scenario TOML (default: the paper's tracking circle, 10 s)."),
+        ] = None,
+        duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
+        rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,
+        cmd_path: Annotated[
+            str, typer.Option(help="Applied command path: zenoh or can.")
+        ] = "zenoh",
+        lockstep: Annotated[
+            bool, typer.Option(help="Advance the plant one period per command.")
+        ] = False,
+        trigger: Annotated[
+            str | None,
+            typer.Option(help="periodic (absolute deadlines) or on_state."),
+        ] = None,
+        can: Annotated[bool, typer.Option(help="Keep the CAN path live (as shadow).")] = True,
+        can_interface: Annotated[
+            str | None, typer.Option(help="python-can interface (default zenoh_can).")
+        ] = None,
+        can_channel: Annotated[str | None, typer.Option(help="python-can channel.")] = None,
+        spin_us: Annotated[float, typer.Option(help="Spin this long before each deadline.")] = 0.0,
+        out: Annotated[Path | None, typer.Option(help="Run folder (default runs/run-*).")] = None,
+        quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    ) -> None:
+        """Run the controller against the emulated robot over Zenoh and CAN and record it."""
+        from hil.run.orchestrate import RunOptions, execute
+
+        summary = execute(
+            RunOptions(
+                scenario=scenario,
+                duration=duration,
+                rate=rate,
+                cmd_path=cmd_path,
+                lockstep=lockstep,
+                out=out,
+                trigger=trigger,
+                can_live=can,
+                can_interface=can_interface,
+                can_channel=can_channel,
+                spin_us=spin_us,
+                quiet=quiet,
+            )
+        )
+        t = summary.get("timing", {})
+        brief = {
+            "run_dir": summary.get("run_dir"),
+            "final_position_error": summary.get("final_position_error"),
+            "max_abs_v": summary.get("max_abs_v"),
+            "max_abs_omega": summary.get("max_abs_omega"),
+            "violations": summary.get("violations"),
+            "wakeup_lateness_p99_us": (t.get("wakeup_lateness") or {}).get("p99_us"),
+            "sample_to_apply_p50_us": (t.get(f"sample_to_apply_{cmd_path}") or {}).get("p50_us"),
+            "deadline_misses": t.get("deadline_misses"),
+            "interrupted": summary.get("interrupted"),
+        }
+        typer.echo(json.dumps(brief, indent=2))
+        if summary.get("interrupted"):
+            raise RunInterrupted(summary.get("run_dir"))
+        if summary.get("error"):
+            raise NegativeVerdict(str(summary["error"]))
+        if any(int(v) > 0 for v in (summary.get("violations") or {}).values()):
+            raise NegativeVerdict(f"constraint (2) broken: {summary['violations']}")

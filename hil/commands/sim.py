@@ -1,0 +1,73 @@
+"""``hil sim SCENARIO.toml --out DIR``: one offline closed loop, written as a run folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from hil.errors import NegativeVerdict
+
+
+def run_with_progress(fn, description: str):  # type: ignore[no-untyped-def]
+    """Call ``fn(progress)`` under a rich progress bar on stderr (quiet when not a terminal)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    console = Console(stderr=True)
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.percentage:>3.0f}%"),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+        disable=not console.is_terminal,
+    ) as bar:
+        task = bar.add_task(description, total=1)
+
+        def progress(k: int, total: int) -> None:
+            bar.update(task, completed=k, total=total)
+
+        return fn(progress)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("sim")
+    def sim(
+        scenario: Annotated[Path, typer.Argument(help="Scenario TOML file (docs/scenario.md).")],
+        out: Annotated[
+            Path | None, typer.Option("--out", help="Folder to write (default: runs/sim-<time>).")
+        ] = None,
+        duration: Annotated[
+            float | None, typer.Option("--duration", help="Override [run] duration (s).")
+        ] = None,
+        ts: Annotated[
+            float | None, typer.Option("--ts", help="Override [timing] ts, the control period (s).")
+        ] = None,
+    ) -> None:
+        """Simulate one closed loop offline (law at Ts with zero-order hold, RK4 plant, delay and
+        jitter as the scenario says) and write scenario.resolved.toml, trace.csv, summary.json.
+
+        Exit 1 when a limit of (2) was broken at some plant step."""
+        from hil.scenario import load_scenario
+        from hil.sim import new_run_dir, simulate, write_run_folder
+
+        sc = load_scenario(scenario).with_overrides(duration=duration, ts=ts)
+        result = run_with_progress(lambda p: simulate(sc, progress=p), f"sim {scenario.name}")
+        folder = write_run_folder(result, out or new_run_dir("runs", "sim"))
+        s = result.summary
+        if result.interrupted:
+            typer.echo(
+                f"interrupted at t = {s['duration']:.3f} s: wrote what was computed to {folder}",
+                err=True,
+            )
+        typer.echo(
+            f"{folder}: final position error {s['final_position_error']:.4g} m, heading "
+            f"{s['final_heading_error']:.4g} rad; max |v| {s['max_abs_v']:.4g}, |omega| "
+            f"{s['max_abs_omega']:.4g}, |tau1| {s['max_abs_tau1']:.4g}, |tau2| "
+            f"{s['max_abs_tau2']:.4g}; violations {s['violations']}"
+        )
+        if not s["limits_held"]:
+            raise NegativeVerdict(f"a limit of (2) was broken: violations {s['violations']}")

@@ -1,0 +1,358 @@
+"""``hil paper``: the paper's Section 4 reproduced offline (Figures 2-20 and a table).
+
+Runs (scenario files under ``scenarios/``, initial conditions stated there):
+
+- tracking (Figures 2-6), stabilization (7-11), chattering reduction (19) (12-14);
+- the comparison with [7] on the tracking run (15-17);
+- the comparison with [19] on circle_then_stop, both laws on the same reference (18-20).
+
+Every run uses the single-run float simulator at Ts = 1 ms, h = 0.1 ms and the durations of
+the scenario files (150 s, 300 s, 100 s), spread over ``jobs`` processes (default 2: the
+machine's cores); ``quick`` divides every duration by 5 for smoke tests (then the convergence
+checks are not judged). Each figure's data is a CSV beside its PNG; ``table.md`` and
+``table.json`` hold the measured figures and the checks of issue 2.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hil.provenance import dumps_toml
+from hil.scenario import load_scenario
+from hil.sim import SimResult, simulate
+from hil.sim.folder import write_json, write_run_folder
+
+SCENARIO_DIR = Path(__file__).resolve().parents[2] / "scenarios"
+QUICK_FACTOR = 5.0
+JOLT_WINDOW = 0.5
+JOLT_SPAN = 5.0
+# [19] must jolt clearly, not by rounding: its jolt at least this many times the unified law's.
+JOLT_RATIO = 1.5
+
+
+@dataclass(frozen=True)
+class PaperRun:
+    name: str
+    scenario: str
+    label: str
+
+
+RUNS = (
+    PaperRun("tracking", "paper_tracking.toml", "unified"),
+    PaperRun("stabilization", "paper_stabilization.toml", "unified"),
+    PaperRun("chattering", "paper_chattering.toml", "unified (19)"),
+    PaperRun("compare_jiang1997", "paper_compare_jiang1997.toml", "[7]"),
+    PaperRun("compare_jiang2001", "paper_compare_jiang2001.toml", "[19]"),
+    PaperRun("circle_then_stop_unified", "paper_circle_then_stop_unified.toml", "unified"),
+)
+
+
+def velocity_jolt(
+    t: np.ndarray,
+    v: np.ndarray,
+    stop_time: float,
+    window: float = JOLT_WINDOW,
+    span: float = JOLT_SPAN,
+) -> float:
+    """Largest change of v smoothed over ``window`` within ``span`` after ``stop_time``.
+
+    v is averaged over the trailing ``window`` (this removes the +-varpi1 chattering of a sign
+    law), then the change |v_s(t) - v_s(t - window)| is maximised over
+    stop_time <= t <= stop_time + span.
+    """
+    if len(t) < 2:
+        return float("nan")
+    ts = float(t[1] - t[0])
+    w = max(1, round(window / ts))
+    csum = np.concatenate([[0.0], np.cumsum(v)])
+    vs = np.full(len(v), np.nan)
+    vs[w - 1 :] = (csum[w:] - csum[:-w]) / w
+    change = np.full(len(v), np.nan)
+    change[w:] = np.abs(vs[w:] - vs[:-w])
+    mask = (t >= stop_time) & (t <= stop_time + span) & np.isfinite(change)
+    return float(np.max(change[mask])) if mask.any() else float("nan")
+
+
+def _run_one(path: str, scale: float) -> SimResult:
+    sc = load_scenario(path)
+    if scale != 1.0:
+        sc = sc.with_overrides(duration=sc.run.duration / scale)
+    return simulate(sc)
+
+
+def _error_at(result: SimResult, t_check: float) -> float:
+    t = result.column("t")
+    e = result.column("position_error")
+    i = int(np.searchsorted(t, t_check - 1e-9))
+    return float(e[min(i, len(e) - 1)])
+
+
+def _row(run: PaperRun, result: SimResult) -> dict[str, Any]:
+    s = result.summary
+    return {
+        "run": run.name,
+        "law": s["law"],
+        "scenario": run.scenario,
+        "duration": s["duration"],
+        "ts": s["ts"],
+        "plant_step": s["plant_step"],
+        "final_position_error": s["final_position_error"],
+        "final_heading_error": s["final_heading_error"],
+        "rms_position_error": s["rms_position_error"],
+        "max_abs_v": s["max_abs_v"],
+        "max_abs_omega": s["max_abs_omega"],
+        "max_abs_tau1": s["max_abs_tau1"],
+        "max_abs_tau2": s["max_abs_tau2"],
+        "violations": s["violations"],
+    }
+
+
+def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
+    """The checks of issue 2 on the paper's runs (convergence checks skipped when quick)."""
+    out: list[dict[str, Any]] = []
+
+    def add(name: str, ok: bool | None, measured: str) -> None:
+        out.append({"check": name, "passed": ok, "measured": measured})
+
+    tr = results["tracking"]
+    if quick:
+        add("tracking: position error < 0.02 m by t = 150 s", None, "not judged (--quick)")
+    else:
+        e = _error_at(tr, 150.0 - tr.scenario.timing.ts)
+        add("tracking: position error < 0.02 m by t = 150 s", e < 0.02, f"{e:.4g} m")
+    for name in ("tracking", "stabilization", "chattering", "circle_then_stop_unified"):
+        v = results[name].summary["violations"]
+        add(f"{name}: limits (2) hold at every plant step", not any(v.values()), str(v))
+    st = results["stabilization"]
+    if quick:
+        add("stabilization: position error at 300 s < 0.6 m", None, "not judged (--quick)")
+    else:
+        e = st.summary["final_position_error"]
+        add("stabilization: position error at 300 s < 0.6 m", e < 0.6, f"{e:.4g} m")
+    j7 = results["compare_jiang1997"].summary
+    u = tr.summary
+    add(
+        "[7] breaks |v| <= phi1 on the tracking run, the unified law does not",
+        j7["violations"]["v"] > 0 and u["violations"]["v"] == 0,
+        f"[7] max |v| {j7['max_abs_v']:.4g}, unified {u['max_abs_v']:.4g}",
+    )
+    j19 = results["compare_jiang2001"]
+    un = results["circle_then_stop_unified"]
+    stop = float(un.scenario.reference.get("stop_time", 70.0))
+    if j19.column("t")[-1] < stop + JOLT_SPAN or un.column("t")[-1] < stop + JOLT_SPAN:
+        add("[19] jolts at the switch, the unified law does not", None, "run too short")
+    else:
+        jolt19 = velocity_jolt(j19.column("t"), j19.column("v"), stop)
+        jolt_u = velocity_jolt(un.column("t"), un.column("v"), stop)
+        add(
+            "[19] jolts at the switch, the unified law does not",
+            jolt19 >= JOLT_RATIO * jolt_u,
+            f"needs [19] >= {JOLT_RATIO:g} x unified; largest change of v smoothed over "
+            f"{JOLT_WINDOW} s within {JOLT_SPAN} s of the stop: [19] {jolt19:.4g} m/s, "
+            f"unified {jolt_u:.4g} m/s",
+        )
+    return out
+
+
+def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note: str) -> str:
+    head = (
+        "| run | law | final pos. err (m) | final heading err (rad) | rms pos. err, last 10% (m) "
+        "| max abs v | max abs omega | max abs tau1 | max abs tau2 | violations v/omega/tau1/tau2 |"
+    )
+    lines = ["# Li et al. 2024, Section 4, reproduced offline", "", note, "", head]
+    lines.append("|" + "---|" * 10)
+    for r in rows:
+        v = r["violations"]
+        lines.append(
+            f"| {r['run']} | {r['law']} | {r['final_position_error']:.4g} | "
+            f"{r['final_heading_error']:.4g} | {r['rms_position_error']:.4g} | "
+            f"{r['max_abs_v']:.4g} | {r['max_abs_omega']:.4g} | {r['max_abs_tau1']:.4g} | "
+            f"{r['max_abs_tau2']:.4g} | {v['v']}/{v['omega']}/{v['tau1']}/{v['tau2']} |"
+        )
+    lines += ["", "## Checks (issue 2)", "", "| check | result | measured |", "|---|---|---|"]
+    for c in check_rows:
+        verdict = {True: "pass", False: "FAIL", None: "not judged"}[c["passed"]]
+        lines.append(f"| {c['check']} | {verdict} | {c['measured']} |")
+    return "\n".join(lines) + "\n"
+
+
+def make_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
+    """Figures 2-20 in the paper's style (PNG, data as CSV beside each)."""
+    from hil.paper import figures as fg
+
+    lim = results["tracking"].scenario.limits
+    figs: list[Path] = []
+    for name, first, task in (("tracking", 2, "Tracking"), ("stabilization", 7, "Stabilization")):
+        r = results[name]
+        figs.append(
+            fg.trajectory(
+                out / f"fig{first:02d}_{name}_xy.png",
+                f"{task} task: robot position",
+                [("robot", r)],
+                r,
+            )
+        )
+        for i, (col, label, limit) in enumerate(
+            (
+                ("v", "v (m/s)", lim.phi1),
+                ("omega", "omega (rad/s)", lim.phi2),
+                ("tau1", "tau1 (N m)", lim.varpi1),
+                ("tau2", "tau2 (N m)", lim.varpi2),
+            ),
+            start=1,
+        ):
+            figs.append(
+                fg.over_time(
+                    out / f"fig{first + i:02d}_{name}_{col}.png",
+                    f"{task} task: {col} and its constraints",
+                    label,
+                    [col],
+                    [("robot", r)],
+                    limit,
+                )
+            )
+    ch = results["chattering"]
+    figs.append(
+        fg.over_time(
+            out / "fig12_chattering_errors.png",
+            "Chattering reduction (19): position and heading errors",
+            "error (m, rad)",
+            ["position_error", "heading_error"],
+            [("robot", ch)],
+        )
+    )
+    figs.append(
+        fg.over_time(
+            out / "fig13_chattering_tau1.png",
+            "Chattering reduction: tau1",
+            "tau1 (N m)",
+            ["tau1"],
+            [("robot", ch)],
+            lim.varpi1,
+        )
+    )
+    figs.append(
+        fg.over_time(
+            out / "fig14_chattering_tau2.png",
+            "Chattering reduction: tau2",
+            "tau2 (N m)",
+            ["tau2"],
+            [("robot", ch)],
+            lim.varpi2,
+        )
+    )
+    j7 = results["compare_jiang1997"]
+    figs.append(
+        fg.trajectory(out / "fig15_jiang1997_xy.png", "Tracking with [7]", [("[7]", j7)], j7)
+    )
+    figs.append(
+        fg.over_time(
+            out / "fig16_jiang1997_v.png",
+            "Tracking with [7]: v",
+            "v (m/s)",
+            ["v"],
+            [("[7]", j7)],
+            lim.phi1,
+        )
+    )
+    figs.append(
+        fg.over_time(
+            out / "fig17_jiang1997_omega.png",
+            "Tracking with [7]: omega",
+            "omega (rad/s)",
+            ["omega"],
+            [("[7]", j7)],
+            lim.phi2,
+        )
+    )
+    pair = [
+        ("[19]", results["compare_jiang2001"]),
+        ("unified", results["circle_then_stop_unified"]),
+    ]
+    figs.append(
+        fg.trajectory(
+            out / "fig18_compare_xy.png",
+            "Circle then stop: [19] and the unified law",
+            pair,
+            pair[1][1],
+        )
+    )
+    figs.append(
+        fg.over_time(
+            out / "fig19_compare_v.png", "Circle then stop: v", "v (m/s)", ["v"], pair, lim.phi1
+        )
+    )
+    figs.append(
+        fg.over_time(
+            out / "fig20_compare_omega.png",
+            "Circle then stop: omega",
+            "omega (rad/s)",
+            ["omega"],
+            pair,
+            lim.phi2,
+        )
+    )
+    return figs
+
+
+def run_paper(
+    out: Path,
+    quick: bool = False,
+    jobs: int | None = None,
+    traces: bool = False,
+    scenario_dir: Path = SCENARIO_DIR,
+    log: Callable[[str], None] = lambda _msg: None,
+) -> dict[str, Any]:
+    """Run every paper scenario, write figures, table.md, table.json; return the table."""
+    out.mkdir(parents=True, exist_ok=True)
+    scale = QUICK_FACTOR if quick else 1.0
+    jobs = jobs or min(2, os.cpu_count() or 1)
+    paths = [str(scenario_dir / r.scenario) for r in RUNS]
+    for p in paths:
+        load_scenario(p)  # bad files fail before any work starts
+    results: dict[str, SimResult] = {}
+    if jobs > 1:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = {
+                r.name: pool.submit(_run_one, p, scale) for r, p in zip(RUNS, paths, strict=True)
+            }
+            for name, fut in futures.items():
+                results[name] = fut.result()
+                log(f"{name}: done")
+    else:
+        for r, p in zip(RUNS, paths, strict=True):
+            results[r.name] = _run_one(p, scale)
+            log(f"{r.name}: done")
+    for r in RUNS:
+        res = results[r.name]
+        run_dir = out / "runs" / r.name
+        if traces:
+            write_run_folder(res, run_dir)
+        else:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            (run_dir / "scenario.resolved.toml").write_text(dumps_toml(res.resolved))
+            write_json(run_dir / "summary.json", res.summary)
+    make_figures(results, out)
+    rows = [_row(r, results[r.name]) for r in RUNS]
+    check_rows = checks(results, quick)
+    note = (
+        f"Single-run float simulator, Ts = {results['tracking'].scenario.timing.ts * 1e3:g} ms, "
+        f"RK4 plant step h = {results['tracking'].scenario.plant_step * 1e3:g} ms"
+        + (f"; durations divided by {QUICK_FACTOR:g} (--quick)." if quick else ".")
+        + " Initial conditions: see the scenario files."
+    )
+    table = {"note": note, "runs": rows, "checks": check_rows, "quick": quick}
+    write_json(out / "table.json", table)
+    (out / "table.md").write_text(_markdown(rows, check_rows, note))
+    return table
+
+
+def failed_checks(table: dict[str, Any]) -> list[str]:
+    return [c["check"] for c in table["checks"] if c["passed"] is False]

@@ -1,0 +1,104 @@
+"""Provenance of a run (package version, git commit, host, start time) and a small TOML writer."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import platform
+import re
+import subprocess
+from collections.abc import Mapping
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _dist_version
+from pathlib import Path
+from typing import Any
+
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def package_version() -> str:
+    try:
+        return _dist_version("hil-smc-bench")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+def git_commit(start: Path | None = None) -> str:
+    """The commit of the source tree (with ``-dirty`` when it has changes), or "" outside git."""
+    cwd = start or Path(__file__).resolve().parent
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True, timeout=5
+        )
+        if head.returncode != 0:
+            return ""
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=cwd,
+            capture_output=True,
+            text=True,
+            timeout=5,
+        )
+        return head.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return ""
+
+
+def provenance(seeds: Mapping[str, Any], start_time: _dt.datetime | None = None) -> dict[str, Any]:
+    """The [provenance] table of scenario.resolved.toml."""
+    start = start_time or _dt.datetime.now(_dt.UTC)
+    return {
+        "package_version": package_version(),
+        "git_commit": git_commit(),
+        "host": platform.node(),
+        "python": platform.python_version(),
+        "start_time": start.isoformat(timespec="seconds"),
+        "seeds": dict(seeds),
+    }
+
+
+def _key(k: str) -> str:
+    return k if _BARE_KEY.match(k) else '"' + k.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, str):
+        escaped = v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+        return f'"{escaped}"'
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, Mapping):
+        return "{" + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + "}"
+    if isinstance(v, Path):
+        return _value(str(v))
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def dumps_toml(data: Mapping[str, Any]) -> str:
+    """TOML text of nested tables of scalars, lists and tables (None values are left out)."""
+    lines: list[str] = []
+
+    def table(prefix: str, body: Mapping[str, Any]) -> None:
+        scalars = [(k, v) for k, v in body.items() if v is not None and not isinstance(v, Mapping)]
+        subs = [(k, v) for k, v in body.items() if isinstance(v, Mapping)]
+        if prefix and (scalars or not subs):
+            lines.append(f"[{prefix}]")
+        for k, v in scalars:
+            lines.append(f"{_key(k)} = {_value(v)}")
+        if prefix and (scalars or not subs):
+            lines.append("")
+        for k, v in subs:
+            table(f"{prefix}.{_key(k)}" if prefix else _key(k), v)
+
+    table("", data)
+    return "\n".join(lines).rstrip() + "\n"

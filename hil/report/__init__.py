@@ -1,0 +1,1 @@
+"""Reports of run and simulation folders: ``hil report`` and ``hil compare``."""

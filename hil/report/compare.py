@@ -1,0 +1,140 @@
+"""``hil compare DIR_A DIR_B``: two folders side by side (Zenoh path against CAN path, two
+rates, a run against its simulation): overlaid trajectories, velocities and torques, and a
+table of summary and sampling-effect figures with their differences (B - A)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hil import analysis
+from hil.report import figures as fg
+from hil.report.build import _jsonable
+from hil.report.folder import Folder
+from hil.report.html import CSS, esc, figure, table
+from hil.report.markdown import _md_table
+from hil.report.scenario_view import view
+
+PREFIX = "compare_"
+
+
+def figures_of(folder: Folder) -> dict[str, float]:
+    """The scalar figures compared: summary.json's numbers and the sampling effects."""
+    sv = view(folder.scenario)
+    lim = sv.limits
+    m = analysis.sampling_effects(
+        folder.trace,
+        phi1=lim.phi1,
+        phi2=lim.phi2,
+        varpi1=lim.varpi1,
+        varpi2=lim.varpi2,
+        eps1=sv.eps1,
+        eps2=sv.eps2,
+    )
+    out: dict[str, float] = {"ts": sv.ts, "delay": sv.delay, "jitter": sv.jitter}
+    for k, v in folder.summary.items():
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            out[f"summary.{k}"] = float(v)
+        elif isinstance(v, dict) and k == "violations":
+            for kk, vv in v.items():
+                if isinstance(vv, int | float):
+                    out[f"violations.{kk}"] = float(vv)
+    for k, v in m["tracking"].items():
+        out[f"tracking.{k}"] = v
+    for name, c in m["constraints"].items():
+        out[f"max_over_limit.{name}"] = c["ratio"]
+    for name, b in m["bands"].items():
+        if b is not None:
+            out[f"band_p99.{name}"] = b["band_p99"] if b["band_p99"] is not None else math.nan
+    for name, r in m["switching_rate"].items():
+        out[f"switching_rate.{name}"] = r
+    for name, f in (folder.summary.get("timing") or {}).items():
+        if isinstance(f, dict):
+            for q in ("p50_us", "p99_us", "max_us"):
+                if isinstance(f.get(q), int | float):
+                    out[f"timing.{name}.{q}"] = float(f[q])
+    return out
+
+
+def compare_rows(a: dict[str, float], b: dict[str, float]) -> list[list[Any]]:
+    rows = []
+    for key in sorted(set(a) | set(b)):
+        va, vb = a.get(key), b.get(key)
+        diff = vb - va if va is not None and vb is not None else None
+        rows.append([key, va, vb, diff])
+    return rows
+
+
+def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b: str = "B"):
+    """Write compare.html (self-contained), compare.md, compare.json and the figures with
+    their data into ``out``; returns the comparison dict."""
+    out.mkdir(parents=True, exist_ok=True)
+    la, lb = f"{label_a}: {fa.name}", f"{label_b}: {fb.name}"
+    sva = view(fa.scenario)
+    ta, tb = fa.trace, fb.trace
+    figs = [
+        fg.trajectory(
+            [(la, ta["x"], ta["y"]), (lb, tb["x"], tb["y"]), ("reference", ta["xd"], ta["yd"])],
+            "Trajectories overlaid",
+        ),
+    ]
+    for key, title, unit, limit in (
+        ("v", "Linear velocity v", "v [m/s]", sva.limits.phi1),
+        ("omega", "Angular velocity ω", "ω [rad/s]", sva.limits.phi2),
+        ("tau1", "Torque τ1", "τ1 [N·m]", sva.limits.varpi1),
+        ("tau2", "Torque τ2", "τ2 [N·m]", sva.limits.varpi2),
+    ):
+        # Different rates have different sample times: put B on A's time axis for the data file.
+        tb_on_a = np.interp(ta["t"], tb["t"], tb[key])
+        f = fg.signal_with_limits(
+            key, title, unit, ta["t"], [(la, ta[key]), (lb + " (on A's times)", tb_on_a)], limit
+        )
+        figs.append(f)
+    pa = analysis.position_error(ta["x"], ta["y"], ta["xd"], ta["yd"])
+    pb = np.interp(ta["t"], tb["t"], analysis.position_error(tb["x"], tb["y"], tb["xd"], tb["yd"]))
+    figs.append(
+        fg.signal_with_limits(
+            "position_error",
+            "Position error",
+            "m",
+            ta["t"],
+            [(la, pa), (lb + " (on A's times)", pb)],
+        )
+    )
+    a_fig, b_fig = figures_of(fa), figures_of(fb)
+    rows = compare_rows(a_fig, b_fig)
+    files = []
+    for f in figs:
+        png, csv_path = f.write(out, PREFIX)
+        files.append({"name": f.name, "title": f.title, "png": png.name, "data": csv_path.name})
+    data = {
+        "schema_version": 1,
+        "a": str(fa.path),
+        "b": str(fb.path),
+        "rows": [{"figure": r[0], "a": r[1], "b": r[2], "b_minus_a": r[3]} for r in rows],
+        "figures": files,
+    }
+    (out / "compare.json").write_text(json.dumps(_jsonable(data), indent=2, allow_nan=False))
+    header = ["figure", la, lb, "B - A"]
+    md = [f"# Comparison: {fa.path} vs {fb.path}", "", _md_table(header, rows), ""]
+    for f in files:
+        md += [f"![{f['title']}]({f['png']})", "", f"Data: [{f['data']}]({f['data']})", ""]
+    (out / "compare.md").write_text("\n".join(md) + "\n")
+    html = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>{esc('Comparison')}</title><style>{CSS}</style></head><body>",
+        f"<h1>Comparison: {esc(fa.path)} vs {esc(fb.path)}</h1>",
+        '<section id="figures_table"><h2>Summary figures</h2>',
+        table(header, rows),
+        "</section>",
+        '<section id="overlays"><h2>Overlays</h2>',
+        *(figure(f, PREFIX) for f in figs),
+        "</section></body></html>",
+    ]
+    (out / "compare.html").write_text("\n".join(html))
+    return data

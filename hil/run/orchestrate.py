@@ -1,0 +1,444 @@
+"""``hil run``: start the pair (and a router if asked), record everything, write the folder.
+
+Sequence: resolve the scenario -> write ``scenario.resolved.toml`` and ``run_settings.json`` ->
+open the recorder's Zenoh session on the run's well-known loopback endpoint (or start a router
+child and connect to it) -> start plant and controller as children that die with this process
+(PR_SET_PDEATHSIG) -> wait for both to say "ready" -> announce the epoch -> record every Zenoh
+message and CAN frame into ``recording.mcap`` while showing progress -> stop the children by PID
+(controller first, SIGINT so they flush their logs) -> ``trace.csv``, ``summary.json``, plots.
+Ctrl-C or SIGTERM at any point still stops everything and writes the summary.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import datetime as dt
+import os
+import socket
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from subprocess import STDOUT
+from typing import Any
+
+from hil.errors import BadInput
+from hil.recording import RecordingWriter
+from hil.run.settings import RunSettings
+from hil.supervisor import Supervisor, stop_on_signals
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def new_run_dir(base: Path = Path("runs")) -> Path:
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    for i in range(1000):
+        p = base / (f"run-{stamp}" + (f"-{i}" if i else ""))
+        if not p.exists():
+            return p
+    raise BadInput("cannot find a free run folder name")
+
+
+@dataclass
+class RunOptions:
+    scenario: Path | None = None
+    duration: float | None = None
+    rate: float | None = None
+    cmd_path: str = "zenoh"
+    lockstep: bool = False
+    out: Path | None = None
+    trigger: str | None = None
+    can_live: bool = True
+    can_interface: str | None = None
+    can_channel: str | None = None
+    spin_us: float = 0.0
+    scheduling: str | None = None
+    quiet: bool = False
+    delay: float | None = None
+
+
+class Recorder:
+    """Receives every ``hil/**`` Zenoh message and every CAN frame; writes them off-thread."""
+
+    def __init__(self, writer: RecordingWriter) -> None:
+        self.writer = writer
+        self.queue: collections.deque[tuple[str, int, Any]] = collections.deque()
+        self.states = 0
+        self.statuses: dict[str, Any] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._drain, name="recorder", daemon=True)
+        self._thread.start()
+
+    def on_zenoh(self, sample: Any) -> None:
+        self.queue.append(
+            (str(sample.key_expr), time.monotonic_ns(), bytes(sample.payload.to_bytes()))
+        )
+
+    def on_can(self, channel: str, msg: Any) -> None:
+        self.queue.append((f"can/{channel}", time.monotonic_ns(), msg))
+
+    def _write_one(self, topic: str, t: int, payload: Any) -> None:
+        from dataclasses import asdict
+
+        from protocol.messages import DecodeError, Status, decode
+
+        if topic.startswith("can/"):
+            data: dict[str, Any] = {
+                "arbitration_id": payload.arbitration_id,
+                "data": bytes(payload.data).hex(),
+                "dlc": payload.dlc,
+                "is_remote_frame": bool(payload.is_remote_frame),
+            }
+            try:
+                from protocol.can.codec import decode as can_decode
+                from protocol.can.drive_link import from_message
+
+                m = can_decode(from_message(payload))
+                data["message"] = type(m).__name__
+                data["fields"] = asdict(m) if hasattr(m, "__dataclass_fields__") else str(m)
+            except Exception as exc:
+                data["decode_error"] = str(exc)
+            self.writer.write(topic, t, data)
+            return
+        try:
+            m = decode(payload)
+        except DecodeError as exc:
+            self.writer.write(topic, t, {"rejected": exc.reason, "raw": payload})
+            return
+        d = asdict(m)
+        d["type"] = type(m).__name__
+        publish = getattr(m, "send_time_ns", None) or getattr(m, "time_ns", None)
+        self.writer.write(topic, t, d, publish_time_ns=publish)
+        if topic.endswith("/state"):
+            self.states += 1
+        if isinstance(m, Status):
+            self.statuses[m.role] = m
+
+    def _drain(self) -> None:
+        while not (self._stop.is_set() and not self.queue):
+            if not self.queue:
+                time.sleep(0.005)
+                continue
+            topic, t, payload = self.queue.popleft()
+            try:
+                self._write_one(topic, t, payload)
+            except Exception as exc:  # a recorder must never take the run down
+                self.writer.write("recorder/errors", t, {"topic": topic, "error": repr(exc)})
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=30)
+        self.writer.close()
+
+
+def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any] | None:
+    """A python-can Notifier on the run's bus feeding the recorder (None if no CAN)."""
+    try:
+        import can
+
+        from hil.run.wiring import open_can_bus
+
+        bus = open_can_bus(settings)
+        if bus is None:
+            return None
+        channel = str(settings.can.get("channel", "can"))
+        notifier = can.Notifier(bus, [lambda m: recorder.on_can(channel, m)], timeout=0.1)
+        return bus, notifier
+    except Exception as exc:
+        print(f"warning: CAN recording off: {exc}", file=sys.stderr)
+        return None
+
+
+def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
+    """Resolve the scenario and the run's settings; write the folder's first files."""
+    from hil.provenance import dumps_toml
+    from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
+    from hil.run.wiring import effective_can_table, robot_id_of
+    from hil.scenario import build_loop, load_scenario, loads_scenario, resolved_dict
+
+    if opts.cmd_path not in ("zenoh", "can"):
+        raise BadInput(f"--cmd-path must be zenoh or can, got {opts.cmd_path!r}")
+    run_dir = Path(opts.out) if opts.out else new_run_dir()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if opts.scenario is None:
+        src = run_dir / "scenario.toml"
+        src.write_text(PAPER_TRACKING_TOML)
+        scenario = loads_scenario(PAPER_TRACKING_TOML, run_dir)
+        scenario_path = src
+        default_duration = DEFAULT_DURATION
+    else:
+        scenario = load_scenario(opts.scenario)
+        scenario_path = Path(opts.scenario).resolve()
+        default_duration = scenario.run.duration
+    rt = scenario.realtime
+    rate = opts.rate or rt.rate or 1.0 / scenario.timing.ts
+    if not (rate > 0 and rate <= 20_000):
+        raise BadInput(f"rate must be in (0, 20000] Hz, got {rate}")
+    duration = opts.duration if opts.duration is not None else default_duration
+    if not duration > 0:
+        raise BadInput(f"--duration must be > 0, got {duration}")
+    ts_s = scenario.timing.ts if not opts.rate and not rt.rate else 1.0 / rate
+    scenario = scenario.with_overrides(duration=duration, ts=ts_s)
+    controller, reference, context = build_loop(scenario)
+    can_table = effective_can_table(scenario, opts.can_interface)
+    if opts.can_channel:
+        can_table["channel"] = opts.can_channel
+    delay = scenario.timing.delay if opts.delay is None else opts.delay
+    settings = RunSettings(
+        scenario_path=str(scenario_path),
+        robot_id=robot_id_of(scenario),
+        epoch_ns=0,
+        duration=float(duration),
+        rate_hz=float(rate),
+        sensor_rate_hz=float(rate if opts.lockstep else (rt.sensor_rate or rate)),
+        trigger=opts.trigger or rt.trigger,
+        lockstep=opts.lockstep,
+        state_timeout=rt.state_timeout,
+        command_timeout=rt.command_timeout,
+        # Lockstep is about values, not timing; and a SCHED_FIFO main thread there was seen to
+        # starve Zenoh's helper threads (seconds-long stalls with the CAN path live).
+        scheduling="other" if opts.lockstep else (opts.scheduling or rt.scheduling),
+        cmd_path=opts.cmd_path,
+        can_live=opts.can_live,
+        can=can_table,
+        robot={
+            k: getattr(scenario.robot, k)
+            for k in ("mass", "yaw_inertia", "wheel_radius", "half_track", "gear_ratio")
+        },
+        zenoh_mode=scenario.zenoh.mode,
+        zenoh_endpoint=f"tcp/127.0.0.1:{free_port()}",
+        can_endpoint=f"tcp/127.0.0.1:{free_port()}",
+        delay=delay,
+        jitter=scenario.timing.jitter,
+        jitter_kind=scenario.timing.jitter_kind,
+        seed=scenario.timing.seed,
+        out_dir=str(run_dir.resolve()),
+        spin_us=opts.spin_us,
+        ts_s=ts_s,
+    )
+    if (os.cpu_count() or 1) >= 2:
+        settings.cpu_controller, settings.cpu_plant = 1, 0
+    try:
+        settings.validate()
+    except ValueError as exc:
+        raise BadInput(str(exc)) from exc
+    settings.save(run_dir / "run_settings.json")
+    resolved = resolved_dict(
+        scenario,
+        controller,
+        context,
+        {
+            "command": "hil run",
+            "cmd_path": settings.cmd_path,
+            "lockstep": settings.lockstep,
+            "rate_hz": settings.rate_hz,
+            "trigger": settings.trigger,
+            "can_interface": can_table["interface"],
+        },
+    )
+    (run_dir / "scenario.resolved.toml").write_text(dumps_toml(resolved))
+    info = {
+        "reference": reference,
+        "context": context,
+        "controller_params": dict(resolved["controller"]),
+        "scenario": scenario,
+    }
+    return scenario, settings, run_dir, info
+
+
+def execute(opts: RunOptions) -> dict[str, Any]:
+    """Run the pair; returns the summary (also written to the run folder)."""
+    from hil.run.results import analyze, plot
+    from hil.run.startgate import announce_start
+    from hil.run.zsession import open_session
+
+    scenario, settings, run_dir, info = prepare(opts)
+    sup = Supervisor()
+    interrupted = False
+    error: str | None = None
+    writer = RecordingWriter(
+        run_dir / "recording.mcap",
+        metadata={
+            "robot_id": settings.robot_id,
+            "cmd_path": settings.cmd_path,
+            "lockstep": settings.lockstep,
+            "rate_hz": settings.rate_hz,
+        },
+    )
+    recorder = Recorder(writer)
+    session = None
+    sub = None
+    can_rec = None
+    logs = _Logs(run_dir)
+    codes: dict[str, int | None] = {}
+    t_start = time.monotonic()
+    with stop_on_signals() as stop:
+        try:
+            if settings.zenoh_mode == "router":
+                router_cmd = [
+                    sys.executable,
+                    "-c",
+                    "import sys, time, zenoh; from hil.run.zsession import session_config; "
+                    "s = zenoh.open(session_config(sys.argv[1], listen_endpoint=True, "
+                    "mode='router')); time.sleep(1e9)",
+                    settings.zenoh_endpoint,
+                ]
+                sup.start("router", router_cmd, stdout=logs.open("router"), stderr=STDOUT)
+                _wait_port(settings.zenoh_endpoint, stop, 30.0)
+                session = open_session(settings.zenoh_endpoint, mode="client")
+            else:
+                session = open_session(settings.zenoh_endpoint, listen_endpoint=True)
+            sub = session.declare_subscriber("hil/**", recorder.on_zenoh)
+            can_rec = _can_recorder(settings, recorder)
+            settings_path = str(run_dir / "run_settings.json")
+            for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
+                sup.start_python(
+                    name,
+                    ["-m", module, "--settings", settings_path],
+                    stdout=logs.open(name),
+                    stderr=STDOUT,
+                )
+            # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest;
+            # a child that dies is noticed at once anyway.
+            ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
+            ready = _wait_ready(recorder, sup, stop, timeout=ready_timeout)
+            if ready:
+                epoch = time.monotonic_ns() + 300_000_000
+                for i in range(3):  # a start message lost to a racing link must not hang
+                    announce_start(session, settings.robot_id, epoch, seq=i)
+                    time.sleep(0.02)
+                _progress(settings, recorder, sup, stop, opts.quiet)
+            else:
+                error = "services did not become ready"
+            interrupted = bool(stop)
+        finally:
+            codes = _stop_children(sup, settings)
+            logs.close()
+            if sub is not None:
+                sub.undeclare()
+            if can_rec is not None:
+                can_rec[1].stop()
+                with contextlib.suppress(Exception):  # a bus already gone is fine here
+                    can_rec[0].shutdown()
+            if session is not None:
+                session.close()
+            recorder.close()
+    extra = {
+        "interrupted": interrupted,
+        "error": error,
+        "wall_time_s": time.monotonic() - t_start,
+        "exit_codes": codes,
+        "recording": "recording.mcap",
+        "recorded_messages": writer.count,
+    }
+    summary = analyze(
+        run_dir,
+        scenario,
+        settings,
+        info["reference"],
+        info["context"],
+        info["controller_params"],
+        extra,
+    )
+    try:
+        plot(run_dir)
+    except Exception as exc:
+        print(f"warning: plots not written: {exc}", file=sys.stderr)
+    summary["run_dir"] = str(run_dir)
+    return summary
+
+
+class _Logs:
+    """The children's console logs (``<name>.log`` in the run folder), closed at the end."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.run_dir = run_dir
+        self.files: list[Any] = []
+
+    def open(self, name: str) -> Any:
+        f = (self.run_dir / f"{name}.log").open("wb")
+        self.files.append(f)
+        return f
+
+    def close(self) -> None:
+        for f in self.files:
+            f.close()
+
+
+def _wait_port(endpoint: str, stop: Any, timeout: float) -> bool:
+    """Until something accepts TCP connections on the endpoint's port (the router is up)."""
+    host, _, port = endpoint.split("/", 1)[1].rpartition(":")
+    deadline = time.monotonic() + timeout
+    while not stop and time.monotonic() < deadline:
+        with contextlib.suppress(OSError), socket.create_connection((host, int(port)), 0.2):
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def _wait_ready(recorder: Recorder, sup: Supervisor, stop: Any, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not stop and time.monotonic() < deadline:
+        roles = {r for r, m in recorder.statuses.items() if m.state == "ready"}
+        if {"plant", "controller"} <= roles:
+            return True
+        dead = sup.any_exited()
+        if dead is not None:
+            return False
+        time.sleep(0.02)
+    return False
+
+
+def _progress(
+    settings: RunSettings, recorder: Recorder, sup: Supervisor, stop: Any, quiet: bool
+) -> None:
+    """Until the plant finishes its duration (it exits by itself) or a stop is asked."""
+    total = round(settings.duration * settings.rate_hz) if settings.lockstep else None
+    plant = next(c for c in sup.children if c.name == "plant")
+    t0 = time.monotonic()
+    limit = t0 + (settings.duration + 30.0 if not settings.lockstep else 1e9)
+
+    def fraction() -> float:
+        if total:
+            return min(1.0, recorder.states / total)
+        return min(1.0, (time.monotonic() - t0) / settings.duration)
+
+    if quiet or not sys.stderr.isatty():
+        while not stop and plant.alive() and time.monotonic() < limit:
+            time.sleep(0.05)
+        return
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(
+        TextColumn("hil run"),
+        BarColumn(),
+        TextColumn("{task.percentage:>3.0f}%"),
+        TextColumn("{task.fields[info]}"),
+        TimeElapsedColumn(),
+        transient=True,
+    ) as prog:
+        task = prog.add_task("run", total=1.0, info="")
+        while not stop and plant.alive() and time.monotonic() < limit:
+            st = recorder.statuses.get("controller")
+            info = ""
+            if st is not None:
+                c = st.counters
+                info = f"cycles {c.get('cycles', 0)} misses {c.get('deadline_misses', 0)}"
+            prog.update(task, completed=fraction(), info=info)
+            time.sleep(0.1)
+
+
+def _stop_children(sup: Supervisor, settings: RunSettings) -> dict[str, int | None]:
+    codes: dict[str, int | None] = {}
+    # The plant ends by itself at the run's end; the controller is stopped next, then the rest.
+    for name in ("plant", "controller", "router"):
+        for c in sup.children:
+            if c.name == name:
+                codes[name] = c.stop(grace=10.0)
+    return codes

@@ -1,0 +1,71 @@
+"""The start handshake: both services say "ready", then ``hil run`` announces the epoch.
+
+Process start-up (imports, Zenoh links, CAN arming) takes a variable second or so; a fixed
+epoch would make a slow start look like deadline misses. So each service publishes
+``Status(role, "ready")`` until it hears ``Status(role="run", state="start",
+counters={"epoch_ns": ...})`` on the robot's status key; the epoch (a ``time.monotonic_ns()``
+value a little in the future) is the run's t = 0 for both.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from protocol import keys
+from protocol.messages import Status, decode_as, encode
+
+
+class StartGate:
+    def __init__(self, session: Any, robot_id: str, role: str) -> None:
+        from hil.run.zsession import payload_bytes, publisher
+
+        self.robot_id = robot_id
+        self.role = role
+        self._pub = publisher(session, keys.status_key(robot_id))
+        self._epoch: int | None = None
+        self._event = threading.Event()
+        self._payload = payload_bytes
+        self._sub = session.declare_subscriber(keys.status_key(robot_id), self._on_status)
+        self._seq = 0
+
+    def _on_status(self, sample: Any) -> None:
+        try:
+            msg = decode_as(Status, self._payload(sample))
+        except ValueError:
+            return
+        if msg.role == "run" and msg.state == "start" and "epoch_ns" in msg.counters:
+            self._epoch = int(msg.counters["epoch_ns"])
+            self._event.set()
+
+    def wait(
+        self, stop: Any, timeout: float = 60.0, idle: Callable[[], None] | None = None
+    ) -> int | None:
+        """Announce readiness every 50 ms until the epoch arrives; None on stop/timeout."""
+        deadline = time.monotonic() + timeout
+        while not stop and time.monotonic() < deadline:
+            self._pub.put(
+                encode(Status(self.robot_id, self._seq, time.monotonic_ns(), self.role, "ready"))
+            )
+            self._seq += 1
+            if self._event.wait(0.05):
+                break
+            if idle is not None:
+                idle()
+        self._sub.undeclare()
+        return self._epoch
+
+
+def announce_start(session: Any, robot_id: str, epoch_ns: int, seq: int = 0) -> None:
+    from hil.run.zsession import publisher
+
+    pub = publisher(session, keys.status_key(robot_id))
+    pub.put(
+        encode(
+            Status(
+                robot_id, seq, time.monotonic_ns(), "run", "start", 0, {"epoch_ns": int(epoch_ns)}
+            )
+        )
+    )

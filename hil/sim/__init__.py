@@ -1,0 +1,29 @@
+"""The offline simulator's Python API (used by ``hil sim``, ``hil paper``, sweeps, reports).
+
+- :func:`simulate` (one loop on floats) and :func:`simulate_batch` (N loops on numpy arrays);
+- :func:`write_run_folder` (scenario.resolved.toml, trace.csv, summary.json);
+- :func:`jitter_samples_from` (latency files for ``jitter_kind = "replay"``).
+"""
+
+from hil.sim.core import (
+    BASE_COLUMNS,
+    BatchResult,
+    RobotVariation,
+    SimResult,
+    simulate,
+    simulate_batch,
+)
+from hil.sim.folder import new_run_dir, write_run_folder
+from hil.sim.timing import jitter_samples_from
+
+__all__ = [
+    "BASE_COLUMNS",
+    "BatchResult",
+    "RobotVariation",
+    "SimResult",
+    "jitter_samples_from",
+    "new_run_dir",
+    "simulate",
+    "simulate_batch",
+    "write_run_folder",
+]

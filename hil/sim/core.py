@@ -1,0 +1,584 @@
+"""The offline simulator: one closed loop on floats, or N loops at once on numpy arrays.
+
+At each sample k (t_k = k Ts) the law gets the measured state (noise and quantization of
+[plant]), the reference sample and the law time t_k; its command lands at
+t_k + delay + extra_k rounded to the plant step h (see :mod:`hil.sim.timing`); when delays
+reorder commands the newest by sequence number wins and older ones are dropped (counted).
+Between landings the command is held (zero-order hold) and model (1) is integrated by RK4 at
+step h = Ts / ceil(Ts / [plant] step). Before the first command lands the torque is zero.
+
+Both paths run the same law object and the same RK4 arithmetic
+(:mod:`plant_emulator.dynamics`): :func:`simulate` on Python floats, :func:`simulate_batch` on
+arrays of N robots that share Ts, h, the law and the reference but may differ in initial state,
+delay, jitter seed, disturbance seed and sensor seed (:class:`RobotVariation`).
+"""
+
+from __future__ import annotations
+
+import heapq
+import inspect
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from controller_service.laws.base import ReferenceSample, RobotState
+from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
+from hil.sim.timing import extra_delays, jitter_samples_from, landing_offsets
+from plant_emulator.dynamics import (
+    Extremes,
+    PlantState,
+    advance_array_tracked,
+    advance_float_tracked,
+    track_initial,
+)
+from plant_emulator.sensors import measure, wrap_angle
+
+BASE_COLUMNS = (
+    "t",
+    "x",
+    "y",
+    "theta",
+    "v",
+    "omega",
+    "xd",
+    "yd",
+    "thetad",
+    "tau1",
+    "tau2",
+    "tau1_cmd",
+    "tau2_cmd",
+    "position_error",
+    "heading_error",
+)
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class RobotVariation:
+    """How one robot of a batch differs from the scenario (None = the scenario's value)."""
+
+    x: float | None = None
+    y: float | None = None
+    theta: float | None = None
+    v: float | None = None
+    omega: float | None = None
+    delay: float | None = None
+    jitter: float | None = None
+    jitter_seed: int | None = None
+    disturbance_seed: int | None = None
+    sensor_seed: int | None = None
+
+
+@dataclass
+class SimResult:
+    """One simulated loop: the trace (one row per control sample) and its summary."""
+
+    scenario: Scenario
+    resolved: dict[str, Any]
+    columns: list[str]
+    trace: np.ndarray
+    summary: dict[str, Any]
+    interrupted: bool = False
+
+    def column(self, name: str) -> np.ndarray:
+        return self.trace[:, self.columns.index(name)]
+
+
+@dataclass
+class BatchResult:
+    """N simulated loops: a summary per robot and the traces of the recorded robots."""
+
+    scenario: Scenario
+    resolved: dict[str, Any]
+    variations: list[RobotVariation]
+    summaries: list[dict[str, Any]]
+    columns: list[str]
+    traces: dict[int, np.ndarray] = field(default_factory=dict)
+    interrupted: bool = False
+
+    def result(self, i: int) -> SimResult:
+        """Robot ``i`` as a :class:`SimResult` (its trace must have been recorded)."""
+        return SimResult(
+            self.scenario,
+            self.resolved,
+            self.columns,
+            self.traces[i],
+            self.summaries[i],
+            self.interrupted,
+        )
+
+
+def _initial_memory(controller: Any, n: int | None, scenario: Scenario) -> Any:
+    z1, z2 = scenario.initial.z1, scenario.initial.z2
+    try:
+        params = inspect.signature(controller.initial_memory).parameters
+    except (TypeError, ValueError):
+        params = {}
+    if "z1" in params and "z2" in params:
+        return controller.initial_memory(n, z1=z1, z2=z2)
+    return controller.initial_memory(n)
+
+
+def _replay(scenario: Scenario) -> np.ndarray | None:
+    t = scenario.timing
+    if t.jitter_kind != "replay":
+        return None
+    path = scenario.base_dir / t.replay
+    return jitter_samples_from(path)
+
+
+def _summary(
+    scenario: Scenario,
+    ext_vals: dict[str, float],
+    violations: dict[str, int],
+    last: tuple[float, float, float, float, float, float],
+    rms: float,
+    samples: int,
+    steps: int,
+    dropped: int,
+    interrupted: bool,
+    law: str,
+) -> dict[str, Any]:
+    x, y, th, xd, yd, thd = last
+    limits = scenario.limits
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "final_position_error": math.hypot(x - xd, y - yd),
+        "final_heading_error": wrap_angle(th - thd),
+        "rms_position_error": rms,
+        **ext_vals,
+        "violations": violations,
+        "limits_held": not any(violations.values()),
+        "limits": {
+            "phi1": limits.phi1,
+            "phi2": limits.phi2,
+            "varpi1": limits.varpi1,
+            "varpi2": limits.varpi2,
+        },
+        "law": law,
+        "ts": scenario.timing.ts,
+        "plant_step": scenario.plant_step,
+        "duration": samples * scenario.timing.ts,
+        "samples": samples,
+        "plant_steps": steps,
+        "commands_dropped": dropped,
+        "interrupted": interrupted,
+    }
+
+
+def simulate(
+    scenario: Scenario,
+    variation: RobotVariation | None = None,
+    progress: Progress | None = None,
+    loop: tuple[Any, Any, Any] | None = None,
+) -> SimResult:
+    """One closed loop on plain floats (the single-run path).
+
+    ``progress(k, K)`` is called now and then; Ctrl-C stops the loop and returns what was
+    computed with ``interrupted = True``. ``loop`` = (controller, reference, context) reuses
+    built objects.
+    """
+    var = variation or RobotVariation()
+    controller, reference, context = loop or build_loop(scenario)
+    ts = scenario.timing.ts
+    m = scenario.substeps
+    h = scenario.plant_step
+    n_samples = max(1, round(scenario.run.duration / ts))
+    ini = scenario.initial
+    state = PlantState(
+        float(ini.x if var.x is None else var.x),
+        float(ini.y if var.y is None else var.y),
+        float(ini.theta if var.theta is None else var.theta),
+        float(ini.v if var.v is None else var.v),
+        float(ini.omega if var.omega is None else var.omega),
+        0.0,
+        0.0,
+    )
+    timing = scenario.timing
+    delay = timing.delay if var.delay is None else var.delay
+    jitter = timing.jitter if var.jitter is None else var.jitter
+    jseed = timing.seed if var.jitter_seed is None else var.jitter_seed
+    dseed = scenario.disturbance.seed if var.disturbance_seed is None else var.disturbance_seed
+    sseed = scenario.plant.noise_seed if var.sensor_seed is None else var.sensor_seed
+    offsets = landing_offsets(
+        extra_delays(timing.jitter_kind, jitter, jseed, n_samples, _replay(scenario)), delay, h
+    ).tolist()
+    sensor = scenario.sensor
+    ideal_sensor = sensor.is_ideal
+    dist = scenario.disturbance
+    lag = scenario.plant.lag
+    limits = scenario.limits
+    ext = Extremes.zeros()
+    track_initial(ext, state, limits)
+    memory = _initial_memory(controller, None, scenario)
+    pending: list[tuple[int, int, float, float]] = []
+    applied_seq = -1
+    cmd1 = cmd2 = 0.0
+    dropped = 0
+    rows: list[tuple[float, ...]] = []
+    tel_keys: list[str] | None = None
+    rms_from = math.floor(0.9 * n_samples)
+    sq_sum = 0.0
+    sq_n = 0
+    interrupted = False
+    every = max(1, n_samples // 200)
+    last = (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
+    try:
+        for k in range(n_samples):
+            t_k = k * ts
+            rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
+            meas = rs if ideal_sensor else measure(sensor, rs, k, sseed)
+            ref = reference.sample(t_k)
+            out, memory = controller.update(t_k, ts, meas, ref, memory)
+            if tel_keys is None:
+                tel_keys = list(out.telemetry)
+            j0 = k * m
+            heapq.heappush(pending, (j0 + offsets[k], k, float(out.tau1), float(out.tau2)))
+            j = j0
+            j_end_period = j0 + m
+            first = True
+            while True:
+                while pending and pending[0][0] <= j:
+                    _, seq, c1, c2 = heapq.heappop(pending)
+                    if seq > applied_seq:
+                        applied_seq, cmd1, cmd2 = seq, c1, c2
+                    else:
+                        dropped += 1
+                if first:
+                    first = False
+                    a1 = cmd1 if lag <= 0.0 else state.tau1
+                    a2 = cmd2 if lag <= 0.0 else state.tau2
+                    e_pos = math.hypot(state.x - ref.xd, state.y - ref.yd)
+                    rows.append(
+                        (
+                            t_k,
+                            state.x,
+                            state.y,
+                            state.theta,
+                            state.v,
+                            state.omega,
+                            ref.xd,
+                            ref.yd,
+                            ref.thetad,
+                            a1,
+                            a2,
+                            float(out.tau1),
+                            float(out.tau2),
+                            e_pos,
+                            wrap_angle(state.theta - ref.thetad),
+                            *(float(out.telemetry[key]) for key in tel_keys),
+                        )
+                    )
+                    last = (state.x, state.y, state.theta, ref.xd, ref.yd, ref.thetad)
+                    if k >= rms_from:
+                        sq_sum += e_pos * e_pos
+                        sq_n += 1
+                nxt = pending[0][0] if pending else j_end_period
+                j_next = min(nxt, j_end_period)
+                if j_next > j:
+                    state = advance_float_tracked(
+                        state, cmd1, cmd2, j * h, h, j_next - j, dist, lag, dseed, limits, ext, j
+                    )
+                    j = j_next
+                if j >= j_end_period:
+                    break
+            if progress is not None and k % every == 0:
+                progress(k, n_samples)
+    except KeyboardInterrupt:
+        interrupted = True
+    if progress is not None and not interrupted:
+        progress(len(rows), n_samples)
+    columns = [*BASE_COLUMNS, *(tel_keys or [])]
+    trace = np.array(rows, dtype=float).reshape(len(rows), len(columns))
+    ext_vals = {
+        "max_abs_v": ext.max_abs_v,
+        "max_abs_omega": ext.max_abs_omega,
+        "max_abs_tau1": ext.max_abs_tau1,
+        "max_abs_tau2": ext.max_abs_tau2,
+    }
+    violations = {
+        "v": ext.violations_v,
+        "omega": ext.violations_omega,
+        "tau1": ext.violations_tau1,
+        "tau2": ext.violations_tau2,
+    }
+    rms = math.sqrt(sq_sum / sq_n) if sq_n else float("nan")
+    summary = _summary(
+        scenario,
+        ext_vals,
+        violations,
+        last,
+        rms,
+        len(rows),
+        ext.steps,
+        dropped,
+        interrupted,
+        getattr(controller, "name", type(controller).__name__),
+    )
+    summary["seeds"] = {"timing": jseed, "disturbance": dseed, "sensor": sseed}
+    resolved = resolved_dict(scenario, controller, context)
+    return SimResult(scenario, resolved, columns, trace, summary, interrupted)
+
+
+def _per_robot(values: Sequence[Any], default: Any, dtype: Any) -> np.ndarray:
+    return np.array([default if v is None else v for v in values], dtype=dtype)
+
+
+def simulate_batch(
+    scenario: Scenario,
+    variations: Sequence[RobotVariation] | int,
+    record: Sequence[int] = (),
+    progress: Progress | None = None,
+    loop: tuple[Any, Any, Any] | None = None,
+) -> BatchResult:
+    """N closed loops at once on numpy arrays (the batch path), one per variation.
+
+    ``variations`` may be an int N (N identical robots). ``record`` lists the robots whose full
+    trace is kept (every robot gets a summary).
+    """
+    if isinstance(variations, int):
+        variations = [RobotVariation()] * variations
+    variations = list(variations)
+    n = len(variations)
+    if n == 0:
+        raise ValueError("simulate_batch needs at least one robot")
+    controller, reference, context = loop or build_loop(scenario)
+    ts = scenario.timing.ts
+    m = scenario.substeps
+    h = scenario.plant_step
+    n_samples = max(1, round(scenario.run.duration / ts))
+    ini = scenario.initial
+    timing = scenario.timing
+    state = PlantState(
+        _per_robot([v.x for v in variations], ini.x, float),
+        _per_robot([v.y for v in variations], ini.y, float),
+        _per_robot([v.theta for v in variations], ini.theta, float),
+        _per_robot([v.v for v in variations], ini.v, float),
+        _per_robot([v.omega for v in variations], ini.omega, float),
+        np.zeros(n),
+        np.zeros(n),
+    )
+    delays = _per_robot([v.delay for v in variations], timing.delay, float)
+    jitters = _per_robot([v.jitter for v in variations], timing.jitter, float)
+    jseeds = _per_robot([v.jitter_seed for v in variations], timing.seed, np.int64)
+    dseeds = _per_robot(
+        [v.disturbance_seed for v in variations], scenario.disturbance.seed, np.int64
+    )
+    sseeds = _per_robot([v.sensor_seed for v in variations], scenario.plant.noise_seed, np.int64)
+    replay = _replay(scenario)
+    # Offsets per robot, drawn exactly as the single path draws them (same seed, same n).
+    cache: dict[tuple[float, float, int], np.ndarray] = {}
+    offsets = np.empty((n, n_samples), dtype=np.int64)
+    for i in range(n):
+        key = (float(delays[i]), float(jitters[i]), int(jseeds[i]))
+        if key not in cache:
+            extra = extra_delays(timing.jitter_kind, key[1], key[2], n_samples, replay)
+            cache[key] = landing_offsets(extra, key[0], h)
+        offsets[i] = cache[key]
+    all_zero = not offsets.any()
+    depth = int(offsets.max()) // m + 2  # periods a command can stay pending
+    sensor = scenario.sensor
+    ideal_sensor = sensor.is_ideal
+    dist = scenario.disturbance
+    dseed_arg = dseeds if dist.kind == "random" else None
+    lag = scenario.plant.lag
+    limits = scenario.limits
+    ext = Extremes.zeros(n)
+    track_initial(ext, state, limits)
+    memory = _initial_memory(controller, n, scenario)
+    cmd1 = np.zeros(n)
+    cmd2 = np.zeros(n)
+    applied_seq = np.full(n, -1, dtype=np.int64)
+    dropped = np.zeros(n, dtype=np.int64)
+    ring_c1 = np.zeros((depth, n))
+    ring_c2 = np.zeros((depth, n))
+    ring_land = np.full((depth, n), -1, dtype=np.int64)
+    record = [int(i) for i in record]
+    rec_rows: dict[int, list[np.ndarray]] = {i: [] for i in record}
+    tel_keys: list[str] | None = None
+    rms_from = math.floor(0.9 * n_samples)
+    sq_sum = np.zeros(n)
+    sq_n = 0
+    last = None
+    interrupted = False
+    done = 0
+    every = max(1, n_samples // 200)
+    ones = np.ones(n)
+    try:
+        for k in range(n_samples):
+            t_k = k * ts
+            rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
+            meas = rs if ideal_sensor else measure(sensor, rs, k, sseeds)
+            ref = reference.sample(t_k)
+            ref_arr = ReferenceSample(*(ones * float(value) for value in ref))
+            out, memory = controller.update(t_k, ts, meas, ref_arr, memory)
+            tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
+            tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
+            if tel_keys is None:
+                tel_keys = list(out.telemetry)
+            j0 = k * m
+            if all_zero:
+                cmd1, cmd2 = tau1, tau2
+                applied_seq[:] = k
+                events: list[int] = []
+            else:
+                slot = k % depth
+                ring_c1[slot] = tau1
+                ring_c2[slot] = tau2
+                ring_land[slot] = j0 + offsets[:, k]
+                in_period = (ring_land >= j0) & (ring_land < j0 + m)
+                events = sorted(set(ring_land[in_period].tolist())) if in_period.any() else []
+                # Slots oldest first, so at a shared landing step the newest command wins.
+                order = [(k - back) % depth for back in range(depth - 1, -1, -1)]
+                seqs = [k - back for back in range(depth - 1, -1, -1)]
+            j = j0
+            j_end_period = j0 + m
+            ei = 0
+            first = True
+            while True:
+                while ei < len(events) and events[ei] <= j:
+                    e = events[ei]
+                    ei += 1
+                    for slot_i, seq in zip(order, seqs, strict=True):
+                        if seq < 0:
+                            continue
+                        lands = ring_land[slot_i] == e
+                        if not lands.any():
+                            continue
+                        newer = lands & (seq > applied_seq)
+                        dropped += lands & ~newer
+                        cmd1 = np.where(newer, ring_c1[slot_i], cmd1)
+                        cmd2 = np.where(newer, ring_c2[slot_i], cmd2)
+                        applied_seq = np.where(newer, seq, applied_seq)
+                if first:
+                    first = False
+                    e_pos = np.hypot(state.x - ref.xd, state.y - ref.yd)
+                    if k >= rms_from:
+                        sq_sum += e_pos * e_pos
+                        sq_n += 1
+                    last = (state.x, state.y, state.theta, ref.xd, ref.yd, ref.thetad)
+                    if record:
+                        a1 = cmd1 if lag <= 0.0 else state.tau1
+                        a2 = cmd2 if lag <= 0.0 else state.tau2
+                        head = wrap_angle(state.theta - ref.thetad)
+                        tel = [np.broadcast_to(out.telemetry[key], (n,)) for key in tel_keys]
+                        for i in record:
+                            rec_rows[i].append(
+                                np.array(
+                                    [
+                                        t_k,
+                                        state.x[i],
+                                        state.y[i],
+                                        state.theta[i],
+                                        state.v[i],
+                                        state.omega[i],
+                                        ref.xd,
+                                        ref.yd,
+                                        ref.thetad,
+                                        a1[i],
+                                        a2[i],
+                                        tau1[i],
+                                        tau2[i],
+                                        e_pos[i],
+                                        head[i],
+                                        *(float(col[i]) for col in tel),
+                                    ]
+                                )
+                            )
+                nxt = events[ei] if ei < len(events) else j_end_period
+                j_next = min(nxt, j_end_period)
+                if j_next > j:
+                    state = advance_array_tracked(
+                        state,
+                        cmd1,
+                        cmd2,
+                        j * h,
+                        h,
+                        j_next - j,
+                        dist,
+                        lag,
+                        dseed_arg,
+                        limits,
+                        ext,
+                        j,
+                    )
+                    j = j_next
+                if j >= j_end_period:
+                    break
+            done = k + 1
+            if progress is not None and k % every == 0:
+                progress(k, n_samples)
+    except KeyboardInterrupt:
+        interrupted = True
+    if progress is not None and not interrupted:
+        progress(done, n_samples)
+    columns = [*BASE_COLUMNS, *(tel_keys or [])]
+    summaries = []
+    law = getattr(controller, "name", type(controller).__name__)
+    if last is None:
+        last = (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
+    # Columns as Python lists once: per-element numpy indexing costs more than the simulation
+    # itself for short runs of many robots.
+    last_cols = [np.broadcast_to(np.asarray(q, dtype=float), (n,)).tolist() for q in last]
+    ext_cols = [
+        np.asarray(q).tolist()
+        for q in (
+            ext.max_abs_v,
+            ext.max_abs_omega,
+            ext.max_abs_tau1,
+            ext.max_abs_tau2,
+            ext.violations_v,
+            ext.violations_omega,
+            ext.violations_tau1,
+            ext.violations_tau2,
+        )
+    ]
+    rms_col = (np.sqrt(sq_sum / sq_n) if sq_n else np.full(n, np.nan)).tolist()
+    dropped_col = dropped.tolist()
+    for i in range(n):
+        lt = tuple(col[i] for col in last_cols)
+        ext_vals = {
+            "max_abs_v": ext_cols[0][i],
+            "max_abs_omega": ext_cols[1][i],
+            "max_abs_tau1": ext_cols[2][i],
+            "max_abs_tau2": ext_cols[3][i],
+        }
+        violations = {
+            "v": ext_cols[4][i],
+            "omega": ext_cols[5][i],
+            "tau1": ext_cols[6][i],
+            "tau2": ext_cols[7][i],
+        }
+        rms = rms_col[i]
+        s = _summary(
+            scenario,
+            ext_vals,
+            violations,
+            lt,
+            rms,
+            done,
+            ext.steps,
+            dropped_col[i],
+            interrupted,
+            law,
+        )
+        s["seeds"] = {
+            "timing": int(jseeds[i]),
+            "disturbance": int(dseeds[i]),
+            "sensor": int(sseeds[i]),
+        }
+        summaries.append(s)
+    traces = {
+        i: np.array(rows, dtype=float).reshape(len(rows), len(columns))
+        for i, rows in rec_rows.items()
+    }
+    resolved = resolved_dict(scenario, controller, context)
+    return BatchResult(scenario, resolved, variations, summaries, columns, traces, interrupted)
+
+
+def wall_clock() -> float:
+    return time.perf_counter()

@@ -1,0 +1,161 @@
+"""Child processes of ``hil run``: started so they die with their parent, stopped by PID.
+
+Linux's ``PR_SET_PDEATHSIG`` (set with ``prctl`` through ctypes in the child between fork and
+exec) makes the kernel send the child a signal when the parent thread that forked it dies, even
+if that parent is SIGKILLed and has no chance to clean up. Children are stopped one by one by
+their PID: SIGINT first (they flush their logs), then SIGTERM, then SIGKILL.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import ctypes.util
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from types import FrameType
+from typing import Any
+
+PR_SET_PDEATHSIG = 1
+
+
+def _libc() -> ctypes.CDLL | None:
+    name = ctypes.util.find_library("c") or "libc.so.6"
+    try:
+        return ctypes.CDLL(name, use_errno=True)
+    except OSError:
+        return None
+
+
+def _die_with_parent(parent_pid: int, sig: int = signal.SIGTERM) -> Callable[[], None]:
+    """A ``preexec_fn`` that asks the kernel for ``sig`` when the parent dies."""
+
+    def preexec() -> None:
+        libc = _libc()
+        if libc is not None:
+            libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
+        # The parent may have died between fork and prctl: then no signal would ever come.
+        if os.getppid() != parent_pid:
+            os._exit(1)
+
+    return preexec
+
+
+class Child:
+    """One supervised process."""
+
+    def __init__(self, name: str, proc: subprocess.Popen[bytes]) -> None:
+        self.name = name
+        self.proc = proc
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self, grace: float = 5.0) -> int | None:
+        """SIGINT, then SIGTERM, then SIGKILL, each to this PID only; returns the exit code."""
+        for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+            if self.proc.poll() is not None:
+                break
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.proc.pid, sig)
+            try:
+                self.proc.wait(timeout=wait)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+        return self.proc.poll()
+
+
+class Supervisor:
+    """Starts children that die with this process and stops them by PID, newest first."""
+
+    def __init__(self) -> None:
+        self.children: list[Child] = []
+
+    def start(
+        self,
+        name: str,
+        argv: Sequence[str],
+        env: Mapping[str, str] | None = None,
+        stdout: Any = None,
+        stderr: Any = None,
+        cwd: str | None = None,
+    ) -> Child:
+        full_env = dict(os.environ)
+        if env:
+            full_env.update(env)
+        proc = subprocess.Popen(
+            list(argv),
+            env=full_env,
+            stdout=stdout,
+            stderr=stderr,
+            cwd=cwd,
+            # A new session: a Ctrl-C in the terminal reaches only ``hil run``, which then
+            # stops the children in order (controller first) instead of all at once.
+            start_new_session=True,
+            preexec_fn=_die_with_parent(os.getpid()),
+        )
+        child = Child(name, proc)
+        self.children.append(child)
+        return child
+
+    def start_python(self, name: str, module_args: Sequence[str], **kw: Any) -> Child:
+        return self.start(name, [sys.executable, *module_args], **kw)
+
+    def any_exited(self) -> Child | None:
+        for c in self.children:
+            if not c.alive():
+                return c
+        return None
+
+    def stop_all(self, grace: float = 5.0) -> dict[str, int | None]:
+        codes: dict[str, int | None] = {}
+        for c in reversed(self.children):
+            codes[c.name] = c.stop(grace)
+        return codes
+
+
+class StopRequested:
+    """A flag set by SIGINT/SIGTERM so a main loop ends cleanly instead of unwinding anywhere."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self.signal: int | None = None
+
+    def __bool__(self) -> bool:
+        return self.requested
+
+    def _handler(self, signum: int, frame: FrameType | None) -> None:
+        self.requested = True
+        self.signal = signum
+
+
+@contextlib.contextmanager
+def stop_on_signals(
+    signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM),
+) -> Iterator[StopRequested]:
+    """Install handlers that set a :class:`StopRequested` flag; restore the old ones after."""
+    flag = StopRequested()
+    old = {s: signal.signal(s, flag._handler) for s in signals}
+    try:
+        yield flag
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def wait_for(predicate: Callable[[], bool], timeout: float, interval: float = 0.01) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(interval)
+    return bool(predicate())

@@ -1,0 +1,143 @@
+"""The sweep grid of ``hil sweep`` and the break point, as pure functions.
+
+Grid: every combination of [sweep] ts x delay x jitter x seed (seeds = N gives seeds
+0..N-1 added to the scenario's timing seed). Points are grouped by Ts because one batch of the
+simulator shares its period; delay, jitter and seed vary inside a batch.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+# Defaults when the scenario has no [sweep] table: Ts from 0.5 ms to 50 ms around the paper's
+# 1 ms; delays from none to 50 ms (the DESIGN.md probe broke phi1 at Ts = 50 ms, 100 ms delay
+# only with m1 near its bound); no extra jitter; one seed.
+DEFAULT_TS: tuple[float, ...] = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05)
+DEFAULT_DELAY: tuple[float, ...] = (0.0, 0.002, 0.01, 0.05)
+DEFAULT_JITTER: tuple[float, ...] = (0.0,)
+DEFAULT_SEEDS = 1
+
+
+@dataclass(frozen=True)
+class SweepPoint:
+    ts: float
+    delay: float
+    jitter: float
+    seed: int
+
+
+@dataclass(frozen=True)
+class SweepGrid:
+    ts: tuple[float, ...]
+    delay: tuple[float, ...]
+    jitter: tuple[float, ...]
+    seeds: int
+    defaulted: tuple[str, ...] = ()
+
+    def points(self, base_seed: int = 0) -> list[SweepPoint]:
+        return [
+            SweepPoint(ts, d, j, base_seed + s)
+            for ts, d, j, s in itertools.product(
+                self.ts, self.delay, self.jitter, range(self.seeds)
+            )
+        ]
+
+    def by_ts(self, base_seed: int = 0) -> list[tuple[float, list[SweepPoint]]]:
+        """Groups of one Ts each, the longest Ts first: coarse periods are cheap (few samples),
+        so an interrupted sweep has already covered the whole range of Ts it could."""
+        pts = self.points(base_seed)
+        return [(ts, [p for p in pts if p.ts == ts]) for ts in sorted(self.ts, reverse=True)]
+
+    def __len__(self) -> int:
+        return len(self.ts) * len(self.delay) * len(self.jitter) * self.seeds
+
+
+def _values(name: str, raw: Iterable[Any], positive: bool) -> tuple[float, ...]:
+    out = []
+    for v in raw:
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise ValueError(f"[sweep] {name}: {v!r} is not a finite number")
+        if v < 0 or (positive and v == 0):
+            raise ValueError(f"[sweep] {name}: {v!r} must be {'> 0' if positive else '>= 0'}")
+        out.append(float(v))
+    return tuple(sorted(set(out)))
+
+
+def make_grid(
+    ts: Sequence[float] = (),
+    delay: Sequence[float] = (),
+    jitter: Sequence[float] = (),
+    seeds: int = 0,
+) -> SweepGrid:
+    """The grid with defaults for empty axes (listed in ``defaulted``); ValueError on a bad
+    value (negative, zero period, not a number)."""
+    defaulted = []
+    if not ts:
+        ts, _ = DEFAULT_TS, defaulted.append("ts")
+    if not delay:
+        delay, _ = DEFAULT_DELAY, defaulted.append("delay")
+    if not jitter:
+        jitter, _ = DEFAULT_JITTER, defaulted.append("jitter")
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 0:
+        raise ValueError(f"[sweep] seeds: {seeds!r} must be a whole number >= 1")
+    if seeds == 0:
+        seeds, _ = DEFAULT_SEEDS, defaulted.append("seeds")
+    return SweepGrid(
+        _values("ts", ts, True),
+        _values("delay", delay, False),
+        _values("jitter", jitter, False),
+        int(seeds),
+        tuple(defaulted),
+    )
+
+
+def violated(row: Mapping[str, Any]) -> bool:
+    return bool(row.get("violation"))
+
+
+def break_points(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Where the limits stop holding.
+
+    - ``ts_by_delay``: for each delay, the smallest Ts at which any loop (any jitter, seed)
+      broke a constraint of (2); None if none did.
+    - ``delay_by_ts``: for each Ts, the smallest delay at which one did.
+    - ``first``: the violating point with the smallest Ts + delay (the age of the command that
+      the sampled-data bound grows with), or None when the limits held everywhere.
+    """
+    ts_values = sorted({r["ts"] for r in rows})
+    delay_values = sorted({r["delay"] for r in rows})
+    bad = [r for r in rows if violated(r)]
+    ts_by_delay = {
+        d: min((r["ts"] for r in bad if r["delay"] == d), default=None) for d in delay_values
+    }
+    delay_by_ts = {
+        ts: min((r["delay"] for r in bad if r["ts"] == ts), default=None) for ts in ts_values
+    }
+    first = min(bad, key=lambda r: (r["ts"] + r["delay"], r["ts"]), default=None)
+    return {
+        "held_everywhere": not bad,
+        "violating_points": len(bad),
+        "ts_by_delay": ts_by_delay,
+        "delay_by_ts": delay_by_ts,
+        "first": None
+        if first is None
+        else {k: first[k] for k in ("ts", "delay", "jitter", "seed")},
+    }
+
+
+def aggregate(
+    rows: Sequence[Mapping[str, Any]], metric: str, how: str = "max"
+) -> dict[tuple[float, float], float]:
+    """metric over jitter and seeds for each (ts, delay): the worst case ("max") or "mean"."""
+    groups: dict[tuple[float, float], list[float]] = {}
+    for r in rows:
+        v = r.get(metric)
+        if isinstance(v, int | float) and math.isfinite(v):
+            groups.setdefault((r["ts"], r["delay"]), []).append(float(v))
+    if how == "mean":
+        return {k: sum(v) / len(v) for k, v in groups.items()}
+    return {k: max(v) for k, v in groups.items()}

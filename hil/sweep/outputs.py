@@ -1,0 +1,188 @@
+"""sweep.csv, sweep.json, the figures (PNG + CSV) and sweep.md of ``hil sweep``."""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hil.report import figures as fg
+from hil.report.build import _jsonable
+from hil.sweep.grid import SweepGrid, aggregate, break_points
+
+CSV_COLUMNS = (
+    "ts",
+    "delay",
+    "jitter",
+    "seed",
+    "age",
+    "final_position_error",
+    "rms_position_error",
+    "max_abs_v",
+    "max_abs_omega",
+    "max_abs_tau1",
+    "max_abs_tau2",
+    "overshoot_v",
+    "overshoot_omega",
+    "band_v",
+    "band_w",
+    "violations",
+    "violation",
+    "v_bound",
+    "w_bound",
+    "certified",
+    "within_bound",
+    "commands_dropped",
+    "complete",
+)
+# (metric, y label, how to aggregate over jitter and seeds, reference line)
+FIGURES: tuple[tuple[str, str, str, float | None], ...] = (
+    ("rms_position_error", "tracking error: RMS position error, last 10% [m]", "mean", None),
+    ("band_v", "band of v~ (p99 |v~| after reaching)", "max", None),
+    ("band_w", "band of w~ (p99 |w~| after reaching)", "max", None),
+    ("overshoot_v", "max |v| / phi1", "max", 1.0),
+    ("overshoot_omega", "max |omega| / phi2", "max", 1.0),
+)
+
+
+def _series(
+    rows: Sequence[dict[str, Any]], metric: str, how: str, along: str, grid: SweepGrid
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    agg = aggregate(rows, metric, how)
+    if along == "ts":
+        x, others, label = grid.ts, grid.delay, "delay"
+    else:
+        x, others, label = grid.delay, grid.ts, "Ts"
+    series = {}
+    for o in others:
+        keyed = [(xv, o) if along == "ts" else (o, xv) for xv in x]
+        ys = np.array([agg.get(k, np.nan) for k in keyed], dtype=float)
+        if np.isfinite(ys).any():
+            series[f"{label}={o:g} s"] = ys
+    return np.asarray(x, dtype=float), series
+
+
+def sweep_figures(rows: Sequence[dict[str, Any]], grid: SweepGrid, bp: dict[str, Any]):
+    figs = []
+    first = bp.get("first")
+    for metric, ylabel, how, hline in FIGURES:
+        for along, xlabel in (("ts", "Ts [s]"), ("delay", "delay [s]")):
+            x, series = _series(rows, metric, how, along, grid)
+            if not series:
+                continue
+            mark = None if first is None else first[along]
+            name = f"{metric}_vs_{along}"
+            f = fg.against_parameter(
+                name,
+                f"{ylabel} against {xlabel.split()[0]}",
+                xlabel,
+                ylabel,
+                x,
+                series,
+                hline,
+                mark if mark else None,
+            )
+            figs.append(f)
+    return figs
+
+
+def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(CSV_COLUMNS)
+        for r in rows:
+            w.writerow(["" if r.get(c) is None else r.get(c) for c in CSV_COLUMNS])
+
+
+def write_outputs(
+    out: Path,
+    rows: list[dict[str, Any]],
+    grid: SweepGrid,
+    meta: dict[str, Any],
+) -> dict[str, Any]:
+    out.mkdir(parents=True, exist_ok=True)
+    bp = break_points(rows) if rows else {"held_everywhere": None, "first": None}
+    write_csv(out / "sweep.csv", rows)
+    figs = sweep_figures(rows, grid, bp) if rows else []
+    files = []
+    for fig in figs:
+        png, data = fig.write(out, "sweep_")
+        files.append({"name": fig.name, "title": fig.title, "png": png.name, "data": data.name})
+    doc = {
+        "schema_version": 1,
+        "grid": {
+            "ts": list(grid.ts),
+            "delay": list(grid.delay),
+            "jitter": list(grid.jitter),
+            "seeds": grid.seeds,
+            "defaulted": list(grid.defaulted),
+        },
+        **meta,
+        "break_point": _jsonable(
+            {
+                **bp,
+                "ts_by_delay": [
+                    {"delay": k, "ts": v} for k, v in bp.get("ts_by_delay", {}).items()
+                ],
+                "delay_by_ts": [
+                    {"ts": k, "delay": v} for k, v in bp.get("delay_by_ts", {}).items()
+                ],
+            }
+        ),
+        "rows": rows,
+        "figures": files,
+    }
+    (out / "sweep.json").write_text(json.dumps(_jsonable(doc), indent=2, allow_nan=False))
+    (out / "sweep.md").write_text(_markdown(doc, bp, files))
+    return doc
+
+
+def _markdown(doc: dict[str, Any], bp: dict[str, Any], files: list[dict[str, str]]) -> str:
+    g = doc["grid"]
+    lines = [
+        "# Sweep",
+        "",
+        f"Scenario `{doc.get('scenario_file', '?')}`, law `{doc.get('law', '?')}`, "
+        f"{doc.get('duration', '?')} s per loop, {len(doc['rows'])} loops"
+        + (" (INTERRUPTED: partial results)" if doc.get("interrupted") else "")
+        + ".",
+        f"Grid: Ts {g['ts']}, delay {g['delay']}, jitter {g['jitter']}, seeds {g['seeds']}"
+        + (f" (defaults used for: {', '.join(g['defaulted'])})" if g["defaulted"] else "")
+        + ".",
+        "",
+        "## Break point",
+        "",
+    ]
+    first = bp.get("first")
+    if first is None:
+        lines.append("The limits (2) held at every point of the grid.")
+    else:
+        lines.append(
+            f"The limits first break at Ts = {first['ts']:g} s, delay = {first['delay']:g} s "
+            f"(jitter {first['jitter']:g} s, seed {first['seed']}); "
+            f"{bp['violating_points']} of {len(doc['rows'])} loops broke a limit."
+        )
+        lines += ["", "| delay [s] | smallest Ts that broke a limit [s] |", "|---|---|"]
+        for d, ts in bp["ts_by_delay"].items():
+            lines.append(f"| {d:g} | {'held' if ts is None else f'{ts:g}'} |")
+    cb = (doc.get("certificate") or {}).get("first_uncertified")
+    lines += [
+        "",
+        "Certificate: "
+        + (
+            "every point certified."
+            if cb is None
+            else f"(2) no longer guaranteed from Ts = {cb['ts']:g} s, delay = {cb['delay']:g} s"
+            f" (age {cb['age']:g} s)."
+        ),
+        "",
+        "## Figures",
+        "",
+    ]
+    for f in files:
+        lines += [f"![{f['title']}]({f['png']}) (data: [{f['data']}]({f['data']}))", ""]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,71 @@
+"""``jitter_kind = "replay"`` from a real run: the latencies measured in a run folder or its
+recording, in seconds, for the simulator's replay (``hil.sim.timing.extra_delays``).
+
+Accepted paths: a run folder (its trace.csv ``*_latency_us`` columns, else its ``*.mcap``), or a
+``.mcap`` recording; ``PATH::zenoh`` or ``PATH::can`` keeps one path's latencies (default: all
+paths, in recording order per path). Plain latency files stay with
+``hil.sim.timing.jitter_samples_from``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from hil.errors import BadInput
+
+US = 1e-6
+
+
+def split_path(spec: str | Path) -> tuple[Path, str | None]:
+    text = str(spec)
+    if "::" in text:
+        head, _, which = text.rpartition("::")
+        return Path(head), which or None
+    return Path(text), None
+
+
+def is_run_source(spec: str | Path) -> bool:
+    p, _ = split_path(spec)
+    return p.is_dir() or p.suffix == ".mcap"
+
+
+def latencies_from_run(spec: str | Path) -> np.ndarray:
+    """Measured sample-to-apply latencies (seconds) of a run folder or recording."""
+    p, which = split_path(spec)
+    per_path: dict[str, np.ndarray] = {}
+    if p.is_dir():
+        from hil.report.folder import load_folder
+        from hil.report.timing_data import collect
+
+        per_path = dict(collect(load_folder(p)).latency)
+    elif p.suffix == ".mcap" and p.is_file():
+        from hil.report.mcap_timing import from_recordings
+
+        per_path = dict(from_recordings([p]).latency)
+    else:
+        raise BadInput(f"[timing] replay: {p} is neither a run folder nor a .mcap recording")
+    if which is not None:
+        if which not in per_path:
+            raise BadInput(
+                f"[timing] replay: {p} has no latencies of path {which!r} "
+                f"(has: {', '.join(sorted(per_path)) or 'none'})"
+            )
+        per_path = {which: per_path[which]}
+    values = [v for v in per_path.values() if v.size]
+    if not values:
+        raise BadInput(f"[timing] replay: no latency samples found in {p}")
+    seconds = np.concatenate(values) * US
+    seconds = seconds[np.isfinite(seconds) & (seconds >= 0)]
+    if seconds.size == 0:
+        raise BadInput(f"[timing] replay: {p} holds no finite latency >= 0")
+    return seconds
+
+
+def write_latency_file(spec: str | Path, out: Path) -> Path:
+    """The run's latencies as a JSON latency list the simulator's replay hook reads."""
+    seconds = latencies_from_run(spec)
+    out.write_text(json.dumps({"latencies": seconds.tolist(), "source": str(spec)}))
+    return out

@@ -1,0 +1,736 @@
+"""The plant emulator: model (1) in real time (or in lockstep), commands from Zenoh or CAN.
+
+Functional core, thin shell:
+
+- :class:`PlantCore` (pure, explicit time): the robot of :mod:`plant_emulator.dynamics`
+  integrated *lazily* up to each event's time (a command landing, a sensor tick) in RK4 steps of
+  at most ``h`` (default Ts/10), with the scenario's disturbance and actuator lag, holding the
+  newest command; it tracks the extremes and violations of (2) over every plant step.
+- :class:`PlantService` (the shell): publishes State at ``sensor_rate`` on absolute deadlines;
+  receives TorqueCommand on Zenoh and Set_Input_Torque frames on CAN (two virtual ODrives that
+  honour the drive lifecycle and clamp torque); applies ONE path (``cmd_path``) and stamps the
+  other as a shadow; a command timeout on the applied path zeroes the torque; ``[timing] delay``
+  and ``jitter`` are injected on the applied path (newest by sequence number wins).
+- Lockstep (:meth:`PlantService.run_lockstep`): State k is sent at virtual time t_k = k Ts,
+  the plant waits for the command with ``state_seq == k`` and applies it over
+  [t_k + delay, ...) exactly as the offline simulator does, so the trajectory equals it.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import math
+import random
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgpack
+
+from controller_service.laws.base import Limits
+from controller_service.realtime import DeadlineClock, setup_scheduling
+from plant_emulator.disturbances import Disturbance
+from plant_emulator.dynamics import Extremes, PlantState, advance_float_tracked
+from plant_emulator.sensors import Sensor, measure
+from protocol import keys
+from protocol.messages import (
+    FLAG_STOP,
+    Status,
+    TorqueCommand,
+    decode_counted,
+    encode,
+)
+from protocol.messages import State as StateMsg
+from protocol.rejections import RejectionCounter
+from protocol.sequence import SequenceTracker
+
+STATE_LOG_FIELDS = (
+    "seq",
+    "sample_ns",
+    "send_ns",
+    "x",
+    "y",
+    "theta",
+    "v",
+    "omega",
+    "tau1",
+    "tau2",
+    "cmd1",
+    "cmd2",
+)
+CMD_LOG_FIELDS = (
+    "path",  # 0 zenoh, 1 can
+    "applied",  # 1 applied path, 0 shadow
+    "seq",  # zenoh: cmd seq; can: per-node frame index
+    "state_seq",
+    "state_sample_ns",
+    "compute_start_ns",
+    "send_ns",
+    "recv_ns",
+    "apply_ns",
+    "tau1",
+    "tau2",
+    "node",  # can: node id, zenoh: -1
+)
+
+
+@dataclass
+class PlantCore:
+    """Model (1) with held commands, advanced lazily in time (seconds since the epoch)."""
+
+    state: PlantState
+    h: float
+    limits: Limits
+    disturbance: Disturbance = field(default_factory=Disturbance)
+    lag: float = 0.0
+    seed: int | None = None
+    t: float = 0.0
+    cmd1: float = 0.0
+    cmd2: float = 0.0
+    extremes: Extremes = field(default_factory=Extremes)
+
+    def advance_to(self, t1: float) -> None:
+        """Integrate from ``self.t`` to ``t1`` with the held command (steps of at most h)."""
+        span = t1 - self.t
+        if span <= 0.0:
+            return
+        n = max(1, math.ceil(span / self.h - 1e-9))
+        self.state = advance_float_tracked(
+            self.state,
+            self.cmd1,
+            self.cmd2,
+            self.t,
+            span / n,
+            n,
+            self.disturbance,
+            self.lag,
+            self.seed,
+            self.limits,
+            self.extremes,
+        )
+        self.t = t1
+
+    def advance_steps(self, n: int) -> None:
+        """``n`` steps of exactly ``h`` (the lockstep grid, as the simulator steps)."""
+        if n <= 0:
+            return
+        self.state = advance_float_tracked(
+            self.state,
+            self.cmd1,
+            self.cmd2,
+            self.t,
+            self.h,
+            n,
+            self.disturbance,
+            self.lag,
+            self.seed,
+            self.limits,
+            self.extremes,
+        )
+        self.t = self.t + n * self.h
+
+    def hold(self, cmd1: float, cmd2: float) -> None:
+        """Hold a new command; clamped to (2) here, where commands are applied."""
+        lim = self.limits
+        c1 = cmd1 if math.isfinite(cmd1) else 0.0
+        c2 = cmd2 if math.isfinite(cmd2) else 0.0
+        self.cmd1 = max(-lim.varpi1, min(lim.varpi1, c1))
+        self.cmd2 = max(-lim.varpi2, min(lim.varpi2, c2))
+
+
+@dataclass(order=True)
+class Pending:
+    apply_ns: int
+    order: int
+    path: int = field(compare=False)
+    payload: Any = field(compare=False)
+    recv_ns: int = field(compare=False)
+
+
+class DelayInjector:
+    """Extra sample-to-apply delay on the applied path: constant ``delay`` plus ``jitter``
+    (uniform in [0, jitter] or |normal| with std jitter), seeded; never makes commands
+    overtake each other on the CAN path (frames keep bus order)."""
+
+    def __init__(self, delay: float, jitter: float, kind: str, seed: int) -> None:
+        self.delay_ns = int(delay * 1e9)
+        self.jitter = jitter
+        self.kind = kind
+        self.rng = random.Random(seed)
+
+    def extra_ns(self) -> int:
+        if self.jitter <= 0.0:
+            return self.delay_ns
+        if self.kind == "normal":
+            j = abs(self.rng.gauss(0.0, self.jitter))
+        else:
+            j = self.rng.uniform(0.0, self.jitter)
+        return self.delay_ns + int(j * 1e9)
+
+
+class CanDrives:
+    """The plant's CAN edge: two virtual ODrives; a reader thread stamps arriving frames."""
+
+    def __init__(self, bus: Any, pair: Any, geometry: Any, limits: Limits) -> None:
+        from protocol.can.drive_link import from_message, to_message
+
+        self.bus = bus
+        self.pair = pair
+        self.geometry = geometry
+        self.limits = limits
+        self._to = to_message
+        self._from = from_message
+        self._stop = threading.Event()
+        self.inbox: collections.deque[tuple[int, Any]] = collections.deque()
+        self.frames_in = 0
+        self.frames_out = 0
+        self.send_errors = 0
+        self._thread = threading.Thread(target=self._reader, name="can-reader", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _reader(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self.bus.recv(timeout=0.05)
+            except Exception:
+                continue
+            if msg is not None:
+                self.inbox.append((time.monotonic_ns(), self._from(msg)))
+                self.frames_in += 1
+
+    def send(self, frames: list[Any]) -> None:
+        for f in frames:
+            try:
+                self.bus.send(self._to(f), timeout=0.05)
+                self.frames_out += 1
+            except Exception:
+                self.send_errors += 1
+
+    def torques(self) -> tuple[float, float]:
+        from protocol.can.wheel_mapping import decode_torques
+
+        return decode_torques(
+            self.geometry,
+            self.pair.right.torque,
+            self.pair.left.torque,
+            self.limits.varpi1,
+            self.limits.varpi2,
+        )
+
+    def estimates(self, v: float, omega: float, pos: dict[int, float]) -> dict[int, tuple]:
+        g = self.geometry
+        wr = (v + g.half_track * omega) / g.wheel_radius
+        wl = (v - g.half_track * omega) / g.wheel_radius
+        k = g.gear_ratio / (2.0 * math.pi)
+        return {
+            self.pair.node_right: (pos.get(self.pair.node_right, 0.0), k * wr),
+            self.pair.node_left: (pos.get(self.pair.node_left, 0.0), k * wl),
+        }
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        with contextlib.suppress(Exception):  # a bus already gone is fine on the way out
+            self.bus.shutdown()
+
+
+class PlantService:
+    """The shell around :class:`PlantCore` (see the module docstring)."""
+
+    def __init__(
+        self,
+        core: PlantCore,
+        sensor: Sensor,
+        session: Any,
+        robot_id: str,
+        epoch_ns: int,
+        ts: float,
+        sensor_rate_hz: float,
+        cmd_path: str = "zenoh",
+        command_timeout: float = 0.05,
+        injector: DelayInjector | None = None,
+        can: CanDrives | None = None,
+    ) -> None:
+        from hil.run.zsession import payload_bytes, publisher
+
+        self.core = core
+        self.sensor = sensor
+        self.session = session
+        self.robot_id = robot_id
+        self.epoch_ns = int(epoch_ns)
+        self.ts = ts
+        self.sensor_period_ns = round(1e9 / sensor_rate_hz)
+        self.applied_path = 0 if cmd_path == "zenoh" else 1
+        self.command_timeout_ns = int(command_timeout * 1e9)
+        self.injector = injector or DelayInjector(0.0, 0.0, "uniform", 0)
+        self.can = can
+        self.rejections = RejectionCounter()
+        self.cmd_tracker = SequenceTracker()
+        self._payload = payload_bytes
+        self._pub_state = publisher(session, keys.state_key(robot_id))
+        self._pub_status = publisher(session, keys.status_key(robot_id))
+        self.zinbox: collections.deque[tuple[int, TorqueCommand]] = collections.deque()
+        self._cond = threading.Condition()
+        self.pending: list[Pending] = []
+        self._order = 0
+        self._last_applied_seq = -1
+        self._last_cmd_recv_ns: int | None = None
+        self.timed_out = False
+        self.timeouts = 0
+        self.stopped_by_controller = False
+        self.state_log: list[tuple] = []
+        self.cmd_log: list[tuple] = []
+        self.zero_log: list[tuple[int, int]] = []  # (timeout moment ns, applied at ns)
+        self._state_seq = 0
+        self.resends = 0
+        self._status_seq = 0
+        self._can_frames_per_node: dict[int, int] = {}
+        self._can_pos: dict[int, float] = {}
+        self._sub = session.declare_subscriber(keys.torque_key(robot_id), self._on_cmd)
+
+    # --- receive ----------------------------------------------------------------------
+    def _on_cmd(self, sample: Any) -> None:
+        recv_ns = time.monotonic_ns()
+        msg = decode_counted(self._payload(sample), self.rejections, TorqueCommand)
+        if msg is None:
+            return
+        if msg.robot_id != self.robot_id:
+            self.rejections.count("wrong_robot")
+            return
+        with self._cond:
+            self.zinbox.append((recv_ns, msg))
+            self._cond.notify_all()
+
+    # --- helpers ------------------------------------------------------------------------
+    def _t(self, ns: int) -> float:
+        return (ns - self.epoch_ns) / 1e9
+
+    def _publish_state(self, sample_ns: int, k: int) -> None:
+        c = self.core
+        meas = measure(self.sensor, c.state.robot_state(), k)
+        send_ns = time.monotonic_ns()
+        msg = StateMsg(
+            self.robot_id,
+            self._state_seq,
+            sample_ns,
+            send_ns,
+            float(meas.x),
+            float(meas.y),
+            float(meas.theta),
+            float(meas.v),
+            float(meas.omega),
+        )
+        self._state_seq += 1
+        try:
+            self._pub_state.put(encode(msg))
+        except ValueError:
+            self.rejections.count("state_unencodable")
+        s = c.state
+        self.state_log.append(
+            (
+                msg.seq,
+                sample_ns,
+                send_ns,
+                s.x,
+                s.y,
+                s.theta,
+                s.v,
+                s.omega,
+                s.tau1,
+                s.tau2,
+                c.cmd1,
+                c.cmd2,
+            )
+        )
+
+    def publish_status(self, state: str = "running") -> None:
+        counters = {
+            "states": self._state_seq,
+            "commands": self.cmd_tracker.counts.received,
+            "timeouts": self.timeouts,
+            "rejections": self.rejections.total,
+            "violations": int(
+                self.core.extremes.violations_v
+                + self.core.extremes.violations_omega
+                + self.core.extremes.violations_tau1
+                + self.core.extremes.violations_tau2
+            ),
+        }
+        msg = Status(
+            self.robot_id,
+            self._status_seq,
+            time.monotonic_ns(),
+            "plant",
+            state,
+            1 if self.timed_out else 0,
+            counters,
+        )
+        self._status_seq += 1
+        self._pub_status.put(encode(msg))
+
+    # --- events of the real-time loop -----------------------------------------------------
+    def _take_zenoh(self) -> None:
+        while self.zinbox:
+            recv_ns, msg = self.zinbox.popleft()
+            applied = self.applied_path == 0
+            if applied:
+                verdict = self.cmd_tracker.observe(msg.seq)
+                if not verdict.fresh:
+                    continue
+                apply_ns = recv_ns + self.injector.extra_ns()
+                self._order += 1
+                self.pending.append(Pending(apply_ns, self._order, 0, msg, recv_ns))
+            else:
+                self._log_cmd(0, 0, msg, recv_ns, 0)
+
+    def _take_can(self) -> None:
+        if self.can is None:
+            return
+        from protocol.can.codec import Cmd, split_id
+
+        inbox = self.can.inbox
+        last_apply = 0
+        while inbox:
+            recv_ns, frame = inbox.popleft()
+            node, cmd = split_id(frame.arbitration_id)
+            if self.applied_path == 1:
+                apply_ns = max(recv_ns + self.injector.extra_ns(), last_apply)
+                last_apply = apply_ns
+                self._order += 1
+                self.pending.append(Pending(apply_ns, self._order, 1, frame, recv_ns))
+            else:
+                answers = self.can.pair.receive(frame)
+                if answers:
+                    self.can.send(answers)
+                if cmd == Cmd.SET_INPUT_TORQUE:
+                    i = self._can_frames_per_node.get(node, 0)
+                    self._can_frames_per_node[node] = i + 1
+                    t1, t2 = self.can.torques()
+                    self.cmd_log.append((1, 0, i, -1, 0, 0, 0, recv_ns, 0, t1, t2, node))
+
+    def _apply(self, p: Pending) -> None:
+        """Land one pending command at its time (the plant was advanced to it)."""
+        apply_ns = max(p.apply_ns, self.epoch_ns + int(self.core.t * 1e9))
+        if p.path == 0:
+            msg: TorqueCommand = p.payload
+            if msg.seq < self._last_applied_seq:
+                self.rejections.count("overtaken")  # a newer command already landed
+                return
+            self._last_applied_seq = msg.seq
+            if msg.flags & FLAG_STOP:
+                self.stopped_by_controller = True
+            self.core.hold(msg.tau1, msg.tau2)
+            self._log_cmd(0, 1, msg, p.recv_ns, apply_ns)
+        else:
+            from protocol.can.codec import Cmd, split_id
+
+            frame = p.payload
+            node, cmd = split_id(frame.arbitration_id)
+            answers = self.can.pair.receive(frame)
+            if answers:
+                self.can.send(answers)
+            if cmd != Cmd.SET_INPUT_TORQUE:
+                self.core.hold(*self.can.torques())
+                return
+            i = self._can_frames_per_node.get(node, 0)
+            self._can_frames_per_node[node] = i + 1
+            t1, t2 = self.can.torques()
+            self.core.hold(t1, t2)
+            self.cmd_log.append((1, 1, i, -1, 0, 0, 0, p.recv_ns, apply_ns, t1, t2, node))
+        self._last_cmd_recv_ns = p.recv_ns
+        self.timed_out = False
+
+    def _log_cmd(self, path: int, applied: int, msg: TorqueCommand, recv_ns: int, apply_ns: int):
+        self.cmd_log.append(
+            (
+                path,
+                applied,
+                msg.seq,
+                msg.state_seq,
+                msg.state_sample_time_ns,
+                msg.compute_start_ns,
+                msg.send_time_ns,
+                recv_ns,
+                apply_ns,
+                msg.tau1,
+                msg.tau2,
+                -1,
+            )
+        )
+
+    def _process_until(self, until_ns: int) -> None:
+        """Land every pending command due by ``until_ns`` and the command timeout, in time
+        order, advancing the plant lazily to each event."""
+        self._take_zenoh()
+        self._take_can()
+        self.pending.sort()
+        while True:
+            due = self.pending[0] if self.pending and self.pending[0].apply_ns <= until_ns else None
+            timeout_ns = (
+                self._last_cmd_recv_ns + self.command_timeout_ns
+                if self._last_cmd_recv_ns is not None and not self.timed_out
+                else None
+            )
+            if (
+                timeout_ns is not None
+                and timeout_ns <= until_ns
+                and (due is None or timeout_ns < due.apply_ns)
+            ):
+                self.core.advance_to(max(self.core.t, self._t(timeout_ns)))
+                self.core.hold(0.0, 0.0)
+                if self.can is not None and self.applied_path == 1:
+                    for d in self.can.pair.drives.values():
+                        d.input_torque = 0.0
+                self.timed_out = True
+                self.timeouts += 1
+                self.zero_log.append((timeout_ns, time.monotonic_ns()))
+                continue
+            if due is None:
+                break
+            self.pending.pop(0)
+            self.core.advance_to(max(self.core.t, self._t(due.apply_ns)))
+            self._apply(due)
+        self.core.advance_to(max(self.core.t, self._t(until_ns)))
+
+    # --- real time -----------------------------------------------------------------------
+    def run_realtime(self, stop: Any, end_ns: int) -> None:
+        clock = DeadlineClock(self.sensor_period_ns, self.epoch_ns)
+        self.clock = clock
+        next_status = time.monotonic_ns()
+        while not stop:
+            tick = clock.next()
+            if tick.deadline_ns > end_ns:
+                break
+            self._process_until(tick.deadline_ns)
+            self._publish_state(tick.deadline_ns, tick.k)
+            if self.can is not None:
+                s = self.core.state
+                est = self.can.estimates(s.v, s.omega, self._can_pos)
+                frames = self.can.pair.due_frames(time.monotonic(), est)
+                if frames:
+                    self.can.send(frames)
+            if tick.wake_ns >= next_status:
+                next_status = tick.wake_ns + 200_000_000
+                self.publish_status()
+        self.publish_status("stopped")
+
+    # --- lockstep --------------------------------------------------------------------------
+    def run_lockstep(self, stop: Any, n_periods: int, offsets: list[int], wait_s: float = 10.0):
+        """State k at t_k = k Ts; wait for the command computed from it; it lands ``offsets[k]``
+        plant steps after t_k (delay + jitter rounded to the step, as the simulator draws
+        them); the newest by sequence number wins, older ones are dropped. The plant's clock is
+        the integer step index j (t = j h), exactly as in :func:`hil.sim.core.simulate`."""
+        import heapq
+
+        c = self.core
+        h = c.h
+        m = max(1, round(self.ts / h))
+        pending: list[tuple[int, int, float, float]] = []
+        applied_seq = -1
+        for k in range(n_periods):
+            if stop:
+                break
+            sample_ns = self.epoch_ns + round(k * self.ts * 1e9)
+            j0 = k * m
+            c.t = j0 * h
+            msg = self._exchange(k, sample_ns, wait_s, stop)
+            if msg is None:
+                break
+            heapq.heappush(pending, (j0 + offsets[k], k, msg.tau1, msg.tau2))
+            j = j0
+            j_end = j0 + m
+            while True:
+                while pending and pending[0][0] <= j:
+                    _, seq, t1, t2 = heapq.heappop(pending)
+                    if seq > applied_seq:
+                        applied_seq = seq
+                        c.hold(t1, t2)
+                    else:
+                        self.rejections.count("overtaken")
+                if j == j0:
+                    # The trace's applied torque at t_k is what acts from t_k on (as in the
+                    # simulator's trace): patch the row logged when State k was sent.
+                    row = list(self.state_log[-1])
+                    row[8] = c.cmd1 if c.lag <= 0.0 else c.state.tau1
+                    row[9] = c.cmd2 if c.lag <= 0.0 else c.state.tau2
+                    self.state_log[-1] = tuple(row)
+                nxt = pending[0][0] if pending else j_end
+                j_next = min(nxt, j_end)
+                if j_next > j:
+                    c.state = advance_float_tracked(
+                        c.state,
+                        c.cmd1,
+                        c.cmd2,
+                        j * h,
+                        h,
+                        j_next - j,
+                        c.disturbance,
+                        c.lag,
+                        c.seed,
+                        c.limits,
+                        c.extremes,
+                    )
+                    j = j_next
+                if j >= j_end:
+                    break
+            c.t = j_end * h
+        self.publish_status("stopped")
+
+    def _exchange(self, k: int, sample_ns: int, wait_s: float, stop: Any) -> TorqueCommand | None:
+        """Publish State k and wait for the command computed from it (re-sending the state
+        if a message was lost)."""
+        deadline = time.monotonic() + wait_s
+        while not stop and time.monotonic() < deadline:
+            if self._state_seq > k:  # a re-send: one trace row per sample
+                self.state_log.pop()
+                self.resends += 1
+            self._state_seq = k
+            self._publish_state(sample_ns, k)
+            resend_at = time.monotonic() + 0.5
+            with self._cond:
+                while time.monotonic() < resend_at and not stop:
+                    while self.zinbox:
+                        recv_ns, msg = self.zinbox.popleft()
+                        if msg.state_seq == k and not (msg.flags & FLAG_STOP):
+                            self.cmd_tracker.observe(msg.seq)
+                            self._log_cmd(0, 1, msg, recv_ns, recv_ns)
+                            return msg
+                    self._cond.wait(timeout=0.05)
+        return None
+
+    def write_log(self, path: str | Path, extra: dict[str, Any]) -> None:
+        e = self.core.extremes
+        data = {
+            "state_fields": list(STATE_LOG_FIELDS),
+            "states": self.state_log,
+            "cmd_fields": list(CMD_LOG_FIELDS),
+            "commands": self.cmd_log,
+            "zero_log": self.zero_log,
+            "epoch_ns": self.epoch_ns,
+            "applied_path": "zenoh" if self.applied_path == 0 else "can",
+            "extremes": {
+                "max_abs_v": e.max_abs_v,
+                "max_abs_omega": e.max_abs_omega,
+                "max_abs_tau1": e.max_abs_tau1,
+                "max_abs_tau2": e.max_abs_tau2,
+                "violations": {
+                    "v": int(e.violations_v),
+                    "omega": int(e.violations_omega),
+                    "tau1": int(e.violations_tau1),
+                    "tau2": int(e.violations_tau2),
+                },
+                "steps": e.steps,
+            },
+            "final": list(self.core.state),
+            "final_t": self.core.t,
+            "cmd_counts": self.cmd_tracker.counts.as_dict(),
+            "rejections": self.rejections.snapshot(),
+            "timeouts": self.timeouts,
+            "lockstep_resends": self.resends,
+            "deadline_misses": getattr(getattr(self, "clock", None), "misses", 0),
+            "can": None
+            if self.can is None
+            else {
+                "frames_in": self.can.frames_in,
+                "frames_out": self.can.frames_out,
+                "rejections": self.can.pair.rejections.snapshot(),
+            },
+            **extra,
+        }
+        Path(path).write_bytes(msgpack.packb(data, use_bin_type=True))
+
+
+def main_from_settings(settings_path: str) -> int:
+    """Entry of ``python -m plant_emulator --settings run_settings.json``."""
+    from hil.run.settings import RunSettings
+    from hil.run.wiring import build_plant, open_can_bus
+    from hil.run.zsession import open_session
+    from hil.supervisor import stop_on_signals
+
+    s = RunSettings.load(settings_path)
+    core, sensor = build_plant(s)
+    session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
+    can = None
+    bus = open_can_bus(s)
+    if bus is not None:
+        from protocol.can.drive_profile import VirtualDrivePair
+        from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit
+
+        geom = RobotGeometry(**s.robot)
+        lim = core.limits
+        # A hair above the largest legal motor torque: float32 rounding of a legal command
+        # must not be rejected; the applied (tau1, tau2) is clamped to (2) after decoding.
+        limit = motor_torque_limit(geom, lim.varpi1, lim.varpi2) * (1.0 + 1e-6)
+        pair = VirtualDrivePair(
+            int(s.can.get("node_right", 1)), int(s.can.get("node_left", 0)), limit
+        )
+        can = CanDrives(bus, pair, geom, lim)
+        can.start()
+    svc = PlantService(
+        core,
+        sensor,
+        session,
+        s.robot_id,
+        s.epoch_ns,
+        s.ts,
+        s.rate_hz if s.lockstep else s.sensor_rate_hz,
+        cmd_path=s.cmd_path,
+        command_timeout=s.command_timeout,
+        injector=DelayInjector(s.delay, s.jitter, s.jitter_kind, s.seed),
+        can=can,
+    )
+    from hil.run.startgate import StartGate
+
+    gate = StartGate(session, s.robot_id, "plant")
+    with stop_on_signals() as stop:
+        if s.epoch_ns == 0:
+
+            def idle() -> None:
+                if can is not None:  # answer the lifecycle so the drives arm before t = 0
+                    from protocol.can.codec import Cmd, split_id
+
+                    while can.inbox:
+                        _, frame = can.inbox.popleft()
+                        node, cmd = split_id(frame.arbitration_id)
+                        if cmd == Cmd.SET_INPUT_TORQUE:  # keep per-node frame order counted
+                            n = svc._can_frames_per_node.get(node, 0)
+                            svc._can_frames_per_node[node] = n + 1
+                        answers = can.pair.receive(frame)
+                        if answers:
+                            can.send(answers)
+                    st = svc.core.state
+                    frames = can.pair.due_frames(
+                        time.monotonic(), can.estimates(st.v, st.omega, {})
+                    )
+                    can.send(frames)
+
+            got = gate.wait(stop, idle=idle)
+            if got is None:
+                session.close()
+                return 1
+            svc.epoch_ns = got
+        sched = setup_scheduling(s.scheduling, cpu=s.cpu_plant, freeze_gc=True)
+        print(f"running epoch_ns={svc.epoch_ns} scheduling={sched.policy}", flush=True)
+        try:
+            if s.lockstep:
+                from hil.run.wiring import lockstep_offsets
+
+                n = max(1, round(s.duration / s.ts))
+                svc.run_lockstep(stop, n, lockstep_offsets(s, n, core.h))
+            else:
+                end_ns = svc.epoch_ns + int(s.duration * 1e9)
+                svc.run_realtime(stop, end_ns)
+        finally:
+            from controller_service.realtime import restore_gc
+
+            restore_gc()
+            if can is not None:
+                can.close()
+            svc.write_log(Path(s.out_dir) / "plant_log.msgpack", {"scheduling": sched.as_dict()})
+            session.close()
+    return 0

@@ -1,0 +1,85 @@
+"""A python-can Bus from the scenario's ``[can]`` table, for any installed interface.
+
+``interface`` is a python-can interface name: ``zenoh_can`` (the default, see
+:mod:`protocol.can.zenoh_bus`), ``socketcan`` (``vcan0`` or a real ``can0``), ``virtual``
+(in-process only), ``udp_multicast`` (refused unless this process runs in a private network
+namespace, since it sends to a multicast group on the default interface), or any hardware
+interface python-can knows (``pcan``, ``kvaser``, ``slcan``, ...).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import can
+
+ALLOW_UDP_MULTICAST_ENV = "HIL_ALLOW_UDP_MULTICAST"
+
+
+@dataclass(frozen=True)
+class CanSettings:
+    """The ``[can]`` table: python-can interface and channel, bitrate (bit/s), node ids."""
+
+    interface: str = "zenoh_can"
+    channel: str = "hil0"
+    bitrate: int = 1_000_000
+    node_left: int = 0
+    node_right: int = 1
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.interface, str) or not self.interface:
+            raise ValueError("[can] interface must be a python-can interface name")
+        if not isinstance(self.channel, str) or not self.channel:
+            raise ValueError("[can] channel must be a non-empty string")
+        if not isinstance(self.bitrate, int) or isinstance(self.bitrate, bool):
+            raise ValueError(f"[can] bitrate must be an integer, got {self.bitrate!r}")
+        if not 10_000 <= self.bitrate <= 1_000_000:
+            raise ValueError(f"[can] bitrate {self.bitrate} outside classical CAN's 10k..1M")
+        for name in ("node_left", "node_right"):
+            node = getattr(self, name)
+            if not isinstance(node, int) or isinstance(node, bool) or not 0 <= node <= 0x3F:
+                raise ValueError(f"[can] {name} must be an integer in 0..63, got {node!r}")
+        if self.node_left == self.node_right:
+            raise ValueError("[can] node_left and node_right must differ")
+
+    @classmethod
+    def from_table(cls, table: Mapping[str, Any]) -> CanSettings:
+        """From a parsed ``[can]`` table; unknown keys are an error (a typo must not pass)."""
+        known = {f.name for f in fields(cls)}
+        unknown = set(table) - known
+        if unknown:
+            raise ValueError(f"[can] unknown keys: {sorted(unknown)}")
+        return cls(**dict(table))
+
+
+def in_private_netns(net_dir: Path = Path("/sys/class/net")) -> bool:
+    """True when the only network interface is ``lo`` (a fresh ``unshare -n`` namespace)."""
+    try:
+        return sorted(p.name for p in net_dir.iterdir()) == ["lo"]
+    except OSError:
+        return False
+
+
+def open_bus(settings: CanSettings, **extra: Any) -> can.BusABC:
+    """A python-can Bus for ``settings``; ``extra`` keyword arguments go to the interface.
+
+    Raises ``ValueError`` for a refused configuration and python-can's
+    ``CanInitializationError`` when the interface cannot be opened (no vcan0, no hardware).
+    """
+    kwargs: dict[str, Any] = {"interface": settings.interface, "channel": settings.channel}
+    if settings.interface == "udp_multicast":
+        if not (in_private_netns() or os.environ.get(ALLOW_UDP_MULTICAST_ENV) == "1"):
+            raise ValueError(
+                "udp_multicast sends to a multicast group on the default interface: run it "
+                "in a private network namespace (unshare -n) or set "
+                f"{ALLOW_UDP_MULTICAST_ENV}=1"
+            )
+    elif settings.interface not in ("socketcan", "virtual"):
+        # vcan and the virtual bus have no bitrate; everything else takes one
+        kwargs["bitrate"] = settings.bitrate
+    kwargs.update(extra)
+    return can.Bus(**kwargs)

@@ -1,0 +1,170 @@
+"""The sampled-data certificate (docs/sampled_data_bound.md): formulas against hand
+computation at Table 1, verdicts, propose(), bad input, and the `hil certify` command."""
+
+from __future__ import annotations
+
+import json
+import math
+from types import SimpleNamespace
+
+import pytest
+
+from controller_service.certificate import CertificateError, certify, propose
+from controller_service.design import lam_bound, rho_bound
+from controller_service.laws.base import DesignContext
+from controller_service.laws.unified import UnifiedParams
+from hil.cli import main
+
+PAPER = DesignContext()  # Section 4: phi1 1.6, phi2 5.1, varpi1 3.3, varpi2 51, mu 0.5/0.2, k 1
+TABLE1 = UnifiedParams()
+
+
+def test_table1_at_1ms_matches_hand_computation_and_holds():
+    cert = certify(TABLE1, PAPER, 0.001, 0.0, boundary_layer=False)
+    # V = mu1 + m1 + varpi1 D = 0.5 + 0.5 + 3.3e-3
+    assert cert.v_bound == pytest.approx(1.0033, abs=1e-12)
+    # c2s = (mu1 + V) + 1 + mu1^2 + mu2^2 = 1.5033 + 1 + 0.29
+    assert cert.c2s == pytest.approx(2.7933, abs=1e-12)
+    # W = mu2 + lam mu1 + m2 + rho c2s + varpi2 D = 0.2 + 0.5 + 0.5 + 2.7933 + 0.051
+    assert cert.w_bound == pytest.approx(4.0443, abs=1e-12)
+    assert cert.held and cert.constraints_guaranteed
+    assert cert.margins["v"] == pytest.approx(1.6 - 1.0033)
+    assert cert.condition("(11)").bound == pytest.approx(lam_bound(PAPER, m2=0.5, l2=0.5))
+    assert cert.condition("(11)").bound == pytest.approx(5.96, abs=0.01)
+    assert cert.condition("(12)").bound == pytest.approx(1.02, abs=0.01)
+
+
+def test_disturbance_and_boundary_layer_terms():
+    ctx = DesignContext(s1=0.3, s2=3.0)
+    p = UnifiedParams(rho=0.5, eps1=0.1, eps2=0.2)
+    sign = certify(p, ctx, 0.002, 0.003, boundary_layer=False)
+    bl = certify(p, ctx, 0.002, 0.003, boundary_layer=True)
+    assert sign.v_bound == pytest.approx(1.0 + (3.3 + 0.3) * 0.005)
+    # (19): the push threshold eps1 s1 / varpi1 is added on the v side ...
+    assert bl.v_bound - sign.v_bound == pytest.approx(0.1 * 0.3 / 3.3)
+    # ... and eps2 s2 / varpi2 on the w side, plus rho times the c2s change from V.
+    expected = 0.2 * 3.0 / 51.0 + 0.5 * (bl.v_bound - sign.v_bound)
+    assert bl.w_bound - sign.w_bound == pytest.approx(expected)
+
+
+def test_m1_near_limit_at_50ms_with_100ms_delay_is_not_held():
+    p = UnifiedParams(m1=1.05)
+    cert = certify(p, PAPER, 0.05, 0.1, boundary_layer=False)
+    assert cert.condition("(9) m1").held  # the paper's design conditions all hold ...
+    assert cert.condition("(12)").held
+    assert cert.v_bound == pytest.approx(1.55 + 3.3 * 0.15)  # 2.045 > 1.6 ...
+    assert not cert.condition("sampled |v|").held  # ... but sampling breaks the guarantee
+    assert not cert.held and not cert.constraints_guaranteed
+    # V > phi1: c0 must use V, not phi1 (caveat (b)).
+    assert cert.c2s == pytest.approx(0.5 + cert.v_bound + 1.0 + 0.29)
+
+
+def test_broken_paper_condition_fails_the_certificate_without_raising():
+    cert = certify(UnifiedParams(rho=1.1), PAPER, 0.001, 0.0, boundary_layer=False)
+    assert not cert.held
+    assert [c.name for c in cert.failed()] == ["(12) rho < rho bound"]
+
+
+@pytest.mark.parametrize("boundary", [False, True])
+def test_propose_restores_the_certificate_with_the_largest_m1(boundary):
+    ctx = DesignContext(s1=0.2, s2=2.0)
+    p = UnifiedParams(m1=1.05, m2=0.8, eps1=0.1, eps2=0.1)
+    ts, delay = 0.01, 0.01
+    assert not certify(p, ctx, ts, delay, boundary).held
+    proposal = propose(p, ctx, ts, delay, boundary)
+    assert proposal.params is not None, proposal.reason
+    assert certify(proposal.params, ctx, ts, delay, boundary).held
+    new = proposal.params
+    assert new.m1 < p.m1 and new.m2 <= p.m2 and new.lam <= p.lam and new.rho <= p.rho
+    # m1 is the largest with V <= phi1: V sits exactly on phi1.
+    assert proposal.certificate.v_bound == pytest.approx(ctx.limits.phi1)
+    assert new.rho < rho_bound(ctx, m1=new.m1, m2=new.m2, l1=new.l1, l2=new.l2, lam=new.lam)
+
+
+def test_propose_keeps_a_design_that_already_holds():
+    proposal = propose(TABLE1, PAPER, 0.001, 0.0)
+    assert proposal.params == TABLE1 and proposal.changes == {}
+
+
+def test_propose_says_why_when_nothing_can_fix_it():
+    proposal = propose(UnifiedParams(m1=1.05), PAPER, 0.05, 0.1)
+    assert proposal.params is None
+    assert "exceeds" in proposal.reason and "phi2" in proposal.reason
+    proposal = propose(UnifiedParams(), PAPER, 0.2, 0.2)  # 3.3 x 0.4 > 1.6 - 0.5
+    assert proposal.params is None and "phi1" in proposal.reason
+
+
+def test_outage_tolerance():
+    quiet = certify(TABLE1, PAPER, 0.001, 0.0, False, watchdog_timeout=0.002)
+    assert quiet.outage_tolerance_s == math.inf  # no disturbance: zero torque cannot drift v
+    noisy = certify(
+        TABLE1, DesignContext(s1=0.1, s2=0.5), 0.001, 0.0, False, watchdog_timeout=0.002
+    )
+    assert 0.002 < noisy.outage_tolerance_s < math.inf
+
+
+@pytest.mark.parametrize(
+    ("ts", "delay", "params"),
+    [
+        (-0.001, 0.0, TABLE1),
+        (math.nan, 0.0, TABLE1),
+        (0.001, math.inf, TABLE1),
+        (0.001, 0.0, UnifiedParams(m1=math.nan)),
+        (0.001, 0.0, SimpleNamespace(m1=0.5)),
+    ],
+)
+def test_bad_input_is_a_clear_rejection(ts, delay, params):
+    with pytest.raises(CertificateError):
+        certify(params, PAPER, ts, delay, boundary_layer=False)
+
+
+def test_certificate_is_json_serializable():
+    cert = certify(TABLE1, PAPER, 0.001, 0.0, False, watchdog_timeout=0.05)
+    data = json.loads(json.dumps(cert.to_dict()))
+    assert data["held"] is True and data["v_bound"] == pytest.approx(1.0033)
+
+
+SCENARIO = """
+[reference]
+kind = "circle"
+vd = 0.5
+wd = 0.2
+k1 = 1.0
+k2 = 1.0
+[initial]
+x = 0.0
+y = -1.0
+theta = 0.0
+[controller]
+law = "{law}"
+m1 = {m1}
+[timing]
+ts = 0.05
+delay = 0.08
+jitter = 0.02
+"""
+
+
+def _write(tmp_path, law="unified", m1=0.5):
+    path = tmp_path / "s.toml"
+    path.write_text(SCENARIO.format(law=law, m1=m1))
+    return str(path)
+
+
+def test_cli_exit_codes_and_defaults(tmp_path, capsys):
+    path = _write(tmp_path, m1=1.05)
+    assert main(["certify", path, "--json"]) == 1  # defaults: ts 0.05, delay 0.08 + 0.02
+    out = json.loads(capsys.readouterr().out)
+    assert out["certificate"]["ts"] == 0.05 and out["certificate"]["delay"] == pytest.approx(0.1)
+    assert out["certificate"]["held"] is False and out["proposal"]["params"] is None
+    assert main(["certify", path, "--ts", "0.001", "--delay", "0"]) == 0
+    assert "GUARANTEED" in capsys.readouterr().out
+    assert main(["certify", path, "--ts", "0.01", "--delay", "0.01", "--json"]) == 1
+    proposed = json.loads(capsys.readouterr().out)["proposal"]
+    assert proposed["params"] is not None and proposed["changes"]["m1"][1] < 1.05
+
+
+def test_cli_bad_input(tmp_path):
+    assert main(["certify", str(tmp_path / "missing.toml")]) == 2
+    assert main(["certify", _write(tmp_path), "--ts", "-1"]) == 2
+    assert main(["certify", _write(tmp_path, law="jiang1997")]) == 2

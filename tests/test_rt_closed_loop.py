@@ -1,0 +1,89 @@
+"""The pair as real processes on the wall clock: the paper's circle over Zenoh and over CAN.
+
+Checks: the tracking error falls, and |v|, |omega| stay within the sampled-data bound of
+DESIGN.md evaluated at the run's own measured worst sample gap and sample-to-apply delay.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from hil.run.results import sampled_data_bound
+from hil.scenario import build_loop, load_scenario
+from tests.run_helpers import hil_run
+
+pytestmark = pytest.mark.realtime
+
+
+def _scenario(tmp_path) -> str:
+    """The paper's tracking scenario with SCHED_FIFO asked for (used where permitted)."""
+    text = Path("scenarios/paper_tracking.toml").read_text()
+    path = tmp_path / "paper_tracking_fifo.toml"
+    path.write_text(text + '\n[realtime]\nscheduling = "fifo"\n')
+    return str(path)
+
+
+def _check_bound(summary: dict, scenario_path: str) -> None:
+    sc = load_scenario(scenario_path)
+    _, _, context = build_loop(sc)
+    b = summary["sampled_data_bound"]
+    assert b["ts_gap"] >= 1.0 / 500 * 0.99  # the measured gap, at least one period
+    # Recompute the bound here from the measured figures (not trusting the summary's number).
+    bound = sampled_data_bound(context, dict(sc.controller), b["ts_gap"], b["delta"])
+    assert summary["max_abs_v"] <= bound["v"], (summary["max_abs_v"], bound)
+    assert summary["max_abs_omega"] <= bound["omega"], (summary["max_abs_omega"], bound)
+    assert summary["max_abs_tau1"] <= sc.limits.varpi1
+    assert summary["max_abs_tau2"] <= sc.limits.varpi2
+
+
+def _check_tracking(summary: dict) -> None:
+    assert summary["samples"] >= 0.8 * 5 * 500
+    # The offline simulator at Ts = 2 ms reaches 0.60 m from 1.17 m in 5 s; a loaded host's
+    # real loop (late wake-ups, skipped samples) gets less far, but the error must fall.
+    assert summary["final_position_error"] < 0.85 * summary["initial_position_error"], summary
+
+
+@pytest.mark.slow
+def test_paper_circle_over_zenoh_at_500hz(tmp_path):
+    scenario = _scenario(tmp_path)
+    s = hil_run(
+        tmp_path / "run",
+        scenario,
+        "--rate",
+        "500",
+        "--duration",
+        "5",
+        "--cmd-path",
+        "zenoh",
+    )
+    _check_tracking(s)
+    _check_bound(s, scenario)
+    t = s["timing"]
+    # Most samples produced an applied command and most ticks ran (a loaded host skips some).
+    assert t["sample_to_apply_zenoh"]["count"] >= 0.4 * 2500
+    assert t["wakeup_lateness"]["count"] >= 0.5 * 2500
+    for key in ("p50_us", "p90_us", "p99_us", "p999_us", "max_us"):
+        assert t["compute"][key] is not None
+    # The CAN path was live as a shadow and measured too.
+    assert s["messages"]["torque_can"]["received"] > 0
+    assert s["scheduling"]["controller"]["policy"] in ("SCHED_FIFO", "SCHED_OTHER")
+
+
+@pytest.mark.slow
+def test_paper_circle_over_can_at_500hz(tmp_path):
+    scenario = _scenario(tmp_path)
+    s = hil_run(
+        tmp_path / "run",
+        scenario,
+        "--rate",
+        "500",
+        "--duration",
+        "5",
+        "--cmd-path",
+        "can",
+    )
+    _check_tracking(s)
+    _check_bound(s, scenario)
+    assert s["timing"]["sample_to_apply_can"]["count"] > 0.4 * 2 * 2500

@@ -1,0 +1,112 @@
+"""Failure handling of the real pair: SIGKILL of the controller, SIGINT of ``hil run``."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from hil.recording import list_topics, read_messages
+from tests.procs import wait_until
+from tests.run_helpers import alive, children_of, cmdline, load_log
+
+pytestmark = pytest.mark.realtime
+
+
+def _start_run(spawn, out, *args: str) -> subprocess.Popen:
+    return spawn.python(["-m", "hil", "run", *args, "--quiet", "--out", str(out)])
+
+
+def _child(pid: int, module: str) -> int | None:
+    for c in children_of(pid):
+        if module in cmdline(c):
+            return c
+    return None
+
+
+def _running(out, name: str) -> bool:
+    try:
+        return "running" in (out / f"{name}.log").read_text()
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("path", ["zenoh", "can"])
+def test_sigkill_of_controller_zeroes_torque_within_command_timeout(spawn, tmp_path, path):
+    out = tmp_path / "run"
+    run = _start_run(spawn, out, "--duration", "4", "--rate", "200", "--cmd-path", path)
+    assert wait_until(lambda: _running(out, "controller") and _running(out, "plant"), 60)
+    ctrl = _child(run.pid, "controller_service")
+    assert ctrl is not None
+    # Let commands flow for a while (bounded wait on the recording's observable growth).
+    assert wait_until(lambda: (out / "plant.log").exists(), 10)
+    time.sleep(1.0)  # one second of closed loop before the kill (checked below: commands applied)
+    import os
+
+    os.kill(ctrl, signal.SIGKILL)
+    run.wait(timeout=120)
+    plog = load_log(out / "plant_log.msgpack")
+    settings = json.loads((out / "run_settings.json").read_text())
+    timeout_ns = int(settings["command_timeout"] * 1e9)
+    cmds = [dict(zip(plog["cmd_fields"], c, strict=True)) for c in plog["commands"]]
+    applied = [c for c in cmds if c["applied"]]
+    assert applied, "no command was applied before the kill"
+    last_recv = max(c["recv_ns"] for c in applied)
+    # The plant zeroed the torque exactly command_timeout after the last command it got ...
+    zeros = [z for z in plog["zero_log"] if z[0] >= last_recv]
+    assert zeros and zeros[0][0] - last_recv == timeout_ns
+    # ... and every state sampled after that moment shows zero applied torque.
+    states = [dict(zip(plog["state_fields"], s, strict=True)) for s in plog["states"]]
+    after = [s for s in states if s["sample_ns"] > last_recv + timeout_ns]
+    assert len(after) > 50
+    assert all(s["cmd1"] == 0.0 and s["cmd2"] == 0.0 for s in after)
+    before = [s for s in states if s["sample_ns"] < last_recv]
+    assert any(s["cmd1"] != 0.0 for s in before)
+
+
+def test_sigint_of_hil_run_leaves_no_process_and_a_readable_recording(spawn, tmp_path):
+    out = tmp_path / "run"
+    run = _start_run(spawn, out, "--duration", "60", "--rate", "200")
+    assert wait_until(lambda: _running(out, "controller") and _running(out, "plant"), 60)
+    kids = children_of(run.pid)
+    assert len(kids) >= 2
+    time.sleep(1.0)  # a second of closed loop to record (checked below: > 50 states)
+    run.send_signal(signal.SIGINT)
+    code = run.wait(timeout=60)
+    assert code != 0  # interrupted, not a normal end
+    assert wait_until(lambda: not any(alive(k) for k in kids), 10)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    assert summary["samples"] > 50
+    topics = list_topics(out / "recording.mcap")
+    assert topics.get("hil/robot0/state", 0) > 50
+    first = next(read_messages(out / "recording.mcap", topics=["hil/robot0/cmd/torque"]))
+    assert first.data["type"] == "TorqueCommand"
+    assert abs(first.data["tau1"]) <= 3.3
+
+
+def test_sigkill_of_hil_run_takes_the_children_down(spawn, tmp_path):
+    out = tmp_path / "run"
+    run = _start_run(spawn, out, "--duration", "60", "--rate", "100")
+    assert wait_until(lambda: _running(out, "controller") and _running(out, "plant"), 60)
+    kids = children_of(run.pid)
+    assert len(kids) >= 2
+    run.send_signal(signal.SIGKILL)
+    run.wait(timeout=10)
+    # PR_SET_PDEATHSIG: the kernel signals the children when their parent dies.
+    assert wait_until(lambda: not any(alive(k) for k in kids), 15), [cmdline(k) for k in kids]
+
+
+def test_bad_cmd_path_is_a_usage_error(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "hil", "run", "--cmd-path", "pigeon", "--out", str(tmp_path / "x")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2
+    assert "cmd-path" in proc.stderr

@@ -1,0 +1,40 @@
+"""``hil controller`` and ``hil emulator`` started on their own around a Zenoh router."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from tests.procs import free_tcp_port, wait_until
+from tests.run_helpers import load_log
+
+pytestmark = pytest.mark.realtime
+
+ROUTER = (
+    "import sys, time, zenoh; from hil.run.zsession import session_config; "
+    "s = zenoh.open(session_config(sys.argv[1], listen_endpoint=True, mode='router')); "
+    "print('up', flush=True); time.sleep(1e9)"
+)
+
+
+def test_standalone_services_close_the_loop_through_a_router(spawn, tmp_path):
+    ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+    can_ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+    router = spawn.python(["-c", ROUTER, ep], text=True)
+    assert router.stdout.readline().strip() == "up"
+    epoch = time.monotonic_ns() + 8_000_000_000  # both import and link well before t = 0
+    common = ["scenarios/paper_tracking.toml", "--endpoint", ep, "--can-endpoint", can_ep,
+              "--epoch-ns", str(epoch), "--duration", "1.5", "--rate", "200"]  # fmt: skip
+    plant = spawn.python(["-m", "hil", "emulator", *common, "--out", str(tmp_path / "p")])
+    ctrl = spawn.python(["-m", "hil", "controller", *common, "--out", str(tmp_path / "c")])
+    plant.wait(timeout=60)
+    assert plant.returncode == 0, plant.stderr.read()[-2000:]
+    ctrl.send_signal(2)  # the controller runs until stopped (or duration + 2 s)
+    ctrl.wait(timeout=30)
+    assert wait_until(lambda: (tmp_path / "c" / "controller_log.msgpack").exists(), 10)
+    clog = load_log(tmp_path / "c" / "controller_log.msgpack")
+    plog = load_log(tmp_path / "p" / "plant_log.msgpack")
+    assert clog["epoch_ns"] == plog["epoch_ns"] == epoch
+    assert clog["state_counts"]["accepted"] > 200  # ~300 states in 1.5 s at 200 Hz
+    assert plog["cmd_counts"]["accepted"] > 200

@@ -1,0 +1,107 @@
+"""Scenario files: defaults, refusals naming the key (exit 2), design bounds, round trip."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from controller_service.laws.base import Limits
+from hil.cli import main
+from hil.errors import BadInput
+from hil.provenance import dumps_toml
+from hil.scenario import (
+    build_loop,
+    build_reference,
+    design_context,
+    load_scenario,
+    loads_scenario,
+    parse_scenario,
+    resolved_dict,
+    scenario_dict,
+)
+
+SCENARIOS = sorted((Path(__file__).resolve().parents[1] / "scenarios").glob("*.toml"))
+MINIMAL = '[reference]\nkind = "circle"\n[initial]\nx = -1.0\n'
+
+
+@pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.name)
+def test_shipped_scenarios_load_and_build(path: Path) -> None:
+    sc = load_scenario(path)
+    controller, reference, context = build_loop(sc)
+    assert controller.update is not None and reference.sample(0.0) is not None
+    assert context.limits == Limits()
+
+
+def test_defaults_are_the_papers_setup() -> None:
+    sc = loads_scenario(MINIMAL)
+    assert sc.limits == Limits(1.6, 5.1, 3.3, 51.0)
+    assert sc.timing.ts == 0.001 and sc.plant_step == pytest.approx(1e-4) and sc.substeps == 10
+    assert sc.disturbance.kind == "none" and sc.controller["law"] == "unified"
+    ctx = design_context(sc, build_reference(sc))
+    assert (ctx.mu1, ctx.mu2, ctx.s1, ctx.s2) == (0.5, 0.2, 0.0, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("text", "named"),
+    [
+        (MINIMAL + "[limits]\nphi3 = 1.0\n", "phi3"),
+        (MINIMAL + "[limts]\nphi1 = 1.0\n", "limts"),
+        (MINIMAL + '[limits]\nphi1 = "fast"\n', "[limits] phi1"),
+        (MINIMAL + "[limits]\nphi1 = -1.0\n", "[limits] phi1"),
+        (MINIMAL + "[timing]\nts = 0\n", "[timing] ts"),
+        (MINIMAL + '[timing]\njitter_kind = "gauss"\n', "[timing] jitter_kind"),
+        (MINIMAL + '[disturbance]\nkind = "constant"\nvalue1 = 0.5\ns1 = 0.1\n', "s1"),
+        (MINIMAL + "[plant]\nnoise_std = [0.1, 0.1]\n", "[plant] noise_std"),
+        (MINIMAL + "[timing]\nseed = 1.5\n", "[timing] seed"),
+        ("[initial]\nx = 1.0\n", "[reference]"),
+        ('[reference]\nkind = "circle"\n', "[initial]"),
+        ('[reference]\nkind = "circle"\nspeed = 2\n[initial]\n', "speed"),
+        (MINIMAL + "[controller]\nlam = 100.0\n", "(11)"),
+    ],
+)
+def test_bad_scenarios_are_refused_naming_the_key(text: str, named: str) -> None:
+    with pytest.raises(BadInput, match=None) as info:
+        sc = loads_scenario(text)
+        build_loop(sc)
+    assert named in str(info.value)
+
+
+def test_cli_exits_2_naming_the_key(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(MINIMAL + "[timing]\nts = 0.001\ndelya = 0.01\n")
+    assert main(["sim", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "delya" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+    assert main(["sim", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_design_bounds_default_to_the_reference_and_must_cover_it() -> None:
+    sc = loads_scenario('[reference]\nkind = "circle"\nvd = 0.4\nwd = 0.1\nmu1 = 0.45\n[initial]\n')
+    ctx = design_context(sc, build_reference(sc))
+    assert ctx.mu1 == 0.45 and ctx.mu2 == pytest.approx(0.1)
+    sc = loads_scenario('[reference]\nkind = "circle"\nvd = 0.4\nmu1 = 0.3\n[initial]\n')
+    with pytest.raises(BadInput, match="mu1"):
+        design_context(sc, build_reference(sc))
+
+
+def test_resolved_dict_round_trips_with_auto_resolved(tmp_path: Path) -> None:
+    sc = loads_scenario(
+        MINIMAL + '[controller]\nlam = "auto"\nrho = "auto"\n'
+        '[zenoh]\nendpoints = ["tcp/127.0.0.1:7447"]\n',
+        tmp_path,
+    )
+    controller, _, ctx = build_loop(sc)
+    resolved = resolved_dict(sc, controller, ctx)
+    text = dumps_toml(resolved)
+    data = tomllib.loads(text)
+    assert isinstance(data["controller"]["lam"], float) and isinstance(
+        data["controller"]["rho"], float
+    )
+    assert data["provenance"]["package_version"] and "start_time" in data["provenance"]
+    assert data["provenance"]["seeds"] == {"timing": 0, "disturbance": 0, "sensor": 0}
+    again = parse_scenario(data, tmp_path)
+    assert scenario_dict(again)["limits"] == scenario_dict(sc)["limits"]
+    assert again.zenoh.endpoints == ("tcp/127.0.0.1:7447",)
+    assert build_loop(again)[0].resolved_table()["lam"] == data["controller"]["lam"]

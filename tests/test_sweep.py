@@ -1,0 +1,206 @@
+"""``hil sweep`` on the real batch simulator: grid, break point, outputs, replay, Ctrl-C."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hil.cli import main
+from hil.errors import BadInput
+from hil.report.synthetic import write_synthetic_folder
+from hil.sweep.grid import DEFAULT_DELAY, DEFAULT_TS, break_points, make_grid
+from hil.sweep.replay import latencies_from_run
+from tests.procs import wait_until
+
+# m1 near its bound phi1 - mu1 = 1.1 and z1(0) = -m1, so alpha_v starts near mu1 + m1: with a
+# long delay the sampled sign law lets v run past phi1 = 1.6 (DESIGN.md's probe).
+EDGE = """
+[reference]
+kind = "circle"
+vd = 0.5
+wd = 0.2
+
+[initial]
+x = 0.0
+y = 0.0
+theta = 0.0
+z1 = -1.05
+
+[controller]
+law = "unified"
+m1 = 1.05
+m2 = 0.5
+l1 = 0.5
+l2 = 0.5
+lam = 1.0
+rho = 1.0
+
+[run]
+duration = 3.0
+
+[sweep]
+ts = [0.005, 0.05]
+delay = [0.0, 0.1]
+"""
+
+PAPER = """
+[reference]
+kind = "circle"
+vd = 0.5
+wd = 0.2
+
+[initial]
+x = -1.0
+y = 1.0
+theta = 0.0
+
+[controller]
+law = "unified"
+m1 = 0.5
+m2 = 0.5
+l1 = 0.5
+l2 = 0.5
+lam = 1.0
+rho = 1.0
+
+[run]
+duration = 2.0
+"""
+
+
+def write(tmp_path: Path, name: str, text: str) -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_default_grid_and_bad_values() -> None:
+    g = make_grid()
+    assert g.ts == DEFAULT_TS and g.delay == DEFAULT_DELAY and g.seeds == 1
+    assert set(g.defaulted) == {"ts", "delay", "jitter", "seeds"}
+    g2 = make_grid([0.01, 0.001, 0.01], [0.0], [0.0, 0.001], 3)
+    assert g2.ts == (0.001, 0.01) and len(g2) == 2 * 1 * 2 * 3
+    groups = g2.by_ts(base_seed=10)
+    assert [ts for ts, _ in groups] == [0.01, 0.001]  # cheap coarse periods first
+    assert {p.seed for p in groups[0][1]} == {10, 11, 12}
+    for bad in ([0.0], [-1.0], [float("nan")]):
+        with pytest.raises(ValueError):
+            make_grid(bad)
+    with pytest.raises(ValueError):
+        make_grid(delay=[-0.1])
+
+
+def test_break_point_is_the_smallest_violating_ts_and_delay() -> None:
+    rows = [
+        {"ts": ts, "delay": d, "jitter": 0.0, "seed": 0, "violation": ts + d >= 0.05}
+        for ts in (0.001, 0.01, 0.05)
+        for d in (0.0, 0.04, 0.1)
+    ]
+    bp = break_points(rows)
+    assert bp["first"] == {"ts": 0.01, "delay": 0.04, "jitter": 0.0, "seed": 0}
+    assert bp["ts_by_delay"] == {0.0: 0.05, 0.04: 0.01, 0.1: 0.001}
+    assert bp["delay_by_ts"][0.001] == 0.1
+    assert break_points([{**r, "violation": False} for r in rows])["first"] is None
+
+
+def test_sweep_finds_the_break_point_of_a_design_near_its_limits(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    assert main(["sweep", str(write(tmp_path, "edge.toml", EDGE)), "--out", str(out)]) == 0
+    doc = json.loads((out / "sweep.json").read_text())
+    rows = doc["rows"]
+    assert len(rows) == 4 and all(r["complete"] for r in rows)
+    bp = doc["break_point"]
+    assert bp["first"] is not None and bp["first"]["delay"] == 0.1
+    # without delay the limits hold at both periods; with 100 ms they break
+    by = {(r["ts"], r["delay"]): r for r in rows}
+    assert not by[(0.005, 0.0)]["violation"] and by[(0.005, 0.1)]["violation"]
+    assert by[(0.005, 0.1)]["overshoot_v"] > 1.0
+    # the measured peaks never exceed the certified bound at their own timing
+    assert all(r["within_bound"] for r in rows)
+    assert "break at Ts = 0.005 s, delay = 0.1 s" in (out / "sweep.md").read_text()
+    csv_rows = (out / "sweep.csv").read_text().splitlines()
+    assert len(csv_rows) == 5
+    assert doc["figures"]
+    for f in doc["figures"]:
+        assert (out / f["png"]).read_bytes().startswith(b"\x89PNG")
+        assert (out / f["data"]).stat().st_size > 0
+    assert main(["sweep", str(tmp_path / "edge.toml"), "--out", str(out), "--strict"]) == 1
+
+
+def test_sweep_rows_equal_the_single_run_path(tmp_path: Path) -> None:
+    from hil.scenario import load_scenario
+    from hil.sim import RobotVariation, simulate
+    from hil.sweep.runner import scenario_at
+
+    path = write(tmp_path, "paper.toml", PAPER)
+    out = tmp_path / "out"
+    args = ["sweep", str(path), "--out", str(out), "--ts", "0.002", "--delay", "0,0.004"]
+    assert main([*args, "--jitter", "0.001", "--seeds", "2"]) == 0
+    doc = json.loads((out / "sweep.json").read_text())
+    assert doc["break_point"]["first"] is None and len(doc["rows"]) == 4
+    row = next(r for r in doc["rows"] if r["delay"] == 0.004 and r["seed"] == 1)
+    sc = scenario_at(load_scenario(path), 0.002, 2.0)
+    single = simulate(sc, RobotVariation(delay=0.004, jitter=0.001, jitter_seed=1)).summary
+    assert row["max_abs_v"] == pytest.approx(single["max_abs_v"], rel=1e-9)
+    assert row["final_position_error"] == pytest.approx(single["final_position_error"], rel=1e-6)
+    assert row["band_v"] is not None and row["band_v"] > 0
+
+
+def test_sweep_bad_input_exits_2(tmp_path: Path) -> None:
+    path = write(tmp_path, "paper.toml", PAPER)
+    assert main(["sweep", str(tmp_path / "none.toml"), "--out", str(tmp_path / "o")]) == 2
+    assert main(["sweep", str(path), "--ts", "0,-1", "--out", str(tmp_path / "o")]) == 2
+    assert main(["sweep", str(path), "--ts", "abc", "--out", str(tmp_path / "o")]) == 2
+
+
+def test_replay_latencies_from_a_run_folder(tmp_path: Path) -> None:
+    run = write_synthetic_folder(tmp_path / "run", duration=0.5, run=True)
+    trace = np.genfromtxt(run / "trace.csv", delimiter=",", names=True)
+    got = latencies_from_run(run)
+    want = np.concatenate([trace["zenoh_latency_us"], trace["can_latency_us"]]) * 1e-6
+    assert np.allclose(np.sort(got), np.sort(want))
+    only_can = latencies_from_run(f"{run}::can")
+    assert np.allclose(only_can, trace["can_latency_us"] * 1e-6)
+    with pytest.raises(BadInput):
+        latencies_from_run(f"{run}::udp")
+    with pytest.raises(BadInput):
+        latencies_from_run(tmp_path / "missing.mcap")
+    # a sweep of a scenario that replays the run's latencies
+    text = PAPER.replace(
+        "[run]", f'[timing]\njitter_kind = "replay"\nreplay = "{run}::zenoh"\n\n[run]'
+    )
+    path = write(tmp_path, "replay.toml", text)
+    out = tmp_path / "out"
+    assert main(["sweep", str(path), "--out", str(out), "--ts", "0.002", "--delay", "0"]) == 0
+    replayed = json.loads((out / "replay.json").read_text())["latencies"]
+    assert np.allclose(replayed, trace["zenoh_latency_us"] * 1e-6)
+    assert len(json.loads((out / "sweep.json").read_text())["rows"]) == 1
+
+
+@pytest.mark.slow
+def test_ctrl_c_keeps_the_groups_already_done(tmp_path: Path, spawn) -> None:
+    path = write(tmp_path, "paper.toml", PAPER)
+    out = tmp_path / "out"
+    # Ts = 0.05 s runs first and fast; the Ts = 1 ms group then takes tens of seconds.
+    args = ["--ts", "0.05,0.001", "--delay", "0,0.01", "--duration", "60"]
+    proc = spawn.python(["-m", "hil", "sweep", str(path), "--out", str(out), *args])
+    csv_path = out / "sweep.csv"
+    assert wait_until(
+        lambda: csv_path.exists() and len(csv_path.read_text().splitlines()) >= 3, timeout=120
+    ), "the first group never finished"
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=120)
+    except subprocess.TimeoutExpired:
+        pytest.fail("sweep did not stop on SIGINT")
+    assert proc.returncode == 130, proc.stderr.read().decode()[-2000:]
+    doc = json.loads((out / "sweep.json").read_text())
+    assert doc["interrupted"] is True and doc["groups_done"] == 1
+    assert {r["ts"] for r in doc["rows"] if r["complete"]} == {0.05}
+    assert all(not r["complete"] for r in doc["rows"] if r["ts"] == 0.001)
+    assert (out / "sweep.md").read_text().count("INTERRUPTED") == 1

@@ -1,0 +1,47 @@
+"""HDR-histogram summaries (hil.timing): percentiles in microseconds from nanosecond samples."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hil.timing import diffs, period_jitter, summarize
+
+
+def test_summary_has_the_contract_keys_in_microseconds():
+    s = summarize([1_000, 2_000, 3_000, 4_000_000])
+    assert set(s) >= {"p50_us", "p90_us", "p99_us", "p999_us", "max_us", "count"}
+    assert s["count"] == 4
+    assert s["max_us"] == 4000.0  # exact, not a bucket edge
+    assert abs(s["p50_us"] - 2.0) <= 0.002
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.integers(min_value=0, max_value=10_000_000_000), min_size=1, max_size=300))
+def test_percentiles_within_a_tenth_of_a_percent_of_exact(values):
+    s = summarize(values)
+    arr = np.sort(np.array(values, dtype=np.int64))
+    for key, pct in (("p50_us", 50), ("p90_us", 90), ("p99_us", 99), ("p999_us", 99.9)):
+        # HDR's percentile is the value at rank round(pct/100 * n) (at least 1), within 3
+        # significant digits.
+        rank = max(1, int(pct / 100.0 * len(arr) + 0.5))
+        exact = arr[rank - 1] / 1000.0
+        assert abs(s[key] - exact) <= max(0.001 * exact, 0.001), (key, s[key], exact)
+    assert s["max_us"] == arr[-1] / 1000.0
+
+
+def test_negative_durations_are_counted_not_hidden():
+    s = summarize([-5, 10])
+    assert s["negative"] == 1
+    assert s["count"] == 2
+
+
+def test_empty_summary_is_explicit():
+    s = summarize([])
+    assert s["count"] == 0 and s["p99_us"] is None
+
+
+def test_period_jitter_is_distance_from_nominal_period():
+    assert diffs([0, 10, 25]) == [10, 15]
+    assert period_jitter([0, 1000, 2100, 2900], 1000) == [0, 100, 200]
