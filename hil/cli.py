@@ -11,9 +11,10 @@ import importlib
 import pkgutil
 import sys
 
+import click
 import typer
 
-from hil.errors import BadInput, NegativeVerdict
+from hil.errors import BadInputError, NegativeVerdictError
 
 app = typer.Typer(
     name="hil",
@@ -49,11 +50,14 @@ _register_commands()
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``hil`` script; maps project errors to the contract's exit codes."""
     try:
-        app(args=argv, standalone_mode=False)
-    except BadInput as exc:
+        returned = app(args=argv, standalone_mode=False)
+    except click.exceptions.Abort:  # Ctrl-C inside a prompt or a progress bar
+        typer.echo("interrupted", err=True)
+        return 130
+    except BadInputError as exc:
         typer.echo(f"error: {exc}", err=True)
         return 2
-    except NegativeVerdict as exc:
+    except NegativeVerdictError as exc:
         typer.echo(f"verdict: {exc}", err=True)
         return 1
     except KeyboardInterrupt:
@@ -69,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
                 show()
             return int(code)
         raise
-    return 0
+    # With standalone_mode off click returns typer.Exit codes instead of raising them.
+    return returned if isinstance(returned, int) else 0
 
 
 if __name__ == "__main__":

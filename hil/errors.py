@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 
-class BadInput(Exception):
+class BadInputError(Exception):
     """Bad usage or input (a malformed scenario, a design condition broken): exit code 2."""
 
 
-class NegativeVerdict(Exception):
+class NegativeVerdictError(Exception):
     """The command worked and its verdict is negative (a limit broken): exit code 1."""

@@ -2,7 +2,7 @@
 
 One TOML file describes one closed loop. Every table is optional except [reference] and
 [initial]; defaults are the paper's Section 4 set-up. Unknown tables or keys and wrong types are
-refused with :class:`hil.errors.BadInput` naming the key (exit 2). The [reference] and
+refused with :class:`hil.errors.BadInputError` naming the key (exit 2). The [reference] and
 [controller] tables are kept as plain dicts and validated by the builders that own them
 (:func:`controller_service.references.build_reference`,
 :func:`controller_service.registry.build_controller`).
@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from controller_service.laws.base import DesignContext, Limits
-from hil.errors import BadInput
+from hil.errors import BadInputError
 from hil.provenance import provenance
 from plant_emulator.disturbances import KINDS as DISTURBANCE_KINDS
 from plant_emulator.disturbances import Disturbance, max_abs
@@ -79,7 +79,7 @@ class RobotConfig:
     yaw_inertia: float = 0.5
     wheel_radius: float = 0.05
     half_track: float = 0.2
-    gear_ratio: float = 1.0
+    gear_ratio: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -94,11 +94,13 @@ class RealtimeConfig:
 
 @dataclass(frozen=True)
 class CanConfig:
-    interface: str = "virtual"
-    channel: str = "vcan0"
-    bitrate: int = 500000
-    node_left: int = 1
-    node_right: int = 2
+    # The defaults of protocol.can.bus_factory.CanSettings: Zenoh-carried CAN works across
+    # processes on any kernel, without root, and never leaves the host.
+    interface: str = "zenoh_can"
+    channel: str = "hil0"
+    bitrate: int = 1_000_000
+    node_left: int = 0
+    node_right: int = 1
 
 
 @dataclass(frozen=True)
@@ -157,11 +159,11 @@ class Scenario:
         out = self
         if duration is not None:
             if not (duration > 0.0 and math.isfinite(duration)):
-                raise BadInput(f"--duration must be > 0, got {duration}")
+                raise BadInputError(f"--duration must be > 0, got {duration}")
             out = dataclasses.replace(out, run=RunConfig(float(duration)))
         if ts is not None:
             if not (ts > 0.0 and math.isfinite(ts)):
-                raise BadInput(f"--ts must be > 0, got {ts}")
+                raise BadInputError(f"--ts must be > 0, got {ts}")
             out = dataclasses.replace(out, timing=dataclasses.replace(out.timing, ts=float(ts)))
         return out
 
@@ -231,22 +233,22 @@ def _coerce(table: str, key: str, annotation: str, value: Any) -> Any:
     base = annotation.replace(" | None", "")
     if base == "float":
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise BadInput(f"{where} must be a number, got {_type_name(value)} {value!r}")
+            raise BadInputError(f"{where} must be a number, got {_type_name(value)} {value!r}")
         value = float(value)
         if not math.isfinite(value):
-            raise BadInput(f"{where} must be finite, got {value!r}")
+            raise BadInputError(f"{where} must be finite, got {value!r}")
         return value
     if base == "int":
         if isinstance(value, bool) or not isinstance(value, int):
-            raise BadInput(f"{where} must be an integer, got {_type_name(value)} {value!r}")
+            raise BadInputError(f"{where} must be an integer, got {_type_name(value)} {value!r}")
         return value
     if base == "str":
         if not isinstance(value, str):
-            raise BadInput(f"{where} must be a string, got {_type_name(value)} {value!r}")
+            raise BadInputError(f"{where} must be a string, got {_type_name(value)} {value!r}")
         return value
     if base.startswith("tuple["):
         if not isinstance(value, list):
-            raise BadInput(f"{where} must be a list, got {_type_name(value)} {value!r}")
+            raise BadInputError(f"{where} must be a list, got {_type_name(value)} {value!r}")
         item = "str" if "str" in base else "float"
         return tuple(_coerce(table, f"{key}[{i}]", item, v) for i, v in enumerate(value))
     raise AssertionError(annotation)  # pragma: no cover - the dataclasses above are closed
@@ -256,24 +258,25 @@ def _check(table: str, key: str, value: Any) -> None:
     where = f"[{table}] {key}"
     choices = _CHOICES.get((table, key))
     if choices is not None and value not in choices:
-        raise BadInput(f"{where} must be one of {', '.join(map(repr, choices))}, got {value!r}")
+        allowed = ", ".join(map(repr, choices))
+        raise BadInputError(f"{where} must be one of {allowed}, got {value!r}")
     values = value if isinstance(value, tuple) else (value,)
     if (table, key) in _POSITIVE and any(v is not None and not v > 0 for v in values):
-        raise BadInput(f"{where} must be > 0, got {value!r}")
+        raise BadInputError(f"{where} must be > 0, got {value!r}")
     if (table, key) in _NON_NEGATIVE and any(v is not None and v < 0 for v in values):
-        raise BadInput(f"{where} must be >= 0, got {value!r}")
+        raise BadInputError(f"{where} must be >= 0, got {value!r}")
     if (table, key) in _FIVE and len(values) != 5:
-        raise BadInput(f"{where} needs 5 values (x, y, theta, v, omega), got {len(values)}")
+        raise BadInputError(f"{where} needs 5 values (x, y, theta, v, omega), got {len(values)}")
 
 
 def _parse_table(name: str, raw: Any) -> Any:
     cls = _TABLES[name]
     if not isinstance(raw, Mapping):
-        raise BadInput(f"[{name}] must be a table, got {_type_name(raw)}")
+        raise BadInputError(f"[{name}] must be a table, got {_type_name(raw)}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(raw) - set(fields))
     if unknown:
-        raise BadInput(
+        raise BadInputError(
             f"[{name}]: unknown key(s) {', '.join(unknown)} (allowed: {', '.join(fields)})"
         )
     values: dict[str, Any] = {}
@@ -286,20 +289,20 @@ def _parse_table(name: str, raw: Any) -> Any:
 
 
 def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") -> Scenario:
-    """A :class:`Scenario` from the parsed TOML ``data`` (BadInput names any bad key)."""
+    """A :class:`Scenario` from the parsed TOML ``data`` (BadInputError names any bad key)."""
     allowed = {*_TABLES, "reference", "controller", "provenance"}
     unknown = sorted(set(data) - allowed)
     if unknown:
-        raise BadInput(
+        raise BadInputError(
             f"unknown table(s) or key(s) {', '.join(unknown)} "
             f"(allowed tables: {', '.join(sorted(allowed - {'provenance'}))})"
         )
     for required in ("reference", "initial"):
         if required not in data:
-            raise BadInput(f"missing table [{required}] (it is required)")
+            raise BadInputError(f"missing table [{required}] (it is required)")
     for name in ("reference", "controller"):
         if name in data and not isinstance(data[name], Mapping):
-            raise BadInput(f"[{name}] must be a table")
+            raise BadInputError(f"[{name}] must be a table")
     kwargs: dict[str, Any] = {
         name: _parse_table(name, data[name]) for name in _TABLES if name in data
     }
@@ -316,11 +319,11 @@ def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") ->
     )
     t = scenario.timing
     if t.jitter_kind == "replay" and not t.replay:
-        raise BadInput("[timing] replay: jitter_kind = 'replay' needs a latency file path")
+        raise BadInputError("[timing] replay: jitter_kind = 'replay' needs a latency file path")
     d = scenario.disturbance
     b1, b2 = max_abs(d)
     if b1 > d.s1 * (1 + _REL_TOL) or b2 > d.s2 * (1 + _REL_TOL):
-        raise BadInput(
+        raise BadInputError(
             f"[disturbance] s1, s2: the {d.kind} disturbance reaches |d1| = {b1:g}, |d2| = {b2:g}, "
             f"beyond the declared bounds s1 = {d.s1:g}, s2 = {d.s2:g} of Assumption 1"
         )
@@ -333,11 +336,11 @@ def load_scenario(path: str | Path) -> Scenario:
     try:
         text = p.read_bytes()
     except OSError as exc:
-        raise BadInput(f"cannot read scenario {p}: {exc.strerror or exc}") from exc
+        raise BadInputError(f"cannot read scenario {p}: {exc.strerror or exc}") from exc
     try:
         data = tomllib.loads(text.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise BadInput(f"scenario {p} is not valid TOML: {exc}") from exc
+        raise BadInputError(f"scenario {p} is not valid TOML: {exc}") from exc
     return parse_scenario(data, p.resolve().parent, str(p))
 
 
@@ -345,18 +348,18 @@ def loads_scenario(text: str, base_dir: Path | None = None) -> Scenario:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise BadInput(f"scenario is not valid TOML: {exc}") from exc
+        raise BadInputError(f"scenario is not valid TOML: {exc}") from exc
     return parse_scenario(data, base_dir or Path.cwd())
 
 
 def build_reference(scenario: Scenario) -> Any:
-    """The scenario's virtual robot (3); its errors become BadInput."""
+    """The scenario's virtual robot (3); its errors become BadInputError."""
     from controller_service.references import build_reference as _build
 
     try:
         return _build(scenario.reference, scenario.base_dir)
     except (ValueError, OSError) as exc:
-        raise BadInput(str(exc)) from exc
+        raise BadInputError(str(exc)) from exc
 
 
 def design_context(scenario: Scenario, reference: Any) -> DesignContext:
@@ -373,10 +376,10 @@ def design_context(scenario: Scenario, reference: Any) -> DesignContext:
         if key in table:
             given = table[key]
             if isinstance(given, bool) or not isinstance(given, int | float):
-                raise BadInput(f"[reference] {key} must be a number, got {given!r}")
+                raise BadInputError(f"[reference] {key} must be a number, got {given!r}")
             given = float(given)
             if own > given * (1 + _REL_TOL) + 1e-15:
-                raise BadInput(
+                raise BadInputError(
                     f"[reference] {key} = {given:g} is below the {kind} reference's own "
                     f"maximum {own:g} (Assumption 2 needs the bound to hold)"
                 )
@@ -388,7 +391,7 @@ def design_context(scenario: Scenario, reference: Any) -> DesignContext:
 
 
 def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
-    """(controller, reference, context) for the scenario; design errors become BadInput."""
+    """(controller, reference, context) for the scenario; design errors become BadInputError."""
     from controller_service.registry import build_controller
 
     reference = build_reference(scenario)
@@ -396,7 +399,7 @@ def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
     try:
         controller = build_controller(dict(scenario.controller), context)
     except ValueError as exc:
-        raise BadInput(str(exc)) from exc
+        raise BadInputError(str(exc)) from exc
     return controller, reference, context
 
 

@@ -83,15 +83,6 @@ def test_unified_keeps_limits_through_circle_then_stop(paper_runs: dict[str, Sim
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "controller_service/laws/jiang2001.py switches to the stabilizer only when vd = wd = 0, "
-        "i.e. after circle_then_stop's continuous-pose ramp, when the tracking error is ~1e-6: "
-        "nothing jumps, so [19]'s smoothed v changes exactly like the unified law's "
-        "(0.375 vs 0.374 m/s). See the report to the lead."
-    ),
-)
 def test_jiang2001_jolts_at_the_switch_and_unified_does_not(
     paper_runs: dict[str, SimResult],
 ) -> None:

@@ -9,7 +9,7 @@ import pytest
 
 from controller_service.laws.base import Limits
 from hil.cli import main
-from hil.errors import BadInput
+from hil.errors import BadInputError
 from hil.provenance import dumps_toml
 from hil.scenario import (
     build_loop,
@@ -62,7 +62,7 @@ def test_defaults_are_the_papers_setup() -> None:
     ],
 )
 def test_bad_scenarios_are_refused_naming_the_key(text: str, named: str) -> None:
-    with pytest.raises(BadInput, match=None) as info:
+    with pytest.raises(BadInputError, match=None) as info:
         sc = loads_scenario(text)
         build_loop(sc)
     assert named in str(info.value)
@@ -82,7 +82,7 @@ def test_design_bounds_default_to_the_reference_and_must_cover_it() -> None:
     ctx = design_context(sc, build_reference(sc))
     assert ctx.mu1 == 0.45 and ctx.mu2 == pytest.approx(0.1)
     sc = loads_scenario('[reference]\nkind = "circle"\nvd = 0.4\nmu1 = 0.3\n[initial]\n')
-    with pytest.raises(BadInput, match="mu1"):
+    with pytest.raises(BadInputError, match="mu1"):
         design_context(sc, build_reference(sc))
 
 

@@ -166,9 +166,9 @@ def test_replay_latencies_from_file(tmp_path: Path) -> None:
     assert r.summary["commands_dropped"] > 0
     (tmp_path / "bad.json").write_text("[-1]")
     bad = _scenario(law + timing.replace("lat.json", "bad.json"), duration=0.02, tmp=tmp_path)
-    from hil.errors import BadInput
+    from hil.errors import BadInputError
 
-    with pytest.raises(BadInput, match="replay"):
+    with pytest.raises(BadInputError, match="replay"):
         simulate(bad)
 
 

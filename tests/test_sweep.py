@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hil.cli import main
-from hil.errors import BadInput
+from hil.errors import BadInputError
 from hil.report.synthetic import write_synthetic_folder
 from hil.sweep.grid import DEFAULT_DELAY, DEFAULT_TS, break_points, make_grid
 from hil.sweep.replay import latencies_from_run
@@ -166,9 +166,9 @@ def test_replay_latencies_from_a_run_folder(tmp_path: Path) -> None:
     assert np.allclose(np.sort(got), np.sort(want))
     only_can = latencies_from_run(f"{run}::can")
     assert np.allclose(only_can, trace["can_latency_us"] * 1e-6)
-    with pytest.raises(BadInput):
+    with pytest.raises(BadInputError):
         latencies_from_run(f"{run}::udp")
-    with pytest.raises(BadInput):
+    with pytest.raises(BadInputError):
         latencies_from_run(tmp_path / "missing.mcap")
     # a sweep of a scenario that replays the run's latencies
     text = PAPER.replace(

@@ -1,6 +1,6 @@
 """Baseline [19]: the separate saturated stabilizer and tracker of Jiang, Lefeber & Nijmeijer
 2001 ("Saturated stabilization and tracking of a nonholonomic mobile robot", Systems & Control
-Letters 42), switched to the stabilizer when the reference stops (vd = wd = 0 exactly).
+Letters 42), switched to the stabilizer when the reference stops.
 
 The paper (Li et al. 2024, Section 4) uses eps = (1.6, 4, 1) for stabilization and
 lam = (4.5, 0.4, 1.1) for tracking and shows the jolt of v at the switch (its Figure 19).
@@ -25,6 +25,13 @@ rho2 = xe^2 + ye^2 and the heading excitation h = eps3 tanh(rho2) sin t:
 
 (v_c drives xe to zero while the heading oscillates about the target heading with an
 amplitude that fades with the distance, so the lateral error is pushed out on average.)
+
+The switch. [19] is two separate designs, so something outside them must decide when the task
+changes; the paper switches "at 70 s", when the reference is told to stop. ``switch_time`` (s,
+law time) is that supervisor's schedule: from then on the stabilizer acts, towards the reference's
+pose (which, for circle_then_stop, decelerates over its short ramp and rests). Without
+``switch_time`` the switch is the instant vd = wd = 0 exactly, which on a continuous-pose stop
+comes after the ramp, when the tracker has already brought v to zero and nothing jumps.
 
 Both commands go through the inner velocity loop of :mod:`controller_service.laws.jiang1997`
 (feed-forward backward difference plus kv, kw = 20 1/s, torques clipped to +-varpi). At the
@@ -59,12 +66,13 @@ class Jiang2001Controller(VelocityLoopController):
     """[19]'s tracker and stabilizer, switched on vd = wd = 0; ``name = "jiang2001"``.
 
     Built as ``Jiang2001Controller(params, context)`` with params stab_eps = [e1, e2, e3],
-    track_lam = [l1, l2, l3] and optional inner_kv, inner_kw (the [controller.jiang2001] table).
+    track_lam = [l1, l2, l3] and optional switch_time, inner_kv, inner_kw (the
+    [controller.jiang2001] table).
     Telemetry ``mode`` is 1 while stabilizing, 0 while tracking.
     """
 
     name = "jiang2001"
-    KEYS = ("stab_eps", "track_lam", "inner_kv", "inner_kw")
+    KEYS = ("stab_eps", "track_lam", "switch_time", "inner_kv", "inner_kw")
 
     def __init__(self, params: Mapping[str, Any], context: DesignContext) -> None:
         unknown = sorted(set(params) - set(self.KEYS))
@@ -72,6 +80,10 @@ class Jiang2001Controller(VelocityLoopController):
             raise ValueError(f"[controller.jiang2001]: unknown key(s) {', '.join(unknown)}")
         self.stab_eps = _triple("stab_eps", params.get("stab_eps", STAB_EPS_DEFAULT))
         self.track_lam = _triple("track_lam", params.get("track_lam", TRACK_LAM_DEFAULT))
+        switch = params.get("switch_time")
+        self.switch_time = (
+            None if switch is None else positive_number("jiang2001", "switch_time", switch)
+        )
         super().__init__(
             context,
             positive_number("jiang2001", "inner_kv", params.get("inner_kv", INNER_K_DEFAULT)),
@@ -94,7 +106,14 @@ class Jiang2001Controller(VelocityLoopController):
         w_stab = eps3 * fade * ns.cos(t) - eps2 * heading_error / ns.sqrt(
             1.0 + heading_error * heading_error
         )
-        stopped = (vd == 0.0) & (wd == 0.0) if ns.is_array else (vd == 0.0 and wd == 0.0)
+        if ns.is_array:
+            stopped = (vd == 0.0) & (wd == 0.0)
+            if self.switch_time is not None:
+                stopped = stopped | (t >= self.switch_time)
+        else:
+            stopped = (vd == 0.0 and wd == 0.0) or (
+                self.switch_time is not None and t >= self.switch_time
+            )
         v_c = ns.where(stopped, v_stab, v_track)
         w_c = ns.where(stopped, w_stab, w_track)
         mode = ns.where(stopped, 1.0, 0.0)
@@ -106,6 +125,7 @@ class Jiang2001Controller(VelocityLoopController):
             "jiang2001": {
                 "stab_eps": list(self.stab_eps),
                 "track_lam": list(self.track_lam),
+                **({} if self.switch_time is None else {"switch_time": self.switch_time}),
                 "inner_kv": self.inner_kv,
                 "inner_kw": self.inner_kw,
             },

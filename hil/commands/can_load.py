@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from hil.errors import BadInput, NegativeVerdict
+from hil.errors import BadInputError, NegativeVerdictError
 
 
 def register(app: typer.Typer) -> None:
@@ -43,7 +43,7 @@ def register(app: typer.Typer) -> None:
             frames = profile_frames(rate, drives, heartbeat_rate, encoder_rate)
             load = bus_load_percent(frames, bitrate)
         except ValueError as exc:
-            raise BadInput(str(exc)) from exc
+            raise BadInputError(str(exc)) from exc
         report = {
             "rate_hz": rate,
             "bitrate_bps": bitrate,
@@ -81,4 +81,4 @@ def register(app: typer.Typer) -> None:
             typer.echo(
                 f"warning: bus load {load:.1f}% > 100%: frames queue without bound", err=True
             )
-            raise NegativeVerdict(f"CAN bus overloaded ({load:.1f}%)")
+            raise NegativeVerdictError(f"CAN bus overloaded ({load:.1f}%)")

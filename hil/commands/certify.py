@@ -16,7 +16,7 @@ from typing import Any
 
 import typer
 
-from hil.errors import BadInput, NegativeVerdict
+from hil.errors import BadInputError, NegativeVerdictError
 
 _UNIFIED = ("unified", "unified_boundary")
 _GAINS = ("m1", "m2", "l1", "l2", "lam", "rho")
@@ -34,25 +34,27 @@ def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool,
 
     law = table.get("law", "unified")
     if law not in _UNIFIED:
-        raise BadInput(f"[controller] law = {law!r}: the certificate covers the unified laws only")
+        raise BadInputError(
+            f"[controller] law = {law!r}: the certificate covers the unified laws only"
+        )
     boundary = law == "unified_boundary"
     allowed = set(_GAINS) | set(_IGNORED) | (set(EPS_DEFAULT) if boundary else set())
     unknown = sorted(set(table) - allowed)
     if unknown:
-        raise BadInput(f"[controller] unknown key(s) for {law}: {', '.join(unknown)}")
+        raise BadInputError(f"[controller] unknown key(s) for {law}: {', '.join(unknown)}")
     values: dict[str, Any] = {**TABLE1, **({**EPS_DEFAULT} if boundary else {})}
     values.update({k: v for k, v in table.items() if k in values})
     for key, value in values.items():
         if value == "auto" and key in ("lam", "rho"):
             continue
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise BadInput(f"[controller] {key} must be a number, got {value!r}")
+            raise BadInputError(f"[controller] {key} must be a number, got {value!r}")
         if not math.isfinite(float(value)):
-            raise BadInput(f"[controller] {key} must be finite, got {value!r}")
+            raise BadInputError(f"[controller] {key} must be finite, got {value!r}")
     try:
         resolved = resolve_auto(values, context)
     except DesignError as exc:
-        raise NegativeVerdict(f"certificate not held: {exc}") from exc
+        raise NegativeVerdictError(f"certificate not held: {exc}") from exc
     return SimpleNamespace(**resolved.params), boundary, list(resolved.notes)
 
 
@@ -73,7 +75,7 @@ def _table(cert: Any, title: str) -> Any:
 def certify_scenario(
     path: str, ts: float | None, delay: float | None
 ) -> tuple[Any, Any, dict[str, Any]]:
-    """(certificate, proposal or None, facts) for a scenario file; BadInput on bad input."""
+    """(certificate, proposal or None, facts) for a scenario file; BadInputError on bad input."""
     from controller_service.certificate import CertificateError, certify, propose
     from hil.scenario import build_reference, design_context, load_scenario
 
@@ -100,7 +102,7 @@ def certify_scenario(
                 params, context, ts_used, delay_used, boundary, v0=init.v, w0=init.omega
             )
     except CertificateError as exc:
-        raise BadInput(str(exc)) from exc
+        raise BadInputError(str(exc)) from exc
     facts = {
         "scenario": str(path),
         "law": "unified_boundary" if boundary else "unified",
@@ -167,6 +169,6 @@ def register(app: typer.Typer) -> None:
                     )
                     console.print(f"Nearest admissible design: {changes}")
         if not cert.held:
-            raise NegativeVerdict(
+            raise NegativeVerdictError(
                 "certificate not held: " + ", ".join(c.name for c in cert.failed())
             )

@@ -13,7 +13,7 @@ from typing import Annotated
 
 import typer
 
-from hil.errors import BadInput
+from hil.errors import BadInputError
 
 
 def register(app: typer.Typer) -> None:
@@ -44,7 +44,7 @@ def register(app: typer.Typer) -> None:
 
         if settings is None:
             if scenario is None:
-                raise BadInput("give a scenario file or --settings")
+                raise BadInputError("give a scenario file or --settings")
             from hil.run.orchestrate import RunOptions, prepare
 
             out.mkdir(parents=True, exist_ok=True)

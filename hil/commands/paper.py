@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from hil.errors import NegativeVerdict
+from hil.errors import NegativeVerdictError
 
 
 def register(app: typer.Typer) -> None:
@@ -42,4 +42,4 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"wrote {folder}")
         failed = failed_checks(table)
         if failed:
-            raise NegativeVerdict("; ".join(failed))
+            raise NegativeVerdictError("; ".join(failed))

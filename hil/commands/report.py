@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from hil.errors import NegativeVerdict
+from hil.errors import NegativeVerdictError
 
 
 def register(app: typer.Typer) -> None:
@@ -56,5 +56,5 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"report: {paths['html']}")
         v = rep.data["verdict"]
         if not v["ok"]:
-            raise NegativeVerdict("; ".join(v["reasons"]))
+            raise NegativeVerdictError("; ".join(v["reasons"]))
         typer.echo("verdict: PASS")

@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from hil.errors import NegativeVerdict
+from hil.errors import NegativeVerdictError
 
 
 class RunInterrupted(Exception):  # noqa: N818 - not an error: a user's Ctrl-C
@@ -84,6 +84,6 @@ def register(app: typer.Typer) -> None:
         if summary.get("interrupted"):
             raise RunInterrupted(summary.get("run_dir"))
         if summary.get("error"):
-            raise NegativeVerdict(str(summary["error"]))
+            raise NegativeVerdictError(str(summary["error"]))
         if any(int(v) > 0 for v in (summary.get("violations") or {}).values()):
-            raise NegativeVerdict(f"constraint (2) broken: {summary['violations']}")
+            raise NegativeVerdictError(f"constraint (2) broken: {summary['violations']}")

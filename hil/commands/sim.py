@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from hil.errors import NegativeVerdict
+from hil.errors import NegativeVerdictError
 
 
 def run_with_progress(fn, description: str):  # type: ignore[no-untyped-def]
@@ -70,4 +70,4 @@ def register(app: typer.Typer) -> None:
             f"{s['max_abs_tau2']:.4g}; violations {s['violations']}"
         )
         if not s["limits_held"]:
-            raise NegativeVerdict(f"a limit of (2) was broken: violations {s['violations']}")
+            raise NegativeVerdictError(f"a limit of (2) was broken: violations {s['violations']}")

@@ -10,7 +10,7 @@ from typing import Annotated
 
 import typer
 
-from hil.errors import BadInput, NegativeVerdict
+from hil.errors import BadInputError, NegativeVerdictError
 
 DEFAULT_MAX_DURATION = 20.0
 SWEEP_HELP = (
@@ -35,7 +35,7 @@ def _floats(text: str | None, name: str) -> tuple[float, ...]:
     try:
         return tuple(float(v) for v in text.split(",") if v.strip())
     except ValueError as exc:
-        raise BadInput(f"--{name}: expected comma-separated seconds, got {text!r}") from exc
+        raise BadInputError(f"--{name}: expected comma-separated seconds, got {text!r}") from exc
 
 
 def register(app: typer.Typer) -> None:
@@ -79,12 +79,12 @@ def register(app: typer.Typer) -> None:
                 seeds if seeds is not None else sw.seeds,
             )
         except ValueError as exc:
-            raise BadInput(str(exc)) from exc
+            raise BadInputError(str(exc)) from exc
         loop_s = (
             duration if duration is not None else min(scenario.run.duration, DEFAULT_MAX_DURATION)
         )
         if not loop_s > 0:
-            raise BadInput(f"--duration must be > 0, got {loop_s}")
+            raise BadInputError(f"--duration must be > 0, got {loop_s}")
         target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
         target.mkdir(parents=True, exist_ok=True)
         t = scenario.timing
@@ -155,4 +155,4 @@ def register(app: typer.Typer) -> None:
             typer.echo("interrupted: partial results kept", err=True)
             raise SystemExit(130)
         if strict and first is not None:
-            raise NegativeVerdict("a limit of (2) broke inside the grid")
+            raise NegativeVerdictError("a limit of (2) broke inside the grid")

@@ -2,7 +2,8 @@
 
 A folder is: ``trace.csv`` (one row per control sample), ``summary.json``,
 ``scenario.resolved.toml`` and, for a real run, its recording (``*.mcap``). Anything else is
-not a run: :func:`load_folder` raises :class:`hil.errors.BadInput` (exit code 2) with the reason.
+not a run: :func:`load_folder` raises :class:`hil.errors.BadInputError` (exit code 2) with
+the reason.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.errors import BadInput
+from hil.errors import BadInputError
 
 TRACE_COLUMNS: tuple[str, ...] = (
     "t",
@@ -60,43 +61,45 @@ def read_trace(path: Path) -> dict[str, np.ndarray]:
         with open(path, newline="") as f:
             header = next(csv.reader(f))
     except (OSError, StopIteration, UnicodeDecodeError, csv.Error) as exc:
-        raise BadInput(f"{path}: cannot read a CSV header ({exc})") from exc
+        raise BadInputError(f"{path}: cannot read a CSV header ({exc})") from exc
     header = [h.strip() for h in header]
     missing = [c for c in TRACE_COLUMNS if c not in header]
     if missing:
-        raise BadInput(f"{path}: trace.csv lacks columns {', '.join(missing)}")
+        raise BadInputError(f"{path}: trace.csv lacks columns {', '.join(missing)}")
     try:
         data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=float)
     except ValueError as exc:
-        raise BadInput(f"{path}: trace.csv has a non-numeric cell ({exc})") from exc
+        raise BadInputError(f"{path}: trace.csv has a non-numeric cell ({exc})") from exc
     if data.shape[0] < 2:
-        raise BadInput(f"{path}: trace.csv has fewer than two samples")
+        raise BadInputError(f"{path}: trace.csv has fewer than two samples")
     if data.shape[1] != len(header):
-        raise BadInput(f"{path}: trace.csv rows have {data.shape[1]} cells, header {len(header)}")
+        raise BadInputError(
+            f"{path}: trace.csv rows have {data.shape[1]} cells, header {len(header)}"
+        )
     trace = {name: data[:, i].copy() for i, name in enumerate(header)}
     if not np.all(np.isfinite(trace["t"])) or np.any(np.diff(trace["t"]) < 0):
-        raise BadInput(f"{path}: column t is not finite and non-decreasing")
+        raise BadInputError(f"{path}: column t is not finite and non-decreasing")
     return trace
 
 
 def load_folder(path: str | Path) -> Folder:
-    """Load and check a run or simulation folder; BadInput when it is not one."""
+    """Load and check a run or simulation folder; BadInputError when it is not one."""
     p = Path(path)
     if not p.is_dir():
-        raise BadInput(f"{p}: not a folder")
+        raise BadInputError(f"{p}: not a folder")
     for required in ("trace.csv", "summary.json", "scenario.resolved.toml"):
         if not (p / required).is_file():
-            raise BadInput(f"{p}: not a run or simulation folder (no {required})")
+            raise BadInputError(f"{p}: not a run or simulation folder (no {required})")
     try:
         summary = json.loads((p / "summary.json").read_text())
     except (OSError, ValueError) as exc:
-        raise BadInput(f"{p / 'summary.json'}: not JSON ({exc})") from exc
+        raise BadInputError(f"{p / 'summary.json'}: not JSON ({exc})") from exc
     if not isinstance(summary, dict):
-        raise BadInput(f"{p / 'summary.json'}: not a JSON object")
+        raise BadInputError(f"{p / 'summary.json'}: not a JSON object")
     try:
         scenario = tomllib.loads((p / "scenario.resolved.toml").read_text())
     except (OSError, ValueError) as exc:
-        raise BadInput(f"{p / 'scenario.resolved.toml'}: not TOML ({exc})") from exc
+        raise BadInputError(f"{p / 'scenario.resolved.toml'}: not TOML ({exc})") from exc
     trace = read_trace(p / "trace.csv")
     return Folder(
         path=p,

@@ -24,7 +24,7 @@ from pathlib import Path
 from subprocess import STDOUT
 from typing import Any
 
-from hil.errors import BadInput
+from hil.errors import BadInputError
 from hil.recording import RecordingWriter
 from hil.run.settings import RunSettings
 from hil.supervisor import Supervisor, stop_on_signals
@@ -42,7 +42,7 @@ def new_run_dir(base: Path = Path("runs")) -> Path:
         p = base / (f"run-{stamp}" + (f"-{i}" if i else ""))
         if not p.exists():
             return p
-    raise BadInput("cannot find a free run folder name")
+    raise BadInputError("cannot find a free run folder name")
 
 
 @dataclass
@@ -163,7 +163,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     from hil.scenario import build_loop, load_scenario, loads_scenario, resolved_dict
 
     if opts.cmd_path not in ("zenoh", "can"):
-        raise BadInput(f"--cmd-path must be zenoh or can, got {opts.cmd_path!r}")
+        raise BadInputError(f"--cmd-path must be zenoh or can, got {opts.cmd_path!r}")
     run_dir = Path(opts.out) if opts.out else new_run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)
     if opts.scenario is None:
@@ -179,10 +179,10 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     rt = scenario.realtime
     rate = opts.rate or rt.rate or 1.0 / scenario.timing.ts
     if not (rate > 0 and rate <= 20_000):
-        raise BadInput(f"rate must be in (0, 20000] Hz, got {rate}")
+        raise BadInputError(f"rate must be in (0, 20000] Hz, got {rate}")
     duration = opts.duration if opts.duration is not None else default_duration
     if not duration > 0:
-        raise BadInput(f"--duration must be > 0, got {duration}")
+        raise BadInputError(f"--duration must be > 0, got {duration}")
     ts_s = scenario.timing.ts if not opts.rate and not rt.rate else 1.0 / rate
     scenario = scenario.with_overrides(duration=duration, ts=ts_s)
     controller, reference, context = build_loop(scenario)
@@ -227,7 +227,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     try:
         settings.validate()
     except ValueError as exc:
-        raise BadInput(str(exc)) from exc
+        raise BadInputError(str(exc)) from exc
     settings.save(run_dir / "run_settings.json")
     resolved = resolved_dict(
         scenario,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.errors import BadInput
+from hil.errors import BadInputError
 
 
 def jitter_samples_from(path: str | Path) -> np.ndarray:
@@ -27,7 +27,7 @@ def jitter_samples_from(path: str | Path) -> np.ndarray:
     try:
         text = p.read_text()
     except OSError as exc:
-        raise BadInput(f"[timing] replay: cannot read {p}: {exc.strerror or exc}") from exc
+        raise BadInputError(f"[timing] replay: cannot read {p}: {exc.strerror or exc}") from exc
     values: list[float]
     try:
         if p.suffix == ".json":
@@ -47,10 +47,10 @@ def jitter_samples_from(path: str | Path) -> np.ndarray:
                 col = 0
             values = [float(r[col]) for r in rows]
     except (ValueError, IndexError, json.JSONDecodeError) as exc:
-        raise BadInput(f"[timing] replay: {p} is not a latency list: {exc}") from exc
+        raise BadInputError(f"[timing] replay: {p} is not a latency list: {exc}") from exc
     arr = np.asarray(values, dtype=float)
     if arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr < 0):
-        raise BadInput(f"[timing] replay: {p} needs at least one finite latency >= 0 seconds")
+        raise BadInputError(f"[timing] replay: {p} needs at least one finite latency >= 0 seconds")
     return arr
 
 
@@ -60,7 +60,7 @@ def extra_delays(
     """The extra delay of each of ``n`` samples (seconds)."""
     if kind == "replay":
         if replay is None or replay.size == 0:
-            raise BadInput("[timing] replay: no latencies")
+            raise BadInputError("[timing] replay: no latencies")
         return np.resize(replay, n).astype(float)
     if jitter <= 0.0:
         return np.zeros(n)
@@ -69,7 +69,7 @@ def extra_delays(
         return rng.uniform(0.0, jitter, n)
     if kind == "normal":
         return np.abs(rng.normal(0.0, jitter, n))
-    raise BadInput(f"[timing] jitter_kind {kind!r} unknown")
+    raise BadInputError(f"[timing] jitter_kind {kind!r} unknown")
 
 
 def landing_offsets(delays: np.ndarray, delay: float, h: float) -> np.ndarray:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.errors import BadInput
+from hil.errors import BadInputError
 
 US = 1e-6
 
@@ -46,21 +46,21 @@ def latencies_from_run(spec: str | Path) -> np.ndarray:
 
         per_path = dict(from_recordings([p]).latency)
     else:
-        raise BadInput(f"[timing] replay: {p} is neither a run folder nor a .mcap recording")
+        raise BadInputError(f"[timing] replay: {p} is neither a run folder nor a .mcap recording")
     if which is not None:
         if which not in per_path:
-            raise BadInput(
+            raise BadInputError(
                 f"[timing] replay: {p} has no latencies of path {which!r} "
                 f"(has: {', '.join(sorted(per_path)) or 'none'})"
             )
         per_path = {which: per_path[which]}
     values = [v for v in per_path.values() if v.size]
     if not values:
-        raise BadInput(f"[timing] replay: no latency samples found in {p}")
+        raise BadInputError(f"[timing] replay: no latency samples found in {p}")
     seconds = np.concatenate(values) * US
     seconds = seconds[np.isfinite(seconds) & (seconds >= 0)]
     if seconds.size == 0:
-        raise BadInput(f"[timing] replay: {p} holds no finite latency >= 0")
+        raise BadInputError(f"[timing] replay: {p} holds no finite latency >= 0")
     return seconds
 
 
