@@ -526,6 +526,7 @@ def main_from_settings(settings_path: str) -> int:
         lifecycle = HostLifecycle(
             node_right=int(s.can.get("node_right", 1)),
             node_left=int(s.can.get("node_left", 0)),
+            heartbeat_timeout=float(s.can.get("heartbeat_timeout", 0.5)),
             torque_limit=motor_torque_limit(geom, lim.varpi1, lim.varpi2),
         )
         can_path = CanCommandPath(bus, lifecycle, geom)

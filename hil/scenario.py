@@ -101,6 +101,7 @@ class CanConfig:
     bitrate: int = 1_000_000
     node_left: int = 0
     node_right: int = 1
+    heartbeat_timeout: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -204,6 +205,7 @@ _POSITIVE = {("limits", k) for k in ("phi1", "phi2", "varpi1", "varpi2")} | {
     ("robot", "half_track"),
     ("robot", "gear_ratio"),
     ("can", "bitrate"),
+    ("can", "heartbeat_timeout"),
     ("sweep", "seeds"),
 }
 _NON_NEGATIVE = {

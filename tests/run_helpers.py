@@ -13,7 +13,7 @@ import msgpack
 
 def hil_run(out: Path, *args: str, timeout: float = 240) -> dict:
     proc = subprocess.run(
-        [sys.executable, "-m", "hil", "run", *args, "--quiet", "--out", str(out)],
+        [sys.executable, "-m", "hil", "run", *args, "--quiet", "--no-report", "--out", str(out)],
         capture_output=True,
         text=True,
         timeout=timeout,

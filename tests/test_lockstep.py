@@ -19,7 +19,7 @@ COLUMNS = ("t", "x", "y", "theta", "v", "omega", "tau1", "tau2", "tau1_cmd", "ta
 def _run(tmp_path, *args: str) -> dict:
     out = tmp_path / "run"
     proc = subprocess.run(
-        [sys.executable, "-m", "hil", "run", *args, "--quiet", "--out", str(out)],
+        [sys.executable, "-m", "hil", "run", *args, "--quiet", "--no-report", "--out", str(out)],
         capture_output=True,
         text=True,
         timeout=240,

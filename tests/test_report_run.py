@@ -57,6 +57,9 @@ def test_report_of_a_real_run_with_both_paths(tmp_path: Path, spawn) -> None:
         pytest.fail("hil run did not finish within 180 s")
     assert proc.returncode in (0, 1), err.decode()[-2000:]
     assert list(run_dir.glob("*.mcap")), "the run left no recording"
+    # hil run writes the report itself; hil report below rewrites it from the folder alone.
+    written_by_run = json.loads((run_dir / "report.json").read_text())
+    assert set(written_by_run["sections"]) == RUN_SECTIONS
     summary_before = (run_dir / "summary.json").read_bytes()
 
     code = main(["report", str(run_dir)])

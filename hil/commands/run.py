@@ -48,6 +48,15 @@ def register(app: typer.Typer) -> None:
         spin_us: Annotated[float, typer.Option(help="Spin this long before each deadline.")] = 0.0,
         out: Annotated[Path | None, typer.Option(help="Run folder (default runs/run-*).")] = None,
         quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+        report: Annotated[
+            bool,
+            typer.Option(
+                "--report/--no-report",
+                help="Write the sampling-effect report (report.html/.md/.json, as hil report "
+                "does) into the run folder. Its verdict is printed; the exit code stays the "
+                "run's own (1 only when a limit of (2) was broken).",
+            ),
+        ] = True,
     ) -> None:
         """Run the controller against the emulated robot over Zenoh and CAN and record it."""
         from hil.run.orchestrate import RunOptions, execute
@@ -80,6 +89,9 @@ def register(app: typer.Typer) -> None:
             "deadline_misses": t.get("deadline_misses"),
             "interrupted": summary.get("interrupted"),
         }
+        run_dir = summary.get("run_dir")
+        if report and run_dir and not summary.get("interrupted") and not summary.get("error"):
+            brief["report"] = _write_report(Path(run_dir), quiet)
         typer.echo(json.dumps(brief, indent=2))
         if summary.get("interrupted"):
             raise RunInterrupted(summary.get("run_dir"))
@@ -87,3 +99,17 @@ def register(app: typer.Typer) -> None:
             raise NegativeVerdictError(str(summary["error"]))
         if any(int(v) > 0 for v in (summary.get("violations") or {}).values()):
             raise NegativeVerdictError(f"constraint (2) broken: {summary['violations']}")
+
+
+def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
+    """The report of the finished run, as ``hil report RUN_DIR`` writes it."""
+    from hil.report.build import Thresholds, analyse, write_report
+    from hil.report.folder import load_folder
+    from hil.report.ideal import ideal_from_simulator
+
+    if not quiet:
+        typer.echo("writing the report (and the ideal-trajectory simulation) ...", err=True)
+    rep = analyse(load_folder(run_dir), ideal=ideal_from_simulator, thresholds=Thresholds())
+    paths = write_report(rep, run_dir)
+    verdict = rep.data["verdict"]
+    return {"html": str(paths["html"]), "ok": verdict["ok"], "reasons": verdict["reasons"]}

@@ -8,43 +8,44 @@ controller and the plant link directly (one hop, no forwarding through the recor
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import zenoh
 
+from protocol import zenoh_config
+from protocol.zenoh_config import DEFAULT_PEER_LISTEN, ZenohSettings
+
 
 def session_config(endpoint: str, *, listen_endpoint: bool, mode: str = "peer") -> zenoh.Config:
-    conf = zenoh.Config()
-    listen = [endpoint] if listen_endpoint else ["tcp/127.0.0.1:0"]
-    connect = [] if listen_endpoint else [endpoint]
+    """The run's session: :mod:`protocol.zenoh_config` settings (loopback, multicast scouting
+    off) with the run's rendezvous ``endpoint``, listened on or connected to."""
     if mode == "client":
-        listen = []
-    items: list[tuple[str, Any]] = [
-        ("mode", "router" if mode == "router" else ("client" if mode == "client" else "peer")),
-        ("scouting/multicast/enabled", False),
-        ("listen/endpoints", listen),
-        ("connect/endpoints", connect),
-    ]
-    if mode != "client":
-        items.append(("scouting/gossip/enabled", True))
-    for key, value in items:
-        conf.insert_json5(key, json.dumps(value))
-    return conf
+        settings = ZenohSettings(mode="client", connect=(endpoint,))
+    elif listen_endpoint:
+        settings = ZenohSettings(mode="router" if mode == "router" else "peer", listen=(endpoint,))
+    else:
+        settings = ZenohSettings(mode="peer", listen=DEFAULT_PEER_LISTEN, connect=(endpoint,))
+    return zenoh_config.session_config(settings)
 
 
 def open_session(endpoint: str, *, listen_endpoint: bool = False, mode: str = "peer") -> Any:
     return zenoh.open(session_config(endpoint, listen_endpoint=listen_endpoint, mode=mode))
 
 
+_QOS_BY_SUFFIX = (
+    ("/cmd/torque", zenoh_config.COMMAND_QOS),
+    ("/state", zenoh_config.STATE_QOS),
+    ("/telemetry", zenoh_config.TELEMETRY_QOS),
+    ("/status", zenoh_config.STATUS_QOS),
+)
+
+
 def publisher(session: Any, key: str) -> Any:
-    # express: these messages are small and latency-bound; batching would only delay them.
-    return session.declare_publisher(
-        key,
-        express=True,
-        congestion_control=zenoh.CongestionControl.DROP,
-        priority=zenoh.Priority.REAL_TIME,
-    )
+    """A publisher with the QoS that :mod:`protocol.zenoh_config` gives the key's message."""
+    qos = next((q for suffix, q in _QOS_BY_SUFFIX if key.endswith(suffix)), None)
+    if qos is None:
+        raise ValueError(f"no QoS defined for key {key!r}")
+    return zenoh_config.declare_publisher(session, key, qos)
 
 
 def payload_bytes(sample: Any) -> bytes:

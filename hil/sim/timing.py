@@ -21,8 +21,13 @@ from hil.errors import BadInputError
 
 def jitter_samples_from(path: str | Path) -> np.ndarray:
     """Latencies in seconds from a file: a JSON list (or an object with a ``latencies`` list),
-    a CSV with a ``latency`` column or one number per line. This is the hook to extend for
-    recordings (an ``.mcap`` file): add a branch on the suffix that returns seconds."""
+    a CSV with a ``latency`` column or one number per line; or, from a real run, its folder or
+    ``.mcap`` recording, optionally ``PATH::zenoh`` or ``PATH::can`` for one path's latencies
+    (:func:`hil.sweep.replay.latencies_from_run`)."""
+    from hil.sweep.replay import is_run_source, latencies_from_run
+
+    if is_run_source(path):
+        return latencies_from_run(path)
     p = Path(path)
     try:
         text = p.read_text()

@@ -9,6 +9,7 @@ interface python-can knows (``pcan``, ``kvaser``, ``slcan``, ...).
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
@@ -22,13 +23,15 @@ ALLOW_UDP_MULTICAST_ENV = "HIL_ALLOW_UDP_MULTICAST"
 
 @dataclass(frozen=True)
 class CanSettings:
-    """The ``[can]`` table: python-can interface and channel, bitrate (bit/s), node ids."""
+    """The ``[can]`` table: python-can interface and channel, bitrate (bit/s), node ids, and
+    the host's drive heartbeat timeout (s; an ODrive heartbeats every 100 ms)."""
 
     interface: str = "zenoh_can"
     channel: str = "hil0"
     bitrate: int = 1_000_000
     node_left: int = 0
     node_right: int = 1
+    heartbeat_timeout: float = 0.5
 
     def __post_init__(self) -> None:
         if not isinstance(self.interface, str) or not self.interface:
@@ -45,6 +48,9 @@ class CanSettings:
                 raise ValueError(f"[can] {name} must be an integer in 0..63, got {node!r}")
         if self.node_left == self.node_right:
             raise ValueError("[can] node_left and node_right must differ")
+        hb = self.heartbeat_timeout
+        if isinstance(hb, bool) or not isinstance(hb, int | float) or not 0.0 < hb < math.inf:
+            raise ValueError(f"[can] heartbeat_timeout must be a number > 0 (s), got {hb!r}")
 
     @classmethod
     def from_table(cls, table: Mapping[str, Any]) -> CanSettings:
