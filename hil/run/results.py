@@ -14,8 +14,9 @@ Figures (microseconds, percentiles p50/p90/p99/p999/max through :mod:`hil.timing
 ``compute`` (compute end - start), ``sample_to_apply_<path>`` (apply or, for a shadow,
 receive - sample), ``hop_state`` (controller receive - plant send), ``hop_cmd_<path>`` (plant
 receive - controller send), ``wait_for_tick`` (compute start - state receive: what the periodic
-trigger adds), ``loop_transport_compute`` (plant state send -> plant command receive over
-Zenoh: both transports plus the compute), ``sample_gap`` (the longest gap between the sample
+trigger adds), ``loop_transport_compute`` (over Zenoh: state hop + compute + command hop, the
+periodic trigger's wait excluded), ``state_send_to_cmd_recv`` (the same end to end, wait
+included), ``sample_gap`` (the longest gap between the sample
 times of successive applied commands, the Ts of the sampled-data bound).
 """
 
@@ -199,8 +200,18 @@ def analyze(
     timing["sample_to_apply_zenoh"] = summarize(z_lat)
     timing["hop_cmd_zenoh"] = summarize(c["recv_ns"] - c["send_ns"] for c in zen)
     state_send = {s["seq"]: s["send_ns"] for s in states}
-    timing["loop_transport_compute"] = summarize(
+    timing["state_send_to_cmd_recv"] = summarize(
         c["recv_ns"] - state_send[c["state_seq"]] for c in zen if c["state_seq"] in state_send
+    )
+    # The loop's own work, without the periodic trigger's wait for its tick: both hops and
+    # the law, joined on the command's sequence number.
+    row_of_cmd = {r["cmd_seq"]: r for r in fresh if r["zenoh_send_ns"] > 0}
+    timing["loop_transport_compute"] = summarize(
+        (r["state_recv_ns"] - r["state_send_ns"])
+        + (r["compute_end_ns"] - r["compute_start_ns"])
+        + (c["recv_ns"] - c["send_ns"])
+        for c in zen
+        if (r := row_of_cmd.get(c["seq"])) is not None
     )
 
     # CAN: match arrivals per node, in order, to the controller's CAN sends.

@@ -52,7 +52,15 @@ mkdir -p /mnt/dev/shm /mnt/dev/pts
 mount -t tmpfs -o mode=1777 tmpfs /mnt/dev/shm
 mount -t devpts devpts /mnt/dev/pts
 # A private /tmp: the host's /tmp stays untouched and sockets there work (9p has none).
+# A working directory under the host's /tmp (a clone made there) is carried over by a bind.
+CWD=$(cat /hil/cwd 2>/dev/null)
+case "$CWD" in
+  /tmp/?*) mkdir -p /hostcwd; mount -o bind "/mnt$CWD" /hostcwd || fail "bind $CWD" ;;
+esac
 mount -t tmpfs -o mode=1777 tmpfs /mnt/tmp || fail "mount /mnt/tmp"
+case "$CWD" in
+  /tmp/?*) mkdir -p "/mnt$CWD"; mount -o bind /hostcwd "/mnt$CWD" || fail "rebind $CWD" ;;
+esac
 cp /hil/run.sh /mnt/tmp/.hil-run.sh || fail "no run script"
 echo "%(ready)s:$NONCE@@"
 chroot /mnt /bin/sh /tmp/.hil-run.sh </dev/null
@@ -113,11 +121,12 @@ def run_script(argv: Sequence[str], cwd: str, env: Mapping[str, str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def build_run_part(script: str, nonce: str, p9_opts: str = "") -> bytes:
+def build_run_part(script: str, nonce: str, p9_opts: str = "", cwd: str = "") -> bytes:
     entries = [
         cpio.directory("hil"),
         cpio.file("hil/run.sh", script.encode()),
         cpio.file("hil/nonce", nonce.encode()),
         cpio.file("hil/9p_opts", p9_opts.encode()),
+        cpio.file("hil/cwd", cwd.encode()),
     ]
     return gzip_padded(cpio.newc_archive(entries))

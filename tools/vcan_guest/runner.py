@@ -205,15 +205,13 @@ def run_in_guest(
     nonce = secrets.token_hex(8)
     log_path = log_path or Path(tempfile.gettempdir()) / f"hil-vcan-guest-{nonce}.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
-    script = initramfs.run_script(
-        guest_argv(argv), cwd or os.getcwd(), guest_env(os.environ, env or {})
-    )
+    workdir = str(Path(cwd or os.getcwd()).resolve())
+    script = initramfs.run_script(guest_argv(argv), workdir, guest_env(os.environ, env or {}))
     state = _Console(nonce)
     with tempfile.TemporaryDirectory(prefix="hil-vcan-guest-") as tmp:
         initrd = Path(tmp, "initrd.gz")
-        initrd.write_bytes(
-            image.initrd_base.read_bytes() + initramfs.build_run_part(script, nonce, p9_opts)
-        )
+        run_part = initramfs.build_run_part(script, nonce, p9_opts, workdir)
+        initrd.write_bytes(image.initrd_base.read_bytes() + run_part)
         start = time.monotonic()
         proc = subprocess.Popen(
             qemu_argv(qemu, image, initrd),
