@@ -5,9 +5,9 @@ figures are the Zenoh loop's own) and each trigger mode it reports, as medians o
 
 - wake-up lateness p50/p99 beside ``cyclictest`` at the same interval and policy
   (target: p99 within 2x of cyclictest's);
-- the loop's transport + compute time (State hop plant -> controller, the law's compute, command
-  hop controller -> plant; the periodic trigger's wait for its tick excluded) beside a raw Zenoh ping-pong RTT between two Python processes
-  (target: p50 within 1.3x of the ping-pong's);
+- the loop's transport + compute time (State hop plant -> controller, the law's compute,
+  command hop controller -> plant; the periodic trigger's wait for its tick excluded) beside a
+  raw Zenoh ping-pong RTT between two Python processes (target: p50 within 1.3x of it);
 - sample-to-apply latency p50/p99 in both trigger modes (how much the periodic tick adds);
 - deadline-miss rate (target < 0.1 % at 1 kHz) and the highest rate meeting it.
 

@@ -18,20 +18,7 @@ from typing import Any
 import numpy as np
 
 from hil.errors import BadInputError
-
-TRACE_COLUMNS: tuple[str, ...] = (
-    "t",
-    "x",
-    "y",
-    "theta",
-    "v",
-    "omega",
-    "xd",
-    "yd",
-    "thetad",
-    "tau1",
-    "tau2",
-)
+from hil.trace import TRACE_COLUMNS
 
 
 @dataclass

@@ -31,6 +31,7 @@ from typing import Any
 import msgpack
 
 from hil.timing import diffs, summarize
+from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 
 SCHEMA_VERSION = 1
 
@@ -103,19 +104,8 @@ def analyze(
     # --- trace.csv: one row per control sample (the states the plant published) ---
     trace_path = run_dir / "trace.csv"
     cols = [
-        "t",
-        "x",
-        "y",
-        "theta",
-        "v",
-        "omega",
-        "xd",
-        "yd",
-        "thetad",
-        "tau1",
-        "tau2",
-        "tau1_cmd",
-        "tau2_cmd",
+        *TRACE_COLUMNS,
+        *COMMAND_COLUMNS,
         "sample_ns",
         "state_seq",
     ]

@@ -28,6 +28,7 @@ import numpy as np
 from controller_service.laws.base import ReferenceSample, RobotState
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
 from hil.sim.timing import extra_delays, jitter_samples_from, landing_offsets
+from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from plant_emulator.dynamics import (
     Extremes,
     PlantState,
@@ -38,19 +39,8 @@ from plant_emulator.dynamics import (
 from plant_emulator.sensors import measure, wrap_angle
 
 BASE_COLUMNS = (
-    "t",
-    "x",
-    "y",
-    "theta",
-    "v",
-    "omega",
-    "xd",
-    "yd",
-    "thetad",
-    "tau1",
-    "tau2",
-    "tau1_cmd",
-    "tau2_cmd",
+    *TRACE_COLUMNS,
+    *COMMAND_COLUMNS,
     "position_error",
     "heading_error",
 )

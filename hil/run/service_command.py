@@ -1,0 +1,72 @@
+"""One ``hil`` command per service (``hil controller``, ``hil emulator``): the service alone,
+as ``hil run`` starts it as a child.
+
+With ``--settings run_settings.json`` it runs exactly as under ``hil run``; with a scenario it
+builds those settings itself, joins the Zenoh endpoint given and waits for the run's start
+message (``Status(role="run", state="start")``) unless ``--epoch-ns`` gives t = 0. Both
+services must reach each other: start a router (deploy/zenoh-router.json5) on ``--endpoint``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from hil.errors import BadInputError
+
+
+def register_service_command(app: typer.Typer, name: str, module: str, what: str) -> None:
+    """Add ``hil NAME`` running ``module.main_from_settings`` (``what`` names it in --help)."""
+
+    def command(
+        scenario: Annotated[Path | None, typer.Argument(help="Scenario TOML.")] = None,
+        settings: Annotated[
+            Path | None, typer.Option(help="run_settings.json from hil run.")
+        ] = None,
+        endpoint: Annotated[
+            str, typer.Option(help="Zenoh endpoint to join.")
+        ] = "tcp/127.0.0.1:7447",
+        duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
+        rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,
+        cmd_path: Annotated[str, typer.Option(help="zenoh or can.")] = "zenoh",
+        lockstep: Annotated[bool, typer.Option()] = False,
+        can_endpoint: Annotated[
+            str, typer.Option(help="zenoh_can endpoint (the CAN bus over Zenoh).")
+        ] = "tcp/127.0.0.1:7449",
+        epoch_ns: Annotated[
+            int,
+            typer.Option(help="t = 0 as time.monotonic_ns(); 0 waits for the run's start message."),
+        ] = 0,
+        out: Annotated[Path, typer.Option(help="Where the hop log goes.")] = Path("."),
+    ) -> None:
+        main_from_settings = importlib.import_module(module).main_from_settings
+        if settings is None:
+            if scenario is None:
+                raise BadInputError("give a scenario file or --settings")
+            from hil.run.orchestrate import RunOptions, prepare
+
+            out.mkdir(parents=True, exist_ok=True)
+            _, s, run_dir, _ = prepare(
+                RunOptions(
+                    scenario=scenario,
+                    duration=duration,
+                    rate=rate,
+                    cmd_path=cmd_path,
+                    lockstep=lockstep,
+                    out=out,
+                )
+            )
+            s.zenoh_endpoint = endpoint
+            s.can_endpoint = can_endpoint
+            s.epoch_ns = epoch_ns
+            settings = run_dir / f"{name}_settings.json"
+            s.save(settings)
+        code = main_from_settings(str(settings))
+        if code:
+            raise typer.Exit(code)
+
+    command.__doc__ = f"Run the {what} alone (as hil run starts it; see docs/realtime.md)."
+    app.command(name)(command)

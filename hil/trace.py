@@ -1,0 +1,21 @@
+"""The columns every trace.csv starts with (CONTRACT.md), shared by runs, simulations and
+reports so the three cannot drift apart."""
+
+from __future__ import annotations
+
+#: Required by the contract, in this order: one row per control sample.
+TRACE_COLUMNS: tuple[str, ...] = (
+    "t",
+    "x",
+    "y",
+    "theta",
+    "v",
+    "omega",
+    "xd",
+    "yd",
+    "thetad",
+    "tau1",
+    "tau2",
+)
+#: The commanded torques (before clamping where they are applied), right after.
+COMMAND_COLUMNS: tuple[str, ...] = ("tau1_cmd", "tau2_cmd")
