@@ -37,6 +37,9 @@ def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
         "--can-channel",
         "vcan0",
         timeout=800,
+        # At 50 Hz, with the guest's delays, the sampled-data bound on omega exceeds phi2: the
+        # run may break |omega| <= phi2 (exit 1); it must stay within the bound below.
+        ok_codes=(0, 1),
     )
     can = s["messages"]["torque_can"]
     # Torques reached the plant as frames on vcan0 and were applied (the guest is slow and
@@ -47,6 +50,7 @@ def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
     _, _, context = build_loop(sc)
     b = s["sampled_data_bound"]
     bound = sampled_data_bound(context, dict(sc.controller), b["ts_gap"], b["delta"])
-    assert s["max_abs_v"] <= bound["v"]
+    assert s["max_abs_v"] <= bound["v"], (s["max_abs_v"], bound)
+    assert s["max_abs_omega"] <= bound["omega"], (s["max_abs_omega"], bound)
     assert s["max_abs_tau1"] <= sc.limits.varpi1 and s["max_abs_tau2"] <= sc.limits.varpi2
     assert s["violations"]["tau1"] == 0 and s["violations"]["tau2"] == 0
