@@ -237,33 +237,6 @@ class ConstraintFigure:
         }
 
 
-def design_note_bounds(
-    *,
-    mu1: float,
-    mu2: float,
-    m1: float,
-    m2: float,
-    lam: float,
-    rho: float,
-    c2: float,
-    varpi1: float,
-    varpi2: float,
-    s1: float,
-    s2: float,
-    ts: float,
-    delay: float,
-) -> tuple[float, float]:
-    """The sampled-data bound as stated in DESIGN.md (before its caveats):
-    |v| <= mu1 + m1 + (varpi1 + s1)(Ts + delta),
-    |w| <= mu2 + lam mu1 + m2 + rho c2 + (varpi2 + s2)(Ts + delta).
-    Used only when the certificate module (controller_service.certificate) is not installed."""
-    gap = ts + delay
-    return (
-        mu1 + m1 + (varpi1 + s1) * gap,
-        mu2 + lam * mu1 + m2 + rho * c2 + (varpi2 + s2) * gap,
-    )
-
-
 # --------------------------------------------------------------------------- ideal trajectory
 
 

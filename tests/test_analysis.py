@@ -120,26 +120,6 @@ def test_deviation_from_ideal_interpolates() -> None:
     assert np.allclose(dev, 0.1)
 
 
-def test_design_note_bound_is_the_design_md_formula() -> None:
-    v, w = analysis.design_note_bounds(
-        mu1=0.5,
-        mu2=0.2,
-        m1=0.5,
-        m2=0.5,
-        lam=1.0,
-        rho=1.0,
-        c2=3.39,
-        varpi1=3.3,
-        varpi2=51.0,
-        s1=0.0,
-        s2=0.0,
-        ts=0.001,
-        delay=0.0,
-    )
-    assert v == pytest.approx(1.0 + 3.3e-3)
-    assert w == pytest.approx(0.2 + 0.5 + 0.5 + 3.39 + 0.051)
-
-
 def test_sampling_effects_ignore_gaps_but_not_infinities() -> None:
     t = np.linspace(0.0, 1.0, 5)
     zero = np.zeros(5)

@@ -59,21 +59,21 @@ def wrap(a: float) -> float:
 def sampled_data_bound(
     context: Any, params: dict[str, Any], ts_gap: float, delta: float
 ) -> dict[str, float]:
-    """DESIGN.md "Beyond the paper": |v| <= mu1 + m1 + (varpi1 + s1)(Ts + delta),
-    |w| <= mu2 + lam mu1 + m2 + rho c2 + (varpi2 + s2)(Ts + delta), c2 with the v bound in place
-    of phi1 where it exceeds it, plus the boundary layer's eps s / varpi term."""
+    """The sampled-data bound of docs/sampled_data_bound.md at the run's measured worst sample
+    gap and delay, from :mod:`controller_service.certificate` (one formula for the certificate,
+    the run and the report): |v| <= V = mu1 + m1 + b1 + (varpi1 + s1)(Ts + delta) and
+    |w| <= mu2 + lam mu1 + m2 + rho c2(V) + b2 + (varpi2 + s2)(Ts + delta), with b1, b2 the
+    boundary layer's eps s / varpi terms (0 for the sign law)."""
+    from controller_service.certificate import omega_bound, velocity_bound
+
     lim = context.limits
-    mu1, mu2, s1, s2 = context.mu1, context.mu2, context.s1, context.s2
     m1, m2 = float(params.get("m1", 0.5)), float(params.get("m2", 0.5))
     lam, rho = float(params.get("lam", 1.0)), float(params.get("rho", 1.0))
     eps1, eps2 = float(params.get("eps1", 0.0)), float(params.get("eps2", 0.0))
     span = ts_gap + delta
-    v_bound = mu1 + m1 + (lim.varpi1 + s1) * span + eps1 * s1 / lim.varpi1
-    phi1 = max(lim.phi1, v_bound)
-    c0 = mu1 + phi1
-    c1 = c0 + 1.0
-    c2 = c1 + mu1**2 + mu2**2
-    w_bound = mu2 + lam * mu1 + m2 + rho * c2 + (lim.varpi2 + s2) * span + eps2 * s2 / lim.varpi2
+    b1, b2 = eps1 * context.s1 / lim.varpi1, eps2 * context.s2 / lim.varpi2
+    v_bound = velocity_bound(context, m1, span, b1)
+    w_bound = omega_bound(context, m2=m2, lam=lam, rho=rho, v_bound=v_bound, age=span, b2=b2)
     return {"v": v_bound, "omega": w_bound, "ts_gap": ts_gap, "delta": delta}
 
 
