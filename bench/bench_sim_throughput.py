@@ -4,6 +4,9 @@ One robot-step = one control period of one loop at Ts = 1 ms with the default pl
 (10 RK4 steps of 0.1 ms) and the unified law (Table 1) on the paper's tracking scenario. Measures
 the batch path (``simulate_batch``) for N = 1, 100, 10,000 and the single-run float path
 (``simulate``) in the same run; each figure is the median of ``--repeats`` runs. Prints JSON.
+The batch path runs on one thread (``"threads": 1``; splitting N over threads was slower, the
+numpy operations at N = 10,000 being too short to amortize the GIL hand-overs). ``"source"``
+is the tree measured: this file's checkout, ahead of any editable install on sys.path.
 
     python bench/bench_sim_throughput.py            # full
     python bench/bench_sim_throughput.py --quick    # fewer periods and repeats
@@ -18,13 +21,18 @@ import json
 import os
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
-from hil.scenario import build_loop, load_scenario
-from hil.sim import simulate, simulate_batch
+# Measure the checkout this file belongs to, not whichever tree an editable install points at.
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
-SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "paper_tracking.toml"
+from hil.scenario import build_loop, load_scenario  # noqa: E402
+from hil.sim import simulate, simulate_batch  # noqa: E402
+
+SCENARIO = ROOT / "scenarios" / "paper_tracking.toml"
 
 
 def _rate(fn, robots: int, periods: int, repeats: int) -> dict[str, float]:  # type: ignore[no-untyped-def]
@@ -65,6 +73,8 @@ def main() -> None:
     big = results["batch_N10000"]["median_robot_steps_per_s"]  # type: ignore[index]
     out = {
         "benchmark": "closed-loop robot-steps per second, Ts = 1 ms, h = 0.1 ms, unified law",
+        "source": str(Path(simulate_batch.__code__.co_filename).resolve().parents[2]),
+        "threads": 1,
         "machine": {
             "cpu_count": os.cpu_count(),
             "processor": platform.processor() or platform.machine(),

@@ -15,7 +15,9 @@ Three implementations of the *same* RK4 arithmetic (tests check they agree):
 - :func:`advance_array_tracked`: the same step on arrays of N robots, where cos/sin at the
   stage angles come from one exact cos/sin per call rotated by Taylor polynomials of the small
   stage increments (exact to rounding while h*|omega| <= 0.02, else it falls back to exact
-  trigonometry), because one numpy sin on 10,000 values costs as much as ~30 additions.
+  trigonometry), because one numpy sin on 10,000 values costs as much as ~30 additions. Under a
+  held torque with no lag and a constant disturbance (the common case) the stages are summed
+  in complex form (:func:`_advance_array_held`), the same RK4 arithmetic regrouped.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from plant_emulator.disturbances import Disturbance, disturbance_at
 
 VIOLATION_RTOL = 1e-9  # a step counts as a violation beyond limit * (1 + VIOLATION_RTOL)
 _TAYLOR_MAX_ANGLE = 0.02
+_TAYLOR_CUT = 2.0**-70
 NO_DISTURBANCE = Disturbance()
 
 
@@ -398,6 +401,66 @@ def advance_array_tracked(
     return PlantState(x, y, th, v, w, a1, a2)
 
 
+def _rot_small(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """cos d and sin d for |d| <= 0.02: :func:`_rot` from angle 0 without its rotation.
+
+    The polynomials stop at the first power of d**2 whose term is below 2**-70 (relative) for
+    every element: the held segment's small angles (h omega / 2 ~ 1e-4, h^2 u2 / 4 ~ 1e-7) need
+    only two or three terms, and each term costs two array operations.
+    """
+    u = d * d
+    big = float(np.max(u)) if np.size(u) else 0.0
+    if big * big * big >= 720.0 * _TAYLOR_CUT:
+        cd = 1.0 - u * (0.5 - u * (1.0 / 24.0 - u * (1.0 / 720.0)))
+        sd = d * (1.0 - u * (1.0 / 6.0 - u * (1.0 / 120.0 - u * (1.0 / 5040.0))))
+    elif big * big >= 24.0 * _TAYLOR_CUT:
+        cd = 1.0 - u * (0.5 - u * (1.0 / 24.0))
+        sd = d * (1.0 - u * (1.0 / 6.0 - u * (1.0 / 120.0)))
+    else:
+        cd = 1.0 - u * 0.5
+        sd = d * (1.0 - u * (1.0 / 6.0))
+    return cd, sd
+
+
+def _track_linear(
+    ext_max: np.ndarray,
+    ext_count: np.ndarray,
+    lim: float,
+    start: np.ndarray,
+    rate: np.ndarray,
+    first: np.ndarray,
+    last: np.ndarray,
+    n: int,
+) -> None:
+    """Extremes over the n step ends of q_i = q_{i-1} + rate, q_0 = start (v or omega under a
+    held torque); ``first`` and ``last`` are q_1 and q_n.
+
+    The sequence is monotone in floating point too, so its largest magnitude is at an end.
+    Steps beyond ``lim`` are counted by replaying the same additions, only for the robots whose
+    ends exceed it (usually none).
+    """
+    peak = np.maximum(np.abs(first), np.abs(last))
+    np.maximum(ext_max, peak, out=ext_max)
+    over = np.flatnonzero(peak > lim)
+    if over.size == 0:
+        return
+    q = np.broadcast_to(start, peak.shape)[over]
+    dq = np.broadcast_to(rate, peak.shape)[over]
+    count = np.zeros(over.size, dtype=ext_count.dtype)
+    for _ in range(n):
+        q = q + dq
+        count += np.abs(q) > lim
+    ext_count[over] += count
+
+
+def _unit(c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """The complex array c + i s."""
+    z = np.empty(np.shape(c), dtype=np.complex128)
+    z.real = c
+    z.imag = s
+    return z
+
+
 def _advance_array_held(
     s: PlantState,
     cmd1: np.ndarray,
@@ -410,13 +473,24 @@ def _advance_array_held(
     ext: Extremes,
 ) -> PlantState:
     """:func:`advance_array_tracked` when v' = u1 and omega' = u2 are constant over the segment
-    (no lag, constant disturbance): the same RK4 stages, simplified.
+    (no lag, constant disturbance): the same RK4 stages of model (1), summed in closed form.
 
-    With u constant, RK4's stages give v2 = v3 = v + h u1 / 2, v4 = v + h u1 (the next v),
-    omega2 = omega3, and stage angles theta + d2, theta + d2 + e, theta + 2 (d2 + e) with
-    d2 = h omega / 2 and e = h^2 u2 / 4, the last being the next step's theta. So the stage
-    rotations are R(d2) (rotated by R(h^2 u2 / 2) from one step to the next), R(d2) R(e) and
-    R(d2 + e)^2, and x, y advance by h/6 Re/Im(exp(i theta) (v + 2 v2 (R2 + R3) + v4 R4)).
+    With u constant, RK4's stages of step i give v2 = v3 = v_i + h u1 / 2, v4 = v_i + h u1
+    (= v_{i+1}), omega2 = omega3, and stage angles theta_i + d2_i, theta_i + d2_i + e and
+    theta_i + 2 (d2_i + e) = theta_{i+1}, with d2_i = h omega_i / 2 and e = h^2 u2 / 4. In
+    complex form (x + i y, unit phasors Z_i = exp(i theta_i), R2_i = exp(i d2_i),
+    E = exp(i e)) the stage phasors are P2 = Z_i R2_i, P3 = P2 E and P4 = P2 R2_{i+1} = Z_{i+1},
+    with R2_{i+1} = R2_i E^2, and step i adds (h/6) (v_i Z_i + 2 v2 (P2 + P3) + v4 P4)
+    = (h/6) (v_i T_i + h u1 (K P2 / 2 + P4)), T_i = Z_i + K P2 + P4, K = 2 (1 + E).
+    With v_i = v_0 + i h u1 the n steps add (h/6) (v_0 S + h u1 ((n + 1/2) S - Q
+    + (Z_n - Z_0) / 2)), S = sum of T_i, Q = sum over i of the partial sums T_0 + ... + T_i.
+    theta, omega and v take the stage-by-stage form's additions; the extremes of v and omega
+    over the step ends are at the first or the last step (both are linear in the step index).
+
+    Why: at N = 10,000 a numpy operation costs about the same on complex as on real arrays, and
+    this form takes 8 complex operations a step where the real stage-by-stage form takes ~45.
+    The phasors start from one exact cos/sin of theta a call; E and R2_0 are Taylor polynomials
+    of the small angles (|h omega|, h^2 |u2| <= 0.02, checked by the caller).
     """
     lv = limits.phi1 * (1.0 + VIOLATION_RTOL)
     lw = limits.phi2 * (1.0 + VIOLATION_RTOL)
@@ -424,41 +498,68 @@ def _advance_array_held(
     lt2 = limits.varpi2 * (1.0 + VIOLATION_RTOL)
     _track_torque(ext, cmd1, cmd2, lt1, lt2, n)
     x, y, th, v, w, _, _ = s
+    if n <= 0:
+        return PlantState(x, y, th, v, w, cmd1, cmd2)
     hh = 0.5 * h
     h6 = h / 6.0
     u1 = cmd1 + d1
     u2 = cmd2 + d2
     hu1 = h * u1
-    hhu1 = hh * u1
+    hu2 = h * u2
     hhu2 = hh * u2
-    e = hh * hhu2
-    one = np.ones_like(e)
-    ce, se = _rot(one, np.zeros_like(e), e)  # R(e)
-    c = np.cos(th)
-    sn = np.sin(th)
-    c2, s2 = _rot(one, np.zeros_like(e), hh * w)  # R(d2) of the first step
-    c_step, s_step = _rot(one, np.zeros_like(e), 2.0 * e)  # d2 grows by 2 e a step
+    e_pos = _unit(*_rot_small(hh * hhu2))  # E = exp(i e)
+    e_sq = e_pos * e_pos  # R2_{i+1} / R2_i
+    k = 2.0 * (1.0 + e_pos)
+    r2 = _unit(*_rot_small(hh * w))  # R2_0
+    z = _unit(np.cos(th), np.sin(th))  # Z_0
+    shape = z.shape
+    p2, p4, t, s_sum = (np.empty(shape, dtype=np.complex128) for _ in range(4))
+    q_sum = 0.5 * z  # Q plus Z_0 / 2, which the end result subtracts
+    # theta, omega, v step by step with the additions of the stage-by-stage form (theta_{i+1}
+    # = theta_i + h (omega_i + h u2 / 2), omega_{i+1} = omega_i + h u2, v_{i+1} = v_i + h u1),
+    # as rows of one array so that a step updates all three in one operation. A closed form is
+    # as exact in real arithmetic but drifts from the single-run path by ~1e-12 in theta over
+    # 20 s, where these additions stay within ~1e-15 of it.
+    twv = np.empty((3, *shape))
+    twv[0] = th
+    twv[1] = w
+    twv[2] = v
+    incr = np.empty((3, *shape))
+    incr[1] = hu2
+    incr[2] = hu1
+    v_first = v + hu1
     for i in range(n):
+        np.multiply(z, r2, out=p2)
+        np.multiply(r2, e_sq, out=r2)
+        np.multiply(p2, r2, out=p4)  # Z_{i+1}
+        np.multiply(p2, k, out=t)
+        np.add(t, z, out=t)
+        np.add(t, p4, out=t)  # T_i
         if i:
-            c2, s2 = c2 * c_step - s2 * s_step, s2 * c_step + c2 * s_step
-        c3 = c2 * ce - s2 * se
-        s3 = s2 * ce + c2 * se
-        c4 = c3 * c3 - s3 * s3
-        s4 = 2.0 * c3 * s3
-        v2 = v + hhu1
-        v4 = v + hu1
-        two_v2 = 2.0 * v2
-        p = v + two_v2 * (c2 + c3) + v4 * c4
-        q = two_v2 * (s2 + s3) + v4 * s4
-        x = x + h6 * (c * p - sn * q)
-        y = y + h6 * (sn * p + c * q)
-        th = th + h * (w + hhu2)
-        c, sn = c * c4 - sn * s4, sn * c4 + c * s4
-        v = v4
-        w = w + h * u2
-        _track_array(ext, v, w, lv, lw)
+            np.add(s_sum, t, out=s_sum)
+        else:
+            s_sum, t = t, s_sum
+        np.add(q_sum, s_sum, out=q_sum)
+        z, p4 = p4, z  # the next Z is this P4; the old Z's buffer is reused
+        np.add(twv[1], hhu2, out=incr[0])
+        np.multiply(incr[0], h, out=incr[0])
+        np.add(twv, incr, out=twv)
+    th_end, w_end, v_end = twv
+    # b = (n + 1/2) S - Q + (Z_n - Z_0) / 2, then x + i y += (h/6) (v_0 S + h u1 b).
+    np.multiply(s_sum, n + 0.5, out=p2)
+    np.subtract(p2, q_sum, out=p2)
+    np.multiply(z, 0.5, out=p4)
+    np.add(p2, p4, out=p2)
+    np.multiply(p2, hu1, out=p2)
+    np.multiply(s_sum, v, out=s_sum)
+    np.add(s_sum, p2, out=s_sum)
+    np.multiply(s_sum, h6, out=s_sum)
+    x = x + s_sum.real
+    y = y + s_sum.imag
+    _track_linear(ext.max_abs_v, ext.violations_v, lv, v, hu1, v_first, v_end, n)
+    _track_linear(ext.max_abs_omega, ext.violations_omega, lw, w, hu2, w + hu2, w_end, n)
     ext.steps += n
-    return PlantState(x, y, th, v, w, cmd1, cmd2)
+    return PlantState(x, y, th_end, v_end, w_end, cmd1, cmd2)
 
 
 def track_initial(ext: Extremes, s: PlantState, limits: Limits) -> None:

@@ -318,6 +318,90 @@ def _per_robot(values: Sequence[Any], default: Any, dtype: Any) -> np.ndarray:
     return np.array([default if v is None else v for v in values], dtype=dtype)
 
 
+def _batch_summaries(
+    scenario: Scenario,
+    ext: Extremes,
+    last: tuple[Any, ...],
+    rms: np.ndarray,
+    samples: int,
+    dropped: np.ndarray,
+    interrupted: bool,
+    law: str,
+    seeds: tuple[np.ndarray, np.ndarray, np.ndarray],
+) -> list[dict[str, Any]]:
+    """:func:`_summary` for every robot of a batch, with the same keys in the same order.
+
+    Why: for short runs of many robots, building 10,000 summaries one ``_summary`` call at a
+    time (numpy scalar reads, scenario properties, per-robot ``wrap_angle``) cost more than a
+    hundred control periods; here the per-robot columns are computed on arrays and read back as
+    Python lists once, and what all robots share is computed once.
+    """
+    n = len(rms)
+    x, y, th, xd, yd, thd = (np.broadcast_to(np.asarray(q, dtype=float), (n,)) for q in last)
+    pos_err = [math.hypot(a, b) for a, b in zip((x - xd).tolist(), (y - yd).tolist(), strict=True)]
+    head_err = np.asarray(wrap_angle(np.asarray(th - thd)), dtype=float).tolist()
+    cols = [
+        np.asarray(q).tolist()
+        for q in (
+            ext.max_abs_v,
+            ext.max_abs_omega,
+            ext.max_abs_tau1,
+            ext.max_abs_tau2,
+            ext.violations_v,
+            ext.violations_omega,
+            ext.violations_tau1,
+            ext.violations_tau2,
+        )
+    ]
+    limits = scenario.limits
+    limit_table = {
+        "phi1": limits.phi1,
+        "phi2": limits.phi2,
+        "varpi1": limits.varpi1,
+        "varpi2": limits.varpi2,
+    }
+    ts = scenario.timing.ts
+    plant_step = scenario.plant_step
+    duration = samples * ts
+    steps = ext.steps
+    rows = zip(
+        pos_err,
+        head_err,
+        rms.tolist(),
+        *cols,
+        dropped.tolist(),
+        *(q.tolist() for q in seeds),
+        strict=True,
+    )
+    out = []
+    for pe, he, rm, mv, mw, mt1, mt2, nv, nw, nt1, nt2, dr, js, ds, ss in rows:
+        out.append(
+            {
+                "schema_version": SCHEMA_VERSION,
+                "final_position_error": pe,
+                "final_heading_error": he,
+                "rms_position_error": rm,
+                "max_abs_v": mv,
+                "max_abs_omega": mw,
+                "max_abs_tau1": mt1,
+                "max_abs_tau2": mt2,
+                "violations": {"v": nv, "omega": nw, "tau1": nt1, "tau2": nt2},
+                "limits_held": not (nv or nw or nt1 or nt2),
+                "limits": dict(limit_table),
+                "law": law,
+                "ts": ts,
+                "plant_step": plant_step,
+                "duration": duration,
+                "samples": samples,
+                "plant_steps": steps,
+                "commands_dropped": dr,
+                "interrupted": interrupted,
+                "seeds": {"timing": js, "disturbance": ds, "sensor": ss},
+            }
+        )
+    return out
+
+
 def simulate_batch(
     scenario: Scenario,
     variations: Sequence[RobotVariation] | int,
@@ -343,32 +427,45 @@ def simulate_batch(
     n_samples = max(1, round(scenario.run.duration / ts))
     ini = scenario.initial
     timing = scenario.timing
+    # N copies of one variation (``variations`` given as an int) need no per-robot reads.
+    first = variations[0]
+    shared = all(v is first for v in variations)
+
+    def per_robot(name: str, default: Any, dtype: Any) -> np.ndarray:
+        if shared:
+            value = getattr(first, name)
+            return np.full(n, default if value is None else value, dtype=dtype)
+        return _per_robot([getattr(v, name) for v in variations], default, dtype)
+
     state = PlantState(
-        _per_robot([v.x for v in variations], ini.x, float),
-        _per_robot([v.y for v in variations], ini.y, float),
-        _per_robot([v.theta for v in variations], ini.theta, float),
-        _per_robot([v.v for v in variations], ini.v, float),
-        _per_robot([v.omega for v in variations], ini.omega, float),
+        per_robot("x", ini.x, float),
+        per_robot("y", ini.y, float),
+        per_robot("theta", ini.theta, float),
+        per_robot("v", ini.v, float),
+        per_robot("omega", ini.omega, float),
         np.zeros(n),
         np.zeros(n),
     )
-    delays = _per_robot([v.delay for v in variations], timing.delay, float)
-    jitters = _per_robot([v.jitter for v in variations], timing.jitter, float)
-    jseeds = _per_robot([v.jitter_seed for v in variations], timing.seed, np.int64)
-    dseeds = _per_robot(
-        [v.disturbance_seed for v in variations], scenario.disturbance.seed, np.int64
-    )
-    sseeds = _per_robot([v.sensor_seed for v in variations], scenario.plant.noise_seed, np.int64)
+    delays = per_robot("delay", timing.delay, float)
+    jitters = per_robot("jitter", timing.jitter, float)
+    jseeds = per_robot("jitter_seed", timing.seed, np.int64)
+    dseeds = per_robot("disturbance_seed", scenario.disturbance.seed, np.int64)
+    sseeds = per_robot("sensor_seed", scenario.plant.noise_seed, np.int64)
     replay = _replay(scenario)
-    # Offsets per robot, drawn exactly as the single path draws them (same seed, same n).
-    cache: dict[tuple[float, float, int], np.ndarray] = {}
-    offsets = np.empty((n, n_samples), dtype=np.int64)
-    for i in range(n):
-        key = (float(delays[i]), float(jitters[i]), int(jseeds[i]))
-        if key not in cache:
-            extra = extra_delays(timing.jitter_kind, key[1], key[2], n_samples, replay)
-            cache[key] = landing_offsets(extra, key[0], h)
-        offsets[i] = cache[key]
+    # Offsets per distinct (delay, jitter, seed), drawn exactly as the single path draws them
+    # (same seed, same n); robot i uses row group[i] of ``offsets``.
+    keys: dict[tuple[float, float, int], int] = {}
+    group = np.array(
+        [
+            keys.setdefault(key, len(keys))
+            for key in zip(delays.tolist(), jitters.tolist(), jseeds.tolist(), strict=True)
+        ],
+        dtype=np.intp,
+    )
+    offsets = np.empty((len(keys), n_samples), dtype=np.int64)
+    for (delay, jitter, seed), row in keys.items():
+        extra = extra_delays(timing.jitter_kind, jitter, seed, n_samples, replay)
+        offsets[row] = landing_offsets(extra, delay, h)
     all_zero = not offsets.any()
     depth = int(offsets.max()) // m + 2  # periods a command can stay pending
     sensor = scenario.sensor
@@ -419,7 +516,7 @@ def simulate_batch(
                 slot = k % depth
                 ring_c1[slot] = tau1
                 ring_c2[slot] = tau2
-                ring_land[slot] = j0 + offsets[:, k]
+                ring_land[slot] = j0 + offsets[group, k]
                 in_period = (ring_land >= j0) & (ring_land < j0 + m)
                 events = sorted(set(ring_land[in_period].tolist())) if in_period.any() else []
                 # Slots oldest first, so at a shared landing step the newest command wins.
@@ -446,7 +543,8 @@ def simulate_batch(
                         applied_seq = np.where(newer, seq, applied_seq)
                 if first:
                     first = False
-                    e_pos = np.hypot(state.x - ref.xd, state.y - ref.yd)
+                    if k >= rms_from or record:
+                        e_pos = np.hypot(state.x - ref.xd, state.y - ref.yd)
                     if k >= rms_from:
                         sq_sum += e_pos * e_pos
                         sq_n += 1
@@ -507,61 +605,13 @@ def simulate_batch(
     if progress is not None and not interrupted:
         progress(done, n_samples)
     columns = [*BASE_COLUMNS, *(tel_keys or [])]
-    summaries = []
     law = getattr(controller, "name", type(controller).__name__)
     if last is None:
         last = (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
-    # Columns as Python lists once: per-element numpy indexing costs more than the simulation
-    # itself for short runs of many robots.
-    last_cols = [np.broadcast_to(np.asarray(q, dtype=float), (n,)).tolist() for q in last]
-    ext_cols = [
-        np.asarray(q).tolist()
-        for q in (
-            ext.max_abs_v,
-            ext.max_abs_omega,
-            ext.max_abs_tau1,
-            ext.max_abs_tau2,
-            ext.violations_v,
-            ext.violations_omega,
-            ext.violations_tau1,
-            ext.violations_tau2,
-        )
-    ]
-    rms_col = (np.sqrt(sq_sum / sq_n) if sq_n else np.full(n, np.nan)).tolist()
-    dropped_col = dropped.tolist()
-    for i in range(n):
-        lt = tuple(col[i] for col in last_cols)
-        ext_vals = {
-            "max_abs_v": ext_cols[0][i],
-            "max_abs_omega": ext_cols[1][i],
-            "max_abs_tau1": ext_cols[2][i],
-            "max_abs_tau2": ext_cols[3][i],
-        }
-        violations = {
-            "v": ext_cols[4][i],
-            "omega": ext_cols[5][i],
-            "tau1": ext_cols[6][i],
-            "tau2": ext_cols[7][i],
-        }
-        rms = rms_col[i]
-        s = _summary(
-            scenario,
-            ext_vals,
-            violations,
-            lt,
-            rms,
-            done,
-            ext.steps,
-            dropped_col[i],
-            interrupted,
-            law,
-        )
-        s["seeds"] = {
-            "timing": int(jseeds[i]),
-            "disturbance": int(dseeds[i]),
-            "sensor": int(sseeds[i]),
-        }
-        summaries.append(s)
+    rms = np.sqrt(sq_sum / sq_n) if sq_n else np.full(n, np.nan)
+    summaries = _batch_summaries(
+        scenario, ext, last, rms, done, dropped, interrupted, law, (jseeds, dseeds, sseeds)
+    )
     traces = {
         i: np.array(rows, dtype=float).reshape(len(rows), len(columns))
         for i, rows in rec_rows.items()
