@@ -92,8 +92,9 @@ def run_loop(rate: float, duration: float, trigger: str, tmp: Path) -> dict[str,
 RESPONDER = """
 import sys, time, zenoh
 from hil.run.zsession import open_session, publisher
+from protocol.zenoh_config import COMMAND_QOS
 s = open_session(sys.argv[1])
-pub = publisher(s, "bench/pong")
+pub = publisher(s, "bench/pong", COMMAND_QOS)
 s.declare_subscriber("bench/ping", lambda m: pub.put(m.payload.to_bytes()))
 print("ready", flush=True)
 time.sleep(1e9)
@@ -110,6 +111,7 @@ def paced_pingpong(rate: float, n: int) -> dict[str, Any]:
     from controller_service.realtime import wait_until_ns
     from hil.run.zsession import open_session, publisher
     from hil.timing import summarize
+    from protocol.zenoh_config import COMMAND_QOS
 
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
@@ -121,7 +123,7 @@ def paced_pingpong(rate: float, n: int) -> dict[str, Any]:
         resp.stdout.readline()
         replies: queue.Queue[int] = queue.Queue()
         session.declare_subscriber("bench/pong", lambda m: replies.put(time.monotonic_ns()))
-        pub = publisher(session, "bench/ping")
+        pub = publisher(session, "bench/ping", COMMAND_QOS)
         for _ in range(300):  # routes form: ping until answered
             pub.put(b"x" * 64)
             try:

@@ -40,9 +40,11 @@ _QOS_BY_SUFFIX = (
 )
 
 
-def publisher(session: Any, key: str) -> Any:
-    """A publisher with the QoS that :mod:`protocol.zenoh_config` gives the key's message."""
-    qos = next((q for suffix, q in _QOS_BY_SUFFIX if key.endswith(suffix)), None)
+def publisher(session: Any, key: str, qos: zenoh_config.PublisherQos | None = None) -> Any:
+    """A publisher with ``qos``, by default the QoS that :mod:`protocol.zenoh_config` gives the
+    key's message (an unknown key without ``qos`` is an error: no silent default)."""
+    if qos is None:
+        qos = next((q for suffix, q in _QOS_BY_SUFFIX if key.endswith(suffix)), None)
     if qos is None:
         raise ValueError(f"no QoS defined for key {key!r}")
     return zenoh_config.declare_publisher(session, key, qos)
