@@ -199,8 +199,17 @@ def main(argv: list[str] | None = None) -> int:
                 "periodic_adds_to_s2a_p50_us": (p["s2a_p50_us"] or 0) - (o["s2a_p50_us"] or 0),
                 "miss_rate_ok": (p["miss_rate"] or 0) < 0.001,
             }
-    ok = [float(r) for r, v in result["rates"].items() if v["miss_rate_ok"]]
-    result["highest_rate_with_miss_rate_below_0.1pct"] = max(ok) if ok else None
+    # The highest rate that meets the target with every lower rate meeting it too: a noisy
+    # pass at 2 kHz after a miss at 1 kHz is no evidence that 2 kHz is safe.
+    highest = None
+    for r in sorted(result["rates"], key=float):
+        if not result["rates"][r]["miss_rate_ok"]:
+            break
+        highest = float(r)
+    result["highest_rate_with_miss_rate_below_0.1pct"] = highest
+    result["rates_meeting_miss_rate"] = [
+        float(r) for r, v in result["rates"].items() if v["miss_rate_ok"]
+    ]
     text = json.dumps(result, indent=2)
     print(text)
     if a.out:
