@@ -24,6 +24,7 @@ import subprocess
 import sys
 import time
 
+import _here  # noqa: F401  (this checkout first on sys.path)
 import can
 
 _ECHO_READY = "echo-ready"

@@ -16,6 +16,8 @@ import platform
 import statistics
 import time
 
+import _here  # noqa: F401  (this checkout first on sys.path)
+
 from controller_service.laws.base import DesignContext, RobotState
 from controller_service.references import Circle
 from controller_service.registry import build_controller

@@ -18,6 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import _here  # noqa: F401  (this checkout first on sys.path)
+
 from hil.report.build import analyse, write_report
 from hil.report.folder import load_folder
 from hil.report.ideal import ideal_from_simulator

@@ -18,6 +18,8 @@ import statistics
 import time
 from pathlib import Path
 
+import _here  # noqa: F401  (this checkout first on sys.path)
+
 from hil.scenario import loads_scenario
 from hil.sim import simulate, simulate_batch
 from hil.sweep.grid import make_grid
