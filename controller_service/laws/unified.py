@@ -260,6 +260,26 @@ class UnifiedController:
             # Finite but huge input overflows math functions (sin(inf), exp(1e308)).
             return self._reject_float(memory)
 
+    def _torques(self, ns: Any, v_tilde: Any, w_tilde: Any) -> tuple[Any, Any]:
+        """Torques (10), or (19) with the boundary layer, from the sliding variables."""
+        if self._boundary:
+            return (
+                -self._varpi1 * ns.clip(v_tilde * self._inv_eps1, -1.0, 1.0),
+                -self._varpi2 * ns.clip(w_tilde * self._inv_eps2, -1.0, 1.0),
+            )
+        return -self._varpi1 * ns.sign(v_tilde), -self._varpi2 * ns.sign(w_tilde)
+
+    def _next_z(
+        self, ns: Any, dt: Any, z1: Any, z2: Any, xe_over_r: Any, sin_diff: Any
+    ) -> tuple[Any, Any]:
+        """z1, z2 of (8) advanced by one Euler step over dt, clamped to [-m, m] (module doc);
+        ``sin_diff`` is sin((theta_e - xi) / 2)."""
+        m1, m2 = self._m1, self._m2
+        return (
+            ns.clip(z1 + dt * self._half_l1 * (xe_over_r - z1 / m1), -m1, m1),
+            ns.clip(z2 + dt * self._half_l2 * (sin_diff - z2 / m2), -m2, m2),
+        )
+
     def _reject_float(self, memory: UnifiedMemory) -> tuple[ControlOutput, UnifiedMemory]:
         telemetry = dict.fromkeys(TELEMETRY_KEYS, 0.0)
         telemetry["nonfinite"] = 1.0
@@ -272,19 +292,12 @@ class UnifiedController:
         sig = unified_signals(ns, t, state, ref, memory, self._lam, self._rho)
         v_tilde = state.v - sig.alpha_v
         w_tilde = state.omega - sig.alpha_w
-        if self._boundary:
-            tau1 = -self._varpi1 * ns.clip(v_tilde * self._inv_eps1, -1.0, 1.0)
-            tau2 = -self._varpi2 * ns.clip(w_tilde * self._inv_eps2, -1.0, 1.0)
-        else:
-            tau1 = -self._varpi1 * ns.sign(v_tilde)
-            tau2 = -self._varpi2 * ns.sign(w_tilde)
+        tau1, tau2 = self._torques(ns, v_tilde, w_tilde)
         vd, wd = ref.vd, ref.wd
         z1, z2 = memory.z1, memory.z2
-        m1, m2 = self._m1, self._m2
         eta_next = memory.eta * ns.exp(-(vd * vd + wd * wd) * dt)
-        z1_next = ns.clip(z1 + dt * self._half_l1 * (sig.xe / sig.r - z1 / m1), -m1, m1)
-        z2_next = ns.clip(
-            z2 + dt * self._half_l2 * (ns.sin(0.5 * (sig.theta_e - sig.xi)) - z2 / m2), -m2, m2
+        z1_next, z2_next = self._next_z(
+            ns, dt, z1, z2, sig.xe / sig.r, ns.sin(0.5 * (sig.theta_e - sig.xi))
         )
         # Finite inputs can still overflow (e.g. |x - xd| ~ 1e200 makes r infinite).
         if not _all_finite_float((tau1, tau2, eta_next, z1_next, z2_next, v_tilde, w_tilde)):
@@ -331,23 +344,11 @@ class UnifiedController:
             sig = unified_signals(ns, t_arr, st, rf, mem, self._lam, self._rho)
             v_tilde = st.v - sig.alpha_v
             w_tilde = st.omega - sig.alpha_w
-            if self._boundary:
-                tau1 = -self._varpi1 * ns.clip(v_tilde * self._inv_eps1, -1.0, 1.0)
-                tau2 = -self._varpi2 * ns.clip(w_tilde * self._inv_eps2, -1.0, 1.0)
-            else:
-                tau1 = -self._varpi1 * ns.sign(v_tilde)
-                tau2 = -self._varpi2 * ns.sign(w_tilde)
+            tau1, tau2 = self._torques(ns, v_tilde, w_tilde)
             vd, wd = rf.vd, rf.wd
-            m1, m2 = self._m1, self._m2
             eta_next = mem.eta * ns.exp(-(vd * vd + wd * wd) * dt_arr)
-            z1_next = ns.clip(
-                mem.z1 + dt_arr * self._half_l1 * (sig.xe / sig.r - mem.z1 / m1), -m1, m1
-            )
-            z2_next = ns.clip(
-                mem.z2
-                + dt_arr * self._half_l2 * (ns.sin(0.5 * (sig.theta_e - sig.xi)) - mem.z2 / m2),
-                -m2,
-                m2,
+            z1_next, z2_next = self._next_z(
+                ns, dt_arr, mem.z1, mem.z2, sig.xe / sig.r, ns.sin(0.5 * (sig.theta_e - sig.xi))
             )
             for value in (tau1, tau2, eta_next, z1_next, z2_next, v_tilde, w_tilde):
                 ok &= np.isfinite(value)
@@ -404,7 +405,6 @@ class UnifiedController:
             shared.append(scalar)
         t_s, dt_s, xd, yd, thd, vd, wd = shared
         lam, rho = self._lam, self._rho
-        m1, m2 = self._m1, self._m2
         with np.errstate(all="ignore"):
             if not np.isfinite(x + y + th + v + w + eta + z1 + z2).all():
                 return None
@@ -446,18 +446,10 @@ class UnifiedController:
             alpha_w = dxi + wd - (lam * vd / r) * (xe * sin_half + ye * cos_half) - z2
             v_tilde = v - alpha_v
             w_tilde = w - alpha_w
-            # Torques (10) or (19).
-            if self._boundary:
-                tau1 = -self._varpi1 * np.clip(v_tilde * self._inv_eps1, -1.0, 1.0)
-                tau2 = -self._varpi2 * np.clip(w_tilde * self._inv_eps2, -1.0, 1.0)
-            else:
-                tau1 = -self._varpi1 * np.sign(v_tilde)
-                tau2 = -self._varpi2 * np.sign(w_tilde)
-            # Memory rule (module docstring): eta exactly, z1, z2 of (8) by one clamped Euler step.
+            tau1, tau2 = self._torques(ARRAY_MATH, v_tilde, w_tilde)
             eta_next = eta * math.exp(-q * dt_s)
-            z1_next = np.clip(z1 + dt_s * self._half_l1 * (xe / r - z1 / m1), -m1, m1)
             sin_diff = s_a * c_b - c_a * s_b  # sin((theta_e - xi) / 2)
-            z2_next = np.clip(z2 + dt_s * self._half_l2 * (sin_diff - z2 / m2), -m2, m2)
+            z1_next, z2_next = self._next_z(ARRAY_MATH, dt_s, z1, z2, xe / r, sin_diff)
             if not np.isfinite(v_tilde + w_tilde + eta_next + z1_next + z2_next).all():
                 return None
         telemetry = {
