@@ -508,7 +508,7 @@ class ControllerService:
 def main_from_settings(settings_path: str) -> int:
     """Entry of ``python -m controller_service --settings run_settings.json``."""
     from hil.run.settings import RunSettings
-    from hil.run.wiring import build_control_core, open_can_bus
+    from hil.run.wiring import build_control_core, can_settings, motor_limit, open_can_bus
     from hil.run.zsession import open_session
     from hil.supervisor import stop_on_signals
 
@@ -519,15 +519,14 @@ def main_from_settings(settings_path: str) -> int:
     bus = open_can_bus(s)
     if bus is not None:
         from protocol.can.drive_profile import HostLifecycle
-        from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit
 
-        geom = RobotGeometry(**s.robot)
-        lim = core.limits
+        cs = can_settings(s)
+        geom, limit = motor_limit(s, core.limits)
         lifecycle = HostLifecycle(
-            node_right=int(s.can.get("node_right", 1)),
-            node_left=int(s.can.get("node_left", 0)),
-            heartbeat_timeout=float(s.can.get("heartbeat_timeout", 0.5)),
-            torque_limit=motor_torque_limit(geom, lim.varpi1, lim.varpi2),
+            node_right=cs.node_right,
+            node_left=cs.node_left,
+            heartbeat_timeout=cs.heartbeat_timeout,
+            torque_limit=limit,
         )
         can_path = CanCommandPath(bus, lifecycle, geom)
     from hil.run.startgate import StartGate

@@ -648,7 +648,7 @@ class PlantService:
 def main_from_settings(settings_path: str) -> int:
     """Entry of ``python -m plant_emulator --settings run_settings.json``."""
     from hil.run.settings import RunSettings
-    from hil.run.wiring import build_plant, open_can_bus
+    from hil.run.wiring import build_plant, can_settings, motor_limit, open_can_bus
     from hil.run.zsession import open_session
     from hil.supervisor import stop_on_signals
 
@@ -659,17 +659,13 @@ def main_from_settings(settings_path: str) -> int:
     bus = open_can_bus(s)
     if bus is not None:
         from protocol.can.drive_profile import VirtualDrivePair
-        from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit
 
-        geom = RobotGeometry(**s.robot)
-        lim = core.limits
+        cs = can_settings(s)
+        geom, legal = motor_limit(s, core.limits)
         # A hair above the largest legal motor torque: float32 rounding of a legal command
         # must not be rejected; the applied (tau1, tau2) is clamped to (2) after decoding.
-        limit = motor_torque_limit(geom, lim.varpi1, lim.varpi2) * (1.0 + 1e-6)
-        pair = VirtualDrivePair(
-            int(s.can.get("node_right", 1)), int(s.can.get("node_left", 0)), limit
-        )
-        can = CanDrives(bus, pair, geom, lim)
+        pair = VirtualDrivePair(cs.node_right, cs.node_left, legal * (1.0 + 1e-6))
+        can = CanDrives(bus, pair, geom, core.limits)
         can.start()
     svc = PlantService(
         core,

@@ -12,27 +12,12 @@ import pytest
 
 from hil import analysis
 from hil.cli import main
+from tests.scenario_text import CIRCLE_TABLE1
 from tests.test_report import RUN_SECTIONS, check_html, check_images
 
-SCENARIO = """
-[reference]
-kind = "circle"
-vd = 0.5
-wd = 0.2
-
-[initial]
-x = -1.0
-y = 1.0
-theta = 0.0
-
-[controller]
-law = "unified"
-m1 = 0.5
-m2 = 0.5
-l1 = 0.5
-l2 = 0.5
-lam = 1.0
-rho = 1.0
+SCENARIO = (
+    CIRCLE_TABLE1
+    + """
 
 [timing]
 ts = 0.002
@@ -40,6 +25,7 @@ ts = 0.002
 [run]
 duration = 3.0
 """
+)
 
 
 @pytest.mark.realtime

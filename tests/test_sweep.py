@@ -16,6 +16,7 @@ from hil.report.synthetic import write_synthetic_folder
 from hil.sweep.grid import DEFAULT_DELAY, DEFAULT_TS, break_points, make_grid
 from hil.sweep.replay import latencies_from_run
 from tests.procs import wait_until
+from tests.scenario_text import CIRCLE_TABLE1
 
 # m1 near its bound phi1 - mu1 = 1.1 and z1(0) = -m1, so alpha_v starts near mu1 + m1: with a
 # long delay the sampled sign law lets v run past phi1 = 1.6 (DESIGN.md's probe).
@@ -48,29 +49,14 @@ ts = [0.005, 0.05]
 delay = [0.0, 0.1]
 """
 
-PAPER = """
-[reference]
-kind = "circle"
-vd = 0.5
-wd = 0.2
-
-[initial]
-x = -1.0
-y = 1.0
-theta = 0.0
-
-[controller]
-law = "unified"
-m1 = 0.5
-m2 = 0.5
-l1 = 0.5
-l2 = 0.5
-lam = 1.0
-rho = 1.0
+PAPER = (
+    CIRCLE_TABLE1
+    + """
 
 [run]
 duration = 2.0
 """
+)
 
 
 def write(tmp_path: Path, name: str, text: str) -> Path:

@@ -67,18 +67,28 @@ def build_plant(settings: RunSettings) -> tuple[PlantCore, Sensor]:
     return core, sc.sensor
 
 
-def can_table(settings: RunSettings) -> dict[str, Any]:
-    return dict(settings.can)
+def can_settings(settings: RunSettings) -> Any:
+    """The run's ``[can]`` table parsed once: interface, channel, node ids, heartbeat timeout."""
+    from protocol.can.bus_factory import CanSettings
+
+    return CanSettings.from_table(dict(settings.can))
+
+
+def motor_limit(settings: RunSettings, limits: Any) -> tuple[Any, float]:
+    """The robot's wheel geometry and the largest motor torque that (2)'s varpi1, varpi2 allow."""
+    from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit
+
+    geom = RobotGeometry(**settings.robot)
+    return geom, motor_torque_limit(geom, limits.varpi1, limits.varpi2)
 
 
 def open_can_bus(settings: RunSettings) -> Any:
     """The run's CAN bus, or None when CAN is neither applied nor live as a shadow."""
     if not (settings.can_live or settings.cmd_path == "can"):
         return None
-    from protocol.can.bus_factory import CanSettings, open_bus
+    from protocol.can.bus_factory import open_bus
 
-    table = can_table(settings)
-    cs = CanSettings.from_table(table)
+    cs = can_settings(settings)
     extra: dict[str, Any] = {}
     if cs.interface == "zenoh_can":
         extra["endpoint"] = settings.can_endpoint
