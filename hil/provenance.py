@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import math
 import platform
 import re
@@ -23,8 +24,12 @@ def package_version() -> str:
         return "0+unknown"
 
 
+@functools.cache
 def git_commit(start: Path | None = None) -> str:
-    """The commit of the source tree (with ``-dirty`` when it has changes), or "" outside git."""
+    """The commit of the source tree (with ``-dirty`` when it has changes), or "" outside git.
+
+    Asked once per process: the code running does not change under it, and a sweep resolves
+    its scenario for every batch."""
     cwd = start or Path(__file__).resolve().parent
     try:
         head = subprocess.run(
