@@ -24,6 +24,8 @@ from hil.provenance import provenance
 from plant_emulator.disturbances import KINDS as DISTURBANCE_KINDS
 from plant_emulator.disturbances import Disturbance, max_abs
 from plant_emulator.sensors import Sensor
+from protocol.can.bus_factory import CanSettings
+from protocol.can.wheel_mapping import RobotGeometry
 
 SCHEMA_VERSION = 1
 JITTER_KINDS = ("uniform", "normal", "replay")
@@ -75,11 +77,12 @@ class RunConfig:
 class RobotConfig:
     """[robot]: the physical robot behind the unit-mass model (1), for the CAN wheel mapping."""
 
-    mass: float = 10.0
-    yaw_inertia: float = 0.5
-    wheel_radius: float = 0.05
-    half_track: float = 0.2
-    gear_ratio: float = 10.0
+    # Defaults are protocol.can.wheel_mapping.RobotGeometry's.
+    mass: float = RobotGeometry.mass
+    yaw_inertia: float = RobotGeometry.yaw_inertia
+    wheel_radius: float = RobotGeometry.wheel_radius
+    half_track: float = RobotGeometry.half_track
+    gear_ratio: float = RobotGeometry.gear_ratio
 
 
 @dataclass(frozen=True)
@@ -96,12 +99,12 @@ class RealtimeConfig:
 class CanConfig:
     # The defaults of protocol.can.bus_factory.CanSettings: Zenoh-carried CAN works across
     # processes on any kernel, without root, and never leaves the host.
-    interface: str = "zenoh_can"
-    channel: str = "hil0"
-    bitrate: int = 1_000_000
-    node_left: int = 0
-    node_right: int = 1
-    heartbeat_timeout: float = 0.5
+    interface: str = CanSettings.interface
+    channel: str = CanSettings.channel
+    bitrate: int = CanSettings.bitrate
+    node_left: int = CanSettings.node_left
+    node_right: int = CanSettings.node_right
+    heartbeat_timeout: float = CanSettings.heartbeat_timeout
 
 
 @dataclass(frozen=True)

@@ -9,14 +9,16 @@ interface python-can knows (``pcan``, ``kvaser``, ``slcan``, ...).
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import can
+if TYPE_CHECKING:
+    import can
 
 ALLOW_UDP_MULTICAST_ENV = "HIL_ALLOW_UDP_MULTICAST"
 
@@ -88,4 +90,26 @@ def open_bus(settings: CanSettings, **extra: Any) -> can.BusABC:
         # vcan and the virtual bus have no bitrate; everything else takes one
         kwargs["bitrate"] = settings.bitrate
     kwargs.update(extra)
+    import can  # here, not at the top: the scenario loader reads CanSettings without python-can
+
     return can.Bus(**kwargs)
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
+    """The bus options of the stand-alone CAN tools, with :class:`CanSettings`' defaults."""
+    d = CanSettings()
+    parser.add_argument("--interface", default=d.interface)
+    parser.add_argument("--channel", default=d.channel)
+    parser.add_argument("--bitrate", type=int, default=d.bitrate)
+    parser.add_argument("--endpoint", default=None, help="zenoh_can well-known endpoint")
+    parser.add_argument("--node-left", type=int, default=d.node_left)
+    parser.add_argument("--node-right", type=int, default=d.node_right)
+
+
+def open_bus_from_args(args: argparse.Namespace) -> can.BusABC:
+    """The bus that :func:`add_bus_arguments`' options describe."""
+    settings = CanSettings(
+        args.interface, args.channel, args.bitrate, args.node_left, args.node_right
+    )
+    use_endpoint = args.endpoint and args.interface == "zenoh_can"
+    return open_bus(settings, **({"endpoint": args.endpoint} if use_endpoint else {}))

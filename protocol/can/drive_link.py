@@ -15,6 +15,7 @@ import time
 
 import can
 
+from protocol.can.bus_factory import add_bus_arguments
 from protocol.can.codec import AxisState, Frame
 from protocol.can.drive_profile import HostLifecycle, Phase
 
@@ -84,23 +85,16 @@ class DriveLink:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--interface", default="zenoh_can")
-    p.add_argument("--channel", default="hil0")
-    p.add_argument("--bitrate", type=int, default=1_000_000)
-    p.add_argument("--endpoint", default=None, help="zenoh_can well-known endpoint")
-    p.add_argument("--node-left", type=int, default=0)
-    p.add_argument("--node-right", type=int, default=1)
+    add_bus_arguments(p)
     p.add_argument("--torque", type=float, default=0.1, help="motor torque, right +, left -")
     p.add_argument("--cycles", type=int, default=100)
     p.add_argument("--period", type=float, default=0.005)
     p.add_argument("--arm-timeout", type=float, default=20.0)
     a = p.parse_args(argv)
 
-    from protocol.can.bus_factory import CanSettings, open_bus
+    from protocol.can.bus_factory import open_bus_from_args
 
-    settings = CanSettings(a.interface, a.channel, a.bitrate, a.node_left, a.node_right)
-    extra = {"endpoint": a.endpoint} if a.endpoint and a.interface == "zenoh_can" else {}
-    bus = open_bus(settings, **extra)
+    bus = open_bus_from_args(a)
     life = HostLifecycle(node_right=a.node_right, node_left=a.node_left)
     link = DriveLink(bus, life)
     result: dict = {"armed": False}

@@ -14,25 +14,21 @@ import signal
 import sys
 import time
 
+from protocol.can.bus_factory import add_bus_arguments
 from protocol.can.drive_link import from_message, to_message
 from protocol.can.drive_profile import VirtualDrivePair
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--interface", default="zenoh_can")
-    p.add_argument("--channel", default="hil0")
-    p.add_argument("--bitrate", type=int, default=1_000_000)
-    p.add_argument("--endpoint", default=None, help="zenoh_can well-known endpoint")
-    p.add_argument("--node-left", type=int, default=0)
-    p.add_argument("--node-right", type=int, default=1)
+    add_bus_arguments(p)
     p.add_argument("--torque-limit", type=float, default=1.0, help="motor torque limit, Nm")
     p.add_argument("--rotor-inertia", type=float, default=1e-3, help="kg m^2 of the toy motor")
     p.add_argument("--heartbeat-period", type=float, default=0.1)
     p.add_argument("--encoder-period", type=float, default=0.01)
     a = p.parse_args(argv)
 
-    from protocol.can.bus_factory import CanSettings, open_bus
+    from protocol.can.bus_factory import open_bus_from_args
 
     stop = False
 
@@ -42,9 +38,7 @@ def main(argv: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    settings = CanSettings(a.interface, a.channel, a.bitrate, a.node_left, a.node_right)
-    extra = {"endpoint": a.endpoint} if a.endpoint and a.interface == "zenoh_can" else {}
-    bus = open_bus(settings, **extra)
+    bus = open_bus_from_args(a)
     pair = VirtualDrivePair(
         a.node_right, a.node_left, a.torque_limit, a.heartbeat_period, a.encoder_period
     )
