@@ -271,3 +271,55 @@ def test_static_busybox_is_told_from_a_dynamic_binary():
     assert not is_static_elf(Path(sys.executable).resolve())
     if Path("/bin/busybox").exists():
         assert is_static_elf(Path("/bin/busybox"))
+
+
+def test_tmp_binds_keep_the_outermost_existing_folders_under_tmp(tmp_path):
+    venv = tmp_path / "clone" / ".venv"
+    (venv / "bin").mkdir(parents=True)
+    (venv / "bin" / "python").symlink_to(sys.executable)
+    binds = initramfs.tmp_binds(
+        [str(venv / "bin" / "python"), str(venv), str(tmp_path / "clone"), "", "rel", "/usr/lib"]
+    )
+    # The venv's python links out of /tmp; the venv itself must still be carried over.
+    assert binds == [str(tmp_path / "clone")]
+    other = tmp_path.parent / f"{tmp_path.name}-other"
+    other.mkdir()
+    try:
+        both = initramfs.tmp_binds([str(venv / "bin" / "python"), str(other)])
+        assert both == sorted([str(venv / "bin"), str(other)], key=lambda s: (s.count("/"), s))
+    finally:
+        other.rmdir()
+
+
+def test_run_script_says_why_when_the_program_is_not_there(tmp_path):
+    missing = str(tmp_path / "venv" / "bin" / "python3")
+    script = initramfs.run_script([missing, "-c", "pass"], str(tmp_path), {})
+    res = subprocess.run(["sh", "-c", script], capture_output=True, text=True, check=False)
+    assert res.returncode == 125, res
+    assert f"{missing} is not visible inside the guest" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_guest_runs_an_interpreter_from_a_venv_under_tmp(tmp_path):
+    """The guest's /tmp is private: a venv under the host's /tmp must be carried into it."""
+    if reason := _lane_skip_reason():
+        pytest.skip(reason)
+    image = _guest_image()
+    assert str(tmp_path).startswith("/tmp/")
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    code = "import sys; print('GUEST-PREFIX', sys.prefix)"
+    try:
+        result = runner.run_in_guest(
+            [str(venv / "bin" / "python3"), "-c", code],
+            cwd=str(tmp_path),
+            timeout=300,
+            log_path=tmp_path / "console.log",
+            image=image,
+        )
+    except runner.GuestError as exc:
+        pytest.fail(str(exc), pytrace=False)
+    assert result.exit_code == 0, result.output
+    assert f"GUEST-PREFIX {venv}" in result.output

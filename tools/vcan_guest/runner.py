@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from tools.vcan_guest import initramfs
-from tools.vcan_guest.image import GuestImage, find_qemu, prepare
+from tools.vcan_guest.image import GuestImage, GuestUnavailableError, find_qemu, prepare
 
 #: Host variables the guest command inherits. Deliberately a short list: the run script is
 #: written to a file, and a CI environment may hold tokens that have no business there.
@@ -112,6 +112,22 @@ def guest_argv(argv: Sequence[str]) -> list[str]:
     if argv and argv[0] in ("python", "python3"):
         return [sys.executable, *argv[1:]]
     return list(argv)
+
+
+def guest_binds(workdir: str, argv: Sequence[str]) -> list[str]:
+    """Host paths under /tmp the guest's run needs: its working directory, this interpreter and
+    its virtual environment (wherever they live), every sys.path entry, and the program run."""
+    unshareable = ("/proc/", "/sys/", "/dev/")
+    for where in (sys.executable, sys.prefix, workdir):
+        if str(Path(where).resolve()).startswith(unshareable):
+            raise GuestUnavailableError(
+                f"{where} lies under /proc, /sys or /dev, which the guest mounts anew: move the "
+                "virtual environment or the checkout elsewhere (any other path works)"
+            )
+    paths = [workdir, sys.executable, sys.prefix, sys.base_prefix, *sys.path]
+    if argv and argv[0].startswith("/"):
+        paths.append(argv[0])
+    return initramfs.tmp_binds(paths)
 
 
 def guest_env(host: Mapping[str, str], extra: Mapping[str, str]) -> dict[str, str]:
@@ -210,7 +226,7 @@ def run_in_guest(
     state = _Console(nonce)
     with tempfile.TemporaryDirectory(prefix="hil-vcan-guest-") as tmp:
         initrd = Path(tmp, "initrd.gz")
-        run_part = initramfs.build_run_part(script, nonce, p9_opts, workdir)
+        run_part = initramfs.build_run_part(script, nonce, p9_opts, guest_binds(workdir, argv))
         initrd.write_bytes(image.initrd_base.read_bytes() + run_part)
         start = time.monotonic()
         proc = subprocess.Popen(
