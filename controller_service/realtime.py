@@ -69,20 +69,28 @@ def wait_until_ns(deadline_ns: int, spin_ns: int = 0) -> int:
 
 @dataclass
 class Tick:
-    """One wake-up: cycle index k, its deadline, when the loop woke, and cycles skipped."""
+    """One wake-up: the slot k it was due for, that slot's deadline, when the loop woke, and
+    how many later slots it skipped (their deadlines passed while it was late).
+
+    The lateness ``wake_ns - deadline_ns`` is never re-based: a tick that wakes 11.7 ms after
+    its deadline reports 11.7 ms, as cyclictest would."""
 
     k: int
     deadline_ns: int
     wake_ns: int
     skipped: int
 
+    @property
+    def lateness_ns(self) -> int:
+        return self.wake_ns - self.deadline_ns
+
 
 class DeadlineClock:
     """Absolute deadlines ``start_ns + k * period_ns``.
 
-    A cycle that starts after its successor's deadline is a deadline miss; the clock then
-    resumes at the newest deadline already passed and counts the slots it skipped, so a stall
-    never produces a burst of catch-up cycles with stale data.
+    A tick that wakes a period or more after its deadline is a deadline miss. The slots whose
+    deadlines passed meanwhile are skipped (counted, never run as a burst of catch-up cycles
+    with stale data): the next tick is due at the first deadline still in the future.
     """
 
     def __init__(self, period_ns: int, start_ns: int, spin_ns: int = 0) -> None:
@@ -99,15 +107,13 @@ class DeadlineClock:
         k = self.k + 1
         deadline = self.start_ns + k * self.period_ns
         wake = wait_until_ns(deadline, self.spin_ns)
-        skipped = 0
         late_slots = (wake - deadline) // self.period_ns
+        skipped = 0
         if late_slots >= 1:
             self.misses += 1
             skipped = int(late_slots)
             self.skipped += skipped
-            k += skipped
-            deadline = self.start_ns + k * self.period_ns
-        self.k = k
+        self.k = k + skipped
         return Tick(k, deadline, wake, skipped)
 
 

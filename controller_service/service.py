@@ -9,9 +9,9 @@ Functional core, thin shell:
 - :class:`ControllerService` (the shell): receives State on Zenoh, wakes on absolute deadlines
   (``trigger = "periodic"``) or on each fresh state (``"on_state"``, and lockstep), publishes
   TorqueCommand on Zenoh and Set_Input_Torque frames on the CAN bus (after the drive lifecycle),
-  Telemetry and Status, and keeps the stale-state watchdog. Every hop is time-stamped into a
-  log written to ``controller_log.msgpack`` at exit (``hil run`` turns it into the timing
-  figures).
+  Telemetry and Status, and keeps the stale-state watchdog. Every hop is time-stamped into
+  ``controller.hoplog`` (:mod:`protocol.hoplog`), streamed to disk while the run goes on;
+  :mod:`hil.measure` turns it into the timing figures.
 
 The law clock ``t`` is the state's sample time since the run's epoch (an ns value shared by both
 processes); in lockstep it is the virtual time ``state_seq * Ts`` so the law sees exactly the
@@ -28,11 +28,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import msgpack
-
 from controller_service.laws.base import Controller, Limits, RobotState
 from controller_service.realtime import DeadlineClock, SchedulingReport, setup_scheduling
 from protocol import keys
+from protocol.hoplog import CONTROLLER_TABLES, TICK_DROPPED, TICK_NO_SEND, HopLogWriter
 from protocol.messages import (
     FLAG_STOP,
     FLAG_WATCHDOG_ZERO,
@@ -48,24 +47,7 @@ from protocol.messages import (
 from protocol.rejections import RejectionCounter
 from protocol.sequence import SequenceTracker
 
-LOG_FIELDS = (
-    "k",  # cycle index (periodic) or state seq (on_state)
-    "deadline_ns",
-    "wake_ns",
-    "state_seq",
-    "state_sample_ns",
-    "state_send_ns",
-    "state_recv_ns",
-    "compute_start_ns",
-    "compute_end_ns",
-    "zenoh_send_ns",
-    "can_send_ns",
-    "cmd_seq",
-    "tau1",
-    "tau2",
-    "flags",
-)
-FLAG_NO_SEND = 1 << 8  # log only: a tick that found no fresh state and sent nothing
+_NO_SEND = TICK_NO_SEND
 TELEMETRY_FIELDS = ("xe", "ye", "theta_e", "xi", "v_tilde", "w_tilde", "z1", "z2", "eta")
 
 
@@ -124,7 +106,7 @@ class CanCommandPath:
     plant's arrivals can be matched to this send log in per-node order.
     """
 
-    def __init__(self, bus: Any, lifecycle: Any, geometry: Any) -> None:
+    def __init__(self, bus: Any, lifecycle: Any, geometry: Any, hoplog: HopLogWriter) -> None:
         from protocol.can.drive_link import from_message, to_message
 
         self.bus = bus
@@ -138,7 +120,7 @@ class CanCommandPath:
         self.send_errors = 0
         self.arm_sends = 0  # lifecycle sequences sent: each holds one zero torque per node
         self.rearms = 0
-        self.torque_log: list[tuple[int, int, int]] = []  # (node, send_ns, control-log row)
+        self.hoplog = hoplog
         self._thread = threading.Thread(target=self._reader, name="can-reader", daemon=True)
 
     def start(self) -> None:
@@ -148,9 +130,9 @@ class CanCommandPath:
         self._send(frames)
         self._thread.start()
 
-    def _send(self, frames: list[Any], row: int = -1) -> int:
-        """Send frames; every Set_Input_Torque is logged per node with the control-log row it
-        carries (-1: a lifecycle zero), so arrivals can be matched in per-node order."""
+    def _send(self, frames: list[Any], cmd_seq: int = -1) -> int:
+        """Send frames; every Set_Input_Torque is logged per node with the command it carries
+        (-1: a lifecycle zero), so arrivals can be matched in per-node order."""
         from protocol.can.codec import Cmd, split_id
 
         stamp = 0
@@ -164,7 +146,7 @@ class CanCommandPath:
                 continue
             node, cmd = split_id(f.arbitration_id)
             if cmd == Cmd.SET_INPUT_TORQUE:
-                self.torque_log.append((node, stamp, row))
+                self.hoplog.append("can_tx", (node, stamp, cmd_seq))
         return stamp
 
     def _reader(self) -> None:
@@ -197,7 +179,7 @@ class CanCommandPath:
 
         return self.lifecycle.phase is Phase.ACTIVE
 
-    def send_torques(self, tau1: float, tau2: float, row: int = -1) -> int:
+    def send_torques(self, tau1: float, tau2: float, cmd_seq: int) -> int:
         """Send both wheel torques; returns the send time (0 when the drives are not armed)."""
         from protocol.can.wheel_mapping import motor_torques
 
@@ -206,7 +188,7 @@ class CanCommandPath:
             frames = self.lifecycle.torque_frames(q.right, q.left)
         if not frames:
             return 0
-        return self._send(frames, row)
+        return self._send(frames, cmd_seq)
 
     def close(self) -> None:
         with self._lock:
@@ -234,6 +216,8 @@ class ControllerService:
         can_path: CanCommandPath | None = None,
         law_name: str = "unified",
         spin_ns: int = 0,
+        hoplog: HopLogWriter | None = None,
+        command_drop_every: int = 0,
     ) -> None:
         from hil.run.zsession import payload_bytes, publisher
 
@@ -264,7 +248,11 @@ class ControllerService:
         self._tel_seq = 0
         self._status_seq = 0
         self._lock = threading.Lock()
-        self.log: list[tuple] = []
+        if hoplog is None:
+            raise ValueError("the controller service needs a hop log")
+        self.hoplog = hoplog
+        self.command_drop_every = int(command_drop_every)
+        self.injected_drops = 0
         self.scheduling = SchedulingReport()
         self.clock: DeadlineClock | None = None
         self.cycles = 0
@@ -281,7 +269,12 @@ class ControllerService:
             self.rejections.count("wrong_robot")
             return
         with self._lock:
-            if not self.tracker.observe(msg.seq).fresh:
+            verdict = self.tracker.observe(msg.seq)
+            self.hoplog.append(
+                "state_rx",
+                (msg.seq, msg.sample_time_ns, msg.send_time_ns, recv_ns, verdict.code),
+            )
+            if not verdict.fresh:
                 if self.lockstep and msg.seq == self._last_used_seq and self._last_cmd:
                     # The plant re-sent the state because our command was lost: answer again
                     # with the same command (same seq), never recompute (memory moved on).
@@ -299,7 +292,9 @@ class ControllerService:
             return st.seq * self.core.dt
         return (st.sample_time_ns - self.epoch_ns) / 1e9
 
-    def _cycle(self, k: int, deadline_ns: int, wake_ns: int, rec: Received | None) -> None:
+    def _cycle(
+        self, k: int, deadline_ns: int, wake_ns: int, rec: Received | None, skipped: int = 0
+    ) -> None:
         flags = 0
         if rec is not None and rec.state.seq > self._last_used_seq:
             st = rec.state
@@ -331,17 +326,23 @@ class ControllerService:
         else:
             # No new sample and not yet stale: the last command stands. The tick is still
             # logged, so wake-up lateness and jitter cover every cycle.
-            self.log.append(
-                (k, deadline_ns, wake_ns, -1, 0, 0, 0, 0, 0, 0, 0, -1, 0.0, 0.0, FLAG_NO_SEND)
+            self.hoplog.append(
+                "ticks",
+                (k, deadline_ns, wake_ns, skipped, -1, 0, 0, 0, 0, 0, 0, 0, -1, 0.0, 0.0, _NO_SEND),
             )
             return
-        zsend, csend = self._publish(state_seq, sample_ns, c0, tau1, tau2, flags, tel)
+        cmd_seq = self._cmd_seq
+        zsend, csend, dropped = self._publish(state_seq, sample_ns, c0, tau1, tau2, flags, tel)
+        if dropped:
+            flags |= TICK_DROPPED
         self.cycles += 1
-        self.log.append(
+        self.hoplog.append(
+            "ticks",
             (
                 k,
                 deadline_ns,
                 wake_ns,
+                skipped,
                 state_seq,
                 sample_ns,
                 send_state_ns,
@@ -350,11 +351,11 @@ class ControllerService:
                 c1,
                 zsend,
                 csend,
-                self._cmd_seq - 1,
+                cmd_seq,
                 tau1,
                 tau2,
                 flags,
-            )
+            ),
         )
 
     def _publish(
@@ -366,7 +367,9 @@ class ControllerService:
         tau2: float,
         flags: int,
         tel: dict[str, Any],
-    ) -> tuple[int, int]:
+    ) -> tuple[int, int, bool]:
+        """Publish one command on Zenoh (unless a [faults] drop takes it) and CAN; returns the
+        two send times and whether the Zenoh message was dropped on purpose."""
         send_ns = time.monotonic_ns()
         cmd = TorqueCommand(
             self.robot_id,
@@ -382,12 +385,13 @@ class ControllerService:
         )
         self._cmd_seq += 1
         self._last_cmd = encode(cmd)
-        self._pub_cmd.put(self._last_cmd)
-        csend = (
-            self.can_path.send_torques(tau1, tau2, len(self.log))
-            if self.can_path is not None
-            else 0
-        )
+        m = self.command_drop_every
+        dropped = m > 0 and cmd.seq % m == m - 1 and not (flags & FLAG_STOP)
+        if dropped:
+            self.injected_drops += 1
+        else:
+            self._pub_cmd.put(self._last_cmd)
+        csend = self.can_path.send_torques(tau1, tau2, cmd.seq) if self.can_path is not None else 0
         if tel and all(n in tel for n in TELEMETRY_FIELDS):
             try:
                 self._pub_tel.put(
@@ -403,7 +407,7 @@ class ControllerService:
                 self._tel_seq += 1
             except ValueError:
                 self.rejections.count("telemetry_unencodable")
-        return send_ns, csend
+        return send_ns, csend, dropped
 
     def publish_status(self, state: str = "running") -> None:
         flags = STATUS_WATCHDOG_TRIPPED if self._stale else 0
@@ -421,6 +425,7 @@ class ControllerService:
         }
         if self.can_path is not None:
             counters["can_active"] = int(self.can_path.active)
+        self.hoplog.counters(self.final_counters())
         msg = Status(
             self.robot_id,
             self._status_seq,
@@ -453,7 +458,7 @@ class ControllerService:
             self.clock = DeadlineClock(self.period_ns, start, self.spin_ns)
             while not stop and (end_ns is None or time.monotonic_ns() < end_ns):
                 tick = self.clock.next()
-                self._cycle(tick.k, tick.deadline_ns, tick.wake_ns, self._newest)
+                self._cycle(tick.k, tick.deadline_ns, tick.wake_ns, self._newest, tick.skipped)
                 if tick.wake_ns >= next_status:
                     next_status = tick.wake_ns + status_every_ns
                     self.publish_status()
@@ -473,21 +478,17 @@ class ControllerService:
         """A last zero command flagged STOP, so the plant idles at once."""
         self._publish(max(self._last_used_seq, 0), 0, time.monotonic_ns(), 0.0, 0.0, FLAG_STOP, {})
 
-    def write_log(self, path: str | Path, extra: dict[str, Any]) -> None:
-        data = {
-            "fields": list(LOG_FIELDS),
-            "rows": self.log,
-            "period_ns": self.period_ns,
-            "epoch_ns": self.epoch_ns,
-            "trigger": self.trigger,
-            "lockstep": self.lockstep,
-            "scheduling": self.scheduling.as_dict(),
+    def final_counters(self) -> dict[str, Any]:
+        """The service's counters (the hop log's footer, and its periodic snapshots)."""
+        return {
             "deadline_misses": self.clock.misses if self.clock else 0,
-            "skipped_cycles": self.clock.skipped if self.clock else 0,
+            "skipped_slots": self.clock.skipped if self.clock else 0,
             "state_counts": self.tracker.counts.as_dict(),
             "rejections": {**self.rejections.snapshot(), **self.core.rejections.snapshot()},
             "stale_entries": self.stale_entries,
             "commands_sent": self._cmd_seq,
+            "injected_command_drops": self.injected_drops,
+            "scheduling": self.scheduling.as_dict(),
             "can": None
             if self.can_path is None
             else {
@@ -496,13 +497,13 @@ class ControllerService:
                 "frames_sent": self.can_path.sent_frames,
                 "arm_sends": self.can_path.arm_sends,
                 "rearms": self.can_path.rearms,
-                "torque_log": self.can_path.torque_log,
                 "send_errors": self.can_path.send_errors,
                 "rejections": self.can_path.lifecycle.rejections.snapshot(),
             },
-            **extra,
         }
-        Path(path).write_bytes(msgpack.packb(data, use_bin_type=True))
+
+
+HOPLOG_NAME = "controller.hoplog"
 
 
 def main_from_settings(settings_path: str) -> int:
@@ -514,6 +515,21 @@ def main_from_settings(settings_path: str) -> int:
 
     s = RunSettings.load(settings_path)
     core, law_name = build_control_core(s)
+    period_ns = round(1e9 / s.rate_hz)
+    hoplog = HopLogWriter(
+        Path(s.out_dir) / HOPLOG_NAME,
+        "controller",
+        CONTROLLER_TABLES,
+        {
+            "robot_id": s.robot_id,
+            "period_ns": period_ns,
+            "trigger": "on_state" if s.lockstep else s.trigger,
+            "lockstep": s.lockstep,
+            "cmd_path": s.cmd_path,
+            "state_timeout_s": s.state_timeout,
+            "epoch_ns": s.epoch_ns,
+        },
+    )
     session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
     can_path = None
     bus = open_can_bus(s)
@@ -528,7 +544,7 @@ def main_from_settings(settings_path: str) -> int:
             heartbeat_timeout=cs.heartbeat_timeout,
             torque_limit=limit,
         )
-        can_path = CanCommandPath(bus, lifecycle, geom)
+        can_path = CanCommandPath(bus, lifecycle, geom, hoplog)
     from hil.run.startgate import StartGate
 
     epoch_ns = s.epoch_ns
@@ -547,26 +563,33 @@ def main_from_settings(settings_path: str) -> int:
         can_path=can_path,
         law_name=law_name,
         spin_ns=int(s.spin_us * 1000),
+        hoplog=hoplog,
+        command_drop_every=int((s.faults or {}).get("command_drop_every", 0)),
     )
     with stop_on_signals() as stop:
-        if epoch_ns == 0:
-            got = gate.wait(stop)
-            if got is None:
-                session.close()
-                return 1
-            epoch_ns = svc.epoch_ns = got
-        end_ns = None if s.lockstep else epoch_ns + int((s.duration + 2.0) * 1e9)
+        # Scheduling first, readiness after: the set-up (mlockall, a full collection, the GC
+        # frozen) takes tens of ms, which must not eat into the run's first periods.
         sched = setup_scheduling(s.scheduling, cpu=s.cpu_controller)
-        print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
+        svc.scheduling = sched
         try:
+            if epoch_ns == 0:
+                got = gate.wait(stop)
+                if got is None:
+                    print("no start: stopped or start-gate timeout", flush=True)
+                    return 1
+                epoch_ns = svc.epoch_ns = got
+                hoplog.update_meta({"epoch_ns": epoch_ns})
+            end_ns = None if s.lockstep else epoch_ns + int((s.duration + 2.0) * 1e9)
+            print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
             svc.run(stop, end_ns, sched)
         finally:
             from controller_service.realtime import restore_gc
 
             restore_gc()
-            svc.send_stop()
+            with contextlib.suppress(Exception):  # the session may be gone on the way out
+                svc.send_stop()
             if can_path is not None:
                 can_path.close()
-            svc.write_log(Path(s.out_dir) / "controller_log.msgpack", {})
+            hoplog.close(svc.final_counters())
             session.close()
     return 0

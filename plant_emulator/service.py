@@ -10,7 +10,9 @@ Functional core, thin shell:
   receives TorqueCommand on Zenoh and Set_Input_Torque frames on CAN (two virtual ODrives that
   honour the drive lifecycle and clamp torque); applies ONE path (``cmd_path``) and stamps the
   other as a shadow; a command timeout on the applied path zeroes the torque; ``[timing] delay``
-  and ``jitter`` are injected on the applied path (newest by sequence number wins).
+  and ``jitter`` are injected on the applied path (newest by sequence number wins). Every
+  sample, command arrival and landing is time-stamped into ``plant.hoplog``
+  (:mod:`protocol.hoplog`), streamed to disk while the run goes on.
 - Lockstep (:meth:`PlantService.run_lockstep`): State k is sent at virtual time t_k = k Ts,
   the plant waits for the command with ``state_seq == k`` and applies it over
   [t_k + delay, ...) exactly as the offline simulator does, so the trajectory equals it.
@@ -28,14 +30,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import msgpack
-
 from controller_service.laws.base import Limits
 from controller_service.realtime import DeadlineClock, setup_scheduling
 from plant_emulator.disturbances import Disturbance
 from plant_emulator.dynamics import Extremes, PlantState, advance_float_tracked
 from plant_emulator.sensors import Sensor, measure
 from protocol import keys
+from protocol.hoplog import PLANT_TABLES, SAMPLE_DROPPED, HopLogWriter
 from protocol.messages import (
     FLAG_STOP,
     Status,
@@ -46,35 +47,6 @@ from protocol.messages import (
 from protocol.messages import State as StateMsg
 from protocol.rejections import RejectionCounter
 from protocol.sequence import SequenceTracker
-
-STATE_LOG_FIELDS = (
-    "seq",
-    "sample_ns",
-    "send_ns",
-    "x",
-    "y",
-    "theta",
-    "v",
-    "omega",
-    "tau1",
-    "tau2",
-    "cmd1",
-    "cmd2",
-)
-CMD_LOG_FIELDS = (
-    "path",  # 0 zenoh, 1 can
-    "applied",  # 1 applied path, 0 shadow
-    "seq",  # zenoh: cmd seq; can: per-node frame index
-    "state_seq",
-    "state_sample_ns",
-    "compute_start_ns",
-    "send_ns",
-    "recv_ns",
-    "apply_ns",
-    "tau1",
-    "tau2",
-    "node",  # can: node id, zenoh: -1
-)
 
 
 @dataclass
@@ -174,8 +146,16 @@ class DelayInjector:
 class CanDrives:
     """The plant's CAN edge: two virtual ODrives; a reader thread stamps arriving frames."""
 
-    def __init__(self, bus: Any, pair: Any, geometry: Any, limits: Limits) -> None:
+    def __init__(
+        self, bus: Any, pair: Any, geometry: Any, limits: Limits, hoplog: HopLogWriter
+    ) -> None:
+        from protocol.can.codec import Cmd, split_id
         from protocol.can.drive_link import from_message, to_message
+
+        self._split = split_id
+        self._torque_cmd = Cmd.SET_INPUT_TORQUE
+        self.hoplog = hoplog
+        self._torque_frames: dict[int, int] = {}  # per node: Set_Input_Torque frames seen
 
         self.bus = bus
         self.pair = pair
@@ -200,8 +180,17 @@ class CanDrives:
             except Exception:
                 continue
             if msg is not None:
-                self.inbox.append((time.monotonic_ns(), self._from(msg)))
+                recv_ns = time.monotonic_ns()
+                frame = self._from(msg)
+                self.inbox.append((recv_ns, frame))
                 self.frames_in += 1
+                node, cmd = self._split(frame.arbitration_id)
+                if cmd == self._torque_cmd and not frame.is_remote:
+                    # The i-th torque frame of a node is the controller's i-th (can_tx): CAN
+                    # frames carry no sequence number, so arrivals are matched in bus order.
+                    i = self._torque_frames.get(node, 0)
+                    self._torque_frames[node] = i + 1
+                    self.hoplog.append("cmd_rx", (1, i, -1, 0, 0, 0, recv_ns, 0.0, 0.0, node, 0))
 
     def send(self, frames: list[Any]) -> None:
         for f in frames:
@@ -255,6 +244,8 @@ class PlantService:
         command_timeout: float = 0.05,
         injector: DelayInjector | None = None,
         can: CanDrives | None = None,
+        hoplog: HopLogWriter | None = None,
+        state_drop_every: int = 0,
     ) -> None:
         from hil.run.zsession import payload_bytes, publisher
 
@@ -283,13 +274,16 @@ class PlantService:
         self.timed_out = False
         self.timeouts = 0
         self.stopped_by_controller = False
-        self.state_log: list[tuple] = []
-        self.cmd_log: list[tuple] = []
-        self.zero_log: list[tuple[int, int]] = []  # (timeout moment ns, applied at ns)
+        if hoplog is None:
+            raise ValueError("the plant service needs a hop log")
+        self.hoplog = hoplog
+        self.state_drop_every = int(state_drop_every)
+        self.injected_drops = 0
+        self.samples = 0
+        self.clock: DeadlineClock | None = None
         self._state_seq = 0
         self.resends = 0
         self._status_seq = 0
-        self._can_frames_per_node: dict[int, int] = {}
         self._can_pos: dict[int, float] = {}
         self._sub = session.declare_subscriber(keys.torque_key(robot_id), self._on_cmd)
 
@@ -302,6 +296,22 @@ class PlantService:
         if msg.robot_id != self.robot_id:
             self.rejections.count("wrong_robot")
             return
+        self.hoplog.append(
+            "cmd_rx",
+            (
+                0,
+                msg.seq,
+                msg.state_seq,
+                msg.state_sample_time_ns,
+                msg.compute_start_ns,
+                msg.send_time_ns,
+                recv_ns,
+                msg.tau1,
+                msg.tau2,
+                -1,
+                0,
+            ),
+        )
         with self._cond:
             self.zinbox.append((recv_ns, msg))
             self._cond.notify_all()
@@ -310,7 +320,9 @@ class PlantService:
     def _t(self, ns: int) -> float:
         return (ns - self.epoch_ns) / 1e9
 
-    def _publish_state(self, sample_ns: int, k: int) -> None:
+    def _publish_state(self, sample_ns: int, k: int, wake_ns: int, log: bool = True) -> tuple:
+        """Publish State k (unless a [faults] drop takes it); returns its log row, appended
+        to the hop log unless ``log`` is false (lockstep patches it first)."""
         c = self.core
         meas = measure(self.sensor, c.state.robot_state(), k)
         send_ns = time.monotonic_ns()
@@ -326,27 +338,37 @@ class PlantService:
             float(meas.omega),
         )
         self._state_seq += 1
-        try:
-            self._pub_state.put(encode(msg))
-        except ValueError:
-            self.rejections.count("state_unencodable")
+        n = self.state_drop_every
+        flags = 0
+        if n > 0 and msg.seq % n == n - 1:
+            flags |= SAMPLE_DROPPED
+            self.injected_drops += 1
+        else:
+            try:
+                self._pub_state.put(encode(msg))
+            except ValueError:
+                self.rejections.count("state_unencodable")
+        self.samples += 1
         s = c.state
-        self.state_log.append(
-            (
-                msg.seq,
-                sample_ns,
-                send_ns,
-                s.x,
-                s.y,
-                s.theta,
-                s.v,
-                s.omega,
-                s.tau1,
-                s.tau2,
-                c.cmd1,
-                c.cmd2,
-            )
+        row = (
+            msg.seq,
+            sample_ns,
+            wake_ns,
+            send_ns,
+            s.x,
+            s.y,
+            s.theta,
+            s.v,
+            s.omega,
+            s.tau1,
+            s.tau2,
+            c.cmd1,
+            c.cmd2,
+            flags,
         )
+        if log:
+            self.hoplog.append("samples", row)
+        return row
 
     def publish_status(self, state: str = "running") -> None:
         counters = {
@@ -361,6 +383,7 @@ class PlantService:
                 + self.core.extremes.violations_tau2
             ),
         }
+        self.hoplog.counters(self.final_counters())
         msg = Status(
             self.robot_id,
             self._status_seq,
@@ -385,19 +408,14 @@ class PlantService:
                 apply_ns = recv_ns + self.injector.extra_ns()
                 self._order += 1
                 self.pending.append(Pending(apply_ns, self._order, 0, msg, recv_ns))
-            else:
-                self._log_cmd(0, 0, msg, recv_ns, 0)
 
     def _take_can(self) -> None:
         if self.can is None:
             return
-        from protocol.can.codec import Cmd, split_id
-
         inbox = self.can.inbox
         last_apply = 0
         while inbox:
             recv_ns, frame = inbox.popleft()
-            node, cmd = split_id(frame.arbitration_id)
             if self.applied_path == 1:
                 apply_ns = max(recv_ns + self.injector.extra_ns(), last_apply)
                 last_apply = apply_ns
@@ -407,11 +425,6 @@ class PlantService:
                 answers = self.can.pair.receive(frame)
                 if answers:
                     self.can.send(answers)
-                if cmd == Cmd.SET_INPUT_TORQUE:
-                    i = self._can_frames_per_node.get(node, 0)
-                    self._can_frames_per_node[node] = i + 1
-                    t1, t2 = self.can.torques()
-                    self.cmd_log.append((1, 0, i, -1, 0, 0, 0, recv_ns, 0, t1, t2, node))
 
     def _apply(self, p: Pending) -> None:
         """Land one pending command at its time (the plant was advanced to it)."""
@@ -420,12 +433,17 @@ class PlantService:
             msg: TorqueCommand = p.payload
             if msg.seq < self._last_applied_seq:
                 self.rejections.count("overtaken")  # a newer command already landed
+                self.hoplog.append(
+                    "apply", (0, msg.seq, -1, p.recv_ns, apply_ns, msg.tau1, msg.tau2, 1)
+                )
                 return
             self._last_applied_seq = msg.seq
             if msg.flags & FLAG_STOP:
                 self.stopped_by_controller = True
             self.core.hold(msg.tau1, msg.tau2)
-            self._log_cmd(0, 1, msg, p.recv_ns, apply_ns)
+            self.hoplog.append(
+                "apply", (0, msg.seq, -1, p.recv_ns, apply_ns, msg.tau1, msg.tau2, 0)
+            )
         else:
             from protocol.can.codec import Cmd, split_id
 
@@ -434,34 +452,14 @@ class PlantService:
             answers = self.can.pair.receive(frame)
             if answers:
                 self.can.send(answers)
-            if cmd != Cmd.SET_INPUT_TORQUE:
+            if cmd != Cmd.SET_INPUT_TORQUE or frame.is_remote:
                 self.core.hold(*self.can.torques())
                 return
-            i = self._can_frames_per_node.get(node, 0)
-            self._can_frames_per_node[node] = i + 1
             t1, t2 = self.can.torques()
             self.core.hold(t1, t2)
-            self.cmd_log.append((1, 1, i, -1, 0, 0, 0, p.recv_ns, apply_ns, t1, t2, node))
+            self.hoplog.append("apply", (1, -1, node, p.recv_ns, apply_ns, t1, t2, 0))
         self._last_cmd_recv_ns = p.recv_ns
         self.timed_out = False
-
-    def _log_cmd(self, path: int, applied: int, msg: TorqueCommand, recv_ns: int, apply_ns: int):
-        self.cmd_log.append(
-            (
-                path,
-                applied,
-                msg.seq,
-                msg.state_seq,
-                msg.state_sample_time_ns,
-                msg.compute_start_ns,
-                msg.send_time_ns,
-                recv_ns,
-                apply_ns,
-                msg.tau1,
-                msg.tau2,
-                -1,
-            )
-        )
 
     def _process_until(self, until_ns: int) -> None:
         """Land every pending command due by ``until_ns`` and the command timeout, in time
@@ -488,7 +486,7 @@ class PlantService:
                         d.input_torque = 0.0
                 self.timed_out = True
                 self.timeouts += 1
-                self.zero_log.append((timeout_ns, time.monotonic_ns()))
+                self.hoplog.append("zero", (timeout_ns, time.monotonic_ns()))
                 continue
             if due is None:
                 break
@@ -507,7 +505,7 @@ class PlantService:
             if tick.deadline_ns > end_ns:
                 break
             self._process_until(tick.deadline_ns)
-            self._publish_state(tick.deadline_ns, tick.k)
+            self._publish_state(tick.deadline_ns, tick.k, tick.wake_ns)
             if self.can is not None:
                 s = self.core.state
                 est = self.can.estimates(s.v, s.omega, self._can_pos)
@@ -538,27 +536,31 @@ class PlantService:
             sample_ns = self.epoch_ns + round(k * self.ts * 1e9)
             j0 = k * m
             c.t = j0 * h
-            msg = self._exchange(k, sample_ns, wait_s, stop)
-            if msg is None:
+            got = self._exchange(k, sample_ns, wait_s, stop)
+            if got is None:
                 break
-            heapq.heappush(pending, (j0 + offsets[k], k, msg.tau1, msg.tau2))
+            msg, recv_ns, row = got
+            heapq.heappush(pending, (j0 + offsets[k], k, msg.tau1, msg.tau2, recv_ns))
             j = j0
             j_end = j0 + m
             while True:
                 while pending and pending[0][0] <= j:
-                    _, seq, t1, t2 = heapq.heappop(pending)
-                    if seq > applied_seq:
+                    j_land, seq, t1, t2, recv_ns = heapq.heappop(pending)
+                    # Virtual time: the landing is j_land plant steps after the epoch.
+                    land_ns = self.epoch_ns + round(j_land * h * 1e9)
+                    outcome = 0 if seq > applied_seq else 1
+                    self.hoplog.append("apply", (0, seq, -1, recv_ns, land_ns, t1, t2, outcome))
+                    if outcome == 0:
                         applied_seq = seq
                         c.hold(t1, t2)
                     else:
                         self.rejections.count("overtaken")
                 if j == j0:
                     # The trace's applied torque at t_k is what acts from t_k on (as in the
-                    # simulator's trace): patch the row logged when State k was sent.
-                    row = list(self.state_log[-1])
-                    row[8] = c.cmd1 if c.lag <= 0.0 else c.state.tau1
-                    row[9] = c.cmd2 if c.lag <= 0.0 else c.state.tau2
-                    self.state_log[-1] = tuple(row)
+                    # simulator's trace): the row of State k carries it.
+                    tau1 = c.cmd1 if c.lag <= 0.0 else c.state.tau1
+                    tau2 = c.cmd2 if c.lag <= 0.0 else c.state.tau2
+                    self.hoplog.append("samples", (*row[:9], tau1, tau2, *row[11:]))
                 nxt = pending[0][0] if pending else j_end
                 j_next = min(nxt, j_end)
                 if j_next > j:
@@ -581,16 +583,18 @@ class PlantService:
             c.t = j_end * h
         self.publish_status("stopped")
 
-    def _exchange(self, k: int, sample_ns: int, wait_s: float, stop: Any) -> TorqueCommand | None:
+    def _exchange(
+        self, k: int, sample_ns: int, wait_s: float, stop: Any
+    ) -> tuple[TorqueCommand, int, tuple] | None:
         """Publish State k and wait for the command computed from it (re-sending the state
-        if a message was lost)."""
+        if a message was lost); returns (command, its receive time, State k's log row)."""
         deadline = time.monotonic() + wait_s
         while not stop and time.monotonic() < deadline:
             if self._state_seq > k:  # a re-send: one trace row per sample
-                self.state_log.pop()
                 self.resends += 1
+                self.samples -= 1
             self._state_seq = k
-            self._publish_state(sample_ns, k)
+            row = self._publish_state(sample_ns, k, time.monotonic_ns(), log=False)
             resend_at = time.monotonic() + 0.5
             with self._cond:
                 while time.monotonic() < resend_at and not stop:
@@ -598,21 +602,14 @@ class PlantService:
                         recv_ns, msg = self.zinbox.popleft()
                         if msg.state_seq == k and not (msg.flags & FLAG_STOP):
                             self.cmd_tracker.observe(msg.seq)
-                            self._log_cmd(0, 1, msg, recv_ns, recv_ns)
-                            return msg
+                            return msg, recv_ns, row
                     self._cond.wait(timeout=0.05)
         return None
 
-    def write_log(self, path: str | Path, extra: dict[str, Any]) -> None:
+    def final_counters(self) -> dict[str, Any]:
+        """The service's counters (the hop log's footer, and its periodic snapshots)."""
         e = self.core.extremes
-        data = {
-            "state_fields": list(STATE_LOG_FIELDS),
-            "states": self.state_log,
-            "cmd_fields": list(CMD_LOG_FIELDS),
-            "commands": self.cmd_log,
-            "zero_log": self.zero_log,
-            "epoch_ns": self.epoch_ns,
-            "applied_path": "zenoh" if self.applied_path == 0 else "can",
+        return {
             "extremes": {
                 "max_abs_v": e.max_abs_v,
                 "max_abs_omega": e.max_abs_omega,
@@ -628,11 +625,14 @@ class PlantService:
             },
             "final": list(self.core.state),
             "final_t": self.core.t,
+            "samples": self.samples,
             "cmd_counts": self.cmd_tracker.counts.as_dict(),
             "rejections": self.rejections.snapshot(),
             "timeouts": self.timeouts,
             "lockstep_resends": self.resends,
-            "deadline_misses": getattr(getattr(self, "clock", None), "misses", 0),
+            "injected_state_drops": self.injected_drops,
+            "deadline_misses": self.clock.misses if self.clock else 0,
+            "skipped_slots": self.clock.skipped if self.clock else 0,
             "can": None
             if self.can is None
             else {
@@ -640,9 +640,10 @@ class PlantService:
                 "frames_out": self.can.frames_out,
                 "rejections": self.can.pair.rejections.snapshot(),
             },
-            **extra,
         }
-        Path(path).write_bytes(msgpack.packb(data, use_bin_type=True))
+
+
+HOPLOG_NAME = "plant.hoplog"
 
 
 def main_from_settings(settings_path: str) -> int:
@@ -654,6 +655,27 @@ def main_from_settings(settings_path: str) -> int:
 
     s = RunSettings.load(settings_path)
     core, sensor = build_plant(s)
+    sensor_rate = s.rate_hz if s.lockstep else s.sensor_rate_hz
+    faults = getattr(s, "faults", None) or {}
+    hoplog = HopLogWriter(
+        Path(s.out_dir) / HOPLOG_NAME,
+        "plant",
+        PLANT_TABLES,
+        {
+            "robot_id": s.robot_id,
+            "sensor_period_ns": round(1e9 / sensor_rate),
+            "control_period_ns": round(s.ts * 1e9),
+            "plant_step_ns": round(core.h * 1e9),
+            "lockstep": s.lockstep,
+            "cmd_path": s.cmd_path,
+            "command_timeout_s": s.command_timeout,
+            "delay_s": s.delay,
+            "jitter_s": s.jitter,
+            "jitter_kind": s.jitter_kind,
+            "state_drop_every": int(faults.get("state_drop_every", 0)),
+            "epoch_ns": s.epoch_ns,
+        },
+    )
     session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
     can = None
     bus = open_can_bus(s)
@@ -665,7 +687,7 @@ def main_from_settings(settings_path: str) -> int:
         # A hair above the largest legal motor torque: float32 rounding of a legal command
         # must not be rejected; the applied (tau1, tau2) is clamped to (2) after decoding.
         pair = VirtualDrivePair(cs.node_right, cs.node_left, legal * (1.0 + 1e-6))
-        can = CanDrives(bus, pair, geom, core.limits)
+        can = CanDrives(bus, pair, geom, core.limits, hoplog)
         can.start()
     svc = PlantService(
         core,
@@ -674,45 +696,45 @@ def main_from_settings(settings_path: str) -> int:
         s.robot_id,
         s.epoch_ns,
         s.ts,
-        s.rate_hz if s.lockstep else s.sensor_rate_hz,
+        sensor_rate,
         cmd_path=s.cmd_path,
         command_timeout=s.command_timeout,
         injector=DelayInjector(s.delay, s.jitter, s.jitter_kind, s.seed),
         can=can,
+        hoplog=hoplog,
+        state_drop_every=int(faults.get("state_drop_every", 0)),
     )
     from hil.run.startgate import StartGate
 
     gate = StartGate(session, s.robot_id, "plant")
     with stop_on_signals() as stop:
-        if s.epoch_ns == 0:
-
-            def idle() -> None:
-                if can is not None:  # answer the lifecycle so the drives arm before t = 0
-                    from protocol.can.codec import Cmd, split_id
-
-                    while can.inbox:
-                        _, frame = can.inbox.popleft()
-                        node, cmd = split_id(frame.arbitration_id)
-                        if cmd == Cmd.SET_INPUT_TORQUE:  # keep per-node frame order counted
-                            n = svc._can_frames_per_node.get(node, 0)
-                            svc._can_frames_per_node[node] = n + 1
-                        answers = can.pair.receive(frame)
-                        if answers:
-                            can.send(answers)
-                    st = svc.core.state
-                    frames = can.pair.due_frames(
-                        time.monotonic(), can.estimates(st.v, st.omega, {})
-                    )
-                    can.send(frames)
-
-            got = gate.wait(stop, idle=idle)
-            if got is None:
-                session.close()
-                return 1
-            svc.epoch_ns = got
+        # Scheduling first, readiness after: the set-up (mlockall, a full collection, the GC
+        # frozen) must be done before t = 0, or the first samples start late.
         sched = setup_scheduling(s.scheduling, cpu=s.cpu_plant, freeze_gc=True)
-        print(f"running epoch_ns={svc.epoch_ns} scheduling={sched.policy}", flush=True)
+        hoplog.update_meta({"scheduling": sched.as_dict()})
         try:
+            if s.epoch_ns == 0:
+
+                def idle() -> None:
+                    if can is not None:  # answer the lifecycle so the drives arm before t = 0
+                        while can.inbox:
+                            _, frame = can.inbox.popleft()
+                            answers = can.pair.receive(frame)
+                            if answers:
+                                can.send(answers)
+                        st = svc.core.state
+                        frames = can.pair.due_frames(
+                            time.monotonic(), can.estimates(st.v, st.omega, {})
+                        )
+                        can.send(frames)
+
+                got = gate.wait(stop, idle=idle)
+                if got is None:
+                    print("no start: stopped or start-gate timeout", flush=True)
+                    return 1
+                svc.epoch_ns = got
+                hoplog.update_meta({"epoch_ns": got})
+            print(f"running epoch_ns={svc.epoch_ns} scheduling={sched.policy}", flush=True)
             if s.lockstep:
                 from hil.run.wiring import lockstep_offsets
 
@@ -727,6 +749,6 @@ def main_from_settings(settings_path: str) -> int:
             restore_gc()
             if can is not None:
                 can.close()
-            svc.write_log(Path(s.out_dir) / "plant_log.msgpack", {"scheduling": sched.as_dict()})
+            hoplog.close(svc.final_counters())
             session.close()
     return 0

@@ -33,6 +33,13 @@ class Verdict(Enum):
     def fresh(self) -> bool:
         return self is Verdict.FRESH
 
+    @property
+    def code(self) -> int:
+        """The hop logs' verdict column: 0 fresh, 1 duplicate, 2 older than one already seen."""
+        if self is Verdict.FRESH:
+            return 0
+        return 1 if self is Verdict.DUPLICATE else 2
+
 
 @dataclass
 class SequenceCounts:

@@ -60,10 +60,27 @@ def test_deadline_clock_has_no_drift_and_counts_skipped_slots(monkeypatch):
     ticks = [clock.next() for _ in range(5)]
     # Deadlines stay on the grid start + k * period whatever the lateness ...
     assert [t.deadline_ns for t in ticks[:3]] == [0, 1_000_000, 2_000_000]
-    # ... a wake-up past its successor's deadline is a miss; the clock resumes on the grid.
-    assert ticks[3] == Tick(5, 5_000_000, 5_500_000, 2)
+    # ... a wake-up past its successor's deadline is a miss, reported against the deadline of
+    # the slot it was due for (3 ms), never re-based (2.5 ms late, as cyclictest would say);
+    # the two slots whose deadlines passed meanwhile (4 and 5 ms) are skipped, counted.
+    assert ticks[3] == Tick(3, 3_000_000, 5_500_000, 2)
+    assert ticks[3].lateness_ns == 2_500_000
     assert ticks[4].k == 6 and ticks[4].deadline_ns == 6_000_000
     assert clock.misses == 1 and clock.skipped == 2
+
+
+def test_deadline_clock_reports_a_long_stall_in_full(monkeypatch):
+    """A wake-up 11.7 ms after its deadline at 2 ms reads 11.7 ms, five slots skipped."""
+    import controller_service.realtime as rt
+
+    wakes = iter([10, 2_000_020, 4_000_000 + 11_700_000, 16_000_005])
+    monkeypatch.setattr(rt, "wait_until_ns", lambda deadline, spin: next(wakes))
+    clock = DeadlineClock(2_000_000, 0)
+    ticks = [clock.next() for _ in range(4)]
+    assert ticks[2].lateness_ns == 11_700_000
+    assert ticks[2].skipped == 5  # slots 3..7 (deadlines 6..14 ms) passed during the stall
+    assert ticks[3].k == 8 and ticks[3].deadline_ns == 16_000_000
+    assert clock.misses == 1 and clock.skipped == 5
 
 
 def test_lazy_plant_equals_one_integration_over_the_same_steps():

@@ -1,0 +1,292 @@
+"""Hop logs: the services' time stamps, streamed to disk in chunks, readable after a crash.
+
+Both services log every event that a timing figure is made of (docs/realtime.md, "Timing
+figures"): the controller its ticks, State arrivals and CAN sends; the plant its samples and
+command arrivals. The figures are computed afterwards from these logs alone, by one module
+(:mod:`hil.measure`), so the log is the single source of every timing number of a run.
+
+File format (``*.hoplog``): a stream of msgpack maps, appended and flushed as the run goes:
+
+- ``{"r": "header", "format": "hil-hoplog", "version": 1, "role": ..., "tables": {name:
+  [field, ...]}, "meta": {...}}`` once, first;
+- ``{"r": "rows", "table": name, "rows": [[...], ...]}``: a chunk of rows of one table, in
+  the order they happened;
+- ``{"r": "meta", "meta": {...}}``: meta learnt later (the run's epoch), merged into the
+  header's;
+- ``{"r": "counters", "time_ns": ..., "counters": {...}}``: a snapshot of the service's
+  counters (the newest one wins);
+- ``{"r": "footer", "final": {...}}`` once, last, when the service exits cleanly.
+
+A background thread writes a chunk at least every ``flush_interval`` seconds (default 0.1 s),
+so a killed service loses at most that much; a reader stops at a truncated last record and
+reports ``complete = False``. The loop thread only appends tuples to a list (no I/O, no
+packing), so logging costs the real-time loop well under a microsecond per row.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgpack
+
+FORMAT = "hil-hoplog"
+VERSION = 1
+SUFFIX = ".hoplog"
+
+# The tables each service writes (docs/realtime.md defines every stamp; one host, one
+# CLOCK_MONOTONIC, nanoseconds). Flags of a tick row beyond protocol.messages' command flags:
+TICK_NO_SEND = 1 << 8  # the tick found no fresh state and sent nothing (the last command stands)
+TICK_DROPPED = 1 << 9  # the command was computed but not published: a [faults] drop
+SAMPLE_DROPPED = 1  # a plant sample whose State was not published: a [faults] drop
+
+CONTROLLER_TABLES: dict[str, tuple[str, ...]] = {
+    # One row per wake-up (periodic) or per fresh state (on_state, lockstep); k is the slot the
+    # tick was due for and deadline_ns that slot's deadline (never re-based).
+    "ticks": (
+        "k",
+        "deadline_ns",
+        "wake_ns",
+        "skipped",
+        "state_seq",
+        "state_sample_ns",
+        "state_send_ns",
+        "state_recv_ns",
+        "compute_start_ns",
+        "compute_end_ns",
+        "zenoh_send_ns",
+        "can_send_ns",
+        "cmd_seq",
+        "tau1",
+        "tau2",
+        "flags",
+    ),
+    # Every State of this robot that decoded, fresh or not (verdict: 0 fresh, 1 duplicate,
+    # 2 older than one already seen).
+    "state_rx": ("seq", "sample_ns", "send_ns", "recv_ns", "verdict"),
+    # Every Set_Input_Torque frame sent, per node in bus order; cmd_seq -1: a lifecycle zero.
+    "can_tx": ("node", "send_ns", "cmd_seq"),
+}
+PLANT_TABLES: dict[str, tuple[str, ...]] = {
+    # One row per sensor sample: sample_ns is the slot's deadline (the sample time on the
+    # epoch's grid), wake_ns when the plant woke for it, send_ns when State left.
+    "samples": (
+        "seq",
+        "sample_ns",
+        "wake_ns",
+        "send_ns",
+        "x",
+        "y",
+        "theta",
+        "v",
+        "omega",
+        "tau1",
+        "tau2",
+        "cmd1",
+        "cmd2",
+        "flags",
+    ),
+    # Every command arrival on either path (path 0 Zenoh, 1 CAN); for CAN, seq is the frame's
+    # index among the node's Set_Input_Torque frames (matched to the controller's can_tx in
+    # per-node order) and state_seq/state_sample_ns/send_ns are unknown (-1/0). verdict: 0
+    # accepted, 1 duplicate, 2 older than one already seen.
+    "cmd_rx": (
+        "path",
+        "seq",
+        "state_seq",
+        "state_sample_ns",
+        "compute_start_ns",
+        "send_ns",
+        "recv_ns",
+        "tau1",
+        "tau2",
+        "node",
+        "verdict",
+    ),
+    # Every landing on the applied path, in time order (outcome 0 landed, 1 overtaken by a newer
+    # command already in force and dropped).
+    "apply": ("path", "seq", "node", "recv_ns", "apply_ns", "tau1", "tau2", "outcome"),
+    # The command timeout: when it fired and when the zero torque was in force on the wall clock.
+    "zero": ("timeout_ns", "applied_ns"),
+}
+
+
+class HopLogWriter:
+    """Append rows to named tables; a writer thread streams them to ``path`` in chunks."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        role: str,
+        tables: Mapping[str, Sequence[str]],
+        meta: Mapping[str, Any] | None = None,
+        flush_interval: float = 0.1,
+    ) -> None:
+        self.path = Path(path)
+        self.role = role
+        self.fields = {name: list(cols) for name, cols in tables.items()}
+        self._pending: dict[str, list[Any]] = {name: [] for name in self.fields}
+        self._counters: dict[str, Any] | None = None
+        self._interval = float(flush_interval)
+        self._lock = threading.Lock()  # serialises file writes (thread and close)
+        self._stop = threading.Event()
+        self._closed = False
+        self.rows_written = 0
+        self.bytes_written = 0
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self._write(
+            {
+                "r": "header",
+                "format": FORMAT,
+                "version": VERSION,
+                "role": role,
+                "tables": self.fields,
+                "meta": dict(meta or {}),
+            }
+        )
+        self._thread = threading.Thread(target=self._run, name=f"hoplog-{role}", daemon=True)
+        self._thread.start()
+
+    # --- the loop thread's side: cheap ---------------------------------------------------
+    def append(self, table: str, row: Sequence[Any]) -> None:
+        self._pending[table].append(row)
+
+    def update_meta(self, meta: Mapping[str, Any]) -> None:
+        """Meta learnt after the header (the epoch): written at once, merged when read."""
+        self._write({"r": "meta", "meta": dict(meta)})
+
+    def counters(self, counters: Mapping[str, Any]) -> None:
+        """The newest counter snapshot; written with the next chunk."""
+        self._counters = dict(counters)
+
+    # --- the writer's side -----------------------------------------------------------------
+    def _write(self, record: Mapping[str, Any]) -> None:
+        data = msgpack.packb(record, use_bin_type=True)
+        with self._lock:
+            if self._fd < 0:
+                return
+            view = memoryview(data)
+            while view:
+                n = os.write(self._fd, view)
+                view = view[n:]
+            self.bytes_written += len(data)
+
+    def flush(self) -> None:
+        """Write every pending row (and the newest counters) now."""
+        for name in self.fields:
+            # Swapping the list is atomic under the GIL: the loop keeps appending to the new one.
+            rows, self._pending[name] = self._pending[name], []
+            if rows:
+                self._write({"r": "rows", "table": name, "rows": rows})
+                self.rows_written += len(rows)
+        counters, self._counters = self._counters, None
+        if counters is not None:
+            self._write({"r": "counters", "time_ns": time.monotonic_ns(), "counters": counters})
+
+    def _run(self) -> None:
+        while not self._stop.wait(self._interval):
+            with contextlib.suppress(OSError):
+                self.flush()
+
+    def close(self, final: Mapping[str, Any] | None = None) -> None:
+        """Flush, write the footer (a clean exit) and close. Safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.flush()
+        self._write({"r": "footer", "final": dict(final or {})})
+        with self._lock:
+            os.close(self._fd)
+            self._fd = -1
+
+
+@dataclass
+class HopLog:
+    """A hop log read back: rows per table (lists of tuples), meta, counters, final."""
+
+    path: Path
+    role: str = ""
+    meta: dict[str, Any] = field(default_factory=dict)
+    fields: dict[str, list[str]] = field(default_factory=dict)
+    rows: dict[str, list[list[Any]]] = field(default_factory=dict)
+    counters: dict[str, Any] = field(default_factory=dict)
+    final: dict[str, Any] | None = None
+    complete: bool = False  # the footer was read: the service exited cleanly
+    truncated: bool = False  # the file ends inside a record (a killed writer)
+
+    def table(self, name: str) -> list[dict[str, Any]]:
+        """Rows of ``name`` as dicts (field name -> value)."""
+        names = self.fields.get(name, [])
+        return [dict(zip(names, r, strict=False)) for r in self.rows.get(name, [])]
+
+    def columns(self, name: str) -> dict[str, list[Any]]:
+        """Rows of ``name`` as columns (field name -> list of values)."""
+        names = self.fields.get(name, [])
+        rows = self.rows.get(name, [])
+        return {n: [r[i] for r in rows] for i, n in enumerate(names)}
+
+    @property
+    def info(self) -> dict[str, Any]:
+        """The footer's final values, else the newest counters (a crashed service)."""
+        return self.final if self.final is not None else self.counters
+
+
+class HopLogError(ValueError):
+    """Not a hop log (wrong magic, version, or no header)."""
+
+
+def iter_records(path: str | Path) -> Iterator[tuple[dict[str, Any], int]]:
+    """Every complete record of a hop log with the file offset where it ends, in order; stops
+    quietly at a truncated tail."""
+    unpacker = msgpack.Unpacker(raw=False, strict_map_key=False, max_buffer_size=1 << 30)
+    with open(path, "rb") as f:
+        while True:
+            chunk = f.read(1 << 20)
+            if not chunk:
+                return
+            unpacker.feed(chunk)
+            for rec in unpacker:
+                if isinstance(rec, dict):
+                    yield rec, unpacker.tell()
+
+
+def read_hoplog(path: str | Path) -> HopLog:
+    """Read a hop log whole (the newest counters, the footer if any)."""
+    path = Path(path)
+    log = HopLog(path)
+    seen_header = False
+    size = path.stat().st_size
+    end = 0
+    for rec, offset in iter_records(path):
+        end = offset
+        kind = rec.get("r")
+        if kind == "header":
+            if rec.get("format") != FORMAT or rec.get("version") != VERSION:
+                raise HopLogError(f"{path}: not a {FORMAT} v{VERSION} file")
+            seen_header = True
+            log.role = str(rec.get("role", ""))
+            log.meta = dict(rec.get("meta") or {})
+            log.fields = {k: list(v) for k, v in (rec.get("tables") or {}).items()}
+            log.rows = {k: [] for k in log.fields}
+        elif kind == "rows" and seen_header:
+            log.rows.setdefault(rec["table"], []).extend(rec["rows"])
+        elif kind == "meta" and seen_header:
+            log.meta.update(rec.get("meta") or {})
+        elif kind == "counters" and seen_header:
+            log.counters = dict(rec.get("counters") or {})
+        elif kind == "footer" and seen_header:
+            log.final = dict(rec.get("final") or {})
+            log.complete = True
+    if not seen_header:
+        raise HopLogError(f"{path}: no hop-log header")
+    log.truncated = end < size
+    return log
