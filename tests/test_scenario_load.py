@@ -11,6 +11,8 @@ from controller_service.laws.base import Limits
 from hil.cli import main
 from hil.errors import BadInputError
 from hil.provenance import dumps_toml
+from hil.run.orchestrate import RunOptions, prepare
+from hil.run.settings import RunSettings
 from hil.scenario import (
     FaultsConfig,
     build_loop,
@@ -156,3 +158,17 @@ def test_cli_exits_2_on_a_bad_faults_key(
     bad.write_text(MINIMAL + "[faults]\nstate_drop_every = -2\n")
     assert main(["sim", str(bad), "--out", str(tmp_path / "o")]) == 2
     assert "[faults] state_drop_every" in capsys.readouterr().err
+
+
+def test_run_settings_carry_the_faults_table(tmp_path: Path) -> None:
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(MINIMAL + "[faults]\ncommand_drop_every = 5\n")
+    _, settings, run_dir, _ = prepare(
+        RunOptions(scenario=scenario, out=tmp_path / "run", duration=0.1)
+    )
+    expected = {"state_drop_every": 0, "command_drop_every": 5, "seed": 0}
+    assert settings.faults == expected
+    assert RunSettings.load(run_dir / "run_settings.json").faults == expected
+    resolved = tomllib.loads((run_dir / "scenario.resolved.toml").read_text())
+    assert resolved["faults"] == expected
+    assert RunSettings(scenario_path="x").faults == {}  # default: no injection
