@@ -10,8 +10,10 @@ varpi2 (zero for the sign law (10)) and the initial velocities v0, w0:
     c2s = (mu1 + V) + 1 + mu1^2 + mu2^2   (c0..c2 of Proposition 1 with phi1 replaced by V),
 
 and (2) is guaranteed when V <= phi1 and W <= phi2 (|tau| <= varpi holds by clamping).
-:func:`certify` also reports Assumption 2, (9), (11) and (12) (needed for Theorem 1), and
-:func:`propose` finds the nearest design that restores (2) at the given timing.
+:func:`certify` also reports Assumption 2, (9), (11) and (12) (needed for Theorem 1),
+:func:`propose` finds the nearest design that restores (2) at the given timing, and
+:func:`critical_age` finds D*, the largest D at which V <= phi1 and W <= phi2 still hold (a run
+compares its measured D with it; docs section 9).
 
 Rule of :func:`propose` (stated so users can predict it):
 1. l1, l2 above their bound in (9) become 0.99 of the bound.
@@ -367,6 +369,95 @@ def certify(
         outage_tolerance_s=outage,
         margins=margins,
     )
+
+
+CRITICAL_AGE_TOL_S = 1e-9  # bisection tolerance of critical_age on the omega side (1 ns)
+
+
+def critical_age(
+    params: Any,
+    context: DesignContext,
+    boundary_layer: bool,
+    *,
+    v0: float = 0.0,
+    w0: float = 0.0,
+    tol: float = CRITICAL_AGE_TOL_S,
+) -> float:
+    """D*: the largest command age D >= 0 at which the sampled-data bound still implies (2),
+    i.e. V(D) <= phi1 and W(D) <= phi2 (docs/sampled_data_bound.md, section 9).
+
+    D is DESIGN.md's "longest time any command stays in force after its sample" (max over j
+    of a_(j+1) - t_j, a the landing times; assumption A2 of the docs); :func:`certify` at
+    ``ts = D, delay = 0`` evaluates the bound at exactly that age, with the same formulas used
+    here: the push thresholds b1, b2 of ``boundary_layer``, max(|v0|, ...) and max(|w0|, ...),
+    and c2s = :func:`sampled_c2` at V(D). The v part is solved in closed form,
+    D_v = (phi1 - max(|v0|, mu1 + m1 + b1)) / (varpi1 + s1) (stepped down by ulps until
+    V(D_v) <= phi1 in floating point); the w part, nondecreasing in D (rho >= 0), is bisected
+    on [0, D_v] to ``tol`` (1 ns), keeping the end at which W <= phi2. So certify at the
+    returned age has both "sampled" conditions held, and at any age ``tol`` larger at least
+    one broken.
+
+    Returns 0.0 when even D = 0 breaks (2) (the bound at D = 0 already exceeds phi1 or phi2,
+    e.g. mu1 + m1 + b1 > phi1 or |v0| > phi1), and also when s1 >= varpi1 or s2 >= varpi2
+    (the proof needs s < varpi: no age is certified). Never infinite: varpi1 + s1 > 0 and
+    varpi2 + s2 > 0 make the bounds grow without limit. Only (2) is concerned; the paper's
+    design conditions (9), (11), (12) are :func:`certify`'s ``held``, not part of D*.
+
+    Raises :class:`CertificateError` on malformed input (missing or non-finite gains,
+    non-finite v0/w0, non-positive varpi + s or tol).
+    """
+    v0 = float(v0)
+    w0 = float(w0)
+    if not (math.isfinite(v0) and math.isfinite(w0)):
+        raise CertificateError("initial velocities must be finite")
+    tol = float(tol)
+    if not (math.isfinite(tol) and tol > 0.0):
+        raise CertificateError(f"tol must be finite and > 0, got {tol!r}")
+    g = _gains(params, boundary_layer)
+    lim = context.limits
+    rate1 = lim.varpi1 + context.s1
+    rate2 = lim.varpi2 + context.s2
+    if not (math.isfinite(rate1) and rate1 > 0.0 and math.isfinite(rate2) and rate2 > 0.0):
+        raise CertificateError("varpi1 + s1 and varpi2 + s2 must be finite and > 0")
+    if not (context.s1 < lim.varpi1 and context.s2 < lim.varpi2):
+        return 0.0
+    b1, b2 = push_thresholds(context, g, boundary_layer)
+
+    def w_at(age: float) -> float:
+        v_bound = velocity_bound(context, g["m1"], age, b1, v0)
+        return omega_bound(
+            context,
+            m2=g["m2"],
+            lam=g["lam"],
+            rho=g["rho"],
+            v_bound=v_bound,
+            age=age,
+            b2=b2,
+            w0=w0,
+        )
+
+    # v side in closed form; step down past rounding so that V(d_v) <= phi1 as certify computes.
+    d_v = (lim.phi1 - max(abs(v0), context.mu1 + g["m1"] + b1)) / rate1
+    if not d_v >= 0.0:  # also NaN
+        return 0.0
+    while d_v > 0.0 and velocity_bound(context, g["m1"], d_v, b1, v0) > lim.phi1:
+        d_v = math.nextafter(d_v, 0.0)
+    if velocity_bound(context, g["m1"], d_v, b1, v0) > lim.phi1:
+        return 0.0
+    if w_at(d_v) <= lim.phi2:
+        return d_v
+    if not w_at(0.0) <= lim.phi2:
+        return 0.0
+    lo, hi = 0.0, d_v  # W(lo) <= phi2 < W(hi)
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        if mid <= lo or mid >= hi:
+            break
+        if w_at(mid) <= lim.phi2:
+            lo = mid
+        else:
+            hi = mid
+    return lo
 
 
 @dataclass(frozen=True)

@@ -123,6 +123,18 @@ class SweepConfig:
 
 
 @dataclass(frozen=True)
+class FaultsConfig:
+    """[faults]: fault injection on the wire (0 = off). The plant does not publish the State
+    with seq % n == n - 1 (n = state_drop_every), the controller does not publish on Zenoh the
+    TorqueCommand with cmd_seq % m == m - 1 (m = command_drop_every); both log each drop as
+    injected. ``seed`` is reserved for random faults."""
+
+    state_drop_every: int = 0
+    command_drop_every: int = 0
+    seed: int = 0
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A loaded scenario: one frozen value per table; ``base_dir`` resolves relative paths."""
 
@@ -139,6 +151,7 @@ class Scenario:
     can: CanConfig = CanConfig()
     zenoh: ZenohConfig = ZenohConfig()
     sweep: SweepConfig = SweepConfig()
+    faults: FaultsConfig = FaultsConfig()
     base_dir: Path = Path(".")
     source: str = ""
 
@@ -185,6 +198,7 @@ _TABLES: dict[str, type] = {
     "can": CanConfig,
     "zenoh": ZenohConfig,
     "sweep": SweepConfig,
+    "faults": FaultsConfig,
 }
 _CHOICES: dict[tuple[str, str], tuple[str, ...]] = {
     ("disturbance", "kind"): DISTURBANCE_KINDS,
@@ -223,6 +237,9 @@ _NON_NEGATIVE = {
     ("sweep", "ts"),
     ("sweep", "delay"),
     ("sweep", "jitter"),
+    ("faults", "state_drop_every"),
+    ("faults", "command_drop_every"),
+    ("faults", "seed"),
 }
 _FIVE = {("plant", "noise_std"), ("plant", "quantization")}
 
@@ -425,7 +442,17 @@ def scenario_dict(scenario: Scenario) -> dict[str, Any]:
         "initial": _table_dict(scenario.initial),
         "controller": dict(scenario.controller),
     }
-    for name in ("plant", "timing", "run", "robot", "realtime", "can", "zenoh", "sweep"):
+    for name in (
+        "plant",
+        "timing",
+        "run",
+        "robot",
+        "realtime",
+        "can",
+        "zenoh",
+        "sweep",
+        "faults",
+    ):
         out[name] = _table_dict(getattr(scenario, name))
     out["plant"]["step"] = scenario.plant_step
     return out

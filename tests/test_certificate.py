@@ -9,9 +9,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from controller_service.certificate import CertificateError, certify, propose
+from controller_service.certificate import CertificateError, certify, critical_age, propose
 from controller_service.design import lam_bound, rho_bound
-from controller_service.laws.base import DesignContext
+from controller_service.laws.base import DesignContext, Limits
 from controller_service.laws.unified import UnifiedParams
 from hil.cli import main
 
@@ -122,6 +122,71 @@ def test_certificate_is_json_serializable():
     cert = certify(TABLE1, PAPER, 0.001, 0.0, False, watchdog_timeout=0.05)
     data = json.loads(json.dumps(cert.to_dict()))
     assert data["held"] is True and data["v_bound"] == pytest.approx(1.0033)
+
+
+def _sampled_held(cert):
+    return [c.held for c in cert.conditions if c.kind == "sampled"]
+
+
+@pytest.mark.parametrize("boundary", [False, True])
+def test_critical_age_at_table1_is_the_edge_of_the_certificate(boundary):
+    ctx = DesignContext(s1=0.1, s2=1.0) if boundary else PAPER
+    p = UnifiedParams(eps1=0.1, eps2=0.2) if boundary else TABLE1
+    d_star = critical_age(p, ctx, boundary)
+    assert 0.0 < d_star < math.inf
+    assert _sampled_held(certify(p, ctx, d_star * (1 - 1e-6), 0.0, boundary)) == [True, True]
+    assert not all(_sampled_held(certify(p, ctx, d_star * (1 + 1e-6), 0.0, boundary)))
+    assert certify(p, ctx, d_star, 0.0, boundary).constraints_guaranteed
+    if not boundary:
+        # The w side binds (docs section 8): 1.2 + 1.79 + (1 + 3.3 D) + 51 D <= 5.1.
+        assert d_star == pytest.approx(1.11 / 54.3, abs=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("ctx", "v0"),
+    [
+        (DesignContext(limits=Limits(phi1=1.05)), 0.0),
+        (DesignContext(limits=Limits(phi1=1.05), s1=0.3), 0.0),
+        (DesignContext(limits=Limits(phi1=1.05), s1=0.3), -1.02),  # |v0| > mu1 + m1
+    ],
+)
+def test_critical_age_known_answer_where_the_v_bound_binds(ctx, v0):
+    d_star = critical_age(TABLE1, ctx, False, v0=v0)
+    lim = ctx.limits
+    expected = (lim.phi1 - max(abs(v0), ctx.mu1 + TABLE1.m1)) / (lim.varpi1 + ctx.s1)
+    assert d_star == pytest.approx(expected, rel=1e-9)
+    cert = certify(TABLE1, ctx, d_star, 0.0, False, v0=v0)
+    assert cert.condition("sampled |w|").held  # the w side has room left at D*
+
+
+def test_critical_age_boundary_layer_is_no_larger_than_sign_law():
+    ctx = DesignContext(s1=0.3, s2=3.0)
+    p = UnifiedParams(rho=0.5, eps1=0.1, eps2=0.2)
+    sign, layer = critical_age(p, ctx, False), critical_age(p, ctx, True)
+    assert 0.0 < layer <= sign
+    assert layer < sign  # b1, b2 > 0 here: strictly smaller
+
+
+@pytest.mark.parametrize(
+    ("params", "ctx", "v0", "w0"),
+    [
+        (UnifiedParams(m1=1.2), PAPER, 0.0, 0.0),  # mu1 + m1 = 1.7 > phi1 at D = 0
+        (TABLE1, PAPER, 1.7, 0.0),  # |v0| > phi1
+        (TABLE1, PAPER, 0.0, 5.2),  # |w0| > phi2
+        (TABLE1, DesignContext(s1=3.3), 0.0, 0.0),  # s1 = varpi1: the proof does not apply
+    ],
+)
+def test_critical_age_is_zero_when_even_d_zero_breaks(params, ctx, v0, w0):
+    assert critical_age(params, ctx, False, v0=v0, w0=w0) == 0.0
+
+
+def test_critical_age_bad_input_is_a_clear_rejection():
+    with pytest.raises(CertificateError):
+        critical_age(UnifiedParams(m1=math.nan), PAPER, False)
+    with pytest.raises(CertificateError):
+        critical_age(TABLE1, PAPER, True)  # (19) needs eps1, eps2
+    with pytest.raises(CertificateError):
+        critical_age(TABLE1, PAPER, False, v0=math.inf)
 
 
 SCENARIO = """

@@ -11,7 +11,10 @@ from controller_service.laws.base import Limits
 from hil.cli import main
 from hil.errors import BadInputError
 from hil.provenance import dumps_toml
+from hil.run.orchestrate import RunOptions, prepare
+from hil.run.settings import RunSettings
 from hil.scenario import (
+    FaultsConfig,
     build_loop,
     build_reference,
     design_context,
@@ -105,3 +108,67 @@ def test_resolved_dict_round_trips_with_auto_resolved(tmp_path: Path) -> None:
     assert scenario_dict(again)["limits"] == scenario_dict(sc)["limits"]
     assert again.zenoh.endpoints == ("tcp/127.0.0.1:7447",)
     assert build_loop(again)[0].resolved_table()["lam"] == data["controller"]["lam"]
+
+
+def test_faults_default_to_off() -> None:
+    sc = loads_scenario(MINIMAL)
+    assert sc.faults == FaultsConfig()
+    assert (sc.faults.state_drop_every, sc.faults.command_drop_every, sc.faults.seed) == (0, 0, 0)
+    assert scenario_dict(sc)["faults"] == {
+        "state_drop_every": 0,
+        "command_drop_every": 0,
+        "seed": 0,
+    }
+
+
+def test_faults_round_trip_through_the_resolved_dict(tmp_path: Path) -> None:
+    sc = loads_scenario(
+        MINIMAL + "[faults]\nstate_drop_every = 7\ncommand_drop_every = 11\n", tmp_path
+    )
+    assert sc.faults == FaultsConfig(state_drop_every=7, command_drop_every=11, seed=0)
+    controller, _, ctx = build_loop(sc)
+    data = tomllib.loads(dumps_toml(resolved_dict(sc, controller, ctx)))
+    assert data["faults"] == {"state_drop_every": 7, "command_drop_every": 11, "seed": 0}
+    assert parse_scenario(data, tmp_path).faults == sc.faults
+
+
+@pytest.mark.parametrize(
+    ("table", "named"),
+    [
+        ("state_drop_every = -1\n", "[faults] state_drop_every"),
+        ("command_drop_every = -3\n", "[faults] command_drop_every"),
+        ("seed = -1\n", "[faults] seed"),
+        ("state_drop_every = 2.5\n", "[faults] state_drop_every"),
+        ("command_drop_every = 2.0\n", "[faults] command_drop_every"),
+        ("command_drop_every = true\n", "[faults] command_drop_every"),
+        ('seed = "x"\n', "[faults] seed"),
+        ("state_drop_evry = 3\n", "state_drop_evry"),
+    ],
+)
+def test_bad_faults_are_refused_naming_the_key(table: str, named: str) -> None:
+    with pytest.raises(BadInputError) as info:
+        loads_scenario(MINIMAL + "[faults]\n" + table)
+    assert named in str(info.value)
+
+
+def test_cli_exits_2_on_a_bad_faults_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(MINIMAL + "[faults]\nstate_drop_every = -2\n")
+    assert main(["sim", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "[faults] state_drop_every" in capsys.readouterr().err
+
+
+def test_run_settings_carry_the_faults_table(tmp_path: Path) -> None:
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(MINIMAL + "[faults]\ncommand_drop_every = 5\n")
+    _, settings, run_dir, _ = prepare(
+        RunOptions(scenario=scenario, out=tmp_path / "run", duration=0.1)
+    )
+    expected = {"state_drop_every": 0, "command_drop_every": 5, "seed": 0}
+    assert settings.faults == expected
+    assert RunSettings.load(run_dir / "run_settings.json").faults == expected
+    resolved = tomllib.loads((run_dir / "scenario.resolved.toml").read_text())
+    assert resolved["faults"] == expected
+    assert RunSettings(scenario_path="x").faults == {}  # default: no injection

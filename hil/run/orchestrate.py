@@ -19,7 +19,7 @@ import socket
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from subprocess import STDOUT
 from typing import Any
@@ -218,6 +218,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         jitter=scenario.timing.jitter,
         jitter_kind=scenario.timing.jitter_kind,
         seed=scenario.timing.seed,
+        faults=asdict(scenario.faults),
         out_dir=str(run_dir.resolve()),
         spin_us=opts.spin_us,
         ts_s=ts_s,

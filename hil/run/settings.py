@@ -42,6 +42,8 @@ class RunSettings:
     jitter: float = 0.0
     jitter_kind: str = "uniform"
     seed: int = 0
+    # [faults] of the scenario (hil.scenario.FaultsConfig as a dict); empty = no injection.
+    faults: dict[str, Any] = field(default_factory=dict)
     out_dir: str = "."
     cpu_controller: int | None = None
     cpu_plant: int | None = None
@@ -69,6 +71,11 @@ class RunSettings:
             raise ValueError("[realtime] rate above 20 kHz is not supported")
         if self.scheduling not in ("fifo", "other"):
             raise ValueError("[realtime] scheduling must be 'fifo' or 'other'")
+        if not isinstance(self.faults, dict):
+            raise ValueError(f"faults must be a table, got {self.faults!r}")
+        for key, v in self.faults.items():
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ValueError(f"[faults] {key} must be an integer >= 0, got {v!r}")
 
     def save(self, path: str | Path) -> None:
         Path(path).write_text(json.dumps(asdict(self), indent=2))
