@@ -118,6 +118,16 @@ class RecordingWriter:
         )
         self.count += 1
 
+    def add_attachment(
+        self, name: str, data: bytes, media_type: str = "application/msgpack"
+    ) -> None:
+        """A file carried inside the recording (the services' hop logs: a recording alone then
+        reproduces every timing figure of the run)."""
+        import time
+
+        now = time.time_ns()
+        self._writer.add_attachment(now, now, name, media_type, bytes(data))
+
     def add_metadata(self, name: str, data: Mapping[str, Any]) -> None:
         self._writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
 
@@ -165,6 +175,17 @@ def list_topics(path: str | Path) -> dict[str, int]:
         return counts
     by_id = {cid: ch.topic for cid, ch in summary.channels.items()}
     return {by_id[cid]: int(n) for cid, n in summary.statistics.channel_message_counts.items()}
+
+
+def read_attachments(path: str | Path, names: Iterable[str] | None = None) -> dict[str, bytes]:
+    """Name -> data of the recording's attachments (optionally only ``names``)."""
+    wanted = set(names) if names is not None else None
+    out: dict[str, bytes] = {}
+    with open(path, "rb") as f:
+        for att in make_reader(f).iter_attachments():
+            if wanted is None or att.name in wanted:
+                out[att.name] = bytes(att.data)
+    return out
 
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:

@@ -164,7 +164,8 @@ class CanDrives:
         self._to = to_message
         self._from = from_message
         self._stop = threading.Event()
-        self.inbox: collections.deque[tuple[int, Any]] = collections.deque()
+        # (receive ns, frame, index among the node's torque frames or -1)
+        self.inbox: collections.deque[tuple[int, Any, int]] = collections.deque()
         self.frames_in = 0
         self.frames_out = 0
         self.send_errors = 0
@@ -182,7 +183,6 @@ class CanDrives:
             if msg is not None:
                 recv_ns = time.monotonic_ns()
                 frame = self._from(msg)
-                self.inbox.append((recv_ns, frame))
                 self.frames_in += 1
                 node, cmd = self._split(frame.arbitration_id)
                 if cmd == self._torque_cmd and not frame.is_remote:
@@ -191,6 +191,9 @@ class CanDrives:
                     i = self._torque_frames.get(node, 0)
                     self._torque_frames[node] = i + 1
                     self.hoplog.append("cmd_rx", (1, i, -1, 0, 0, 0, recv_ns, 0.0, 0.0, node, 0))
+                    self.inbox.append((recv_ns, frame, i))
+                else:
+                    self.inbox.append((recv_ns, frame, -1))
 
     def send(self, frames: list[Any]) -> None:
         for f in frames:
@@ -415,12 +418,12 @@ class PlantService:
         inbox = self.can.inbox
         last_apply = 0
         while inbox:
-            recv_ns, frame = inbox.popleft()
+            recv_ns, frame, index = inbox.popleft()
             if self.applied_path == 1:
                 apply_ns = max(recv_ns + self.injector.extra_ns(), last_apply)
                 last_apply = apply_ns
                 self._order += 1
-                self.pending.append(Pending(apply_ns, self._order, 1, frame, recv_ns))
+                self.pending.append(Pending(apply_ns, self._order, 1, (frame, index), recv_ns))
             else:
                 answers = self.can.pair.receive(frame)
                 if answers:
@@ -447,7 +450,7 @@ class PlantService:
         else:
             from protocol.can.codec import Cmd, split_id
 
-            frame = p.payload
+            frame, index = p.payload
             node, cmd = split_id(frame.arbitration_id)
             answers = self.can.pair.receive(frame)
             if answers:
@@ -457,7 +460,7 @@ class PlantService:
                 return
             t1, t2 = self.can.torques()
             self.core.hold(t1, t2)
-            self.hoplog.append("apply", (1, -1, node, p.recv_ns, apply_ns, t1, t2, 0))
+            self.hoplog.append("apply", (1, index, node, p.recv_ns, apply_ns, t1, t2, 0))
         self._last_cmd_recv_ns = p.recv_ns
         self.timed_out = False
 
@@ -718,7 +721,7 @@ def main_from_settings(settings_path: str) -> int:
                 def idle() -> None:
                     if can is not None:  # answer the lifecycle so the drives arm before t = 0
                         while can.inbox:
-                            _, frame = can.inbox.popleft()
+                            _, frame, _ = can.inbox.popleft()
                             answers = can.pair.receive(frame)
                             if answers:
                                 can.send(answers)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import datetime as dt
+import json
 import os
 import socket
 import sys
@@ -131,9 +132,13 @@ class Recorder:
             except Exception as exc:  # a recorder must never take the run down
                 self.writer.write("recorder/errors", t, {"topic": topic, "error": repr(exc)})
 
-    def close(self) -> None:
+    def close(self, attachments: dict[str, bytes] | None = None) -> None:
+        """Drain, attach files (the hop logs: the recording alone then reproduces every
+        figure), finish the MCAP."""
         self._stop.set()
         self._thread.join(timeout=30)
+        for name, data in (attachments or {}).items():
+            self.writer.add_attachment(name, data)
         self.writer.close()
 
 
@@ -305,6 +310,10 @@ def execute(opts: RunOptions) -> dict[str, Any]:
                     stdout=logs.open(name),
                     stderr=STDOUT,
                 )
+            # The children's PIDs, for whoever needs to signal one (tests inject stalls).
+            (run_dir / "processes.json").write_text(
+                json.dumps({c.name: c.pid for c in sup.children})
+            )
             # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest;
             # a child that dies is noticed at once anyway.
             ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
@@ -329,7 +338,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
                     can_rec[0].shutdown()
             if session is not None:
                 session.close()
-            recorder.close()
+            recorder.close(_attachments(run_dir))
     extra = {
         "interrupted": interrupted,
         "error": error,
@@ -353,6 +362,15 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         print(f"warning: plots not written: {exc}", file=sys.stderr)
     summary["run_dir"] = str(run_dir)
     return summary
+
+
+def _attachments(run_dir: Path) -> dict[str, bytes]:
+    """The files a recording carries so that it alone reproduces the run's figures."""
+    out: dict[str, bytes] = {}
+    for name in ("controller.hoplog", "plant.hoplog", "scenario.resolved.toml"):
+        with contextlib.suppress(OSError):
+            out[name] = (run_dir / name).read_bytes()
+    return out
 
 
 class _Logs:

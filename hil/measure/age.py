@@ -1,0 +1,130 @@
+"""Command age (age of information) at every plant step, computed exactly from the landings.
+
+A landing is (a_j, s_j): at a_j the plant started holding a command computed from the sample
+taken at s_j. Between a_j and the next landing a_(j+1) the age of the command in force at time
+t is t - s_j, a saw tooth. The plant steps on the grid g_i = g0 + i h (h the plant's step), so
+the age at every plant step is g_i - s_j for the landing in force. Its percentiles are computed
+by counting, per landing, the grid points whose age is at most v (an arithmetic progression)
+and bisecting on v: exact (every percentile is an age some step really had), in memory linear
+in the number of landings, whatever the run's length.
+
+D, the quantity of the sampled-data bound (DESIGN.md, docs/sampled_data_bound.md), is the
+largest age: max over j of a_(j+1) - s_j, the last step before each next landing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hil.measure.stats import PERCENTILES, empty_summary, summary_from_quantiles
+
+
+@dataclass(frozen=True)
+class AgeSegments:
+    """The landings in force over the window: [start, end) holding the sample ``sample``."""
+
+    start: np.ndarray  # ns, a_j
+    end: np.ndarray  # ns, a_(j+1) (or the window's end)
+    sample: np.ndarray  # ns, s_j
+
+    @property
+    def peak(self) -> np.ndarray:
+        """The largest age in each segment (at its end)."""
+        return self.end - self.sample
+
+    def __len__(self) -> int:
+        return int(self.start.size)
+
+
+def segments(land_ns: np.ndarray, sample_ns: np.ndarray, end_ns: int) -> AgeSegments:
+    """Segments from landings sorted by time; landings after ``end_ns`` are dropped."""
+    land = np.asarray(land_ns, dtype=np.int64)
+    samp = np.asarray(sample_ns, dtype=np.int64)
+    order = np.argsort(land, kind="stable")
+    land, samp = land[order], samp[order]
+    keep = land <= end_ns
+    land, samp = land[keep], samp[keep]
+    if land.size == 0:
+        e = np.zeros(0, np.int64)
+        return AgeSegments(e, e, e)
+    end = np.append(land[1:], np.int64(end_ns))
+    return AgeSegments(land, end, samp)
+
+
+def _grid_range(seg: AgeSegments, g0: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per segment, the grid indices [lo, hi) of the plant steps inside [start, end)."""
+    lo = -((g0 - seg.start) // h)  # ceil((start - g0) / h)
+    hi = -((g0 - seg.end) // h)
+    lo = np.maximum(lo, 0)
+    return lo, np.maximum(hi, lo)
+
+
+def _count_le(seg: AgeSegments, lo: np.ndarray, hi: np.ndarray, g0: int, h: int, v: int) -> int:
+    """Number of plant steps whose age is at most ``v``."""
+    top = (seg.sample + v - g0) // h  # the last grid index with age <= v, per segment
+    n = np.clip(top - lo + 1, 0, hi - lo)
+    return int(n.sum())
+
+
+def age_summary(seg: AgeSegments, g0: int, h: int) -> dict[str, Any]:
+    """count, p50/p90/p99/p999, max, mean (µs) of the age at every plant step g0 + i h."""
+    if len(seg) == 0 or h <= 0:
+        return empty_summary()
+    lo, hi = _grid_range(seg, g0, h)
+    n = hi - lo
+    total = int(n.sum())
+    if total == 0:
+        return empty_summary()
+    # Ages at the first and last step of each segment bound the search.
+    nonempty = n > 0
+    first_age = (g0 + lo * h - seg.sample)[nonempty]
+    last_age = (g0 + (hi - 1) * h - seg.sample)[nonempty]
+    # The plant also steps to each landing's instant (it integrates lazily to every event),
+    # so the largest age of all is the segment peak a_(j+1) - s_j: D itself.
+    amin, amax = int(first_age.min()), int(seg.peak.max())
+    # Mean: each segment's ages form an arithmetic progression.
+    mean = float(((first_age + last_age) / 2.0 * n[nonempty]).sum() / total)
+    quantiles: dict[str, int] = {}
+    for name, q in PERCENTILES:
+        need = max(1, int(np.ceil(q / 100.0 * total)))
+        a, b = amin, amax  # the answer lies in [a, b]: count(b) >= need
+        while a < b:
+            mid = (a + b) // 2
+            if _count_le(seg, lo, hi, g0, h, mid) >= need:
+                b = mid
+            else:
+                a = mid + 1
+        quantiles[name] = a
+    return summary_from_quantiles(total, quantiles, amax, mean)
+
+
+def max_age(seg: AgeSegments) -> int | None:
+    """D: the largest age over the window (ns), None without landings."""
+    return int(seg.peak.max()) if len(seg) else None
+
+
+def envelope(
+    seg: AgeSegments, t0: int, bins: int = 2000
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t in s from ``t0``, min age, max age) per time bin, in seconds: a plot of millions of
+    steps drawn from a few thousand points. The max of a bin is the largest segment peak (or
+    partial peak) inside it."""
+    if len(seg) == 0:
+        z = np.zeros(0)
+        return z, z, z
+    lo_t, hi_t = int(seg.start[0]), int(seg.end[-1])
+    edges = np.linspace(lo_t, hi_t, bins + 1)
+    t = (edges[:-1] + edges[1:]) / 2.0
+    # Age at the bin edges (piecewise linear between landings) and the peaks inside each bin.
+    idx = np.clip(np.searchsorted(seg.start, edges, side="right") - 1, 0, len(seg) - 1)
+    at_edges = edges - seg.sample[idx]
+    bmin = np.minimum(at_edges[:-1], at_edges[1:])
+    bmax = np.maximum(at_edges[:-1], at_edges[1:])
+    pk_bin = np.clip(np.searchsorted(edges, seg.end, side="right") - 1, 0, bins - 1)
+    np.maximum.at(bmax, pk_bin, seg.peak.astype(float))
+    st_bin = np.clip(np.searchsorted(edges, seg.start, side="right") - 1, 0, bins - 1)
+    np.minimum.at(bmin, st_bin, (seg.start - seg.sample).astype(float))
+    return (t - t0) / 1e9, bmin / 1e9, bmax / 1e9

@@ -1,0 +1,487 @@
+"""Every timing figure, message count and the certificate of a run, from its hop logs alone.
+
+This is the one implementation: ``summary.json``, the report, ``hil compare`` and latency
+replay (run folder or ``.mcap``) all read :func:`measure`'s result. The definitions (which
+clock, which two stamps) are in docs/realtime.md, "Timing figures"; in short, every stamp is
+``time.monotonic_ns()`` on one host, and every figure counts only the window in which both
+services ran: from the plant's first sample to its last.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hil.measure import age as agemod
+from hil.measure.logs import RunLogs
+from hil.measure.stats import summarize_ns
+from protocol.hoplog import SAMPLE_DROPPED, TICK_DROPPED, TICK_NO_SEND
+
+PATHS = ("zenoh", "can")
+STALL_LIMIT = 20  # stalls listed in the certificate, worst first
+
+
+@dataclass(frozen=True)
+class BoundInputs:
+    """What the sampled-data bound needs besides the measured D (from the resolved scenario)."""
+
+    params: Any
+    context: Any
+    boundary_layer: bool
+    v0: float = 0.0
+    w0: float = 0.0
+
+
+@dataclass
+class Measurement:
+    """The one result: the contract's ``timing``, ``messages`` and ``certificate`` objects, and
+    the per-sample series that plots and latency replay read."""
+
+    timing: dict[str, Any] = field(default_factory=dict)
+    messages: dict[str, Any] = field(default_factory=dict)
+    certificate: dict[str, Any] | None = None
+    series: dict[str, Any] = field(default_factory=dict)
+    window_ns: tuple[int, int] = (0, 0)
+
+    def latency_us(self) -> dict[str, np.ndarray]:
+        """Sample-to-apply latency per path in µs (applied: apply - sample, shadow: receive -
+        sample), one value per command: what histograms and replay use."""
+        return {
+            p: np.asarray(self.series[f"sample_to_apply_{p}"], dtype=float) / 1000.0
+            for p in PATHS
+            if len(self.series.get(f"sample_to_apply_{p}", ()))
+        }
+
+
+def _in(x: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    return (x >= lo) & (x <= hi)
+
+
+def _first_per_key(keys: np.ndarray, values: np.ndarray) -> dict[int, int]:
+    """key -> value of its first occurrence."""
+    out: dict[int, int] = {}
+    for k, v in zip(keys.tolist(), values.tolist(), strict=True):
+        out.setdefault(k, v)
+    return out
+
+
+def _stream_counts(sent_ids: np.ndarray, rx_ids: np.ndarray) -> dict[str, int]:
+    """sent, received (distinct ids that were sent), lost, duplicated, reordered: one definition
+    for every stream. Reordered: an arrival older than one that arrived before it."""
+    sent = np.unique(sent_ids)
+    mine = np.isin(rx_ids, sent)
+    rx = rx_ids[mine]
+    distinct = np.unique(rx)
+    reordered = 0
+    if rx.size > 1:
+        run_max = np.maximum.accumulate(rx)
+        first = np.zeros(rx.size, bool)
+        _, idx = np.unique(rx, return_index=True)
+        first[idx] = True
+        reordered = int(((rx[1:] < run_max[:-1]) & first[1:]).sum())
+    return {
+        "sent": int(sent.size),
+        "received": int(distinct.size),
+        "lost": int(sent.size - distinct.size),
+        "duplicated": int(rx.size - distinct.size),
+        "reordered": reordered,
+    }
+
+
+class _Run:
+    """The joins every figure needs, computed once."""
+
+    def __init__(self, logs: RunLogs) -> None:
+        self.logs = logs
+        cm, pm = logs.cmeta, logs.pmeta
+        self.epoch = logs.epoch_ns
+        self.period = int(cm.get("period_ns") or pm.get("control_period_ns") or 0)
+        self.ts = int(pm.get("control_period_ns") or self.period)
+        self.sensor_period = int(pm.get("sensor_period_ns") or self.period)
+        self.h = int(pm.get("plant_step_ns") or max(1, self.ts // 10))
+        self.applied = str(pm.get("cmd_path") or cm.get("cmd_path") or "zenoh")
+        self.lockstep = bool(pm.get("lockstep") or cm.get("lockstep"))
+        self.trigger = str(cm.get("trigger") or "periodic")
+        self.settle = 2 * self.ts + int(
+            1e9 * (float(pm.get("delay_s") or 0.0) + float(pm.get("jitter_s") or 0.0))
+        )
+        self.samples = logs["samples"]
+        self.ticks = logs["ticks"]
+        sn = self.samples["sample_ns"]
+        self.w0 = int(sn[0]) if sn.size else 0
+        self.w1 = int(sn[-1]) if sn.size else 0
+        # cmd_seq -> the sample it was computed from (the controller's own record).
+        t = self.ticks
+        sent = t["cmd_seq"] >= 0
+        self.cmd_sample = dict(
+            zip(t["cmd_seq"][sent].tolist(), t["state_sample_ns"][sent].tolist(), strict=True)
+        )
+        self.cmd_tick = {c: i for i, c in enumerate(t["cmd_seq"].tolist()) if c >= 0}
+        self._can = self._match_can()
+
+    # --- CAN: arrivals matched to sends in per-node order -------------------------------------
+    def _match_can(self) -> dict[str, np.ndarray]:
+        tx, rx = self.logs["can_tx"], self.logs["cmd_rx"]
+        is_can = rx["path"] == 1
+        node, idx, recv = rx["node"][is_can], rx["seq"][is_can], rx["recv_ns"][is_can]
+        send = np.zeros(node.size, np.int64)
+        cmd = np.full(node.size, -2, np.int64)  # -2: no matching send
+        for n in np.unique(np.concatenate([node, tx["node"]])).tolist():
+            mine = tx["node"] == n
+            tsend, tcmd = tx["send_ns"][mine], tx["cmd_seq"][mine]
+            rows = np.nonzero(node == n)[0]
+            ok = idx[rows] < tsend.size
+            send[rows[ok]] = tsend[idx[rows[ok]]]
+            cmd[rows[ok]] = tcmd[idx[rows[ok]]]
+        return {"node": node, "index": idx, "recv": recv, "send": send, "cmd": cmd}
+
+    def can_frame_of(self, node: np.ndarray, index: np.ndarray) -> np.ndarray:
+        """cmd_seq of CAN frames given as (node, per-node index)."""
+        tx = self.logs["can_tx"]
+        out = np.full(node.size, -2, np.int64)
+        for n in np.unique(node).tolist():
+            mine = tx["cmd_seq"][tx["node"] == n]
+            rows = np.nonzero(node == n)[0]
+            ok = (index[rows] >= 0) & (index[rows] < mine.size)
+            out[rows[ok]] = mine[index[rows[ok]]]
+        return out
+
+    # --- landings: (time, sample) of each command put in force, per path -----------------------
+    def landings(self, path: str, applied: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(land_ns, sample_ns, cmd_seq) per command put in force, newest wins; for a shadow
+        path the arrival stands for the landing (what would have been applied)."""
+        if applied:
+            ap = self.logs["apply"]
+            ok = ap["outcome"] == 0
+            if path == "zenoh":
+                m = ok & (ap["path"] == 0)
+                cmd, land = ap["seq"][m], ap["apply_ns"][m]
+            else:
+                m = ok & (ap["path"] == 1)
+                cmd = self.can_frame_of(ap["node"][m], ap["seq"][m])
+                land = ap["apply_ns"][m]
+                return self._can_commands(ap["node"][m], land, cmd)
+        elif path == "zenoh":
+            rx = self.logs["cmd_rx"]
+            m = rx["path"] == 0
+            cmd, land = rx["seq"][m], rx["recv_ns"][m]
+        else:
+            c = self._can
+            return self._can_commands(c["node"], c["recv"], c["cmd"])
+        return self._newest_wins(land, cmd)
+
+    def _sample_of(self, cmd: np.ndarray) -> np.ndarray:
+        return np.fromiter((self.cmd_sample.get(c, 0) for c in cmd.tolist()), np.int64, cmd.size)
+
+    def _newest_wins(self, land: np.ndarray, cmd: np.ndarray):
+        order = np.argsort(land, kind="stable")
+        land, cmd = land[order], cmd[order]
+        samp = self._sample_of(cmd)
+        keep = samp > 0
+        land, cmd, samp = land[keep], cmd[keep], samp[keep]
+        if cmd.size:
+            newer = np.concatenate([[True], cmd[1:] > np.maximum.accumulate(cmd)[:-1]])
+            land, cmd, samp = land[newer], cmd[newer], samp[newer]
+        return land, samp, cmd
+
+    def _can_commands(self, node: np.ndarray, land: np.ndarray, cmd: np.ndarray):
+        """A CAN command is in force once both wheels' frames of it (or newer) have landed: the
+        sample in force is the older of the two wheels' (a conservative age)."""
+        keep = cmd >= 0  # lifecycle zeros (-1) and unmatched frames (-2) are not commands
+        node, land, cmd = node[keep], land[keep], cmd[keep]
+        nodes = np.unique(node)
+        if nodes.size == 0:
+            z = np.zeros(0, np.int64)
+            return z, z, z
+        order = np.argsort(land, kind="stable")
+        node, land, cmd = node[order], land[order], cmd[order]
+        eff = np.full(land.size, np.iinfo(np.int64).max)
+        for n in nodes.tolist():
+            mine = node == n
+            last = np.where(mine, cmd, -1)
+            last = np.maximum.accumulate(last)  # the newest command of node n landed so far
+            eff = np.minimum(eff, last)
+        valid = eff >= 0
+        land, eff = land[valid], eff[valid]
+        if eff.size == 0:
+            z = np.zeros(0, np.int64)
+            return z, z, z
+        change = np.concatenate([[True], eff[1:] != eff[:-1]])
+        land, eff = land[change], eff[change]
+        return land, self._sample_of(eff), eff
+
+
+def measure(logs: RunLogs, bound: BoundInputs | None = None) -> Measurement:
+    """The run's figures (see the module docstring and docs/realtime.md)."""
+    r = _Run(logs)
+    out = Measurement(window_ns=(r.w0, r.w1))
+    if r.samples["sample_ns"].size == 0:
+        out.timing = {"units": "us", "note": "no plant samples: the plant never ran"}
+        return out
+    timing: dict[str, Any] = {"units": "us", "window_s": (r.w1 - r.w0) / 1e9}
+    _wakeups(r, timing, out.series)
+    _hops(r, timing)
+    _paths(r, timing, out.series)
+    out.messages = _messages(r)
+    if bound is not None:
+        out.certificate = _certificate(r, bound, out.series)
+    out.timing = timing
+    return out
+
+
+def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
+    t = r.ticks
+    win = _in(t["deadline_ns"], r.w0, r.w1) if t["deadline_ns"].size else np.zeros(0, bool)
+    if r.trigger == "periodic" and not r.lockstep and win.any():
+        late = t["wake_ns"][win] - t["deadline_ns"][win]
+        timing["wakeup_lateness"] = summarize_ns(late)
+        misses = int((late >= r.period).sum())
+        timing["deadline_misses"] = misses
+        timing["skipped_slots"] = int(t["skipped"][win].sum())
+        timing["ticks"] = int(win.sum())
+        timing["deadline_miss_rate"] = misses / int(win.sum())
+        k, wake = t["k"][win], t["wake_ns"][win]
+        timing["period_jitter"] = summarize_ns(np.abs(np.diff(wake) - np.diff(k) * r.period))
+        series["wakeup_lateness"] = ((t["deadline_ns"][win] - r.epoch) / 1e9, late)
+    else:
+        timing["deadline_misses"] = 0
+        timing["skipped_slots"] = 0
+        timing["deadline_miss_rate"] = 0.0
+    s = r.samples
+    if not r.lockstep and s["wake_ns"].size:
+        plate = s["wake_ns"] - s["sample_ns"]
+        timing["plant_wakeup_lateness"] = summarize_ns(plate)
+        timing["plant_deadline_misses"] = int((plate >= r.sensor_period).sum())
+        gaps = np.diff(s["sample_ns"]) // max(1, r.sensor_period) - 1
+        timing["plant_skipped_slots"] = int(np.clip(gaps, 0, None).sum())
+        series["plant_wakeup_lateness"] = ((s["sample_ns"] - r.epoch) / 1e9, plate)
+    timing["plant_sample_to_send"] = summarize_ns(s["send_ns"] - s["sample_ns"])
+
+
+def _hops(r: _Run, timing: dict[str, Any]) -> None:
+    t = r.ticks
+    fresh = (t["state_seq"] >= 0) & ((t["flags"] & TICK_NO_SEND) == 0) & (t["state_recv_ns"] > 0)
+    fresh &= _in(t["state_sample_ns"], r.w0, r.w1)
+    timing["compute"] = summarize_ns(t["compute_end_ns"][fresh] - t["compute_start_ns"][fresh])
+    timing["hop_state"] = summarize_ns(t["state_recv_ns"][fresh] - t["state_send_ns"][fresh])
+    timing["wait_for_tick"] = summarize_ns(t["compute_start_ns"][fresh] - t["state_recv_ns"][fresh])
+    rx = r.logs["cmd_rx"]
+    z = rx["path"] == 0
+    first_rx = _first_per_key(rx["seq"][z], rx["recv_ns"][z])
+    send = dict(zip(t["cmd_seq"].tolist(), t["zenoh_send_ns"].tolist(), strict=True))
+    hop, loop, e2e = [], [], []
+    state_send = dict(zip(r.samples["seq"].tolist(), r.samples["send_ns"].tolist(), strict=True))
+    for seq, recv in first_rx.items():
+        i = r.cmd_tick.get(seq)
+        if i is None or send.get(seq, 0) <= 0 or not (r.w0 <= t["state_sample_ns"][i] <= r.w1):
+            continue
+        hop.append(recv - send[seq])
+        if fresh[i]:
+            loop.append(
+                (t["state_recv_ns"][i] - t["state_send_ns"][i])
+                + (t["compute_end_ns"][i] - t["compute_start_ns"][i])
+                + (recv - send[seq])
+            )
+        ss = state_send.get(int(t["state_seq"][i]))
+        if ss is not None:
+            e2e.append(recv - ss)
+    timing["hop_cmd_zenoh"] = summarize_ns(hop)
+    timing["loop_transport_compute"] = summarize_ns(loop)
+    timing["state_send_to_cmd_recv"] = summarize_ns(e2e)
+    c = r._can
+    ok = (c["cmd"] >= 0) & (c["send"] > 0) & _in(c["send"], r.w0, r.w1)
+    timing["hop_cmd_can"] = summarize_ns(c["recv"][ok] - c["send"][ok])
+
+
+def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
+    judged_until = r.w1 - r.settle
+    s = r.samples
+    judged = s["sample_ns"] <= judged_until
+    n_judged = int(judged.sum())
+    for path in PATHS:
+        applied = path == r.applied
+        land, samp, _cmd = r.landings(path, applied)
+        if land.size == 0 and not applied:
+            continue
+        inwin = _in(samp, r.w0, r.w1)
+        lat = land[inwin] - samp[inwin]
+        timing[f"sample_to_apply_{path}"] = summarize_ns(lat)
+        series[f"sample_to_apply_{path}"] = lat
+        seg = agemod.segments(land, samp, r.w1)
+        timing[f"command_age_{path}"] = agemod.age_summary(seg, r.w0, r.h)
+        series[f"command_age_{path}"] = seg
+        if not applied:
+            continue
+        timing["startup_hold_s"] = (int(land[0]) - r.w0) / 1e9 if land.size else None
+        landed = np.unique(samp)
+        without = judged & ~np.isin(s["sample_ns"], landed)
+        timing["samples_without_command"] = int(without.sum())
+        timing["samples_judged"] = n_judged
+        timing["samples_without_command_rate"] = int(without.sum()) / n_judged if n_judged else 0.0
+        late = (lat > r.ts) & (samp[inwin] <= judged_until)
+        timing["late_commands"] = int(late.sum())
+        timing["late_commands_rate"] = int(late.sum()) / n_judged if n_judged else 0.0
+        timing["sample_gap"] = summarize_ns(np.diff(landed[_in(landed, r.w0, r.w1)]))
+        series["applied_path"] = path
+
+
+def _messages(r: _Run) -> dict[str, Any]:
+    s, t = r.samples, r.ticks
+    srx = r.logs["state_rx"]
+    state = _stream_counts(s["seq"], srx["seq"])
+    state["injected_drops"] = int(((s["flags"] & SAMPLE_DROPPED) != 0).sum())
+    out: dict[str, Any] = {"state": state}
+    zsent = (t["zenoh_send_ns"] > 0) & (t["cmd_seq"] >= 0)
+    inwin = zsent & _in(t["zenoh_send_ns"], r.w0, r.w1)
+    rx = r.logs["cmd_rx"]
+    z = _stream_counts(t["cmd_seq"][inwin], rx["seq"][rx["path"] == 0])
+    z["injected_drops"] = int(((t["flags"][inwin] & TICK_DROPPED) != 0).sum())
+    z["sent_after_window"] = int((zsent & (t["zenoh_send_ns"] > r.w1)).sum())
+    out["torque_zenoh"] = z
+    tx = r.logs["can_tx"]
+    if tx["node"].size or (rx["path"] == 1).any():
+        c = r._can
+        cmd_frames = (tx["cmd_seq"] >= 0) & _in(tx["send_ns"], r.w0, r.w1)
+        sent_cmds = np.unique(tx["cmd_seq"][cmd_frames])
+        got = c["cmd"][c["cmd"] >= 0]
+        nodes = max(1, np.unique(tx["node"]).size)
+        ids, counts = np.unique(got, return_counts=True)
+        whole = ids[counts >= nodes]
+        received = int(np.isin(sent_cmds, whole).sum())
+        frames_sent = int(cmd_frames.sum())
+        sent_ids = np.nonzero(cmd_frames)[0]
+        frames_rx = 0
+        if sent_ids.size:
+            keys = set(
+                zip(
+                    tx["node"][cmd_frames].tolist(),
+                    _per_node_index(tx)[cmd_frames].tolist(),
+                    strict=True,
+                )
+            )
+            frames_rx = sum(
+                1 for k in zip(c["node"].tolist(), c["index"].tolist(), strict=True) if k in keys
+            )
+        out["torque_can"] = {
+            "sent": int(sent_cmds.size),
+            "received": received,
+            "lost": int(sent_cmds.size - received),
+            "duplicated": 0,
+            "reordered": 0,
+            "frames_sent": frames_sent,
+            "frames_received": int(frames_rx),
+            "frames_lost": int(frames_sent - frames_rx),
+            "lifecycle_frames_sent": int((tx["cmd_seq"] < 0).sum()),
+            "unmatched_frames_received": int((c["cmd"] == -2).sum()),
+            "sent_after_window": int(
+                np.unique(tx["cmd_seq"][(tx["cmd_seq"] >= 0) & (tx["send_ns"] > r.w1)]).size
+            ),
+        }
+    return out
+
+
+def _per_node_index(tx: dict[str, np.ndarray]) -> np.ndarray:
+    """Each can_tx row's index among its node's rows (the i of the plant's cmd_rx)."""
+    idx = np.zeros(tx["node"].size, np.int64)
+    for n in np.unique(tx["node"]).tolist():
+        rows = np.nonzero(tx["node"] == n)[0]
+        idx[rows] = np.arange(rows.size)
+    return idx
+
+
+def _certificate(r: _Run, b: BoundInputs, series: dict[str, Any]) -> dict[str, Any]:
+    from controller_service.certificate import certify, critical_age
+
+    seg: agemod.AgeSegments = series.get(f"command_age_{r.applied}") or agemod.segments(
+        np.zeros(0, np.int64), np.zeros(0, np.int64), r.w1
+    )
+    d_max_ns = agemod.max_age(seg)
+    d_star = critical_age(b.params, b.context, b.boundary_layer, v0=b.v0, w0=b.w0)
+    d_max = d_max_ns / 1e9 if d_max_ns is not None else None
+    cert = None
+    if d_max is not None:
+        cert = certify(b.params, b.context, d_max, 0.0, b.boundary_layer, v0=b.v0, w0=b.w0)
+    threshold_ns = int(max(3 * r.ts, 0.5 * d_star * 1e9))
+    stalls = find_stalls(r, seg, threshold_ns)
+    held = bool(cert is not None and cert.held and d_max is not None and d_max <= d_star)
+    return {
+        "path": r.applied,
+        "d_max_s": d_max,
+        "d_star_s": d_star,
+        "margin_s": (d_star - d_max) if d_max is not None else None,
+        "held": held,
+        "v_bound": float(cert.v_bound) if cert is not None else None,
+        "omega_bound": float(cert.w_bound) if cert is not None else None,
+        "stall_threshold_s": threshold_ns / 1e9,
+        "stalls": stalls,
+    }
+
+
+def find_stalls(r: _Run, seg: agemod.AgeSegments, threshold_ns: int) -> list[dict[str, Any]]:
+    """Excursions of the applied path's command age above ``threshold_ns``, worst first, each
+    with the cause found by joining the logs over [sample in force, next landing]."""
+    found: list[dict[str, Any]] = []
+    if len(seg) and int(seg.start[0]) - r.w0 > threshold_ns:
+        found.append(
+            {
+                "t_s": 0.0,
+                "age_s": (int(seg.start[0]) - r.w0) / 1e9,
+                "cause": "startup",
+            }
+        )
+    peaks = seg.peak
+    for j in np.nonzero(peaks > threshold_ns)[0].tolist():
+        s0, e = int(seg.sample[j]), int(seg.end[j])
+        cause, evidence = _cause(r, s0, e)
+        found.append(
+            {
+                "t_s": (s0 + threshold_ns - r.epoch) / 1e9,
+                "age_s": int(peaks[j]) / 1e9,
+                "cause": cause,
+                "evidence": evidence,
+            }
+        )
+    found.sort(key=lambda st: -st["age_s"])
+    return found[:STALL_LIMIT]
+
+
+def _cause(r: _Run, lo: int, hi: int) -> tuple[str, dict[str, Any]]:
+    t, s = r.ticks, r.samples
+    scores: dict[str, float] = {}
+    ev: dict[str, Any] = {}
+    if r.trigger == "periodic" and t["wake_ns"].size:
+        m = _in(t["wake_ns"], lo, hi)
+        if m.any():
+            worst = int((t["wake_ns"][m] - t["deadline_ns"][m]).max())
+            ev["controller_lateness_s"] = worst / 1e9
+            if worst >= r.period:
+                scores["controller_late"] = worst
+    m = _in(s["wake_ns"], lo, hi) if not r.lockstep else np.zeros(0, bool)
+    if m.any():
+        worst = int((s["wake_ns"][m] - s["sample_ns"][m]).max())
+        ev["plant_lateness_s"] = worst / 1e9
+        if worst >= r.sensor_period:
+            scores["plant_late"] = worst
+    m = _in(s["sample_ns"], lo, hi)
+    lost = m & ~np.isin(s["seq"], r.logs["state_rx"]["seq"])
+    if lost.any():
+        ev["states_lost"] = int(lost.sum())
+        ev["states_dropped_by_faults"] = int(((s["flags"][lost] & SAMPLE_DROPPED) != 0).sum())
+        scores["state_lost"] = int(lost.sum()) * r.sensor_period
+    rx = r.logs["cmd_rx"]
+    if r.applied == "zenoh":
+        sent = (t["zenoh_send_ns"] > 0) & _in(t["zenoh_send_ns"], lo, hi)
+        lost_c = sent & ~np.isin(t["cmd_seq"], rx["seq"][rx["path"] == 0])
+    else:
+        sent = (t["can_send_ns"] > 0) & _in(t["can_send_ns"], lo, hi)
+        got = r._can["cmd"]
+        lost_c = sent & ~np.isin(t["cmd_seq"], got[got >= 0])
+    if lost_c.any():
+        ev["commands_lost"] = int(lost_c.sum())
+        ev["commands_dropped_by_faults"] = int(((t["flags"][lost_c] & TICK_DROPPED) != 0).sum())
+        scores["command_lost"] = int(lost_c.sum()) * r.period
+    if not scores:
+        return "unknown", ev
+    return max(scores, key=lambda k: scores[k]), ev

@@ -1,0 +1,54 @@
+"""Exact percentile summaries of durations (nanoseconds in, microseconds out).
+
+Every percentile is one of the measured values (numpy's ``inverted_cdf``: the smallest value
+with at least q of the samples at or below it), so no percentile can exceed the maximum and
+nothing is rounded to a histogram bucket.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+PERCENTILES = (("p50_us", 50.0), ("p90_us", 90.0), ("p99_us", 99.0), ("p999_us", 99.9))
+
+
+def empty_summary() -> dict[str, Any]:
+    out: dict[str, Any] = {"count": 0}
+    for name, _ in PERCENTILES:
+        out[name] = None
+    out["max_us"] = None
+    out["mean_us"] = None
+    return out
+
+
+def summarize_ns(values_ns: Any) -> dict[str, Any]:
+    """count, p50/p90/p99/p999/max/mean in microseconds of durations given in nanoseconds."""
+    v = np.asarray(values_ns, dtype=np.int64).ravel() if len(values_ns) else np.zeros(0, np.int64)
+    if v.size == 0:
+        return empty_summary()
+    out: dict[str, Any] = {"count": int(v.size)}
+    qs = np.percentile(v, [q for _, q in PERCENTILES], method="inverted_cdf")
+    for (name, _), q in zip(PERCENTILES, qs, strict=True):
+        out[name] = int(q) / 1000.0
+    out["max_us"] = int(v.max()) / 1000.0
+    out["mean_us"] = float(v.mean()) / 1000.0
+    neg = int((v < 0).sum())
+    if neg:
+        out["negative"] = neg
+    return out
+
+
+def summary_from_quantiles(
+    count: int, quantile_ns: dict[str, int], max_ns: int, mean_ns: float
+) -> dict[str, Any]:
+    """The same object from percentiles computed elsewhere (the command age's exact counts)."""
+    if count == 0:
+        return empty_summary()
+    out: dict[str, Any] = {"count": int(count)}
+    for name, _ in PERCENTILES:
+        out[name] = int(quantile_ns[name]) / 1000.0
+    out["max_us"] = int(max_ns) / 1000.0
+    out["mean_us"] = float(mean_ns) / 1000.0
+    return out
