@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
-import signal
 import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
+from hil import interrupts
 from hil.errors import BadInputError, NegativeVerdictError
 
 DEFAULT_MAX_DURATION = 20.0
@@ -137,11 +137,8 @@ def register(app: typer.Typer) -> None:
             "provenance": resolved.get("provenance", {}),
         }
         # A second Ctrl-C while the results are written would leave them half-written.
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-        try:
+        with interrupts.shielded():
             doc = write_outputs(target, outcome.rows, grid, meta)
-        finally:
-            signal.signal(signal.SIGINT, previous)
         first = doc["break_point"].get("first")
         typer.echo(f"sweep: {target / 'sweep.md'}")
         typer.echo(
@@ -150,9 +147,8 @@ def register(app: typer.Typer) -> None:
             else f"break point: Ts={first['ts']:g} s, delay={first['delay']:g} s"
         )
         if outcome.interrupted:
-            # hil.cli maps KeyboardInterrupt to 130, but click turns it into Abort (exit 0)
-            # inside a command: exit with the conventional code directly.
-            typer.echo("interrupted: partial results kept", err=True)
-            raise SystemExit(130)
+            # hil.cli exits 130: the interrupt was recorded by hil.interrupts.
+            interrupts.note(f"partial results kept in {target}")
+            return
         if strict and first is not None:
             raise NegativeVerdictError("a limit of (2) broke inside the grid")

@@ -15,6 +15,7 @@ import collections
 import contextlib
 import datetime as dt
 import os
+import signal
 import socket
 import sys
 import threading
@@ -24,6 +25,7 @@ from pathlib import Path
 from subprocess import STDOUT
 from typing import Any
 
+from hil import interrupts
 from hil.errors import BadInputError
 from hil.recording import RecordingWriter
 from hil.run.settings import RunSettings
@@ -318,6 +320,8 @@ def execute(opts: RunOptions) -> dict[str, Any]:
                 error = "services did not become ready"
             interrupted = bool(stop)
         finally:
+            if stop:  # hil.cli then exits 130 once the folder is written
+                interrupts.record(stop.signal or signal.SIGINT)
             codes = _stop_children(sup, settings)
             logs.close()
             if sub is not None:
@@ -337,19 +341,21 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         "recording": "recording.mcap",
         "recorded_messages": writer.count,
     }
-    summary = analyze(
-        run_dir,
-        scenario,
-        settings,
-        info["reference"],
-        info["context"],
-        info["controller_params"],
-        extra,
-    )
-    try:
-        plot(run_dir)
-    except Exception as exc:
-        print(f"warning: plots not written: {exc}", file=sys.stderr)
+    # A second Ctrl-C while the folder is written is recorded, not raised (hil.interrupts).
+    with interrupts.shielded():
+        summary = analyze(
+            run_dir,
+            scenario,
+            settings,
+            info["reference"],
+            info["context"],
+            info["controller_params"],
+            extra,
+        )
+        try:
+            plot(run_dir)
+        except Exception as exc:
+            print(f"warning: plots not written: {exc}", file=sys.stderr)
     summary["run_dir"] = str(run_dir)
     return summary
 
