@@ -17,7 +17,10 @@ def register(app: typer.Typer) -> None:
     def run(
         scenario: Annotated[
             Path | None,
-            typer.Argument(help="Scenario TOML (default: the paper's tracking circle, 10 s)."),
+            typer.Argument(
+                help="Scenario TOML or a bundled scenario's name (hil scenarios); default: the "
+                "paper's tracking circle, 10 s."
+            ),
         ] = None,
         duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
         rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,

@@ -42,7 +42,11 @@ def register(app: typer.Typer) -> None:
     @app.command("sweep", help=SWEEP_HELP)
     def sweep(
         scenario_file: Annotated[
-            Path, typer.Argument(help="Scenario TOML (its \\[sweep] table gives the grids).")
+            Path,
+            typer.Argument(
+                help="Scenario TOML or a bundled scenario's name (hil scenarios); its \\[sweep] "
+                "table gives the grids."
+            ),
         ],
         out: Annotated[
             Path | None,
@@ -63,13 +67,14 @@ def register(app: typer.Typer) -> None:
         """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
         from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+        from hil.bundled import resolve_scenario
         from hil.scenario import load_scenario
         from hil.sweep.grid import make_grid
         from hil.sweep.outputs import write_csv, write_outputs
         from hil.sweep.replay import is_run_source, write_latency_file
         from hil.sweep.runner import certified_break, run_sweep
 
-        scenario = load_scenario(scenario_file)
+        scenario = load_scenario(resolve_scenario(scenario_file))
         sw = scenario.sweep
         try:
             grid = make_grid(

@@ -1,6 +1,7 @@
 """``hil paper``: the paper's Section 4 reproduced offline (Figures 2-20 and a table).
 
-Runs (scenario files under ``scenarios/``, initial conditions stated there):
+Runs (the bundled scenarios ``hil/scenarios/paper_*.toml``, see ``hil scenarios``; initial
+conditions stated there):
 
 - tracking (Figures 2-6), stabilization (7-11), chattering reduction (19) (12-14);
 - the comparison with [7] on the tracking run (15-17);
@@ -24,12 +25,12 @@ from typing import Any
 
 import numpy as np
 
+from hil.bundled import bundled_dir
 from hil.provenance import dumps_toml
 from hil.scenario import load_scenario
 from hil.sim import SimResult, simulate
 from hil.sim.folder import write_json, write_run_folder
 
-SCENARIO_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 QUICK_FACTOR = 5.0
 JOLT_WINDOW = 0.5
 JOLT_SPAN = 5.0
@@ -307,14 +308,15 @@ def run_paper(
     quick: bool = False,
     jobs: int | None = None,
     traces: bool = False,
-    scenario_dir: Path = SCENARIO_DIR,
+    scenario_dir: Path | None = None,
     log: Callable[[str], None] = lambda _msg: None,
 ) -> dict[str, Any]:
     """Run every paper scenario, write figures, table.md, table.json; return the table."""
     out.mkdir(parents=True, exist_ok=True)
     scale = QUICK_FACTOR if quick else 1.0
     jobs = jobs or min(2, os.cpu_count() or 1)
-    paths = [str(scenario_dir / r.scenario) for r in RUNS]
+    folder = bundled_dir() if scenario_dir is None else scenario_dir
+    paths = [str(folder / r.scenario) for r in RUNS]
     for p in paths:
         load_scenario(p)  # bad files fail before any work starts
     results: dict[str, SimResult] = {}

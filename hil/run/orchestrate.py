@@ -159,6 +159,7 @@ def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any] 
 
 def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     """Resolve the scenario and the run's settings; write the folder's first files."""
+    from hil.bundled import resolve_scenario
     from hil.provenance import dumps_toml
     from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
     from hil.run.wiring import effective_can_table, robot_id_of
@@ -175,8 +176,9 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         scenario_path = src
         default_duration = DEFAULT_DURATION
     else:
-        scenario = load_scenario(opts.scenario)
-        scenario_path = Path(opts.scenario).resolve()
+        given = resolve_scenario(opts.scenario)
+        scenario = load_scenario(given)
+        scenario_path = given.resolve()
         default_duration = scenario.run.duration
     rt = scenario.realtime
     rate = opts.rate or rt.rate or 1.0 / scenario.timing.ts
