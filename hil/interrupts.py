@@ -85,22 +85,23 @@ def shielded() -> Iterator[None]:
 
 @contextlib.contextmanager
 def installed() -> Iterator[None]:
-    """Clear the record and install :func:`handler` for SIGINT; restore the old one after.
+    """Install :func:`handler` for SIGINT with a clear record; restore both on leaving.
 
     A SIGINT that is ignored (a job started with ``nohup`` or ``&`` by a non-interactive
     shell) stays ignored; off the main thread (where signals cannot be handled) nothing is
     installed and a KeyboardInterrupt is still mapped by ``main``.
     """
     reset()
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.getsignal(signal.SIGINT)
-    if previous == signal.SIG_IGN:
-        yield
-        return
-    signal.signal(signal.SIGINT, handler)
+    previous = None
+    ours = False
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.getsignal(signal.SIGINT)
+        if previous != signal.SIG_IGN:
+            signal.signal(signal.SIGINT, handler)
+            ours = True
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous if previous is not None else signal.SIG_DFL)
+        if ours:  # None: a handler not set from Python; the default is the closest
+            signal.signal(signal.SIGINT, signal.SIG_DFL if previous is None else previous)
+        reset()
