@@ -167,16 +167,16 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
 
     if opts.cmd_path not in ("zenoh", "can"):
         raise BadInputError(f"--cmd-path must be zenoh or can, got {opts.cmd_path!r}")
+    given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     run_dir = Path(opts.out) if opts.out else new_run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)
-    if opts.scenario is None:
+    if given is None:
         src = run_dir / "scenario.toml"
         src.write_text(PAPER_TRACKING_TOML)
         scenario = loads_scenario(PAPER_TRACKING_TOML, run_dir)
         scenario_path = src
         default_duration = DEFAULT_DURATION
     else:
-        given = resolve_scenario(opts.scenario)
         scenario = load_scenario(given)
         scenario_path = given.resolve()
         default_duration = scenario.run.duration
