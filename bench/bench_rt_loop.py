@@ -40,7 +40,7 @@ trigger = "{trigger}"
 def run_loop(rate: float, duration: float, trigger: str, tmp: Path) -> dict[str, Any]:
     scen = tmp / f"scen-{trigger}.toml"
     scen.write_text(
-        (ROOT / "scenarios" / "paper_tracking.toml").read_text()
+        (ROOT / "hil" / "scenarios" / "paper_tracking.toml").read_text()
         + FIFO_SCENARIO.format(trigger=trigger)
     )
     out = tmp / f"run-{rate:g}-{trigger}"

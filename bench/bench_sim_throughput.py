@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 from hil.scenario import build_loop, load_scenario  # noqa: E402
 from hil.sim import simulate, simulate_batch  # noqa: E402
 
-SCENARIO = ROOT / "scenarios" / "paper_tracking.toml"
+SCENARIO = ROOT / "hil" / "scenarios" / "paper_tracking.toml"
 
 
 def _rate(fn, robots: int, periods: int, repeats: int) -> dict[str, float]:  # type: ignore[no-untyped-def]

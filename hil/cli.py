@@ -2,7 +2,10 @@
 
 Each module in :mod:`hil.commands` defines ``register(app: typer.Typer) -> None``; modules are
 discovered, so adding a command never edits this file. Exit codes follow the contract:
-0 success, 1 negative verdict (a limit broken, a certificate not held), 2 bad usage or input.
+0 success, 1 negative verdict (a limit broken, a certificate not held), 2 bad usage or input,
+130 interrupted (Ctrl-C; what was done is kept). The interrupt is recorded by the project's own
+SIGINT handler (:mod:`hil.interrupts`), so the exit code does not depend on what the CLI library
+does with a KeyboardInterrupt.
 """
 
 from __future__ import annotations
@@ -11,9 +14,9 @@ import importlib
 import pkgutil
 import sys
 
-import click
 import typer
 
+from hil import interrupts
 from hil.errors import BadInputError, NegativeVerdictError
 
 app = typer.Typer(
@@ -50,23 +53,43 @@ _register_commands()
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``hil`` script; maps project errors to the contract's exit codes."""
+    with interrupts.installed():
+        try:
+            code = _dispatch(argv)
+        except BaseException:
+            if not interrupts.happened():
+                raise
+            code = 130
+        if interrupts.happened():
+            typer.echo(interrupts.message(), err=True)
+            return 130
+        return code
+
+
+def _dispatch(argv: list[str] | None) -> int:
+    """The command's exit code. After an interrupt any outcome means 130 (see :func:`main`),
+    so nothing is printed for it here."""
     try:
         returned = app(args=argv, standalone_mode=False)
-    except click.exceptions.Abort:  # Ctrl-C inside a prompt or a progress bar
-        typer.echo("interrupted", err=True)
+    except KeyboardInterrupt:  # not through hil.interrupts' handler: the same meaning
+        interrupts.record()
         return 130
     except BadInputError as exc:
-        typer.echo(f"error: {exc}", err=True)
+        if not interrupts.happened():
+            typer.echo(f"error: {exc}", err=True)
         return 2
     except NegativeVerdictError as exc:
-        typer.echo(f"verdict: {exc}", err=True)
+        if not interrupts.happened():
+            typer.echo(f"verdict: {exc}", err=True)
         return 1
-    except KeyboardInterrupt:
-        typer.echo("interrupted", err=True)
-        return 130
-    except SystemExit as exc:  # typer/click exits (e.g. --help) pass through with their code
+    except SystemExit as exc:  # exits of the CLI library (e.g. --help) keep their code
+        if isinstance(exc.code, str):
+            typer.echo(exc.code, err=True)
+            return 1
         return int(exc.code or 0)
-    except Exception as exc:  # click usage errors carry exit_code 2
+    except Exception as exc:  # usage errors of the CLI library carry exit_code 2
+        if interrupts.happened():  # whatever the library wrapped the KeyboardInterrupt in
+            return 130
         code = getattr(exc, "exit_code", None)
         if code is not None:
             show = getattr(exc, "show", None)
@@ -74,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
                 show()
             return int(code)
         raise
-    # With standalone_mode off click returns typer.Exit codes instead of raising them.
+    # With standalone_mode off the CLI library returns typer.Exit codes instead of raising them.
     return returned if isinstance(returned, int) else 0
 
 

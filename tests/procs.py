@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from typing import IO
 
 
 def free_tcp_port() -> int:
@@ -74,3 +77,26 @@ def wait_until(predicate, timeout: float, interval: float = 0.02) -> bool:
             return True
         time.sleep(interval)
     return bool(predicate())
+
+
+class Lines:
+    """The lines of a child's output stream, read by a thread: a test can wait for a line
+    with :func:`wait_until` without ever blocking on the pipe, and the pipe never fills."""
+
+    def __init__(self, stream: IO) -> None:
+        self.lines: list[str] = []
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream: IO) -> None:
+        with contextlib.suppress(ValueError, OSError):  # the pipe closed under us
+            for line in stream:
+                self.lines.append(line if isinstance(line, str) else line.decode(errors="replace"))
+
+    def seen(self, text: str) -> bool:
+        return any(text in line for line in list(self.lines))
+
+    def text(self, join_timeout: float = 0.0) -> str:
+        """Everything read so far (after waiting up to ``join_timeout`` for the stream's end)."""
+        self._thread.join(join_timeout)
+        return "".join(self.lines)

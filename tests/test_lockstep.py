@@ -5,11 +5,11 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from hil.bundled import bundled_path
 from hil.scenario import load_scenario
 from hil.sim.core import simulate
 
@@ -33,13 +33,14 @@ def test_lockstep_over_zenoh_equals_offline_simulator(tmp_path):
     duration = 0.6
     summary = _run(
         tmp_path,
-        "scenarios/paper_tracking.toml",
+        "paper_tracking",  # a bundled scenario, by name
         "--lockstep",
         "--no-can",
         "--duration",
         str(duration),
     )
-    sim = simulate(load_scenario("scenarios/paper_tracking.toml").with_overrides(duration=duration))
+    sc = load_scenario(bundled_path("paper_tracking"))
+    sim = simulate(sc.with_overrides(duration=duration))
     run = np.genfromtxt(tmp_path / "run" / "trace.csv", delimiter=",", names=True)
     assert len(run) == sim.trace.shape[0] == 600
     for name in COLUMNS:
@@ -56,7 +57,7 @@ def test_lockstep_over_zenoh_equals_offline_simulator(tmp_path):
 def test_lockstep_with_delay_and_jitter_equals_simulator(tmp_path):
     scen = tmp_path / "delayed.toml"
     text = (
-        Path("scenarios/paper_tracking.toml")
+        bundled_path("paper_tracking")
         .read_text()
         .replace(
             "[timing]\nts = 0.001", "[timing]\nts = 0.002\ndelay = 0.003\njitter = 0.001\nseed = 7"

@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hil.bundled import bundled_path
 from hil.cli import main
-from hil.paper import JOLT_RATIO, SCENARIO_DIR, velocity_jolt
+from hil.paper import JOLT_RATIO, velocity_jolt
 from hil.scenario import load_scenario
 from hil.sim import SimResult, simulate
 
@@ -29,7 +30,7 @@ RUNS = {
 
 def _run(name: str) -> SimResult:
     path, duration = RUNS[name]
-    sc = load_scenario(SCENARIO_DIR / path)
+    sc = load_scenario(bundled_path(path))
     return simulate(sc.with_overrides(duration=duration))
 
 

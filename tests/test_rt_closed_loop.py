@@ -6,10 +6,9 @@ DESIGN.md evaluated at the run's own measured worst sample gap and sample-to-app
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
+from hil.bundled import bundled_path
 from hil.run.results import sampled_data_bound
 from hil.scenario import build_loop, load_scenario
 from tests.run_helpers import hil_run
@@ -19,7 +18,7 @@ pytestmark = pytest.mark.realtime
 
 def _scenario(tmp_path) -> str:
     """The paper's tracking scenario with SCHED_FIFO asked for (used where permitted)."""
-    text = Path("scenarios/paper_tracking.toml").read_text()
+    text = bundled_path("paper_tracking").read_text()
     path = tmp_path / "paper_tracking_fifo.toml"
     path.write_text(text + '\n[realtime]\nscheduling = "fifo"\n')
     return str(path)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from hil.bundled import bundled_path
 from hil.run.results import sampled_data_bound
 from hil.scenario import build_loop, load_scenario
 from tests.run_helpers import hil_run
@@ -21,7 +22,7 @@ def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
     # The emulated guest stalls a process for longer than a real drive's 0.5 s heartbeat
     # timeout now and then; a fault there would only re-arm the drives, so relax it.
     scenario = str(tmp_path / "tracking_slow_host.toml")
-    text = Path("scenarios/paper_tracking.toml").read_text()
+    text = bundled_path("paper_tracking").read_text()
     Path(scenario).write_text(text + "\n[can]\nheartbeat_timeout = 5.0\n")
     s = hil_run(
         tmp_path / "run",

@@ -77,7 +77,9 @@ def test_sigint_of_hil_run_leaves_no_process_and_a_readable_recording(spawn, tmp
     time.sleep(1.0)  # a second of closed loop to record (checked below: > 50 states)
     run.send_signal(signal.SIGINT)
     code = run.wait(timeout=60)
-    assert code != 0  # interrupted, not a normal end
+    err = run.stderr.read().decode(errors="replace")
+    assert code == 130, err[-3000:]  # interrupted: the contract's code, whatever typer/click do
+    assert f"interrupted: run folder written to {out}" in err
     assert wait_until(lambda: not any(alive(k) for k in kids), 10)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["interrupted"] is True

@@ -24,7 +24,7 @@ def test_standalone_services_close_the_loop_through_a_router(spawn, tmp_path):
     router = spawn.python(["-c", ROUTER, ep], text=True)
     assert router.stdout.readline().strip() == "up"
     epoch = time.monotonic_ns() + 8_000_000_000  # both import and link well before t = 0
-    common = ["scenarios/paper_tracking.toml", "--endpoint", ep, "--can-endpoint", can_ep,
+    common = ["paper_tracking", "--endpoint", ep, "--can-endpoint", can_ep,
               "--epoch-ns", str(epoch), "--duration", "1.5", "--rate", "200"]  # fmt: skip
     plant = spawn.python(["-m", "hil", "emulator", *common, "--out", str(tmp_path / "p")])
     ctrl = spawn.python(["-m", "hil", "controller", *common, "--out", str(tmp_path / "c")])

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from controller_service.laws.base import Limits
+from hil.bundled import bundled_dir
 from hil.cli import main
 from hil.errors import BadInputError
 from hil.provenance import dumps_toml
@@ -25,7 +26,7 @@ from hil.scenario import (
     scenario_dict,
 )
 
-SCENARIOS = sorted((Path(__file__).resolve().parents[1] / "scenarios").glob("*.toml"))
+SCENARIOS = sorted(bundled_dir().glob("*.toml"))
 MINIMAL = '[reference]\nkind = "circle"\n[initial]\nx = -1.0\n'
 
 

@@ -184,7 +184,9 @@ def test_ctrl_c_keeps_the_groups_already_done(tmp_path: Path, spawn) -> None:
         proc.wait(timeout=120)
     except subprocess.TimeoutExpired:
         pytest.fail("sweep did not stop on SIGINT")
-    assert proc.returncode == 130, proc.stderr.read().decode()[-2000:]
+    err = proc.stderr.read().decode(errors="replace")
+    assert proc.returncode == 130, err[-2000:]
+    assert f"interrupted: partial results kept in {out}" in err
     doc = json.loads((out / "sweep.json").read_text())
     assert doc["interrupted"] is True and doc["groups_done"] == 1
     assert {r["ts"] for r in doc["rows"] if r["complete"]} == {0.05}

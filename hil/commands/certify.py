@@ -77,9 +77,10 @@ def certify_scenario(
 ) -> tuple[Any, Any, dict[str, Any]]:
     """(certificate, proposal or None, facts) for a scenario file; BadInputError on bad input."""
     from controller_service.certificate import CertificateError, certify, propose
+    from hil.bundled import resolve_scenario
     from hil.scenario import build_reference, design_context, load_scenario
 
-    scenario = load_scenario(path)
+    scenario = load_scenario(resolve_scenario(path))
     context = design_context(scenario, build_reference(scenario))
     params, boundary, notes = _params(dict(scenario.controller), context)
     ts_used = scenario.timing.ts if ts is None else ts
@@ -115,7 +116,9 @@ def certify_scenario(
 def register(app: typer.Typer) -> None:
     @app.command("certify")
     def certify_command(
-        scenario: str = typer.Argument(..., help="Scenario TOML file."),
+        scenario: str = typer.Argument(
+            ..., help="Scenario TOML file or a bundled scenario's name (hil scenarios)."
+        ),
         ts: float = typer.Option(
             None,
             "--ts",

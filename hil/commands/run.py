@@ -8,17 +8,8 @@ from typing import Annotated
 
 import typer
 
+from hil import interrupts
 from hil.errors import NegativeVerdictError
-
-
-class RunInterrupted(Exception):  # noqa: N818 - not an error: a user's Ctrl-C
-    """Ctrl-C/SIGTERM ended the run early; the folder was written. Exit code 130 (as a shell
-    reports SIGINT), carried the way :func:`hil.cli.main` maps click-style exit codes."""
-
-    exit_code = 130
-
-    def show(self) -> None:
-        typer.echo(f"interrupted: run folder written to {self}", err=True)
 
 
 def register(app: typer.Typer) -> None:
@@ -26,7 +17,10 @@ def register(app: typer.Typer) -> None:
     def run(
         scenario: Annotated[
             Path | None,
-            typer.Argument(help="Scenario TOML (default: the paper's tracking circle, 10 s)."),
+            typer.Argument(
+                help="Scenario TOML or a bundled scenario's name (hil scenarios); default: the "
+                "paper's tracking circle, 10 s."
+            ),
         ] = None,
         duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
         rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,
@@ -90,11 +84,14 @@ def register(app: typer.Typer) -> None:
             "interrupted": summary.get("interrupted"),
         }
         run_dir = summary.get("run_dir")
-        if report and run_dir and not summary.get("interrupted") and not summary.get("error"):
+        stopped = summary.get("interrupted") or interrupts.happened()
+        if report and run_dir and not stopped and not summary.get("error"):
             brief["report"] = _write_report(Path(run_dir), quiet)
         typer.echo(json.dumps(brief, indent=2))
-        if summary.get("interrupted"):
-            raise RunInterrupted(summary.get("run_dir"))
+        if stopped:
+            # hil.cli exits 130: hil.run.orchestrate recorded the signal in hil.interrupts.
+            interrupts.note(f"run folder written to {run_dir}")
+            return
         if summary.get("error"):
             raise NegativeVerdictError(str(summary["error"]))
         if any(int(v) > 0 for v in (summary.get("violations") or {}).values()):

@@ -7,15 +7,19 @@ from typing import Annotated
 
 import typer
 
+from hil import interrupts
 from hil.errors import NegativeVerdictError
 
 
-def run_with_progress(fn, description: str):  # type: ignore[no-untyped-def]
-    """Call ``fn(progress)`` under a rich progress bar on stderr (quiet when not a terminal)."""
+def run_with_progress(fn, description: str, started: str = ""):  # type: ignore[no-untyped-def]
+    """Call ``fn(progress)`` under a rich progress bar on stderr. When stderr is not a terminal
+    there is no bar; ``started`` is printed there instead, once, from inside the loop (at its
+    first progress call), so a script can tell the work has begun."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     console = Console(stderr=True)
+    quiet = not console.is_terminal
     with Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -23,11 +27,14 @@ def run_with_progress(fn, description: str):  # type: ignore[no-untyped-def]
         TimeRemainingColumn(),
         console=console,
         transient=True,
-        disable=not console.is_terminal,
+        disable=quiet,
     ) as bar:
         task = bar.add_task(description, total=1)
+        pending = [started] if quiet and started else []
 
         def progress(k: int, total: int) -> None:
+            if pending:
+                typer.echo(pending.pop(), err=True)
             bar.update(task, completed=k, total=total)
 
         return fn(progress)
@@ -36,7 +43,13 @@ def run_with_progress(fn, description: str):  # type: ignore[no-untyped-def]
 def register(app: typer.Typer) -> None:
     @app.command("sim")
     def sim(
-        scenario: Annotated[Path, typer.Argument(help="Scenario TOML file (docs/scenario.md).")],
+        scenario: Annotated[
+            Path,
+            typer.Argument(
+                help="Scenario TOML file (docs/scenario.md) or a bundled scenario's name "
+                "(hil scenarios)."
+            ),
+        ],
         out: Annotated[
             Path | None, typer.Option("--out", help="Folder to write (default: runs/sim-<time>).")
         ] = None,
@@ -50,19 +63,27 @@ def register(app: typer.Typer) -> None:
         """Simulate one closed loop offline (law at Ts with zero-order hold, RK4 plant, delay and
         jitter as the scenario says) and write scenario.resolved.toml, trace.csv, summary.json.
 
-        Exit 1 when a limit of (2) was broken at some plant step."""
+        SCENARIO is a TOML file or the name of a bundled scenario (hil scenarios lists them).
+        Ctrl-C writes the folder with what was computed and exits 130. Exit 1 when a limit of
+        (2) was broken at some plant step."""
+        from hil.bundled import resolve_scenario
         from hil.scenario import load_scenario
         from hil.sim import new_run_dir, simulate, write_run_folder
 
-        sc = load_scenario(scenario).with_overrides(duration=duration, ts=ts)
-        result = run_with_progress(lambda p: simulate(sc, progress=p), f"sim {scenario.name}")
-        folder = write_run_folder(result, out or new_run_dir("runs", "sim"))
+        path = resolve_scenario(scenario)
+        sc = load_scenario(path).with_overrides(duration=duration, ts=ts)
+        target = out or new_run_dir("runs", "sim")
+        result = run_with_progress(
+            lambda p: simulate(sc, progress=p),
+            f"sim {path.name}",
+            started=f"sim {path.name}: {sc.run.duration:g} s at Ts = {sc.timing.ts:g} s into "
+            f"{target} (Ctrl-C writes what was computed)",
+        )
+        with interrupts.shielded():  # a second Ctrl-C must not leave the folder half-written
+            folder = write_run_folder(result, target)
         s = result.summary
         if result.interrupted:
-            typer.echo(
-                f"interrupted at t = {s['duration']:.3f} s: wrote what was computed to {folder}",
-                err=True,
-            )
+            interrupts.note(f"at t = {s['duration']:.3f} s; wrote what was computed to {folder}")
         typer.echo(
             f"{folder}: final position error {s['final_position_error']:.4g} m, heading "
             f"{s['final_heading_error']:.4g} rad; max |v| {s['max_abs_v']:.4g}, |omega| "

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
-import signal
 import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
+from hil import interrupts
 from hil.errors import BadInputError, NegativeVerdictError
 
 DEFAULT_MAX_DURATION = 20.0
@@ -42,7 +42,11 @@ def register(app: typer.Typer) -> None:
     @app.command("sweep", help=SWEEP_HELP)
     def sweep(
         scenario_file: Annotated[
-            Path, typer.Argument(help="Scenario TOML (its \\[sweep] table gives the grids).")
+            Path,
+            typer.Argument(
+                help="Scenario TOML or a bundled scenario's name (hil scenarios); its \\[sweep] "
+                "table gives the grids."
+            ),
         ],
         out: Annotated[
             Path | None,
@@ -63,13 +67,14 @@ def register(app: typer.Typer) -> None:
         """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
         from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+        from hil.bundled import resolve_scenario
         from hil.scenario import load_scenario
         from hil.sweep.grid import make_grid
         from hil.sweep.outputs import write_csv, write_outputs
         from hil.sweep.replay import is_run_source, write_latency_file
         from hil.sweep.runner import certified_break, run_sweep
 
-        scenario = load_scenario(scenario_file)
+        scenario = load_scenario(resolve_scenario(scenario_file))
         sw = scenario.sweep
         try:
             grid = make_grid(
@@ -137,11 +142,8 @@ def register(app: typer.Typer) -> None:
             "provenance": resolved.get("provenance", {}),
         }
         # A second Ctrl-C while the results are written would leave them half-written.
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-        try:
+        with interrupts.shielded():
             doc = write_outputs(target, outcome.rows, grid, meta)
-        finally:
-            signal.signal(signal.SIGINT, previous)
         first = doc["break_point"].get("first")
         typer.echo(f"sweep: {target / 'sweep.md'}")
         typer.echo(
@@ -150,9 +152,8 @@ def register(app: typer.Typer) -> None:
             else f"break point: Ts={first['ts']:g} s, delay={first['delay']:g} s"
         )
         if outcome.interrupted:
-            # hil.cli maps KeyboardInterrupt to 130, but click turns it into Abort (exit 0)
-            # inside a command: exit with the conventional code directly.
-            typer.echo("interrupted: partial results kept", err=True)
-            raise SystemExit(130)
+            # hil.cli exits 130: the interrupt was recorded by hil.interrupts.
+            interrupts.note(f"partial results kept in {target}")
+            return
         if strict and first is not None:
             raise NegativeVerdictError("a limit of (2) broke inside the grid")

@@ -1,6 +1,7 @@
 """``hil paper``: the paper's Section 4 reproduced offline (Figures 2-20 and a table).
 
-Runs (scenario files under ``scenarios/``, initial conditions stated there):
+Runs (the bundled scenarios ``hil/scenarios/paper_*.toml``, see ``hil scenarios``; initial
+conditions stated there):
 
 - tracking (Figures 2-6), stabilization (7-11), chattering reduction (19) (12-14);
 - the comparison with [7] on the tracking run (15-17);
@@ -15,21 +16,24 @@ checks are not judged). Each figure's data is a CSV beside its PNG; ``table.md``
 
 from __future__ import annotations
 
+import contextlib
+import multiprocessing
 import os
-from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
+import signal
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from hil import interrupts
+from hil.bundled import bundled_dir
 from hil.provenance import dumps_toml
 from hil.scenario import load_scenario
 from hil.sim import SimResult, simulate
 from hil.sim.folder import write_json, write_run_folder
 
-SCENARIO_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 QUICK_FACTOR = 5.0
 JOLT_WINDOW = 0.5
 JOLT_SPAN = 5.0
@@ -183,52 +187,54 @@ def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note
     return "\n".join(lines) + "\n"
 
 
-def make_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
-    """Figures 2-20 in the paper's style (PNG, data as CSV beside each)."""
+def _task_figures(results: dict[str, SimResult], out: Path, name: str) -> list[Path]:
+    """Figures 2-6 (tracking) or 7-11 (stabilization): trajectory, v, omega, tau1, tau2."""
     from hil.paper import figures as fg
 
-    lim = results["tracking"].scenario.limits
-    figs: list[Path] = []
-    for name, first, task in (("tracking", 2, "Tracking"), ("stabilization", 7, "Stabilization")):
-        r = results[name]
+    first, task = {"tracking": (2, "Tracking"), "stabilization": (7, "Stabilization")}[name]
+    r = results[name]
+    lim = r.scenario.limits
+    figs = [
+        fg.trajectory(
+            out / f"fig{first:02d}_{name}_xy.png", f"{task} task: robot position", [("robot", r)], r
+        )
+    ]
+    for i, (col, label, limit) in enumerate(
+        (
+            ("v", "v (m/s)", lim.phi1),
+            ("omega", "omega (rad/s)", lim.phi2),
+            ("tau1", "tau1 (N m)", lim.varpi1),
+            ("tau2", "tau2 (N m)", lim.varpi2),
+        ),
+        start=1,
+    ):
         figs.append(
-            fg.trajectory(
-                out / f"fig{first:02d}_{name}_xy.png",
-                f"{task} task: robot position",
+            fg.over_time(
+                out / f"fig{first + i:02d}_{name}_{col}.png",
+                f"{task} task: {col} and its constraints",
+                label,
+                [col],
                 [("robot", r)],
-                r,
+                limit,
             )
         )
-        for i, (col, label, limit) in enumerate(
-            (
-                ("v", "v (m/s)", lim.phi1),
-                ("omega", "omega (rad/s)", lim.phi2),
-                ("tau1", "tau1 (N m)", lim.varpi1),
-                ("tau2", "tau2 (N m)", lim.varpi2),
-            ),
-            start=1,
-        ):
-            figs.append(
-                fg.over_time(
-                    out / f"fig{first + i:02d}_{name}_{col}.png",
-                    f"{task} task: {col} and its constraints",
-                    label,
-                    [col],
-                    [("robot", r)],
-                    limit,
-                )
-            )
+    return figs
+
+
+def _chattering_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
+    """Figures 12-14: errors, tau1 and tau2 of the chattering reduction (19)."""
+    from hil.paper import figures as fg
+
     ch = results["chattering"]
-    figs.append(
+    lim = ch.scenario.limits
+    return [
         fg.over_time(
             out / "fig12_chattering_errors.png",
             "Chattering reduction (19): position and heading errors",
             "error (m, rad)",
             ["position_error", "heading_error"],
             [("robot", ch)],
-        )
-    )
-    figs.append(
+        ),
         fg.over_time(
             out / "fig13_chattering_tau1.png",
             "Chattering reduction: tau1",
@@ -236,9 +242,7 @@ def make_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
             ["tau1"],
             [("robot", ch)],
             lim.varpi1,
-        )
-    )
-    figs.append(
+        ),
         fg.over_time(
             out / "fig14_chattering_tau2.png",
             "Chattering reduction: tau2",
@@ -246,13 +250,18 @@ def make_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
             ["tau2"],
             [("robot", ch)],
             lim.varpi2,
-        )
-    )
+        ),
+    ]
+
+
+def _jiang1997_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
+    """Figures 15-17: [7] on the tracking task."""
+    from hil.paper import figures as fg
+
     j7 = results["compare_jiang1997"]
-    figs.append(
-        fg.trajectory(out / "fig15_jiang1997_xy.png", "Tracking with [7]", [("[7]", j7)], j7)
-    )
-    figs.append(
+    lim = j7.scenario.limits
+    return [
+        fg.trajectory(out / "fig15_jiang1997_xy.png", "Tracking with [7]", [("[7]", j7)], j7),
         fg.over_time(
             out / "fig16_jiang1997_v.png",
             "Tracking with [7]: v",
@@ -260,9 +269,7 @@ def make_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
             ["v"],
             [("[7]", j7)],
             lim.phi1,
-        )
-    )
-    figs.append(
+        ),
         fg.over_time(
             out / "fig17_jiang1997_omega.png",
             "Tracking with [7]: omega",
@@ -270,26 +277,29 @@ def make_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
             ["omega"],
             [("[7]", j7)],
             lim.phi2,
-        )
-    )
+        ),
+    ]
+
+
+def _compare_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
+    """Figures 18-20: [19] and the unified law on circle_then_stop."""
+    from hil.paper import figures as fg
+
     pair = [
         ("[19]", results["compare_jiang2001"]),
         ("unified", results["circle_then_stop_unified"]),
     ]
-    figs.append(
+    lim = pair[1][1].scenario.limits
+    return [
         fg.trajectory(
             out / "fig18_compare_xy.png",
             "Circle then stop: [19] and the unified law",
             pair,
             pair[1][1],
-        )
-    )
-    figs.append(
+        ),
         fg.over_time(
             out / "fig19_compare_v.png", "Circle then stop: v", "v (m/s)", ["v"], pair, lim.phi1
-        )
-    )
-    figs.append(
+        ),
         fg.over_time(
             out / "fig20_compare_omega.png",
             "Circle then stop: omega",
@@ -297,9 +307,67 @@ def make_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
             ["omega"],
             pair,
             lim.phi2,
-        )
-    )
+        ),
+    ]
+
+
+FigureWriter = Callable[[dict[str, SimResult], Path], list[Path]]
+
+# Each group of figures with the runs it needs, in figure order: a group is written as soon as
+# its runs are done, so an interrupted ``hil paper`` keeps every figure it could draw.
+FIGURE_GROUPS: tuple[tuple[tuple[str, ...], FigureWriter], ...] = (
+    (("tracking",), lambda res, out: _task_figures(res, out, "tracking")),
+    (("stabilization",), lambda res, out: _task_figures(res, out, "stabilization")),
+    (("chattering",), _chattering_figures),
+    (("compare_jiang1997",), _jiang1997_figures),
+    (("compare_jiang2001", "circle_then_stop_unified"), _compare_figures),
+)
+
+
+def make_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
+    """Figures 2-20 in the paper's style (PNG, data as CSV beside each)."""
+    figs: list[Path] = []
+    for _needs, write in FIGURE_GROUPS:
+        figs += write(results, out)
     return figs
+
+
+def _ignore_sigint() -> None:
+    """Pool workers leave Ctrl-C to the parent, which stops them (a terminal sends SIGINT to
+    the whole process group)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _run_task(task: tuple[str, str, float]) -> tuple[str, SimResult]:
+    name, path, scale = task
+    return name, _run_one(path, scale)
+
+
+@contextlib.contextmanager
+def _simulations(
+    tasks: list[tuple[str, str, float]], jobs: int
+) -> Iterator[Iterator[tuple[str, SimResult]]]:
+    """(name, result) of every task as each finishes; the workers are stopped on leaving."""
+    if jobs <= 1 or len(tasks) <= 1:
+        yield (_run_task(t) for t in tasks)
+        return
+    pool = multiprocessing.get_context().Pool(min(jobs, len(tasks)), initializer=_ignore_sigint)
+    try:
+        yield pool.imap_unordered(_run_task, tasks)
+    finally:
+        with interrupts.shielded():  # at once on Ctrl-C: a run still going is not waited for
+            pool.terminate()
+            pool.join()
+
+
+def _write_run(out: Path, res: SimResult, name: str, traces: bool) -> None:
+    run_dir = out / "runs" / name
+    if traces:
+        write_run_folder(res, run_dir)
+    else:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "scenario.resolved.toml").write_text(dumps_toml(res.resolved))
+        write_json(run_dir / "summary.json", res.summary)
 
 
 def run_paper(
@@ -307,48 +375,78 @@ def run_paper(
     quick: bool = False,
     jobs: int | None = None,
     traces: bool = False,
-    scenario_dir: Path = SCENARIO_DIR,
+    scenario_dir: Path | None = None,
     log: Callable[[str], None] = lambda _msg: None,
 ) -> dict[str, Any]:
-    """Run every paper scenario, write figures, table.md, table.json; return the table."""
+    """Run every paper scenario (``scenario_dir``: default the bundled ones), write figures,
+    table.md, table.json; return the table.
+
+    Each run's folder and each group of figures is written as soon as its runs are done.
+    Ctrl-C stops the runs still going and keeps what was written; the table then holds the
+    runs done, ``interrupted: true`` and no checks.
+    """
     out.mkdir(parents=True, exist_ok=True)
     scale = QUICK_FACTOR if quick else 1.0
     jobs = jobs or min(2, os.cpu_count() or 1)
-    paths = [str(scenario_dir / r.scenario) for r in RUNS]
+    folder = bundled_dir() if scenario_dir is None else scenario_dir
+    paths = [str(folder / r.scenario) for r in RUNS]
     for p in paths:
         load_scenario(p)  # bad files fail before any work starts
     results: dict[str, SimResult] = {}
-    if jobs > 1:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = {
-                r.name: pool.submit(_run_one, p, scale) for r, p in zip(RUNS, paths, strict=True)
-            }
-            for name, fut in futures.items():
-                results[name] = fut.result()
-                log(f"{name}: done")
-    else:
-        for r, p in zip(RUNS, paths, strict=True):
-            results[r.name] = _run_one(p, scale)
-            log(f"{r.name}: done")
-    for r in RUNS:
-        res = results[r.name]
-        run_dir = out / "runs" / r.name
-        if traces:
-            write_run_folder(res, run_dir)
-        else:
-            run_dir.mkdir(parents=True, exist_ok=True)
-            (run_dir / "scenario.resolved.toml").write_text(dumps_toml(res.resolved))
-            write_json(run_dir / "summary.json", res.summary)
-    make_figures(results, out)
-    rows = [_row(r, results[r.name]) for r in RUNS]
-    check_rows = checks(results, quick)
+    pending = list(FIGURE_GROUPS)
+    interrupted = False
+    tasks = [(r.name, p, scale) for r, p in zip(RUNS, paths, strict=True)]
+    try:
+        with _simulations(tasks, jobs) as done:
+            for name, res in done:
+                if res.interrupted:  # Ctrl-C inside the loop (runs in this process)
+                    interrupted = True
+                    break
+                # A Ctrl-C while files are written is recorded and acted on after them.
+                with interrupts.shielded():
+                    results[name] = res
+                    _write_run(out, res, name, traces)
+                    log(f"{name}: done")
+                    for group in [g for g in pending if all(n in results for n in g[0])]:
+                        pending.remove(group)
+                        figs = group[1](results, out)
+                        log(f"{name}: wrote {', '.join(f.name for f in figs)}")
+                if interrupts.happened():
+                    interrupted = True
+                    break
+    except KeyboardInterrupt:
+        interrupted = True
+    with interrupts.shielded():
+        return _write_table(out, results, quick, interrupted)
+
+
+def _write_table(
+    out: Path, results: dict[str, SimResult], quick: bool, interrupted: bool
+) -> dict[str, Any]:
+    done = [r for r in RUNS if r.name in results]
+    rows = [_row(r, results[r.name]) for r in done]
+    check_rows = [] if interrupted else checks(results, quick)
+    first = results[done[0].name] if done else None
     note = (
-        f"Single-run float simulator, Ts = {results['tracking'].scenario.timing.ts * 1e3:g} ms, "
-        f"RK4 plant step h = {results['tracking'].scenario.plant_step * 1e3:g} ms"
+        (
+            f"Single-run float simulator, Ts = {first.scenario.timing.ts * 1e3:g} ms, "
+            f"RK4 plant step h = {first.scenario.plant_step * 1e3:g} ms"
+            if first is not None
+            else "Single-run float simulator"
+        )
         + (f"; durations divided by {QUICK_FACTOR:g} (--quick)." if quick else ".")
         + " Initial conditions: see the scenario files."
     )
-    table = {"note": note, "runs": rows, "checks": check_rows, "quick": quick}
+    if interrupted:
+        missing = ", ".join(r.name for r in RUNS if r.name not in results) or "none"
+        note += f" INTERRUPTED: partial results, checks not judged; runs not done: {missing}."
+    table = {
+        "note": note,
+        "runs": rows,
+        "checks": check_rows,
+        "quick": quick,
+        "interrupted": interrupted,
+    }
     write_json(out / "table.json", table)
     (out / "table.md").write_text(_markdown(rows, check_rows, note))
     return table

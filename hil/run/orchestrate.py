@@ -16,6 +16,7 @@ import contextlib
 import datetime as dt
 import json
 import os
+import signal
 import socket
 import sys
 import threading
@@ -25,6 +26,7 @@ from pathlib import Path
 from subprocess import STDOUT
 from typing import Any
 
+from hil import interrupts
 from hil.errors import BadInputError
 from hil.recording import RecordingWriter
 from hil.run.settings import RunSettings
@@ -162,6 +164,7 @@ def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any] 
 
 def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     """Resolve the scenario and the run's settings; write the folder's first files."""
+    from hil.bundled import resolve_scenario
     from hil.provenance import dumps_toml
     from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
     from hil.run.wiring import effective_can_table, robot_id_of
@@ -169,17 +172,18 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
 
     if opts.cmd_path not in ("zenoh", "can"):
         raise BadInputError(f"--cmd-path must be zenoh or can, got {opts.cmd_path!r}")
+    given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     run_dir = Path(opts.out) if opts.out else new_run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)
-    if opts.scenario is None:
+    if given is None:
         src = run_dir / "scenario.toml"
         src.write_text(PAPER_TRACKING_TOML)
         scenario = loads_scenario(PAPER_TRACKING_TOML, run_dir)
         scenario_path = src
         default_duration = DEFAULT_DURATION
     else:
-        scenario = load_scenario(opts.scenario)
-        scenario_path = Path(opts.scenario).resolve()
+        scenario = load_scenario(given)
+        scenario_path = given.resolve()
         default_duration = scenario.run.duration
     rt = scenario.realtime
     rate = opts.rate or rt.rate or 1.0 / scenario.timing.ts
@@ -328,6 +332,8 @@ def execute(opts: RunOptions) -> dict[str, Any]:
                 error = "services did not become ready"
             interrupted = bool(stop)
         finally:
+            if stop:  # hil.cli then exits 130 once the folder is written
+                interrupts.record(stop.signal or signal.SIGINT)
             codes = _stop_children(sup, settings)
             logs.close()
             if sub is not None:
@@ -347,19 +353,21 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         "recording": "recording.mcap",
         "recorded_messages": writer.count,
     }
-    summary = analyze(
-        run_dir,
-        scenario,
-        settings,
-        info["reference"],
-        info["context"],
-        info["controller_params"],
-        extra,
-    )
-    try:
-        plot(run_dir)
-    except Exception as exc:
-        print(f"warning: plots not written: {exc}", file=sys.stderr)
+    # A second Ctrl-C while the folder is written is recorded, not raised (hil.interrupts).
+    with interrupts.shielded():
+        summary = analyze(
+            run_dir,
+            scenario,
+            settings,
+            info["reference"],
+            info["context"],
+            info["controller_params"],
+            extra,
+        )
+        try:
+            plot(run_dir)
+        except Exception as exc:
+            print(f"warning: plots not written: {exc}", file=sys.stderr)
     summary["run_dir"] = str(run_dir)
     return summary
 

@@ -22,7 +22,10 @@ def register_service_command(app: typer.Typer, name: str, module: str, what: str
     """Add ``hil NAME`` running ``module.main_from_settings`` (``what`` names it in --help)."""
 
     def command(
-        scenario: Annotated[Path | None, typer.Argument(help="Scenario TOML.")] = None,
+        scenario: Annotated[
+            Path | None,
+            typer.Argument(help="Scenario TOML or a bundled scenario's name (hil scenarios)."),
+        ] = None,
         settings: Annotated[
             Path | None, typer.Option(help="run_settings.json from hil run.")
         ] = None,

@@ -1,0 +1,107 @@
+"""Ctrl-C as the project sees it, whatever the CLI library does with a KeyboardInterrupt.
+
+:func:`hil.cli.main` installs :func:`handler` for SIGINT (:func:`installed`). The handler
+records that an interrupt happened and raises KeyboardInterrupt as Python's own would, so a
+command's loop can catch it and keep what it computed (``hil sim``, ``hil sweep``,
+``hil paper``). Whatever then happens (the command returns normally, raises SystemExit, or the
+CLI library turns the KeyboardInterrupt into an exception of its own), ``main`` looks at the
+record and exits 130 after one line ``interrupted: ...``. Code that stops on signals with its
+own handler (``hil run``'s :func:`hil.supervisor.stop_on_signals`) calls :func:`record` itself.
+
+A command says what it kept with :func:`note`; :func:`shielded` makes a second Ctrl-C while
+results are written only recorded, not raised, so the files are never left half-written.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Iterator
+from types import FrameType
+
+_signum: int | None = None
+_note: str | None = None
+_shield_depth = 0
+
+
+def record(signum: int = signal.SIGINT) -> None:
+    """Remember that the process was interrupted (by ``signum``)."""
+    global _signum
+    if _signum is None:
+        _signum = int(signum)
+
+
+def happened() -> bool:
+    """True once an interrupt was recorded since :func:`reset`."""
+    return _signum is not None
+
+
+def signal_name() -> str | None:
+    """The recorded signal's name (``"SIGINT"``), or None."""
+    if _signum is None:
+        return None
+    try:
+        return signal.Signals(_signum).name
+    except ValueError:
+        return f"signal {_signum}"
+
+
+def note(text: str) -> None:
+    """Say what the interrupted command kept (printed by ``main`` after ``interrupted:``)."""
+    global _note
+    _note = text
+
+
+def message() -> str:
+    """The one line ``main`` prints: ``interrupted: <what was kept>``."""
+    what = _note or f"stopped by {signal_name() or 'SIGINT'}"
+    return f"interrupted: {what}"
+
+
+def reset() -> None:
+    global _signum, _note
+    _signum = None
+    _note = None
+
+
+def handler(signum: int, frame: FrameType | None) -> None:
+    """The SIGINT handler: record, then raise KeyboardInterrupt (unless :func:`shielded`)."""
+    record(signum)
+    if _shield_depth == 0:
+        raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def shielded() -> Iterator[None]:
+    """Inside, SIGINT is recorded but raises nothing: for writing what was computed."""
+    global _shield_depth
+    _shield_depth += 1
+    try:
+        yield
+    finally:
+        _shield_depth -= 1
+
+
+@contextlib.contextmanager
+def installed() -> Iterator[None]:
+    """Install :func:`handler` for SIGINT with a clear record; restore both on leaving.
+
+    A SIGINT that is ignored (a job started with ``nohup`` or ``&`` by a non-interactive
+    shell) stays ignored; off the main thread (where signals cannot be handled) nothing is
+    installed and a KeyboardInterrupt is still mapped by ``main``.
+    """
+    reset()
+    previous = None
+    ours = False
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.getsignal(signal.SIGINT)
+        if previous != signal.SIG_IGN:
+            signal.signal(signal.SIGINT, handler)
+            ours = True
+    try:
+        yield
+    finally:
+        if ours:  # None: a handler not set from Python; the default is the closest
+            signal.signal(signal.SIGINT, signal.SIG_DFL if previous is None else previous)
+        reset()
