@@ -11,9 +11,8 @@ from pathlib import Path
 import pytest
 
 from hil.bundled import bundled_path
-from hil.run.results import sampled_data_bound
-from hil.scenario import build_loop, load_scenario
-from tests.run_helpers import hil_run
+from hil.scenario import load_scenario
+from tests.run_helpers import check_certified_bound, hil_run
 
 pytestmark = [pytest.mark.vcan, pytest.mark.realtime, pytest.mark.timeout(900)]
 
@@ -47,11 +46,12 @@ def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
     # may re-arm a drive after a late heartbeat, so not every cycle's pair lands).
     assert can["received"] > 100, can
     assert s["timing"]["sample_to_apply_can"]["count"] > 100
+    check_certified_bound(s, scenario)
     sc = load_scenario(scenario)
-    _, _, context = build_loop(sc)
-    b = s["sampled_data_bound"]
-    bound = sampled_data_bound(context, dict(sc.controller), b["ts_gap"], b["delta"])
-    assert s["max_abs_v"] <= bound["v"], (s["max_abs_v"], bound)
-    assert s["max_abs_omega"] <= bound["omega"], (s["max_abs_omega"], bound)
-    assert s["max_abs_tau1"] <= sc.limits.varpi1 and s["max_abs_tau2"] <= sc.limits.varpi2
     assert s["violations"]["tau1"] == 0 and s["violations"]["tau2"] == 0
+    if s["_exit_code"] == 1:
+        # Exit 1 here has one allowed reason: |v| or |omega| beyond phi at 50 Hz, within the
+        # bound at the measured D (checked above), which then must exceed phi itself.
+        assert s["certificate"]["v_bound"] > sc.limits.phi1 or (
+            s["certificate"]["omega_bound"] > sc.limits.phi2
+        ), s["certificate"]

@@ -1,0 +1,156 @@
+"""A run's two hop logs written from a script: a loop whose every stamp is known, with stalls,
+losses and re-arms injected where a test wants them (known answers for hil.measure)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from protocol.hoplog import (
+    CONTROLLER_TABLES,
+    PLANT_TABLES,
+    SAMPLE_DROPPED,
+    TICK_DROPPED,
+    TICK_NO_SEND,
+    HopLogWriter,
+)
+
+MS = 1_000_000
+US = 1_000
+
+
+@dataclass
+class Loop:
+    """A periodic loop: plant samples at epoch + k P, the state arrives ``hop_state`` later,
+    the controller ticks at + P/2 (periodic), computes ``compute``, its command arrives
+    ``hop_cmd`` after the send and lands at once (plus ``delay``)."""
+
+    period: int = 2 * MS
+    n: int = 500
+    epoch: int = 10_000 * MS
+    hop_state: int = 200 * US
+    compute: int = 30 * US
+    hop_cmd: int = 150 * US
+    delay: int = 0
+    plant_step: int = 200 * US
+    cmd_path: str = "zenoh"
+    # Injections
+    controller_stall: tuple[int, int] | None = None  # (from ns after epoch, length ns)
+    plant_stall: tuple[int, int] | None = None
+    drop_state_every: int = 0
+    drop_command_every: int = 0
+    lose_states: set[int] = field(default_factory=set)  # lost on the wire (not injected)
+    duplicate_commands: set[int] = field(default_factory=set)
+    rearm_at: int | None = None  # sample index after which the CAN lifecycle re-sends zeros
+
+
+def write(folder: Path, loop: Loop) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    P, E = loop.period, loop.epoch
+    c = HopLogWriter(
+        folder / "controller.hoplog",
+        "controller",
+        CONTROLLER_TABLES,
+        {"period_ns": P, "trigger": "periodic", "lockstep": False, "cmd_path": loop.cmd_path,
+         "epoch_ns": E},
+    )  # fmt: skip
+    p = HopLogWriter(
+        folder / "plant.hoplog",
+        "plant",
+        PLANT_TABLES,
+        {"sensor_period_ns": P, "control_period_ns": P, "plant_step_ns": loop.plant_step,
+         "lockstep": False, "cmd_path": loop.cmd_path, "command_timeout_s": 0.05,
+         "delay_s": loop.delay / 1e9, "jitter_s": 0.0, "epoch_ns": E},
+    )  # fmt: skip
+    # --- the plant's samples (a stall delays its wake-ups and skips slots) ---
+    samples: list[tuple[int, int, int]] = []  # (seq, sample_ns, wake_ns)
+    seq = 0
+    k = 0
+    while k < loop.n:
+        d = E + k * P
+        wake = d + 20 * US
+        if loop.plant_stall and d >= E + loop.plant_stall[0] and d < E + sum(loop.plant_stall):
+            wake = E + sum(loop.plant_stall) + 20 * US
+            samples.append((seq, d, wake))
+            seq += 1
+            k += max(1, (wake - d) // P + 1)
+            continue
+        samples.append((seq, d, wake))
+        seq += 1
+        k += 1
+    state_arrival: dict[int, int] = {}
+    for s, d, wake in samples:
+        dropped = loop.drop_state_every and s % loop.drop_state_every == loop.drop_state_every - 1
+        send = wake + 100 * US
+        p.append("samples", (s, d, wake, send, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                             SAMPLE_DROPPED if dropped else 0))  # fmt: skip
+        if not dropped and s not in loop.lose_states:
+            state_arrival[s] = send + loop.hop_state
+    # --- the controller: ticks at + P/2, the newest state in hand ---
+    arrivals = sorted((t, s) for s, t in state_arrival.items())
+    for t, s in arrivals:
+        d = next(d for q, d, _ in samples if q == s)
+        c.append("state_rx", (s, d, t - loop.hop_state, t, 0))
+    cmd_seq = 0
+    used = -1
+    k = 0
+    last_sample = samples[-1][1]
+    tx_index: dict[int, int] = {0: 0, 1: 0}
+    can_tx_rows: list[tuple[int, int, int]] = []
+    # Two lifecycle zeros per node before the run (arming).
+    for node in (0, 1):
+        can_tx_rows.append((node, E - 50 * MS, -1))
+    applied: list[tuple[int, int, int, int]] = []  # (cmd_seq, recv, land, node)
+    while True:
+        deadline = E + P // 2 + k * P
+        if deadline > last_sample + 5 * P:
+            break
+        wake = deadline + 15 * US
+        skipped = 0
+        if loop.controller_stall:
+            s0 = E + loop.controller_stall[0]
+            if s0 <= deadline < s0 + loop.controller_stall[1]:
+                wake = s0 + loop.controller_stall[1]
+                skipped = int((wake - deadline) // P)
+        newest = [(t, s) for t, s in arrivals if t <= wake and s > used]
+        if not newest:
+            c.append("ticks", (k, deadline, wake, skipped, -1, 0, 0, 0, 0, 0, 0, 0, -1, 0.0, 0.0,
+                               TICK_NO_SEND))  # fmt: skip
+        else:
+            t_rx, s = max(newest, key=lambda x: x[1])
+            used = s
+            d = next(d for q, d, _ in samples if q == s)
+            c0 = wake + 5 * US
+            c1 = c0 + loop.compute
+            send = c1 + 10 * US
+            m = loop.drop_command_every
+            dropped = bool(m and cmd_seq % m == m - 1)
+            flags = TICK_DROPPED if dropped else 0
+            c.append("ticks", (k, deadline, wake, skipped, s, d, t_rx - loop.hop_state, t_rx, c0,
+                               c1, send, send + 5 * US, cmd_seq, 0.1, 0.2, flags))  # fmt: skip
+            if loop.cmd_path == "zenoh" or True:
+                if not dropped:
+                    recv = send + loop.hop_cmd
+                    copies = 2 if cmd_seq in loop.duplicate_commands else 1
+                    for _ in range(copies):
+                        p.append("cmd_rx", (0, cmd_seq, s, d, c0, send, recv, 0.1, 0.2, -1, 0))
+                    if loop.cmd_path == "zenoh" and recv + loop.delay <= last_sample:
+                        p.append("apply", (0, cmd_seq, -1, recv, recv + loop.delay, 0.1, 0.2, 0))
+            for node in (0, 1):
+                can_tx_rows.append((node, send + 5 * US, cmd_seq))
+            if loop.rearm_at is not None and s == loop.rearm_at:
+                for node in (0, 1):
+                    can_tx_rows.append((node, send + 50 * US, -1))
+            cmd_seq += 1
+        k += 1 + skipped
+    # --- CAN: every frame sent arrives 250 µs later, in order per node ---
+    for node, send, cseq in can_tx_rows:
+        c.append("can_tx", (node, send, cseq))
+        i = tx_index[node]
+        tx_index[node] = i + 1
+        recv = send + 250 * US
+        p.append("cmd_rx", (1, i, -1, 0, 0, 0, recv, 0.0, 0.0, node, 0))
+        if loop.cmd_path == "can" and E <= recv <= last_sample:
+            p.append("apply", (1, i, node, recv, recv + loop.delay, 0.0, 0.0, 0))
+    c.close({"deadline_misses": 0})
+    p.close({"extremes": {}})

@@ -1,0 +1,180 @@
+"""Known answers for hil.measure: hop logs written with known stamps, the figures found again.
+
+Each test injects what a figure measures (a stall, a delay, a loss, a duplicate, a CAN re-arm)
+into a scripted loop (tests/synthetic_run.py) and checks the one pipeline reports exactly it.
+The same injections with real processes are in tests/test_calibration.py.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hil.measure import load_folder_logs, measure
+from hil.measure.age import age_summary, envelope, max_age, segments
+from hil.measure.stats import summarize_ns
+from protocol.hoplog import HopLogError, HopLogWriter, iter_records, read_hoplog
+from tests.synthetic_run import MS, US, Loop, write
+
+
+def _measure(tmp_path, loop: Loop, bound=None):
+    write(tmp_path / "run", loop)
+    logs = load_folder_logs(tmp_path / "run")
+    assert logs is not None
+    return measure(logs, bound)
+
+
+def _paper_bound():
+    from types import SimpleNamespace
+
+    from controller_service.laws.base import DesignContext
+    from hil.measure.figures import BoundInputs
+
+    params = SimpleNamespace(m1=0.5, m2=0.5, l1=0.5, l2=0.5, lam=1.0, rho=1.0)
+    return BoundInputs(params, DesignContext(), False)
+
+
+# --- exact statistics ---------------------------------------------------------------------------
+
+
+def test_percentiles_are_measured_values_never_above_the_max():
+    rng = np.random.default_rng(1)
+    v = rng.integers(0, 10_000_000, 12345)
+    s = summarize_ns(v)
+    sv = np.sort(v)
+    for name, q in (("p50_us", 50), ("p99_us", 99), ("p999_us", 99.9)):
+        assert s[name] * 1000 in set(sv.tolist())
+        assert s[name] == np.percentile(v, q, method="inverted_cdf") / 1000
+        assert s[name] <= s["max_us"]
+    assert s["max_us"] == v.max() / 1000 and s["count"] == v.size
+
+
+def test_command_age_at_every_plant_step_equals_brute_force():
+    rng = np.random.default_rng(7)
+    h, g0 = 100 * US, 5 * MS
+    sample = g0 + np.cumsum(rng.integers(500 * US, 3 * MS, 400))
+    land = sample + rng.integers(100 * US, 2 * MS, 400)
+    land = np.maximum.accumulate(land)
+    end = int(land[-1] + 3 * MS)
+    seg = segments(land, sample, end)
+    grid = np.arange(-(-(int(land[0]) - g0) // h), -(-(end - g0) // h)) * h + g0
+    idx = np.searchsorted(land, grid, side="right") - 1
+    ages = grid - sample[idx]
+    got = age_summary(seg, g0, h)
+    want = summarize_ns(ages)
+    for key in ("count", "p50_us", "p90_us", "p99_us", "p999_us"):
+        assert got[key] == want[key], key
+    assert got["mean_us"] == pytest.approx(want["mean_us"], rel=1e-9)
+    # The max is D: the age just before each next landing, not only on the grid.
+    assert got["max_us"] * 1000 == max_age(seg) == int((seg.end - seg.sample).max())
+    t, lo, hi = envelope(seg, g0, bins=50)
+    assert hi.max() * 1e9 == pytest.approx(max_age(seg)) and lo.min() >= 0
+
+
+# --- the loop's figures ---------------------------------------------------------------------------
+
+
+def test_a_clean_loop_has_one_period_of_age_and_nothing_lost(tmp_path):
+    m = _measure(tmp_path, Loop(), _paper_bound())
+    t = m.timing
+    assert t["deadline_misses"] == 0 and t["skipped_slots"] == 0
+    assert t["samples_without_command"] == 0 and t["late_commands"] == 0
+    # sample -> wake 20 µs -> send +100 -> arrival +200 ... the tick is at P/2 + 15 µs:
+    # compute starts 5 µs later, sends after 30 + 10 µs, the command lands 150 µs on.
+    lat = 1 * MS + 15 * US + 5 * US + 30 * US + 10 * US + 150 * US
+    assert t["sample_to_apply_zenoh"]["p50_us"] == t["sample_to_apply_zenoh"]["max_us"] == lat / 1e3
+    assert m.certificate["d_max_s"] == pytest.approx((2 * MS + lat) / 1e9)
+    assert m.certificate["path"] == "zenoh" and m.certificate["held"] is True
+    assert m.certificate["stalls"] == []
+    for stream in ("state", "torque_zenoh", "torque_can"):
+        assert m.messages[stream]["lost"] == 0, stream
+    assert t["startup_hold_s"] == pytest.approx(lat / 1e9)
+
+
+def test_a_30ms_controller_stall_is_found_in_full(tmp_path):
+    loop = Loop(controller_stall=(400 * MS, 30 * MS))
+    m = _measure(tmp_path, loop, _paper_bound())
+    t = m.timing
+    assert t["wakeup_lateness"]["max_us"] >= 29_000  # never re-based
+    assert t["deadline_misses"] == 1 and t["skipped_slots"] >= 14
+    assert t["command_age_zenoh"]["max_us"] >= 30_000
+    worst = m.certificate["stalls"][0]
+    assert worst["cause"] == "controller_late"
+    assert worst["age_s"] >= 0.030 and abs(worst["t_s"] - 0.4) < 0.1
+    assert t["samples_without_command"] >= 14  # states that arrived during the stall
+
+
+def test_a_30ms_plant_stall_is_blamed_on_the_plant(tmp_path):
+    m = _measure(tmp_path, Loop(plant_stall=(600 * MS, 30 * MS)), _paper_bound())
+    assert m.timing["plant_wakeup_lateness"]["max_us"] >= 29_000
+    worst = m.certificate["stalls"][0]
+    assert worst["cause"] == "plant_late" and worst["age_s"] >= 0.030
+    assert abs(worst["t_s"] - 0.6) < 0.1
+
+
+def test_a_constant_delay_shifts_age_and_latency_by_exactly_that(tmp_path):
+    a = _measure(tmp_path / "a", Loop())
+    b = _measure(tmp_path / "b", Loop(delay=5 * MS))
+    for fig in ("sample_to_apply_zenoh", "command_age_zenoh"):
+        assert b.timing[fig]["p50_us"] - a.timing[fig]["p50_us"] == pytest.approx(5000, abs=1)
+    assert b.timing["late_commands"] == b.timing["samples_judged"]  # every one > one period
+
+
+def test_injected_drops_equal_the_lost_counts_exactly(tmp_path):
+    m = _measure(tmp_path, Loop(drop_state_every=7, drop_command_every=5))
+    st, cmd = m.messages["state"], m.messages["torque_zenoh"]
+    assert st["lost"] == st["injected_drops"] == 500 // 7
+    assert cmd["lost"] == cmd["injected_drops"] > 0
+    assert cmd["sent"] - cmd["received"] == cmd["injected_drops"]
+
+
+def test_lost_states_duplicates_are_counted_apart(tmp_path):
+    m = _measure(tmp_path, Loop(lose_states={10, 11, 12}, duplicate_commands={3, 4}))
+    assert m.messages["state"]["lost"] == 3 and m.messages["state"]["injected_drops"] == 0
+    assert m.messages["torque_zenoh"]["duplicated"] == 2
+    assert m.messages["torque_zenoh"]["lost"] == 0
+
+
+def test_many_lost_states_make_a_stall_with_that_cause(tmp_path):
+    m = _measure(tmp_path, Loop(lose_states=set(range(100, 120))), _paper_bound())
+    worst = m.certificate["stalls"][0]
+    assert worst["cause"] == "state_lost" and worst["evidence"]["states_lost"] == 20
+
+
+def test_can_rearm_mid_run_keeps_matching_and_counts_no_lifecycle_frame(tmp_path):
+    a = _measure(tmp_path / "a", Loop(cmd_path="can"))
+    b = _measure(tmp_path / "b", Loop(cmd_path="can", rearm_at=250))
+    for m in (a, b):
+        can = m.messages["torque_can"]
+        assert can["sent"] == can["received"] and can["lost"] == 0
+        assert can["frames_sent"] == can["frames_received"] == 2 * can["sent"]
+    assert b.messages["torque_can"]["lifecycle_frames_sent"] == 4
+    assert b.timing["sample_to_apply_can"] == a.timing["sample_to_apply_can"]
+    assert b.timing["hop_cmd_can"] == a.timing["hop_cmd_can"]
+
+
+# --- the log itself -------------------------------------------------------------------------------
+
+
+def test_a_truncated_hop_log_reads_up_to_its_last_whole_chunk(tmp_path):
+    path = tmp_path / "x.hoplog"
+    w = HopLogWriter(path, "t", {"a": ("i",)}, flush_interval=10.0)
+    for i in range(100):
+        w.append("a", (i,))
+    w.flush()
+    w.counters({"n": 100})
+    for i in range(100, 200):
+        w.append("a", (i,))
+    w.close({"n": 200})
+    whole = path.read_bytes()
+    cut = tmp_path / "cut.hoplog"
+    header_end = next(iter_records(path))[1]
+    for n in (len(whole) - 1, len(whole) // 2, header_end + 5):
+        cut.write_bytes(whole[:n])
+        log = read_hoplog(cut)
+        assert not log.complete and log.truncated
+        assert [r[0] for r in log.rows["a"]] == list(range(len(log.rows["a"])))
+    cut.write_bytes(whole[: header_end - 1])  # not even a header: a clear error, not a crash
+    with pytest.raises(HopLogError, match="no hop-log header"):
+        read_hoplog(cut)
+    assert read_hoplog(path).complete and len(read_hoplog(path).rows["a"]) == 200
