@@ -9,7 +9,10 @@ figures are the Zenoh loop's own) and each trigger mode it reports, as medians o
   command hop controller -> plant; the periodic trigger's wait for its tick excluded) beside a
   raw Zenoh ping-pong RTT between two Python processes (target: p50 within 1.3x of it);
 - sample-to-apply latency p50/p99 in both trigger modes (how much the periodic tick adds);
-- deadline-miss rate (target < 0.1 % at 1 kHz) and the highest rate meeting it.
+- deadline-miss rate (target < 0.1 % at 1 kHz) and the highest rate meeting it, beside the
+  share of samples that got no command and of commands applied more than a period late
+  (hil.measure's true counts: a miss skips slots, a late state skips a sample);
+- the applied path's command age p50 and max (D) beside D*, the certificate's limit.
 
     python bench/bench_rt_loop.py            # 30 s per run, 3 repeats
     python bench/bench_rt_loop.py --quick    # 5 s per run, 1 repeat
@@ -78,6 +81,13 @@ def run_loop(rate: float, duration: float, trigger: str, tmp: Path) -> dict[str,
     return {
         "wakeup_p50_us": g("wakeup_lateness", "p50_us"),
         "wakeup_p99_us": g("wakeup_lateness", "p99_us"),
+        "wakeup_max_us": g("wakeup_lateness", "max_us"),
+        "skipped_slots": t.get("skipped_slots"),
+        "samples_without_command_rate": t.get("samples_without_command_rate"),
+        "late_commands_rate": t.get("late_commands_rate"),
+        "command_age_p50_us": g("command_age_zenoh", "p50_us"),
+        "command_age_max_us": g("command_age_zenoh", "max_us"),
+        "d_star_us": ((s.get("certificate") or {}).get("d_star_s") or 0) * 1e6,
         "loop_p50_us": g("loop_transport_compute", "p50_us"),
         "loop_p99_us": g("loop_transport_compute", "p99_us"),
         "compute_p50_us": g("compute", "p50_us"),
@@ -110,7 +120,7 @@ def paced_pingpong(rate: float, n: int) -> dict[str, Any]:
 
     from controller_service.realtime import wait_until_ns
     from hil.run.zsession import open_session, publisher
-    from hil.timing import summarize
+    from hil.measure.stats import summarize_ns
     from protocol.zenoh_config import COMMAND_QOS
 
     with socket.socket() as sock:
@@ -142,7 +152,7 @@ def paced_pingpong(rate: float, n: int) -> dict[str, Any]:
                 rtts.append(replies.get(timeout=1.0) - t0)
             except queue.Empty:
                 continue
-        return summarize(rtts)
+        return summarize_ns(rtts)
     finally:
         resp.kill()
         resp.wait()
@@ -192,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
                 "on_state": o,
                 "cyclictest_p50_us": ct["p50_us"],
                 "cyclictest_p99_us": ct["p99_us"],
+                "cyclictest_max_us": ct.get("max_us"),
                 "wakeup_p99_ratio_to_cyclictest": (p["wakeup_p99_us"] or 0) / max(ct["p99_us"], 1),
                 "loop_p50_ratio_to_pingpong": (o["loop_p50_us"] or 0) / rtt_p50,
                 "paced_pingpong_rtt_p50_us": paced_p50,
