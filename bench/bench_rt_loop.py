@@ -119,8 +119,8 @@ def paced_pingpong(rate: float, n: int) -> dict[str, Any]:
     import time
 
     from controller_service.realtime import wait_until_ns
-    from hil.run.zsession import open_session, publisher
     from hil.measure.stats import summarize_ns
+    from hil.run.zsession import open_session, publisher
     from protocol.zenoh_config import COMMAND_QOS
 
     with socket.socket() as sock:

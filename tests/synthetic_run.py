@@ -100,7 +100,6 @@ def write(folder: Path, loop: Loop) -> None:
     # Two lifecycle zeros per node before the run (arming).
     for node in (0, 1):
         can_tx_rows.append((node, E - 50 * MS, -1))
-    applied: list[tuple[int, int, int, int]] = []  # (cmd_seq, recv, land, node)
     while True:
         deadline = E + P // 2 + k * P
         if deadline > last_sample + 5 * P:
@@ -128,14 +127,13 @@ def write(folder: Path, loop: Loop) -> None:
             flags = TICK_DROPPED if dropped else 0
             c.append("ticks", (k, deadline, wake, skipped, s, d, t_rx - loop.hop_state, t_rx, c0,
                                c1, send, send + 5 * US, cmd_seq, 0.1, 0.2, flags))  # fmt: skip
-            if loop.cmd_path == "zenoh" or True:
-                if not dropped:
-                    recv = send + loop.hop_cmd
-                    copies = 2 if cmd_seq in loop.duplicate_commands else 1
-                    for _ in range(copies):
-                        p.append("cmd_rx", (0, cmd_seq, s, d, c0, send, recv, 0.1, 0.2, -1, 0))
-                    if loop.cmd_path == "zenoh" and recv + loop.delay <= last_sample:
-                        p.append("apply", (0, cmd_seq, -1, recv, recv + loop.delay, 0.1, 0.2, 0))
+            if not dropped:  # Zenoh always carries the command (applied or as the shadow)
+                recv = send + loop.hop_cmd
+                copies = 2 if cmd_seq in loop.duplicate_commands else 1
+                for _ in range(copies):
+                    p.append("cmd_rx", (0, cmd_seq, s, d, c0, send, recv, 0.1, 0.2, -1, 0))
+                if loop.cmd_path == "zenoh" and recv + loop.delay <= last_sample:
+                    p.append("apply", (0, cmd_seq, -1, recv, recv + loop.delay, 0.1, 0.2, 0))
             for node in (0, 1):
                 can_tx_rows.append((node, send + 5 * US, cmd_seq))
             if loop.rearm_at is not None and s == loop.rearm_at:

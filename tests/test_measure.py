@@ -67,7 +67,7 @@ def test_command_age_at_every_plant_step_equals_brute_force():
     assert got["mean_us"] == pytest.approx(want["mean_us"], rel=1e-9)
     # The max is D: the age just before each next landing, not only on the grid.
     assert got["max_us"] * 1000 == max_age(seg) == int((seg.end - seg.sample).max())
-    t, lo, hi = envelope(seg, g0, bins=50)
+    _, lo, hi = envelope(seg, g0, bins=50)
     assert hi.max() * 1e9 == pytest.approx(max_age(seg)) and lo.min() >= 0
 
 
