@@ -17,6 +17,11 @@ Reader API (what ``hil report`` uses)::
 
 ``log_time_ns`` is when the recorder received the message (``time.monotonic_ns()``), and
 ``publish_time_ns`` the sender's own stamp when the message carries one (else the log time).
+
+Crash safety: the writer closes its chunk and flushes the file at least every
+``flush_interval`` (0.1 s), so a recorder killed at any moment loses at most that much; the
+readers here also read such a truncated file (up to its last whole chunk), and
+:func:`rewrite_complete` turns it into a complete, indexed MCAP (``hil recover``).
 """
 
 from __future__ import annotations
@@ -71,10 +76,21 @@ class RecordingWriter:
     Not thread-safe: callers that receive on several threads hold their own lock.
     """
 
-    def __init__(self, path: str | Path, metadata: Mapping[str, str] | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        metadata: Mapping[str, str] | None = None,
+        flush_interval: float = 0.1,
+    ) -> None:
+        import time
+
         self.path = Path(path)
         self._stream: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - closed in close()
         self._writer = Writer(self._stream, compression=CompressionType.ZSTD)
+        self._clock = time.monotonic
+        self._flush_interval = float(flush_interval)
+        self._next_flush = self._clock() + self._flush_interval
+        self.flushes = 0
         self._writer.start(profile=PROFILE, library="hil-smc-bench")
         self._channels: dict[str, int] = {}
         self._seq: dict[str, int] = {}
@@ -117,6 +133,16 @@ class RecordingWriter:
             sequence=seq,
         )
         self.count += 1
+        self.maybe_flush()
+
+    def maybe_flush(self) -> None:
+        """Close the chunk and flush the file when ``flush_interval`` has passed (call it also
+        when idle: a quiet stretch must not keep the last messages in memory)."""
+        now = self._clock()
+        if now >= self._next_flush and not self._closed:
+            self._writer.flush()
+            self.flushes += 1
+            self._next_flush = now + self._flush_interval
 
     def add_attachment(
         self, name: str, data: bytes, media_type: str = "application/msgpack"
@@ -147,27 +173,115 @@ class RecordingWriter:
         self.close()
 
 
+def is_complete(path: str | Path) -> bool:
+    """Whether the recording ends with its summary and footer (a clean finish)."""
+    try:
+        with open(path, "rb") as f:
+            return make_reader(f).get_summary() is not None
+    except Exception:  # a truncated file makes the indexed reader raise anything
+        return False
+
+
+def _stream_records(path: str | Path) -> Iterator[Any]:
+    """Every whole record of a possibly truncated recording, in file order."""
+    from mcap.stream_reader import StreamReader
+
+    with open(path, "rb") as f:
+        reader = StreamReader(f, record_size_limit=None)
+        try:
+            yield from reader.records
+        except Exception:  # the tail of a killed writer: stop at the last whole record
+            return
+
+
 def read_messages(
     path: str | Path, topics: Iterable[str] | None = None
 ) -> Iterator[RecordedMessage]:
-    """Every message of the recording (optionally only ``topics``), in log-time order."""
+    """Every message of the recording (optionally only ``topics``), in log-time order; a
+    truncated recording is read up to its last whole chunk."""
     wanted = list(topics) if topics is not None else None
-    with open(path, "rb") as f:
-        reader = make_reader(f)
-        for _schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
-            yield RecordedMessage(
-                topic=channel.topic,
-                log_time_ns=message.log_time,
-                publish_time_ns=message.publish_time,
-                sequence=message.sequence,
-                data=json.loads(message.data),
-            )
+    if is_complete(path):
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            for _s, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
+                yield RecordedMessage(
+                    topic=channel.topic,
+                    log_time_ns=message.log_time,
+                    publish_time_ns=message.publish_time,
+                    sequence=message.sequence,
+                    data=json.loads(message.data),
+                )
+        return
+    from mcap.records import Channel, Message
+
+    channels: dict[int, str] = {}
+    found: list[RecordedMessage] = []
+    for rec in _stream_records(path):
+        if isinstance(rec, Channel):
+            channels[rec.id] = rec.topic
+        elif isinstance(rec, Message):
+            topic = channels.get(rec.channel_id)
+            if topic is None or (wanted is not None and topic not in wanted):
+                continue
+            found.append(
+                RecordedMessage(topic, rec.log_time, rec.publish_time, rec.sequence,
+                                json.loads(rec.data))
+            )  # fmt: skip
+    found.sort(key=lambda m: m.log_time_ns)
+    yield from found
+
+
+def rewrite_complete(
+    src: str | Path, dst: str | Path, attachments: Mapping[str, bytes] | None = None
+) -> dict[str, int]:
+    """A complete, indexed MCAP at ``dst`` from a possibly truncated ``src``: every whole
+    schema, channel, message, metadata and attachment, plus ``attachments``. Returns counts."""
+    from mcap.records import Attachment, Channel, Message, Metadata, Schema
+
+    counts = {"messages": 0, "attachments": 0}
+    with open(dst, "wb") as out:
+        w = Writer(out, compression=CompressionType.ZSTD)
+        w.start(profile=PROFILE, library="hil-smc-bench (recovered)")
+        schema_ids: dict[int, int] = {}
+        channel_ids: dict[int, int] = {}
+        have: set[str] = set()
+        for rec in _stream_records(src):
+            if isinstance(rec, Schema):
+                schema_ids[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel):
+                channel_ids[rec.id] = w.register_channel(
+                    rec.topic, rec.message_encoding, schema_ids.get(rec.schema_id, 0),
+                    dict(rec.metadata),
+                )  # fmt: skip
+            elif isinstance(rec, Message) and rec.channel_id in channel_ids:
+                w.add_message(
+                    channel_ids[rec.channel_id], rec.log_time, rec.data, rec.publish_time,
+                    rec.sequence,
+                )  # fmt: skip
+                counts["messages"] += 1
+            elif isinstance(rec, Metadata):
+                w.add_metadata(rec.name, dict(rec.metadata))
+            elif isinstance(rec, Attachment) and rec.name not in (attachments or {}):
+                w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type,
+                                 rec.data)  # fmt: skip
+                have.add(rec.name)
+                counts["attachments"] += 1
+        for name, data in (attachments or {}).items():
+            import time
+
+            now = time.time_ns()
+            w.add_attachment(now, now, name, "application/octet-stream", bytes(data))
+            counts["attachments"] += 1
+        w.finish()
+    return counts
 
 
 def list_topics(path: str | Path) -> dict[str, int]:
     """Topic -> message count, from the recording's summary section."""
-    with open(path, "rb") as f:
-        summary = make_reader(f).get_summary()
+    summary = None
+    if is_complete(path):
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
     if summary is None or summary.statistics is None:
         counts: dict[str, int] = {}
         for m in read_messages(path):
@@ -179,12 +293,18 @@ def list_topics(path: str | Path) -> dict[str, int]:
 
 def read_attachments(path: str | Path, names: Iterable[str] | None = None) -> dict[str, bytes]:
     """Name -> data of the recording's attachments (optionally only ``names``)."""
+    from mcap.records import Attachment
+
     wanted = set(names) if names is not None else None
     out: dict[str, bytes] = {}
-    with open(path, "rb") as f:
-        for att in make_reader(f).iter_attachments():
-            if wanted is None or att.name in wanted:
-                out[att.name] = bytes(att.data)
+    if is_complete(path):
+        with open(path, "rb") as f:
+            atts = list(make_reader(f).iter_attachments())
+    else:
+        atts = [r for r in _stream_records(path) if isinstance(r, Attachment)]
+    for att in atts:
+        if wanted is None or att.name in wanted:
+            out[att.name] = bytes(att.data)
     return out
 
 

@@ -45,7 +45,12 @@ def register(app: typer.Typer) -> None:
         from hil.report.build import Thresholds, analyse, write_report
         from hil.report.folder import load_folder
         from hil.report.ideal import ideal_from_simulator
+        from hil.run.recover import is_run_folder, needs_recovery, recover
 
+        if is_run_folder(folder) and needs_recovery(folder):
+            # A killed hil run: make the folder whole first (hil recover), then report.
+            typer.echo(f"recovering {folder} first: {', '.join(needs_recovery(folder))}", err=True)
+            recover(folder)
         loaded = load_folder(folder)
         rep = analyse(
             loaded,

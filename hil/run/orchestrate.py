@@ -126,6 +126,7 @@ class Recorder:
     def _drain(self) -> None:
         while not (self._stop.is_set() and not self.queue):
             if not self.queue:
+                self.writer.maybe_flush()  # a quiet stretch still reaches the disk in time
                 time.sleep(0.005)
                 continue
             topic, t, payload = self.queue.popleft()
@@ -344,7 +345,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
                     can_rec[0].shutdown()
             if session is not None:
                 session.close()
-            recorder.close(_attachments(run_dir))
+            recorder.close(attachments_of(run_dir))
     extra = {
         "interrupted": interrupted,
         "error": error,
@@ -372,7 +373,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     return summary
 
 
-def _attachments(run_dir: Path) -> dict[str, bytes]:
+def attachments_of(run_dir: Path) -> dict[str, bytes]:
     """The files a recording carries so that it alone reproduces the run's figures."""
     out: dict[str, bytes] = {}
     for name in ("controller.hoplog", "plant.hoplog", "scenario.resolved.toml"):

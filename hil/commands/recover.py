@@ -1,0 +1,25 @@
+"""``hil recover DIR``: make a killed run's folder whole (see hil.run.recover)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("recover")
+    def recover_cmd(
+        run_dir: Annotated[Path, typer.Argument(help="A run folder whose hil run was killed.")],
+    ) -> None:
+        """Rewrite a truncated recording as a complete, indexed MCAP (the services' hop logs
+        and the resolved scenario attached) and rebuild trace.csv and summary.json from the hop
+        logs. Nothing to do for a whole folder. `hil report` runs this by itself.
+
+        Exit 2 when DIR is not a run folder or the run was killed before its first sample."""
+        from hil.run.recover import recover
+
+        done = recover(run_dir)
+        typer.echo(json.dumps(done, indent=2))
