@@ -93,13 +93,15 @@ class DeadlineClock:
     with stale data): the next tick is due at the first deadline still in the future.
     """
 
-    def __init__(self, period_ns: int, start_ns: int, spin_ns: int = 0) -> None:
+    def __init__(self, period_ns: int, start_ns: int, spin_ns: int = 0, first_k: int = 0) -> None:
+        """Slot k is due at ``start_ns + k * period_ns``; the first tick is slot ``first_k``
+        (a service that joins a run late starts at the first slot still ahead)."""
         if period_ns <= 0:
             raise ValueError("period must be positive")
         self.period_ns = int(period_ns)
         self.start_ns = int(start_ns)
         self.spin_ns = max(0, int(spin_ns))
-        self.k = -1
+        self.k = int(first_k) - 1
         self.misses = 0
         self.skipped = 0
 

@@ -31,7 +31,13 @@ from typing import Any
 from controller_service.laws.base import Controller, Limits, RobotState
 from controller_service.realtime import DeadlineClock, SchedulingReport, setup_scheduling
 from protocol import keys
-from protocol.hoplog import CONTROLLER_TABLES, TICK_DROPPED, TICK_NO_SEND, HopLogWriter
+from protocol.hoplog import (
+    CONTROLLER_TABLES,
+    TICK_DROPPED,
+    TICK_NO_SEND,
+    HopLogWriter,
+    crashed_log,
+)
 from protocol.messages import (
     FLAG_STOP,
     FLAG_WATCHDOG_ZERO,
@@ -414,6 +420,7 @@ class ControllerService:
         if self.can_path is not None and self.can_path.lifecycle.fault_reason:
             flags |= STATUS_FAULT
         counters = {
+            "epoch_ns": self.epoch_ns,  # a restarted peer joins the run with it
             "cycles": self.cycles,
             "states": self.states_seen,
             "stale_entries": self.stale_entries,
@@ -446,16 +453,15 @@ class ControllerService:
         self._last_fresh_ns = max(self._last_fresh_ns, self.epoch_ns)
         next_status = time.monotonic_ns()
         if self.trigger == "periodic":
-            # Start on the epoch's grid so the controller's ticks keep a fixed phase to the
-            # plant's sensor ticks (no drift between the two processes).
+            # On the epoch's grid so the controller's ticks keep a fixed phase to the plant's
+            # sensor ticks (no drift between the two processes), half a period after the
+            # plant's sample: the state (sent ~0.2-0.5 ms after its sample on a loaded host) is
+            # then in hand at the tick in most cycles. Slots count from the epoch, so a
+            # controller restarted mid-run continues the same numbering.
             now = time.monotonic_ns()
-            start = self.epoch_ns + max(0, -(-(now - self.epoch_ns) // self.period_ns)) * (
-                self.period_ns
-            )
-            # Half a period after the plant's sample: the state (sent ~0.2-0.5 ms after its
-            # sample on a loaded host) is then in hand at the tick in most cycles.
-            start += self.period_ns // 2
-            self.clock = DeadlineClock(self.period_ns, start, self.spin_ns)
+            origin = self.epoch_ns + self.period_ns // 2
+            first = max(0, -(-(now - origin) // self.period_ns))
+            self.clock = DeadlineClock(self.period_ns, origin, self.spin_ns, first_k=first)
             while not stop and (end_ns is None or time.monotonic_ns() < end_ns):
                 tick = self.clock.next()
                 self._cycle(tick.k, tick.deadline_ns, tick.wake_ns, self._newest, tick.skipped)
@@ -478,6 +484,11 @@ class ControllerService:
         """A last zero command flagged STOP, so the plant idles at once."""
         self._publish(max(self._last_used_seq, 0), 0, time.monotonic_ns(), 0.0, 0.0, FLAG_STOP, {})
 
+    def continue_after(self, next_cmd_seq: int) -> None:
+        """A restart: number commands on from the crashed predecessor's last one."""
+        self._cmd_seq = int(next_cmd_seq)
+        self.restarted = True
+
     def final_counters(self) -> dict[str, Any]:
         """The service's counters (the hop log's footer, and its periodic snapshots)."""
         return {
@@ -487,6 +498,7 @@ class ControllerService:
             "rejections": {**self.rejections.snapshot(), **self.core.rejections.snapshot()},
             "stale_entries": self.stale_entries,
             "commands_sent": self._cmd_seq,
+            "restarted": getattr(self, "restarted", False),
             "injected_command_drops": self.injected_drops,
             "scheduling": self.scheduling.as_dict(),
             "can": None
@@ -516,8 +528,12 @@ def main_from_settings(settings_path: str) -> int:
     s = RunSettings.load(settings_path)
     core, law_name = build_control_core(s)
     period_ns = round(1e9 / s.rate_hz)
+    log_path = Path(s.out_dir) / HOPLOG_NAME
+    # A predecessor that crashed mid-run left its log open: this is a restart, which continues
+    # that log, its epoch and its command numbering (the plant's tracker sees no gap).
+    previous = crashed_log(log_path)
     hoplog = HopLogWriter(
-        Path(s.out_dir) / HOPLOG_NAME,
+        log_path,
         "controller",
         CONTROLLER_TABLES,
         {
@@ -529,6 +545,7 @@ def main_from_settings(settings_path: str) -> int:
             "state_timeout_s": s.state_timeout,
             "epoch_ns": s.epoch_ns,
         },
+        append=previous is not None,
     )
     session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
     can_path = None
@@ -547,7 +564,7 @@ def main_from_settings(settings_path: str) -> int:
         can_path = CanCommandPath(bus, lifecycle, geom, hoplog)
     from hil.run.startgate import StartGate
 
-    epoch_ns = s.epoch_ns
+    epoch_ns = s.epoch_ns or (int(previous.meta["epoch_ns"]) if previous is not None else 0)
     gate = StartGate(session, s.robot_id, "controller")
     if can_path is not None:
         can_path.start()  # arm the drives while waiting: the plant answers before the epoch
@@ -566,6 +583,11 @@ def main_from_settings(settings_path: str) -> int:
         hoplog=hoplog,
         command_drop_every=int((s.faults or {}).get("command_drop_every", 0)),
     )
+    if previous is not None:
+        # The predecessor may have sent commands it had not logged yet (its last chunk, up to
+        # the log's flush interval): skip a second's worth of numbers so none is reused.
+        seqs = [r[12] for r in previous.rows.get("ticks", []) if r[12] >= 0]
+        svc.continue_after(max(seqs, default=-1) + 1 + math.ceil(s.rate_hz))
     with stop_on_signals() as stop:
         # Scheduling first, readiness after: the set-up (mlockall, a full collection, the GC
         # frozen) takes tens of ms, which must not eat into the run's first periods.
@@ -578,7 +600,7 @@ def main_from_settings(settings_path: str) -> int:
                     print("no start: stopped or start-gate timeout", flush=True)
                     return 1
                 epoch_ns = svc.epoch_ns = got
-                hoplog.update_meta({"epoch_ns": epoch_ns})
+            hoplog.update_meta({"epoch_ns": epoch_ns})
             end_ns = None if s.lockstep else epoch_ns + int((s.duration + 2.0) * 1e9)
             print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
             svc.run(stop, end_ns, sched)

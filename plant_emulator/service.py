@@ -36,7 +36,7 @@ from plant_emulator.disturbances import Disturbance
 from plant_emulator.dynamics import Extremes, PlantState, advance_float_tracked
 from plant_emulator.sensors import Sensor, measure
 from protocol import keys
-from protocol.hoplog import PLANT_TABLES, SAMPLE_DROPPED, HopLogWriter
+from protocol.hoplog import PLANT_TABLES, SAMPLE_DROPPED, HopLogWriter, crashed_log
 from protocol.messages import (
     FLAG_STOP,
     Status,
@@ -375,6 +375,7 @@ class PlantService:
 
     def publish_status(self, state: str = "running") -> None:
         counters = {
+            "epoch_ns": self.epoch_ns,  # a restarted controller joins the run with it
             "states": self._state_seq,
             "commands": self.cmd_tracker.counts.received,
             "timeouts": self.timeouts,
@@ -407,6 +408,11 @@ class PlantService:
             if applied:
                 verdict = self.cmd_tracker.observe(msg.seq)
                 if not verdict.fresh:
+                    continue
+                if recv_ns - msg.state_sample_time_ns > self.command_timeout_ns:
+                    # Computed from a sample older than the command timeout (a link that came
+                    # back with old messages): a drive would have zeroed already; refuse it.
+                    self.rejections.count("stale_command")
                     continue
                 apply_ns = recv_ns + self.injector.extra_ns()
                 self._order += 1
@@ -500,7 +506,9 @@ class PlantService:
 
     # --- real time -----------------------------------------------------------------------
     def run_realtime(self, stop: Any, end_ns: int) -> None:
-        clock = DeadlineClock(self.sensor_period_ns, self.epoch_ns)
+        # Slots count from the epoch; a plant restarted mid-run starts at the next one.
+        first = max(0, -(-(time.monotonic_ns() - self.epoch_ns) // self.sensor_period_ns))
+        clock = DeadlineClock(self.sensor_period_ns, self.epoch_ns, first_k=first)
         self.clock = clock
         next_status = time.monotonic_ns()
         while not stop:
@@ -609,6 +617,24 @@ class PlantService:
                     self._cond.wait(timeout=0.05)
         return None
 
+    def continue_after(self, previous: Any) -> None:
+        """A restart: the crashed predecessor's epoch, sample numbering and robot (its last
+        logged sample; it coasts with zero torque until the next command lands)."""
+        from plant_emulator.dynamics import PlantState
+
+        self.epoch_ns = int(previous.meta["epoch_ns"])
+        rows = previous.rows.get("samples", [])
+        if rows:
+            last = previous.table("samples")[-1]
+            # States sent but not yet logged when the predecessor died (its last chunk): skip a
+            # second's worth of numbers so none is reused.
+            self._state_seq = int(last["seq"]) + 1 + math.ceil(1e9 / self.sensor_period_ns)
+            self.core.state = PlantState(
+                last["x"], last["y"], last["theta"], last["v"], last["omega"], 0.0, 0.0
+            )
+            self.core.t = (int(last["sample_ns"]) - self.epoch_ns) / 1e9
+        self.restarted = True
+
     def final_counters(self) -> dict[str, Any]:
         """The service's counters (the hop log's footer, and its periodic snapshots)."""
         e = self.core.extremes
@@ -633,6 +659,7 @@ class PlantService:
             "rejections": self.rejections.snapshot(),
             "timeouts": self.timeouts,
             "lockstep_resends": self.resends,
+            "restarted": getattr(self, "restarted", False),
             "injected_state_drops": self.injected_drops,
             "deadline_misses": self.clock.misses if self.clock else 0,
             "skipped_slots": self.clock.skipped if self.clock else 0,
@@ -659,9 +686,13 @@ def main_from_settings(settings_path: str) -> int:
     s = RunSettings.load(settings_path)
     core, sensor = build_plant(s)
     sensor_rate = s.rate_hz if s.lockstep else s.sensor_rate_hz
-    faults = getattr(s, "faults", None) or {}
+    faults = s.faults or {}
+    log_path = Path(s.out_dir) / HOPLOG_NAME
+    # A predecessor that crashed mid-run left its log open: this is a restart, which continues
+    # that log and the emulated robot from its last logged sample (motors unpowered meanwhile).
+    previous = crashed_log(log_path)
     hoplog = HopLogWriter(
-        Path(s.out_dir) / HOPLOG_NAME,
+        log_path,
         "plant",
         PLANT_TABLES,
         {
@@ -678,6 +709,7 @@ def main_from_settings(settings_path: str) -> int:
             "state_drop_every": int(faults.get("state_drop_every", 0)),
             "epoch_ns": s.epoch_ns,
         },
+        append=previous is not None,
     )
     session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
     can = None
@@ -707,6 +739,8 @@ def main_from_settings(settings_path: str) -> int:
         hoplog=hoplog,
         state_drop_every=int(faults.get("state_drop_every", 0)),
     )
+    if previous is not None:
+        svc.continue_after(previous)
     from hil.run.startgate import StartGate
 
     gate = StartGate(session, s.robot_id, "plant")
@@ -716,7 +750,7 @@ def main_from_settings(settings_path: str) -> int:
         sched = setup_scheduling(s.scheduling, cpu=s.cpu_plant, freeze_gc=True)
         hoplog.update_meta({"scheduling": sched.as_dict()})
         try:
-            if s.epoch_ns == 0:
+            if svc.epoch_ns == 0:
 
                 def idle() -> None:
                     if can is not None:  # answer the lifecycle so the drives arm before t = 0
@@ -736,7 +770,7 @@ def main_from_settings(settings_path: str) -> int:
                     print("no start: stopped or start-gate timeout", flush=True)
                     return 1
                 svc.epoch_ns = got
-                hoplog.update_meta({"epoch_ns": got})
+            hoplog.update_meta({"epoch_ns": svc.epoch_ns})
             print(f"running epoch_ns={svc.epoch_ns} scheduling={sched.policy}", flush=True)
             if s.lockstep:
                 from hil.run.wiring import lockstep_offsets

@@ -17,6 +17,10 @@ File format (``*.hoplog``): a stream of msgpack maps, appended and flushed as th
   counters (the newest one wins);
 - ``{"r": "footer", "final": {...}}`` once, last, when the service exits cleanly.
 
+A service restarted after a crash (its log has no footer) continues the same file: a second
+header follows (``restart`` counts them) and the rows go on in time order; a reader merges the
+parts (:func:`crashed_log`, :func:`read_hoplog`).
+
 A background thread writes a chunk at least every ``flush_interval`` seconds (default 0.1 s),
 so a killed service loses at most that much; a reader stops at a truncated last record and
 reports ``complete = False``. The loop thread only appends tuples to a list (no I/O, no
@@ -127,6 +131,7 @@ class HopLogWriter:
         tables: Mapping[str, Sequence[str]],
         meta: Mapping[str, Any] | None = None,
         flush_interval: float = 0.1,
+        append: bool = False,
     ) -> None:
         self.path = Path(path)
         self.role = role
@@ -140,7 +145,8 @@ class HopLogWriter:
         self.rows_written = 0
         self.bytes_written = 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        mode = os.O_APPEND if append else os.O_TRUNC
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | mode, 0o644)
         self._write(
             {
                 "r": "header",
@@ -149,6 +155,7 @@ class HopLogWriter:
                 "role": role,
                 "tables": self.fields,
                 "meta": dict(meta or {}),
+                "restart": bool(append),
             }
         )
         self._thread = threading.Thread(target=self._run, name=f"hoplog-{role}", daemon=True)
@@ -222,6 +229,7 @@ class HopLog:
     final: dict[str, Any] | None = None
     complete: bool = False  # the footer was read: the service exited cleanly
     truncated: bool = False  # the file ends inside a record (a killed writer)
+    restarts: int = 0  # processes that continued this log after a crash
 
     def table(self, name: str) -> list[dict[str, Any]]:
         """Rows of ``name`` as dicts (field name -> value)."""
@@ -272,10 +280,18 @@ def read_hoplog(path: str | Path) -> HopLog:
         if kind == "header":
             if rec.get("format") != FORMAT or rec.get("version") != VERSION:
                 raise HopLogError(f"{path}: not a {FORMAT} v{VERSION} file")
+            fields = {k: list(v) for k, v in (rec.get("tables") or {}).items()}
+            if seen_header:  # a restarted service continued the log
+                if fields != log.fields:
+                    raise HopLogError(f"{path}: a restart changed the tables")
+                log.restarts += 1
+                log.complete = False
+                log.meta.update({k: v for k, v in (rec.get("meta") or {}).items() if v})
+                continue
             seen_header = True
             log.role = str(rec.get("role", ""))
             log.meta = dict(rec.get("meta") or {})
-            log.fields = {k: list(v) for k, v in (rec.get("tables") or {}).items()}
+            log.fields = fields
             log.rows = {k: [] for k in log.fields}
         elif kind == "rows" and seen_header:
             log.rows.setdefault(rec["table"], []).extend(rec["rows"])
@@ -289,4 +305,16 @@ def read_hoplog(path: str | Path) -> HopLog:
     if not seen_header:
         raise HopLogError(f"{path}: no hop-log header")
     log.truncated = end < size
+    return log
+
+
+def crashed_log(path: str | Path) -> HopLog | None:
+    """The log a crashed predecessor left at ``path`` (a run under way: an epoch, no footer),
+    which a restarted service continues; None for no file or a finished log (a new run)."""
+    try:
+        log = read_hoplog(path)
+    except (OSError, ValueError):
+        return None
+    if log.complete or not log.meta.get("epoch_ns"):
+        return None
     return log

@@ -447,6 +447,13 @@ def find_stalls(r: _Run, seg: agemod.AgeSegments, threshold_ns: int) -> list[dic
     return found[:STALL_LIMIT]
 
 
+def _longest_quiet(stamps: np.ndarray, lo: int, hi: int) -> int:
+    """The longest stretch of [lo, hi] without a stamp."""
+    inside = np.sort(stamps[_in(stamps, lo, hi)])
+    edges = np.concatenate([[lo], inside, [hi]])
+    return int(np.diff(edges).max())
+
+
 def _cause(r: _Run, lo: int, hi: int) -> tuple[str, dict[str, Any]]:
     t, s = r.ticks, r.samples
     scores: dict[str, float] = {}
@@ -458,6 +465,12 @@ def _cause(r: _Run, lo: int, hi: int) -> tuple[str, dict[str, Any]]:
             ev["controller_lateness_s"] = worst / 1e9
             if worst >= r.period:
                 scores["controller_late"] = worst
+        # No tick at all for longer than the period's slack: the controller was down (killed,
+        # restarting): it did not wake, the latest of lates.
+        quiet = _longest_quiet(t["wake_ns"], lo, hi)
+        if quiet >= 2 * r.period:
+            ev["controller_silent_s"] = quiet / 1e9
+            scores["controller_late"] = max(scores.get("controller_late", 0), quiet)
     m = _in(s["wake_ns"], lo, hi) if not r.lockstep else np.zeros(0, bool)
     if m.any():
         worst = int((s["wake_ns"][m] - s["sample_ns"][m]).max())

@@ -292,14 +292,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     with stop_on_signals() as stop:
         try:
             if settings.zenoh_mode == "router":
-                router_cmd = [
-                    sys.executable,
-                    "-c",
-                    "import sys, time, zenoh; from hil.run.zsession import session_config; "
-                    "s = zenoh.open(session_config(sys.argv[1], listen_endpoint=True, "
-                    "mode='router')); time.sleep(1e9)",
-                    settings.zenoh_endpoint,
-                ]
+                router_cmd = [sys.executable, "-m", "hil.run.router", settings.zenoh_endpoint]
                 sup.start("router", router_cmd, stdout=logs.open("router"), stderr=STDOUT)
                 _wait_port(settings.zenoh_endpoint, stop, 30.0)
                 session = open_session(settings.zenoh_endpoint, mode="client")
@@ -467,6 +460,11 @@ def _stop_children(sup: Supervisor, settings: RunSettings) -> dict[str, int | No
     # The plant ends by itself at the run's end; the controller is stopped next, then the rest.
     for name in ("plant", "controller", "router"):
         for c in sup.children:
-            if c.name == name:
-                codes[name] = c.stop(grace=10.0)
+            if c.name != name:
+                continue
+            if name == "controller" and codes.get("plant") not in (0, None):
+                # The plant died: give the controller's stale-state watchdog time to act (and
+                # to be logged) before it is stopped.
+                time.sleep(max(0.2, 4 * settings.state_timeout))
+            codes[name] = c.stop(grace=10.0)
     return codes

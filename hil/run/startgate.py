@@ -1,7 +1,9 @@
 """The start handshake: both services say "ready", then ``hil run`` announces the epoch.
 
 Process start-up (imports, Zenoh links, CAN arming) takes a variable second or so; a fixed
-epoch would make a slow start look like deadline misses. So each service publishes
+epoch would make a slow start look like deadline misses. A service started while its peer is
+already running (a restart after a crash) joins the run: the peer's periodic Status carries the
+epoch. So each service publishes
 ``Status(role, "ready")`` until it hears ``Status(role="run", state="start",
 counters={"epoch_ns": ...})`` on the robot's status key; the epoch (a ``time.monotonic_ns()``
 value a little in the future) is the run's t = 0 for both.
@@ -30,6 +32,7 @@ class StartGate:
         self._payload = payload_bytes
         self._sub = session.declare_subscriber(keys.status_key(robot_id), self._on_status)
         self._seq = 0
+        self.joined = False
 
     def _on_status(self, sample: Any) -> None:
         try:
@@ -38,6 +41,15 @@ class StartGate:
             return
         if msg.role == "run" and msg.state == "start" and "epoch_ns" in msg.counters:
             self._epoch = int(msg.counters["epoch_ns"])
+            self._event.set()
+        elif (
+            msg.role != self.role
+            and msg.state == "running"
+            and int(msg.counters.get("epoch_ns", 0)) > 0
+        ):
+            # A peer already running: this service was restarted mid-run and joins the run.
+            self._epoch = int(msg.counters["epoch_ns"])
+            self.joined = True
             self._event.set()
 
     def wait(

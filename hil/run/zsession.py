@@ -19,7 +19,9 @@ from protocol.zenoh_config import DEFAULT_PEER_LISTEN, ZenohSettings
 def session_config(endpoint: str, *, listen_endpoint: bool, mode: str = "peer") -> zenoh.Config:
     """The run's session: :mod:`protocol.zenoh_config` settings (loopback, multicast scouting
     off) with the run's rendezvous ``endpoint``, listened on or connected to."""
-    if mode == "client":
+    if mode == "client" or (mode == "router" and not listen_endpoint):
+        # With a router, every other session is its client: all traffic crosses the router
+        # (its access control applies), and a client reconnects by itself after a restart.
         settings = ZenohSettings(mode="client", connect=(endpoint,))
     elif listen_endpoint:
         settings = ZenohSettings(mode="router" if mode == "router" else "peer", listen=(endpoint,))

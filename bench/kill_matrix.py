@@ -1,0 +1,318 @@
+"""The kill matrix: each failure injected into real runs, repeated, reported as counts.
+
+    python bench/kill_matrix.py [--trials 20] [--kinds controller_kill_zenoh ...] [--out FILE]
+
+Kinds (each trial is one ``hil run`` of 3 s at 200 Hz, the failure injected by PID):
+
+- ``controller_kill_zenoh`` / ``controller_kill_can``: SIGKILL of the controller; safe state =
+  the plant holds zero torque (its command timeout), on the wall clock at most
+  command_timeout + 2 periods after the last command arrived;
+- ``plant_kill``: SIGKILL of the plant; safe state = the controller's stale-state watchdog sends
+  zero torque flagged WATCHDOG_ZERO, at most state_timeout + 2 periods after the last state;
+- ``controller_restart``: SIGKILL of the controller, then a new one started with the run's
+  settings; it rejoins the run: commands land again, none computed from a sample older than
+  the restart, and the run's certificate lists the outage as a stall;
+- ``router_restart``: router mode; the Zenoh router is SIGKILLed and started again on its
+  port; both services (clients) reconnect by themselves, commands land again, none computed
+  from a sample taken before the router came back, and the outage is measured.
+
+Prints a table (trials, passed, worst time to the safe state or outage) and JSON; the test
+tests/test_kill_matrix.py runs the same trials and asserts that every one passes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from protocol.hoplog import read_hoplog  # noqa: E402
+from protocol.messages import FLAG_WATCHDOG_ZERO  # noqa: E402
+
+RATE = 200
+PERIOD_NS = round(1e9 / RATE)
+DURATION_S = 3.0
+KINDS = (
+    "controller_kill_zenoh",
+    "controller_kill_can",
+    "plant_kill",
+    "controller_restart",
+    "router_restart",
+)
+
+
+@dataclass
+class Trial:
+    kind: str
+    ok: bool = False
+    safe_s: float | None = None  # time to the safe state, or the outage for restarts
+    detail: dict[str, Any] = field(default_factory=dict)
+
+
+def _rows(path: Path, table: str) -> int:
+    try:
+        return len(read_hoplog(path).rows.get(table, []))
+    except (OSError, ValueError):
+        return 0
+
+
+def _wait(pred: Callable[[], bool], timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return bool(pred())
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is not None:
+        return
+    for sig, wait in ((signal.SIGINT, 10.0), (signal.SIGKILL, 5.0)):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            return
+        try:
+            proc.wait(timeout=wait)
+            return
+        except subprocess.TimeoutExpired:
+            continue
+
+
+class _Run:
+    """One ``hil run`` and whatever the trial starts beside it, all stopped by PID."""
+
+    def __init__(self, out: Path, *args: str, scenario: str | None = None) -> None:
+        self.out = out
+        self.extra: list[subprocess.Popen] = []
+        argv = [sys.executable, "-m", "hil", "run"]
+        if scenario is not None:
+            argv.append(scenario)
+        argv += ["--duration", str(DURATION_S), "--rate", str(RATE), "--quiet", "--no-report"]
+        argv += ["--out", str(out), *args]
+        self.proc = subprocess.Popen(
+            argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            start_new_session=True,
+        )  # fmt: skip
+
+    def __enter__(self) -> _Run:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for p in [*self.extra, self.proc]:
+            _stop(p)
+
+    def started(self, table: str = "apply", rows: int = 100) -> bool:
+        return _wait(lambda: _rows(self.out / "plant.hoplog", table) >= rows, 90)
+
+    def pid(self, name: str) -> int:
+        return int(json.loads((self.out / "processes.json").read_text())[name])
+
+    def kill(self, name: str) -> int:
+        pid = self.pid(name)
+        t = time.monotonic_ns()
+        os.kill(pid, signal.SIGKILL)
+        if not _wait(lambda: not _alive(pid), 10):
+            raise RuntimeError(f"{name} (pid {pid}) survived SIGKILL")
+        return t
+
+    def start(self, argv: list[str], log: str) -> subprocess.Popen:
+        with open(self.out / log, "wb") as f:
+            p = subprocess.Popen(argv, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT,
+                                 start_new_session=True)  # fmt: skip
+        self.extra.append(p)
+        return p
+
+    def finish(self) -> dict[str, Any]:
+        self.proc.wait(timeout=240)
+        return json.loads((self.out / "summary.json").read_text())
+
+
+def controller_kill(tmp: Path, path: str) -> Trial:
+    t = Trial(f"controller_kill_{path}")
+    with _Run(tmp / "run", "--cmd-path", path) as run:
+        if not run.started():
+            t.detail["error"] = "no closed loop before the kill"
+            return t
+        run.kill("controller")
+        summary = run.finish()
+    plant = read_hoplog(tmp / "run" / "plant.hoplog")
+    timeout_ns = int(plant.meta["command_timeout_s"] * 1e9)
+    last = max(r["recv_ns"] for r in plant.table("apply"))
+    zeros = [z for z in plant.table("zero") if z["timeout_ns"] >= last]
+    if not zeros:
+        t.detail["error"] = "the plant never zeroed the torque"
+        return t
+    t.safe_s = (zeros[0]["applied_ns"] - last) / 1e9
+    after = [s for s in plant.table("samples") if s["sample_ns"] > last + timeout_ns]
+    t.ok = (
+        zeros[0]["timeout_ns"] - last == timeout_ns
+        and zeros[0]["applied_ns"] - last <= timeout_ns + 2 * PERIOD_NS
+        and len(after) > 20
+        and all(s["cmd1"] == 0.0 and s["cmd2"] == 0.0 for s in after)
+    )
+    t.detail["zeroed_after_ms"] = t.safe_s * 1e3
+    t.detail["watchdog"] = summary.get("watchdog")
+    return t
+
+
+def plant_kill(tmp: Path) -> Trial:
+    t = Trial("plant_kill")
+    with _Run(tmp / "run") as run:
+        if not run.started():
+            t.detail["error"] = "no closed loop before the kill"
+            return t
+        run.kill("plant")
+        run.proc.wait(timeout=240)
+    ctrl = read_hoplog(tmp / "run" / "controller.hoplog")
+    timeout_ns = int(ctrl.meta["state_timeout_s"] * 1e9)
+    last = max(r["recv_ns"] for r in ctrl.table("state_rx"))
+    zero = [
+        r for r in ctrl.table("ticks") if r["flags"] & FLAG_WATCHDOG_ZERO and r["wake_ns"] > last
+    ]
+    if not zero:
+        t.detail["error"] = "the controller never sent a watchdog zero"
+        return t
+    t.safe_s = (zero[0]["zenoh_send_ns"] - last) / 1e9
+    t.ok = zero[0]["tau1"] == 0.0 and zero[0]["tau2"] == 0.0
+    t.ok = t.ok and zero[0]["zenoh_send_ns"] - last <= timeout_ns + 2 * PERIOD_NS
+    t.detail["flagged_zero_after_ms"] = t.safe_s * 1e3
+    return t
+
+
+def _resumed(tmp: Path, since_ns: int, t: Trial) -> Trial:
+    """Commands land again after ``since_ns``; none was computed from an older sample; the
+    run's measurement (taken once every process has stopped: a restarted service outlives
+    ``hil run``'s own analysis) shows the outage as a stall."""
+    from hil.measure.folder import measure_folder
+
+    ctrl = read_hoplog(tmp / "run" / "controller.hoplog")
+    plant = read_hoplog(tmp / "run" / "plant.hoplog")
+    sample_of = {
+        r["cmd_seq"]: r["state_sample_ns"] for r in ctrl.table("ticks") if r["cmd_seq"] >= 0
+    }
+    after = [a for a in plant.table("apply") if a["apply_ns"] > since_ns and a["outcome"] == 0]
+    stale = [a for a in after if sample_of.get(a["seq"], 0) < since_ns]
+    t.detail["landed_after"] = len(after)
+    t.detail["stale_after"] = len(stale)
+    if after:
+        t.safe_s = (after[0]["apply_ns"] - since_ns) / 1e9
+    m = measure_folder(tmp / "run")
+    stalls = ((m.certificate if m is not None else None) or {}).get("stalls") or []
+    t.detail["worst_stall"] = stalls[0] if stalls else None
+    t.ok = len(after) >= 20 and not stale and bool(stalls)
+    return t
+
+
+def controller_restart(tmp: Path) -> Trial:
+    t = Trial("controller_restart")
+    with _Run(tmp / "run") as run:
+        if not run.started():
+            t.detail["error"] = "no closed loop before the kill"
+            return t
+        run.kill("controller")
+        restart = time.monotonic_ns()
+        settings = str(tmp / "run" / "run_settings.json")
+        run.start([sys.executable, "-m", "controller_service", "--settings", settings],
+                  "controller-restarted.log")  # fmt: skip
+        run.finish()
+    t.detail["restarts_logged"] = read_hoplog(tmp / "run" / "controller.hoplog").restarts
+    _resumed(tmp, restart, t)
+    t.ok = t.ok and t.detail["restarts_logged"] == 1
+    return t
+
+
+def router_restart(tmp: Path) -> Trial:
+    t = Trial("router_restart")
+    scen = tmp / "router.toml"
+    scen.write_text((ROOT / "hil" / "scenarios" / "paper_tracking.toml").read_text()
+                    + '\n[zenoh]\nmode = "router"\n')  # fmt: skip
+    with _Run(tmp / "run", "--no-can", scenario=str(scen)) as run:
+        if not run.started():
+            t.detail["error"] = "no closed loop before the router restart"
+            return t
+        settings = json.loads((tmp / "run" / "run_settings.json").read_text())
+        run.kill("router")
+        back = run.start([sys.executable, "-m", "hil.run.router", settings["zenoh_endpoint"]],
+                         "router-restarted.log")  # fmt: skip
+        _wait(lambda: b"router up" in (tmp / "run" / "router-restarted.log").read_bytes(), 30)
+        restart = time.monotonic_ns()
+        run.finish()
+        _stop(back)
+    return _resumed(tmp, restart, t)
+
+
+TRIALS: dict[str, Callable[[Path], Trial]] = {
+    "controller_kill_zenoh": lambda tmp: controller_kill(tmp, "zenoh"),
+    "controller_kill_can": lambda tmp: controller_kill(tmp, "can"),
+    "plant_kill": plant_kill,
+    "controller_restart": controller_restart,
+    "router_restart": router_restart,
+}
+
+
+def run_trial(kind: str) -> Trial:
+    with tempfile.TemporaryDirectory(prefix=f"hil-kill-{kind}-") as tmp:
+        try:
+            return TRIALS[kind](Path(tmp))
+        except Exception as exc:  # a trial that crashes is a failed trial, with its reason
+            return Trial(kind, False, None, {"error": repr(exc)})
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--trials", type=int, default=20)
+    ap.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
+    ap.add_argument("--out", type=Path)
+    a = ap.parse_args(argv)
+    table: dict[str, Any] = {}
+    for kind in a.kinds:
+        results = []
+        for i in range(a.trials):
+            r = run_trial(kind)
+            results.append(r)
+            print(f"{kind} {i + 1}/{a.trials}: {'ok' if r.ok else 'FAIL'} {r.detail}",
+                  file=sys.stderr, flush=True)  # fmt: skip
+        safe = [r.safe_s for r in results if r.safe_s is not None]
+        table[kind] = {
+            "trials": len(results),
+            "passed": sum(r.ok for r in results),
+            "worst_s": max(safe) if safe else None,
+            "median_s": sorted(safe)[len(safe) // 2] if safe else None,
+            "failures": [r.detail for r in results if not r.ok],
+        }
+    print(f"{'kind':24} {'passed':>10} {'worst to safe/outage':>22} {'median':>10}")
+    for kind, row in table.items():
+        worst = f"{row['worst_s'] * 1e3:.1f} ms" if row["worst_s"] is not None else "-"
+        med = f"{row['median_s'] * 1e3:.1f} ms" if row["median_s"] is not None else "-"
+        print(f"{kind:24} {row['passed']:>4} / {row['trials']:<4} {worst:>22} {med:>10}")
+    text = json.dumps(table, indent=2)
+    if a.out:
+        a.out.write_text(text)
+    return 0 if all(r["passed"] == r["trials"] for r in table.values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
