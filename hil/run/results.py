@@ -80,7 +80,7 @@ def analyze(
     extra: dict[str, Any],
 ) -> dict[str, Any]:
     """Write trace.csv and summary.json from the two hop logs; returns the summary."""
-    logs = load_folder_logs(run_dir) or RunLogs.of(None, None)
+    logs = load_folder_logs(run_dir) or RunLogs.read(None, None)
     m = measure_logs(logs, resolved_scenario(run_dir)) if logs.plant else Measurement()
     lockstep = bool(settings.lockstep)
     pos_err, head_err = write_trace(run_dir, logs, reference, settings.ts, lockstep)
