@@ -246,11 +246,14 @@ def test_a_stall_beyond_d_star_is_negative_and_named(stall_folder: Path) -> None
         assert data["certificate"][key] == cert[key], key
     v = data["verdict"]
     assert v["limits"] == "held" and v["certificate"] == "not held"
+    # at D the sampled |w| bound passes phi2: the condition that fails is named
+    assert data["certificate"]["failed_conditions"] == ["sampled |w| bound <= phi2"]
     assert v["reasons"] == [
         f"certificate not held: command age D = {cert['d_max_s'] * 1e3:.3f} ms > "
         f"D* = {cert['d_star_s'] * 1e3:.3f} ms on the zenoh path "
-        f"(margin {cert['margin_s'] * 1e3:.3f} ms)"
+        f"(margin {cert['margin_s'] * 1e3:.3f} ms; failing: sampled |w| bound <= phi2)"
     ]
+    assert cert["omega_bound"] > 5.1
     assert cert["d_max_s"] > cert["d_star_s"] > 0
     stall = cert["stalls"][0]
     assert stall["cause"] == "command_lost" and 2.0 <= stall["t_s"] <= 2.05
@@ -367,6 +370,20 @@ def test_beyond_the_certified_bound_is_negative_though_within_limits(tmp_path: P
     assert v["reasons"] == [
         f"measured beyond the sampled-data bound: max |v| = {peak:.4g} m/s > {bound:.4g} m/s"
     ]
+
+
+def test_a_design_that_breaks_the_papers_conditions_names_them(tmp_path: Path) -> None:
+    folder = write_synthetic_folder(tmp_path / "f", duration=0.5)
+    toml = folder / "scenario.resolved.toml"
+    toml.write_text(toml.read_text().replace("m1 = 0.5", "m1 = 1.3"))  # (9): m1 < phi1 - mu1
+    assert main(["report", str(folder), "--no-ideal"]) == 1
+    data = json.loads((folder / "report.json").read_text())
+    cert = data["certificate"]
+    assert cert["d_star_s"] == 0.0 and cert["held"] is False
+    assert "(9) m1 < phi1 - mu1" in cert["failed_conditions"]
+    (reason,) = data["verdict"]["reasons"]
+    assert reason.startswith("certificate not held: command age D = 1.000 ms > D* = 0.000 ms")
+    assert "(9) m1 < phi1 - mu1" in reason
 
 
 def test_lost_messages_over_threshold_are_negative(tmp_path: Path, run_folder: Path) -> None:

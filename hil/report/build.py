@@ -138,9 +138,11 @@ def certificate_reasons(cert: dict[str, Any], cons: dict[str, Any]) -> tuple[str
         if d is None:
             reasons.append(f"certificate not held: no command ever landed{where} (D unknown)")
         elif ds is not None and d > ds:
+            failed = cert.get("failed_conditions") or []
+            also = f"; failing: {', '.join(failed)}" if failed else ""
             reasons.append(
                 f"certificate not held: command age D = {d * ms:.3f} ms > D* = {ds * ms:.3f} ms"
-                f"{where} (margin {margin * ms:.3f} ms)"
+                f"{where} (margin {margin * ms:.3f} ms{also})"
             )
         else:
             failed = ", ".join(cert.get("failed_conditions") or []) or "see the certificate"

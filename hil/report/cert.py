@@ -108,6 +108,7 @@ def scenario_certificate(sv: ScenarioView) -> dict[str, Any]:
         "stall_threshold_s": None,
         "stalls": [],
         "source": "scenario: D = Ts + worst delay (an upper bound of the simulated ages)",
+        "failed_conditions": [],
     }
     if sv.law not in UNIFIED_LAWS:
         out["source"] = "none (not a unified law)"
@@ -125,6 +126,7 @@ def scenario_certificate(sv: ScenarioView) -> dict[str, Any]:
         out["error"] = str(exc)
         return out
     c = certificate(sv, d, 0.0)
+    out["failed_conditions"] = list(c.detail.get("failed", []))
     out.update(
         {
             "d_star_s": d_star,
