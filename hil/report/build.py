@@ -298,7 +298,7 @@ def analyse(
     sv = view(folder.scenario)
     tr = folder.trace
     rr = run_result(folder)
-    kind = folder.kind
+    kind = "run" if rr is not None else folder.kind
     if rr is not None:
         cert = run_certificate(sv, rr)
     else:
