@@ -1,10 +1,10 @@
 """Report generation time for a 60 s run at 1 kHz (60,000 samples).
 
 The folder is simulated once (``hil.sim``, the paper's circle at Ts = 1 ms) or, with
-``--synthetic``, written by ``hil.report.synthetic`` as a run folder with per-sample latencies
-(both paths) and wake-up lateness. Times ``hil report`` (load, metrics, certificate, 9-11
-figures, report.html/md/json) without the ideal trajectory, median of repeats, and once with
-it (a second simulation at Ts/10 dominates that figure).
+``--synthetic``, written by ``hil.report.synthetic`` as a run folder with both services' hop
+logs (both paths live) measured by hil.measure. Times ``hil report`` (load, metrics, the run's
+measurement, 9-14 figures, report.html/md/json) without the ideal trajectory, median of
+repeats, and once with it (a second simulation at Ts/10 dominates that figure).
 
     python bench/bench_report.py              # simulated folder, 3 repeats, plus --ideal once
     python bench/bench_report.py --quick      # synthetic folder, 1 repeat, no ideal

@@ -16,9 +16,12 @@ Definitions (also in docs/reports.md):
 - band: over the samples after the reaching time, ``band_p99`` = p99 of |s| and ``band_max`` =
   max |s|; also ``band_spread`` = max(s) - min(s).
 - switching rate: sign changes of a torque per second (zero samples skipped).
-- percentile: numpy's default ("linear", Hyndman-Fan type 7) percentile, written out so that the
-  figure is the same on every path; :func:`hdr_percentiles` gives the HDR-histogram figures the
-  recorder uses, equal to nearest-rank percentiles within the histogram's precision.
+- saturation share: the fraction of samples at which |tau| >= 0.999 varpi (the sign law's
+  torque sits at its limit; the boundary layer (19) lowers it).
+- percentile: exact, one of the measured values: numpy's ``method="inverted_cdf"`` (the
+  smallest value with at least q % of the samples at or below it), the definition of
+  :mod:`hil.measure.stats` and of every timing figure in summary.json, so no percentile can
+  exceed the maximum and the same samples give the same figure on every path.
 """
 
 from __future__ import annotations
@@ -39,33 +42,20 @@ LIMIT_REL_TOL = 1e-9
 
 
 def percentile(values: Iterable[float] | np.ndarray, q: float) -> float:
-    """The q-th percentile (0 <= q <= 100) by linear interpolation between closest ranks.
-
-    Identical to ``numpy.percentile(values, q)`` (method "linear"), including numpy's choice of
-    interpolating from the upper neighbour when the fraction is >= 0.5, which keeps results
-    monotone in q and exact at the sample values.
-    """
-    data = np.sort(np.asarray(values, dtype=float).ravel())
-    n = data.size
-    if n == 0:
+    """The q-th percentile (0 <= q <= 100), exact: numpy's ``inverted_cdf``, the smallest
+    sample with at least q % of the samples at or below it (q = 0: the minimum)."""
+    data = np.asarray(values, dtype=float).ravel()
+    if data.size == 0:
         raise ValueError("percentile of an empty sample")
     if not 0.0 <= q <= 100.0:
         raise ValueError(f"percentile {q} outside [0, 100]")
-    h = (n - 1) * (np.float64(q) / 100.0)
-    lo = math.floor(h)
-    hi = min(lo + 1, n - 1)
-    frac = float(h - lo)
-    a, b = float(data[lo]), float(data[hi])
-    diff = b - a
-    if frac >= 0.5:
-        return b - diff * (1.0 - frac)
-    return a + diff * frac
+    return float(np.percentile(data, q, method="inverted_cdf"))
 
 
 def percentiles(
     values: Iterable[float] | np.ndarray, qs: Sequence[float] = PERCENTILES
 ) -> dict[str, float]:
-    """p50, p90, p99, p999 and max (keys as in summary.json's timing object)."""
+    """p50, p90, p99, p999 and max (keys as in summary.json's timing object, without _us)."""
     data = np.asarray(values, dtype=float).ravel()
     out = {_pkey(q): percentile(data, q) for q in qs}
     out["max"] = float(np.max(data))
@@ -74,40 +64,6 @@ def percentiles(
 
 def _pkey(q: float) -> str:
     return "p" + (f"{q:g}".replace(".", ""))
-
-
-def nearest_rank(values: Iterable[float] | np.ndarray, q: float) -> float:
-    """The nearest-rank percentile with HdrHistogram's rank rule: the value of rank
-    ``max(1, int(q/100 * n + 0.5))`` in the sorted sample."""
-    data = np.sort(np.asarray(values, dtype=float).ravel())
-    rank = max(1, int(q / 100.0 * data.size + 0.5))
-    return float(data[min(rank, data.size) - 1])
-
-
-def hdr_percentiles(
-    values_us: Iterable[int] | np.ndarray,
-    qs: Sequence[float] = PERCENTILES,
-    significant_figures: int = 3,
-    highest_us: int = 60_000_000,
-) -> dict[str, float]:
-    """Percentiles of integer microsecond values through an HDR histogram (as the recorder
-    keeps them). Each equals :func:`nearest_rank` within ``hdr_relative_precision``."""
-    from hdrh.histogram import HdrHistogram
-
-    hist = HdrHistogram(1, highest_us, significant_figures)
-    data = np.asarray(values_us, dtype=np.int64).ravel()
-    for value in data:
-        hist.record_value(max(1, int(value)))
-    out = {_pkey(q): float(hist.get_value_at_percentile(q)) for q in qs}
-    out["max"] = float(hist.get_max_value())
-    return out
-
-
-def hdr_relative_precision(significant_figures: int = 3) -> float:
-    """Worst relative error of an HDR histogram's value at the given significant figures: the
-    sub-bucket count is the power of two >= 2 * 10**figures, half of it spans one unit."""
-    sub_bucket_count = 2 ** math.ceil(math.log2(2 * 10**significant_figures))
-    return 1.0 / (sub_bucket_count // 2)
 
 
 # --------------------------------------------------------------------------- angles and errors
@@ -195,6 +151,19 @@ def switching_rate(t: np.ndarray, tau: np.ndarray) -> float:
     if duration <= 0.0 or signs.size < 2:
         return 0.0
     return float(np.count_nonzero(signs[1:] != signs[:-1]) / duration)
+
+
+SATURATION_FRACTION = 0.999
+
+
+def saturation_share(tau: np.ndarray, varpi: float, fraction: float = SATURATION_FRACTION) -> float:
+    """The fraction of (known) samples at which |tau| >= fraction * varpi: how much of the time
+    the torque sits at its limit of (2). Missing (NaN) samples are left out."""
+    mag = np.abs(np.asarray(tau, dtype=float))
+    known = mag[~np.isnan(mag)]
+    if known.size == 0 or varpi <= 0:
+        return 0.0
+    return float(np.count_nonzero(known >= fraction * varpi) / known.size)
 
 
 # --------------------------------------------------------------------------- constraints
@@ -328,6 +297,10 @@ def sampling_effects(
     out["switching_rate"] = {
         "tau1": switching_rate(t, trace["tau1"]),
         "tau2": switching_rate(t, trace["tau2"]),
+    }
+    out["saturation_share"] = {
+        "tau1": saturation_share(trace["tau1"], varpi1),
+        "tau2": saturation_share(trace["tau2"], varpi2),
     }
     cons = [
         ConstraintFigure("v", _peak(trace["v"]), phi1, v_bound),

@@ -16,7 +16,7 @@ import pytest
 from controller_service.laws.base import ControlOutput, DesignContext, ReferenceSample, RobotState
 from controller_service.mathns import namespace_for
 from hil.cli import main
-from hil.scenario import loads_scenario
+from hil.scenario import build_loop, loads_scenario
 from hil.sim import RobotVariation, jitter_samples_from, simulate, simulate_batch, write_run_folder
 
 TRACKING = """
@@ -245,3 +245,18 @@ def test_batch_of_identical_robots_agrees_and_scales() -> None:
     b = simulate_batch(sc, 64)
     finals = {round(s["final_position_error"], 12) for s in b.summaries}
     assert len(finals) == 1 and len(b.summaries) == 64
+
+
+def test_a_loop_started_at_t0_runs_the_reference_and_the_law_from_there(tmp_path: Path) -> None:
+    """simulate(t0=): the ideal trajectory of a run whose first sample came late."""
+    sc = loads_scenario(TRACKING.format(duration=0.2), tmp_path)
+    late = simulate(sc, t0=0.5)
+    t = late.column("t")
+    assert t[0] == 0.5 and t[1] == pytest.approx(0.5 + sc.timing.ts)
+    _, reference, _ = build_loop(sc)
+    ref = reference.sample(0.5)
+    assert late.column("xd")[0] == ref.xd and late.column("yd")[0] == ref.yd
+    assert late.column("x")[0] == sc.initial.x  # the initial state is the state at t0
+    # the same loop from t0 = 0 differs (the reference has moved on), and t0 = 0 is the default
+    assert not np.allclose(late.column("xd"), simulate(sc).column("xd"))
+    assert np.array_equal(simulate(sc, t0=0.0).trace, simulate(sc).trace)

@@ -145,17 +145,19 @@ def test_sweep_bad_input_exits_2(tmp_path: Path) -> None:
 
 
 def test_replay_latencies_from_a_run_folder(tmp_path: Path) -> None:
+    from hil.measure.folder import measure_folder
+
     run = write_synthetic_folder(tmp_path / "run", duration=0.5, run=True)
-    trace = np.genfromtxt(run / "trace.csv", delimiter=",", names=True)
+    lat = measure_folder(run).latency_us()  # the run's one result (hil.measure)
     got = latencies_from_run(run)
-    want = np.concatenate([trace["zenoh_latency_us"], trace["can_latency_us"]]) * 1e-6
-    assert np.allclose(np.sort(got), np.sort(want))
-    only_can = latencies_from_run(f"{run}::can")
-    assert np.allclose(only_can, trace["can_latency_us"] * 1e-6)
+    assert np.array_equal(got, np.concatenate([lat["zenoh"], lat["can"]]) * 1e-6)
+    assert np.array_equal(latencies_from_run(f"{run}::can"), lat["can"] * 1e-6)
     with pytest.raises(BadInputError):
         latencies_from_run(f"{run}::udp")
     with pytest.raises(BadInputError):
         latencies_from_run(tmp_path / "missing.mcap")
+    with pytest.raises(BadInputError, match="no hop logs"):
+        latencies_from_run(write_synthetic_folder(tmp_path / "sim", duration=0.5))
     # a sweep of a scenario that replays the run's latencies
     text = PAPER.replace(
         "[run]", f'[timing]\njitter_kind = "replay"\nreplay = "{run}::zenoh"\n\n[run]'
@@ -164,7 +166,7 @@ def test_replay_latencies_from_a_run_folder(tmp_path: Path) -> None:
     out = tmp_path / "out"
     assert main(["sweep", str(path), "--out", str(out), "--ts", "0.002", "--delay", "0"]) == 0
     replayed = json.loads((out / "replay.json").read_text())["latencies"]
-    assert np.allclose(replayed, trace["zenoh_latency_us"] * 1e-6)
+    assert np.array_equal(replayed, lat["zenoh"] * 1e-6)
     assert len(json.loads((out / "sweep.json").read_text())["rows"]) == 1
 
 

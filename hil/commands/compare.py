@@ -19,10 +19,12 @@ def register(app: typer.Typer) -> None:
             typer.Option("--out", help="Where to write (default: a new folder under runs/)."),
         ] = None,
     ) -> None:
-        """Overlaid trajectories, v, ω, τ1, τ2 and position error of two folders (the Zenoh
-        path against the CAN path, two rates, a run against its simulation) and a table of
-        summary figures with their differences (B - A): compare.html, compare.md,
-        compare.json, PNG + CSV per figure. Exit 0, or 2 when a folder is not a run."""
+        """Overlaid trajectories, v, ω, τ1, τ2, position error and (runs) latency CDFs of two
+        folders (the Zenoh path against the CAN path, two rates, a run against its
+        simulation) and a table of summary, sampling-effect and measured timing figures
+        (hil.measure: timing, messages, certificate) with their differences (B - A):
+        compare.html, compare.md, compare.json, PNG + CSV per figure. Exit 0, or 2 when a
+        folder is not a run."""
         from hil.report.compare import build_compare
         from hil.report.folder import load_folder
 

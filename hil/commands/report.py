@@ -34,14 +34,28 @@ def register(app: typer.Typer) -> None:
         ] = 0.01,
         max_lost_ratio: Annotated[
             float,
-            typer.Option(help="Lost messages above this fraction of those sent: negative."),
+            typer.Option(
+                help="Lost messages (State and the applied command path) above this fraction "
+                "of those sent: negative verdict."
+            ),
+        ] = 0.01,
+        max_samples_without_command_ratio: Annotated[
+            float,
+            typer.Option(
+                help="Plant samples whose command never landed above this fraction of the "
+                "samples: negative verdict."
+            ),
         ] = 0.01,
     ) -> None:
-        """Sampling-effect report: trajectory; v, ω, τ1, τ2 with their limits (red dashed);
-        tracking error and deviation from the ideal trajectory; quasi-sliding bands and
-        switching rates; latency histograms/CDFs per path and wake-up lateness (runs); and a
-        verdict. Exit 0 all good, 1 negative verdict (limit broken, certificate not held or
-        exceeded, too many deadline misses or lost messages), 2 not a run folder."""
+        """Sampling-effect report. First the answers: limits of (2) held and by what margin,
+        the command age D against D* (the certificate), the stalls closest to D*, the share
+        of samples without a command, the verdict. Then the details: trajectory (with the
+        ideal one), v, ω, τ1, τ2 against (2), motor torques and drive states, tracking error,
+        quasi-sliding bands, switching and saturation; for a run, latency histograms/CDFs,
+        wake-up lateness, command age over time and every timing figure (summary.json, from
+        hil.measure). Exit 0 all good, 1 negative verdict (limit broken, certificate not held
+        or exceeded, too many deadline misses, samples without a command or lost messages),
+        2 not a run folder."""
         from hil.report.build import Thresholds, analyse, write_report
         from hil.report.folder import load_folder
         from hil.report.ideal import ideal_from_simulator
@@ -55,7 +69,9 @@ def register(app: typer.Typer) -> None:
         rep = analyse(
             loaded,
             ideal=ideal_from_simulator if ideal else None,
-            thresholds=Thresholds(max_deadline_miss_ratio, max_lost_ratio),
+            thresholds=Thresholds(
+                max_deadline_miss_ratio, max_lost_ratio, max_samples_without_command_ratio
+            ),
         )
         paths = write_report(rep, out or folder)
         typer.echo(f"report: {paths['html']}")

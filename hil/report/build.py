@@ -1,9 +1,15 @@
 """``hil report DIR``: the sampling-effect report of one run or simulation folder.
 
-Functional core, thin shell: :func:`analyse` turns a loaded folder into a plain dict (metrics,
-certificate, verdict) and a list of figures; :func:`write_report` writes report.json,
+Functional core, thin shell: :func:`analyse` turns a loaded folder into a plain dict (headline,
+metrics, certificate, verdict) and a list of figures; :func:`write_report` writes report.json,
 report.md (figures as PNG + CSV beside it) and a self-contained report.html. summary.json is
 only ever read.
+
+Where the numbers come from (docs/reports.md): for a run, the certificate and every timing
+figure and message count are summary.json's ``certificate``, ``timing`` and ``messages``, which
+``hil run`` took from :mod:`hil.measure`; the plots draw that pipeline's per-sample series
+(:mod:`hil.report.measured`). The report never evaluates the bound at a timing of its own. A
+simulation folder (no hop logs) is certified at its scenario's timing (:mod:`hil.report.cert`).
 """
 
 from __future__ import annotations
@@ -19,16 +25,21 @@ import numpy as np
 
 from hil import analysis
 from hil.report import figures as fg
-from hil.report import timing_data
-from hil.report.cert import certificate
+from hil.report.cert import failed_conditions, scenario_certificate
 from hil.report.folder import Folder
+from hil.report.headline import headline
 from hil.report.html import render_html
 from hil.report.markdown import render_markdown
+from hil.report.measured import RunResult, run_result
 from hil.report.scenario_view import ScenarioView, view
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 FIGURE_PREFIX = "report_"
 IdealProvider = Callable[[Folder], dict[str, np.ndarray] | None]
+LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
+UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "m/s²", "tau2": "rad/s²"}
+SUMMARY_PEAKS = {"v": "max_abs_v", "omega": "max_abs_omega", "tau1": "max_abs_tau1"}
+SUMMARY_PEAKS["tau2"] = "max_abs_tau2"
 
 
 @dataclass(frozen=True)
@@ -37,6 +48,7 @@ class Thresholds:
 
     max_deadline_miss_ratio: float = 0.01
     max_lost_ratio: float = 0.01
+    max_samples_without_command_ratio: float = 0.01
 
 
 @dataclass
@@ -49,105 +61,232 @@ class Report:
         return not self.data["verdict"]["ok"]
 
 
-def _timing_gap_delay(folder: Folder, sv: ScenarioView) -> tuple[float, float, str]:
-    """The Ts and delta the certificate is evaluated at: a run's measured worst gap between
-    applied samples and worst sample-to-apply latency; a simulation's scenario values."""
-    if folder.kind == "run":
-        gap, delay = timing_data.worst_gap_and_delay(folder, sv.ts)
-        if gap is not None:
-            return gap, (delay if delay is not None else sv.worst_delay), "measured"
-    return sv.ts, sv.worst_delay, "scenario"
+# --------------------------------------------------------------------------- certificate
 
 
-def _counts(summary: dict[str, Any]) -> dict[str, int | None]:
-    """Message counts and deadline misses wherever the summary keeps them."""
-    found: dict[str, int | None] = {
-        "sent": None,
-        "received": None,
-        "lost": None,
-        "deadline_misses": None,
-        "cycles": None,
-    }
+def run_certificate(sv: ScenarioView, rr: RunResult) -> dict[str, Any]:
+    """The run's certificate: summary.json's object as it is (hil.measure's), with where it
+    came from and the names of the design conditions that fail at its D."""
+    if rr.certificate is None:
+        # No certificate in the run (not a unified law): D is still measured.
+        path = rr.applied_path
+        age = rr.timing.get(f"command_age_{path}") if path else None
+        d = age.get("max_us") / 1e6 if isinstance(age, dict) and age.get("max_us") else None
+        return {
+            "path": path,
+            "d_max_s": d,
+            "d_star_s": None,
+            "margin_s": None,
+            "held": None,
+            "v_bound": None,
+            "omega_bound": None,
+            "stall_threshold_s": None,
+            "stalls": [],
+            "source": f"none (law {sv.law} has no certificate); D from {rr.source}",
+            "failed_conditions": [],
+        }
+    cert = json.loads(json.dumps(rr.certificate))  # a copy: the report never edits the summary
+    cert["source"] = rr.source
+    cert["failed_conditions"] = failed_conditions(sv, cert.get("d_max_s"))
+    return cert
 
-    def visit(obj: Any, depth: int = 0) -> None:
-        if not isinstance(obj, dict) or depth > 3:
-            return
-        for key, value in obj.items():
-            if isinstance(value, dict):
-                visit(value, depth + 1)
-                continue
-            if not isinstance(value, int | float) or isinstance(value, bool):
-                continue
-            k = key.lower()
-            for name in found:
-                if k == name or k.endswith("_" + name) or (name == "cycles" and k == "samples"):
-                    found[name] = int((found[name] or 0) + value)
 
-    visit({k: v for k, v in summary.items() if k != "timing"})
-    timing = summary.get("timing")
-    if isinstance(timing, dict) and isinstance(timing.get("deadline_misses"), int):
-        found["deadline_misses"] = timing["deadline_misses"]
-        rate = timing.get("deadline_miss_rate")
-        if isinstance(rate, float) and rate > 0:
-            found["cycles"] = round(timing["deadline_misses"] / rate)
-    return found
+# --------------------------------------------------------------------------- verdict
+
+
+def _pct(x: float) -> str:
+    return f"{100.0 * x:.3f} %"
+
+
+def limit_reasons(cons: dict[str, Any], summary: dict[str, Any]) -> list[str]:
+    """One reason per constraint of (2) beyond its limit, with its numbers."""
+    reasons = []
+    violations = summary.get("violations") or {}
+    for key, c in cons.items():
+        n = violations.get(key)
+        n = int(n) if isinstance(n, int | float) and not isinstance(n, bool) else 0
+        if n <= 0 and c["held"]:
+            continue
+        name, unit = LIMIT_NAMES[key], UNITS[key]
+        where = f"at {n} plant steps" if n > 0 else "at its peak sample"
+        reasons.append(
+            f"limits of (2) broken: |{key}| beyond {name} = {c['limit']:.4g} {unit} {where} "
+            f"(max |{key}| = {c['peak']:.4g} {unit}, {100 * c['ratio']:.1f} % of {name})"
+        )
+    return reasons
+
+
+def certificate_reasons(cert: dict[str, Any], cons: dict[str, Any]) -> tuple[str, list[str]]:
+    """The certificate's state ("held", "not held", "broken", "not applicable") and reasons."""
+    if cert.get("held") is None:
+        return "not applicable", []
+    ms = 1e3
+    d, ds, margin = cert.get("d_max_s"), cert.get("d_star_s"), cert.get("margin_s")
+    where = f" on the {cert['path']} path" if cert.get("path") else ""
+    reasons = []
+    beyond = [
+        (k, b)
+        for k, b in (("v", cert.get("v_bound")), ("omega", cert.get("omega_bound")))
+        if b is not None and cons[k]["peak"] > b * (1.0 + analysis.LIMIT_REL_TOL)
+    ]
+    for k, b in beyond:
+        reasons.append(
+            f"measured beyond the sampled-data bound: max |{k}| = {cons[k]['peak']:.4g} "
+            f"{UNITS[k]} > {b:.4g} {UNITS[k]}"
+        )
+    if not cert["held"]:
+        if d is None:
+            reasons.append(f"certificate not held: no command ever landed{where} (D unknown)")
+        elif ds is not None and d > ds:
+            failed = cert.get("failed_conditions") or []
+            also = f"; failing: {', '.join(failed)}" if failed else ""
+            reasons.append(
+                f"certificate not held: command age D = {d * ms:.3f} ms > D* = {ds * ms:.3f} ms"
+                f"{where} (margin {margin * ms:.3f} ms{also})"
+            )
+        else:
+            failed = ", ".join(cert.get("failed_conditions") or []) or "see the certificate"
+            at = f"D = {d * ms:.3f} ms" + (f" <= D* = {ds * ms:.3f} ms" if ds is not None else "")
+            reasons.append(f"certificate not held: design conditions broken ({failed}) at {at}")
+    state = "broken" if beyond else ("held" if cert["held"] else "not held")
+    return state, reasons
+
+
+def timing_reasons(
+    timing: dict[str, Any], messages: dict[str, Any], path: str | None, th: Thresholds
+) -> tuple[dict[str, Any], list[str]]:
+    """Deadline misses, samples without a command and lost messages of the applied path and
+    the State stream against their thresholds (the shadow path never counts)."""
+    reasons = []
+    found: dict[str, Any] = {}
+    misses, ticks = timing.get("deadline_misses"), timing.get("ticks")
+    rate = timing.get("deadline_miss_rate")
+    if isinstance(misses, int) and isinstance(rate, int | float):
+        found["deadline_misses"] = {"count": misses, "ticks": ticks, "rate": rate}
+        if rate > th.max_deadline_miss_ratio:
+            reasons.append(
+                f"deadline misses: {misses} of {ticks} ticks ({_pct(rate)}) > "
+                f"{_pct(th.max_deadline_miss_ratio)}"
+            )
+    n, judged = timing.get("samples_without_command"), timing.get("samples_judged")
+    rate = timing.get("samples_without_command_rate")
+    if isinstance(n, int) and isinstance(rate, int | float):
+        found["samples_without_command"] = {"count": n, "judged": judged, "rate": rate}
+        if rate > th.max_samples_without_command_ratio:
+            reasons.append(
+                f"samples without a command: {n} of {judged} ({_pct(rate)}) > "
+                f"{_pct(th.max_samples_without_command_ratio)}"
+            )
+    streams = [s for s in ("state", f"torque_{path}" if path else "") if s in messages]
+    if streams:
+        lost = sum(int(messages[s].get("lost", 0)) for s in streams)
+        sent = sum(int(messages[s].get("sent", 0)) for s in streams)
+        ratio = lost / sent if sent else (1.0 if lost else 0.0)
+        found["lost_messages"] = {"lost": lost, "sent": sent, "rate": ratio, "streams": streams}
+        if ratio > th.max_lost_ratio:
+            per = ", ".join(
+                f"{s} {messages[s].get('lost', 0)} of {messages[s].get('sent', 0)}" for s in streams
+            )
+            reasons.append(
+                f"lost messages: {lost} of {sent} ({_pct(ratio)}) > {_pct(th.max_lost_ratio)} "
+                f"({per})"
+            )
+    return found, reasons
 
 
 def verdict_block(
     cons: dict[str, Any],
     summary: dict[str, Any],
     cert: dict[str, Any],
-    counts: dict[str, int | None],
+    rr: RunResult | None,
     thresholds: Thresholds,
 ) -> dict[str, Any]:
-    """The verdict rules of docs/reports.md. Negative when (a) a constraint of (2) is broken
-    (summary.json's violations, which count every plant step, or the trace's peaks), (b) the
-    certificate is not held at the loop's timing or a measured |v| / |omega| exceeds its
-    bound, (c) deadline misses or lost messages exceed their thresholds."""
-    reasons: list[str] = []
-    violations = summary.get("violations") or {}
+    """The verdict rules of docs/reports.md: negative when (a) a limit of (2) is broken
+    (summary.json's violations over every plant step, or a peak), (b) the certificate is not
+    held (D > D* or a design condition) or a measured |v| / |omega| exceeds its bound, (c)
+    deadline misses, samples without a command or lost messages (State and the applied
+    path) exceed their thresholds. Every reason names its numbers."""
+    reasons = limit_reasons(cons, summary)
     broken = sorted(
-        {k for k, n in violations.items() if isinstance(n, int | float) and n > 0}
+        {k for k, n in (summary.get("violations") or {}).items() if isinstance(n, int) and n > 0}
         | {k for k, c in cons.items() if not c["held"]}
     )
-    if broken:
-        reasons.append("limits broken: " + ", ".join(broken))
-    cert_state = "not applicable"
-    if cert["held"] is not None:
-        beyond = [k for k in ("v", "omega") if cons[k]["within_bound"] is False]
-        if beyond:
-            cert_state = "broken"
-            reasons.append("measured beyond the sampled-data bound: " + ", ".join(beyond))
-        elif not cert["held"]:
-            cert_state = "not held"
-            reasons.append(
-                f"certificate not held at Ts={cert['ts']:.6g} s, delay={cert['delay']:.6g} s"
-            )
-        else:
-            cert_state = "held"
-    misses, cycles = counts.get("deadline_misses"), counts.get("cycles")
-    if misses:
-        ratio = misses / cycles if cycles else 1.0
-        if ratio > thresholds.max_deadline_miss_ratio:
-            reasons.append(f"deadline misses {misses} ({ratio:.2%})")
-    lost, sent = counts.get("lost"), counts.get("sent")
-    if lost:
-        ratio = lost / sent if sent else 1.0
-        if ratio > thresholds.max_lost_ratio:
-            reasons.append(f"lost messages {lost} ({ratio:.2%})")
+    cert_state, cert_reasons = certificate_reasons(cert, cons)
+    reasons += cert_reasons
+    timing: dict[str, Any] = {}
+    if rr is not None:
+        timing, more = timing_reasons(rr.timing, rr.messages, cert.get("path"), thresholds)
+        reasons += more
     return {
         "ok": not reasons,
         "limits": "broken" if broken else "held",
         "limits_broken": broken,
         "certificate": cert_state,
-        "deadline_misses": misses,
-        "lost_messages": lost,
+        "deadline_misses": (timing.get("deadline_misses") or {}).get("count"),
+        "samples_without_command": (timing.get("samples_without_command") or {}).get("count"),
+        "lost_messages": (timing.get("lost_messages") or {}).get("lost"),
+        "timing": timing,
         "reasons": reasons,
         "thresholds": {
             "max_deadline_miss_ratio": thresholds.max_deadline_miss_ratio,
+            "max_samples_without_command_ratio": thresholds.max_samples_without_command_ratio,
             "max_lost_ratio": thresholds.max_lost_ratio,
         },
     }
+
+
+# --------------------------------------------------------------------------- drives
+
+
+def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.ndarray | None]:
+    """The motor torques (N·m) the wheel mapping of [robot] makes of the applied tau1, tau2
+    (protocol.can.wheel_mapping.motor_torques), the drives' states and the rejection counts."""
+    from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
+
+    robot = folder.scenario.get("robot") or {}
+    out: dict[str, Any] = {"geometry": None, "note": ""}
+    q = None
+    try:
+        g = RobotGeometry(
+            **{k: float(robot[k]) for k in RobotGeometry.__dataclass_fields__ if k in robot}
+        )
+    except (TypeError, ValueError) as exc:
+        out["note"] = f"no wheel mapping: [robot] is not a geometry ({exc})"
+    else:
+        tr = folder.trace
+        qr, ql = motor_torques(g, tr["tau1"], tr["tau2"])
+        q = np.vstack([qr, ql])
+        lim = sv.limits
+        out.update(
+            {
+                "geometry": {k: getattr(g, k) for k in RobotGeometry.__dataclass_fields__},
+                "motor_torque_limit_nm": motor_torque_limit(g, lim.varpi1, lim.varpi2),
+                "max_abs_q_right_nm": float(np.nanmax(np.abs(qr))),
+                "max_abs_q_left_nm": float(np.nanmax(np.abs(ql))),
+            }
+        )
+    summary = folder.summary
+    out["can"] = summary.get("can") if isinstance(summary.get("can"), dict) else None
+    rej = summary.get("rejections") if isinstance(summary.get("rejections"), dict) else None
+    out["rejections"] = rej
+    out["rejection_counts"] = (
+        {k: _count(v) for k, v in rej.items()} if isinstance(rej, dict) else None
+    )
+    return out, q
+
+
+def _count(obj: Any) -> int:
+    """The sum of every count in a (nested) rejection dict."""
+    if isinstance(obj, bool):
+        return 0
+    if isinstance(obj, int | float):
+        return int(obj)
+    if isinstance(obj, dict):
+        return sum(_count(v) for v in obj.values())
+    return 0
+
+
+# --------------------------------------------------------------------------- analyse
 
 
 def analyse(
@@ -158,26 +297,29 @@ def analyse(
 ) -> Report:
     sv = view(folder.scenario)
     tr = folder.trace
-    gap, delay, timing_source = _timing_gap_delay(folder, sv)
-    cert = certificate(sv, gap, delay).as_dict()
-    cert["timing_source"] = timing_source
+    rr = run_result(folder)
+    kind = "run" if rr is not None else folder.kind
+    if rr is not None:
+        cert = run_certificate(sv, rr)
+    else:
+        cert = scenario_certificate(sv)
+        if kind == "run":  # a run folder from before hil.measure: neither hop logs nor figures
+            cert["source"] = "scenario (the run has no hop logs and no measured certificate)"
     ideal_traj, ideal_note = None, "not requested"
     if ideal is not None:
-        if tr["t"][0] > 2.0 * sv.ts:
-            # A run's clock starts before its first sample (start-up): the reference has moved
-            # on while the robot waited, so a simulation from t = 0 is not the same loop.
-            ideal_note = f"not comparable: the trace starts at t = {tr['t'][0]:.3f} s"
-        else:
-            ideal_traj = ideal(folder)
-            ideal_note = "simulated at Ts/10" if ideal_traj is not None else "no simulator"
+        ideal_traj = ideal(folder)
+        ideal_note = (
+            f"simulated at Ts/10 from the trace's first state at t = {tr['t'][0]:.6g} s"
+            if ideal_traj is not None
+            else "no simulator"
+        )
     sliding = None
     if not {"v_tilde", "w_tilde"} <= set(tr) and folder.recordings:
-        from hil.report.mcap_timing import sliding_from_recordings
+        from hil.report.telemetry import sliding_from_recordings
 
         rec = sliding_from_recordings(folder.recordings)
-        epoch = timing_data.epoch_ns(folder)
         if rec:
-            base = epoch if epoch is not None else int(rec["v_tilde"][0][0])
+            base = rr.epoch_ns if rr is not None and rr.epoch_ns else int(rec["v_tilde"][0][0])
             sliding = {k: ((tn - base) / 1e9, vals) for k, (tn, vals) in rec.items()}
     lim = sv.limits
     metrics = analysis.sampling_effects(
@@ -186,8 +328,8 @@ def analyse(
         phi2=lim.phi2,
         varpi1=lim.varpi1,
         varpi2=lim.varpi2,
-        v_bound=cert["v_bound"],
-        w_bound=cert["w_bound"],
+        v_bound=cert.get("v_bound"),
+        w_bound=cert.get("omega_bound"),
         eps1=sv.eps1,
         eps2=sv.eps2,
         ideal=ideal_traj,
@@ -198,40 +340,20 @@ def analyse(
         "trace.csv" if "v_tilde" in tr else ("recorded telemetry" if sliding else "unavailable")
     )
     # summary.json's peaks cover every plant step, the trace only control samples: take both.
-    for key, skey in (
-        ("v", "max_abs_v"),
-        ("omega", "max_abs_omega"),
-        ("tau1", "max_abs_tau1"),
-        ("tau2", "max_abs_tau2"),
-    ):
+    for key, skey in SUMMARY_PEAKS.items():
         peak = folder.summary.get(skey)
         if isinstance(peak, int | float) and math.isfinite(peak):
             c = metrics["constraints"][key]
             if peak > c["peak"]:
                 fig = analysis.ConstraintFigure(key, float(peak), c["limit"], c["bound"])
                 metrics["constraints"][key] = fig.as_dict()
-    counts = _counts(folder.summary)
-    verdict = verdict_block(metrics["constraints"], folder.summary, cert, counts, thresholds)
-    timing = timing_data.collect(folder)
-    sections = ["trajectory", "velocities", "torques", "tracking_error", "bands"]
-    figs = _trace_figures(tr, sv, cert, ideal_traj, sliding)
-    if timing.latency:
-        figs.append(
-            fg.histogram_and_cdf("latency", "Sample-to-apply latency per path", timing.latency)
-        )
-        sections.append("latency")
-    if timing.lateness:
-        figs.append(
-            fg.over_time("lateness", "Wake-up lateness and jitter over time", "µs", timing.lateness)
-        )
-        sections.append("lateness")
-    if folder.summary.get("timing"):
-        sections.append("timing_summary")
-    sections.append("verdict")
+    verdict = verdict_block(metrics["constraints"], folder.summary, cert, rr, thresholds)
+    drives, q = drives_block(folder, sv)
+    figs, sections = _figures(folder, sv, cert, rr, ideal_traj, sliding, q, drives)
     data = {
         "schema_version": SCHEMA_VERSION,
         "folder": str(folder.path),
-        "kind": folder.kind,
+        "kind": kind,
         "scenario": {
             "law": sv.law,
             "ts": sv.ts,
@@ -244,58 +366,69 @@ def analyse(
                 "varpi1": lim.varpi1,
                 "varpi2": lim.varpi2,
             },
+            "eps1": sv.eps1,
+            "eps2": sv.eps2,
         },
         "sections": sections,
         "metrics": metrics,
         "certificate": cert,
+        "drives": drives,
         "timing": {
-            "summary": folder.summary.get("timing"),
-            "latency_percentiles_us": {
-                k: analysis.percentiles(v) for k, v in timing.latency.items() if len(v)
-            },
-            "lateness_percentiles_us": {
-                k: analysis.percentiles(v[1]) for k, v in timing.lateness.items() if len(v[1])
-            },
-            "source": timing.source,
+            "summary": rr.timing if rr is not None else None,
+            "messages": rr.messages if rr is not None else None,
+            "source": rr.source if rr is not None else None,
+            "applied_path": cert.get("path"),
+            "series": "hop logs (hil.measure)" if rr and rr.measurement else None,
+            "hop_logs_agree_with_summary": rr.agree if rr is not None else None,
         },
-        "counts": counts,
         "verdict": verdict,
         "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
     }
+    data["headline"] = headline(data, folder.summary)
     return Report(data, figs)
 
 
-def _trace_figures(
-    tr: dict[str, np.ndarray],
+def _figures(
+    folder: Folder,
     sv: ScenarioView,
     cert: dict[str, Any],
+    rr: RunResult | None,
     ideal_traj: dict[str, np.ndarray] | None,
-    sliding: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
-) -> list[fg.Figure]:
+    sliding: dict[str, tuple[np.ndarray, np.ndarray]] | None,
+    q: np.ndarray | None,
+    drives: dict[str, Any],
+) -> tuple[list[fg.Figure], list[str]]:
+    """Every figure, and the report's sections in order (see hil.report.content)."""
+    tr = folder.trace
     t = tr["t"]
     lim = sv.limits
-    traj = [("robot", tr["x"], tr["y"]), ("reference", tr["xd"], tr["yd"])]
+    traj = [("reference", tr["xd"], tr["yd"]), ("robot", tr["x"], tr["y"])]
     if ideal_traj is not None:
-        traj.append(("ideal (fine period)", ideal_traj["x"], ideal_traj["y"]))
-    out = [
+        traj.append(("ideal (Ts/10, no delay)", ideal_traj["x"], ideal_traj["y"]))
+    vb, wb = cert.get("v_bound"), cert.get("omega_bound")
+    figs = [
         fg.trajectory(traj),
         fg.signal_with_limits(
-            "v", "Linear velocity v", "v [m/s]", t, [("v", tr["v"])], lim.phi1, cert["v_bound"]
+            "v", "Linear velocity v", "v [m/s]", t, [("v", tr["v"])], lim.phi1, vb
         ),
         fg.signal_with_limits(
-            "omega",
-            "Angular velocity ω",
-            "ω [rad/s]",
+            "omega", "Angular velocity ω", "ω [rad/s]", t, [("omega", tr["omega"])], lim.phi2, wb
+        ),
+        fg.signal_with_limits(
+            "tau1",
+            "τ1 of model (1) (normalized)",
+            "τ1 [m/s²]",
             t,
-            [("omega", tr["omega"])],
-            lim.phi2,
-            cert["w_bound"],
+            [("tau1", tr["tau1"])],
+            lim.varpi1,
         ),
         fg.signal_with_limits(
-            "tau1", "Torque τ1", "τ1 [N·m]", t, [("tau1", tr["tau1"])], lim.varpi1
-        ),
-        fg.signal_with_limits(
-            "tau2", "Torque τ2", "τ2 [N·m]", t, [("tau2", tr["tau2"])], lim.varpi2
+            "tau2",
+            "τ2 of model (1) (normalized)",
+            "τ2 [rad/s²]",
+            t,
+            [("tau2", tr["tau2"])],
+            lim.varpi2,
         ),
     ]
     pos = analysis.position_error(tr["x"], tr["y"], tr["xd"], tr["yd"])
@@ -306,21 +439,88 @@ def _trace_figures(
             t, tr["x"], tr["y"], ideal_traj["t"], ideal_traj["x"], ideal_traj["y"]
         )
         err_series.append(("deviation from ideal [m]", dev))
-    out.append(
+    figs.append(
         fg.signal_with_limits("tracking_error", "Tracking error (4)", "error", t, err_series)
     )
-    band_series = [(name, tr[name]) for name in ("v_tilde", "w_tilde") if name in tr]
-    if not band_series and sliding:
-        out.append(
-            fg.over_time("bands", "Sliding variables v~, w~ (recorded telemetry)", "value", sliding)
-        )
-    if band_series:
-        out.append(
+    panels = []
+    for name, eps, unit in (("v_tilde", sv.eps1, "v~ [m/s]"), ("w_tilde", sv.eps2, "w~ [rad/s]")):
+        if name in tr:
+            panels.append((name, unit, t, tr[name], eps))
+        elif sliding and name in sliding:
+            panels.append((name, unit, sliding[name][0], sliding[name][1], eps))
+    if panels:
+        src = "trace" if "v_tilde" in tr else "recorded telemetry"
+        figs.append(fg.stacked("bands", f"Sliding variables v~ and w~ of (10) ({src})", panels))
+    if q is not None:
+        figs.append(
             fg.signal_with_limits(
-                "bands", "Sliding variables v~, w~ (quasi-sliding band)", "value", t, band_series
+                "motor_torques",
+                "Motor torques sent to the drives (wheel mapping of [robot])",
+                "q [N·m]",
+                t,
+                [("right", q[0]), ("left", q[1])],
+                drives.get("motor_torque_limit_nm"),
             )
         )
-    return out
+    sections = ["headline", "terms", "verdict", "certificate", "trajectory", "velocities"]
+    sections += ["torques", "drives", "tracking_error", "bands"]
+    m = rr.measurement if rr is not None else None
+    if m is not None:
+        figs += _run_figures(m, rr, cert)
+    if rr is not None:
+        sections += ["latency", "lateness", "messages", "timing_summary"]
+    return figs, sections
+
+
+def _run_figures(m: Any, rr: RunResult, cert: dict[str, Any]) -> list[fg.Figure]:
+    """Latency histograms/CDFs, wake-up lateness and command age over time, all from the
+    measurement's per-sample series."""
+    from hil.measure.age import envelope
+
+    figs = []
+    applied = cert.get("path")
+    lat = m.latency_us()
+    if lat:
+        title = "Sample-to-apply latency per path"
+        if applied:
+            title += f" (applied: {applied}; the other path is a shadow)"
+        figs.append(fg.histogram_and_cdf("latency", title, lat))
+    late = {}
+    for key, label in (
+        ("wakeup_lateness", "controller wake-up lateness"),
+        ("plant_wakeup_lateness", "plant wake-up lateness"),
+    ):
+        series = m.series.get(key)
+        if series is not None and len(series[0]):
+            late[label] = (np.asarray(series[0], float), np.asarray(series[1], float) / 1e3)
+    if late:
+        figs.append(fg.over_time("lateness", "Wake-up lateness over time", "µs", late))
+    env = {}
+    paths = sorted(
+        (p for p in ("zenoh", "can") if f"command_age_{p}" in m.series),
+        key=lambda p: p != applied,
+    )
+    for p in paths:
+        seg = m.series[f"command_age_{p}"]
+        if len(seg) and rr.epoch_ns is not None:
+            label = f"{p} (applied)" if p == applied else f"{p} (shadow)"
+            env[label] = envelope(seg, rr.epoch_ns)
+    if env:
+        stalls = [(s["t_s"], s["age_s"]) for s in cert.get("stalls") or []]
+        figs.append(
+            fg.age_envelope(
+                "command_age",
+                "Command age over time (age of the command in force at each plant step)",
+                env,
+                cert.get("d_star_s"),
+                cert.get("stall_threshold_s"),
+                stalls,
+            )
+        )
+    return figs
+
+
+# --------------------------------------------------------------------------- writing
 
 
 def write_report(report: Report, out: Path) -> dict[str, Path]:

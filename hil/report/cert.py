@@ -66,3 +66,77 @@ def certificate(sv: ScenarioView, ts: float, delay: float) -> CertificateFigures
         "controller_service.certificate",
         detail,
     )
+
+
+#: The keys of the contract's certificate object (CONTRACT.md, "Timing figures of a run").
+CONTRACT_KEYS = (
+    "path",
+    "d_max_s",
+    "d_star_s",
+    "margin_s",
+    "held",
+    "v_bound",
+    "omega_bound",
+    "stall_threshold_s",
+    "stalls",
+)
+
+
+def failed_conditions(sv: ScenarioView, d_max: float | None) -> list[str]:
+    """The names of the certificate's conditions that fail at command age ``d_max`` (the same
+    call as hil.measure's: ``certify`` at ts = D, delay = 0)."""
+    if d_max is None or sv.law not in UNIFIED_LAWS:
+        return []
+    return list(certificate(sv, d_max, 0.0).detail.get("failed", []))
+
+
+def scenario_certificate(sv: ScenarioView) -> dict[str, Any]:
+    """A simulation's certificate in the contract's shape: D is the scenario's longest possible
+    command age, Ts + the worst delay (delay plus the jitter's bound), an upper bound of the
+    simulated ages; D* and the bounds as hil.measure computes them for a run."""
+    from controller_service.certificate import critical_age
+
+    d = sv.ts + sv.worst_delay
+    out: dict[str, Any] = {
+        "path": None,
+        "d_max_s": d,
+        "d_star_s": None,
+        "margin_s": None,
+        "held": None,
+        "v_bound": None,
+        "omega_bound": None,
+        "stall_threshold_s": None,
+        "stalls": [],
+        "source": "scenario: D = Ts + worst delay (an upper bound of the simulated ages)",
+        "failed_conditions": [],
+    }
+    if sv.law not in UNIFIED_LAWS:
+        out["source"] = "none (not a unified law)"
+        return out
+    try:
+        d_star = critical_age(
+            SimpleNamespace(**sv.controller),
+            sv.context,
+            sv.boundary_layer,
+            v0=sv.v0,
+            w0=sv.w0,
+        )
+    except Exception as exc:  # a design the certificate rejects is a figure, not a crash
+        out["held"] = False
+        out["error"] = str(exc)
+        return out
+    c = certificate(sv, d, 0.0)
+    out["failed_conditions"] = list(c.detail.get("failed", []))
+    out.update(
+        {
+            "d_star_s": d_star,
+            "margin_s": d_star - d,
+            "held": bool(c.held) and d <= d_star,
+            "v_bound": c.v_bound,
+            "omega_bound": c.w_bound,
+            "stall_threshold_s": max(3 * sv.ts, 0.5 * d_star),
+        }
+    )
+    if c.held is False and "error" in c.detail:
+        out["error"] = c.detail["error"]
+    return out

@@ -1,6 +1,11 @@
 """``hil compare DIR_A DIR_B``: two folders side by side (Zenoh path against CAN path, two
-rates, a run against its simulation): overlaid trajectories, velocities and torques, and a
-table of summary and sampling-effect figures with their differences (B - A)."""
+rates, a run against its simulation): overlaid trajectories, velocities and torques, the
+latency CDFs of both runs, and a table of summary, sampling-effect and timing figures with
+their differences (B - A).
+
+A run's timing figures, message counts and certificate are its measurement
+(:func:`hil.measure.folder.measure_folder`, the one pipeline summary.json and the report also
+read), never figures of compare's own."""
 
 from __future__ import annotations
 
@@ -12,6 +17,8 @@ from typing import Any
 import numpy as np
 
 from hil import analysis
+from hil.measure.figures import Measurement
+from hil.measure.folder import measure_folder
 from hil.report import figures as fg
 from hil.report.build import _jsonable
 from hil.report.folder import Folder
@@ -22,11 +29,12 @@ from hil.report.scenario_view import view
 PREFIX = "compare_"
 
 
-def figures_of(folder: Folder) -> dict[str, float]:
-    """The scalar figures compared: summary.json's numbers and the sampling effects."""
+def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]:
+    """The scalar figures compared: summary.json's numbers, the sampling effects and, for a
+    run, its measurement's timing figures, message counts and certificate."""
     sv = view(folder.scenario)
     lim = sv.limits
-    m = analysis.sampling_effects(
+    eff = analysis.sampling_effects(
         folder.trace,
         phi1=lim.phi1,
         phi2=lim.phi2,
@@ -43,21 +51,49 @@ def figures_of(folder: Folder) -> dict[str, float]:
             for kk, vv in v.items():
                 if isinstance(vv, int | float):
                     out[f"violations.{kk}"] = float(vv)
-    for k, v in m["tracking"].items():
+    for k, v in eff["tracking"].items():
         out[f"tracking.{k}"] = v
-    for name, c in m["constraints"].items():
+    for name, c in eff["constraints"].items():
         out[f"max_over_limit.{name}"] = c["ratio"]
-    for name, b in m["bands"].items():
+    for name, b in eff["bands"].items():
         if b is not None:
             out[f"band_p99.{name}"] = b["band_p99"] if b["band_p99"] is not None else math.nan
-    for name, r in m["switching_rate"].items():
+    for name, r in eff["switching_rate"].items():
         out[f"switching_rate.{name}"] = r
-    for name, f in (folder.summary.get("timing") or {}).items():
+    for name, r in eff["saturation_share"].items():
+        out[f"saturation_share.{name}"] = r
+    if m is not None:
+        out.update(measured_figures(m))
+    return out
+
+
+def measured_figures(m: Measurement) -> dict[str, float]:
+    """timing.*, messages.* and certificate.* of a run's measurement, as numbers."""
+    out: dict[str, float] = {}
+    for name, f in m.timing.items():
         if isinstance(f, dict):
             for q in ("p50_us", "p99_us", "max_us"):
-                if isinstance(f.get(q), int | float):
+                if _number(f.get(q)):
                     out[f"timing.{name}.{q}"] = float(f[q])
+        elif _number(f):
+            out[f"timing.{name}"] = float(f)
+    for stream, counts in m.messages.items():
+        for k in ("sent", "lost", "duplicated", "reordered"):
+            if _number(counts.get(k)):
+                out[f"messages.{stream}.{k}"] = float(counts[k])
+    cert = m.certificate or {}
+    for k in ("d_max_s", "d_star_s", "margin_s", "v_bound", "omega_bound"):
+        if _number(cert.get(k)):
+            out[f"certificate.{k}"] = float(cert[k])
+    if isinstance(cert.get("held"), bool):
+        out["certificate.held"] = float(cert["held"])
+    if "stalls" in cert:
+        out["certificate.stalls"] = float(len(cert["stalls"]))
     return out
+
+
+def _number(x: Any) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool)
 
 
 def compare_rows(a: dict[str, float], b: dict[str, float]) -> list[list[Any]]:
@@ -105,7 +141,16 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
             [(la, pa), (lb + " (on A's times)", pb)],
         )
     )
-    a_fig, b_fig = figures_of(fa), figures_of(fb)
+    ma, mb = measure_folder(fa.path), measure_folder(fb.path)
+    latency = {}
+    for label, m in ((label_a, ma), (label_b, mb)):
+        for path, values in (m.latency_us() if m is not None else {}).items():
+            latency[f"{label} {path}"] = values
+    if latency:
+        figs.append(
+            fg.histogram_and_cdf("latency", "Sample-to-apply latency per run and path", latency)
+        )
+    a_fig, b_fig = figures_of(fa, ma), figures_of(fb, mb)
     rows = compare_rows(a_fig, b_fig)
     files = []
     for f in figs:

@@ -78,24 +78,48 @@ def _decimate(*arrays: np.ndarray) -> list[np.ndarray]:
     return out
 
 
+#: Robot, reference and ideal trajectory: each its own colour AND line style (told apart in
+#: grey print too).
+TRAJECTORY_STYLES = (
+    ("reference", {"color": "black", "linestyle": "--", "linewidth": 1.0}),
+    # the ideal trajectory is drawn over the robot's: thin dark dots on a wide light line, so
+    # that both stay visible where they coincide
+    ("ideal", {"color": "darkgreen", "linestyle": (0, (1.5, 1.5)), "linewidth": 1.4}),
+    ("robot", {"color": "tab:blue", "linestyle": "-", "linewidth": 2.6, "alpha": 0.6}),
+)
+OTHER_STYLES = (
+    {"color": "tab:orange", "linestyle": "-.", "linewidth": 1.2},
+    {"color": "tab:purple", "linestyle": (0, (5, 1)), "linewidth": 1.2},
+    {"color": "tab:brown", "linestyle": "-", "linewidth": 0.9},
+)
+
+
+def _trajectory_style(label: str, i: int) -> dict:
+    for key, style in TRAJECTORY_STYLES:
+        if label.startswith(key):
+            return style
+    return OTHER_STYLES[i % len(OTHER_STYLES)]
+
+
 def trajectory(
     series: Sequence[tuple[str, np.ndarray, np.ndarray]], title: str = "Trajectory in the plane"
 ) -> Figure:
-    """Robot and reference in the (X, Y) plane (the paper's Figures 2 and 7)."""
+    """Robot and reference in the (X, Y) plane (the paper's Figures 2 and 7); labels starting
+    "robot", "reference", "ideal" get fixed, distinct colours and line styles."""
     fig, ax = plt.subplots(figsize=(6, 5))
     cols: dict[str, np.ndarray] = {}
-    for label, x, y in series:
+    for i, (label, x, y) in enumerate(series):
         xs, ys = (
             (x, y)
             if x.size <= MAX_DRAWN_POINTS
             else (x[:: x.size // MAX_DRAWN_POINTS + 1], y[:: x.size // MAX_DRAWN_POINTS + 1])
         )
-        style = "--" if "reference" in label else "-"
-        ax.plot(xs, ys, style, label=label, linewidth=1.2)
+        ax.plot(xs, ys, label=label, **_trajectory_style(label, i))
         cols[f"{label}_x"] = x
         cols[f"{label}_y"] = y
     if series:
-        ax.plot(series[0][1][0], series[0][2][0], "ko", markersize=4, label="start")
+        first = next((s for s in series if s[0].startswith("robot")), series[0])
+        ax.plot(first[1][0], first[2][0], "ko", markersize=4, label=f"{first[0]} start")
     ax.set_xlabel("X [m]")
     ax.set_ylabel("Y [m]")
     ax.set_aspect("equal", adjustable="datalim")
@@ -185,6 +209,77 @@ def over_time(
     ax.set_ylabel(unit)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
+    ax.set_title(title)
+    fig.tight_layout()
+    return Figure(name, title, _png(fig), cols)
+
+
+def stacked(
+    name: str,
+    title: str,
+    panels: Sequence[tuple[str, str, np.ndarray, np.ndarray, float | None]],
+) -> Figure:
+    """One signal per axis, stacked (v~ above w~: their scales differ by an order of
+    magnitude): (label, unit, t, y, threshold) per panel; a threshold (the boundary layer's
+    eps) is drawn as grey dotted lines at +-threshold."""
+    fig, axes = plt.subplots(len(panels), 1, figsize=(7, 2.4 * len(panels)), sharex=True)
+    axes = np.atleast_1d(axes)
+    cols: dict[str, np.ndarray] = {}
+    for ax, (label, unit, t, y, thr) in zip(axes, panels, strict=True):
+        td, yd = _decimate(np.asarray(t, float), np.asarray(y, float))
+        ax.plot(td, yd, linewidth=0.8, label=label)
+        if thr:
+            ax.axhline(thr, color="grey", linestyle=":", linewidth=1.0, label=f"±{thr:g}")
+            ax.axhline(-thr, color="grey", linestyle=":", linewidth=1.0)
+        ax.set_ylabel(unit)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right")
+        cols[f"{label}_t"] = np.asarray(t)
+        cols[label] = np.asarray(y)
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return Figure(name, title, _png(fig), cols)
+
+
+def age_envelope(
+    name: str,
+    title: str,
+    envelopes: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+    d_star: float | None,
+    threshold: float | None,
+    stalls: Sequence[tuple[float, float]] = (),
+) -> Figure:
+    """Command age over time per path, from :func:`hil.measure.age.envelope` (t s, min s,
+    max s per bin), in ms; D* as a red dashed line, the stall threshold dotted, stalls marked.
+    The first path is drawn as a filled band, the others (shadow paths) as thin lines."""
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    cols: dict[str, np.ndarray] = {}
+    for i, (label, (t, lo, hi)) in enumerate(envelopes.items()):
+        if i == 0:
+            ax.fill_between(t, lo * 1e3, hi * 1e3, step="mid", alpha=0.6, label=label)
+        else:
+            ax.plot(t, hi * 1e3, linewidth=0.7, color="grey", linestyle="--", label=f"{label} max")
+        cols[f"{label}_t_s"] = t
+        cols[f"{label}_min_ms"] = lo * 1e3
+        cols[f"{label}_max_ms"] = hi * 1e3
+    if d_star is not None and np.isfinite(d_star):
+        ax.axhline(d_star * 1e3, label=f"D* {d_star * 1e3:.3g} ms", **LIMIT_STYLE)
+        cols["d_star_ms"] = np.array([d_star * 1e3])
+    if threshold is not None:
+        ax.axhline(
+            threshold * 1e3, label=f"stall threshold {threshold * 1e3:.3g} ms", **BOUND_STYLE
+        )
+        cols["stall_threshold_ms"] = np.array([threshold * 1e3])
+    if stalls:
+        st = np.array(stalls, dtype=float)
+        ax.plot(st[:, 0], st[:, 1] * 1e3, "kx", markersize=6, label="stalls")
+        cols["stall_t_s"] = st[:, 0]
+        cols["stall_age_ms"] = st[:, 1] * 1e3
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("command age [ms]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
     ax.set_title(title)
     fig.tight_layout()
     return Figure(name, title, _png(fig), cols)

@@ -1,6 +1,7 @@
 """Self-contained HTML: inline CSS, figures as base64 PNG data URIs, no script, no link.
 
-Opens offline: nothing in the page refers to a network resource.
+Opens offline: nothing in the page refers to a network resource. The sections and their text
+are hil.report.content's, the same as report.md's; the headline comes first.
 """
 
 from __future__ import annotations
@@ -10,8 +11,8 @@ import html
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from hil.report.content import fmt, sections
 from hil.report.figures import Figure
-from hil.report.markdown import SECTION_FIGURES, SECTION_TITLES, fmt, metric_rows
 
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
@@ -48,44 +49,39 @@ def figure(f: Figure, prefix: str = "report_") -> str:
 
 def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
     by_name = {f.name: f for f in figs}
-    v = data["verdict"]
+    ok = data["verdict"]["ok"]
+    s = data["scenario"]
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         f"<title>{esc('Report: ' + data['folder'])}</title>",
         f"<style>{CSS}</style></head><body>",
         f"<h1>What timing did to the law: {esc(data['folder'])}</h1>",
-        f"<p>{esc(data['kind'])} · law <code>{esc(data['scenario']['law'])}</code> · "
-        f"Ts {esc(fmt(data['scenario']['ts']))} s · delay {esc(fmt(data['scenario']['delay']))} s"
-        f" · jitter {esc(fmt(data['scenario']['jitter']))} s "
-        f"({esc(data['scenario']['jitter_kind'])})</p>",
     ]
-    cls = "ok" if v["ok"] else "bad"
-    parts.append(f'<section id="verdict"><h2>{SECTION_TITLES["verdict"]}</h2>')
-    parts.append(f'<div class="verdict {cls}"><strong>{"PASS" if v["ok"] else "FAIL"}</strong>')
-    parts.append(
-        table(
-            ["item", "state"],
-            [
-                ["limits (2)", v["limits"]],
-                ["certificate", v["certificate"]],
-                ["deadline misses", v["deadline_misses"]],
-                ["lost messages", v["lost_messages"]],
-            ],
-        )
-    )
-    if v["reasons"]:
-        parts.append("<ul>" + "".join(f"<li>{esc(r)}</li>" for r in v["reasons"]) + "</ul>")
-    parts.append("</div></section>")
-    for section in data["sections"]:
-        if section == "verdict":
-            continue
-        parts.append(f'<section id="{esc(section)}"><h2>{esc(SECTION_TITLES[section])}</h2>')
-        for header, rows in metric_rows(data, section):
-            parts.append(table(header, rows))
-        for name in SECTION_FIGURES.get(section, ()):
-            if name in by_name:
-                parts.append(figure(by_name[name]))
+    for section in sections(data):
+        parts.append(f'<section id="{esc(section.id)}">')
+        if section.id == "headline":
+            cls = "ok" if ok else "bad"
+            parts.append(f'<div class="verdict {cls}"><strong>{"PASS" if ok else "FAIL"}</strong>')
+        else:
+            parts.append(f"<h2>{esc(section.title)}</h2>")
+        for block in section.blocks:
+            kind = block[0]
+            if kind == "p":
+                parts.append(f"<p>{esc(block[1])}</p>")
+            elif kind == "list":
+                parts.append("<ul>" + "".join(f"<li>{esc(t)}</li>" for t in block[1]) + "</ul>")
+            elif kind == "table":
+                parts.append(table(block[1], block[2]))
+            elif kind == "figure" and block[1] in by_name:
+                parts.append(figure(by_name[block[1]]))
+        if section.id == "headline":
+            parts.append("</div>")
+            parts.append(
+                f"<p>{esc(data['kind'])} · law <code>{esc(s['law'])}</code> · "
+                f"Ts {esc(fmt(s['ts']))} s · delay {esc(fmt(s['delay']))} s"
+                f" · jitter {esc(fmt(s['jitter']))} s ({esc(s['jitter_kind'])})</p>"
+            )
         parts.append("</section>")
     parts.append("</body></html>")
     return "\n".join(parts)

@@ -165,12 +165,15 @@ def simulate(
     variation: RobotVariation | None = None,
     progress: Progress | None = None,
     loop: tuple[Any, Any, Any] | None = None,
+    t0: float = 0.0,
 ) -> SimResult:
     """One closed loop on plain floats (the single-run path).
 
     ``progress(k, K)`` is called now and then; Ctrl-C stops the loop and returns what was
     computed with ``interrupted = True``. ``loop`` = (controller, reference, context) reuses
-    built objects.
+    built objects. ``t0``: the time of the first sample (default 0): the law's clock, the
+    reference and the disturbance run from there, as in a run whose first sample came at t0
+    (the initial state is then the state at t0, the law's memory its initial memory).
     """
     var = variation or RobotVariation()
     controller, reference, context = loop or build_loop(scenario)
@@ -219,7 +222,7 @@ def simulate(
     last = (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
     try:
         for k in range(n_samples):
-            t_k = k * ts
+            t_k = t0 + k * ts
             rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
             meas = rs if ideal_sensor else measure(sensor, rs, k, sseed)
             ref = reference.sample(t_k)
@@ -271,7 +274,18 @@ def simulate(
                 j_next = min(nxt, j_end_period)
                 if j_next > j:
                     state = advance_float_tracked(
-                        state, cmd1, cmd2, j * h, h, j_next - j, dist, lag, dseed, limits, ext, j
+                        state,
+                        cmd1,
+                        cmd2,
+                        t0 + j * h,
+                        h,
+                        j_next - j,
+                        dist,
+                        lag,
+                        dseed,
+                        limits,
+                        ext,
+                        j if t0 == 0.0 else None,  # off the step grid: times from t0
                     )
                     j = j_next
                 if j >= j_end_period:

@@ -1,9 +1,12 @@
 """``jitter_kind = "replay"`` from a real run: the latencies measured in a run folder or its
 recording, in seconds, for the simulator's replay (``hil.sim.timing.extra_delays``).
 
-Accepted paths: a run folder (its trace.csv ``*_latency_us`` columns, else its ``*.mcap``), or a
-``.mcap`` recording; ``PATH::zenoh`` or ``PATH::can`` keeps one path's latencies (default: all
-paths, in recording order per path). Plain latency files stay with
+Accepted paths: a run folder or a ``.mcap`` recording; both are read through the run's one
+result, :mod:`hil.measure` (a folder's hop logs by ``measure_folder``, a recording's attached
+hop logs by ``measure_recording``), so a folder and its recording replay the same latencies:
+``Measurement.latency_us()``, the sample-to-apply latency of every command (applied path: apply
+- sample; shadow path: receive - sample). ``PATH::zenoh`` or ``PATH::can`` keeps one path
+(default: every path, each in landing order, Zenoh first). Plain latency files stay with
 ``hil.sim.timing.jitter_samples_from``.
 """
 
@@ -32,21 +35,27 @@ def is_run_source(spec: str | Path) -> bool:
     return p.is_dir() or p.suffix == ".mcap"
 
 
+def measured_latencies_us(p: Path) -> dict[str, np.ndarray]:
+    """Per path, the sample-to-apply latencies (µs) of a run folder or recording."""
+    from hil.measure.folder import measure_folder, measure_recording
+
+    if p.is_dir():
+        m = measure_folder(p)
+        where = "hop logs (controller.hoplog, plant.hoplog)"
+    elif p.suffix == ".mcap" and p.is_file():
+        m = measure_recording(p)
+        where = "attached hop logs"
+    else:
+        raise BadInputError(f"[timing] replay: {p} is neither a run folder nor a .mcap recording")
+    if m is None:
+        raise BadInputError(f"[timing] replay: {p} has no {where}: not a run of hil run")
+    return m.latency_us()
+
+
 def latencies_from_run(spec: str | Path) -> np.ndarray:
     """Measured sample-to-apply latencies (seconds) of a run folder or recording."""
     p, which = split_path(spec)
-    per_path: dict[str, np.ndarray] = {}
-    if p.is_dir():
-        from hil.report.folder import load_folder
-        from hil.report.timing_data import collect
-
-        per_path = dict(collect(load_folder(p)).latency)
-    elif p.suffix == ".mcap" and p.is_file():
-        from hil.report.mcap_timing import from_recordings
-
-        per_path = dict(from_recordings([p]).latency)
-    else:
-        raise BadInputError(f"[timing] replay: {p} is neither a run folder nor a .mcap recording")
+    per_path = measured_latencies_us(p)
     if which is not None:
         if which not in per_path:
             raise BadInputError(

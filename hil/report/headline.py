@@ -1,0 +1,160 @@
+"""The report's first lines: the four answers, in words and numbers.
+
+1. Were the limits of (2) held, and by what margin (each peak as a share of its limit)?
+2. The command age D against D* (the certificate) and the margin.
+3. The stalls that came closest to D*: when, how long, why (top 3).
+4. The share of plant samples that never got a command.
+
+Every number is one already in the report: the peaks of summary.json (every plant step) and
+the trace, the certificate (for a run: summary.json's, i.e. hil.measure's), the timing object.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+LIMITS = (
+    ("v", "φ1", "m/s"),
+    ("omega", "φ2", "rad/s"),
+    ("tau1", "ϖ1", "m/s²"),
+    ("tau2", "ϖ2", "rad/s²"),
+)
+SYMBOL = {"v": "v", "omega": "ω", "tau1": "τ1", "tau2": "τ2"}
+TOP_STALLS = 3
+
+
+def ms(seconds: float) -> str:
+    return f"{seconds * 1e3:.3f} ms"
+
+
+def percent(x: float) -> str:
+    return f"{100.0 * x:.3f} %"
+
+
+def _limits(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, Any], str]:
+    cons = data["metrics"]["constraints"]
+    violations = summary.get("violations") or {}
+    out: dict[str, Any] = {"held": data["verdict"]["limits"] == "held"}
+    parts = []
+    broken = []
+    for key, name, unit in LIMITS:
+        c = cons[key]
+        n = violations.get(key)
+        n = int(n) if isinstance(n, int | float) and not isinstance(n, bool) else None
+        out[key] = {
+            "max": c["peak"],
+            "limit": c["limit"],
+            "percent_of_limit": 100.0 * c["ratio"],
+            "violations": n,
+        }
+        sym = SYMBOL[key]
+        parts.append(
+            f"max |{sym}| = {c['peak']:.4g} {unit} is {100.0 * c['ratio']:.1f} % of "
+            f"{name} = {c['limit']:.4g} {unit}"
+        )
+        if (n or 0) > 0:
+            broken.append(f"|{sym}| beyond {name} at {n} plant steps")
+        elif not c["held"]:
+            broken.append(f"|{sym}| beyond {name}")
+    every = "over every plant step" if violations else "over the trace's samples"
+    state = "held" if not broken else "BROKEN (" + "; ".join(broken) + ")"
+    text = f"Limits of (2) {state}, {every}: " + "; ".join(parts) + "."
+    return out, text
+
+
+def _command_age(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
+    cert = data["certificate"]
+    d, ds, margin = cert.get("d_max_s"), cert.get("d_star_s"), cert.get("margin_s")
+    path = cert.get("path")
+    out = {
+        "path": path,
+        "d_max_s": d,
+        "d_star_s": ds,
+        "margin_s": margin,
+        "held": cert.get("held"),
+        "source": cert.get("source"),
+    }
+    if data["kind"] != "run" or path is None:
+        what = f"Command age D ≤ Ts + worst delay = {ms(d)} (the scenario's timing)"
+    elif d is None:
+        return out, f"Command age: no command ever landed on the {path} path (D unknown)."
+    else:
+        what = f"Command age D = {ms(d)} on the applied path ({path})"
+    if ds is None:
+        return out, f"{what}; no certificate ({data['scenario']['law']} has none)."
+    if cert.get("held"):
+        state = "certificate held"
+    elif d is not None and d > ds:
+        state = "certificate NOT held (D > D*)"
+    else:
+        failed = ", ".join(cert.get("failed_conditions") or []) or "design conditions"
+        state = f"certificate NOT held ({failed})"
+    return out, f"{what} against D* = {ms(ds)}: margin {ms(margin)}, {state}."
+
+
+def _stalls(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
+    cert = data["certificate"]
+    stalls = list(cert.get("stalls") or [])
+    thr = cert.get("stall_threshold_s")
+    top = [{k: s.get(k) for k in ("t_s", "age_s", "cause")} for s in stalls[:TOP_STALLS]]
+    out = {"threshold_s": thr, "listed": len(stalls), "top": top}
+    if data["kind"] != "run" or cert.get("path") is None:
+        return out, "Stalls: not measured in a simulation (every command lands after its delay)."
+    if thr is None:
+        return out, "Stalls: no stall threshold without a certificate."
+    if not stalls:
+        return out, (
+            f"Stalls: none; the command age never exceeded the stall threshold "
+            f"max(3 Ts, D*/2) = {ms(thr)}."
+        )
+    items = "; ".join(
+        f"t = {s['t_s']:.3f} s, age {ms(s['age_s'])}, cause {s['cause']}" for s in top
+    )
+    return out, (
+        f"Stalls closest to D* (top {len(top)} of {len(stalls)} above {ms(thr)}): {items}."
+    )
+
+
+def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, Any], str]:
+    timing = (data.get("timing") or {}).get("summary") or {}
+    n, judged = timing.get("samples_without_command"), timing.get("samples_judged")
+    rate = timing.get("samples_without_command_rate")
+    if data["kind"] == "run" and isinstance(n, int) and isinstance(rate, int | float):
+        return (
+            {"count": n, "judged": judged, "rate": rate},
+            f"Samples without a command: {n} of {judged} ({percent(rate)}).",
+        )
+    if data["kind"] == "run":
+        return {"count": None, "judged": None, "rate": None}, (
+            "Samples without a command: not measured (the run has no such figure)."
+        )
+    dropped = summary.get("commands_dropped")
+    extra = f"; {dropped} commands overtaken by a newer one and dropped" if dropped else ""
+    return {"count": 0, "judged": None, "rate": 0.0}, (
+        f"Samples without a command: none in a simulation (every sample's command lands{extra})."
+    )
+
+
+def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
+    """The four answers and the verdict, as data and as the report's first lines."""
+    limits, l_text = _limits(data, summary)
+    age, a_text = _command_age(data)
+    stalls, s_text = _stalls(data)
+    samples, n_text = _samples(data, summary)
+    v = data["verdict"]
+    verdict = "PASS" if v["ok"] else "FAIL"
+    v_text = f"Verdict: {verdict}." if v["ok"] else f"Verdict: FAIL: {'; '.join(v['reasons'])}."
+    return {
+        "verdict": verdict,
+        "limits": limits,
+        "command_age": age,
+        "stalls": stalls,
+        "samples_without_command": samples,
+        "lines": [
+            {"key": "limits", "text": l_text},
+            {"key": "command_age", "text": a_text},
+            {"key": "stalls", "text": s_text},
+            {"key": "samples_without_command", "text": n_text},
+            {"key": "verdict", "text": v_text},
+        ],
+    }
