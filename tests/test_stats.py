@@ -1,4 +1,4 @@
-"""Timing summaries (hil.timing): exact percentiles in microseconds from nanosecond samples."""
+"""Timing summaries (hil.measure.stats): exact percentiles in µs from nanosecond samples."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.timing import diffs, period_jitter, summarize
+from hil.measure.stats import summarize_ns as summarize
 
 
 def test_summary_has_the_contract_keys_in_microseconds():
@@ -39,8 +39,3 @@ def test_negative_durations_are_counted_not_hidden():
 def test_empty_summary_is_explicit():
     s = summarize([])
     assert s["count"] == 0 and s["p99_us"] is None
-
-
-def test_period_jitter_is_distance_from_nominal_period():
-    assert diffs([0, 10, 25]) == [10, 15]
-    assert period_jitter([0, 1000, 2100, 2900], 1000) == [0, 100, 200]
