@@ -12,12 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.run_helpers import assert_negative_verdict_explained
-
 from hil.cli import main
 from hil.measure.folder import measure_folder
 from hil.report.cert import CONTRACT_KEYS
 from hil.sweep.replay import latencies_from_run
+from tests.run_helpers import assert_negative_verdict_explained
 from tests.scenario_text import CIRCLE_TABLE1
 from tests.test_report import RUN_SECTIONS, check_html, check_images
 
