@@ -178,3 +178,12 @@ def test_a_truncated_hop_log_reads_up_to_its_last_whole_chunk(tmp_path):
     with pytest.raises(HopLogError, match="no hop-log header"):
         read_hoplog(cut)
     assert read_hoplog(path).complete and len(read_hoplog(path).rows["a"]) == 200
+
+
+def test_a_late_start_is_one_startup_stall(tmp_path):
+    m = _measure(tmp_path, Loop(controller_stall=(0, 40 * MS)), _paper_bound())
+    stalls = m.certificate["stalls"]
+    assert stalls[0]["cause"] == "startup" and stalls[0]["t_s"] == 0.0
+    assert stalls[0]["age_s"] >= 0.040
+    assert [s["cause"] for s in stalls].count("startup") == 1
+    assert m.timing["startup_hold_s"] >= 0.040

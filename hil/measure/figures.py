@@ -432,16 +432,16 @@ def find_stalls(r: _Run, seg: agemod.AgeSegments, threshold_ns: int) -> list[dic
     """Excursions of the applied path's command age above ``threshold_ns``, worst first, each
     with the cause found by joining the logs over [sample in force, next landing]."""
     found: list[dict[str, Any]] = []
-    if len(seg) and int(seg.start[0]) - r.w0 > threshold_ns:
-        found.append(
-            {
-                "t_s": 0.0,
-                "age_s": (int(seg.start[0]) - r.w0) / 1e9,
-                "cause": "startup",
-            }
-        )
     peaks = seg.peak
     over = np.nonzero(peaks > threshold_ns)[0]
+    if len(seg) and int(seg.start[0]) - r.w0 > threshold_ns:
+        # A late first landing: the hold before it and the age of that first (old) command
+        # are one excursion, the start-up's.
+        age = int(seg.start[0]) - r.w0
+        if over.size and over[0] == 0:
+            age = max(age, int(peaks[0]))
+            over = over[1:]
+        found.append({"t_s": 0.0, "age_s": age / 1e9, "cause": "startup"})
     # The worst first, and only as many as are listed: joining the logs for each costs time.
     over = over[np.argsort(-peaks[over], kind="stable")][:STALL_LIMIT]
     for j in over.tolist():
