@@ -31,10 +31,13 @@ from typing import Any
 from controller_service.laws.base import Controller, Limits, RobotState
 from controller_service.realtime import DeadlineClock, SchedulingReport, setup_scheduling
 from protocol import keys
+from protocol.faults import Faults, every_nth
 from protocol.hoplog import (
     CONTROLLER_TABLES,
     TICK_DROPPED,
+    TICK_DUPLICATED,
     TICK_NO_SEND,
+    TICK_REORDERED,
     HopLogWriter,
     crashed_log,
 )
@@ -112,7 +115,14 @@ class CanCommandPath:
     plant's arrivals can be matched to this send log in per-node order.
     """
 
-    def __init__(self, bus: Any, lifecycle: Any, geometry: Any, hoplog: HopLogWriter) -> None:
+    def __init__(
+        self,
+        bus: Any,
+        lifecycle: Any,
+        geometry: Any,
+        hoplog: HopLogWriter,
+        faults: Faults | None = None,
+    ) -> None:
         from protocol.can.drive_link import from_message, to_message
 
         self.bus = bus
@@ -127,6 +137,9 @@ class CanCommandPath:
         self.arm_sends = 0  # lifecycle sequences sent: each holds one zero torque per node
         self.rearms = 0
         self.hoplog = hoplog
+        self.faults = faults or Faults()
+        self.epoch_ns = 0  # set at the start: bus-off bursts are placed in run time
+        self.injected_bus_off = 0
         self._thread = threading.Thread(target=self._reader, name="can-reader", daemon=True)
 
     def start(self) -> None:
@@ -142,17 +155,22 @@ class CanCommandPath:
         from protocol.can.codec import Cmd, split_id
 
         stamp = 0
+        now = time.monotonic_ns()
+        bus_off = self.epoch_ns > 0 and self.faults.bus_off((now - self.epoch_ns) / 1e9)
         for f in frames:
-            try:
-                self.bus.send(self._to(f), timeout=0.05)
-                stamp = time.monotonic_ns()
-                self.sent_frames += 1
-            except Exception:
-                self.send_errors += 1
-                continue
             node, cmd = split_id(f.arbitration_id)
+            sent = 0
+            if bus_off:
+                self.injected_bus_off += 1  # a [faults] bus-off burst: the send fails
+            else:
+                try:
+                    self.bus.send(self._to(f), timeout=0.05)
+                    sent = stamp = time.monotonic_ns()
+                    self.sent_frames += 1
+                except Exception:
+                    self.send_errors += 1
             if cmd == Cmd.SET_INPUT_TORQUE:
-                self.hoplog.append("can_tx", (node, stamp, cmd_seq))
+                self.hoplog.append("can_tx", (node, sent, cmd_seq))
         return stamp
 
     def _reader(self) -> None:
@@ -223,7 +241,7 @@ class ControllerService:
         law_name: str = "unified",
         spin_ns: int = 0,
         hoplog: HopLogWriter | None = None,
-        command_drop_every: int = 0,
+        faults: Faults | None = None,
     ) -> None:
         from hil.run.zsession import payload_bytes, publisher
 
@@ -257,8 +275,10 @@ class ControllerService:
         if hoplog is None:
             raise ValueError("the controller service needs a hop log")
         self.hoplog = hoplog
-        self.command_drop_every = int(command_drop_every)
-        self.injected_drops = 0
+        self.faults = faults or Faults()
+        self.injected = {"drops": 0, "duplicates": 0, "reorders": 0}
+        self._held: bytes | None = None  # a command a [faults] reorder publishes after the next
+        self._fault_flags = 0
         self.scheduling = SchedulingReport()
         self.clock: DeadlineClock | None = None
         self.cycles = 0
@@ -338,9 +358,8 @@ class ControllerService:
             )
             return
         cmd_seq = self._cmd_seq
-        zsend, csend, dropped = self._publish(state_seq, sample_ns, c0, tau1, tau2, flags, tel)
-        if dropped:
-            flags |= TICK_DROPPED
+        zsend, csend, _ = self._publish(state_seq, sample_ns, c0, tau1, tau2, flags, tel)
+        flags |= self._fault_flags
         self.cycles += 1
         self.hoplog.append(
             "ticks",
@@ -391,12 +410,8 @@ class ControllerService:
         )
         self._cmd_seq += 1
         self._last_cmd = encode(cmd)
-        m = self.command_drop_every
-        dropped = m > 0 and cmd.seq % m == m - 1 and not (flags & FLAG_STOP)
-        if dropped:
-            self.injected_drops += 1
-        else:
-            self._pub_cmd.put(self._last_cmd)
+        dropped, log_flags = self._put_command(self._last_cmd, cmd.seq, flags)
+        self._fault_flags = log_flags
         csend = self.can_path.send_torques(tau1, tau2, cmd.seq) if self.can_path is not None else 0
         if tel and all(n in tel for n in TELEMETRY_FIELDS):
             try:
@@ -414,6 +429,32 @@ class ControllerService:
             except ValueError:
                 self.rejections.count("telemetry_unencodable")
         return send_ns, csend, dropped
+
+    def _put_command(self, payload: bytes, seq: int, flags: int) -> tuple[bool, int]:
+        """Put one command on Zenoh through the [faults] injections (protocol.faults);
+        returns (dropped, the tick's fault flags)."""
+        f = self.faults
+        held, self._held = self._held, None
+        out_flags = 0
+        if flags & FLAG_STOP:
+            pass
+        elif every_nth(seq, f.command_drop_every):
+            self.injected["drops"] += 1
+            if held is not None:
+                self._pub_cmd.put(held)
+            return True, TICK_DROPPED
+        elif every_nth(seq, f.command_reorder_every) and held is None:
+            self._held = payload  # published after the next command
+            self.injected["reorders"] += 1
+            return False, TICK_REORDERED
+        self._pub_cmd.put(payload)
+        if held is not None:
+            self._pub_cmd.put(held)
+        if not (flags & FLAG_STOP) and every_nth(seq, f.command_duplicate_every):
+            self._pub_cmd.put(payload)
+            self.injected["duplicates"] += 1
+            out_flags |= TICK_DUPLICATED
+        return False, out_flags
 
     def publish_status(self, state: str = "running") -> None:
         flags = STATUS_WATCHDOG_TRIPPED if self._stale else 0
@@ -499,7 +540,10 @@ class ControllerService:
             "stale_entries": self.stale_entries,
             "commands_sent": self._cmd_seq,
             "restarted": getattr(self, "restarted", False),
-            "injected_command_drops": self.injected_drops,
+            "injected": {
+                **{f"command_{k}": v for k, v in self.injected.items()},
+                "can_bus_off_frames": self.can_path.injected_bus_off if self.can_path else 0,
+            },
             "scheduling": self.scheduling.as_dict(),
             "can": None
             if self.can_path is None
@@ -528,6 +572,7 @@ def main_from_settings(settings_path: str) -> int:
     s = RunSettings.load(settings_path)
     core, law_name = build_control_core(s)
     period_ns = round(1e9 / s.rate_hz)
+    faults = Faults.of(s.faults)
     log_path = Path(s.out_dir) / HOPLOG_NAME
     # A predecessor that crashed mid-run left its log open: this is a restart, which continues
     # that log, its epoch and its command numbering (the plant's tracker sees no gap).
@@ -561,7 +606,7 @@ def main_from_settings(settings_path: str) -> int:
             heartbeat_timeout=cs.heartbeat_timeout,
             torque_limit=limit,
         )
-        can_path = CanCommandPath(bus, lifecycle, geom, hoplog)
+        can_path = CanCommandPath(bus, lifecycle, geom, hoplog, faults)
     from hil.run.startgate import StartGate
 
     epoch_ns = s.epoch_ns or (int(previous.meta["epoch_ns"]) if previous is not None else 0)
@@ -581,7 +626,7 @@ def main_from_settings(settings_path: str) -> int:
         law_name=law_name,
         spin_ns=int(s.spin_us * 1000),
         hoplog=hoplog,
-        command_drop_every=int((s.faults or {}).get("command_drop_every", 0)),
+        faults=faults,
     )
     if previous is not None:
         # The predecessor may have sent commands it had not logged yet (its last chunk, up to
@@ -601,6 +646,8 @@ def main_from_settings(settings_path: str) -> int:
                     return 1
                 epoch_ns = svc.epoch_ns = got
             hoplog.update_meta({"epoch_ns": epoch_ns})
+            if can_path is not None:
+                can_path.epoch_ns = epoch_ns
             end_ns = None if s.lockstep else epoch_ns + int((s.duration + 2.0) * 1e9)
             print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
             svc.run(stop, end_ns, sched)

@@ -124,14 +124,38 @@ class SweepConfig:
 
 @dataclass(frozen=True)
 class FaultsConfig:
-    """[faults]: fault injection on the wire (0 = off). The plant does not publish the State
-    with seq % n == n - 1 (n = state_drop_every), the controller does not publish on Zenoh the
-    TorqueCommand with cmd_seq % m == m - 1 (m = command_drop_every); both log each drop as
-    injected. ``seed`` is reserved for random faults."""
+    """[faults]: fault injection on the wire (0 = off; protocol.faults decides, seeded; the
+    services log every fault they inject). Every n-th: the plant drops or duplicates State
+    (seq % n == n - 1), the controller drops, duplicates or reorders (swaps with the next)
+    TorqueCommand on Zenoh. Bursts of ``*_length`` s once per ``*_every`` s at a seeded offset:
+    extra delay on the applied path, CAN bus-off at the controller. ``can_frame_loss``: the
+    probability that a drive's receiver loses a Set_Input_Torque frame."""
 
     state_drop_every: int = 0
     command_drop_every: int = 0
+    state_duplicate_every: int = 0
+    command_duplicate_every: int = 0
+    command_reorder_every: int = 0
+    delay_burst_every: float = 0.0
+    delay_burst_length: float = 0.0
+    delay_burst_extra: float = 0.0
+    can_frame_loss: float = 0.0
+    can_bus_off_every: float = 0.0
+    can_bus_off_length: float = 0.0
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.can_frame_loss <= 1.0:
+            raise BadInputError(
+                "[faults] can_frame_loss must be a probability in [0, 1], "
+                f"got {self.can_frame_loss}"
+            )
+        for what in ("delay_burst", "can_bus_off"):
+            every, length = getattr(self, f"{what}_every"), getattr(self, f"{what}_length")
+            if every > 0 and not 0 < length <= every:
+                raise BadInputError(
+                    f"[faults] {what}_length must be in (0, {what}_every = {every}], got {length}"
+                )
 
 
 @dataclass(frozen=True)
@@ -239,6 +263,15 @@ _NON_NEGATIVE = {
     ("sweep", "jitter"),
     ("faults", "state_drop_every"),
     ("faults", "command_drop_every"),
+    ("faults", "state_duplicate_every"),
+    ("faults", "command_duplicate_every"),
+    ("faults", "command_reorder_every"),
+    ("faults", "delay_burst_every"),
+    ("faults", "delay_burst_length"),
+    ("faults", "delay_burst_extra"),
+    ("faults", "can_frame_loss"),
+    ("faults", "can_bus_off_every"),
+    ("faults", "can_bus_off_length"),
     ("faults", "seed"),
 }
 _FIVE = {("plant", "noise_std"), ("plant", "quantization")}

@@ -26,7 +26,7 @@ import math
 import random
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +36,17 @@ from plant_emulator.disturbances import Disturbance
 from plant_emulator.dynamics import Extremes, PlantState, advance_float_tracked
 from plant_emulator.sensors import Sensor, measure
 from protocol import keys
-from protocol.hoplog import PLANT_TABLES, SAMPLE_DROPPED, HopLogWriter, crashed_log
+from protocol.faults import Faults, every_nth, frame_lost
+from protocol.hoplog import (
+    APPLY_BURST,
+    APPLY_LANDED,
+    PLANT_TABLES,
+    RX_LOST_BY_FAULT,
+    SAMPLE_DROPPED,
+    SAMPLE_DUPLICATED,
+    HopLogWriter,
+    crashed_log,
+)
 from protocol.messages import (
     FLAG_STOP,
     Status,
@@ -147,7 +157,13 @@ class CanDrives:
     """The plant's CAN edge: two virtual ODrives; a reader thread stamps arriving frames."""
 
     def __init__(
-        self, bus: Any, pair: Any, geometry: Any, limits: Limits, hoplog: HopLogWriter
+        self,
+        bus: Any,
+        pair: Any,
+        geometry: Any,
+        limits: Limits,
+        hoplog: HopLogWriter,
+        faults: Faults | None = None,
     ) -> None:
         from protocol.can.codec import Cmd, split_id
         from protocol.can.drive_link import from_message, to_message
@@ -155,6 +171,8 @@ class CanDrives:
         self._split = split_id
         self._torque_cmd = Cmd.SET_INPUT_TORQUE
         self.hoplog = hoplog
+        self.faults = faults or Faults()
+        self.injected_frame_losses = 0
         self._torque_frames: dict[int, int] = {}  # per node: Set_Input_Torque frames seen
 
         self.bus = bus
@@ -190,7 +208,14 @@ class CanDrives:
                     # frames carry no sequence number, so arrivals are matched in bus order.
                     i = self._torque_frames.get(node, 0)
                     self._torque_frames[node] = i + 1
-                    self.hoplog.append("cmd_rx", (1, i, -1, 0, 0, 0, recv_ns, 0.0, 0.0, node, 0))
+                    lost = frame_lost(self.faults.can_frame_loss, self.faults.seed, node, i)
+                    verdict = RX_LOST_BY_FAULT if lost else 0
+                    self.hoplog.append(
+                        "cmd_rx", (1, i, -1, 0, 0, 0, recv_ns, 0.0, 0.0, node, verdict)
+                    )
+                    if lost:  # the drive's receiver never sees it ([faults] frame loss)
+                        self.injected_frame_losses += 1
+                        continue
                     self.inbox.append((recv_ns, frame, i))
                 else:
                     self.inbox.append((recv_ns, frame, -1))
@@ -248,7 +273,7 @@ class PlantService:
         injector: DelayInjector | None = None,
         can: CanDrives | None = None,
         hoplog: HopLogWriter | None = None,
-        state_drop_every: int = 0,
+        faults: Faults | None = None,
     ) -> None:
         from hil.run.zsession import payload_bytes, publisher
 
@@ -280,8 +305,8 @@ class PlantService:
         if hoplog is None:
             raise ValueError("the plant service needs a hop log")
         self.hoplog = hoplog
-        self.state_drop_every = int(state_drop_every)
-        self.injected_drops = 0
+        self.faults = faults or Faults()
+        self.injected = {"state_drops": 0, "state_duplicates": 0, "delay_bursts": 0}
         self.samples = 0
         self.clock: DeadlineClock | None = None
         self._state_seq = 0
@@ -341,14 +366,20 @@ class PlantService:
             float(meas.omega),
         )
         self._state_seq += 1
-        n = self.state_drop_every
         flags = 0
-        if n > 0 and msg.seq % n == n - 1:
+        if every_nth(msg.seq, self.faults.state_drop_every):
             flags |= SAMPLE_DROPPED
-            self.injected_drops += 1
+            self.injected["state_drops"] += 1
         else:
+            copies = 1
+            if every_nth(msg.seq, self.faults.state_duplicate_every):
+                flags |= SAMPLE_DUPLICATED
+                self.injected["state_duplicates"] += 1
+                copies = 2
             try:
-                self._pub_state.put(encode(msg))
+                payload = encode(msg)
+                for _ in range(copies):
+                    self._pub_state.put(payload)
             except ValueError:
                 self.rejections.count("state_unencodable")
         self.samples += 1
@@ -414,7 +445,7 @@ class PlantService:
                     # back with old messages): a drive would have zeroed already; refuse it.
                     self.rejections.count("stale_command")
                     continue
-                apply_ns = recv_ns + self.injector.extra_ns()
+                apply_ns = recv_ns + self.injector.extra_ns() + self._burst_ns(recv_ns)
                 self._order += 1
                 self.pending.append(Pending(apply_ns, self._order, 0, msg, recv_ns))
 
@@ -426,7 +457,8 @@ class PlantService:
         while inbox:
             recv_ns, frame, index = inbox.popleft()
             if self.applied_path == 1:
-                apply_ns = max(recv_ns + self.injector.extra_ns(), last_apply)
+                extra = self.injector.extra_ns() + self._burst_ns(recv_ns)
+                apply_ns = max(recv_ns + extra, last_apply)
                 last_apply = apply_ns
                 self._order += 1
                 self.pending.append(Pending(apply_ns, self._order, 1, (frame, index), recv_ns))
@@ -434,6 +466,18 @@ class PlantService:
                 answers = self.can.pair.receive(frame)
                 if answers:
                     self.can.send(answers)
+
+    def _burst_ns(self, recv_ns: int) -> int:
+        """Extra delay of a [faults] delay burst for a command arriving at ``recv_ns``."""
+        extra = self.faults.delay_extra_s((recv_ns - self.epoch_ns) / 1e9)
+        if extra > 0.0:
+            self.injected["delay_bursts"] += 1
+        return int(extra * 1e9)
+
+    def _outcome(self, p: Pending) -> int:
+        """apply.outcome of a landing: delayed by a [faults] burst, or on time."""
+        burst = self.faults.delay_extra_s((p.recv_ns - self.epoch_ns) / 1e9) > 0.0
+        return APPLY_BURST if burst else APPLY_LANDED
 
     def _apply(self, p: Pending) -> None:
         """Land one pending command at its time (the plant was advanced to it)."""
@@ -451,7 +495,8 @@ class PlantService:
                 self.stopped_by_controller = True
             self.core.hold(msg.tau1, msg.tau2)
             self.hoplog.append(
-                "apply", (0, msg.seq, -1, p.recv_ns, apply_ns, msg.tau1, msg.tau2, 0)
+                "apply",
+                (0, msg.seq, -1, p.recv_ns, apply_ns, msg.tau1, msg.tau2, self._outcome(p)),
             )
         else:
             from protocol.can.codec import Cmd, split_id
@@ -466,7 +511,9 @@ class PlantService:
                 return
             t1, t2 = self.can.torques()
             self.core.hold(t1, t2)
-            self.hoplog.append("apply", (1, index, node, p.recv_ns, apply_ns, t1, t2, 0))
+            self.hoplog.append(
+                "apply", (1, index, node, p.recv_ns, apply_ns, t1, t2, self._outcome(p))
+            )
         self._last_cmd_recv_ns = p.recv_ns
         self.timed_out = False
 
@@ -660,7 +707,10 @@ class PlantService:
             "timeouts": self.timeouts,
             "lockstep_resends": self.resends,
             "restarted": getattr(self, "restarted", False),
-            "injected_state_drops": self.injected_drops,
+            "injected": {
+                **self.injected,
+                "can_frame_losses": self.can.injected_frame_losses if self.can else 0,
+            },
             "deadline_misses": self.clock.misses if self.clock else 0,
             "skipped_slots": self.clock.skipped if self.clock else 0,
             "can": None
@@ -686,7 +736,7 @@ def main_from_settings(settings_path: str) -> int:
     s = RunSettings.load(settings_path)
     core, sensor = build_plant(s)
     sensor_rate = s.rate_hz if s.lockstep else s.sensor_rate_hz
-    faults = s.faults or {}
+    faults = Faults.of(s.faults)
     log_path = Path(s.out_dir) / HOPLOG_NAME
     # A predecessor that crashed mid-run left its log open: this is a restart, which continues
     # that log and the emulated robot from its last logged sample (motors unpowered meanwhile).
@@ -706,7 +756,7 @@ def main_from_settings(settings_path: str) -> int:
             "delay_s": s.delay,
             "jitter_s": s.jitter,
             "jitter_kind": s.jitter_kind,
-            "state_drop_every": int(faults.get("state_drop_every", 0)),
+            "faults": asdict(faults),
             "epoch_ns": s.epoch_ns,
         },
         append=previous is not None,
@@ -722,7 +772,7 @@ def main_from_settings(settings_path: str) -> int:
         # A hair above the largest legal motor torque: float32 rounding of a legal command
         # must not be rejected; the applied (tau1, tau2) is clamped to (2) after decoding.
         pair = VirtualDrivePair(cs.node_right, cs.node_left, legal * (1.0 + 1e-6))
-        can = CanDrives(bus, pair, geom, core.limits, hoplog)
+        can = CanDrives(bus, pair, geom, core.limits, hoplog, faults)
         can.start()
     svc = PlantService(
         core,
@@ -737,7 +787,7 @@ def main_from_settings(settings_path: str) -> int:
         injector=DelayInjector(s.delay, s.jitter, s.jitter_kind, s.seed),
         can=can,
         hoplog=hoplog,
-        state_drop_every=int(faults.get("state_drop_every", 0)),
+        faults=faults,
     )
     if previous is not None:
         svc.continue_after(previous)

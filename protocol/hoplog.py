@@ -48,7 +48,12 @@ SUFFIX = ".hoplog"
 # CLOCK_MONOTONIC, nanoseconds). Flags of a tick row beyond protocol.messages' command flags:
 TICK_NO_SEND = 1 << 8  # the tick found no fresh state and sent nothing (the last command stands)
 TICK_DROPPED = 1 << 9  # the command was computed but not published: a [faults] drop
+TICK_DUPLICATED = 1 << 10  # published twice: a [faults] duplicate
+TICK_REORDERED = 1 << 11  # published after the next command: a [faults] reorder
 SAMPLE_DROPPED = 1  # a plant sample whose State was not published: a [faults] drop
+SAMPLE_DUPLICATED = 2  # a State published twice: a [faults] duplicate
+APPLY_LANDED, APPLY_OVERTAKEN, APPLY_BURST = 0, 1, 2  # apply.outcome (2: landed late by a burst)
+RX_LOST_BY_FAULT = 3  # cmd_rx.verdict: a CAN frame the drive's receiver lost ([faults])
 
 CONTROLLER_TABLES: dict[str, tuple[str, ...]] = {
     # One row per wake-up (periodic) or per fresh state (on_state, lockstep); k is the slot the
@@ -74,7 +79,8 @@ CONTROLLER_TABLES: dict[str, tuple[str, ...]] = {
     # Every State of this robot that decoded, fresh or not (verdict: 0 fresh, 1 duplicate,
     # 2 older than one already seen).
     "state_rx": ("seq", "sample_ns", "send_ns", "recv_ns", "verdict"),
-    # Every Set_Input_Torque frame sent, per node in bus order; cmd_seq -1: a lifecycle zero.
+    # Every Set_Input_Torque frame sent, per node in bus order; cmd_seq -1: a lifecycle zero;
+    # send_ns 0: the send failed (bus-off, injected or real), the frame never reached the bus.
     "can_tx": ("node", "send_ns", "cmd_seq"),
 }
 PLANT_TABLES: dict[str, tuple[str, ...]] = {

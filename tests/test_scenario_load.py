@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import tomllib
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
@@ -115,11 +116,8 @@ def test_faults_default_to_off() -> None:
     sc = loads_scenario(MINIMAL)
     assert sc.faults == FaultsConfig()
     assert (sc.faults.state_drop_every, sc.faults.command_drop_every, sc.faults.seed) == (0, 0, 0)
-    assert scenario_dict(sc)["faults"] == {
-        "state_drop_every": 0,
-        "command_drop_every": 0,
-        "seed": 0,
-    }
+    assert scenario_dict(sc)["faults"] == asdict(FaultsConfig())
+    assert all(v == 0 for v in scenario_dict(sc)["faults"].values())
 
 
 def test_faults_round_trip_through_the_resolved_dict(tmp_path: Path) -> None:
@@ -129,7 +127,7 @@ def test_faults_round_trip_through_the_resolved_dict(tmp_path: Path) -> None:
     assert sc.faults == FaultsConfig(state_drop_every=7, command_drop_every=11, seed=0)
     controller, _, ctx = build_loop(sc)
     data = tomllib.loads(dumps_toml(resolved_dict(sc, controller, ctx)))
-    assert data["faults"] == {"state_drop_every": 7, "command_drop_every": 11, "seed": 0}
+    assert data["faults"] == asdict(FaultsConfig(state_drop_every=7, command_drop_every=11))
     assert parse_scenario(data, tmp_path).faults == sc.faults
 
 
@@ -144,6 +142,9 @@ def test_faults_round_trip_through_the_resolved_dict(tmp_path: Path) -> None:
         ("command_drop_every = true\n", "[faults] command_drop_every"),
         ('seed = "x"\n', "[faults] seed"),
         ("state_drop_evry = 3\n", "state_drop_evry"),
+        ("can_frame_loss = 1.5\n", "[faults] can_frame_loss"),
+        ("delay_burst_every = 1.0\ndelay_burst_length = 2.0\n", "[faults] delay_burst_length"),
+        ("can_bus_off_every = -1.0\n", "[faults] can_bus_off_every"),
     ],
 )
 def test_bad_faults_are_refused_naming_the_key(table: str, named: str) -> None:
@@ -167,7 +168,7 @@ def test_run_settings_carry_the_faults_table(tmp_path: Path) -> None:
     _, settings, run_dir, _ = prepare(
         RunOptions(scenario=scenario, out=tmp_path / "run", duration=0.1)
     )
-    expected = {"state_drop_every": 0, "command_drop_every": 5, "seed": 0}
+    expected = asdict(FaultsConfig(command_drop_every=5))
     assert settings.faults == expected
     assert RunSettings.load(run_dir / "run_settings.json").faults == expected
     resolved = tomllib.loads((run_dir / "scenario.resolved.toml").read_text())

@@ -17,7 +17,17 @@ import numpy as np
 from hil.measure import age as agemod
 from hil.measure.logs import RunLogs
 from hil.measure.stats import summarize_ns
-from protocol.hoplog import SAMPLE_DROPPED, TICK_DROPPED, TICK_NO_SEND
+from protocol.hoplog import (
+    APPLY_BURST,
+    APPLY_OVERTAKEN,
+    RX_LOST_BY_FAULT,
+    SAMPLE_DROPPED,
+    SAMPLE_DUPLICATED,
+    TICK_DROPPED,
+    TICK_DUPLICATED,
+    TICK_NO_SEND,
+    TICK_REORDERED,
+)
 
 PATHS = ("zenoh", "can")
 STALL_LIMIT = 20  # stalls listed in the certificate, worst first
@@ -131,29 +141,34 @@ class _Run:
 
     # --- CAN: arrivals matched to sends in per-node order -------------------------------------
     def _match_can(self) -> dict[str, np.ndarray]:
-        tx, rx = self.logs["can_tx"], self.logs["cmd_rx"]
+        """Every CAN torque frame that reached a drive's receiver, with its send and command:
+        the i-th such frame of a node is the i-th the controller put on the bus for it (frames
+        whose send failed never reached the bus and take no index). ``lost``: the receiver
+        lost it ([faults] frame loss): it took its index but never reached the drive."""
+        rx = self.logs["cmd_rx"]
         is_can = rx["path"] == 1
         node, idx, recv = rx["node"][is_can], rx["seq"][is_can], rx["recv_ns"][is_can]
+        lost = rx["verdict"][is_can] == RX_LOST_BY_FAULT
         send = np.zeros(node.size, np.int64)
-        cmd = np.full(node.size, -2, np.int64)  # -2: no matching send
-        for n in np.unique(np.concatenate([node, tx["node"]])).tolist():
-            mine = tx["node"] == n
-            tsend, tcmd = tx["send_ns"][mine], tx["cmd_seq"][mine]
-            rows = np.nonzero(node == n)[0]
-            ok = idx[rows] < tsend.size
-            send[rows[ok]] = tsend[idx[rows[ok]]]
-            cmd[rows[ok]] = tcmd[idx[rows[ok]]]
-        return {"node": node, "index": idx, "recv": recv, "send": send, "cmd": cmd}
+        cmd = self.can_frame_of(node, idx, send)
+        return {"node": node, "index": idx, "recv": recv, "send": send, "cmd": cmd, "lost": lost}
 
-    def can_frame_of(self, node: np.ndarray, index: np.ndarray) -> np.ndarray:
-        """cmd_seq of CAN frames given as (node, per-node index)."""
+    def can_frame_of(
+        self, node: np.ndarray, index: np.ndarray, send_out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """cmd_seq (-1 lifecycle, -2 no such send) of CAN frames given as (node, index among
+        the node's frames on the bus); their send times into ``send_out`` if given."""
         tx = self.logs["can_tx"]
+        on_bus = tx["send_ns"] > 0
         out = np.full(node.size, -2, np.int64)
         for n in np.unique(node).tolist():
-            mine = tx["cmd_seq"][tx["node"] == n]
+            mine = on_bus & (tx["node"] == n)
+            cmds, sends = tx["cmd_seq"][mine], tx["send_ns"][mine]
             rows = np.nonzero(node == n)[0]
-            ok = (index[rows] >= 0) & (index[rows] < mine.size)
-            out[rows[ok]] = mine[index[rows[ok]]]
+            ok = (index[rows] >= 0) & (index[rows] < cmds.size)
+            out[rows[ok]] = cmds[index[rows[ok]]]
+            if send_out is not None:
+                send_out[rows[ok]] = sends[index[rows[ok]]]
         return out
 
     # --- landings: (time, sample) of each command put in force, per path -----------------------
@@ -162,7 +177,7 @@ class _Run:
         path the arrival stands for the landing (what would have been applied)."""
         if applied:
             ap = self.logs["apply"]
-            ok = ap["outcome"] == 0
+            ok = ap["outcome"] != APPLY_OVERTAKEN
             if path == "zenoh":
                 m = ok & (ap["path"] == 0)
                 cmd, land = ap["seq"][m], ap["apply_ns"][m]
@@ -177,7 +192,8 @@ class _Run:
             cmd, land = rx["seq"][m], rx["recv_ns"][m]
         else:
             c = self._can
-            return self._can_commands(c["node"], c["recv"], c["cmd"])
+            got = ~c["lost"]
+            return self._can_commands(c["node"][got], c["recv"][got], c["cmd"][got])
         return self._newest_wins(land, cmd)
 
     def tick_of(self, cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -341,63 +357,54 @@ def _messages(r: _Run) -> dict[str, Any]:
     srx = r.logs["state_rx"]
     state = _stream_counts(s["seq"], srx["seq"])
     state["injected_drops"] = int(((s["flags"] & SAMPLE_DROPPED) != 0).sum())
+    state["injected_duplicates"] = int(((s["flags"] & SAMPLE_DUPLICATED) != 0).sum())
     out: dict[str, Any] = {"state": state}
     zsent = (t["zenoh_send_ns"] > 0) & (t["cmd_seq"] >= 0)
     inwin = zsent & _in(t["zenoh_send_ns"], r.w0, r.w1)
     rx = r.logs["cmd_rx"]
     z = _stream_counts(t["cmd_seq"][inwin], rx["seq"][rx["path"] == 0])
     z["injected_drops"] = int(((t["flags"][inwin] & TICK_DROPPED) != 0).sum())
+    z["injected_duplicates"] = int(((t["flags"][inwin] & TICK_DUPLICATED) != 0).sum())
+    z["injected_reorders"] = int(((t["flags"][inwin] & TICK_REORDERED) != 0).sum())
     z["sent_after_window"] = int((zsent & (t["zenoh_send_ns"] > r.w1)).sum())
     out["torque_zenoh"] = z
     tx = r.logs["can_tx"]
     if tx["node"].size or (rx["path"] == 1).any():
-        c = r._can
-        cmd_frames = (tx["cmd_seq"] >= 0) & _in(tx["send_ns"], r.w0, r.w1)
-        sent_cmds = np.unique(tx["cmd_seq"][cmd_frames])
-        got = c["cmd"][c["cmd"] >= 0]
-        nodes = max(1, np.unique(tx["node"]).size)
-        ids, counts = np.unique(got, return_counts=True)
-        whole = ids[counts >= nodes]
-        received = int(np.isin(sent_cmds, whole).sum())
-        frames_sent = int(cmd_frames.sum())
-        sent_ids = np.nonzero(cmd_frames)[0]
-        frames_rx = 0
-        if sent_ids.size:
-            keys = set(
-                zip(
-                    tx["node"][cmd_frames].tolist(),
-                    _per_node_index(tx)[cmd_frames].tolist(),
-                    strict=True,
-                )
-            )
-            frames_rx = sum(
-                1 for k in zip(c["node"].tolist(), c["index"].tolist(), strict=True) if k in keys
-            )
-        out["torque_can"] = {
-            "sent": int(sent_cmds.size),
-            "received": received,
-            "lost": int(sent_cmds.size - received),
-            "duplicated": 0,
-            "reordered": 0,
-            "frames_sent": frames_sent,
-            "frames_received": int(frames_rx),
-            "frames_lost": int(frames_sent - frames_rx),
-            "lifecycle_frames_sent": int((tx["cmd_seq"] < 0).sum()),
-            "unmatched_frames_received": int((c["cmd"] == -2).sum()),
-            "sent_after_window": int(
-                np.unique(tx["cmd_seq"][(tx["cmd_seq"] >= 0) & (tx["send_ns"] > r.w1)]).size
-            ),
-        }
+        out["torque_can"] = _can_messages(r)
     return out
 
 
-def _per_node_index(tx: dict[str, np.ndarray]) -> np.ndarray:
-    """Each can_tx row's index among its node's rows (the i of the plant's cmd_rx)."""
-    idx = np.zeros(tx["node"].size, np.int64)
-    for n in np.unique(tx["node"]).tolist():
-        rows = np.nonzero(tx["node"] == n)[0]
-        idx[rows] = np.arange(rows.size)
-    return idx
+def _can_messages(r: _Run) -> dict[str, Any]:
+    """Per command (both wheels' frames of one cycle) and per frame; lifecycle zeros apart."""
+    t, tx, c = r.ticks, r.logs["can_tx"], r._can
+    rows, found = r.tick_of(tx["cmd_seq"])
+    when = np.zeros(tx["cmd_seq"].size, np.int64)
+    when[found] = t["compute_start_ns"][rows[found]]
+    mine = (tx["cmd_seq"] >= 0) & _in(when, r.w0, r.w1)  # this window's command frames
+    sent_cmds = np.unique(tx["cmd_seq"][mine])
+    got = (c["cmd"] >= 0) & ~c["lost"]
+    nodes = max(1, np.unique(tx["node"]).size)
+    ids, counts = np.unique(c["cmd"][got], return_counts=True)
+    received = int(np.isin(sent_cmds, ids[counts >= nodes]).sum())
+    frames_sent = int(mine.sum())
+    frames_rx = int((got & np.isin(c["cmd"], sent_cmds)).sum())
+    return {
+        "sent": int(sent_cmds.size),
+        "received": received,
+        "lost": int(sent_cmds.size - received),
+        "duplicated": 0,
+        "reordered": 0,
+        "frames_sent": frames_sent,
+        "frames_received": frames_rx,
+        "frames_lost": frames_sent - frames_rx,
+        "frames_not_on_bus": int((mine & (tx["send_ns"] <= 0)).sum()),
+        "injected_frame_losses": int((c["lost"] & np.isin(c["cmd"], sent_cmds)).sum()),
+        "lifecycle_frames_sent": int((tx["cmd_seq"] < 0).sum()),
+        "unmatched_frames_received": int((c["cmd"] == -2).sum()),
+        "sent_after_window": int(
+            np.unique(tx["cmd_seq"][(tx["cmd_seq"] >= 0) & (when > r.w1)]).size
+        ),
+    }
 
 
 def _certificate(r: _Run, b: BoundInputs, series: dict[str, Any]) -> dict[str, Any]:
@@ -499,14 +506,30 @@ def _cause(r: _Run, lo: int, hi: int) -> tuple[str, dict[str, Any]]:
     if r.applied == "zenoh":
         sent = (t["zenoh_send_ns"] > 0) & _in(t["zenoh_send_ns"], lo, hi)
         lost_c = sent & ~np.isin(t["cmd_seq"], rx["seq"][rx["path"] == 0])
+        if lost_c.any():
+            ev["commands_lost"] = int(lost_c.sum())
+            dropped = (t["flags"][lost_c] & (TICK_DROPPED | TICK_REORDERED)) != 0
+            ev["commands_dropped_by_faults"] = int(dropped.sum())
+            scores["command_lost"] = int(lost_c.sum()) * r.period
     else:
-        sent = (t["can_send_ns"] > 0) & _in(t["can_send_ns"], lo, hi)
-        got = r._can["cmd"]
-        lost_c = sent & ~np.isin(t["cmd_seq"], got[got >= 0])
-    if lost_c.any():
-        ev["commands_lost"] = int(lost_c.sum())
-        ev["commands_dropped_by_faults"] = int(((t["flags"][lost_c] & TICK_DROPPED) != 0).sum())
-        scores["command_lost"] = int(lost_c.sum()) * r.period
+        tx, c = r.logs["can_tx"], r._can
+        rows, found = r.tick_of(tx["cmd_seq"])
+        when = np.where(found, t["compute_start_ns"][np.where(found, rows, 0)], 0)
+        cmds = np.unique(tx["cmd_seq"][(tx["cmd_seq"] >= 0) & _in(when, lo, hi)])
+        got = c["cmd"][(c["cmd"] >= 0) & ~c["lost"]]
+        lost_cmds = cmds[~np.isin(cmds, got)]
+        if lost_cmds.size:
+            ev["commands_lost"] = int(lost_cmds.size)
+            off_bus = np.isin(tx["cmd_seq"], lost_cmds) & (tx["send_ns"] <= 0)
+            ev["frames_not_on_bus"] = int(off_bus.sum())
+            ev["frames_lost_by_faults"] = int((c["lost"] & np.isin(c["cmd"], lost_cmds)).sum())
+            scores["command_lost"] = int(lost_cmds.size) * r.period
+    ap = r.logs["apply"]
+    burst = (ap["outcome"] == APPLY_BURST) & _in(ap["apply_ns"], lo, hi)
+    if burst.any():
+        late = int((ap["apply_ns"][burst] - ap["recv_ns"][burst]).max())
+        ev["landings_delayed_by_faults"] = int(burst.sum())
+        scores["command_delayed"] = late
     if not scores:
         return "unknown", ev
     return max(scores, key=lambda k: scores[k]), ev

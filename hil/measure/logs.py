@@ -43,7 +43,7 @@ COLUMNS: dict[str, dict[str, Any]] = {
         "theta": _F8, "v": _F8, "omega": _F8, "tau1": _F8, "tau2": _F8, "cmd1": _F8,
         "cmd2": _F8, "flags": _I1,
     },
-    "cmd_rx": {"path": _I1, "seq": _I8, "recv_ns": _I8, "node": _I2},
+    "cmd_rx": {"path": _I1, "seq": _I8, "recv_ns": _I8, "node": _I2, "verdict": _I1},
     "apply": {"path": _I1, "seq": _I8, "node": _I2, "recv_ns": _I8, "apply_ns": _I8,
               "outcome": _I1},
     "zero": {"timeout_ns": _I8, "applied_ns": _I8},

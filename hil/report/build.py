@@ -380,6 +380,7 @@ def analyse(
             "applied_path": cert.get("path"),
             "series": "hop logs (hil.measure)" if rr and rr.measurement else None,
             "hop_logs_agree_with_summary": rr.agree if rr is not None else None,
+            "faults": folder.summary.get("faults"),
         },
         "verdict": verdict,
         "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},

@@ -325,6 +325,21 @@ def _lateness(s: Section, data: dict[str, Any]) -> None:
 
 
 def _messages(s: Section, data: dict[str, Any]) -> None:
+    faults = data["timing"].get("faults") or {}
+    on = {k: v for k, v in (faults.get("config") or {}).items() if v and k != "seed"}
+    if on:
+        injected = {
+            f"{who}.{k}": v
+            for who, counts in (faults.get("injected") or {}).items()
+            for k, v in (counts or {}).items()
+            if v
+        }
+        s.p(
+            "Faults injected on purpose ([faults], seed "
+            f"{(faults.get('config') or {}).get('seed', 0)}): {fmt(on)}; injected: "
+            f"{fmt(injected)}. The services logged each one: the lost, duplicated and reordered "
+            "counts below include them, and the certificate's stalls name them in their evidence."
+        )
     msgs = data["timing"].get("messages") or {}
     keys = ("sent", "received", "lost", "duplicated", "reordered")
     s.table(

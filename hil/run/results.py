@@ -121,6 +121,10 @@ def analyze(
         "plant_command_timeouts": pinfo.get("timeouts", 0),
     }
     summary["can"] = {"controller": cinfo.get("can"), "plant": pinfo.get("can")}
+    summary["faults"] = {
+        "config": logs.pmeta.get("faults") or {},
+        "injected": {"controller": cinfo.get("injected"), "plant": pinfo.get("injected")},
+    }
     summary["scheduling"] = {
         "controller": cinfo.get("scheduling"),
         "plant": logs.pmeta.get("scheduling"),

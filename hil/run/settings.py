@@ -74,8 +74,8 @@ class RunSettings:
         if not isinstance(self.faults, dict):
             raise ValueError(f"faults must be a table, got {self.faults!r}")
         for key, v in self.faults.items():
-            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                raise ValueError(f"[faults] {key} must be an integer >= 0, got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (v >= 0):
+                raise ValueError(f"[faults] {key} must be a number >= 0, got {v!r}")
 
     def save(self, path: str | Path) -> None:
         Path(path).write_text(json.dumps(asdict(self), indent=2))
