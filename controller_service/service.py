@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import struct
 import threading
 import time
 from dataclasses import dataclass, field
@@ -131,6 +132,8 @@ class CanCommandPath:
         self._to = to_message
         self._from = from_message
         self._lock = threading.Lock()
+        self._send_lock = threading.Lock()
+        self._pending_arm = False
         self._stop = threading.Event()
         self.sent_frames = 0
         self.send_errors = 0
@@ -143,10 +146,10 @@ class CanCommandPath:
         self._thread = threading.Thread(target=self._reader, name="can-reader", daemon=True)
 
     def start(self) -> None:
-        with self._lock:
-            frames = self.lifecycle.start(time.monotonic())
-            self.arm_sends += 1
-        self._send(frames)
+        """Arm the drives once both are heard (their heartbeats): frames sent before a drive
+        listens would be lost, and on a bus that names no frame (socketcan) a lost frame
+        shifts the matching of every later one."""
+        self._pending_arm = True
         self._thread.start()
 
     def _send(self, frames: list[Any], cmd_seq: int = -1) -> int:
@@ -157,20 +160,28 @@ class CanCommandPath:
         stamp = 0
         now = time.monotonic_ns()
         bus_off = self.epoch_ns > 0 and self.faults.bus_off((now - self.epoch_ns) / 1e9)
-        for f in frames:
-            node, cmd = split_id(f.arbitration_id)
-            sent = 0
-            if bus_off:
-                self.injected_bus_off += 1  # a [faults] bus-off burst: the send fails
-            else:
-                try:
-                    self.bus.send(self._to(f), timeout=0.05)
-                    sent = stamp = time.monotonic_ns()
-                    self.sent_frames += 1
-                except Exception:
-                    self.send_errors += 1
-            if cmd == Cmd.SET_INPUT_TORQUE:
-                self.hoplog.append("can_tx", (node, sent, cmd_seq))
+        # One sender at a time (the control loop and the lifecycle's reader thread both send):
+        # the log's order is then the bus's, which the matching of arrivals relies on.
+        with self._send_lock:
+            for f in frames:
+                node, cmd = split_id(f.arbitration_id)
+                sent = end = 0
+                if bus_off:
+                    self.injected_bus_off += 1  # a [faults] bus-off burst: the send fails
+                else:
+                    try:
+                        # Stamped when handed to the bus, as a TorqueCommand is stamped before
+                        # its put: a hop is then never negative.
+                        handed = time.monotonic_ns()
+                        self.bus.send(self._to(f), timeout=0.05)
+                        sent = stamp = handed
+                        end = int(getattr(self.bus, "last_end_ns", 0) or 0)
+                        self.sent_frames += 1
+                    except Exception:
+                        self.send_errors += 1
+                if cmd == Cmd.SET_INPUT_TORQUE:
+                    value = struct.unpack_from("<f", f.data)[0] if len(f.data) >= 4 else math.nan
+                    self.hoplog.append("can_tx", (node, sent, cmd_seq, value, end))
         return stamp
 
     def _reader(self) -> None:
@@ -185,17 +196,29 @@ class CanCommandPath:
             with self._lock:
                 if msg is not None:
                     self.lifecycle.receive(now, self._from(msg))
-                frames = self.lifecycle.tick(now)
-                if frames:
-                    self.arm_sends += 1  # a re-sent lifecycle (it carries a zero torque)
-                elif self.lifecycle.fault_reason and not self._stop.is_set():
-                    # A drive faulted (e.g. heartbeats late on a stalled host): re-arm rather
-                    # than stay silent for the rest of the run; counted.
-                    frames = self.lifecycle.start(now)
-                    self.arm_sends += 1
-                    self.rearms += 1
+                frames = self._lifecycle_frames(now)
             if frames:
                 self._send(frames)
+
+    def _lifecycle_frames(self, now: float) -> list[Any]:
+        """What the lifecycle sends now (under the lock): the first arming once both drives
+        are heard, its retries, and a counted re-arm after a drive faulted."""
+        if self._pending_arm:
+            if not all(d.heartbeats > 0 for d in self.lifecycle.drives.values()):
+                return []
+            self._pending_arm = False
+            self.arm_sends += 1
+            return self.lifecycle.start(now)
+        frames = self.lifecycle.tick(now)
+        if frames:
+            self.arm_sends += 1  # a re-sent lifecycle (it carries a zero torque)
+        elif self.lifecycle.fault_reason and not self._stop.is_set():
+            # A drive faulted (e.g. heartbeats late on a stalled host): re-arm rather than stay
+            # silent for the rest of the run; counted.
+            frames = self.lifecycle.start(now)
+            self.arm_sends += 1
+            self.rearms += 1
+        return frames
 
     @property
     def active(self) -> bool:

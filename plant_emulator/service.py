@@ -24,6 +24,7 @@ import collections
 import contextlib
 import math
 import random
+import struct
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -173,6 +174,8 @@ class CanDrives:
         self.hoplog = hoplog
         self.faults = faults or Faults()
         self.injected_frame_losses = 0
+        # The bus's name for a received frame, where it has one (zenoh_can): exact matching.
+        self._sent_at = getattr(bus, "sent_at_ns", None)
         self._torque_frames: dict[int, int] = {}  # per node: Set_Input_Torque frames seen
 
         self.bus = bus
@@ -210,8 +213,14 @@ class CanDrives:
                     self._torque_frames[node] = i + 1
                     lost = frame_lost(self.faults.can_frame_loss, self.faults.seed, node, i)
                     verdict = RX_LOST_BY_FAULT if lost else 0
+                    q = (
+                        struct.unpack_from("<f", frame.data)[0]
+                        if len(frame.data) >= 4
+                        else math.nan
+                    )
+                    named = self._sent_at(msg) if self._sent_at is not None else None
                     self.hoplog.append(
-                        "cmd_rx", (1, i, -1, 0, 0, 0, recv_ns, 0.0, 0.0, node, verdict)
+                        "cmd_rx", (1, i, -1, 0, 0, named or 0, recv_ns, q, 0.0, node, verdict)
                     )
                     if lost:  # the drive's receiver never sees it ([faults] frame loss)
                         self.injected_frame_losses += 1

@@ -80,8 +80,11 @@ CONTROLLER_TABLES: dict[str, tuple[str, ...]] = {
     # 2 older than one already seen).
     "state_rx": ("seq", "sample_ns", "send_ns", "recv_ns", "verdict"),
     # Every Set_Input_Torque frame sent, per node in bus order; cmd_seq -1: a lifecycle zero;
-    # send_ns 0: the send failed (bus-off, injected or real), the frame never reached the bus.
-    "can_tx": ("node", "send_ns", "cmd_seq"),
+    # send_ns 0: the send failed (bus-off, injected or real), the frame never reached the bus;
+    # value: the frame's Input_Torque (float32, N·m), which the matching of arrivals checks;
+    # bus_end_ns: the bus's own name for the frame when it has one (zenoh_can: the modelled end
+    # of transmission, which the receiver sees too), else 0.
+    "can_tx": ("node", "send_ns", "cmd_seq", "value", "bus_end_ns"),
 }
 PLANT_TABLES: dict[str, tuple[str, ...]] = {
     # One row per sensor sample: sample_ns is the slot's deadline (the sample time on the
@@ -104,8 +107,10 @@ PLANT_TABLES: dict[str, tuple[str, ...]] = {
     ),
     # Every command arrival on either path (path 0 Zenoh, 1 CAN); for CAN, seq is the frame's
     # index among the node's Set_Input_Torque frames (matched to the controller's can_tx in
-    # per-node order) and state_seq/state_sample_ns/send_ns are unknown (-1/0). verdict: 0
-    # accepted, 1 duplicate, 2 older than one already seen.
+    # per-node order), tau1 is the frame's Input_Torque (N·m, the motor's), send_ns the bus's
+    # name for the frame when it has one (zenoh_can: can_tx.bus_end_ns) else 0, and
+    # state_seq/state_sample_ns are unknown (-1/0). verdict: 0 accepted, 1 duplicate,
+    # 2 older than one already seen, 3 lost at the receiver by a [faults] injection.
     "cmd_rx": (
         "path",
         "seq",

@@ -42,6 +42,8 @@ class Loop:
     lose_states: set[int] = field(default_factory=set)  # lost on the wire (not injected)
     duplicate_commands: set[int] = field(default_factory=set)
     rearm_at: int | None = None  # sample index after which the CAN lifecycle re-sends zeros
+    lose_can_frames: set[int] = field(default_factory=set)  # commands whose frames are lost
+    named_frames: bool = True  # the bus names each frame (zenoh_can) or not (socketcan)
 
 
 def write(folder: Path, loop: Loop) -> None:
@@ -96,10 +98,10 @@ def write(folder: Path, loop: Loop) -> None:
     k = 0
     last_sample = samples[-1][1]
     tx_index: dict[int, int] = {0: 0, 1: 0}
-    can_tx_rows: list[tuple[int, int, int]] = []
+    can_tx_rows: list[tuple[int, int, int, float]] = []
     # Two lifecycle zeros per node before the run (arming).
     for node in (0, 1):
-        can_tx_rows.append((node, E - 50 * MS, -1))
+        can_tx_rows.append((node, E - 50 * MS, -1, 0.0))
     while True:
         deadline = E + P // 2 + k * P
         if deadline > last_sample + 5 * P:
@@ -135,19 +137,25 @@ def write(folder: Path, loop: Loop) -> None:
                 if loop.cmd_path == "zenoh" and recv + loop.delay <= last_sample:
                     p.append("apply", (0, cmd_seq, -1, recv, recv + loop.delay, 0.1, 0.2, 0))
             for node in (0, 1):
-                can_tx_rows.append((node, send + 5 * US, cmd_seq))
+                # The torques a command sends alternate like a sign law's (exact in float32).
+                value = (0.25 if (cmd_seq + node) % 2 else -0.5) * (1 + node)
+                can_tx_rows.append((node, send + 5 * US, cmd_seq, value))
             if loop.rearm_at is not None and s == loop.rearm_at:
                 for node in (0, 1):
-                    can_tx_rows.append((node, send + 50 * US, -1))
+                    can_tx_rows.append((node, send + 50 * US, -1, 0.0))
             cmd_seq += 1
         k += 1 + skipped
     # --- CAN: every frame sent arrives 250 µs later, in order per node ---
-    for node, send, cseq in can_tx_rows:
-        c.append("can_tx", (node, send, cseq))
+    for node, send, cseq, value in can_tx_rows:
+        end = send + 120 * US  # zenoh_can's name for the frame: its modelled end on the bus
+        c.append("can_tx", (node, send, cseq, value, end))
+        if loop.lose_can_frames and cseq in loop.lose_can_frames:
+            continue  # lost on the wire: the receiver never sees it
         i = tx_index[node]
         tx_index[node] = i + 1
         recv = send + 250 * US
-        p.append("cmd_rx", (1, i, -1, 0, 0, 0, recv, 0.0, 0.0, node, 0))
+        p.append("cmd_rx", (1, i, -1, 0, 0, end if loop.named_frames else 0, recv, value, 0.0,
+                             node, 0))  # fmt: skip
         if loop.cmd_path == "can" and E <= recv <= last_sample:
             p.append("apply", (1, i, node, recv, recv + loop.delay, 0.0, 0.0, 0))
     c.close({"deadline_misses": 0})

@@ -146,11 +146,32 @@ def test_can_rearm_mid_run_keeps_matching_and_counts_no_lifecycle_frame(tmp_path
     b = _measure(tmp_path / "b", Loop(cmd_path="can", rearm_at=250))
     for m in (a, b):
         can = m.messages["torque_can"]
+        assert can["value_mismatches"] == 0
         assert can["sent"] == can["received"] and can["lost"] == 0
         assert can["frames_sent"] == can["frames_received"] == 2 * can["sent"]
     assert b.messages["torque_can"]["lifecycle_frames_sent"] == 4
     assert b.timing["sample_to_apply_can"] == a.timing["sample_to_apply_can"]
     assert b.timing["hop_cmd_can"] == a.timing["hop_cmd_can"]
+
+
+def test_can_frames_lost_on_the_wire_shift_no_match(tmp_path):
+    """A frame lost between the buses (no sequence number in CANSimple) must not shift the
+    matching of every later one: losses are counted, the rest match their own sends."""
+    clean = _measure(tmp_path / "a", Loop(cmd_path="can"))
+    m = _measure(tmp_path / "b", Loop(cmd_path="can", lose_can_frames={5, 77, 78, 300}))
+    can = m.messages["torque_can"]
+    assert can["lost"] == 4 and can["frames_lost"] == 8, can
+    assert can["unmatched_frames_received"] == 0
+    assert m.timing["hop_cmd_can"]["max_us"] == clean.timing["hop_cmd_can"]["max_us"] == 250.0
+    assert "negative" not in m.timing["hop_cmd_can"]
+    assert can["value_mismatches"] == 0
+
+
+def test_without_frame_names_a_loss_shows_as_value_mismatches(tmp_path):
+    """On a bus that names no frame (socketcan), matching is by order: a frame lost on the
+    wire would shift it, and the torque check makes that visible instead of silent."""
+    m = _measure(tmp_path, Loop(cmd_path="can", named_frames=False, lose_can_frames={5}))
+    assert m.messages["torque_can"]["value_mismatches"] > 100
 
 
 # --- the log itself -------------------------------------------------------------------------------

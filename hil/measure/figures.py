@@ -87,6 +87,20 @@ def _lookup(keys: np.ndarray, values: np.ndarray, query: np.ndarray, missing: in
     return out, found
 
 
+def _nearest(keys: np.ndarray, query: np.ndarray, tolerance_ns: int) -> np.ndarray:
+    """For each query, the index of the key nearest to it within the tolerance (-1: none)."""
+    if keys.size == 0:
+        return np.full(query.size, -1, np.int64)
+    order = np.argsort(keys, kind="stable")
+    ks = keys[order]
+    pos = np.clip(np.searchsorted(ks, query), 1, max(1, ks.size - 1))
+    left = np.clip(pos - 1, 0, ks.size - 1)
+    right = np.clip(pos, 0, ks.size - 1)
+    pick = np.where(np.abs(ks[left] - query) <= np.abs(ks[right] - query), left, right)
+    ok = np.abs(ks[pick] - query) <= tolerance_ns
+    return np.where(ok, order[pick], -1)
+
+
 def _stream_counts(sent_ids: np.ndarray, rx_ids: np.ndarray) -> dict[str, int]:
     """sent, received (distinct ids that were sent), lost, duplicated, reordered: one definition
     for every stream. Reordered: an arrival older than one that arrived before it."""
@@ -141,34 +155,47 @@ class _Run:
 
     # --- CAN: arrivals matched to sends in per-node order -------------------------------------
     def _match_can(self) -> dict[str, np.ndarray]:
-        """Every CAN torque frame that reached a drive's receiver, with its send and command:
-        the i-th such frame of a node is the i-th the controller put on the bus for it (frames
-        whose send failed never reached the bus and take no index). ``lost``: the receiver
-        lost it ([faults] frame loss): it took its index but never reached the drive."""
-        rx = self.logs["cmd_rx"]
+        """Every CAN torque frame that reached a drive's receiver, matched to the send it came
+        from. CANSimple frames carry no sequence number. Where the bus names each frame (the
+        zenoh_can bus: its modelled end of transmission, which sender and receiver both log),
+        frames are matched by that name exactly, so a frame lost on the way shifts nothing.
+        Elsewhere (socketcan) the i-th frame a drive received is the i-th put on the bus for it
+        (both logs keep bus order). Either way the torque each frame carries is checked against
+        its send's: ``value_mismatches`` counts disagreements (a shifted match is never silent).
+        ``lost``: the receiver lost the frame on purpose ([faults] frame loss)."""
+        rx, tx = self.logs["cmd_rx"], self.logs["can_tx"]
         is_can = rx["path"] == 1
         node, idx, recv = rx["node"][is_can], rx["seq"][is_can], rx["recv_ns"][is_can]
+        named, value = rx["send_ns"][is_can], rx["tau1"][is_can]
         lost = rx["verdict"][is_can] == RX_LOST_BY_FAULT
         send = np.zeros(node.size, np.int64)
-        cmd = self.can_frame_of(node, idx, send)
-        return {"node": node, "index": idx, "recv": recv, "send": send, "cmd": cmd, "lost": lost}
-
-    def can_frame_of(
-        self, node: np.ndarray, index: np.ndarray, send_out: np.ndarray | None = None
-    ) -> np.ndarray:
-        """cmd_seq (-1 lifecycle, -2 no such send) of CAN frames given as (node, index among
-        the node's frames on the bus); their send times into ``send_out`` if given."""
-        tx = self.logs["can_tx"]
+        cmd = np.full(node.size, -2, np.int64)  # -2: no matching send
+        self._frame_match: dict[int, dict[int, int]] = {}
+        self.value_mismatches = 0
         on_bus = tx["send_ns"] > 0
-        out = np.full(node.size, -2, np.int64)
         for n in np.unique(node).tolist():
             mine = on_bus & (tx["node"] == n)
-            cmds, sends = tx["cmd_seq"][mine], tx["send_ns"][mine]
+            tsend, tcmd, tend = tx["send_ns"][mine], tx["cmd_seq"][mine], tx["bus_end_ns"][mine]
+            tval = tx["value"][mine]
             rows = np.nonzero(node == n)[0]
-            ok = (index[rows] >= 0) & (index[rows] < cmds.size)
-            out[rows[ok]] = cmds[index[rows[ok]]]
-            if send_out is not None:
-                send_out[rows[ok]] = sends[index[rows[ok]]]
+            if rows.size and (named[rows] > 0).all() and (tend > 0).all():
+                at = _nearest(tend, named[rows], tolerance_ns=2_000)
+            else:
+                at = np.where(idx[rows] < tsend.size, idx[rows], -1)
+            ok = at >= 0
+            send[rows[ok]] = tsend[at[ok]]
+            cmd[rows[ok]] = tcmd[at[ok]]
+            same = np.float32(value[rows[ok]]) == np.float32(tval[at[ok]])
+            self.value_mismatches += int((~same).sum())
+            self._frame_match[n] = dict(zip(idx[rows].tolist(), cmd[rows].tolist(), strict=True))
+        return {"node": node, "index": idx, "recv": recv, "send": send, "cmd": cmd, "lost": lost}
+
+    def can_frame_of(self, node: np.ndarray, index: np.ndarray) -> np.ndarray:
+        """cmd_seq (-1 lifecycle, -2 unmatched) of received CAN frames given as (node, the
+        frame's index among those its drive received)."""
+        out = np.full(node.size, -2, np.int64)
+        for k, (n, i) in enumerate(zip(node.tolist(), index.tolist(), strict=True)):
+            out[k] = self._frame_match.get(n, {}).get(i, -2)
         return out
 
     # --- landings: (time, sample) of each command put in force, per path -----------------------
@@ -401,6 +428,7 @@ def _can_messages(r: _Run) -> dict[str, Any]:
         "injected_frame_losses": int((c["lost"] & np.isin(c["cmd"], sent_cmds)).sum()),
         "lifecycle_frames_sent": int((tx["cmd_seq"] < 0).sum()),
         "unmatched_frames_received": int((c["cmd"] == -2).sum()),
+        "value_mismatches": int(r.value_mismatches),
         "sent_after_window": int(
             np.unique(tx["cmd_seq"][(tx["cmd_seq"] >= 0) & (when > r.w1)]).size
         ),

@@ -148,6 +148,7 @@ class ZenohCanBus(BusABC):
         self.tx_queue = max(1, int(tx_queue))
         self.transport_rejections = RejectionCounter()
         self.rx_dropped = 0
+        self.last_end_ns = 0  # the end of this member's latest frame on the bus (see sent_at_ns)
         self._sender = random.getrandbits(63) | 1
         self._epoch_offset = time.time() - time.monotonic()
         self._cond = threading.Condition()
@@ -256,6 +257,16 @@ class ZenohCanBus(BusABC):
             self._pub.put(pack_frame(msg, self._sender, end_ns))
         except Exception as exc:
             raise CanOperationError(f"zenoh_can: put failed: {exc}") from exc
+        self.last_end_ns = end_ns
+
+    def sent_at_ns(self, msg: Message) -> int | None:
+        """The modelled end of transmission of a received frame on the sender's clock
+        (CLOCK_MONOTONIC ns; the sender's ``last_end_ns`` after its send), which names the frame
+        exactly although CAN frames carry no sequence number. None without the bit-time model
+        (the timestamp is then the receive time)."""
+        if self.bitrate is None or msg.timestamp is None:
+            return None
+        return round((msg.timestamp - self._epoch_offset) * 1e9)
 
     def shutdown(self) -> None:
         if self._is_shutdown:
