@@ -210,3 +210,25 @@ def test_router_refuses_a_readable_dictionary_and_a_missing_one(spawn, tmp_path)
         )
         _, err = proc.communicate(timeout=60)
         assert proc.returncode == 2 and needle in err, err
+
+
+@pytest.mark.parametrize("case", ["world-readable file", "peer with credentials"])
+def test_a_service_with_bad_credentials_exits_2_before_writing_its_log(spawn, tmp_path, case):
+    f = _private(tmp_path / "c", "HIL_ZENOH_USER=controller\nHIL_ZENOH_PASSWORD=Zq9-secr3t\n")
+    if case == "world-readable file":
+        f.chmod(0o644)
+        needle = "chmod 600"
+    else:
+        needle = 'mode = "router"'  # the bundled scenario is peer-to-peer
+    out = tmp_path / "svc"
+    env = {**os.environ, **NO_ENV, cr.ENV_FILE: str(f)}
+    env.pop(cr.SYSTEMD_CREDENTIALS_DIR, None)
+    proc = spawn.python(
+        ["-m", "hil", "controller", "paper_tracking", "--duration", "1", "--out", str(out)],
+        env=env,
+        text=True,
+    )
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2 and needle in err, err[-2000:]
+    assert "Zq9-secr3t" not in err
+    assert not (out / "controller.hoplog").exists()

@@ -75,6 +75,12 @@ def open_session(
     return zenoh.open(conf)
 
 
+def check_credentials(endpoint: str, mode: str) -> None:
+    """Raise :class:`CredentialsError` now if the process's credentials cannot make its session
+    (a service calls it before it writes anything, so a bad file leaves no half-written log)."""
+    session_config(endpoint, listen_endpoint=False, mode=mode)
+
+
 _QOS_BY_SUFFIX = (
     ("/cmd/torque", zenoh_config.COMMAND_QOS),
     ("/state", zenoh_config.STATE_QOS),
