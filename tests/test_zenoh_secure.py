@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from hil.errors import BadInputError
 from hil.run import credentials as cr
 from hil.run.credentials import Credentials, CredentialsError
 from hil.run.zsession import open_session, session_config
@@ -232,3 +233,30 @@ def test_a_service_with_bad_credentials_exits_2_before_writing_its_log(spawn, tm
     assert proc.returncode == 2 and needle in err, err[-2000:]
     assert "Zq9-secr3t" not in err
     assert not (out / "controller.hoplog").exists()
+
+
+def test_init_writes_private_deployment_credentials(tmp_path, monkeypatch, capsys) -> None:
+    from hil.run.secure import main
+
+    monkeypatch.delenv(cr.SYSTEMD_CREDENTIALS_DIR, raising=False)
+    assert main(["init", str(tmp_path / "etc")]) == 0
+    users = cr.dictionary_from_environment(
+        {cr.ENV_DICTIONARY: str(tmp_path / "etc/zenoh-users.txt")}
+    )
+    lines = users.read_text().splitlines()
+    assert [line.split(":")[0] for line in lines] == list(zenoh_acl.ROLE_NAMES)
+    for role in zenoh_acl.ROLE_NAMES:
+        c = cr.read_credentials_file(tmp_path / "etc" / "credentials" / f"{role}.env")
+        assert f"{c.user}:{c.password}" in lines
+    assert main(["init", str(tmp_path / "etc")]) == 2  # never overwrites
+    assert "not overwritten" in capsys.readouterr().err
+
+
+def test_a_scenario_cannot_carry_credentials() -> None:
+    from hil.run.defaults import PAPER_TRACKING_TOML
+    from hil.scenario import loads_scenario
+
+    for key in ("user", "password"):
+        text = PAPER_TRACKING_TOML + f'\n[zenoh]\nmode = "router"\n{key} = "x"\n'
+        with pytest.raises(BadInputError, match=key):
+            loads_scenario(text, ROOT)

@@ -15,6 +15,9 @@ kernel stops with its parent (PR_SET_PDEATHSIG).
 Without ``--secure`` the same object clears any ``HIL_ZENOH_*`` variable inherited by the
 children: ``hil run``'s own router is open, and Zenoh refuses a client that presents
 credentials to a router that asks for none.
+
+``python -m hil.run.secure init DIR`` writes the same files for a deployment (deploy/README.md):
+``DIR/zenoh-users.txt`` for the router and ``DIR/credentials/<role>.env`` per role, all 0600.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import secrets
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -47,6 +51,20 @@ def credentials_file_name(role: str) -> str:
     return f"{role}.credentials"
 
 
+def new_credentials(source: str) -> dict[str, Credentials]:
+    """A fresh random password for every role of :mod:`protocol.zenoh_acl`."""
+    return {r: Credentials(r, secrets.token_urlsafe(PASSWORD_BYTES), source) for r in ROLE_NAMES}
+
+
+def write_identities(
+    creds: dict[str, Credentials], credentials_dir: Path, dictionary: Path, suffix: str
+) -> None:
+    """One private credentials file per role, then the router's private dictionary."""
+    for role, c in creds.items():
+        write_private(credentials_dir / f"{role}{suffix}", credentials_text(c))
+    write_private(dictionary, dictionary_text(creds.values()))
+
+
 class RunIdentities:
     """The run's credentials (``secure``) or the absence of any (see the module docstring)."""
 
@@ -61,11 +79,9 @@ class RunIdentities:
     def _create(self) -> None:
         self.folder = Path(tempfile.mkdtemp(prefix="hil-secure-"))
         try:
-            for role in ROLE_NAMES:
-                creds = Credentials(role, secrets.token_urlsafe(PASSWORD_BYTES), "hil run")
-                self._creds[role] = creds
-                write_private(self.folder / credentials_file_name(role), credentials_text(creds))
-            write_private(self.folder / DICTIONARY_NAME, dictionary_text(self._creds.values()))
+            self._creds = new_credentials("hil run")
+            suffix = credentials_file_name("")
+            write_identities(self._creds, self.folder, self.folder / DICTIONARY_NAME, suffix)
         except BaseException:
             self.close()
             raise
@@ -108,3 +124,25 @@ class RunIdentities:
         if self.folder is not None:
             shutil.rmtree(self.folder, ignore_errors=True)
             self.folder = None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m hil.run.secure init DIR``: a deployment's credentials (never overwritten)."""
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 2 or args[0] != "init":
+        print("usage: python -m hil.run.secure init DIR", file=sys.stderr)
+        return 2
+    root = Path(args[1])
+    (root / "credentials").mkdir(mode=0o700, parents=True, exist_ok=True)
+    dictionary = root / "zenoh-users.txt"
+    try:
+        write_identities(new_credentials("init"), root / "credentials", dictionary, ".env")
+    except FileExistsError as exc:
+        print(f"error: {exc.filename} exists; not overwritten", file=sys.stderr)
+        return 2
+    print(f"{dictionary} (the router's) and {root / 'credentials'}/<role>.env, mode 0600")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
