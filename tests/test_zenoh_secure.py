@@ -260,3 +260,17 @@ def test_a_scenario_cannot_carry_credentials() -> None:
         text = PAPER_TRACKING_TOML + f'\n[zenoh]\nmode = "router"\n{key} = "x"\n'
         with pytest.raises(BadInputError, match=key):
             loads_scenario(text, ROOT)
+
+
+def test_deploy_units_take_credentials_from_systemd_never_inline() -> None:
+    units = ROOT / "deploy" / "systemd"
+    for name, var in (
+        ("hil-controller.service", cr.ENV_FILE),
+        ("hil-emulator.service", cr.ENV_FILE),
+        ("hil-zenoh-router.service", cr.ENV_DICTIONARY),
+    ):
+        text = (units / name).read_text()
+        lines = [line for line in text.splitlines() if not line.startswith("#")]
+        assert any(line.startswith("LoadCredential=") for line in lines), name
+        assert f"Environment={var}=%d/" in text, name
+        assert not any(cr.ENV_PASSWORD in line or "password" in line.lower() for line in lines)
