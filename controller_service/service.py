@@ -589,10 +589,11 @@ def main_from_settings(settings_path: str) -> int:
     """Entry of ``python -m controller_service --settings run_settings.json``."""
     from hil.run.settings import RunSettings
     from hil.run.wiring import build_control_core, can_settings, motor_limit, open_can_bus
-    from hil.run.zsession import open_session
+    from hil.run.zsession import check_credentials, open_session
     from hil.supervisor import stop_on_signals
 
     s = RunSettings.load(settings_path)
+    check_credentials(s.zenoh_endpoint, s.zenoh_mode)  # a bad credentials file: exit before a log
     core, law_name = build_control_core(s)
     period_ns = round(1e9 / s.rate_hz)
     faults = Faults.of(s.faults)

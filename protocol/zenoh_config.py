@@ -9,7 +9,7 @@ Three modes, all confined to the host by default (ENVIRONMENT.md: no packet may 
 - ``client``: connects to router endpoints, listens nowhere.
 - ``router``: listens on loopback endpoints; :func:`router_acl_config` adds user/password
   authentication and access control (default deny, ``put`` and subscriptions on ``hil/**``
-  allowed for one user), used by ``deploy/``.
+  allowed for one user); the bench's per-role router is :mod:`protocol.zenoh_acl`.
 
 ``ZenohSettings`` is what a scenario's ``[zenoh]`` table maps to (CONTRACT.md: mode,
 endpoints, robot_id; ``listen`` and ``connect`` may be given explicitly).

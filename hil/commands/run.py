@@ -42,6 +42,14 @@ def register(app: typer.Typer) -> None:
         spin_us: Annotated[float, typer.Option(help="Spin this long before each deadline.")] = 0.0,
         out: Annotated[Path | None, typer.Option(help="Run folder (default runs/run-*).")] = None,
         quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+        secure: Annotated[
+            bool,
+            typer.Option(
+                help="Run every session through a router with user/password authentication and "
+                "per-role access control (fresh passwords per run, outside the run folder; "
+                "deploy/README.md).",
+            ),
+        ] = False,
         report: Annotated[
             bool,
             typer.Option(
@@ -69,6 +77,7 @@ def register(app: typer.Typer) -> None:
                 can_channel=can_channel,
                 spin_us=spin_us,
                 quiet=quiet,
+                secure=secure,
             )
         )
         t = summary.get("timing", {})

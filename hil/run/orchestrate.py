@@ -64,6 +64,7 @@ class RunOptions:
     scheduling: str | None = None
     quiet: bool = False
     delay: float | None = None
+    secure: bool = False  # router with authentication and access control (hil.run.secure)
 
 
 class Recorder:
@@ -173,6 +174,8 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
 
     if opts.cmd_path not in ("zenoh", "can"):
         raise BadInputError(f"--cmd-path must be zenoh or can, got {opts.cmd_path!r}")
+    if opts.secure and opts.cmd_path == "can":
+        raise BadInputError("--secure guards the Zenoh command path; the CAN bus has no login")
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     run_dir = Path(opts.out) if opts.out else new_run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -221,7 +224,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
             k: getattr(scenario.robot, k)
             for k in ("mass", "yaw_inertia", "wheel_radius", "half_track", "gear_ratio")
         },
-        zenoh_mode=scenario.zenoh.mode,
+        zenoh_mode="router" if opts.secure else scenario.zenoh.mode,
         zenoh_endpoint=f"tcp/127.0.0.1:{free_port()}",
         can_endpoint=f"tcp/127.0.0.1:{free_port()}",
         delay=delay,
@@ -251,6 +254,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
             "rate_hz": settings.rate_hz,
             "trigger": settings.trigger,
             "can_interface": can_table["interface"],
+            "secure": opts.secure,
         },
     )
     (run_dir / "scenario.resolved.toml").write_text(dumps_toml(resolved))
@@ -266,6 +270,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
 def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
     from hil.run.results import analyze, plot
+    from hil.run.secure import RunIdentities
     from hil.run.startgate import announce_start
     from hil.run.zsession import open_session
 
@@ -289,15 +294,21 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     logs = _Logs(run_dir)
     codes: dict[str, int | None] = {}
     t_start = time.monotonic()
+    ids = RunIdentities(opts.secure)  # fresh passwords outside run_dir, or none
     with stop_on_signals() as stop:
         try:
             if settings.zenoh_mode == "router":
                 router_cmd = [sys.executable, "-m", "hil.run.router", settings.zenoh_endpoint]
-                sup.start("router", router_cmd, stdout=logs.open("router"), stderr=STDOUT)
+                router_cmd += ids.router_args()
+                env = ids.child_env("router")
+                sup.start("router", router_cmd, env=env, stdout=logs.open("router"), stderr=STDOUT)
                 _wait_port(settings.zenoh_endpoint, stop, 30.0)
-                session = open_session(settings.zenoh_endpoint, mode="client")
+                creds = ids.credentials("recorder")
+                session = open_session(settings.zenoh_endpoint, mode="client", credentials=creds)
             else:
-                session = open_session(settings.zenoh_endpoint, listen_endpoint=True)
+                ep = settings.zenoh_endpoint
+                session = open_session(ep, listen_endpoint=True, credentials=None)
+            announcer = ids.announcer(session, settings.zenoh_endpoint)
             sub = session.declare_subscriber("hil/**", recorder.on_zenoh)
             can_rec = _can_recorder(settings, recorder)
             settings_path = str(run_dir / "run_settings.json")
@@ -305,6 +316,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
                 sup.start_python(
                     name,
                     ["-m", module, "--settings", settings_path],
+                    env=ids.child_env(name),
                     stdout=logs.open(name),
                     stderr=STDOUT,
                 )
@@ -319,7 +331,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             if ready:
                 epoch = time.monotonic_ns() + 300_000_000
                 for i in range(3):  # a start message lost to a racing link must not hang
-                    announce_start(session, settings.robot_id, epoch, seq=i)
+                    announce_start(announcer, settings.robot_id, epoch, seq=i)
                     time.sleep(0.02)
                 _progress(settings, recorder, sup, stop, opts.quiet)
             else:
@@ -329,6 +341,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             if stop:  # hil.cli then exits 130 once the folder is written
                 interrupts.record(stop.signal or signal.SIGINT)
             codes = _stop_children(sup, settings)
+            ids.close()
             logs.close()
             if sub is not None:
                 sub.undeclare()
@@ -346,6 +359,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         "exit_codes": codes,
         "recording": "recording.mcap",
         "recorded_messages": writer.count,
+        "secure": opts.secure,
     }
     # A second Ctrl-C while the folder is written is recorded, not raised (hil.interrupts).
     with interrupts.shielded():

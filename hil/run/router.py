@@ -1,23 +1,58 @@
-"""A Zenoh router on the run's endpoint: ``python -m hil.run.router ENDPOINT`` (what ``hil run``
-starts in router mode; tests restart it with the same command)."""
+"""A Zenoh router on the run's endpoint: ``python -m hil.run.router ENDPOINT [--secure]
+[--allow-non-loopback]`` (what ``hil run`` starts in router mode; tests restart it with the
+same command).
+
+With ``--secure`` (or whenever ``HIL_ZENOH_DICTIONARY`` names a user dictionary) the router
+authenticates every session against that dictionary (``user:password`` lines, a private file:
+:mod:`hil.run.credentials`) and applies the bench's access control, default deny
+(:mod:`protocol.zenoh_acl`). Only such a router may listen off the host
+(``--allow-non-loopback``): an open router on a network is what the access control is for.
+"""
 
 from __future__ import annotations
 
 import sys
 import time
 
+USAGE = "usage: python -m hil.run.router ENDPOINT [--secure] [--allow-non-loopback]"
+FLAGS = ("--secure", "--allow-non-loopback")
+
 
 def main(argv: list[str] | None = None) -> int:
     import zenoh
 
+    from hil.run.credentials import ENV_DICTIONARY, CredentialsError, dictionary_from_environment
     from hil.run.zsession import session_config
 
     args = sys.argv[1:] if argv is None else argv
-    if len(args) != 1:
-        print("usage: python -m hil.run.router ENDPOINT", file=sys.stderr)
+    flags = {a for a in args if a.startswith("--")}
+    rest = [a for a in args if not a.startswith("--")]
+    if len(rest) != 1 or not flags <= set(FLAGS):
+        print(USAGE, file=sys.stderr)
         return 2
-    session = zenoh.open(session_config(args[0], listen_endpoint=True, mode="router"))
-    print("router up", flush=True)
+    try:
+        dictionary = dictionary_from_environment()
+    except CredentialsError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if "--secure" in flags and dictionary is None:
+        print(f"error: --secure needs {ENV_DICTIONARY}=/path/to/users (0600)", file=sys.stderr)
+        return 2
+    if dictionary is not None:
+        from protocol.zenoh_acl import router_config
+
+        conf = router_config(
+            [rest[0]], str(dictionary), allow_non_loopback="--allow-non-loopback" in flags
+        )
+        up = "router up (usrpwd authentication, access control default deny)"
+    elif "--allow-non-loopback" in flags:
+        print("error: only a --secure router may listen off the host", file=sys.stderr)
+        return 2
+    else:
+        conf = session_config(rest[0], listen_endpoint=True, mode="router", credentials=None)
+        up = "router up"
+    session = zenoh.open(conf)
+    print(up, flush=True)
     try:
         while True:
             time.sleep(3600)

@@ -4,6 +4,12 @@ Topology: the run's well-known endpoint is listened on by the first session that
 (the recorder inside ``hil run``, or a router child when ``[zenoh] mode = "router"``); every
 other session connects to it and also listens on an ephemeral loopback port, so gossip lets the
 controller and the plant link directly (one hop, no forwarding through the recorder).
+
+Credentials (:mod:`hil.run.credentials`) are applied here and nowhere else: a client session
+authenticates with the process's own (from ``HIL_ZENOH_CREDENTIALS`` or
+``HIL_ZENOH_USER``/``HIL_ZENOH_PASSWORD``) unless the caller passes explicit ones, or None for
+none. Only a router's client uses them: a peer with credentials is refused with a clear error
+(a peer mesh has no router to check them, and Zenoh would refuse every unauthenticated link).
 """
 
 from __future__ import annotations
@@ -12,13 +18,29 @@ from typing import Any
 
 import zenoh
 
+from hil.run.credentials import Credentials, CredentialsError, from_environment
 from protocol import zenoh_config
 from protocol.zenoh_config import DEFAULT_PEER_LISTEN, ZenohSettings
 
 
-def session_config(endpoint: str, *, listen_endpoint: bool, mode: str = "peer") -> zenoh.Config:
+class _FromEnvironment:
+    def __repr__(self) -> str:
+        return "FROM_ENVIRONMENT"
+
+
+FROM_ENVIRONMENT: Any = _FromEnvironment()
+
+
+def session_config(
+    endpoint: str,
+    *,
+    listen_endpoint: bool,
+    mode: str = "peer",
+    credentials: Credentials | None = FROM_ENVIRONMENT,
+) -> zenoh.Config:
     """The run's session: :mod:`protocol.zenoh_config` settings (loopback, multicast scouting
-    off) with the run's rendezvous ``endpoint``, listened on or connected to."""
+    off) with the run's rendezvous ``endpoint``, listened on or connected to; a client
+    authenticates with ``credentials`` (by default the process's own, see the docstring)."""
     if mode == "client" or (mode == "router" and not listen_endpoint):
         # With a router, every other session is its client: all traffic crosses the router
         # (its access control applies), and a client reconnects by itself after a restart.
@@ -27,11 +49,36 @@ def session_config(endpoint: str, *, listen_endpoint: bool, mode: str = "peer") 
         settings = ZenohSettings(mode="router" if mode == "router" else "peer", listen=(endpoint,))
     else:
         settings = ZenohSettings(mode="peer", listen=DEFAULT_PEER_LISTEN, connect=(endpoint,))
-    return zenoh_config.session_config(settings)
+    if credentials is FROM_ENVIRONMENT:
+        credentials = from_environment()
+    if credentials is None:
+        return zenoh_config.session_config(settings)
+    if settings.mode != "client":
+        raise CredentialsError(
+            f"Zenoh credentials are set ({credentials.source}) but this {settings.mode} "
+            'session has no router to present them to: use [zenoh] mode = "router" (the '
+            "services become the router's clients) or unset them"
+        )
+    return zenoh_config.client_auth_config(settings, credentials.user, credentials.password)
 
 
-def open_session(endpoint: str, *, listen_endpoint: bool = False, mode: str = "peer") -> Any:
-    return zenoh.open(session_config(endpoint, listen_endpoint=listen_endpoint, mode=mode))
+def open_session(
+    endpoint: str,
+    *,
+    listen_endpoint: bool = False,
+    mode: str = "peer",
+    credentials: Credentials | None = FROM_ENVIRONMENT,
+) -> Any:
+    conf = session_config(
+        endpoint, listen_endpoint=listen_endpoint, mode=mode, credentials=credentials
+    )
+    return zenoh.open(conf)
+
+
+def check_credentials(endpoint: str, mode: str) -> None:
+    """Raise :class:`CredentialsError` now if the process's credentials cannot make its session
+    (a service calls it before it writes anything, so a bad file leaves no half-written log)."""
+    session_config(endpoint, listen_endpoint=False, mode=mode)
 
 
 _QOS_BY_SUFFIX = (

@@ -1,0 +1,148 @@
+"""``hil run --secure``: the whole bench through an authenticating router with access control.
+
+Per run, :class:`RunIdentities` makes one fresh random password per role of
+:mod:`protocol.zenoh_acl` and writes them to a new private folder OUTSIDE the run folder
+(``tempfile.mkdtemp``: mode 0700 under ``$TMPDIR``, named ``hil-secure-*``): one credentials
+file per role (mode 0600, ``HIL_ZENOH_USER=``/``HIL_ZENOH_PASSWORD=`` lines) and the router's
+user dictionary (mode 0600). Each child gets, in its environment, only the path of its own
+file (``HIL_ZENOH_CREDENTIALS``; the router ``HIL_ZENOH_DICTIONARY``), never a password, so
+``ps e`` and ``/proc/PID/environ`` show none. The recorder in ``hil run`` reads everything as
+``recorder`` (no right to publish), and the start announcement is published by a second
+session as ``run`` (may publish Status only). The folder is deleted when the run ends; if
+``hil run`` is SIGKILLed it stays behind, but its passwords die with the router, which the
+kernel stops with its parent (PR_SET_PDEATHSIG).
+
+Without ``--secure`` the same object clears any ``HIL_ZENOH_*`` variable inherited by the
+children: ``hil run``'s own router is open, and Zenoh refuses a client that presents
+credentials to a router that asks for none.
+
+``python -m hil.run.secure init DIR`` writes the same files for a deployment (deploy/README.md):
+``DIR/zenoh-users.txt`` for the router and ``DIR/credentials/<role>.env`` per role, all 0600.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import secrets
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from hil.run.credentials import (
+    ENV_DICTIONARY,
+    ENV_FILE,
+    ENV_VARS,
+    Credentials,
+    credentials_text,
+    dictionary_text,
+    write_private,
+)
+from protocol.zenoh_acl import ROLE_NAMES
+
+# hil run's children -> their role (user name) on the router.
+CHILD_ROLES = {"controller": "controller", "plant": "emulator"}
+PASSWORD_BYTES = 32
+DICTIONARY_NAME = "router.users"
+
+
+def credentials_file_name(role: str) -> str:
+    return f"{role}.credentials"
+
+
+def new_credentials(source: str) -> dict[str, Credentials]:
+    """A fresh random password for every role of :mod:`protocol.zenoh_acl`."""
+    return {r: Credentials(r, secrets.token_urlsafe(PASSWORD_BYTES), source) for r in ROLE_NAMES}
+
+
+def write_identities(
+    creds: dict[str, Credentials], credentials_dir: Path, dictionary: Path, suffix: str
+) -> None:
+    """One private credentials file per role, then the router's private dictionary."""
+    for role, c in creds.items():
+        write_private(credentials_dir / f"{role}{suffix}", credentials_text(c))
+    write_private(dictionary, dictionary_text(creds.values()))
+
+
+class RunIdentities:
+    """The run's credentials (``secure``) or the absence of any (see the module docstring)."""
+
+    def __init__(self, secure: bool) -> None:
+        self.secure = bool(secure)
+        self.folder: Path | None = None
+        self._creds: dict[str, Credentials] = {}
+        self._sessions: list[Any] = []
+        if self.secure:
+            self._create()
+
+    def _create(self) -> None:
+        self.folder = Path(tempfile.mkdtemp(prefix="hil-secure-"))
+        try:
+            self._creds = new_credentials("hil run")
+            suffix = credentials_file_name("")
+            write_identities(self._creds, self.folder, self.folder / DICTIONARY_NAME, suffix)
+        except BaseException:
+            self.close()
+            raise
+
+    def credentials(self, role: str) -> Credentials | None:
+        """The role's credentials (None when not secure)."""
+        return self._creds[role] if self.secure else None
+
+    def child_env(self, child: str) -> dict[str, str]:
+        """Environment entries for ``child`` ("router", "controller", "plant"): its own
+        credentials file or dictionary, every other ``HIL_ZENOH_*`` variable cleared."""
+        env = dict.fromkeys(ENV_VARS, "")
+        if self.folder is not None:
+            if child == "router":
+                env[ENV_DICTIONARY] = str(self.folder / DICTIONARY_NAME)
+            else:
+                env[ENV_FILE] = str(self.folder / credentials_file_name(CHILD_ROLES[child]))
+        return env
+
+    def router_args(self) -> list[str]:
+        return ["--secure"] if self.secure else []
+
+    def announcer(self, session: Any, endpoint: str) -> Any:
+        """The session that publishes the start message: the recorder's own when not secure,
+        else a second client session as ``run`` (the recorder may not publish)."""
+        if not self.secure:
+            return session
+        from hil.run.zsession import open_session
+
+        own = open_session(endpoint, mode="client", credentials=self._creds["run"])
+        self._sessions.append(own)
+        return own
+
+    def close(self) -> None:
+        """Close the sessions opened here and delete the credentials folder."""
+        for s in self._sessions:
+            with contextlib.suppress(Exception):
+                s.close()
+        self._sessions.clear()
+        if self.folder is not None:
+            shutil.rmtree(self.folder, ignore_errors=True)
+            self.folder = None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m hil.run.secure init DIR``: a deployment's credentials (never overwritten)."""
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 2 or args[0] != "init":
+        print("usage: python -m hil.run.secure init DIR", file=sys.stderr)
+        return 2
+    root = Path(args[1])
+    (root / "credentials").mkdir(mode=0o700, parents=True, exist_ok=True)
+    dictionary = root / "zenoh-users.txt"
+    try:
+        write_identities(new_credentials("init"), root / "credentials", dictionary, ".env")
+    except FileExistsError as exc:
+        print(f"error: {exc.filename} exists; not overwritten", file=sys.stderr)
+        return 2
+    print(f"{dictionary} (the router's) and {root / 'credentials'}/<role>.env, mode 0600")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
