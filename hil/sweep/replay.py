@@ -36,17 +36,29 @@ def latencies_from_run(spec: str | Path) -> np.ndarray:
     """Measured sample-to-apply latencies (seconds) of a run folder or recording."""
     p, which = split_path(spec)
     per_path: dict[str, np.ndarray] = {}
-    if p.is_dir():
-        from hil.report.folder import load_folder
-        from hil.report.timing_data import collect
+    try:
+        if p.is_dir():
+            from hil.report.folder import load_folder
+            from hil.report.timing_data import collect
 
-        per_path = dict(collect(load_folder(p)).latency)
-    elif p.suffix == ".mcap" and p.is_file():
-        from hil.report.mcap_timing import from_recordings
+            per_path = dict(collect(load_folder(p)).latency)
+        elif p.suffix == ".mcap" and p.is_file():
+            from hil.report.mcap_timing import from_recordings
 
-        per_path = dict(from_recordings([p]).latency)
-    else:
-        raise BadInputError(f"[timing] replay: {p} is neither a run folder nor a .mcap recording")
+            per_path = dict(from_recordings([p]).latency)
+        else:
+            raise BadInputError(
+                f"[timing] replay: {p} is neither a run folder nor a .mcap recording"
+            )
+    except BadInputError as exc:
+        text = str(exc)
+        raise BadInputError(
+            text if text.startswith("[timing] replay") else f"[timing] replay: {text}"
+        ) from exc
+    except Exception as exc:  # a damaged folder or recording: whatever its reader raised
+        raise BadInputError(
+            f"[timing] replay: cannot read latencies from {p}: {type(exc).__name__}: {exc}"
+        ) from exc
     if which is not None:
         if which not in per_path:
             raise BadInputError(
