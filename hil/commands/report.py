@@ -42,10 +42,14 @@ def register(app: typer.Typer) -> None:
         switching rates; latency histograms/CDFs per path and wake-up lateness (runs); and a
         verdict. Exit 0 all good, 1 negative verdict (limit broken, certificate not held or
         exceeded, too many deadline misses or lost messages), 2 not a run folder."""
+        from hil.options import number, out_dir
         from hil.report.build import Thresholds, analyse, write_report
         from hil.report.folder import load_folder
         from hil.report.ideal import ideal_from_simulator
 
+        number("--max-deadline-miss-ratio", max_deadline_miss_ratio, 0.0, 1.0)
+        number("--max-lost-ratio", max_lost_ratio, 0.0, 1.0)
+        out_dir("--out", out)
         loaded = load_folder(folder)
         rep = analyse(
             loaded,
