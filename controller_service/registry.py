@@ -13,8 +13,10 @@
   params is the whole [controller] table without ``law``; it must satisfy the Controller
   protocol of :mod:`controller_service.laws.base`.
 
-Sub-tables of the other baselines may sit beside any law and are ignored; any other unknown key
-is refused with a ValueError naming it.
+Sub-tables of the other baselines may sit beside a built-in law; they are not used but must be
+right (checked as if their law were chosen). Any other unknown key is refused with a ValueError
+naming it. :func:`check_table` checks a table without building anything (the scenario loader
+calls it); a user's module is imported only by :func:`build_controller`.
 """
 
 from __future__ import annotations
