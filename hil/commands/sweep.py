@@ -79,8 +79,6 @@ def register(app: typer.Typer) -> None:
         ] = False,
     ) -> None:
         """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
-        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
         from hil import options
         from hil.bundled import resolve_scenario
         from hil.scenario import (
@@ -94,10 +92,9 @@ def register(app: typer.Typer) -> None:
         )
         from hil.sim.timing import jitter_samples_from
         from hil.sweep.grid import make_grid
-        from hil.sweep.outputs import write_csv, write_outputs
         from hil.sweep.replay import is_run_source, latencies_from_run, write_latency_file
-        from hil.sweep.runner import certified_break, run_sweep
 
+        # Options first: a bad one is refused before the plotting and runner modules load.
         ts_grid = options.grid("--ts", ts, TS_MIN, TS_MAX)
         delay_grid = options.grid("--delay", delay, 0.0, DELAY_MAX)
         jitter_grid = options.grid("--jitter", jitter, 0.0, DELAY_MAX)
@@ -136,6 +133,11 @@ def register(app: typer.Typer) -> None:
             latencies = latencies_from_run(scenario.base_dir / t.replay)
         elif t.jitter_kind == "replay":
             jitter_samples_from(scenario.base_dir / t.replay)  # a bad file fails here, named
+        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+        from hil.sweep.outputs import write_csv, write_outputs
+        from hil.sweep.runner import certified_break, run_sweep
+
         target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
         target.mkdir(parents=True, exist_ok=True)
         if replay_run:
