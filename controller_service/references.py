@@ -37,6 +37,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from controller_service.laws.base import ReferenceSample
+from protocol.messages import ANGLE_MAX, POSITION_MAX, SPEED_MAX, TURN_RATE_MAX
 
 LEMNISCATE_GRID = 20001
 LEMNISCATE_MARGIN = 1e-4
@@ -129,9 +130,9 @@ class CircleThenStop:
         decel2: float = DEFAULT_DECELERATION,
     ) -> None:
         if not (decel1 > 0.0 and decel2 > 0.0):
-            raise ValueError("circle_then_stop: decelerations k1, k2 must be > 0")
+            raise ValueError("[reference] circle_then_stop: k1, k2 (the decelerations) must be > 0")
         if not (stop_time >= 0.0):
-            raise ValueError("circle_then_stop: stop_time must be >= 0")
+            raise ValueError("[reference] circle_then_stop: stop_time must be >= 0")
         self.vd, self.wd = float(vd), float(wd)
         self.x0, self.y0, self.theta0 = float(x0), float(y0), float(theta0)
         self.stop_time = float(stop_time)
@@ -177,19 +178,27 @@ class Lemniscate:
         self, scale: float = 2.0, period: float = 60.0, x0: float = 0.0, y0: float = 0.0
     ) -> None:
         if not (scale > 0.0 and math.isfinite(scale)):
-            raise ValueError("lemniscate: scale must be a finite number > 0")
+            raise ValueError("[reference] lemniscate: scale must be a finite number > 0")
         if not (period > 0.0 and math.isfinite(period)):
-            raise ValueError("lemniscate: period must be a finite number > 0")
+            raise ValueError("[reference] lemniscate: period must be a finite number > 0")
         self.scale, self.period = float(scale), float(period)
         self.x0, self.y0 = float(x0), float(y0)
         self.omega = 2.0 * math.pi / self.period
         grid = np.linspace(0.0, self.period, LEMNISCATE_GRID)
-        samples = [self.sample(float(t)) for t in grid]
+        try:
+            samples = [self.sample(float(t)) for t in grid]
+        except (ArithmeticError, ValueError):  # under- or overflow of the derivatives
+            samples = []
         margin = 1.0 + LEMNISCATE_MARGIN
-        self.mu1 = margin * max(abs(s.vd) for s in samples)
-        self.mu2 = margin * max(abs(s.wd) for s in samples)
-        self.k1 = margin * max(abs(s.dvd) for s in samples)
-        self.k2 = margin * max(abs(s.dwd) for s in samples)
+        self.mu1 = margin * max((abs(s.vd) for s in samples), default=math.nan)
+        self.mu2 = margin * max((abs(s.wd) for s in samples), default=math.nan)
+        self.k1 = margin * max((abs(s.dvd) for s in samples), default=math.nan)
+        self.k2 = margin * max((abs(s.dwd) for s in samples), default=math.nan)
+        if not all(math.isfinite(v) for v in (self.mu1, self.mu2, self.k1, self.k2)):
+            raise ValueError(
+                f"[reference] lemniscate: scale = {self.scale:g}, period = {self.period:g} give "
+                "no finite velocities and accelerations (under- or overflow)"
+            )
 
     def sample(self, t: float) -> ReferenceSample:
         a, w = self.scale, self.omega
@@ -230,6 +239,11 @@ class CsvReference:
         self.mu2 = max(abs(v) for v in wd)
         self.k1 = max((abs(v) for v in self.dvd), default=0.0)
         self.k2 = max((abs(v) for v in self.dwd), default=0.0)
+        if not all(math.isfinite(v) for v in (self.mu1, self.mu2, self.k1, self.k2)):
+            raise ValueError(
+                f"[reference] csv path {self.path}: the slopes of vd, wd overflow "
+                "(values too large or rows too close in t)"
+            )
 
     def sample(self, t: float) -> ReferenceSample:
         times = self.t
@@ -247,15 +261,27 @@ def _read_csv(path: Path) -> list[tuple[float, ...]]:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise ValueError(f"csv reference {path}: cannot read ({exc.strerror})") from exc
+        raise ValueError(
+            f"[reference] csv path {path}: cannot read ({exc.strerror or exc})"
+        ) from exc
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"[reference] csv path {path}: not UTF-8 text ({exc.reason})") from exc
+    try:
+        return _parse_csv(path, text)
+    except csv.Error as exc:
+        raise ValueError(f"[reference] csv path {path}: not CSV ({exc})") from exc
+
+
+def _parse_csv(path: Path, text: str) -> list[tuple[float, ...]]:
+    where = f"[reference] csv path {path}"
     reader = csv.reader(text.splitlines())
     try:
         header = [name.strip() for name in next(reader)]
     except StopIteration:
-        raise ValueError(f"csv reference {path}: empty file (no header row)") from None
+        raise ValueError(f"{where}: empty file (no header row)") from None
     missing = [name for name in CSV_COLUMNS if name not in header]
     if missing:
-        raise ValueError(f"csv reference {path}: missing column(s) {', '.join(missing)}")
+        raise ValueError(f"{where}: missing column(s) {', '.join(missing)}")
     index = [header.index(name) for name in CSV_COLUMNS]
     rows: list[tuple[float, ...]] = []
     for line_no, raw in enumerate(reader, start=2):
@@ -268,21 +294,19 @@ def _read_csv(path: Path) -> list[tuple[float, ...]]:
                 value = float(cell)
             except ValueError:
                 raise ValueError(
-                    f"csv reference {path}: row {line_no} column {name}: {cell!r} is not a number"
+                    f"{where}: row {line_no} column {name}: {cell!r} is not a number"
                 ) from None
             if not math.isfinite(value):
-                raise ValueError(
-                    f"csv reference {path}: row {line_no} column {name}: {cell!r} is not finite"
-                )
+                raise ValueError(f"{where}: row {line_no} column {name}: {cell!r} is not finite")
             values.append(value)
         if rows and not values[0] > rows[-1][0]:
             raise ValueError(
-                f"csv reference {path}: row {line_no} column t: {values[0]!r} is not after the "
+                f"{where}: row {line_no} column t: {values[0]!r} is not after the "
                 f"previous row's {rows[-1][0]!r} (t must increase strictly)"
             )
         rows.append(tuple(values))
     if not rows:
-        raise ValueError(f"csv reference {path}: no data rows")
+        raise ValueError(f"{where}: no data rows")
     return rows
 
 
@@ -300,44 +324,92 @@ _KINDS: dict[str, tuple[dict[str, Any], tuple[str, ...]]] = {
 }
 
 
+# Declared ranges of the numbers (docs/scenario.md, "Errors"): positions and speeds within what a
+# State message may carry (protocol.messages), times within the scenario's own limits.
+MAX_MAGNITUDE = 1e9
+_RANGES: dict[str, tuple[float, float]] = {
+    "vd": (-SPEED_MAX, SPEED_MAX),
+    "wd": (-TURN_RATE_MAX, TURN_RATE_MAX),
+    "x0": (-POSITION_MAX, POSITION_MAX),
+    "y0": (-POSITION_MAX, POSITION_MAX),
+    "x": (-POSITION_MAX, POSITION_MAX),
+    "y": (-POSITION_MAX, POSITION_MAX),
+    "theta0": (-ANGLE_MAX, ANGLE_MAX),
+    "theta": (-ANGLE_MAX, ANGLE_MAX),
+    "stop_time": (0.0, 1e7),
+    "scale": (1e-6, POSITION_MAX),
+    "period": (1e-3, 1e7),
+    **{key: (0.0, MAX_MAGNITUDE) for key in _DESIGN_BOUND_KEYS},
+}
+
+
 def _number(kind: str, key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ValueError(f"[reference] {kind}: {key} must be a number, got {value!r}")
     value = float(value)
     if not math.isfinite(value):
         raise ValueError(f"[reference] {kind}: {key} must be finite, got {value!r}")
+    low, high = _RANGES.get(key, (-MAX_MAGNITUDE, MAX_MAGNITUDE))
+    if not low <= value <= high:
+        raise ValueError(f"[reference] {kind}: {key} must be in [{low:g}, {high:g}], got {value!r}")
     return value
 
 
-def build_reference(table: Mapping[str, Any], base_dir: Path) -> Reference:
-    """The reference named by a scenario's [reference] table (CONTRACT.md).
-
-    Unknown kinds, unknown keys, missing required keys and non-numbers raise ValueError naming
-    them. The design bounds mu1, mu2, k1, k2 are allowed in every kind (the loader reads them);
-    circle_then_stop also uses k1, k2 as its deceleration rates (default 1.0 each).
-    """
+def check_table(table: Mapping[str, Any]) -> str:
+    """Check a [reference] table without building it (no file is read): the kind, the keys,
+    every number finite and within its range, a csv path a plain string. Returns the kind;
+    raises ValueError naming the key."""
+    if not isinstance(table, Mapping):
+        raise ValueError("[reference] must be a table")
     if "kind" not in table:
         raise ValueError("[reference]: missing key 'kind'")
     kind = table["kind"]
-    if kind not in _KINDS:
+    if not isinstance(kind, str) or kind not in _KINDS:
         raise ValueError(
             f"[reference]: unknown kind {kind!r} (expected one of {', '.join(_KINDS)})"
         )
     defaults, _extra = _KINDS[kind]
     allowed = {"kind", *defaults, *_DESIGN_BOUND_KEYS}
-    unknown = sorted(set(table) - allowed)
+    unknown = sorted(map(str, set(table) - allowed))
     if unknown:
         raise ValueError(f"[reference] {kind}: unknown key(s) {', '.join(unknown)}")
     for key in _DESIGN_BOUND_KEYS:
-        if key in table and _number(kind, key, table[key]) < 0.0:
-            raise ValueError(f"[reference] {kind}: {key} must be >= 0")
+        if key in table:
+            _number(kind, key, table[key])
+    if kind == "circle_then_stop":
+        for key in ("k1", "k2"):  # its decelerations
+            if key in table and not table[key] > 0.0:
+                raise ValueError(
+                    f"[reference] circle_then_stop: {key} (a deceleration) must be > 0, "
+                    f"got {table[key]!r}"
+                )
     if kind == "csv":
         if "path" not in table:
             raise ValueError("[reference] csv: missing key 'path'")
-        if not isinstance(table["path"], str):
-            raise ValueError("[reference] csv: path must be a string")
+        path = table["path"]
+        if not isinstance(path, str) or not path.strip():
+            raise ValueError(f"[reference] csv: path must be a file name (a string), got {path!r}")
+        if any(ord(c) < 32 for c in path):
+            raise ValueError(f"[reference] csv: path holds control characters: {path!r}")
+        return kind
+    for key, default in defaults.items():
+        _number(kind, key, table.get(key, default))
+    return kind
+
+
+def build_reference(table: Mapping[str, Any], base_dir: Path) -> Reference:
+    """The reference named by a scenario's [reference] table (CONTRACT.md).
+
+    Unknown kinds, unknown keys, missing required keys, non-numbers and numbers out of range
+    raise ValueError naming them (:func:`check_table`). The design bounds mu1, mu2, k1, k2 are
+    allowed in every kind (the loader reads them); circle_then_stop also uses k1, k2 as its
+    deceleration rates (default 1.0 each).
+    """
+    kind = check_table(table)
+    if kind == "csv":
         path = Path(table["path"])
         return CsvReference(path if path.is_absolute() else Path(base_dir) / path)
+    defaults, _extra = _KINDS[kind]
     values = {key: _number(kind, key, table.get(key, default)) for key, default in defaults.items()}
     if kind == "circle":
         return Circle(**values)

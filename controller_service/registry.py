@@ -13,8 +13,10 @@
   params is the whole [controller] table without ``law``; it must satisfy the Controller
   protocol of :mod:`controller_service.laws.base`.
 
-Sub-tables of the other baselines may sit beside any law and are ignored; any other unknown key
-is refused with a ValueError naming it.
+Sub-tables of the other baselines may sit beside a built-in law; they are not used but must be
+right (checked as if their law were chosen). Any other unknown key is refused with a ValueError
+naming it. :func:`check_table` checks a table without building anything (the scenario loader
+calls it); a user's module is imported only by :func:`build_controller`.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import math
+import re
 import weakref
 from collections.abc import Mapping
 from typing import Any
@@ -42,20 +45,26 @@ _user_tables: weakref.WeakKeyDictionary[Any, dict[str, Any]] = weakref.WeakKeyDi
 _notes: weakref.WeakKeyDictionary[Any, tuple[str, ...]] = weakref.WeakKeyDictionary()
 
 
+# A user's law: "package.module:Class" (the module part absolute, so never a relative import).
+_IMPORT_PATH = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[^\s:]+")
+
+
 def _number(key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"[controller] {key} must be a number, got {value!r}")
+        also = " or 'auto'" if key in ("lam", "rho") else ""
+        raise ValueError(f"[controller] {key} must be a number{also}, got {value!r}")
     value = float(value)
     if not math.isfinite(value):
         raise ValueError(f"[controller] {key} must be finite, got {value!r}")
     return value
 
 
-def _build_unified(law: str, table: Mapping[str, Any], context: DesignContext) -> UnifiedController:
+def _unified_values(law: str, table: Mapping[str, Any]) -> dict[str, Any]:
+    """The unified law's parameters, defaults filled; ValueError naming a bad key."""
     keys = dict(TABLE1)
     if law == "unified_boundary":
         keys.update(EPS_DEFAULT)
-    unknown = sorted(set(table) - set(keys) - {"law", *_BASELINE_TABLES})
+    unknown = sorted(map(str, set(table) - set(keys) - {"law", *_BASELINE_TABLES}))
     if unknown:
         hint = (
             " (eps1, eps2 need law = 'unified_boundary')" if {"eps1", "eps2"} & set(unknown) else ""
@@ -68,6 +77,48 @@ def _build_unified(law: str, table: Mapping[str, Any], context: DesignContext) -
             values[key] = value
         else:
             values[key] = _number(key, value)
+    return values
+
+
+def _baseline(law: str, table: Mapping[str, Any], context: DesignContext) -> Controller:
+    sub = table.get(law, {})
+    if not isinstance(sub, Mapping):
+        raise ValueError(f"[controller.{law}] must be a table")
+    cls = Jiang1997Controller if law == "jiang1997" else Jiang2001Controller
+    return cls(sub, context)
+
+
+def check_table(table: Mapping[str, Any]) -> str:
+    """Check a [controller] table without building the law (nothing is imported): the law's
+    name or import path, its keys and numbers, and any baseline sub-table beside it. Returns
+    the law; raises ValueError naming the key. Design conditions need the scenario's limits
+    and reference: :func:`build_controller` checks them."""
+    law = table.get("law", "unified")
+    if not isinstance(law, str):
+        raise ValueError(f"[controller] law must be a string, got {law!r}")
+    if law not in BUILTIN_LAWS and not _IMPORT_PATH.fullmatch(law):
+        raise ValueError(
+            f"[controller] law {law!r}: expected one of {', '.join(BUILTIN_LAWS)} "
+            "or an import path 'package.module:Class'"
+        )
+    if law in ("unified", "unified_boundary"):
+        _unified_values(law, table)
+    elif law in _BASELINE_TABLES:
+        unknown = sorted(map(str, set(table) - {"law", *_BASELINE_TABLES}))
+        if unknown:
+            raise ValueError(
+                f"[controller] {law}: unknown key(s) {', '.join(unknown)} "
+                f"(its parameters go in [controller.{law}])"
+            )
+    if law in BUILTIN_LAWS:  # a sub-table beside the law must be right too, not ignored
+        for name in _BASELINE_TABLES:
+            if name in table:
+                _baseline(name, table, DesignContext())
+    return law
+
+
+def _build_unified(law: str, table: Mapping[str, Any], context: DesignContext) -> UnifiedController:
+    values = _unified_values(law, table)
     resolved = resolve_auto(values, context)
     controller = UnifiedController(UnifiedParams(**resolved.params), context)
     if resolved.notes:
@@ -84,9 +135,9 @@ def _build_user(path: str, table: Mapping[str, Any], context: DesignContext) -> 
         )
     try:
         module = importlib.import_module(module_name)
-    except ImportError as exc:
+    except Exception as exc:  # the user's module may raise anything while it is imported
         raise ValueError(
-            f"[controller] law {path!r}: cannot import {module_name!r}: {exc}"
+            f"[controller] law {path!r}: cannot import {module_name!r}: {_what(exc)}"
         ) from exc
     cls = module
     for part in class_name.split("."):
@@ -96,15 +147,19 @@ def _build_user(path: str, table: Mapping[str, Any], context: DesignContext) -> 
     params = {k: v for k, v in table.items() if k != "law"}
     try:
         controller = cls(params, context)
-    except (ValueError, TypeError) as exc:
-        raise ValueError(f"[controller] law {path!r}: building it failed: {exc}") from exc
-    missing = [
-        name
-        for name in ("name", "initial_memory", "update")
-        if not hasattr(controller, name)
-        or (name != "name" and not callable(getattr(controller, name)))
-    ]
-    if missing or not isinstance(controller, Controller):
+    except Exception as exc:  # the user's constructor may raise anything
+        raise ValueError(f"[controller] law {path!r}: building it failed: {_what(exc)}") from exc
+    try:
+        missing = [
+            name
+            for name in ("name", "initial_memory", "update")
+            if not hasattr(controller, name)
+            or (name != "name" and not callable(getattr(controller, name)))
+        ]
+        satisfied = not missing and isinstance(controller, Controller)
+    except Exception as exc:  # a property of the user's object raised
+        raise ValueError(f"[controller] law {path!r}: inspecting it failed: {_what(exc)}") from exc
+    if not satisfied:
         raise ValueError(
             f"[controller] law {path!r}: the object does not satisfy the Controller protocol "
             f"(missing or not callable: {', '.join(missing) or '?'}; see "
@@ -116,25 +171,18 @@ def _build_user(path: str, table: Mapping[str, Any], context: DesignContext) -> 
     return controller
 
 
+def _what(exc: BaseException) -> str:
+    text = str(exc)
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
 def build_controller(table: Mapping[str, Any], context: DesignContext) -> Controller:
     """The controller named by ``table["law"]`` (default "unified"), checked and ready."""
-    law = table.get("law", "unified")
-    if not isinstance(law, str):
-        raise ValueError(f"[controller] law must be a string, got {law!r}")
+    law = check_table(table)
     if law in ("unified", "unified_boundary"):
         return _build_unified(law, table, context)
     if law in _BASELINE_TABLES:
-        unknown = sorted(set(table) - {"law", *_BASELINE_TABLES})
-        if unknown:
-            raise ValueError(
-                f"[controller] {law}: unknown key(s) {', '.join(unknown)} "
-                f"(its parameters go in [controller.{law}])"
-            )
-        sub = table.get(law, {})
-        if not isinstance(sub, Mapping):
-            raise ValueError(f"[controller.{law}] must be a table")
-        cls = Jiang1997Controller if law == "jiang1997" else Jiang2001Controller
-        return cls(sub, context)
+        return _baseline(law, table, context)
     return _build_user(law, table, context)
 
 

@@ -17,7 +17,7 @@ import sys
 import typer
 
 from hil import interrupts
-from hil.errors import BadInputError, NegativeVerdictError
+from hil.errors import BadInputError, NegativeVerdictError, one_line
 
 app = typer.Typer(
     name="hil",
@@ -91,6 +91,10 @@ def _dispatch(argv: list[str] | None) -> int:
         if interrupts.happened():  # whatever the library wrapped the KeyboardInterrupt in
             return 130
         code = getattr(exc, "exit_code", None)
+        line = _usage_line(exc)
+        if code == 2 and line is not None:  # a bad option or argument: one line naming it
+            typer.echo(f"error: {line}", err=True)
+            return 2
         if code is not None:
             show = getattr(exc, "show", None)
             if callable(show):
@@ -99,6 +103,21 @@ def _dispatch(argv: list[str] | None) -> int:
         raise
     # With standalone_mode off the CLI library returns typer.Exit codes instead of raising them.
     return returned if isinstance(returned, int) else 0
+
+
+def _usage_line(exc: Exception) -> str | None:
+    """A usage error of the CLI library (click's or the copy typer ships: both have
+    ``format_message`` and ``ctx``) as one line saying where the options are; None for
+    anything else."""
+    fmt = getattr(exc, "format_message", None)
+    if not callable(fmt):
+        return None
+    ctx = getattr(exc, "ctx", None)
+    path = getattr(ctx, "command_path", None)
+    message = one_line(fmt())
+    if not message:  # "no arguments: show the help" carries no message of its own
+        return None
+    return message + (f" (see {path} --help)" if path else "")
 
 
 if __name__ == "__main__":

@@ -62,8 +62,22 @@ def provenance(seeds: Mapping[str, Any], start_time: _dt.datetime | None = None)
     }
 
 
+def _string(text: str) -> str:
+    """A TOML basic string: backslash, quote and every control character escaped (a string
+    read from TOML may hold any of them as an escape, and must be written back as one)."""
+    out = []
+    for c in text:
+        if c in ('"', "\\"):
+            out.append("\\" + c)
+        elif ord(c) < 32 or ord(c) == 127:
+            out.append({"\n": "\\n", "\t": "\\t", "\r": "\\r"}.get(c, f"\\u{ord(c):04x}"))
+        else:
+            out.append(c)
+    return '"' + "".join(out) + '"'
+
+
 def _key(k: str) -> str:
-    return k if _BARE_KEY.match(k) else '"' + k.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return k if _BARE_KEY.match(k) else _string(k)
 
 
 def _value(v: Any) -> str:
@@ -78,8 +92,7 @@ def _value(v: Any) -> str:
             return "inf" if v > 0 else "-inf"
         return repr(v)
     if isinstance(v, str):
-        escaped = v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
-        return f'"{escaped}"'
+        return _string(v)
     if isinstance(v, list | tuple):
         return "[" + ", ".join(_value(x) for x in v) + "]"
     if isinstance(v, Mapping):

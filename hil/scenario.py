@@ -1,17 +1,22 @@
 """Scenario files (CONTRACT.md, documented key by key in docs/scenario.md).
 
 One TOML file describes one closed loop. Every table is optional except [reference] and
-[initial]; defaults are the paper's Section 4 set-up. Unknown tables or keys and wrong types are
-refused with :class:`hil.errors.BadInputError` naming the key (exit 2). The [reference] and
-[controller] tables are kept as plain dicts and validated by the builders that own them
-(:func:`controller_service.references.build_reference`,
-:func:`controller_service.registry.build_controller`).
+[initial]; defaults are the paper's Section 4 set-up. Everything is checked here, on load,
+before any command builds or runs anything: unknown tables or keys, wrong types, NaN and
+infinities, numbers outside their declared ranges (:data:`_RANGES`; docs/scenario.md
+"Errors") and the few checks across keys (control samples, plant steps per period, replay,
+CAN node ids). A bad file raises :class:`hil.errors.BadInputError` with one line naming the key
+as ``[table] key`` (exit 2). The [reference] and [controller] tables are kept as plain dicts,
+checked here by their owners' static checks (:func:`controller_service.references.check_table`,
+:func:`controller_service.registry.check_table`: no file read, nothing imported) and built by
+:func:`build_loop`, which also names the keys of a broken design condition.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -20,16 +25,33 @@ from typing import Any
 
 from controller_service.laws.base import DesignContext, Limits
 from hil.errors import BadInputError
+from hil.options import LOCATOR, describe, number, plain_string, type_name
 from hil.provenance import provenance
 from plant_emulator.disturbances import KINDS as DISTURBANCE_KINDS
 from plant_emulator.disturbances import Disturbance, max_abs
 from plant_emulator.sensors import Sensor
 from protocol.can.bus_factory import CanSettings
 from protocol.can.wheel_mapping import RobotGeometry
+from protocol.messages import ANGLE_MAX, POSITION_MAX, SPEED_MAX, TORQUE_MAX, TURN_RATE_MAX
 
 SCHEMA_VERSION = 1
 JITTER_KINDS = ("uniform", "normal", "replay")
 _REL_TOL = 1e-12
+
+# Declared ranges (docs/scenario.md, "Errors"). The state, the limits and the torques stay
+# within what the protocol's messages carry (protocol.messages), so a run never meets a value
+# its wire refuses; times and counts stay where the simulator's arrays and the services' integer
+# nanoseconds are exact.
+MAX_MAGNITUDE = 1e9  # any number without a range of its own: |value| <= 1e9
+SEED_MAX = 2**32 - 1
+TS_MIN, TS_MAX = 1e-6, 10.0  # s, the control period
+DELAY_MAX = 1e6  # s, delay and jitter
+DURATION_MAX = 1e7  # s
+RATE_MAX = 20_000.0  # Hz, as hil run
+TIMEOUT_MAX = 3600.0  # s
+MAX_SAMPLES = 10_000_000  # control samples of one loop: duration / ts
+MAX_SUBSTEPS = 100_000  # plant steps per control period: ts / [plant] step
+SWEEP_SEEDS_MAX = 10_000
 
 
 @dataclass(frozen=True)
@@ -195,17 +217,27 @@ class Scenario:
             tuple(self.plant.noise_std), tuple(self.plant.quantization), self.plant.noise_seed
         )  # type: ignore[arg-type]
 
-    def with_overrides(self, duration: float | None = None, ts: float | None = None) -> Scenario:
-        """The same scenario with a new run duration and/or control period (command line)."""
+    def with_overrides(
+        self,
+        duration: float | None = None,
+        ts: float | None = None,
+        names: tuple[str, str] = ("--duration", "--ts"),
+    ) -> Scenario:
+        """The same scenario with a new run duration and/or control period (command line);
+        a bad value raises BadInputError naming the option (``names``)."""
         out = self
+        dur_name, ts_name = names
         if duration is not None:
-            if not (duration > 0.0 and math.isfinite(duration)):
-                raise BadInputError(f"--duration must be > 0, got {duration}")
-            out = dataclasses.replace(out, run=RunConfig(float(duration)))
+            duration = number(dur_name, duration, 0.0, DURATION_MAX, positive=True)
+            out = dataclasses.replace(out, run=RunConfig(duration))
         if ts is not None:
-            if not (ts > 0.0 and math.isfinite(ts)):
-                raise BadInputError(f"--ts must be > 0, got {ts}")
-            out = dataclasses.replace(out, timing=dataclasses.replace(out.timing, ts=float(ts)))
+            ts = number(ts_name, ts, TS_MIN, TS_MAX)
+            out = dataclasses.replace(out, timing=dataclasses.replace(out.timing, ts=ts))
+        _check_loop_size(
+            out,
+            dur_name if duration is not None else "[run] duration",
+            ts_name if ts is not None else "[timing] ts",
+        )
         return out
 
 
@@ -230,6 +262,59 @@ _CHOICES: dict[tuple[str, str], tuple[str, ...]] = {
     ("realtime", "trigger"): ("periodic", "on_state"),
     ("realtime", "scheduling"): ("fifo", "other"),
     ("zenoh", "mode"): ("peer", "client", "router"),
+}
+# (table, key) -> (low, high): low <= value <= high (and > 0 where _POSITIVE says so); every
+# other number |value| <= MAX_MAGNITUDE. Items of a list are checked one by one.
+_RANGES: dict[tuple[str, str], tuple[float, float]] = {
+    ("limits", "phi1"): (0.0, SPEED_MAX),
+    ("limits", "phi2"): (0.0, TURN_RATE_MAX),
+    ("limits", "varpi1"): (0.0, TORQUE_MAX),
+    ("limits", "varpi2"): (0.0, TORQUE_MAX),
+    ("initial", "x"): (-POSITION_MAX, POSITION_MAX),
+    ("initial", "y"): (-POSITION_MAX, POSITION_MAX),
+    ("initial", "theta"): (-ANGLE_MAX, ANGLE_MAX),
+    ("initial", "v"): (-SPEED_MAX, SPEED_MAX),
+    ("initial", "omega"): (-TURN_RATE_MAX, TURN_RATE_MAX),
+    ("disturbance", "s1"): (0.0, TORQUE_MAX),
+    ("disturbance", "s2"): (0.0, TORQUE_MAX),
+    ("disturbance", "value1"): (-TORQUE_MAX, TORQUE_MAX),
+    ("disturbance", "value2"): (-TORQUE_MAX, TORQUE_MAX),
+    ("disturbance", "amplitude1"): (-TORQUE_MAX, TORQUE_MAX),
+    ("disturbance", "amplitude2"): (-TORQUE_MAX, TORQUE_MAX),
+    ("disturbance", "freq"): (0.0, 1e6),
+    ("disturbance", "period"): (1e-6, DURATION_MAX),
+    ("disturbance", "seed"): (0, SEED_MAX),
+    ("plant", "step"): (0.0, TS_MAX),
+    ("plant", "noise_std"): (0.0, 1e6),
+    ("plant", "noise_seed"): (0, SEED_MAX),
+    ("plant", "quantization"): (0.0, 1e6),
+    ("plant", "lag"): (0.0, 1e6),
+    ("timing", "ts"): (TS_MIN, TS_MAX),
+    ("timing", "delay"): (0.0, DELAY_MAX),
+    ("timing", "jitter"): (0.0, DELAY_MAX),
+    ("timing", "seed"): (0, SEED_MAX),
+    ("run", "duration"): (0.0, DURATION_MAX),
+    ("robot", "mass"): (0.0, 1e6),
+    ("robot", "yaw_inertia"): (0.0, 1e6),
+    ("robot", "wheel_radius"): (1e-4, 100.0),
+    ("robot", "half_track"): (1e-4, 100.0),
+    ("robot", "gear_ratio"): (1e-3, 1e6),
+    ("realtime", "rate"): (0.1, RATE_MAX),
+    ("realtime", "sensor_rate"): (0.1, RATE_MAX),
+    ("realtime", "state_timeout"): (0.0, TIMEOUT_MAX),
+    ("realtime", "command_timeout"): (0.0, TIMEOUT_MAX),
+    ("can", "bitrate"): (10_000, 1_000_000),  # classical CAN (CanSettings)
+    ("can", "node_left"): (0, 63),
+    ("can", "node_right"): (0, 63),
+    ("can", "heartbeat_timeout"): (0.0, TIMEOUT_MAX),
+    ("zenoh", "robot_id"): (0, 2**31 - 1),
+    ("sweep", "ts"): (TS_MIN, TS_MAX),
+    ("sweep", "delay"): (0.0, DELAY_MAX),
+    ("sweep", "jitter"): (0.0, DELAY_MAX),
+    ("sweep", "seeds"): (1, SWEEP_SEEDS_MAX),
+    ("faults", "state_drop_every"): (0, 2**31 - 1),
+    ("faults", "command_drop_every"): (0, 2**31 - 1),
+    ("faults", "seed"): (0, SEED_MAX),
 }
 _POSITIVE = {("limits", k) for k in ("phi1", "phi2", "varpi1", "varpi2")} | {
     ("timing", "ts"),
@@ -275,12 +360,14 @@ _NON_NEGATIVE = {
     ("faults", "seed"),
 }
 _FIVE = {("plant", "noise_std"), ("plant", "quantization")}
-
-
-def _type_name(v: Any) -> str:
-    return {bool: "boolean", int: "integer", float: "number", str: "string"}.get(
-        type(v), type(v).__name__
-    )
+# [disturbance] keys each kind reads; any other key must keep its default (a value1 in a sine
+# table would be silently ignored otherwise).
+_DISTURBANCE_KEYS = {
+    "none": ("kind", "s1", "s2"),
+    "constant": ("kind", "s1", "s2", "value1", "value2"),
+    "sine": ("kind", "s1", "s2", "amplitude1", "amplitude2", "freq", "phase"),
+    "random": ("kind", "s1", "s2", "period", "seed"),
+}
 
 
 def _coerce(table: str, key: str, annotation: str, value: Any) -> Any:
@@ -288,22 +375,23 @@ def _coerce(table: str, key: str, annotation: str, value: Any) -> Any:
     base = annotation.replace(" | None", "")
     if base == "float":
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise BadInputError(f"{where} must be a number, got {_type_name(value)} {value!r}")
+            raise BadInputError(f"{where} must be a number, got {type_name(value)} {value!r}")
         value = float(value)
         if not math.isfinite(value):
             raise BadInputError(f"{where} must be finite, got {value!r}")
         return value
     if base == "int":
         if isinstance(value, bool) or not isinstance(value, int):
-            raise BadInputError(f"{where} must be an integer, got {_type_name(value)} {value!r}")
+            raise BadInputError(f"{where} must be an integer, got {type_name(value)} {value!r}")
         return value
     if base == "str":
         if not isinstance(value, str):
-            raise BadInputError(f"{where} must be a string, got {_type_name(value)} {value!r}")
+            raise BadInputError(f"{where} must be a string, got {type_name(value)} {value!r}")
+        plain_string(where, value)
         return value
     if base.startswith("tuple["):
         if not isinstance(value, list):
-            raise BadInputError(f"{where} must be a list, got {_type_name(value)} {value!r}")
+            raise BadInputError(f"{where} must be a list, got {type_name(value)} {value!r}")
         item = "str" if "str" in base else "float"
         return tuple(_coerce(table, f"{key}[{i}]", item, v) for i, v in enumerate(value))
     raise AssertionError(annotation)  # pragma: no cover - the dataclasses above are closed
@@ -315,21 +403,31 @@ def _check(table: str, key: str, value: Any) -> None:
     if choices is not None and value not in choices:
         allowed = ", ".join(map(repr, choices))
         raise BadInputError(f"{where} must be one of {allowed}, got {value!r}")
-    values = value if isinstance(value, tuple) else (value,)
-    if (table, key) in _POSITIVE and any(v is not None and not v > 0 for v in values):
-        raise BadInputError(f"{where} must be > 0, got {value!r}")
-    if (table, key) in _NON_NEGATIVE and any(v is not None and v < 0 for v in values):
-        raise BadInputError(f"{where} must be >= 0, got {value!r}")
+    many = isinstance(value, tuple)
+    values = value if many else (value,)
     if (table, key) in _FIVE and len(values) != 5:
         raise BadInputError(f"{where} needs 5 values (x, y, theta, v, omega), got {len(values)}")
+    positive = (table, key) in _POSITIVE
+    non_negative = (table, key) in _NON_NEGATIVE
+    low, high = _RANGES.get((table, key), (-MAX_MAGNITUDE, MAX_MAGNITUDE))
+    for i, v in enumerate(values):
+        if v is None or isinstance(v, str):
+            continue
+        item = f"{where}[{i}]" if many else where
+        if positive and not v > 0:
+            raise BadInputError(f"{item} must be > 0, got {v!r}")
+        if non_negative and v < 0:
+            raise BadInputError(f"{item} must be >= 0, got {v!r}")
+        if not low <= v <= high:
+            raise BadInputError(f"{item} must be {describe(low, high, positive)}, got {v!r}")
 
 
 def _parse_table(name: str, raw: Any) -> Any:
     cls = _TABLES[name]
     if not isinstance(raw, Mapping):
-        raise BadInputError(f"[{name}] must be a table, got {_type_name(raw)}")
+        raise BadInputError(f"[{name}] must be a table, got {type_name(raw)} {raw!r}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(raw) - set(fields))
+    unknown = sorted(map(str, set(raw) - set(fields)))
     if unknown:
         raise BadInputError(
             f"[{name}]: unknown key(s) {', '.join(unknown)} (allowed: {', '.join(fields)})"
@@ -345,19 +443,27 @@ def _parse_table(name: str, raw: Any) -> Any:
 
 def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") -> Scenario:
     """A :class:`Scenario` from the parsed TOML ``data`` (BadInputError names any bad key)."""
+    from controller_service.references import check_table as check_reference
+    from controller_service.registry import check_table as check_controller
+
     allowed = {*_TABLES, "reference", "controller", "provenance"}
-    unknown = sorted(set(data) - allowed)
+    unknown = sorted(map(str, set(data) - allowed))
     if unknown:
+        tables = all(isinstance(data[k], Mapping) for k in unknown)
+        names = ", ".join(f"[{k}]" if isinstance(data[k], Mapping) else k for k in unknown)
+        what = "table" if tables else "top-level key"
         raise BadInputError(
-            f"unknown table(s) or key(s) {', '.join(unknown)} "
+            f"{names}: unknown {what}{'s' if len(unknown) > 1 else ''} "
             f"(allowed tables: {', '.join(sorted(allowed - {'provenance'}))})"
         )
     for required in ("reference", "initial"):
         if required not in data:
-            raise BadInputError(f"missing table [{required}] (it is required)")
+            raise BadInputError(f"[{required}]: missing table (it is required)")
     for name in ("reference", "controller"):
         if name in data and not isinstance(data[name], Mapping):
-            raise BadInputError(f"[{name}] must be a table")
+            raise BadInputError(
+                f"[{name}] must be a table, got {type_name(data[name])} {data[name]!r}"
+            )
     kwargs: dict[str, Any] = {
         name: _parse_table(name, data[name]) for name in _TABLES if name in data
     }
@@ -365,6 +471,11 @@ def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") ->
         kwargs["initial"] = Initial()
     controller = dict(data.get("controller", {}))
     controller.setdefault("law", "unified")
+    try:
+        check_reference(data["reference"])
+        check_controller(controller)
+    except ValueError as exc:
+        raise BadInputError(str(exc)) from exc
     scenario = Scenario(
         reference=dict(data["reference"]),
         controller=controller,
@@ -372,17 +483,68 @@ def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") ->
         source=source,
         **kwargs,
     )
+    _check_across(scenario)
+    return scenario
+
+
+def _check_across(scenario: Scenario) -> None:
+    """The checks that need more than one key (BadInputError names them)."""
     t = scenario.timing
-    if t.jitter_kind == "replay" and not t.replay:
-        raise BadInputError("[timing] replay: jitter_kind = 'replay' needs a latency file path")
+    if t.jitter_kind == "replay":
+        if not t.replay.strip():
+            raise BadInputError("[timing] replay: jitter_kind = 'replay' needs a latency file path")
+        head = t.replay.rpartition("::")[0] if "::" in t.replay else t.replay
+        if not head.strip():
+            raise BadInputError(f"[timing] replay: no path before '::' in {t.replay!r}")
+    elif t.replay:
+        raise BadInputError(
+            f"[timing] replay = {t.replay!r} is read only with jitter_kind = 'replay' "
+            f"(jitter_kind is {t.jitter_kind!r})"
+        )
     d = scenario.disturbance
+    default = Disturbance()
+    for key in (f.name for f in dataclasses.fields(Disturbance)):
+        if key not in _DISTURBANCE_KEYS[d.kind] and getattr(d, key) != getattr(default, key):
+            raise BadInputError(
+                f"[disturbance] {key}: not read by kind = {d.kind!r} (its keys: "
+                f"{', '.join(_DISTURBANCE_KEYS[d.kind][1:])})"
+            )
     b1, b2 = max_abs(d)
     if b1 > d.s1 * (1 + _REL_TOL) or b2 > d.s2 * (1 + _REL_TOL):
         raise BadInputError(
             f"[disturbance] s1, s2: the {d.kind} disturbance reaches |d1| = {b1:g}, |d2| = {b2:g}, "
             f"beyond the declared bounds s1 = {d.s1:g}, s2 = {d.s2:g} of Assumption 1"
         )
-    return scenario
+    can = scenario.can
+    plain_string("[can] interface", can.interface, empty=False)
+    plain_string("[can] channel", can.channel, empty=False)
+    if can.node_left == can.node_right:
+        raise BadInputError(f"[can] node_left, node_right must differ, both are {can.node_left}")
+    for i, endpoint in enumerate(scenario.zenoh.endpoints):
+        if not LOCATOR.fullmatch(endpoint):
+            raise BadInputError(
+                f"[zenoh] endpoints[{i}] must be a Zenoh locator such as "
+                f"'tcp/127.0.0.1:7447', got {endpoint!r}"
+            )
+    _check_loop_size(scenario, "[run] duration", "[timing] ts")
+
+
+def _check_loop_size(scenario: Scenario, dur_name: str, ts_name: str) -> None:
+    """Control samples of the run and plant steps per period within MAX_SAMPLES and
+    MAX_SUBSTEPS (the simulator keeps one row per sample)."""
+    ts, duration = scenario.timing.ts, scenario.run.duration
+    samples = duration / ts
+    if samples > MAX_SAMPLES:
+        raise BadInputError(
+            f"{dur_name} = {duration:g} s at {ts_name} = {ts:g} s is {samples:.3g} control "
+            f"samples, more than {MAX_SAMPLES:,}"
+        )
+    step = scenario.plant.step
+    if step is not None and ts / step > MAX_SUBSTEPS:
+        raise BadInputError(
+            f"[plant] step = {step:g} s is {ts / step:.3g} plant steps per {ts_name} = {ts:g} s, "
+            f"more than {MAX_SUBSTEPS:,}"
+        )
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -417,6 +579,41 @@ def build_reference(scenario: Scenario) -> Any:
         raise BadInputError(str(exc)) from exc
 
 
+# Where each symbol of the design conditions is set (DesignError names conditions, not keys).
+_SYMBOL_KEYS = {
+    **{k: "limits" for k in ("phi1", "phi2", "varpi1", "varpi2")},
+    **{k: "disturbance" for k in ("s1", "s2")},
+    **{k: "reference" for k in ("mu1", "mu2", "k1", "k2")},
+    **{k: "controller" for k in ("m1", "m2", "l1", "l2", "lam", "rho", "eps1", "eps2")},
+}
+_SYMBOL = re.compile(r"\b(" + "|".join(_SYMBOL_KEYS) + r")\b")
+
+
+def design_message(exc: Any) -> str:
+    """A broken design condition (controller_service.design.DesignError) as one line that
+    names the keys it involves: ``[controller] m1 = 3 breaks (9) m1 < phi1 - mu1 ...``."""
+    condition = str(getattr(exc, "condition", ""))
+    symbols = list(dict.fromkeys(_SYMBOL.findall(condition)))
+    if not symbols:
+        return str(exc)
+    subject, others = symbols[0], symbols[1:]
+    value, bound = float(exc.value), float(exc.bound)
+    if condition.endswith("> 0") or ">= 0" in condition:
+        value = -value  # "x > 0" is checked as -x < 0
+    where = f"[{_SYMBOL_KEYS[subject]}] {subject}"
+    also = ", ".join(f"[{_SYMBOL_KEYS[k]}] {k}" for k in others)
+    default = (
+        f" ({subject} defaults to the reference's own maximum)"
+        if _SYMBOL_KEYS[subject] == "reference"
+        else ""
+    )
+    return (
+        f"{where} = {value:.6g} breaks design condition {condition} (bound {bound:.6g})"
+        + (f"; it also involves {also}" if also else "")
+        + default
+    )
+
+
 def design_context(scenario: Scenario, reference: Any) -> DesignContext:
     """The DesignContext: limits (2), s1, s2 of Assumption 1 and mu1..k2 of Assumption 2.
 
@@ -447,12 +644,15 @@ def design_context(scenario: Scenario, reference: Any) -> DesignContext:
 
 def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
     """(controller, reference, context) for the scenario; design errors become BadInputError."""
+    from controller_service.design import DesignError
     from controller_service.registry import build_controller
 
     reference = build_reference(scenario)
     context = design_context(scenario, reference)
     try:
         controller = build_controller(dict(scenario.controller), context)
+    except DesignError as exc:
+        raise BadInputError(design_message(exc)) from exc
     except ValueError as exc:
         raise BadInputError(str(exc)) from exc
     return controller, reference, context

@@ -41,8 +41,13 @@ def _quantize(value: Any, step: float) -> Any:
     if step <= 0.0:
         return value
     if isinstance(value, np.ndarray):
-        return np.round(value / step) * step
-    return round(value / step) * step
+        with np.errstate(over="ignore", invalid="ignore"):
+            q = np.round(value / step) * step
+        return np.where(np.isfinite(q), q, value)
+    q = value / step
+    if not math.isfinite(q):  # a step far below the value's own resolution: nothing to round
+        return value
+    return round(q) * step
 
 
 def measure(sensor: Sensor, state: RobotState, k: int, seed: Any = None) -> RobotState:

@@ -47,6 +47,7 @@ from controller_service.laws.base import (
 from controller_service.mathns import ARRAY_MATH, FLOAT_MATH
 
 INNER_K_DEFAULT = 20.0
+POSITIVE_MAX = 1e9  # the largest gain or time a baseline's table may give
 BASELINE_TELEMETRY_KEYS = ("xe", "ye", "theta_e", "v_c", "w_c", "mode", "nonfinite")
 
 
@@ -199,8 +200,11 @@ class VelocityLoopController:
 def positive_number(law: str, key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ValueError(f"[controller.{law}] {key} must be a number, got {value!r}")
-    if not (0.0 < float(value) < float("inf")):
-        raise ValueError(f"[controller.{law}] {key} must be a finite number > 0, got {value!r}")
+    if not (0.0 < float(value) <= POSITIVE_MAX):
+        raise ValueError(
+            f"[controller.{law}] {key} must be a finite number > 0 (at most {POSITIVE_MAX:g}), "
+            f"got {value!r}"
+        )
     return float(value)
 
 

@@ -10,6 +10,10 @@ import typer
 
 from hil.errors import BadInputError, NegativeVerdictError
 
+RATE_MAX = 1e6  # Hz: frames per second of one kind
+BITRATE_MAX = 1e9  # bit/s
+DRIVES_MAX = 64  # CANSimple node ids are 0..63
+
 
 def register(app: typer.Typer) -> None:
     @app.command("can-load")
@@ -37,8 +41,15 @@ def register(app: typer.Typer) -> None:
         47 + 8 DLC + floor((34 + 8 DLC - 1)/4) bits, 3-bit interframe space included; Davis
         et al. 2007) and the bus load in percent. Exit code 1 (with a warning) when the load
         exceeds 100%, 2 on bad input."""
+        from hil.options import integer, number, optional_number, out_dir
         from protocol.can.bus_load import bus_load_percent, profile_frames
 
+        rate = number("--rate", rate, 0.0, RATE_MAX, positive=True)
+        bitrate = number("--bitrate", bitrate, 0.0, BITRATE_MAX, positive=True)
+        drives = integer("--drives", drives, 1, DRIVES_MAX)
+        heartbeat_rate = number("--heartbeat-rate", heartbeat_rate, 0.0, RATE_MAX)
+        encoder_rate = optional_number("--encoder-rate", encoder_rate, 0.0, RATE_MAX)
+        out_dir("--out", out)
         try:
             frames = profile_frames(rate, drives, heartbeat_rate, encoder_rate)
             load = bus_load_percent(frames, bitrate)

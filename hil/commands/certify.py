@@ -78,8 +78,18 @@ def certify_scenario(
     """(certificate, proposal or None, facts) for a scenario file; BadInputError on bad input."""
     from controller_service.certificate import CertificateError, certify, propose
     from hil.bundled import resolve_scenario
-    from hil.scenario import build_reference, design_context, load_scenario
+    from hil.options import optional_number
+    from hil.scenario import (
+        DELAY_MAX,
+        TS_MAX,
+        TS_MIN,
+        build_reference,
+        design_context,
+        load_scenario,
+    )
 
+    ts = optional_number("--ts", ts, TS_MIN, TS_MAX)
+    delay = optional_number("--delay", delay, 0.0, DELAY_MAX)
     scenario = load_scenario(resolve_scenario(path))
     context = design_context(scenario, build_reference(scenario))
     params, boundary, notes = _params(dict(scenario.controller), context)

@@ -56,11 +56,16 @@ def register(app: typer.Typer) -> None:
         hil.measure). Exit 0 all good, 1 negative verdict (limit broken, certificate not held
         or exceeded, too many deadline misses, samples without a command or lost messages),
         2 not a run folder."""
+        from hil.options import number, out_dir
         from hil.report.build import Thresholds, analyse, write_report
         from hil.report.folder import load_folder
         from hil.report.ideal import ideal_from_simulator
         from hil.run.recover import is_run_folder, needs_recovery, recover
 
+        number("--max-deadline-miss-ratio", max_deadline_miss_ratio, 0.0, 1.0)
+        number("--max-lost-ratio", max_lost_ratio, 0.0, 1.0)
+        number("--max-samples-without-command-ratio", max_samples_without_command_ratio, 0.0, 1.0)
+        out_dir("--out", out)
         if is_run_folder(folder) and needs_recovery(folder):
             # A killed hil run: make the folder whole first (hil recover), then report.
             typer.echo(f"recovering {folder} first: {', '.join(needs_recovery(folder))}", err=True)

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -29,13 +30,26 @@ SWEEP_HELP = (
 )
 
 
-def _floats(text: str | None, name: str) -> tuple[float, ...]:
-    if not text:
-        return ()
-    try:
-        return tuple(float(v) for v in text.split(",") if v.strip())
-    except ValueError as exc:
-        raise BadInputError(f"--{name}: expected comma-separated seconds, got {text!r}") from exc
+def check_loop_sizes(
+    scenario: Any, ts_values: Sequence[float], loop_s: float, names: tuple[str, str]
+) -> None:
+    """Every loop of the grid within the simulator's sizes (hil.scenario.MAX_SAMPLES control
+    samples, MAX_SUBSTEPS plant steps per period); ``names`` = (duration's, grid's) name."""
+    from hil.scenario import MAX_SAMPLES, MAX_SUBSTEPS
+
+    dur_name, ts_name = names
+    ts_min, ts_max = min(ts_values), max(ts_values)
+    if loop_s / ts_min > MAX_SAMPLES:
+        raise BadInputError(
+            f"{dur_name} = {loop_s:g} s at {ts_name} = {ts_min:g} s is {loop_s / ts_min:.3g} "
+            f"control samples, more than {MAX_SAMPLES:,}"
+        )
+    step = scenario.plant.step
+    if step is not None and ts_max / step > MAX_SUBSTEPS:
+        raise BadInputError(
+            f"[plant] step = {step:g} s is {ts_max / step:.3g} plant steps per {ts_name} = "
+            f"{ts_max:g} s, more than {MAX_SUBSTEPS:,}"
+        )
 
 
 def register(app: typer.Typer) -> None:
@@ -65,22 +79,37 @@ def register(app: typer.Typer) -> None:
         ] = False,
     ) -> None:
         """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
-        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
+        from hil import options
         from hil.bundled import resolve_scenario
-        from hil.scenario import load_scenario
+        from hil.scenario import (
+            DELAY_MAX,
+            DURATION_MAX,
+            SWEEP_SEEDS_MAX,
+            TS_MAX,
+            TS_MIN,
+            build_loop,
+            load_scenario,
+        )
+        from hil.sim.timing import jitter_samples_from
         from hil.sweep.grid import make_grid
-        from hil.sweep.outputs import write_csv, write_outputs
-        from hil.sweep.replay import is_run_source, write_latency_file
-        from hil.sweep.runner import certified_break, run_sweep
+        from hil.sweep.replay import is_run_source, latencies_from_run, write_latency_file
 
+        # Options first: a bad one is refused before the plotting and runner modules load.
+        ts_grid = options.grid("--ts", ts, TS_MIN, TS_MAX)
+        delay_grid = options.grid("--delay", delay, 0.0, DELAY_MAX)
+        jitter_grid = options.grid("--jitter", jitter, 0.0, DELAY_MAX)
+        if seeds is not None:
+            options.integer("--seeds", seeds, 1, SWEEP_SEEDS_MAX)
+        if duration is not None:
+            options.number("--duration", duration, 0.0, DURATION_MAX, positive=True)
+        options.out_dir("--out", out)
         scenario = load_scenario(resolve_scenario(scenario_file))
         sw = scenario.sweep
         try:
             grid = make_grid(
-                _floats(ts, "ts") or sw.ts,
-                _floats(delay, "delay") or sw.delay,
-                _floats(jitter, "jitter") or sw.jitter,
+                ts_grid or sw.ts,
+                delay_grid or sw.delay,
+                jitter_grid or sw.jitter,
                 seeds if seeds is not None else sw.seeds,
             )
         except ValueError as exc:
@@ -88,13 +117,33 @@ def register(app: typer.Typer) -> None:
         loop_s = (
             duration if duration is not None else min(scenario.run.duration, DEFAULT_MAX_DURATION)
         )
-        if not loop_s > 0:
-            raise BadInputError(f"--duration must be > 0, got {loop_s}")
+        check_loop_sizes(
+            scenario,
+            grid.ts,
+            loop_s,
+            (
+                "--duration" if duration is not None else "[run] duration",
+                "--ts" if ts_grid else "[sweep] ts",
+            ),
+        )
+        build_loop(scenario)  # a bad reference or design fails before any folder is written
+        t = scenario.timing
+        replay_run = t.jitter_kind == "replay" and is_run_source(scenario.base_dir / t.replay)
+        if replay_run:
+            latencies = latencies_from_run(scenario.base_dir / t.replay)
+        elif t.jitter_kind == "replay":
+            jitter_samples_from(scenario.base_dir / t.replay)  # a bad file fails here, named
+        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+        from hil.sweep.outputs import write_csv, write_outputs
+        from hil.sweep.runner import certified_break, run_sweep
+
         target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
         target.mkdir(parents=True, exist_ok=True)
-        t = scenario.timing
-        if t.jitter_kind == "replay" and is_run_source(scenario.base_dir / t.replay):
-            lat = write_latency_file(scenario.base_dir / t.replay, target / "replay.json")
+        if replay_run:
+            lat = write_latency_file(
+                latencies, target / "replay.json", scenario.base_dir / t.replay
+            )
             scenario = dataclasses.replace(
                 scenario, timing=dataclasses.replace(t, replay=str(lat.resolve()))
             )

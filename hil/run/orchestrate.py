@@ -164,44 +164,94 @@ def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any] 
         return None
 
 
+SPIN_US_MAX = 1e6
+
+
+def check_options(opts: RunOptions) -> None:
+    """The command-line options of ``hil run`` (and of the services run alone), each named in
+    a BadInputError; the scenario's own keys are checked when it is loaded."""
+    from hil import options
+    from hil.run.settings import CMD_PATHS, TRIGGERS
+    from hil.scenario import DELAY_MAX, DURATION_MAX, RATE_MAX
+
+    options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
+    if opts.trigger is not None:
+        options.choice("--trigger", opts.trigger, TRIGGERS)
+    if opts.scheduling is not None:
+        options.choice("--scheduling", opts.scheduling, ("fifo", "other"))
+    options.optional_number("--rate", opts.rate, 0.1, RATE_MAX)
+    options.optional_number("--duration", opts.duration, 0.0, DURATION_MAX, positive=True)
+    options.optional_number("--delay", opts.delay, 0.0, DELAY_MAX)
+    options.number("--spin-us", opts.spin_us, 0.0, SPIN_US_MAX)
+    for name, value in (
+        ("--can-interface", opts.can_interface),
+        ("--can-channel", opts.can_channel),
+    ):
+        if value is not None:
+            options.plain_string(name, value, empty=False)
+    options.out_dir("--out", opts.out)
+
+
 def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     """Resolve the scenario and the run's settings; write the folder's first files."""
     from hil.bundled import resolve_scenario
     from hil.provenance import dumps_toml
     from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
-    from hil.run.wiring import effective_can_table, robot_id_of
-    from hil.scenario import build_loop, load_scenario, loads_scenario, resolved_dict
+    from hil.run.wiring import check_can_interface, effective_can_table, robot_id_of
+    from hil.scenario import (
+        RATE_MAX,
+        build_loop,
+        load_scenario,
+        loads_scenario,
+        resolved_dict,
+    )
+    from hil.sim.core import _replay
 
-    if opts.cmd_path not in ("zenoh", "can"):
-        raise BadInputError(f"--cmd-path must be zenoh or can, got {opts.cmd_path!r}")
+    check_options(opts)  # every option before the scenario: no folder, no process yet
     if opts.secure and opts.cmd_path == "can":
         raise BadInputError("--secure guards the Zenoh command path; the CAN bus has no login")
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     run_dir = Path(opts.out) if opts.out else new_run_dir()
-    run_dir.mkdir(parents=True, exist_ok=True)
     if given is None:
-        src = run_dir / "scenario.toml"
-        src.write_text(PAPER_TRACKING_TOML)
         scenario = loads_scenario(PAPER_TRACKING_TOML, run_dir)
-        scenario_path = src
+        scenario_path = run_dir / "scenario.toml"
         default_duration = DEFAULT_DURATION
     else:
         scenario = load_scenario(given)
         scenario_path = given.resolve()
         default_duration = scenario.run.duration
     rt = scenario.realtime
-    rate = opts.rate or rt.rate or 1.0 / scenario.timing.ts
-    if not (rate > 0 and rate <= 20_000):
-        raise BadInputError(f"rate must be in (0, 20000] Hz, got {rate}")
+    if opts.rate is not None:
+        rate, rate_name = opts.rate, "--rate"
+    elif rt.rate:
+        rate, rate_name = rt.rate, "[realtime] rate"
+    else:
+        rate, rate_name = 1.0 / scenario.timing.ts, ""
+        if rate > RATE_MAX:
+            raise BadInputError(
+                f"[timing] ts = {scenario.timing.ts:g} s is a control rate of {rate:g} Hz, above "
+                f"the {RATE_MAX:g} Hz hil run supports (set [realtime] rate or --rate)"
+            )
     duration = opts.duration if opts.duration is not None else default_duration
-    if not duration > 0:
-        raise BadInputError(f"--duration must be > 0, got {duration}")
-    ts_s = scenario.timing.ts if not opts.rate and not rt.rate else 1.0 / rate
-    scenario = scenario.with_overrides(duration=duration, ts=ts_s)
+    ts_s = scenario.timing.ts if not rate_name else 1.0 / rate
+    scenario = scenario.with_overrides(
+        duration=duration,
+        ts=ts_s,
+        names=(
+            "--duration" if opts.duration is not None else "[run] duration",
+            f"1 / {rate_name}" if rate_name else "[timing] ts",
+        ),
+    )
     controller, reference, context = build_loop(scenario)
+    if scenario.timing.jitter_kind == "replay":
+        _replay(scenario)  # a bad latency file fails here, not in a service
     can_table = effective_can_table(scenario, opts.can_interface)
     if opts.can_channel:
         can_table["channel"] = opts.can_channel
+    if opts.can_live or opts.cmd_path == "can":
+        check_can_interface(
+            can_table["interface"], "--can-interface" if opts.can_interface else "[can] interface"
+        )
     delay = scenario.timing.delay if opts.delay is None else opts.delay
     settings = RunSettings(
         scenario_path=str(scenario_path),
@@ -242,6 +292,9 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         settings.validate()
     except ValueError as exc:
         raise BadInputError(str(exc)) from exc
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if given is None:
+        scenario_path.write_text(PAPER_TRACKING_TOML)
     settings.save(run_dir / "run_settings.json")
     resolved = resolved_dict(
         scenario,

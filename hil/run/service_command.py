@@ -18,6 +18,23 @@ import typer
 from hil.errors import BadInputError
 
 
+def check_settings_file(path: Path) -> None:
+    """--settings must be a run_settings.json whose values hold (hil.run.settings), and name a
+    scenario that loads: the service would fail after starting otherwise."""
+
+    from hil import options
+    from hil.run.settings import RunSettings
+    from hil.scenario import load_scenario
+
+    options.existing_file("--settings", path)
+    try:
+        s = RunSettings.load(path)
+        s.validate()
+    except (OSError, ValueError, TypeError, AttributeError) as exc:
+        raise BadInputError(f"--settings {path}: not a valid run_settings.json ({exc})") from exc
+    load_scenario(s.scenario_path)
+
+
 def register_service_command(app: typer.Typer, name: str, module: str, what: str) -> None:
     """Add ``hil NAME`` running ``module.main_from_settings`` (``what`` names it in --help)."""
 
@@ -45,13 +62,19 @@ def register_service_command(app: typer.Typer, name: str, module: str, what: str
         ] = 0,
         out: Annotated[Path, typer.Option(help="Where the hop log goes.")] = Path("."),
     ) -> None:
+        from hil import options
+
+        options.locator("--endpoint", endpoint)
+        options.locator("--can-endpoint", can_endpoint)
+        options.integer("--epoch-ns", epoch_ns, 0, 2**63 - 1)
+        if settings is not None:
+            check_settings_file(settings)
         main_from_settings = importlib.import_module(module).main_from_settings
         if settings is None:
             if scenario is None:
                 raise BadInputError("give a scenario file or --settings")
             from hil.run.orchestrate import RunOptions, prepare
 
-            out.mkdir(parents=True, exist_ok=True)
             _, s, run_dir, _ = prepare(
                 RunOptions(
                     scenario=scenario,

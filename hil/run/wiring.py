@@ -107,6 +107,20 @@ def effective_can_table(scenario: Any, interface: str | None = None) -> dict[str
     return t
 
 
+def check_can_interface(name: str, where: str) -> None:
+    """``name`` must be an interface python-can knows (its own and plug-ins such as zenoh_can);
+    checked before a run starts its services, which would fail opening the bus."""
+    import can.interfaces
+
+    from hil.errors import BadInputError
+
+    known = sorted(can.interfaces.VALID_INTERFACES)
+    if name not in known:
+        raise BadInputError(
+            f"{where} {name!r} is not a python-can interface (known: {', '.join(known)})"
+        )
+
+
 def robot_id_of(scenario: Any) -> str:
     rid = scenario.zenoh.robot_id
     return rid if isinstance(rid, str) else f"robot{rid}"

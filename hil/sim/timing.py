@@ -18,6 +18,8 @@ import numpy as np
 
 from hil.errors import BadInputError
 
+REPLAY_MAX = 1e6  # s, the largest latency a replay file may hold (as [timing] delay)
+
 
 def jitter_samples_from(path: str | Path) -> np.ndarray:
     """Latencies in seconds from a file: a JSON list (or an object with a ``latencies`` list),
@@ -33,6 +35,8 @@ def jitter_samples_from(path: str | Path) -> np.ndarray:
         text = p.read_text()
     except OSError as exc:
         raise BadInputError(f"[timing] replay: cannot read {p}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise BadInputError(f"[timing] replay: {p} is not a text file ({exc.reason})") from exc
     values: list[float]
     try:
         if p.suffix == ".json":
@@ -51,11 +55,15 @@ def jitter_samples_from(path: str | Path) -> np.ndarray:
             else:
                 col = 0
             values = [float(r[col]) for r in rows]
-    except (ValueError, IndexError, json.JSONDecodeError) as exc:
+    except (ValueError, TypeError, IndexError, json.JSONDecodeError, csv.Error) as exc:
         raise BadInputError(f"[timing] replay: {p} is not a latency list: {exc}") from exc
     arr = np.asarray(values, dtype=float)
     if arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise BadInputError(f"[timing] replay: {p} needs at least one finite latency >= 0 seconds")
+    if np.any(arr > REPLAY_MAX):
+        raise BadInputError(
+            f"[timing] replay: {p} holds a latency above {REPLAY_MAX:g} s ({arr.max():g})"
+        )
     return arr
 
 

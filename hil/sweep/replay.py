@@ -55,7 +55,17 @@ def measured_latencies_us(p: Path) -> dict[str, np.ndarray]:
 def latencies_from_run(spec: str | Path) -> np.ndarray:
     """Measured sample-to-apply latencies (seconds) of a run folder or recording."""
     p, which = split_path(spec)
-    per_path = measured_latencies_us(p)
+    try:
+        per_path = measured_latencies_us(p)
+    except BadInputError as exc:
+        text = str(exc)
+        raise BadInputError(
+            text if text.startswith("[timing] replay") else f"[timing] replay: {text}"
+        ) from exc
+    except Exception as exc:  # a damaged folder or recording: whatever its reader raised
+        raise BadInputError(
+            f"[timing] replay: cannot read latencies from {p}: {type(exc).__name__}: {exc}"
+        ) from exc
     if which is not None:
         if which not in per_path:
             raise BadInputError(
@@ -73,8 +83,14 @@ def latencies_from_run(spec: str | Path) -> np.ndarray:
     return seconds
 
 
-def write_latency_file(spec: str | Path, out: Path) -> Path:
-    """The run's latencies as a JSON latency list the simulator's replay hook reads."""
-    seconds = latencies_from_run(spec)
-    out.write_text(json.dumps({"latencies": seconds.tolist(), "source": str(spec)}))
+def write_latency_file(
+    spec: str | Path | np.ndarray, out: Path, source: str | Path | None = None
+) -> Path:
+    """The run's latencies (``spec``: its folder or recording, or latencies already read from
+    it, then ``source`` names it) as a JSON latency list the simulator's replay hook reads."""
+    if isinstance(spec, np.ndarray):
+        seconds, source = spec, source if source is not None else ""
+    else:
+        seconds, source = latencies_from_run(spec), spec
+    out.write_text(json.dumps({"latencies": seconds.tolist(), "source": str(source)}))
     return out

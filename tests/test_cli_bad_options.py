@@ -1,0 +1,157 @@
+"""Bad input at every edge (issue 11, item 5): every command's options.
+
+Each command runs as a real subprocess (``python -m hil ...``) with one bad value: negative,
+zero where a positive number goes, NaN, infinity, out of range, text where a number goes, an
+unknown choice, an --out that is a file. Every case must exit 2 with exactly one stderr line
+naming the option, never a traceback, and leave no folder behind: the checks run before any
+work (no run folder, no service process, no simulation).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+S = "paper_tracking"  # a bundled scenario: the bad value is the option, not the file
+
+# (command line, the option the message must name); OUT is a fresh folder that must stay
+# absent, FILE a regular file, SETTINGS a settings file (see the test).
+CASES: list[tuple[list[str], str]] = [
+    # hil sim
+    (["sim", S, "--duration", "nan", "--out", "OUT"], "--duration"),
+    (["sim", S, "--duration", "inf", "--out", "OUT"], "--duration"),
+    (["sim", S, "--duration", "-1", "--out", "OUT"], "--duration"),
+    (["sim", S, "--duration", "0", "--out", "OUT"], "--duration"),
+    (["sim", S, "--duration", "1e9", "--out", "OUT"], "--duration"),
+    (["sim", S, "--duration", "ten", "--out", "OUT"], "--duration"),
+    (["sim", S, "--ts", "nan", "--out", "OUT"], "--ts"),
+    (["sim", S, "--ts", "0", "--out", "OUT"], "--ts"),
+    (["sim", S, "--ts", "-0.001", "--out", "OUT"], "--ts"),
+    (["sim", S, "--ts", "100", "--out", "OUT"], "--ts"),
+    (["sim", S, "--ts", "1e-9", "--out", "OUT"], "--ts"),
+    (["sim", S, "--duration", "1e6", "--ts", "1e-5", "--out", "OUT"], "--duration"),
+    (["sim", S, "--out", "FILE"], "--out"),
+    (["sim", S, "--nope", "1"], "--nope"),
+    # hil run (each fails before its folder and its processes)
+    (["run", "--rate", "nan", "--out", "OUT"], "--rate"),
+    (["run", "--rate", "0", "--out", "OUT"], "--rate"),
+    (["run", "--rate", "-5", "--out", "OUT"], "--rate"),
+    (["run", "--rate", "1e6", "--out", "OUT"], "--rate"),
+    (["run", "--rate", "fast", "--out", "OUT"], "--rate"),
+    (["run", "--duration", "inf", "--out", "OUT"], "--duration"),
+    (["run", "--duration", "0", "--out", "OUT"], "--duration"),
+    (["run", "--cmd-path", "udp", "--out", "OUT"], "--cmd-path"),
+    (["run", "--trigger", "sometimes", "--out", "OUT"], "--trigger"),
+    (["run", "--can-interface", "nope", "--out", "OUT"], "--can-interface"),
+    (["run", "--can-interface", "", "--out", "OUT"], "--can-interface"),
+    (["run", "--can-channel", "", "--out", "OUT"], "--can-channel"),
+    (["run", "--spin-us", "-1", "--out", "OUT"], "--spin-us"),
+    (["run", "--spin-us", "nan", "--out", "OUT"], "--spin-us"),
+    (["run", "--out", "FILE"], "--out"),
+    # hil controller / hil emulator run alone
+    (["controller", S, "--endpoint", "localhost", "--out", "OUT"], "--endpoint"),
+    (["emulator", S, "--can-endpoint", "", "--out", "OUT"], "--can-endpoint"),
+    (["controller", S, "--epoch-ns", "-1", "--out", "OUT"], "--epoch-ns"),
+    (["emulator", S, "--rate", "0", "--out", "OUT"], "--rate"),
+    (["controller", S, "--duration", "nan", "--out", "OUT"], "--duration"),
+    (["emulator", S, "--cmd-path", "serial", "--out", "OUT"], "--cmd-path"),
+    (["controller", "--settings", "MISSING"], "--settings"),
+    (["emulator", "--settings", "SETTINGS"], "--settings"),
+    (["controller", "--out", "OUT"], "--settings"),
+    (["emulator", S, "--out", "FILE"], "--out"),
+    # hil sweep
+    (["sweep", S, "--ts", "0", "--out", "OUT"], "--ts"),
+    (["sweep", S, "--ts", "0.001,nan", "--out", "OUT"], "--ts"),
+    (["sweep", S, "--ts", "a,b", "--out", "OUT"], "--ts"),
+    (["sweep", S, "--delay", "-1", "--out", "OUT"], "--delay"),
+    (["sweep", S, "--jitter", "inf", "--out", "OUT"], "--jitter"),
+    (["sweep", S, "--seeds", "0", "--out", "OUT"], "--seeds"),
+    (["sweep", S, "--seeds", "100000", "--out", "OUT"], "--seeds"),
+    (["sweep", S, "--seeds", "1.5", "--out", "OUT"], "--seeds"),
+    (["sweep", S, "--duration", "inf", "--out", "OUT"], "--duration"),
+    (["sweep", S, "--duration", "0", "--out", "OUT"], "--duration"),
+    (["sweep", S, "--duration", "1000", "--ts", "1e-6", "--out", "OUT"], "--duration"),
+    (["sweep", S, "--out", "FILE"], "--out"),
+    # hil certify
+    (["certify", S, "--ts", "nan"], "--ts"),
+    (["certify", S, "--ts", "0"], "--ts"),
+    (["certify", S, "--ts", "inf"], "--ts"),
+    (["certify", S, "--delay", "-1"], "--delay"),
+    (["certify", S, "--delay", "nan"], "--delay"),
+    (["certify", S, "--delay", "soon"], "--delay"),
+    # hil can-load
+    (["can-load", "--rate", "nan", "--bitrate", "1e6"], "--rate"),
+    (["can-load", "--rate", "0", "--bitrate", "1e6"], "--rate"),
+    (["can-load", "--rate", "inf", "--bitrate", "1e6"], "--rate"),
+    (["can-load", "--rate", "1000", "--bitrate", "-5"], "--bitrate"),
+    (["can-load", "--rate", "1000", "--bitrate", "nan"], "--bitrate"),
+    (["can-load", "--rate", "1000", "--bitrate", "1e6", "--drives", "0"], "--drives"),
+    (["can-load", "--rate", "1000", "--bitrate", "1e6", "--drives", "65"], "--drives"),
+    (["can-load", "--rate", "1000", "--bitrate", "1e6", "--heartbeat-rate", "-1"], "--heartbeat"),
+    (["can-load", "--rate", "1000", "--bitrate", "1e6", "--encoder-rate", "nan"], "--encoder"),
+    (["can-load", "--rate", "1000", "--bitrate", "1e6", "--out", "FILE"], "--out"),
+    (["can-load", "--bitrate", "1e6"], "--rate"),
+    # hil report / compare / paper / scenarios
+    (["report", "OUT", "--max-deadline-miss-ratio", "nan"], "--max-deadline-miss-ratio"),
+    (["report", "OUT", "--max-lost-ratio", "2"], "--max-lost-ratio"),
+    (["report", "OUT", "--max-lost-ratio", "-0.1"], "--max-lost-ratio"),
+    (["report", "OUT", "--out", "FILE"], "--out"),
+    (["compare", "OUT", "OUT", "--out", "FILE"], "--out"),
+    (["paper", "--jobs", "0", "--out", "OUT"], "--jobs"),
+    (["paper", "--jobs", "two", "--out", "OUT"], "--jobs"),
+    (["paper", "--out", "FILE"], "--out"),
+    (["scenarios", "--path", "no_such_scenario"], "no_such_scenario"),
+    (["version", "--verbose"], "--verbose"),
+    (["--nope"], "--nope"),
+]
+
+
+def _id(case: tuple[list[str], str]) -> str:
+    args, _ = case
+    return " ".join(a for a in args if a not in (S,))
+
+
+@pytest.mark.parametrize(("args", "option"), CASES, ids=[_id(c) for c in CASES])
+def test_a_bad_option_exits_2_with_one_line_naming_it(
+    tmp_path: Path, args: list[str], option: str
+) -> None:
+    out = tmp_path / "out"
+    file = tmp_path / "file.txt"
+    file.write_text("not a folder\n")
+    settings = tmp_path / "run_settings.json"
+    settings.write_text(json.dumps({"scenario_path": S, "rate_hz": -1.0}))
+    names = {
+        "OUT": out,
+        "FILE": file,
+        "SETTINGS": settings,
+        "MISSING": tmp_path / "missing.json",
+    }
+    argv = [str(names.get(a, a)) for a in args]
+    proc = subprocess.run(
+        [sys.executable, "-m", "hil", *argv],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=_env(),
+    )
+    lines = proc.stderr.splitlines()
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
+    assert option in lines[0], lines[0]
+    assert not out.exists() and not (tmp_path / "runs").exists(), "a folder was written"
+    assert file.read_text() == "not a folder\n"
+
+
+def _env() -> dict[str, str]:
+    import os
+
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
+    return env
