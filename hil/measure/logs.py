@@ -102,7 +102,10 @@ def read_columns(
             continue
         elif kind == "rows" and rec.get("table") in parts:
             name = rec["table"]
-            columns = list(zip(*rec["rows"], strict=False))
+            width = len(fields[name])
+            if any(len(row) != width for row in rec["rows"]):
+                raise HopLogError(f"{path}: a row of table {name} has not {width} fields")
+            columns = list(zip(*rec["rows"], strict=True))
             for c, i in index[name].items():
                 parts[name][c].append(np.asarray(columns[i], dtype=COLUMNS[name][c]))
         elif kind == "meta":

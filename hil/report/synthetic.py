@@ -192,8 +192,10 @@ def _write_hop_logs(
     )
     arm = EPOCH_NS - 2 * period
     for node in (1, 0):  # the lifecycle's zero torque, before the first sample
-        ctrl.append("can_tx", (node, arm + node * US, -1))
-        plant.append("cmd_rx", (1, 0, -1, 0, 0, 0, arm + 200 * US + node * US, 0.0, 0.0, node, 0))
+        # zenoh_can names a frame by its modelled end of transmission; both sides log it.
+        end = arm + node * US + 100 * US
+        ctrl.append("can_tx", (node, arm + node * US, -1, 0.0, end))
+        plant.append("cmd_rx", (1, 0, -1, 0, 0, end, arm + 200 * US + node * US, 0.0, 0.0, node, 0))
     for i in range(n):
         s = int(sample[i])
         plant.append(
@@ -234,10 +236,12 @@ def _write_hop_logs(
             ),
         )
         for node in (1, 0):
-            ctrl.append("can_tx", (node, int(can_send[i]) + (5 * US if node == 0 else 0), i))
+            sent = int(can_send[i]) + (5 * US if node == 0 else 0)
+            q = float(np.float32(tau1[i] if node == 1 else tau2[i]))  # any torque, checked as sent
+            ctrl.append("can_tx", (node, sent, i, q, sent + 100 * US))
             plant.append(
                 "cmd_rx",
-                (1, i + 1, -1, 0, 0, 0, int(can_recv[node][i]), 0.0, 0.0, node, 0),
+                (1, i + 1, -1, 0, 0, sent + 100 * US, int(can_recv[node][i]), q, 0.0, node, 0),
             )
         if lost[i]:
             continue
