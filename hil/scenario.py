@@ -105,6 +105,7 @@ class CanConfig:
     node_left: int = CanSettings.node_left
     node_right: int = CanSettings.node_right
     heartbeat_timeout: float = CanSettings.heartbeat_timeout
+    watchdog_timeout: float = CanSettings.watchdog_timeout
 
 
 @dataclass(frozen=True)
@@ -240,6 +241,7 @@ _NON_NEGATIVE = {
     ("faults", "state_drop_every"),
     ("faults", "command_drop_every"),
     ("faults", "seed"),
+    ("can", "watchdog_timeout"),
 }
 _FIVE = {("plant", "noise_std"), ("plant", "quantization")}
 
