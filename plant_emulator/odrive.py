@@ -458,6 +458,10 @@ class ODriveAxis:
 
     def _command(self, now: float, msg: codec.Message) -> bool:
         cfg = self.config
+        for value in vars(msg).values():  # the codec refuses them; a direct caller may not
+            if isinstance(value, float) and not math.isfinite(value):
+                self.rejections.count("non_finite")
+                return False
         if isinstance(msg, Estop):
             self.disarm(ODriveError.ESTOP_REQUESTED, "estop")
         elif isinstance(msg, ClearErrors):
