@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import struct
 
+from plant_emulator.odrive import VirtualDrivePair
 from protocol.can import codec
 from protocol.can.codec import (
     AxisError,
@@ -17,7 +18,6 @@ from protocol.can.codec import (
     Request,
     SetInputTorque,
 )
-from plant_emulator.odrive import VirtualDrivePair
 from protocol.can.drive_profile import HostLifecycle, Phase
 from protocol.can.wheel_mapping import to_float32
 

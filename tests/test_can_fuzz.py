@@ -13,6 +13,7 @@ import random
 import struct
 from collections import Counter
 
+from plant_emulator.odrive import VirtualDrivePair
 from protocol.can import codec
 from protocol.can.codec import (
     AxisState,
@@ -27,7 +28,6 @@ from protocol.can.codec import (
     SetControllerMode,
     SetInputTorque,
 )
-from plant_emulator.odrive import VirtualDrivePair
 from protocol.can.drive_profile import HostLifecycle
 from protocol.can.zenoh_bus import unpack_frame
 
