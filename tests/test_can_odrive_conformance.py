@@ -73,7 +73,9 @@ def _check_session(res: dict) -> None:
     assert periodic + coast["rtr_sent"] - 2 <= coast["frames"] <= periodic + coast["rtr_sent"] + 2
     assert coast["vel"] > 5.0 and coast["pos"] > 1.0
     assert coast["vel_dev"] < 1e-4
-    assert coast["pos_dev"] < 0.03  # rev: 2 ms of arrival-time noise at 13 rev/s
+    # rev, against arrival times stamped in a busy client: 0.1 rev is 8 ms at 13 rev/s, well
+    # below an answer of 0/0 or one a control period (20 ms at 50 Hz) old
+    assert coast["pos_dev"] < 0.1
 
     # right forward, left back: the right wheel speeds up, the left slows down (a left turn)
     assert res["turn"]["right"]["Vel_Estimate"] > vel + 2.0
