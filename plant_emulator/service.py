@@ -682,9 +682,11 @@ def _serve(svc: PlantService, s: Any, stop: Any, hoplog: HopLogWriter, stack: An
 
         got = gate.wait(stop, timeout=s.start_timeout, idle=idle)
         if got is None:
+            # Stopped (a signal: the stop asked for, as mid-run: exit 0), or the start message
+            # never came (exit 1).
             why = "stopped" if stop else f"no start message within {s.start_timeout:g} s"
             print(f"no start: {why}", flush=True)
-            return 1
+            return 0 if stop else 1
         svc.epoch_ns = got
         hoplog.update_meta({"epoch_ns": got})
     if can is not None:
