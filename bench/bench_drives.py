@@ -148,7 +148,7 @@ def measure(mode: str, args: argparse.Namespace) -> dict:
 
 def baseline(args: argparse.Namespace) -> dict:
     """The plain zenoh_can echo round trip of this machine, now (bench_can_roundtrip)."""
-    import bench_can_roundtrip as rt
+    from bench import bench_can_roundtrip as rt
 
     ns = argparse.Namespace(
         interface="zenoh_can", channel="bench0", count=args.count, repeats=args.repeats
