@@ -60,6 +60,10 @@ def _start(mode: str, channel: str, endpoint: str, workdir: str) -> subprocess.P
 
 
 def _rates(bus: can.BusABC, window: float) -> dict:
+    # Frames queued while this process was busy starting would carry one bunched arrival stamp
+    # (zenoh_can stamps arrivals without its bit-time model): start from an empty queue.
+    while bus.recv(0.0) is not None:
+        pass
     counts = {HEARTBEAT: 0, ENCODER: 0}
     first: dict[int, float] = {}
     last: dict[int, float] = {}

@@ -124,9 +124,9 @@ class DrivesRunner:
         if cs.interface == "zenoh_can" and opts.can_endpoint:
             extra["endpoint"] = opts.can_endpoint
         self.bus = bus if bus is not None else open_bus(cs, **extra)
-        self.can = CanDrives(
-            self.bus, self.pair, on_frame=self._on_frame, refresh=self._refresh, immediate=True
-        )
+        # Requests and cyclic frames are answered from the drives' feedback (at most one
+        # control period old, extrapolated at its velocity): no plant step on that path.
+        self.can = CanDrives(self.bus, self.pair, on_frame=self._on_frame, immediate=True)
         self.robot_id = opts.robot_id or (
             sc.zenoh.robot_id if isinstance(sc.zenoh.robot_id, str) else f"robot{sc.zenoh.robot_id}"
         )
@@ -142,10 +142,6 @@ class DrivesRunner:
         """Integrate the plant up to ``now_ns``; returns the drives' time of the plant's time."""
         self.core.advance_to((now_ns - self.t0_ns) / 1e9)
         return self.t0_ns / 1e9 + self.core.t
-
-    def _refresh(self, now_ns: int) -> None:
-        now = self._advance(now_ns)
-        self.drive_plant.feedback(now, self.core.t, self.core.state)
 
     def _on_frame(self, recv_ns: int, frame: Frame) -> list[Frame]:
         """A frame lands at its arrival: the plant runs up to it, then the drives take it."""

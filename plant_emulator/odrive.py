@@ -107,6 +107,7 @@ CYCLIC = {
 }
 INTEGRATOR_DECAY_PER_S = 0.99**8000  # the firmware's 0.99 per 125 us step while limited
 _SLACK = 1e-9  # a tick that lands a rounding error early is on time
+CATCH_UP = 5  # cyclic frames missed by a stall of up to 5 periods are still sent
 
 
 @dataclass
@@ -768,8 +769,10 @@ class VirtualDrivePair:
         return min(self._next_due.values())
 
     def due_frames(self, now: float) -> list[Frame]:
-        """The cyclic frames due at ``now`` (a late call skips to ``now + period``, never
-        bursting the missed ones), every axis at once."""
+        """The cyclic frames due at ``now``, every axis at once. Deadlines stay on the period's
+        grid: a late call sends one frame, and the next is due at once when more were missed
+        (so the rate holds through a short stall); later than ``CATCH_UP`` periods the grid
+        restarts from ``now``."""
         out: list[Frame] = []
         rates = self.config.msg_rates_ms if self.config else {}
         for cmd, ms in rates.items():
@@ -779,8 +782,10 @@ class VirtualDrivePair:
             due = self._next_due.get(cmd, -math.inf)
             if now < due - _SLACK:
                 continue
+            # on the grid; after a stall the missed frames go out back to back (the rate holds),
+            # up to CATCH_UP periods late, beyond which the grid restarts from now
             nxt = due + period
-            self._next_due[cmd] = nxt if nxt > now + _SLACK else now + period
+            self._next_due[cmd] = nxt if nxt > now - CATCH_UP * period else now + period
             for d in self.drives.values():
                 out.append(d.answer(now, Cmd(cmd)))
         return out
