@@ -127,6 +127,7 @@ class CanConfig:
     node_left: int = CanSettings.node_left
     node_right: int = CanSettings.node_right
     heartbeat_timeout: float = CanSettings.heartbeat_timeout
+    watchdog_timeout: float = CanSettings.watchdog_timeout
 
 
 @dataclass(frozen=True)
@@ -358,6 +359,7 @@ _NON_NEGATIVE = {
     ("faults", "can_bus_off_every"),
     ("faults", "can_bus_off_length"),
     ("faults", "seed"),
+    ("can", "watchdog_timeout"),
 }
 _FIVE = {("plant", "noise_std"), ("plant", "quantization")}
 # [disturbance] keys each kind reads; any other key must keep its default (a value1 in a sine

@@ -7,11 +7,13 @@ Functional core, thin shell:
   at most ``h`` (default Ts/10), with the scenario's disturbance and actuator lag, holding the
   newest command; it tracks the extremes and violations of (2) over every plant step.
 - :class:`PlantService` (the shell): publishes State at ``sensor_rate`` on absolute deadlines;
-  receives TorqueCommand on Zenoh and Set_Input_Torque frames on CAN (two virtual ODrives that
-  honour the drive lifecycle and clamp torque); applies ONE path (``cmd_path``) and stamps the
-  other as a shadow; a command timeout on the applied path zeroes the torque; ``[timing] delay``
-  and ``jitter`` are injected on the applied path (newest by sequence number wins). Every
-  sample, command arrival and landing is time-stamped into ``plant.hoplog``
+  receives TorqueCommand on Zenoh and Set_Input_Torque frames on CAN (two virtual ODrives,
+  :mod:`plant_emulator.odrive`, on the bus edge of :mod:`plant_emulator.can_drives`, which
+  answers requests and sends their cyclic frames at their own rates in every mode); applies ONE
+  path (``cmd_path``) and stamps the other as a shadow; a command timeout on the applied path
+  zeroes the torque; ``[timing] delay`` and ``jitter`` are injected on the applied path
+  (newest by sequence number wins). Every sample, command arrival and landing is time-stamped
+  into ``plant.hoplog``
   (:mod:`protocol.hoplog`), streamed to disk while the run goes on.
 - Lockstep (:meth:`PlantService.run_lockstep`): State k is sent at virtual time t_k = k Ts,
   the plant waits for the command with ``state_seq == k`` and applies it over
@@ -24,7 +26,6 @@ import collections
 import contextlib
 import math
 import random
-import struct
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -33,16 +34,17 @@ from typing import Any
 
 from controller_service.laws.base import Limits
 from controller_service.realtime import DeadlineClock, setup_scheduling
+from plant_emulator.can_drives import CanDrives
 from plant_emulator.disturbances import Disturbance
+from plant_emulator.drive_plant import DrivePlant
 from plant_emulator.dynamics import Extremes, PlantState, advance_float_tracked
 from plant_emulator.sensors import Sensor, measure
 from protocol import keys
-from protocol.faults import Faults, every_nth, frame_lost
+from protocol.faults import Faults, every_nth
 from protocol.hoplog import (
     APPLY_BURST,
     APPLY_LANDED,
     PLANT_TABLES,
-    RX_LOST_BY_FAULT,
     SAMPLE_DROPPED,
     SAMPLE_DUPLICATED,
     HopLogWriter,
@@ -154,117 +156,6 @@ class DelayInjector:
         return self.delay_ns + int(j * 1e9)
 
 
-class CanDrives:
-    """The plant's CAN edge: two virtual ODrives; a reader thread stamps arriving frames."""
-
-    def __init__(
-        self,
-        bus: Any,
-        pair: Any,
-        geometry: Any,
-        limits: Limits,
-        hoplog: HopLogWriter,
-        faults: Faults | None = None,
-    ) -> None:
-        from protocol.can.codec import Cmd, split_id
-        from protocol.can.drive_link import from_message, to_message
-
-        self._split = split_id
-        self._torque_cmd = Cmd.SET_INPUT_TORQUE
-        self.hoplog = hoplog
-        self.faults = faults or Faults()
-        self.injected_frame_losses = 0
-        # The bus's name for a received frame, where it has one (zenoh_can): exact matching.
-        self._sent_at = getattr(bus, "sent_at_ns", None)
-        self._torque_frames: dict[int, int] = {}  # per node: Set_Input_Torque frames seen
-
-        self.bus = bus
-        self.pair = pair
-        self.geometry = geometry
-        self.limits = limits
-        self._to = to_message
-        self._from = from_message
-        self._stop = threading.Event()
-        # (receive ns, frame, index among the node's torque frames or -1)
-        self.inbox: collections.deque[tuple[int, Any, int]] = collections.deque()
-        self.frames_in = 0
-        self.frames_out = 0
-        self.send_errors = 0
-        self._thread = threading.Thread(target=self._reader, name="can-reader", daemon=True)
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def _reader(self) -> None:
-        while not self._stop.is_set():
-            try:
-                msg = self.bus.recv(timeout=0.05)
-            except Exception:
-                continue
-            if msg is not None:
-                recv_ns = time.monotonic_ns()
-                frame = self._from(msg)
-                self.frames_in += 1
-                node, cmd = self._split(frame.arbitration_id)
-                if cmd == self._torque_cmd and not frame.is_remote:
-                    # The i-th torque frame of a node is the controller's i-th (can_tx): CAN
-                    # frames carry no sequence number, so arrivals are matched in bus order.
-                    i = self._torque_frames.get(node, 0)
-                    self._torque_frames[node] = i + 1
-                    lost = frame_lost(self.faults.can_frame_loss, self.faults.seed, node, i)
-                    verdict = RX_LOST_BY_FAULT if lost else 0
-                    q = (
-                        struct.unpack_from("<f", frame.data)[0]
-                        if len(frame.data) >= 4
-                        else math.nan
-                    )
-                    named = self._sent_at(msg) if self._sent_at is not None else None
-                    self.hoplog.append(
-                        "cmd_rx", (1, i, -1, 0, 0, named or 0, recv_ns, q, 0.0, node, verdict)
-                    )
-                    if lost:  # the drive's receiver never sees it ([faults] frame loss)
-                        self.injected_frame_losses += 1
-                        continue
-                    self.inbox.append((recv_ns, frame, i))
-                else:
-                    self.inbox.append((recv_ns, frame, -1))
-
-    def send(self, frames: list[Any]) -> None:
-        for f in frames:
-            try:
-                self.bus.send(self._to(f), timeout=0.05)
-                self.frames_out += 1
-            except Exception:
-                self.send_errors += 1
-
-    def torques(self) -> tuple[float, float]:
-        from protocol.can.wheel_mapping import decode_torques
-
-        return decode_torques(
-            self.geometry,
-            self.pair.right.torque,
-            self.pair.left.torque,
-            self.limits.varpi1,
-            self.limits.varpi2,
-        )
-
-    def estimates(self, v: float, omega: float, pos: dict[int, float]) -> dict[int, tuple]:
-        g = self.geometry
-        wr = (v + g.half_track * omega) / g.wheel_radius
-        wl = (v - g.half_track * omega) / g.wheel_radius
-        k = g.gear_ratio / (2.0 * math.pi)
-        return {
-            self.pair.node_right: (pos.get(self.pair.node_right, 0.0), k * wr),
-            self.pair.node_left: (pos.get(self.pair.node_left, 0.0), k * wl),
-        }
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=1.0)
-        with contextlib.suppress(Exception):  # a bus already gone is fine on the way out
-            self.bus.shutdown()
-
-
 class PlantService:
     """The shell around :class:`PlantCore` (see the module docstring)."""
 
@@ -283,6 +174,7 @@ class PlantService:
         can: CanDrives | None = None,
         hoplog: HopLogWriter | None = None,
         faults: Faults | None = None,
+        drive_plant: DrivePlant | None = None,
     ) -> None:
         from hil.run.zsession import payload_bytes, publisher
 
@@ -321,7 +213,7 @@ class PlantService:
         self._state_seq = 0
         self.resends = 0
         self._status_seq = 0
-        self._can_pos: dict[int, float] = {}
+        self.drive_plant = drive_plant
         self._sub = session.declare_subscriber(keys.torque_key(robot_id), self._on_cmd)
 
     # --- receive ----------------------------------------------------------------------
@@ -427,6 +319,8 @@ class PlantService:
                 + self.core.extremes.violations_tau2
             ),
         }
+        if self.can is not None:
+            counters.update(self.can.status_counters())
         self.hoplog.counters(self.final_counters())
         msg = Status(
             self.robot_id,
@@ -459,6 +353,8 @@ class PlantService:
                 self.pending.append(Pending(apply_ns, self._order, 0, msg, recv_ns))
 
     def _take_can(self) -> None:
+        """Queue the CAN frames of the applied path at their landing times (bus order kept);
+        on the shadow path the edge applies frames itself as they arrive."""
         if self.can is None:
             return
         inbox = self.can.inbox
@@ -472,9 +368,17 @@ class PlantService:
                 self._order += 1
                 self.pending.append(Pending(apply_ns, self._order, 1, (frame, index), recv_ns))
             else:
-                answers = self.can.pair.receive(frame)
-                if answers:
-                    self.can.send(answers)
+                with self.can.lock:
+                    answers = self.can.pair.receive(recv_ns / 1e9, frame)
+                self.can.send(answers)
+
+    def _mono(self, t: float) -> float:
+        """CLOCK_MONOTONIC seconds of plant time ``t`` (the drives' clock)."""
+        return self.epoch_ns / 1e9 + t
+
+    def _drive_torques(self) -> tuple[float, float]:
+        assert self.drive_plant is not None
+        return self.drive_plant.torques()
 
     def _burst_ns(self, recv_ns: int) -> int:
         """Extra delay of a [faults] delay burst for a command arriving at ``recv_ns``."""
@@ -512,17 +416,23 @@ class PlantService:
 
             frame, index = p.payload
             node, cmd = split_id(frame.arbitration_id)
-            answers = self.can.pair.receive(frame)
+            with self.can.lock:
+                answers = self.can.pair.receive(apply_ns / 1e9, frame)
+                fed = self.can.pair.last_fed
+                t1, t2 = self._drive_torques()
             if answers:
                 self.can.send(answers)
             if cmd != Cmd.SET_INPUT_TORQUE or frame.is_remote:
-                self.core.hold(*self.can.torques())
+                self.core.hold(t1, t2)
                 return
-            t1, t2 = self.can.torques()
             self.core.hold(t1, t2)
             self.hoplog.append(
                 "apply", (1, index, node, p.recv_ns, apply_ns, t1, t2, self._outcome(p))
             )
+            if not fed:
+                # refused by the drive (non-finite, short, disarmed...): a drive's watchdog
+                # is fed by accepted commands only, and so is the command timeout
+                return
         self._last_cmd_recv_ns = p.recv_ns
         self.timed_out = False
 
@@ -547,8 +457,8 @@ class PlantService:
                 self.core.advance_to(max(self.core.t, self._t(timeout_ns)))
                 self.core.hold(0.0, 0.0)
                 if self.can is not None and self.applied_path == 1:
-                    for d in self.can.pair.drives.values():
-                        d.input_torque = 0.0
+                    with self.can.lock:
+                        self.can.pair.zero_inputs(timeout_ns / 1e9)
                 self.timed_out = True
                 self.timeouts += 1
                 self.hoplog.append("zero", (timeout_ns, time.monotonic_ns()))
@@ -559,6 +469,17 @@ class PlantService:
             self.core.advance_to(max(self.core.t, self._t(due.apply_ns)))
             self._apply(due)
         self.core.advance_to(max(self.core.t, self._t(until_ns)))
+
+    def _drives_step(self) -> None:
+        """The drives' feedback at the plant's time and one controller step (watchdog,
+        loops); on the applied CAN path the plant then holds what the drives apply."""
+        if self.can is None or self.drive_plant is None:
+            return
+        with self.can.lock:
+            self.drive_plant.update(self._mono(self.core.t), self.core.t, self.core.state)
+            torques = self._drive_torques()
+        if self.applied_path == 1 and torques != (self.core.cmd1, self.core.cmd2):
+            self.core.hold(*torques)
 
     # --- real time -----------------------------------------------------------------------
     def run_realtime(self, stop: Any, end_ns: int) -> None:
@@ -573,12 +494,7 @@ class PlantService:
                 break
             self._process_until(tick.deadline_ns)
             self._publish_state(tick.deadline_ns, tick.k, tick.wake_ns)
-            if self.can is not None:
-                s = self.core.state
-                est = self.can.estimates(s.v, s.omega, self._can_pos)
-                frames = self.can.pair.due_frames(time.monotonic(), est)
-                if frames:
-                    self.can.send(frames)
+            self._drives_step()
             if tick.wake_ns >= next_status:
                 next_status = tick.wake_ns + 200_000_000
                 self.publish_status()
@@ -722,13 +638,7 @@ class PlantService:
             },
             "deadline_misses": self.clock.misses if self.clock else 0,
             "skipped_slots": self.clock.skipped if self.clock else 0,
-            "can": None
-            if self.can is None
-            else {
-                "frames_in": self.can.frames_in,
-                "frames_out": self.can.frames_out,
-                "rejections": self.can.pair.rejections.snapshot(),
-            },
+            "can": None if self.can is None else self.can.counters(),
         }
 
 
@@ -771,81 +681,93 @@ def main_from_settings(settings_path: str) -> int:
         },
         append=previous is not None,
     )
-    session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
-    can = None
-    bus = open_can_bus(s)
-    if bus is not None:
-        from protocol.can.drive_profile import VirtualDrivePair
+    with contextlib.ExitStack() as stack:
+        # Signals first: a Ctrl-C during the set-up (Zenoh, CAN) must stop the start gate too.
+        stop = stack.enter_context(stop_on_signals())
+        svc: PlantService | None = None
+        stack.callback(lambda: hoplog.close(svc.final_counters() if svc else None))
+        session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
+        stack.callback(session.close)
+        can = None
+        drive_plant = None
+        bus = open_can_bus(s)
+        if bus is not None:
+            from plant_emulator.drive_plant import bench_drive_config
+            from plant_emulator.odrive import VirtualDrivePair
 
-        cs = can_settings(s)
-        geom, legal = motor_limit(s, core.limits)
-        # A hair above the largest legal motor torque: float32 rounding of a legal command
-        # must not be rejected; the applied (tau1, tau2) is clamped to (2) after decoding.
-        pair = VirtualDrivePair(cs.node_right, cs.node_left, legal * (1.0 + 1e-6))
-        can = CanDrives(bus, pair, geom, core.limits, hoplog, faults)
-        can.start()
-    svc = PlantService(
-        core,
-        sensor,
-        session,
-        s.robot_id,
-        s.epoch_ns,
-        s.ts,
-        sensor_rate,
-        cmd_path=s.cmd_path,
-        command_timeout=s.command_timeout,
-        injector=DelayInjector(s.delay, s.jitter, s.jitter_kind, s.seed),
-        can=can,
-        hoplog=hoplog,
-        faults=faults,
-    )
-    if previous is not None:
-        svc.continue_after(previous)
+            cs = can_settings(s)
+            geom, legal = motor_limit(s, core.limits)
+            # A hair above the largest legal motor torque: float32 rounding of a legal command
+            # must not be clamped; the applied (tau1, tau2) is clamped to (2) after decoding.
+            config = bench_drive_config(
+                geom, core.limits, legal * (1.0 + 1e-6), watchdog_timeout=cs.watchdog_timeout
+            )
+            pair = VirtualDrivePair(cs.node_right, cs.node_left, config=config)
+            drive_plant = DrivePlant(pair, geom, core.limits, core.t, core.state, time.monotonic())
+            can = CanDrives(bus, pair, hoplog, immediate=True, faults=faults)
+            stack.callback(can.close)  # closes the bus: registered before anything can fail
+            can.start()
+        svc = PlantService(
+            core,
+            sensor,
+            session,
+            s.robot_id,
+            s.epoch_ns,
+            s.ts,
+            sensor_rate,
+            cmd_path=s.cmd_path,
+            command_timeout=s.command_timeout,
+            injector=DelayInjector(s.delay, s.jitter, s.jitter_kind, s.seed),
+            can=can,
+            hoplog=hoplog,
+            faults=faults,
+            drive_plant=drive_plant,
+        )
+        if previous is not None:
+            svc.continue_after(previous)
+        return _serve(svc, s, stop, hoplog, stack)
+
+
+def _serve(svc: PlantService, s: Any, stop: Any, hoplog: HopLogWriter, stack: Any) -> int:
+    """The start gate (unless the epoch is given), then the run; returns the exit code."""
+    from controller_service.realtime import restore_gc
     from hil.run.startgate import StartGate
 
-    gate = StartGate(session, s.robot_id, "plant")
-    with stop_on_signals() as stop:
-        # Scheduling first, readiness after: the set-up (mlockall, a full collection, the GC
-        # frozen) must be done before t = 0, or the first samples start late.
-        sched = setup_scheduling(s.scheduling, cpu=s.cpu_plant, freeze_gc=True)
-        hoplog.update_meta({"scheduling": sched.as_dict()})
-        try:
-            if svc.epoch_ns == 0:
+    can = svc.can
+    gate = StartGate(svc.session, s.robot_id, "plant")
+    # Scheduling first, readiness after: the set-up (mlockall, a full collection, the GC
+    # frozen) must be done before t = 0, or the first samples start late.
+    sched = setup_scheduling(s.scheduling, cpu=s.cpu_plant, freeze_gc=True)
+    stack.callback(restore_gc)
+    hoplog.update_meta({"scheduling": sched.as_dict()})
+    if svc.epoch_ns == 0:
 
-                def idle() -> None:
-                    if can is not None:  # answer the lifecycle so the drives arm before t = 0
-                        while can.inbox:
-                            _, frame, _ = can.inbox.popleft()
-                            answers = can.pair.receive(frame)
-                            if answers:
-                                can.send(answers)
-                        st = svc.core.state
-                        frames = can.pair.due_frames(
-                            time.monotonic(), can.estimates(st.v, st.omega, {})
-                        )
-                        can.send(frames)
+        def idle() -> None:
+            # The edge answers the lifecycle and sends the cyclic frames by itself; keep the
+            # drives' feedback (the robot at its initial state) and watchdog current.
+            if can is not None and svc.drive_plant is not None:
+                with can.lock:
+                    svc.drive_plant.update(time.monotonic(), svc.core.t, svc.core.state)
 
-                got = gate.wait(stop, idle=idle)
-                if got is None:
-                    print("no start: stopped or start-gate timeout", flush=True)
-                    return 1
-                svc.epoch_ns = got
-            hoplog.update_meta({"epoch_ns": svc.epoch_ns})
-            print(f"running epoch_ns={svc.epoch_ns} scheduling={sched.policy}", flush=True)
-            if s.lockstep:
-                from hil.run.wiring import lockstep_offsets
+        got = gate.wait(stop, timeout=s.start_timeout, idle=idle)
+        if got is None:
+            # Stopped (a signal: the stop asked for, as mid-run: exit 0), or the start message
+            # never came (exit 1).
+            why = "stopped" if stop else f"no start message within {s.start_timeout:g} s"
+            print(f"no start: {why}", flush=True)
+            return 0 if stop else 1
+        svc.epoch_ns = got
+    hoplog.update_meta({"epoch_ns": svc.epoch_ns})
+    if can is not None:
+        # From t = 0 the applied CAN path lands each frame at its time in the plant's loop.
+        can.immediate = svc.applied_path != 1
+    print(f"running epoch_ns={svc.epoch_ns} scheduling={sched.policy}", flush=True)
+    if s.lockstep:
+        from hil.run.wiring import lockstep_offsets
 
-                n = max(1, round(s.duration / s.ts))
-                svc.run_lockstep(stop, n, lockstep_offsets(s, n, core.h))
-            else:
-                end_ns = svc.epoch_ns + int(s.duration * 1e9)
-                svc.run_realtime(stop, end_ns)
-        finally:
-            from controller_service.realtime import restore_gc
-
-            restore_gc()
-            if can is not None:
-                can.close()
-            hoplog.close(svc.final_counters())
-            session.close()
+        n = max(1, round(s.duration / s.ts))
+        svc.run_lockstep(stop, n, lockstep_offsets(s, n, svc.core.h))
+    else:
+        end_ns = svc.epoch_ns + int(s.duration * 1e9)
+        svc.run_realtime(stop, end_ns)
     return 0

@@ -1,4 +1,5 @@
-"""CANSimple frames: hand-computed bytes from the public 0.6 spec, and strict decoding."""
+"""CANSimple frames: hand-computed bytes from the public 0.6 spec, the same frames through the
+official ODrive DBC (0.6.10, shipped by the PyPI odrive-can client), and strict decoding."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import math
 import struct
 
 import pytest
+from odrive_can import get_dbc
 
 from protocol.can import codec
 from protocol.can.codec import (
@@ -45,6 +47,28 @@ VECTORS = [
         "01 00 00 00 01 00 00 00",
     ),
     (ClearErrors(1), 0x038, "00"),
+    (codec.Version(1, 2, 4, 4, 58, 0, 6, 10, 1), 0x020, "02 04 04 3A 00 06 0A 01"),
+    (codec.ErrorStatus(0, 0x02000000, 0x01000000), 0x003, "00 00 00 02 00 00 00 01"),
+    (codec.RxSdo(1, 0, 0x1234, 7), 0x024, "00 34 12 00 07 00 00 00"),
+    (codec.TxSdo(1, 0x1234, 7), 0x025, "00 34 12 00 07 00 00 00"),
+    (codec.Address(1, 1, 0xAABBCCDDEEFF), 0x026, "01 FF EE DD CC BB AA 00"),
+    # Vel_FF and Torque_FF are int16 in units of 0.001: 1.5 -> 1500 = 0x05DC, -0.25 -> 0xFF06
+    (codec.SetInputPos(0, 1.0, 1.5, -0.25), 0x00C, "00 00 80 3F DC 05 06 FF"),
+    (codec.SetInputVel(1, 2.0, -0.5), 0x02D, "00 00 00 40 00 00 00 BF"),
+    (codec.SetLimits(0, 10.0, 5.0), 0x00F, "00 00 20 41 00 00 A0 40"),
+    (codec.SetTrajVelLimit(1, 2.0), 0x031, "00 00 00 40 00 00 00 00"),
+    (codec.SetTrajAccelLimits(1, 0.5, 0.25), 0x032, "00 00 00 3F 00 00 80 3E"),
+    (codec.SetTrajInertia(0, 0.0), 0x013, "00 00 00 00 00 00 00 00"),
+    (codec.Iq(1, 1.0, -1.0), 0x034, "00 00 80 3F 00 00 80 BF"),
+    (codec.Temperature(0, 25.0, 30.0), 0x015, "00 00 C8 41 00 00 F0 41"),
+    (codec.Reboot(1, 0), 0x036, "00"),
+    (codec.BusVoltageCurrent(0, 24.0, 0.5), 0x017, "00 00 C0 41 00 00 00 3F"),
+    (codec.SetAbsolutePosition(1, 100.0), 0x039, "00 00 C8 42 00 00 00 00"),
+    (codec.SetPosGain(0, 20.0), 0x01A, "00 00 A0 41 00 00 00 00"),
+    (codec.SetVelGains(1, 0.5, 1.0), 0x03B, "00 00 00 3F 00 00 80 3F"),
+    (codec.Torques(0, 0.5, 0.25), 0x01C, "00 00 00 3F 00 00 80 3E"),
+    (codec.Powers(1, 2.0, 1.5), 0x03D, "00 00 00 40 00 00 C0 3F"),
+    (codec.EnterDfuMode(1), 0x03F, ""),
 ]
 
 
@@ -55,9 +79,19 @@ def test_can_frame_equals_hand_bytes_and_round_trips(msg, arb, hexdata):
     assert frame.data == bytes.fromhex(hexdata)
     assert not frame.is_remote and not frame.is_extended
     assert codec.decode(frame) == msg
-    # and through cantools directly, by the DBC's node-0 message of that cmd id
-    dbc_msg = codec.database().get_message_by_frame_id(arb & 0x1F)
+    # and through cantools directly, by the shipped DBC's message of that very id (both DBCs
+    # hold axes 0-7; node 63's frame is read by node 0's message of that cmd)
+    dbc_id = arb if arb >> 5 < 8 else arb & 0x1F
+    dbc_msg = codec.database().get_message_by_frame_id(dbc_id)
     assert dbc_msg.encode(dbc_msg.decode(frame.data, decode_choices=False)) == frame.data
+    # and ODrive's own DBC reads the same values (scaled, float32-rounded)
+    official = get_dbc().get_message_by_frame_id(dbc_id)
+    assert official.length == len(frame.data)
+    ours = dbc_msg.decode(frame.data, decode_choices=False)
+    theirs = official.decode(frame.data, decode_choices=False)
+    assert theirs.keys() == ours.keys()
+    for name, value in ours.items():
+        assert theirs[name] == pytest.approx(value, rel=0, abs=1e-9), name
 
 
 def test_can_every_profile_command_has_a_vector():
@@ -68,6 +102,13 @@ def test_can_remote_requests_for_heartbeat_and_estimates():
     frame = codec.encode(Request(0, Cmd.GET_ENCODER_ESTIMATES))
     assert frame == Frame(0x009, b"", is_remote=True)
     assert codec.decode(frame) == Request(0, Cmd.GET_ENCODER_ESTIMATES)
+    # the protocol's alternative: a data frame of the id with no payload
+    assert codec.decode(Frame(0x020, b"")) == Request(1, Cmd.GET_VERSION)
+    assert codec.decode(Frame(0x037, b"", is_remote=True)) == Request(
+        1, Cmd.GET_BUS_VOLTAGE_CURRENT
+    )
+    for cmd in codec.REQUESTABLE:
+        assert codec.is_request(Frame(0x20 | cmd, b"", is_remote=True))
     with pytest.raises(CanDecodeError) as err:
         codec.decode(Frame(0x00E, b"", is_remote=True))
     assert err.value.reason == "unexpected_rtr"
@@ -89,7 +130,10 @@ def test_can_short_payloads_from_other_tools_are_accepted_when_complete():
         (Frame(0x02E, struct.pack("<f", math.nan)), "non_finite"),
         (Frame(0x02E, struct.pack("<f", math.inf)), "non_finite"),
         (Frame(0x029, struct.pack("<ff", 0.0, -math.inf)), "non_finite"),
-        (Frame(0x02F, bytes(8)), "unknown_cmd"),
+        (Frame(0x02A, bytes(8)), "unknown_cmd"),
+        (Frame(0x030, bytes(8)), "unknown_cmd"),
+        (Frame(0x036, b"\x04"), "out_of_range"),
+        (Frame(0x024, b"\x02" + bytes(7)), "out_of_range"),
         (Frame(0x02E, bytes(8), is_extended=True), "extended_id"),
         (Frame(0x800, bytes(8)), "bad_id"),
         (Frame(0x027, struct.pack("<I", 99)), "out_of_range"),

@@ -1,8 +1,9 @@
 """100,000+ random and mutated CAN frames through the CAN decoders (seeded loop).
 
 Only :class:`CanDecodeError` may escape ``codec.decode``; the drive and host state machines
-never raise, count every decoding rejection under its reason, and no drive ever applies a
-torque beyond its limit.
+never raise, count every decoding rejection under its reason (the drives: of the frames
+addressed to them; frames for other nodes and extended ids are counted as ignored), and no drive
+ever applies a torque beyond its limit, whatever set points, limits and gains arrive.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import random
 import struct
 from collections import Counter
 
+from plant_emulator.odrive import VirtualDrivePair
 from protocol.can import codec
 from protocol.can.codec import (
     AxisState,
@@ -26,7 +28,7 @@ from protocol.can.codec import (
     SetControllerMode,
     SetInputTorque,
 )
-from protocol.can.drive_profile import HostLifecycle, VirtualDrivePair
+from protocol.can.drive_profile import HostLifecycle
 from protocol.can.zenoh_bus import unpack_frame
 
 N_FRAMES = 100_000
@@ -46,6 +48,20 @@ def _valid_frames() -> list[Frame]:
             ClearErrors(node),
             Heartbeat(node, 0, AxisState.CLOSED_LOOP_CONTROL, 0, True),
             EncoderEstimates(node, 12.5, -3.0),
+            codec.SetInputVel(node, 3.0, 0.1),
+            codec.SetInputPos(node, 2.0, 0.5, 0.05),
+            codec.SetLimits(node, 10.0, 5.0),
+            codec.SetPosGain(node, 20.0),
+            codec.SetVelGains(node, 0.2, 0.3),
+            codec.SetAbsolutePosition(node, 1.0),
+            codec.SetTrajVelLimit(node, 2.0),
+            codec.SetTrajAccelLimits(node, 1.0, 1.0),
+            codec.SetTrajInertia(node, 0.01),
+            SetControllerMode(node, ControlMode.VELOCITY_CONTROL, InputMode.VEL_RAMP),
+            SetControllerMode(node, ControlMode.POSITION_CONTROL, InputMode.TRAP_TRAJ),
+            codec.Reboot(node, 0),
+            codec.Estop(node),
+            codec.Request(node, codec.Cmd.GET_IQ),
         ]
     return [codec.encode(m) for m in msgs]
 
@@ -96,13 +112,14 @@ def test_can_fuzz_decoders_reject_only_with_typed_counted_errors():
             SetAxisState(n, AxisState.CLOSED_LOOP_CONTROL),
         )
     ]
-    expected: Counter[str] = Counter()
+    expected: Counter[str] = Counter()  # every frame (the host decodes all)
+    expected_drives: Counter[str] = Counter()  # frames of nodes 0, 1 (standard ids)
     accepted = 0
     max_torque = 0.0
     for i in range(N_FRAMES):
         if i % 500 == 0:
             for f in arm:
-                pair.receive(f)
+                pair.receive(i * 1e-4, f)
         roll = rng.random()
         if roll < 0.4:
             frame = _random_frame(rng)
@@ -110,12 +127,18 @@ def test_can_fuzz_decoders_reject_only_with_typed_counted_errors():
             frame = _mutate(rng, rng.choice(valid))
         else:
             frame = rng.choice(valid)
+        ours = not frame.is_extended and (
+            frame.arbitration_id > 0x7FF or codec.split_id(frame.arbitration_id)[0] in (0, 1)
+        )
         try:
             codec.decode(frame)
             accepted += 1
         except CanDecodeError as exc:
             expected[exc.reason] += 1
-        pair.receive(frame)
+            if ours:
+                expected_drives[exc.reason] += 1
+        pair.receive(i * 1e-4, frame)
+        pair.update(i * 1e-4, {1: (0.0, 0.0), 0: (0.0, 0.0)})
         host.receive(i * 1e-4, frame)
         for drive in pair.drives.values():
             max_torque = max(max_torque, abs(drive.torque))
@@ -124,11 +147,15 @@ def test_can_fuzz_decoders_reject_only_with_typed_counted_errors():
     assert accepted > 10_000 and sum(expected.values()) > 10_000  # both paths exercised
     for reason in ("wrong_dlc", "non_finite", "unknown_cmd", "extended_id", "out_of_range"):
         assert expected[reason] > 100, reason
-    for counter in (pair.rejections.snapshot(), host.rejections.snapshot()):
-        for reason, n in expected.items():
-            assert counter.get(reason) == n, reason
-    drive_counts = pair.rejections.snapshot()
-    assert drive_counts["torque_out_of_range"] > 0  # 0.50001, -0.6, 1e30 reached the drives
+    for reason in ("wrong_dlc", "non_finite", "unknown_cmd", "out_of_range"):
+        assert expected_drives[reason] > 50, reason
+    host_counts, drive_counts = host.rejections.snapshot(), pair.rejections.snapshot()
+    for reason, n in expected.items():
+        assert host_counts.get(reason) == n, reason
+        assert drive_counts.get(reason, 0) == expected_drives[reason], reason
+    assert pair.ignored["extended_id"] == expected["extended_id"]
+    assert pair.ignored["other_node"] > 1000
+    assert pair.events["torque_clamped"] > 0  # 0.50001, -0.6, 1e30 reached the drives
     assert 0.0 < max_torque <= TORQUE_LIMIT
 
 

@@ -9,7 +9,7 @@ import time
 import can
 import pytest
 
-from protocol.can.bus_factory import CanSettings, in_private_netns, open_bus
+from protocol.can.bus_factory import CanSettings, in_private_netns, network_interfaces, open_bus
 from protocol.can.bus_load import frame_bits
 from protocol.can.zenoh_bus import ZenohCanBus
 from tests.procs import free_tcp_port, wait_until
@@ -187,15 +187,15 @@ def test_can_bus_factory_settings_are_validated():
             CanSettings.from_table(bad)
 
 
-def test_can_bus_factory_refuses_udp_multicast_outside_a_private_netns(monkeypatch, tmp_path):
+def test_can_bus_factory_refuses_udp_multicast_outside_a_private_netns(monkeypatch):
     monkeypatch.delenv("HIL_ALLOW_UDP_MULTICAST", raising=False)
     monkeypatch.setattr("protocol.can.bus_factory.in_private_netns", lambda: False)
     with pytest.raises(ValueError, match="namespace"):
         open_bus(CanSettings(interface="udp_multicast", channel="239.74.163.2"))
-    (tmp_path / "lo").mkdir()
-    assert in_private_netns(tmp_path)
-    (tmp_path / "eth0").mkdir()
-    assert not in_private_netns(tmp_path)
+    assert in_private_netns(lambda: ["lo"])
+    assert not in_private_netns(lambda: ["eth0", "lo"])
+    # the kernel's view of this namespace, not sysfs (which unshare -n does not remount)
+    assert "lo" in network_interfaces()
 
 
 def test_can_bus_factory_opens_virtual_and_zenoh():

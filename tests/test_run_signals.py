@@ -67,6 +67,21 @@ def test_sigkill_of_controller_zeroes_torque_within_command_timeout(spawn, tmp_p
     assert all(s["cmd1"] == 0.0 and s["cmd2"] == 0.0 for s in after)
     before = [s for s in samples if s["sample_ns"] < last_recv]
     assert any(s["cmd1"] != 0.0 for s in before)
+    if path == "can":
+        # the drives' counters: in the summary's can object, and in the plant's Status
+        summary = json.loads((out / "summary.json").read_text())
+        drives = summary["can"]["plant"]
+        assert drives["frames_in"] >= 100 and drives["frames_out"] > 0
+        assert drives["own_frames"] == 0 and drives["ignored"] == {}
+        assert drives["rejections"] == {}, drives
+        assert set(drives["drives"]) == {"0", "1"}
+        statuses = [
+            m.data
+            for m in read_messages(out / "recording.mcap", topics=["hil/robot0/status"])
+            if m.data.get("role") == "plant" and m.data.get("state") != "ready"  # not the gate's
+        ]
+        assert statuses and any(s["counters"].get("can_rx", 0) > 0 for s in statuses)
+        assert all("can_n1_state" in s["counters"] for s in statuses)
 
 
 def test_sigint_of_hil_run_leaves_no_process_and_a_readable_recording(spawn, tmp_path):

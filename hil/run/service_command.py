@@ -61,6 +61,10 @@ def register_service_command(app: typer.Typer, name: str, module: str, what: str
             typer.Option(help="t = 0 as time.monotonic_ns(); 0 waits for the run's start message."),
         ] = 0,
         out: Annotated[Path, typer.Option(help="Where the hop log goes.")] = Path("."),
+        start_timeout: Annotated[
+            float,
+            typer.Option(help="Seconds to wait for the run's start message (then exit 1)."),
+        ] = 60.0,
     ) -> None:
         from hil import options
 
@@ -88,6 +92,7 @@ def register_service_command(app: typer.Typer, name: str, module: str, what: str
             s.zenoh_endpoint = endpoint
             s.can_endpoint = can_endpoint
             s.epoch_ns = epoch_ns
+            s.start_timeout = start_timeout
             settings = run_dir / f"{name}_settings.json"
             s.save(settings)
         code = main_from_settings(str(settings))

@@ -49,6 +49,7 @@ class RunSettings:
     cpu_plant: int | None = None
     spin_us: float = 0.0
     ts_s: float | None = None  # the scenario's own Ts when the rate was not overridden
+    start_timeout: float = 60.0  # s a service waits for the run's start message
 
     @property
     def ts(self) -> float:

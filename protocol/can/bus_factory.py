@@ -12,9 +12,9 @@ from __future__ import annotations
 import argparse
 import math
 import os
-from collections.abc import Mapping
+import socket
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -25,8 +25,9 @@ ALLOW_UDP_MULTICAST_ENV = "HIL_ALLOW_UDP_MULTICAST"
 
 @dataclass(frozen=True)
 class CanSettings:
-    """The ``[can]`` table: python-can interface and channel, bitrate (bit/s), node ids, and
-    the host's drive heartbeat timeout (s; an ODrive heartbeats every 100 ms)."""
+    """The ``[can]`` table: python-can interface and channel, bitrate (bit/s), node ids, the
+    host's drive heartbeat timeout (s; an ODrive heartbeats every 100 ms) and the virtual
+    drives' watchdog timeout (s; 0 = off, as the firmware ships)."""
 
     interface: str = "zenoh_can"
     channel: str = "hil0"
@@ -34,6 +35,7 @@ class CanSettings:
     node_left: int = 0
     node_right: int = 1
     heartbeat_timeout: float = 0.5
+    watchdog_timeout: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.interface, str) or not self.interface:
@@ -53,6 +55,9 @@ class CanSettings:
         hb = self.heartbeat_timeout
         if isinstance(hb, bool) or not isinstance(hb, int | float) or not 0.0 < hb < math.inf:
             raise ValueError(f"[can] heartbeat_timeout must be a number > 0 (s), got {hb!r}")
+        wd = self.watchdog_timeout
+        if isinstance(wd, bool) or not isinstance(wd, int | float) or not 0.0 <= wd < math.inf:
+            raise ValueError(f"[can] watchdog_timeout must be a number >= 0 (s), got {wd!r}")
 
     @classmethod
     def from_table(cls, table: Mapping[str, Any]) -> CanSettings:
@@ -64,10 +69,17 @@ class CanSettings:
         return cls(**dict(table))
 
 
-def in_private_netns(net_dir: Path = Path("/sys/class/net")) -> bool:
+def network_interfaces() -> list[str]:
+    """The names of this process' network namespace's interfaces (from the kernel, by
+    ``if_nameindex``: ``/sys/class/net`` shows the mounting namespace's, and ``unshare -n``
+    does not remount it)."""
+    return sorted(name for _, name in socket.if_nameindex())
+
+
+def in_private_netns(interfaces: Callable[[], list[str]] = network_interfaces) -> bool:
     """True when the only network interface is ``lo`` (a fresh ``unshare -n`` namespace)."""
     try:
-        return sorted(p.name for p in net_dir.iterdir()) == ["lo"]
+        return interfaces() == ["lo"]
     except OSError:
         return False
 
@@ -83,8 +95,9 @@ def open_bus(settings: CanSettings, **extra: Any) -> can.BusABC:
         if not (in_private_netns() or os.environ.get(ALLOW_UDP_MULTICAST_ENV) == "1"):
             raise ValueError(
                 "udp_multicast sends to a multicast group on the default interface: run it "
-                "in a private network namespace (unshare -n) or set "
-                f"{ALLOW_UDP_MULTICAST_ENV}=1"
+                "in a private network namespace (unshare -n, with lo up, multicast on and a "
+                "route 224.0.0.0/4 dev lo) or set "
+                f"{ALLOW_UDP_MULTICAST_ENV}=1; interfaces here: {network_interfaces()}"
             )
     elif settings.interface not in ("socketcan", "virtual"):
         # vcan and the virtual bus have no bitrate; everything else takes one

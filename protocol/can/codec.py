@@ -1,10 +1,14 @@
 """ODrive CANSimple (firmware 0.6) frames <-> typed messages, through ``odrive_cansimple.dbc``.
 
-The arbitration id is 11 bits: ``node_id << 5 | cmd_id`` (node 0..63, cmd 0..31). The DBC holds
-one message set, for node 0 (its frame ids are the cmd ids), as ODrive's own DBC does; the codec
-computes the id of any node and looks the message up by ``cmd_id``. Generating one message per
-node would change nothing on the wire and would tie the DBC file to a node assignment that the
-scenario's ``[can]`` table owns.
+The arbitration id is 11 bits: ``node_id << 5 | cmd_id`` (node 0..63, cmd 0..31). Every
+message of the 0.6 protocol has a typed class here (the table of signals is
+:mod:`protocol.can.dbc`, which also renders the DBC). The shipped DBC holds the message sets of
+axes 0-7, as ODrive's own DBC does; the codec computes the id of any node and looks the
+message layout up by ``cmd_id`` (node 0's message of that cmd).
+
+Requests. A ``Get_*`` message (and Heartbeat, Address) is requested with a remote (RTR) frame of
+its id, or, as the protocol page allows, with a data frame of that id and no payload: both
+decode to :class:`Request`.
 
 Decoding is strict: every frame is either one typed message or one :class:`CanDecodeError` with
 a ``reason`` (a short stable word, used as the rejection counter's key). Nothing half-decoded is
@@ -16,28 +20,52 @@ from __future__ import annotations
 
 import math
 import struct
-from dataclasses import dataclass
-from enum import IntEnum
+from dataclasses import dataclass, fields
+from enum import IntEnum, IntFlag
 from functools import cache, lru_cache
 from importlib import resources
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import cantools
 
+from protocol.can.dbc import BY_CMD
+
 DBC_NAME = "odrive_cansimple.dbc"
 MAX_NODE_ID = 0x3F
+BROADCAST_NODE = 0x3F  # Address (discovery) requests to every drive
 
 
 class Cmd(IntEnum):
-    """CANSimple command ids used by the profile."""
+    """CANSimple 0.6 command ids."""
 
+    GET_VERSION = 0x00
     HEARTBEAT = 0x01
     ESTOP = 0x02
+    GET_ERROR = 0x03
+    RX_SDO = 0x04
+    TX_SDO = 0x05
+    ADDRESS = 0x06
     SET_AXIS_STATE = 0x07
     GET_ENCODER_ESTIMATES = 0x09
     SET_CONTROLLER_MODE = 0x0B
+    SET_INPUT_POS = 0x0C
+    SET_INPUT_VEL = 0x0D
     SET_INPUT_TORQUE = 0x0E
+    SET_LIMITS = 0x0F
+    SET_TRAJ_VEL_LIMIT = 0x11
+    SET_TRAJ_ACCEL_LIMITS = 0x12
+    SET_TRAJ_INERTIA = 0x13
+    GET_IQ = 0x14
+    GET_TEMPERATURE = 0x15
+    REBOOT = 0x16
+    GET_BUS_VOLTAGE_CURRENT = 0x17
     CLEAR_ERRORS = 0x18
+    SET_ABSOLUTE_POSITION = 0x19
+    SET_POS_GAIN = 0x1A
+    SET_VEL_GAINS = 0x1B
+    GET_TORQUES = 0x1C
+    GET_POWERS = 0x1D
+    ENTER_DFU_MODE = 0x1F
 
 
 class AxisState(IntEnum):
@@ -77,11 +105,54 @@ class InputMode(IntEnum):
     TUNING = 8
 
 
-class AxisError(IntEnum):
-    """The firmware 0.6 ODriveError bits this profile sets itself."""
+class ProcedureResult(IntEnum):
+    SUCCESS = 0
+    BUSY = 1
+    CANCELLED = 2
+    DISARMED = 3
+    NO_RESPONSE = 4
+    POLE_PAIR_CPR_MISMATCH = 5
+    PHASE_RESISTANCE_OUT_OF_RANGE = 6
+    PHASE_INDUCTANCE_OUT_OF_RANGE = 7
+    UNBALANCED_PHASES = 8
+    INVALID_MOTOR_TYPE = 9
+    ILLEGAL_HALL_STATE = 10
+    TIMEOUT = 11
+    HOMING_WITHOUT_ENDSTOP = 12
+    INVALID_STATE = 13
+    NOT_CALIBRATED = 14
+    NOT_CONVERGING = 15
+
+
+class ODriveError(IntFlag):
+    """ODrive.Error of firmware 0.6 (Heartbeat's Axis_Error, Get_Error's two fields)."""
 
     NONE = 0
-    ESTOP_REQUESTED = 0x02000000
+    INITIALIZING = 0x1
+    SYSTEM_LEVEL = 0x2
+    TIMING_ERROR = 0x4
+    MISSING_ESTIMATE = 0x8
+    BAD_CONFIG = 0x10
+    DRV_FAULT = 0x20
+    MISSING_INPUT = 0x40
+    DC_BUS_OVER_VOLTAGE = 0x100
+    DC_BUS_UNDER_VOLTAGE = 0x200
+    DC_BUS_OVER_CURRENT = 0x400
+    DC_BUS_OVER_REGEN_CURRENT = 0x800
+    CURRENT_LIMIT_VIOLATION = 0x1000
+    MOTOR_OVER_TEMP = 0x2000
+    INVERTER_OVER_TEMP = 0x4000
+    VELOCITY_LIMIT_VIOLATION = 0x8000
+    POSITION_LIMIT_VIOLATION = 0x10000
+    WATCHDOG_TIMER_EXPIRED = 0x1000000
+    ESTOP_REQUESTED = 0x2000000
+    SPINOUT_DETECTED = 0x4000000
+    BRAKE_RESISTOR_DISARMED = 0x8000000
+    THERMISTOR_DISCONNECTED = 0x10000000
+    CALIBRATION_ERROR = 0x40000000
+
+
+AxisError = ODriveError  # the name the profile used before the full 0.6 set
 
 
 class CanDecodeError(ValueError):
@@ -105,7 +176,21 @@ class Frame(NamedTuple):
     is_extended: bool = False
 
 
-# Typed messages. ``node`` is the CANSimple node id of the axis the frame is about.
+# --- typed messages. ``node`` is the CANSimple node id of the axis the frame is about. ------
+# Drive -> host.
+@dataclass(frozen=True)
+class Version:
+    node: int
+    protocol_version: int = 2
+    hw_version_major: int = 0
+    hw_version_minor: int = 0
+    hw_version_variant: int = 0
+    fw_version_major: int = 0
+    fw_version_minor: int = 0
+    fw_version_revision: int = 0
+    fw_version_unreleased: int = 0
+
+
 @dataclass(frozen=True)
 class Heartbeat:
     node: int
@@ -116,14 +201,21 @@ class Heartbeat:
 
 
 @dataclass(frozen=True)
-class Estop:
+class ErrorStatus:
+    """Get_Error: the axis' active errors and the reason of its last disarm."""
+
     node: int
+    active_errors: int
+    disarm_reason: int
 
 
 @dataclass(frozen=True)
-class SetAxisState:
+class TxSdo:
     node: int
-    requested_state: int
+    endpoint_id: int
+    value: int
+    reserved0: int = 0
+    reserved1: int = 0
 
 
 @dataclass(frozen=True)
@@ -134,10 +226,89 @@ class EncoderEstimates:
 
 
 @dataclass(frozen=True)
+class Iq:
+    node: int
+    iq_setpoint: float
+    iq_measured: float
+
+
+@dataclass(frozen=True)
+class Temperature:
+    node: int
+    fet_temperature: float
+    motor_temperature: float
+
+
+@dataclass(frozen=True)
+class BusVoltageCurrent:
+    node: int
+    bus_voltage: float
+    bus_current: float
+
+
+@dataclass(frozen=True)
+class Torques:
+    node: int
+    torque_target: float
+    torque_estimate: float
+
+
+@dataclass(frozen=True)
+class Powers:
+    node: int
+    electrical_power: float
+    mechanical_power: float
+
+
+# Host -> drive (Address goes both ways: a data frame asks a drive to take a node id, the
+# drive answers a discovery request with one).
+@dataclass(frozen=True)
+class Estop:
+    node: int
+
+
+@dataclass(frozen=True)
+class RxSdo:
+    node: int
+    opcode: int
+    endpoint_id: int
+    value: int
+    reserved: int = 0
+
+
+@dataclass(frozen=True)
+class Address:
+    node: int
+    node_id: int
+    serial_number: int
+
+
+@dataclass(frozen=True)
+class SetAxisState:
+    node: int
+    requested_state: int
+
+
+@dataclass(frozen=True)
 class SetControllerMode:
     node: int
     control_mode: int
     input_mode: int
+
+
+@dataclass(frozen=True)
+class SetInputPos:
+    node: int
+    input_pos: float
+    vel_ff: float = 0.0
+    torque_ff: float = 0.0
+
+
+@dataclass(frozen=True)
+class SetInputVel:
+    node: int
+    input_vel: float
+    torque_ff: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -147,46 +318,267 @@ class SetInputTorque:
 
 
 @dataclass(frozen=True)
+class SetLimits:
+    node: int
+    velocity_limit: float
+    current_limit: float
+
+
+@dataclass(frozen=True)
+class SetTrajVelLimit:
+    node: int
+    traj_vel_limit: float
+
+
+@dataclass(frozen=True)
+class SetTrajAccelLimits:
+    node: int
+    accel_limit: float
+    decel_limit: float
+
+
+@dataclass(frozen=True)
+class SetTrajInertia:
+    node: int
+    inertia: float
+
+
+@dataclass(frozen=True)
+class Reboot:
+    node: int
+    action: int = 0
+
+
+@dataclass(frozen=True)
 class ClearErrors:
     node: int
     identify: int = 0
 
 
 @dataclass(frozen=True)
+class SetAbsolutePosition:
+    node: int
+    position: float
+
+
+@dataclass(frozen=True)
+class SetPosGain:
+    node: int
+    pos_gain: float
+
+
+@dataclass(frozen=True)
+class SetVelGains:
+    node: int
+    vel_gain: float
+    vel_integrator_gain: float
+
+
+@dataclass(frozen=True)
+class EnterDfuMode:
+    node: int
+
+
+@dataclass(frozen=True)
 class Request:
-    """A remote (RTR) frame asking the drive for ``cmd`` (Heartbeat or Encoder estimates)."""
+    """A request (RTR frame, or a data frame with no payload) for the drive's ``cmd`` message."""
 
     node: int
     cmd: Cmd
 
 
 Message = (
-    Heartbeat
-    | Estop
-    | SetAxisState
+    Version
+    | Heartbeat
+    | ErrorStatus
+    | TxSdo
     | EncoderEstimates
+    | Iq
+    | Temperature
+    | BusVoltageCurrent
+    | Torques
+    | Powers
+    | Estop
+    | RxSdo
+    | Address
+    | SetAxisState
     | SetControllerMode
+    | SetInputPos
+    | SetInputVel
     | SetInputTorque
+    | SetLimits
+    | SetTrajVelLimit
+    | SetTrajAccelLimits
+    | SetTrajInertia
+    | Reboot
     | ClearErrors
+    | SetAbsolutePosition
+    | SetPosGain
+    | SetVelGains
+    | EnterDfuMode
     | Request
 )
 
-_NAMES = {
-    Cmd.HEARTBEAT: "Axis0_Heartbeat",
-    Cmd.ESTOP: "Axis0_Estop",
-    Cmd.SET_AXIS_STATE: "Axis0_Set_Axis_State",
-    Cmd.GET_ENCODER_ESTIMATES: "Axis0_Get_Encoder_Estimates",
-    Cmd.SET_CONTROLLER_MODE: "Axis0_Set_Controller_Mode",
-    Cmd.SET_INPUT_TORQUE: "Axis0_Set_Input_Torque",
-    Cmd.CLEAR_ERRORS: "Axis0_Clear_Errors",
+# class -> (cmd, ((field, DBC signal), ...)) in the field order of the class (after node).
+_LAYOUT: dict[type, tuple[Cmd, tuple[tuple[str, str], ...]]] = {
+    Version: (
+        Cmd.GET_VERSION,
+        (
+            ("protocol_version", "Protocol_Version"),
+            ("hw_version_major", "Hw_Version_Major"),
+            ("hw_version_minor", "Hw_Version_Minor"),
+            ("hw_version_variant", "Hw_Version_Variant"),
+            ("fw_version_major", "Fw_Version_Major"),
+            ("fw_version_minor", "Fw_Version_Minor"),
+            ("fw_version_revision", "Fw_Version_Revision"),
+            ("fw_version_unreleased", "Fw_Version_Unreleased"),
+        ),
+    ),
+    Heartbeat: (
+        Cmd.HEARTBEAT,
+        (
+            ("axis_error", "Axis_Error"),
+            ("axis_state", "Axis_State"),
+            ("procedure_result", "Procedure_Result"),
+            ("trajectory_done", "Trajectory_Done_Flag"),
+        ),
+    ),
+    Estop: (Cmd.ESTOP, ()),
+    ErrorStatus: (
+        Cmd.GET_ERROR,
+        (("active_errors", "Active_Errors"), ("disarm_reason", "Disarm_Reason")),
+    ),
+    RxSdo: (
+        Cmd.RX_SDO,
+        (
+            ("opcode", "Opcode"),
+            ("endpoint_id", "Endpoint_ID"),
+            ("value", "Value"),
+            ("reserved", "Reserved"),
+        ),
+    ),
+    TxSdo: (
+        Cmd.TX_SDO,
+        (
+            ("endpoint_id", "Endpoint_ID"),
+            ("value", "Value"),
+            ("reserved0", "Reserved0"),
+            ("reserved1", "Reserved1"),
+        ),
+    ),
+    Address: (Cmd.ADDRESS, (("node_id", "Node_ID"), ("serial_number", "Serial_Number"))),
+    SetAxisState: (Cmd.SET_AXIS_STATE, (("requested_state", "Axis_Requested_State"),)),
+    EncoderEstimates: (
+        Cmd.GET_ENCODER_ESTIMATES,
+        (("pos_rev", "Pos_Estimate"), ("vel_rev_s", "Vel_Estimate")),
+    ),
+    SetControllerMode: (
+        Cmd.SET_CONTROLLER_MODE,
+        (("control_mode", "Control_Mode"), ("input_mode", "Input_Mode")),
+    ),
+    SetInputPos: (
+        Cmd.SET_INPUT_POS,
+        (("input_pos", "Input_Pos"), ("vel_ff", "Vel_FF"), ("torque_ff", "Torque_FF")),
+    ),
+    SetInputVel: (
+        Cmd.SET_INPUT_VEL,
+        (("input_vel", "Input_Vel"), ("torque_ff", "Input_Torque_FF")),
+    ),
+    SetInputTorque: (Cmd.SET_INPUT_TORQUE, (("torque_nm", "Input_Torque"),)),
+    SetLimits: (
+        Cmd.SET_LIMITS,
+        (("velocity_limit", "Velocity_Limit"), ("current_limit", "Current_Limit")),
+    ),
+    SetTrajVelLimit: (Cmd.SET_TRAJ_VEL_LIMIT, (("traj_vel_limit", "Traj_Vel_Limit"),)),
+    SetTrajAccelLimits: (
+        Cmd.SET_TRAJ_ACCEL_LIMITS,
+        (("accel_limit", "Traj_Accel_Limit"), ("decel_limit", "Traj_Decel_Limit")),
+    ),
+    SetTrajInertia: (Cmd.SET_TRAJ_INERTIA, (("inertia", "Traj_Inertia"),)),
+    Iq: (Cmd.GET_IQ, (("iq_setpoint", "Iq_Setpoint"), ("iq_measured", "Iq_Measured"))),
+    Temperature: (
+        Cmd.GET_TEMPERATURE,
+        (("fet_temperature", "FET_Temperature"), ("motor_temperature", "Motor_Temperature")),
+    ),
+    Reboot: (Cmd.REBOOT, (("action", "Action"),)),
+    BusVoltageCurrent: (
+        Cmd.GET_BUS_VOLTAGE_CURRENT,
+        (("bus_voltage", "Bus_Voltage"), ("bus_current", "Bus_Current")),
+    ),
+    ClearErrors: (Cmd.CLEAR_ERRORS, (("identify", "Identify"),)),
+    SetAbsolutePosition: (Cmd.SET_ABSOLUTE_POSITION, (("position", "Position"),)),
+    SetPosGain: (Cmd.SET_POS_GAIN, (("pos_gain", "Pos_Gain"),)),
+    SetVelGains: (
+        Cmd.SET_VEL_GAINS,
+        (("vel_gain", "Vel_Gain"), ("vel_integrator_gain", "Vel_Integrator_Gain")),
+    ),
+    Torques: (
+        Cmd.GET_TORQUES,
+        (("torque_target", "Torque_Target"), ("torque_estimate", "Torque_Estimate")),
+    ),
+    Powers: (
+        Cmd.GET_POWERS,
+        (("electrical_power", "Electrical_Power"), ("mechanical_power", "Mechanical_Power")),
+    ),
+    EnterDfuMode: (Cmd.ENTER_DFU_MODE, ()),
 }
-_REQUESTABLE = frozenset({Cmd.HEARTBEAT, Cmd.GET_ENCODER_ESTIMATES})
-_ENUMS = {
+_CLASS_OF = {cmd: cls for cls, (cmd, _) in _LAYOUT.items()}
+
+# What a drive can be asked for (RTR or empty data frame): its drive -> host messages, plus
+# Address (discovery). TxSdo is only ever an answer to an RxSdo.
+REQUESTABLE = frozenset(
+    {
+        Cmd.GET_VERSION,
+        Cmd.HEARTBEAT,
+        Cmd.GET_ERROR,
+        Cmd.ADDRESS,
+        Cmd.GET_ENCODER_ESTIMATES,
+        Cmd.GET_IQ,
+        Cmd.GET_TEMPERATURE,
+        Cmd.GET_BUS_VOLTAGE_CURRENT,
+        Cmd.GET_TORQUES,
+        Cmd.GET_POWERS,
+    }
+)
+DRIVE_TO_HOST = (
+    Version,
+    Heartbeat,
+    ErrorStatus,
+    TxSdo,
+    EncoderEstimates,
+    Iq,
+    Temperature,
+    BusVoltageCurrent,
+    Torques,
+    Powers,
+)
+HOST_TO_DRIVE = (
+    Estop,
+    RxSdo,
+    SetAxisState,
+    SetControllerMode,
+    SetInputPos,
+    SetInputVel,
+    SetInputTorque,
+    SetLimits,
+    SetTrajVelLimit,
+    SetTrajAccelLimits,
+    SetTrajInertia,
+    Reboot,
+    ClearErrors,
+    SetAbsolutePosition,
+    SetPosGain,
+    SetVelGains,
+    EnterDfuMode,
+    Request,
+)
+_ENUMS: dict[str, type[IntEnum]] = {
     "Axis_State": AxisState,
     "Axis_Requested_State": AxisState,
     "Control_Mode": ControlMode,
     "Input_Mode": InputMode,
 }
+_SMALL_ENUMS = {"Action": 3, "Opcode": 1}  # largest valid value
 
 
 @lru_cache(maxsize=1)
@@ -198,7 +590,13 @@ def database() -> cantools.database.can.Database:
 
 @cache
 def _message(cmd: Cmd):
-    return database().get_message_by_name(_NAMES[cmd])
+    return database().get_message_by_frame_id(int(cmd))  # node 0's message of that cmd
+
+
+def message_name(cmd: int) -> str:
+    """The protocol's name of ``cmd`` (``Set_Input_Torque``), or ``cmd_0x..`` if unknown."""
+    spec = BY_CMD.get(int(cmd))
+    return spec.name if spec else f"cmd_0x{int(cmd):02x}"
 
 
 @cache
@@ -223,6 +621,14 @@ def split_id(arbitration_id: int) -> tuple[int, int]:
     return arbitration_id >> 5, arbitration_id & 0x1F
 
 
+def is_request(frame: Frame) -> bool:
+    """True for a standard-id frame asking for a requestable message (RTR, or no payload)."""
+    if frame.is_extended or not 0 <= frame.arbitration_id <= 0x7FF:
+        return False
+    cmd = frame.arbitration_id & 0x1F
+    return cmd in REQUESTABLE and (frame.is_remote or len(frame.data) == 0)
+
+
 def _finite32(name: str, value: float) -> float:
     if not math.isfinite(value):
         raise CanEncodeError(f"{name} must be finite, got {value!r}")
@@ -237,46 +643,25 @@ def encode(msg: Message) -> Frame:
     """The frame of a typed message (lengths as in the DBC, unused bytes zero)."""
     if isinstance(msg, Request):
         return Frame(frame_id(msg.node, msg.cmd), b"", is_remote=True)
-    if isinstance(msg, Heartbeat):
-        cmd, sig = (
-            Cmd.HEARTBEAT,
-            {
-                "Axis_Error": msg.axis_error,
-                "Axis_State": msg.axis_state,
-                "Procedure_Result": msg.procedure_result,
-                "Trajectory_Done_Flag": int(msg.trajectory_done),
-            },
-        )
-    elif isinstance(msg, Estop):
-        cmd, sig = Cmd.ESTOP, {}
-    elif isinstance(msg, SetAxisState):
-        cmd, sig = Cmd.SET_AXIS_STATE, {"Axis_Requested_State": msg.requested_state}
-    elif isinstance(msg, EncoderEstimates):
-        cmd, sig = (
-            Cmd.GET_ENCODER_ESTIMATES,
-            {
-                "Pos_Estimate": _finite32("pos_rev", msg.pos_rev),
-                "Vel_Estimate": _finite32("vel_rev_s", msg.vel_rev_s),
-            },
-        )
-    elif isinstance(msg, SetControllerMode):
-        cmd, sig = (
-            Cmd.SET_CONTROLLER_MODE,
-            {
-                "Control_Mode": msg.control_mode,
-                "Input_Mode": msg.input_mode,
-            },
-        )
-    elif isinstance(msg, SetInputTorque):
-        cmd, sig = Cmd.SET_INPUT_TORQUE, {"Input_Torque": _finite32("torque_nm", msg.torque_nm)}
-    elif isinstance(msg, ClearErrors):
-        cmd, sig = Cmd.CLEAR_ERRORS, {"Identify": msg.identify}
-    else:
+    layout = _LAYOUT.get(type(msg))
+    if layout is None:
         raise CanEncodeError(f"not a CANSimple message: {msg!r}")
+    cmd, names = layout
+    dbc_msg = _message(cmd)
+    sig: dict[str, Any] = {}
+    for attr, signal in names:
+        value = getattr(msg, attr)
+        if dbc_msg.get_signal_by_name(signal).is_float:
+            value = _finite32(attr, float(value))
+        elif isinstance(value, float) and not math.isfinite(value):
+            raise CanEncodeError(f"{attr} must be finite, got {value!r}")
+        elif isinstance(value, bool):
+            value = int(value)
+        sig[signal] = value
     try:
-        data = _message(cmd).encode(sig, scaling=False, strict=True)
+        data = dbc_msg.encode(sig, scaling=True, strict=True) if names else b""
     except Exception as exc:  # cantools raises several types for out-of-range values
-        raise CanEncodeError(f"{_NAMES[cmd]}: {exc}") from exc
+        raise CanEncodeError(f"{dbc_msg.name}: {exc}") from exc
     return Frame(frame_id(msg.node, cmd), bytes(data))
 
 
@@ -307,36 +692,37 @@ def _decode(frame: Frame, nodes: frozenset[int] | None) -> Message:
         raise CanDecodeError("unknown_node", f"node {node}")
     data = bytes(frame.data)
     if frame.is_remote:
-        if cmd not in _REQUESTABLE:
+        if cmd not in REQUESTABLE:
             raise CanDecodeError("unexpected_rtr", cmd.name)
         return Request(node, cmd)
+    if not data and cmd in REQUESTABLE:
+        return Request(node, cmd)  # the protocol's alternative to RTR: same id, no payload
     if not min_payload(cmd) <= len(data) <= 8:
         raise CanDecodeError("wrong_dlc", f"{cmd.name} with {len(data)} bytes")
+    cls = _CLASS_OF[cmd]
+    _, names = _LAYOUT[cls]
+    if not names:
+        return cls(node)
     msg = _message(cmd)
     padded = data[: msg.length].ljust(msg.length, b"\x00")
-    sig = msg.decode(padded, decode_choices=False, scaling=False) if msg.length else {}
+    sig = msg.decode(padded, decode_choices=False, scaling=True)
     for name, enum in _ENUMS.items():
         if name in sig and int(sig[name]) not in enum._value2member_map_:
+            raise CanDecodeError("out_of_range", f"{name}={sig[name]}")
+    for name, top in _SMALL_ENUMS.items():
+        if name in sig and not 0 <= int(sig[name]) <= top:
             raise CanDecodeError("out_of_range", f"{name}={sig[name]}")
     for name, value in sig.items():
         if isinstance(value, float) and not math.isfinite(value):
             raise CanDecodeError("non_finite", f"{name}={value}")
-    if cmd is Cmd.HEARTBEAT:
-        return Heartbeat(
-            node,
-            int(sig["Axis_Error"]),
-            int(sig["Axis_State"]),
-            int(sig["Procedure_Result"]),
-            bool(sig["Trajectory_Done_Flag"]),
-        )
-    if cmd is Cmd.ESTOP:
-        return Estop(node)
-    if cmd is Cmd.SET_AXIS_STATE:
-        return SetAxisState(node, int(sig["Axis_Requested_State"]))
-    if cmd is Cmd.GET_ENCODER_ESTIMATES:
-        return EncoderEstimates(node, float(sig["Pos_Estimate"]), float(sig["Vel_Estimate"]))
-    if cmd is Cmd.SET_CONTROLLER_MODE:
-        return SetControllerMode(node, int(sig["Control_Mode"]), int(sig["Input_Mode"]))
-    if cmd is Cmd.SET_INPUT_TORQUE:
-        return SetInputTorque(node, float(sig["Input_Torque"]))
-    return ClearErrors(node, int(sig.get("Identify", 0)))
+    kwargs: dict[str, Any] = {}
+    float_fields = {f.name for f in fields(cls) if f.type in ("float", float)}
+    for attr, signal in names:
+        value = sig[signal]
+        if attr in float_fields:
+            kwargs[attr] = float(value)
+        elif attr == "trajectory_done":
+            kwargs[attr] = bool(value)
+        else:
+            kwargs[attr] = int(value)
+    return cls(node, **kwargs)

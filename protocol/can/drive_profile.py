@@ -6,13 +6,11 @@ waits for heartbeats that report CLOSED_LOOP_CONTROL with no error on BOTH drive
 torque leaves it: a torque sent earlier would be ignored by a real drive (or act on one wheel
 only). On exit it sends zero torque and IDLE (or Estop).
 
-Drive side (:class:`VirtualDrive`, one per node, used by the plant emulator): holds the axis
-state, controller mode, error and last input torque; the torque acts only in closed loop and
-torque control; Estop latches ESTOP_REQUESTED with zero torque until Clear_Errors.
+The drive side (virtual ODrives) is the plant emulator's: :mod:`plant_emulator.odrive`.
 
-Both take explicit time (seconds, any monotonic origin) and return the frames to send; neither
-does I/O. Every frame that is not a valid message for this side is a counted rejection
-(``RejectionCounter.count(reason)``), never an exception, never a torque beyond the limit.
+The host takes explicit time (seconds, any monotonic origin) and returns the frames to send; it
+does no I/O. Every frame that is not a valid message for this side is a counted rejection
+(``RejectionCounter.count(reason)``), never an exception.
 """
 
 from __future__ import annotations
@@ -25,25 +23,22 @@ from enum import Enum
 
 from protocol.can import codec
 from protocol.can.codec import (
-    AxisError,
     AxisState,
     CanDecodeError,
     ClearErrors,
-    Cmd,
     ControlMode,
     EncoderEstimates,
     Estop,
     Frame,
     Heartbeat,
     InputMode,
-    Request,
     SetAxisState,
     SetControllerMode,
     SetInputTorque,
 )
 from protocol.rejections import RejectionCounter
 
-_HOST_TO_DRIVE = (Estop, SetAxisState, SetControllerMode, SetInputTorque, ClearErrors, Request)
+_HOST_TO_DRIVE = codec.HOST_TO_DRIVE
 
 
 class Phase(Enum):
@@ -207,175 +202,3 @@ class HostLifecycle:
                 codec.encode(Estop(node) if estop else SetAxisState(node, AxisState.IDLE))
             )
         return frames
-
-
-@dataclass
-class VirtualDrive:
-    """Drive side of one ODrive axis, as the firmware 0.6 behaves on CANSimple.
-
-    Starts IDLE in POSITION_CONTROL (the firmware's default mode). ``torque_limit`` is the
-    motor torque limit in Nm: a Set_Input_Torque beyond it is rejected (counted) and the last
-    valid torque stays, so the applied torque never exceeds the limit.
-    """
-
-    node: int
-    torque_limit: float
-    axis_state: int = AxisState.IDLE
-    axis_error: int = 0
-    procedure_result: int = 0
-    control_mode: int = ControlMode.POSITION_CONTROL
-    input_mode: int = InputMode.PASSTHROUGH
-    input_torque: float = 0.0
-    rejections: RejectionCounter = field(default_factory=RejectionCounter)
-
-    @property
-    def torque(self) -> float:
-        """The torque the motor applies now (Nm)."""
-        if (
-            self.axis_state == AxisState.CLOSED_LOOP_CONTROL
-            and self.control_mode == ControlMode.TORQUE_CONTROL
-        ):
-            return self.input_torque
-        return 0.0
-
-    def handle(self, msg: codec.Message, pos_rev: float = 0.0, vel_rev_s: float = 0.0):
-        """Apply one decoded message addressed to this node; returns frames to answer with."""
-        if isinstance(msg, Request):
-            if msg.cmd is Cmd.HEARTBEAT:
-                return [self.heartbeat()]
-            return [self.encoder_estimates(pos_rev, vel_rev_s)]
-        if isinstance(msg, Heartbeat | EncoderEstimates):
-            self.rejections.count("wrong_direction")
-        elif isinstance(msg, Estop):
-            self.axis_error |= AxisError.ESTOP_REQUESTED
-            self._enter(AxisState.IDLE)
-        elif isinstance(msg, ClearErrors):
-            self.axis_error = 0
-        elif isinstance(msg, SetControllerMode):
-            self.control_mode, self.input_mode = msg.control_mode, msg.input_mode
-        elif isinstance(msg, SetAxisState):
-            self._request_state(msg.requested_state)
-        elif isinstance(msg, SetInputTorque):
-            self._input_torque(msg.torque_nm)
-        return []
-
-    def _enter(self, state: int) -> None:
-        self.axis_state = state
-        if state != AxisState.CLOSED_LOOP_CONTROL:
-            self.input_torque = 0.0  # no stale torque when re-armed
-
-    def _request_state(self, state: int) -> None:
-        if state == AxisState.IDLE:
-            self._enter(AxisState.IDLE)
-        elif state == AxisState.CLOSED_LOOP_CONTROL:
-            if self.axis_error:
-                self.rejections.count("arm_with_error")
-                self.procedure_result = 13  # INVALID_STATE
-            else:
-                self.procedure_result = 0
-                self._enter(AxisState.CLOSED_LOOP_CONTROL)
-        else:
-            self.rejections.count("unsupported_state")
-
-    def _input_torque(self, torque: float) -> None:
-        if not math.isfinite(torque):
-            self.rejections.count("non_finite_torque")
-        elif abs(torque) > self.torque_limit:
-            self.rejections.count("torque_out_of_range")
-        elif self.torque_mode_armed():
-            self.input_torque = torque
-        elif torque != 0.0:
-            self.rejections.count("torque_while_disarmed")
-
-    def torque_mode_armed(self) -> bool:
-        return (
-            self.axis_state == AxisState.CLOSED_LOOP_CONTROL
-            and self.control_mode == ControlMode.TORQUE_CONTROL
-        )
-
-    def heartbeat(self) -> Frame:
-        return codec.encode(
-            Heartbeat(self.node, self.axis_error, self.axis_state, self.procedure_result, True)
-        )
-
-    def encoder_estimates(self, pos_rev: float, vel_rev_s: float) -> Frame:
-        if not (math.isfinite(pos_rev) and math.isfinite(vel_rev_s)):
-            self.rejections.count("non_finite_estimate")
-            pos_rev, vel_rev_s = 0.0, 0.0
-        return codec.encode(EncoderEstimates(self.node, pos_rev, vel_rev_s))
-
-
-_SLACK = 1e-9  # a tick that lands a rounding error early is on time
-
-
-def _next_due(due: float, period: float, now: float) -> float:
-    """The next due time on the period grid; after a late tick, skip to ``now + period``
-    instead of bursting the missed frames."""
-    nxt = due + period
-    return nxt if nxt > now + _SLACK else now + period
-
-
-@dataclass
-class VirtualDrivePair:
-    """The two drives behind one CAN bus, with their periodic messages.
-
-    ``heartbeat_period``/``encoder_period`` are the firmware's heartbeat_rate_ms and
-    encoder_rate_ms (defaults 100 ms and 10 ms, as firmware 0.6 ships).
-    """
-
-    node_right: int
-    node_left: int
-    torque_limit: float
-    heartbeat_period: float = 0.1
-    encoder_period: float = 0.01
-    rejections: RejectionCounter = field(default_factory=RejectionCounter)
-    ignored: Counter = field(default_factory=Counter)
-    drives: dict[int, VirtualDrive] = field(default_factory=dict)
-    _next_heartbeat: float = -math.inf
-    _next_encoder: float = -math.inf
-
-    def __post_init__(self) -> None:
-        if self.node_left == self.node_right:
-            raise ValueError("node_left and node_right must differ")
-        for node in (self.node_right, self.node_left):
-            codec.frame_id(node, 0)
-            self.drives[node] = VirtualDrive(node, self.torque_limit, rejections=self.rejections)
-
-    @property
-    def right(self) -> VirtualDrive:
-        return self.drives[self.node_right]
-
-    @property
-    def left(self) -> VirtualDrive:
-        return self.drives[self.node_left]
-
-    def receive(
-        self, frame: Frame, estimates: dict[int, tuple[float, float]] | None = None
-    ) -> list[Frame]:
-        """Take one received frame; returns the answers (to RTR requests)."""
-        try:
-            msg = codec.decode(frame)
-        except CanDecodeError as exc:
-            self.rejections.count(exc.reason)
-            return []
-        drive = self.drives.get(msg.node)
-        if drive is None:
-            self.ignored["other_node"] += 1
-            return []
-        pos, vel = (estimates or {}).get(msg.node, (0.0, 0.0))
-        return drive.handle(msg, pos, vel)
-
-    def due_frames(self, now: float, estimates: dict[int, tuple[float, float]]) -> list[Frame]:
-        """Periodic heartbeats and encoder estimates due at ``now``.
-
-        ``estimates``: node -> (pos_rev, vel_rev_s), motor side, from the plant."""
-        out: list[Frame] = []
-        if now >= self._next_heartbeat - _SLACK:
-            self._next_heartbeat = _next_due(self._next_heartbeat, self.heartbeat_period, now)
-            out += [d.heartbeat() for d in self.drives.values()]
-        if now >= self._next_encoder - _SLACK:
-            self._next_encoder = _next_due(self._next_encoder, self.encoder_period, now)
-            for node, drive in self.drives.items():
-                pos, vel = estimates.get(node, (0.0, 0.0))
-                out.append(drive.encoder_estimates(pos, vel))
-        return out

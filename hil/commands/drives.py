@@ -1,0 +1,142 @@
+"""``hil drives``: the plant and its two virtual ODrives on a CAN bus, until Ctrl-C."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from hil.errors import BadInputError
+
+_RATE_NAMES = {
+    "heartbeat": 0x01,
+    "encoder": 0x09,
+    "error": 0x03,
+    "iq": 0x14,
+    "temperature": 0x15,
+    "bus_voltage": 0x17,
+    "torques": 0x1C,
+    "powers": 0x1D,
+}
+
+
+def _msg_rates(heartbeat_ms: float, encoder_ms: float, extra: list[str]) -> dict[int, float]:
+    rates = {0x01: heartbeat_ms, 0x09: encoder_ms}
+    for item in extra:
+        name, sep, value = item.partition("=")
+        if not sep or name not in _RATE_NAMES:
+            raise BadInputError(
+                f"--msg-rate {item!r}: use NAME=MS with NAME one of {', '.join(_RATE_NAMES)}"
+            )
+        try:
+            ms = float(value)
+        except ValueError:
+            raise BadInputError(f"--msg-rate {item!r}: MS must be a number") from None
+        rates[_RATE_NAMES[name]] = ms
+    for cmd, ms in rates.items():
+        if not (ms >= 0.0 and ms < float("inf")):
+            raise BadInputError(f"message rate of cmd 0x{cmd:02x} must be >= 0 ms, got {ms}")
+    return rates
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("drives")
+    def drives(
+        scenario: Annotated[
+            str | None,
+            typer.Argument(
+                help="Scenario TOML or bundled name: robot, limits, [can] (default: hil run's)."
+            ),
+        ] = None,
+        can_interface: Annotated[
+            str | None,
+            typer.Option(
+                "--can-interface",
+                "--interface",
+                help="python-can interface: zenoh_can, socketcan, udp_multicast, pcan, ...",
+            ),
+        ] = None,
+        channel: Annotated[
+            str | None, typer.Option(help="Bus channel: hil0 (zenoh_can), vcan0, can0, ...")
+        ] = None,
+        bitrate: Annotated[int | None, typer.Option(help="Bit/s (hardware, zenoh_can).")] = None,
+        can_endpoint: Annotated[
+            str | None, typer.Option(help="zenoh_can's Zenoh endpoint (loopback).")
+        ] = None,
+        node_left: Annotated[int | None, typer.Option(help="Left wheel's node id.")] = None,
+        node_right: Annotated[int | None, typer.Option(help="Right wheel's node id.")] = None,
+        control_rate: Annotated[
+            float, typer.Option(help="Hz of the plant and drive controller steps.")
+        ] = 1000.0,
+        heartbeat_ms: Annotated[
+            float, typer.Option(help="Heartbeat period, ms (0: off; firmware 100).")
+        ] = 100.0,
+        encoder_ms: Annotated[
+            float, typer.Option(help="Get_Encoder_Estimates period, ms (0: off; firmware 10).")
+        ] = 10.0,
+        msg_rate: Annotated[
+            list[str] | None,
+            typer.Option(
+                help="More cyclic messages, NAME=MS: error, iq, temperature, bus_voltage, "
+                "torques, powers (repeatable)."
+            ),
+        ] = None,
+        watchdog_timeout: Annotated[
+            float | None,
+            typer.Option(help="Drive watchdog, s (0: off, as the firmware ships; default: [can])."),
+        ] = None,
+        state_rate: Annotated[
+            float, typer.Option(help="Publish State (and Status) on Zenoh at this rate, Hz.")
+        ] = 0.0,
+        endpoint: Annotated[
+            str, typer.Option(help="Zenoh endpoint for State/Status.")
+        ] = "tcp/127.0.0.1:7447",
+        status_period: Annotated[
+            float, typer.Option(help="Seconds between status lines (0: none).")
+        ] = 1.0,
+        duration: Annotated[
+            float | None, typer.Option(help="Stop after this many seconds (default: Ctrl-C).")
+        ] = None,
+        scheduling: Annotated[
+            str | None, typer.Option(help="fifo or other (default: the scenario's).")
+        ] = None,
+        out: Annotated[
+            Path | None, typer.Option(help="Also write summary.json in this folder.")
+        ] = None,
+    ) -> None:
+        """Run the robot with its two virtual ODrives (CANSimple 0.6) on a CAN bus for any
+        ODrive client, free running (no start gate), until Ctrl-C or SIGTERM: one status line
+        a second, a JSON summary at the end (docs/can.md)."""
+        from plant_emulator.drives import DrivesOptions, run_drives
+
+        if scheduling not in (None, "fifo", "other"):
+            raise BadInputError("--scheduling must be fifo or other")
+        if duration is not None and not duration > 0:
+            raise BadInputError("--duration must be > 0")
+        opts = DrivesOptions(
+            scenario=scenario,
+            interface=can_interface,
+            channel=channel,
+            bitrate=bitrate,
+            can_endpoint=can_endpoint,
+            node_left=node_left,
+            node_right=node_right,
+            control_rate=control_rate,
+            msg_rates_ms=_msg_rates(heartbeat_ms, encoder_ms, msg_rate or []),
+            watchdog_timeout=watchdog_timeout,
+            state_rate=state_rate,
+            zenoh_endpoint=endpoint,
+            status_period=status_period,
+            duration=duration,
+            scheduling=scheduling,
+            out=out,
+        )
+        import can
+
+        try:
+            code = run_drives(opts)
+        except (ValueError, OSError, can.CanError) as exc:  # a refused bus or configuration
+            raise BadInputError(str(exc)) from exc
+        if code:
+            raise typer.Exit(code)

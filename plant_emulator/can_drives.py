@@ -1,0 +1,263 @@
+"""The virtual drives' edge on a python-can bus: a reader thread and a cyclic sender.
+
+The drive model (:mod:`plant_emulator.odrive`) is pure; this module moves frames.
+
+- The reader thread stamps every frame as it arrives. Requests (RTR, or a ``Get_*`` id with no
+  payload) are answered at once from the drives' current state. Every ``Set_Input_Torque``
+  arrival is logged to the hop log's ``cmd_rx`` table with its index among that node's torque
+  frames (the controller's ``can_tx`` log is matched to it in per-node order). Other frames are
+  applied at once (``immediate``: ``hil drives``, a run's start gate, the CAN path as a shadow)
+  or queued in ``inbox`` for the plant's loop, which lands them at their time (the applied CAN
+  path of a run, with its injected delay).
+- The cyclic thread sends each due Heartbeat / Get_Encoder_Estimates / ... at its own rate, on
+  absolute deadlines, whatever the plant's loop does.
+- Frames this process sent and hears back (``udp_multicast`` loops them back) are recognized
+  by content within a second and dropped as ``own_frames``, never counted as rejections.
+
+One lock (:attr:`CanDrives.lock`) guards the drives: hold it to touch them.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import struct
+import threading
+import time
+from collections.abc import Callable
+from math import nan
+from typing import Any
+
+from protocol.can.codec import BROADCAST_NODE, Cmd, Frame, is_request, split_id
+from protocol.can.drive_link import from_message, to_message
+from protocol.faults import Faults, frame_lost
+from protocol.hoplog import RX_LOST_BY_FAULT
+
+ECHO_WINDOW_NS = 1_000_000_000
+
+
+class EchoFilter:
+    """Recognizes this process' own frames coming back from the bus (by content)."""
+
+    def __init__(self, window_ns: int = ECHO_WINDOW_NS) -> None:
+        self.window_ns = window_ns
+        self._pending: dict[tuple, collections.deque[int]] = {}
+        self._order: collections.deque[tuple[int, int, tuple]] = collections.deque()
+        self._seq = 0
+        self._lock = threading.Lock()
+
+    @staticmethod
+    def _key(frame: Frame) -> tuple:
+        return (frame.arbitration_id, bytes(frame.data), frame.is_remote, frame.is_extended)
+
+    def sent(self, frame: Frame, now_ns: int) -> None:
+        key = self._key(frame)
+        with self._lock:
+            self._seq += 1
+            self._pending.setdefault(key, collections.deque()).append(self._seq)
+            self._order.append((now_ns, self._seq, key))
+            self._expire(now_ns)
+
+    def take(self, frame: Frame, now_ns: int) -> bool:
+        """True (and forgotten) when ``frame`` is one this process sent within the window."""
+        key = self._key(frame)
+        with self._lock:
+            self._expire(now_ns)
+            seqs = self._pending.get(key)
+            if not seqs:
+                return False
+            seqs.popleft()
+            if not seqs:
+                del self._pending[key]
+            return True
+
+    def _expire(self, now_ns: int) -> None:
+        order = self._order
+        while order and now_ns - order[0][0] > self.window_ns:
+            _, seq, key = order.popleft()
+            seqs = self._pending.get(key)
+            if seqs and seqs[0] == seq:  # not taken yet: it never came back
+                seqs.popleft()
+                if not seqs:
+                    del self._pending[key]
+
+
+class CanDrives:
+    """The drives of ``pair`` on ``bus`` (see the module docstring).
+
+    ``on_frame(recv_ns, frame) -> answers`` applies a frame in ``immediate`` mode (called under
+    :attr:`lock`); by default ``pair.receive``. ``refresh(now_ns)`` (under the lock) brings the
+    drives' feedback up to date before a request is answered or cyclic frames go out.
+    """
+
+    def __init__(
+        self,
+        bus: Any,
+        pair: Any,
+        hoplog: Any = None,
+        on_frame: Callable[[int, Frame], list[Frame]] | None = None,
+        refresh: Callable[[int], None] | None = None,
+        immediate: bool = True,
+        faults: Faults | None = None,
+    ) -> None:
+        self.bus = bus
+        self.pair = pair
+        self.hoplog = hoplog
+        self.on_frame = on_frame or (lambda ns, f: self.pair.receive(ns / 1e9, f))
+        self.refresh = refresh
+        self.immediate = immediate
+        self.faults = faults or Faults()
+        self.injected_frame_losses = 0
+        # The bus's name for a received frame, where it has one (zenoh_can): exact matching.
+        self._sent_at = getattr(bus, "sent_at_ns", None)
+        self.lock = threading.RLock()
+        self._send_lock = threading.Lock()
+        self._stop = threading.Event()
+        self.echo = EchoFilter()
+        self._torque_cmd = Cmd.SET_INPUT_TORQUE
+        self._split = split_id
+        self._torque_frames: dict[int, int] = {}  # per node: Set_Input_Torque frames seen
+        # (receive ns, frame, index among the node's torque frames or -1)
+        self.inbox: collections.deque[tuple[int, Any, int]] = collections.deque()
+        self.frames_in = 0
+        self.frames_out = 0
+        self.own_frames = 0
+        self.requests = 0
+        self.send_errors = 0
+        self.recv_errors = 0
+        self.error_frames = 0
+        self._threads = [
+            threading.Thread(target=self._reader, name="can-reader", daemon=True),
+            threading.Thread(target=self._cyclic, name="can-cyclic", daemon=True),
+        ]
+
+    def start(self) -> None:
+        for t in self._threads:
+            t.start()
+
+    # --- receive -------------------------------------------------------------------------
+    def _reader(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self.bus.recv(timeout=0.05)
+            except Exception:
+                if self._stop.is_set():
+                    return
+                self.recv_errors += 1
+                self._stop.wait(0.01)
+                continue
+            if msg is None:
+                continue
+            recv_ns = time.monotonic_ns()
+            if msg.is_error_frame:
+                self.error_frames += 1
+                continue
+            frame = from_message(msg)
+            if self.echo.take(frame, recv_ns):
+                self.own_frames += 1
+                continue
+            self.frames_in += 1
+            node, cmd = self._split(frame.arbitration_id)
+            index = -1
+            if cmd == self._torque_cmd and not frame.is_remote:
+                # Logged with its index among the node's torque frames, its torque and, where
+                # the bus names frames (zenoh_can), that name: hil.measure matches it to the
+                # controller's can_tx by the name, else by the order.
+                i = self._torque_frames.get(node, 0)
+                self._torque_frames[node] = i + 1
+                lost = frame_lost(self.faults.can_frame_loss, self.faults.seed, node, i)
+                if self.hoplog is not None:
+                    q = struct.unpack_from("<f", frame.data)[0] if len(frame.data) >= 4 else nan
+                    named = (self._sent_at(msg) if self._sent_at is not None else None) or 0
+                    verdict = RX_LOST_BY_FAULT if lost else 0
+                    self.hoplog.append(
+                        "cmd_rx", (1, i, -1, 0, 0, named, recv_ns, q, 0.0, node, verdict)
+                    )
+                if lost:  # the drive's receiver never sees it ([faults] frame loss)
+                    self.injected_frame_losses += 1
+                    continue
+                index = i
+            if is_request(frame) and (node in self.pair.nodes or node == BROADCAST_NODE):
+                with self.lock:
+                    if self.refresh is not None:
+                        self.refresh(recv_ns)
+                    answers = self.pair.receive(recv_ns / 1e9, frame)
+                self.requests += 1
+                self.send(answers)
+            elif self.immediate:
+                with self.lock:
+                    answers = self.on_frame(recv_ns, frame)
+                self.send(answers)
+            else:
+                self.inbox.append((recv_ns, frame, index))
+
+    # --- cyclic frames -----------------------------------------------------------------------
+    def _cyclic(self) -> None:
+        while not self._stop.is_set():
+            with self.lock:
+                due = self.pair.next_due()
+            wait = due - time.monotonic()
+            if wait > 0.0:
+                self._stop.wait(min(wait, 0.05))
+                continue
+            now_ns = time.monotonic_ns()
+            with self.lock:
+                if self.refresh is not None:
+                    self.refresh(now_ns)
+                frames = self.pair.due_frames(now_ns / 1e9)
+            self.send(frames)
+
+    # --- transmit -------------------------------------------------------------------------------
+    def send(self, frames: list[Frame]) -> None:
+        for f in frames:
+            with self._send_lock:
+                self.echo.sent(f, time.monotonic_ns())
+                try:
+                    self.bus.send(to_message(f), timeout=0.05)
+                    self.frames_out += 1
+                except Exception:
+                    self.send_errors += 1
+
+    # --- counters --------------------------------------------------------------------------------
+    def counters(self) -> dict[str, Any]:
+        """Every counter of the edge and the drives (the summary's ``can`` object)."""
+        with self.lock:
+            drives = self.pair.counters()
+        return {
+            "frames_in": self.frames_in,
+            "frames_out": self.frames_out,
+            "own_frames": self.own_frames,
+            "requests": self.requests,
+            "send_errors": self.send_errors,
+            "recv_errors": self.recv_errors,
+            "error_frames": self.error_frames,
+            **drives,
+        }
+
+    def status_counters(self, prefix: str = "can_") -> dict[str, int]:
+        """A flat {name: count >= 0} view for a Status message (names <= 32 characters)."""
+        c = self.counters()
+        out = {
+            f"{prefix}rx": c["frames_in"],
+            f"{prefix}tx": c["frames_out"],
+            f"{prefix}own": c["own_frames"],
+            f"{prefix}requests": c["requests"],
+            f"{prefix}send_errors": c["send_errors"],
+            f"{prefix}rejections": sum(c["rejections"].values()),
+        }
+        for name, n in c["ignored"].items():
+            out[f"{prefix}ign_{name}"[:32]] = n
+        for name, n in c["rejections"].items():
+            out[f"{prefix}rej_{name}"[:32]] = n
+        for node, d in c["drives"].items():
+            out[f"{prefix}n{node}_state"] = d["axis_state"]
+            out[f"{prefix}n{node}_error"] = d["axis_error"]
+        return out
+
+    def close(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            if t.is_alive():
+                t.join(timeout=1.0)
+        with contextlib.suppress(Exception):  # a bus already gone is fine on the way out
+            self.bus.shutdown()
