@@ -144,7 +144,9 @@ def test_hil_emulator_exits_on_sigint_during_the_start_gate(spawn, tmp_path):
     proc, out, can_endpoint = _emulator(spawn, tmp_path)
     # the drives serve the bus during the gate at their own rate: heartbeats every 100 ms
     beats = _heartbeats(can_endpoint, 21, 60)
-    assert len(beats) == 21 and 1.9 < beats[-1] - beats[0] < 2.1
+    # 20 periods of 100 ms: about 2 s (a loaded host stretches it; served from the old 50 ms
+    # idle callback at 20 Hz they would span 1 s). The rate itself is measured in bench/.
+    assert len(beats) == 21 and 1.6 < beats[-1] - beats[0] < 2.6
     proc.send_signal(signal.SIGINT)
     assert proc.wait(timeout=5) == 0  # the stop asked for, as mid-run
     assert wait_until(lambda: out.seen("no start: stopped"), 5)
