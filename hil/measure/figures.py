@@ -387,13 +387,16 @@ def _messages(r: _Run) -> dict[str, Any]:
     state["injected_duplicates"] = int(((s["flags"] & SAMPLE_DUPLICATED) != 0).sum())
     out: dict[str, Any] = {"state": state}
     zsent = (t["zenoh_send_ns"] > 0) & (t["cmd_seq"] >= 0)
-    inwin = zsent & _in(t["zenoh_send_ns"], r.w0, r.w1)
+    # Commands count while the plant still listens: sent up to 2 Ts + delay + jitter before
+    # its last sample (later ones may land after it stopped: "sent_after_window", not lost).
+    end = r.w1 - r.settle
+    inwin = zsent & _in(t["zenoh_send_ns"], r.w0, end)
     rx = r.logs["cmd_rx"]
     z = _stream_counts(t["cmd_seq"][inwin], rx["seq"][rx["path"] == 0])
     z["injected_drops"] = int(((t["flags"][inwin] & TICK_DROPPED) != 0).sum())
     z["injected_duplicates"] = int(((t["flags"][inwin] & TICK_DUPLICATED) != 0).sum())
     z["injected_reorders"] = int(((t["flags"][inwin] & TICK_REORDERED) != 0).sum())
-    z["sent_after_window"] = int((zsent & (t["zenoh_send_ns"] > r.w1)).sum())
+    z["sent_after_window"] = int((zsent & (t["zenoh_send_ns"] > end)).sum())
     out["torque_zenoh"] = z
     tx = r.logs["can_tx"]
     if tx["node"].size or (rx["path"] == 1).any():
@@ -407,7 +410,8 @@ def _can_messages(r: _Run) -> dict[str, Any]:
     rows, found = r.tick_of(tx["cmd_seq"])
     when = np.zeros(tx["cmd_seq"].size, np.int64)
     when[found] = t["compute_start_ns"][rows[found]]
-    mine = (tx["cmd_seq"] >= 0) & _in(when, r.w0, r.w1)  # this window's command frames
+    end = r.w1 - r.settle  # as for Zenoh: frames sent while the drives still listen
+    mine = (tx["cmd_seq"] >= 0) & _in(when, r.w0, end)  # this window's command frames
     sent_cmds = np.unique(tx["cmd_seq"][mine])
     got = (c["cmd"] >= 0) & ~c["lost"]
     nodes = max(1, np.unique(tx["node"]).size)
@@ -430,7 +434,7 @@ def _can_messages(r: _Run) -> dict[str, Any]:
         "unmatched_frames_received": int((c["cmd"] == -2).sum()),
         "value_mismatches": int(r.value_mismatches),
         "sent_after_window": int(
-            np.unique(tx["cmd_seq"][(tx["cmd_seq"] >= 0) & (when > r.w1)]).size
+            np.unique(tx["cmd_seq"][(tx["cmd_seq"] >= 0) & (when > end)]).size
         ),
     }
 
