@@ -110,6 +110,10 @@ def test_a_30ms_controller_stall_is_measured_in_full(spawn, tmp_path):
     assert t["skipped_slots"] >= 13
     assert t["command_age_zenoh"]["max_us"] >= length * 1e6
     stall = _near(s["certificate"]["stalls"], at)
+    print(f"\ncalibration controller SIGSTOP {length * 1e3:.1f} ms at t = {at:.3f} s: lateness max "
+          f"{t['wakeup_lateness']['max_us'] / 1e3:.2f} ms, skipped {t['skipped_slots']}, age max "
+          f"{t['command_age_zenoh']['max_us'] / 1e3:.2f} ms, stall at {stall['t_s']:.3f} s "
+          f"{stall['age_s'] * 1e3:.2f} ms {stall['cause']}")  # fmt: skip
     assert stall["age_s"] >= 0.030 and stall["cause"] == "controller_late", stall
     # One pipeline: the report holds the summary's certificate, field for field.
     report = json.loads((out / "report.json").read_text())
@@ -120,11 +124,14 @@ def test_a_30ms_controller_stall_is_measured_in_full(spawn, tmp_path):
 def test_a_30ms_plant_stall_is_blamed_on_the_plant(spawn, tmp_path):
     out = tmp_path / "run"
     proc = _start(spawn, out, _scenario(tmp_path))
-    at, _ = _stall(out, "plant", 2.0, 0.030)
+    at, length = _stall(out, "plant", 2.0, 0.030)
     s = _finish(proc, out)
     assert s["_exit_code"] == 1 and s["certificate"]["held"] is False
     assert s["timing"]["plant_wakeup_lateness"]["max_us"] >= 28_000
     stall = _near(s["certificate"]["stalls"], at)
+    print(f"\ncalibration plant SIGSTOP {length * 1e3:.1f} ms at t = {at:.3f} s: plant lateness "
+          f"max {s['timing']['plant_wakeup_lateness']['max_us'] / 1e3:.2f} ms, stall at "
+          f"{stall['t_s']:.3f} s {stall['age_s'] * 1e3:.2f} ms {stall['cause']}")  # fmt: skip
     assert stall["age_s"] >= 0.030 and stall["cause"] == "plant_late", stall
 
 
@@ -135,6 +142,8 @@ def test_a_5ms_delay_shifts_age_and_latency_by_5ms(spawn, tmp_path):
     b = _finish(late, tmp_path / "b")
     for fig in ("command_age_zenoh", "sample_to_apply_zenoh"):
         rise = b["timing"][fig]["p50_us"] - a["timing"][fig]["p50_us"]
+        print(f"\ncalibration delay 5 ms: {fig} p50 {a['timing'][fig]['p50_us']:.1f} -> "
+              f"{b['timing'][fig]['p50_us']:.1f} us (rise {rise:.1f} us)")  # fmt: skip
         assert abs(rise - 5000.0) <= 500.0, (fig, rise)
 
 
@@ -144,6 +153,8 @@ def test_injected_drops_are_the_lost_counts_exactly(spawn, tmp_path):
     s = _finish(_start(spawn, out, _scenario(tmp_path, faults)), out)
     st, cmd = s["messages"]["state"], s["messages"]["torque_zenoh"]
     assert st["injected_drops"] > 200 and cmd["injected_drops"] > 100
+    print(f"\ncalibration drops: states injected {st['injected_drops']} lost {st['lost']}; "
+          f"commands injected {cmd['injected_drops']} lost {cmd['lost']}")  # fmt: skip
     assert st["lost"] == st["injected_drops"], st
     assert cmd["lost"] == cmd["injected_drops"], cmd
 
