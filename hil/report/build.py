@@ -530,7 +530,10 @@ def write_report(report: Report, out: Path) -> dict[str, Path]:
     files: list[dict[str, str]] = []
     for f in report.figures:
         png, csv_path = f.write(out, FIGURE_PREFIX)
-        files.append({"name": f.name, "title": f.title, "png": png.name, "data": csv_path.name})
+        entry = {"name": f.name, "title": f.title, "png": png.name, "data": csv_path.name}
+        if f.caption:
+            entry["caption"] = f.caption
+        files.append(entry)
     data = dict(report.data)
     data["figures"] = files
     (out / "report.json").write_text(json.dumps(_jsonable(data), indent=2, allow_nan=False))
