@@ -315,9 +315,10 @@ def analyse(
         )
     sliding = None
     if not {"v_tilde", "w_tilde"} <= set(tr) and folder.recordings:
-        from hil.report.telemetry import sliding_from_recordings
+        from hil.report.telemetry import SLIDING, folder_telemetry
 
-        rec = sliding_from_recordings(folder.recordings)
+        tel = folder_telemetry(folder)
+        rec = {k: tel[k] for k in SLIDING} if all(k in tel for k in SLIDING) else {}
         if rec:
             base = rr.epoch_ns if rr is not None and rr.epoch_ns else int(rec["v_tilde"][0][0])
             sliding = {k: ((tn - base) / 1e9, vals) for k, (tn, vals) in rec.items()}

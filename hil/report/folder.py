@@ -31,6 +31,8 @@ class Folder:
     summary: dict[str, Any]
     scenario: dict[str, Any]
     recordings: list[Path] = field(default_factory=list)
+    #: What more than one part of the report reads (the recorded telemetry), read once.
+    cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
     def kind(self) -> str:
