@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import math
+import struct
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -153,6 +154,85 @@ class RecordingWriter:
 
         now = time.time_ns()
         self._writer.add_attachment(now, now, name, media_type, bytes(data))
+
+    def add_attachment_file(
+        self,
+        name: str,
+        path: str | Path,
+        media_type: str = "application/msgpack",
+        time_ns: int | None = None,
+    ) -> None:
+        """:meth:`add_attachment` of a file's content, streamed from disk a block at a time.
+
+        Why: ``mcap``'s ``add_attachment`` builds the whole record in memory (the data copied
+        three times), so attaching an hour's hop logs (~1 GB) would need GBs at the end of a
+        run. The record written here is byte for byte the one ``add_attachment`` writes (same
+        fields, record CRC, data-section CRC, attachment index and statistics); it reaches into
+        the ``mcap`` Writer's private state to do so, and falls back to ``add_attachment``
+        when that state is not there (another ``mcap`` version).
+        """
+        import time
+        import zlib
+
+        now = time.time_ns() if time_ns is None else int(time_ns)
+        w = self._writer
+        private = ("_Writer__stream", "_Writer__flush", "_Writer__statistics",
+                   "_Writer__attachment_indexes", "_Writer__index_types",
+                   "_Writer__enable_data_crcs", "_Writer__data_section_crc")  # fmt: skip
+        if not all(hasattr(w, a) for a in private):
+            self._writer.add_attachment(now, now, name, media_type, Path(path).read_bytes())
+            return
+        from mcap.opcode import Opcode
+        from mcap.records import AttachmentIndex
+        from mcap.writer import IndexType
+
+        size = Path(path).stat().st_size
+        name_b, media_b = name.encode(), media_type.encode()
+        body = (
+            struct.pack("<QQ", now, now)
+            + struct.pack("<I", len(name_b)) + name_b
+            + struct.pack("<I", len(media_b)) + media_b
+            + struct.pack("<Q", size)
+        )  # fmt: skip
+        length = len(body) + size + 4
+        w._Writer__flush()
+        stream = w._Writer__stream
+        offset = stream.tell()
+        head = struct.pack("<BQ", int(Opcode.ATTACHMENT), length) + body
+        crc = zlib.crc32(body)
+        section = w._Writer__data_section_crc
+        use_section = w._Writer__enable_data_crcs
+        stream.write(head)
+        if use_section:
+            section = zlib.crc32(head, section)
+        copied = 0
+        with open(path, "rb") as f:
+            while copied < size and (block := f.read(min(1 << 20, size - copied))):
+                stream.write(block)
+                crc = zlib.crc32(block, crc)
+                if use_section:
+                    section = zlib.crc32(block, section)
+                copied += len(block)
+        if copied != size:
+            raise OSError(f"{path}: changed while it was attached ({copied} of {size} bytes)")
+        tail = struct.pack("<I", crc)
+        stream.write(tail)
+        if use_section:
+            section = zlib.crc32(tail, section)
+        w._Writer__data_section_crc = section
+        w._Writer__statistics.attachment_count += 1
+        if w._Writer__index_types & IndexType.ATTACHMENT:
+            w._Writer__attachment_indexes.append(
+                AttachmentIndex(
+                    offset=offset,
+                    length=1 + 8 + length,
+                    create_time=now,
+                    log_time=now,
+                    data_size=size,
+                    name=name,
+                    media_type=media_type,
+                )
+            )
 
     def add_metadata(self, name: str, data: Mapping[str, Any]) -> None:
         self._writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
@@ -329,8 +409,6 @@ def read_topic_payloads(
     read in seconds per topic. A recording without a summary (a killed writer) is read by
     :func:`read_messages` instead.
     """
-    import struct
-
     wanted = set(topics)
     summary = None
     if is_complete(path):
@@ -367,8 +445,6 @@ def read_topic_payloads(
 
 def _chunk_records(chunk: bytes, compression: str, size: int) -> bytes:
     """The uncompressed records of one Chunk record (opcode, length, then the fields)."""
-    import struct
-
     at = 1 + 8 + 8 + 8 + 8 + 4  # opcode, length, start and end time, size, crc
     name_len = struct.unpack_from("<I", chunk, at)[0]
     at += 4 + name_len
