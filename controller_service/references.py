@@ -99,7 +99,10 @@ def sample_array(reference: Any, t: np.ndarray) -> ReferenceSample:
     """
     own = getattr(reference, "sample_array", None)
     if own is not None:
-        return ReferenceSample(*(np.broadcast_to(v, np.shape(t)) for v in own(t)))
+        shape = np.shape(t)
+        return ReferenceSample(
+            *(v if np.shape(v) == shape else np.broadcast_to(v, shape) for v in own(t))
+        )
     samples = [reference.sample(float(tk)) for tk in np.ravel(t)]
     return ReferenceSample(
         *(np.array([s[i] for s in samples], dtype=float).reshape(np.shape(t)) for i in range(7))
