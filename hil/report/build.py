@@ -296,8 +296,8 @@ def analyse(
     thresholds: Thresholds = Thresholds(),
 ) -> Report:
     sv = view(folder.scenario)
+    rr = run_result(folder)  # first: its peak (the hop logs' columns) before the trace's
     tr = folder.trace
-    rr = run_result(folder)
     kind = "run" if rr is not None else folder.kind
     if rr is not None:
         cert = run_certificate(sv, rr)

@@ -46,7 +46,7 @@ class Figure:
         return png_path, csv_path
 
 
-WRITE_CHUNK_ROWS = 65_536
+WRITE_CHUNK_ROWS = 16_384
 
 
 def write_columns(path: Path, columns: Mapping[str, np.ndarray]) -> None:

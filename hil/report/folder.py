@@ -24,15 +24,24 @@ from hil.trace import TRACE_COLUMNS
 
 @dataclass
 class Folder:
-    """One run or simulation folder, loaded."""
+    """One run or simulation folder, loaded. ``trace`` is read on first use when the folder
+    was loaded lazily (:func:`load_folder`): a run's report measures the hop logs first, so
+    the trace's columns and the measurement's never sit in memory together at its peak."""
 
     path: Path
-    trace: dict[str, np.ndarray]
+    trace_data: dict[str, np.ndarray] | None
     summary: dict[str, Any]
     scenario: dict[str, Any]
     recordings: list[Path] = field(default_factory=list)
     #: What more than one part of the report reads (the recorded telemetry), read once.
     cache: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def trace(self) -> dict[str, np.ndarray]:
+        """trace.csv's columns (:func:`read_trace`; BadInputError when it is not a trace)."""
+        if self.trace_data is None:
+            self.trace_data = read_trace(self.path / "trace.csv")
+        return self.trace_data
 
     @property
     def kind(self) -> str:
@@ -58,14 +67,8 @@ def _count_lines(path: Path) -> int:
     return n + (last != b"\n")
 
 
-def read_trace(path: Path) -> dict[str, np.ndarray]:
-    """trace.csv as column name -> float array; every required column present and finite
-    where it must be.
-
-    Read in chunks of :data:`CHUNK_ROWS` lines by numpy's C parser straight into one
-    preallocated (columns, rows) array, so an hour's trace (millions of rows) costs its
-    columns and one chunk of memory, in linear time; each column is a contiguous row of it.
-    """
+def trace_header(path: Path) -> list[str]:
+    """trace.csv's column names; BadInputError without a header or a required column."""
     try:
         with open(path, newline="") as f:
             header = next(csv.reader(f))
@@ -75,6 +78,18 @@ def read_trace(path: Path) -> dict[str, np.ndarray]:
     missing = [c for c in TRACE_COLUMNS if c not in header]
     if missing:
         raise BadInputError(f"{path}: trace.csv lacks columns {', '.join(missing)}")
+    return header
+
+
+def read_trace(path: Path) -> dict[str, np.ndarray]:
+    """trace.csv as column name -> float array; every required column present and finite
+    where it must be.
+
+    Read in chunks of :data:`CHUNK_ROWS` lines by numpy's C parser straight into one
+    preallocated (columns, rows) array, so an hour's trace (millions of rows) costs its
+    columns and one chunk of memory, in linear time; each column is a contiguous row of it.
+    """
+    header = trace_header(path)
     capacity = max(0, _count_lines(path) - 1)
     data = np.empty((len(header), capacity), dtype=float)
     filled = 0
@@ -112,8 +127,11 @@ def read_trace(path: Path) -> dict[str, np.ndarray]:
     return trace
 
 
-def load_folder(path: str | Path) -> Folder:
-    """Load and check a run or simulation folder; BadInputError when it is not one."""
+def load_folder(path: str | Path, lazy: bool = False) -> Folder:
+    """Load and check a run or simulation folder; BadInputError when it is not one.
+
+    ``lazy``: check only the trace's header now and read its rows on first use (a bad row
+    then raises BadInputError there)."""
     p = Path(path)
     if not p.is_dir():
         raise BadInputError(f"{p}: not a folder")
@@ -130,10 +148,11 @@ def load_folder(path: str | Path) -> Folder:
         scenario = tomllib.loads((p / "scenario.resolved.toml").read_text())
     except (OSError, ValueError) as exc:
         raise BadInputError(f"{p / 'scenario.resolved.toml'}: not TOML ({exc})") from exc
-    trace = read_trace(p / "trace.csv")
+    if lazy:
+        trace_header(p / "trace.csv")
     return Folder(
         path=p,
-        trace=trace,
+        trace_data=None if lazy else read_trace(p / "trace.csv"),
         summary=summary,
         scenario=scenario,
         recordings=sorted(p.glob("*.mcap")),

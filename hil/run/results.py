@@ -47,7 +47,7 @@ def _commanded_by_sample(logs: RunLogs, seqs: np.ndarray) -> tuple[np.ndarray, n
     return c1, c2
 
 
-TRACE_CHUNK_ROWS = 65_536
+TRACE_CHUNK_ROWS = 16_384
 
 
 def write_trace(
