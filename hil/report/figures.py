@@ -22,7 +22,7 @@ import numpy as np
 # most ENVELOPE_BINS time bins; data files stay complete up to MAX_DATA_ROWS samples and hold
 # the drawn samples beyond (an hour at 1 kHz would write GBs of CSV per figure otherwise).
 MAX_DRAWN_POINTS = 20_000
-ENVELOPE_BINS = 4_000
+ENVELOPE_BINS = 2_000
 MAX_DATA_ROWS = 200_000
 LIMIT_STYLE = {"color": "red", "linestyle": "--", "linewidth": 1.2}
 BOUND_STYLE = {"color": "darkorange", "linestyle": ":", "linewidth": 1.2}
