@@ -105,7 +105,10 @@ def table(rows: list[dict[str, Any]]) -> str:
 
         def svc(name: str, m: dict[str, Any] = m) -> str:
             d = m.get(name, {})
-            return f"{_mb(d.get('peak_kb'))} / {_mb(d.get('growth_kb'))}"
+            growth = d.get("growth_kb")
+            return f"{_mb(d.get('peak_kb'))} / " + (
+                "-" if growth is None else f"{growth / 1024:.2f}"
+            )
 
         logs = sum(f[k] or 0 for k in ("controller.hoplog", "plant.hoplog"))
         lines.append(
