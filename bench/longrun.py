@@ -50,19 +50,24 @@ def run_sampled(out: Path, duration_s: float, *args: str, rate: float = 1000.0) 
     got = Sampled()
     pids: dict[str, int] = {}
     t0 = None
+    next_rss = 0.0
     try:
         while proc.poll() is None:
             if not pids and (out / "processes.json").is_file():
                 pids = {**json.loads((out / "processes.json").read_text()), "hil_run": proc.pid}
                 t0 = time.monotonic()
+            sample_rss = time.monotonic() >= next_rss
+            if sample_rss:
+                next_rss = time.monotonic() + 1.0
             for name, pid in pids.items():
-                kb = rss_kb(pid)
+                kb = rss_kb(pid) if sample_rss else None
                 if kb is not None:
                     got.rss.setdefault(name, []).append((time.monotonic() - (t0 or 0.0), kb))
+                # the high-water mark 4 times a second: hil run's end-of-run peak is brief
                 hwm = rss_kb(pid, "VmHWM")
                 if hwm is not None:
                     got.peak_kb[name] = max(got.peak_kb.get(name, 0), hwm)
-            time.sleep(1.0)
+            time.sleep(0.25)
     finally:
         if proc.poll() is None:
             proc.kill()

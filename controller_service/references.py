@@ -70,6 +70,46 @@ def _arc_pose(
     return x0 + distance * math.cos(theta0), y0 + distance * math.sin(theta0)
 
 
+def _arc_pose_array(
+    x0: float,
+    y0: float,
+    theta0: float,
+    vd: float,
+    wd: float,
+    heading: np.ndarray,
+    distance: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_arc_pose` at arrays of headings and distances."""
+    if wd != 0.0:
+        radius = vd / wd
+        return (
+            x0 + radius * (np.sin(heading) - math.sin(theta0)),
+            y0 - radius * (np.cos(heading) - math.cos(theta0)),
+        )
+    return x0 + distance * math.cos(theta0), y0 + distance * math.sin(theta0)
+
+
+def _full(t: np.ndarray, *values: float) -> tuple[np.ndarray, ...]:
+    return tuple(np.full(np.shape(t), float(v)) for v in values)
+
+
+def sample_array(reference: Any, t: np.ndarray) -> ReferenceSample:
+    """The reference at every time of the array ``t``: a :class:`ReferenceSample` of arrays of
+    t's shape. Uses the reference's own ``sample_array`` (every kind here has one: the same
+    formulas on numpy, equal to ``sample`` to rounding), else ``sample`` element by element.
+    """
+    own = getattr(reference, "sample_array", None)
+    if own is not None:
+        shape = np.shape(t)
+        return ReferenceSample(
+            *(v if np.shape(v) == shape else np.broadcast_to(v, shape) for v in own(t))
+        )
+    samples = [reference.sample(float(tk)) for tk in np.ravel(t)]
+    return ReferenceSample(
+        *(np.array([s[i] for s in samples], dtype=float).reshape(np.shape(t)) for i in range(7))
+    )
+
+
 @dataclass(frozen=True)
 class Circle:
     """Constant vd, wd from (x0, y0, theta0): the paper's tracking reference (vd = 0.5,
@@ -97,6 +137,14 @@ class Circle:
         xd, yd = _arc_pose(self.x0, self.y0, self.theta0, self.vd, self.wd, heading, self.vd * t)
         return ReferenceSample(xd, yd, heading, self.vd, self.wd, 0.0, 0.0)
 
+    def sample_array(self, t: np.ndarray) -> ReferenceSample:
+        t = np.asarray(t, dtype=float)
+        heading = self.theta0 + self.wd * t
+        xd, yd = _arc_pose_array(
+            self.x0, self.y0, self.theta0, self.vd, self.wd, heading, self.vd * t
+        )
+        return ReferenceSample(xd, yd, heading, *_full(t, self.vd, self.wd, 0.0, 0.0))
+
 
 @dataclass(frozen=True)
 class Point:
@@ -112,6 +160,11 @@ class Point:
 
     def sample(self, t: float) -> ReferenceSample:
         return ReferenceSample(self.x, self.y, self.theta, 0.0, 0.0, 0.0, 0.0)
+
+    def sample_array(self, t: np.ndarray) -> ReferenceSample:
+        return ReferenceSample(
+            *_full(np.asarray(t), self.x, self.y, self.theta, 0.0, 0.0, 0.0, 0.0)
+        )
 
 
 class CircleThenStop:
@@ -170,6 +223,32 @@ class CircleThenStop:
         dwd = -self.k2 * math.copysign(1.0, self.wd) * ramping if self.wd != 0.0 else 0.0
         return ReferenceSample(xd, yd, heading, self.vd * scale, self.wd * scale, dvd, dwd)
 
+    def sample_array(self, t: np.ndarray) -> ReferenceSample:
+        """:meth:`sample` at every time of ``t`` (the same cases of :meth:`_progress`)."""
+        t = np.asarray(t, dtype=float)
+        before = t <= self.stop_time
+        if self.ramp == 0.0:
+            scale = np.where(before, 1.0, 0.0)
+            equivalent = np.where(before, t, self.stop_time)
+            ramping = np.zeros(t.shape)
+        else:
+            s = np.minimum(t - self.stop_time, self.ramp)
+            done = t - self.stop_time >= self.ramp
+            ramp_scale = 1.0 - s / self.ramp
+            ramp_eq = self.stop_time + s - s * s / (2.0 * self.ramp)
+            scale = np.where(before, 1.0, np.where(done, 0.0, ramp_scale))
+            equivalent = np.where(
+                before, t, np.where(done, self.stop_time + 0.5 * self.ramp, ramp_eq)
+            )
+            ramping = np.where(before | done, 0.0, 1.0)
+        heading = self.theta0 + self.wd * equivalent
+        xd, yd = _arc_pose_array(
+            self.x0, self.y0, self.theta0, self.vd, self.wd, heading, self.vd * equivalent
+        )
+        dvd = -self.k1 * math.copysign(1.0, self.vd) * ramping if self.vd != 0.0 else 0.0 * t
+        dwd = -self.k2 * math.copysign(1.0, self.wd) * ramping if self.wd != 0.0 else 0.0 * t
+        return ReferenceSample(xd, yd, heading, self.vd * scale, self.wd * scale, dvd, dwd)
+
 
 class Lemniscate:
     """The figure eight of Gerono built from flat outputs (Remark 1), module docstring."""
@@ -220,6 +299,25 @@ class Lemniscate:
         thetad = math.atan2(c1, -c2) - 0.5 * math.pi
         return ReferenceSample(self.x0 + a * s1, self.y0 + 0.5 * a * s2, thetad, vd, wd, dvd, dwd)
 
+    def sample_array(self, t: np.ndarray) -> ReferenceSample:
+        """:meth:`sample` at every time of ``t`` (the same formulas on numpy arrays)."""
+        a, w = self.scale, self.omega
+        phi = w * np.asarray(t, dtype=float)
+        s1, c1 = np.sin(phi), np.cos(phi)
+        s2, c2 = np.sin(2.0 * phi), np.cos(2.0 * phi)
+        dx, dy = a * w * c1, a * w * c2
+        ddx, ddy = -a * w * w * s1, -2.0 * a * w * w * s2
+        dddx, dddy = -a * w**3 * c1, -4.0 * a * w**3 * c2
+        speed2 = dx * dx + dy * dy
+        vd = np.sqrt(speed2)
+        num = ddy * dx - ddx * dy
+        wd = num / speed2
+        dvd = (dx * ddx + dy * ddy) / vd
+        dnum = dddy * dx - dddx * dy
+        dwd = (dnum * speed2 - num * 2.0 * (dx * ddx + dy * ddy)) / (speed2 * speed2)
+        thetad = np.arctan2(c1, -c2) - 0.5 * math.pi
+        return ReferenceSample(self.x0 + a * s1, self.y0 + 0.5 * a * s2, thetad, vd, wd, dvd, dwd)
+
 
 CSV_COLUMNS = ("t", "xd", "yd", "thetad", "vd", "wd")
 
@@ -255,6 +353,25 @@ class CsvReference:
         w = (t - times[i]) / (times[i + 1] - times[i])
         values = (col[i] + w * (col[i + 1] - col[i]) for col in self.columns)
         return ReferenceSample(*values, self.dvd[i], self.dwd[i])
+
+    def sample_array(self, t: np.ndarray) -> ReferenceSample:
+        """:meth:`sample` at every time of ``t`` (the same interpolation on numpy arrays)."""
+        t = np.asarray(t, dtype=float)
+        times = np.asarray(self.t)
+        cols = [np.asarray(c) for c in self.columns]
+        before, after = t <= times[0], t >= times[-1]
+        if times.size < 2:
+            return ReferenceSample(*(np.full(t.shape, c[0]) for c in cols), 0.0 * t, 0.0 * t)
+        i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, times.size - 2)
+        w = (t - times[i]) / (times[i + 1] - times[i])
+        values = [
+            np.where(before, c[0], np.where(after, c[-1], c[i] + w * (c[i + 1] - c[i])))
+            for c in cols
+        ]
+        inside = ~(before | after)
+        dvd = np.where(inside, np.asarray(self.dvd)[i], 0.0)
+        dwd = np.where(inside, np.asarray(self.dwd)[i], 0.0)
+        return ReferenceSample(*values, dvd, dwd)
 
 
 def _read_csv(path: Path) -> list[tuple[float, ...]]:

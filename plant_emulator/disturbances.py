@@ -116,12 +116,29 @@ def disturbance_at(dist: Disturbance, t: float, seed: Any = None) -> tuple[Any, 
         return 0.0, 0.0
     if kind == "constant":
         return dist.value1, dist.value2
+    if isinstance(t, np.ndarray):  # per-robot times (a batch whose loops start apart)
+        return _disturbance_at_times(dist, t, seed)
     if kind == "sine":
         s = math.sin(2.0 * math.pi * dist.freq * t + dist.phase)
         return dist.amplitude1 * s, dist.amplitude2 * s
     if kind == "random":
         sd = dist.seed if seed is None else seed
         j = hold_index(dist, t)
+        u1 = hash_unit(sd, 1, j)
+        u2 = hash_unit(sd, 2, j)
+        return dist.s1 * (2.0 * u1 - 1.0), dist.s2 * (2.0 * u2 - 1.0)
+    raise ValueError(f"unknown disturbance kind {kind!r}; expected one of {KINDS}")
+
+
+def _disturbance_at_times(dist: Disturbance, t: np.ndarray, seed: Any) -> tuple[Any, Any]:
+    """:func:`disturbance_at` at an array of times (the same formulas on numpy)."""
+    kind = dist.kind
+    if kind == "sine":
+        s = np.sin(2.0 * math.pi * dist.freq * t + dist.phase)
+        return dist.amplitude1 * s, dist.amplitude2 * s
+    if kind == "random":
+        sd = np.broadcast_to(np.asarray(dist.seed if seed is None else seed, np.int64), t.shape)
+        j = np.maximum(np.floor(t / dist.period), 0.0).astype(np.int64)
         u1 = hash_unit(sd, 1, j)
         u2 = hash_unit(sd, 2, j)
         return dist.s1 * (2.0 * u1 - 1.0), dist.s2 * (2.0 * u2 - 1.0)

@@ -251,6 +251,9 @@ class UnifiedController:
             fast = self._update_array_shared_ref(t, dt, state, ref, memory)
             if fast is not None:
                 return fast
+            fast = self._update_array_finite(t, dt, state, ref, memory)
+            if fast is not None:
+                return fast
             return self._update_array(t, dt, state, ref, memory)
         if not _all_finite_float((t, dt, *state, *ref[:5], *memory)):
             return self._reject_float(memory)
@@ -375,6 +378,69 @@ class UnifiedController:
         )
         out = ControlOutput(np.where(ok, tau1, zero), np.where(ok, tau2, zero), telemetry)
         return out, new_memory
+
+    def _update_array_finite(
+        self, t: Any, dt: Any, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
+    ) -> tuple[ControlOutput, UnifiedMemory] | None:
+        """:meth:`_update_array` when state and memory are float64 arrays of one shape (N,)
+        and every input and output is finite (t, dt and the reference: numbers or (N,) arrays,
+        e.g. robots that started at different times), or None when that does not hold.
+
+        The same formulas on the same values (where :meth:`_update_array` masks nothing), so
+        the same results to rounding (scalars stay scalars here), without the per-field
+        broadcasting and masking that cost more than the law itself at a few hundred robots.
+        Any non-finite input or output sends the call to :meth:`_update_array`."""
+        arrays = _own_arrays((*state, *memory))
+        if arrays is None:
+            return None
+        n = arrays[0].shape[0]
+        for value in (t, dt, *ref[:5]):
+            if isinstance(value, np.ndarray):
+                if value.dtype != np.float64 or value.shape not in ((n,), ()):
+                    return None
+            elif not isinstance(value, (float, int)) or isinstance(value, bool):
+                return None
+        ns = ARRAY_MATH
+        with np.errstate(all="ignore"):
+            total = sum((*arrays, t, dt, *ref[:5]), 0.0)
+            if not np.isfinite(total).all():
+                return None
+            st = RobotState(*arrays[0:5])
+            mem = UnifiedMemory(*arrays[5:8])
+            sig = unified_signals(ns, t, st, ref, mem, self._lam, self._rho)
+            v_tilde = st.v - sig.alpha_v
+            w_tilde = st.omega - sig.alpha_w
+            tau1, tau2 = self._torques(ns, v_tilde, w_tilde)
+            vd, wd = ref.vd, ref.wd
+            eta_next = mem.eta * ns.exp(-(vd * vd + wd * wd) * dt)
+            z1_next, z2_next = self._next_z(
+                ns, dt, mem.z1, mem.z2, sig.xe / sig.r, ns.sin(0.5 * (sig.theta_e - sig.xi))
+            )
+            out_total = tau1 + tau2 + eta_next + z1_next + z2_next + v_tilde + w_tilde
+            if not np.isfinite(out_total).all():
+                return None
+
+        def own(value: Any) -> np.ndarray:  # an array of its own, shape (N,)
+            if isinstance(value, np.ndarray) and value.shape == (n,):
+                return value
+            return np.full(n, value, dtype=float)
+
+        telemetry = {
+            "xe": own(sig.xe),
+            "ye": own(sig.ye),
+            "theta_e": own(sig.theta_e),
+            "xi": own(sig.xi),
+            "v_tilde": v_tilde,
+            "w_tilde": w_tilde,
+            "z1": mem.z1.copy(),
+            "z2": mem.z2.copy(),
+            "eta": mem.eta.copy(),
+            "alpha_v": own(sig.alpha_v),
+            "alpha_w": own(sig.alpha_w),
+            "nonfinite": np.zeros(n),
+        }
+        new_memory = UnifiedMemory(own(eta_next), own(z1_next), own(z2_next))
+        return ControlOutput(tau1, tau2, telemetry), new_memory
 
     def _update_array_shared_ref(
         self, t: Any, dt: Any, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory

@@ -70,7 +70,7 @@ def register(app: typer.Typer) -> None:
             # A killed hil run: make the folder whole first (hil recover), then report.
             typer.echo(f"recovering {folder} first: {', '.join(needs_recovery(folder))}", err=True)
             recover(folder)
-        loaded = load_folder(folder)
+        loaded = load_folder(folder, lazy=True)
         rep = analyse(
             loaded,
             ideal=ideal_from_simulator if ideal else None,

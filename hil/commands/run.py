@@ -132,7 +132,9 @@ def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
 
     if not quiet:
         typer.echo("writing the report (and the ideal-trajectory simulation) ...", err=True)
-    rep = analyse(load_folder(run_dir), ideal=ideal_from_simulator, thresholds=Thresholds())
+    rep = analyse(
+        load_folder(run_dir, lazy=True), ideal=ideal_from_simulator, thresholds=Thresholds()
+    )
     paths = write_report(rep, run_dir)
     verdict = rep.data["verdict"]
     return {"html": str(paths["html"]), "ok": verdict["ok"], "reasons": verdict["reasons"]}

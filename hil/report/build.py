@@ -296,8 +296,8 @@ def analyse(
     thresholds: Thresholds = Thresholds(),
 ) -> Report:
     sv = view(folder.scenario)
+    rr = run_result(folder)  # first: its peak (the hop logs' columns) before the trace's
     tr = folder.trace
-    rr = run_result(folder)
     kind = "run" if rr is not None else folder.kind
     if rr is not None:
         cert = run_certificate(sv, rr)
@@ -308,16 +308,13 @@ def analyse(
     ideal_traj, ideal_note = None, "not requested"
     if ideal is not None:
         ideal_traj = ideal(folder)
-        ideal_note = (
-            f"simulated at Ts/10 from the trace's first state at t = {tr['t'][0]:.6g} s"
-            if ideal_traj is not None
-            else "no simulator"
-        )
+        ideal_note = _ideal_note(ideal_traj, tr)
     sliding = None
     if not {"v_tilde", "w_tilde"} <= set(tr) and folder.recordings:
-        from hil.report.telemetry import sliding_from_recordings
+        from hil.report.telemetry import SLIDING, folder_telemetry
 
-        rec = sliding_from_recordings(folder.recordings)
+        tel = folder_telemetry(folder)
+        rec = {k: tel[k] for k in SLIDING} if all(k in tel for k in SLIDING) else {}
         if rec:
             base = rr.epoch_ns if rr is not None and rr.epoch_ns else int(rec["v_tilde"][0][0])
             sliding = {k: ((tn - base) / 1e9, vals) for k, (tn, vals) in rec.items()}
@@ -389,6 +386,22 @@ def analyse(
     return Report(data, figs)
 
 
+def _ideal_note(ideal_traj: dict[str, np.ndarray] | None, tr: dict[str, np.ndarray]) -> str:
+    if ideal_traj is None:
+        return "no simulator"
+    starts = ideal_traj.get("window_start_t")
+    if starts is None:
+        return f"simulated at Ts/10 from the trace's first state at t = {tr['t'][0]:.6g} s"
+    from hil.report.ideal_sim import WINDOW_S
+
+    return (
+        f"windowed: simulated at Ts/10 in {len(starts)} windows of {WINDOW_S:g} s, each "
+        f"restarted from the robot's state (and the law's recorded memory, where the folder "
+        f"has it) at its first sample, from t = {tr['t'][0]:.6g} s; the deviation is measured "
+        f"within each window"
+    )
+
+
 def _figures(
     folder: Folder,
     sv: ScenarioView,
@@ -405,7 +418,10 @@ def _figures(
     lim = sv.limits
     traj = [("reference", tr["xd"], tr["yd"]), ("robot", tr["x"], tr["y"])]
     if ideal_traj is not None:
-        traj.append(("ideal (Ts/10, no delay)", ideal_traj["x"], ideal_traj["y"]))
+        label = "ideal (Ts/10, no delay)"
+        if "window_start_t" in ideal_traj:
+            label = "ideal (Ts/10, no delay, restarted every window)"
+        traj.append((label, ideal_traj["x"], ideal_traj["y"]))
     vb, wb = cert.get("v_bound"), cert.get("omega_bound")
     figs = [
         fg.trajectory(traj),
@@ -530,7 +546,10 @@ def write_report(report: Report, out: Path) -> dict[str, Path]:
     files: list[dict[str, str]] = []
     for f in report.figures:
         png, csv_path = f.write(out, FIGURE_PREFIX)
-        files.append({"name": f.name, "title": f.title, "png": png.name, "data": csv_path.name})
+        entry = {"name": f.name, "title": f.title, "png": png.name, "data": csv_path.name}
+        if f.caption:
+            entry["caption"] = f.caption
+        files.append(entry)
     data = dict(report.data)
     data["figures"] = files
     (out / "report.json").write_text(json.dumps(_jsonable(data), indent=2, allow_nan=False))

@@ -18,8 +18,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-# Plots beyond this many points are decimated for drawing only; the data files stay complete.
+# Series beyond this many points are drawn from min/max envelopes (envelope_indices) in at
+# most ENVELOPE_BINS time bins; data files stay complete up to MAX_DATA_ROWS samples and hold
+# the drawn samples beyond (an hour at 1 kHz would write GBs of CSV per figure otherwise).
 MAX_DRAWN_POINTS = 20_000
+ENVELOPE_BINS = 2_000
+MAX_DATA_ROWS = 200_000
 LIMIT_STYLE = {"color": "red", "linestyle": "--", "linewidth": 1.2}
 BOUND_STYLE = {"color": "darkorange", "linestyle": ":", "linewidth": 1.2}
 
@@ -42,16 +46,32 @@ class Figure:
         return png_path, csv_path
 
 
+WRITE_CHUNK_ROWS = 16_384
+
+
 def write_columns(path: Path, columns: Mapping[str, np.ndarray]) -> None:
-    """Columns of unequal length are padded with empty cells (histograms beside CDFs)."""
+    """Columns of unequal length are padded with empty cells (histograms beside CDFs).
+
+    Each cell is ``repr(float(value))`` (the shortest text that reads back to the same
+    float); rows are formatted a chunk at a time by ``map`` and ``str.join`` rather than one
+    ``csv`` call per row, so millions of rows take seconds, in bounded memory.
+    """
     names = list(columns)
     arrays = [np.asarray(columns[n]).ravel() for n in names]
     rows = max((a.size for a in arrays), default=0)
     with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(names)
-        for i in range(rows):
-            w.writerow([repr(float(a[i])) if i < a.size else "" for a in arrays])
+        csv.writer(f).writerow(names)  # the header may need quoting; numbers never do
+        for r0 in range(0, rows, WRITE_CHUNK_ROWS):
+            r1 = min(rows, r0 + WRITE_CHUNK_ROWS)
+            cells = []
+            for a in arrays:
+                part = a[r0:r1].astype(float, copy=False).tolist() if r0 < a.size else []
+                text = list(map(repr, part))
+                if len(text) < r1 - r0:
+                    text += [""] * (r1 - r0 - len(text))
+                cells.append(text)
+            f.write("\r\n".join(map(",".join, zip(*cells, strict=True))))
+            f.write("\r\n")
 
 
 def _png(fig: plt.Figure) -> bytes:
@@ -61,21 +81,91 @@ def _png(fig: plt.Figure) -> bytes:
     return buf.getvalue()
 
 
-def _decimate(*arrays: np.ndarray) -> list[np.ndarray]:
-    n = arrays[0].size
+def envelope_indices(
+    t: np.ndarray, ys: Sequence[np.ndarray], bins: int | None = None
+) -> np.ndarray:
+    """The samples to draw of series ``ys`` over a non-decreasing axis ``t`` (time, or the
+    sample index): in each of ``bins`` equal bins of ``t``, the first sample at each series'
+    minimum and at its maximum, and the first missing (NaN) sample, so that every bin's true
+    extremes (a limit crossing, a single-sample spike) and every gap are drawn; plus the first
+    and the last sample. Sorted, unique. All samples when there are at most
+    :data:`MAX_DRAWN_POINTS`.
+
+    Linear in the number of samples, with a few temporary arrays of its size. ``bins``
+    defaults to as many as keep the result within :data:`MAX_DRAWN_POINTS` (at most
+    :data:`ENVELOPE_BINS`).
+    """
+    t = np.asarray(t, dtype=float)
+    n = t.size
     if n <= MAX_DRAWN_POINTS:
-        return list(arrays)
-    # Keep each stride's min and max so chattering envelopes and peaks survive decimation.
-    step = int(np.ceil(n / (MAX_DRAWN_POINTS / 2)))
-    idx = np.arange(0, n, step)
-    out = [arrays[0][idx]]
-    for a in arrays[1:]:
-        pad = (-n) % step
-        padded = np.concatenate([a, np.full(pad, a[-1])]).reshape(-1, step)
-        lo, hi = padded.min(axis=1), padded.max(axis=1)
-        both = np.where(np.arange(idx.size) % 2 == 0, hi, lo)
-        out.append(both)
-    return out
+        return np.arange(n)
+    if bins is None:
+        bins = min(ENVELOPE_BINS, MAX_DRAWN_POINTS // (3 * max(1, len(ys))))
+    lo_t, hi_t = float(t[0]), float(t[-1])
+    inner = np.linspace(lo_t, hi_t, bins + 1)[1:-1] if hi_t > lo_t else np.zeros(0)
+    starts = np.unique(np.concatenate([[0], np.searchsorted(t, inner, side="left")]))
+    starts = starts[starts < n]
+    bin_of = np.repeat(np.arange(starts.size, dtype=np.int32), np.diff(np.append(starts, n)))
+    picks = [np.array([0, n - 1])]
+    for y in ys:
+        y = np.asarray(y, dtype=float)
+        for reduce in (np.fmin, np.fmax):  # NaN-ignoring: a bin's extremes of its known values
+            ext = reduce.reduceat(y, starts)
+            picks.append(_first_per_bin(np.flatnonzero(y == ext[bin_of]), bin_of))
+        missing = np.flatnonzero(np.isnan(y))
+        if missing.size:
+            picks.append(_first_per_bin(missing, bin_of))
+    return np.unique(np.concatenate(picks))
+
+
+def _first_per_bin(hits: np.ndarray, bin_of: np.ndarray) -> np.ndarray:
+    """Of sorted sample indices ``hits``, the first in each bin."""
+    if hits.size == 0:
+        return hits
+    b = bin_of[hits]
+    keep = np.ones(hits.size, dtype=bool)
+    keep[1:] = b[1:] != b[:-1]
+    return hits[keep]
+
+
+def _drawn(t: np.ndarray, ys: Sequence[np.ndarray]) -> np.ndarray | None:
+    """:func:`envelope_indices`, or None when every sample is drawn."""
+    t = np.asarray(t)
+    return envelope_indices(t, ys) if t.size > MAX_DRAWN_POINTS else None
+
+
+def _sorted_by_time(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if t.size > 1 and np.any(t[1:] < t[:-1]):
+        order = np.argsort(t, kind="stable")
+        return t[order], y[order]
+    return t, y
+
+
+def _data(full: np.ndarray, idx: np.ndarray | None) -> np.ndarray:
+    """A column of a figure's data file: complete up to :data:`MAX_DATA_ROWS` samples, else
+    the drawn samples (every bin's extremes; the complete series is in the folder's
+    trace.csv or hop logs)."""
+    full = np.asarray(full)
+    if idx is None or full.size <= MAX_DATA_ROWS:
+        return full
+    return full[idx]
+
+
+def _envelope_caption(n: int, idx: np.ndarray | None) -> str:
+    if idx is None:
+        return ""
+    where = (
+        "the data file holds every sample"
+        if n <= MAX_DATA_ROWS
+        else f"the data file holds the {idx.size} drawn samples (the complete series is in "
+        "the folder's trace.csv or hop logs)"
+    )
+    return (
+        f"{n} samples drawn as {idx.size}: the minimum and maximum of each time bin, so every "
+        f"peak and limit crossing shows; {where}."
+    )
 
 
 #: Robot, reference and ideal trajectory: each its own colour AND line style (told apart in
@@ -108,15 +198,16 @@ def trajectory(
     "robot", "reference", "ideal" get fixed, distinct colours and line styles."""
     fig, ax = plt.subplots(figsize=(6, 5))
     cols: dict[str, np.ndarray] = {}
+    captions = []
     for i, (label, x, y) in enumerate(series):
-        xs, ys = (
-            (x, y)
-            if x.size <= MAX_DRAWN_POINTS
-            else (x[:: x.size // MAX_DRAWN_POINTS + 1], y[:: x.size // MAX_DRAWN_POINTS + 1])
-        )
+        # long paths: in each bin of samples, those at the smallest and largest X and Y
+        idx = _drawn(np.arange(np.size(x)), [x, y])
+        xs, ys = (x, y) if idx is None else (x[idx], y[idx])
         ax.plot(xs, ys, label=label, **_trajectory_style(label, i))
-        cols[f"{label}_x"] = x
-        cols[f"{label}_y"] = y
+        cols[f"{label}_x"] = _data(x, idx)
+        cols[f"{label}_y"] = _data(y, idx)
+        if idx is not None:
+            captions.append(f"{label}: {_envelope_caption(np.size(x), idx)}")
     if series:
         first = next((s for s in series if s[0].startswith("robot")), series[0])
         ax.plot(first[1][0], first[2][0], "ko", markersize=4, label=f"{first[0]} start")
@@ -126,7 +217,8 @@ def trajectory(
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(title)
-    return Figure("trajectory", title, _png(fig), {k: np.asarray(v) for k, v in cols.items()})
+    cols = {k: np.asarray(v) for k, v in cols.items()}
+    return Figure("trajectory", title, _png(fig), cols, " ".join(captions))
 
 
 def signal_with_limits(
@@ -141,11 +233,12 @@ def signal_with_limits(
     """A signal against time with its limit of (2) as red dashed lines (as in the paper's
     Figures 3-6) and, where known, the sampled-data bound as dotted lines."""
     fig, ax = plt.subplots(figsize=(7, 3.2))
-    cols: dict[str, np.ndarray] = {"t": t}
+    idx = _drawn(t, [y for _, y in series])
+    td = t if idx is None else t[idx]
+    cols: dict[str, np.ndarray] = {"t": _data(t, idx)}
     for label, y in series:
-        td, yd = _decimate(t, y)
-        ax.plot(td, yd, linewidth=0.9, label=label)
-        cols[label] = y
+        ax.plot(td, y if idx is None else y[idx], linewidth=0.9, label=label)
+        cols[label] = _data(y, idx)
     if limit is not None:
         ax.axhline(limit, label=f"limit ±{limit:g}", **LIMIT_STYLE)
         ax.axhline(-limit, **LIMIT_STYLE)
@@ -160,13 +253,14 @@ def signal_with_limits(
     ax.legend(fontsize=8, loc="upper right")
     ax.set_title(title)
     fig.tight_layout()
-    return Figure(name, title, _png(fig), cols)
+    return Figure(name, title, _png(fig), cols, _envelope_caption(np.size(t), idx))
 
 
 def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) -> Figure:
     """Histogram and empirical CDF of latency samples (microseconds), one curve per path."""
     fig, (ax_h, ax_c) = plt.subplots(1, 2, figsize=(9, 3.4))
     cols: dict[str, np.ndarray] = {}
+    captions: list[str] = []
     for label, values in samples.items():
         v = np.sort(np.asarray(values, dtype=float))
         if v.size == 0:
@@ -174,12 +268,19 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
         counts, edges = np.histogram(v, bins=min(80, max(10, v.size // 20)))
         ax_h.stairs(counts, edges, label=label)
         cdf = np.arange(1, v.size + 1) / v.size
-        ax_c.plot(v, cdf, label=label, linewidth=1.0)
+        idx = cdf_indices(v.size)
+        ax_c.plot(v[idx], cdf[idx], label=label, linewidth=1.0)
         cols[f"{label}_bin_left_us"] = edges[:-1]
         cols[f"{label}_bin_right_us"] = edges[1:]
         cols[f"{label}_count"] = counts
-        cols[f"{label}_sorted_us"] = v
-        cols[f"{label}_cdf"] = cdf
+        cols[f"{label}_sorted_us"] = v if v.size <= MAX_DATA_ROWS else v[idx]
+        cols[f"{label}_cdf"] = cdf if v.size <= MAX_DATA_ROWS else cdf[idx]
+        if idx.size < v.size:
+            data = "every sample" if v.size <= MAX_DATA_ROWS else "the drawn points"
+            captions.append(
+                f"{label}: CDF of {v.size} samples drawn at {idx.size} points, denser towards "
+                f"the tail (the largest 1000 all drawn); its data holds {data}."
+            )
     for ax in (ax_h, ax_c):
         ax.set_xlabel("µs")
         ax.grid(True, alpha=0.3)
@@ -191,7 +292,20 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
     ax_c.set_title("CDF")
     fig.suptitle(title)
     fig.tight_layout()
-    return Figure(name, title, _png(fig), cols)
+    return Figure(name, title, _png(fig), cols, " ".join(captions))
+
+
+def cdf_indices(n: int, points: int = 2_000, tail: int = 1_000) -> np.ndarray:
+    """Which of ``n`` sorted samples an empirical CDF draws: all up to
+    :data:`MAX_DRAWN_POINTS`, else ``points`` evenly spaced, ``points`` spaced evenly on a
+    log scale of the distance from the top (the tail, p99.9 and beyond, where stalls show),
+    the largest ``tail`` samples, and the first and last."""
+    if n <= MAX_DRAWN_POINTS:
+        return np.arange(n)
+    even = np.linspace(0, n - 1, points).round().astype(np.int64)
+    top = (n - 1) - (np.geomspace(1, n, points).round().astype(np.int64) - 1)
+    last = np.arange(max(0, n - tail), n)
+    return np.unique(np.concatenate([[0, n - 1], even, top, last]))
 
 
 def over_time(
@@ -200,18 +314,23 @@ def over_time(
     """Series each with its own time axis (wake-up lateness, jitter)."""
     fig, ax = plt.subplots(figsize=(7, 3.2))
     cols: dict[str, np.ndarray] = {}
+    captions = []
     for label, (t, y) in series.items():
-        td, yd = _decimate(np.asarray(t, float), np.asarray(y, float))
-        ax.plot(td, yd, linewidth=0.8, label=label)
-        cols[f"{label}_t"] = t
-        cols[label] = y
+        t, y = _sorted_by_time(t, y)
+        idx = _drawn(t, [y])
+        ax.plot(t if idx is None else t[idx], y if idx is None else y[idx], linewidth=0.8,
+                label=label)  # fmt: skip
+        cols[f"{label}_t"] = _data(t, idx)
+        cols[label] = _data(y, idx)
+        if idx is not None:
+            captions.append(f"{label}: {_envelope_caption(t.size, idx)}")
     ax.set_xlabel("t [s]")
     ax.set_ylabel(unit)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(title)
     fig.tight_layout()
-    return Figure(name, title, _png(fig), cols)
+    return Figure(name, title, _png(fig), cols, " ".join(captions))
 
 
 def stacked(
@@ -225,21 +344,26 @@ def stacked(
     fig, axes = plt.subplots(len(panels), 1, figsize=(7, 2.4 * len(panels)), sharex=True)
     axes = np.atleast_1d(axes)
     cols: dict[str, np.ndarray] = {}
+    captions = []
     for ax, (label, unit, t, y, thr) in zip(axes, panels, strict=True):
-        td, yd = _decimate(np.asarray(t, float), np.asarray(y, float))
-        ax.plot(td, yd, linewidth=0.8, label=label)
+        t, y = _sorted_by_time(t, y)
+        idx = _drawn(t, [y])
+        ax.plot(t if idx is None else t[idx], y if idx is None else y[idx], linewidth=0.8,
+                label=label)  # fmt: skip
+        if idx is not None:
+            captions.append(f"{label}: {_envelope_caption(t.size, idx)}")
         if thr:
             ax.axhline(thr, color="grey", linestyle=":", linewidth=1.0, label=f"±{thr:g}")
             ax.axhline(-thr, color="grey", linestyle=":", linewidth=1.0)
         ax.set_ylabel(unit)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8, loc="upper right")
-        cols[f"{label}_t"] = np.asarray(t)
-        cols[label] = np.asarray(y)
+        cols[f"{label}_t"] = _data(t, idx)
+        cols[label] = _data(y, idx)
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(title)
     fig.tight_layout()
-    return Figure(name, title, _png(fig), cols)
+    return Figure(name, title, _png(fig), cols, " ".join(captions))
 
 
 def age_envelope(

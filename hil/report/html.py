@@ -43,7 +43,8 @@ def figure(f: Figure, prefix: str = "report_") -> str:
     return (
         f'<figure><img alt="{esc(f.title)}" src="data:image/png;base64,{b64}">'
         f"<figcaption>{esc(f.title)} (data: <code>{esc(prefix + f.name)}.csv</code>)"
-        "</figcaption></figure>"
+        + (f" {esc(f.caption)}" if f.caption else "")
+        + "</figcaption></figure>"
     )
 
 

@@ -1,6 +1,8 @@
 """The ideal trajectory of a folder: the simulator at a fine period (Ts/10, no delay, no
-jitter) standing in for continuous time, from the trace's first state and time. Absent
-simulator: None (the report says so).
+jitter) standing in for continuous time, from the trace's first state and time; a trace
+longer than :data:`hil.report.ideal_sim.WINDOW_S` gets the windowed ideal, each window
+restarted from the robot's state and the law's memory at its start (hil.report.ideal_sim).
+Absent simulator: None (the report says so).
 """
 
 from __future__ import annotations
@@ -10,9 +12,36 @@ import numpy as np
 from hil.report.folder import Folder
 
 
+def memory_source(folder: Folder):
+    """The law's memory at trace rows, from the trace's own columns (a simulation's trace
+    carries the law's telemetry) or the run's recorded telemetry at the rows' sample times
+    (at or before them); NaN where unknown."""
+
+    def at(fields: tuple[str, ...], rows: np.ndarray) -> dict[str, np.ndarray]:
+        tr = folder.trace
+        if all(f in tr for f in fields):
+            return {f: np.asarray(tr[f], dtype=float)[rows] for f in fields}
+        if "sample_ns" not in tr or not folder.recordings:
+            return {}
+        from hil.report.telemetry import folder_telemetry
+
+        tel = folder_telemetry(folder)
+        if not all(f in tel for f in fields):
+            return {}
+        when = np.asarray(tr["sample_ns"], dtype=float)[rows].astype(np.int64)
+        out = {}
+        for f in fields:
+            tn, values = tel[f]
+            i = np.searchsorted(tn, when, side="right") - 1
+            out[f] = np.where(i >= 0, values[np.maximum(i, 0)], np.nan)
+        return out
+
+    return at
+
+
 def ideal_from_simulator(folder: Folder) -> dict[str, np.ndarray] | None:
     try:
         from hil.report.ideal_sim import simulate_ideal
     except ImportError:
         return None
-    return simulate_ideal(folder.scenario, folder.path, folder.trace)
+    return simulate_ideal(folder.scenario, folder.path, folder.trace, memory_source(folder))

@@ -42,7 +42,8 @@ def render_markdown(data: dict[str, Any], files: Sequence[dict[str, str]]) -> st
                     out += [
                         f"![{f['title']}]({f['png']})",
                         "",
-                        f"Data: [{f['data']}]({f['data']})",
+                        f"Data: [{f['data']}]({f['data']})"
+                        + (f". {f['caption']}" if f.get("caption") else ""),
                         "",
                     ]
         if section.id == "headline":

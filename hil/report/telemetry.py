@@ -1,43 +1,108 @@
 """v~ and w~ of (10) out of a run's recording (``*.mcap``, :mod:`hil.recording`): the
 controller's telemetry messages, for the report's quasi-sliding bands when trace.csv has no
 ``v_tilde``/``w_tilde`` columns (a run's trace holds the plant's samples, not the law's
-internals). Timing figures never come from here: they are hil.measure's.
+internals), and the law's memory (z1, z2, eta) from which the windowed ideal trajectory of a
+long run restarts (:mod:`hil.report.ideal_sim`). Timing figures never come from here: they are
+hil.measure's.
+
+Read with :func:`hil.recording.read_topic_payloads` (only the telemetry topics' messages,
+decoded a batch at a time into numpy columns), so an hour's recording costs seconds and a few
+arrays of its telemetry's length.
 """
 
 from __future__ import annotations
 
+import json
+from array import array
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+
+#: The telemetry read, in groups whose values a message carries together: the sliding
+#: variables, and the unified law's memory.
+SLIDING = ("v_tilde", "w_tilde")
+MEMORY = ("eta", "z1", "z2")
+_BATCH = 4096
+
+
+def _decode(payloads: list[bytes]) -> list[Any]:
+    try:
+        return json.loads(b"[" + b",".join(payloads) + b"]")
+    except ValueError:  # one bad payload: decode one by one, skipping it
+        out = []
+        for p in payloads:
+            try:
+                out.append(json.loads(p))
+            except ValueError:
+                continue
+        return out
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def recorded_telemetry(
+    paths: Iterable[Path], groups: tuple[tuple[str, ...], ...] = (SLIDING, MEMORY)
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Telemetry values of the controller: name -> (time_ns, values), sorted by time. A
+    message gives the values of a group when it carries every name of the group as a number
+    (the time is its ``time_ns``, else its log time). Telemetry may be decimated; a truncated
+    recording gives what was read."""
+    from hil.recording import list_topics, read_topic_payloads
+
+    times = [array("q") for _ in groups]
+    vals = [[array("d") for _ in g] for g in groups]
+
+    def take(batch: list[tuple[int, bytes]]) -> None:
+        for (log_time, _), d in zip(batch, _decode([p for _, p in batch]), strict=False):
+            if not isinstance(d, dict):
+                continue
+            when = d.get("time_ns", log_time)
+            if not _number(when):
+                continue
+            for g, names in enumerate(groups):
+                row = [d.get(k) for k in names]
+                if all(_number(v) for v in row):
+                    times[g].append(int(when))
+                    for col, v in zip(vals[g], row, strict=True):
+                        col.append(v)
+
+    for path in paths:
+        batch: list[tuple[int, bytes]] = []
+        try:
+            topics = [name for name in list_topics(path) if name.endswith("telemetry")]
+            for _topic, log_time, payload in read_topic_payloads(path, topics):
+                batch.append((log_time, payload))
+                if len(batch) >= _BATCH:
+                    take(batch)
+                    batch = []
+        except Exception:  # a truncated or damaged recording: keep what was read
+            pass
+        take(batch)
+    out = {}
+    for g, names in enumerate(groups):
+        if not times[g]:
+            continue
+        tn = np.frombuffer(times[g], dtype=np.int64)
+        order = np.argsort(tn, kind="stable")
+        for k, col in zip(names, vals[g], strict=True):
+            out[k] = (tn[order], np.frombuffer(col, dtype=np.float64)[order])
+    return out
+
+
+def folder_telemetry(folder: Any) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """:func:`recorded_telemetry` of a loaded folder's recordings, read once per folder (the
+    bands and the windowed ideal both use it)."""
+    cache = folder.cache
+    if "telemetry" not in cache:
+        cache["telemetry"] = recorded_telemetry(folder.recordings)
+    return cache["telemetry"]
 
 
 def sliding_from_recordings(paths: Iterable[Path]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """v~ and w~ of (10) from the controller's telemetry messages: name -> (time_ns, values).
     Telemetry may be decimated; the band is then computed over the recorded samples."""
-    from hil.recording import read_messages
-
-    t: list[int] = []
-    vt: list[float] = []
-    wt: list[float] = []
-    for path in paths:
-        try:
-            for m in read_messages(path):
-                d = m.data if isinstance(m.data, dict) else {}
-                if not m.topic.endswith("telemetry") or "v_tilde" not in d:
-                    continue
-                v, w = d.get("v_tilde"), d.get("w_tilde")
-                if isinstance(v, int | float) and isinstance(w, int | float):
-                    t.append(int(d.get("time_ns", m.log_time_ns)))
-                    vt.append(float(v))
-                    wt.append(float(w))
-        except Exception:  # a truncated recording: keep what was read
-            continue
-    if not t:
-        return {}
-    order = np.argsort(np.asarray(t), kind="stable")
-    tn = np.asarray(t, dtype=np.int64)[order]
-    return {
-        "v_tilde": (tn, np.asarray(vt)[order]),
-        "w_tilde": (tn, np.asarray(wt)[order]),
-    }
+    return recorded_telemetry(paths, (SLIDING,))

@@ -136,13 +136,17 @@ class Recorder:
             except Exception as exc:  # a recorder must never take the run down
                 self.writer.write("recorder/errors", t, {"topic": topic, "error": repr(exc)})
 
-    def close(self, attachments: dict[str, bytes] | None = None) -> None:
+    def close(self, attachments: dict[str, bytes | Path] | None = None) -> None:
         """Drain, attach files (the hop logs: the recording alone then reproduces every
-        figure), finish the MCAP."""
+        figure), finish the MCAP. A Path is streamed from disk (an hour's hop logs never sit
+        in memory)."""
         self._stop.set()
         self._thread.join(timeout=30)
         for name, data in (attachments or {}).items():
-            self.writer.add_attachment(name, data)
+            if isinstance(data, Path):
+                self.writer.add_attachment_file(name, data)
+            else:
+                self.writer.add_attachment(name, data)
         self.writer.close()
 
 
@@ -404,7 +408,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
                     can_rec[0].shutdown()
             if session is not None:
                 session.close()
-            recorder.close(attachments_of(run_dir))
+            recorder.close(attachment_files(run_dir))
     extra = {
         "interrupted": interrupted,
         "error": error,
@@ -433,10 +437,18 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     return summary
 
 
+ATTACHED = ("controller.hoplog", "plant.hoplog", "scenario.resolved.toml")
+
+
+def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:
+    """The files a recording carries (as :func:`attachments_of`), by path, to be streamed."""
+    return {name: run_dir / name for name in ATTACHED if (run_dir / name).is_file()}
+
+
 def attachments_of(run_dir: Path) -> dict[str, bytes]:
     """The files a recording carries so that it alone reproduces the run's figures."""
     out: dict[str, bytes] = {}
-    for name in ("controller.hoplog", "plant.hoplog", "scenario.resolved.toml"):
+    for name in ATTACHED:
         with contextlib.suppress(OSError):
             out[name] = (run_dir / name).read_bytes()
     return out

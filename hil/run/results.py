@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import operator
 from pathlib import Path
 from typing import Any
 
@@ -30,43 +31,66 @@ def wrap(a: float) -> float:
     return math.pi if w == -math.pi else w
 
 
-def _commanded_by_sample(logs: RunLogs) -> dict[int, tuple[float, float]]:
-    """State seq -> the torques the controller computed from it (its first such tick)."""
+def _commanded_by_sample(logs: RunLogs, seqs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The torques the controller computed from each state seq of ``seqs`` (its first such
+    tick; NaN where none)."""
     t = logs["ticks"]
     used = (t["state_seq"] >= 0) & ((t["flags"] & TICK_NO_SEND) == 0) & (t["state_sample_ns"] > 0)
-    out: dict[int, tuple[float, float]] = {}
-    for seq, a, b in zip(
-        t["state_seq"][used].tolist(),
-        t["tau1"][used].tolist(),
-        t["tau2"][used].tolist(),
-        strict=True,
-    ):
-        out.setdefault(seq, (a, b))
-    return out
+    known, first = np.unique(t["state_seq"][used], return_index=True)
+    tau1, tau2 = t["tau1"][used][first], t["tau2"][used][first]
+    c1 = np.full(seqs.size, np.nan)
+    c2 = np.full(seqs.size, np.nan)
+    if known.size:
+        at = np.minimum(np.searchsorted(known, seqs), known.size - 1)
+        hit = known[at] == seqs
+        c1[hit], c2[hit] = tau1[at[hit]], tau2[at[hit]]
+    return c1, c2
 
 
-def write_trace(run_dir: Path, logs: RunLogs, reference: Any, ts: float, lockstep: bool):
-    """trace.csv: one row per plant sample; returns (position errors, last heading error)."""
+TRACE_CHUNK_ROWS = 16_384
+
+
+def write_trace(
+    run_dir: Path, logs: RunLogs, reference: Any, ts: float, lockstep: bool
+) -> tuple[np.ndarray, float]:
+    """trace.csv: one row per plant sample; returns (position errors, last heading error).
+
+    Column by column a chunk of rows at a time (the same text as one ``csv`` row per sample:
+    ``repr`` of each float, then sample_ns and state_seq as integers): linear in the run's
+    length, with memory for the columns and one chunk. The reference is sampled per row with
+    its own ``sample`` (exactly the values the controller used)."""
     s = logs["samples"]
     epoch = logs.epoch_ns
-    cmd = _commanded_by_sample(logs)
-    pos_err: list[float] = []
+    seq_all = s["seq"]
+    c1_all, c2_all = _commanded_by_sample(logs, seq_all)
+    n = seq_all.size
+    pos_err = np.empty(n)
     head_err = 0.0
+    sample = reference.sample
     with (run_dir / "trace.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow([*TRACE_COLUMNS, *COMMAND_COLUMNS, "sample_ns", "state_seq"])
-        for i in range(s["seq"].size):
-            seq = int(s["seq"][i])
-            sample_ns = int(s["sample_ns"][i])
+        for r0 in range(0, n, TRACE_CHUNK_ROWS):
+            r1 = min(n, r0 + TRACE_CHUNK_ROWS)
+            seq = seq_all[r0:r1]
+            sample_ns = s["sample_ns"][r0:r1]
             t = seq * ts if lockstep else (sample_ns - epoch) / 1e9
-            ref = reference.sample(t)
-            c1, c2 = cmd.get(seq, (float("nan"), float("nan")))
-            x, y, th = float(s["x"][i]), float(s["y"][i]), float(s["theta"][i])
-            row = (t, x, y, th, s["v"][i], s["omega"][i], ref.xd, ref.yd, ref.thetad)
-            row += (s["tau1"][i], s["tau2"][i], c1, c2)
-            w.writerow([repr(float(v)) for v in row] + [sample_ns, seq])
-            pos_err.append(math.hypot(x - ref.xd, y - ref.yd))
-            head_err = wrap(th - ref.thetad)
+            refs = [sample(tk) for tk in t.tolist()]
+            xd = [r.xd for r in refs]
+            yd = [r.yd for r in refs]
+            thd = [r.thetad for r in refs]
+            x, y, th = (s[k][r0:r1].tolist() for k in ("x", "y", "theta"))
+            pos_err[r0:r1] = list(map(math.hypot, map(operator.sub, x, xd),
+                                      map(operator.sub, y, yd)))  # fmt: skip
+            head_err = wrap(th[-1] - thd[-1])
+            floats = [t.tolist(), x, y, th, s["v"][r0:r1].tolist(), s["omega"][r0:r1].tolist()]
+            floats += [xd, yd, thd]
+            floats += [s[k][r0:r1].tolist() for k in ("tau1", "tau2")]
+            floats += [c1_all[r0:r1].tolist(), c2_all[r0:r1].tolist()]
+            cells = [list(map(repr, map(float, col))) for col in floats]
+            cells += [list(map(str, sample_ns.tolist())), list(map(str, seq.tolist()))]
+            f.write("\r\n".join(map(",".join, zip(*cells, strict=True))))
+            f.write("\r\n")
     return pos_err, head_err
 
 
@@ -85,16 +109,16 @@ def analyze(
     lockstep = bool(settings.lockstep)
     pos_err, head_err = write_trace(run_dir, logs, reference, settings.ts, lockstep)
     n = len(pos_err)
-    tail = pos_err[-max(1, n // 10) :] if n else []
+    tail = pos_err[-max(1, n // 10) :].tolist() if n else []
     pinfo, cinfo = logs.pinfo, logs.cinfo
     ext = pinfo.get("extremes", {})
     summary: dict[str, Any] = {
         "schema_version": SCHEMA_VERSION,
         "kind": "run",
-        "final_position_error": pos_err[-1] if n else None,
+        "final_position_error": float(pos_err[-1]) if n else None,
         "final_heading_error": head_err if n else None,
         "rms_position_error": math.sqrt(sum(e * e for e in tail) / len(tail)) if tail else None,
-        "initial_position_error": pos_err[0] if n else None,
+        "initial_position_error": float(pos_err[0]) if n else None,
         "max_abs_v": ext.get("max_abs_v"),
         "max_abs_omega": ext.get("max_abs_omega"),
         "max_abs_tau1": ext.get("max_abs_tau1"),
@@ -149,30 +173,42 @@ def _jsonable(obj: Any) -> Any:
 
 
 def plot(run_dir: Path) -> Path | None:
-    """trajectory.png: path vs reference, position error and torques over time."""
+    """trajectory.png: path vs reference, position error and torques over time (long runs
+    drawn from per-bin min/max envelopes, :func:`hil.report.figures.envelope_indices`)."""
     try:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-        import numpy as np
+
+        from hil.report.figures import envelope_indices
     except ImportError:
         return None
-    data = np.genfromtxt(run_dir / "trace.csv", delimiter=",", names=True)
-    if data.size < 2:
+    from hil.errors import BadInputError
+    from hil.report.folder import read_trace
+
+    try:
+        data = read_trace(run_dir / "trace.csv")
+    except BadInputError:
         return None
+    t = data["t"]
+    err = np.hypot(data["x"] - data["xd"], data["y"] - data["yd"])
+    n = t.size
+    path = envelope_indices(np.arange(n), [data["x"], data["y"]])
+    ref = envelope_indices(np.arange(n), [data["xd"], data["yd"]])
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
-    ax[0].plot(data["xd"], data["yd"], "--", label="reference")
-    ax[0].plot(data["x"], data["y"], label="robot")
+    ax[0].plot(data["xd"][ref], data["yd"][ref], "--", label="reference")
+    ax[0].plot(data["x"][path], data["y"][path], label="robot")
     ax[0].set_aspect("equal")
     ax[0].legend()
     ax[0].set_title("path (m)")
-    err = np.hypot(data["x"] - data["xd"], data["y"] - data["yd"])
-    ax[1].semilogy(data["t"], np.maximum(err, 1e-12))
+    i = envelope_indices(t, [err])
+    ax[1].semilogy(t[i], np.maximum(err[i], 1e-12))
     ax[1].set_title("position error (m)")
     ax[1].set_xlabel("t (s)")
-    ax[2].plot(data["t"], data["tau1"], label="tau1 applied")
-    ax[2].plot(data["t"], data["tau2"], label="tau2 applied", alpha=0.7)
+    i = envelope_indices(t, [data["tau1"], data["tau2"]])
+    ax[2].plot(t[i], data["tau1"][i], label="tau1 applied")
+    ax[2].plot(t[i], data["tau2"][i], label="tau2 applied", alpha=0.7)
     ax[2].legend()
     ax[2].set_xlabel("t (s)")
     fig.tight_layout()

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from controller_service.laws.base import ReferenceSample, RobotState
+from controller_service.references import sample_array
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
 from hil.sim.timing import extra_delays, jitter_samples_from, landing_offsets
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
@@ -166,6 +167,7 @@ def simulate(
     progress: Progress | None = None,
     loop: tuple[Any, Any, Any] | None = None,
     t0: float = 0.0,
+    memory: Any = None,
 ) -> SimResult:
     """One closed loop on plain floats (the single-run path).
 
@@ -173,7 +175,8 @@ def simulate(
     computed with ``interrupted = True``. ``loop`` = (controller, reference, context) reuses
     built objects. ``t0``: the time of the first sample (default 0): the law's clock, the
     reference and the disturbance run from there, as in a run whose first sample came at t0
-    (the initial state is then the state at t0, the law's memory its initial memory).
+    (the initial state is then the state at t0, the law's memory its initial memory unless
+    ``memory`` gives the law's memory at t0).
     """
     var = variation or RobotVariation()
     controller, reference, context = loop or build_loop(scenario)
@@ -207,7 +210,8 @@ def simulate(
     limits = scenario.limits
     ext = Extremes.zeros()
     track_initial(ext, state, limits)
-    memory = _initial_memory(controller, None, scenario)
+    if memory is None:
+        memory = _initial_memory(controller, None, scenario)
     pending: list[tuple[int, int, float, float]] = []
     applied_seq = -1
     cmd1 = cmd2 = 0.0
@@ -422,11 +426,22 @@ def simulate_batch(
     record: Sequence[int] = (),
     progress: Progress | None = None,
     loop: tuple[Any, Any, Any] | None = None,
+    t0: float | Sequence[float] | np.ndarray = 0.0,
+    memory: Any = None,
+    on_sample: Callable[[int, PlantState], None] | None = None,
 ) -> BatchResult:
     """N closed loops at once on numpy arrays (the batch path), one per variation.
 
     ``variations`` may be an int N (N identical robots). ``record`` lists the robots whose full
     trace is kept (every robot gets a summary).
+
+    ``t0``: the time of each robot's first sample (one value or one per robot; default 0), as
+    in :func:`simulate`: each robot's law clock, reference and disturbance run from its own
+    t0 (the reference is then sampled on arrays, :func:`controller_service.references.
+    sample_array`). ``memory``: the law's memory at the first sample, arrays of shape (N,) per
+    field (default: its initial memory). ``on_sample(k, state)`` is called with the robots'
+    state (arrays) at each sample time t0 + k Ts, k = 0 .. K (K: after the last period).
+    With the defaults the results are those of the batch path without these arguments.
     """
     if isinstance(variations, int):
         variations = [RobotVariation()] * variations
@@ -441,6 +456,9 @@ def simulate_batch(
     n_samples = max(1, round(scenario.run.duration / ts))
     ini = scenario.initial
     timing = scenario.timing
+    starts = None  # per-robot first-sample times, when any is not 0
+    if np.ndim(t0) or float(t0) != 0.0:
+        starts = np.array(np.broadcast_to(np.asarray(t0, dtype=float), (n,)))
     # N copies of one variation (``variations`` given as an int) need no per-robot reads.
     first = variations[0]
     shared = all(v is first for v in variations)
@@ -490,7 +508,8 @@ def simulate_batch(
     limits = scenario.limits
     ext = Extremes.zeros(n)
     track_initial(ext, state, limits)
-    memory = _initial_memory(controller, n, scenario)
+    if memory is None:
+        memory = _initial_memory(controller, n, scenario)
     cmd1 = np.zeros(n)
     cmd2 = np.zeros(n)
     applied_seq = np.full(n, -1, dtype=np.int64)
@@ -511,11 +530,17 @@ def simulate_batch(
     ones = np.ones(n)
     try:
         for k in range(n_samples):
-            t_k = k * ts
+            if on_sample is not None:
+                on_sample(k, state)
             rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
             meas = rs if ideal_sensor else measure(sensor, rs, k, sseeds)
-            ref = reference.sample(t_k)
-            ref_arr = ReferenceSample(*(ones * float(value) for value in ref))
+            if starts is None:
+                t_k = k * ts
+                ref = reference.sample(t_k)
+                ref_arr = ReferenceSample(*(ones * float(value) for value in ref))
+            else:
+                t_k = starts + k * ts
+                ref = ref_arr = sample_array(reference, t_k)
             out, memory = controller.update(t_k, ts, meas, ref_arr, memory)
             tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
             tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
@@ -572,15 +597,15 @@ def simulate_batch(
                             rec_rows[i].append(
                                 np.array(
                                     [
-                                        t_k,
+                                        t_k if starts is None else t_k[i],
                                         state.x[i],
                                         state.y[i],
                                         state.theta[i],
                                         state.v[i],
                                         state.omega[i],
-                                        ref.xd,
-                                        ref.yd,
-                                        ref.thetad,
+                                        ref.xd if starts is None else ref.xd[i],
+                                        ref.yd if starts is None else ref.yd[i],
+                                        ref.thetad if starts is None else ref.thetad[i],
                                         a1[i],
                                         a2[i],
                                         tau1[i],
@@ -598,7 +623,7 @@ def simulate_batch(
                         state,
                         cmd1,
                         cmd2,
-                        j * h,
+                        j * h if starts is None else starts + j * h,
                         h,
                         j_next - j,
                         dist,
@@ -606,7 +631,7 @@ def simulate_batch(
                         dseed_arg,
                         limits,
                         ext,
-                        j,
+                        j if starts is None else None,  # off the step grid: times from t0
                     )
                     j = j_next
                 if j >= j_end_period:
@@ -616,6 +641,8 @@ def simulate_batch(
                 progress(k, n_samples)
     except KeyboardInterrupt:
         interrupted = True
+    if on_sample is not None and not interrupted:
+        on_sample(n_samples, state)
     if progress is not None and not interrupted:
         progress(done, n_samples)
     columns = [*BASE_COLUMNS, *(tel_keys or [])]
