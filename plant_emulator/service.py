@@ -44,6 +44,7 @@ from protocol.faults import Faults, every_nth
 from protocol.hoplog import (
     APPLY_BURST,
     APPLY_LANDED,
+    APPLY_REFUSED,
     PLANT_TABLES,
     SAMPLE_DROPPED,
     SAMPLE_DUPLICATED,
@@ -426,9 +427,8 @@ class PlantService:
                 self.core.hold(t1, t2)
                 return
             self.core.hold(t1, t2)
-            self.hoplog.append(
-                "apply", (1, index, node, p.recv_ns, apply_ns, t1, t2, self._outcome(p))
-            )
+            outcome = self._outcome(p) if fed else APPLY_REFUSED
+            self.hoplog.append("apply", (1, index, node, p.recv_ns, apply_ns, t1, t2, outcome))
             if not fed:
                 # refused by the drive (non-finite, short, disarmed...): a drive's watchdog
                 # is fed by accepted commands only, and so is the command timeout

@@ -52,7 +52,10 @@ TICK_DUPLICATED = 1 << 10  # published twice: a [faults] duplicate
 TICK_REORDERED = 1 << 11  # published after the next command: a [faults] reorder
 SAMPLE_DROPPED = 1  # a plant sample whose State was not published: a [faults] drop
 SAMPLE_DUPLICATED = 2  # a State published twice: a [faults] duplicate
-APPLY_LANDED, APPLY_OVERTAKEN, APPLY_BURST = 0, 1, 2  # apply.outcome (2: landed late by a burst)
+# apply.outcome: 0 landed, 1 overtaken by a newer command (dropped), 2 landed late by a
+# [faults] burst, 3 refused by the drive (non-finite, short, disarmed: the torque in force
+# stays, it is no landing)
+APPLY_LANDED, APPLY_OVERTAKEN, APPLY_BURST, APPLY_REFUSED = 0, 1, 2, 3
 RX_LOST_BY_FAULT = 3  # cmd_rx.verdict: a CAN frame the drive's receiver lost ([faults])
 
 CONTROLLER_TABLES: dict[str, tuple[str, ...]] = {

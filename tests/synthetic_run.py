@@ -44,6 +44,7 @@ class Loop:
     rearm_at: int | None = None  # sample index after which the CAN lifecycle re-sends zeros
     lose_can_frames: set[int] = field(default_factory=set)  # commands whose frames are lost
     named_frames: bool = True  # the bus names each frame (zenoh_can) or not (socketcan)
+    refuse_can_frames: set[int] = field(default_factory=set)  # commands the drives refuse
 
 
 def write(folder: Path, loop: Loop) -> None:
@@ -157,6 +158,7 @@ def write(folder: Path, loop: Loop) -> None:
         p.append("cmd_rx", (1, i, -1, 0, 0, end if loop.named_frames else 0, recv, value, 0.0,
                              node, 0))  # fmt: skip
         if loop.cmd_path == "can" and E <= recv <= last_sample:
-            p.append("apply", (1, i, node, recv, recv + loop.delay, 0.0, 0.0, 0))
+            refused = cseq in loop.refuse_can_frames  # the drive refuses it: no landing
+            p.append("apply", (1, i, node, recv, recv + loop.delay, 0.0, 0.0, 3 if refused else 0))
     c.close({"deadline_misses": 0})
     p.close({"extremes": {}})

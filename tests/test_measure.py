@@ -208,3 +208,12 @@ def test_a_late_start_is_one_startup_stall(tmp_path):
     assert stalls[0]["age_s"] >= 0.040
     assert [s["cause"] for s in stalls].count("startup") == 1
     assert m.timing["startup_hold_s"] >= 0.040
+
+
+def test_frames_the_drives_refuse_are_no_landing(tmp_path):
+    """A torque frame the drive refuses (non-finite, disarmed) leaves the old torque in force:
+    its command never landed, so its sample has no command and the age keeps growing."""
+    a = _measure(tmp_path / "a", Loop(cmd_path="can"))
+    b = _measure(tmp_path / "b", Loop(cmd_path="can", refuse_can_frames={100, 101, 102}))
+    assert b.timing["samples_without_command"] == a.timing["samples_without_command"] + 3
+    assert b.timing["command_age_can"]["max_us"] >= a.timing["command_age_can"]["max_us"] + 6000

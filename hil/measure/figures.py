@@ -19,7 +19,7 @@ from hil.measure.logs import RunLogs
 from hil.measure.stats import summarize_ns
 from protocol.hoplog import (
     APPLY_BURST,
-    APPLY_OVERTAKEN,
+    APPLY_LANDED,
     RX_LOST_BY_FAULT,
     SAMPLE_DROPPED,
     SAMPLE_DUPLICATED,
@@ -204,7 +204,7 @@ class _Run:
         path the arrival stands for the landing (what would have been applied)."""
         if applied:
             ap = self.logs["apply"]
-            ok = ap["outcome"] != APPLY_OVERTAKEN
+            ok = np.isin(ap["outcome"], (APPLY_LANDED, APPLY_BURST))  # landings only
             if path == "zenoh":
                 m = ok & (ap["path"] == 0)
                 cmd, land = ap["seq"][m], ap["apply_ns"][m]
