@@ -273,6 +273,13 @@ def test_references_and_disturbances_on_arrays_of_times(tmp_path: Path) -> None:
         assert np.array_equal(a1, [w[0] for w in want]) and np.array_equal(a2, [w[1] for w in want])
 
 
+# Only the keys each kind reads (the loader refuses the others).
+DISTURBANCE = {
+    "none": "",
+    "sine": "s1 = 0.1\ns2 = 0.2\namplitude1 = 0.05\namplitude2 = 0.1\nfreq = 0.5\n",
+    "random": "s1 = 0.1\ns2 = 0.2\nperiod = 0.05\n",
+}
+
 SCENARIO = """
 [reference]
 kind = "circle"
@@ -286,13 +293,7 @@ theta = 0.1
 
 [disturbance]
 kind = "{kind}"
-s1 = 0.1
-s2 = 0.2
-amplitude1 = 0.05
-amplitude2 = 0.1
-freq = 0.5
-period = 0.05
-
+{disturbance}
 [timing]
 ts = {ts}
 
@@ -310,7 +311,12 @@ def test_batch_robots_with_their_own_start_times_are_single_runs(tmp_path: Path,
     from hil.sim import simulate, simulate_batch
     from hil.sim.core import RobotVariation
 
-    sc = loads_scenario(SCENARIO.format(kind=kind, ts=0.001, step=0.0005, duration=0.5), tmp_path)
+    sc = loads_scenario(
+        SCENARIO.format(
+            kind=kind, disturbance=DISTURBANCE[kind], ts=0.001, step=0.0005, duration=0.5
+        ),
+        tmp_path,
+    )
     t0 = [0.0, 3.3, 17.123]
     var = [RobotVariation(x=-0.3 + 0.1 * i, theta=0.1 * i, v=0.05 * i) for i in range(3)]
     seen: dict[int, np.ndarray] = {}
@@ -338,7 +344,10 @@ def _ideal_run_folder(tmp_path: Path, duration: float) -> Path:
     from hil.sim import simulate, write_run_folder
 
     sc = loads_scenario(
-        SCENARIO.format(kind="sine", ts=0.001, step=0.001, duration=duration), tmp_path
+        SCENARIO.format(
+            kind="sine", disturbance=DISTURBANCE["sine"], ts=0.001, step=0.001, duration=duration
+        ),
+        tmp_path,
     )
     result = simulate(sc)
     result.resolved["timing"]["ts"] = 0.01

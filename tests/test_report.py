@@ -282,8 +282,13 @@ def test_timing_thresholds_name_their_numbers(tmp_path: Path, stall_folder: Path
     assert main(["report", str(folder), "--no-ideal", "--max-lost-ratio", "0.001"]) == 1
     reasons = json.loads((folder / "report.json").read_text())["verdict"]["reasons"]
     lost = [r for r in reasons if r.startswith("lost messages")]
+    m = json.loads((folder / "summary.json").read_text())["messages"]
+    st, z = m["state"], m["torque_zenoh"]
+    sent, gone = st["sent"] + z["sent"], st["lost"] + z["lost"]
+    assert z["lost"] == 30  # the injected losses, all inside the window
     assert lost == [
-        "lost messages: 30 of 10001 (0.300 %) > 0.100 % (state 0 of 5001, torque_zenoh 30 of 5000)"
+        f"lost messages: {gone} of {sent} ({100 * gone / sent:.3f} %) > 0.100 % "
+        f"(state {st['lost']} of {st['sent']}, torque_zenoh {z['lost']} of {z['sent']})"
     ]
 
 
