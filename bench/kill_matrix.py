@@ -293,7 +293,8 @@ def main(argv: list[str] | None = None) -> int:
         for i in range(a.trials):
             r = run_trial(kind)
             results.append(r)
-            print(f"{kind} {i + 1}/{a.trials}: {'ok' if r.ok else 'FAIL'} {r.detail}",
+            safe = f"{r.safe_s * 1e3:.1f} ms" if r.safe_s is not None else "-"
+            print(f"{kind} {i + 1}/{a.trials}: {'ok' if r.ok else 'FAIL'} {safe} {r.detail}",
                   file=sys.stderr, flush=True)  # fmt: skip
         safe = [r.safe_s for r in results if r.safe_s is not None]
         table[kind] = {
