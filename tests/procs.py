@@ -23,8 +23,15 @@ def free_tcp_port() -> int:
 
 
 def stop_pid(proc: subprocess.Popen, grace: float = 5.0) -> None:
-    """SIGINT, then SIGTERM, then SIGKILL to the process group of ``proc`` (by its PID)."""
+    """SIGINT, then SIGTERM, then SIGKILL to the process group of ``proc`` (by its PID).
+
+    A leader that already exited may have left members of its group running (a shell's
+    background jobs): they get SIGKILL."""
     if proc.poll() is not None:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
         return
     for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
         try:
