@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import contextlib
 import os
 import signal
 import socket
@@ -28,10 +29,8 @@ def stop_pid(proc: subprocess.Popen, grace: float = 5.0) -> None:
     A leader that already exited may have left members of its group running (a shell's
     background jobs): they get SIGKILL."""
     if proc.poll() is not None:
-        try:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
             os.killpg(proc.pid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError):
-            pass
         return
     for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
         try:
