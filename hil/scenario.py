@@ -32,6 +32,7 @@ from plant_emulator.disturbances import Disturbance, max_abs
 from plant_emulator.sensors import Sensor
 from protocol.can.bus_factory import CanSettings
 from protocol.can.wheel_mapping import RobotGeometry
+from protocol.faults import Faults
 from protocol.messages import ANGLE_MAX, POSITION_MAX, SPEED_MAX, TORQUE_MAX, TURN_RATE_MAX
 
 SCHEMA_VERSION = 1
@@ -146,26 +147,10 @@ class SweepConfig:
 
 
 @dataclass(frozen=True)
-class FaultsConfig:
-    """[faults]: fault injection on the wire (0 = off; protocol.faults decides, seeded; the
-    services log every fault they inject). Every n-th: the plant drops or duplicates State
-    (seq % n == n - 1), the controller drops, duplicates or reorders (swaps with the next)
-    TorqueCommand on Zenoh. Bursts of ``*_length`` s once per ``*_every`` s at a seeded offset:
-    extra delay on the applied path, CAN bus-off at the controller. ``can_frame_loss``: the
-    probability that a drive's receiver loses a Set_Input_Torque frame."""
-
-    state_drop_every: int = 0
-    command_drop_every: int = 0
-    state_duplicate_every: int = 0
-    command_duplicate_every: int = 0
-    command_reorder_every: int = 0
-    delay_burst_every: float = 0.0
-    delay_burst_length: float = 0.0
-    delay_burst_extra: float = 0.0
-    can_frame_loss: float = 0.0
-    can_bus_off_every: float = 0.0
-    can_bus_off_length: float = 0.0
-    seed: int = 0
+class FaultsConfig(Faults):
+    """[faults]: fault injection on the wire (0 = off): the keys of :class:`protocol.faults.Faults`,
+    which the services read (protocol.faults decides, seeded; the services log every fault
+    they inject), checked here where the scenario is read."""
 
     def __post_init__(self) -> None:
         if not self.can_frame_loss <= 1.0:
