@@ -41,6 +41,8 @@ if str(ROOT) not in sys.path:
 
 from protocol.hoplog import read_hoplog  # noqa: E402
 from protocol.messages import FLAG_WATCHDOG_ZERO  # noqa: E402
+from tests.procs import stop_pid, wait_until  # noqa: E402
+from tests.run_helpers import alive  # noqa: E402
 
 RATE = 200
 PERIOD_NS = round(1e9 / RATE)
@@ -69,36 +71,8 @@ def _rows(path: Path, table: str) -> int:
         return 0
 
 
-def _wait(pred: Callable[[], bool], timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return bool(pred())
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is not None:
-        return
-    for sig, wait in ((signal.SIGINT, 10.0), (signal.SIGKILL, 5.0)):
-        try:
-            os.killpg(proc.pid, sig)
-        except ProcessLookupError:
-            return
-        try:
-            proc.wait(timeout=wait)
-            return
-        except subprocess.TimeoutExpired:
-            continue
+    stop_pid(proc, grace=10.0)
 
 
 class _Run:
@@ -125,7 +99,7 @@ class _Run:
             _stop(p)
 
     def started(self, table: str = "apply", rows: int = 100) -> bool:
-        return _wait(lambda: _rows(self.out / "plant.hoplog", table) >= rows, 90)
+        return wait_until(lambda: _rows(self.out / "plant.hoplog", table) >= rows, 90)
 
     def pid(self, name: str) -> int:
         return int(json.loads((self.out / "processes.json").read_text())[name])
@@ -134,7 +108,7 @@ class _Run:
         pid = self.pid(name)
         t = time.monotonic_ns()
         os.kill(pid, signal.SIGKILL)
-        if not _wait(lambda: not _alive(pid), 10):
+        if not wait_until(lambda: not alive(pid), 10):
             raise RuntimeError(f"{name} (pid {pid}) survived SIGKILL")
         return t
 
@@ -257,7 +231,7 @@ def router_restart(tmp: Path) -> Trial:
         run.kill("router")
         back = run.start([sys.executable, "-m", "hil.run.router", settings["zenoh_endpoint"]],
                          "router-restarted.log")  # fmt: skip
-        _wait(lambda: b"router up" in (tmp / "run" / "router-restarted.log").read_bytes(), 30)
+        wait_until(lambda: b"router up" in (tmp / "run" / "router-restarted.log").read_bytes(), 30)
         restart = time.monotonic_ns()
         run.finish()
         _stop(back)
