@@ -33,12 +33,24 @@ def rss_kb(pid: int, field_name: str = "VmRSS") -> int | None:
     return None
 
 
+def _alive(pid: int) -> bool:
+    """Running, not a zombie (a child of hil run that exited stays a zombie until reaped)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 @dataclass
 class Sampled:
     """RSS (kB) of each process, sampled once a second: (t_s since the epoch, kB)."""
 
     rss: dict[str, list[tuple[float, int]]] = field(default_factory=dict)
     peak_kb: dict[str, int] = field(default_factory=dict)
+    # hil run's own series stops when the services have exited: what follows is the run's
+    # analysis (summary.json), whose memory is a peak, not growth; ``peak_kb`` still sees it.
+    recording_end_s: float | None = None
 
 
 def run_sampled(out: Path, duration_s: float, *args: str, rate: float = 1000.0) -> Sampled:
@@ -59,8 +71,12 @@ def run_sampled(out: Path, duration_s: float, *args: str, rate: float = 1000.0) 
             sample_rss = time.monotonic() >= next_rss
             if sample_rss:
                 next_rss = time.monotonic() + 1.0
+            services = [pid for name, pid in pids.items() if name != "hil_run"]
+            if pids and got.recording_end_s is None and not any(_alive(p) for p in services):
+                got.recording_end_s = time.monotonic() - (t0 or 0.0)
             for name, pid in pids.items():
-                kb = rss_kb(pid) if sample_rss else None
+                recording = got.recording_end_s is None or name != "hil_run"
+                kb = rss_kb(pid) if sample_rss and recording else None
                 if kb is not None:
                     got.rss.setdefault(name, []).append((time.monotonic() - (t0 or 0.0), kb))
                 # the high-water mark 4 times a second: hil run's end-of-run peak is brief

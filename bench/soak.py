@@ -43,6 +43,7 @@ def main(argv: list[str] | None = None) -> int:
         "minutes": a.minutes,
         "rate_hz": a.rate,
         "memory": memory,
+        "recording_end_s": sampled.recording_end_s,
         "per_minute": minutes,
         "first_minute": minutes[0] if minutes else None,
         "last_minute": minutes[-1] if minutes else None,
