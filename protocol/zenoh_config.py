@@ -129,6 +129,9 @@ def _endpoint_list(value: Any, name: str) -> tuple[str, ...]:
     return tuple(value)
 
 
+TX_QUEUE_BATCHES = 16
+
+
 def config_dict(settings: ZenohSettings) -> dict[str, Any]:
     """The JSON5 keys to insert (exposed so tests and deploy/ can write them to a file)."""
     listen = list(settings.listen)
@@ -147,6 +150,13 @@ def config_dict(settings: ZenohSettings) -> dict[str, Any]:
         "scouting/gossip/enabled": settings.mode != "client",
         "scouting/gossip/multihop": False,
         "adminspace/enabled": False,
+        # Commands (real_time) and states (interactive_high) are DROP: a put never waits more
+        # than wait_before_drop for queue space. Zenoh's default queue of 2 batches per
+        # priority drops a state whenever the session's TX thread is not scheduled for 2 ms,
+        # which a loaded 2-core host does a few times in ten minutes (the soak lost 4-7). 16
+        # batches ride out a 16 ms starvation at 1 kHz; longer outages still drop, counted.
+        "transport/link/tx/queue/size/real_time": TX_QUEUE_BATCHES,
+        "transport/link/tx/queue/size/interactive_high": TX_QUEUE_BATCHES,
     }
 
 

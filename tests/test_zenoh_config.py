@@ -88,6 +88,14 @@ def test_zenoh_qos_choices() -> None:
         assert qos.congestion_control == zenoh.CongestionControl.DROP
     assert COMMAND_QOS.priority == zenoh.Priority.REAL_TIME
     assert STATUS_QOS.congestion_control == zenoh.CongestionControl.BLOCK
+    # DROP with Zenoh's default 2-batch queue lost states whenever the TX thread starved for
+    # 2 ms: the command and state priorities get a 16 ms queue in every session we open.
+    ep = ("tcp/127.0.0.1:7447",)
+    for settings in (ZenohSettings(), ZenohSettings("client", connect=ep), ZenohSettings("router")):
+        conf = session_config(settings)
+        sizes = json.loads(conf.get_json("transport/link/tx/queue/size"))
+        assert sizes["real_time"] >= 16 and sizes["interactive_high"] >= 16
+        assert sizes["data"] == 2  # telemetry keeps the default: dropping it is fine
 
 
 def test_zenoh_router_access_control_allows_one_user(tmp_path) -> None:
