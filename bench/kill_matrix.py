@@ -6,7 +6,9 @@ Kinds (each trial is one ``hil run`` of 3 s at 200 Hz, the failure injected by P
 
 - ``controller_kill_zenoh`` / ``controller_kill_can``: SIGKILL of the controller; safe state =
   the plant holds zero torque (its command timeout), on the wall clock at most
-  command_timeout + 2 periods after the last command arrived;
+  command_timeout + 2 periods after the last command arrived; on the CAN path the drives'
+  watchdog is armed (``[can] watchdog_timeout`` = 50 ms) and both drives must also end IDLE
+  with WATCHDOG_TIMER_EXPIRED latched as their disarm reason;
 - ``plant_kill``: SIGKILL of the plant; safe state = the controller's stale-state watchdog sends
   zero torque flagged WATCHDOG_ZERO, at most state_timeout + 2 periods after the last state;
 - ``controller_restart``: SIGKILL of the controller, then a new one started with the run's
@@ -39,6 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from protocol.can.codec import AxisState, ODriveError  # noqa: E402
 from protocol.hoplog import read_hoplog  # noqa: E402
 from protocol.messages import FLAG_WATCHDOG_ZERO  # noqa: E402
 from tests.procs import stop_pid, wait_until  # noqa: E402
@@ -47,6 +50,7 @@ from tests.run_helpers import alive  # noqa: E402
 RATE = 200
 PERIOD_NS = round(1e9 / RATE)
 DURATION_S = 3.0
+WATCHDOG_S = 0.05  # the drives' watchdog on the CAN path (= the plant's command_timeout)
 KINDS = (
     "controller_kill_zenoh",
     "controller_kill_can",
@@ -124,9 +128,42 @@ class _Run:
         return json.loads((self.out / "summary.json").read_text())
 
 
+def _with_tables(tmp: Path, name: str, tables: str) -> str:
+    """The paper's scenario with extra TOML tables, as a file for ``hil run``."""
+    scen = tmp / name
+    scen.write_text((ROOT / "hil" / "scenarios" / "paper_tracking.toml").read_text() + tables)
+    return str(scen)
+
+
+def _drives_disarmed_by_watchdog(plant: Any, t: Trial) -> bool:
+    """Every virtual drive left closed loop with ODrive's WATCHDOG_TIMER_EXPIRED latched (its
+    footer, written when the plant exits: the drives' own state, not the plant's zeroing)."""
+    drives = ((plant.final or {}).get("can") or {}).get("drives") or {}
+    events = ((plant.final or {}).get("can") or {}).get("events") or {}
+    t.detail["drives"] = {
+        n: {"axis_state": d.get("axis_state"), "disarm_reason": d.get("disarm_reason")}
+        for n, d in drives.items()
+    }
+    t.detail["watchdog_expired_events"] = events.get("watchdog_expired", 0)
+    return (
+        len(drives) == 2
+        and all(
+            d.get("axis_state") == AxisState.IDLE
+            and int(d.get("disarm_reason") or 0) & ODriveError.WATCHDOG_TIMER_EXPIRED
+            for d in drives.values()
+        )
+        and events.get("watchdog_expired", 0) >= len(drives)
+    )
+
+
 def controller_kill(tmp: Path, path: str) -> Trial:
     t = Trial(f"controller_kill_{path}")
-    with _Run(tmp / "run", "--cmd-path", path) as run:
+    scenario = None
+    if path == "can":
+        # The drives' own watchdog, as on a real ODrive (axis.config.watchdog_timeout): it
+        # disarms them when the controller's frames stop, whatever the plant does.
+        scenario = _with_tables(tmp, "watchdog.toml", f"\n[can]\nwatchdog_timeout = {WATCHDOG_S}\n")
+    with _Run(tmp / "run", "--cmd-path", path, scenario=scenario) as run:
         if not run.started():
             t.detail["error"] = "no closed loop before the kill"
             return t
@@ -147,6 +184,8 @@ def controller_kill(tmp: Path, path: str) -> Trial:
         and len(after) > 20
         and all(s["cmd1"] == 0.0 and s["cmd2"] == 0.0 for s in after)
     )
+    if path == "can":
+        t.ok = _drives_disarmed_by_watchdog(plant, t) and t.ok
     t.detail["zeroed_after_ms"] = t.safe_s * 1e3
     t.detail["watchdog"] = summary.get("watchdog")
     return t
@@ -220,10 +259,8 @@ def controller_restart(tmp: Path) -> Trial:
 
 def router_restart(tmp: Path) -> Trial:
     t = Trial("router_restart")
-    scen = tmp / "router.toml"
-    scen.write_text((ROOT / "hil" / "scenarios" / "paper_tracking.toml").read_text()
-                    + '\n[zenoh]\nmode = "router"\n')  # fmt: skip
-    with _Run(tmp / "run", "--no-can", scenario=str(scen)) as run:
+    scen = _with_tables(tmp, "router.toml", '\n[zenoh]\nmode = "router"\n')
+    with _Run(tmp / "run", "--no-can", scenario=scen) as run:
         if not run.started():
             t.detail["error"] = "no closed loop before the router restart"
             return t
