@@ -3,6 +3,8 @@
     python bench/bench_long_run.py                  # 1, 2 and 10 minutes
     python bench/bench_long_run.py --full           # also 60 minutes
     python bench/bench_long_run.py --lengths 1 2 --out result.json
+    python bench/bench_long_run.py --full --keep DIR   # keep the run folders, then later:
+    python bench/bench_long_run.py --report-only DIR   # report again on them (quiet machine)
 
 Each length is one ``hil run`` of the paper's circle at 1 kHz with both paths live (Zenoh
 applied, CAN as shadow), its processes' resident memory sampled by PID
@@ -36,6 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from longrun import ROOT, growth_kb, run_sampled
 
 FILES = ("controller.hoplog", "plant.hoplog", "recording.mcap", "trace.csv")
+RUN_RECORD = "bench_run.json"
 
 
 def report_sampled(run_dir: Path, *args: str) -> dict[str, Any]:
@@ -59,34 +62,44 @@ def report_sampled(run_dir: Path, *args: str) -> dict[str, Any]:
     }
 
 
-def one_length(minutes: float, root: Path, warmup: float, rate: float) -> dict[str, Any]:
+def run_length(minutes: float, root: Path, warmup: float, rate: float) -> Path:
+    """One run of ``minutes``; its run-phase figures are kept in the folder (``bench_run.json``)
+    so ``--report-only`` can report again on it later (a quiet machine, newer code)."""
     run_dir = root / f"run-{minutes:g}min"
     t0 = time.monotonic()
     sampled = run_sampled(run_dir, minutes * 60.0, rate=rate)
     run_wall = time.monotonic() - t0
     memory = {}
     for name, series in sampled.rss.items():
-        mem: dict[str, Any] = {"peak_kb": sampled.peak_kb.get(name)}
-        if name != "hil_run":
-            mem.update(growth_kb(series, warmup))
-        memory[name] = mem
-    report = report_sampled(run_dir)
+        # hil run's growth: over its recording phase (its series stops when the services exit)
+        memory[name] = {"peak_kb": sampled.peak_kb.get(name), **growth_kb(series, warmup)}
     sizes = {
         name: (run_dir / name).stat().st_size if (run_dir / name).is_file() else None
         for name in FILES
     }
     summary = json.loads((run_dir / "summary.json").read_text())
-    return {
+    record = {
         "minutes": minutes,
         "rate_hz": rate,
         "samples": summary.get("samples"),
         "run_wall_s": round(run_wall, 1),
         "memory": memory,
-        "report": {**report, "s_per_run_minute": round(report["wall_s"] / minutes, 2)},
         "files_bytes": sizes,
         "services_growth_under_5mb": all(
             (memory.get(n, {}).get("growth_kb") or 0) < 5 * 1024 for n in ("plant", "controller")
         ),
+    }
+    (run_dir / RUN_RECORD).write_text(json.dumps(record, indent=2))
+    return run_dir
+
+
+def report_length(run_dir: Path) -> dict[str, Any]:
+    """``hil report`` on a kept run folder, with the run-phase figures it recorded."""
+    record = json.loads((run_dir / RUN_RECORD).read_text())
+    report = report_sampled(run_dir)
+    return {
+        **record,
+        "report": {**report, "s_per_run_minute": round(report["wall_s"] / record["minutes"], 2)},
     }
 
 
@@ -128,18 +141,37 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--out", type=Path, help="write the results as JSON")
     ap.add_argument("--keep", type=Path, help="keep the run folders under this folder")
+    ap.add_argument(
+        "--report-only",
+        type=Path,
+        metavar="ROOT",
+        help="no new runs: report again on the run-*min folders kept under ROOT by --keep",
+    )
     a = ap.parse_args(argv)
     lengths = a.lengths or [1.0, 2.0, 10.0]
     if a.full and 60.0 not in lengths:
         lengths.append(60.0)
     rows = []
-    with tempfile.TemporaryDirectory(prefix="hil-longrun-") as tmp:
-        root = a.keep or Path(tmp)
-        root.mkdir(parents=True, exist_ok=True)
-        for minutes in lengths:
-            print(f"running {minutes:g} min at {a.rate:g} Hz ...", file=sys.stderr)
-            rows.append(one_length(minutes, root, a.warmup, a.rate))
+    if a.report_only is not None:
+        folders = sorted(
+            (d for d in a.report_only.glob("run-*min") if (d / RUN_RECORD).is_file()),
+            key=lambda d: float(d.name[4:-3]),
+        )
+        if not folders:
+            ap.error(f"no run-*min folder with {RUN_RECORD} under {a.report_only}")
+        lengths = [json.loads((d / RUN_RECORD).read_text())["minutes"] for d in folders]
+        for d in folders:
+            print(f"reporting on {d} ...", file=sys.stderr)
+            rows.append(report_length(d))
             print(table(rows[-1:]).splitlines()[-1], file=sys.stderr)
+    else:
+        with tempfile.TemporaryDirectory(prefix="hil-longrun-") as tmp:
+            root = a.keep or Path(tmp)
+            root.mkdir(parents=True, exist_ok=True)
+            for minutes in lengths:
+                print(f"running {minutes:g} min at {a.rate:g} Hz ...", file=sys.stderr)
+                rows.append(report_length(run_length(minutes, root, a.warmup, a.rate)))
+                print(table(rows[-1:]).splitlines()[-1], file=sys.stderr)
     result = {
         "lengths_min": lengths,
         "rows": rows,

@@ -27,8 +27,10 @@ from protocol.hoplog import (
 CONTROLLER_FILE = "controller.hoplog"
 PLANT_FILE = "plant.hoplog"
 
-_F8, _I8, _I4, _I2, _I1 = np.float64, np.int64, np.int32, np.int16, np.int8
-# The columns read, with their types (every stamp and sequence number int64).
+_F8, _F4, _I8, _I4, _I2, _I1 = np.float64, np.float32, np.int64, np.int32, np.int16, np.int8
+# The columns read, with their types (every stamp int64: nanoseconds, exact). Sequence numbers
+# (NARROW) are int32 in memory when a chunk's values fit, int64 otherwise (numpy promotes on
+# concatenation). A CAN frame's torque is float32: that is what the frame carries.
 COLUMNS: dict[str, dict[str, Any]] = {
     "ticks": {
         "k": _I8, "deadline_ns": _I8, "wake_ns": _I8, "skipped": _I4, "state_seq": _I8,
@@ -37,18 +39,47 @@ COLUMNS: dict[str, dict[str, Any]] = {
         "can_send_ns": _I8, "cmd_seq": _I8, "tau1": _F8, "tau2": _F8, "flags": _I4,
     },
     "state_rx": {"seq": _I8, "recv_ns": _I8},
-    "can_tx": {"node": _I2, "send_ns": _I8, "cmd_seq": _I8, "value": _F8, "bus_end_ns": _I8},
+    "can_tx": {"node": _I2, "send_ns": _I8, "cmd_seq": _I8, "value": _F4, "bus_end_ns": _I8},
     "samples": {
         "seq": _I8, "sample_ns": _I8, "wake_ns": _I8, "send_ns": _I8, "x": _F8, "y": _F8,
         "theta": _F8, "v": _F8, "omega": _F8, "tau1": _F8, "tau2": _F8, "cmd1": _F8,
         "cmd2": _F8, "flags": _I1,
     },
     "cmd_rx": {"path": _I1, "seq": _I8, "recv_ns": _I8, "node": _I2, "verdict": _I1,
-               "tau1": _F8, "send_ns": _I8},
+               "tau1": _F4, "send_ns": _I8},
     "apply": {"path": _I1, "seq": _I8, "node": _I2, "recv_ns": _I8, "apply_ns": _I8,
               "outcome": _I1},
     "zero": {"timeout_ns": _I8, "applied_ns": _I8},
 }  # fmt: skip
+NARROW = {"k", "skipped", "state_seq", "cmd_seq", "seq"}
+# The robot's physical state and the commanded torques: read only for trace.csv
+# (hil.run.results), never by the figures; an hour's worth is ~300 MB.
+TRACE_ONLY: dict[str, tuple[str, ...]] = {
+    "ticks": ("tau1", "tau2", "can_send_ns"),
+    "samples": ("x", "y", "theta", "v", "omega", "tau1", "tau2", "cmd1", "cmd2"),
+}
+ALL_COLUMNS: dict[str, tuple[str, ...]] = {name: tuple(cols) for name, cols in COLUMNS.items()}
+FIGURE_COLUMNS: dict[str, tuple[str, ...]] = {
+    name: tuple(c for c in cols if c not in TRACE_ONLY.get(name, ()))
+    for name, cols in COLUMNS.items()
+}
+TRACE_SOURCE_COLUMNS: dict[str, tuple[str, ...]] = {
+    "ticks": ("state_seq", "state_sample_ns", "flags", "tau1", "tau2"),
+    "samples": ("seq", "sample_ns", "x", "y", "theta", "v", "omega", "tau1", "tau2"),
+}
+
+
+def _column(values: Any, name: str, dtype: Any) -> np.ndarray:
+    if name in NARROW:
+        a = np.asarray(values, dtype=np.int64)
+        if a.size == 0 or (int(a.min()) >= -(2**31) and int(a.max()) < 2**31):
+            return a.astype(np.int32)
+        return a
+    return np.asarray(values, dtype=dtype)
+
+
+def _empty(name: str, dtype: Any) -> np.ndarray:
+    return np.zeros(0, np.int32 if name in NARROW else dtype)
 
 
 @dataclass
@@ -71,7 +102,8 @@ class LogHead:
 def read_columns(
     path: str | Path, tables: dict[str, tuple[str, ...]]
 ) -> tuple[LogHead, dict[str, dict[str, np.ndarray]]]:
-    """One hop log, chunk by chunk, into numpy columns of the tables it declares."""
+    """One hop log, chunk by chunk, into numpy columns: ``tables`` maps each table to read to
+    the columns wanted (every one of them is in the result, empty when the log lacks it)."""
     head = LogHead()
     parts: dict[str, dict[str, list[np.ndarray]]] = {}
     index: dict[str, dict[str, int]] = {}
@@ -96,7 +128,7 @@ def read_columns(
             head.meta = dict(rec.get("meta") or {})
             for name in tables:
                 cols = fields.get(name, [])
-                index[name] = {c: cols.index(c) for c in COLUMNS[name] if c in cols}
+                index[name] = {c: cols.index(c) for c in tables[name] if c in cols}
                 parts[name] = {c: [] for c in index[name]}
         elif fields is None:
             continue
@@ -107,7 +139,7 @@ def read_columns(
                 raise HopLogError(f"{path}: a row of table {name} has not {width} fields")
             columns = list(zip(*rec["rows"], strict=True))
             for c, i in index[name].items():
-                parts[name][c].append(np.asarray(columns[i], dtype=COLUMNS[name][c]))
+                parts[name][c].append(_column(columns[i], c, COLUMNS[name][c]))
         elif kind == "meta":
             head.meta.update(rec.get("meta") or {})
         elif kind == "counters":
@@ -119,11 +151,12 @@ def read_columns(
         raise HopLogError(f"{path}: no hop-log header")
     head.truncated = end < size
     out: dict[str, dict[str, np.ndarray]] = {}
-    for name in tables:
+    for name, wanted in tables.items():
         out[name] = {}
-        for c, dtype in COLUMNS[name].items():
+        for c in wanted:
             chunks = parts.get(name, {}).pop(c, [])
-            out[name][c] = np.concatenate(chunks) if chunks else np.zeros(0, dtype)
+            out[name][c] = np.concatenate(chunks) if chunks else _empty(c, COLUMNS[name][c])
+            del chunks
     return head, out
 
 
@@ -134,22 +167,31 @@ class RunLogs:
     tables: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
     @classmethod
-    def read(cls, controller: Path | None, plant: Path | None) -> RunLogs:
+    def read(
+        cls,
+        controller: Path | None,
+        plant: Path | None,
+        columns: dict[str, tuple[str, ...]] | None = None,
+    ) -> RunLogs:
+        """Both logs; ``columns``: the tables and columns to read (default: what the figures
+        need, :data:`FIGURE_COLUMNS`)."""
+        columns = FIGURE_COLUMNS if columns is None else columns
         logs = cls(None, None)
         for path, tables, role in (
             (controller, CONTROLLER_TABLES, "controller"),
             (plant, PLANT_TABLES, "plant"),
         ):
+            wanted = {name: columns[name] for name in dict(tables) if name in columns}
             head = None
             if path is not None:
                 try:
-                    head, cols = read_columns(path, dict(tables))
+                    head, cols = read_columns(path, wanted)
                     logs.tables.update(cols)
                 except (OSError, ValueError):
                     head = None
             if head is None:
-                for name in tables:
-                    logs.tables[name] = {c: np.zeros(0, t) for c, t in COLUMNS[name].items()}
+                for name, cs in wanted.items():
+                    logs.tables[name] = {c: _empty(c, COLUMNS[name][c]) for c in cs}
             setattr(logs, role, head)
         return logs
 
@@ -184,13 +226,15 @@ class RunLogs:
         }
 
 
-def load_folder_logs(folder: str | Path) -> RunLogs | None:
-    """The hop logs of a run folder (None when it has neither)."""
+def load_folder_logs(
+    folder: str | Path, columns: dict[str, tuple[str, ...]] | None = None
+) -> RunLogs | None:
+    """The hop logs of a run folder (None when it has neither); ``columns`` as RunLogs.read."""
     folder = Path(folder)
     c, p = folder / CONTROLLER_FILE, folder / PLANT_FILE
     if not c.is_file() and not p.is_file():
         return None
-    return RunLogs.read(c if c.is_file() else None, p if p.is_file() else None)
+    return RunLogs.read(c if c.is_file() else None, p if p.is_file() else None, columns)
 
 
 def load_recording_logs(path: str | Path) -> RunLogs | None:

@@ -18,7 +18,7 @@ import numpy as np
 
 from hil.measure.figures import Measurement
 from hil.measure.folder import measure_logs, resolved_scenario
-from hil.measure.logs import RunLogs, load_folder_logs
+from hil.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from protocol.hoplog import TICK_NO_SEND
 
@@ -106,8 +106,14 @@ def analyze(
     """Write trace.csv and summary.json from the two hop logs; returns the summary."""
     logs = load_folder_logs(run_dir) or RunLogs.read(None, None)
     m = measure_logs(logs, resolved_scenario(run_dir)) if logs.plant else Measurement()
+    # The figures' columns go before the trace's are read: an hour's run holds one set at a
+    # time (the two reads cost a second pass over the logs, ~10 s an hour).
+    logs.tables.clear()
     lockstep = bool(settings.lockstep)
-    pos_err, head_err = write_trace(run_dir, logs, reference, settings.ts, lockstep)
+    traced = load_folder_logs(run_dir, TRACE_SOURCE_COLUMNS)
+    traced = traced or RunLogs.read(None, None, TRACE_SOURCE_COLUMNS)
+    pos_err, head_err = write_trace(run_dir, traced, reference, settings.ts, lockstep)
+    del traced
     n = len(pos_err)
     tail = pos_err[-max(1, n // 10) :].tolist() if n else []
     pinfo, cinfo = logs.pinfo, logs.cinfo
