@@ -186,10 +186,11 @@ def _every_frame_carries_its_commands_torque(out: Path, scenario: Path) -> None:
 
     from hil.measure import load_folder_logs
     from hil.measure.figures import _Run
+    from hil.measure.logs import ALL_COLUMNS
     from hil.scenario import load_scenario
     from protocol.can.wheel_mapping import RobotGeometry, motor_torques
 
-    logs = load_folder_logs(out)
+    logs = load_folder_logs(out, ALL_COLUMNS)  # the ticks' torques too (trace-only columns)
     r = _Run(logs)
     c = r._can
     sc = load_scenario(scenario)
