@@ -37,7 +37,8 @@ from controller_service.realtime import DeadlineClock, setup_scheduling
 from plant_emulator.can_drives import CanDrives
 from plant_emulator.disturbances import Disturbance
 from plant_emulator.drive_plant import DrivePlant
-from plant_emulator.dynamics import Extremes, PlantState, advance_float_tracked
+from plant_emulator.dynamics import Extremes, PlantState
+from plant_emulator.sampled import Command, Hold, Plant, advance_period, integrate_span
 from plant_emulator.sensors import Sensor, measure
 from protocol import keys
 from protocol.faults import Faults, every_nth
@@ -78,53 +79,30 @@ class PlantCore:
     cmd2: float = 0.0
     extremes: Extremes = field(default_factory=Extremes)
 
+    @property
+    def plant(self) -> Plant:
+        """The model's parameters as :mod:`plant_emulator.sampled` integrates them."""
+        return Plant(self.h, self.disturbance, self.lag, self.seed, self.limits)
+
     def advance_to(self, t1: float) -> None:
         """Integrate from ``self.t`` to ``t1`` with the held command (steps of at most h)."""
-        span = t1 - self.t
-        if span <= 0.0:
+        if t1 <= self.t:
             return
-        n = max(1, math.ceil(span / self.h - 1e-9))
-        self.state = advance_float_tracked(
-            self.state,
-            self.cmd1,
-            self.cmd2,
-            self.t,
-            span / n,
-            n,
-            self.disturbance,
-            self.lag,
-            self.seed,
-            self.limits,
-            self.extremes,
+        self.state = integrate_span(
+            self.state, self.cmd1, self.cmd2, self.plant, self.t, t1, self.extremes
         )
         self.t = t1
 
-    def advance_steps(self, n: int) -> None:
-        """``n`` steps of exactly ``h`` (the lockstep grid, as the simulator steps)."""
-        if n <= 0:
-            return
-        self.state = advance_float_tracked(
-            self.state,
-            self.cmd1,
-            self.cmd2,
-            self.t,
-            self.h,
-            n,
-            self.disturbance,
-            self.lag,
-            self.seed,
-            self.limits,
-            self.extremes,
-        )
-        self.t = self.t + n * self.h
-
     def hold(self, cmd1: float, cmd2: float) -> None:
         """Hold a new command; clamped to (2) here, where commands are applied."""
+        self.cmd1, self.cmd2 = self.clamp(cmd1, cmd2)
+
+    def clamp(self, cmd1: float, cmd2: float) -> tuple[float, float]:
+        """A command as the plant applies it: within (2), a non-finite torque zeroed."""
         lim = self.limits
         c1 = cmd1 if math.isfinite(cmd1) else 0.0
         c2 = cmd2 if math.isfinite(cmd2) else 0.0
-        self.cmd1 = max(-lim.varpi1, min(lim.varpi1, c1))
-        self.cmd2 = max(-lim.varpi2, min(lim.varpi2, c2))
+        return max(-lim.varpi1, min(lim.varpi1, c1)), max(-lim.varpi2, min(lim.varpi2, c2))
 
 
 @dataclass(order=True)
@@ -504,15 +482,16 @@ class PlantService:
     def run_lockstep(self, stop: Any, n_periods: int, offsets: list[int], wait_s: float = 10.0):
         """State k at t_k = k Ts; wait for the command computed from it; it lands ``offsets[k]``
         plant steps after t_k (delay + jitter rounded to the step, as the simulator draws
-        them); the newest by sequence number wins, older ones are dropped. The plant's clock is
-        the integer step index j (t = j h), exactly as in :func:`hil.sim.core.simulate`."""
-        import heapq
-
+        them). The period is :mod:`plant_emulator.sampled`'s step, the one
+        :func:`hil.sim.core.simulate` takes: the plant's clock is the integer step index j
+        (t = j h), the newest command by sequence number wins, older ones are dropped."""
         c = self.core
         h = c.h
         m = max(1, round(self.ts / h))
-        pending: list[tuple[int, int, float, float]] = []
-        applied_seq = -1
+        plant = c.plant
+        landed: list[tuple[Command, bool]] = []
+        hold = Hold(log=landed)
+        hold.cmd1, hold.cmd2 = c.cmd1, c.cmd2
         for k in range(n_periods):
             if stop:
                 break
@@ -523,48 +502,33 @@ class PlantService:
             if got is None:
                 break
             msg, recv_ns, row = got
-            heapq.heappush(pending, (j0 + offsets[k], k, msg.tau1, msg.tau2, recv_ns))
-            j = j0
-            j_end = j0 + m
-            while True:
-                while pending and pending[0][0] <= j:
-                    j_land, seq, t1, t2, recv_ns = heapq.heappop(pending)
-                    # Virtual time: the landing is j_land plant steps after the epoch.
-                    land_ns = self.epoch_ns + round(j_land * h * 1e9)
-                    outcome = 0 if seq > applied_seq else 1
-                    self.hoplog.append("apply", (0, seq, -1, recv_ns, land_ns, t1, t2, outcome))
-                    if outcome == 0:
-                        applied_seq = seq
-                        c.hold(t1, t2)
-                    else:
-                        self.rejections.count("overtaken")
-                if j == j0:
-                    # The trace's applied torque at t_k is what acts from t_k on (as in the
-                    # simulator's trace): the row of State k carries it.
-                    tau1 = c.cmd1 if c.lag <= 0.0 else c.state.tau1
-                    tau2 = c.cmd2 if c.lag <= 0.0 else c.state.tau2
-                    self.hoplog.append("samples", (*row[:9], tau1, tau2, *row[11:]))
-                nxt = pending[0][0] if pending else j_end
-                j_next = min(nxt, j_end)
-                if j_next > j:
-                    c.state = advance_float_tracked(
-                        c.state,
-                        c.cmd1,
-                        c.cmd2,
-                        j * h,
-                        h,
-                        j_next - j,
-                        c.disturbance,
-                        c.lag,
-                        c.seed,
-                        c.limits,
-                        c.extremes,
-                    )
-                    j = j_next
-                if j >= j_end:
-                    break
-            c.t = j_end * h
+            # Clamped to (2) as it leaves: the hold then lands what the plant applies.
+            tau = c.clamp(msg.tau1, msg.tau2)
+            hold.send(k, j0 + offsets[k], *tau, (recv_ns, msg.tau1, msg.tau2))
+            hold.land(j0)
+            self._log_landings(landed, h)
+            # The trace's applied torque at t_k is what acts from t_k on (as in the
+            # simulator's trace): the row of State k carries it.
+            tau1 = hold.cmd1 if c.lag <= 0.0 else c.state.tau1
+            tau2 = hold.cmd2 if c.lag <= 0.0 else c.state.tau2
+            self.hoplog.append("samples", (*row[:9], tau1, tau2, *row[11:]))
+            c.state = advance_period(c.state, hold, plant, j0, j0 + m, c.extremes)
+            self._log_landings(landed, h)
+            c.cmd1, c.cmd2 = hold.cmd1, hold.cmd2
+            c.t = (j0 + m) * h
         self.publish_status("stopped")
+
+    def _log_landings(self, landed: list[tuple[Command, bool]], h: float) -> None:
+        """Hop-log the lockstep hold's landings (an overtaken command is refused) and clear."""
+        for cmd, taken in landed:
+            recv_ns, tau1, tau2 = cmd.note
+            # Virtual time: the landing is ``cmd.land`` plant steps after the epoch.
+            land_ns = self.epoch_ns + round(cmd.land * h * 1e9)
+            outcome = 0 if taken else 1
+            self.hoplog.append("apply", (0, cmd.seq, -1, recv_ns, land_ns, tau1, tau2, outcome))
+            if not taken:
+                self.rejections.count("overtaken")
+        landed.clear()
 
     def _exchange(
         self, k: int, sample_ns: int, wait_s: float, stop: Any
