@@ -93,6 +93,23 @@ class PlantCore:
         )
         self.t = t1
 
+    def lockstep_period(
+        self, hold: Hold, k: int, m: int, offset: int, cmd1: float, cmd2: float, note: Any = None
+    ) -> tuple[float, float]:
+        """Period k of lockstep on the plant grid (t = j h, m steps a period): the command
+        computed from State k, clamped to (2), leaves and lands ``offset`` steps after t_k; the
+        plant runs :mod:`plant_emulator.sampled`'s step to t_(k+1), as the simulator does.
+        Returns the torque applied at t_k (the held command, or the lagged actuator's)."""
+        j0 = k * m
+        self.t = j0 * self.h
+        hold.send(k, j0 + offset, *self.clamp(cmd1, cmd2), note)
+        hold.land(j0)
+        applied = (hold.cmd1, hold.cmd2) if self.lag <= 0.0 else self.state[5:]
+        self.state = advance_period(self.state, hold, self.plant, j0, j0 + m, self.extremes)
+        self.cmd1, self.cmd2 = hold.cmd1, hold.cmd2
+        self.t = (j0 + m) * self.h
+        return applied
+
     def hold(self, cmd1: float, cmd2: float) -> None:
         """Hold a new command; clamped to (2) here, where commands are applied."""
         self.cmd1, self.cmd2 = self.clamp(cmd1, cmd2)
@@ -482,44 +499,37 @@ class PlantService:
     def run_lockstep(self, stop: Any, n_periods: int, offsets: list[int], wait_s: float = 10.0):
         """State k at t_k = k Ts; wait for the command computed from it; it lands ``offsets[k]``
         plant steps after t_k (delay + jitter rounded to the step, as the simulator draws
-        them). The period is :mod:`plant_emulator.sampled`'s step, the one
-        :func:`hil.sim.core.simulate` takes: the plant's clock is the integer step index j
-        (t = j h), the newest command by sequence number wins, older ones are dropped."""
+        them); the newest by sequence number wins, older ones are dropped. Each period is
+        :meth:`PlantCore.lockstep_period`, the sampled-data step of
+        :func:`hil.sim.core.simulate`."""
         c = self.core
         h = c.h
         m = max(1, round(self.ts / h))
-        plant = c.plant
         landed: list[tuple[Command, bool]] = []
         hold = Hold(log=landed)
         hold.cmd1, hold.cmd2 = c.cmd1, c.cmd2
         for k in range(n_periods):
             if stop:
                 break
-            sample_ns = self.epoch_ns + round(k * self.ts * 1e9)
-            j0 = k * m
-            c.t = j0 * h
-            got = self._exchange(k, sample_ns, wait_s, stop)
+            c.t = k * m * h
+            got = self._exchange(k, self.epoch_ns + round(k * self.ts * 1e9), wait_s, stop)
             if got is None:
                 break
             msg, recv_ns, row = got
-            # Clamped to (2) as it leaves: the hold then lands what the plant applies.
-            tau = c.clamp(msg.tau1, msg.tau2)
-            hold.send(k, j0 + offsets[k], *tau, (recv_ns, msg.tau1, msg.tau2))
-            hold.land(j0)
-            self._log_landings(landed, h)
-            # The trace's applied torque at t_k is what acts from t_k on (as in the
-            # simulator's trace): the row of State k carries it.
-            tau1 = hold.cmd1 if c.lag <= 0.0 else c.state.tau1
-            tau2 = hold.cmd2 if c.lag <= 0.0 else c.state.tau2
+            note = (recv_ns, msg.tau1, msg.tau2)
+            tau1, tau2 = c.lockstep_period(hold, k, m, offsets[k], msg.tau1, msg.tau2, note)
+            # Hop-log order: landings at t_k, State k's row, then the landings within the
+            # period. The row's applied torque is what acts from t_k on (as in the simulator's
+            # trace).
+            at_tk = [e for e in landed if e[0].land == k * m]
+            self._log_landings(at_tk, h)
             self.hoplog.append("samples", (*row[:9], tau1, tau2, *row[11:]))
-            c.state = advance_period(c.state, hold, plant, j0, j0 + m, c.extremes)
-            self._log_landings(landed, h)
-            c.cmd1, c.cmd2 = hold.cmd1, hold.cmd2
-            c.t = (j0 + m) * h
+            self._log_landings(landed[len(at_tk) :], h)
+            landed.clear()
         self.publish_status("stopped")
 
     def _log_landings(self, landed: list[tuple[Command, bool]], h: float) -> None:
-        """Hop-log the lockstep hold's landings (an overtaken command is refused) and clear."""
+        """Hop-log lockstep landings (an overtaken command is refused)."""
         for cmd, taken in landed:
             recv_ns, tau1, tau2 = cmd.note
             # Virtual time: the landing is ``cmd.land`` plant steps after the epoch.
@@ -528,7 +538,6 @@ class PlantService:
             self.hoplog.append("apply", (0, cmd.seq, -1, recv_ns, land_ns, tau1, tau2, outcome))
             if not taken:
                 self.rejections.count("overtaken")
-        landed.clear()
 
     def _exchange(
         self, k: int, sample_ns: int, wait_s: float, stop: Any
