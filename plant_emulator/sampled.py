@@ -62,17 +62,19 @@ class Command(NamedTuple):
     steps: tuple[int, ...]  # the distinct landing steps, ascending
 
 
+_new = tuple.__new__
+
+
 class _Together:
     """Every robot lands a command at the same step: plain Python conditions (one robot, or a
     batch whose robots share the delay draw; the torques may still be arrays)."""
 
-    @staticmethod
-    def any(cond: bool) -> bool:
-        return cond
+    any = staticmethod(bool)
 
     @staticmethod
-    def where(cond: bool, a: Any, b: Any) -> Any:
-        return a if cond else b
+    def take(newer: bool, c: Command, hold: Hold) -> None:
+        if newer:
+            hold.cmd1, hold.cmd2, hold.applied_seq = c.tau1, c.tau2, c.seq
 
     @staticmethod
     def steps(land: int) -> tuple[int, ...]:
@@ -83,7 +85,12 @@ class _Apart:
     """Robots land a command at their own steps: masks over robots."""
 
     any = staticmethod(np.ndarray.any)
-    where = staticmethod(np.where)
+
+    @staticmethod
+    def take(newer: np.ndarray, c: Command, hold: Hold) -> None:
+        hold.cmd1 = np.where(newer, c.tau1, hold.cmd1)
+        hold.cmd2 = np.where(newer, c.tau2, hold.cmd2)
+        hold.applied_seq = np.where(newer, c.seq, hold.applied_seq)
 
     @staticmethod
     def steps(land: np.ndarray) -> tuple[int, ...]:
@@ -110,7 +117,10 @@ class Hold:
 
     def send(self, seq: int, land: Any, tau1: Any, tau2: Any, note: Any = None) -> None:
         """Command ``seq`` leaves now and lands at plant step ``land`` (>= the current step)."""
-        self.pending.append(Command(seq, land, tau1, tau2, note, self._ns.steps(land)))
+        # tuple.__new__ skips the NamedTuple's Python-level __new__: once a period on the
+        # single-run path, where it was a measurable part of the step's overhead.
+        steps = self._ns.steps(land)
+        self.pending.append(_new(Command, (seq, land, tau1, tau2, note, steps)))
 
     def land(self, j: int) -> None:
         """Land every command due at plant step ``j``, oldest first, so that at a shared step
@@ -122,9 +132,7 @@ class Hold:
                 continue
             newer = lands & (c.seq > self.applied_seq)
             self.dropped += lands ^ newer  # landed but not newer
-            self.cmd1 = ns.where(newer, c.tau1, self.cmd1)
-            self.cmd2 = ns.where(newer, c.tau2, self.cmd2)
-            self.applied_seq = ns.where(newer, c.seq, self.applied_seq)
+            ns.take(newer, c, self)
             if self.log is not None:
                 self.log.append((c, newer))
         pending = self.pending
@@ -134,40 +142,6 @@ class Hold:
     def landings(self, j: int, j_end: int) -> list[int]:
         """The plant steps strictly between ``j`` and ``j_end`` where a command lands."""
         return sorted({e for c in self.pending for e in c.steps if j < e < j_end})
-
-
-def integrate(
-    state: PlantState,
-    cmd1: Any,
-    cmd2: Any,
-    plant: Plant,
-    j: int,
-    n: int,
-    ext: Extremes,
-    t0: Any = None,
-) -> PlantState:
-    """``n`` RK4 steps of model (1) from plant step ``j`` with the command (cmd1, cmd2) held.
-
-    ``t0``: None when the plant's clock is the step grid (step i starts at (j + i) h), else the
-    time of step 0 (a float, or one per robot): step i then starts at t0 + j h + i h.
-    """
-    h = plant.h
-    rk4 = rk4_array if isinstance(state.x, np.ndarray) else rk4_float
-    start, step0 = (j * h, j) if t0 is None else (t0 + j * h, None)
-    return rk4(
-        state,
-        cmd1,
-        cmd2,
-        start,
-        h,
-        n,
-        plant.disturbance,
-        plant.lag,
-        plant.seed,
-        plant.limits,
-        ext,
-        step0,
-    )
 
 
 def advance_period(
@@ -182,12 +156,28 @@ def advance_period(
     """Integrate from plant step ``j`` to ``j_end`` (the next sample), landing the commands due
     on the way: the held command is piecewise constant between landings (zero-order hold), so
     RK4 never steps across a change of torque. A landing at ``j_end`` is the next period's.
-    (``t0`` as in :func:`integrate`.)"""
-    for e in hold.landings(j, j_end):
-        state = integrate(state, hold.cmd1, hold.cmd2, plant, j, e - j, ext, t0)
+
+    ``t0``: None when the plant's clock is the step grid (step i starts at (j + i) h), else the
+    time of step 0 (a float, or one per robot): step i then starts at t0 + j h + i h.
+    """
+    # The RK4 call is written out here rather than in a helper: the single-run path takes this
+    # step once a control period, where one more call layer was a measurable overhead.
+    h, dist, lag, seed, limits = plant.h, plant.disturbance, plant.lag, plant.seed, plant.limits
+    rk4 = rk4_array if state.x.__class__ is np.ndarray else rk4_float
+    grid = t0 is None
+    for e in hold.landings(j, j_end) if hold.pending else ():
+        start = j * h if grid else t0 + j * h
+        c1, c2 = hold.cmd1, hold.cmd2
+        state = rk4(
+            state, c1, c2, start, h, e - j, dist, lag, seed, limits, ext, j if grid else None
+        )
         hold.land(e)
         j = e
-    return integrate(state, hold.cmd1, hold.cmd2, plant, j, j_end - j, ext, t0)
+    start = j * h if grid else t0 + j * h
+    c1, c2 = hold.cmd1, hold.cmd2
+    return rk4(
+        state, c1, c2, start, h, j_end - j, dist, lag, seed, limits, ext, j if grid else None
+    )
 
 
 def integrate_span(

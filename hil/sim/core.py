@@ -244,6 +244,7 @@ def _single_loop(run: _Single, scenario: Scenario, t0: float, progress: Progress
     rms_from = math.floor(0.9 * n_samples)
     sq_sum = 0.0
     every = max(1, n_samples // 200)
+    tel_keys, last = run.tel_keys, run.last
     try:
         for k in range(n_samples):
             t_k = t0 + k * ts
@@ -251,8 +252,8 @@ def _single_loop(run: _Single, scenario: Scenario, t0: float, progress: Progress
             meas = rs if ideal_sensor else measure(sensor, rs, k, sseed)
             ref = reference.sample(t_k)
             out, memory = controller.update(t_k, ts, meas, ref, memory)
-            if run.tel_keys is None:
-                run.tel_keys = list(out.telemetry)
+            if tel_keys is None:
+                tel_keys = run.tel_keys = list(out.telemetry)
             tau1, tau2 = float(out.tau1), float(out.tau2)
             j0 = k * m
             hold.send(k, j0 + offsets[k], tau1, tau2)
@@ -271,10 +272,10 @@ def _single_loop(run: _Single, scenario: Scenario, t0: float, progress: Progress
                     tau2,
                     e_pos,
                     wrap_angle(state.theta - ref.thetad),
-                    *map(float, map(out.telemetry.__getitem__, run.tel_keys)),
+                    *map(float, map(out.telemetry.__getitem__, tel_keys)),
                 )
             )
-            run.last = (state.x, state.y, state.theta, ref.xd, ref.yd, ref.thetad)
+            last = (state.x, state.y, state.theta, ref.xd, ref.yd, ref.thetad)
             if k >= rms_from:
                 sq_sum += e_pos * e_pos
             state = advance_period(state, hold, plant, j0, j0 + m, ext, grid_t0)
@@ -284,7 +285,7 @@ def _single_loop(run: _Single, scenario: Scenario, t0: float, progress: Progress
         run.interrupted = True
     sq_n = len(rows) - rms_from
     run.rms = math.sqrt(sq_sum / sq_n) if sq_n > 0 else float("nan")
-    run.state, run.memory = state, memory
+    run.state, run.memory, run.last = state, memory, last
 
 
 def _single_result(run: _Single, scenario: Scenario) -> SimResult:
