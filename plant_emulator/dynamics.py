@@ -6,18 +6,17 @@ with lag time constant ``T = 0`` they equal it; with ``T > 0`` they obey tau' = 
 which is solved exactly over the step (tau(s) = cmd + (tau0 - cmd) exp(-s/T)) so that any T is
 stable at any step h; RK4 then sees the exact applied torque at its stage times.
 
-Three implementations of the *same* RK4 arithmetic (tests check they agree):
-- :func:`rk4_step` / :func:`advance`: written once on :mod:`controller_service.mathns` for floats
-  and numpy arrays; the real-time plant emulator integrates lazily with
-  ``advance(state, cmd1, cmd2, t0, t1, h, disturbance, lag)`` (constant command, steps <= h).
-- :func:`advance_float_tracked`: the same step inlined on Python floats, with the per-step
-  extremes and violation counts the simulator needs (the single-run path, ~1.5 M steps/150 s).
-- :func:`advance_array_tracked`: the same step on arrays of N robots, where cos/sin at the
-  stage angles come from one exact cos/sin per call rotated by Taylor polynomials of the small
-  stage increments (exact to rounding while h*|omega| <= 0.02, else it falls back to exact
-  trigonometry), because one numpy sin on 10,000 values costs as much as ~30 additions. Under a
-  held torque with no lag and a constant disturbance (the common case) the stages are summed
-  in complex form (:func:`_advance_array_held`), the same RK4 arithmetic regrouped.
+One RK4 of this model, on Python floats for one robot and on numpy arrays for N (tests check
+both against an independent textbook RK4); :mod:`plant_emulator.sampled` is its only caller,
+where the sampled-data step holds the command and lands delayed commands between calls:
+- :func:`rk4_float`: the one-robot fast path, the classical stage formulas inlined on floats
+  with the per-step extremes and violation counts (~1.5 M steps per 150 s run).
+- :func:`rk4_array`: the same stage formulas on arrays of N robots, where cos/sin at the stage
+  angles come from one exact cos/sin per call rotated by Taylor polynomials of the small stage
+  increments (exact to rounding while h*|omega| <= 0.02, else exact trigonometry at every
+  stage), because one numpy sin on 10,000 values costs as much as ~30 additions. Under a held
+  torque with no lag and a constant disturbance (the common case) the stages are summed in
+  complex form (:func:`_advance_array_held`), the same RK4 arithmetic regrouped.
 """
 
 from __future__ import annotations
@@ -29,7 +28,6 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from controller_service.laws.base import Limits, RobotState
-from controller_service.mathns import namespace_for
 from plant_emulator.disturbances import Disturbance, disturbance_at
 
 VIOLATION_RTOL = 1e-9  # a step counts as a violation beyond limit * (1 + VIOLATION_RTOL)
@@ -53,96 +51,10 @@ class PlantState(NamedTuple):
         return RobotState(self.x, self.y, self.theta, self.v, self.omega)
 
 
-def _applied(tau0: Any, cmd: Any, decay: float) -> Any:
-    """Applied torque after a time whose decay factor exp(-s/T) is ``decay`` (0 = no lag)."""
-    if decay == 0.0:
-        return cmd
-    return cmd + (tau0 - cmd) * decay
-
-
 def _decays(h: float, lag: float) -> tuple[float, float]:
     if lag <= 0.0:
         return 0.0, 0.0
     return math.exp(-0.5 * h / lag), math.exp(-h / lag)
-
-
-def rk4_step(
-    state: PlantState,
-    cmd1: Any,
-    cmd2: Any,
-    t: float,
-    h: float,
-    disturbance: Disturbance = NO_DISTURBANCE,
-    lag: float = 0.0,
-    seed: Any = None,
-) -> PlantState:
-    """One classical RK4 step of model (1) from ``t`` to ``t + h`` with the command held.
-
-    Floats or numpy arrays of shape (N,) (``seed``: per-robot disturbance seeds, optional).
-    """
-    ns = namespace_for(*state, cmd1, cmd2, seed)
-    x, y, th, v, w, a1, a2 = state
-    hh = 0.5 * h
-    eh, ee = _decays(h, lag)
-    a1h, a2h = _applied(a1, cmd1, eh), _applied(a2, cmd2, eh)
-    a1e, a2e = _applied(a1, cmd1, ee), _applied(a2, cmd2, ee)
-    if lag <= 0.0:
-        a1, a2 = cmd1, cmd2
-    d10, d20 = disturbance_at(disturbance, t, seed)
-    if disturbance.is_constant:
-        d1h, d2h, d1e, d2e = d10, d20, d10, d20
-    else:
-        d1h, d2h = disturbance_at(disturbance, t + hh, seed)
-        d1e, d2e = disturbance_at(disturbance, t + h, seed)
-    u10, u20 = a1 + d10, a2 + d20
-    u1h, u2h = a1h + d1h, a2h + d2h
-    u1e, u2e = a1e + d1e, a2e + d2e
-    th2 = th + hh * w
-    v2 = v + hh * u10
-    w2 = w + hh * u20
-    th3 = th + hh * w2
-    v3 = v + hh * u1h
-    w3 = w + hh * u2h
-    th4 = th + h * w3
-    v4 = v + h * u1h
-    w4 = w + h * u2h
-    h6 = h / 6.0
-    x = x + h6 * (
-        v * ns.cos(th) + 2.0 * v2 * ns.cos(th2) + 2.0 * v3 * ns.cos(th3) + v4 * ns.cos(th4)
-    )
-    y = y + h6 * (
-        v * ns.sin(th) + 2.0 * v2 * ns.sin(th2) + 2.0 * v3 * ns.sin(th3) + v4 * ns.sin(th4)
-    )
-    th = th + h6 * (w + 2.0 * w2 + 2.0 * w3 + w4)
-    v = v + h6 * (u10 + 4.0 * u1h + u1e)
-    w = w + h6 * (u20 + 4.0 * u2h + u2e)
-    return PlantState(x, y, th, v, w, a1e, a2e)
-
-
-def advance(
-    state: PlantState,
-    cmd1: Any,
-    cmd2: Any,
-    t0: float,
-    t1: float,
-    h: float,
-    disturbance: Disturbance = NO_DISTURBANCE,
-    lag: float = 0.0,
-    seed: Any = None,
-) -> PlantState:
-    """Integrate from ``t0`` to ``t1`` with the command held, in equal RK4 steps of at most h.
-
-    This is the call the real-time plant makes when an event (a command, a sample request)
-    arrives at ``t1``: the state is advanced lazily to exactly that time.
-    """
-    span = t1 - t0
-    if span <= 0.0:
-        return state
-    n = max(1, math.ceil(span / h - 1e-9))
-    step = span / n
-    for i in range(n):
-        state = rk4_step(state, cmd1, cmd2, t0 + i * step, step, disturbance, lag, seed)
-    return state
 
 
 @dataclass
@@ -173,7 +85,13 @@ class Extremes:
         )
 
 
-def advance_float_tracked(
+def _thresholds(limits: Limits) -> tuple[float, float, float, float]:
+    """The limits of (2) on |v|, |omega|, |tau1|, |tau2| as violation thresholds."""
+    r = 1.0 + VIOLATION_RTOL
+    return limits.phi1 * r, limits.phi2 * r, limits.varpi1 * r, limits.varpi2 * r
+
+
+def rk4_float(
     s: PlantState,
     cmd1: float,
     cmd2: float,
@@ -187,7 +105,8 @@ def advance_float_tracked(
     ext: Extremes,
     step0: int | None = None,
 ) -> PlantState:
-    """``n`` RK4 steps of :func:`rk4_step` on floats, inlined, updating ``ext`` every step.
+    """``n`` classical RK4 steps of model (1) from ``t0`` with the command held, on floats,
+    updating ``ext`` every step (the one-robot fast path of :func:`rk4_array`).
 
     ``step0``: the index of the first step on the run's plant grid; when given, step i starts at
     ``(step0 + i) * h``, so times (and the random disturbance's hold index) do not depend on
@@ -201,69 +120,42 @@ def advance_float_tracked(
     const_d = disturbance.is_constant
     d10, d20 = disturbance_at(disturbance, t0, seed)
     d1h, d2h, d1e, d2e = d10, d20, d10, d20
-    lv = limits.phi1 * (1.0 + VIOLATION_RTOL)
-    lw = limits.phi2 * (1.0 + VIOLATION_RTOL)
-    lt1 = limits.varpi1 * (1.0 + VIOLATION_RTOL)
-    lt2 = limits.varpi2 * (1.0 + VIOLATION_RTOL)
+    lv, lw, lt1, lt2 = _thresholds(limits)
     mv, mw, mt1, mt2 = ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2
-    nv, nw, nt1, nt2 = (
-        ext.violations_v,
-        ext.violations_omega,
-        ext.violations_tau1,
-        ext.violations_tau2,
-    )
+    nv, nw = ext.violations_v, ext.violations_omega
+    nt1, nt2 = ext.violations_tau1, ext.violations_tau2
     if lag <= 0.0:
         a1, a2 = cmd1, cmd2
+    a1h = a1e = cmd1
+    a2h = a2e = cmd2
     for i in range(n):
-        t = t0 + i * h if step0 is None else (step0 + i) * h
         if lag > 0.0:
             a1h, a2h = cmd1 + (a1 - cmd1) * eh, cmd2 + (a2 - cmd2) * eh
             a1e, a2e = cmd1 + (a1 - cmd1) * ee, cmd2 + (a2 - cmd2) * ee
-        else:
-            a1h = a1e = cmd1
-            a2h = a2e = cmd2
         if not const_d:
+            t = t0 + i * h if step0 is None else (step0 + i) * h
             d10, d20 = disturbance_at(disturbance, t, seed)
             d1h, d2h = disturbance_at(disturbance, t + hh, seed)
             d1e, d2e = disturbance_at(disturbance, t + h, seed)
         u10, u20 = a1 + d10, a2 + d20
         u1h, u2h = a1h + d1h, a2h + d2h
-        u1e, u2e = a1e + d1e, a2e + d2e
-        th2 = th + hh * w
-        v2 = v + hh * u10
-        w2 = w + hh * u20
-        th3 = th + hh * w2
-        v3 = v + hh * u1h
-        w3 = w + hh * u2h
-        th4 = th + h * w3
-        v4 = v + h * u1h
-        w4 = w + h * u2h
+        th2, v2, w2 = th + hh * w, v + hh * u10, w + hh * u20
+        th3, v3, w3 = th + hh * w2, v + hh * u1h, w + hh * u2h
+        th4, v4, w4 = th + h * w3, v + h * u1h, w + h * u2h
         x = x + h6 * (v * cos(th) + 2.0 * v2 * cos(th2) + 2.0 * v3 * cos(th3) + v4 * cos(th4))
         y = y + h6 * (v * sin(th) + 2.0 * v2 * sin(th2) + 2.0 * v3 * sin(th3) + v4 * sin(th4))
         th = th + h6 * (w + 2.0 * w2 + 2.0 * w3 + w4)
-        v = v + h6 * (u10 + 4.0 * u1h + u1e)
-        w = w + h6 * (u20 + 4.0 * u2h + u2e)
+        v = v + h6 * (u10 + 4.0 * u1h + (a1e + d1e))
+        w = w + h6 * (u20 + 4.0 * u2h + (a2e + d2e))
         a1, a2 = a1e, a2e
         av = v if v >= 0.0 else -v
         aw = w if w >= 0.0 else -w
         at1 = a1 if a1 >= 0.0 else -a1
         at2 = a2 if a2 >= 0.0 else -a2
-        if av > mv:
-            mv = av
-        if aw > mw:
-            mw = aw
-        if at1 > mt1:
-            mt1 = at1
-        if at2 > mt2:
-            mt2 = at2
-        if av > lv:
-            nv += 1
-        if aw > lw:
-            nw += 1
-        if at1 > lt1:
-            nt1 += 1
-        if at2 > lt2:
-            nt2 += 1
+        mv, mw = (av if av > mv else mv), (aw if aw > mw else mw)
+        mt1, mt2 = (at1 if at1 > mt1 else mt1), (at2 if at2 > mt2 else mt2)
+        nv, nw = nv + (av > lv), nw + (aw > lw)
+        nt1, nt2 = nt1 + (at1 > lt1), nt2 + (at2 > lt2)
     ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2 = mv, mw, mt1, mt2
     ext.violations_v, ext.violations_omega = nv, nw
     ext.violations_tau1, ext.violations_tau2 = nt1, nt2
@@ -300,11 +192,11 @@ def _track_torque(ext: Extremes, a1: Any, a2: Any, lt1: float, lt2: float, count
     ext.violations_tau2 += (at2 > lt2) * count
 
 
-def advance_array_tracked(
+def rk4_array(
     s: PlantState,
     cmd1: np.ndarray,
     cmd2: np.ndarray,
-    t0: float,
+    t0: Any,
     h: float,
     n: int,
     disturbance: Disturbance,
@@ -314,34 +206,52 @@ def advance_array_tracked(
     ext: Extremes,
     step0: int | None = None,
 ) -> PlantState:
-    """``n`` RK4 steps of :func:`rk4_step` on arrays of N robots, updating ``ext`` every step.
+    """``n`` classical RK4 steps of model (1) on arrays of N robots, updating ``ext`` every step
+    (times and ``step0`` as in :func:`rk4_float`; ``t0`` may be one start time per robot).
 
-    Same stage formulas as :func:`rk4_step`; cos/sin at the stage angles are rotated from one
-    exact evaluation per call (see the module docstring).
+    The stage formulas are :func:`rk4_float`'s; cos/sin at the stage angles are rotated from
+    one exact evaluation per call while the stage increments stay small (module docstring),
+    else evaluated exactly at every stage; a held torque without lag under a constant
+    disturbance is summed in closed form (:func:`_advance_array_held`).
     """
-    x, y, th, v, w, a1, a2 = s
-    lv = limits.phi1 * (1.0 + VIOLATION_RTOL)
-    lw = limits.phi2 * (1.0 + VIOLATION_RTOL)
-    lt1 = limits.varpi1 * (1.0 + VIOLATION_RTOL)
-    lt2 = limits.varpi2 * (1.0 + VIOLATION_RTOL)
     d2bound = max(abs(disturbance.value2), abs(disturbance.amplitude2), disturbance.s2)
     if disturbance.kind == "none":
         d2bound = 0.0
-    wmax = float(np.max(np.abs(w))) if n else 0.0
-    u2max = float(np.max(np.abs(cmd2))) + max(float(np.max(np.abs(a2))), 0.0) + d2bound
-    if h * (wmax + n * h * u2max) > _TAYLOR_MAX_ANGLE:
-        # Stage increments too large for the Taylor rotation: exact trigonometry, same steps.
-        state = s
-        for i in range(n):
-            t = t0 + i * h if step0 is None else (step0 + i) * h
-            state = rk4_step(state, cmd1, cmd2, t, h, disturbance, lag, seed)
-            _track_array(ext, state.v, state.omega, lv, lw)
-            _track_torque(ext, state.tau1, state.tau2, lt1, lt2, 1)
-        ext.steps += n
-        return state
-    if lag <= 0.0 and disturbance.is_constant:
+    wmax = float(np.max(np.abs(s.omega))) if n else 0.0
+    u2max = float(np.max(np.abs(cmd2))) + max(float(np.max(np.abs(s.tau2))), 0.0) + d2bound
+    # Written as "not beyond" so that a NaN state keeps the rotated path, as it always has.
+    taylor = not h * (wmax + n * h * u2max) > _TAYLOR_MAX_ANGLE
+    if taylor and lag <= 0.0 and disturbance.is_constant:
         d1, d2 = disturbance_at(disturbance, t0, seed)
         return _advance_array_held(s, cmd1, cmd2, d1, d2, h, n, limits, ext)
+    return _rk4_array_steps(
+        s, cmd1, cmd2, t0, h, n, disturbance, lag, seed, limits, ext, step0, taylor
+    )
+
+
+def _trig(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return np.cos(a), np.sin(a)
+
+
+def _rk4_array_steps(
+    s: PlantState,
+    cmd1: np.ndarray,
+    cmd2: np.ndarray,
+    t0: Any,
+    h: float,
+    n: int,
+    disturbance: Disturbance,
+    lag: float,
+    seed: Any,
+    limits: Limits,
+    ext: Extremes,
+    step0: int | None,
+    taylor: bool,
+) -> PlantState:
+    """The stage-by-stage loop of :func:`rk4_array`: the stage cos/sin are rotated from the
+    step's (``taylor``) or evaluated exactly (large stage angles)."""
+    x, y, th, v, w, a1, a2 = s
+    lv, lw, lt1, lt2 = _thresholds(limits)
     hh = 0.5 * h
     h6 = h / 6.0
     eh, ee = _decays(h, lag)
@@ -349,50 +259,44 @@ def advance_array_tracked(
     const_u2 = const_d and lag <= 0.0
     d10, d20 = disturbance_at(disturbance, t0, seed)
     d1h, d2h, d1e, d2e = d10, d20, d10, d20
-    c = np.cos(th)
-    sn = np.sin(th)
+    c, sn = _trig(th)
     if lag <= 0.0:
         a1, a2 = cmd1, cmd2
         _track_torque(ext, a1, a2, lt1, lt2, n)
+    a1h = a1e = cmd1
+    a2h = a2e = cmd2
     for i in range(n):
-        t = t0 + i * h if step0 is None else (step0 + i) * h
         if lag > 0.0:
             a1h, a2h = cmd1 + (a1 - cmd1) * eh, cmd2 + (a2 - cmd2) * eh
             a1e, a2e = cmd1 + (a1 - cmd1) * ee, cmd2 + (a2 - cmd2) * ee
-        else:
-            a1h = a1e = cmd1
-            a2h = a2e = cmd2
         if not const_d:
+            t = t0 + i * h if step0 is None else (step0 + i) * h
             d10, d20 = disturbance_at(disturbance, t, seed)
             d1h, d2h = disturbance_at(disturbance, t + hh, seed)
             d1e, d2e = disturbance_at(disturbance, t + h, seed)
         u10, u20 = a1 + d10, a2 + d20
         u1h, u2h = a1h + d1h, a2h + d2h
-        u1e, u2e = a1e + d1e, a2e + d2e
-        dth2 = hh * w
-        v2 = v + hh * u10
-        w2 = w + hh * u20
-        dth3 = hh * w2
-        v3 = v + hh * u1h
-        w3 = w + hh * u2h
-        dth4 = h * w3
-        v4 = v + h * u1h
-        w4 = w + h * u2h
-        c2, s2 = _rot(c, sn, dth2)
-        c3, s3 = _rot(c, sn, dth3)
-        c4, s4 = _rot(c, sn, dth4)
+        dth2, v2, w2 = hh * w, v + hh * u10, w + hh * u20
+        dth3, v3, w3 = hh * w2, v + hh * u1h, w + hh * u2h
+        dth4, v4, w4 = h * w3, v + h * u1h, w + h * u2h
+        if taylor:
+            (c2, s2), (c3, s3), (c4, s4) = _rot(c, sn, dth2), _rot(c, sn, dth3), _rot(c, sn, dth4)
+        else:
+            (c2, s2), (c3, s3), (c4, s4) = _trig(th + dth2), _trig(th + dth3), _trig(th + dth4)
         x = x + h6 * (v * c + 2.0 * v2 * c2 + 2.0 * v3 * c3 + v4 * c4)
         y = y + h6 * (v * sn + 2.0 * v2 * s2 + 2.0 * v3 * s3 + v4 * s4)
         dth = h6 * (w + 2.0 * w2 + 2.0 * w3 + w4)
         th = th + dth
-        if const_u2:
+        if not taylor:
+            c, sn = _trig(th)
+        elif const_u2:
             # theta is exactly quadratic in time here, so the fourth stage angle is the next
             # step's angle and its rotation is reused.
             c, sn = c4, s4
         else:
             c, sn = _rot(c, sn, dth)
-        v = v + h6 * (u10 + 4.0 * u1h + u1e)
-        w = w + h6 * (u20 + 4.0 * u2h + u2e)
+        v = v + h6 * (u10 + 4.0 * u1h + (a1e + d1e))
+        w = w + h6 * (u20 + 4.0 * u2h + (a2e + d2e))
         if lag > 0.0:
             a1, a2 = a1e, a2e
             _track_torque(ext, a1, a2, lt1, lt2, 1)
@@ -472,7 +376,7 @@ def _advance_array_held(
     limits: Limits,
     ext: Extremes,
 ) -> PlantState:
-    """:func:`advance_array_tracked` when v' = u1 and omega' = u2 are constant over the segment
+    """:func:`rk4_array` when v' = u1 and omega' = u2 are constant over the segment
     (no lag, constant disturbance): the same RK4 stages of model (1), summed in closed form.
 
     With u constant, RK4's stages of step i give v2 = v3 = v_i + h u1 / 2, v4 = v_i + h u1

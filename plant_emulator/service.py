@@ -37,7 +37,8 @@ from controller_service.realtime import DeadlineClock, setup_scheduling
 from plant_emulator.can_drives import CanDrives
 from plant_emulator.disturbances import Disturbance
 from plant_emulator.drive_plant import DrivePlant
-from plant_emulator.dynamics import Extremes, PlantState, advance_float_tracked
+from plant_emulator.dynamics import Extremes, PlantState
+from plant_emulator.sampled import Command, Hold, Plant, advance_period, integrate_span
 from plant_emulator.sensors import Sensor, measure
 from protocol import keys
 from protocol.faults import Faults, every_nth
@@ -78,53 +79,47 @@ class PlantCore:
     cmd2: float = 0.0
     extremes: Extremes = field(default_factory=Extremes)
 
+    @property
+    def plant(self) -> Plant:
+        """The model's parameters as :mod:`plant_emulator.sampled` integrates them."""
+        return Plant(self.h, self.disturbance, self.lag, self.seed, self.limits)
+
     def advance_to(self, t1: float) -> None:
         """Integrate from ``self.t`` to ``t1`` with the held command (steps of at most h)."""
-        span = t1 - self.t
-        if span <= 0.0:
+        if t1 <= self.t:
             return
-        n = max(1, math.ceil(span / self.h - 1e-9))
-        self.state = advance_float_tracked(
-            self.state,
-            self.cmd1,
-            self.cmd2,
-            self.t,
-            span / n,
-            n,
-            self.disturbance,
-            self.lag,
-            self.seed,
-            self.limits,
-            self.extremes,
+        self.state = integrate_span(
+            self.state, self.cmd1, self.cmd2, self.plant, self.t, t1, self.extremes
         )
         self.t = t1
 
-    def advance_steps(self, n: int) -> None:
-        """``n`` steps of exactly ``h`` (the lockstep grid, as the simulator steps)."""
-        if n <= 0:
-            return
-        self.state = advance_float_tracked(
-            self.state,
-            self.cmd1,
-            self.cmd2,
-            self.t,
-            self.h,
-            n,
-            self.disturbance,
-            self.lag,
-            self.seed,
-            self.limits,
-            self.extremes,
-        )
-        self.t = self.t + n * self.h
+    def lockstep_period(
+        self, hold: Hold, k: int, m: int, offset: int, cmd1: float, cmd2: float, note: Any = None
+    ) -> tuple[float, float]:
+        """Period k of lockstep on the plant grid (t = j h, m steps a period): the command
+        computed from State k, clamped to (2), leaves and lands ``offset`` steps after t_k; the
+        plant runs :mod:`plant_emulator.sampled`'s step to t_(k+1), as the simulator does.
+        Returns the torque applied at t_k (the held command, or the lagged actuator's)."""
+        j0 = k * m
+        self.t = j0 * self.h
+        hold.send(k, j0 + offset, *self.clamp(cmd1, cmd2), note)
+        hold.land(j0)
+        applied = (hold.cmd1, hold.cmd2) if self.lag <= 0.0 else self.state[5:]
+        self.state = advance_period(self.state, hold, self.plant, j0, j0 + m, self.extremes)
+        self.cmd1, self.cmd2 = hold.cmd1, hold.cmd2
+        self.t = (j0 + m) * self.h
+        return applied
 
     def hold(self, cmd1: float, cmd2: float) -> None:
         """Hold a new command; clamped to (2) here, where commands are applied."""
+        self.cmd1, self.cmd2 = self.clamp(cmd1, cmd2)
+
+    def clamp(self, cmd1: float, cmd2: float) -> tuple[float, float]:
+        """A command as the plant applies it: within (2), a non-finite torque zeroed."""
         lim = self.limits
         c1 = cmd1 if math.isfinite(cmd1) else 0.0
         c2 = cmd2 if math.isfinite(cmd2) else 0.0
-        self.cmd1 = max(-lim.varpi1, min(lim.varpi1, c1))
-        self.cmd2 = max(-lim.varpi2, min(lim.varpi2, c2))
+        return max(-lim.varpi1, min(lim.varpi1, c1)), max(-lim.varpi2, min(lim.varpi2, c2))
 
 
 @dataclass(order=True)
@@ -504,67 +499,45 @@ class PlantService:
     def run_lockstep(self, stop: Any, n_periods: int, offsets: list[int], wait_s: float = 10.0):
         """State k at t_k = k Ts; wait for the command computed from it; it lands ``offsets[k]``
         plant steps after t_k (delay + jitter rounded to the step, as the simulator draws
-        them); the newest by sequence number wins, older ones are dropped. The plant's clock is
-        the integer step index j (t = j h), exactly as in :func:`hil.sim.core.simulate`."""
-        import heapq
-
+        them); the newest by sequence number wins, older ones are dropped. Each period is
+        :meth:`PlantCore.lockstep_period`, the sampled-data step of
+        :func:`hil.sim.core.simulate`."""
         c = self.core
         h = c.h
         m = max(1, round(self.ts / h))
-        pending: list[tuple[int, int, float, float]] = []
-        applied_seq = -1
+        landed: list[tuple[Command, bool]] = []
+        hold = Hold(log=landed)
+        hold.cmd1, hold.cmd2 = c.cmd1, c.cmd2
         for k in range(n_periods):
             if stop:
                 break
-            sample_ns = self.epoch_ns + round(k * self.ts * 1e9)
-            j0 = k * m
-            c.t = j0 * h
-            got = self._exchange(k, sample_ns, wait_s, stop)
+            c.t = k * m * h
+            got = self._exchange(k, self.epoch_ns + round(k * self.ts * 1e9), wait_s, stop)
             if got is None:
                 break
             msg, recv_ns, row = got
-            heapq.heappush(pending, (j0 + offsets[k], k, msg.tau1, msg.tau2, recv_ns))
-            j = j0
-            j_end = j0 + m
-            while True:
-                while pending and pending[0][0] <= j:
-                    j_land, seq, t1, t2, recv_ns = heapq.heappop(pending)
-                    # Virtual time: the landing is j_land plant steps after the epoch.
-                    land_ns = self.epoch_ns + round(j_land * h * 1e9)
-                    outcome = 0 if seq > applied_seq else 1
-                    self.hoplog.append("apply", (0, seq, -1, recv_ns, land_ns, t1, t2, outcome))
-                    if outcome == 0:
-                        applied_seq = seq
-                        c.hold(t1, t2)
-                    else:
-                        self.rejections.count("overtaken")
-                if j == j0:
-                    # The trace's applied torque at t_k is what acts from t_k on (as in the
-                    # simulator's trace): the row of State k carries it.
-                    tau1 = c.cmd1 if c.lag <= 0.0 else c.state.tau1
-                    tau2 = c.cmd2 if c.lag <= 0.0 else c.state.tau2
-                    self.hoplog.append("samples", (*row[:9], tau1, tau2, *row[11:]))
-                nxt = pending[0][0] if pending else j_end
-                j_next = min(nxt, j_end)
-                if j_next > j:
-                    c.state = advance_float_tracked(
-                        c.state,
-                        c.cmd1,
-                        c.cmd2,
-                        j * h,
-                        h,
-                        j_next - j,
-                        c.disturbance,
-                        c.lag,
-                        c.seed,
-                        c.limits,
-                        c.extremes,
-                    )
-                    j = j_next
-                if j >= j_end:
-                    break
-            c.t = j_end * h
+            note = (recv_ns, msg.tau1, msg.tau2)
+            tau1, tau2 = c.lockstep_period(hold, k, m, offsets[k], msg.tau1, msg.tau2, note)
+            # Hop-log order: landings at t_k, State k's row, then the landings within the
+            # period. The row's applied torque is what acts from t_k on (as in the simulator's
+            # trace).
+            at_tk = [e for e in landed if e[0].land == k * m]
+            self._log_landings(at_tk, h)
+            self.hoplog.append("samples", (*row[:9], tau1, tau2, *row[11:]))
+            self._log_landings(landed[len(at_tk) :], h)
+            landed.clear()
         self.publish_status("stopped")
+
+    def _log_landings(self, landed: list[tuple[Command, bool]], h: float) -> None:
+        """Hop-log lockstep landings (an overtaken command is refused)."""
+        for cmd, taken in landed:
+            recv_ns, tau1, tau2 = cmd.note
+            # Virtual time: the landing is ``cmd.land`` plant steps after the epoch.
+            land_ns = self.epoch_ns + round(cmd.land * h * 1e9)
+            outcome = 0 if taken else 1
+            self.hoplog.append("apply", (0, cmd.seq, -1, recv_ns, land_ns, tau1, tau2, outcome))
+            if not taken:
+                self.rejections.count("overtaken")
 
     def _exchange(
         self, k: int, sample_ns: int, wait_s: float, stop: Any

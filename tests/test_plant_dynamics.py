@@ -1,5 +1,5 @@
-"""Plant model (1): one RK4 arithmetic on three paths, its accuracy, the actuator lag, the
-seeded disturbances and the sensor model."""
+"""Plant model (1): one RK4 on floats and on arrays, both equal to an independent textbook RK4,
+its accuracy, the actuator lag, the seeded disturbances and the sensor model."""
 
 from __future__ import annotations
 
@@ -10,14 +10,7 @@ import pytest
 
 from controller_service.laws.base import Limits, RobotState
 from plant_emulator.disturbances import Disturbance, disturbance_at, hash_unit
-from plant_emulator.dynamics import (
-    Extremes,
-    PlantState,
-    advance,
-    advance_array_tracked,
-    advance_float_tracked,
-    rk4_step,
-)
+from plant_emulator.dynamics import Extremes, PlantState, rk4_array, rk4_float
 from plant_emulator.sensors import Sensor, measure, wrap_angle
 
 DISTURBANCES = [
@@ -29,14 +22,51 @@ DISTURBANCES = [
 START = PlantState(0.1, -0.2, 0.3, 0.5, 1.0, 0.4, -2.0)
 
 
+NO_DISTURBANCE = Disturbance()
+
+
+def textbook_rk4(s, cmd1, cmd2, t, h, dist=NO_DISTURBANCE, lag=0.0, seed=None):
+    """One classical RK4 step of model (1) written from the textbook, independently of
+    :mod:`plant_emulator.dynamics`: f evaluated at the four stages, the applied torques
+    tau(s) = cmd + (tau0 - cmd) exp(-s/T) known exactly at the stage times (T = 0: cmd)."""
+    xp = np if isinstance(s.x, np.ndarray) else math
+
+    def applied(tau0, cmd, dt):
+        return cmd if lag <= 0.0 else cmd + (tau0 - cmd) * math.exp(-dt / lag)
+
+    def f(q, dt):
+        _x, _y, th, v, w = q
+        d1, d2 = disturbance_at(dist, t + dt, seed)
+        u1, u2 = applied(s.tau1, cmd1, dt) + d1, applied(s.tau2, cmd2, dt) + d2
+        return (v * xp.cos(th), v * xp.sin(th), w, u1, u2)
+
+    q0 = tuple(s[:5])
+    k1 = f(q0, 0.0)
+    k2 = f(tuple(a + 0.5 * h * b for a, b in zip(q0, k1, strict=True)), 0.5 * h)
+    k3 = f(tuple(a + 0.5 * h * b for a, b in zip(q0, k2, strict=True)), 0.5 * h)
+    k4 = f(tuple(a + h * b for a, b in zip(q0, k3, strict=True)), h)
+    q = tuple(
+        a + h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+        for a, b1, b2, b3, b4 in zip(q0, k1, k2, k3, k4, strict=True)
+    )
+    return PlantState(*q, applied(s.tau1, cmd1, h), applied(s.tau2, cmd2, h))
+
+
+def advance(s, cmd1, cmd2, t0, t1, h, lag=0.0):
+    """Integrate from t0 to t1 in equal steps of at most h (the real-time plant's lazy steps)."""
+    n = max(1, math.ceil((t1 - t0) / h - 1e-9))
+    ext = Extremes.zeros()
+    return rk4_float(s, cmd1, cmd2, t0, (t1 - t0) / n, n, NO_DISTURBANCE, lag, None, Limits(), ext)
+
+
 @pytest.mark.parametrize("lag", [0.0, 0.003])
 @pytest.mark.parametrize("dist", DISTURBANCES, ids=lambda d: d.kind)
-def test_float_kernel_equals_generic_rk4(dist: Disturbance, lag: float) -> None:
+def test_float_kernel_equals_textbook_rk4(dist: Disturbance, lag: float) -> None:
     ext = Extremes.zeros()
-    fast = advance_float_tracked(START, 3.3, -51.0, 0.2, 1e-4, 40, dist, lag, None, Limits(), ext)
+    fast = rk4_float(START, 3.3, -51.0, 0.2, 1e-4, 40, dist, lag, None, Limits(), ext)
     ref = START
     for i in range(40):
-        ref = rk4_step(ref, 3.3, -51.0, 0.2 + i * 1e-4, 1e-4, dist, lag)
+        ref = textbook_rk4(ref, 3.3, -51.0, 0.2 + i * 1e-4, 1e-4, dist, lag)
     assert max(abs(a - b) for a, b in zip(fast, ref, strict=True)) < 1e-14
     assert ext.steps == 40
 
@@ -44,7 +74,7 @@ def test_float_kernel_equals_generic_rk4(dist: Disturbance, lag: float) -> None:
 @pytest.mark.parametrize("h", [1e-4, 2e-3])  # Taylor-rotation path and exact-trig fallback
 @pytest.mark.parametrize("lag", [0.0, 0.003])
 @pytest.mark.parametrize("dist", DISTURBANCES, ids=lambda d: d.kind)
-def test_array_kernel_equals_generic_rk4(dist: Disturbance, lag: float, h: float) -> None:
+def test_array_kernel_equals_textbook_rk4(dist: Disturbance, lag: float, h: float) -> None:
     rng = np.random.default_rng(3)
     n = 7
     s = PlantState(*(rng.uniform(-2, 2, n) for _ in range(7)))
@@ -52,14 +82,14 @@ def test_array_kernel_equals_generic_rk4(dist: Disturbance, lag: float, h: float
     c2 = rng.uniform(-51, 51, n)
     seeds = np.arange(n, dtype=np.int64) + 5
     ext = Extremes.zeros(n)
-    fast = advance_array_tracked(s, c1, c2, 0.1, h, 25, dist, lag, seeds, Limits(), ext)
+    fast = rk4_array(s, c1, c2, 0.1, h, 25, dist, lag, seeds, Limits(), ext)
     ref = s
     for i in range(25):
-        ref = rk4_step(ref, c1, c2, 0.1 + i * h, h, dist, lag, seeds)
+        ref = textbook_rk4(ref, c1, c2, 0.1 + i * h, h, dist, lag, seeds)
     for a, b in zip(fast, ref, strict=True):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
     for i in range(n):  # each robot equals its own float run
-        one = advance_float_tracked(
+        one = rk4_float(
             PlantState(*(float(q[i]) for q in s)),
             float(c1[i]),
             float(c2[i]),
@@ -108,7 +138,7 @@ def test_advance_lands_exactly_and_lag_is_first_order() -> None:
 def test_extremes_count_every_step_beyond_limit() -> None:
     # v = 3.3 t from rest: beyond phi1 = 1.6 after t = 1.6/3.3; steps end at j h.
     ext = Extremes.zeros()
-    advance_float_tracked(
+    rk4_float(
         PlantState(0, 0, 0, 0, 0),
         3.3,
         0.0,

@@ -7,15 +7,15 @@ reorder commands the newest by sequence number wins and older ones are dropped (
 Between landings the command is held (zero-order hold) and model (1) is integrated by RK4 at
 step h = Ts / ceil(Ts / [plant] step). Before the first command lands the torque is zero.
 
-Both paths run the same law object and the same RK4 arithmetic
-(:mod:`plant_emulator.dynamics`): :func:`simulate` on Python floats, :func:`simulate_batch` on
-arrays of N robots that share Ts, h, the law and the reference but may differ in initial state,
-delay, jitter seed, disturbance seed and sensor seed (:class:`RobotVariation`).
+Both paths run the same law object and the same sampled-data step (hold, landing, RK4:
+:mod:`plant_emulator.sampled`) as the plant emulator's lockstep: :func:`simulate` on Python
+floats, :func:`simulate_batch` on arrays of N robots that share Ts, h, the law and the
+reference but may differ in initial state, delay, jitter seed, disturbance seed and sensor
+seed (:class:`RobotVariation`).
 """
 
 from __future__ import annotations
 
-import heapq
 import inspect
 import math
 import time
@@ -30,13 +30,8 @@ from controller_service.references import sample_array
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
 from hil.sim.timing import extra_delays, jitter_samples_from, landing_offsets
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
-from plant_emulator.dynamics import (
-    Extremes,
-    PlantState,
-    advance_array_tracked,
-    advance_float_tracked,
-    track_initial,
-)
+from plant_emulator.dynamics import Extremes, PlantState, track_initial
+from plant_emulator.sampled import Hold, Plant, advance_period
 from plant_emulator.sensors import measure, wrap_angle
 
 BASE_COLUMNS = (
@@ -161,6 +156,175 @@ def _summary(
     }
 
 
+@dataclass
+class _Single:
+    """One loop's set-up and, once run, what the summary needs."""
+
+    controller: Any
+    reference: Any
+    context: Any
+    plant: Plant
+    state: PlantState
+    offsets: list[int]
+    seeds: tuple[int, int, int]  # timing, disturbance, sensor
+    memory: Any
+    n_samples: int
+    ext: Extremes = field(default_factory=Extremes.zeros)
+    hold: Hold = field(default_factory=Hold)
+    rows: list[tuple[float, ...]] = field(default_factory=list)
+    tel_keys: list[str] | None = None
+    last: tuple[float, ...] = (0.0,) * 6
+    rms: float = float("nan")
+    interrupted: bool = False
+
+
+def _plant(scenario: Scenario, seed: Any) -> Plant:
+    return Plant(
+        scenario.plant_step, scenario.disturbance, scenario.plant.lag, seed, scenario.limits
+    )
+
+
+def _single_setup(
+    scenario: Scenario, var: RobotVariation, loop: tuple[Any, Any, Any] | None, memory: Any
+) -> _Single:
+    """The loop's objects, initial state, landing offsets and seeds for one robot."""
+    controller, reference, context = loop or build_loop(scenario)
+    n_samples = max(1, round(scenario.run.duration / scenario.timing.ts))
+    ini = scenario.initial
+    state = PlantState(
+        float(ini.x if var.x is None else var.x),
+        float(ini.y if var.y is None else var.y),
+        float(ini.theta if var.theta is None else var.theta),
+        float(ini.v if var.v is None else var.v),
+        float(ini.omega if var.omega is None else var.omega),
+        0.0,
+        0.0,
+    )
+    timing = scenario.timing
+    delay = timing.delay if var.delay is None else var.delay
+    jitter = timing.jitter if var.jitter is None else var.jitter
+    jseed = timing.seed if var.jitter_seed is None else var.jitter_seed
+    dseed = scenario.disturbance.seed if var.disturbance_seed is None else var.disturbance_seed
+    sseed = scenario.plant.noise_seed if var.sensor_seed is None else var.sensor_seed
+    extra = extra_delays(timing.jitter_kind, jitter, jseed, n_samples, _replay(scenario))
+    offsets = landing_offsets(extra, delay, scenario.plant_step).tolist()
+    if memory is None:
+        memory = _initial_memory(controller, None, scenario)
+    run = _Single(
+        controller,
+        reference,
+        context,
+        _plant(scenario, dseed),
+        state,
+        offsets,
+        (jseed, dseed, sseed),
+        memory,
+        n_samples,
+    )
+    track_initial(run.ext, state, scenario.limits)
+    run.last = (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
+    return run
+
+
+def _single_loop(run: _Single, scenario: Scenario, t0: float, progress: Progress | None) -> None:
+    """The sampled-data loop on floats: sample, law, send, land at t_k, record, advance."""
+    controller, reference, hold, plant, ext = (
+        run.controller,
+        run.reference,
+        run.hold,
+        run.plant,
+        run.ext,
+    )
+    state, memory, offsets, rows = run.state, run.memory, run.offsets, run.rows
+    ts, m, n_samples = scenario.timing.ts, scenario.substeps, run.n_samples
+    sensor, sseed = scenario.sensor, run.seeds[2]
+    ideal_sensor = sensor.is_ideal
+    lag = plant.lag
+    grid_t0 = None if t0 == 0.0 else t0  # off the step grid: times from t0
+    rms_from = math.floor(0.9 * n_samples)
+    sq_sum = 0.0
+    every = max(1, n_samples // 200)
+    tel_keys, last = run.tel_keys, run.last
+    try:
+        for k in range(n_samples):
+            t_k = t0 + k * ts
+            rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
+            meas = rs if ideal_sensor else measure(sensor, rs, k, sseed)
+            ref = reference.sample(t_k)
+            out, memory = controller.update(t_k, ts, meas, ref, memory)
+            if tel_keys is None:
+                tel_keys = run.tel_keys = list(out.telemetry)
+            tau1, tau2 = float(out.tau1), float(out.tau2)
+            j0 = k * m
+            hold.send(k, j0 + offsets[k], tau1, tau2)
+            hold.land(j0)
+            e_pos = math.hypot(state.x - ref.xd, state.y - ref.yd)
+            rows.append(
+                (
+                    t_k,
+                    *state[:5],
+                    ref.xd,
+                    ref.yd,
+                    ref.thetad,
+                    hold.cmd1 if lag <= 0.0 else state.tau1,
+                    hold.cmd2 if lag <= 0.0 else state.tau2,
+                    tau1,
+                    tau2,
+                    e_pos,
+                    wrap_angle(state.theta - ref.thetad),
+                    *map(float, map(out.telemetry.__getitem__, tel_keys)),
+                )
+            )
+            last = (state.x, state.y, state.theta, ref.xd, ref.yd, ref.thetad)
+            if k >= rms_from:
+                sq_sum += e_pos * e_pos
+            state = advance_period(state, hold, plant, j0, j0 + m, ext, grid_t0)
+            if progress is not None and k % every == 0:
+                progress(k, n_samples)
+    except KeyboardInterrupt:
+        run.interrupted = True
+    sq_n = len(rows) - rms_from
+    run.rms = math.sqrt(sq_sum / sq_n) if sq_n > 0 else float("nan")
+    run.state, run.memory, run.last = state, memory, last
+
+
+def _single_result(run: _Single, scenario: Scenario) -> SimResult:
+    """The trace and summary of a finished (or interrupted) loop."""
+    rows = run.rows
+    columns = [*BASE_COLUMNS, *(run.tel_keys or [])]
+    trace = np.array(rows, dtype=float).reshape(len(rows), len(columns))
+    ext = run.ext
+    ext_vals = {
+        "max_abs_v": ext.max_abs_v,
+        "max_abs_omega": ext.max_abs_omega,
+        "max_abs_tau1": ext.max_abs_tau1,
+        "max_abs_tau2": ext.max_abs_tau2,
+    }
+    violations = {
+        "v": ext.violations_v,
+        "omega": ext.violations_omega,
+        "tau1": ext.violations_tau1,
+        "tau2": ext.violations_tau2,
+    }
+    controller = run.controller
+    summary = _summary(
+        scenario,
+        ext_vals,
+        violations,
+        run.last,
+        run.rms,
+        len(rows),
+        ext.steps,
+        run.hold.dropped,
+        run.interrupted,
+        getattr(controller, "name", type(controller).__name__),
+    )
+    jseed, dseed, sseed = run.seeds
+    summary["seeds"] = {"timing": jseed, "disturbance": dseed, "sensor": sseed}
+    resolved = resolved_dict(scenario, controller, run.context)
+    return SimResult(scenario, resolved, columns, trace, summary, run.interrupted)
+
+
 def simulate(
     scenario: Scenario,
     variation: RobotVariation | None = None,
@@ -178,158 +342,11 @@ def simulate(
     (the initial state is then the state at t0, the law's memory its initial memory unless
     ``memory`` gives the law's memory at t0).
     """
-    var = variation or RobotVariation()
-    controller, reference, context = loop or build_loop(scenario)
-    ts = scenario.timing.ts
-    m = scenario.substeps
-    h = scenario.plant_step
-    n_samples = max(1, round(scenario.run.duration / ts))
-    ini = scenario.initial
-    state = PlantState(
-        float(ini.x if var.x is None else var.x),
-        float(ini.y if var.y is None else var.y),
-        float(ini.theta if var.theta is None else var.theta),
-        float(ini.v if var.v is None else var.v),
-        float(ini.omega if var.omega is None else var.omega),
-        0.0,
-        0.0,
-    )
-    timing = scenario.timing
-    delay = timing.delay if var.delay is None else var.delay
-    jitter = timing.jitter if var.jitter is None else var.jitter
-    jseed = timing.seed if var.jitter_seed is None else var.jitter_seed
-    dseed = scenario.disturbance.seed if var.disturbance_seed is None else var.disturbance_seed
-    sseed = scenario.plant.noise_seed if var.sensor_seed is None else var.sensor_seed
-    offsets = landing_offsets(
-        extra_delays(timing.jitter_kind, jitter, jseed, n_samples, _replay(scenario)), delay, h
-    ).tolist()
-    sensor = scenario.sensor
-    ideal_sensor = sensor.is_ideal
-    dist = scenario.disturbance
-    lag = scenario.plant.lag
-    limits = scenario.limits
-    ext = Extremes.zeros()
-    track_initial(ext, state, limits)
-    if memory is None:
-        memory = _initial_memory(controller, None, scenario)
-    pending: list[tuple[int, int, float, float]] = []
-    applied_seq = -1
-    cmd1 = cmd2 = 0.0
-    dropped = 0
-    rows: list[tuple[float, ...]] = []
-    tel_keys: list[str] | None = None
-    rms_from = math.floor(0.9 * n_samples)
-    sq_sum = 0.0
-    sq_n = 0
-    interrupted = False
-    every = max(1, n_samples // 200)
-    last = (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
-    try:
-        for k in range(n_samples):
-            t_k = t0 + k * ts
-            rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
-            meas = rs if ideal_sensor else measure(sensor, rs, k, sseed)
-            ref = reference.sample(t_k)
-            out, memory = controller.update(t_k, ts, meas, ref, memory)
-            if tel_keys is None:
-                tel_keys = list(out.telemetry)
-            j0 = k * m
-            heapq.heappush(pending, (j0 + offsets[k], k, float(out.tau1), float(out.tau2)))
-            j = j0
-            j_end_period = j0 + m
-            first = True
-            while True:
-                while pending and pending[0][0] <= j:
-                    _, seq, c1, c2 = heapq.heappop(pending)
-                    if seq > applied_seq:
-                        applied_seq, cmd1, cmd2 = seq, c1, c2
-                    else:
-                        dropped += 1
-                if first:
-                    first = False
-                    a1 = cmd1 if lag <= 0.0 else state.tau1
-                    a2 = cmd2 if lag <= 0.0 else state.tau2
-                    e_pos = math.hypot(state.x - ref.xd, state.y - ref.yd)
-                    rows.append(
-                        (
-                            t_k,
-                            state.x,
-                            state.y,
-                            state.theta,
-                            state.v,
-                            state.omega,
-                            ref.xd,
-                            ref.yd,
-                            ref.thetad,
-                            a1,
-                            a2,
-                            float(out.tau1),
-                            float(out.tau2),
-                            e_pos,
-                            wrap_angle(state.theta - ref.thetad),
-                            *(float(out.telemetry[key]) for key in tel_keys),
-                        )
-                    )
-                    last = (state.x, state.y, state.theta, ref.xd, ref.yd, ref.thetad)
-                    if k >= rms_from:
-                        sq_sum += e_pos * e_pos
-                        sq_n += 1
-                nxt = pending[0][0] if pending else j_end_period
-                j_next = min(nxt, j_end_period)
-                if j_next > j:
-                    state = advance_float_tracked(
-                        state,
-                        cmd1,
-                        cmd2,
-                        t0 + j * h,
-                        h,
-                        j_next - j,
-                        dist,
-                        lag,
-                        dseed,
-                        limits,
-                        ext,
-                        j if t0 == 0.0 else None,  # off the step grid: times from t0
-                    )
-                    j = j_next
-                if j >= j_end_period:
-                    break
-            if progress is not None and k % every == 0:
-                progress(k, n_samples)
-    except KeyboardInterrupt:
-        interrupted = True
-    if progress is not None and not interrupted:
-        progress(len(rows), n_samples)
-    columns = [*BASE_COLUMNS, *(tel_keys or [])]
-    trace = np.array(rows, dtype=float).reshape(len(rows), len(columns))
-    ext_vals = {
-        "max_abs_v": ext.max_abs_v,
-        "max_abs_omega": ext.max_abs_omega,
-        "max_abs_tau1": ext.max_abs_tau1,
-        "max_abs_tau2": ext.max_abs_tau2,
-    }
-    violations = {
-        "v": ext.violations_v,
-        "omega": ext.violations_omega,
-        "tau1": ext.violations_tau1,
-        "tau2": ext.violations_tau2,
-    }
-    rms = math.sqrt(sq_sum / sq_n) if sq_n else float("nan")
-    summary = _summary(
-        scenario,
-        ext_vals,
-        violations,
-        last,
-        rms,
-        len(rows),
-        ext.steps,
-        dropped,
-        interrupted,
-        getattr(controller, "name", type(controller).__name__),
-    )
-    summary["seeds"] = {"timing": jseed, "disturbance": dseed, "sensor": sseed}
-    resolved = resolved_dict(scenario, controller, context)
-    return SimResult(scenario, resolved, columns, trace, summary, interrupted)
+    run = _single_setup(scenario, variation or RobotVariation(), loop, memory)
+    _single_loop(run, scenario, t0, progress)
+    if progress is not None and not run.interrupted:
+        progress(len(run.rows), run.n_samples)
+    return _single_result(run, scenario)
 
 
 def _per_robot(values: Sequence[Any], default: Any, dtype: Any) -> np.ndarray:
@@ -420,6 +437,242 @@ def _batch_summaries(
     return out
 
 
+@dataclass
+class _Batch:
+    """N loops' set-up and, once run, what the summaries need."""
+
+    controller: Any
+    reference: Any
+    context: Any
+    plant: Plant
+    state: PlantState
+    land: Any  # landing offsets: a list (one draw for all robots) or (groups, samples) rows
+    group: np.ndarray  # robot i lands by row group[i] of ``land``
+    hold: Hold
+    seeds: tuple[np.ndarray, np.ndarray, np.ndarray]  # timing, disturbance, sensor
+    memory: Any
+    n_samples: int
+    starts: np.ndarray | None  # per-robot first-sample times, when any is not 0
+    ext: Extremes
+    record: list[int]
+    rec_rows: dict[int, list[np.ndarray]]
+    tel_keys: list[str] | None = None
+    last: tuple[Any, ...] | None = None
+    rms: Any = None
+    done: int = 0
+    interrupted: bool = False
+
+
+def _batch_offsets(
+    scenario: Scenario, delays: np.ndarray, jitters: np.ndarray, jseeds: np.ndarray, n_samples: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Landing offsets per distinct (delay, jitter, seed), drawn exactly as the single path
+    draws them (same seed, same n); robot i uses row group[i]."""
+    timing = scenario.timing
+    replay = _replay(scenario)
+    keys: dict[tuple[float, float, int], int] = {}
+    group = np.array(
+        [
+            keys.setdefault(key, len(keys))
+            for key in zip(delays.tolist(), jitters.tolist(), jseeds.tolist(), strict=True)
+        ],
+        dtype=np.intp,
+    )
+    offsets = np.empty((len(keys), n_samples), dtype=np.int64)
+    for (delay, jitter, seed), row in keys.items():
+        extra = extra_delays(timing.jitter_kind, jitter, seed, n_samples, replay)
+        offsets[row] = landing_offsets(extra, delay, scenario.plant_step)
+    return offsets, group
+
+
+def _batch_setup(
+    scenario: Scenario,
+    variations: list[RobotVariation],
+    record: Sequence[int],
+    loop: tuple[Any, Any, Any] | None,
+    t0: float | Sequence[float] | np.ndarray,
+    memory: Any,
+) -> _Batch:
+    """The loops' objects, initial states, landing offsets and seeds for N robots."""
+    n = len(variations)
+    controller, reference, context = loop or build_loop(scenario)
+    n_samples = max(1, round(scenario.run.duration / scenario.timing.ts))
+    ini, timing = scenario.initial, scenario.timing
+    starts = None
+    if np.ndim(t0) or float(t0) != 0.0:
+        starts = np.array(np.broadcast_to(np.asarray(t0, dtype=float), (n,)))
+    # N copies of one variation (``variations`` given as an int) need no per-robot reads.
+    first = variations[0]
+    shared = all(v is first for v in variations)
+
+    def per_robot(name: str, default: Any, dtype: Any) -> np.ndarray:
+        if shared:
+            value = getattr(first, name)
+            return np.full(n, default if value is None else value, dtype=dtype)
+        return _per_robot([getattr(v, name) for v in variations], default, dtype)
+
+    state = PlantState(
+        *(per_robot(q, getattr(ini, q), float) for q in ("x", "y", "theta", "v", "omega")),
+        np.zeros(n),
+        np.zeros(n),
+    )
+    delays = per_robot("delay", timing.delay, float)
+    jitters = per_robot("jitter", timing.jitter, float)
+    jseeds = per_robot("jitter_seed", timing.seed, np.int64)
+    dseeds = per_robot("disturbance_seed", scenario.disturbance.seed, np.int64)
+    sseeds = per_robot("sensor_seed", scenario.plant.noise_seed, np.int64)
+    offsets, group = _batch_offsets(scenario, delays, jitters, jseeds, n_samples)
+    together = len(offsets) == 1  # one draw: every robot lands each command at the same step
+    ext = Extremes.zeros(n)
+    track_initial(ext, state, scenario.limits)
+    record = [int(i) for i in record]
+    return _Batch(
+        controller,
+        reference,
+        context,
+        _plant(scenario, dseeds if scenario.disturbance.kind == "random" else None),
+        state,
+        offsets[0].tolist() if together else offsets,
+        group,
+        Hold(n, apart=not together),
+        (jseeds, dseeds, sseeds),
+        _initial_memory(controller, n, scenario) if memory is None else memory,
+        n_samples,
+        starts,
+        ext,
+        record,
+        {i: [] for i in record},
+    )
+
+
+def _batch_loop(
+    run: _Batch,
+    scenario: Scenario,
+    progress: Progress | None,
+    on_sample: Callable[[int, PlantState], None] | None,
+) -> None:
+    """The sampled-data loop on arrays: sample, law, send, land at t_k, record, advance."""
+    controller, reference, hold, plant, ext = (
+        run.controller,
+        run.reference,
+        run.hold,
+        run.plant,
+        run.ext,
+    )
+    state, memory, starts, land, group = run.state, run.memory, run.starts, run.land, run.group
+    ts, m, n_samples = scenario.timing.ts, scenario.substeps, run.n_samples
+    sensor, sseeds = scenario.sensor, run.seeds[2]
+    ideal_sensor = sensor.is_ideal
+    n = len(group)
+    together = isinstance(land, list)
+    rms_from = math.floor(0.9 * n_samples)
+    sq_sum = np.zeros(n)
+    sq_n = 0
+    every = max(1, n_samples // 200)
+    ones = np.ones(n)
+    try:
+        for k in range(n_samples):
+            if on_sample is not None:
+                on_sample(k, state)
+            rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
+            meas = rs if ideal_sensor else measure(sensor, rs, k, sseeds)
+            if starts is None:
+                t_k = k * ts
+                ref = reference.sample(t_k)
+                ref_arr = ReferenceSample(*(ones * float(value) for value in ref))
+            else:
+                t_k = starts + k * ts
+                ref = ref_arr = sample_array(reference, t_k)
+            out, memory = controller.update(t_k, ts, meas, ref_arr, memory)
+            tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
+            tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
+            if run.tel_keys is None:
+                run.tel_keys = list(out.telemetry)
+            j0 = k * m
+            hold.send(k, j0 + (land[k] if together else land[group, k]), tau1, tau2)
+            hold.land(j0)
+            if k >= rms_from or run.record:
+                e_pos = np.hypot(state.x - ref.xd, state.y - ref.yd)
+            if k >= rms_from:
+                sq_sum += e_pos * e_pos
+                sq_n += 1
+            run.last = (state.x, state.y, state.theta, ref.xd, ref.yd, ref.thetad)
+            if run.record:
+                _record_rows(run, t_k, state, ref, out, tau1, tau2, e_pos)
+            state = advance_period(state, hold, plant, j0, j0 + m, ext, starts)
+            run.done = k + 1
+            if progress is not None and k % every == 0:
+                progress(k, n_samples)
+    except KeyboardInterrupt:
+        run.interrupted = True
+    if on_sample is not None and not run.interrupted:
+        on_sample(n_samples, state)
+    run.rms = np.sqrt(sq_sum / sq_n) if sq_n else np.full(n, np.nan)
+    run.state, run.memory = state, memory
+
+
+def _record_rows(
+    run: _Batch,
+    t_k: Any,
+    state: PlantState,
+    ref: Any,
+    out: Any,
+    tau1: np.ndarray,
+    tau2: np.ndarray,
+    e_pos: np.ndarray,
+) -> None:
+    """Append sample k's trace row of every recorded robot (the single path's row)."""
+    n = len(run.group)
+    lag = run.plant.lag
+    a1 = run.hold.cmd1 if lag <= 0.0 else state.tau1
+    a2 = run.hold.cmd2 if lag <= 0.0 else state.tau2
+    head = wrap_angle(state.theta - ref.thetad)
+    tel = [np.broadcast_to(out.telemetry[key], (n,)) for key in run.tel_keys or []]
+    shared = run.starts is None  # time and reference are then one float for all robots
+    for i in run.record:
+        run.rec_rows[i].append(
+            np.array(
+                [
+                    t_k if shared else t_k[i],
+                    state.x[i],
+                    state.y[i],
+                    state.theta[i],
+                    state.v[i],
+                    state.omega[i],
+                    ref.xd if shared else ref.xd[i],
+                    ref.yd if shared else ref.yd[i],
+                    ref.thetad if shared else ref.thetad[i],
+                    a1[i],
+                    a2[i],
+                    tau1[i],
+                    tau2[i],
+                    e_pos[i],
+                    head[i],
+                    *(float(col[i]) for col in tel),
+                ]
+            )
+        )
+
+
+def _batch_result(run: _Batch, scenario: Scenario, variations: list[RobotVariation]) -> BatchResult:
+    """The per-robot summaries and the recorded traces of finished (or interrupted) loops."""
+    controller, state = run.controller, run.state
+    columns = [*BASE_COLUMNS, *(run.tel_keys or [])]
+    law = getattr(controller, "name", type(controller).__name__)
+    last = run.last or (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
+    n = len(run.group)
+    dropped = np.array(np.broadcast_to(run.hold.dropped, (n,)), dtype=np.int64)
+    summaries = _batch_summaries(
+        scenario, run.ext, last, run.rms, run.done, dropped, run.interrupted, law, run.seeds
+    )
+    traces = {
+        i: np.array(rows, dtype=float).reshape(len(rows), len(columns))
+        for i, rows in run.rec_rows.items()
+    }
+    resolved = resolved_dict(scenario, controller, run.context)
+    return BatchResult(scenario, resolved, variations, summaries, columns, traces, run.interrupted)
+
+
 def simulate_batch(
     scenario: Scenario,
     variations: Sequence[RobotVariation] | int,
@@ -446,219 +699,13 @@ def simulate_batch(
     if isinstance(variations, int):
         variations = [RobotVariation()] * variations
     variations = list(variations)
-    n = len(variations)
-    if n == 0:
+    if not variations:
         raise ValueError("simulate_batch needs at least one robot")
-    controller, reference, context = loop or build_loop(scenario)
-    ts = scenario.timing.ts
-    m = scenario.substeps
-    h = scenario.plant_step
-    n_samples = max(1, round(scenario.run.duration / ts))
-    ini = scenario.initial
-    timing = scenario.timing
-    starts = None  # per-robot first-sample times, when any is not 0
-    if np.ndim(t0) or float(t0) != 0.0:
-        starts = np.array(np.broadcast_to(np.asarray(t0, dtype=float), (n,)))
-    # N copies of one variation (``variations`` given as an int) need no per-robot reads.
-    first = variations[0]
-    shared = all(v is first for v in variations)
-
-    def per_robot(name: str, default: Any, dtype: Any) -> np.ndarray:
-        if shared:
-            value = getattr(first, name)
-            return np.full(n, default if value is None else value, dtype=dtype)
-        return _per_robot([getattr(v, name) for v in variations], default, dtype)
-
-    state = PlantState(
-        per_robot("x", ini.x, float),
-        per_robot("y", ini.y, float),
-        per_robot("theta", ini.theta, float),
-        per_robot("v", ini.v, float),
-        per_robot("omega", ini.omega, float),
-        np.zeros(n),
-        np.zeros(n),
-    )
-    delays = per_robot("delay", timing.delay, float)
-    jitters = per_robot("jitter", timing.jitter, float)
-    jseeds = per_robot("jitter_seed", timing.seed, np.int64)
-    dseeds = per_robot("disturbance_seed", scenario.disturbance.seed, np.int64)
-    sseeds = per_robot("sensor_seed", scenario.plant.noise_seed, np.int64)
-    replay = _replay(scenario)
-    # Offsets per distinct (delay, jitter, seed), drawn exactly as the single path draws them
-    # (same seed, same n); robot i uses row group[i] of ``offsets``.
-    keys: dict[tuple[float, float, int], int] = {}
-    group = np.array(
-        [
-            keys.setdefault(key, len(keys))
-            for key in zip(delays.tolist(), jitters.tolist(), jseeds.tolist(), strict=True)
-        ],
-        dtype=np.intp,
-    )
-    offsets = np.empty((len(keys), n_samples), dtype=np.int64)
-    for (delay, jitter, seed), row in keys.items():
-        extra = extra_delays(timing.jitter_kind, jitter, seed, n_samples, replay)
-        offsets[row] = landing_offsets(extra, delay, h)
-    all_zero = not offsets.any()
-    depth = int(offsets.max()) // m + 2  # periods a command can stay pending
-    sensor = scenario.sensor
-    ideal_sensor = sensor.is_ideal
-    dist = scenario.disturbance
-    dseed_arg = dseeds if dist.kind == "random" else None
-    lag = scenario.plant.lag
-    limits = scenario.limits
-    ext = Extremes.zeros(n)
-    track_initial(ext, state, limits)
-    if memory is None:
-        memory = _initial_memory(controller, n, scenario)
-    cmd1 = np.zeros(n)
-    cmd2 = np.zeros(n)
-    applied_seq = np.full(n, -1, dtype=np.int64)
-    dropped = np.zeros(n, dtype=np.int64)
-    ring_c1 = np.zeros((depth, n))
-    ring_c2 = np.zeros((depth, n))
-    ring_land = np.full((depth, n), -1, dtype=np.int64)
-    record = [int(i) for i in record]
-    rec_rows: dict[int, list[np.ndarray]] = {i: [] for i in record}
-    tel_keys: list[str] | None = None
-    rms_from = math.floor(0.9 * n_samples)
-    sq_sum = np.zeros(n)
-    sq_n = 0
-    last = None
-    interrupted = False
-    done = 0
-    every = max(1, n_samples // 200)
-    ones = np.ones(n)
-    try:
-        for k in range(n_samples):
-            if on_sample is not None:
-                on_sample(k, state)
-            rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
-            meas = rs if ideal_sensor else measure(sensor, rs, k, sseeds)
-            if starts is None:
-                t_k = k * ts
-                ref = reference.sample(t_k)
-                ref_arr = ReferenceSample(*(ones * float(value) for value in ref))
-            else:
-                t_k = starts + k * ts
-                ref = ref_arr = sample_array(reference, t_k)
-            out, memory = controller.update(t_k, ts, meas, ref_arr, memory)
-            tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
-            tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
-            if tel_keys is None:
-                tel_keys = list(out.telemetry)
-            j0 = k * m
-            if all_zero:
-                cmd1, cmd2 = tau1, tau2
-                applied_seq[:] = k
-                events: list[int] = []
-            else:
-                slot = k % depth
-                ring_c1[slot] = tau1
-                ring_c2[slot] = tau2
-                ring_land[slot] = j0 + offsets[group, k]
-                in_period = (ring_land >= j0) & (ring_land < j0 + m)
-                events = sorted(set(ring_land[in_period].tolist())) if in_period.any() else []
-                # Slots oldest first, so at a shared landing step the newest command wins.
-                order = [(k - back) % depth for back in range(depth - 1, -1, -1)]
-                seqs = [k - back for back in range(depth - 1, -1, -1)]
-            j = j0
-            j_end_period = j0 + m
-            ei = 0
-            first = True
-            while True:
-                while ei < len(events) and events[ei] <= j:
-                    e = events[ei]
-                    ei += 1
-                    for slot_i, seq in zip(order, seqs, strict=True):
-                        if seq < 0:
-                            continue
-                        lands = ring_land[slot_i] == e
-                        if not lands.any():
-                            continue
-                        newer = lands & (seq > applied_seq)
-                        dropped += lands & ~newer
-                        cmd1 = np.where(newer, ring_c1[slot_i], cmd1)
-                        cmd2 = np.where(newer, ring_c2[slot_i], cmd2)
-                        applied_seq = np.where(newer, seq, applied_seq)
-                if first:
-                    first = False
-                    if k >= rms_from or record:
-                        e_pos = np.hypot(state.x - ref.xd, state.y - ref.yd)
-                    if k >= rms_from:
-                        sq_sum += e_pos * e_pos
-                        sq_n += 1
-                    last = (state.x, state.y, state.theta, ref.xd, ref.yd, ref.thetad)
-                    if record:
-                        a1 = cmd1 if lag <= 0.0 else state.tau1
-                        a2 = cmd2 if lag <= 0.0 else state.tau2
-                        head = wrap_angle(state.theta - ref.thetad)
-                        tel = [np.broadcast_to(out.telemetry[key], (n,)) for key in tel_keys]
-                        for i in record:
-                            rec_rows[i].append(
-                                np.array(
-                                    [
-                                        t_k if starts is None else t_k[i],
-                                        state.x[i],
-                                        state.y[i],
-                                        state.theta[i],
-                                        state.v[i],
-                                        state.omega[i],
-                                        ref.xd if starts is None else ref.xd[i],
-                                        ref.yd if starts is None else ref.yd[i],
-                                        ref.thetad if starts is None else ref.thetad[i],
-                                        a1[i],
-                                        a2[i],
-                                        tau1[i],
-                                        tau2[i],
-                                        e_pos[i],
-                                        head[i],
-                                        *(float(col[i]) for col in tel),
-                                    ]
-                                )
-                            )
-                nxt = events[ei] if ei < len(events) else j_end_period
-                j_next = min(nxt, j_end_period)
-                if j_next > j:
-                    state = advance_array_tracked(
-                        state,
-                        cmd1,
-                        cmd2,
-                        j * h if starts is None else starts + j * h,
-                        h,
-                        j_next - j,
-                        dist,
-                        lag,
-                        dseed_arg,
-                        limits,
-                        ext,
-                        j if starts is None else None,  # off the step grid: times from t0
-                    )
-                    j = j_next
-                if j >= j_end_period:
-                    break
-            done = k + 1
-            if progress is not None and k % every == 0:
-                progress(k, n_samples)
-    except KeyboardInterrupt:
-        interrupted = True
-    if on_sample is not None and not interrupted:
-        on_sample(n_samples, state)
-    if progress is not None and not interrupted:
-        progress(done, n_samples)
-    columns = [*BASE_COLUMNS, *(tel_keys or [])]
-    law = getattr(controller, "name", type(controller).__name__)
-    if last is None:
-        last = (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
-    rms = np.sqrt(sq_sum / sq_n) if sq_n else np.full(n, np.nan)
-    summaries = _batch_summaries(
-        scenario, ext, last, rms, done, dropped, interrupted, law, (jseeds, dseeds, sseeds)
-    )
-    traces = {
-        i: np.array(rows, dtype=float).reshape(len(rows), len(columns))
-        for i, rows in rec_rows.items()
-    }
-    resolved = resolved_dict(scenario, controller, context)
-    return BatchResult(scenario, resolved, variations, summaries, columns, traces, interrupted)
+    run = _batch_setup(scenario, variations, record, loop, t0, memory)
+    _batch_loop(run, scenario, progress, on_sample)
+    if progress is not None and not run.interrupted:
+        progress(run.done, run.n_samples)
+    return _batch_result(run, scenario, variations)
 
 
 def wall_clock() -> float:
