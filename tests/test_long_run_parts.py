@@ -380,3 +380,21 @@ def test_the_windowed_ideal_of_an_ideal_loop_is_the_loop(tmp_path: Path, monkeyp
     assert np.array_equal(batch_route["t"], tr["t"])
     # 12 s is beyond one default window: the report's own provider takes the windowed route
     assert "window_start_t" in ideal_from_simulator(folder)
+
+
+@pytest.mark.parametrize("bad_row", [(1, 2), tuple(range(9))])
+def test_a_hop_log_row_of_the_wrong_width_is_refused_by_name(tmp_path: Path, bad_row) -> None:
+    from hil.measure.logs import FIGURE_COLUMNS, RunLogs, read_columns
+    from protocol.hoplog import PLANT_TABLES, HopLogError, HopLogWriter
+
+    path = tmp_path / "plant.hoplog"
+    w = HopLogWriter(path, "plant", PLANT_TABLES, {"epoch_ns": 1})
+    width = len(PLANT_TABLES["apply"])
+    w.append("apply", tuple(range(width)))
+    w.append("apply", bad_row)
+    w.close()
+    wanted = {"apply": FIGURE_COLUMNS["apply"]}
+    with pytest.raises(HopLogError, match="a row of table apply has not 8 fields"):
+        read_columns(path, wanted)
+    logs = RunLogs.read(None, path)  # an unreadable log reads as absent, never half-used
+    assert logs.plant is None and logs["apply"]["seq"].size == 0

@@ -135,9 +135,12 @@ def read_columns(
         elif kind == "rows" and rec.get("table") in parts:
             name = rec["table"]
             width = len(fields[name])
-            if any(len(row) != width for row in rec["rows"]):
+            try:  # strict: every row as long as the first (one C loop, no Python-level check)
+                columns = list(zip(*rec["rows"], strict=True))
+            except ValueError:
+                columns = []
+            if rec["rows"] and len(columns) != width:
                 raise HopLogError(f"{path}: a row of table {name} has not {width} fields")
-            columns = list(zip(*rec["rows"], strict=True))
             for c, i in index[name].items():
                 parts[name][c].append(_column(columns[i], c, COLUMNS[name][c]))
         elif kind == "meta":
