@@ -4,9 +4,9 @@
 
 Prints, as JSON and a short table: each process's resident memory after warm-up and at the end
 (target: growth under 5 MB for each: the plant, the controller, and hil run over its
-recording phase, which ends when the services exit; its analysis afterwards is a peak), wake-up lateness and command-age
-p99 per minute (first against last), messages lost per stream (none unless injected), and the
-run's largest stall with its cause.
+recording phase, which ends when the services exit; its analysis afterwards is a peak),
+wake-up lateness and command-age p99 per minute (first against last), messages lost per
+stream (none unless injected), and the run's largest stall with its cause.
 """
 
 from __future__ import annotations
