@@ -416,6 +416,33 @@ def _advance_array_held(
     k = 2.0 * (1.0 + e_pos)
     r2 = _unit(*_rot_small(hh * w))  # R2_0
     z = _unit(np.cos(th), np.sin(th))  # Z_0
+    v_first = v + hu1
+    z, s_sum, q_sum, (th_end, w_end, v_end) = _held_steps(
+        z, r2, e_sq, k, (th, w, v), (hu2, hu1, hhu2), h, n
+    )
+    s_sum = _held_displacement(s_sum, q_sum, z, v, hu1, h6, n)
+    x = x + s_sum.real
+    y = y + s_sum.imag
+    _track_linear(ext.max_abs_v, ext.violations_v, lv, v, hu1, v_first, v_end, n)
+    _track_linear(ext.max_abs_omega, ext.violations_omega, lw, w, hu2, w + hu2, w_end, n)
+    ext.steps += n
+    return PlantState(x, y, th_end, v_end, w_end, cmd1, cmd2)
+
+
+def _held_steps(
+    z: np.ndarray,
+    r2: np.ndarray,
+    e_sq: np.ndarray,
+    k: np.ndarray,
+    start: tuple[Any, Any, Any],
+    rates: tuple[Any, Any, Any],
+    h: float,
+    n: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The n steps of :func:`_advance_array_held`: Z_n, S, Q + Z_0 / 2 and (theta, omega, v)
+    at the end. ``start``: (theta_0, omega_0, v_0); ``rates``: (h u2, h u1, h u2 / 2)."""
+    th, w, v = start
+    hu2, hu1, hhu2 = rates
     shape = z.shape
     p2, p4, t, s_sum = (np.empty(shape, dtype=np.complex128) for _ in range(4))
     q_sum = 0.5 * z  # Q plus Z_0 / 2, which the end result subtracts
@@ -431,7 +458,6 @@ def _advance_array_held(
     incr = np.empty((3, *shape))
     incr[1] = hu2
     incr[2] = hu1
-    v_first = v + hu1
     for i in range(n):
         np.multiply(z, r2, out=p2)
         np.multiply(r2, e_sq, out=r2)
@@ -448,22 +474,22 @@ def _advance_array_held(
         np.add(twv[1], hhu2, out=incr[0])
         np.multiply(incr[0], h, out=incr[0])
         np.add(twv, incr, out=twv)
-    th_end, w_end, v_end = twv
-    # b = (n + 1/2) S - Q + (Z_n - Z_0) / 2, then x + i y += (h/6) (v_0 S + h u1 b).
-    np.multiply(s_sum, n + 0.5, out=p2)
-    np.subtract(p2, q_sum, out=p2)
-    np.multiply(z, 0.5, out=p4)
-    np.add(p2, p4, out=p2)
-    np.multiply(p2, hu1, out=p2)
+    return z, s_sum, q_sum, twv
+
+
+def _held_displacement(
+    s_sum: np.ndarray, q_sum: np.ndarray, z: np.ndarray, v: Any, hu1: Any, h6: float, n: int
+) -> np.ndarray:
+    """(h/6) (v_0 S + h u1 b) with b = (n + 1/2) S - Q + (Z_n - Z_0) / 2: the n steps' x + i y
+    displacement (``q_sum`` holds Q + Z_0 / 2; ``s_sum`` is overwritten)."""
+    b = np.multiply(s_sum, n + 0.5)
+    np.subtract(b, q_sum, out=b)
+    np.add(b, np.multiply(z, 0.5), out=b)
+    np.multiply(b, hu1, out=b)
     np.multiply(s_sum, v, out=s_sum)
-    np.add(s_sum, p2, out=s_sum)
+    np.add(s_sum, b, out=s_sum)
     np.multiply(s_sum, h6, out=s_sum)
-    x = x + s_sum.real
-    y = y + s_sum.imag
-    _track_linear(ext.max_abs_v, ext.violations_v, lv, v, hu1, v_first, v_end, n)
-    _track_linear(ext.max_abs_omega, ext.violations_omega, lw, w, hu2, w + hu2, w_end, n)
-    ext.steps += n
-    return PlantState(x, y, th_end, v_end, w_end, cmd1, cmd2)
+    return s_sum
 
 
 def track_initial(ext: Extremes, s: PlantState, limits: Limits) -> None:

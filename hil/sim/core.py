@@ -353,6 +353,32 @@ def _per_robot(values: Sequence[Any], default: Any, dtype: Any) -> np.ndarray:
     return np.array([default if v is None else v for v in values], dtype=dtype)
 
 
+def _final_errors(last: tuple[Any, ...], n: int) -> tuple[list[float], list[float]]:
+    """Each robot's final position and heading errors from its last (x, y, theta, xd, yd,
+    thetad), as Python lists."""
+    x, y, th, xd, yd, thd = (np.broadcast_to(np.asarray(q, dtype=float), (n,)) for q in last)
+    pos_err = [math.hypot(a, b) for a, b in zip((x - xd).tolist(), (y - yd).tolist(), strict=True)]
+    head_err = np.asarray(wrap_angle(np.asarray(th - thd)), dtype=float).tolist()
+    return pos_err, head_err
+
+
+def _extreme_columns(ext: Extremes) -> list[list[Any]]:
+    """The peaks and violation counts of (2) per robot, as Python lists (summary order)."""
+    return [
+        np.asarray(q).tolist()
+        for q in (
+            ext.max_abs_v,
+            ext.max_abs_omega,
+            ext.max_abs_tau1,
+            ext.max_abs_tau2,
+            ext.violations_v,
+            ext.violations_omega,
+            ext.violations_tau1,
+            ext.violations_tau2,
+        )
+    ]
+
+
 def _batch_summaries(
     scenario: Scenario,
     ext: Extremes,
@@ -371,23 +397,8 @@ def _batch_summaries(
     hundred control periods; here the per-robot columns are computed on arrays and read back as
     Python lists once, and what all robots share is computed once.
     """
-    n = len(rms)
-    x, y, th, xd, yd, thd = (np.broadcast_to(np.asarray(q, dtype=float), (n,)) for q in last)
-    pos_err = [math.hypot(a, b) for a, b in zip((x - xd).tolist(), (y - yd).tolist(), strict=True)]
-    head_err = np.asarray(wrap_angle(np.asarray(th - thd)), dtype=float).tolist()
-    cols = [
-        np.asarray(q).tolist()
-        for q in (
-            ext.max_abs_v,
-            ext.max_abs_omega,
-            ext.max_abs_tau1,
-            ext.max_abs_tau2,
-            ext.violations_v,
-            ext.violations_omega,
-            ext.violations_tau1,
-            ext.violations_tau2,
-        )
-    ]
+    pos_err, head_err = _final_errors(last, len(rms))
+    cols = _extreme_columns(ext)
     limits = scenario.limits
     limit_table = {
         "phi1": limits.phi1,
