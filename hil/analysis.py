@@ -85,15 +85,6 @@ def heading_error(theta: np.ndarray, thetad: np.ndarray) -> np.ndarray:
     return wrap_angle(np.asarray(theta) - np.asarray(thetad))
 
 
-def body_errors(
-    x: np.ndarray, y: np.ndarray, theta: np.ndarray, xd: np.ndarray, yd: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """xe, ye of (4): the position error in the robot's frame."""
-    dx, dy = np.asarray(x) - xd, np.asarray(y) - yd
-    c, s = np.cos(theta), np.sin(theta)
-    return c * dx + s * dy, -s * dx + c * dy
-
-
 # --------------------------------------------------------------------------- band and switching
 
 
@@ -223,12 +214,6 @@ def deviation_from_ideal(
     xi = np.interp(t, t_ideal, x_ideal)
     yi = np.interp(t, t_ideal, y_ideal)
     return np.hypot(np.asarray(x) - xi, np.asarray(y) - yi)
-
-
-def timing_gaps(sample_times: np.ndarray) -> np.ndarray:
-    """Gaps between successive sample times (the Ts the loop really had)."""
-    st = np.asarray(sample_times, dtype=float)
-    return np.diff(st) if st.size > 1 else np.zeros(0)
 
 
 # --------------------------------------------------------------------------- whole trace

@@ -18,7 +18,6 @@ from __future__ import annotations
 import heapq
 import inspect
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -659,7 +658,3 @@ def simulate_batch(
     }
     resolved = resolved_dict(scenario, controller, context)
     return BatchResult(scenario, resolved, variations, summaries, columns, traces, interrupted)
-
-
-def wall_clock() -> float:
-    return time.perf_counter()
