@@ -34,9 +34,8 @@ from controller_service.laws.base import Controller, DesignContext
 from controller_service.laws.jiang1997 import Jiang1997Controller
 from controller_service.laws.jiang2001 import Jiang2001Controller
 from controller_service.laws.unified import UnifiedController, UnifiedParams
+from protocol.paper import EPS_DEFAULT, TABLE1
 
-TABLE1 = {"m1": 0.5, "m2": 0.5, "l1": 0.5, "l2": 0.5, "lam": 1.0, "rho": 1.0}
-EPS_DEFAULT = {"eps1": 0.1, "eps2": 0.1}
 BUILTIN_LAWS = ("unified", "unified_boundary", "jiang1997", "jiang2001")
 _BASELINE_TABLES = ("jiang1997", "jiang2001")
 

@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from protocol.angles import wrap_angle
+
 PERCENTILES: tuple[float, ...] = (50.0, 90.0, 99.0, 99.9)
 # summary.json counts a violation beyond 1e-9 relative (CONTRACT.md); use the same tolerance.
 LIMIT_REL_TOL = 1e-9
@@ -67,12 +69,6 @@ def _pkey(q: float) -> str:
 
 
 # --------------------------------------------------------------------------- angles and errors
-
-
-def wrap_angle(a: np.ndarray | float) -> np.ndarray:
-    """Wrap to (-pi, pi]."""
-    w = np.mod(np.asarray(a, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
-    return np.where(w <= -np.pi, w + 2.0 * np.pi, w)
 
 
 def position_error(x: np.ndarray, y: np.ndarray, xd: np.ndarray, yd: np.ndarray) -> np.ndarray:

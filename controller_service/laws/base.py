@@ -17,6 +17,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol, runtime_checkable
 
+from protocol.paper import PAPER_LIMITS
+
 Number = Any  # a float on the real-time path, a numpy array of shape (N,) on the batch path
 
 
@@ -58,10 +60,10 @@ class ControlOutput(NamedTuple):
 class Limits:
     """The constraints (2): |v| <= phi1, |omega| <= phi2, |tau1| <= varpi1, |tau2| <= varpi2."""
 
-    phi1: float = 1.6
-    phi2: float = 5.1
-    varpi1: float = 3.3
-    varpi2: float = 51.0
+    phi1: float = PAPER_LIMITS["phi1"]
+    phi2: float = PAPER_LIMITS["phi2"]
+    varpi1: float = PAPER_LIMITS["varpi1"]
+    varpi2: float = PAPER_LIMITS["varpi2"]
 
 
 @dataclass(frozen=True)

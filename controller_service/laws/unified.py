@@ -50,6 +50,7 @@ from controller_service.laws.base import (
     RobotState,
 )
 from controller_service.mathns import ARRAY_MATH, FLOAT_MATH
+from protocol.paper import TABLE1
 
 TELEMETRY_KEYS = (
     "xe",
@@ -72,12 +73,12 @@ class UnifiedParams:
     """Gains of the unified law: (8)'s m1, m2, l1, l2, (7)'s lam, the signal's rho, and the
     boundary-layer widths eps1, eps2 of (19) (None = the pure sign law (10)). Table 1 defaults."""
 
-    m1: float = 0.5
-    m2: float = 0.5
-    l1: float = 0.5
-    l2: float = 0.5
-    lam: float = 1.0
-    rho: float = 1.0
+    m1: float = TABLE1["m1"]
+    m2: float = TABLE1["m2"]
+    l1: float = TABLE1["l1"]
+    l2: float = TABLE1["l2"]
+    lam: float = TABLE1["lam"]
+    rho: float = TABLE1["rho"]
     eps1: float | None = None
     eps2: float | None = None
 

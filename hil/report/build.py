@@ -32,8 +32,8 @@ from hil.report.html import render_html
 from hil.report.markdown import render_markdown
 from hil.report.measured import RunResult, run_result
 from hil.report.scenario_view import ScenarioView, view
+from protocol.versions import REPORT_SCHEMA_VERSION
 
-SCHEMA_VERSION = 2
 FIGURE_PREFIX = "report_"
 IdealProvider = Callable[[Folder], dict[str, np.ndarray] | None]
 LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
@@ -311,7 +311,7 @@ def analyse(
     drives, q = drives_block(folder, sv)
     figs, sections = _figures(folder, sv, cert, rr, ideal_traj, sliding, q, drives)
     data = {
-        "schema_version": SCHEMA_VERSION,
+        "schema_version": REPORT_SCHEMA_VERSION,
         "folder": str(folder.path),
         "kind": kind,
         "scenario": _scenario_block(sv),

@@ -25,6 +25,7 @@ from hil.report.folder import Folder
 from hil.report.html import CSS, esc, figure, table
 from hil.report.markdown import _md_table
 from hil.report.scenario_view import view
+from protocol.versions import COMPARE_SCHEMA_VERSION
 
 PREFIX = "compare_"
 
@@ -157,7 +158,7 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         png, csv_path = f.write(out, PREFIX)
         files.append({"name": f.name, "title": f.title, "png": png.name, "data": csv_path.name})
     data = {
-        "schema_version": 1,
+        "schema_version": COMPARE_SCHEMA_VERSION,
         "a": str(fa.path),
         "b": str(fb.path),
         "rows": [{"figure": r[0], "a": r[1], "b": r[2], "b_minus_a": r[3]} for r in rows],
