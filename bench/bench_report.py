@@ -20,7 +20,7 @@ from pathlib import Path
 
 import _here  # noqa: F401  (this checkout first on sys.path)
 
-from hil.report.build import analyse, write_report
+from hil.report.build import build_report, write_report
 from hil.report.folder import load_folder
 from hil.report.ideal import ideal_from_simulator
 from hil.report.synthetic import write_synthetic_folder
@@ -58,7 +58,7 @@ def make_folder(root: Path, synthetic: bool) -> Path:
 
 def once(folder: Path, ideal: bool) -> float:
     t0 = time.perf_counter()
-    rep = analyse(load_folder(folder), ideal=ideal_from_simulator if ideal else None)
+    rep = build_report(load_folder(folder), ideal=ideal_from_simulator if ideal else None)
     write_report(rep, folder)
     return time.perf_counter() - t0
 

@@ -149,13 +149,13 @@ def certificate_reason(cert: dict) -> str:
 
 def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
     """The report of the finished run, as ``hil report RUN_DIR`` writes it."""
-    from hil.report.build import Thresholds, analyse, write_report
+    from hil.report.build import Thresholds, build_report, write_report
     from hil.report.folder import load_folder
     from hil.report.ideal import ideal_from_simulator
 
     if not quiet:
         typer.echo("writing the report (and the ideal-trajectory simulation) ...", err=True)
-    rep = analyse(
+    rep = build_report(
         load_folder(run_dir, lazy=True), ideal=ideal_from_simulator, thresholds=Thresholds()
     )
     paths = write_report(rep, run_dir)

@@ -153,7 +153,7 @@ def _checked_sweep(
         build_loop,
         load_scenario,
     )
-    from hil.sim.timing import jitter_samples_from
+    from hil.sim.landing import jitter_samples_from
     from hil.sweep.grid import make_grid
     from hil.sweep.replay import is_run_source, latencies_from_run
 

@@ -1,6 +1,6 @@
 """``hil report DIR``: the sampling-effect report of one run or simulation folder.
 
-Functional core, thin shell: :func:`analyse` turns a loaded folder into a plain dict (headline,
+Functional core, thin shell: :func:`build_report` turns a loaded folder into a plain dict (headline,
 metrics, certificate, verdict) and a list of figures; :func:`write_report` writes report.json,
 report.md (figures as PNG + CSV beside it) and a self-contained report.html. summary.json is
 only ever read.
@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from hil import analysis
+from hil import trace_metrics
 from hil.report import figures as fg
 from hil.report.cert import failed_conditions, scenario_certificate
 from hil.report.folder import Folder
@@ -127,7 +127,7 @@ def certificate_reasons(cert: dict[str, Any], cons: dict[str, Any]) -> tuple[str
     beyond = [
         (k, b)
         for k, b in (("v", cert.get("v_bound")), ("omega", cert.get("omega_bound")))
-        if b is not None and cons[k]["peak"] > b * (1.0 + analysis.LIMIT_REL_TOL)
+        if b is not None and cons[k]["peak"] > b * (1.0 + trace_metrics.LIMIT_REL_TOL)
     ]
     for k, b in beyond:
         reasons.append(
@@ -286,10 +286,10 @@ def _count(obj: Any) -> int:
     return 0
 
 
-# --------------------------------------------------------------------------- analyse
+# --------------------------------------------------------------------------- the report
 
 
-def analyse(
+def build_report(
     folder: Folder,
     *,
     ideal: IdealProvider | None = None,
@@ -366,7 +366,7 @@ def _metrics(
     tr = folder.trace
     ideal_traj, ideal_note = ideal
     lim = sv.limits
-    metrics = analysis.sampling_effects(
+    metrics = trace_metrics.sampling_effects(
         tr,
         phi1=lim.phi1,
         phi2=lim.phi2,
@@ -389,7 +389,7 @@ def _metrics(
         if isinstance(peak, int | float) and math.isfinite(peak):
             c = metrics["constraints"][key]
             if peak > c["peak"]:
-                fig = analysis.ConstraintFigure(key, float(peak), c["limit"], c["bound"])
+                fig = trace_metrics.ConstraintFigure(key, float(peak), c["limit"], c["bound"])
                 metrics["constraints"][key] = fig.as_dict()
     return metrics
 
@@ -533,11 +533,11 @@ def _tracking_error_figure(
 ) -> fg.Figure:
     """Position and heading errors (4), and the deviation from the ideal simulation."""
     t = tr["t"]
-    pos = analysis.position_error(tr["x"], tr["y"], tr["xd"], tr["yd"])
-    head = analysis.heading_error(tr["theta"], tr["thetad"])
+    pos = trace_metrics.position_error(tr["x"], tr["y"], tr["xd"], tr["yd"])
+    head = trace_metrics.heading_error(tr["theta"], tr["thetad"])
     err_series = [("position error [m]", pos), ("heading error [rad]", head)]
     if ideal_traj is not None:
-        dev = analysis.deviation_from_ideal(
+        dev = trace_metrics.deviation_from_ideal(
             t, tr["x"], tr["y"], ideal_traj["t"], ideal_traj["x"], ideal_traj["y"]
         )
         err_series.append(("deviation from ideal [m]", dev))

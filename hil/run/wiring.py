@@ -129,7 +129,7 @@ def robot_id_of(scenario: Any) -> str:
 def lockstep_offsets(settings: RunSettings, n: int, h: float) -> list[int]:
     """Landing offsets (plant steps after each sample) drawn exactly as the simulator does."""
     from hil.sim.core import _replay
-    from hil.sim.timing import extra_delays, landing_offsets
+    from hil.sim.landing import extra_delays, landing_offsets
 
     sc = load(settings)
     t = sc.timing

@@ -2,7 +2,7 @@
 
 At each sample k (t_k = k Ts) the law gets the measured state (noise and quantization of
 [plant]), the reference sample and the law time t_k; its command lands at
-t_k + delay + extra_k rounded to the plant step h (see :mod:`hil.sim.timing`); when delays
+t_k + delay + extra_k rounded to the plant step h (see :mod:`hil.sim.landing`); when delays
 reorder commands the newest by sequence number wins and older ones are dropped (counted).
 Between landings the command is held (zero-order hold) and model (1) is integrated by RK4 at
 step h = Ts / ceil(Ts / [plant] step). Before the first command lands the torque is zero.
@@ -27,7 +27,7 @@ import numpy as np
 from controller_service.laws.base import ReferenceSample, RobotState
 from controller_service.references import sample_array
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
-from hil.sim.timing import extra_delays, jitter_samples_from, landing_offsets
+from hil.sim.landing import extra_delays, jitter_samples_from, landing_offsets
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from plant_emulator.dynamics import (
     Extremes,
