@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import inspect
 import math
 import re
 import weakref
@@ -164,10 +165,25 @@ def _build_user(path: str, table: Mapping[str, Any], context: DesignContext) -> 
             f"(missing or not callable: {', '.join(missing) or '?'}; see "
             "controller_service.laws.base.Controller)"
         )
+    _check_initial_memory(path, controller)
     # An object that is not weak-referenceable falls back to its class path in the table.
     with contextlib.suppress(TypeError):
         _user_tables[controller] = {"law": path, **params}
     return controller
+
+
+def _check_initial_memory(path: str, controller: Any) -> None:
+    """Every law is called as ``initial_memory(n, z1=..., z2=...)`` (the scenario's [initial]
+    z1(0), z2(0)); a user's law that cannot take them is refused here, by name, not mid-run."""
+    try:
+        inspect.signature(controller.initial_memory).bind(None, z1=0.0, z2=0.0)
+    except TypeError as exc:
+        raise ValueError(
+            f"[controller] law {path!r}: initial_memory must accept (n, z1=0.0, z2=0.0) "
+            f"(z1(0), z2(0) of (8); a law without them ignores them): {exc}"
+        ) from exc
+    except ValueError:  # no signature to read (a builtin): it is called and fails, named
+        pass
 
 
 def _what(exc: BaseException) -> str:

@@ -84,8 +84,10 @@ class DesignContext:
 class Controller(Protocol):
     """One control law. ``update`` is pure: same inputs, same outputs, memory passed explicitly.
 
-    - ``initial_memory(n)``: the law's internal state at t = 0 for one robot (``n is None``,
-      floats) or for ``n`` robots (numpy arrays of shape (n,)).
+    - ``initial_memory(n, z1=0.0, z2=0.0)``: the law's internal state at t = 0 for one robot
+      (``n is None``, floats) or for ``n`` robots (numpy arrays of shape (n,)), starting the
+      adaptive states of (8) at z1(0), z2(0) (the scenario's [initial] z1, z2); a law without
+      adaptive states ignores them.
     - ``update(t, dt, state, ref, memory)``: the torque command at law time ``t`` from the
       sampled ``state`` and reference, and the memory advanced to ``t + dt`` by the law's
       stated rule (``dt`` is the nominal control period). Torques never exceed the limits.
@@ -93,7 +95,7 @@ class Controller(Protocol):
 
     name: str
 
-    def initial_memory(self, n: int | None = None) -> Any: ...
+    def initial_memory(self, n: int | None = None, z1: float = 0.0, z2: float = 0.0) -> Any: ...
 
     def update(
         self, t: float, dt: float, state: RobotState, ref: ReferenceSample, memory: Any

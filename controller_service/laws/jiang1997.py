@@ -102,7 +102,10 @@ class VelocityLoopController:
     def kinematic(self, ns: Any, t: Any, state: RobotState, ref: ReferenceSample) -> tuple:
         raise NotImplementedError
 
-    def initial_memory(self, n: int | None = None) -> VelocityLoopMemory:
+    def initial_memory(
+        self, n: int | None = None, z1: float = 0.0, z2: float = 0.0
+    ) -> VelocityLoopMemory:
+        """Previous commands 0, not primed; z1, z2 are ignored (no adaptive states of (8))."""
         if n is None:
             return VelocityLoopMemory(0.0, 0.0, 0.0)
         return VelocityLoopMemory(np.zeros(n), np.zeros(n), np.zeros(n))

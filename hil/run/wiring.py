@@ -8,7 +8,6 @@ so lockstep can equal the simulation bit for bit.
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from typing import Any
 
 from controller_service.service import ControlCore
@@ -27,10 +26,7 @@ def load(settings: RunSettings) -> Any:
 
 def initial_memory(controller: Any, scenario: Any) -> Any:
     """The law's memory at t = 0 with z1(0), z2(0) of [initial] when the law takes them."""
-    params = inspect.signature(controller.initial_memory).parameters
-    if "z1" in params and "z2" in params:
-        return controller.initial_memory(None, z1=scenario.initial.z1, z2=scenario.initial.z2)
-    return controller.initial_memory(None)
+    return controller.initial_memory(None, z1=scenario.initial.z1, z2=scenario.initial.z2)
 
 
 def build_control_core(settings: RunSettings) -> tuple[ControlCore, str]:

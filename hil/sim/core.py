@@ -16,7 +16,6 @@ delay, jitter seed, disturbance seed and sensor seed (:class:`RobotVariation`).
 from __future__ import annotations
 
 import heapq
-import inspect
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -103,14 +102,7 @@ class BatchResult:
 
 
 def _initial_memory(controller: Any, n: int | None, scenario: Scenario) -> Any:
-    z1, z2 = scenario.initial.z1, scenario.initial.z2
-    try:
-        params = inspect.signature(controller.initial_memory).parameters
-    except (TypeError, ValueError):
-        params = {}
-    if "z1" in params and "z2" in params:
-        return controller.initial_memory(n, z1=z1, z2=z2)
-    return controller.initial_memory(n)
+    return controller.initial_memory(n, z1=scenario.initial.z1, z2=scenario.initial.z2)
 
 
 def _replay(scenario: Scenario) -> np.ndarray | None:
