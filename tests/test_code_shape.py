@@ -1,9 +1,9 @@
 """Code shape of the product packages: no function longer than MAX_LINES (issue 12).
 
 A long function does several jobs; split it into named pieces that say them. The count is
-``end_lineno - lineno + 1`` of every ``def`` (from the def line, so decorators are not counted
-and the docstring is; nested
-functions counted on their own and inside their parent), read with :mod:`ast`.
+``end_lineno - lineno + 1`` of every ``def``, read with :mod:`ast`: from the def line (so
+decorators are not counted, the docstring is); a nested function counts on its own and inside
+its parent.
 """
 
 from __future__ import annotations
