@@ -1,7 +1,7 @@
 """Report generation time for a 60 s run at 1 kHz (60,000 samples).
 
 The folder is simulated once (``hil.sim``, the paper's circle at Ts = 1 ms) or, with
-``--synthetic``, written by ``hil.report.synthetic`` as a run folder with both services' hop
+``--synthetic``, written by ``tests.synthetic_folder`` as a run folder with both services' hop
 logs (both paths live) measured by hil.measure. Times ``hil report`` (load, metrics, the run's
 measurement, 9-14 figures, report.html/md/json) without the ideal trajectory, median of
 repeats, and once with it (a second simulation at Ts/10 dominates that figure).
@@ -20,10 +20,10 @@ from pathlib import Path
 
 import _here  # noqa: F401  (this checkout first on sys.path)
 
-from hil.report.build import analyse, write_report
+from hil.report.build import build_report, write_report
 from hil.report.folder import load_folder
 from hil.report.ideal import ideal_from_simulator
-from hil.report.synthetic import write_synthetic_folder
+from tests.synthetic_folder import write_synthetic_folder
 
 SCENARIO = """
 [reference]
@@ -58,7 +58,7 @@ def make_folder(root: Path, synthetic: bool) -> Path:
 
 def once(folder: Path, ideal: bool) -> float:
     t0 = time.perf_counter()
-    rep = analyse(load_folder(folder), ideal=ideal_from_simulator if ideal else None)
+    rep = build_report(load_folder(folder), ideal=ideal_from_simulator if ideal else None)
     write_report(rep, folder)
     return time.perf_counter() - t0
 

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -220,31 +221,10 @@ def _outage_gap(
     return (limit - base) / rate_hold - delay
 
 
-def certify(
-    params: Any,
-    context: DesignContext,
-    ts: float,
-    delay: float,
-    boundary_layer: bool,
-    *,
-    v0: float = 0.0,
-    w0: float = 0.0,
-    watchdog_timeout: float | None = None,
-) -> Certificate:
-    """The certificate of docs/sampled_data_bound.md for the unified law at period ``ts`` (the
-    longest gap between sample times of successive applied commands) and worst sample-to-apply
-    latency ``delay``. ``boundary_layer`` selects (19) (needs params.eps1, eps2) over (10).
-
-    Raises :class:`CertificateError` on malformed input (negative or non-finite timing, missing
-    or non-finite gains); a broken design is reported in the certificate, never raised.
-    """
-    ts = _finite_nonneg("ts", ts)
-    delay = _finite_nonneg("delay", delay)
-    v0 = float(v0)
-    w0 = float(w0)
-    if not (math.isfinite(v0) and math.isfinite(w0)):
-        raise CertificateError("initial velocities must be finite")
-    g = _gains(params, boundary_layer)
+def _paper_conditions(
+    context: DesignContext, g: dict[str, float], boundary_layer: bool
+) -> list[Condition]:
+    """Assumption 2, positivity of the gains, (9), (11) and (12) (the conditions of Theorem 1)."""
     lim = context.limits
     mu1, mu2, k1, k2, s1, s2 = (
         context.mu1,
@@ -254,7 +234,6 @@ def certify(
         context.s1,
         context.s2,
     )
-    age = ts + delay
     conds: list[Condition] = [
         _cond("Assumption 2 mu1 < phi1", mu1, lim.phi1, "assumption"),
         _cond("Assumption 2 mu2 < phi2", mu2, lim.phi2, "assumption"),
@@ -280,26 +259,63 @@ def certify(
             "design",
         ),
     ]
-    b1, b2 = push_thresholds(context, g, boundary_layer)
-    v_bound = velocity_bound(context, g["m1"], age, b1, v0)
+    return conds
+
+
+def _sampled_bounds(
+    context: DesignContext,
+    g: dict[str, float],
+    *,
+    age: float,
+    b: tuple[float, float],
+    v0: float,
+    w0: float,
+) -> tuple[float, float, float]:
+    """V, c2s and W of the module docstring at command age ``age``."""
+    v_bound = velocity_bound(context, g["m1"], age, b[0], v0)
     c2s = sampled_c2(context, v_bound)
     w_bound = omega_bound(
-        context, m2=g["m2"], lam=g["lam"], rho=g["rho"], v_bound=v_bound, age=age, b2=b2, w0=w0
+        context, m2=g["m2"], lam=g["lam"], rho=g["rho"], v_bound=v_bound, age=age, b2=b[1], w0=w0
     )
-    conds += [
-        _cond("sampled |v| bound <= phi1", v_bound, lim.phi1, "sampled", strict=False),
-        _cond("sampled |w| bound <= phi2", w_bound, lim.phi2, "sampled", strict=False),
-    ]
+    return v_bound, c2s, w_bound
+
+
+def _sampled_conditions(
+    context: DesignContext, g: dict[str, float], v_bound: float, w_bound: float
+) -> list[Condition]:
+    """V <= phi1, W <= phi2, and the reaching condition at the sampled bounds (info only)."""
+    lim = context.limits
     # The reaching conditions of (12)/(14) with the sampled bounds in place of phi1, phi2:
     # they govern the quasi-sliding behaviour (Theorem 1), not the constraints.
     reach = design_constants(context, v_bound=max(lim.phi1, v_bound))
-    dav = k1 + g["rho"] * mu1 * reach["c2"] + g["l1"]
-    conds.append(
-        _cond("reaching |alpha_v'| < varpi1 - s1 at sampled bounds", dav, lim.varpi1 - s1, "info")
-    )
-    sampled_ok = all(c.held for c in conds if c.kind == "sampled")
-    held = all(c.held for c in conds if c.kind != "info")
+    dav = context.k1 + g["rho"] * context.mu1 * reach["c2"] + g["l1"]
+    return [
+        _cond("sampled |v| bound <= phi1", v_bound, lim.phi1, "sampled", strict=False),
+        _cond("sampled |w| bound <= phi2", w_bound, lim.phi2, "sampled", strict=False),
+        _cond(
+            "reaching |alpha_v'| < varpi1 - s1 at sampled bounds",
+            dav,
+            lim.varpi1 - context.s1,
+            "info",
+        ),
+    ]
 
+
+def _bound_notes(
+    context: DesignContext,
+    g: dict[str, float],
+    *,
+    ts: float,
+    age: float,
+    boundary_layer: bool,
+    b: tuple[float, float],
+    bounds: tuple[float, float],
+    v0: float,
+    w0: float,
+) -> list[str]:
+    """The certificate's explanatory notes on the age, the push thresholds and the bounds."""
+    b1, b2 = b
+    v_bound, c2s = bounds
     notes = [
         f"age D = ts + delay = {age:.6g} s: the longest time a command is in force after its "
         "sample (stale commands dropped; lost commands widen ts)",
@@ -312,7 +328,7 @@ def certify(
             f"boundary layer (19): push thresholds b1 = eps1 s1/varpi1 = {b1:.4g}, "
             f"b2 = eps2 s2/varpi2 = {b2:.4g} added to the alpha bounds"
         )
-    if v_bound > lim.phi1:
+    if v_bound > context.limits.phi1:
         notes.append(
             f"V = {v_bound:.6g} > phi1: the paper's c0 = mu1 + phi1 undercounts |g|; "
             f"c0 = mu1 + V used (c2s = {c2s:.6g})"
@@ -322,36 +338,118 @@ def certify(
             f"{', '.join(l_dt)} ts > 2 m: a plain Euler update of (8) would leave |z| <= m; the "
             "shipped law's clamp keeps it"
         )
+    mu1, mu2 = context.mu1, context.mu2
     if abs(v0) > mu1 + g["m1"] or abs(w0) > mu2 + g["lam"] * mu1 + g["m2"] + g["rho"] * c2s:
         notes.append("an initial velocity above the alpha bound enters V or W through max()")
     notes.append(
         "not covered: watchdog outages longer than ts (v drifts by s1 per second under zero "
         "torque), sensor noise, actuator lag (docs section 6)"
     )
+    return notes
+
+
+def _outage_tolerance(
+    context: DesignContext,
+    g: dict[str, float],
+    *,
+    ts: float,
+    delay: float,
+    watchdog_timeout: float,
+    b: tuple[float, float],
+    v0: float,
+    w0: float,
+) -> tuple[float, str]:
+    """The largest sample gap (2) survives with a watchdog zeroing the torque (docs section 6),
+    and the note that says so."""
+    lim = context.limits
+    mu1, mu2, s1, s2 = context.mu1, context.mu2, context.s1, context.s2
+    b1, b2 = b
+    tw = _finite_nonneg("watchdog_timeout", watchdog_timeout)
+    c2_out = sampled_c2(context, lim.phi1)
+    gv = _outage_gap(lim.phi1, max(abs(v0), mu1 + g["m1"] + b1), lim.varpi1 + s1, s1, delay, tw)
+    base_w = max(abs(w0), mu2 + g["lam"] * mu1 + g["m2"] + g["rho"] * c2_out + b2)
+    gw = _outage_gap(lim.phi2, base_w, lim.varpi2 + s2, s2, delay, tw)
+    outage = min(gv, gw)
+    if outage < ts:
+        return outage, (
+            f"with a watchdog zeroing torque {tw:.4g} s after the last command, no outage is "
+            "tolerated: (2) is not guaranteed even without one"
+        )
+    return outage, (
+        f"with a watchdog zeroing torque {tw:.4g} s after the last command, (2) survives "
+        f"sample gaps up to {outage:.4g} s"
+    )
+
+
+def _finite_initial_velocities(v0: float, w0: float) -> tuple[float, float]:
+    v0 = float(v0)
+    w0 = float(w0)
+    if not (math.isfinite(v0) and math.isfinite(w0)):
+        raise CertificateError("initial velocities must be finite")
+    return v0, w0
+
+
+def certify(
+    params: Any,
+    context: DesignContext,
+    ts: float,
+    delay: float,
+    boundary_layer: bool,
+    *,
+    v0: float = 0.0,
+    w0: float = 0.0,
+    watchdog_timeout: float | None = None,
+) -> Certificate:
+    """The certificate of docs/sampled_data_bound.md for the unified law at period ``ts`` (the
+    longest gap between sample times of successive applied commands) and worst sample-to-apply
+    latency ``delay``. ``boundary_layer`` selects (19) (needs params.eps1, eps2) over (10).
+
+    Raises :class:`CertificateError` on malformed input (negative or non-finite timing, missing
+    or non-finite gains); a broken design is reported in the certificate, never raised.
+    """
+    ts = _finite_nonneg("ts", ts)
+    delay = _finite_nonneg("delay", delay)
+    v0, w0 = _finite_initial_velocities(v0, w0)
+    g = _gains(params, boundary_layer)
+    lim = context.limits
+    age = ts + delay
+    conds = _paper_conditions(context, g, boundary_layer)
+    b1, b2 = push_thresholds(context, g, boundary_layer)
+    v_bound, c2s, w_bound = _sampled_bounds(context, g, age=age, b=(b1, b2), v0=v0, w0=w0)
+    conds += _sampled_conditions(context, g, v_bound, w_bound)
+    sampled_ok = all(c.held for c in conds if c.kind == "sampled")
+    held = all(c.held for c in conds if c.kind != "info")
+    notes = _bound_notes(
+        context,
+        g,
+        ts=ts,
+        age=age,
+        boundary_layer=boundary_layer,
+        b=(b1, b2),
+        bounds=(v_bound, c2s),
+        v0=v0,
+        w0=w0,
+    )
     outage = None
     if watchdog_timeout is not None:
-        tw = _finite_nonneg("watchdog_timeout", watchdog_timeout)
-        c2_out = sampled_c2(context, lim.phi1)
-        gv = _outage_gap(lim.phi1, max(abs(v0), mu1 + g["m1"] + b1), lim.varpi1 + s1, s1, delay, tw)
-        base_w = max(abs(w0), mu2 + g["lam"] * mu1 + g["m2"] + g["rho"] * c2_out + b2)
-        gw = _outage_gap(lim.phi2, base_w, lim.varpi2 + s2, s2, delay, tw)
-        outage = min(gv, gw)
-        if outage < ts:
-            notes.append(
-                f"with a watchdog zeroing torque {tw:.4g} s after the last command, no outage is "
-                "tolerated: (2) is not guaranteed even without one"
-            )
-        else:
-            notes.append(
-                f"with a watchdog zeroing torque {tw:.4g} s after the last command, (2) survives "
-                f"sample gaps up to {outage:.4g} s"
-            )
+        outage, note = _outage_tolerance(
+            context,
+            g,
+            ts=ts,
+            delay=delay,
+            watchdog_timeout=watchdog_timeout,
+            b=(b1, b2),
+            v0=v0,
+            w0=w0,
+        )
+        notes.append(note)
     margins = {
         "v": lim.phi1 - v_bound,
         "w": lim.phi2 - w_bound,
         "v_relative": (lim.phi1 - v_bound) / lim.phi1,
         "w_relative": (lim.phi2 - w_bound) / lim.phi2,
     }
+    speed_room = context.s1 < lim.varpi1 and context.s2 < lim.varpi2
     return Certificate(
         ts=ts,
         delay=delay,
@@ -363,8 +461,8 @@ def certify(
         phi2=lim.phi2,
         c2s=c2s,
         conditions=tuple(conds),
-        constraints_guaranteed=bool(sampled_ok and s1 < lim.varpi1 and s2 < lim.varpi2),
-        held=bool(held and s1 < lim.varpi1 and s2 < lim.varpi2),
+        constraints_guaranteed=bool(sampled_ok and speed_room),
+        held=bool(held and speed_room),
         notes=tuple(notes),
         outage_tolerance_s=outage,
         margins=margins,
@@ -406,10 +504,7 @@ def critical_age(
     Raises :class:`CertificateError` on malformed input (missing or non-finite gains,
     non-finite v0/w0, non-positive varpi + s or tol).
     """
-    v0 = float(v0)
-    w0 = float(w0)
-    if not (math.isfinite(v0) and math.isfinite(w0)):
-        raise CertificateError("initial velocities must be finite")
+    v0, w0 = _finite_initial_velocities(v0, w0)
     tol = float(tol)
     if not (math.isfinite(tol) and tol > 0.0):
         raise CertificateError(f"tol must be finite and > 0, got {tol!r}")
@@ -422,6 +517,9 @@ def critical_age(
     if not (context.s1 < lim.varpi1 and context.s2 < lim.varpi2):
         return 0.0
     b1, b2 = push_thresholds(context, g, boundary_layer)
+    d_v = _velocity_age(context, g["m1"], b1, v0)
+    if d_v is None:
+        return 0.0
 
     def w_at(age: float) -> float:
         v_bound = velocity_bound(context, g["m1"], age, b1, v0)
@@ -436,24 +534,36 @@ def critical_age(
             w0=w0,
         )
 
-    # v side in closed form; step down past rounding so that V(d_v) <= phi1 as certify computes.
-    d_v = (lim.phi1 - max(abs(v0), context.mu1 + g["m1"] + b1)) / rate1
+    return _bisect_omega_age(w_at, lim.phi2, d_v, tol)
+
+
+def _velocity_age(context: DesignContext, m1: float, b1: float, v0: float) -> float | None:
+    """The largest D with V(D) <= phi1 as :func:`velocity_bound` computes it; None if even
+    D = 0 fails. Closed form, then stepped down past rounding."""
+    phi1 = context.limits.phi1
+    d_v = (phi1 - max(abs(v0), context.mu1 + m1 + b1)) / (context.limits.varpi1 + context.s1)
     if not d_v >= 0.0:  # also NaN
-        return 0.0
-    while d_v > 0.0 and velocity_bound(context, g["m1"], d_v, b1, v0) > lim.phi1:
+        return None
+    while d_v > 0.0 and velocity_bound(context, m1, d_v, b1, v0) > phi1:
         d_v = math.nextafter(d_v, 0.0)
-    if velocity_bound(context, g["m1"], d_v, b1, v0) > lim.phi1:
-        return 0.0
-    if w_at(d_v) <= lim.phi2:
+    if velocity_bound(context, m1, d_v, b1, v0) > phi1:
+        return None
+    return d_v
+
+
+def _bisect_omega_age(w_at: Callable[[float], float], phi2: float, d_v: float, tol: float) -> float:
+    """The largest D in [0, d_v] with W(D) <= phi2 to ``tol`` (W nondecreasing in D), 0.0 when
+    even D = 0 fails."""
+    if w_at(d_v) <= phi2:
         return d_v
-    if not w_at(0.0) <= lim.phi2:
+    if not w_at(0.0) <= phi2:
         return 0.0
     lo, hi = 0.0, d_v  # W(lo) <= phi2 < W(hi)
     while hi - lo > tol:
         mid = 0.5 * (lo + hi)
         if mid <= lo or mid >= hi:
             break
-        if w_at(mid) <= lim.phi2:
+        if w_at(mid) <= phi2:
             lo = mid
         else:
             hi = mid
@@ -493,6 +603,86 @@ def _fit_w_budget(g: dict[str, float], budget: float, c2s: float, mu1: float) ->
         g[name] *= q
 
 
+def _fit_m1(
+    context: DesignContext, g: dict[str, float], age: float, b1: float, v0: float
+) -> str | None:
+    """Step 2 of the module rule, in place; the reason when no m1 can do."""
+    lim = context.limits
+    mu1 = context.mu1
+    rise1 = (lim.varpi1 + context.s1) * age
+    m1_max = lim.phi1 - mu1 - b1 - rise1
+    if abs(v0) + rise1 > lim.phi1:
+        return (
+            f"|v0| + (varpi1 + s1)(ts + delay) = {abs(v0) + rise1:.4g} "
+            f"exceeds phi1 = {lim.phi1:.4g} whatever the gains"
+        )
+    if m1_max <= 0.0:
+        return (
+            f"(varpi1 + s1)(ts + delay) = {rise1:.4g} alone exceeds the margin "
+            f"phi1 - mu1 - b1 = {lim.phi1 - mu1 - b1:.4g}: shorten the period or the delay"
+        )
+    g["m1"] = min(g["m1"], m1_max, STRICT_SHRINK * (lim.phi1 - mu1))
+    return None
+
+
+def _omega_budget(
+    context: DesignContext, age: float, b2: float, w0: float
+) -> tuple[float | None, str]:
+    """R of step 3 of the module rule, or None and the reason when it leaves nothing."""
+    lim = context.limits
+    rise2 = (lim.varpi2 + context.s2) * age
+    budget = lim.phi2 - context.mu2 - b2 - rise2
+    if abs(w0) + rise2 > lim.phi2:
+        return None, (
+            f"|w0| + (varpi2 + s2)(ts + delay) = {abs(w0) + rise2:.4g} "
+            f"exceeds phi2 = {lim.phi2:.4g} whatever the gains"
+        )
+    if budget <= 0.0:
+        return None, (
+            f"(varpi2 + s2)(ts + delay) = {rise2:.4g} alone exceeds the margin "
+            f"phi2 - mu2 - b2 = {lim.phi2 - context.mu2 - b2:.4g}: shorten the period or the delay"
+        )
+    return budget, ""
+
+
+def _fit_omega_side(
+    context: DesignContext, g: dict[str, float], budget: float, c2s: float
+) -> str | None:
+    """Steps 3 and 4 of the module rule, in place; the reason when (11) or (12) leaves nothing."""
+    lim = context.limits
+    mu1 = context.mu1
+    for _ in range(8):
+        _fit_w_budget(g, budget, c2s, mu1)
+        g["m2"] = min(g["m2"], STRICT_SHRINK * (lim.phi2 - context.mu2))
+        lam_max = lam_bound(context, m2=g["m2"], l2=g["l2"])
+        if not g["lam"] < lam_max:
+            if not lam_max > 0.0:
+                return f"(11) leaves no positive lam (bound {lam_max:.4g})"
+            g["lam"] = STRICT_SHRINK * lam_max
+        rho_max = rho_bound(context, m1=g["m1"], m2=g["m2"], l1=g["l1"], l2=g["l2"], lam=g["lam"])
+        if not g["rho"] < rho_max:
+            if not rho_max > 0.0:
+                return f"(12) leaves no positive rho (bound {rho_max:.4g})"
+            g["rho"] = STRICT_SHRINK * rho_max
+        if g["m2"] + g["lam"] * mu1 + g["rho"] * c2s <= budget:
+            break
+    return None
+
+
+def _unfixable(first: Certificate, g: dict[str, float]) -> str | None:
+    """Why no change of gains can help (a broken Assumption 2, a non-positive gain), if so."""
+    bad_assumption = [c for c in first.conditions if c.kind == "assumption" and not c.held]
+    if bad_assumption:
+        return (
+            f"{bad_assumption[0].name} fails: no gains can fix the limits, "
+            "references or disturbance bounds"
+        )
+    for name in ("m1", "m2", "l1", "l2", "lam", "rho"):
+        if g[name] <= 0.0:
+            return f"{name} must be positive"
+    return None
+
+
 def propose(
     params: Any,
     context: DesignContext,
@@ -509,92 +699,25 @@ def propose(
     if first.held:
         return Proposal(params, "the requested design already holds", {}, first)
     lim = context.limits
-    mu1, mu2, k1, k2, s1, s2 = (
-        context.mu1,
-        context.mu2,
-        context.k1,
-        context.k2,
-        context.s1,
-        context.s2,
-    )
-    bad_assumption = [c for c in first.conditions if c.kind == "assumption" and not c.held]
-    if bad_assumption:
-        return Proposal(
-            None,
-            f"{bad_assumption[0].name} fails: no gains can fix the limits, "
-            "references or disturbance bounds",
-            {},
-            None,
-        )
     g = _gains(params, boundary_layer)
-    for name in ("m1", "m2", "l1", "l2", "lam", "rho"):
-        if g[name] <= 0.0:
-            return Proposal(None, f"{name} must be positive", {}, None)
+    if (reason := _unfixable(first, g)) is not None:
+        return Proposal(None, reason, {}, None)
     age = ts + delay
     b1, b2 = push_thresholds(context, g, boundary_layer)
-
-    for name, bound in (("l1", lim.varpi1 - k1 - s1), ("l2", lim.varpi2 - k2 - s2)):
+    for name, bound in (
+        ("l1", lim.varpi1 - context.k1 - context.s1),
+        ("l2", lim.varpi2 - context.k2 - context.s2),
+    ):
         if g[name] >= bound:
             g[name] = STRICT_SHRINK * bound
-
-    rise1 = (lim.varpi1 + s1) * age
-    m1_max = lim.phi1 - mu1 - b1 - rise1
-    if abs(v0) + rise1 > lim.phi1:
-        return Proposal(
-            None,
-            f"|v0| + (varpi1 + s1)(ts + delay) = {abs(v0) + rise1:.4g} "
-            f"exceeds phi1 = {lim.phi1:.4g} whatever the gains",
-            {},
-            None,
-        )
-    if m1_max <= 0.0:
-        return Proposal(
-            None,
-            f"(varpi1 + s1)(ts + delay) = {rise1:.4g} alone exceeds the margin "
-            f"phi1 - mu1 - b1 = {lim.phi1 - mu1 - b1:.4g}: shorten the period or the delay",
-            {},
-            None,
-        )
-    g["m1"] = min(g["m1"], m1_max, STRICT_SHRINK * (lim.phi1 - mu1))
-    v_bound = velocity_bound(context, g["m1"], age, b1, v0)
-    c2s = sampled_c2(context, v_bound)
-    rise2 = (lim.varpi2 + s2) * age
-    budget = lim.phi2 - mu2 - b2 - rise2
-    if abs(w0) + rise2 > lim.phi2:
-        return Proposal(
-            None,
-            f"|w0| + (varpi2 + s2)(ts + delay) = {abs(w0) + rise2:.4g} "
-            f"exceeds phi2 = {lim.phi2:.4g} whatever the gains",
-            {},
-            None,
-        )
-    if budget <= 0.0:
-        return Proposal(
-            None,
-            f"(varpi2 + s2)(ts + delay) = {rise2:.4g} alone exceeds the margin "
-            f"phi2 - mu2 - b2 = {lim.phi2 - mu2 - b2:.4g}: shorten the period or the delay",
-            {},
-            None,
-        )
-    for _ in range(8):
-        _fit_w_budget(g, budget, c2s, mu1)
-        g["m2"] = min(g["m2"], STRICT_SHRINK * (lim.phi2 - mu2))
-        lam_max = lam_bound(context, m2=g["m2"], l2=g["l2"])
-        if not g["lam"] < lam_max:
-            if not lam_max > 0.0:
-                return Proposal(
-                    None, f"(11) leaves no positive lam (bound {lam_max:.4g})", {}, None
-                )
-            g["lam"] = STRICT_SHRINK * lam_max
-        rho_max = rho_bound(context, m1=g["m1"], m2=g["m2"], l1=g["l1"], l2=g["l2"], lam=g["lam"])
-        if not g["rho"] < rho_max:
-            if not rho_max > 0.0:
-                return Proposal(
-                    None, f"(12) leaves no positive rho (bound {rho_max:.4g})", {}, None
-                )
-            g["rho"] = STRICT_SHRINK * rho_max
-        if g["m2"] + g["lam"] * mu1 + g["rho"] * c2s <= budget:
-            break
+    if (reason := _fit_m1(context, g, age, b1, v0)) is not None:
+        return Proposal(None, reason, {}, None)
+    c2s = sampled_c2(context, velocity_bound(context, g["m1"], age, b1, v0))
+    budget, reason = _omega_budget(context, age, b2, w0)
+    if budget is None:
+        return Proposal(None, reason, {}, None)
+    if (reason := _fit_omega_side(context, g, budget, c2s)) is not None:
+        return Proposal(None, reason, {}, None)
     changed = {
         name: (float(getattr(params, name)), g[name])
         for name in ("m1", "m2", "l1", "l2", "lam", "rho")

@@ -228,13 +228,3 @@ def resolve_auto(
         out["rho"] = safety * bound
         notes.append(f"rho = auto: {safety} x bound of (12) {bound:.6g} = {out['rho']:.6g}")
     return AutoResolution(out, tuple(notes))
-
-
-def check_reference_bounds(reference: Any, context: DesignContext, tol: float = 1e-9) -> None:
-    """A reference's own maxima (attributes mu1, mu2, k1, k2) must not exceed the design bounds
-    of Assumption 2 used by (9), (11), (12); raises :class:`DesignError` naming the bound."""
-    for name in ("mu1", "mu2", "k1", "k2"):
-        own = float(getattr(reference, name))
-        bound = float(getattr(context, name))
-        if own > bound * (1.0 + tol) + tol:
-            raise DesignError(f"Assumption 2 reference max {name} <= design {name}", own, bound)

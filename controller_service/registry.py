@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import inspect
 import math
 import re
 import weakref
@@ -34,9 +35,8 @@ from controller_service.laws.base import Controller, DesignContext
 from controller_service.laws.jiang1997 import Jiang1997Controller
 from controller_service.laws.jiang2001 import Jiang2001Controller
 from controller_service.laws.unified import UnifiedController, UnifiedParams
+from protocol.paper import EPS_DEFAULT, TABLE1
 
-TABLE1 = {"m1": 0.5, "m2": 0.5, "l1": 0.5, "l2": 0.5, "lam": 1.0, "rho": 1.0}
-EPS_DEFAULT = {"eps1": 0.1, "eps2": 0.1}
 BUILTIN_LAWS = ("unified", "unified_boundary", "jiang1997", "jiang2001")
 _BASELINE_TABLES = ("jiang1997", "jiang2001")
 
@@ -165,10 +165,25 @@ def _build_user(path: str, table: Mapping[str, Any], context: DesignContext) -> 
             f"(missing or not callable: {', '.join(missing) or '?'}; see "
             "controller_service.laws.base.Controller)"
         )
+    _check_initial_memory(path, controller)
     # An object that is not weak-referenceable falls back to its class path in the table.
     with contextlib.suppress(TypeError):
         _user_tables[controller] = {"law": path, **params}
     return controller
+
+
+def _check_initial_memory(path: str, controller: Any) -> None:
+    """Every law is called as ``initial_memory(n, z1=..., z2=...)`` (the scenario's [initial]
+    z1(0), z2(0)); a user's law that cannot take them is refused here, by name, not mid-run."""
+    try:
+        inspect.signature(controller.initial_memory).bind(None, z1=0.0, z2=0.0)
+    except TypeError as exc:
+        raise ValueError(
+            f"[controller] law {path!r}: initial_memory must accept (n, z1=0.0, z2=0.0) "
+            f"(z1(0), z2(0) of (8); a law without them ignores them): {exc}"
+        ) from exc
+    except ValueError:  # no signature to read (a builtin): it is called and fails, named
+        pass
 
 
 def _what(exc: BaseException) -> str:

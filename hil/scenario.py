@@ -34,8 +34,8 @@ from protocol.can.bus_factory import CanSettings
 from protocol.can.wheel_mapping import RobotGeometry
 from protocol.faults import Faults
 from protocol.messages import ANGLE_MAX, POSITION_MAX, SPEED_MAX, TORQUE_MAX, TURN_RATE_MAX
+from protocol.versions import SIM_SCHEMA_VERSION as SCHEMA_VERSION  # hil.sim.core's name
 
-SCHEMA_VERSION = 1
 JITTER_KINDS = ("uniform", "normal", "replay")
 _REL_TOL = 1e-12
 

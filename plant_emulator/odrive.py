@@ -211,6 +211,17 @@ class Trajectory:
         return self.xf, 0.0, 0.0
 
 
+# Messages that set a limit, gain or inertia (ODriveAxis._setting): refused when negative.
+SETTING_MESSAGES = (
+    SetLimits,
+    SetTrajVelLimit,
+    SetTrajAccelLimits,
+    SetTrajInertia,
+    SetPosGain,
+    SetVelGains,
+)
+
+
 def _clamp(x: float, lo: float, hi: float) -> float:
     return lo if x < lo else (hi if x > hi else x)
 
@@ -342,7 +353,6 @@ class ODriveAxis:
 
     def _control(self, now: float, dt: float) -> None:
         """One step of the firmware's controller over ``dt`` seconds (0: outputs only)."""
-        cfg = self.config
         if not self.armed:
             self.torque_output = 0.0
             self.vel_integrator = 0.0
@@ -350,6 +360,12 @@ class ODriveAxis:
         if not self.supported_config():
             self.disarm(ODriveError.BAD_CONFIG, "bad_config")
             return
+        self._follow_input(now, dt)
+        self._run_loops(now, dt)
+
+    def _follow_input(self, now: float, dt: float) -> None:
+        """The set points from the inputs through the input mode's filter over ``dt``."""
+        cfg = self.config
         mode = self.input_mode
         if mode in (InputMode.PASSTHROUGH, InputMode.TUNING):
             self.pos_setpoint = self.input_pos
@@ -375,29 +391,37 @@ class ODriveAxis:
             self.vel_setpoint += dt * accel
             self.pos_setpoint += dt * self.vel_setpoint
         elif mode == InputMode.TRAP_TRAJ:
-            if self.input_pos_updated:
-                self.trajectory = Trajectory.plan(
-                    self.input_pos,
-                    self.pos_setpoint,
-                    self.vel_setpoint,
-                    cfg.traj_vel_limit,
-                    cfg.traj_accel_limit,
-                    cfg.traj_decel_limit,
-                )
-                self.traj_t0 = now
-                self.trajectory_done = False
-                self.input_pos_updated = False
-            if not self.trajectory_done and self.trajectory is not None:
-                t = now - self.traj_t0
-                if t > self.trajectory.duration:
-                    self.pos_setpoint, self.vel_setpoint = self.trajectory.xf, 0.0
-                    self.torque_setpoint = 0.0
-                    self.trajectory_done = True
-                else:
-                    y, yd, ydd = self.trajectory.at(t)
-                    self.pos_setpoint, self.vel_setpoint = y, yd
-                    self.torque_setpoint = ydd * cfg.inertia
+            self._follow_trajectory(now)
 
+    def _follow_trajectory(self, now: float) -> None:
+        """TRAP_TRAJ: plan a move on a new input position, then follow it."""
+        cfg = self.config
+        if self.input_pos_updated:
+            self.trajectory = Trajectory.plan(
+                self.input_pos,
+                self.pos_setpoint,
+                self.vel_setpoint,
+                cfg.traj_vel_limit,
+                cfg.traj_accel_limit,
+                cfg.traj_decel_limit,
+            )
+            self.traj_t0 = now
+            self.trajectory_done = False
+            self.input_pos_updated = False
+        if not self.trajectory_done and self.trajectory is not None:
+            t = now - self.traj_t0
+            if t > self.trajectory.duration:
+                self.pos_setpoint, self.vel_setpoint = self.trajectory.xf, 0.0
+                self.torque_setpoint = 0.0
+                self.trajectory_done = True
+            else:
+                y, yd, ydd = self.trajectory.at(t)
+                self.pos_setpoint, self.vel_setpoint = y, yd
+                self.torque_setpoint = ydd * cfg.inertia
+
+    def _run_loops(self, now: float, dt: float) -> None:
+        """Limits, the position and velocity loops and the integrator: the output torque."""
+        cfg = self.config
         tlim = cfg.max_torque
         vlim = cfg.vel_limit
         if cfg.enable_vel_limit:
@@ -458,7 +482,7 @@ class ODriveAxis:
         return [], ok
 
     def _command(self, now: float, msg: codec.Message) -> bool:
-        cfg = self.config
+        """Apply one host -> drive command; False when refused (counted in ``rejections``)."""
         for value in vars(msg).values():  # the codec refuses them; a direct caller may not
             if isinstance(value, float) and not math.isfinite(value):
                 self.rejections.count("non_finite")
@@ -485,7 +509,31 @@ class ODriveAxis:
             return self._inputs(now, vel=msg.input_vel, torque=msg.torque_ff)
         elif isinstance(msg, SetInputPos):
             return self._inputs(now, pos=msg.input_pos, vel=msg.vel_ff, torque=msg.torque_ff)
-        elif isinstance(msg, SetLimits):
+        elif isinstance(msg, SETTING_MESSAGES):
+            return self._setting(msg)
+        elif isinstance(msg, SetAbsolutePosition):
+            self._set_absolute_position(now, msg.position)
+        elif isinstance(msg, Reboot):
+            return self._reboot(msg.action)
+        elif isinstance(msg, EnterDfuMode):
+            self.rejections.count("dfu_refused")
+            return False
+        elif isinstance(msg, RxSdo):
+            self.rejections.count("sdo_unsupported")
+            return False
+        elif (
+            isinstance(msg, Address)
+            and msg.serial_number in (self.serial, 0)
+            and msg.node_id != self.node
+        ):
+            self.rejections.count("node_id_change_refused")
+            return False
+        return True
+
+    def _setting(self, msg: codec.Message) -> bool:
+        """A limit, gain or inertia message: refused (and counted) when negative."""
+        cfg = self.config
+        if isinstance(msg, SetLimits):
             if msg.velocity_limit < 0.0 or msg.current_limit < 0.0:
                 self.rejections.count("negative_limit")
                 return False
@@ -515,33 +563,20 @@ class ODriveAxis:
                 self.rejections.count("negative_gain")
                 return False
             cfg.vel_gain, cfg.vel_integrator_gain = msg.vel_gain, msg.vel_integrator_gain
-        elif isinstance(msg, SetAbsolutePosition):
-            delta = msg.position - self.pos_estimate_at(now)
-            self.pos_offset += delta
-            # the set points move with the frame of reference: the motor does not jump
-            self.input_pos += delta
-            self.pos_setpoint += delta
-            if self.trajectory is not None:
-                self.trajectory.xi += delta
-                self.trajectory.xf += delta
-                self.trajectory.y_accel += delta
-            self.events["absolute_position"] += 1
-        elif isinstance(msg, Reboot):
-            return self._reboot(msg.action)
-        elif isinstance(msg, EnterDfuMode):
-            self.rejections.count("dfu_refused")
-            return False
-        elif isinstance(msg, RxSdo):
-            self.rejections.count("sdo_unsupported")
-            return False
-        elif (
-            isinstance(msg, Address)
-            and msg.serial_number in (self.serial, 0)
-            and msg.node_id != self.node
-        ):
-            self.rejections.count("node_id_change_refused")
-            return False
         return True
+
+    def _set_absolute_position(self, now: float, position: float) -> None:
+        """Move the frame of reference so that Pos_Estimate reads ``position`` now."""
+        delta = position - self.pos_estimate_at(now)
+        self.pos_offset += delta
+        # the set points move with the frame of reference: the motor does not jump
+        self.input_pos += delta
+        self.pos_setpoint += delta
+        if self.trajectory is not None:
+            self.trajectory.xi += delta
+            self.trajectory.xf += delta
+            self.trajectory.y_accel += delta
+        self.events["absolute_position"] += 1
 
     def _inputs(
         self,

@@ -8,7 +8,7 @@ state measured at t_k = k Ts, and the plant, model (1)
 runs in continuous time between samples under a zero-order hold: the torque it sees is the
 newest command that has landed, held constant until the next one lands (with the actuator lag
 of :mod:`plant_emulator.dynamics` between command and applied torque). Command k lands at
-plant step ``land`` (t_k + delay + jitter rounded to the plant step h, :mod:`hil.sim.timing`);
+plant step ``land`` (t_k + delay + jitter rounded to the plant step h, :mod:`hil.sim.landing`);
 before the first landing the held torque is zero; when delays reorder commands the newest by
 sequence number wins and an older one that lands later is dropped (counted).
 

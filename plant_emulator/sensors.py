@@ -17,6 +17,7 @@ import numpy as np
 
 from controller_service.laws.base import RobotState
 from plant_emulator.disturbances import hash_normal
+from protocol.angles import wrap_angle  # noqa: F401  (hil.sim.core imports it from here)
 
 STATE_NAMES = ("x", "y", "theta", "v", "omega")
 # Channels 0..9 of the hash are taken by the two uniforms of each normal; offset them from the
@@ -62,15 +63,3 @@ def measure(sensor: Sensor, state: RobotState, k: int, seed: Any = None) -> Robo
             value = value + std * hash_normal(sd, _CHANNEL_BASE + i, k)
         out.append(_quantize(value, sensor.quantization[i]))
     return RobotState(*out)
-
-
-def wrap_angle(a: Any) -> Any:
-    """Angle wrapped to (-pi, pi]."""
-    if isinstance(a, np.ndarray):
-        w = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
-        return np.where(w == -np.pi, np.pi, w)
-    w = math.fmod(a + math.pi, 2.0 * math.pi)
-    if w < 0.0:
-        w += 2.0 * math.pi
-    w -= math.pi
-    return math.pi if w == -math.pi else w

@@ -44,8 +44,8 @@ import msgpack
 
 from protocol.keys import is_valid_robot_id
 from protocol.rejections import RejectionCounter
+from protocol.versions import MESSAGE_SCHEMA_VERSION
 
-SCHEMA_VERSION = 1
 MAX_MESSAGE_BYTES = 4096
 
 # Protocol ranges: wide sanity bounds, far outside any scenario's limits, so a receiver never
@@ -324,7 +324,7 @@ def encode(msg: Message) -> bytes:
         values = _check(spec, _GETTERS[cls](msg), 0, True)
     except DecodeError as e:
         raise EncodeError(e.reason, e.detail) from None
-    return msgpack.packb([cls.TAG, SCHEMA_VERSION, *values], use_bin_type=True)
+    return msgpack.packb([cls.TAG, MESSAGE_SCHEMA_VERSION, *values], use_bin_type=True)
 
 
 def decode(data: Any) -> Message:
@@ -349,7 +349,7 @@ def decode(data: Any) -> Message:
     cls = MESSAGE_TYPES.get(obj[0])
     if cls is None:
         raise DecodeError("unknown_type", obj[0])
-    if obj[1] != SCHEMA_VERSION:
+    if obj[1] != MESSAGE_SCHEMA_VERSION:
         raise DecodeError("unknown_version", obj[1])
     spec = SPECS[cls]
     expected = len(spec) + 2

@@ -21,7 +21,7 @@ class SaturatedPD:
         self.gain = float(params.get("gain", 5.0))
         self.limits = context.limits
 
-    def initial_memory(self, n: int | None = None) -> Any:
+    def initial_memory(self, n: int | None = None, z1: float = 0.0, z2: float = 0.0) -> Any:
         return None
 
     def update(
@@ -35,11 +35,18 @@ class SaturatedPD:
         return ControlOutput(tau1, tau2, {}), memory
 
 
+class OldMemorySignature(SaturatedPD):
+    """``initial_memory(n)`` without z1, z2: loading it must fail, naming initial_memory."""
+
+    def initial_memory(self, n: int | None = None) -> Any:  # type: ignore[override]
+        return None
+
+
 class NotAController:
     """Has no update method: loading it must fail clearly."""
 
     def __init__(self, params: dict[str, Any], context: DesignContext) -> None:
         self.name = "broken"
 
-    def initial_memory(self, n: int | None = None) -> Any:
+    def initial_memory(self, n: int | None = None, z1: float = 0.0, z2: float = 0.0) -> Any:
         return None

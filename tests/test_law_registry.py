@@ -9,6 +9,7 @@ import pytest
 from controller_service.design import DesignError
 from controller_service.laws.base import Controller, DesignContext, ReferenceSample, RobotState
 from controller_service.registry import (
+    BUILTIN_LAWS,
     build_controller,
     resolved_controller_table,
     resolved_notes,
@@ -64,6 +65,7 @@ def test_design_violation_surfaces_as_named_error():
         ({"law": "no_such_module_xyz:Thing"}, "cannot import"),
         ({"law": "tests.example_user_controller:Nope"}, "has no 'Nope'"),
         ({"law": "tests.example_user_controller:NotAController"}, "Controller protocol"),
+        ({"law": "tests.example_user_controller:OldMemorySignature"}, "initial_memory must accept"),
         ({"law": "tests.example_user_controller:SaturatedPD", "bogus": 1}, "building it failed"),
         ({"law": 3}, "law must be a string"),
     ],
@@ -99,3 +101,20 @@ def test_user_controller_loads_by_import_path_and_runs():
     )
     assert (out.tau1, out.tau2) == (3.3, 20.0)
     assert resolved_controller_table(controller) == table
+
+
+@pytest.mark.parametrize("law", BUILTIN_LAWS)
+def test_every_law_takes_its_initial_adaptive_states_explicitly(law):
+    # One call for every law (hil.sim and hil.run pass [initial] z1, z2 without asking the law).
+    table = {"law": law, **({"eps1": 0.1, "eps2": 0.1} if law == "unified_boundary" else {})}
+    controller = build_controller(table, CONTEXT)
+    one = controller.initial_memory(None, z1=0.2, z2=-0.1)
+    many = controller.initial_memory(3, z1=0.2, z2=-0.1)
+    if law.startswith("unified"):
+        assert (one.z1, one.z2) == (0.2, -0.1)
+        assert list(many.z1) == [0.2] * 3 and list(many.z2) == [-0.1] * 3
+    else:  # no adaptive states of (8): z1, z2 change nothing
+        assert one == controller.initial_memory(None)
+        assert all(
+            list(a) == list(b) for a, b in zip(many, controller.initial_memory(3), strict=True)
+        )

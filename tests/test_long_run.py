@@ -120,7 +120,7 @@ def test_the_report_of_two_million_samples_is_quick_and_small(tmp_path: Path) ->
     Every figure's data holds its drawn samples (the extremes of each time bin), not 2 M
     rows, and keeps the true peak."""
     from hil.report.folder import read_trace
-    from hil.report.synthetic import write_synthetic_folder
+    from tests.synthetic_folder import write_synthetic_folder
 
     folder = write_synthetic_folder(tmp_path / "long", duration=2000.0, rate=1000.0)
     seconds, code, peak_kb = _wait4([sys.executable, "-m", "hil", "report", str(folder),

@@ -77,10 +77,10 @@ def test_the_run_trace_is_the_row_by_row_trace(tmp_path: Path) -> None:
     one the row-by-row writer wrote (here against a copy of that writer)."""
     from controller_service.references import Circle
     from hil.measure.logs import ALL_COLUMNS, load_folder_logs
-    from hil.report.synthetic import write_synthetic_folder
     from hil.run import results
     from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
     from protocol.hoplog import TICK_NO_SEND
+    from tests.synthetic_folder import write_synthetic_folder
 
     folder = write_synthetic_folder(tmp_path / "run", run=True, duration=2.0)
     logs = load_folder_logs(folder, ALL_COLUMNS)

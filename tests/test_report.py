@@ -23,7 +23,7 @@ import pytest
 
 from hil.cli import main
 from hil.report.cert import CONTRACT_KEYS
-from hil.report.synthetic import write_synthetic_folder
+from tests.synthetic_folder import write_synthetic_folder
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 VOID = {"meta", "img", "br", "hr", "link", "input", "col", "source", "area", "base", "wbr"}

@@ -20,7 +20,7 @@ class _Fixed:
     def __init__(self, tau1: float, tau2: float) -> None:
         self.tau = (tau1, tau2)
 
-    def initial_memory(self, n=None):
+    def initial_memory(self, n=None, z1=0.0, z2=0.0):
         return 0
 
     def update(self, t, dt, state, ref, memory):

@@ -43,7 +43,7 @@ class SaturatedPD:
         self.varpi1 = context.limits.varpi1
         self.varpi2 = context.limits.varpi2
 
-    def initial_memory(self, n: int | None = None) -> Any:
+    def initial_memory(self, n: int | None = None, z1: float = 0.0, z2: float = 0.0) -> Any:
         return None
 
     def update(
@@ -66,7 +66,7 @@ class SequenceEcho:
     def __init__(self, params: Mapping[str, Any], context: DesignContext) -> None:
         self.ts = float(params.get("ts", 0.001))
 
-    def initial_memory(self, n: int | None = None) -> Any:
+    def initial_memory(self, n: int | None = None, z1: float = 0.0, z2: float = 0.0) -> Any:
         return None
 
     def update(self, t, dt, state, ref, memory):  # type: ignore[no-untyped-def]

@@ -17,6 +17,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol, runtime_checkable
 
+from protocol.paper import PAPER_LIMITS
+
 Number = Any  # a float on the real-time path, a numpy array of shape (N,) on the batch path
 
 
@@ -58,10 +60,10 @@ class ControlOutput(NamedTuple):
 class Limits:
     """The constraints (2): |v| <= phi1, |omega| <= phi2, |tau1| <= varpi1, |tau2| <= varpi2."""
 
-    phi1: float = 1.6
-    phi2: float = 5.1
-    varpi1: float = 3.3
-    varpi2: float = 51.0
+    phi1: float = PAPER_LIMITS["phi1"]
+    phi2: float = PAPER_LIMITS["phi2"]
+    varpi1: float = PAPER_LIMITS["varpi1"]
+    varpi2: float = PAPER_LIMITS["varpi2"]
 
 
 @dataclass(frozen=True)
@@ -82,8 +84,10 @@ class DesignContext:
 class Controller(Protocol):
     """One control law. ``update`` is pure: same inputs, same outputs, memory passed explicitly.
 
-    - ``initial_memory(n)``: the law's internal state at t = 0 for one robot (``n is None``,
-      floats) or for ``n`` robots (numpy arrays of shape (n,)).
+    - ``initial_memory(n, z1=0.0, z2=0.0)``: the law's internal state at t = 0 for one robot
+      (``n is None``, floats) or for ``n`` robots (numpy arrays of shape (n,)), starting the
+      adaptive states of (8) at z1(0), z2(0) (the scenario's [initial] z1, z2); a law without
+      adaptive states ignores them.
     - ``update(t, dt, state, ref, memory)``: the torque command at law time ``t`` from the
       sampled ``state`` and reference, and the memory advanced to ``t + dt`` by the law's
       stated rule (``dt`` is the nominal control period). Torques never exceed the limits.
@@ -91,7 +95,7 @@ class Controller(Protocol):
 
     name: str
 
-    def initial_memory(self, n: int | None = None) -> Any: ...
+    def initial_memory(self, n: int | None = None, z1: float = 0.0, z2: float = 0.0) -> Any: ...
 
     def update(
         self, t: float, dt: float, state: RobotState, ref: ReferenceSample, memory: Any

@@ -102,7 +102,10 @@ class VelocityLoopController:
     def kinematic(self, ns: Any, t: Any, state: RobotState, ref: ReferenceSample) -> tuple:
         raise NotImplementedError
 
-    def initial_memory(self, n: int | None = None) -> VelocityLoopMemory:
+    def initial_memory(
+        self, n: int | None = None, z1: float = 0.0, z2: float = 0.0
+    ) -> VelocityLoopMemory:
+        """Previous commands 0, not primed; z1, z2 are ignored (no adaptive states of (8))."""
         if n is None:
             return VelocityLoopMemory(0.0, 0.0, 0.0)
         return VelocityLoopMemory(np.zeros(n), np.zeros(n), np.zeros(n))
@@ -124,13 +127,7 @@ class VelocityLoopController:
         ns = ARRAY_MATH if arrays else FLOAT_MATH
         fields = (*state, *ref[:5], *memory, t, dt)
         if arrays:
-            raw = [np.asarray(f, dtype=float) for f in fields]
-            shape = np.broadcast_shapes(*(f.shape for f in raw))
-            raw = [np.broadcast_to(f, shape) for f in raw]
-            ok = np.ones(shape, dtype=bool)
-            for f in raw:
-                ok &= np.isfinite(f)
-            clean = [np.where(ok, f, 0.0) for f in raw]
+            raw, ok, clean = _finite_arrays(fields)
         else:
             acc = 0.0
             for f in fields:
@@ -138,63 +135,93 @@ class VelocityLoopController:
             if acc != 0.0:
                 return self._reject_float(memory)
             clean = list(fields)
-        st = RobotState(*clean[0:5])
-        rf = ReferenceSample(*clean[5:10])
-        mem = VelocityLoopMemory(*clean[10:13])
-        t_c, dt_c = clean[13], clean[14]
         try:
             with np.errstate(all="ignore"):
-                v_c, w_c, mode, xe, ye, the = self.kinematic(ns, t_c, st, rf)
-                inv_dt = 1.0 / ns.where(dt_c > 0.0, dt_c, 1.0)
-                dv_ff = mem.primed * (v_c - mem.v_c) * inv_dt
-                dw_ff = mem.primed * (w_c - mem.w_c) * inv_dt
-                tau1 = ns.clip(dv_ff - self.inner_kv * (st.v - v_c), -self._varpi1, self._varpi1)
-                tau2 = ns.clip(
-                    dw_ff - self.inner_kw * (st.omega - w_c), -self._varpi2, self._varpi2
-                )
+                loop = self._loop(ns, clean)
         except (ValueError, OverflowError, ZeroDivisionError):
             # Only the float path raises: finite but huge input overflows math functions.
             return self._reject_float(memory)
         if not arrays:
-            acc = (tau1 - tau1) + (tau2 - tau2) + (v_c - v_c) + (w_c - w_c)
-            if acc != 0.0:
-                return self._reject_float(memory)
-            telemetry = {
-                "xe": xe,
-                "ye": ye,
-                "theta_e": the,
-                "v_c": v_c,
-                "w_c": w_c,
-                "mode": mode,
-                "nonfinite": 0.0,
-            }
-            return ControlOutput(tau1, tau2, telemetry), VelocityLoopMemory(v_c, w_c, 1.0)
-        for value in (tau1, tau2, v_c, w_c):
-            ok &= np.isfinite(value)
-        zero = np.zeros(ok.shape)
+            return self._float_output(memory, *loop)
+        return _array_output(raw[10:13], ok, *loop)
 
-        def keep(value: Any) -> np.ndarray:
-            return np.where(ok, value, zero)
+    def _loop(self, ns: Any, clean: list[Any]) -> tuple[Any, ...]:
+        """The kinematic commands and the inner velocity loop's torques (module docstring)."""
+        st = RobotState(*clean[0:5])
+        rf = ReferenceSample(*clean[5:10])
+        mem = VelocityLoopMemory(*clean[10:13])
+        t_c, dt_c = clean[13], clean[14]
+        v_c, w_c, mode, xe, ye, the = self.kinematic(ns, t_c, st, rf)
+        inv_dt = 1.0 / ns.where(dt_c > 0.0, dt_c, 1.0)
+        dv_ff = mem.primed * (v_c - mem.v_c) * inv_dt
+        dw_ff = mem.primed * (w_c - mem.w_c) * inv_dt
+        tau1 = ns.clip(dv_ff - self.inner_kv * (st.v - v_c), -self._varpi1, self._varpi1)
+        tau2 = ns.clip(dw_ff - self.inner_kw * (st.omega - w_c), -self._varpi2, self._varpi2)
+        return tau1, tau2, v_c, w_c, mode, xe, ye, the
 
+    def _float_output(
+        self, memory: VelocityLoopMemory, *loop: Any
+    ) -> tuple[ControlOutput, VelocityLoopMemory]:
+        tau1, tau2, v_c, w_c, mode, xe, ye, the = loop
+        acc = (tau1 - tau1) + (tau2 - tau2) + (v_c - v_c) + (w_c - w_c)
+        if acc != 0.0:
+            return self._reject_float(memory)
         telemetry = {
-            "xe": keep(xe),
-            "ye": keep(ye),
-            "theta_e": keep(the),
-            "v_c": keep(v_c),
-            "w_c": keep(w_c),
-            "mode": keep(mode),
-            "nonfinite": np.where(ok, 0.0, 1.0),
+            "xe": xe,
+            "ye": ye,
+            "theta_e": the,
+            "v_c": v_c,
+            "w_c": w_c,
+            "mode": mode,
+            "nonfinite": 0.0,
         }
-        old = raw[10:13]
-        new_memory = VelocityLoopMemory(
-            np.where(ok, v_c, old[0]), np.where(ok, w_c, old[1]), np.where(ok, 1.0, old[2])
-        )
-        return ControlOutput(keep(tau1), keep(tau2), telemetry), new_memory
+        return ControlOutput(tau1, tau2, telemetry), VelocityLoopMemory(v_c, w_c, 1.0)
 
     def _reject_float(self, memory: VelocityLoopMemory) -> tuple[ControlOutput, Any]:
         telemetry = dict.fromkeys(BASELINE_TELEMETRY_KEYS, 0.0)
         telemetry["nonfinite"] = 1.0
         return ControlOutput(0.0, 0.0, telemetry), memory
+
+
+def _finite_arrays(fields: tuple[Any, ...]) -> tuple[list[np.ndarray], np.ndarray, list[Any]]:
+    """The inputs broadcast to one shape, the mask of lanes where all are finite, and the inputs
+    with the other lanes zeroed (so they compute quietly and are discarded)."""
+    raw = [np.asarray(f, dtype=float) for f in fields]
+    shape = np.broadcast_shapes(*(f.shape for f in raw))
+    raw = [np.broadcast_to(f, shape) for f in raw]
+    ok = np.ones(shape, dtype=bool)
+    for f in raw:
+        ok &= np.isfinite(f)
+    clean = [np.where(ok, f, 0.0) for f in raw]
+    return raw, ok, clean
+
+
+def _array_output(
+    old: list[np.ndarray], ok: np.ndarray, *loop: Any
+) -> tuple[ControlOutput, VelocityLoopMemory]:
+    """Per lane: the loop's result where inputs and outputs are finite, else zero torque,
+    ``nonfinite = 1`` and the old memory ``old``."""
+    tau1, tau2, v_c, w_c, mode, xe, ye, the = loop
+    for value in (tau1, tau2, v_c, w_c):
+        ok &= np.isfinite(value)
+    zero = np.zeros(ok.shape)
+
+    def keep(value: Any) -> np.ndarray:
+        return np.where(ok, value, zero)
+
+    telemetry = {
+        "xe": keep(xe),
+        "ye": keep(ye),
+        "theta_e": keep(the),
+        "v_c": keep(v_c),
+        "w_c": keep(w_c),
+        "mode": keep(mode),
+        "nonfinite": np.where(ok, 0.0, 1.0),
+    }
+    new_memory = VelocityLoopMemory(
+        np.where(ok, v_c, old[0]), np.where(ok, w_c, old[1]), np.where(ok, 1.0, old[2])
+    )
+    return ControlOutput(keep(tau1), keep(tau2), telemetry), new_memory
 
 
 def positive_number(law: str, key: str, value: Any) -> float:

@@ -50,6 +50,7 @@ from controller_service.laws.base import (
     RobotState,
 )
 from controller_service.mathns import ARRAY_MATH, FLOAT_MATH
+from protocol.paper import TABLE1
 
 TELEMETRY_KEYS = (
     "xe",
@@ -72,12 +73,12 @@ class UnifiedParams:
     """Gains of the unified law: (8)'s m1, m2, l1, l2, (7)'s lam, the signal's rho, and the
     boundary-layer widths eps1, eps2 of (19) (None = the pure sign law (10)). Table 1 defaults."""
 
-    m1: float = 0.5
-    m2: float = 0.5
-    l1: float = 0.5
-    l2: float = 0.5
-    lam: float = 1.0
-    rho: float = 1.0
+    m1: float = TABLE1["m1"]
+    m2: float = TABLE1["m2"]
+    l1: float = TABLE1["l1"]
+    l2: float = TABLE1["l2"]
+    lam: float = TABLE1["lam"]
+    rho: float = TABLE1["rho"]
     eps1: float | None = None
     eps2: float | None = None
 
@@ -190,6 +191,60 @@ def _own_arrays(values: tuple[Any, ...]) -> tuple[np.ndarray, ...] | None:
         if value.shape[0] != n or n == 0:
             return None
     return values
+
+
+def _errors_shared_ref(
+    x: np.ndarray, y: np.ndarray, th: np.ndarray, xd: float, yd: float, thd: float
+) -> tuple[np.ndarray, ...]:
+    """Errors (4) for robots sharing one reference sample, with the half-angle rotations of
+    :meth:`UnifiedController._update_array_shared_ref`: xe, ye, theta_e, and sin, cos of
+    theta_e / 2 (from those of theta / 2 and thetad / 2 by the angle-difference formulas)."""
+    c_half_d = math.cos(0.5 * thd)
+    s_half_d = math.sin(0.5 * thd)
+    half_th = 0.5 * th
+    s_h = np.sin(half_th)
+    c_h = np.cos(half_th)
+    c = c_h * c_h - s_h * s_h
+    s = 2.0 * s_h * c_h
+    dx = x - xd
+    dy = y - yd
+    xe = c * dx + s * dy
+    ye = c * dy - s * dx
+    the = th - thd
+    s_a = s_h * c_half_d - c_h * s_half_d  # sin(theta_e / 2)
+    c_a = c_h * c_half_d + s_h * s_half_d  # cos(theta_e / 2)
+    return xe, ye, the, s_a, c_a
+
+
+def _xi_shared_ref(
+    t_s: float,
+    xe: np.ndarray,
+    ye: np.ndarray,
+    v: np.ndarray,
+    eta: np.ndarray,
+    s_a: np.ndarray,
+    c_a: np.ndarray,
+    vd: float,
+    q: float,
+    rho: float,
+) -> tuple[np.ndarray, ...]:
+    """The time-varying signal xi = eta f and its derivative for robots sharing one
+    reference sample: r, xi, xi', and sin, cos of xi / 2."""
+    sin_t = math.sin(t_s)
+    cos_t = math.cos(t_s)
+    cos_the = c_a * c_a - s_a * s_a
+    sin_the = 2.0 * s_a * c_a
+    r = np.sqrt(1.0 + xe * xe + ye * ye)
+    tanh_r = np.tanh(r - 1.0)
+    f = rho * tanh_r * sin_t
+    xi = eta * f
+    g = (xe * (v - vd * cos_the) + ye * vd * sin_the) / r
+    df = rho * (sin_t * (1.0 - tanh_r * tanh_r) * g + cos_t * tanh_r)
+    dxi = eta * df - q * xi
+    half_xi = 0.5 * xi
+    s_b = np.sin(half_xi)
+    c_b = np.cos(half_xi)
+    return r, xi, dxi, s_b, c_b
 
 
 class UnifiedController:
@@ -474,37 +529,9 @@ class UnifiedController:
         with np.errstate(all="ignore"):
             if not np.isfinite(x + y + th + v + w + eta + z1 + z2).all():
                 return None
-            sin_t = math.sin(t_s)
-            cos_t = math.cos(t_s)
             q = vd * vd + wd * wd
-            c_half_d = math.cos(0.5 * thd)
-            s_half_d = math.sin(0.5 * thd)
-            # Errors (4).
-            half_th = 0.5 * th
-            s_h = np.sin(half_th)
-            c_h = np.cos(half_th)
-            c = c_h * c_h - s_h * s_h
-            s = 2.0 * s_h * c_h
-            dx = x - xd
-            dy = y - yd
-            xe = c * dx + s * dy
-            ye = c * dy - s * dx
-            the = th - thd
-            s_a = s_h * c_half_d - c_h * s_half_d  # sin(theta_e / 2)
-            c_a = c_h * c_half_d + s_h * s_half_d  # cos(theta_e / 2)
-            cos_the = c_a * c_a - s_a * s_a
-            sin_the = 2.0 * s_a * c_a
-            # The time-varying signal xi and its derivative.
-            r = np.sqrt(1.0 + xe * xe + ye * ye)
-            tanh_r = np.tanh(r - 1.0)
-            f = rho * tanh_r * sin_t
-            xi = eta * f
-            g = (xe * (v - vd * cos_the) + ye * vd * sin_the) / r
-            df = rho * (sin_t * (1.0 - tanh_r * tanh_r) * g + cos_t * tanh_r)
-            dxi = eta * df - q * xi
-            half_xi = 0.5 * xi
-            s_b = np.sin(half_xi)
-            c_b = np.cos(half_xi)
+            xe, ye, the, s_a, c_a = _errors_shared_ref(x, y, th, xd, yd, thd)
+            r, xi, dxi, s_b, c_b = _xi_shared_ref(t_s, xe, ye, v, eta, s_a, c_a, vd, q, rho)
             sin_half = s_a * c_b + c_a * s_b  # sin((theta_e + xi) / 2)
             cos_half = c_a * c_b - s_a * s_b
             # Virtual controls (7).

@@ -40,70 +40,77 @@ def _msg_rates(heartbeat_ms: float, encoder_ms: float, extra: list[str]) -> dict
     return rates
 
 
+# The options of ``hil drives``, one alias each, so that the command's signature stays short.
+ScenarioArg = Annotated[
+    str | None,
+    typer.Argument(
+        help="Scenario TOML or bundled name: robot, limits, [can] (default: hil run's)."
+    ),
+]
+CanInterfaceOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--can-interface",
+        "--interface",
+        help="python-can interface: zenoh_can, socketcan, udp_multicast, pcan, ...",
+    ),
+]
+ChannelOpt = Annotated[
+    str | None, typer.Option(help="Bus channel: hil0 (zenoh_can), vcan0, can0, ...")
+]
+BitrateOpt = Annotated[int | None, typer.Option(help="Bit/s (hardware, zenoh_can).")]
+CanEndpointOpt = Annotated[str | None, typer.Option(help="zenoh_can's Zenoh endpoint (loopback).")]
+NodeLeftOpt = Annotated[int | None, typer.Option(help="Left wheel's node id.")]
+NodeRightOpt = Annotated[int | None, typer.Option(help="Right wheel's node id.")]
+ControlRateOpt = Annotated[float, typer.Option(help="Hz of the plant and drive controller steps.")]
+HeartbeatOpt = Annotated[float, typer.Option(help="Heartbeat period, ms (0: off; firmware 100).")]
+EncoderOpt = Annotated[
+    float, typer.Option(help="Get_Encoder_Estimates period, ms (0: off; firmware 10).")
+]
+MsgRateOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        help="More cyclic messages, NAME=MS: error, iq, temperature, bus_voltage, "
+        "torques, powers (repeatable)."
+    ),
+]
+WatchdogOpt = Annotated[
+    float | None,
+    typer.Option(help="Drive watchdog, s (0: off, as the firmware ships; default: [can])."),
+]
+StateRateOpt = Annotated[
+    float, typer.Option(help="Publish State (and Status) on Zenoh at this rate, Hz.")
+]
+EndpointOpt = Annotated[str, typer.Option(help="Zenoh endpoint for State/Status.")]
+StatusPeriodOpt = Annotated[float, typer.Option(help="Seconds between status lines (0: none).")]
+DurationOpt = Annotated[
+    float | None, typer.Option(help="Stop after this many seconds (default: Ctrl-C).")
+]
+SchedulingOpt = Annotated[str | None, typer.Option(help="fifo or other (default: the scenario's).")]
+OutOpt = Annotated[Path | None, typer.Option(help="Also write summary.json in this folder.")]
+
+
 def register(app: typer.Typer) -> None:
     @app.command("drives")
     def drives(
-        scenario: Annotated[
-            str | None,
-            typer.Argument(
-                help="Scenario TOML or bundled name: robot, limits, [can] (default: hil run's)."
-            ),
-        ] = None,
-        can_interface: Annotated[
-            str | None,
-            typer.Option(
-                "--can-interface",
-                "--interface",
-                help="python-can interface: zenoh_can, socketcan, udp_multicast, pcan, ...",
-            ),
-        ] = None,
-        channel: Annotated[
-            str | None, typer.Option(help="Bus channel: hil0 (zenoh_can), vcan0, can0, ...")
-        ] = None,
-        bitrate: Annotated[int | None, typer.Option(help="Bit/s (hardware, zenoh_can).")] = None,
-        can_endpoint: Annotated[
-            str | None, typer.Option(help="zenoh_can's Zenoh endpoint (loopback).")
-        ] = None,
-        node_left: Annotated[int | None, typer.Option(help="Left wheel's node id.")] = None,
-        node_right: Annotated[int | None, typer.Option(help="Right wheel's node id.")] = None,
-        control_rate: Annotated[
-            float, typer.Option(help="Hz of the plant and drive controller steps.")
-        ] = 1000.0,
-        heartbeat_ms: Annotated[
-            float, typer.Option(help="Heartbeat period, ms (0: off; firmware 100).")
-        ] = 100.0,
-        encoder_ms: Annotated[
-            float, typer.Option(help="Get_Encoder_Estimates period, ms (0: off; firmware 10).")
-        ] = 10.0,
-        msg_rate: Annotated[
-            list[str] | None,
-            typer.Option(
-                help="More cyclic messages, NAME=MS: error, iq, temperature, bus_voltage, "
-                "torques, powers (repeatable)."
-            ),
-        ] = None,
-        watchdog_timeout: Annotated[
-            float | None,
-            typer.Option(help="Drive watchdog, s (0: off, as the firmware ships; default: [can])."),
-        ] = None,
-        state_rate: Annotated[
-            float, typer.Option(help="Publish State (and Status) on Zenoh at this rate, Hz.")
-        ] = 0.0,
-        endpoint: Annotated[
-            str, typer.Option(help="Zenoh endpoint for State/Status.")
-        ] = "tcp/127.0.0.1:7447",
-        status_period: Annotated[
-            float, typer.Option(help="Seconds between status lines (0: none).")
-        ] = 1.0,
-        duration: Annotated[
-            float | None, typer.Option(help="Stop after this many seconds (default: Ctrl-C).")
-        ] = None,
-        scheduling: Annotated[
-            str | None, typer.Option(help="fifo or other (default: the scenario's).")
-        ] = None,
-        out: Annotated[
-            Path | None, typer.Option(help="Also write summary.json in this folder.")
-        ] = None,
+        scenario: ScenarioArg = None,
+        can_interface: CanInterfaceOpt = None,
+        channel: ChannelOpt = None,
+        bitrate: BitrateOpt = None,
+        can_endpoint: CanEndpointOpt = None,
+        node_left: NodeLeftOpt = None,
+        node_right: NodeRightOpt = None,
+        control_rate: ControlRateOpt = 1000.0,
+        heartbeat_ms: HeartbeatOpt = 100.0,
+        encoder_ms: EncoderOpt = 10.0,
+        msg_rate: MsgRateOpt = None,
+        watchdog_timeout: WatchdogOpt = None,
+        state_rate: StateRateOpt = 0.0,
+        endpoint: EndpointOpt = "tcp/127.0.0.1:7447",
+        status_period: StatusPeriodOpt = 1.0,
+        duration: DurationOpt = None,
+        scheduling: SchedulingOpt = None,
+        out: OutOpt = None,
     ) -> None:
         """Run the robot with its two virtual ODrives (CANSimple 0.6) on a CAN bus for any
         ODrive client, free running (no start gate), until Ctrl-C or SIGTERM: one status line

@@ -57,7 +57,7 @@ def register(app: typer.Typer) -> None:
         or exceeded, too many deadline misses, samples without a command or lost messages),
         2 not a run folder."""
         from hil.options import number, out_dir
-        from hil.report.build import Thresholds, analyse, write_report
+        from hil.report.build import Thresholds, build_report, write_report
         from hil.report.folder import load_folder
         from hil.report.ideal import ideal_from_simulator
         from hil.run.recover import is_run_folder, needs_recovery, recover
@@ -71,7 +71,7 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"recovering {folder} first: {', '.join(needs_recovery(folder))}", err=True)
             recover(folder)
         loaded = load_folder(folder, lazy=True)
-        rep = analyse(
+        rep = build_report(
             loaded,
             ideal=ideal_from_simulator if ideal else None,
             thresholds=Thresholds(

@@ -4,61 +4,73 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
 from hil import interrupts
 from hil.errors import NegativeVerdictError
 
+# The options of ``hil run``, one alias each, so that the command's signature stays short.
+ScenarioArg = Annotated[
+    Path | None,
+    typer.Argument(
+        help="Scenario TOML or a bundled scenario's name (hil scenarios); default: the "
+        "paper's tracking circle, 10 s."
+    ),
+]
+DurationOpt = Annotated[float | None, typer.Option(help="Run length in s.")]
+RateOpt = Annotated[float | None, typer.Option(help="Control rate in Hz.")]
+CmdPathOpt = Annotated[str, typer.Option(help="Applied command path: zenoh or can.")]
+LockstepOpt = Annotated[bool, typer.Option(help="Advance the plant one period per command.")]
+TriggerOpt = Annotated[
+    str | None,
+    typer.Option(help="periodic (absolute deadlines) or on_state."),
+]
+CanOpt = Annotated[bool, typer.Option(help="Keep the CAN path live (as shadow).")]
+CanInterfaceOpt = Annotated[
+    str | None, typer.Option(help="python-can interface (default zenoh_can).")
+]
+CanChannelOpt = Annotated[str | None, typer.Option(help="python-can channel.")]
+SpinOpt = Annotated[float, typer.Option(help="Spin this long before each deadline.")]
+OutOpt = Annotated[Path | None, typer.Option(help="Run folder (default runs/run-*).")]
+QuietOpt = Annotated[bool, typer.Option(help="No progress bar.")]
+SecureOpt = Annotated[
+    bool,
+    typer.Option(
+        help="Run every session through a router with user/password authentication and "
+        "per-role access control (fresh passwords per run, outside the run folder; "
+        "deploy/README.md).",
+    ),
+]
+ReportOpt = Annotated[
+    bool,
+    typer.Option(
+        "--report/--no-report",
+        help="Write the sampling-effect report (report.html/.md/.json, as hil report "
+        "does) into the run folder. Its verdict is printed; the exit code stays the "
+        "run's own (1 only when a limit of (2) was broken).",
+    ),
+]
+
 
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run(
-        scenario: Annotated[
-            Path | None,
-            typer.Argument(
-                help="Scenario TOML or a bundled scenario's name (hil scenarios); default: the "
-                "paper's tracking circle, 10 s."
-            ),
-        ] = None,
-        duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
-        rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,
-        cmd_path: Annotated[
-            str, typer.Option(help="Applied command path: zenoh or can.")
-        ] = "zenoh",
-        lockstep: Annotated[
-            bool, typer.Option(help="Advance the plant one period per command.")
-        ] = False,
-        trigger: Annotated[
-            str | None,
-            typer.Option(help="periodic (absolute deadlines) or on_state."),
-        ] = None,
-        can: Annotated[bool, typer.Option(help="Keep the CAN path live (as shadow).")] = True,
-        can_interface: Annotated[
-            str | None, typer.Option(help="python-can interface (default zenoh_can).")
-        ] = None,
-        can_channel: Annotated[str | None, typer.Option(help="python-can channel.")] = None,
-        spin_us: Annotated[float, typer.Option(help="Spin this long before each deadline.")] = 0.0,
-        out: Annotated[Path | None, typer.Option(help="Run folder (default runs/run-*).")] = None,
-        quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
-        secure: Annotated[
-            bool,
-            typer.Option(
-                help="Run every session through a router with user/password authentication and "
-                "per-role access control (fresh passwords per run, outside the run folder; "
-                "deploy/README.md).",
-            ),
-        ] = False,
-        report: Annotated[
-            bool,
-            typer.Option(
-                "--report/--no-report",
-                help="Write the sampling-effect report (report.html/.md/.json, as hil report "
-                "does) into the run folder. Its verdict is printed; the exit code stays the "
-                "run's own (1 only when a limit of (2) was broken).",
-            ),
-        ] = True,
+        scenario: ScenarioArg = None,
+        duration: DurationOpt = None,
+        rate: RateOpt = None,
+        cmd_path: CmdPathOpt = "zenoh",
+        lockstep: LockstepOpt = False,
+        trigger: TriggerOpt = None,
+        can: CanOpt = True,
+        can_interface: CanInterfaceOpt = None,
+        can_channel: CanChannelOpt = None,
+        spin_us: SpinOpt = 0.0,
+        out: OutOpt = None,
+        quiet: QuietOpt = False,
+        secure: SecureOpt = False,
+        report: ReportOpt = True,
     ) -> None:
         """Run the controller against the emulated robot over Zenoh and CAN and record it."""
         from hil.run.orchestrate import RunOptions, execute
@@ -80,18 +92,7 @@ def register(app: typer.Typer) -> None:
                 secure=secure,
             )
         )
-        t = summary.get("timing", {})
-        brief = {
-            "run_dir": summary.get("run_dir"),
-            "final_position_error": summary.get("final_position_error"),
-            "max_abs_v": summary.get("max_abs_v"),
-            "max_abs_omega": summary.get("max_abs_omega"),
-            "violations": summary.get("violations"),
-            "wakeup_lateness_p99_us": (t.get("wakeup_lateness") or {}).get("p99_us"),
-            "sample_to_apply_p50_us": (t.get(f"sample_to_apply_{cmd_path}") or {}).get("p50_us"),
-            "deadline_misses": t.get("deadline_misses"),
-            "interrupted": summary.get("interrupted"),
-        }
+        brief = _brief(summary, cmd_path)
         run_dir = summary.get("run_dir")
         stopped = summary.get("interrupted") or interrupts.happened()
         if report and run_dir and not stopped and not summary.get("error"):
@@ -101,13 +102,35 @@ def register(app: typer.Typer) -> None:
             # hil.cli exits 130: hil.run.orchestrate recorded the signal in hil.interrupts.
             interrupts.note(f"run folder written to {run_dir}")
             return
-        if summary.get("error"):
-            raise NegativeVerdictError(str(summary["error"]))
-        if any(int(v) > 0 for v in (summary.get("violations") or {}).values()):
-            raise NegativeVerdictError(f"constraint (2) broken: {summary['violations']}")
-        cert = summary.get("certificate") or {}
-        if cert.get("held") is False:
-            raise NegativeVerdictError(certificate_reason(cert))
+        _raise_on_negative(summary)
+
+
+def _brief(summary: dict[str, Any], cmd_path: str) -> dict[str, Any]:
+    """The lines of summary.json that ``hil run`` prints."""
+    t = summary.get("timing", {})
+    return {
+        "run_dir": summary.get("run_dir"),
+        "final_position_error": summary.get("final_position_error"),
+        "max_abs_v": summary.get("max_abs_v"),
+        "max_abs_omega": summary.get("max_abs_omega"),
+        "violations": summary.get("violations"),
+        "wakeup_lateness_p99_us": (t.get("wakeup_lateness") or {}).get("p99_us"),
+        "sample_to_apply_p50_us": (t.get(f"sample_to_apply_{cmd_path}") or {}).get("p50_us"),
+        "deadline_misses": t.get("deadline_misses"),
+        "interrupted": summary.get("interrupted"),
+    }
+
+
+def _raise_on_negative(summary: dict[str, Any]) -> None:
+    """Exit 1 (NegativeVerdictError) on a run error, a broken limit of (2) or a certificate
+    not held."""
+    if summary.get("error"):
+        raise NegativeVerdictError(str(summary["error"]))
+    if any(int(v) > 0 for v in (summary.get("violations") or {}).values()):
+        raise NegativeVerdictError(f"constraint (2) broken: {summary['violations']}")
+    cert = summary.get("certificate") or {}
+    if cert.get("held") is False:
+        raise NegativeVerdictError(certificate_reason(cert))
 
 
 def certificate_reason(cert: dict) -> str:
@@ -126,13 +149,13 @@ def certificate_reason(cert: dict) -> str:
 
 def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
     """The report of the finished run, as ``hil report RUN_DIR`` writes it."""
-    from hil.report.build import Thresholds, analyse, write_report
+    from hil.report.build import Thresholds, build_report, write_report
     from hil.report.folder import load_folder
     from hil.report.ideal import ideal_from_simulator
 
     if not quiet:
         typer.echo("writing the report (and the ideal-trajectory simulation) ...", err=True)
-    rep = analyse(
+    rep = build_report(
         load_folder(run_dir, lazy=True), ideal=ideal_from_simulator, thresholds=Thresholds()
     )
     paths = write_report(rep, run_dir)

@@ -52,132 +52,54 @@ def check_loop_sizes(
         )
 
 
+# The options of ``hil sweep``, one alias each, so that the command's signature stays short.
+ScenarioFileArg = Annotated[
+    Path,
+    typer.Argument(
+        help="Scenario TOML or a bundled scenario's name (hil scenarios); its \\[sweep] "
+        "table gives the grids."
+    ),
+]
+OutOpt = Annotated[
+    Path | None,
+    typer.Option("--out", help="Where to write (default: a new folder under runs/)."),
+]
+TsOpt = Annotated[str | None, typer.Option(help="Ts grid, e.g. 0.001,0.01.")]
+DelayOpt = Annotated[str | None, typer.Option(help="Delay grid in seconds.")]
+JitterOpt = Annotated[str | None, typer.Option(help="Jitter grid in seconds.")]
+SeedsOpt = Annotated[int | None, typer.Option(help="Seeds per point.")]
+DurationOpt = Annotated[
+    float | None,
+    typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s)."),
+]
+StrictOpt = Annotated[bool, typer.Option(help="Exit 1 when any loop of the grid broke a limit.")]
+
+
 def register(app: typer.Typer) -> None:
     @app.command("sweep", help=SWEEP_HELP)
     def sweep(
-        scenario_file: Annotated[
-            Path,
-            typer.Argument(
-                help="Scenario TOML or a bundled scenario's name (hil scenarios); its \\[sweep] "
-                "table gives the grids."
-            ),
-        ],
-        out: Annotated[
-            Path | None,
-            typer.Option("--out", help="Where to write (default: a new folder under runs/)."),
-        ] = None,
-        ts: Annotated[str | None, typer.Option(help="Ts grid, e.g. 0.001,0.01.")] = None,
-        delay: Annotated[str | None, typer.Option(help="Delay grid in seconds.")] = None,
-        jitter: Annotated[str | None, typer.Option(help="Jitter grid in seconds.")] = None,
-        seeds: Annotated[int | None, typer.Option(help="Seeds per point.")] = None,
-        duration: Annotated[
-            float | None,
-            typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s)."),
-        ] = None,
-        strict: Annotated[
-            bool, typer.Option(help="Exit 1 when any loop of the grid broke a limit.")
-        ] = False,
+        scenario_file: ScenarioFileArg,
+        out: OutOpt = None,
+        ts: TsOpt = None,
+        delay: DelayOpt = None,
+        jitter: JitterOpt = None,
+        seeds: SeedsOpt = None,
+        duration: DurationOpt = None,
+        strict: StrictOpt = False,
     ) -> None:
         """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
-        from hil import options
-        from hil.bundled import resolve_scenario
-        from hil.scenario import (
-            DELAY_MAX,
-            DURATION_MAX,
-            SWEEP_SEEDS_MAX,
-            TS_MAX,
-            TS_MIN,
-            build_loop,
-            load_scenario,
+        scenario, grid, loop_s, latencies = _checked_sweep(
+            scenario_file, out, ts, delay, jitter, seeds, duration
         )
-        from hil.sim.timing import jitter_samples_from
-        from hil.sweep.grid import make_grid
-        from hil.sweep.replay import is_run_source, latencies_from_run, write_latency_file
-
-        # Options first: a bad one is refused before the plotting and runner modules load.
-        ts_grid = options.grid("--ts", ts, TS_MIN, TS_MAX)
-        delay_grid = options.grid("--delay", delay, 0.0, DELAY_MAX)
-        jitter_grid = options.grid("--jitter", jitter, 0.0, DELAY_MAX)
-        if seeds is not None:
-            options.integer("--seeds", seeds, 1, SWEEP_SEEDS_MAX)
-        if duration is not None:
-            options.number("--duration", duration, 0.0, DURATION_MAX, positive=True)
-        options.out_dir("--out", out)
-        scenario = load_scenario(resolve_scenario(scenario_file))
-        sw = scenario.sweep
-        try:
-            grid = make_grid(
-                ts_grid or sw.ts,
-                delay_grid or sw.delay,
-                jitter_grid or sw.jitter,
-                seeds if seeds is not None else sw.seeds,
-            )
-        except ValueError as exc:
-            raise BadInputError(str(exc)) from exc
-        loop_s = (
-            duration if duration is not None else min(scenario.run.duration, DEFAULT_MAX_DURATION)
-        )
-        check_loop_sizes(
-            scenario,
-            grid.ts,
-            loop_s,
-            (
-                "--duration" if duration is not None else "[run] duration",
-                "--ts" if ts_grid else "[sweep] ts",
-            ),
-        )
-        build_loop(scenario)  # a bad reference or design fails before any folder is written
-        t = scenario.timing
-        replay_run = t.jitter_kind == "replay" and is_run_source(scenario.base_dir / t.replay)
-        if replay_run:
-            latencies = latencies_from_run(scenario.base_dir / t.replay)
-        elif t.jitter_kind == "replay":
-            jitter_samples_from(scenario.base_dir / t.replay)  # a bad file fails here, named
-        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-        from hil.sweep.outputs import write_csv, write_outputs
-        from hil.sweep.runner import certified_break, run_sweep
-
         target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
         target.mkdir(parents=True, exist_ok=True)
-        if replay_run:
-            lat = write_latency_file(
-                latencies, target / "replay.json", scenario.base_dir / t.replay
-            )
-            scenario = dataclasses.replace(
-                scenario, timing=dataclasses.replace(t, replay=str(lat.resolve()))
-            )
-        counts = {float(v): max(1, round(loop_s / v)) for v in grid.ts}
-        per_group = len(grid) // len(grid.ts)
-        total = sum(counts.values()) * per_group
+        scenario = _with_replay_file(scenario, latencies, target)
         started = time.perf_counter()
-        with Progress(
-            TextColumn("[bold]sweep[/bold] {task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed:,.0f}/{task.total:,.0f} robot-steps"),
-            TimeRemainingColumn(),
-            transient=False,
-        ) as bar:
-            task = bar.add_task(f"{len(grid)} loops", total=total)
-            base: dict[float, int] = {}
-            acc = 0
-
-            def progress(ts_value: float, done: int, n: int) -> None:
-                nonlocal acc
-                if ts_value not in base:
-                    base[ts_value] = acc
-                    acc += counts[ts_value] * per_group
-                bar.update(
-                    task,
-                    completed=base[ts_value] + done * per_group,
-                    description=f"Ts={ts_value:g} s",
-                )
-
-            # sweep.csv grows group by group, so even a killed sweep leaves what it finished.
-            outcome, resolved = run_sweep(
-                scenario, grid, loop_s, progress, lambda rows: write_csv(target / "sweep.csv", rows)
-            )
+        outcome, resolved = _run_with_progress(scenario, grid, loop_s, target)
         elapsed = time.perf_counter() - started
+        from hil.sweep.outputs import write_outputs
+        from hil.sweep.runner import certified_break
+
         meta = {
             "scenario_file": str(scenario_file),
             "law": str(scenario.controller.get("law", "unified")),
@@ -206,3 +128,120 @@ def register(app: typer.Typer) -> None:
             return
         if strict and first is not None:
             raise NegativeVerdictError("a limit of (2) broke inside the grid")
+
+
+def _checked_sweep(
+    scenario_file: Path,
+    out: Path | None,
+    ts: str | None,
+    delay: str | None,
+    jitter: str | None,
+    seeds: int | None,
+    duration: float | None,
+) -> tuple[Any, Any, float, Any]:
+    """The scenario, its grid, the loop length and the latencies of a run it replays (or
+    None), every option and the scenario checked before any folder is written
+    (BadInputError: exit 2)."""
+    from hil import options
+    from hil.bundled import resolve_scenario
+    from hil.scenario import (
+        DELAY_MAX,
+        DURATION_MAX,
+        SWEEP_SEEDS_MAX,
+        TS_MAX,
+        TS_MIN,
+        build_loop,
+        load_scenario,
+    )
+    from hil.sim.landing import jitter_samples_from
+    from hil.sweep.grid import make_grid
+    from hil.sweep.replay import is_run_source, latencies_from_run
+
+    # Options first: a bad one is refused before the plotting and runner modules load.
+    ts_grid = options.grid("--ts", ts, TS_MIN, TS_MAX)
+    delay_grid = options.grid("--delay", delay, 0.0, DELAY_MAX)
+    jitter_grid = options.grid("--jitter", jitter, 0.0, DELAY_MAX)
+    if seeds is not None:
+        options.integer("--seeds", seeds, 1, SWEEP_SEEDS_MAX)
+    if duration is not None:
+        options.number("--duration", duration, 0.0, DURATION_MAX, positive=True)
+    options.out_dir("--out", out)
+    scenario = load_scenario(resolve_scenario(scenario_file))
+    sw = scenario.sweep
+    try:
+        grid = make_grid(
+            ts_grid or sw.ts,
+            delay_grid or sw.delay,
+            jitter_grid or sw.jitter,
+            seeds if seeds is not None else sw.seeds,
+        )
+    except ValueError as exc:
+        raise BadInputError(str(exc)) from exc
+    loop_s = duration if duration is not None else min(scenario.run.duration, DEFAULT_MAX_DURATION)
+    check_loop_sizes(
+        scenario,
+        grid.ts,
+        loop_s,
+        (
+            "--duration" if duration is not None else "[run] duration",
+            "--ts" if ts_grid else "[sweep] ts",
+        ),
+    )
+    build_loop(scenario)  # a bad reference or design fails before any folder is written
+    t = scenario.timing
+    latencies = None
+    if t.jitter_kind == "replay" and is_run_source(scenario.base_dir / t.replay):
+        latencies = latencies_from_run(scenario.base_dir / t.replay)
+    elif t.jitter_kind == "replay":
+        jitter_samples_from(scenario.base_dir / t.replay)  # a bad file fails here, named
+    return scenario, grid, loop_s, latencies
+
+
+def _with_replay_file(scenario: Any, latencies: Any, target: Path) -> Any:
+    """The scenario replaying ``latencies`` (a run's, read by :func:`_checked_sweep`) from
+    replay.json in the sweep folder; unchanged when it replays no run."""
+    if latencies is None:
+        return scenario
+    from hil.sweep.replay import write_latency_file
+
+    t = scenario.timing
+    lat = write_latency_file(latencies, target / "replay.json", scenario.base_dir / t.replay)
+    return dataclasses.replace(scenario, timing=dataclasses.replace(t, replay=str(lat.resolve())))
+
+
+def _run_with_progress(scenario: Any, grid: Any, loop_s: float, target: Path) -> tuple[Any, Any]:
+    """:func:`hil.sweep.runner.run_sweep` under a progress bar counting robot-steps."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from hil.sweep.outputs import write_csv
+    from hil.sweep.runner import run_sweep
+
+    counts = {float(v): max(1, round(loop_s / v)) for v in grid.ts}
+    per_group = len(grid) // len(grid.ts)
+    total = sum(counts.values()) * per_group
+    with Progress(
+        TextColumn("[bold]sweep[/bold] {task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:,.0f}/{task.total:,.0f} robot-steps"),
+        TimeRemainingColumn(),
+        transient=False,
+    ) as bar:
+        task = bar.add_task(f"{len(grid)} loops", total=total)
+        base: dict[float, int] = {}
+        acc = 0
+
+        def progress(ts_value: float, done: int, n: int) -> None:
+            nonlocal acc
+            if ts_value not in base:
+                base[ts_value] = acc
+                acc += counts[ts_value] * per_group
+            bar.update(
+                task,
+                completed=base[ts_value] + done * per_group,
+                description=f"Ts={ts_value:g} s",
+            )
+
+        # sweep.csv grows group by group, so even a killed sweep leaves what it finished.
+        return run_sweep(
+            scenario, grid, loop_s, progress, lambda rows: write_csv(target / "sweep.csv", rows)
+        )

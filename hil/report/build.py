@@ -1,6 +1,6 @@
 """``hil report DIR``: the sampling-effect report of one run or simulation folder.
 
-Functional core, thin shell: :func:`analyse` turns a loaded folder into a plain dict (headline,
+Functional core, thin shell: :func:`build_report` turns a loaded folder into a plain dict (headline,
 metrics, certificate, verdict) and a list of figures; :func:`write_report` writes report.json,
 report.md (figures as PNG + CSV beside it) and a self-contained report.html. summary.json is
 only ever read.
@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from hil import analysis
+from hil import trace_metrics
 from hil.report import figures as fg
 from hil.report.cert import failed_conditions, scenario_certificate
 from hil.report.folder import Folder
@@ -32,8 +32,8 @@ from hil.report.html import render_html
 from hil.report.markdown import render_markdown
 from hil.report.measured import RunResult, run_result
 from hil.report.scenario_view import ScenarioView, view
+from protocol.versions import REPORT_SCHEMA_VERSION
 
-SCHEMA_VERSION = 2
 FIGURE_PREFIX = "report_"
 IdealProvider = Callable[[Folder], dict[str, np.ndarray] | None]
 LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
@@ -127,7 +127,7 @@ def certificate_reasons(cert: dict[str, Any], cons: dict[str, Any]) -> tuple[str
     beyond = [
         (k, b)
         for k, b in (("v", cert.get("v_bound")), ("omega", cert.get("omega_bound")))
-        if b is not None and cons[k]["peak"] > b * (1.0 + analysis.LIMIT_REL_TOL)
+        if b is not None and cons[k]["peak"] > b * (1.0 + trace_metrics.LIMIT_REL_TOL)
     ]
     for k, b in beyond:
         reasons.append(
@@ -286,40 +286,87 @@ def _count(obj: Any) -> int:
     return 0
 
 
-# --------------------------------------------------------------------------- analyse
+# --------------------------------------------------------------------------- the report
 
 
-def analyse(
+def build_report(
     folder: Folder,
     *,
     ideal: IdealProvider | None = None,
     thresholds: Thresholds = Thresholds(),
 ) -> Report:
+    """The report of one run or simulation folder: metrics, certificate, verdict, figures."""
     sv = view(folder.scenario)
     rr = run_result(folder)  # first: its peak (the hop logs' columns) before the trace's
     tr = folder.trace
     kind = "run" if rr is not None else folder.kind
-    if rr is not None:
-        cert = run_certificate(sv, rr)
-    else:
-        cert = scenario_certificate(sv)
-        if kind == "run":  # a run folder from before hil.measure: neither hop logs nor figures
-            cert["source"] = "scenario (the run has no hop logs and no measured certificate)"
+    cert = _folder_certificate(sv, rr, kind)
     ideal_traj, ideal_note = None, "not requested"
     if ideal is not None:
         ideal_traj = ideal(folder)
         ideal_note = _ideal_note(ideal_traj, tr)
-    sliding = None
-    if not {"v_tilde", "w_tilde"} <= set(tr) and folder.recordings:
-        from hil.report.telemetry import SLIDING, folder_telemetry
+    sliding = _recorded_sliding(folder, tr, rr)
+    metrics = _metrics(folder, sv, cert, (ideal_traj, ideal_note), sliding)
+    verdict = verdict_block(metrics["constraints"], folder.summary, cert, rr, thresholds)
+    drives, q = drives_block(folder, sv)
+    figs, sections = _figures(folder, sv, cert, rr, ideal_traj, sliding, q, drives)
+    data = {
+        "schema_version": REPORT_SCHEMA_VERSION,
+        "folder": str(folder.path),
+        "kind": kind,
+        "scenario": _scenario_block(sv),
+        "sections": sections,
+        "metrics": metrics,
+        "certificate": cert,
+        "drives": drives,
+        "timing": _timing_block(folder, rr, cert),
+        "verdict": verdict,
+        "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
+    }
+    data["headline"] = headline(data, folder.summary)
+    return Report(data, figs)
 
-        tel = folder_telemetry(folder)
-        rec = {k: tel[k] for k in SLIDING} if all(k in tel for k in SLIDING) else {}
-        if rec:
-            base = rr.epoch_ns if rr is not None and rr.epoch_ns else int(rec["v_tilde"][0][0])
-            sliding = {k: ((tn - base) / 1e9, vals) for k, (tn, vals) in rec.items()}
+
+def _folder_certificate(sv: ScenarioView, rr: RunResult | None, kind: str) -> dict[str, Any]:
+    """The measured certificate of a run with hop logs, else the scenario's."""
+    if rr is not None:
+        return run_certificate(sv, rr)
+    cert = scenario_certificate(sv)
+    if kind == "run":  # a run folder from before hil.measure: neither hop logs nor figures
+        cert["source"] = "scenario (the run has no hop logs and no measured certificate)"
+    return cert
+
+
+def _recorded_sliding(
+    folder: Folder, tr: dict[str, np.ndarray], rr: RunResult | None
+) -> dict[str, tuple[np.ndarray, np.ndarray]] | None:
+    """v~, w~ from the recorded telemetry (time in s from the run's epoch) when the trace
+    lacks them, else None."""
+    if {"v_tilde", "w_tilde"} <= set(tr) or not folder.recordings:
+        return None
+    from hil.report.telemetry import SLIDING, folder_telemetry
+
+    tel = folder_telemetry(folder)
+    rec = {k: tel[k] for k in SLIDING} if all(k in tel for k in SLIDING) else {}
+    if not rec:
+        return None
+    base = rr.epoch_ns if rr is not None and rr.epoch_ns else int(rec["v_tilde"][0][0])
+    return {k: ((tn - base) / 1e9, vals) for k, (tn, vals) in rec.items()}
+
+
+def _metrics(
+    folder: Folder,
+    sv: ScenarioView,
+    cert: dict[str, Any],
+    ideal: tuple[dict[str, np.ndarray] | None, str],
+    sliding: dict[str, tuple[np.ndarray, np.ndarray]] | None,
+) -> dict[str, Any]:
+    """The sampling-effect metrics of the trace (against the ideal simulation and its note),
+    with summary.json's peaks folded in."""
+    tr = folder.trace
+    ideal_traj, ideal_note = ideal
     lim = sv.limits
-    metrics = analysis.sampling_effects(
+    metrics = trace_metrics.sampling_effects(
         tr,
         phi1=lim.phi1,
         phi2=lim.phi2,
@@ -342,48 +389,40 @@ def analyse(
         if isinstance(peak, int | float) and math.isfinite(peak):
             c = metrics["constraints"][key]
             if peak > c["peak"]:
-                fig = analysis.ConstraintFigure(key, float(peak), c["limit"], c["bound"])
+                fig = trace_metrics.ConstraintFigure(key, float(peak), c["limit"], c["bound"])
                 metrics["constraints"][key] = fig.as_dict()
-    verdict = verdict_block(metrics["constraints"], folder.summary, cert, rr, thresholds)
-    drives, q = drives_block(folder, sv)
-    figs, sections = _figures(folder, sv, cert, rr, ideal_traj, sliding, q, drives)
-    data = {
-        "schema_version": SCHEMA_VERSION,
-        "folder": str(folder.path),
-        "kind": kind,
-        "scenario": {
-            "law": sv.law,
-            "ts": sv.ts,
-            "delay": sv.delay,
-            "jitter": sv.jitter,
-            "jitter_kind": sv.jitter_kind,
-            "limits": {
-                "phi1": lim.phi1,
-                "phi2": lim.phi2,
-                "varpi1": lim.varpi1,
-                "varpi2": lim.varpi2,
-            },
-            "eps1": sv.eps1,
-            "eps2": sv.eps2,
+    return metrics
+
+
+def _scenario_block(sv: ScenarioView) -> dict[str, Any]:
+    lim = sv.limits
+    return {
+        "law": sv.law,
+        "ts": sv.ts,
+        "delay": sv.delay,
+        "jitter": sv.jitter,
+        "jitter_kind": sv.jitter_kind,
+        "limits": {
+            "phi1": lim.phi1,
+            "phi2": lim.phi2,
+            "varpi1": lim.varpi1,
+            "varpi2": lim.varpi2,
         },
-        "sections": sections,
-        "metrics": metrics,
-        "certificate": cert,
-        "drives": drives,
-        "timing": {
-            "summary": rr.timing if rr is not None else None,
-            "messages": rr.messages if rr is not None else None,
-            "source": rr.source if rr is not None else None,
-            "applied_path": cert.get("path"),
-            "series": "hop logs (hil.measure)" if rr and rr.measurement else None,
-            "hop_logs_agree_with_summary": rr.agree if rr is not None else None,
-            "faults": folder.summary.get("faults"),
-        },
-        "verdict": verdict,
-        "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
+        "eps1": sv.eps1,
+        "eps2": sv.eps2,
     }
-    data["headline"] = headline(data, folder.summary)
-    return Report(data, figs)
+
+
+def _timing_block(folder: Folder, rr: RunResult | None, cert: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "summary": rr.timing if rr is not None else None,
+        "messages": rr.messages if rr is not None else None,
+        "source": rr.source if rr is not None else None,
+        "applied_path": cert.get("path"),
+        "series": "hop logs (hil.measure)" if rr and rr.measurement else None,
+        "hop_logs_agree_with_summary": rr.agree if rr is not None else None,
+        "faults": folder.summary.get("faults"),
+    }
 
 
 def _ideal_note(ideal_traj: dict[str, np.ndarray] | None, tr: dict[str, np.ndarray]) -> str:
@@ -414,6 +453,45 @@ def _figures(
 ) -> tuple[list[fg.Figure], list[str]]:
     """Every figure, and the report's sections in order (see hil.report.content)."""
     tr = folder.trace
+    figs = _state_figures(tr, sv, cert, ideal_traj)
+    figs.append(_tracking_error_figure(tr, ideal_traj))
+    panels = []
+    for name, eps, unit in (("v_tilde", sv.eps1, "v~ [m/s]"), ("w_tilde", sv.eps2, "w~ [rad/s]")):
+        if name in tr:
+            panels.append((name, unit, tr["t"], tr[name], eps))
+        elif sliding and name in sliding:
+            panels.append((name, unit, sliding[name][0], sliding[name][1], eps))
+    if panels:
+        src = "trace" if "v_tilde" in tr else "recorded telemetry"
+        figs.append(fg.stacked("bands", f"Sliding variables v~ and w~ of (10) ({src})", panels))
+    if q is not None:
+        figs.append(
+            fg.signal_with_limits(
+                "motor_torques",
+                "Motor torques sent to the drives (wheel mapping of [robot])",
+                "q [N·m]",
+                tr["t"],
+                [("right", q[0]), ("left", q[1])],
+                drives.get("motor_torque_limit_nm"),
+            )
+        )
+    sections = ["headline", "terms", "verdict", "certificate", "trajectory", "velocities"]
+    sections += ["torques", "drives", "tracking_error", "bands"]
+    m = rr.measurement if rr is not None else None
+    if m is not None:
+        figs += _run_figures(m, rr, cert)
+    if rr is not None:
+        sections += ["latency", "lateness", "messages", "timing_summary"]
+    return figs, sections
+
+
+def _state_figures(
+    tr: dict[str, np.ndarray],
+    sv: ScenarioView,
+    cert: dict[str, Any],
+    ideal_traj: dict[str, np.ndarray] | None,
+) -> list[fg.Figure]:
+    """The trajectory, the velocities against (2) and the torques against their bounds."""
     t = tr["t"]
     lim = sv.limits
     traj = [("reference", tr["xd"], tr["yd"]), ("robot", tr["x"], tr["y"])]
@@ -423,7 +501,7 @@ def _figures(
             label = "ideal (Ts/10, no delay, restarted every window)"
         traj.append((label, ideal_traj["x"], ideal_traj["y"]))
     vb, wb = cert.get("v_bound"), cert.get("omega_bound")
-    figs = [
+    return [
         fg.trajectory(traj),
         fg.signal_with_limits(
             "v", "Linear velocity v", "v [m/s]", t, [("v", tr["v"])], lim.phi1, vb
@@ -448,45 +526,22 @@ def _figures(
             lim.varpi2,
         ),
     ]
-    pos = analysis.position_error(tr["x"], tr["y"], tr["xd"], tr["yd"])
-    head = analysis.heading_error(tr["theta"], tr["thetad"])
+
+
+def _tracking_error_figure(
+    tr: dict[str, np.ndarray], ideal_traj: dict[str, np.ndarray] | None
+) -> fg.Figure:
+    """Position and heading errors (4), and the deviation from the ideal simulation."""
+    t = tr["t"]
+    pos = trace_metrics.position_error(tr["x"], tr["y"], tr["xd"], tr["yd"])
+    head = trace_metrics.heading_error(tr["theta"], tr["thetad"])
     err_series = [("position error [m]", pos), ("heading error [rad]", head)]
     if ideal_traj is not None:
-        dev = analysis.deviation_from_ideal(
+        dev = trace_metrics.deviation_from_ideal(
             t, tr["x"], tr["y"], ideal_traj["t"], ideal_traj["x"], ideal_traj["y"]
         )
         err_series.append(("deviation from ideal [m]", dev))
-    figs.append(
-        fg.signal_with_limits("tracking_error", "Tracking error (4)", "error", t, err_series)
-    )
-    panels = []
-    for name, eps, unit in (("v_tilde", sv.eps1, "v~ [m/s]"), ("w_tilde", sv.eps2, "w~ [rad/s]")):
-        if name in tr:
-            panels.append((name, unit, t, tr[name], eps))
-        elif sliding and name in sliding:
-            panels.append((name, unit, sliding[name][0], sliding[name][1], eps))
-    if panels:
-        src = "trace" if "v_tilde" in tr else "recorded telemetry"
-        figs.append(fg.stacked("bands", f"Sliding variables v~ and w~ of (10) ({src})", panels))
-    if q is not None:
-        figs.append(
-            fg.signal_with_limits(
-                "motor_torques",
-                "Motor torques sent to the drives (wheel mapping of [robot])",
-                "q [N·m]",
-                t,
-                [("right", q[0]), ("left", q[1])],
-                drives.get("motor_torque_limit_nm"),
-            )
-        )
-    sections = ["headline", "terms", "verdict", "certificate", "trajectory", "velocities"]
-    sections += ["torques", "drives", "tracking_error", "bands"]
-    m = rr.measurement if rr is not None else None
-    if m is not None:
-        figs += _run_figures(m, rr, cert)
-    if rr is not None:
-        sections += ["latency", "lateness", "messages", "timing_summary"]
-    return figs, sections
+    return fg.signal_with_limits("tracking_error", "Tracking error (4)", "error", t, err_series)
 
 
 def _run_figures(m: Any, rr: RunResult, cert: dict[str, Any]) -> list[fg.Figure]:

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from hil import analysis
+from hil import trace_metrics
 from hil.measure.figures import Measurement
 from hil.measure.folder import measure_folder
 from hil.report import figures as fg
@@ -25,6 +25,7 @@ from hil.report.folder import Folder
 from hil.report.html import CSS, esc, figure, table
 from hil.report.markdown import _md_table
 from hil.report.scenario_view import view
+from protocol.versions import COMPARE_SCHEMA_VERSION
 
 PREFIX = "compare_"
 
@@ -34,7 +35,7 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
     run, its measurement's timing figures, message counts and certificate."""
     sv = view(folder.scenario)
     lim = sv.limits
-    eff = analysis.sampling_effects(
+    eff = trace_metrics.sampling_effects(
         folder.trace,
         phi1=lim.phi1,
         phi2=lim.phi2,
@@ -130,8 +131,10 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
             key, title, unit, ta["t"], [(la, ta[key]), (lb + " (on A's times)", tb_on_a)], limit
         )
         figs.append(f)
-    pa = analysis.position_error(ta["x"], ta["y"], ta["xd"], ta["yd"])
-    pb = np.interp(ta["t"], tb["t"], analysis.position_error(tb["x"], tb["y"], tb["xd"], tb["yd"]))
+    pa = trace_metrics.position_error(ta["x"], ta["y"], ta["xd"], ta["yd"])
+    pb = np.interp(
+        ta["t"], tb["t"], trace_metrics.position_error(tb["x"], tb["y"], tb["xd"], tb["yd"])
+    )
     figs.append(
         fg.signal_with_limits(
             "position_error",
@@ -157,7 +160,7 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         png, csv_path = f.write(out, PREFIX)
         files.append({"name": f.name, "title": f.title, "png": png.name, "data": csv_path.name})
     data = {
-        "schema_version": 1,
+        "schema_version": COMPARE_SCHEMA_VERSION,
         "a": str(fa.path),
         "b": str(fb.path),
         "rows": [{"figure": r[0], "a": r[1], "b": r[2], "b_minus_a": r[3]} for r in rows],

@@ -63,7 +63,6 @@ class RunOptions:
     spin_us: float = 0.0
     scheduling: str | None = None
     quiet: bool = False
-    delay: float | None = None
     secure: bool = False  # router with authentication and access control (hil.run.secure)
 
 
@@ -176,7 +175,7 @@ def check_options(opts: RunOptions) -> None:
     a BadInputError; the scenario's own keys are checked when it is loaded."""
     from hil import options
     from hil.run.settings import CMD_PATHS, TRIGGERS
-    from hil.scenario import DELAY_MAX, DURATION_MAX, RATE_MAX
+    from hil.scenario import DURATION_MAX, RATE_MAX
 
     options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
     if opts.trigger is not None:
@@ -185,7 +184,6 @@ def check_options(opts: RunOptions) -> None:
         options.choice("--scheduling", opts.scheduling, ("fifo", "other"))
     options.optional_number("--rate", opts.rate, 0.1, RATE_MAX)
     options.optional_number("--duration", opts.duration, 0.0, DURATION_MAX, positive=True)
-    options.optional_number("--delay", opts.delay, 0.0, DELAY_MAX)
     options.number("--spin-us", opts.spin_us, 0.0, SPIN_US_MAX)
     for name, value in (
         ("--can-interface", opts.can_interface),
@@ -256,7 +254,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         check_can_interface(
             can_table["interface"], "--can-interface" if opts.can_interface else "[can] interface"
         )
-    delay = scenario.timing.delay if opts.delay is None else opts.delay
+    delay = scenario.timing.delay
     settings = RunSettings(
         scenario_path=str(scenario_path),
         robot_id=robot_id_of(scenario),

@@ -20,15 +20,9 @@ from hil.measure.figures import Measurement
 from hil.measure.folder import measure_logs, resolved_scenario
 from hil.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
+from protocol.angles import wrap_angle as wrap
 from protocol.hoplog import TICK_NO_SEND
-
-SCHEMA_VERSION = 2
-
-
-def wrap(a: float) -> float:
-    """An angle in (-pi, pi]."""
-    w = math.remainder(a, 2.0 * math.pi)
-    return math.pi if w == -math.pi else w
+from protocol.versions import RUN_SCHEMA_VERSION as SCHEMA_VERSION
 
 
 def _commanded_by_sample(logs: RunLogs, seqs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -8,7 +8,6 @@ so lockstep can equal the simulation bit for bit.
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from typing import Any
 
 from controller_service.service import ControlCore
@@ -27,10 +26,7 @@ def load(settings: RunSettings) -> Any:
 
 def initial_memory(controller: Any, scenario: Any) -> Any:
     """The law's memory at t = 0 with z1(0), z2(0) of [initial] when the law takes them."""
-    params = inspect.signature(controller.initial_memory).parameters
-    if "z1" in params and "z2" in params:
-        return controller.initial_memory(None, z1=scenario.initial.z1, z2=scenario.initial.z2)
-    return controller.initial_memory(None)
+    return controller.initial_memory(None, z1=scenario.initial.z1, z2=scenario.initial.z2)
 
 
 def build_control_core(settings: RunSettings) -> tuple[ControlCore, str]:
@@ -129,7 +125,7 @@ def robot_id_of(scenario: Any) -> str:
 def lockstep_offsets(settings: RunSettings, n: int, h: float) -> list[int]:
     """Landing offsets (plant steps after each sample) drawn exactly as the simulator does."""
     from hil.sim.core import _replay
-    from hil.sim.timing import extra_delays, landing_offsets
+    from hil.sim.landing import extra_delays, landing_offsets
 
     sc = load(settings)
     t = sc.timing

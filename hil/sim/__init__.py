@@ -14,7 +14,7 @@ from hil.sim.core import (
     simulate_batch,
 )
 from hil.sim.folder import new_run_dir, write_run_folder
-from hil.sim.timing import jitter_samples_from
+from hil.sim.landing import jitter_samples_from
 
 __all__ = [
     "BASE_COLUMNS",

@@ -2,7 +2,7 @@
 
 At each sample k (t_k = k Ts) the law gets the measured state (noise and quantization of
 [plant]), the reference sample and the law time t_k; its command lands at
-t_k + delay + extra_k rounded to the plant step h (see :mod:`hil.sim.timing`); when delays
+t_k + delay + extra_k rounded to the plant step h (see :mod:`hil.sim.landing`); when delays
 reorder commands the newest by sequence number wins and older ones are dropped (counted).
 Between landings the command is held (zero-order hold) and model (1) is integrated by RK4 at
 step h = Ts / ceil(Ts / [plant] step). Before the first command lands the torque is zero.
@@ -16,9 +16,7 @@ seed (:class:`RobotVariation`).
 
 from __future__ import annotations
 
-import inspect
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,7 +26,7 @@ import numpy as np
 from controller_service.laws.base import ReferenceSample, RobotState
 from controller_service.references import sample_array
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
-from hil.sim.timing import extra_delays, jitter_samples_from, landing_offsets
+from hil.sim.landing import extra_delays, jitter_samples_from, landing_offsets
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from plant_emulator.dynamics import Extremes, PlantState, track_initial
 from plant_emulator.sampled import Hold, Plant, advance_period
@@ -99,14 +97,7 @@ class BatchResult:
 
 
 def _initial_memory(controller: Any, n: int | None, scenario: Scenario) -> Any:
-    z1, z2 = scenario.initial.z1, scenario.initial.z2
-    try:
-        params = inspect.signature(controller.initial_memory).parameters
-    except (TypeError, ValueError):
-        params = {}
-    if "z1" in params and "z2" in params:
-        return controller.initial_memory(n, z1=z1, z2=z2)
-    return controller.initial_memory(n)
+    return controller.initial_memory(n, z1=scenario.initial.z1, z2=scenario.initial.z2)
 
 
 def _replay(scenario: Scenario) -> np.ndarray | None:
@@ -718,6 +709,3 @@ def simulate_batch(
         progress(run.done, run.n_samples)
     return _batch_result(run, scenario, variations)
 
-
-def wall_clock() -> float:
-    return time.perf_counter()

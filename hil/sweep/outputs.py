@@ -13,6 +13,7 @@ import numpy as np
 from hil.report import figures as fg
 from hil.report.build import _jsonable
 from hil.sweep.grid import SweepGrid, aggregate, break_points
+from protocol.versions import SWEEP_SCHEMA_VERSION
 
 CSV_COLUMNS = (
     "ts",
@@ -113,7 +114,7 @@ def write_outputs(
         png, data = fig.write(out, "sweep_")
         files.append({"name": fig.name, "title": fig.title, "png": png.name, "data": data.name})
     doc = {
-        "schema_version": 1,
+        "schema_version": SWEEP_SCHEMA_VERSION,
         "grid": {
             "ts": list(grid.ts),
             "delay": list(grid.delay),

@@ -1,5 +1,5 @@
 """``jitter_kind = "replay"`` from a real run: the latencies measured in a run folder or its
-recording, in seconds, for the simulator's replay (``hil.sim.timing.extra_delays``).
+recording, in seconds, for the simulator's replay (``hil.sim.landing.extra_delays``).
 
 Accepted paths: a run folder or a ``.mcap`` recording; both are read through the run's one
 result, :mod:`hil.measure` (a folder's hop logs by ``measure_folder``, a recording's attached
@@ -7,7 +7,7 @@ hop logs by ``measure_recording``), so a folder and its recording replay the sam
 ``Measurement.latency_us()``, the sample-to-apply latency of every command (applied path: apply
 - sample; shadow path: receive - sample). ``PATH::zenoh`` or ``PATH::can`` keeps one path
 (default: every path, each in landing order, Zenoh first). Plain latency files stay with
-``hil.sim.timing.jitter_samples_from``.
+``hil.sim.landing.jitter_samples_from``.
 """
 
 from __future__ import annotations

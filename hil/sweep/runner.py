@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from hil import analysis
+from hil import trace_metrics
 from hil.report.cert import certificate
 from hil.report.scenario_view import view
 from hil.scenario import Scenario, resolved_dict
@@ -43,7 +43,7 @@ def _band(trace: np.ndarray, columns: list[str], name: str, eps: float) -> float
     if name not in columns:
         return None
     t = trace[:, columns.index("t")]
-    band = analysis.quasi_sliding_band(t, trace[:, columns.index(name)], eps)
+    band = trace_metrics.quasi_sliding_band(t, trace[:, columns.index(name)], eps)
     return band.band_p99
 
 
@@ -85,8 +85,8 @@ def point_row(
             None
             if cert["v_bound"] is None
             else bool(
-                max_v <= cert["v_bound"] * (1 + analysis.LIMIT_REL_TOL)
-                and max_w <= cert["w_bound"] * (1 + analysis.LIMIT_REL_TOL)
+                max_v <= cert["v_bound"] * (1 + trace_metrics.LIMIT_REL_TOL)
+                and max_w <= cert["w_bound"] * (1 + trace_metrics.LIMIT_REL_TOL)
             )
         ),
         "commands_dropped": int(summary.get("commands_dropped", 0)),

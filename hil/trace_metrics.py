@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from protocol.angles import wrap_angle
+
 PERCENTILES: tuple[float, ...] = (50.0, 90.0, 99.0, 99.9)
 # summary.json counts a violation beyond 1e-9 relative (CONTRACT.md); use the same tolerance.
 LIMIT_REL_TOL = 1e-9
@@ -69,12 +71,6 @@ def _pkey(q: float) -> str:
 # --------------------------------------------------------------------------- angles and errors
 
 
-def wrap_angle(a: np.ndarray | float) -> np.ndarray:
-    """Wrap to (-pi, pi]."""
-    w = np.mod(np.asarray(a, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
-    return np.where(w <= -np.pi, w + 2.0 * np.pi, w)
-
-
 def position_error(x: np.ndarray, y: np.ndarray, xd: np.ndarray, yd: np.ndarray) -> np.ndarray:
     """Euclidean distance to the virtual robot (3): sqrt(xe^2 + ye^2) of (4)."""
     return np.hypot(np.asarray(x) - np.asarray(xd), np.asarray(y) - np.asarray(yd))
@@ -83,15 +79,6 @@ def position_error(x: np.ndarray, y: np.ndarray, xd: np.ndarray, yd: np.ndarray)
 def heading_error(theta: np.ndarray, thetad: np.ndarray) -> np.ndarray:
     """theta_e = theta - theta_d of (4), wrapped to (-pi, pi]."""
     return wrap_angle(np.asarray(theta) - np.asarray(thetad))
-
-
-def body_errors(
-    x: np.ndarray, y: np.ndarray, theta: np.ndarray, xd: np.ndarray, yd: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """xe, ye of (4): the position error in the robot's frame."""
-    dx, dy = np.asarray(x) - xd, np.asarray(y) - yd
-    c, s = np.cos(theta), np.sin(theta)
-    return c * dx + s * dy, -s * dx + c * dy
 
 
 # --------------------------------------------------------------------------- band and switching
@@ -223,12 +210,6 @@ def deviation_from_ideal(
     xi = np.interp(t, t_ideal, x_ideal)
     yi = np.interp(t, t_ideal, y_ideal)
     return np.hypot(np.asarray(x) - xi, np.asarray(y) - yi)
-
-
-def timing_gaps(sample_times: np.ndarray) -> np.ndarray:
-    """Gaps between successive sample times (the Ts the loop really had)."""
-    st = np.asarray(sample_times, dtype=float)
-    return np.diff(st) if st.size > 1 else np.zeros(0)
 
 
 # --------------------------------------------------------------------------- whole trace

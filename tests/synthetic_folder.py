@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from hil.report.figures import write_columns
+from protocol.versions import RUN_SCHEMA_VERSION, SIM_SCHEMA_VERSION
 
 EPOCH_NS = 1_000_000_000_000
 US = 1000  # ns
@@ -84,7 +85,7 @@ def write_synthetic_folder(
         "w_tilde": w_tilde,
     }
     summary: dict[str, Any] = {
-        "schema_version": 1,
+        "schema_version": SIM_SCHEMA_VERSION,
         "final_position_error": float(math.hypot(x[-1] - xd[-1], y[-1] - yd[-1])),
         "final_heading_error": float(theta[-1] - thetad[-1]),
         "rms_position_error": 0.0,
@@ -299,7 +300,7 @@ def _measured_summary(out: Path, cols: dict[str, np.ndarray]) -> dict[str, Any]:
     clean = json.loads(json.dumps(_plain({"t": m.timing, "m": m.messages, "c": m.certificate})))
     frames = 2 * cols["t"].size + 2
     return {
-        "schema_version": 2,
+        "schema_version": RUN_SCHEMA_VERSION,
         "kind": "run",
         "cmd_path": "zenoh",
         "trigger": "periodic",

@@ -1,0 +1,20 @@
+"""The schema version of every message and document the bench writes, in one place.
+
+Bump a version here when the layout it names changes (a field added, renamed or re-meant), so
+readers can refuse what they do not understand.
+"""
+
+from __future__ import annotations
+
+# protocol.messages: the second element of every msgpack array on the wire.
+MESSAGE_SCHEMA_VERSION = 1
+# hil sim's summary.json and the [provenance] of every scenario.resolved.toml.
+SIM_SCHEMA_VERSION = 1
+# hil run's summary.json (hil.run.results).
+RUN_SCHEMA_VERSION = 2
+# report.json (hil report, hil.report.build).
+REPORT_SCHEMA_VERSION = 2
+# compare.json (hil compare, hil.report.compare).
+COMPARE_SCHEMA_VERSION = 1
+# sweep.json (hil sweep, hil.sweep.outputs).
+SWEEP_SCHEMA_VERSION = 1

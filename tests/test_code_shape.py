@@ -1,0 +1,76 @@
+"""Code shape of the product packages: no function longer than MAX_LINES (issue 12).
+
+A long function does several jobs; split it into named pieces that say them. The count is
+``end_lineno - lineno + 1`` of every ``def``, read with :mod:`ast`: from the def line (so
+decorators are not counted, the docstring is); a nested function counts on its own and inside
+its parent.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("protocol", "controller_service", "plant_emulator", "hil")
+MAX_LINES = 80
+
+# Functions still over the limit in files that other branches are rewriting now (issue 12): the
+# services' main parts and run orchestration (standalone services), the sampled-data loop
+# (simulator and plant dynamics). Empty this set as those branches merge; an entry that is no
+# longer long fails the test, so the list cannot go stale.
+PENDING = {
+    "controller_service/service.py::main_from_settings",
+    "plant_emulator/service.py::main_from_settings",
+    "hil/run/orchestrate.py::prepare",
+    "hil/run/orchestrate.py::execute",
+}
+
+
+def function_lengths(root: Path = REPO) -> dict[str, int]:
+    """``path::name`` -> lines of every function of the product packages (the longest when a
+    module defines one name twice)."""
+    out: dict[str, int] = {}
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            rel = path.relative_to(root).as_posix()
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                    key = f"{rel}::{node.name}"
+                    length = node.end_lineno - node.lineno + 1
+                    out[key] = max(out.get(key, 0), length)
+    return out
+
+
+def long_functions(lengths: dict[str, int]) -> dict[str, int]:
+    return {key: n for key, n in lengths.items() if n > MAX_LINES}
+
+
+def test_no_product_function_is_longer_than_the_limit():
+    too_long = {k: n for k, n in long_functions(function_lengths()).items() if k not in PENDING}
+    assert not too_long, (
+        f"functions over {MAX_LINES} lines (split them into named pieces): "
+        + ", ".join(f"{k} ({n})" for k, n in sorted(too_long.items()))
+    )
+
+
+def test_every_pending_entry_is_still_long():
+    lengths = function_lengths()
+    stale = sorted(k for k in PENDING if lengths.get(k, 0) <= MAX_LINES)
+    assert not stale, f"no longer over {MAX_LINES} lines (or gone): remove from PENDING: {stale}"
+
+
+@pytest.mark.parametrize("extra", [MAX_LINES - 1, MAX_LINES])
+def test_the_count_fails_a_long_function_and_passes_one_at_the_limit(tmp_path, extra):
+    # A def line plus ``extra`` body lines: MAX_LINES - 1 extra lines is exactly the limit.
+    pkg = tmp_path / "hil"
+    pkg.mkdir()
+    body = "".join(f"    x{i} = {i}\n" for i in range(extra))
+    (pkg / "mod.py").write_text(f"def f():\n{body}")
+    for name in PACKAGES[:-1]:
+        (tmp_path / name).mkdir()
+    lengths = function_lengths(tmp_path)
+    assert lengths == {"hil/mod.py::f": extra + 1}
+    assert bool(long_functions(lengths)) == (extra + 1 > MAX_LINES)
