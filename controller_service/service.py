@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any
 
 from controller_service.laws.base import Controller, Limits, RobotState
-from controller_service.realtime import DeadlineClock, SchedulingReport, setup_scheduling
 from protocol import keys
 from protocol.faults import Faults, every_nth
 from protocol.hoplog import (
@@ -56,6 +55,7 @@ from protocol.messages import (
 )
 from protocol.rejections import RejectionCounter
 from protocol.sequence import SequenceTracker
+from runtime.realtime import DeadlineClock, SchedulingReport, setup_scheduling
 
 _NO_SEND = TICK_NO_SEND
 TELEMETRY_FIELDS = ("xe", "ye", "theta_e", "xi", "v_tilde", "w_tilde", "z1", "z2", "eta")
@@ -266,7 +266,7 @@ class ControllerService:
         hoplog: HopLogWriter | None = None,
         faults: Faults | None = None,
     ) -> None:
-        from hil.run.zsession import payload_bytes, publisher
+        from runtime.zsession import payload_bytes, publisher
 
         self.core = core
         self.session = session
@@ -587,10 +587,10 @@ HOPLOG_NAME = "controller.hoplog"
 
 def main_from_settings(settings_path: str) -> int:
     """Entry of ``python -m controller_service --settings run_settings.json``."""
-    from hil.run.settings import RunSettings
     from hil.run.wiring import build_control_core, can_settings, motor_limit, open_can_bus
-    from hil.run.zsession import check_credentials, open_session
-    from hil.supervisor import stop_on_signals
+    from protocol.settings import RunSettings
+    from runtime.signals import stop_on_signals
+    from runtime.zsession import check_credentials, open_session
 
     s = RunSettings.load(settings_path)
     check_credentials(s.zenoh_endpoint, s.zenoh_mode)  # a bad credentials file: exit before a log
@@ -631,7 +631,7 @@ def main_from_settings(settings_path: str) -> int:
             torque_limit=limit,
         )
         can_path = CanCommandPath(bus, lifecycle, geom, hoplog, faults)
-    from hil.run.startgate import StartGate
+    from runtime.startgate import StartGate
 
     epoch_ns = s.epoch_ns or (int(previous.meta["epoch_ns"]) if previous is not None else 0)
     gate = StartGate(session, s.robot_id, "controller")
@@ -676,7 +676,7 @@ def main_from_settings(settings_path: str) -> int:
             print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
             svc.run(stop, end_ns, sched)
         finally:
-            from controller_service.realtime import restore_gc
+            from runtime.realtime import restore_gc
 
             restore_gc()
             with contextlib.suppress(Exception):  # the session may be gone on the way out

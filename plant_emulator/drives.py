@@ -159,8 +159,8 @@ class DrivesRunner:
 
     # --- Zenoh -------------------------------------------------------------------------------
     def open_zenoh(self) -> None:
-        from hil.run.zsession import open_session, publisher
         from protocol import keys
+        from runtime.zsession import open_session, publisher
 
         self.session = open_session(self.opts.zenoh_endpoint)
         self._pub_state = publisher(self.session, keys.state_key(self.robot_id))
@@ -249,7 +249,7 @@ class DrivesRunner:
 
     # --- the loop ----------------------------------------------------------------------------
     def run(self, stop: Any) -> dict[str, Any]:
-        from controller_service.realtime import DeadlineClock, setup_scheduling
+        from runtime.realtime import DeadlineClock, setup_scheduling
 
         opts = self.opts
         self.can.start()
@@ -314,7 +314,7 @@ class DrivesRunner:
 
 def run_drives(opts: DrivesOptions) -> int:
     """Build, run until a signal (or ``duration``), print and write the summary; exit code."""
-    from hil.supervisor import stop_on_signals
+    from runtime.signals import stop_on_signals
 
     with stop_on_signals() as stop:
         runner = DrivesRunner(opts)

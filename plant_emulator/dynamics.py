@@ -7,7 +7,7 @@ which is solved exactly over the step (tau(s) = cmd + (tau0 - cmd) exp(-s/T)) so
 stable at any step h; RK4 then sees the exact applied torque at its stage times.
 
 Three implementations of the *same* RK4 arithmetic (tests check they agree):
-- :func:`rk4_step` / :func:`advance`: written once on :mod:`controller_service.mathns` for floats
+- :func:`rk4_step` / :func:`advance`: written once on :mod:`runtime.mathns` for floats
   and numpy arrays; the real-time plant emulator integrates lazily with
   ``advance(state, cmd1, cmd2, t0, t1, h, disturbance, lag)`` (constant command, steps <= h).
 - :func:`advance_float_tracked`: the same step inlined on Python floats, with the per-step
@@ -28,9 +28,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from controller_service.laws.base import Limits, RobotState
-from controller_service.mathns import namespace_for
 from plant_emulator.disturbances import Disturbance, disturbance_at
+from protocol.robot import Limits, RobotState
+from runtime.mathns import namespace_for
 
 VIOLATION_RTOL = 1e-9  # a step counts as a violation beyond limit * (1 + VIOLATION_RTOL)
 _TAYLOR_MAX_ANGLE = 0.02

@@ -32,8 +32,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from controller_service.laws.base import Limits
-from controller_service.realtime import DeadlineClock, setup_scheduling
 from plant_emulator.can_drives import CanDrives
 from plant_emulator.disturbances import Disturbance
 from plant_emulator.drive_plant import DrivePlant
@@ -60,7 +58,9 @@ from protocol.messages import (
 )
 from protocol.messages import State as StateMsg
 from protocol.rejections import RejectionCounter
+from protocol.robot import Limits
 from protocol.sequence import SequenceTracker
+from runtime.realtime import DeadlineClock, setup_scheduling
 
 
 @dataclass
@@ -177,7 +177,7 @@ class PlantService:
         faults: Faults | None = None,
         drive_plant: DrivePlant | None = None,
     ) -> None:
-        from hil.run.zsession import payload_bytes, publisher
+        from runtime.zsession import payload_bytes, publisher
 
         self.core = core
         self.sensor = sensor
@@ -647,10 +647,10 @@ HOPLOG_NAME = "plant.hoplog"
 
 def main_from_settings(settings_path: str) -> int:
     """Entry of ``python -m plant_emulator --settings run_settings.json``."""
-    from hil.run.settings import RunSettings
     from hil.run.wiring import build_plant, can_settings, motor_limit, open_can_bus
-    from hil.run.zsession import check_credentials, open_session
-    from hil.supervisor import stop_on_signals
+    from protocol.settings import RunSettings
+    from runtime.signals import stop_on_signals
+    from runtime.zsession import check_credentials, open_session
 
     s = RunSettings.load(settings_path)
     check_credentials(s.zenoh_endpoint, s.zenoh_mode)  # a bad credentials file: exit before a log
@@ -730,8 +730,8 @@ def main_from_settings(settings_path: str) -> int:
 
 def _serve(svc: PlantService, s: Any, stop: Any, hoplog: HopLogWriter, stack: Any) -> int:
     """The start gate (unless the epoch is given), then the run; returns the exit code."""
-    from controller_service.realtime import restore_gc
-    from hil.run.startgate import StartGate
+    from runtime.realtime import restore_gc
+    from runtime.startgate import StartGate
 
     can = svc.can
     gate = StartGate(svc.session, s.robot_id, "plant")

@@ -29,8 +29,9 @@ from typing import Any
 from hil import interrupts
 from hil.errors import BadInputError
 from hil.recording import RecordingWriter
-from hil.run.settings import RunSettings
-from hil.supervisor import Supervisor, stop_on_signals
+from hil.supervisor import Supervisor
+from protocol.settings import RunSettings
+from runtime.signals import stop_on_signals
 
 
 def free_port() -> int:
@@ -175,8 +176,8 @@ def check_options(opts: RunOptions) -> None:
     """The command-line options of ``hil run`` (and of the services run alone), each named in
     a BadInputError; the scenario's own keys are checked when it is loaded."""
     from hil import options
-    from hil.run.settings import CMD_PATHS, TRIGGERS
     from hil.scenario import DELAY_MAX, DURATION_MAX, RATE_MAX
+    from protocol.settings import CMD_PATHS, TRIGGERS
 
     options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
     if opts.trigger is not None:
@@ -328,8 +329,8 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
     from hil.run.results import analyze, plot
     from hil.run.secure import RunIdentities
-    from hil.run.startgate import announce_start
-    from hil.run.zsession import open_session
+    from runtime.startgate import announce_start
+    from runtime.zsession import open_session
 
     scenario, settings, run_dir, info = prepare(opts)
     sup = Supervisor()

@@ -19,12 +19,12 @@ from hil.errors import BadInputError
 
 
 def check_settings_file(path: Path) -> None:
-    """--settings must be a run_settings.json whose values hold (hil.run.settings), and name a
+    """--settings must be a run_settings.json whose values hold (protocol.settings), and name a
     scenario that loads: the service would fail after starting otherwise."""
 
     from hil import options
-    from hil.run.settings import RunSettings
     from hil.scenario import load_scenario
+    from protocol.settings import RunSettings
 
     options.existing_file("--settings", path)
     try:

@@ -1,7 +1,7 @@
 """Build the two services' cores and edges from the scenario (via :mod:`hil.scenario`).
 
 The controller and the plant are rebuilt in their own processes from the same scenario file
-and :class:`hil.run.settings.RunSettings`, with the same builders the offline simulator uses,
+and :class:`protocol.settings.RunSettings`, with the same builders the offline simulator uses,
 so lockstep can equal the simulation bit for bit.
 """
 
@@ -12,10 +12,10 @@ import inspect
 from typing import Any
 
 from controller_service.service import ControlCore
-from hil.run.settings import RunSettings
 from plant_emulator.dynamics import Extremes, PlantState
 from plant_emulator.sensors import Sensor
 from plant_emulator.service import PlantCore
+from protocol.settings import RunSettings
 
 
 def load(settings: RunSettings) -> Any:
