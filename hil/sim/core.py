@@ -16,7 +16,6 @@ delay, jitter seed, disturbance seed and sensor seed (:class:`RobotVariation`).
 from __future__ import annotations
 
 import heapq
-import inspect
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -25,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from controller_service.from_settings import initial_memory
 from controller_service.laws.base import ReferenceSample, RobotState
 from controller_service.references import sample_array
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
@@ -104,14 +104,8 @@ class BatchResult:
 
 
 def _initial_memory(controller: Any, n: int | None, scenario: Scenario) -> Any:
-    z1, z2 = scenario.initial.z1, scenario.initial.z2
-    try:
-        params = inspect.signature(controller.initial_memory).parameters
-    except (TypeError, ValueError):
-        params = {}
-    if "z1" in params and "z2" in params:
-        return controller.initial_memory(n, z1=z1, z2=z2)
-    return controller.initial_memory(n)
+    # The controller service's own rule (lockstep must equal the simulation bit for bit).
+    return initial_memory(controller, n, scenario.initial.z1, scenario.initial.z2)
 
 
 def _replay(scenario: Scenario) -> np.ndarray | None:

@@ -1,0 +1,54 @@
+"""The controller's core built from the resolved run settings alone (no scenario, no ``hil``).
+
+``hil`` resolved the scenario into :class:`protocol.settings.RunSettings`: the ``[controller]``
+table as given, the virtual robot (3), the design context (limits (2), s1, s2 of Assumption 1,
+mu1..k2 of Assumption 2) and z1(0), z2(0) of (8). The law is built from them by the same
+constructors ``hil.scenario.build_loop`` and the offline simulator use
+(:func:`controller_service.registry.build_controller`,
+:func:`controller_service.references.build_reference`, :func:`initial_memory`), so lockstep
+equals the simulation bit for bit.
+"""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+from typing import Any
+
+from controller_service.laws.base import DesignContext
+from controller_service.references import build_reference
+from controller_service.registry import build_controller
+from controller_service.service import ControlCore
+from protocol.settings import RunSettings
+
+
+def initial_memory(controller: Any, n: int | None, z1: Any = 0.0, z2: Any = 0.0) -> Any:
+    """The law's memory at t = 0 for one robot (``n is None``) or ``n``, with z1(0), z2(0) of
+    (8) when the law takes them (a law without adaptive states ignores them)."""
+    try:
+        params = inspect.signature(controller.initial_memory).parameters
+    except (TypeError, ValueError):
+        params = {}
+    if "z1" in params and "z2" in params:
+        return controller.initial_memory(n, z1=z1, z2=z2)
+    return controller.initial_memory(n)
+
+
+def design_context(s: RunSettings) -> DesignContext:
+    """The design context the law was checked against when ``hil`` resolved the scenario."""
+    return DesignContext(limits=s.limits_value, **s.design)
+
+
+def build_control_core(s: RunSettings) -> tuple[ControlCore, str]:
+    """(the core, the law's name) for the run ``s``."""
+    reference = build_reference(s.reference, Path(s.base_dir))
+    controller = build_controller(dict(s.controller), design_context(s))
+    core = ControlCore(
+        controller,
+        reference,
+        s.ts,
+        s.limits_value,
+        memory=initial_memory(controller, None, s.initial["z1"], s.initial["z2"]),
+    )
+    law = str(s.controller.get("law", getattr(controller, "name", "unified")))
+    return core, law

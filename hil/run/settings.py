@@ -1,0 +1,118 @@
+"""The scenario resolved into the services' settings (:class:`protocol.settings.RunSettings`).
+
+``hil`` is the only reader of scenario files: here the checked :class:`hil.scenario.Scenario`
+(with its command-line overrides) becomes the one file the services build from. Rates in Hz
+(``[realtime] rate``, ``--rate``) become periods in seconds here, once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from hil.errors import BadInputError
+from protocol.settings import RunSettings
+
+GEOMETRY_KEYS = ("mass", "yaw_inertia", "wheel_radius", "half_track", "gear_ratio")
+
+
+def effective_can_table(scenario: Any, interface: str | None = None) -> dict[str, Any]:
+    """[can] as the run uses it. python-can's ``virtual`` bus is in-process only, so between
+    the two processes it is replaced by ``zenoh_can`` (loopback, no kernel CAN needed)."""
+    t = dataclasses.asdict(scenario.can)
+    if interface:
+        t["interface"] = interface
+    if t["interface"] == "virtual":
+        t["interface"] = "zenoh_can"
+        t["channel"] = "hil0"
+    return t
+
+
+def check_can_interface(name: str, where: str) -> None:
+    """``name`` must be an interface python-can knows (its own and plug-ins such as zenoh_can);
+    checked before a run starts its services, which would fail opening the bus."""
+    import can.interfaces
+
+    known = sorted(can.interfaces.VALID_INTERFACES)
+    if name not in known:
+        raise BadInputError(
+            f"{where} {name!r} is not a python-can interface (known: {', '.join(known)})"
+        )
+
+
+def robot_id_of(scenario: Any) -> str:
+    rid = scenario.zenoh.robot_id
+    return rid if isinstance(rid, str) else f"robot{rid}"
+
+
+def replay_latencies(scenario: Any) -> list[float] | None:
+    """The latencies of ``[timing] replay`` (read once, here: a bad file fails before any
+    service starts), or None for a seeded jitter."""
+    from hil.sim.timing import jitter_samples_from
+
+    t = scenario.timing
+    if t.jitter_kind != "replay":
+        return None
+    return [float(v) for v in jitter_samples_from(scenario.base_dir / t.replay)]
+
+
+def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSettings:
+    """The settings of ``scenario`` (already overridden from the command line): the law, the
+    reference, the design ``context`` (None: the defaults, for a plant without a controller),
+    the initial state, the plant, the sensor, the timing, the faults, the robot and [can];
+    ``run`` sets the run's own fields (endpoints, paths, epoch, ...)."""
+    design: dict[str, float] = {}
+    if context is not None:
+        design = {k: float(getattr(context, k)) for k in ("s1", "s2", "mu1", "mu2", "k1", "k2")}
+    plant = scenario.plant
+    timing = scenario.timing
+    values: dict[str, Any] = {
+        "scenario_path": str(scenario.source),
+        "robot_id": robot_id_of(scenario),
+        "duration": float(scenario.run.duration),
+        "ts": float(timing.ts),
+        "sensor_ts": float(timing.ts),
+        "trigger": scenario.realtime.trigger,
+        "state_timeout": scenario.realtime.state_timeout,
+        "command_timeout": scenario.realtime.command_timeout,
+        "scheduling": scenario.realtime.scheduling,
+        "can": effective_can_table(scenario),
+        "robot": {k: getattr(scenario.robot, k) for k in GEOMETRY_KEYS},
+        "zenoh_mode": scenario.zenoh.mode,
+        "controller": dict(scenario.controller),
+        "reference": dict(scenario.reference),
+        "base_dir": str(scenario.base_dir.resolve()),
+        "limits": dataclasses.asdict(scenario.limits),
+        "initial": dataclasses.asdict(scenario.initial),
+        "plant_step": scenario.plant_step,
+        "lag": plant.lag,
+        "disturbance": dataclasses.asdict(scenario.disturbance),
+        "sensor": {
+            "noise_std": list(plant.noise_std),
+            "quantization": list(plant.quantization),
+            "seed": plant.noise_seed,
+        },
+        "delay": timing.delay,
+        "jitter": timing.jitter,
+        "jitter_kind": timing.jitter_kind,
+        "seed": timing.seed,
+        "replay": run.pop("replay") if "replay" in run else replay_latencies(scenario),
+        "faults": dataclasses.asdict(scenario.faults),
+    }
+    if design:
+        values["design"] = design
+    values.update(run)
+    return RunSettings(**values)
+
+
+def rate_hz(run_dir: Any, settings: RunSettings) -> float:
+    """The control rate of a run as the user asked for it (``--rate``, ``[realtime] rate`` or
+    1 / ``[timing] ts``), for summary.json: the folder's ``[provenance] rate_hz``, exactly as
+    ``hil run`` wrote it; 1 / ts when the folder has none."""
+    from hil.measure.folder import resolved_scenario
+
+    resolved = resolved_scenario(run_dir) or {}
+    value = resolved.get("provenance", {}).get("rate_hz")
+    if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
+        return float(value)
+    return 1.0 / settings.ts
