@@ -1,4 +1,4 @@
-"""The controller's core built from the resolved run settings alone (no scenario, no ``hil``).
+"""The controller's law built from the resolved run settings alone (no scenario, no ``hil``).
 
 ``hil`` resolved the scenario into :class:`protocol.settings.RunSettings`: the ``[controller]``
 table as given, the virtual robot (3), the design context (limits (2), s1, s2 of Assumption 1,
@@ -18,7 +18,6 @@ from typing import Any
 from controller_service.laws.base import DesignContext
 from controller_service.references import build_reference
 from controller_service.registry import build_controller
-from controller_service.service import ControlCore
 from protocol.settings import RunSettings
 
 
@@ -39,16 +38,10 @@ def design_context(s: RunSettings) -> DesignContext:
     return DesignContext(limits=s.limits_value, **s.design)
 
 
-def build_control_core(s: RunSettings) -> tuple[ControlCore, str]:
-    """(the core, the law's name) for the run ``s``."""
+def build_law(s: RunSettings) -> tuple[Any, Any, Any, str]:
+    """(the law, the reference (3), its memory at t = 0, the law's name) for the run ``s``."""
     reference = build_reference(s.reference, Path(s.base_dir))
     controller = build_controller(dict(s.controller), design_context(s))
-    core = ControlCore(
-        controller,
-        reference,
-        s.ts,
-        s.limits_value,
-        memory=initial_memory(controller, None, s.initial["z1"], s.initial["z2"]),
-    )
+    memory = initial_memory(controller, None, s.initial["z1"], s.initial["z2"])
     law = str(s.controller.get("law", getattr(controller, "name", "unified")))
-    return core, law
+    return controller, reference, memory, law

@@ -589,14 +589,15 @@ HOPLOG_NAME = "controller.hoplog"
 def main_from_settings(settings_path: str) -> int:
     """Entry of ``python -m controller_service SETTINGS.json`` (``hil`` resolved the run into
     that file: :class:`protocol.settings.RunSettings`)."""
-    from controller_service.from_settings import build_control_core
+    from controller_service.from_settings import build_law
     from runtime.signals import stop_on_signals
     from runtime.zsession import check_credentials, open_session
 
     s = RunSettings.load(settings_path)
     s.validate()
     check_credentials(s.zenoh_endpoint, s.zenoh_mode)  # a bad credentials file: exit before a log
-    core, law_name = build_control_core(s)
+    controller, reference, memory, law_name = build_law(s)
+    core = ControlCore(controller, reference, s.ts, s.limits_value, memory=memory)
     period_ns = round(s.ts * 1e9)
     faults = Faults.of(s.faults)
     log_path = Path(s.out_dir) / HOPLOG_NAME

@@ -29,8 +29,8 @@ from typing import Any
 
 from plant_emulator.can_drives import CanDrives
 from plant_emulator.drive_plant import DrivePlant, bench_drive_config
-from plant_emulator.from_settings import build_plant
 from plant_emulator.odrive import VirtualDrivePair
+from plant_emulator.service import build_plant
 from protocol.can.codec import AxisState, Cmd, Frame
 from protocol.settings import RunSettings
 

@@ -1,4 +1,4 @@
-"""The plant's core built from the resolved run settings alone (no scenario, no ``hil``).
+"""The plant's parts from the resolved run settings alone (no scenario, no ``hil``).
 
 ``hil`` resolved the scenario into :class:`protocol.settings.RunSettings`: the initial state of
 model (1), the RK4 step, the limits (2), the disturbance, the actuator lag, the sensor and when
@@ -10,11 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from plant_emulator.disturbances import Disturbance
-from plant_emulator.dynamics import Extremes, PlantState, track_initial
+from plant_emulator.dynamics import PlantState
 from plant_emulator.landing import extra_delays, landing_offsets
 from plant_emulator.sensors import Sensor
-from plant_emulator.service import PlantCore
 from protocol.settings import RunSettings
 
 
@@ -30,22 +28,6 @@ def sensor_of(s: RunSettings) -> Sensor:
     if not t:
         return Sensor()
     return Sensor(tuple(t["noise_std"]), tuple(t["quantization"]), int(t["seed"]))  # type: ignore[arg-type]
-
-
-def build_plant(s: RunSettings, at_rest: bool = False) -> tuple[PlantCore, Sensor]:
-    """(the core, the sensor) for the run ``s``."""
-    limits = s.limits_value
-    core = PlantCore(
-        initial_state(s, at_rest),
-        h=s.plant_step,
-        limits=limits,
-        disturbance=Disturbance(**s.disturbance),
-        lag=s.lag,
-        seed=None,
-        extremes=Extremes(),
-    )
-    track_initial(core.extremes, core.state, limits)
-    return core, sensor_of(s)
 
 
 def lockstep_offsets(s: RunSettings, n: int, h: float) -> list[int]:

@@ -646,10 +646,29 @@ class PlantService:
 HOPLOG_NAME = "plant.hoplog"
 
 
+def build_plant(s: RunSettings, at_rest: bool = False) -> tuple[PlantCore, Sensor]:
+    """(the core, the sensor) for the run ``s`` from its settings alone (``at_rest``: the
+    initial pose with v = omega = 0, as the free-running drives start)."""
+    from plant_emulator.dynamics import track_initial
+    from plant_emulator.from_settings import initial_state, sensor_of
+
+    limits = s.limits_value
+    core = PlantCore(
+        initial_state(s, at_rest),
+        h=s.plant_step,
+        limits=limits,
+        disturbance=Disturbance(**s.disturbance),
+        lag=s.lag,
+        seed=None,
+        extremes=Extremes(),
+    )
+    track_initial(core.extremes, core.state, limits)
+    return core, sensor_of(s)
+
+
 def main_from_settings(settings_path: str) -> int:
     """Entry of ``python -m plant_emulator SETTINGS.json`` (``hil`` resolved the run into that
     file: :class:`protocol.settings.RunSettings`)."""
-    from plant_emulator.from_settings import build_plant
     from runtime.signals import stop_on_signals
     from runtime.zsession import check_credentials, open_session
 

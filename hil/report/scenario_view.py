@@ -52,6 +52,16 @@ class ScenarioView:
         return self.delay + self.jitter
 
 
+def _without_none(table: Mapping[str, Any]) -> dict[str, Any]:
+    """The tables as scenario.resolved.toml holds them: a None (an unset optional key such as
+    ``[realtime] rate``) is left out, as the TOML writer leaves it out."""
+    return {
+        k: _without_none(v) if isinstance(v, Mapping) else v
+        for k, v in table.items()
+        if v is not None
+    }
+
+
 def view(scenario: Mapping[str, Any], base_dir: Path | None = None) -> ScenarioView:
     """The view of a scenario's tables (``scenario.resolved.toml`` parsed, or a scenario dict);
     ``base_dir`` resolves a reference's file when its bounds mu1..k2 must be computed."""
@@ -63,7 +73,7 @@ def view(scenario: Mapping[str, Any], base_dir: Path | None = None) -> ScenarioV
     timing = scenario.get("timing")
     if not isinstance(timing, Mapping) or "ts" not in timing:
         raise BadInputError("[timing] ts: missing from the resolved scenario")
-    sc = parse_scenario(dict(scenario), base_dir or Path("."))
+    sc = parse_scenario(_without_none(scenario), base_dir or Path("."))
     ref = sc.reference
     if all(k in ref for k in ("mu1", "mu2", "k1", "k2")):  # a resolved file has them all
         d = sc.disturbance
