@@ -101,7 +101,7 @@ def run_loop(rate: float, duration: float, trigger: str, tmp: Path) -> dict[str,
 
 RESPONDER = """
 import sys, time, zenoh
-from hil.run.zsession import open_session, publisher
+from runtime.zsession import open_session, publisher
 from protocol.zenoh_config import COMMAND_QOS
 s = open_session(sys.argv[1])
 pub = publisher(s, "bench/pong", COMMAND_QOS)
@@ -118,10 +118,10 @@ def paced_pingpong(rate: float, n: int) -> dict[str, Any]:
     import socket
     import time
 
-    from controller_service.realtime import wait_until_ns
     from hil.measure.stats import summarize_ns
-    from hil.run.zsession import open_session, publisher
     from protocol.zenoh_config import COMMAND_QOS
+    from runtime.realtime import wait_until_ns
+    from runtime.zsession import open_session, publisher
 
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))

@@ -1,20 +1,39 @@
-"""``python -m controller_service --settings run_settings.json`` (what ``hil run`` starts), or
-``python -m controller_service SCENARIO.toml [options]`` standalone (same as ``hil controller``)."""
+"""``python -m controller_service SETTINGS.json``: the controller service from a resolved
+settings file alone.
+
+``hil`` writes that file (``run_settings.json`` in a run folder, or
+``hil controller SCENARIO --write-settings FILE``); this entry needs nothing but the service's own
+packages below ``hil`` (docs/architecture.md). ``--settings FILE`` is the same.
+Exit codes: 0 done, 1 no start, 2 a bad settings file.
+"""
 
 from __future__ import annotations
 
 import sys
 
+USAGE = (
+    "usage: python -m controller_service SETTINGS.json  (a resolved run, written by hil: "
+    "'hil controller SCENARIO --write-settings FILE', or a run folder's run_settings.json; "
+    "to run from a scenario use 'hil controller SCENARIO')"
+)
+
 
 def main(argv: list[str] | None = None) -> int:
+    from protocol.errors import BadInputError
+
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) == 2 and args[0] == "--settings":
-        from controller_service.service import main_from_settings
+        args = args[1:]
+    if len(args) != 1 or args[0].startswith("-") or args[0].endswith(".toml"):
+        print(USAGE, file=sys.stderr)
+        return 2
+    from controller_service.service import main_from_settings
 
-        return main_from_settings(args[1])
-    from hil.cli import main as hil_main
-
-    return hil_main(["controller", *args])
+    try:
+        return main_from_settings(args[0])
+    except BadInputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any
 
 from controller_service.laws.base import Controller, Limits, RobotState
-from controller_service.realtime import DeadlineClock, SchedulingReport, setup_scheduling
 from protocol import keys
 from protocol.faults import Faults, every_nth
 from protocol.hoplog import (
@@ -56,6 +55,8 @@ from protocol.messages import (
 )
 from protocol.rejections import RejectionCounter
 from protocol.sequence import SequenceTracker
+from protocol.settings import RunSettings
+from runtime.realtime import DeadlineClock, SchedulingReport, setup_scheduling
 
 _NO_SEND = TICK_NO_SEND
 TELEMETRY_FIELDS = ("xe", "ye", "theta_e", "xi", "v_tilde", "w_tilde", "z1", "z2", "eta")
@@ -67,7 +68,7 @@ class ControlCore:
 
     controller: Controller
     reference: Any
-    dt: float
+    ts: float  # s, the control period T_s (the law's nominal dt)
     limits: Limits
     rejections: RejectionCounter = field(default_factory=RejectionCounter)
     memory: Any = None
@@ -78,7 +79,7 @@ class ControlCore:
 
     def step(self, t: float, state: RobotState) -> tuple[float, float, dict[str, float]]:
         ref = self.reference.sample(t)
-        out, self.memory = self.controller.update(t, self.dt, state, ref, self.memory)
+        out, self.memory = self.controller.update(t, self.ts, state, ref, self.memory)
         tau1, tau2 = self.guard(out.tau1, out.tau2)
         return tau1, tau2, dict(out.telemetry)
 
@@ -256,7 +257,7 @@ class ControllerService:
         session: Any,
         robot_id: str,
         epoch_ns: int,
-        rate_hz: float,
+        ts: float,
         trigger: str = "periodic",
         lockstep: bool = False,
         state_timeout: float = 0.05,
@@ -266,13 +267,13 @@ class ControllerService:
         hoplog: HopLogWriter | None = None,
         faults: Faults | None = None,
     ) -> None:
-        from hil.run.zsession import payload_bytes, publisher
+        from runtime.zsession import payload_bytes, publisher
 
         self.core = core
         self.session = session
         self.robot_id = robot_id
         self.epoch_ns = int(epoch_ns)
-        self.period_ns = round(1e9 / rate_hz)
+        self.period_ns = round(ts * 1e9)
         self.trigger = "on_state" if lockstep else trigger
         self.lockstep = lockstep
         self.state_timeout_ns = int(state_timeout * 1e9)
@@ -338,7 +339,7 @@ class ControllerService:
     # --- one control cycle -----------------------------------------------------------------
     def _law_time(self, st: State) -> float:
         if self.lockstep:
-            return st.seq * self.core.dt
+            return st.seq * self.core.ts
         return (st.sample_time_ns - self.epoch_ns) / 1e9
 
     def _cycle(
@@ -586,16 +587,18 @@ HOPLOG_NAME = "controller.hoplog"
 
 
 def main_from_settings(settings_path: str) -> int:
-    """Entry of ``python -m controller_service --settings run_settings.json``."""
-    from hil.run.settings import RunSettings
-    from hil.run.wiring import build_control_core, can_settings, motor_limit, open_can_bus
-    from hil.run.zsession import check_credentials, open_session
-    from hil.supervisor import stop_on_signals
+    """Entry of ``python -m controller_service SETTINGS.json`` (``hil`` resolved the run into
+    that file: :class:`protocol.settings.RunSettings`)."""
+    from controller_service.from_settings import build_law
+    from runtime.signals import stop_on_signals
+    from runtime.zsession import check_credentials, open_session
 
     s = RunSettings.load(settings_path)
+    s.validate()
     check_credentials(s.zenoh_endpoint, s.zenoh_mode)  # a bad credentials file: exit before a log
-    core, law_name = build_control_core(s)
-    period_ns = round(1e9 / s.rate_hz)
+    controller, reference, memory, law_name = build_law(s)
+    core = ControlCore(controller, reference, s.ts, s.limits_value, memory=memory)
+    period_ns = round(s.ts * 1e9)
     faults = Faults.of(s.faults)
     log_path = Path(s.out_dir) / HOPLOG_NAME
     # A predecessor that crashed mid-run left its log open: this is a restart, which continues
@@ -618,12 +621,12 @@ def main_from_settings(settings_path: str) -> int:
     )
     session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
     can_path = None
-    bus = open_can_bus(s)
+    bus = s.open_can_bus()
     if bus is not None:
         from protocol.can.drive_profile import HostLifecycle
 
-        cs = can_settings(s)
-        geom, limit = motor_limit(s, core.limits)
+        cs = s.can_settings()
+        geom, limit = s.motor_limit()
         lifecycle = HostLifecycle(
             node_right=cs.node_right,
             node_left=cs.node_left,
@@ -631,7 +634,7 @@ def main_from_settings(settings_path: str) -> int:
             torque_limit=limit,
         )
         can_path = CanCommandPath(bus, lifecycle, geom, hoplog, faults)
-    from hil.run.startgate import StartGate
+    from runtime.startgate import StartGate
 
     epoch_ns = s.epoch_ns or (int(previous.meta["epoch_ns"]) if previous is not None else 0)
     gate = StartGate(session, s.robot_id, "controller")
@@ -642,7 +645,7 @@ def main_from_settings(settings_path: str) -> int:
         session,
         s.robot_id,
         epoch_ns,
-        s.rate_hz,
+        s.ts,
         trigger=s.trigger,
         lockstep=s.lockstep,
         state_timeout=s.state_timeout,
@@ -656,7 +659,7 @@ def main_from_settings(settings_path: str) -> int:
         # The predecessor may have sent commands it had not logged yet (its last chunk, up to
         # the log's flush interval): skip a second's worth of numbers so none is reused.
         seqs = [r[12] for r in previous.rows.get("ticks", []) if r[12] >= 0]
-        svc.continue_after(max(seqs, default=-1) + 1 + math.ceil(s.rate_hz))
+        svc.continue_after(max(seqs, default=-1) + 1 + math.ceil(1.0 / s.ts - 1e-9))
     with stop_on_signals() as stop:
         # Scheduling first, readiness after: the set-up (mlockall, a full collection, the GC
         # frozen) takes tens of ms, which must not eat into the run's first periods.
@@ -676,7 +679,7 @@ def main_from_settings(settings_path: str) -> int:
             print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
             svc.run(stop, end_ns, sched)
         finally:
-            from controller_service.realtime import restore_gc
+            from runtime.realtime import restore_gc
 
             restore_gc()
             with contextlib.suppress(Exception):  # the session may be gone on the way out

@@ -2,21 +2,9 @@
 
 from __future__ import annotations
 
+from protocol.errors import BadInputError, one_line
 
-def one_line(text: object) -> str:
-    """``text`` on one line: line breaks (and the whitespace around them) become one space."""
-    return " ".join(part.strip() for part in str(text).splitlines() if part.strip())
-
-
-class BadInputError(Exception):
-    """Bad usage or input (a malformed scenario, a design condition broken): exit code 2.
-
-    The message is always one line (a wrapped message from a library or a user's controller
-    may hold line breaks); it names the scenario key (``[table] key``) or the option
-    (``--name``) at fault."""
-
-    def __init__(self, message: object = "") -> None:
-        super().__init__(one_line(message))
+__all__ = ["BadInputError", "NegativeVerdictError", "one_line"]
 
 
 class NegativeVerdictError(Exception):

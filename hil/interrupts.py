@@ -6,7 +6,7 @@ command's loop can catch it and keep what it computed (``hil sim``, ``hil sweep`
 ``hil paper``). Whatever then happens (the command returns normally, raises SystemExit, or the
 CLI library turns the KeyboardInterrupt into an exception of its own), ``main`` looks at the
 record and exits 130 after one line ``interrupted: ...``. Code that stops on signals with its
-own handler (``hil run``'s :func:`hil.supervisor.stop_on_signals`) calls :func:`record` itself.
+own handler (``hil run``'s :func:`runtime.signals.stop_on_signals`) calls :func:`record` itself.
 
 A command says what it kept with :func:`note`; :func:`shielded` makes a second Ctrl-C while
 results are written only recorded, not raised, so the files are never left half-written.

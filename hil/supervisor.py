@@ -15,8 +15,7 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from types import FrameType
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 PR_SET_PDEATHSIG = 1
@@ -120,32 +119,3 @@ class Supervisor:
         for c in reversed(self.children):
             codes[c.name] = c.stop(grace)
         return codes
-
-
-class StopRequested:
-    """A flag set by SIGINT/SIGTERM so a main loop ends cleanly instead of unwinding anywhere."""
-
-    def __init__(self) -> None:
-        self.requested = False
-        self.signal: int | None = None
-
-    def __bool__(self) -> bool:
-        return self.requested
-
-    def _handler(self, signum: int, frame: FrameType | None) -> None:
-        self.requested = True
-        self.signal = signum
-
-
-@contextlib.contextmanager
-def stop_on_signals(
-    signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM),
-) -> Iterator[StopRequested]:
-    """Install handlers that set a :class:`StopRequested` flag; restore the old ones after."""
-    flag = StopRequested()
-    old = {s: signal.signal(s, flag._handler) for s in signals}
-    try:
-        yield flag
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)

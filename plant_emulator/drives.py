@@ -1,9 +1,12 @@
-"""``hil drives``: the plant with its two virtual ODrives on any python-can bus, free running.
+"""The plant with its two virtual ODrives on any python-can bus, free running: ``python -m
+plant_emulator.drives SETTINGS.json`` from a resolved settings file, or ``hil drives SCENARIO``
+(the front that resolves a scenario first).
 
-No start gate and no controller of the bench: the robot of the scenario (default: ``hil run``'s
-default, the paper's set-up) starts integrating at once, at rest at its initial pose, and moves
-when a client (an ODrive script, a user's controller, ``odrive-can``) commands the drives over
-CAN. Until SIGINT/SIGTERM, then it prints a summary and exits within a second.
+No start gate and no controller of the bench: the robot of the settings (``hil drives``'s
+default: ``hil run``'s scenario, the paper's set-up) starts integrating at once, at rest at its
+initial pose, and moves when a client (an ODrive script, a user's controller, ``odrive-can``)
+commands the drives over CAN. Until SIGINT/SIGTERM, then it prints a summary and exits within a
+second.
 
 Threads: the bus edge (:class:`plant_emulator.can_drives.CanDrives`) receives and answers at
 once, advancing the plant to each frame's arrival first; a cyclic sender sends heartbeats and
@@ -15,7 +18,6 @@ with the drives' counters) on Zenoh, and prints a status line every ``status_per
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import gc
 import json
 import math
@@ -27,10 +29,10 @@ from typing import Any
 
 from plant_emulator.can_drives import CanDrives
 from plant_emulator.drive_plant import DrivePlant, bench_drive_config
-from plant_emulator.dynamics import Extremes, PlantState
 from plant_emulator.odrive import VirtualDrivePair
-from plant_emulator.service import PlantCore
+from plant_emulator.service import build_plant
 from protocol.can.codec import AxisState, Cmd, Frame
+from protocol.settings import RunSettings
 
 STATE_NAMES = {
     AxisState.IDLE: "IDLE",
@@ -41,76 +43,42 @@ STATE_NAMES = {
 
 @dataclass
 class DrivesOptions:
-    """What ``hil drives`` runs (see ``hil drives --help``)."""
+    """How the drives run (``hil drives --help``); the robot, its limits and the bus are the
+    resolved settings' (:class:`protocol.settings.RunSettings`)."""
 
-    scenario: str | None = None  # a file or bundled name; None: hil run's default scenario
-    interface: str | None = None  # python-can interface; None: the scenario's [can]
-    channel: str | None = None
-    bitrate: int | None = None
-    can_endpoint: str | None = None  # zenoh_can's endpoint
-    node_left: int | None = None
-    node_right: int | None = None
     control_rate: float = 1000.0  # Hz: plant steps and drive controller steps
     msg_rates_ms: dict[int, float] = field(
         default_factory=lambda: {Cmd.HEARTBEAT: 100.0, Cmd.GET_ENCODER_ESTIMATES: 10.0}
     )
-    watchdog_timeout: float | None = None  # s; None: the scenario's [can] (0 = off)
     state_rate: float = 0.0  # Hz of State on Zenoh (0: no Zenoh at all)
     zenoh_endpoint: str = "tcp/127.0.0.1:7447"
-    robot_id: str | None = None
     status_period: float = 1.0  # s between status lines (0: none)
     duration: float | None = None  # s, then exit as on SIGINT (None: until a signal)
-    scheduling: str | None = None  # "fifo" / "other"; None: the scenario's [realtime]
     out: Path | None = None  # where summary.json goes (None: stdout only)
-
-
-def _scenario(name: str | None) -> Any:
-    from hil.scenario import load_scenario, loads_scenario
-
-    if name is None:
-        from hil.run.defaults import PAPER_TRACKING_TOML
-
-        return loads_scenario(PAPER_TRACKING_TOML)
-    from hil.bundled import resolve_scenario
-
-    return load_scenario(resolve_scenario(name))
 
 
 class DrivesRunner:
     """The plant and its two drives on one bus (built from :class:`DrivesOptions`)."""
 
-    def __init__(self, opts: DrivesOptions, bus: Any = None) -> None:
+    def __init__(self, opts: DrivesOptions, settings: RunSettings, bus: Any = None) -> None:
         from protocol.can.bus_factory import CanSettings, open_bus
         from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit
 
         self.opts = opts
-        sc = _scenario(opts.scenario)
-        self.scenario = sc
-        can_table = dataclasses.asdict(sc.can)
-        for key in ("interface", "channel", "bitrate", "node_left", "node_right"):
-            value = getattr(opts, key)
-            if value is not None:
-                can_table[key] = value
-        if can_table["interface"] == "virtual" and bus is None:
+        self.settings = settings
+        can_table = dict(settings.can)
+        if can_table.get("interface") == "virtual" and bus is None:
             can_table.update(interface="zenoh_can", channel="hil0")  # in-process only
         self.can_settings = cs = CanSettings.from_table(can_table)
-        watchdog = cs.watchdog_timeout if opts.watchdog_timeout is None else opts.watchdog_timeout
+        watchdog = cs.watchdog_timeout
         if not (math.isfinite(watchdog) and watchdog >= 0.0):
             raise ValueError(f"watchdog timeout must be >= 0 s, got {watchdog}")
         if not (math.isfinite(opts.control_rate) and 1.0 <= opts.control_rate <= 20_000.0):
             raise ValueError(f"control rate must be in 1..20000 Hz, got {opts.control_rate}")
-        self.geometry = RobotGeometry(**dataclasses.asdict(sc.robot))
-        limits = sc.limits
-        i = sc.initial
+        self.geometry = RobotGeometry(**settings.robot)
         # At rest at the initial pose: the robot moves when torque arrives.
-        self.core = PlantCore(
-            PlantState(i.x, i.y, i.theta, 0.0, 0.0, 0.0, 0.0),
-            h=sc.plant_step,
-            limits=limits,
-            disturbance=sc.disturbance,
-            lag=sc.plant.lag,
-            extremes=Extremes(),
-        )
+        self.core, _ = build_plant(settings, at_rest=True)
+        limits = self.core.limits
         legal = motor_torque_limit(self.geometry, limits.varpi1, limits.varpi2)
         config = bench_drive_config(
             self.geometry, limits, legal * (1.0 + 1e-6), watchdog, opts.msg_rates_ms
@@ -121,15 +89,13 @@ class DrivesRunner:
             self.pair, self.geometry, limits, 0.0, self.core.state, self.t0_ns / 1e9
         )
         extra = {}
-        if cs.interface == "zenoh_can" and opts.can_endpoint:
-            extra["endpoint"] = opts.can_endpoint
+        if cs.interface == "zenoh_can" and settings.can_endpoint:
+            extra["endpoint"] = settings.can_endpoint
         self.bus = bus if bus is not None else open_bus(cs, **extra)
         # Requests and cyclic frames are answered from the drives' feedback (at most one
         # control period old, extrapolated at its velocity): no plant step on that path.
         self.can = CanDrives(self.bus, self.pair, on_frame=self._on_frame, immediate=True)
-        self.robot_id = opts.robot_id or (
-            sc.zenoh.robot_id if isinstance(sc.zenoh.robot_id, str) else f"robot{sc.zenoh.robot_id}"
-        )
+        self.robot_id = settings.robot_id
         self.session: Any = None
         self._pub_state: Any = None
         self._pub_status: Any = None
@@ -159,8 +125,8 @@ class DrivesRunner:
 
     # --- Zenoh -------------------------------------------------------------------------------
     def open_zenoh(self) -> None:
-        from hil.run.zsession import open_session, publisher
         from protocol import keys
+        from runtime.zsession import open_session, publisher
 
         self.session = open_session(self.opts.zenoh_endpoint)
         self._pub_state = publisher(self.session, keys.state_key(self.robot_id))
@@ -249,13 +215,13 @@ class DrivesRunner:
 
     # --- the loop ----------------------------------------------------------------------------
     def run(self, stop: Any) -> dict[str, Any]:
-        from controller_service.realtime import DeadlineClock, setup_scheduling
+        from runtime.realtime import DeadlineClock, setup_scheduling
 
         opts = self.opts
         self.can.start()
         if opts.state_rate > 0:
             self.open_zenoh()
-        scheduling = opts.scheduling or self.scenario.realtime.scheduling
+        scheduling = self.settings.scheduling
         # Threads exist now, so SCHED_FIFO reaches the reader and the cyclic sender too. The
         # collector stays on (the process runs for hours); what exists now is frozen once.
         sched = setup_scheduling(scheduling, freeze_gc=False)
@@ -312,12 +278,12 @@ class DrivesRunner:
                 self.session.close()
 
 
-def run_drives(opts: DrivesOptions) -> int:
+def run_drives(opts: DrivesOptions, settings: RunSettings) -> int:
     """Build, run until a signal (or ``duration``), print and write the summary; exit code."""
-    from hil.supervisor import stop_on_signals
+    from runtime.signals import stop_on_signals
 
     with stop_on_signals() as stop:
-        runner = DrivesRunner(opts)
+        runner = DrivesRunner(opts, settings)
         try:
             summary = runner.run(stop)
         finally:
@@ -330,7 +296,40 @@ def run_drives(opts: DrivesOptions) -> int:
     return 0
 
 
-if __name__ == "__main__":  # python -m plant_emulator.drives: the same as `hil drives`
-    from hil.cli import main as hil_main
+def main(argv: list[str] | None = None) -> int:
+    """``python -m plant_emulator.drives SETTINGS.json [--duration S] [--out DIR] ...``: the
+    drives from a resolved settings file alone (``hil drives`` is the front with a scenario)."""
+    import argparse
 
-    sys.exit(hil_main(["drives", *sys.argv[1:]]))
+    import can
+
+    from protocol.errors import BadInputError
+
+    p = argparse.ArgumentParser(prog="python -m plant_emulator.drives", description=main.__doc__)
+    p.add_argument("settings", help="resolved settings (hil emulator SCENARIO --write-settings F)")
+    p.add_argument("--control-rate", type=float, default=DrivesOptions.control_rate)
+    p.add_argument("--state-rate", type=float, default=DrivesOptions.state_rate)
+    p.add_argument("--endpoint", default=DrivesOptions.zenoh_endpoint)
+    p.add_argument("--status-period", type=float, default=DrivesOptions.status_period)
+    p.add_argument("--duration", type=float, default=None)
+    p.add_argument("--out", type=Path, default=None)
+    a = p.parse_args(argv)
+    opts = DrivesOptions(
+        control_rate=a.control_rate,
+        state_rate=a.state_rate,
+        zenoh_endpoint=a.endpoint,
+        status_period=a.status_period,
+        duration=a.duration,
+        out=a.out,
+    )
+    try:
+        settings = RunSettings.load(a.settings)
+        settings.validate()
+        return run_drives(opts, settings)
+    except (BadInputError, ValueError, OSError, can.CanError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

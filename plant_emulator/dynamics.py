@@ -27,8 +27,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from controller_service.laws.base import Limits, RobotState
 from plant_emulator.disturbances import Disturbance, disturbance_at
+from protocol.robot import Limits, RobotState
 
 VIOLATION_RTOL = 1e-9  # a step counts as a violation beyond limit * (1 + VIOLATION_RTOL)
 _TAYLOR_MAX_ANGLE = 0.02

@@ -32,9 +32,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from controller_service.laws.base import Limits
 from plant_emulator.disturbances import Disturbance
 from plant_emulator.dynamics import Extremes, PlantState, rk4_array, rk4_float
+from protocol.robot import Limits
 
 
 @dataclass(frozen=True)

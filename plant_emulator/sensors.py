@@ -15,9 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from controller_service.laws.base import RobotState
 from plant_emulator.disturbances import hash_normal
-from protocol.angles import wrap_angle  # noqa: F401  (hil.sim.core imports it from here)
+from protocol.robot import RobotState
 
 STATE_NAMES = ("x", "y", "theta", "v", "omega")
 # Channels 0..9 of the hash are taken by the two uniforms of each normal; offset them from the

@@ -32,8 +32,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from controller_service.laws.base import Limits
-from controller_service.realtime import DeadlineClock, setup_scheduling
 from plant_emulator.can_drives import CanDrives
 from plant_emulator.disturbances import Disturbance
 from plant_emulator.drive_plant import DrivePlant
@@ -61,7 +59,10 @@ from protocol.messages import (
 )
 from protocol.messages import State as StateMsg
 from protocol.rejections import RejectionCounter
+from protocol.robot import Limits
 from protocol.sequence import SequenceTracker
+from protocol.settings import RunSettings
+from runtime.realtime import DeadlineClock, setup_scheduling
 
 
 @dataclass
@@ -163,7 +164,7 @@ class PlantService:
         robot_id: str,
         epoch_ns: int,
         ts: float,
-        sensor_rate_hz: float,
+        sensor_ts: float,
         cmd_path: str = "zenoh",
         command_timeout: float = 0.05,
         injector: DelayInjector | None = None,
@@ -172,7 +173,7 @@ class PlantService:
         faults: Faults | None = None,
         drive_plant: DrivePlant | None = None,
     ) -> None:
-        from hil.run.zsession import payload_bytes, publisher
+        from runtime.zsession import payload_bytes, publisher
 
         self.core = core
         self.sensor = sensor
@@ -180,7 +181,7 @@ class PlantService:
         self.robot_id = robot_id
         self.epoch_ns = int(epoch_ns)
         self.ts = ts
-        self.sensor_period_ns = round(1e9 / sensor_rate_hz)
+        self.sensor_period_ns = round(sensor_ts * 1e9)
         self.applied_path = 0 if cmd_path == "zenoh" else 1
         self.command_timeout_ns = int(command_timeout * 1e9)
         self.injector = injector or DelayInjector(0.0, 0.0, "uniform", 0)
@@ -618,17 +619,37 @@ class PlantService:
 HOPLOG_NAME = "plant.hoplog"
 
 
+def build_plant(s: RunSettings, at_rest: bool = False) -> tuple[PlantCore, Sensor]:
+    """(the core, the sensor) for the run ``s`` from its settings alone (``at_rest``: the
+    initial pose with v = omega = 0, as the free-running drives start)."""
+    from plant_emulator.dynamics import track_initial
+    from plant_emulator.from_settings import initial_state, sensor_of
+
+    limits = s.limits_value
+    core = PlantCore(
+        initial_state(s, at_rest),
+        h=s.plant_step,
+        limits=limits,
+        disturbance=Disturbance(**s.disturbance),
+        lag=s.lag,
+        seed=None,
+        extremes=Extremes(),
+    )
+    track_initial(core.extremes, core.state, limits)
+    return core, sensor_of(s)
+
+
 def main_from_settings(settings_path: str) -> int:
-    """Entry of ``python -m plant_emulator --settings run_settings.json``."""
-    from hil.run.settings import RunSettings
-    from hil.run.wiring import build_plant, can_settings, motor_limit, open_can_bus
-    from hil.run.zsession import check_credentials, open_session
-    from hil.supervisor import stop_on_signals
+    """Entry of ``python -m plant_emulator SETTINGS.json`` (``hil`` resolved the run into that
+    file: :class:`protocol.settings.RunSettings`)."""
+    from runtime.signals import stop_on_signals
+    from runtime.zsession import check_credentials, open_session
 
     s = RunSettings.load(settings_path)
+    s.validate()
     check_credentials(s.zenoh_endpoint, s.zenoh_mode)  # a bad credentials file: exit before a log
     core, sensor = build_plant(s)
-    sensor_rate = s.rate_hz if s.lockstep else s.sensor_rate_hz
+    sensor_ts = s.ts if s.lockstep else s.sensor_ts
     faults = Faults.of(s.faults)
     log_path = Path(s.out_dir) / HOPLOG_NAME
     # A predecessor that crashed mid-run left its log open: this is a restart, which continues
@@ -640,7 +661,7 @@ def main_from_settings(settings_path: str) -> int:
         PLANT_TABLES,
         {
             "robot_id": s.robot_id,
-            "sensor_period_ns": round(1e9 / sensor_rate),
+            "sensor_period_ns": round(sensor_ts * 1e9),
             "control_period_ns": round(s.ts * 1e9),
             "plant_step_ns": round(core.h * 1e9),
             "lockstep": s.lockstep,
@@ -663,13 +684,13 @@ def main_from_settings(settings_path: str) -> int:
         stack.callback(session.close)
         can = None
         drive_plant = None
-        bus = open_can_bus(s)
+        bus = s.open_can_bus()
         if bus is not None:
             from plant_emulator.drive_plant import bench_drive_config
             from plant_emulator.odrive import VirtualDrivePair
 
-            cs = can_settings(s)
-            geom, legal = motor_limit(s, core.limits)
+            cs = s.can_settings()
+            geom, legal = s.motor_limit()
             # A hair above the largest legal motor torque: float32 rounding of a legal command
             # must not be clamped; the applied (tau1, tau2) is clamped to (2) after decoding.
             config = bench_drive_config(
@@ -687,7 +708,7 @@ def main_from_settings(settings_path: str) -> int:
             s.robot_id,
             s.epoch_ns,
             s.ts,
-            sensor_rate,
+            sensor_ts,
             cmd_path=s.cmd_path,
             command_timeout=s.command_timeout,
             injector=DelayInjector(s.delay, s.jitter, s.jitter_kind, s.seed),
@@ -701,10 +722,10 @@ def main_from_settings(settings_path: str) -> int:
         return _serve(svc, s, stop, hoplog, stack)
 
 
-def _serve(svc: PlantService, s: Any, stop: Any, hoplog: HopLogWriter, stack: Any) -> int:
+def _serve(svc: PlantService, s: RunSettings, stop: Any, hoplog: HopLogWriter, stack: Any) -> int:
     """The start gate (unless the epoch is given), then the run; returns the exit code."""
-    from controller_service.realtime import restore_gc
-    from hil.run.startgate import StartGate
+    from runtime.realtime import restore_gc
+    from runtime.startgate import StartGate
 
     can = svc.can
     gate = StartGate(svc.session, s.robot_id, "plant")
@@ -736,7 +757,7 @@ def _serve(svc: PlantService, s: Any, stop: Any, hoplog: HopLogWriter, stack: An
         can.immediate = svc.applied_path != 1
     print(f"running epoch_ns={svc.epoch_ns} scheduling={sched.policy}", flush=True)
     if s.lockstep:
-        from hil.run.wiring import lockstep_offsets
+        from plant_emulator.from_settings import lockstep_offsets
 
         n = max(1, round(s.duration / s.ts))
         svc.run_lockstep(stop, n, lockstep_offsets(s, n, svc.core.h))

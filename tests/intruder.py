@@ -23,9 +23,9 @@ import time
 def main(argv: list[str] | None = None) -> int:
     import zenoh
 
-    from hil.run.zsession import open_session
     from protocol import keys
     from protocol.messages import State, TorqueCommand, encode
+    from runtime.zsession import open_session
 
     ap = argparse.ArgumentParser()
     ap.add_argument("endpoint")

@@ -13,10 +13,10 @@ import uuid
 import can
 import pytest
 
-from hil.run.zsession import open_session, payload_bytes
 from protocol import keys
 from protocol.can import codec
 from protocol.messages import State, Status, decode_as
+from runtime.zsession import open_session, payload_bytes
 from tests.procs import Lines, free_tcp_port, wait_until
 
 pytestmark = pytest.mark.realtime

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("protocol", "controller_service", "plant_emulator", "hil")
+PACKAGES = ("protocol", "runtime", "controller_service", "plant_emulator", "hil")
 MAX_LINES = 80
 
 # Functions still over the limit in files that other branches are rewriting now (issue 12): the
@@ -26,6 +26,7 @@ PENDING = {
     "plant_emulator/service.py::main_from_settings",
     "hil/run/orchestrate.py::prepare",
     "hil/run/orchestrate.py::execute",
+    "hil/run/service_command.py::register_service_command",
 }
 
 

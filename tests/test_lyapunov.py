@@ -19,7 +19,7 @@ from controller_service.laws.unified import (
     lyapunov_v,
     unified_signals,
 )
-from controller_service.mathns import FLOAT_MATH as NS
+from runtime.mathns import FLOAT_MATH as NS
 
 PARAMS = UnifiedParams()
 

@@ -11,7 +11,8 @@ import pytest
 from controller_service.laws.base import Limits, RobotState
 from plant_emulator.disturbances import Disturbance, disturbance_at, hash_unit
 from plant_emulator.dynamics import Extremes, PlantState, rk4_array, rk4_float
-from plant_emulator.sensors import Sensor, measure, wrap_angle
+from plant_emulator.sensors import Sensor, measure
+from protocol.angles import wrap_angle
 
 DISTURBANCES = [
     Disturbance(),

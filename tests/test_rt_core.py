@@ -7,11 +7,11 @@ import math
 import pytest
 
 from controller_service.laws.base import ControlOutput, Limits, ReferenceSample, RobotState
-from controller_service.realtime import DeadlineClock, Tick
 from controller_service.service import ControlCore
 from plant_emulator.disturbances import Disturbance
 from plant_emulator.dynamics import Extremes, PlantState, rk4_float
 from plant_emulator.service import DelayInjector, PlantCore
+from runtime.realtime import DeadlineClock, Tick
 
 
 class _Fixed:
@@ -52,7 +52,7 @@ def test_control_core_never_emits_a_torque_outside_the_limits(tau, expect, reaso
 
 
 def test_deadline_clock_has_no_drift_and_counts_skipped_slots(monkeypatch):
-    import controller_service.realtime as rt
+    import runtime.realtime as rt
 
     wakes = iter([100, 1_000_050, 2_000_010, 5_500_000, 6_000_001])
     monkeypatch.setattr(rt, "wait_until_ns", lambda deadline, spin: next(wakes))
@@ -71,7 +71,7 @@ def test_deadline_clock_has_no_drift_and_counts_skipped_slots(monkeypatch):
 
 def test_deadline_clock_reports_a_long_stall_in_full(monkeypatch):
     """A wake-up 11.7 ms after its deadline at 2 ms reads 11.7 ms, five slots skipped."""
-    import controller_service.realtime as rt
+    import runtime.realtime as rt
 
     wakes = iter([10, 2_000_020, 4_000_000 + 11_700_000, 16_000_005])
     monkeypatch.setattr(rt, "wait_until_ns", lambda deadline, spin: next(wakes))

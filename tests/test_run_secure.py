@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 
 from hil.recording import read_messages
-from hil.run import credentials as cr
 from hil.run.secure import DICTIONARY_NAME, credentials_file_name
 from protocol import keys, zenoh_acl
 from protocol.hoplog import read_hoplog
+from runtime import credentials as cr
 from tests.procs import Lines, spawned, wait_until
 from tests.run_helpers import alive, assert_negative_verdict_explained
 

@@ -12,7 +12,7 @@ from tests.run_helpers import load_log
 pytestmark = pytest.mark.realtime
 
 ROUTER = (
-    "import sys, time, zenoh; from hil.run.zsession import session_config; "
+    "import sys, time, zenoh; from runtime.zsession import session_config; "
     "s = zenoh.open(session_config(sys.argv[1], listen_endpoint=True, mode='router')); "
     "print('up', flush=True); time.sleep(1e9)"
 )

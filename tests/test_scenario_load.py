@@ -14,7 +14,6 @@ from hil.cli import main
 from hil.errors import BadInputError
 from hil.provenance import dumps_toml
 from hil.run.orchestrate import RunOptions, prepare
-from hil.run.settings import RunSettings
 from hil.scenario import (
     FaultsConfig,
     build_loop,
@@ -26,6 +25,7 @@ from hil.scenario import (
     resolved_dict,
     scenario_dict,
 )
+from protocol.settings import RunSettings
 
 SCENARIOS = sorted(bundled_dir().glob("*.toml"))
 MINIMAL = '[reference]\nkind = "circle"\n[initial]\nx = -1.0\n'

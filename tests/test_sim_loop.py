@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from controller_service.laws.base import ControlOutput, DesignContext, ReferenceSample, RobotState
-from controller_service.mathns import namespace_for
 from hil.cli import main
 from hil.scenario import build_loop, loads_scenario
 from hil.sim import RobotVariation, jitter_samples_from, simulate, simulate_batch, write_run_folder
+from runtime.mathns import namespace_for
 
 TRACKING = """
 [reference]

@@ -55,7 +55,7 @@ def test_stop_escalates_and_reports_exit_code(tmp_path):
 def test_stop_on_signals_sets_a_flag_instead_of_raising():
     import os
 
-    from hil.supervisor import stop_on_signals
+    from runtime.signals import stop_on_signals
 
     with stop_on_signals() as stop:
         assert not stop

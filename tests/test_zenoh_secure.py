@@ -16,10 +16,10 @@ import pytest
 import zenoh
 
 from hil.errors import BadInputError
-from hil.run import credentials as cr
-from hil.run.credentials import Credentials, CredentialsError
-from hil.run.zsession import open_session, session_config
 from protocol import keys, zenoh_acl
+from runtime import credentials as cr
+from runtime.credentials import Credentials, CredentialsError
+from runtime.zsession import open_session, session_config
 from tests.procs import Lines, free_tcp_port, wait_until
 
 ROOT = Path(__file__).resolve().parents[1]

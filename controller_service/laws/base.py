@@ -17,19 +17,17 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol, runtime_checkable
 
-from protocol.paper import PAPER_LIMITS
+from protocol.robot import Limits, Number, RobotState
 
-Number = Any  # a float on the real-time path, a numpy array of shape (N,) on the batch path
-
-
-class RobotState(NamedTuple):
-    """Measured state of the robot, model (1): pose and body velocities (SI units)."""
-
-    x: Number
-    y: Number
-    theta: Number
-    v: Number
-    omega: Number
+__all__ = [
+    "ControlOutput",
+    "Controller",
+    "DesignContext",
+    "Limits",
+    "Number",
+    "ReferenceSample",
+    "RobotState",
+]
 
 
 class ReferenceSample(NamedTuple):
@@ -57,21 +55,11 @@ class ControlOutput(NamedTuple):
 
 
 @dataclass(frozen=True)
-class Limits:
-    """The constraints (2): |v| <= phi1, |omega| <= phi2, |tau1| <= varpi1, |tau2| <= varpi2."""
-
-    phi1: float = PAPER_LIMITS["phi1"]
-    phi2: float = PAPER_LIMITS["phi2"]
-    varpi1: float = PAPER_LIMITS["varpi1"]
-    varpi2: float = PAPER_LIMITS["varpi2"]
-
-
-@dataclass(frozen=True)
 class DesignContext:
     """What a controller may know when it is built: limits (2), disturbance bounds of
     Assumption 1 (s1, s2 = the paper's varsigma) and reference bounds of Assumption 2."""
 
-    limits: Limits = Limits()
+    limits: Limits = Limits()  # noqa: RUF009 (Limits is frozen: one shared default is safe)
     s1: float = 0.0
     s2: float = 0.0
     mu1: float = 0.5

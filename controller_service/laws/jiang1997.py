@@ -44,7 +44,7 @@ from controller_service.laws.base import (
     ReferenceSample,
     RobotState,
 )
-from controller_service.mathns import ARRAY_MATH, FLOAT_MATH
+from runtime.mathns import ARRAY_MATH, FLOAT_MATH
 
 INNER_K_DEFAULT = 20.0
 POSITIVE_MAX = 1e9  # the largest gain or time a baseline's table may give

@@ -1,7 +1,7 @@
 """The unified tracking-and-stabilization sliding-mode law of Li et al. 2024, eqs. (4)-(10), (19).
 
 One source serves one robot on plain floats (real-time path) and N robots on numpy arrays of
-shape (N,) (batch path) through :mod:`controller_service.mathns`. When the N robots share t, dt
+shape (N,) (batch path) through :mod:`runtime.mathns`. When the N robots share t, dt
 and the reference sample (the simulator's batches), a variant of the array path evaluates the
 same formulas with fewer array operations (``_update_array_shared_ref``; equal to rounding).
 
@@ -49,8 +49,8 @@ from controller_service.laws.base import (
     ReferenceSample,
     RobotState,
 )
-from controller_service.mathns import ARRAY_MATH, FLOAT_MATH
 from protocol.paper import TABLE1
+from runtime.mathns import ARRAY_MATH, FLOAT_MATH
 
 TELEMETRY_KEYS = (
     "xe",

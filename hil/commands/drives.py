@@ -115,7 +115,7 @@ def register(app: typer.Typer) -> None:
         """Run the robot with its two virtual ODrives (CANSimple 0.6) on a CAN bus for any
         ODrive client, free running (no start gate), until Ctrl-C or SIGTERM: one status line
         a second, a JSON summary at the end (docs/can.md)."""
-        from plant_emulator.drives import DrivesOptions, run_drives
+        from hil.run.drives import DrivesOptions, run_drives
 
         if scheduling not in (None, "fifo", "other"):
             raise BadInputError("--scheduling must be fifo or other")

@@ -1,28 +1,20 @@
 """What a report needs from ``scenario.resolved.toml``: limits, design, timing.
 
-Read defensively (a resolved scenario has every key, but a hand-made folder may not): missing
-keys fall back to the paper's Section 4 set-up, as CONTRACT.md's defaults do.
+Read by the scenario's own reader (:func:`hil.scenario.parse_scenario`): a key that is missing
+takes the scenario's documented default, and a bad or unreadable one is a
+:class:`hil.errors.BadInputError` naming it, never a silent fallback.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from controller_service.laws.base import DesignContext, Limits
 
 UNIFIED_LAWS = ("unified", "unified_boundary")
-
-
-def _num(table: Mapping[str, Any], key: str, default: float) -> float:
-    value = table.get(key, default)
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        return default
-    return out if math.isfinite(out) else default
 
 
 @dataclass(frozen=True)
@@ -45,11 +37,11 @@ class ScenarioView:
 
     @property
     def eps1(self) -> float:
-        return _num(self.controller, "eps1", 0.0) if self.boundary_layer else 0.0
+        return float(self.controller.get("eps1", 0.0)) if self.boundary_layer else 0.0
 
     @property
     def eps2(self) -> float:
-        return _num(self.controller, "eps2", 0.0) if self.boundary_layer else 0.0
+        return float(self.controller.get("eps2", 0.0)) if self.boundary_layer else 0.0
 
     @property
     def worst_delay(self) -> float:
@@ -60,42 +52,45 @@ class ScenarioView:
         return self.delay + self.jitter
 
 
-def view(scenario: Mapping[str, Any]) -> ScenarioView:
-    lim = scenario.get("limits", {}) or {}
-    dist = scenario.get("disturbance", {}) or {}
-    ref = scenario.get("reference", {}) or {}
-    ctl = dict(scenario.get("controller", {}) or {})
-    tim = scenario.get("timing", {}) or {}
-    run = scenario.get("run", {}) or {}
-    ini = scenario.get("initial", {}) or {}
-    base = Limits()
-    limits = Limits(
-        phi1=_num(lim, "phi1", base.phi1),
-        phi2=_num(lim, "phi2", base.phi2),
-        varpi1=_num(lim, "varpi1", base.varpi1),
-        varpi2=_num(lim, "varpi2", base.varpi2),
-    )
-    dc = DesignContext()
-    context = DesignContext(
-        limits=limits,
-        s1=_num(dist, "s1", 0.0),
-        s2=_num(dist, "s2", 0.0),
-        mu1=_num(ref, "mu1", dc.mu1),
-        mu2=_num(ref, "mu2", dc.mu2),
-        k1=_num(ref, "k1", dc.k1),
-        k2=_num(ref, "k2", dc.k2),
-    )
-    duration = run.get("duration")
+def _without_none(table: Mapping[str, Any]) -> dict[str, Any]:
+    """The tables as scenario.resolved.toml holds them: a None (an unset optional key such as
+    ``[realtime] rate``) is left out, as the TOML writer leaves it out."""
+    return {
+        k: _without_none(v) if isinstance(v, Mapping) else v
+        for k, v in table.items()
+        if v is not None
+    }
+
+
+def view(scenario: Mapping[str, Any], base_dir: Path | None = None) -> ScenarioView:
+    """The view of a scenario's tables (``scenario.resolved.toml`` parsed, or a scenario dict);
+    ``base_dir`` resolves a reference's file when its bounds mu1..k2 must be computed."""
+    from hil.errors import BadInputError
+    from hil.scenario import build_reference, design_context, parse_scenario
+
+    # The period every figure of a report scales with: a resolved scenario always states it,
+    # so its absence is a broken folder, not the default's 1 ms.
+    timing = scenario.get("timing")
+    if not isinstance(timing, Mapping) or "ts" not in timing:
+        raise BadInputError("[timing] ts: missing from the resolved scenario")
+    sc = parse_scenario(_without_none(scenario), base_dir or Path("."))
+    ref = sc.reference
+    if all(k in ref for k in ("mu1", "mu2", "k1", "k2")):  # a resolved file has them all
+        d = sc.disturbance
+        bounds = {k: float(ref[k]) for k in ("mu1", "mu2", "k1", "k2")}
+        context = DesignContext(limits=sc.limits, s1=d.s1, s2=d.s2, **bounds)
+    else:
+        context = design_context(sc, build_reference(sc))
     return ScenarioView(
-        limits=limits,
+        limits=sc.limits,
         context=context,
-        law=str(ctl.get("law", "unified")),
-        controller=ctl,
-        ts=_num(tim, "ts", 0.001),
-        delay=_num(tim, "delay", 0.0),
-        jitter=_num(tim, "jitter", 0.0),
-        jitter_kind=str(tim.get("jitter_kind", "uniform")),
-        duration=float(duration) if isinstance(duration, int | float) else None,
-        v0=_num(ini, "v", 0.0),
-        w0=_num(ini, "omega", 0.0),
+        law=str(sc.controller.get("law", "unified")),
+        controller=dict(sc.controller),
+        ts=sc.timing.ts,
+        delay=sc.timing.delay,
+        jitter=sc.timing.jitter,
+        jitter_kind=sc.timing.jitter_kind,
+        duration=sc.run.duration if "duration" in (scenario.get("run") or {}) else None,
+        v0=sc.initial.v,
+        w0=sc.initial.omega,
     )

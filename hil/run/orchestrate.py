@@ -29,8 +29,9 @@ from typing import Any
 from hil import interrupts
 from hil.errors import BadInputError
 from hil.recording import RecordingWriter
-from hil.run.settings import RunSettings
-from hil.supervisor import Supervisor, stop_on_signals
+from hil.supervisor import Supervisor
+from protocol.settings import RunSettings
+from runtime.signals import stop_on_signals
 
 
 def free_port() -> int:
@@ -87,7 +88,6 @@ class Recorder:
         self.queue.append((f"can/{channel}", time.monotonic_ns(), msg))
 
     def _write_one(self, topic: str, t: int, payload: Any) -> None:
-        from dataclasses import asdict
 
         from protocol.messages import DecodeError, Status, decode
 
@@ -154,9 +154,7 @@ def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any] 
     try:
         import can
 
-        from hil.run.wiring import open_can_bus
-
-        bus = open_can_bus(settings)
+        bus = settings.open_can_bus()
         if bus is None:
             return None
         channel = str(settings.can.get("channel", "can"))
@@ -174,8 +172,8 @@ def check_options(opts: RunOptions) -> None:
     """The command-line options of ``hil run`` (and of the services run alone), each named in
     a BadInputError; the scenario's own keys are checked when it is loaded."""
     from hil import options
-    from hil.run.settings import CMD_PATHS, TRIGGERS
     from hil.scenario import DURATION_MAX, RATE_MAX
+    from protocol.settings import CMD_PATHS, TRIGGERS
 
     options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
     if opts.trigger is not None:
@@ -199,7 +197,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     from hil.bundled import resolve_scenario
     from hil.provenance import dumps_toml
     from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
-    from hil.run.wiring import check_can_interface, effective_can_table, robot_id_of
+    from hil.run.settings import check_can_interface, effective_can_table, scenario_settings
     from hil.scenario import (
         RATE_MAX,
         build_loop,
@@ -207,7 +205,6 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         loads_scenario,
         resolved_dict,
     )
-    from hil.sim.core import _replay
 
     check_options(opts)  # every option before the scenario: no folder, no process yet
     if opts.secure and opts.cmd_path == "can":
@@ -245,8 +242,6 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         ),
     )
     controller, reference, context = build_loop(scenario)
-    if scenario.timing.jitter_kind == "replay":
-        _replay(scenario)  # a bad latency file fails here, not in a service
     can_table = effective_can_table(scenario, opts.can_interface)
     if opts.can_channel:
         can_table["channel"] = opts.can_channel
@@ -255,45 +250,34 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
             can_table["interface"], "--can-interface" if opts.can_interface else "[can] interface"
         )
     delay = scenario.timing.delay
-    settings = RunSettings(
+    sensor_rate = rate if opts.lockstep else (rt.sensor_rate or rate)
+    settings = scenario_settings(
+        scenario,
+        context,
         scenario_path=str(scenario_path),
-        robot_id=robot_id_of(scenario),
         epoch_ns=0,
-        duration=float(duration),
-        rate_hz=float(rate),
-        sensor_rate_hz=float(rate if opts.lockstep else (rt.sensor_rate or rate)),
+        # The scenario's Ts bit for bit when no rate overrides it (1 / (1 / ts) may differ in
+        # the last bit, and lockstep must see the simulator's sample times exactly).
+        ts=ts_s,
+        sensor_ts=ts_s if sensor_rate == rate else 1.0 / sensor_rate,
         trigger=opts.trigger or rt.trigger,
         lockstep=opts.lockstep,
-        state_timeout=rt.state_timeout,
-        command_timeout=rt.command_timeout,
         # Lockstep is about values, not timing; and a SCHED_FIFO main thread there was seen to
         # starve Zenoh's helper threads (seconds-long stalls with the CAN path live).
         scheduling="other" if opts.lockstep else (opts.scheduling or rt.scheduling),
         cmd_path=opts.cmd_path,
         can_live=opts.can_live,
         can=can_table,
-        robot={
-            k: getattr(scenario.robot, k)
-            for k in ("mass", "yaw_inertia", "wheel_radius", "half_track", "gear_ratio")
-        },
         zenoh_mode="router" if opts.secure else scenario.zenoh.mode,
         zenoh_endpoint=f"tcp/127.0.0.1:{free_port()}",
         can_endpoint=f"tcp/127.0.0.1:{free_port()}",
         delay=delay,
-        jitter=scenario.timing.jitter,
-        jitter_kind=scenario.timing.jitter_kind,
-        seed=scenario.timing.seed,
-        faults=asdict(scenario.faults),
         out_dir=str(run_dir.resolve()),
         spin_us=opts.spin_us,
-        ts_s=ts_s,
     )
     if (os.cpu_count() or 1) >= 2:
         settings.cpu_controller, settings.cpu_plant = 1, 0
-    try:
-        settings.validate()
-    except ValueError as exc:
-        raise BadInputError(str(exc)) from exc
+    settings.validate()
     run_dir.mkdir(parents=True, exist_ok=True)
     if given is None:
         scenario_path.write_text(PAPER_TRACKING_TOML)
@@ -306,7 +290,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
             "command": "hil run",
             "cmd_path": settings.cmd_path,
             "lockstep": settings.lockstep,
-            "rate_hz": settings.rate_hz,
+            "rate_hz": float(rate),
             "trigger": settings.trigger,
             "can_interface": can_table["interface"],
             "secure": opts.secure,
@@ -318,6 +302,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         "context": context,
         "controller_params": dict(resolved["controller"]),
         "scenario": scenario,
+        "rate_hz": float(rate),
     }
     return scenario, settings, run_dir, info
 
@@ -326,8 +311,8 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
     from hil.run.results import analyze, plot
     from hil.run.secure import RunIdentities
-    from hil.run.startgate import announce_start
-    from hil.run.zsession import open_session
+    from runtime.startgate import announce_start
+    from runtime.zsession import open_session
 
     scenario, settings, run_dir, info = prepare(opts)
     sup = Supervisor()
@@ -339,7 +324,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             "robot_id": settings.robot_id,
             "cmd_path": settings.cmd_path,
             "lockstep": settings.lockstep,
-            "rate_hz": settings.rate_hz,
+            "rate_hz": info["rate_hz"],
         },
     )
     recorder = Recorder(writer)
@@ -370,7 +355,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
                 sup.start_python(
                     name,
-                    ["-m", module, "--settings", settings_path],
+                    ["-m", module, settings_path],
                     env=ids.child_env(name),
                     stdout=logs.open(name),
                     stderr=STDOUT,
@@ -497,7 +482,7 @@ def _progress(
     settings: RunSettings, recorder: Recorder, sup: Supervisor, stop: Any, quiet: bool
 ) -> None:
     """Until the plant finishes its duration (it exits by itself) or a stop is asked."""
-    total = round(settings.duration * settings.rate_hz) if settings.lockstep else None
+    total = max(1, round(settings.duration / settings.ts)) if settings.lockstep else None
     plant = next(c for c in sup.children if c.name == "plant")
     t0 = time.monotonic()
     limit = t0 + (settings.duration + 30.0 if not settings.lockstep else 1e9)

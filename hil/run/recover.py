@@ -43,8 +43,8 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
     from hil.recording import rewrite_complete
     from hil.run.orchestrate import attachments_of
     from hil.run.results import analyze, plot
-    from hil.run.settings import RunSettings
     from hil.scenario import build_loop, loads_scenario
+    from protocol.settings import RunSettings
 
     run_dir = Path(run_dir)
     if not is_run_folder(run_dir):

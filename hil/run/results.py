@@ -19,6 +19,7 @@ import numpy as np
 from hil.measure.figures import Measurement
 from hil.measure.folder import measure_logs, resolved_scenario
 from hil.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
+from hil.run.settings import rate_hz
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from protocol.angles import wrap_angle as wrap
 from protocol.hoplog import TICK_NO_SEND
@@ -129,7 +130,7 @@ def analyze(
         "lockstep": lockstep,
         "cmd_path": settings.cmd_path,
         "trigger": "on_state" if lockstep else settings.trigger,
-        "rate_hz": settings.rate_hz,
+        "rate_hz": rate_hz(run_dir, settings),
         "timing": m.timing,
         "messages": m.messages,
         "certificate": m.certificate,

@@ -4,7 +4,7 @@ same command).
 
 With ``--secure`` (or whenever ``HIL_ZENOH_DICTIONARY`` names a user dictionary) the router
 authenticates every session against that dictionary (``user:password`` lines, a private file:
-:mod:`hil.run.credentials`) and applies the bench's access control, default deny
+:mod:`runtime.credentials`) and applies the bench's access control, default deny
 (:mod:`protocol.zenoh_acl`). Only such a router may listen off the host
 (``--allow-non-loopback``): an open router on a network is what the access control is for.
 """
@@ -21,8 +21,8 @@ FLAGS = ("--secure", "--allow-non-loopback")
 def main(argv: list[str] | None = None) -> int:
     import zenoh
 
-    from hil.run.credentials import ENV_DICTIONARY, CredentialsError, dictionary_from_environment
-    from hil.run.zsession import session_config
+    from runtime.credentials import ENV_DICTIONARY, CredentialsError, dictionary_from_environment
+    from runtime.zsession import session_config
 
     args = sys.argv[1:] if argv is None else argv
     flags = {a for a in args if a.startswith("--")}

@@ -30,7 +30,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from hil.run.credentials import (
+from protocol.zenoh_acl import ROLE_NAMES
+from runtime.credentials import (
     ENV_DICTIONARY,
     ENV_FILE,
     ENV_VARS,
@@ -39,7 +40,6 @@ from hil.run.credentials import (
     dictionary_text,
     write_private,
 )
-from protocol.zenoh_acl import ROLE_NAMES
 
 # hil run's children -> their role (user name) on the router.
 CHILD_ROLES = {"controller": "controller", "plant": "emulator"}
@@ -109,7 +109,7 @@ class RunIdentities:
         else a second client session as ``run`` (the recorder may not publish)."""
         if not self.secure:
             return session
-        from hil.run.zsession import open_session
+        from runtime.zsession import open_session
 
         own = open_session(endpoint, mode="client", credentials=self._creds["run"])
         self._sessions.append(own)

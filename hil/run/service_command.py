@@ -1,10 +1,12 @@
-"""One ``hil`` command per service (``hil controller``, ``hil emulator``): the service alone,
-as ``hil run`` starts it as a child.
+"""One ``hil`` command per service (``hil controller``, ``hil emulator``): the service alone, as
+``hil run`` starts it as a child.
 
 With ``--settings run_settings.json`` it runs exactly as under ``hil run``; with a scenario it
-builds those settings itself, joins the Zenoh endpoint given and waits for the run's start
-message (``Status(role="run", state="start")``) unless ``--epoch-ns`` gives t = 0. Both
-services must reach each other: start a router (deploy/zenoh-router.json5) on ``--endpoint``.
+resolves those settings itself (``--write-settings FILE`` writes them and stops there, for
+``python -m controller_service FILE`` without ``hil``, as deploy/ does), joins the Zenoh
+endpoint given and waits for the run's start message (``Status(role="run", state="start")``)
+unless ``--epoch-ns`` gives t = 0. Both services must reach each other: start a router
+(deploy/zenoh-router.json5) on ``--endpoint``.
 """
 
 from __future__ import annotations
@@ -19,20 +21,17 @@ from hil.errors import BadInputError
 
 
 def check_settings_file(path: Path) -> None:
-    """--settings must be a run_settings.json whose values hold (hil.run.settings), and name a
-    scenario that loads: the service would fail after starting otherwise."""
+    """--settings must be a run_settings.json whose values hold (protocol.settings): the service
+    would fail after starting otherwise."""
 
     from hil import options
-    from hil.run.settings import RunSettings
-    from hil.scenario import load_scenario
+    from protocol.settings import RunSettings
 
     options.existing_file("--settings", path)
     try:
-        s = RunSettings.load(path)
-        s.validate()
-    except (OSError, ValueError, TypeError, AttributeError) as exc:
+        RunSettings.load(path).validate()
+    except BadInputError as exc:
         raise BadInputError(f"--settings {path}: not a valid run_settings.json ({exc})") from exc
-    load_scenario(s.scenario_path)
 
 
 def register_service_command(app: typer.Typer, name: str, module: str, what: str) -> None:
@@ -65,6 +64,14 @@ def register_service_command(app: typer.Typer, name: str, module: str, what: str
             float,
             typer.Option(help="Seconds to wait for the run's start message (then exit 1)."),
         ] = 60.0,
+        write_settings: Annotated[
+            Path | None,
+            typer.Option(
+                help="Only write the resolved settings to this file and exit: `python -m "
+                "controller_service FILE` or `python -m plant_emulator FILE` then runs the "
+                "service without hil."
+            ),
+        ] = None,
     ) -> None:
         from hil import options
 
@@ -94,7 +101,14 @@ def register_service_command(app: typer.Typer, name: str, module: str, what: str
             s.epoch_ns = epoch_ns
             s.start_timeout = start_timeout
             settings = run_dir / f"{name}_settings.json"
+            if write_settings is not None:
+                settings = write_settings
             s.save(settings)
+        elif write_settings is not None:
+            raise BadInputError("--write-settings needs a scenario, not --settings")
+        if write_settings is not None:
+            print(f"settings written to {settings}")
+            return
         code = main_from_settings(str(settings))
         if code:
             raise typer.Exit(code)

@@ -1,88 +1,118 @@
-"""What the two services need to know about one run, shared by ``hil run`` and the services.
+"""The scenario resolved into the services' settings (:class:`protocol.settings.RunSettings`).
 
-``hil run`` resolves the scenario once, writes ``run_settings.json`` into the run folder and
-passes its path to both children, so the controller and the plant agree on the epoch, the
-rates, the paths and the endpoints. ``hil controller`` / ``hil emulator`` run standalone build
-the same object from a scenario file and command-line options.
+``hil`` is the only reader of scenario files: here the checked :class:`hil.scenario.Scenario`
+(with its command-line overrides) becomes the one file the services build from. Rates in Hz
+(``[realtime] rate``, ``--rate``) become periods in seconds here, once.
 """
 
 from __future__ import annotations
 
-import json
-import math
-from dataclasses import asdict, dataclass, field, fields
-from pathlib import Path
+import dataclasses
 from typing import Any
 
-CMD_PATHS = ("zenoh", "can")
-TRIGGERS = ("periodic", "on_state")
+from hil.errors import BadInputError
+from protocol.settings import RunSettings
+
+GEOMETRY_KEYS = ("mass", "yaw_inertia", "wheel_radius", "half_track", "gear_ratio")
 
 
-@dataclass
-class RunSettings:
-    scenario_path: str
-    robot_id: str = "robot0"
-    epoch_ns: int = 0
-    duration: float = 10.0
-    rate_hz: float = 1000.0
-    sensor_rate_hz: float = 1000.0
-    trigger: str = "periodic"
-    lockstep: bool = False
-    state_timeout: float = 0.05
-    command_timeout: float = 0.05
-    scheduling: str = "fifo"
-    cmd_path: str = "zenoh"
-    can_live: bool = True
-    can: dict[str, Any] = field(default_factory=dict)
-    robot: dict[str, Any] = field(default_factory=dict)
-    zenoh_mode: str = "peer"
-    zenoh_endpoint: str = "tcp/127.0.0.1:7447"
-    can_endpoint: str = "tcp/127.0.0.1:7449"
-    delay: float = 0.0
-    jitter: float = 0.0
-    jitter_kind: str = "uniform"
-    seed: int = 0
-    # [faults] of the scenario (hil.scenario.FaultsConfig as a dict); empty = no injection.
-    faults: dict[str, Any] = field(default_factory=dict)
-    out_dir: str = "."
-    cpu_controller: int | None = None
-    cpu_plant: int | None = None
-    spin_us: float = 0.0
-    ts_s: float | None = None  # the scenario's own Ts when the rate was not overridden
-    start_timeout: float = 60.0  # s a service waits for the run's start message
+def effective_can_table(scenario: Any, interface: str | None = None) -> dict[str, Any]:
+    """[can] as the run uses it. python-can's ``virtual`` bus is in-process only, so between
+    the two processes it is replaced by ``zenoh_can`` (loopback, no kernel CAN needed)."""
+    t = dataclasses.asdict(scenario.can)
+    if interface:
+        t["interface"] = interface
+    if t["interface"] == "virtual":
+        t["interface"] = "zenoh_can"
+        t["channel"] = "hil0"
+    return t
 
-    @property
-    def ts(self) -> float:
-        # The scenario's Ts bit for bit when given: 1 / (1 / ts) may differ in the last bit,
-        # and lockstep must see the simulator's sample times exactly.
-        return self.ts_s if self.ts_s is not None else 1.0 / self.rate_hz
 
-    def validate(self) -> None:
-        if self.cmd_path not in CMD_PATHS:
-            raise ValueError(f"cmd path must be one of {CMD_PATHS}, got {self.cmd_path!r}")
-        if self.trigger not in TRIGGERS:
-            raise ValueError(f"[realtime] trigger must be one of {TRIGGERS}")
-        for name in ("rate_hz", "sensor_rate_hz", "state_timeout", "command_timeout"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number, got {v!r}")
-        if not (math.isfinite(self.duration) and self.duration > 0):
-            raise ValueError(f"duration must be positive, got {self.duration!r}")
-        if self.rate_hz > 20_000:
-            raise ValueError("[realtime] rate above 20 kHz is not supported")
-        if self.scheduling not in ("fifo", "other"):
-            raise ValueError("[realtime] scheduling must be 'fifo' or 'other'")
-        if not isinstance(self.faults, dict):
-            raise ValueError(f"faults must be a table, got {self.faults!r}")
-        for key, v in self.faults.items():
-            if isinstance(v, bool) or not isinstance(v, int | float) or not (v >= 0):
-                raise ValueError(f"[faults] {key} must be a number >= 0, got {v!r}")
+def check_can_interface(name: str, where: str) -> None:
+    """``name`` must be an interface python-can knows (its own and plug-ins such as zenoh_can);
+    checked before a run starts its services, which would fail opening the bus."""
+    import can.interfaces
 
-    def save(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(asdict(self), indent=2))
+    known = sorted(can.interfaces.VALID_INTERFACES)
+    if name not in known:
+        raise BadInputError(
+            f"{where} {name!r} is not a python-can interface (known: {', '.join(known)})"
+        )
 
-    @classmethod
-    def load(cls, path: str | Path) -> RunSettings:
-        data = json.loads(Path(path).read_text())
-        known = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in data.items() if k in known})
+
+def robot_id_of(scenario: Any) -> str:
+    rid = scenario.zenoh.robot_id
+    return rid if isinstance(rid, str) else f"robot{rid}"
+
+
+def replay_latencies(scenario: Any) -> list[float] | None:
+    """The latencies of ``[timing] replay`` (read once, here: a bad file fails before any
+    service starts), or None for a seeded jitter."""
+    from hil.sim.landing import jitter_samples_from
+
+    t = scenario.timing
+    if t.jitter_kind != "replay":
+        return None
+    return [float(v) for v in jitter_samples_from(scenario.base_dir / t.replay)]
+
+
+def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSettings:
+    """The settings of ``scenario`` (already overridden from the command line): the law, the
+    reference, the design ``context`` (None: the defaults, for a plant without a controller),
+    the initial state, the plant, the sensor, the timing, the faults, the robot and [can];
+    ``run`` sets the run's own fields (endpoints, paths, epoch, ...)."""
+    design: dict[str, float] = {}
+    if context is not None:
+        design = {k: float(getattr(context, k)) for k in ("s1", "s2", "mu1", "mu2", "k1", "k2")}
+    plant = scenario.plant
+    timing = scenario.timing
+    values: dict[str, Any] = {
+        "scenario_path": str(scenario.source),
+        "robot_id": robot_id_of(scenario),
+        "duration": float(scenario.run.duration),
+        "ts": float(timing.ts),
+        "sensor_ts": float(timing.ts),
+        "trigger": scenario.realtime.trigger,
+        "state_timeout": scenario.realtime.state_timeout,
+        "command_timeout": scenario.realtime.command_timeout,
+        "scheduling": scenario.realtime.scheduling,
+        "can": effective_can_table(scenario),
+        "robot": {k: getattr(scenario.robot, k) for k in GEOMETRY_KEYS},
+        "zenoh_mode": scenario.zenoh.mode,
+        "controller": dict(scenario.controller),
+        "reference": dict(scenario.reference),
+        "base_dir": str(scenario.base_dir.resolve()),
+        "limits": dataclasses.asdict(scenario.limits),
+        "initial": dataclasses.asdict(scenario.initial),
+        "plant_step": scenario.plant_step,
+        "lag": plant.lag,
+        "disturbance": dataclasses.asdict(scenario.disturbance),
+        "sensor": {
+            "noise_std": list(plant.noise_std),
+            "quantization": list(plant.quantization),
+            "seed": plant.noise_seed,
+        },
+        "delay": timing.delay,
+        "jitter": timing.jitter,
+        "jitter_kind": timing.jitter_kind,
+        "seed": timing.seed,
+        "replay": run.pop("replay") if "replay" in run else replay_latencies(scenario),
+        "faults": dataclasses.asdict(scenario.faults),
+    }
+    if design:
+        values["design"] = design
+    values.update(run)
+    return RunSettings(**values)
+
+
+def rate_hz(run_dir: Any, settings: RunSettings) -> float:
+    """The control rate of a run as the user asked for it (``--rate``, ``[realtime] rate`` or
+    1 / ``[timing] ts``), for summary.json: the folder's ``[provenance] rate_hz``, exactly as
+    ``hil run`` wrote it; 1 / ts when the folder has none."""
+    from hil.measure.folder import resolved_scenario
+
+    resolved = resolved_scenario(run_dir) or {}
+    value = resolved.get("provenance", {}).get("rate_hz")
+    if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
+        return float(value)
+    return 1.0 / settings.ts

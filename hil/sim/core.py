@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from controller_service.from_settings import initial_memory
 from controller_service.laws.base import ReferenceSample, RobotState
 from controller_service.references import sample_array
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
@@ -30,7 +31,8 @@ from hil.sim.landing import extra_delays, jitter_samples_from, landing_offsets
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from plant_emulator.dynamics import Extremes, PlantState, track_initial
 from plant_emulator.sampled import Hold, Plant, advance_period
-from plant_emulator.sensors import measure, wrap_angle
+from plant_emulator.sensors import measure
+from protocol.angles import wrap_angle
 
 BASE_COLUMNS = (
     *TRACE_COLUMNS,
@@ -97,7 +99,8 @@ class BatchResult:
 
 
 def _initial_memory(controller: Any, n: int | None, scenario: Scenario) -> Any:
-    return controller.initial_memory(n, z1=scenario.initial.z1, z2=scenario.initial.z2)
+    # The controller service's own rule (lockstep must equal the simulation bit for bit).
+    return initial_memory(controller, n, scenario.initial.z1, scenario.initial.z2)
 
 
 def _replay(scenario: Scenario) -> np.ndarray | None:
@@ -708,4 +711,3 @@ def simulate_batch(
     if progress is not None and not run.interrupted:
         progress(run.done, run.n_samples)
     return _batch_result(run, scenario, variations)
-

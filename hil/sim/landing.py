@@ -1,11 +1,8 @@
-"""When sampled commands land at the plant: constant delay plus seeded jitter (or a replay).
+"""Replay latencies read from a file or a real run, for ``[timing] jitter_kind = "replay"``.
 
-Sample k is taken at t_k = k Ts; its command lands at t_k + delay + extra_k, rounded to the plant
-step h. extra_k is drawn once per run from ``numpy.random.default_rng(seed)``:
-``uniform``: U[0, jitter]; ``normal``: |N(0, jitter)| (a half-normal of scale ``jitter``);
-``replay``: the latencies of a file, cycled in order (``jitter`` is ignored, ``delay`` adds).
-The draw depends only on (kind, jitter, seed, number of samples), so single and batch runs of
-the same seed see the same landing times.
+The draw of each sample's extra delay and its landing step (:func:`extra_delays`,
+:func:`landing_offsets`) is :mod:`plant_emulator.landing`'s, shared with the plant in lockstep;
+``hil`` reads the replay's latencies here once and hands them to both.
 """
 
 from __future__ import annotations
@@ -17,6 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from hil.errors import BadInputError
+from plant_emulator.landing import extra_delays, landing_offsets
+
+__all__ = ["REPLAY_MAX", "extra_delays", "jitter_samples_from", "landing_offsets"]
 
 REPLAY_MAX = 1e6  # s, the largest latency a replay file may hold (as [timing] delay)
 
@@ -65,27 +65,3 @@ def jitter_samples_from(path: str | Path) -> np.ndarray:
             f"[timing] replay: {p} holds a latency above {REPLAY_MAX:g} s ({arr.max():g})"
         )
     return arr
-
-
-def extra_delays(
-    kind: str, jitter: float, seed: int, n: int, replay: np.ndarray | None = None
-) -> np.ndarray:
-    """The extra delay of each of ``n`` samples (seconds)."""
-    if kind == "replay":
-        if replay is None or replay.size == 0:
-            raise BadInputError("[timing] replay: no latencies")
-        return np.resize(replay, n).astype(float)
-    if jitter <= 0.0:
-        return np.zeros(n)
-    rng = np.random.default_rng(seed)
-    if kind == "uniform":
-        return rng.uniform(0.0, jitter, n)
-    if kind == "normal":
-        return np.abs(rng.normal(0.0, jitter, n))
-    raise BadInputError(f"[timing] jitter_kind {kind!r} unknown")
-
-
-def landing_offsets(delays: np.ndarray, delay: float, h: float) -> np.ndarray:
-    """Plant steps from a sample to its command's landing: round((delay + extra) / h)."""
-    steps = np.rint((delay + delays) / h)
-    return steps.astype(np.int64)

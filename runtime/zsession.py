@@ -5,7 +5,7 @@ Topology: the run's well-known endpoint is listened on by the first session that
 other session connects to it and also listens on an ephemeral loopback port, so gossip lets the
 controller and the plant link directly (one hop, no forwarding through the recorder).
 
-Credentials (:mod:`hil.run.credentials`) are applied here and nowhere else: a client session
+Credentials (:mod:`runtime.credentials`) are applied here and nowhere else: a client session
 authenticates with the process's own (from ``HIL_ZENOH_CREDENTIALS`` or
 ``HIL_ZENOH_USER``/``HIL_ZENOH_PASSWORD``) unless the caller passes explicit ones, or None for
 none. Only a router's client uses them: a peer with credentials is refused with a clear error
@@ -18,9 +18,9 @@ from typing import Any
 
 import zenoh
 
-from hil.run.credentials import Credentials, CredentialsError, from_environment
 from protocol import zenoh_config
 from protocol.zenoh_config import DEFAULT_PEER_LISTEN, ZenohSettings
+from runtime.credentials import Credentials, CredentialsError, from_environment
 
 
 class _FromEnvironment:

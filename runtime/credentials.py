@@ -18,7 +18,7 @@ the same way.
 
 Nothing here is ever written to a run folder or a recording: scenarios, ``run_settings.json``
 and hop logs hold no credential, and :class:`Credentials` does not show its password in
-``repr``. Only :func:`hil.run.zsession.session_config` applies credentials to a session.
+``repr``. Only :func:`runtime.zsession.session_config` applies credentials to a session.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hil.errors import BadInputError
+from protocol.errors import BadInputError
 
 ENV_FILE = "HIL_ZENOH_CREDENTIALS"
 ENV_USER = "HIL_ZENOH_USER"

@@ -22,7 +22,7 @@ from protocol.messages import Status, decode_as, encode
 
 class StartGate:
     def __init__(self, session: Any, robot_id: str, role: str) -> None:
-        from hil.run.zsession import payload_bytes, publisher
+        from runtime.zsession import payload_bytes, publisher
 
         self.robot_id = robot_id
         self.role = role
@@ -71,7 +71,7 @@ class StartGate:
 
 
 def announce_start(session: Any, robot_id: str, epoch_ns: int, seq: int = 0) -> None:
-    from hil.run.zsession import publisher
+    from runtime.zsession import publisher
 
     pub = publisher(session, keys.status_key(robot_id))
     pub.put(
