@@ -586,31 +586,15 @@ class ControllerService:
 HOPLOG_NAME = "controller.hoplog"
 
 
-def main_from_settings(settings_path: str) -> int:
-    """Entry of ``python -m controller_service SETTINGS.json`` (``hil`` resolved the run into
-    that file: :class:`protocol.settings.RunSettings`)."""
-    from controller_service.from_settings import build_law
-    from runtime.signals import stop_on_signals
-    from runtime.zsession import check_credentials, open_session
-
-    s = RunSettings.load(settings_path)
-    s.validate()
-    check_credentials(s.zenoh_endpoint, s.zenoh_mode)  # a bad credentials file: exit before a log
-    controller, reference, memory, law_name = build_law(s)
-    core = ControlCore(controller, reference, s.ts, s.limits_value, memory=memory)
-    period_ns = round(s.ts * 1e9)
-    faults = Faults.of(s.faults)
-    log_path = Path(s.out_dir) / HOPLOG_NAME
-    # A predecessor that crashed mid-run left its log open: this is a restart, which continues
-    # that log, its epoch and its command numbering (the plant's tracker sees no gap).
-    previous = crashed_log(log_path)
-    hoplog = HopLogWriter(
-        log_path,
+def _open_hoplog(s: RunSettings, previous: Any) -> HopLogWriter:
+    """The controller's hop log; a predecessor's crashed log (``previous``) is continued."""
+    return HopLogWriter(
+        Path(s.out_dir) / HOPLOG_NAME,
         "controller",
         CONTROLLER_TABLES,
         {
             "robot_id": s.robot_id,
-            "period_ns": period_ns,
+            "period_ns": round(s.ts * 1e9),
             "trigger": "on_state" if s.lockstep else s.trigger,
             "lockstep": s.lockstep,
             "cmd_path": s.cmd_path,
@@ -619,23 +603,54 @@ def main_from_settings(settings_path: str) -> int:
         },
         append=previous is not None,
     )
-    session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
-    can_path = None
+
+
+def _open_can_path(s: RunSettings, hoplog: HopLogWriter, faults: Faults) -> CanCommandPath | None:
+    """The CAN command path to the drives when the run has a CAN bus (None otherwise)."""
     bus = s.open_can_bus()
-    if bus is not None:
-        from protocol.can.drive_profile import HostLifecycle
+    if bus is None:
+        return None
+    from protocol.can.drive_profile import HostLifecycle
 
-        cs = s.can_settings()
-        geom, limit = s.motor_limit()
-        lifecycle = HostLifecycle(
-            node_right=cs.node_right,
-            node_left=cs.node_left,
-            heartbeat_timeout=cs.heartbeat_timeout,
-            torque_limit=limit,
-        )
-        can_path = CanCommandPath(bus, lifecycle, geom, hoplog, faults)
+    cs = s.can_settings()
+    geom, limit = s.motor_limit()
+    lifecycle = HostLifecycle(
+        node_right=cs.node_right,
+        node_left=cs.node_left,
+        heartbeat_timeout=cs.heartbeat_timeout,
+        torque_limit=limit,
+    )
+    return CanCommandPath(bus, lifecycle, geom, hoplog, faults)
+
+
+def _first_free_cmd_seq(previous: Any, ts: float) -> int:
+    """After a restart: past the predecessor's last logged command number, plus a second's
+    worth of numbers (it may have sent commands it had not logged yet: its last chunk, up to
+    the log's flush interval), so no number is ever reused."""
+    at = CONTROLLER_TABLES["ticks"].index("cmd_seq")
+    seqs = [r[at] for r in previous.rows.get("ticks", []) if r[at] >= 0]
+    return max(seqs, default=-1) + 1 + math.ceil(1.0 / ts - 1e-9)
+
+
+def main_from_settings(settings_path: str) -> int:
+    """Entry of ``python -m controller_service SETTINGS.json`` (``hil`` resolved the run into
+    that file: :class:`protocol.settings.RunSettings`)."""
+    from controller_service.from_settings import build_law
     from runtime.startgate import StartGate
+    from runtime.zsession import check_credentials, open_session
 
+    s = RunSettings.load(settings_path)
+    s.validate()
+    check_credentials(s.zenoh_endpoint, s.zenoh_mode)  # a bad credentials file: exit before a log
+    controller, reference, memory, law_name = build_law(s)
+    core = ControlCore(controller, reference, s.ts, s.limits_value, memory=memory)
+    faults = Faults.of(s.faults)
+    # A predecessor that crashed mid-run left its log open: this is a restart, which continues
+    # that log, its epoch and its command numbering (the plant's tracker sees no gap).
+    previous = crashed_log(Path(s.out_dir) / HOPLOG_NAME)
+    hoplog = _open_hoplog(s, previous)
+    session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
+    can_path = _open_can_path(s, hoplog, faults)
     epoch_ns = s.epoch_ns or (int(previous.meta["epoch_ns"]) if previous is not None else 0)
     gate = StartGate(session, s.robot_id, "controller")
     if can_path is not None:
@@ -656,16 +671,29 @@ def main_from_settings(settings_path: str) -> int:
         faults=faults,
     )
     if previous is not None:
-        # The predecessor may have sent commands it had not logged yet (its last chunk, up to
-        # the log's flush interval): skip a second's worth of numbers so none is reused.
-        seqs = [r[12] for r in previous.rows.get("ticks", []) if r[12] >= 0]
-        svc.continue_after(max(seqs, default=-1) + 1 + math.ceil(1.0 / s.ts - 1e-9))
+        svc.continue_after(_first_free_cmd_seq(previous, s.ts))
+    return _run_service(s, svc, gate, hoplog, can_path, session)
+
+
+def _run_service(
+    s: RunSettings,
+    svc: ControllerService,
+    gate: Any,
+    hoplog: HopLogWriter,
+    can_path: CanCommandPath | None,
+    session: Any,
+) -> int:
+    """Wait for the run's start (unless the epoch is known), run until stopped, close all."""
+    from runtime.realtime import restore_gc
+    from runtime.signals import stop_on_signals
+
     with stop_on_signals() as stop:
         # Scheduling first, readiness after: the set-up (mlockall, a full collection, the GC
         # frozen) takes tens of ms, which must not eat into the run's first periods.
         sched = setup_scheduling(s.scheduling, cpu=s.cpu_controller)
         svc.scheduling = sched
         try:
+            epoch_ns = svc.epoch_ns
             if epoch_ns == 0:
                 got = gate.wait(stop)
                 if got is None:
@@ -679,8 +707,6 @@ def main_from_settings(settings_path: str) -> int:
             print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
             svc.run(stop, end_ns, sched)
         finally:
-            from runtime.realtime import restore_gc
-
             restore_gc()
             with contextlib.suppress(Exception):  # the session may be gone on the way out
                 svc.send_stop()

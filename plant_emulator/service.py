@@ -639,6 +639,32 @@ def build_plant(s: RunSettings, at_rest: bool = False) -> tuple[PlantCore, Senso
     return core, sensor_of(s)
 
 
+def _open_drives(
+    s: RunSettings, core: PlantCore, hoplog: HopLogWriter, faults: Faults, stack: Any
+) -> tuple[CanDrives | None, DrivePlant | None]:
+    """The virtual ODrives on the run's CAN bus, and the plant's view of them (None, None
+    when the run has no CAN bus); their bus is closed by ``stack``."""
+    bus = s.open_can_bus()
+    if bus is None:
+        return None, None
+    from plant_emulator.drive_plant import bench_drive_config
+    from plant_emulator.odrive import VirtualDrivePair
+
+    cs = s.can_settings()
+    geom, legal = s.motor_limit()
+    # A hair above the largest legal motor torque: float32 rounding of a legal command
+    # must not be clamped; the applied (tau1, tau2) is clamped to (2) after decoding.
+    config = bench_drive_config(
+        geom, core.limits, legal * (1.0 + 1e-6), watchdog_timeout=cs.watchdog_timeout
+    )
+    pair = VirtualDrivePair(cs.node_right, cs.node_left, config=config)
+    drive_plant = DrivePlant(pair, geom, core.limits, core.t, core.state, time.monotonic())
+    can = CanDrives(bus, pair, hoplog, immediate=True, faults=faults)
+    stack.callback(can.close)  # closes the bus: registered before anything can fail
+    can.start()
+    return can, drive_plant
+
+
 def main_from_settings(settings_path: str) -> int:
     """Entry of ``python -m plant_emulator SETTINGS.json`` (``hil`` resolved the run into that
     file: :class:`protocol.settings.RunSettings`)."""
@@ -682,25 +708,7 @@ def main_from_settings(settings_path: str) -> int:
         stack.callback(lambda: hoplog.close(svc.final_counters() if svc else None))
         session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
         stack.callback(session.close)
-        can = None
-        drive_plant = None
-        bus = s.open_can_bus()
-        if bus is not None:
-            from plant_emulator.drive_plant import bench_drive_config
-            from plant_emulator.odrive import VirtualDrivePair
-
-            cs = s.can_settings()
-            geom, legal = s.motor_limit()
-            # A hair above the largest legal motor torque: float32 rounding of a legal command
-            # must not be clamped; the applied (tau1, tau2) is clamped to (2) after decoding.
-            config = bench_drive_config(
-                geom, core.limits, legal * (1.0 + 1e-6), watchdog_timeout=cs.watchdog_timeout
-            )
-            pair = VirtualDrivePair(cs.node_right, cs.node_left, config=config)
-            drive_plant = DrivePlant(pair, geom, core.limits, core.t, core.state, time.monotonic())
-            can = CanDrives(bus, pair, hoplog, immediate=True, faults=faults)
-            stack.callback(can.close)  # closes the bus: registered before anything can fail
-            can.start()
+        can, drive_plant = _open_drives(s, core, hoplog, faults, stack)
         svc = PlantService(
             core,
             sensor,

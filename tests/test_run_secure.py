@@ -214,7 +214,9 @@ def test_intruders_reach_nothing_and_forged_robot_ids_are_counted(baseline, tmp_
     for name in ("no credentials", "wrong password"):
         r = reports[name]
         assert not r["opened"] and r["published"] == 0, (name, r)
-        assert r["refusals"] == r["open_attempts"] >= 100, (name, r)
+        # Each attempt is a fresh login that the router refuses: how many fit in the 2 s depends
+        # on the host's load (91 on a loaded 2-core VM, ~150 quiet); every one must be refused.
+        assert r["refusals"] == r["open_attempts"] >= 20, (name, r)
     # The authenticated ones without the right to publish torque flooded for 2 s at 1 kHz.
     for name in ("monitor", "emulator"):
         assert reports[name]["opened"] and reports[name]["published"] >= 1000, reports[name]

@@ -192,56 +192,43 @@ def check_options(opts: RunOptions) -> None:
     options.out_dir("--out", opts.out)
 
 
-def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
-    """Resolve the scenario and the run's settings; write the folder's first files."""
+def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
+    """(scenario, its path, whether the user gave one, its default duration): the user's
+    scenario (a file or a bundled name) or the paper's tracking circle."""
     from hil.bundled import resolve_scenario
-    from hil.provenance import dumps_toml
     from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
-    from hil.run.settings import check_can_interface, effective_can_table, scenario_settings
-    from hil.scenario import (
-        RATE_MAX,
-        build_loop,
-        load_scenario,
-        loads_scenario,
-        resolved_dict,
-    )
+    from hil.scenario import load_scenario, loads_scenario
 
-    check_options(opts)  # every option before the scenario: no folder, no process yet
-    if opts.secure and opts.cmd_path == "can":
-        raise BadInputError("--secure guards the Zenoh command path; the CAN bus has no login")
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)
-    run_dir = Path(opts.out) if opts.out else new_run_dir()
     if given is None:
         scenario = loads_scenario(PAPER_TRACKING_TOML, run_dir)
-        scenario_path = run_dir / "scenario.toml"
-        default_duration = DEFAULT_DURATION
-    else:
-        scenario = load_scenario(given)
-        scenario_path = given.resolve()
-        default_duration = scenario.run.duration
+        return scenario, run_dir / "scenario.toml", False, DEFAULT_DURATION
+    scenario = load_scenario(given)
+    return scenario, given.resolve(), True, scenario.run.duration
+
+
+def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
+    """The control rate (Hz) and the name of what set it ("" for the scenario's own Ts)."""
+    from hil.scenario import RATE_MAX
+
     rt = scenario.realtime
     if opts.rate is not None:
-        rate, rate_name = opts.rate, "--rate"
-    elif rt.rate:
-        rate, rate_name = rt.rate, "[realtime] rate"
-    else:
-        rate, rate_name = 1.0 / scenario.timing.ts, ""
-        if rate > RATE_MAX:
-            raise BadInputError(
-                f"[timing] ts = {scenario.timing.ts:g} s is a control rate of {rate:g} Hz, above "
-                f"the {RATE_MAX:g} Hz hil run supports (set [realtime] rate or --rate)"
-            )
-    duration = opts.duration if opts.duration is not None else default_duration
-    ts_s = scenario.timing.ts if not rate_name else 1.0 / rate
-    scenario = scenario.with_overrides(
-        duration=duration,
-        ts=ts_s,
-        names=(
-            "--duration" if opts.duration is not None else "[run] duration",
-            f"1 / {rate_name}" if rate_name else "[timing] ts",
-        ),
-    )
-    controller, reference, context = build_loop(scenario)
+        return opts.rate, "--rate"
+    if rt.rate:
+        return rt.rate, "[realtime] rate"
+    rate = 1.0 / scenario.timing.ts
+    if rate > RATE_MAX:
+        raise BadInputError(
+            f"[timing] ts = {scenario.timing.ts:g} s is a control rate of {rate:g} Hz, above "
+            f"the {RATE_MAX:g} Hz hil run supports (set [realtime] rate or --rate)"
+        )
+    return rate, ""
+
+
+def _run_can_table(opts: RunOptions, scenario: Any) -> dict[str, Any]:
+    """The run's [can] table with the command line's interface and channel, checked."""
+    from hil.run.settings import check_can_interface, effective_can_table
+
     can_table = effective_can_table(scenario, opts.can_interface)
     if opts.can_channel:
         can_table["channel"] = opts.can_channel
@@ -249,7 +236,17 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         check_can_interface(
             can_table["interface"], "--can-interface" if opts.can_interface else "[can] interface"
         )
-    delay = scenario.timing.delay
+    return can_table
+
+
+def _run_settings(
+    opts: RunOptions, scenario: Any, context: Any, scenario_path: Path, run_dir: Path, rate: float
+) -> RunSettings:
+    """The settings both services read (:class:`protocol.settings.RunSettings`)."""
+    from hil.run.settings import scenario_settings
+
+    rt = scenario.realtime
+    ts_s = scenario.timing.ts  # already 1 / rate when a rate overrode it (prepare)
     sensor_rate = rate if opts.lockstep else (rt.sensor_rate or rate)
     settings = scenario_settings(
         scenario,
@@ -267,35 +264,57 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         scheduling="other" if opts.lockstep else (opts.scheduling or rt.scheduling),
         cmd_path=opts.cmd_path,
         can_live=opts.can_live,
-        can=can_table,
+        can=_run_can_table(opts, scenario),
         zenoh_mode="router" if opts.secure else scenario.zenoh.mode,
         zenoh_endpoint=f"tcp/127.0.0.1:{free_port()}",
         can_endpoint=f"tcp/127.0.0.1:{free_port()}",
-        delay=delay,
+        delay=scenario.timing.delay,
         out_dir=str(run_dir.resolve()),
         spin_us=opts.spin_us,
     )
     if (os.cpu_count() or 1) >= 2:
         settings.cpu_controller, settings.cpu_plant = 1, 0
     settings.validate()
+    return settings
+
+
+def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
+    """Resolve the scenario and the run's settings; write the folder's first files."""
+    from hil.provenance import dumps_toml
+    from hil.run.defaults import PAPER_TRACKING_TOML
+    from hil.scenario import build_loop, resolved_dict
+
+    check_options(opts)  # every option before the scenario: no folder, no process yet
+    if opts.secure and opts.cmd_path == "can":
+        raise BadInputError("--secure guards the Zenoh command path; the CAN bus has no login")
+    run_dir = Path(opts.out) if opts.out else new_run_dir()
+    scenario, scenario_path, given, default_duration = _load_given(opts, run_dir)
+    rate, rate_name = _control_rate(opts, scenario)
+    duration = opts.duration if opts.duration is not None else default_duration
+    scenario = scenario.with_overrides(
+        duration=duration,
+        ts=scenario.timing.ts if not rate_name else 1.0 / rate,
+        names=(
+            "--duration" if opts.duration is not None else "[run] duration",
+            f"1 / {rate_name}" if rate_name else "[timing] ts",
+        ),
+    )
+    controller, reference, context = build_loop(scenario)
+    settings = _run_settings(opts, scenario, context, scenario_path, run_dir, rate)
     run_dir.mkdir(parents=True, exist_ok=True)
-    if given is None:
+    if not given:
         scenario_path.write_text(PAPER_TRACKING_TOML)
     settings.save(run_dir / "run_settings.json")
-    resolved = resolved_dict(
-        scenario,
-        controller,
-        context,
-        {
-            "command": "hil run",
-            "cmd_path": settings.cmd_path,
-            "lockstep": settings.lockstep,
-            "rate_hz": float(rate),
-            "trigger": settings.trigger,
-            "can_interface": can_table["interface"],
-            "secure": opts.secure,
-        },
-    )
+    run_facts = {
+        "command": "hil run",
+        "cmd_path": settings.cmd_path,
+        "lockstep": settings.lockstep,
+        "rate_hz": float(rate),
+        "trigger": settings.trigger,
+        "can_interface": settings.can["interface"],
+        "secure": opts.secure,
+    }
+    resolved = resolved_dict(scenario, controller, context, run_facts)
     (run_dir / "scenario.resolved.toml").write_text(dumps_toml(resolved))
     info = {
         "reference": reference,
@@ -307,75 +326,112 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     return scenario, settings, run_dir, info
 
 
+@dataclass
+class _Live:
+    """What ``hil run`` opened for one run, closed by :func:`_close_live` whatever happened."""
+
+    session: Any = None
+    sub: Any = None
+    can_rec: tuple[Any, Any] | None = None
+
+
+def _open_recorder_session(
+    settings: RunSettings, ids: Any, sup: Supervisor, logs: _Logs, stop: Any
+) -> Any:
+    """The recorder's Zenoh session: on the run's endpoint, or a router's client (started
+    here) in router mode."""
+    from runtime.zsession import open_session
+
+    if settings.zenoh_mode == "router":
+        router_cmd = [sys.executable, "-m", "hil.run.router", settings.zenoh_endpoint]
+        router_cmd += ids.router_args()
+        env = ids.child_env("router")
+        sup.start("router", router_cmd, env=env, stdout=logs.open("router"), stderr=STDOUT)
+        _wait_port(settings.zenoh_endpoint, stop, 30.0)
+        creds = ids.credentials("recorder")
+        return open_session(settings.zenoh_endpoint, mode="client", credentials=creds)
+    return open_session(settings.zenoh_endpoint, listen_endpoint=True, credentials=None)
+
+
+def _start_services(sup: Supervisor, run_dir: Path, ids: Any, logs: _Logs) -> None:
+    """The plant and the controller from the run's settings file; their PIDs in
+    processes.json, for whoever needs to signal one (tests inject stalls)."""
+    settings_path = str(run_dir / "run_settings.json")
+    for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
+        sup.start_python(
+            name,
+            ["-m", module, settings_path],
+            env=ids.child_env(name),
+            stdout=logs.open(name),
+            stderr=STDOUT,
+        )
+    (run_dir / "processes.json").write_text(json.dumps({c.name: c.pid for c in sup.children}))
+
+
+def _start_and_follow(
+    settings: RunSettings,
+    recorder: Recorder,
+    sup: Supervisor,
+    stop: Any,
+    announcer: Any,
+    quiet: bool,
+) -> str | None:
+    """Wait for both services to be ready, announce the epoch, follow the run to its end;
+    returns an error, or None."""
+    from runtime.startgate import announce_start
+
+    # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
+    # that dies is noticed at once anyway.
+    ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
+    if not _wait_ready(recorder, sup, stop, timeout=ready_timeout):
+        return "services did not become ready"
+    epoch = time.monotonic_ns() + 300_000_000
+    for i in range(3):  # a start message lost to a racing link must not hang
+        announce_start(announcer, settings.robot_id, epoch, seq=i)
+        time.sleep(0.02)
+    _progress(settings, recorder, sup, stop, quiet)
+    return None
+
+
+def _close_live(live: _Live, recorder: Recorder, run_dir: Path) -> None:
+    """Close the subscription, the CAN recorder and the session, then the recording (with
+    the hop logs attached)."""
+    if live.sub is not None:
+        live.sub.undeclare()
+    if live.can_rec is not None:
+        live.can_rec[1].stop()
+        with contextlib.suppress(Exception):  # a bus already gone is fine here
+            live.can_rec[0].shutdown()
+    if live.session is not None:
+        live.session.close()
+    recorder.close(attachment_files(run_dir))
+
+
 def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
-    from hil.run.results import analyze, plot
     from hil.run.secure import RunIdentities
-    from runtime.startgate import announce_start
-    from runtime.zsession import open_session
 
     scenario, settings, run_dir, info = prepare(opts)
     sup = Supervisor()
-    interrupted = False
     error: str | None = None
-    writer = RecordingWriter(
-        run_dir / "recording.mcap",
-        metadata={
-            "robot_id": settings.robot_id,
-            "cmd_path": settings.cmd_path,
-            "lockstep": settings.lockstep,
-            "rate_hz": info["rate_hz"],
-        },
-    )
+    interrupted = False
+    metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
+    metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
+    writer = RecordingWriter(run_dir / "recording.mcap", metadata=metadata)
     recorder = Recorder(writer)
-    session = None
-    sub = None
-    can_rec = None
+    live = _Live()
     logs = _Logs(run_dir)
     codes: dict[str, int | None] = {}
     t_start = time.monotonic()
     ids = RunIdentities(opts.secure)  # fresh passwords outside run_dir, or none
     with stop_on_signals() as stop:
         try:
-            if settings.zenoh_mode == "router":
-                router_cmd = [sys.executable, "-m", "hil.run.router", settings.zenoh_endpoint]
-                router_cmd += ids.router_args()
-                env = ids.child_env("router")
-                sup.start("router", router_cmd, env=env, stdout=logs.open("router"), stderr=STDOUT)
-                _wait_port(settings.zenoh_endpoint, stop, 30.0)
-                creds = ids.credentials("recorder")
-                session = open_session(settings.zenoh_endpoint, mode="client", credentials=creds)
-            else:
-                ep = settings.zenoh_endpoint
-                session = open_session(ep, listen_endpoint=True, credentials=None)
-            announcer = ids.announcer(session, settings.zenoh_endpoint)
-            sub = session.declare_subscriber("hil/**", recorder.on_zenoh)
-            can_rec = _can_recorder(settings, recorder)
-            settings_path = str(run_dir / "run_settings.json")
-            for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
-                sup.start_python(
-                    name,
-                    ["-m", module, settings_path],
-                    env=ids.child_env(name),
-                    stdout=logs.open(name),
-                    stderr=STDOUT,
-                )
-            # The children's PIDs, for whoever needs to signal one (tests inject stalls).
-            (run_dir / "processes.json").write_text(
-                json.dumps({c.name: c.pid for c in sup.children})
-            )
-            # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest;
-            # a child that dies is noticed at once anyway.
-            ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
-            ready = _wait_ready(recorder, sup, stop, timeout=ready_timeout)
-            if ready:
-                epoch = time.monotonic_ns() + 300_000_000
-                for i in range(3):  # a start message lost to a racing link must not hang
-                    announce_start(announcer, settings.robot_id, epoch, seq=i)
-                    time.sleep(0.02)
-                _progress(settings, recorder, sup, stop, opts.quiet)
-            else:
-                error = "services did not become ready"
+            live.session = _open_recorder_session(settings, ids, sup, logs, stop)
+            announcer = ids.announcer(live.session, settings.zenoh_endpoint)
+            live.sub = live.session.declare_subscriber("hil/**", recorder.on_zenoh)
+            live.can_rec = _can_recorder(settings, recorder)
+            _start_services(sup, run_dir, ids, logs)
+            error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
             interrupted = bool(stop)
         finally:
             if stop:  # hil.cli then exits 130 once the folder is written
@@ -383,15 +439,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             codes = _stop_children(sup, settings)
             ids.close()
             logs.close()
-            if sub is not None:
-                sub.undeclare()
-            if can_rec is not None:
-                can_rec[1].stop()
-                with contextlib.suppress(Exception):  # a bus already gone is fine here
-                    can_rec[0].shutdown()
-            if session is not None:
-                session.close()
-            recorder.close(attachment_files(run_dir))
+            _close_live(live, recorder, run_dir)
     extra = {
         "interrupted": interrupted,
         "error": error,
@@ -401,7 +449,18 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         "recorded_messages": writer.count,
         "secure": opts.secure,
     }
-    # A second Ctrl-C while the folder is written is recorded, not raised (hil.interrupts).
+    summary = _write_results(run_dir, scenario, settings, info, extra)
+    summary["run_dir"] = str(run_dir)
+    return summary
+
+
+def _write_results(
+    run_dir: Path, scenario: Any, settings: RunSettings, info: dict[str, Any], extra: dict[str, Any]
+) -> dict[str, Any]:
+    """trace.csv, summary.json and trajectory.png from the hop logs; a second Ctrl-C while
+    the folder is written is recorded, not raised (hil.interrupts)."""
+    from hil.run.results import analyze, plot
+
     with interrupts.shielded():
         summary = analyze(
             run_dir,
@@ -416,7 +475,6 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             plot(run_dir)
         except Exception as exc:
             print(f"warning: plots not written: {exc}", file=sys.stderr)
-    summary["run_dir"] = str(run_dir)
     return summary
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -32,6 +32,30 @@ def check_settings_file(path: Path) -> None:
         RunSettings.load(path).validate()
     except BadInputError as exc:
         raise BadInputError(f"--settings {path}: not a valid run_settings.json ({exc})") from exc
+
+
+def _settings_from_scenario(
+    name: str,
+    scenario: Path,
+    out: Path,
+    run: dict[str, Any],
+    links: dict[str, Any],
+    start_timeout: float,
+    write_settings: Path | None,
+) -> Path:
+    """Resolve ``scenario`` as ``hil run`` does (``run``: its duration, rate, cmd_path and
+    lockstep options) with the service's own endpoints and epoch (``links``), and save the
+    settings (to ``write_settings`` when given); returns the file."""
+    from hil.run.orchestrate import RunOptions, prepare
+
+    _, s, run_dir, _ = prepare(RunOptions(scenario=scenario, out=out, **run))
+    s.zenoh_endpoint = links["endpoint"]
+    s.can_endpoint = links["can_endpoint"]
+    s.epoch_ns = links["epoch_ns"]
+    s.start_timeout = start_timeout
+    settings = write_settings if write_settings is not None else run_dir / f"{name}_settings.json"
+    s.save(settings)
+    return settings
 
 
 def register_service_command(app: typer.Typer, name: str, module: str, what: str) -> None:
@@ -84,26 +108,11 @@ def register_service_command(app: typer.Typer, name: str, module: str, what: str
         if settings is None:
             if scenario is None:
                 raise BadInputError("give a scenario file or --settings")
-            from hil.run.orchestrate import RunOptions, prepare
-
-            _, s, run_dir, _ = prepare(
-                RunOptions(
-                    scenario=scenario,
-                    duration=duration,
-                    rate=rate,
-                    cmd_path=cmd_path,
-                    lockstep=lockstep,
-                    out=out,
-                )
+            run = {"duration": duration, "rate": rate, "cmd_path": cmd_path, "lockstep": lockstep}
+            links = {"endpoint": endpoint, "can_endpoint": can_endpoint, "epoch_ns": epoch_ns}
+            settings = _settings_from_scenario(
+                name, scenario, out, run, links, start_timeout, write_settings
             )
-            s.zenoh_endpoint = endpoint
-            s.can_endpoint = can_endpoint
-            s.epoch_ns = epoch_ns
-            s.start_timeout = start_timeout
-            settings = run_dir / f"{name}_settings.json"
-            if write_settings is not None:
-                settings = write_settings
-            s.save(settings)
         elif write_settings is not None:
             raise BadInputError("--write-settings needs a scenario, not --settings")
         if write_settings is not None:
