@@ -22,6 +22,10 @@ def main(argv: list[str] | None = None) -> int:
     from protocol.errors import BadInputError
 
     args = list(sys.argv[1:] if argv is None else argv)
+    if args in (["--help"], ["-h"]):
+        print(USAGE)
+        print(__doc__)
+        return 0
     if len(args) == 2 and args[0] == "--settings":
         args = args[1:]
     if len(args) != 1 or args[0].startswith("-") or args[0].endswith(".toml"):

@@ -138,3 +138,13 @@ def test_a_service_without_a_settings_file_exits_2(tmp_path: Path, args, expect)
                               capture_output=True, text=True, timeout=60)  # fmt: skip
         assert proc.returncode == 2 and expect in proc.stderr, proc.stderr
     assert not marker.exists()
+
+
+def test_a_services_help_explains_its_settings_file_without_hil(tmp_path: Path) -> None:
+    env, marker = _no_hil_env(tmp_path)
+    for module in ("controller_service", "plant_emulator"):
+        proc = subprocess.run([sys.executable, "-m", module, "--help"], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, timeout=60)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        assert "SETTINGS.json" in proc.stdout and "--write-settings" in proc.stdout
+    assert not marker.exists()
