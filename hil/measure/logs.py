@@ -9,6 +9,7 @@ recording (``*.mcap``), so a recording alone reproduces every figure.
 
 from __future__ import annotations
 
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -69,13 +70,22 @@ TRACE_SOURCE_COLUMNS: dict[str, tuple[str, ...]] = {
 }
 
 
-def _column(values: Any, name: str, dtype: Any) -> np.ndarray:
-    if name in NARROW:
-        a = np.asarray(values, dtype=np.int64)
-        if a.size == 0 or (int(a.min()) >= -(2**31) and int(a.max()) < 2**31):
-            return a.astype(np.int32)
-        return a
-    return np.asarray(values, dtype=dtype)
+# Each column grows in one typed buffer (array.array: amortized in place, C conversion of the
+# msgpack values) and becomes a numpy array without a copy. Per-chunk numpy arrays concatenated
+# at the end left ~400 MB of freed small blocks in the heap after an hour's log.
+_TYPECODE = {_F8: "d", _F4: "f", _I8: "q", _I4: "i", _I2: "h", _I1: "b"}
+
+
+def _buffer(name: str, dtype: Any) -> array:
+    return array("q" if name in NARROW else _TYPECODE[dtype])
+
+
+def _finish(buf: array, name: str, dtype: Any) -> np.ndarray:
+    """The column as numpy (a view of ``buf``); sequence numbers int32 when they fit."""
+    a = np.frombuffer(buf, dtype=np.int64 if name in NARROW else dtype)
+    if name in NARROW and (a.size == 0 or (int(a.min()) >= -(2**31) and int(a.max()) < 2**31)):
+        return a.astype(np.int32)
+    return a
 
 
 def _empty(name: str, dtype: Any) -> np.ndarray:
@@ -105,7 +115,7 @@ def read_columns(
     """One hop log, chunk by chunk, into numpy columns: ``tables`` maps each table to read to
     the columns wanted (every one of them is in the result, empty when the log lacks it)."""
     head = LogHead()
-    parts: dict[str, dict[str, list[np.ndarray]]] = {}
+    parts: dict[str, dict[str, array]] = {}
     index: dict[str, dict[str, int]] = {}
     fields: dict[str, list[str]] | None = None
     end = 0
@@ -129,7 +139,7 @@ def read_columns(
             for name in tables:
                 cols = fields.get(name, [])
                 index[name] = {c: cols.index(c) for c in tables[name] if c in cols}
-                parts[name] = {c: [] for c in index[name]}
+                parts[name] = {c: _buffer(c, COLUMNS[name][c]) for c in index[name]}
         elif fields is None:
             continue
         elif kind == "rows" and rec.get("table") in parts:
@@ -142,7 +152,10 @@ def read_columns(
             if rec["rows"] and len(columns) != width:
                 raise HopLogError(f"{path}: a row of table {name} has not {width} fields")
             for c, i in index[name].items():
-                parts[name][c].append(_column(columns[i], c, COLUMNS[name][c]))
+                try:
+                    parts[name][c].extend(columns[i])
+                except (TypeError, OverflowError) as exc:
+                    raise HopLogError(f"{path}: table {name} column {c}: {exc}") from None
         elif kind == "meta":
             head.meta.update(rec.get("meta") or {})
         elif kind == "counters":
@@ -157,9 +170,9 @@ def read_columns(
     for name, wanted in tables.items():
         out[name] = {}
         for c in wanted:
-            chunks = parts.get(name, {}).pop(c, [])
-            out[name][c] = np.concatenate(chunks) if chunks else _empty(c, COLUMNS[name][c])
-            del chunks
+            buf = parts.get(name, {}).pop(c, None)
+            dtype = COLUMNS[name][c]
+            out[name][c] = _finish(buf, c, dtype) if buf is not None else _empty(c, dtype)
     return head, out
 
 
