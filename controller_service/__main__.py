@@ -10,34 +10,20 @@ Exit codes: 0 done, 1 no start, 2 a bad settings file.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 
-USAGE = (
-    "usage: python -m controller_service SETTINGS.json  (a resolved run, written by hil: "
-    "'hil controller SCENARIO --write-settings FILE', or a run folder's run_settings.json; "
-    "to run from a scenario use 'hil controller SCENARIO')"
-)
+from runtime.service_main import service_main
+
+
+def _load() -> Callable[[str], int]:
+    # Imported late: --help and bad usage need no service code.
+    from controller_service.service import main_from_settings
+
+    return main_from_settings
 
 
 def main(argv: list[str] | None = None) -> int:
-    from protocol.errors import BadInputError
-
-    args = list(sys.argv[1:] if argv is None else argv)
-    if args in (["--help"], ["-h"]):
-        print(USAGE)
-        print(__doc__)
-        return 0
-    if len(args) == 2 and args[0] == "--settings":
-        args = args[1:]
-    if len(args) != 1 or args[0].startswith("-") or args[0].endswith(".toml"):
-        print(USAGE, file=sys.stderr)
-        return 2
-    from controller_service.service import main_from_settings
-
-    try:
-        return main_from_settings(args[0])
-    except BadInputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    return service_main("controller_service", "controller", __doc__, _load, argv)
 
 
 if __name__ == "__main__":
