@@ -14,6 +14,9 @@ from hil.bundled import bundled_path
 from hil.scenario import load_scenario
 from tests.run_helpers import check_certified_bound, hil_run
 
+# Enough commands for the hop's statistics; the slowest guest seen sent 65 in 6 s.
+MIN_COMMANDS = 40
+
 pytestmark = [pytest.mark.vcan, pytest.mark.realtime, pytest.mark.timeout(900)]
 
 
@@ -29,7 +32,7 @@ def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
         "--rate",
         "50",
         "--duration",
-        "6",
+        "10",
         "--cmd-path",
         "can",
         "--can-interface",
@@ -42,10 +45,16 @@ def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
         ok_codes=(0, 1),
     )
     can = s["messages"]["torque_can"]
-    # Torques reached the plant as frames on vcan0 and were applied (the guest is slow and
-    # may re-arm a drive after a late heartbeat, so not every cycle's pair lands).
-    assert can["received"] > 100, can
-    assert s["timing"]["sample_to_apply_can"]["count"] > 100
+    # Torques reached the plant as frames on vcan0 and every one was applied. How many the
+    # controller sends depends on the guest's speed, not on the code under test: in the
+    # emulated guest it misses slots (counted as skipped) and the drives arm seconds after
+    # the epoch, so 83 to 116 of the 300 slots of a 6 s run carried one here, and 65 in a
+    # slower CI guest. What must hold is that none of those sent is lost, and that enough
+    # are sent to measure the hop.
+    assert can["sent"] >= MIN_COMMANDS, (can, s["timing"]["skipped_slots"])
+    assert can["received"] == can["sent"] and can["lost"] == 0, can
+    assert can["frames_received"] == can["frames_sent"] and can["value_mismatches"] == 0, can
+    assert s["timing"]["sample_to_apply_can"]["count"] >= can["received"]
     check_certified_bound(s, scenario)
     sc = load_scenario(scenario)
     assert s["violations"]["tau1"] == 0 and s["violations"]["tau2"] == 0
