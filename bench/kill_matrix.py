@@ -17,6 +17,11 @@ Kinds (each trial is one ``hil run`` of 3 s at 200 Hz, the failure injected by P
 - ``router_restart``: router mode; the Zenoh router is SIGKILLed and started again on its
   port; both services (clients) reconnect by themselves, commands land again, none computed
   from a sample taken before the router came back, and the outage is measured.
+- ``hil_run_kill``: SIGKILL of ``hil run`` itself at a seeded random moment of a 2 s run at
+  1 kHz (trial i draws from ``random.Random(1000 + i)``), up to 0.5 s after its end; safe state
+  = every process it started has exited by itself (checked by PID), the time given is from
+  the kill to the last one gone; the recording lost no State sent more than 0.1 s before the
+  kill; ``hil report`` on the folder recovers it (exit 0 or 1, never 2).
 
 Prints a table (trials, passed, worst time to the safe state or outage) and JSON; the test
 tests/test_kill_matrix.py runs the same trials and asserts that every one passes.
@@ -27,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import random
 import signal
 import subprocess
 import sys
@@ -45,7 +51,7 @@ from protocol.can.codec import AxisState, ODriveError  # noqa: E402
 from protocol.hoplog import read_hoplog  # noqa: E402
 from protocol.messages import FLAG_WATCHDOG_ZERO  # noqa: E402
 from tests.procs import stop_pid, wait_until  # noqa: E402
-from tests.run_helpers import alive  # noqa: E402
+from tests.run_helpers import alive, children_of  # noqa: E402
 
 RATE = 200
 PERIOD_NS = round(1e9 / RATE)
@@ -61,6 +67,7 @@ KINDS = (
     "plant_kill",
     "controller_restart",
     "router_restart",
+    "hil_run_kill",
 )
 
 
@@ -86,13 +93,20 @@ def _stop(proc: subprocess.Popen) -> None:
 class _Run:
     """One ``hil run`` and whatever the trial starts beside it, all stopped by PID."""
 
-    def __init__(self, out: Path, *args: str, scenario: str | None = None) -> None:
+    def __init__(
+        self,
+        out: Path,
+        *args: str,
+        scenario: str | None = None,
+        duration_s: float = DURATION_S,
+        rate: float = RATE,
+    ) -> None:
         self.out = out
         self.extra: list[subprocess.Popen] = []
         argv = [sys.executable, "-m", "hil", "run"]
         if scenario is not None:
             argv.append(scenario)
-        argv += ["--duration", str(DURATION_S), "--rate", str(RATE), "--quiet", "--no-report"]
+        argv += ["--duration", str(duration_s), "--rate", str(rate), "--quiet", "--no-report"]
         argv += ["--out", str(out), *args]
         self.proc = subprocess.Popen(
             argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -279,34 +293,113 @@ def router_restart(tmp: Path) -> Trial:
     return _resumed(tmp, restart, t)
 
 
-TRIALS: dict[str, Callable[[Path], Trial]] = {
-    "controller_kill_zenoh": lambda tmp: controller_kill(tmp, "zenoh"),
-    "controller_kill_can": lambda tmp: controller_kill(tmp, "can"),
-    "plant_kill": plant_kill,
-    "controller_restart": controller_restart,
-    "router_restart": router_restart,
+HIL_RUN_KILL_DURATION_S = 2.0
+FLUSH_BOUND_S = 0.1  # the recording may lose what was received in the last 0.1 s
+
+
+def _epoch_ns(out: Path) -> int | None:
+    try:
+        return int(read_hoplog(out / "plant.hoplog").meta.get("epoch_ns") or 0) or None
+    except (OSError, ValueError):
+        return None
+
+
+def _states_lost_before(out: Path, kill_ns: int) -> int:
+    """States the plant sent more than FLUSH_BOUND_S before the kill that the (truncated)
+    recording does not hold."""
+    from hil.recording import read_messages
+
+    plant = read_hoplog(out / "plant.hoplog")
+    bound = kill_ns - FLUSH_BOUND_S * 1e9
+    sent = {r[0] for r in plant.rows["samples"] if r[3] <= bound}
+    recorded = {m.data["seq"] for m in read_messages(out / "recording.mcap", ["hil/robot0/state"])}
+    return len(sent - recorded)
+
+
+def _report_recovers(out: Path, t: Trial) -> bool:
+    """``hil report`` on the killed folder: exit 0 or 1, a complete MCAP with the hop logs
+    attached, summary.json marked recovered, report.html written."""
+    from hil.recording import is_complete, read_attachments
+
+    rep = subprocess.run(
+        [sys.executable, "-m", "hil", "report", str(out), "--no-ideal"],
+        cwd=ROOT, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    t.detail["report_exit"] = rep.returncode
+    if rep.returncode not in (0, 1):
+        t.detail["error"] = rep.stderr[-2000:]
+        return False
+    summary = json.loads((out / "summary.json").read_text())
+    attached = set(read_attachments(out / "recording.mcap"))
+    return (
+        is_complete(out / "recording.mcap")
+        and attached >= {"plant.hoplog", "controller.hoplog"}
+        and summary.get("recovered") is True
+        and summary.get("samples", 0) > 0
+        and (out / "report.html").is_file()
+    )
+
+
+def hil_run_kill(tmp: Path, seed: int) -> Trial:
+    t = Trial("hil_run_kill")
+    at_s = random.Random(1000 + seed).uniform(0.1, HIL_RUN_KILL_DURATION_S + 0.5)
+    out = tmp / "run"
+    t.detail["kill_at_s"] = round(at_s, 3)
+    with _Run(out, duration_s=HIL_RUN_KILL_DURATION_S, rate=1000) as run:
+        if not wait_until(lambda: _epoch_ns(out) is not None, 120):
+            t.detail["error"] = "the run never started"
+            return t
+        kids = children_of(run.proc.pid)
+        target = (_epoch_ns(out) or 0) + int(at_s * 1e9)
+        time.sleep(max(0.0, (target - time.monotonic_ns()) / 1e9))  # to the seeded moment
+        if run.proc.poll() is not None:
+            t.detail["error"] = "hil run had already finished at the chosen moment"
+            return t
+        kill_ns = time.monotonic_ns()
+        run.proc.send_signal(signal.SIGKILL)
+        run.proc.wait(timeout=10)
+        gone = wait_until(lambda: not any(alive(k) for k in kids), 15)
+        t.safe_s = (time.monotonic_ns() - kill_ns) / 1e9
+        t.detail["children"] = len(kids)
+        if not gone:
+            t.detail["error"] = "children left behind"
+            return t
+    t.detail["states_lost"] = _states_lost_before(out, kill_ns)
+    t.ok = len(kids) >= 2 and t.detail["states_lost"] == 0 and _report_recovers(out, t)
+    return t
+
+
+TRIALS: dict[str, Callable[[Path, int], Trial]] = {
+    "controller_kill_zenoh": lambda tmp, _: controller_kill(tmp, "zenoh"),
+    "controller_kill_can": lambda tmp, _: controller_kill(tmp, "can"),
+    "plant_kill": lambda tmp, _: plant_kill(tmp),
+    "controller_restart": lambda tmp, _: controller_restart(tmp),
+    "router_restart": lambda tmp, _: router_restart(tmp),
+    "hil_run_kill": hil_run_kill,
 }
 
 
-def run_trial(kind: str) -> Trial:
+def run_trial(kind: str, seed: int = 0) -> Trial:
+    """One trial of ``kind`` (``seed`` picks its random moment where it has one)."""
     with tempfile.TemporaryDirectory(prefix=f"hil-kill-{kind}-") as tmp:
         try:
-            return TRIALS[kind](Path(tmp))
+            return TRIALS[kind](Path(tmp), seed)
         except Exception as exc:  # a trial that crashes is a failed trial, with its reason
             return Trial(kind, False, None, {"error": repr(exc)})
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--trials", type=int, default=20)
-    ap.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
-    ap.add_argument("--out", type=Path)
+    ap.add_argument("--trials", type=int, default=20, help="trials of each kind (default 20)")
+    ap.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS),
+                    help="which failures to inject (default: all)")  # fmt: skip
+    ap.add_argument("--out", type=Path, help="also write the table as JSON here")
     a = ap.parse_args(argv)
     table: dict[str, Any] = {}
     for kind in a.kinds:
         results = []
         for i in range(a.trials):
-            r = run_trial(kind)
+            r = run_trial(kind, i)
             results.append(r)
             safe = f"{r.safe_s * 1e3:.1f} ms" if r.safe_s is not None else "-"
             print(f"{kind} {i + 1}/{a.trials}: {'ok' if r.ok else 'FAIL'} {safe} {r.detail}",
