@@ -21,14 +21,14 @@ import socket
 import sys
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from subprocess import STDOUT
 from typing import Any
 
 from hil import interrupts
 from hil.errors import BadInputError
-from hil.recording import RecordingWriter
+from hil.recording import RecordingWriter, to_jsonable
 from hil.supervisor import Supervisor
 from protocol.settings import RunSettings
 from runtime.signals import stop_on_signals
@@ -104,7 +104,7 @@ class Recorder:
 
                 m = can_decode(from_message(payload))
                 data["message"] = type(m).__name__
-                data["fields"] = asdict(m) if hasattr(m, "__dataclass_fields__") else str(m)
+                data["fields"] = to_jsonable(m) if hasattr(m, "__dataclass_fields__") else str(m)
             except Exception as exc:
                 data["decode_error"] = str(exc)
             self.writer.write(topic, t, data)
@@ -114,7 +114,7 @@ class Recorder:
         except DecodeError as exc:
             self.writer.write(topic, t, {"rejected": exc.reason, "raw": payload})
             return
-        d = asdict(m)
+        d = to_jsonable(m)  # one walk; asdict first made a deep copy for nothing
         d["type"] = type(m).__name__
         publish = getattr(m, "send_time_ns", None) or getattr(m, "time_ns", None)
         self.writer.write(topic, t, d, publish_time_ns=publish)
