@@ -2,9 +2,21 @@
 
 from __future__ import annotations
 
+import signal
+
 import pytest
 
 from tests.procs import Spawner
+
+
+def pytest_configure(config):
+    """Children start with SIGINT as at a terminal, however the suite was launched.
+
+    A shell starts a background job (``.ci/run &`` from a script) with SIGINT ignored, and an
+    ignored signal is inherited across exec: every process a test starts would then ignore
+    the Ctrl-C the Ctrl-C tests send it. A handled signal is reset to its default on exec."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture
