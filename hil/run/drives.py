@@ -3,18 +3,18 @@ drives of :mod:`plant_emulator.drives` on them (which need no ``hil``)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any
 
 from plant_emulator import drives
-from protocol.can.codec import Cmd
 from protocol.settings import RunSettings
 
 
 @dataclass
-class DrivesOptions:
-    """What ``hil drives`` runs (see ``hil drives --help``)."""
+class DrivesOptions(drives.DrivesOptions):
+    """What ``hil drives`` runs (see ``hil drives --help``): how the drives run (the fields of
+    :class:`plant_emulator.drives.DrivesOptions`) and, here, the scenario and the command
+    line's overrides of it."""
 
     scenario: str | None = None  # a file or bundled name; None: hil run's default scenario
     interface: str | None = None  # python-can interface; None: the scenario's [can]
@@ -23,18 +23,9 @@ class DrivesOptions:
     can_endpoint: str | None = None  # zenoh_can's endpoint
     node_left: int | None = None
     node_right: int | None = None
-    control_rate: float = 1000.0  # Hz: plant steps and drive controller steps
-    msg_rates_ms: dict[int, float] = field(
-        default_factory=lambda: {Cmd.HEARTBEAT: 100.0, Cmd.GET_ENCODER_ESTIMATES: 10.0}
-    )
     watchdog_timeout: float | None = None  # s; None: the scenario's [can] (0 = off)
-    state_rate: float = 0.0  # Hz of State on Zenoh (0: no Zenoh at all)
-    zenoh_endpoint: str = "tcp/127.0.0.1:7447"
     robot_id: str | None = None
-    status_period: float = 1.0  # s between status lines (0: none)
-    duration: float | None = None  # s, then exit as on SIGINT (None: until a signal)
     scheduling: str | None = None  # "fifo" / "other"; None: the scenario's [realtime]
-    out: Path | None = None  # where summary.json goes (None: stdout only)
 
 
 def _scenario(name: str | None) -> Any:
@@ -74,13 +65,4 @@ def drives_settings(opts: DrivesOptions) -> RunSettings:
 
 def run_drives(opts: DrivesOptions) -> int:
     """Resolve, then run the drives until a signal (or ``duration``); the exit code."""
-    run = drives.DrivesOptions(
-        control_rate=opts.control_rate,
-        msg_rates_ms=opts.msg_rates_ms,
-        state_rate=opts.state_rate,
-        zenoh_endpoint=opts.zenoh_endpoint,
-        status_period=opts.status_period,
-        duration=opts.duration,
-        out=opts.out,
-    )
-    return drives.run_drives(run, drives_settings(opts))
+    return drives.run_drives(opts, drives_settings(opts))
