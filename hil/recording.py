@@ -189,11 +189,15 @@ class RecordingWriter:
         log_time_ns: int,
         data: Mapping[str, Any],
         publish_time_ns: int | None = None,
+        jsonable: bool = False,
     ) -> None:
+        """Append one message; ``jsonable``: ``data`` is already :func:`to_jsonable`'s output
+        (the recorder converts as it decodes, and a second walk would cost every message)."""
         ch = self.channel(topic)
         seq = self._seq[topic]
         self._seq[topic] = seq + 1
-        payload = json.dumps(to_jsonable(data), separators=(",", ":")).encode()
+        safe = data if jsonable else to_jsonable(data)
+        payload = json.dumps(safe, separators=(",", ":")).encode()
         self._writer.add_message(
             channel_id=ch,
             log_time=int(log_time_ns),

@@ -107,7 +107,7 @@ class Recorder:
                 data["fields"] = to_jsonable(m) if hasattr(m, "__dataclass_fields__") else str(m)
             except Exception as exc:
                 data["decode_error"] = str(exc)
-            self.writer.write(topic, t, data)
+            self.writer.write(topic, t, data, jsonable=True)
             return
         try:
             m = decode(payload)
@@ -117,7 +117,7 @@ class Recorder:
         d = to_jsonable(m)  # one walk; asdict first made a deep copy for nothing
         d["type"] = type(m).__name__
         publish = getattr(m, "send_time_ns", None) or getattr(m, "time_ns", None)
-        self.writer.write(topic, t, d, publish_time_ns=publish)
+        self.writer.write(topic, t, d, publish_time_ns=publish, jsonable=True)
         if topic.endswith("/state"):
             self.states += 1
         if isinstance(m, Status):
