@@ -45,6 +45,8 @@ class Loop:
     lose_can_frames: set[int] = field(default_factory=set)  # commands whose frames are lost
     named_frames: bool = True  # the bus names each frame (zenoh_can) or not (socketcan)
     refuse_can_frames: set[int] = field(default_factory=set)  # commands the drives refuse
+    slow_can_from: tuple[int, int] | None = None  # (cmd_seq, extra ns): its frames and later
+    forget_can_frames: set[int] = field(default_factory=set)  # received, never applied (a bug)
 
 
 def write(folder: Path, loop: Loop) -> None:
@@ -155,9 +157,12 @@ def write(folder: Path, loop: Loop) -> None:
         i = tx_index[node]
         tx_index[node] = i + 1
         recv = send + 250 * US
+        if loop.slow_can_from and cseq >= loop.slow_can_from[0]:
+            recv += loop.slow_can_from[1]
         p.append("cmd_rx", (1, i, -1, 0, 0, end if loop.named_frames else 0, recv, value, 0.0,
                              node, 0))  # fmt: skip
-        if loop.cmd_path == "can" and E <= recv <= last_sample:
+        forgotten = cseq in loop.forget_can_frames
+        if loop.cmd_path == "can" and E <= recv <= last_sample and not forgotten:
             refused = cseq in loop.refuse_can_frames  # the drive refuses it: no landing
             p.append("apply", (1, i, node, recv, recv + loop.delay, 0.0, 0.0, 3 if refused else 0))
     c.close({"deadline_misses": 0})

@@ -173,6 +173,7 @@ def test_a_can_rearm_mid_run_changes_no_can_figure(spawn, tmp_path):
     assert can["unmatched_frames_received"] == 0  # ... and every arrival matched its send
     assert can["frames_received"] == can["frames_sent"] and can["lost"] == 0, can
     assert can["value_mismatches"] == 0  # every arrival matched the send of its own torque
+    assert can["unaccounted"] == 0, can  # every received command applied, refused or late
     assert "negative" not in s["timing"]["hop_cmd_can"]  # nor a send after its arrival
     _every_frame_carries_its_commands_torque(out, scenario)
 

@@ -66,5 +66,6 @@ def test_can_frame_loss_and_bus_off_are_the_lost_frames_exactly(tmp_path):
     assert can["injected_frame_losses"] > 20 and can["frames_not_on_bus"] > 20, can
     assert can["frames_lost"] == can["injected_frame_losses"] + can["frames_not_on_bus"], can
     assert can["unmatched_frames_received"] == 0  # losses never shift the matching
+    assert can["unaccounted"] == 0, can  # no received command dropped unexplained
     lost = [st for st in s["certificate"]["stalls"] if st["cause"] == "command_lost"]
     assert lost and any(st["evidence"].get("frames_not_on_bus", 0) > 0 for st in lost), lost

@@ -217,3 +217,26 @@ def test_frames_the_drives_refuse_are_no_landing(tmp_path):
     b = _measure(tmp_path / "b", Loop(cmd_path="can", refuse_can_frames={100, 101, 102}))
     assert b.timing["samples_without_command"] == a.timing["samples_without_command"] + 3
     assert b.timing["command_age_can"]["max_us"] >= a.timing["command_age_can"]["max_us"] + 6000
+
+
+def test_every_received_can_command_is_applied_refused_or_came_after_the_plant_stopped(tmp_path):
+    """A slow host can delay a command sent inside the window past the plant's last sample: it
+    is received but never applied, and is counted as such, not as a loss or a silent drop."""
+    a = _measure(tmp_path / "a", Loop(cmd_path="can"))
+    can = a.messages["torque_can"]
+    assert can["applied"] == can["received"] == can["sent"] > 400
+    assert can["refused_by_drive"] == can["arrived_after_plant_stopped"] == can["unaccounted"] == 0
+    # The last command the window counts (sent 2 Ts before the last sample) and every later
+    # one take 10 ms longer: the first lands no more.
+    last = can["sent"] - 1
+    b = _measure(tmp_path / "b", Loop(cmd_path="can", slow_can_from=(last, 10 * MS)))
+    can = b.messages["torque_can"]
+    assert can["received"] == can["sent"] and can["lost"] == 0
+    assert can["arrived_after_plant_stopped"] == 1 and can["applied"] == can["sent"] - 1
+    assert can["unaccounted"] == 0
+    c = _measure(tmp_path / "c", Loop(cmd_path="can", refuse_can_frames={100, 101, 102}))
+    can = c.messages["torque_can"]
+    assert can["refused_by_drive"] == 3 and can["applied"] == can["received"] - 3
+    assert can["unaccounted"] == 0
+    d = _measure(tmp_path / "d", Loop(cmd_path="can", forget_can_frames={200}))
+    assert d.messages["torque_can"]["unaccounted"] == 1

@@ -54,7 +54,12 @@ def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
     assert can["sent"] >= MIN_COMMANDS, (can, s["timing"]["skipped_slots"])
     assert can["received"] == can["sent"] and can["lost"] == 0, can
     assert can["frames_received"] == can["frames_sent"] and can["value_mismatches"] == 0, can
-    assert s["timing"]["sample_to_apply_can"]["count"] >= can["received"]
+    # Every received command was applied, or came after the plant's last sample (a guest stall
+    # longer than 2 Ts between send and receive at the window's end; CI saw one): none refused,
+    # none dropped unexplained, and the latency figure covers every one applied.
+    assert can["refused_by_drive"] == 0 and can["unaccounted"] == 0, can
+    assert can["applied"] + can["arrived_after_plant_stopped"] == can["received"], can
+    assert s["timing"]["sample_to_apply_can"]["count"] >= can["applied"]
     check_certified_bound(s, scenario)
     sc = load_scenario(scenario)
     assert s["violations"]["tau1"] == 0 and s["violations"]["tau2"] == 0

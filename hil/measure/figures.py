@@ -20,6 +20,7 @@ from hil.measure.stats import summarize_ns
 from protocol.hoplog import (
     APPLY_BURST,
     APPLY_LANDED,
+    APPLY_REFUSED,
     RX_LOST_BY_FAULT,
     SAMPLE_DROPPED,
     SAMPLE_DUPLICATED,
@@ -426,10 +427,11 @@ def _can_messages(r: _Run) -> dict[str, Any]:
     got = (c["cmd"] >= 0) & ~c["lost"]
     nodes = max(1, np.unique(tx["node"]).size)
     ids, counts = np.unique(c["cmd"][got], return_counts=True)
-    received = int(np.isin(sent_cmds, ids[counts >= nodes]).sum())
+    both = ids[counts >= nodes]
+    received = int(np.isin(sent_cmds, both).sum())
     frames_sent = int(mine.sum())
     frames_rx = int((got & np.isin(c["cmd"], sent_cmds)).sum())
-    return {
+    out = {
         "sent": int(sent_cmds.size),
         "received": received,
         "lost": int(sent_cmds.size - received),
@@ -446,6 +448,32 @@ def _can_messages(r: _Run) -> dict[str, Any]:
         "sent_after_window": int(
             np.unique(tx["cmd_seq"][(tx["cmd_seq"] >= 0) & (when > end)]).size
         ),
+    }
+    if r.applied == "can":
+        out.update(_can_fates(r, sent_cmds[np.isin(sent_cmds, both)], nodes))
+    return out
+
+
+def _can_fates(r: _Run, received: np.ndarray, nodes: int) -> dict[str, int]:
+    """What became of each received command on the applied CAN path: ``applied`` (both wheels'
+    frames landed), ``refused_by_drive`` (a wheel's drive refused a frame of it: non-finite,
+    disarmed), ``arrived_after_plant_stopped`` (its last frame came after the plant's last
+    sample: a slow host delayed it past the window; never applied, not lost). A received
+    command that is none of these was dropped by the plant unexplained: ``unaccounted``."""
+    ap, c = r.logs["apply"], r._can
+    m = ap["path"] == 1
+    cmd = r.can_frame_of(ap["node"][m], ap["seq"][m])
+    outcome = ap["outcome"][m]
+    ids, counts = np.unique(cmd[np.isin(outcome, (APPLY_LANDED, APPLY_BURST))], return_counts=True)
+    applied = np.isin(received, ids[counts >= nodes])
+    refused = np.isin(received, cmd[outcome == APPLY_REFUSED]) & ~applied
+    late_ids = c["cmd"][(c["cmd"] >= 0) & ~c["lost"] & (c["recv"] > r.w1)]
+    late = np.isin(received, late_ids) & ~applied & ~refused
+    return {
+        "applied": int(applied.sum()),
+        "refused_by_drive": int(refused.sum()),
+        "arrived_after_plant_stopped": int(late.sum()),
+        "unaccounted": int((~(applied | refused | late)).sum()),
     }
 
 
