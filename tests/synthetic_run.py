@@ -47,6 +47,8 @@ class Loop:
     refuse_can_frames: set[int] = field(default_factory=set)  # commands the drives refuse
     slow_can_from: tuple[int, int] | None = None  # (cmd_seq, extra ns): its frames and later
     forget_can_frames: set[int] = field(default_factory=set)  # received, never applied (a bug)
+    # (cmd_seq, extra ns): its frames and later ones are put on the bus that much after compute
+    late_can_send_from: tuple[int, int] | None = None
 
 
 def write(folder: Path, loop: Loop) -> None:
@@ -142,7 +144,10 @@ def write(folder: Path, loop: Loop) -> None:
             for node in (0, 1):
                 # The torques a command sends alternate like a sign law's (exact in float32).
                 value = (0.25 if (cmd_seq + node) % 2 else -0.5) * (1 + node)
-                can_tx_rows.append((node, send + 5 * US, cmd_seq, value))
+                put = send + 5 * US
+                if loop.late_can_send_from and cmd_seq >= loop.late_can_send_from[0]:
+                    put += loop.late_can_send_from[1]
+                can_tx_rows.append((node, put, cmd_seq, value))
             if loop.rearm_at is not None and s == loop.rearm_at:
                 for node in (0, 1):
                     can_tx_rows.append((node, send + 50 * US, -1, 0.0))
@@ -154,6 +159,8 @@ def write(folder: Path, loop: Loop) -> None:
         c.append("can_tx", (node, send, cseq, value, end))
         if loop.lose_can_frames and cseq in loop.lose_can_frames:
             continue  # lost on the wire: the receiver never sees it
+        if send + 250 * US > last_sample + P:
+            continue  # the plant closed its receiver a period after its last sample
         i = tx_index[node]
         tx_index[node] = i + 1
         recv = send + 250 * US

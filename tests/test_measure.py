@@ -240,3 +240,15 @@ def test_every_received_can_command_is_applied_refused_or_came_after_the_plant_s
     assert can["unaccounted"] == 0
     d = _measure(tmp_path / "d", Loop(cmd_path="can", forget_can_frames={200}))
     assert d.messages["torque_can"]["unaccounted"] == 1
+
+
+def test_a_can_command_put_on_the_bus_after_the_window_is_not_lost(tmp_path):
+    """The window counts a CAN command by when its frames were put on the bus, as Zenoh's by
+    its send: computed in time but sent (a stalled host) after the plant stopped listening, it
+    is ``sent_after_window``, not a loss."""
+    a = _measure(tmp_path / "a", Loop(cmd_path="can"))
+    last = a.messages["torque_can"]["sent"] - 1
+    b = _measure(tmp_path / "b", Loop(cmd_path="can", late_can_send_from=(last, 10 * MS)))
+    ca, cb = a.messages["torque_can"], b.messages["torque_can"]
+    assert cb["sent"] == ca["sent"] - 1 and cb["lost"] == 0 and cb["received"] == cb["sent"]
+    assert cb["sent_after_window"] == ca["sent_after_window"] + 1

@@ -422,8 +422,18 @@ def _can_messages(r: _Run) -> dict[str, Any]:
     when = np.zeros(tx["cmd_seq"].size, np.int64)
     when[found] = t["compute_start_ns"][rows[found]]
     end = r.w1 - r.settle  # as for Zenoh: frames sent while the drives still listen
-    mine = (tx["cmd_seq"] >= 0) & _in(when, r.w0, end)  # this window's command frames
-    sent_cmds = np.unique(tx["cmd_seq"][mine])
+    # A command is this window's if it was computed in it and its last frame was put on the bus
+    # by the end (a frame never on the bus counts at its compute time): a host stalled between
+    # compute and send must not make a frame sent after the plant stopped count as lost.
+    is_cmd = tx["cmd_seq"] >= 0
+    put = np.where(tx["send_ns"] > 0, tx["send_ns"], when)[is_cmd]
+    ids, inv = np.unique(tx["cmd_seq"][is_cmd], return_inverse=True)
+    last_put = np.full(ids.size, np.iinfo(np.int64).min)
+    np.maximum.at(last_put, inv, put)
+    first = np.full(ids.size, np.iinfo(np.int64).max)
+    np.minimum.at(first, inv, when[is_cmd])
+    sent_cmds = ids[(first >= r.w0) & (last_put <= end)]
+    mine = is_cmd & np.isin(tx["cmd_seq"], sent_cmds)  # this window's command frames
     got = (c["cmd"] >= 0) & ~c["lost"]
     nodes = max(1, np.unique(tx["node"]).size)
     ids, counts = np.unique(c["cmd"][got], return_counts=True)
@@ -445,9 +455,7 @@ def _can_messages(r: _Run) -> dict[str, Any]:
         "lifecycle_frames_sent": int((tx["cmd_seq"] < 0).sum()),
         "unmatched_frames_received": int((c["cmd"] == -2).sum()),
         "value_mismatches": int(r.value_mismatches),
-        "sent_after_window": int(
-            np.unique(tx["cmd_seq"][(tx["cmd_seq"] >= 0) & (when > end)]).size
-        ),
+        "sent_after_window": int((last_put > end).sum()),
     }
     if r.applied == "can":
         out.update(_can_fates(r, sent_cmds[np.isin(sent_cmds, both)], nodes))
