@@ -10,6 +10,7 @@ services ran: from the plant's first sample to its last.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -31,6 +32,7 @@ from protocol.hoplog import (
 )
 
 PATHS = ("zenoh", "can")
+LANDINGS = (APPLY_LANDED, APPLY_BURST)  # apply outcomes that put a command in force
 STALL_LIMIT = 20  # stalls listed in the certificate, worst first
 
 
@@ -213,17 +215,14 @@ class _Run:
     def landings(self, path: str, applied: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(land_ns, sample_ns, cmd_seq) per command put in force, newest wins; for a shadow
         path the arrival stands for the landing (what would have been applied)."""
-        if applied:
+        if applied and path == "zenoh":
             ap = self.logs["apply"]
-            ok = np.isin(ap["outcome"], (APPLY_LANDED, APPLY_BURST))  # landings only
-            if path == "zenoh":
-                m = ok & (ap["path"] == 0)
-                cmd, land = ap["seq"][m], ap["apply_ns"][m]
-            else:
-                m = ok & (ap["path"] == 1)
-                cmd = self.can_frame_of(ap["node"][m], ap["seq"][m])
-                land = ap["apply_ns"][m]
-                return self._can_commands(ap["node"][m], land, cmd)
+            m = np.isin(ap["outcome"], LANDINGS) & (ap["path"] == 0)
+            cmd, land = ap["seq"][m], ap["apply_ns"][m]
+        elif applied:
+            a = self.can_applies
+            m = np.isin(a["outcome"], LANDINGS)
+            return self._can_commands(a["node"][m], a["land"][m], a["cmd"][m])
         elif path == "zenoh":
             rx = self.logs["cmd_rx"]
             m = rx["path"] == 0
@@ -233,6 +232,19 @@ class _Run:
             got = ~c["lost"]
             return self._can_commands(c["node"][got], c["recv"][got], c["cmd"][got])
         return self._newest_wins(land, cmd)
+
+    @cached_property
+    def can_applies(self) -> dict[str, np.ndarray]:
+        """The plant's CAN apply rows (every outcome) with the command each frame carried."""
+        ap = self.logs["apply"]
+        m = ap["path"] == 1
+        node = ap["node"][m]
+        return {
+            "node": node,
+            "land": ap["apply_ns"][m],
+            "cmd": self.can_frame_of(node, ap["seq"][m]),
+            "outcome": ap["outcome"][m],
+        }
 
     def tick_of(self, cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(tick row, found) of each command sequence number."""
@@ -432,19 +444,19 @@ def _can_messages(r: _Run) -> dict[str, Any]:
     np.maximum.at(last_put, inv, put)
     first = np.full(ids.size, np.iinfo(np.int64).max)
     np.minimum.at(first, inv, when[is_cmd])
-    sent_cmds = ids[(first >= r.w0) & (last_put <= end)]
-    mine = is_cmd & np.isin(tx["cmd_seq"], sent_cmds)  # this window's command frames
+    in_window = (first >= r.w0) & (last_put <= end)
+    sent_cmds = ids[in_window]
+    mine = np.zeros(is_cmd.size, bool)  # this window's command frames
+    mine[is_cmd] = in_window[inv]
     got = (c["cmd"] >= 0) & ~c["lost"]
     nodes = max(1, np.unique(tx["node"]).size)
-    ids, counts = np.unique(c["cmd"][got], return_counts=True)
-    both = ids[counts >= nodes]
-    received = int(np.isin(sent_cmds, both).sum())
+    received = sent_cmds[np.isin(sent_cmds, _whole(c["cmd"][got], nodes))]
     frames_sent = int(mine.sum())
     frames_rx = int((got & np.isin(c["cmd"], sent_cmds)).sum())
     out = {
         "sent": int(sent_cmds.size),
-        "received": received,
-        "lost": int(sent_cmds.size - received),
+        "received": int(received.size),
+        "lost": int(sent_cmds.size - received.size),
         "duplicated": 0,
         "reordered": 0,
         "frames_sent": frames_sent,
@@ -458,8 +470,14 @@ def _can_messages(r: _Run) -> dict[str, Any]:
         "sent_after_window": int((last_put > end).sum()),
     }
     if r.applied == "can":
-        out.update(_can_fates(r, sent_cmds[np.isin(sent_cmds, both)], nodes))
+        out.update(_can_fates(r, received, nodes))
     return out
+
+
+def _whole(cmd: np.ndarray, nodes: int) -> np.ndarray:
+    """The commands among ``cmd`` (one entry a frame) that have a frame for every wheel."""
+    ids, counts = np.unique(cmd, return_counts=True)
+    return ids[counts >= nodes]
 
 
 def _can_fates(r: _Run, received: np.ndarray, nodes: int) -> dict[str, int]:
@@ -468,12 +486,9 @@ def _can_fates(r: _Run, received: np.ndarray, nodes: int) -> dict[str, int]:
     disarmed), ``arrived_after_plant_stopped`` (its last frame came after the plant's last
     sample: a slow host delayed it past the window; never applied, not lost). A received
     command that is none of these was dropped by the plant unexplained: ``unaccounted``."""
-    ap, c = r.logs["apply"], r._can
-    m = ap["path"] == 1
-    cmd = r.can_frame_of(ap["node"][m], ap["seq"][m])
-    outcome = ap["outcome"][m]
-    ids, counts = np.unique(cmd[np.isin(outcome, (APPLY_LANDED, APPLY_BURST))], return_counts=True)
-    applied = np.isin(received, ids[counts >= nodes])
+    a, c = r.can_applies, r._can
+    cmd, outcome = a["cmd"], a["outcome"]
+    applied = np.isin(received, _whole(cmd[np.isin(outcome, LANDINGS)], nodes))
     refused = np.isin(received, cmd[outcome == APPLY_REFUSED]) & ~applied
     late_ids = c["cmd"][(c["cmd"] >= 0) & ~c["lost"] & (c["recv"] > r.w1)]
     late = np.isin(received, late_ids) & ~applied & ~refused
