@@ -160,7 +160,9 @@ def write(folder: Path, loop: Loop) -> None:
         if loop.lose_can_frames and cseq in loop.lose_can_frames:
             continue  # lost on the wire: the receiver never sees it
         if send + 250 * US > last_sample + P:
-            continue  # the plant closed its receiver a period after its last sample
+            # Put on the bus after the plant closed its receiver (a period after its last
+            # sample). A frame already on the bus but read late (slow_can_from) is received.
+            continue
         i = tx_index[node]
         tx_index[node] = i + 1
         recv = send + 250 * US
