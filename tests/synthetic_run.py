@@ -49,6 +49,11 @@ class Loop:
     forget_can_frames: set[int] = field(default_factory=set)  # received, never applied (a bug)
     # (cmd_seq, extra ns): its frames and later ones are put on the bus that much after compute
     late_can_send_from: tuple[int, int] | None = None
+    # Every command sends the same torque to a wheel (a saturated law): identical payloads
+    constant_can_values: bool = False
+    # Commands whose frames arrive twice, and single wheels' frames lost: (cmd_seq, node)
+    duplicate_can_frames: set[int] = field(default_factory=set)
+    lose_can_wheel_frames: set[tuple[int, int]] = field(default_factory=set)
 
 
 def write(folder: Path, loop: Loop) -> None:
@@ -144,6 +149,8 @@ def write(folder: Path, loop: Loop) -> None:
             for node in (0, 1):
                 # The torques a command sends alternate like a sign law's (exact in float32).
                 value = (0.25 if (cmd_seq + node) % 2 else -0.5) * (1 + node)
+                if loop.constant_can_values:
+                    value = 0.75 * (1 + node)
                 put = send + 5 * US
                 if loop.late_can_send_from and cmd_seq >= loop.late_can_send_from[0]:
                     put += loop.late_can_send_from[1]
@@ -157,7 +164,7 @@ def write(folder: Path, loop: Loop) -> None:
     for node, send, cseq, value in can_tx_rows:
         end = send + 120 * US  # zenoh_can's name for the frame: its modelled end on the bus
         c.append("can_tx", (node, send, cseq, value, end))
-        if loop.lose_can_frames and cseq in loop.lose_can_frames:
+        if cseq in loop.lose_can_frames or (cseq, node) in loop.lose_can_wheel_frames:
             continue  # lost on the wire: the receiver never sees it
         if send + 250 * US > last_sample + P:
             # Put on the bus after the plant closed its receiver (a period after its last
@@ -170,6 +177,11 @@ def write(folder: Path, loop: Loop) -> None:
             recv += loop.slow_can_from[1]
         p.append("cmd_rx", (1, i, -1, 0, 0, end if loop.named_frames else 0, recv, value, 0.0,
                              node, 0))  # fmt: skip
+        if cseq in loop.duplicate_can_frames:  # the same frame once more, 10 µs later
+            i = tx_index[node]
+            tx_index[node] = i + 1
+            p.append("cmd_rx", (1, i, -1, 0, 0, end if loop.named_frames else 0, recv + 10 * US,
+                                 value, 0.0, node, 0))  # fmt: skip
         forgotten = cseq in loop.forget_can_frames
         if loop.cmd_path == "can" and E <= recv <= last_sample and not forgotten:
             refused = cseq in loop.refuse_can_frames  # the drive refuses it: no landing

@@ -39,14 +39,22 @@ class AgeSegments:
         return int(self.start.size)
 
 
-def segments(land_ns: np.ndarray, sample_ns: np.ndarray, end_ns: int) -> AgeSegments:
-    """Segments from landings sorted by time; landings after ``end_ns`` are dropped."""
+def segments(
+    land_ns: np.ndarray, sample_ns: np.ndarray, end_ns: int, start_ns: int | None = None
+) -> AgeSegments:
+    """Segments from landings sorted by time; landings after ``end_ns`` are dropped. With
+    ``start_ns`` (t = 0, the plant's first sample) the stretch before the first landing, when the
+    plant holds zero torque, is a segment of its own whose age counts from ``start_ns`` (the
+    sampled-data bound's assumption A2 counts the age from t = 0)."""
     land = np.asarray(land_ns, dtype=np.int64)
     samp = np.asarray(sample_ns, dtype=np.int64)
     order = np.argsort(land, kind="stable")
     land, samp = land[order], samp[order]
     keep = land <= end_ns
     land, samp = land[keep], samp[keep]
+    if start_ns is not None and (land.size == 0 or int(land[0]) > start_ns):
+        land = np.concatenate([[np.int64(start_ns)], land])
+        samp = np.concatenate([[np.int64(start_ns)], samp])
     if land.size == 0:
         e = np.zeros(0, np.int64)
         return AgeSegments(e, e, e)

@@ -16,7 +16,9 @@ from typing import Any
 import numpy as np
 
 from hil.measure import age as agemod
+from hil.measure.can_match import UNMATCHED, match_node
 from hil.measure.logs import RunLogs
+from hil.measure.stalls import find_stalls
 from hil.measure.stats import summarize_ns
 from protocol.hoplog import (
     APPLY_BURST,
@@ -33,7 +35,17 @@ from protocol.hoplog import (
 
 PATHS = ("zenoh", "can")
 LANDINGS = (APPLY_LANDED, APPLY_BURST)  # apply outcomes that put a command in force
-STALL_LIMIT = 20  # stalls listed in the certificate, worst first
+
+
+@dataclass(frozen=True)
+class Stamped:
+    """Rows of one kind sorted by a time stamp, with what a stall's cause needs of them."""
+
+    stamps: np.ndarray
+    late: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    arrived: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    injected: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    hop: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 @dataclass(frozen=True)
@@ -90,20 +102,6 @@ def _lookup(keys: np.ndarray, values: np.ndarray, query: np.ndarray, missing: in
     return out, found
 
 
-def _nearest(keys: np.ndarray, query: np.ndarray, tolerance_ns: int) -> np.ndarray:
-    """For each query, the index of the key nearest to it within the tolerance (-1: none)."""
-    if keys.size == 0:
-        return np.full(query.size, -1, np.int64)
-    order = np.argsort(keys, kind="stable")
-    ks = keys[order]
-    pos = np.clip(np.searchsorted(ks, query), 1, max(1, ks.size - 1))
-    left = np.clip(pos - 1, 0, ks.size - 1)
-    right = np.clip(pos, 0, ks.size - 1)
-    pick = np.where(np.abs(ks[left] - query) <= np.abs(ks[right] - query), left, right)
-    ok = np.abs(ks[pick] - query) <= tolerance_ns
-    return np.where(ok, order[pick], -1)
-
-
 def _stream_counts(sent_ids: np.ndarray, rx_ids: np.ndarray) -> dict[str, int]:
     """sent, received (distinct ids that were sent), lost, duplicated, reordered: one definition
     for every stream. Reordered: an arrival older than one that arrived before it."""
@@ -156,50 +154,55 @@ class _Run:
         self.cmd_keys = t["cmd_seq"][self.cmd_rows]
         self._can = self._match_can()
 
-    # --- CAN: arrivals matched to sends in per-node order -------------------------------------
+    # --- CAN: arrivals matched to sends (hil.measure.can_match) ------------------------------
     def _match_can(self) -> dict[str, np.ndarray]:
         """Every CAN torque frame that reached a drive's receiver, matched to the send it came
-        from. CANSimple frames carry no sequence number. Where the bus names each frame (the
-        zenoh_can bus: its modelled end of transmission, which sender and receiver both log),
-        frames are matched by that name exactly, so a frame lost on the way shifts nothing.
-        Elsewhere (socketcan) the i-th frame a drive received is the i-th put on the bus for it
-        (both logs keep bus order). Either way the torque each frame carries is checked against
-        its send's: ``value_mismatches`` counts disagreements (a shifted match is never silent).
+        from (:mod:`hil.measure.can_match`: by the bus's name for it where there is one, else
+        by bytes and order, a lost frame shifting nothing), with the earliest match the logs
+        allow beside it (``cmd_early``: the command age's upper bound), duplicates, and the
+        arrivals the logs cannot relate (``ambiguous``). The torque each frame carries is
+        checked against its send's: ``value_mismatches`` counts disagreements.
         ``lost``: the receiver lost the frame on purpose ([faults] frame loss)."""
         rx, tx = self.logs["cmd_rx"], self.logs["can_tx"]
         is_can = rx["path"] == 1
         node, idx, recv = rx["node"][is_can], rx["seq"][is_can], rx["recv_ns"][is_can]
         named, value = rx["send_ns"][is_can], rx["tau1"][is_can]
-        lost = rx["verdict"][is_can] == RX_LOST_BY_FAULT
-        send = np.zeros(node.size, np.int64)
-        cmd = np.full(node.size, -2, np.int64)  # -2: no matching send
-        # node -> (frame index among those its drive received, cmd_seq): arrays, not a dict:
-        # an hour at 1 kHz is 3.6 M frames a node.
-        self._frame_match: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        n_rx = node.size
+        out = {
+            "node": node, "index": idx, "recv": recv, "send": np.zeros(n_rx, np.int64),
+            "cmd": np.full(n_rx, UNMATCHED, np.int64),
+            "cmd_early": np.full(n_rx, UNMATCHED, np.int64),
+            "lost": rx["verdict"][is_can] == RX_LOST_BY_FAULT, "duplicated": np.zeros(n_rx, bool),
+            "ambiguous": np.zeros(n_rx, bool),
+        }  # fmt: skip
+        self._frame_match: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.value_mismatches = 0
+        self.can_reordered: dict[int, int] = {}
         on_bus = tx["send_ns"] > 0
-        for n in np.unique(node).tolist():
+        for n in np.unique(np.concatenate([node, tx["node"][on_bus]])).tolist():
             mine = on_bus & (tx["node"] == n)
-            tsend, tcmd, tend = tx["send_ns"][mine], tx["cmd_seq"][mine], tx["bus_end_ns"][mine]
-            tval = tx["value"][mine]
+            tsend, tcmd, tval = tx["send_ns"][mine], tx["cmd_seq"][mine], tx["value"][mine]
             rows = np.nonzero(node == n)[0]
-            if rows.size and (named[rows] > 0).all() and (tend > 0).all():
-                at = _nearest(tend, named[rows], tolerance_ns=2_000)
-            else:
-                at = np.where(idx[rows] < tsend.size, idx[rows], -1)
-            ok = at >= 0
-            send[rows[ok]] = tsend[at[ok]]
-            cmd[rows[ok]] = tcmd[at[ok]]
-            same = np.float32(value[rows[ok]]) == np.float32(tval[at[ok]])
+            nm = match_node(
+                tsend, tval, tx["bus_end_ns"][mine], recv[rows], value[rows], named[rows]
+            )
+            ok, oke = nm.latest >= 0, nm.earliest >= 0
+            out["send"][rows[ok]] = tsend[nm.latest[ok]]
+            out["cmd"][rows[ok]] = tcmd[nm.latest[ok]]
+            out["cmd_early"][rows[oke]] = tcmd[nm.earliest[oke]]
+            out["duplicated"][rows] = nm.duplicated
+            out["ambiguous"][rows] = nm.ambiguous
+            same = np.float32(value[rows[ok]]) == np.float32(tval[nm.latest[ok]])
             self.value_mismatches += int((~same).sum())
-            self._frame_match[n] = (idx[rows], cmd[rows])
-        return {"node": node, "index": idx, "recv": recv, "send": send, "cmd": cmd, "lost": lost}
+            self.can_reordered[int(n)] = nm.reordered
+            self._frame_match[int(n)] = (idx[rows], out["cmd"][rows], out["cmd_early"][rows])
+        return out
 
-    def can_frame_of(self, node: np.ndarray, index: np.ndarray) -> np.ndarray:
+    def can_frame_of(self, node: np.ndarray, index: np.ndarray, early: bool = False) -> np.ndarray:
         """cmd_seq (-1 lifecycle, -2 unmatched) of received CAN frames given as (node, the
-        frame's index among those its drive received)."""
-        out = np.full(node.size, -2, np.int64)
-        for n, (idx, cmd) in self._frame_match.items():
+        frame's index among those its drive received); ``early``: the earliest match."""
+        out = np.full(node.size, UNMATCHED, np.int64)
+        for n, (idx, cmd, cmd_early) in self._frame_match.items():
             mine = np.nonzero(node == n)[0]
             if idx.size == 0 or mine.size == 0:
                 continue
@@ -208,13 +211,16 @@ class _Run:
             ks = idx[order]
             pos = np.searchsorted(ks, index[mine], side="right") - 1
             found = (pos >= 0) & (ks[np.maximum(pos, 0)] == index[mine])
-            out[mine[found]] = cmd[order[pos[found]]]
+            out[mine[found]] = (cmd_early if early else cmd)[order[pos[found]]]
         return out
 
     # --- landings: (time, sample) of each command put in force, per path -----------------------
-    def landings(self, path: str, applied: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def landings(
+        self, path: str, applied: bool, early: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(land_ns, sample_ns, cmd_seq) per command put in force, newest wins; for a shadow
-        path the arrival stands for the landing (what would have been applied)."""
+        path the arrival stands for the landing (what would have been applied). ``early``: CAN
+        frames matched to the earliest sends the logs allow (the age's upper bound)."""
         if applied and path == "zenoh":
             ap = self.logs["apply"]
             m = np.isin(ap["outcome"], LANDINGS) & (ap["path"] == 0)
@@ -222,7 +228,8 @@ class _Run:
         elif applied:
             a = self.can_applies
             m = np.isin(a["outcome"], LANDINGS)
-            return self._can_commands(a["node"][m], a["land"][m], a["cmd"][m])
+            cmd = a["cmd_early"] if early else a["cmd"]
+            return self._can_commands(a["node"][m], a["land"][m], cmd[m])
         elif path == "zenoh":
             rx = self.logs["cmd_rx"]
             m = rx["path"] == 0
@@ -230,7 +237,8 @@ class _Run:
         else:
             c = self._can
             got = ~c["lost"]
-            return self._can_commands(c["node"][got], c["recv"][got], c["cmd"][got])
+            cmd = c["cmd_early"] if early else c["cmd"]
+            return self._can_commands(c["node"][got], c["recv"][got], cmd[got])
         return self._newest_wins(land, cmd)
 
     @cached_property
@@ -243,8 +251,74 @@ class _Run:
             "node": node,
             "land": ap["apply_ns"][m],
             "cmd": self.can_frame_of(node, ap["seq"][m]),
+            "cmd_early": self.can_frame_of(node, ap["seq"][m], early=True),
             "outcome": ap["outcome"][m],
         }
+
+    # --- what a stall's cause joins, sorted by time once (hil.measure.stalls) ----------------
+    @cached_property
+    def wake_sorted(self) -> Stamped:
+        t = self.ticks
+        order = np.argsort(t["wake_ns"], kind="stable")
+        return Stamped(t["wake_ns"][order], late=(t["wake_ns"] - t["deadline_ns"])[order])
+
+    @cached_property
+    def state_received(self) -> np.ndarray:
+        """Per plant sample: its State reached the controller."""
+        return np.isin(self.samples["seq"], self.logs["state_rx"]["seq"])
+
+    @cached_property
+    def state_injected_drop(self) -> np.ndarray:
+        return (self.samples["flags"] & SAMPLE_DROPPED) != 0
+
+    @cached_property
+    def state_hops_sorted(self) -> Stamped:
+        """State hops (controller receive - plant send) by sample time."""
+        t = self.ticks
+        ok = (t["state_recv_ns"] > 0) & (t["state_send_ns"] > 0)
+        order = np.argsort(t["state_sample_ns"][ok], kind="stable")
+        hop = (t["state_recv_ns"] - t["state_send_ns"])[ok][order]
+        return Stamped(t["state_sample_ns"][ok][order], hop=hop)
+
+    @cached_property
+    def commands_sorted(self) -> Stamped:
+        """The applied path's commands by when they were computed: arrived or not, dropped by
+        a [faults] injection, and their hop (-1: never arrived)."""
+        t = self.ticks
+        if self.applied == "zenoh":
+            rx = self.logs["cmd_rx"]
+            z = rx["path"] == 0
+            seq, recv = _first_per_key(rx["seq"][z], rx["recv_ns"][z])
+            sent = (t["zenoh_send_ns"] > 0) & (t["cmd_seq"] >= 0)
+            stamps, cmd = t["zenoh_send_ns"][sent], t["cmd_seq"][sent]
+            injected = (t["flags"][sent] & (TICK_DROPPED | TICK_REORDERED)) != 0
+        else:
+            c = self._can
+            got = (c["cmd"] >= 0) & ~c["lost"]
+            seq, recv = _first_per_key(c["cmd"][got], c["recv"][got])
+            tx = self.logs["can_tx"]
+            mine = tx["cmd_seq"] >= 0
+            cmd, first = np.unique(tx["cmd_seq"][mine], return_index=True)
+            put = tx["send_ns"][mine][first]
+            rows, found = self.tick_of(cmd)
+            stamps = np.where(found, self.ticks["compute_start_ns"][np.where(found, rows, 0)], put)
+            injected = np.zeros(cmd.size, bool)
+            lost_by_fault = np.unique(c["cmd"][c["lost"] & (c["cmd"] >= 0)])
+            injected |= np.isin(cmd, lost_by_fault) | (put <= 0)
+        arr, found = _lookup(seq, recv, cmd)
+        hop = np.where(found, arr - stamps, -1)
+        order = np.argsort(stamps, kind="stable")
+        return Stamped(
+            stamps[order], arrived=found[order], injected=injected[order], hop=hop[order]
+        )
+
+    @cached_property
+    def burst_sorted(self) -> Stamped:
+        """Landings a [faults] burst delayed, by landing time, with the delay."""
+        ap = self.logs["apply"]
+        b = ap["outcome"] == APPLY_BURST
+        order = np.argsort(ap["apply_ns"][b], kind="stable")
+        return Stamped(ap["apply_ns"][b][order], hop=(ap["apply_ns"] - ap["recv_ns"])[b][order])
 
     def tick_of(self, cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(tick row, found) of each command sequence number."""
@@ -312,33 +386,58 @@ def measure(logs: RunLogs, bound: BoundInputs | None = None) -> Measurement:
     return out
 
 
+def _missed_slots(late: np.ndarray, skipped: np.ndarray, period: int) -> dict[str, Any]:
+    """Missed slots: every slot whose deadline passed without its wake-up within one period
+    (the late wake-ups) plus the slots never run (skipped), over every slot of the window."""
+    late_n = int((late >= period).sum())
+    skipped_n = int(skipped.sum())
+    slots = int(late.size) + skipped_n
+    return {
+        "misses": late_n + skipped_n,
+        "late": late_n,
+        "skipped": skipped_n,
+        "slots": slots,
+        "rate": (late_n + skipped_n) / slots if slots else None,
+    }
+
+
 def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
+    """Wake-up figures where the trigger mode measures them; absent (never 0) elsewhere."""
     t = r.ticks
     win = _in(t["deadline_ns"], r.w0, r.w1) if t["deadline_ns"].size else np.zeros(0, bool)
     if r.trigger == "periodic" and not r.lockstep and win.any():
         late = t["wake_ns"][win] - t["deadline_ns"][win]
         timing["wakeup_lateness"] = summarize_ns(late)
-        misses = int((late >= r.period).sum())
-        timing["deadline_misses"] = misses
-        timing["skipped_slots"] = int(t["skipped"][win].sum())
+        miss = _missed_slots(late, t["skipped"][win], r.period)
+        timing["deadline_misses"] = miss["misses"]
+        timing["late_ticks"] = miss["late"]
+        timing["skipped_slots"] = miss["skipped"]
         timing["ticks"] = int(win.sum())
-        timing["deadline_miss_rate"] = misses / int(win.sum())
+        timing["slots"] = miss["slots"]
+        timing["deadline_miss_rate"] = miss["rate"]
         k, wake = t["k"][win], t["wake_ns"][win]
         timing["period_jitter"] = summarize_ns(np.abs(np.diff(wake) - np.diff(k) * r.period))
         series["wakeup_lateness"] = ((t["deadline_ns"][win] - r.epoch) / 1e9, late)
-    else:
-        timing["deadline_misses"] = 0
-        timing["skipped_slots"] = 0
-        timing["deadline_miss_rate"] = 0.0
     s = r.samples
     if not r.lockstep and s["wake_ns"].size:
         plate = s["wake_ns"] - s["sample_ns"]
         timing["plant_wakeup_lateness"] = summarize_ns(plate)
-        timing["plant_deadline_misses"] = int((plate >= r.sensor_period).sum())
         gaps = np.diff(s["sample_ns"]) // max(1, r.sensor_period) - 1
-        timing["plant_skipped_slots"] = int(np.clip(gaps, 0, None).sum())
+        miss = _missed_slots(plate, np.clip(gaps, 0, None), r.sensor_period)
+        timing["plant_deadline_misses"] = miss["misses"]
+        timing["plant_late_samples"] = miss["late"]
+        timing["plant_skipped_slots"] = miss["skipped"]
+        timing["plant_slots"] = miss["slots"]
+        timing["plant_deadline_miss_rate"] = miss["rate"]
         series["plant_wakeup_lateness"] = ((s["sample_ns"] - r.epoch) / 1e9, plate)
     timing["plant_sample_to_send"] = summarize_ns(s["send_ns"] - s["sample_ns"])
+
+
+def _relatable(summary: dict[str, Any], ambiguous: int) -> dict[str, Any]:
+    """Mark a CAN figure fed by frames the logs could match to more than one send."""
+    if ambiguous:
+        summary["not_relatable"] = int(ambiguous)
+    return summary
 
 
 def _hops(r: _Run, timing: dict[str, Any]) -> None:
@@ -366,8 +465,10 @@ def _hops(r: _Run, timing: dict[str, Any]) -> None:
     ss, has = _lookup(r.samples["seq"], r.samples["send_ns"], t["state_seq"][i])
     timing["state_send_to_cmd_recv"] = summarize_ns((recv - ss)[has])
     c = r._can
-    ok = (c["cmd"] >= 0) & (c["send"] > 0) & _in(c["send"], r.w0, r.w1)
-    timing["hop_cmd_can"] = summarize_ns(c["recv"][ok] - c["send"][ok])
+    ok = (c["cmd"] >= 0) & (c["send"] > 0) & _in(c["send"], r.w0, r.w1) & ~c["duplicated"]
+    timing["hop_cmd_can"] = _relatable(
+        summarize_ns(c["recv"][ok] - c["send"][ok]), int(c["ambiguous"][ok].sum())
+    )
 
 
 def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
@@ -375,18 +476,26 @@ def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
     s = r.samples
     judged = s["sample_ns"] <= judged_until
     n_judged = int(judged.sum())
+    c = r._can
+    can_ambiguous = int((c["ambiguous"] & _in(c["recv"], r.w0, r.w1)).sum())
     for path in PATHS:
         applied = path == r.applied
         land, samp, _cmd = r.landings(path, applied)
         if land.size == 0 and not applied:
             continue
+        amb = can_ambiguous if path == "can" else 0
         inwin = _in(samp, r.w0, r.w1)
         lat = land[inwin] - samp[inwin]
-        timing[f"sample_to_apply_{path}"] = summarize_ns(lat)
+        timing[f"sample_to_apply_{path}"] = _relatable(summarize_ns(lat), amb)
         series[f"sample_to_apply_{path}"] = lat
-        seg = agemod.segments(land, samp, r.w1)
-        timing[f"command_age_{path}"] = agemod.age_summary(seg, r.w0, r.h)
+        # The age counts from t = 0: before the first landing the plant holds zero torque.
+        seg = agemod.segments(land, samp, r.w1, start_ns=r.w0)
+        timing[f"command_age_{path}"] = _relatable(agemod.age_summary(seg, r.w0, r.h), amb)
         series[f"command_age_{path}"] = seg
+        if amb:
+            land_e, samp_e, _ = r.landings(path, applied, early=True)
+            upper = agemod.segments(land_e, samp_e, r.w1, start_ns=r.w0)
+            series[f"command_age_{path}_upper"] = upper
         if not applied:
             continue
         timing["startup_hold_s"] = (int(land[0]) - r.w0) / 1e9 if land.size else None
@@ -394,10 +503,10 @@ def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
         without = judged & ~np.isin(s["sample_ns"], landed)
         timing["samples_without_command"] = int(without.sum())
         timing["samples_judged"] = n_judged
-        timing["samples_without_command_rate"] = int(without.sum()) / n_judged if n_judged else 0.0
+        timing["samples_without_command_rate"] = int(without.sum()) / n_judged if n_judged else None
         late = (lat > r.ts) & (samp[inwin] <= judged_until)
         timing["late_commands"] = int(late.sum())
-        timing["late_commands_rate"] = int(late.sum()) / n_judged if n_judged else 0.0
+        timing["late_commands_rate"] = int(late.sum()) / n_judged if n_judged else None
         timing["sample_gap"] = summarize_ns(np.diff(landed[_in(landed, r.w0, r.w1)]))
         series["applied_path"] = path
 
@@ -427,16 +536,16 @@ def _messages(r: _Run) -> dict[str, Any]:
     return out
 
 
-def _can_messages(r: _Run) -> dict[str, Any]:
-    """Per command (both wheels' frames of one cycle) and per frame; lifecycle zeros apart."""
-    t, tx, c = r.ticks, r.logs["can_tx"], r._can
+def _can_window(r: _Run) -> tuple[np.ndarray, np.ndarray]:
+    """(this window's commands, per can_tx row: a frame of one of them). A command is this
+    window's if it was computed in it and its last frame was put on the bus by the end (a frame
+    never on the bus counts at its compute time): a host stalled between compute and send must
+    not make a frame sent after the plant stopped count as lost."""
+    t, tx = r.ticks, r.logs["can_tx"]
     rows, found = r.tick_of(tx["cmd_seq"])
     when = np.zeros(tx["cmd_seq"].size, np.int64)
     when[found] = t["compute_start_ns"][rows[found]]
     end = r.w1 - r.settle  # as for Zenoh: frames sent while the drives still listen
-    # A command is this window's if it was computed in it and its last frame was put on the bus
-    # by the end (a frame never on the bus counts at its compute time): a host stalled between
-    # compute and send must not make a frame sent after the plant stopped count as lost.
     is_cmd = tx["cmd_seq"] >= 0
     put = np.where(tx["send_ns"] > 0, tx["send_ns"], when)[is_cmd]
     ids, inv = np.unique(tx["cmd_seq"][is_cmd], return_inverse=True)
@@ -445,50 +554,84 @@ def _can_messages(r: _Run) -> dict[str, Any]:
     first = np.full(ids.size, np.iinfo(np.int64).max)
     np.minimum.at(first, inv, when[is_cmd])
     in_window = (first >= r.w0) & (last_put <= end)
-    sent_cmds = ids[in_window]
-    mine = np.zeros(is_cmd.size, bool)  # this window's command frames
+    mine = np.zeros(is_cmd.size, bool)
     mine[is_cmd] = in_window[inv]
-    got = (c["cmd"] >= 0) & ~c["lost"]
-    nodes = max(1, np.unique(tx["node"]).size)
-    received = sent_cmds[np.isin(sent_cmds, _whole(c["cmd"][got], nodes))]
+    r.can_sent_after_window = int((last_put > end).sum())
+    return ids[in_window], mine
+
+
+def _can_messages(r: _Run) -> dict[str, Any]:
+    """Per command (every wheel's frame of one cycle) and per frame, with a per-wheel split;
+    lifecycle zeros apart."""
+    tx, c = r.logs["can_tx"], r._can
+    sent_cmds, mine = _can_window(r)
+    got = (c["cmd"] >= 0) & ~c["lost"] & ~c["duplicated"]
+    wheels = np.unique(tx["node"])
+    n_wheels = max(1, wheels.size)
+    received = sent_cmds[np.isin(sent_cmds, _whole(c["cmd"][got], c["node"][got], n_wheels))]
+    ours = np.isin(c["cmd"], sent_cmds)
+    per_node: dict[str, dict[str, int]] = {}
+    for n in wheels.tolist():
+        on_n = c["node"] == n
+        sent_n = int((mine & (tx["node"] == n)).sum())
+        rx_n = _distinct_frames(c, got & ours & on_n)
+        per_node[str(n)] = {
+            "frames_sent": sent_n,
+            "frames_received": rx_n,
+            "frames_lost": sent_n - rx_n,
+            # An unnamed bus's copy matches no send: counted by when it arrived.
+            "duplicated": int((c["duplicated"] & on_n & _in(c["recv"], r.w0, r.w1)).sum()),
+            "reordered": int(r.can_reordered.get(int(n), 0)),
+        }
     frames_sent = int(mine.sum())
-    frames_rx = int((got & np.isin(c["cmd"], sent_cmds)).sum())
+    frames_rx = sum(v["frames_received"] for v in per_node.values())
     out = {
         "sent": int(sent_cmds.size),
         "received": int(received.size),
         "lost": int(sent_cmds.size - received.size),
-        "duplicated": 0,
-        "reordered": 0,
+        "duplicated": sum(v["duplicated"] for v in per_node.values()),
+        "reordered": sum(v["reordered"] for v in per_node.values()),
         "frames_sent": frames_sent,
         "frames_received": frames_rx,
         "frames_lost": frames_sent - frames_rx,
         "frames_not_on_bus": int((mine & (tx["send_ns"] <= 0)).sum()),
-        "injected_frame_losses": int((c["lost"] & np.isin(c["cmd"], sent_cmds)).sum()),
+        "frames_ambiguous": int((c["ambiguous"] & ours).sum()),
+        "injected_frame_losses": int((c["lost"] & ours).sum()),
         "lifecycle_frames_sent": int((tx["cmd_seq"] < 0).sum()),
-        "unmatched_frames_received": int((c["cmd"] == -2).sum()),
+        "unmatched_frames_received": int(((c["cmd"] == UNMATCHED) & ~c["duplicated"]).sum()),
         "value_mismatches": int(r.value_mismatches),
-        "sent_after_window": int((last_put > end).sum()),
+        "sent_after_window": r.can_sent_after_window,
+        "per_node": per_node,
     }
     if r.applied == "can":
-        out.update(_can_fates(r, received, nodes))
+        out.update(_can_fates(r, received, n_wheels))
     return out
 
 
-def _whole(cmd: np.ndarray, nodes: int) -> np.ndarray:
-    """The commands among ``cmd`` (one entry a frame) that have a frame for every wheel."""
-    ids, counts = np.unique(cmd, return_counts=True)
-    return ids[counts >= nodes]
+def _distinct_frames(c: dict[str, np.ndarray], sel: np.ndarray) -> int:
+    """Distinct frames among the selected arrivals (by the command and wheel they carry)."""
+    pairs = np.stack([c["cmd"][sel], c["node"][sel].astype(np.int64)])
+    return int(np.unique(pairs, axis=1).shape[1])
 
 
-def _can_fates(r: _Run, received: np.ndarray, nodes: int) -> dict[str, int]:
-    """What became of each received command on the applied CAN path: ``applied`` (both wheels'
-    frames landed), ``refused_by_drive`` (a wheel's drive refused a frame of it: non-finite,
+def _whole(cmd: np.ndarray, node: np.ndarray, wheels: int) -> np.ndarray:
+    """The commands among ``cmd`` (one entry a frame, ``node`` its wheel) with a frame from
+    every wheel: a duplicate of one wheel's frame never stands in for the other's."""
+    pairs = np.unique(np.stack([cmd, node.astype(np.int64)]), axis=1)
+    ids, counts = np.unique(pairs[0], return_counts=True)
+    return ids[counts >= wheels]
+
+
+def _can_fates(r: _Run, received: np.ndarray, wheels: int) -> dict[str, int]:
+    """What became of each received command on the applied CAN path: ``applied`` (every wheel's
+    frame landed), ``refused_by_drive`` (a wheel's drive refused a frame of it: non-finite,
     disarmed), ``arrived_after_plant_stopped`` (its last frame came after the plant's last
     sample: a slow host delayed it past the window; never applied, not lost). A received
     command that is none of these was dropped by the plant unexplained: ``unaccounted``."""
     a, c = r.can_applies, r._can
     cmd, outcome = a["cmd"], a["outcome"]
-    applied = np.isin(received, _whole(cmd[np.isin(outcome, LANDINGS)], nodes))
+    landed = np.isin(outcome, LANDINGS)
+    applied = np.isin(received, _whole(cmd[landed], a["node"][landed], wheels))
     refused = np.isin(received, cmd[outcome == APPLY_REFUSED]) & ~applied
     late_ids = c["cmd"][(c["cmd"] >= 0) & ~c["lost"] & (c["recv"] > r.w1)]
     late = np.isin(received, late_ids) & ~applied & ~refused
@@ -501,21 +644,30 @@ def _can_fates(r: _Run, received: np.ndarray, nodes: int) -> dict[str, int]:
 
 
 def _certificate(r: _Run, b: BoundInputs, series: dict[str, Any]) -> dict[str, Any]:
+    """The sampled-data certificate at the measured D, with every stall counted and owned.
+    ``held`` is True only if the bound holds for every matching of CAN frames the logs allow
+    (at the upper bound of D), False if it fails even at the lower one, else None (unknown)."""
     from controller_service.certificate import certify, critical_age
 
-    seg: agemod.AgeSegments = series.get(f"command_age_{r.applied}") or agemod.segments(
-        np.zeros(0, np.int64), np.zeros(0, np.int64), r.w1
-    )
-    d_max_ns = agemod.max_age(seg)
+    empty = agemod.segments(np.zeros(0, np.int64), np.zeros(0, np.int64), r.w1)
+    seg: agemod.AgeSegments = series.get(f"command_age_{r.applied}") or empty
+    upper: agemod.AgeSegments = series.get(f"command_age_{r.applied}_upper") or seg
+    d_max_ns, d_upper_ns = agemod.max_age(seg), agemod.max_age(upper)
     d_star = critical_age(b.params, b.context, b.boundary_layer, v0=b.v0, w0=b.w0)
     d_max = d_max_ns / 1e9 if d_max_ns is not None else None
-    cert = None
-    if d_max is not None:
-        cert = certify(b.params, b.context, d_max, 0.0, b.boundary_layer, v0=b.v0, w0=b.w0)
+
+    def held_at(d: float | None) -> tuple[bool, Any]:
+        if d is None:
+            return False, None
+        cert = certify(b.params, b.context, d, 0.0, b.boundary_layer, v0=b.v0, w0=b.w0)
+        return bool(cert.held and d <= d_star), cert
+
+    low_ok, cert = held_at(d_max)
+    high_ok = held_at(d_upper_ns / 1e9)[0] if d_upper_ns != d_max_ns else low_ok
+    held: bool | None = True if high_ok else (False if not low_ok else None)
     threshold_ns = int(max(3 * r.ts, 0.5 * d_star * 1e9))
-    stalls = find_stalls(r, seg, threshold_ns)
-    held = bool(cert is not None and cert.held and d_max is not None and d_max <= d_star)
-    return {
+    stalls = find_stalls(r, seg, threshold_ns, int(d_star * 1e9))
+    out = {
         "path": r.applied,
         "d_max_s": d_max,
         "d_star_s": d_star,
@@ -524,105 +676,12 @@ def _certificate(r: _Run, b: BoundInputs, series: dict[str, Any]) -> dict[str, A
         "v_bound": float(cert.v_bound) if cert is not None else None,
         "omega_bound": float(cert.w_bound) if cert is not None else None,
         "stall_threshold_s": threshold_ns / 1e9,
-        "stalls": stalls,
+        "stall_count": stalls.count,
+        "stalled_time_s": stalls.stalled_time_ns / 1e9,
+        "stalls_by_owner": stalls.by_owner,
+        "d_system_s": stalls.d_system_ns / 1e9 if stalls.d_system_ns is not None else None,
+        "stalls": stalls.listed,
     }
-
-
-def find_stalls(r: _Run, seg: agemod.AgeSegments, threshold_ns: int) -> list[dict[str, Any]]:
-    """Excursions of the applied path's command age above ``threshold_ns``, worst first, each
-    with the cause found by joining the logs over [sample in force, next landing]."""
-    found: list[dict[str, Any]] = []
-    peaks = seg.peak
-    over = np.nonzero(peaks > threshold_ns)[0]
-    if len(seg) and int(seg.start[0]) - r.w0 > threshold_ns:
-        # A late first landing: the hold before it and the age of that first (old) command
-        # are one excursion, the start-up's.
-        age = int(seg.start[0]) - r.w0
-        if over.size and over[0] == 0:
-            age = max(age, int(peaks[0]))
-            over = over[1:]
-        found.append({"t_s": 0.0, "age_s": age / 1e9, "cause": "startup"})
-    # The worst first, and only as many as are listed: joining the logs for each costs time.
-    over = over[np.argsort(-peaks[over], kind="stable")][:STALL_LIMIT]
-    for j in over.tolist():
-        s0, e = int(seg.sample[j]), int(seg.end[j])
-        cause, evidence = _cause(r, s0, e)
-        found.append(
-            {
-                "t_s": (s0 + threshold_ns - r.epoch) / 1e9,
-                "age_s": int(peaks[j]) / 1e9,
-                "cause": cause,
-                "evidence": evidence,
-            }
-        )
-    found.sort(key=lambda st: -st["age_s"])
-    return found[:STALL_LIMIT]
-
-
-def _longest_quiet(stamps: np.ndarray, lo: int, hi: int) -> int:
-    """The longest stretch of [lo, hi] without a stamp."""
-    inside = np.sort(stamps[_in(stamps, lo, hi)])
-    edges = np.concatenate([[lo], inside, [hi]])
-    return int(np.diff(edges).max())
-
-
-def _cause(r: _Run, lo: int, hi: int) -> tuple[str, dict[str, Any]]:
-    t, s = r.ticks, r.samples
-    scores: dict[str, float] = {}
-    ev: dict[str, Any] = {}
-    if r.trigger == "periodic" and t["wake_ns"].size:
-        m = _in(t["wake_ns"], lo, hi)
-        if m.any():
-            worst = int((t["wake_ns"][m] - t["deadline_ns"][m]).max())
-            ev["controller_lateness_s"] = worst / 1e9
-            if worst >= r.period:
-                scores["controller_late"] = worst
-        # No tick at all for longer than the period's slack: the controller was down (killed,
-        # restarting): it did not wake, the latest of lates.
-        quiet = _longest_quiet(t["wake_ns"], lo, hi)
-        if quiet >= 2 * r.period:
-            ev["controller_silent_s"] = quiet / 1e9
-            scores["controller_late"] = max(scores.get("controller_late", 0), quiet)
-    m = _in(s["wake_ns"], lo, hi) if not r.lockstep else np.zeros(0, bool)
-    if m.any():
-        worst = int((s["wake_ns"][m] - s["sample_ns"][m]).max())
-        ev["plant_lateness_s"] = worst / 1e9
-        if worst >= r.sensor_period:
-            scores["plant_late"] = worst
-    m = _in(s["sample_ns"], lo, hi)
-    lost = m & ~np.isin(s["seq"], r.logs["state_rx"]["seq"])
-    if lost.any():
-        ev["states_lost"] = int(lost.sum())
-        ev["states_dropped_by_faults"] = int(((s["flags"][lost] & SAMPLE_DROPPED) != 0).sum())
-        scores["state_lost"] = int(lost.sum()) * r.sensor_period
-    rx = r.logs["cmd_rx"]
-    if r.applied == "zenoh":
-        sent = (t["zenoh_send_ns"] > 0) & _in(t["zenoh_send_ns"], lo, hi)
-        lost_c = sent & ~np.isin(t["cmd_seq"], rx["seq"][rx["path"] == 0])
-        if lost_c.any():
-            ev["commands_lost"] = int(lost_c.sum())
-            dropped = (t["flags"][lost_c] & (TICK_DROPPED | TICK_REORDERED)) != 0
-            ev["commands_dropped_by_faults"] = int(dropped.sum())
-            scores["command_lost"] = int(lost_c.sum()) * r.period
-    else:
-        tx, c = r.logs["can_tx"], r._can
-        rows, found = r.tick_of(tx["cmd_seq"])
-        when = np.where(found, t["compute_start_ns"][np.where(found, rows, 0)], 0)
-        cmds = np.unique(tx["cmd_seq"][(tx["cmd_seq"] >= 0) & _in(when, lo, hi)])
-        got = c["cmd"][(c["cmd"] >= 0) & ~c["lost"]]
-        lost_cmds = cmds[~np.isin(cmds, got)]
-        if lost_cmds.size:
-            ev["commands_lost"] = int(lost_cmds.size)
-            off_bus = np.isin(tx["cmd_seq"], lost_cmds) & (tx["send_ns"] <= 0)
-            ev["frames_not_on_bus"] = int(off_bus.sum())
-            ev["frames_lost_by_faults"] = int((c["lost"] & np.isin(c["cmd"], lost_cmds)).sum())
-            scores["command_lost"] = int(lost_cmds.size) * r.period
-    ap = r.logs["apply"]
-    burst = (ap["outcome"] == APPLY_BURST) & _in(ap["apply_ns"], lo, hi)
-    if burst.any():
-        late = int((ap["apply_ns"][burst] - ap["recv_ns"][burst]).max())
-        ev["landings_delayed_by_faults"] = int(burst.sum())
-        scores["command_delayed"] = late
-    if not scores:
-        return "unknown", ev
-    return max(scores, key=lambda k: scores[k]), ev
+    if d_upper_ns != d_max_ns and d_upper_ns is not None:
+        out["d_max_upper_s"] = d_upper_ns / 1e9  # the largest D the CAN logs allow
+    return out

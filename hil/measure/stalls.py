@@ -1,0 +1,230 @@
+"""Stalls: the stretches where the applied path's command age stayed above a threshold, each with
+its cause and whose it is.
+
+An **excursion** is a maximal stretch of plant time over which the command age (hil.measure.age)
+stays above the threshold; it can span several landings (a first command that lands still too
+old continues it). Every excursion is counted (``stall_count``) and its time above the threshold
+summed (``stalled_time_s``); the worst ones are listed with a cause found by joining the logs
+over [the sample in force at its start, the landing that ends it]:
+
+| cause | evidence | owner |
+|---|---|---|
+| ``controller_late`` | a controller tick there woke a period or more late, or none woke | system |
+| ``state_lost`` | plant samples there never reached the controller | system |
+| ``command_lost`` | commands sent there never arrived | system |
+| ``transport_late`` | a State or command there took a period or more on the wire (its | system |
+|  | receiver on time: a message held up by a stalled receiver is the receiver's stall) | |
+| ``command_delayed`` | landings delayed by a ``[faults]`` burst | system |
+| ``plant_late`` | a plant sample there woke a period or more late | bench |
+| ``host_stalled`` | the controller AND the plant were both a period or more late | bench |
+| ``startup`` | the stretch before the first landing (its owner from the same evidence) | either |
+| ``unknown`` | none of these | unknown |
+
+The system under test is the controller, its host's scheduling and the transport; the bench is the
+plant emulator standing in for a robot that never stalls, the recorder and the bench's host.
+``d_system_s`` is the largest age outside the bench's stalls: what the user's system alone did.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from hil.measure.age import AgeSegments
+
+if TYPE_CHECKING:
+    from hil.measure.figures import _Run
+
+STALL_LIMIT = 20  # stalls listed, worst first
+CAUSE_LIMIT = 2000  # excursions whose cause is looked up (every one above D*, then the worst)
+OWNER = {
+    "controller_late": "system",
+    "state_lost": "system",
+    "command_lost": "system",
+    "transport_late": "system",
+    "command_delayed": "system",
+    "plant_late": "bench",
+    "host_stalled": "bench",
+    "unknown": "unknown",
+}
+
+
+@dataclass
+class Excursions:
+    """Maximal stretches of age above the threshold, as segment index ranges [first, last]."""
+
+    first: np.ndarray
+    last: np.ndarray
+    peak: np.ndarray  # ns, the largest age of each
+    enter: np.ndarray  # ns, when the age crossed the threshold
+    above: np.ndarray  # ns, time spent above the threshold
+
+    def __len__(self) -> int:
+        return int(self.first.size)
+
+
+def excursions(seg: AgeSegments, threshold_ns: int) -> Excursions:
+    """The excursions of the saw-tooth age above ``threshold_ns``."""
+    peaks = seg.peak
+    over = peaks > threshold_ns
+    z = np.zeros(0, np.int64)
+    if not over.any():
+        return Excursions(z, z, z, z, z)
+    idx = np.nonzero(over)[0]
+    # Segment j continues the excursion of j - 1 when the age never fell to the threshold
+    # between them: at j's start (the new landing) the age is still above it.
+    start_age = seg.start - seg.sample
+    cont = np.zeros(idx.size, bool)
+    cont[1:] = (idx[1:] == idx[:-1] + 1) & (start_age[idx[1:]] > threshold_ns)
+    heads = np.nonzero(~cont)[0]
+    first = idx[heads]
+    last = idx[np.append(heads[1:], idx.size) - 1]
+    enter_seg = np.maximum(seg.start, seg.sample + threshold_ns)
+    above_seg = np.where(over, seg.end - enter_seg, 0)
+    csum = np.concatenate([[0], np.cumsum(above_seg)])
+    peak = np.maximum.reduceat(peaks[idx], heads)
+    return Excursions(first, last, peak, enter_seg[first], csum[last + 1] - csum[first])
+
+
+@dataclass
+class StallReport:
+    listed: list[dict[str, Any]] = field(default_factory=list)
+    count: int = 0
+    stalled_time_ns: int = 0
+    by_owner: dict[str, dict[str, float]] = field(default_factory=dict)
+    d_system_ns: int | None = None
+
+
+def find_stalls(
+    r: _Run, seg: AgeSegments, threshold_ns: int, d_star_ns: int | None = None
+) -> StallReport:
+    """Every excursion counted, the worst listed with cause and owner, and D outside the
+    bench's stalls (module docstring)."""
+    ex = excursions(seg, threshold_ns)
+    rep = StallReport(count=len(ex), stalled_time_ns=int(ex.above.sum()))
+    rep.d_system_ns = int(seg.peak.max()) if len(seg) else None
+    if not len(ex):
+        return rep
+    order = np.argsort(-ex.peak, kind="stable")
+    must = int((ex.peak > d_star_ns).sum()) if d_star_ns is not None else 0
+    looked = order[: max(STALL_LIMIT, min(must, CAUSE_LIMIT))]
+    bench = np.zeros(len(seg), bool)  # segments inside the bench's stalls
+    for e in looked.tolist():
+        j0, j1 = int(ex.first[e]), int(ex.last[e])
+        cause, evidence = cause_of(r, int(seg.sample[j0]), int(seg.end[j1]))
+        owner = OWNER[cause]
+        startup = j0 == 0 and int(seg.start[0]) == r.w0 and int(seg.sample[0]) == r.w0
+        if startup:
+            cause = "startup"  # the zero torque held from t = 0 to the first landing
+        bench[j0 : j1 + 1] = owner == "bench"
+        t = rep.by_owner.setdefault(owner, {"count": 0, "time_s": 0.0})
+        t["count"] += 1
+        t["time_s"] += int(ex.above[e]) / 1e9
+        if len(rep.listed) < STALL_LIMIT:
+            rep.listed.append(
+                {
+                    "t_s": 0.0 if startup else (int(ex.enter[e]) - r.epoch) / 1e9,
+                    "age_s": int(ex.peak[e]) / 1e9,
+                    "cause": cause,
+                    "owner": owner,
+                    "evidence": evidence,
+                }
+            )
+    rest = seg.peak[~bench]
+    rep.d_system_ns = int(rest.max()) if rest.size else None
+    return rep
+
+
+def _between(sorted_stamps: np.ndarray, lo: int, hi: int) -> slice:
+    a = int(np.searchsorted(sorted_stamps, lo, side="left"))
+    b = int(np.searchsorted(sorted_stamps, hi, side="right"))
+    return slice(a, b)
+
+
+def _longest_quiet(stamps: np.ndarray, lo: int, hi: int) -> int:
+    """The longest stretch of [lo, hi] without a stamp (stamps sorted)."""
+    inside = stamps[_between(stamps, lo, hi)]
+    return int(np.diff(np.concatenate([[lo], inside, [hi]])).max())
+
+
+def cause_of(r: _Run, lo: int, hi: int) -> tuple[str, dict[str, Any]]:
+    """The cause of a stall over [lo, hi] and its evidence: the largest score wins; a
+    controller and a plant both late there is the host's stall."""
+    scores: dict[str, float] = {}
+    ev: dict[str, Any] = {}
+    _controller_evidence(r, lo, hi, scores, ev)
+    _plant_evidence(r, lo, hi, scores, ev)
+    _message_evidence(r, lo, hi, scores, ev)
+    if "controller_late" in scores and "plant_late" in scores:
+        scores["host_stalled"] = max(scores.pop("controller_late"), scores.pop("plant_late"))
+    if not scores:
+        return "unknown", ev
+    return max(scores, key=lambda k: scores[k]), ev
+
+
+def _controller_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None:
+    w = r.wake_sorted
+    if r.trigger != "periodic" or w.stamps.size == 0:
+        return
+    sl = _between(w.stamps, lo, hi)
+    if sl.stop > sl.start:
+        worst = int(w.late[sl].max())
+        ev["controller_lateness_s"] = worst / 1e9
+        if worst >= r.period:
+            scores["controller_late"] = worst
+    # No tick at all for longer than the period's slack: the controller was down (killed,
+    # restarting): it did not wake, the latest of lates.
+    quiet = _longest_quiet(w.stamps, lo, hi)
+    if quiet >= 2 * r.period:
+        ev["controller_silent_s"] = quiet / 1e9
+        scores["controller_late"] = max(scores.get("controller_late", 0), quiet)
+
+
+def _plant_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None:
+    s = r.samples
+    if r.lockstep or s["wake_ns"].size == 0:
+        return
+    sl = _between(s["sample_ns"], lo, hi)
+    if sl.stop > sl.start:
+        worst = int((s["wake_ns"][sl] - s["sample_ns"][sl]).max())
+        ev["plant_lateness_s"] = worst / 1e9
+        if worst >= r.sensor_period:
+            scores["plant_late"] = worst
+    # The plant sleeping through slots (no sample at all) is its lateness too.
+    quiet = _longest_quiet(s["sample_ns"], lo, hi)
+    if quiet >= 2 * r.sensor_period:
+        ev["plant_silent_s"] = quiet / 1e9
+        scores["plant_late"] = max(scores.get("plant_late", 0), quiet)
+
+
+def _message_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None:
+    s = r.samples
+    sl = _between(s["sample_ns"], lo, hi)
+    lost = ~r.state_received[sl]
+    if lost.any():
+        ev["states_lost"] = int(lost.sum())
+        ev["states_dropped_by_faults"] = int(r.state_injected_drop[sl][lost].sum())
+        scores["state_lost"] = int(lost.sum()) * r.sensor_period
+    c = r.commands_sorted
+    sl = _between(c.stamps, lo, hi)
+    lost_c = ~c.arrived[sl]
+    if lost_c.any():
+        ev["commands_lost"] = int(lost_c.sum())
+        ev["commands_dropped_by_faults"] = int(c.injected[sl][lost_c].sum())
+        scores["command_lost"] = int(lost_c.sum()) * r.period
+    # A message held up while its receiver was stalled is the receiver's stall, not the wire's.
+    hop = c.hop[sl] if "plant_late" not in scores else np.zeros(0, np.int64)
+    hop = hop[hop >= 0]
+    hs = r.state_hops_sorted
+    shop = hs.hop[_between(hs.stamps, lo, hi)] if "controller_late" not in scores else hop[:0]
+    worst = int(max(hop.max() if hop.size else 0, shop.max() if shop.size else 0))
+    if worst >= r.period:
+        ev["transport_worst_s"] = worst / 1e9
+        scores["transport_late"] = worst
+    b = r.burst_sorted
+    sl = _between(b.stamps, lo, hi)
+    if sl.stop > sl.start:
+        ev["landings_delayed_by_faults"] = sl.stop - sl.start
+        scores["command_delayed"] = int(b.hop[sl].max())
