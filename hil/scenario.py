@@ -115,7 +115,7 @@ class RealtimeConfig:
     trigger: str = "periodic"
     state_timeout: float = 0.05
     command_timeout: float = 0.05
-    scheduling: str = "other"
+    scheduling: str = "fifo"
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ import ctypes
 import ctypes.util
 import gc
 import os
+import sys
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -152,6 +153,13 @@ def setup_scheduling(
             report.priority = priority
         except (PermissionError, OSError, AttributeError) as exc:
             report.errors["fifo"] = str(exc)
+            print(
+                f"warning: SCHED_FIFO refused ({exc}): running SCHED_OTHER, so wake-up "
+                "lateness and the command age are those of a time-shared host (root or "
+                "CAP_SYS_NICE gives the real-time policy)",
+                file=sys.stderr,
+                flush=True,
+            )
         else:
             # Every other thread of the process (Zenoh's runtime, the CAN readers) one step
             # below: they take the GIL to deliver messages, and a SCHED_OTHER thread holding

@@ -35,17 +35,23 @@ def hil_run(
 
 
 def assert_negative_verdict_explained(summary: dict, stderr: str) -> None:
-    """``hil run`` exit 1 has two reasons, each checked against the summary: a limit of (2)
-    broken (violations counted), or the certificate not held (D > D*, with its stalls)."""
+    """``hil run`` exit 1 (without --strict) has two reasons, each checked against the summary:
+    a limit of (2) broken (violations counted), or the certificate not held through the
+    system's own timing (D > D*, with the system's stalls that explain it)."""
+    verdict = summary["verdict"]
+    assert verdict["outcome"] == "FAIL" and verdict["blocking"], verdict
+    for reason in verdict["blocking"]:
+        assert reason in stderr, (reason, stderr[-2000:])
     broken = {k for k, n in summary["violations"].items() if n > 0}
     if broken:
-        assert "constraint (2) broken" in stderr, stderr[-2000:]
+        assert any("limits of (2) broken" in r for r in verdict["blocking"]), verdict
         return
     cert = summary["certificate"]
     assert cert["held"] is False, f"exit 1 without a reason in the summary: {stderr[-2000:]}"
-    assert "certificate not held" in stderr, stderr[-2000:]
+    assert any("certificate not held" in r for r in verdict["blocking"]), verdict
     if cert["d_max_s"] > cert["d_star_s"]:
-        assert cert["stalls"], "D > D* but no stall explains it"
+        assert cert["d_system_s"] > cert["d_star_s"], cert
+        assert any(s["owner"] == "system" for s in cert["stalls"]), "D > D*, no system stall"
 
 
 def check_certified_bound(summary: dict, scenario_path: str) -> None:

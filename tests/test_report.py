@@ -251,8 +251,11 @@ def test_a_stall_beyond_d_star_is_negative_and_named(stall_folder: Path) -> None
     assert v["reasons"] == [
         f"certificate not held: command age D = {cert['d_max_s'] * 1e3:.3f} ms > "
         f"D* = {cert['d_star_s'] * 1e3:.3f} ms on the zenoh path "
-        f"(margin {cert['margin_s'] * 1e3:.3f} ms; failing: sampled |w| bound <= phi2)"
+        f"(margin {cert['margin_s'] * 1e3:.3f} ms; failing: sampled |w| bound <= phi2) "
+        f"by the system's own timing; worst: t = {cert['stalls'][0]['t_s']:.3f} s, "
+        f"{cert['stalls'][0]['age_s'] * 1e3:.3f} ms, {cert['stalls'][0]['cause']}"
     ]
+    assert v["outcome"] == "FAIL" and cert["stalls"][0]["owner"] == "system"
     assert cert["omega_bound"] > 5.1
     assert cert["d_max_s"] > cert["d_star_s"] > 0
     stall = cert["stalls"][0]

@@ -101,6 +101,20 @@ def test_sigint_of_hil_run_leaves_no_process_and_a_readable_recording(spawn, tmp
     summary = json.loads((out / "summary.json").read_text())
     assert summary["interrupted"] is True
     assert summary["samples"] > 50
+    # A run cut short says so and gives what ran, not the 60 s planned; its verdict covers that.
+    settings = json.loads((out / "run_settings.json").read_text())
+    ran = (summary["samples"] - 1) * settings["sensor_ts"]  # the plant's window, no gap
+    assert summary["duration_planned_s"] == 60.0
+    assert abs(summary["duration_run_s"] - ran) <= 0.01, (summary["duration_run_s"], ran)
+    assert summary["duration"] == summary["duration_run_s"]
+    assert any(n.startswith("interrupted after") for n in summary["verdict"]["notes"])
+    report = subprocess.run(
+        [sys.executable, "-m", "hil", "report", str(out), "--no-ideal"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert report.returncode in (0, 1), report.stderr[-2000:]
+    head = (out / "report.md").read_text()[:4000]
+    assert f"interrupted after {summary['duration_run_s']:.3f} s of 60 s" in head
     topics = list_topics(out / "recording.mcap")
     assert topics.get("hil/robot0/state", 0) > 50
     first = next(read_messages(out / "recording.mcap", topics=["hil/robot0/cmd/torque"]))

@@ -32,23 +32,11 @@ from hil.report.html import render_html
 from hil.report.markdown import render_markdown
 from hil.report.measured import RunResult, run_result
 from hil.report.scenario_view import ScenarioView, view
+from hil.verdict import DEFAULT_THRESHOLDS, PEAK_KEYS, RunFacts, Thresholds, judge
 from protocol.versions import REPORT_SCHEMA_VERSION
 
 FIGURE_PREFIX = "report_"
 IdealProvider = Callable[[Folder], dict[str, np.ndarray] | None]
-LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
-UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "m/s²", "tau2": "rad/s²"}
-SUMMARY_PEAKS = {"v": "max_abs_v", "omega": "max_abs_omega", "tau1": "max_abs_tau1"}
-SUMMARY_PEAKS["tau2"] = "max_abs_tau2"
-
-
-@dataclass(frozen=True)
-class Thresholds:
-    """When timing trouble turns the verdict negative (limits and certificate always do)."""
-
-    max_deadline_miss_ratio: float = 0.01
-    max_lost_ratio: float = 0.01
-    max_samples_without_command_ratio: float = 0.01
 
 
 @dataclass
@@ -94,106 +82,6 @@ def run_certificate(sv: ScenarioView, rr: RunResult) -> dict[str, Any]:
 # --------------------------------------------------------------------------- verdict
 
 
-def _pct(x: float) -> str:
-    return f"{100.0 * x:.3f} %"
-
-
-def limit_reasons(cons: dict[str, Any], summary: dict[str, Any]) -> list[str]:
-    """One reason per constraint of (2) beyond its limit, with its numbers."""
-    reasons = []
-    violations = summary.get("violations") or {}
-    for key, c in cons.items():
-        n = violations.get(key)
-        n = int(n) if isinstance(n, int | float) and not isinstance(n, bool) else 0
-        if n <= 0 and c["held"]:
-            continue
-        name, unit = LIMIT_NAMES[key], UNITS[key]
-        where = f"at {n} plant steps" if n > 0 else "at its peak sample"
-        reasons.append(
-            f"limits of (2) broken: |{key}| beyond {name} = {c['limit']:.4g} {unit} {where} "
-            f"(max |{key}| = {c['peak']:.4g} {unit}, {100 * c['ratio']:.1f} % of {name})"
-        )
-    return reasons
-
-
-def certificate_reasons(cert: dict[str, Any], cons: dict[str, Any]) -> tuple[str, list[str]]:
-    """The certificate's state ("held", "not held", "broken", "not applicable") and reasons."""
-    if cert.get("held") is None:
-        return "not applicable", []
-    ms = 1e3
-    d, ds, margin = cert.get("d_max_s"), cert.get("d_star_s"), cert.get("margin_s")
-    where = f" on the {cert['path']} path" if cert.get("path") else ""
-    reasons = []
-    beyond = [
-        (k, b)
-        for k, b in (("v", cert.get("v_bound")), ("omega", cert.get("omega_bound")))
-        if b is not None and cons[k]["peak"] > b * (1.0 + trace_metrics.LIMIT_REL_TOL)
-    ]
-    for k, b in beyond:
-        reasons.append(
-            f"measured beyond the sampled-data bound: max |{k}| = {cons[k]['peak']:.4g} "
-            f"{UNITS[k]} > {b:.4g} {UNITS[k]}"
-        )
-    if not cert["held"]:
-        if d is None:
-            reasons.append(f"certificate not held: no command ever landed{where} (D unknown)")
-        elif ds is not None and d > ds:
-            failed = cert.get("failed_conditions") or []
-            also = f"; failing: {', '.join(failed)}" if failed else ""
-            reasons.append(
-                f"certificate not held: command age D = {d * ms:.3f} ms > D* = {ds * ms:.3f} ms"
-                f"{where} (margin {margin * ms:.3f} ms{also})"
-            )
-        else:
-            failed = ", ".join(cert.get("failed_conditions") or []) or "see the certificate"
-            at = f"D = {d * ms:.3f} ms" + (f" <= D* = {ds * ms:.3f} ms" if ds is not None else "")
-            reasons.append(f"certificate not held: design conditions broken ({failed}) at {at}")
-    state = "broken" if beyond else ("held" if cert["held"] else "not held")
-    return state, reasons
-
-
-def timing_reasons(
-    timing: dict[str, Any], messages: dict[str, Any], path: str | None, th: Thresholds
-) -> tuple[dict[str, Any], list[str]]:
-    """Deadline misses, samples without a command and lost messages of the applied path and
-    the State stream against their thresholds (the shadow path never counts)."""
-    reasons = []
-    found: dict[str, Any] = {}
-    misses, ticks = timing.get("deadline_misses"), timing.get("ticks")
-    rate = timing.get("deadline_miss_rate")
-    if isinstance(misses, int) and isinstance(rate, int | float):
-        found["deadline_misses"] = {"count": misses, "ticks": ticks, "rate": rate}
-        if rate > th.max_deadline_miss_ratio:
-            reasons.append(
-                f"deadline misses: {misses} of {ticks} ticks ({_pct(rate)}) > "
-                f"{_pct(th.max_deadline_miss_ratio)}"
-            )
-    n, judged = timing.get("samples_without_command"), timing.get("samples_judged")
-    rate = timing.get("samples_without_command_rate")
-    if isinstance(n, int) and isinstance(rate, int | float):
-        found["samples_without_command"] = {"count": n, "judged": judged, "rate": rate}
-        if rate > th.max_samples_without_command_ratio:
-            reasons.append(
-                f"samples without a command: {n} of {judged} ({_pct(rate)}) > "
-                f"{_pct(th.max_samples_without_command_ratio)}"
-            )
-    streams = [s for s in ("state", f"torque_{path}" if path else "") if s in messages]
-    if streams:
-        lost = sum(int(messages[s].get("lost", 0)) for s in streams)
-        sent = sum(int(messages[s].get("sent", 0)) for s in streams)
-        ratio = lost / sent if sent else (1.0 if lost else 0.0)
-        found["lost_messages"] = {"lost": lost, "sent": sent, "rate": ratio, "streams": streams}
-        if ratio > th.max_lost_ratio:
-            per = ", ".join(
-                f"{s} {messages[s].get('lost', 0)} of {messages[s].get('sent', 0)}" for s in streams
-            )
-            reasons.append(
-                f"lost messages: {lost} of {sent} ({_pct(ratio)}) > {_pct(th.max_lost_ratio)} "
-                f"({per})"
-            )
-    return found, reasons
-
-
 def verdict_block(
     cons: dict[str, Any],
     summary: dict[str, Any],
@@ -201,38 +89,18 @@ def verdict_block(
     rr: RunResult | None,
     thresholds: Thresholds,
 ) -> dict[str, Any]:
-    """The verdict rules of docs/reports.md: negative when (a) a limit of (2) is broken
-    (summary.json's violations over every plant step, or a peak), (b) the certificate is not
-    held (D > D* or a design condition) or a measured |v| / |omega| exceeds its bound, (c)
-    deadline misses, samples without a command or lost messages (State and the applied
-    path) exceed their thresholds. Every reason names its numbers."""
-    reasons = limit_reasons(cons, summary)
-    broken = sorted(
-        {k for k, n in (summary.get("violations") or {}).items() if isinstance(n, int) and n > 0}
-        | {k for k, c in cons.items() if not c["held"]}
+    """The verdict (:func:`hil.verdict.judge`, the one implementation ``hil run`` also uses)
+    with the report's thresholds."""
+    v = judge(
+        cons,
+        summary.get("violations") or {},
+        cert,
+        rr.timing if rr is not None else None,
+        rr.messages if rr is not None else None,
+        RunFacts.of(summary),
+        thresholds,
     )
-    cert_state, cert_reasons = certificate_reasons(cert, cons)
-    reasons += cert_reasons
-    timing: dict[str, Any] = {}
-    if rr is not None:
-        timing, more = timing_reasons(rr.timing, rr.messages, cert.get("path"), thresholds)
-        reasons += more
-    return {
-        "ok": not reasons,
-        "limits": "broken" if broken else "held",
-        "limits_broken": broken,
-        "certificate": cert_state,
-        "deadline_misses": (timing.get("deadline_misses") or {}).get("count"),
-        "samples_without_command": (timing.get("samples_without_command") or {}).get("count"),
-        "lost_messages": (timing.get("lost_messages") or {}).get("lost"),
-        "timing": timing,
-        "reasons": reasons,
-        "thresholds": {
-            "max_deadline_miss_ratio": thresholds.max_deadline_miss_ratio,
-            "max_samples_without_command_ratio": thresholds.max_samples_without_command_ratio,
-            "max_lost_ratio": thresholds.max_lost_ratio,
-        },
-    }
+    return v.as_dict()
 
 
 # --------------------------------------------------------------------------- drives
@@ -293,7 +161,7 @@ def build_report(
     folder: Folder,
     *,
     ideal: IdealProvider | None = None,
-    thresholds: Thresholds = Thresholds(),
+    thresholds: Thresholds = DEFAULT_THRESHOLDS,
 ) -> Report:
     """The report of one run or simulation folder: metrics, certificate, verdict, figures."""
     sv = view(folder.scenario)
@@ -384,7 +252,7 @@ def _metrics(
         "trace.csv" if "v_tilde" in tr else ("recorded telemetry" if sliding else "unavailable")
     )
     # summary.json's peaks cover every plant step, the trace only control samples: take both.
-    for key, skey in SUMMARY_PEAKS.items():
+    for key, skey in PEAK_KEYS.items():
         peak = folder.summary.get(skey)
         if isinstance(peak, int | float) and math.isfinite(peak):
             c = metrics["constraints"][key]
@@ -422,6 +290,7 @@ def _timing_block(folder: Folder, rr: RunResult | None, cert: dict[str, Any]) ->
         "series": "hop logs (hil.measure)" if rr and rr.measurement else None,
         "hop_logs_agree_with_summary": rr.agree if rr is not None else None,
         "faults": folder.summary.get("faults"),
+        "scheduling": folder.summary.get("scheduling"),
     }
 
 

@@ -89,12 +89,21 @@ def _ms(x: Any) -> Any:
 PCT_KEYS = ("p50_us", "p90_us", "p99_us", "p999_us", "max_us", "count")
 
 
-def _pct_rows(timing: dict[str, Any], names: list[tuple[str, str]]) -> list[list[Any]]:
+NOT_MEASURED = "n/a"
+
+
+def _pct_rows(
+    timing: dict[str, Any], names: list[tuple[str, str]], always: tuple[str, ...] = ()
+) -> list[list[Any]]:
+    """Percentile rows; a figure in ``always`` that the run did not measure (its trigger mode
+    has none) shows as n/a, never as 0."""
     rows = []
     for key, label in names:
         f = timing.get(key)
         if isinstance(f, dict):
             rows.append([label, *(f.get(q) for q in PCT_KEYS)])
+        elif key in always:
+            rows.append([label, *(NOT_MEASURED for _ in PCT_KEYS)])
     return rows
 
 
@@ -114,23 +123,33 @@ def _terms(s: Section, data: dict[str, Any]) -> None:
         s.p(text)
 
 
+def _na(value: Any) -> Any:
+    return NOT_MEASURED if value is None else value
+
+
 def _verdict(s: Section, data: dict[str, Any]) -> None:
     v = data["verdict"]
-    s.title = f"Verdict: {'PASS' if v['ok'] else 'FAIL'}"
+    s.title = f"Verdict: {v.get('outcome', 'PASS' if v['ok'] else 'FAIL')}"
     s.table(
         ["item", "state"],
         [
             ["limits (2)", v["limits"]],
             ["certificate", v["certificate"]],
-            ["deadline misses", v["deadline_misses"]],
-            ["samples without a command", v["samples_without_command"]],
-            ["lost messages (State and the applied path)", v["lost_messages"]],
+            ["deadline misses (missed slots)", _na(v["deadline_misses"])],
+            ["samples without a command", _na(v["samples_without_command"])],
+            ["lost messages (State and the applied path)", _na(v["lost_messages"])],
         ],
     )
-    if v["reasons"]:
-        s.items(list(v["reasons"]))
-    else:
+    if v.get("fail_reasons"):
+        s.p("FAIL: the system under test (controller, its host, the transport):")
+        s.items(list(v["fail_reasons"]))
+    if v.get("inconclusive_reasons"):
+        s.p("INCONCLUSIVE: the bench, or logs that cannot relate a figure, not your system:")
+        s.items(list(v["inconclusive_reasons"]))
+    if not v["reasons"]:
         s.p("No reason for a negative verdict.")
+    for line in (*v.get("advice", ()), *v.get("notes", ())):
+        s.p(line)
     th = v["thresholds"]
     s.p(
         "Negative when a limit of (2) is broken, the certificate is not held, or deadline "
@@ -307,20 +326,21 @@ def _lateness(s: Section, data: dict[str, Any]) -> None:
         ("period_jitter", "controller period jitter"),
         ("plant_wakeup_lateness", "plant wake-up lateness"),
     ]
-    s.table(["figure", *PCT_KEYS], _pct_rows(timing, names))
-    counts = [
-        [k, timing.get(k)]
-        for k in (
-            "ticks",
-            "deadline_misses",
-            "deadline_miss_rate",
-            "skipped_slots",
-            "plant_deadline_misses",
-            "plant_skipped_slots",
-        )
-        if k in timing
-    ]
+    measured_here = ("wakeup_lateness", "period_jitter") if timing else ()
+    s.table(["figure", *PCT_KEYS], _pct_rows(timing, names, measured_here))
+    # Missed slots: a stall of N periods misses N slots (late wake-ups + slots never run).
+    keys = ("ticks", "slots", "deadline_misses", "late_ticks", "skipped_slots")
+    keys += ("deadline_miss_rate", "plant_slots", "plant_deadline_misses", "plant_skipped_slots")
+    counts = [[k, _na(timing.get(k))] for k in keys] if timing else []
     s.table(["count", "value"], counts)
+    sched = data["timing"].get("scheduling") or {}
+    for role, got in sched.items():
+        if isinstance(got, dict):
+            s.p(
+                f"Scheduling of the {role}: asked {got.get('requested')}, got {got.get('policy')}"
+                f" (priority {got.get('priority')}); the policy changes wake-up lateness, "
+                "deadline misses and the command age."
+            )
     s.figure("lateness")
 
 

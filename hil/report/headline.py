@@ -96,8 +96,11 @@ def _stalls(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
     cert = data["certificate"]
     stalls = list(cert.get("stalls") or [])
     thr = cert.get("stall_threshold_s")
-    top = [{k: s.get(k) for k in ("t_s", "age_s", "cause")} for s in stalls[:TOP_STALLS]]
-    out = {"threshold_s": thr, "listed": len(stalls), "top": top}
+    top = [{k: s.get(k) for k in ("t_s", "age_s", "cause", "owner")} for s in stalls[:TOP_STALLS]]
+    total = cert.get("stall_count", len(stalls))
+    stalled = cert.get("stalled_time_s")
+    out = {"threshold_s": thr, "listed": len(stalls), "count": total, "top": top}
+    out["stalled_time_s"] = stalled
     if data["kind"] != "run" or cert.get("path") is None:
         return out, "Stalls: not measured in a simulation (every command lands after its delay)."
     if thr is None:
@@ -108,10 +111,13 @@ def _stalls(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
             f"max(3 Ts, D*/2) = {ms(thr)}."
         )
     items = "; ".join(
-        f"t = {s['t_s']:.3f} s, age {ms(s['age_s'])}, cause {s['cause']}" for s in top
+        f"t = {s['t_s']:.3f} s, age {ms(s['age_s'])}, cause {s['cause']}"
+        + (f" ({s['owner']})" if s.get("owner") else "")
+        for s in top
     )
+    spent = f", {ms(stalled)} in all above it" if stalled is not None else ""
     return out, (
-        f"Stalls closest to D* (top {len(top)} of {len(stalls)} above {ms(thr)}): {items}."
+        f"Stalls closest to D* (top {len(top)} of {total} above {ms(thr)}{spent}): {items}."
     )
 
 
@@ -142,8 +148,12 @@ def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
     stalls, s_text = _stalls(data)
     samples, n_text = _samples(data, summary)
     v = data["verdict"]
-    verdict = "PASS" if v["ok"] else "FAIL"
-    v_text = f"Verdict: {verdict}." if v["ok"] else f"Verdict: FAIL: {'; '.join(v['reasons'])}."
+    verdict = v.get("outcome", "PASS" if v["ok"] else "FAIL")
+    v_text = (
+        f"Verdict: {verdict}." if v["ok"] else f"Verdict: {verdict}: {'; '.join(v['reasons'])}."
+    )
+    if v.get("notes"):
+        v_text += " " + " ".join(v["notes"])
     return {
         "verdict": verdict,
         "limits": limits,

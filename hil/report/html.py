@@ -21,6 +21,7 @@ h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-to
 table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:.25em .6em;
 text-align:left;font-variant-numeric:tabular-nums}th{background:#f4f4f4}
 .ok{background:#e6f4e6;border:2px solid #3a3}.bad{background:#fbe9e9;border:2px solid #c33}
+.unsure{background:#fff6dd;border:2px solid #c90}
 .verdict{padding:.8em 1.2em;margin:1em 0}figure{margin:1em 0}img{max-width:100%}
 figcaption{font-size:.9em;color:#555}code{background:#f4f4f4;padding:0 .2em}
 """
@@ -62,8 +63,9 @@ def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
     for section in sections(data):
         parts.append(f'<section id="{esc(section.id)}">')
         if section.id == "headline":
-            cls = "ok" if ok else "bad"
-            parts.append(f'<div class="verdict {cls}"><strong>{"PASS" if ok else "FAIL"}</strong>')
+            outcome = data["verdict"].get("outcome", "PASS" if ok else "FAIL")
+            cls = {"PASS": "ok", "INCONCLUSIVE": "unsure"}.get(outcome, "bad")
+            parts.append(f'<div class="verdict {cls}"><strong>{outcome}</strong>')
         else:
             parts.append(f"<h2>{esc(section.title)}</h2>")
         for block in section.blocks:

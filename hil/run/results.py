@@ -21,6 +21,7 @@ from hil.measure.folder import measure_logs, resolved_scenario
 from hil.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
 from hil.run.settings import rate_hz
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
+from hil.verdict import RunFacts, Verdict, constraints_from_peaks, judge
 from protocol.angles import wrap_angle as wrap
 from protocol.hoplog import TICK_NO_SEND
 from protocol.versions import RUN_SCHEMA_VERSION as SCHEMA_VERSION
@@ -155,8 +156,28 @@ def analyze(
         "plant": logs.pmeta.get("scheduling"),
     }
     summary.update(extra)
+    # What ran (the plant's window): a run cut short says so here and in its verdict.
+    summary["duration_run_s"] = m.timing.get("window_s")
+    summary["duration_planned_s"] = summary["duration"]
+    if summary.get("interrupted") and summary["duration_run_s"] is not None:
+        summary["duration"] = summary["duration_run_s"]
+    summary["verdict"] = run_verdict(summary, scenario).as_dict()
     (run_dir / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2))
     return summary
+
+
+def run_verdict(summary: dict[str, Any], scenario: Any) -> Verdict:
+    """The run's verdict (:func:`hil.verdict.judge`) at the default thresholds."""
+    lim = scenario.limits
+    limits = {k: float(getattr(lim, k)) for k in ("phi1", "phi2", "varpi1", "varpi2")}
+    return judge(
+        constraints_from_peaks(summary, limits),
+        summary.get("violations") or {},
+        summary.get("certificate"),
+        summary.get("timing") or {},
+        summary.get("messages") or {},
+        RunFacts.of(summary),
+    )
 
 
 def _jsonable(obj: Any) -> Any:

@@ -1,0 +1,344 @@
+"""The verdict: one answer for the user's system (the controller, its host, the transport).
+
+Did timing keep the law within the limits of (2), and with how much room? Three outcomes, each
+with its reasons (docs/reports.md, "The verdict"):
+
+- **FAIL**: a limit of (2) broke, the certificate is not held because of the system's own timing
+  (controller late, messages lost or late on the wire: ``certificate.d_system_s`` > D*), the
+  design conditions fail, or deadline misses, samples without a command or lost messages exceed
+  their thresholds.
+- **INCONCLUSIVE**: the bench itself (the plant emulator standing in for a robot that never
+  stalls, the recorder, the bench's host) stalled enough to matter (D > D* only through the
+  bench's stalls, or a limit broken while a bench stall was in force), a stall whose cause the
+  logs cannot tell pushed D past D*, or the logs cannot relate a figure (CAN frames matched to
+  the wrong torque, or ambiguous between two sends with D* between the two bounds of D). Never
+  the user's fault; the advice says what to change.
+- **PASS**: neither, with the margin D* - D.
+
+A run cut short is judged over what ran, and says so. A figure that was not measured is absent
+from the evidence, never 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
+LIMIT_REL_TOL = 1e-9
+LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
+UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "m/s²", "tau2": "rad/s²"}
+BENCH_ADVICE = (
+    "the bench stalled, not your system: run fewer processes beside it, keep the real-time "
+    'policy (scheduling = "fifo", as root or with CAP_SYS_NICE), use a quieter host, or lower '
+    "the rate; then run again"
+)
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """When timing trouble turns the verdict negative (limits and certificate always do)."""
+
+    max_deadline_miss_ratio: float = 0.01
+    max_lost_ratio: float = 0.01
+    max_samples_without_command_ratio: float = 0.01
+
+
+DEFAULT_THRESHOLDS = Thresholds()
+
+
+@dataclass(frozen=True)
+class RunFacts:
+    """What the verdict needs to know of how the run went (absent for a simulation)."""
+
+    interrupted: bool = False
+    duration_s: float | None = None  # planned
+    duration_run_s: float | None = None  # the plant's window actually run
+    scheduling: dict[str, Any] | None = None  # requested and obtained, per service
+
+    @classmethod
+    def of(cls, summary: dict[str, Any]) -> RunFacts | None:
+        """How a run went, from its summary (None for a simulation)."""
+        if summary.get("kind") != "run":
+            return None
+        sched = summary.get("scheduling")
+        return cls(
+            interrupted=bool(summary.get("interrupted")),
+            duration_s=summary.get("duration_planned_s", summary.get("duration")),
+            duration_run_s=summary.get("duration_run_s"),
+            scheduling=sched if isinstance(sched, dict) else None,
+        )
+
+
+@dataclass
+class Verdict:
+    outcome: str = PASS
+    fail_reasons: list[str] = field(default_factory=list)
+    inconclusive_reasons: list[str] = field(default_factory=list)
+    advice: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    #: reasons that make ``hil run`` exit 1 by default (limits, certificate: the run's own)
+    blocking: list[str] = field(default_factory=list)
+    limits: str = "held"
+    limits_broken: list[str] = field(default_factory=list)
+    certificate: str = "not applicable"
+    timing: dict[str, Any] = field(default_factory=dict)
+    thresholds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.outcome == PASS
+
+    @property
+    def reasons(self) -> list[str]:
+        return [*self.fail_reasons, *self.inconclusive_reasons]
+
+    def as_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["ok"] = self.ok
+        out["reasons"] = self.reasons
+        for key in ("deadline_misses", "samples_without_command", "lost_messages"):
+            found = self.timing.get(key) or {}
+            out[key] = found.get("count", found.get("lost"))
+        return out
+
+
+PEAK_KEYS = {"v": "max_abs_v", "omega": "max_abs_omega", "tau1": "max_abs_tau1"}
+PEAK_KEYS["tau2"] = "max_abs_tau2"
+
+
+def constraints_from_peaks(
+    summary: dict[str, Any], limits: dict[str, float]
+) -> dict[str, dict[str, Any]]:
+    """Per limit of (2) its peak over every plant step (summary.json's ``max_abs_*``), the
+    limit and whether it held (peaks not measured are left out)."""
+    out = {}
+    for key, skey in PEAK_KEYS.items():
+        peak, limit = summary.get(skey), limits.get(LIMIT_NAMES[key])
+        if isinstance(peak, int | float) and isinstance(limit, int | float) and limit > 0:
+            out[key] = {
+                "peak": float(peak),
+                "limit": float(limit),
+                "ratio": float(peak) / float(limit),
+                "held": float(peak) <= float(limit) * (1.0 + LIMIT_REL_TOL),
+            }
+    return out
+
+
+def _pct(x: float) -> str:
+    return f"{100.0 * x:.3f} %"
+
+
+def _ms(seconds: float) -> str:
+    return f"{seconds * 1e3:.3f} ms"
+
+
+def _bench_stalls(cert: dict[str, Any] | None) -> list[dict[str, Any]]:
+    return [s for s in (cert or {}).get("stalls") or [] if s.get("owner") == "bench"]
+
+
+def _stall_words(s: dict[str, Any]) -> str:
+    who = {"plant_late": "the plant emulator", "host_stalled": "the bench's host"}.get(
+        s.get("cause", ""), s.get("cause", "")
+    )
+    return f"{who} stalled at t = {s['t_s']:.3f} s (command age {_ms(s['age_s'])}, {s['cause']})"
+
+
+def judge(
+    cons: dict[str, dict[str, Any]],
+    violations: dict[str, Any],
+    cert: dict[str, Any] | None,
+    timing: dict[str, Any] | None,
+    messages: dict[str, Any] | None,
+    facts: RunFacts | None = None,
+    thresholds: Thresholds = DEFAULT_THRESHOLDS,
+) -> Verdict:
+    """The verdict (module docstring). ``cons``: per limit of (2) its peak, limit and whether
+    it held; ``violations``: plant steps beyond each limit; ``cert``: the certificate object
+    (summary.json's, or a simulation's); ``timing``/``messages``: the run's (None for a
+    simulation)."""
+    v = Verdict(thresholds=asdict(thresholds))
+    _limits(v, cons, violations, cert)
+    _certificate(v, cons, cert)
+    if timing is not None:
+        _thresholds(v, timing, messages or {}, (cert or {}).get("path"), thresholds)
+    _relatable(v, messages or {})
+    _facts(v, facts)
+    if v.fail_reasons:
+        v.outcome = FAIL
+    elif v.inconclusive_reasons:
+        v.outcome = INCONCLUSIVE
+    if _bench_stalls(cert) and v.outcome != PASS:
+        v.advice.append(BENCH_ADVICE)
+    return v
+
+
+def _limits(
+    v: Verdict, cons: dict[str, Any], violations: dict[str, Any], cert: dict[str, Any] | None
+) -> None:
+    broken = []
+    for key, c in cons.items():
+        n = violations.get(key)
+        n = int(n) if isinstance(n, int | float) and not isinstance(n, bool) else 0
+        if n <= 0 and c["held"]:
+            continue
+        broken.append(key)
+        where = f"at {n} plant steps" if n > 0 else "at its peak sample"
+        text = (
+            f"limits of (2) broken: |{key}| beyond {LIMIT_NAMES[key]} = {c['limit']:.4g} "
+            f"{UNITS[key]} {where} (max |{key}| = {c['peak']:.4g} {UNITS[key]}, "
+            f"{100 * c['ratio']:.1f} % of {LIMIT_NAMES[key]})"
+        )
+        bench = _bench_stalls(cert)
+        d_sys, d_star = (cert or {}).get("d_system_s"), (cert or {}).get("d_star_s")
+        if bench and d_sys is not None and d_star is not None and d_sys <= d_star:
+            # The bound guarantees (2) at the system's own D: the bench's stall broke it.
+            v.inconclusive_reasons.append(f"{text}, while {_stall_words(bench[0])}")
+        else:
+            v.fail_reasons.append(text)
+            v.blocking.append(text)
+    v.limits_broken = sorted(broken)
+    v.limits = "broken" if broken else "held"
+
+
+def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) -> None:
+    if not cert or cert.get("d_star_s") is None:
+        return
+    held = cert.get("held")
+    d, ds = cert.get("d_max_s"), cert.get("d_star_s")
+    where = f" on the {cert['path']} path" if cert.get("path") else ""
+    beyond = [
+        (k, b)
+        for k, b in (("v", cert.get("v_bound")), ("omega", cert.get("omega_bound")))
+        if b is not None and k in cons and cons[k]["peak"] > b * (1.0 + LIMIT_REL_TOL)
+    ]
+    for k, b in beyond:
+        text = (
+            f"measured beyond the sampled-data bound: max |{k}| = {cons[k]['peak']:.4g} "
+            f"{UNITS[k]} > {b:.4g} {UNITS[k]}"
+        )
+        v.fail_reasons.append(text)
+        v.blocking.append(text)
+    v.certificate = "broken" if beyond else {True: "held", False: "not held"}.get(held, "unknown")
+    if held is None:
+        up = cert.get("d_max_upper_s")
+        v.inconclusive_reasons.append(
+            f"certificate unknown: the CAN logs allow D from {_ms(d)} to {_ms(up)}{where}, and "
+            f"D* = {_ms(ds)} lies between (frames that could match more than one send)"
+        )
+        return
+    if held:
+        return
+    if d is None:
+        text = f"certificate not held: no command ever landed{where} (D unknown)"
+        v.fail_reasons.append(text)
+        v.blocking.append(text)
+    elif d > ds:
+        _age_beyond(v, cert, where)
+    else:
+        failed = ", ".join(cert.get("failed_conditions") or []) or "see the certificate"
+        text = f"certificate not held: design conditions broken ({failed}) at D = {_ms(d)}"
+        v.fail_reasons.append(text)
+        v.blocking.append(text)
+
+
+def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
+    """D > D*: whose stalls pushed it there."""
+    d, ds = cert["d_max_s"], cert["d_star_s"]
+    # Without the stalls' owners (a simulation, an older summary) all of D is the system's.
+    d_sys = cert["d_system_s"] if cert.get("d_system_s") is not None else d
+    stalls = cert.get("stalls") or []
+    failed = cert.get("failed_conditions") or []
+    also = f"; failing: {', '.join(failed)}" if failed else ""
+    head = f"command age D = {_ms(d)} > D* = {_ms(ds)}{where} (margin {_ms(ds - d)}{also})"
+    if d_sys > ds:
+        mine = [s for s in stalls if s.get("owner") == "system" and s["age_s"] > ds]
+        unknown = [s for s in stalls if s.get("owner") == "unknown" and s["age_s"] > ds]
+        if not mine and unknown:
+            v.inconclusive_reasons.append(
+                f"certificate not held: {head}, by a stall whose cause the logs cannot tell "
+                f"(t = {unknown[0]['t_s']:.3f} s, {_ms(unknown[0]['age_s'])})"
+            )
+            return
+        text = f"certificate not held: {head} by the system's own timing"
+        if mine:
+            w = mine[0]
+            text += f"; worst: t = {w['t_s']:.3f} s, {_ms(w['age_s'])}, {w['cause']}"
+        v.fail_reasons.append(text)
+        v.blocking.append(text)
+        return
+    bench = _bench_stalls(cert)
+    what = _stall_words(bench[0]) if bench else "the bench stalled"
+    v.inconclusive_reasons.append(
+        f"inconclusive, the bench stalled: {head} only because {what}; without the bench's "
+        f"stalls D = {_ms(d_sys)} <= D*"
+    )
+
+
+def _thresholds(
+    v: Verdict, timing: dict[str, Any], messages: dict[str, Any], path: str | None, th: Thresholds
+) -> None:
+    """Deadline misses, samples without a command and lost messages of the applied path and
+    the State stream against their thresholds (the shadow path never counts)."""
+    misses, slots, rate = (
+        timing.get("deadline_misses"),
+        timing.get("slots"),
+        timing.get("deadline_miss_rate"),
+    )
+    if isinstance(misses, int) and isinstance(rate, int | float):
+        v.timing["deadline_misses"] = {"count": misses, "slots": slots, "rate": rate}
+        if rate > th.max_deadline_miss_ratio:
+            v.fail_reasons.append(
+                f"deadline misses: {misses} of {slots} slots ({_pct(rate)}) > "
+                f"{_pct(th.max_deadline_miss_ratio)}"
+            )
+    n, judged = timing.get("samples_without_command"), timing.get("samples_judged")
+    rate = timing.get("samples_without_command_rate")
+    if isinstance(n, int) and isinstance(rate, int | float):
+        v.timing["samples_without_command"] = {"count": n, "judged": judged, "rate": rate}
+        if rate > th.max_samples_without_command_ratio:
+            v.fail_reasons.append(
+                f"samples without a command: {n} of {judged} ({_pct(rate)}) > "
+                f"{_pct(th.max_samples_without_command_ratio)}"
+            )
+    streams = [s for s in ("state", f"torque_{path}" if path else "") if s in messages]
+    if streams:
+        lost = sum(int(messages[s].get("lost", 0)) for s in streams)
+        sent = sum(int(messages[s].get("sent", 0)) for s in streams)
+        ratio = lost / sent if sent else (1.0 if lost else 0.0)
+        v.timing["lost_messages"] = {"lost": lost, "sent": sent, "rate": ratio, "streams": streams}
+        if ratio > th.max_lost_ratio:
+            per = ", ".join(
+                f"{s} {messages[s].get('lost', 0)} of {messages[s].get('sent', 0)}" for s in streams
+            )
+            v.fail_reasons.append(
+                f"lost messages: {lost} of {sent} ({_pct(ratio)}) > {_pct(th.max_lost_ratio)} "
+                f"({per})"
+            )
+
+
+def _relatable(v: Verdict, messages: dict[str, Any]) -> None:
+    """Figures the logs cannot relate: CAN frames whose torque differs from their send's."""
+    can = messages.get("torque_can") or {}
+    if int(can.get("value_mismatches") or 0) > 0:
+        v.inconclusive_reasons.append(
+            f"the CAN figures cannot be trusted: {can['value_mismatches']} received frames carry "
+            "another torque than the send they were matched to"
+        )
+
+
+def _facts(v: Verdict, facts: RunFacts | None) -> None:
+    if facts is None:
+        return
+    if facts.interrupted:
+        ran = f"{facts.duration_run_s:.3f} s" if facts.duration_run_s is not None else "?"
+        planned = f"{facts.duration_s:g} s" if facts.duration_s is not None else "?"
+        v.notes.append(f"interrupted after {ran} of {planned}: the verdict covers only that")
+    for role, sched in (facts.scheduling or {}).items():
+        if not isinstance(sched, dict):
+            continue
+        if sched.get("requested") == "fifo" and sched.get("policy") != "SCHED_FIFO":
+            v.notes.append(
+                f"the {role} asked for SCHED_FIFO and got {sched.get('policy')}: wake-up "
+                "lateness, deadline misses and command age are those of a time-shared host"
+            )
