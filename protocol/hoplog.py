@@ -135,6 +135,24 @@ PLANT_TABLES: dict[str, tuple[str, ...]] = {
 }
 
 
+HOST_TABLES: dict[str, tuple[str, ...]] = {
+    # What the bench's host did (written by ``hil run``, every 0.1 s): CPU time in clock ticks
+    # since boot, all CPUs together (/proc/stat: total, idle + iowait, steal: time the hypervisor
+    # gave to another guest), runnable tasks (/proc/loadavg), and the CPU time (utime + stime)
+    # of the plant, the controller and ``hil run`` itself (the recorder) from /proc/PID/stat.
+    "host": (
+        "time_ns",
+        "cpu_total",
+        "cpu_idle",
+        "cpu_steal",
+        "runnable",
+        "plant_cpu",
+        "controller_cpu",
+        "recorder_cpu",
+    ),
+}
+
+
 class HopLogWriter:
     """Append rows to named tables; a writer thread streams them to ``path`` in chunks."""
 

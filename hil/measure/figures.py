@@ -17,6 +17,7 @@ import numpy as np
 
 from hil.measure import age as agemod
 from hil.measure.can_match import UNMATCHED, match_node
+from hil.measure.host import host_figures
 from hil.measure.logs import RunLogs
 from hil.measure.stalls import find_stalls
 from hil.measure.stats import summarize_ns
@@ -69,6 +70,7 @@ class Measurement:
     certificate: dict[str, Any] | None = None
     series: dict[str, Any] = field(default_factory=dict)
     window_ns: tuple[int, int] = (0, 0)
+    host: dict[str, Any] | None = None  # the bench's host over the window (hil.measure.host)
 
     def latency_us(self) -> dict[str, np.ndarray]:
         """Sample-to-apply latency per path in µs (applied: apply - sample, shadow: receive -
@@ -153,6 +155,7 @@ class _Run:
         self.cmd_rows = np.nonzero(t["cmd_seq"] >= 0)[0]
         self.cmd_keys = t["cmd_seq"][self.cmd_rows]
         self._can = self._match_can()
+        self.series_without: np.ndarray | None = None  # sample times left without a command
 
     # --- CAN: arrivals matched to sends (hil.measure.can_match) ------------------------------
     def _match_can(self) -> dict[str, np.ndarray]:
@@ -254,6 +257,11 @@ class _Run:
             "cmd_early": self.can_frame_of(node, ap["seq"][m], early=True),
             "outcome": ap["outcome"][m],
         }
+
+    def host_over(self, lo: int, hi: int) -> dict[str, Any] | None:
+        """The bench's host over [lo, hi] (hil.measure.host), None without a host log."""
+        meta = self.logs.host.meta if self.logs.host is not None else {}
+        return host_figures(self.logs["host"], meta, lo, hi) if "host" in self.logs.tables else None
 
     # --- what a stall's cause joins, sorted by time once (hil.measure.stalls) ----------------
     @cached_property
@@ -380,8 +388,8 @@ def measure(logs: RunLogs, bound: BoundInputs | None = None) -> Measurement:
     _hops(r, timing)
     _paths(r, timing, out.series)
     out.messages = _messages(r)
-    if bound is not None:
-        out.certificate = _certificate(r, bound, out.series)
+    out.host = r.host_over(r.w0, r.w1)
+    out.certificate = _certificate(r, bound, out.series, timing)
     out.timing = timing
     return out
 
@@ -501,6 +509,7 @@ def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
         timing["startup_hold_s"] = (int(land[0]) - r.w0) / 1e9 if land.size else None
         landed = np.unique(samp)
         without = judged & ~np.isin(s["sample_ns"], landed)
+        r.series_without = s["sample_ns"][without]
         timing["samples_without_command"] = int(without.sum())
         timing["samples_judged"] = n_judged
         timing["samples_without_command_rate"] = int(without.sum()) / n_judged if n_judged else None
@@ -643,35 +652,63 @@ def _can_fates(r: _Run, received: np.ndarray, wheels: int) -> dict[str, int]:
     }
 
 
-def _certificate(r: _Run, b: BoundInputs, series: dict[str, Any]) -> dict[str, Any]:
-    """The sampled-data certificate at the measured D, with every stall counted and owned.
-    ``held`` is True only if the bound holds for every matching of CAN frames the logs allow
-    (at the upper bound of D), False if it fails even at the lower one, else None (unknown)."""
+def _in_windows(stamps: np.ndarray, windows: list[tuple[int, int]]) -> np.ndarray:
+    inside = np.zeros(stamps.size, bool)
+    for lo, hi in windows:
+        inside |= _in(stamps, lo, hi)
+    return inside
+
+
+def _bench_shares(r: _Run, windows: list[tuple[int, int]], timing: dict[str, Any]) -> None:
+    """How much of the missed slots and of the samples without a command fell inside the
+    bench's stalls (the verdict does not lay them on the system under test)."""
+    if not windows:
+        return
+    t = r.ticks
+    if "deadline_misses" in timing:
+        win = _in(t["deadline_ns"], r.w0, r.w1) & _in_windows(t["deadline_ns"], windows)
+        late = (t["wake_ns"] - t["deadline_ns"])[win] >= r.period
+        timing["deadline_misses_in_bench_stalls"] = int(late.sum() + t["skipped"][win].sum())
+    if r.series_without is not None:
+        without = r.series_without
+        timing["samples_without_command_in_bench_stalls"] = int(_in_windows(without, windows).sum())
+
+
+def _certificate(
+    r: _Run, b: BoundInputs | None, series: dict[str, Any], timing: dict[str, Any]
+) -> dict[str, Any]:
+    """The sampled-data certificate at the measured D (for a law with the bound; for any other
+    law D, D* None), with every stall counted and owned. ``held`` is True only if the bound
+    holds for every matching of CAN frames the logs allow (at the upper bound of D), False if
+    it fails even at the lower one, else None (unknown)."""
     from controller_service.certificate import certify, critical_age
 
     empty = agemod.segments(np.zeros(0, np.int64), np.zeros(0, np.int64), r.w1)
     seg: agemod.AgeSegments = series.get(f"command_age_{r.applied}") or empty
     upper: agemod.AgeSegments = series.get(f"command_age_{r.applied}_upper") or seg
     d_max_ns, d_upper_ns = agemod.max_age(seg), agemod.max_age(upper)
-    d_star = critical_age(b.params, b.context, b.boundary_layer, v0=b.v0, w0=b.w0)
     d_max = d_max_ns / 1e9 if d_max_ns is not None else None
+    d_star = cert = held = None
+    if b is not None:
+        d_star = critical_age(b.params, b.context, b.boundary_layer, v0=b.v0, w0=b.w0)
 
-    def held_at(d: float | None) -> tuple[bool, Any]:
-        if d is None:
-            return False, None
-        cert = certify(b.params, b.context, d, 0.0, b.boundary_layer, v0=b.v0, w0=b.w0)
-        return bool(cert.held and d <= d_star), cert
+        def held_at(d: float | None) -> tuple[bool, Any]:
+            if d is None:
+                return False, None
+            c = certify(b.params, b.context, d, 0.0, b.boundary_layer, v0=b.v0, w0=b.w0)
+            return bool(c.held and d <= d_star), c
 
-    low_ok, cert = held_at(d_max)
-    high_ok = held_at(d_upper_ns / 1e9)[0] if d_upper_ns != d_max_ns else low_ok
-    held: bool | None = True if high_ok else (False if not low_ok else None)
-    threshold_ns = int(max(3 * r.ts, 0.5 * d_star * 1e9))
-    stalls = find_stalls(r, seg, threshold_ns, int(d_star * 1e9))
+        low_ok, cert = held_at(d_max)
+        high_ok = held_at(d_upper_ns / 1e9)[0] if d_upper_ns != d_max_ns else low_ok
+        held = True if high_ok else (False if not low_ok else None)
+    threshold_ns = int(max(3 * r.ts, 0.5 * d_star * 1e9 if d_star is not None else 0))
+    stalls = find_stalls(r, seg, threshold_ns, int(d_star * 1e9) if d_star is not None else None)
+    _bench_shares(r, stalls.bench_windows, timing)
     out = {
         "path": r.applied,
         "d_max_s": d_max,
         "d_star_s": d_star,
-        "margin_s": (d_star - d_max) if d_max is not None else None,
+        "margin_s": (d_star - d_max) if d_max is not None and d_star is not None else None,
         "held": held,
         "v_bound": float(cert.v_bound) if cert is not None else None,
         "omega_bound": float(cert.w_bound) if cert is not None else None,

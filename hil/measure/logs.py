@@ -19,6 +19,7 @@ import numpy as np
 from protocol.hoplog import (
     CONTROLLER_TABLES,
     FORMAT,
+    HOST_TABLES,
     PLANT_TABLES,
     VERSION,
     HopLogError,
@@ -27,6 +28,7 @@ from protocol.hoplog import (
 
 CONTROLLER_FILE = "controller.hoplog"
 PLANT_FILE = "plant.hoplog"
+HOST_FILE = "host.hoplog"  # hil run's samples of the bench's host (hil.run.host_load)
 
 _F8, _F4, _I8, _I4, _I2, _I1 = np.float64, np.float32, np.int64, np.int32, np.int16, np.int8
 # The columns read, with their types (every stamp int64: nanoseconds, exact). Sequence numbers
@@ -51,6 +53,7 @@ COLUMNS: dict[str, dict[str, Any]] = {
     "apply": {"path": _I1, "seq": _I8, "node": _I2, "recv_ns": _I8, "apply_ns": _I8,
               "outcome": _I1},
     "zero": {"timeout_ns": _I8, "applied_ns": _I8},
+    "host": {c: _I8 for c in HOST_TABLES["host"]},
 }  # fmt: skip
 NARROW = {"k", "skipped", "state_seq", "cmd_seq", "seq"}
 # The robot's physical state and the commanded torques: read only for trace.csv
@@ -181,6 +184,7 @@ class RunLogs:
     controller: LogHead | None
     plant: LogHead | None
     tables: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    host: LogHead | None = None  # hil run's samples of the host, when it wrote them
 
     @classmethod
     def read(
@@ -188,14 +192,16 @@ class RunLogs:
         controller: Path | None,
         plant: Path | None,
         columns: dict[str, tuple[str, ...]] | None = None,
+        host: Path | None = None,
     ) -> RunLogs:
-        """Both logs; ``columns``: the tables and columns to read (default: what the figures
-        need, :data:`FIGURE_COLUMNS`)."""
+        """Both logs (and the host's, if any); ``columns``: the tables and columns to read
+        (default: what the figures need, :data:`FIGURE_COLUMNS`)."""
         columns = FIGURE_COLUMNS if columns is None else columns
         logs = cls(None, None)
         for path, tables, role in (
             (controller, CONTROLLER_TABLES, "controller"),
             (plant, PLANT_TABLES, "plant"),
+            (host, HOST_TABLES, "host"),
         ):
             wanted = {name: columns[name] for name in dict(tables) if name in columns}
             head = None
@@ -247,10 +253,12 @@ def load_folder_logs(
 ) -> RunLogs | None:
     """The hop logs of a run folder (None when it has neither); ``columns`` as RunLogs.read."""
     folder = Path(folder)
-    c, p = folder / CONTROLLER_FILE, folder / PLANT_FILE
+    c, p, h = folder / CONTROLLER_FILE, folder / PLANT_FILE, folder / HOST_FILE
     if not c.is_file() and not p.is_file():
         return None
-    return RunLogs.read(c if c.is_file() else None, p if p.is_file() else None, columns)
+    return RunLogs.read(
+        c if c.is_file() else None, p if p.is_file() else None, columns, h if h.is_file() else None
+    )
 
 
 def load_recording_logs(path: str | Path) -> RunLogs | None:
@@ -259,7 +267,7 @@ def load_recording_logs(path: str | Path) -> RunLogs | None:
 
     from hil.recording import read_attachments
 
-    found = read_attachments(path, names=(CONTROLLER_FILE, PLANT_FILE))
+    found = read_attachments(path, names=(CONTROLLER_FILE, PLANT_FILE, HOST_FILE))
     if not found:
         return None
     with tempfile.TemporaryDirectory(prefix="hil-hoplogs-") as tmp:
@@ -267,4 +275,6 @@ def load_recording_logs(path: str | Path) -> RunLogs | None:
         for name, data in found.items():
             paths[name] = Path(tmp) / name
             paths[name].write_bytes(data)
-        return RunLogs.read(paths.get(CONTROLLER_FILE), paths.get(PLANT_FILE))
+        return RunLogs.read(
+            paths.get(CONTROLLER_FILE), paths.get(PLANT_FILE), host=paths.get(HOST_FILE)
+        )

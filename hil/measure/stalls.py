@@ -17,6 +17,8 @@ over [the sample in force at its start, the landing that ends it]:
 | ``command_delayed`` | landings delayed by a ``[faults]`` burst | system |
 | ``plant_late`` | a plant sample there woke a period or more late | bench |
 | ``host_stalled`` | the controller AND the plant were both a period or more late | bench |
+| ``host_overloaded`` | the controller was late while the host's CPUs were >= 90 % busy, half | bench |
+|  | a CPU or more of it with processes not of this run (``host.hoplog``) | |
 | ``startup`` | the stretch before the first landing (its owner from the same evidence) | either |
 | ``unknown`` | none of these | unknown |
 
@@ -38,6 +40,8 @@ if TYPE_CHECKING:
     from hil.measure.figures import _Run
 
 STALL_LIMIT = 20  # stalls listed, worst first
+HOST_BUSY_PCT = 90.0  # host_overloaded: the CPUs this busy over the stall ...
+HOST_OTHERS_PCT = 50.0  # ... with at least this much of one CPU going to other processes
 CAUSE_LIMIT = 2000  # excursions whose cause is looked up (every one above D*, then the worst)
 OWNER = {
     "controller_late": "system",
@@ -47,6 +51,7 @@ OWNER = {
     "command_delayed": "system",
     "plant_late": "bench",
     "host_stalled": "bench",
+    "host_overloaded": "bench",
     "unknown": "unknown",
 }
 
@@ -95,6 +100,7 @@ class StallReport:
     stalled_time_ns: int = 0
     by_owner: dict[str, dict[str, float]] = field(default_factory=dict)
     d_system_ns: int | None = None
+    bench_windows: list[tuple[int, int]] = field(default_factory=list)  # [lo, hi] ns
 
 
 def find_stalls(
@@ -119,6 +125,8 @@ def find_stalls(
         if startup:
             cause = "startup"  # the zero torque held from t = 0 to the first landing
         bench[j0 : j1 + 1] = owner == "bench"
+        if owner == "bench":
+            rep.bench_windows.append((int(seg.sample[j0]), int(seg.end[j1])))
         t = rep.by_owner.setdefault(owner, {"count": 0, "time_s": 0.0})
         t["count"] += 1
         t["time_s"] += int(ex.above[e]) / 1e9
@@ -159,9 +167,23 @@ def cause_of(r: _Run, lo: int, hi: int) -> tuple[str, dict[str, Any]]:
     _message_evidence(r, lo, hi, scores, ev)
     if "controller_late" in scores and "plant_late" in scores:
         scores["host_stalled"] = max(scores.pop("controller_late"), scores.pop("plant_late"))
+    host = r.host_over(lo, hi)
+    if host is not None:
+        ev["host"] = host
     if not scores:
         return "unknown", ev
-    return max(scores, key=lambda k: scores[k]), ev
+    cause = max(scores, key=lambda k: scores[k])
+    if cause == "controller_late" and host is not None and _overloaded(host):
+        cause = "host_overloaded"  # late because the host's CPUs went to others
+    return cause, ev
+
+
+def _overloaded(host: dict[str, Any]) -> bool:
+    """The host's CPUs were nearly all busy, at least half a CPU of it with processes that are
+    not this run's (the bench's host load, not the system under test)."""
+    ours = sum(host.get(f"{p}_cpu_pct", 0.0) for p in ("plant", "controller", "recorder"))
+    others = host["busy_pct"] * host["cpus"] - ours
+    return host["busy_pct"] >= HOST_BUSY_PCT and others >= HOST_OTHERS_PCT
 
 
 def _controller_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None:

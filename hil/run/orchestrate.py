@@ -28,7 +28,9 @@ from typing import Any
 
 from hil import interrupts
 from hil.errors import BadInputError
+from hil.measure.logs import HOST_FILE
 from hil.recording import RecordingWriter, to_jsonable
+from hil.run.host_load import HostSampler
 from hil.supervisor import Supervisor
 from protocol.settings import RunSettings
 from runtime.signals import stop_on_signals
@@ -353,9 +355,12 @@ def _open_recorder_session(
     return open_session(settings.zenoh_endpoint, listen_endpoint=True, credentials=None)
 
 
-def _start_services(sup: Supervisor, run_dir: Path, ids: Any, logs: _Logs) -> None:
+def _start_services(
+    sup: Supervisor, run_dir: Path, ids: Any, logs: _Logs, host: HostSampler
+) -> None:
     """The plant and the controller from the run's settings file; their PIDs in
-    processes.json, for whoever needs to signal one (tests inject stalls)."""
+    processes.json, for whoever needs to signal one (tests inject stalls), and watched by the
+    host sampler."""
     settings_path = str(run_dir / "run_settings.json")
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
         sup.start_python(
@@ -366,6 +371,9 @@ def _start_services(sup: Supervisor, run_dir: Path, ids: Any, logs: _Logs) -> No
             stderr=STDOUT,
         )
     (run_dir / "processes.json").write_text(json.dumps({c.name: c.pid for c in sup.children}))
+    for c in sup.children:
+        if c.name in ("plant", "controller"):
+            host.watch(c.name, c.pid)
 
 
 def _start_and_follow(
@@ -424,19 +432,21 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     codes: dict[str, int | None] = {}
     t_start = time.monotonic()
     ids = RunIdentities(opts.secure)  # fresh passwords outside run_dir, or none
+    host = HostSampler(run_dir)
     with stop_on_signals() as stop:
         try:
             live.session = _open_recorder_session(settings, ids, sup, logs, stop)
             announcer = ids.announcer(live.session, settings.zenoh_endpoint)
             live.sub = live.session.declare_subscriber("hil/**", recorder.on_zenoh)
             live.can_rec = _can_recorder(settings, recorder)
-            _start_services(sup, run_dir, ids, logs)
+            _start_services(sup, run_dir, ids, logs, host)
             error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
             interrupted = bool(stop)
         finally:
             if stop:  # hil.cli then exits 130 once the folder is written
                 interrupts.record(stop.signal or signal.SIGINT)
             codes = _stop_children(sup, settings)
+            host.close()
             ids.close()
             logs.close()
             _close_live(live, recorder, run_dir)
@@ -478,7 +488,7 @@ def _write_results(
     return summary
 
 
-ATTACHED = ("controller.hoplog", "plant.hoplog", "scenario.resolved.toml")
+ATTACHED = ("controller.hoplog", "plant.hoplog", HOST_FILE, "scenario.resolved.toml")
 
 
 def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:

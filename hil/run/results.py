@@ -135,6 +135,7 @@ def analyze(
         "timing": m.timing,
         "messages": m.messages,
         "certificate": m.certificate,
+        "host": m.host,
         "logs_complete": logs.complete,
     }
     summary["rejections"] = {
