@@ -17,8 +17,8 @@ over [the sample in force at its start, the landing that ends it]:
 | ``command_delayed`` | landings delayed by a ``[faults]`` burst | system |
 | ``plant_late`` | a plant sample there woke a period or more late | bench |
 | ``host_stalled`` | the controller AND the plant were both a period or more late | bench |
-| ``host_overloaded`` | the controller was late while the host's CPUs were >= 90 % busy, half | bench |
-|  | a CPU or more of it with processes not of this run (``host.hoplog``) | |
+| ``host_overloaded`` | the controller late while the host's CPUs were >= 90 % busy, | bench |
+|  | half a CPU or more of it with processes not of this run (``host.hoplog``) | |
 | ``startup`` | the stretch before the first landing (its owner from the same evidence) | either |
 | ``unknown`` | none of these | unknown |
 
