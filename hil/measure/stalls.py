@@ -30,14 +30,39 @@ plant emulator standing in for a robot that never stalls, the recorder and the b
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from hil.measure.age import AgeSegments
 
-if TYPE_CHECKING:
-    from hil.measure.figures import _Run
+
+class Stamped(Protocol):
+    stamps: np.ndarray
+    late: np.ndarray
+    arrived: np.ndarray
+    injected: np.ndarray
+    hop: np.ndarray
+
+
+class _Run(Protocol):
+    """What a stall's cause joins: the run's logs sorted by time once (hil.measure.figures)."""
+
+    epoch: int
+    w0: int
+    period: int
+    sensor_period: int
+    trigger: str
+    lockstep: bool
+    samples: dict[str, np.ndarray]
+    wake_sorted: Stamped
+    state_received: np.ndarray
+    state_injected_drop: np.ndarray
+    commands_sorted: Stamped
+    state_hops_sorted: Stamped
+    burst_sorted: Stamped
+
+    def host_over(self, lo: int, hi: int) -> dict[str, Any] | None: ...
 
 STALL_LIMIT = 20  # stalls listed, worst first
 HOST_BUSY_PCT = 90.0  # host_overloaded: the CPUs this busy over the stall ...
