@@ -42,10 +42,14 @@ def _in_memory_logs(run_dir: Path) -> Any:
     """The run's hop logs read whole (protocol.hoplog.read_hoplog, every row a Python list)
     and turned into the columns hil.measure joins, without hil.measure.logs' chunked reader."""
     from hil.measure.logs import COLUMNS, LogHead, RunLogs
-    from protocol.hoplog import CONTROLLER_TABLES, PLANT_TABLES, read_hoplog
+    from protocol.hoplog import CONTROLLER_TABLES, HOST_TABLES, PLANT_TABLES, read_hoplog
 
     logs = RunLogs(None, None)
-    for role, tables in (("controller", CONTROLLER_TABLES), ("plant", PLANT_TABLES)):
+    for role, tables in (
+        ("controller", CONTROLLER_TABLES),
+        ("plant", PLANT_TABLES),
+        ("host", HOST_TABLES),
+    ):
         log = read_hoplog(run_dir / f"{role}.hoplog")
         head = LogHead(
             meta=log.meta,

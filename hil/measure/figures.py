@@ -47,6 +47,7 @@ class Stamped:
     arrived: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     injected: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     hop: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    off_bus: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # CAN: never sent
 
 
 @dataclass(frozen=True)
@@ -300,6 +301,7 @@ class _Run:
             sent = (t["zenoh_send_ns"] > 0) & (t["cmd_seq"] >= 0)
             stamps, cmd = t["zenoh_send_ns"][sent], t["cmd_seq"][sent]
             injected = (t["flags"][sent] & (TICK_DROPPED | TICK_REORDERED)) != 0
+            off_bus = np.zeros(cmd.size, bool)
         else:
             c = self._can
             got = (c["cmd"] >= 0) & ~c["lost"]
@@ -310,14 +312,18 @@ class _Run:
             put = tx["send_ns"][mine][first]
             rows, found = self.tick_of(cmd)
             stamps = np.where(found, self.ticks["compute_start_ns"][np.where(found, rows, 0)], put)
-            injected = np.zeros(cmd.size, bool)
             lost_by_fault = np.unique(c["cmd"][c["lost"] & (c["cmd"] >= 0)])
-            injected |= np.isin(cmd, lost_by_fault) | (put <= 0)
+            injected = np.isin(cmd, lost_by_fault)
+            off_bus = put <= 0
         arr, found = _lookup(seq, recv, cmd)
         hop = np.where(found, arr - stamps, -1)
         order = np.argsort(stamps, kind="stable")
         return Stamped(
-            stamps[order], arrived=found[order], injected=injected[order], hop=hop[order]
+            stamps[order],
+            arrived=found[order],
+            injected=injected[order],
+            hop=hop[order],
+            off_bus=off_bus[order],
         )
 
     @cached_property

@@ -43,6 +43,7 @@ class Stamped(Protocol):
     arrived: np.ndarray
     injected: np.ndarray
     hop: np.ndarray
+    off_bus: np.ndarray
 
 
 class _Run(Protocol):
@@ -260,6 +261,8 @@ def _message_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None
     if lost_c.any():
         ev["commands_lost"] = int(lost_c.sum())
         ev["commands_dropped_by_faults"] = int(c.injected[sl][lost_c].sum())
+        if c.off_bus.any():  # CAN: frames that never reached the bus (bus-off)
+            ev["frames_not_on_bus"] = int(c.off_bus[sl][lost_c].sum())
         scores["command_lost"] = int(lost_c.sum()) * r.period
     # A message held up while its receiver was stalled is the receiver's stall, not the wire's.
     hop = c.hop[sl] if "plant_late" not in scores else np.zeros(0, np.int64)
