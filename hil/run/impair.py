@@ -26,6 +26,7 @@ import os
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -152,16 +153,16 @@ def ruleset(plan: Plan) -> str:
     return "\n".join([*lines, "  }", "}", ""])
 
 
-def plan_of(opts: Any) -> Plan | None:
-    """The run's plan, or None when its scenario has no [impair] table."""
+def plan_of(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
+    """The run's plan, or None when its scenario has no [impair] table; ``check_options``
+    (hil run's) first, so a bad option is reported as it always is."""
     from hil.bundled import resolve_scenario
-    from hil.run.orchestrate import check_options
     from hil.run.settings import effective_can_table
     from hil.scenario import load_scenario
 
     if opts.scenario is None:
         return None
-    check_options(opts)  # the options first, as hil run always reports them
+    check_options(opts)
     scenario = load_scenario(resolve_scenario(opts.scenario))
     if scenario.impair is None:
         return None
@@ -234,11 +235,11 @@ def _install(plan: Plan) -> str:
     return rules
 
 
-def enter(opts: Any) -> Impairment | None:
+def enter(opts: Any, check_options: Callable[[Any], None]) -> Impairment | None:
     """Before ``hil run`` prepares anything: None without [impair]; else, the first time,
     execute this same command again in a fresh network namespace (never returns), and inside
     it install the impairment. BadInputError (exit 2) when that cannot be done."""
-    plan = plan_of(opts)
+    plan = plan_of(opts, check_options)
     if plan is None:
         return None
     if not inside():

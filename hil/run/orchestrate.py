@@ -413,7 +413,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     from hil.run.secure import RunIdentities
 
     # [impair]: the run's own network namespace (this command is executed again inside it).
-    impairment = impair.enter(opts)
+    impairment = impair.enter(opts, check_options)
     scenario, settings, run_dir, info = prepare(opts)
     sup = Supervisor()
     error: str | None = None
