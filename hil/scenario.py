@@ -166,6 +166,41 @@ class FaultsConfig(Faults):
                 )
 
 
+IMPAIR_ON = ("all", "can", "zenoh")
+IMPAIR_CAN_FRAMES = ("all", "torque")
+RATE_BPS_MIN, RATE_BPS_MAX = 1000.0, 1e11  # bit/s, [impair] rate_bps (0 = no limit)
+
+
+@dataclass(frozen=True)
+class ImpairConfig:
+    """[impair]: packets of the run's own links dropped (``loss`` at random or every
+    ``loss_every``-th) and the loopback rate-limited, by the kernel in the run's private network
+    namespace (:mod:`hil.run.impair`); only ``hil run`` reads it."""
+
+    loss: float = 0.0
+    loss_every: int = 0
+    rate_bps: float = 0.0
+    on: str = "all"
+    can_frames: str = "all"
+
+    def __post_init__(self) -> None:
+        if self.loss > 0 and self.loss_every > 0:
+            raise BadInputError(
+                f"[impair] loss = {self.loss:g} and loss_every = {self.loss_every} exclude each "
+                "other: set one (random or every n-th packet)"
+            )
+        if 0 < self.rate_bps < RATE_BPS_MIN:
+            raise BadInputError(
+                f"[impair] rate_bps must be 0 (no limit) or at least {RATE_BPS_MIN:g} bit/s, "
+                f"got {self.rate_bps:g}"
+            )
+        if self.can_frames != "all" and self.on != "can":
+            raise BadInputError(
+                f"[impair] can_frames = {self.can_frames!r} selects CAN frames: it needs "
+                f"on = 'can', got on = {self.on!r}"
+            )
+
+
 @dataclass(frozen=True)
 class Scenario:
     """A loaded scenario: one frozen value per table; ``base_dir`` resolves relative paths."""
@@ -184,6 +219,7 @@ class Scenario:
     zenoh: ZenohConfig = ZenohConfig()
     sweep: SweepConfig = SweepConfig()
     faults: FaultsConfig = FaultsConfig()
+    impair: ImpairConfig | None = None  # None: no [impair] table, the run keeps the host's network
     base_dir: Path = Path(".")
     source: str = ""
 
@@ -241,6 +277,7 @@ _TABLES: dict[str, type] = {
     "zenoh": ZenohConfig,
     "sweep": SweepConfig,
     "faults": FaultsConfig,
+    "impair": ImpairConfig,
 }
 _CHOICES: dict[tuple[str, str], tuple[str, ...]] = {
     ("disturbance", "kind"): DISTURBANCE_KINDS,
@@ -248,6 +285,8 @@ _CHOICES: dict[tuple[str, str], tuple[str, ...]] = {
     ("realtime", "trigger"): ("periodic", "on_state"),
     ("realtime", "scheduling"): ("fifo", "other"),
     ("zenoh", "mode"): ("peer", "client", "router"),
+    ("impair", "on"): IMPAIR_ON,
+    ("impair", "can_frames"): IMPAIR_CAN_FRAMES,
 }
 # (table, key) -> (low, high): low <= value <= high (and > 0 where _POSITIVE says so); every
 # other number |value| <= MAX_MAGNITUDE. Items of a list are checked one by one.
@@ -301,6 +340,9 @@ _RANGES: dict[tuple[str, str], tuple[float, float]] = {
     ("faults", "state_drop_every"): (0, 2**31 - 1),
     ("faults", "command_drop_every"): (0, 2**31 - 1),
     ("faults", "seed"): (0, SEED_MAX),
+    ("impair", "loss"): (0.0, 1.0),
+    ("impair", "loss_every"): (0, 2**31 - 1),
+    ("impair", "rate_bps"): (0.0, RATE_BPS_MAX),
 }
 _POSITIVE = {("limits", k) for k in ("phi1", "phi2", "varpi1", "varpi2")} | {
     ("timing", "ts"),
@@ -345,6 +387,9 @@ _NON_NEGATIVE = {
     ("faults", "can_bus_off_length"),
     ("faults", "seed"),
     ("can", "watchdog_timeout"),
+    ("impair", "loss"),
+    ("impair", "loss_every"),
+    ("impair", "rate_bps"),
 }
 _FIVE = {("plant", "noise_std"), ("plant", "quantization")}
 # [disturbance] keys each kind reads; any other key must keep its default (a value1 in a sine
@@ -674,6 +719,8 @@ def scenario_dict(scenario: Scenario) -> dict[str, Any]:
         "faults",
     ):
         out[name] = _table_dict(getattr(scenario, name))
+    if scenario.impair is not None:  # written only when given: it moves a run into a namespace
+        out["impair"] = _table_dict(scenario.impair)
     out["plant"]["step"] = scenario.plant_step
     return out
 

@@ -108,6 +108,7 @@ def _bases() -> list[dict[str, Any]]:
             "zenoh": {"mode": "client", "endpoints": ["tcp/127.0.0.1:7447"], "robot_id": 2},
             "sweep": {"ts": [0.001, 0.002], "delay": [0.0, 0.01], "seeds": 2},
             "faults": {"state_drop_every": 5},
+            "impair": {"loss": 0.01, "on": "zenoh", "rate_bps": 1e6},
             "robot": {"mass": 12.0, "gear_ratio": 20.0},
         },
     ]
@@ -141,6 +142,8 @@ STRING_KEYS = {
     ("can", "interface"),
     ("can", "channel"),
     ("zenoh", "mode"),
+    ("impair", "on"),
+    ("impair", "can_frames"),
     ("controller", "lam"),
     ("controller", "rho"),
 }
@@ -176,6 +179,10 @@ NAMES = [
     "peer",
     "client",
     "router",
+    "all",
+    "can",
+    "zenoh",
+    "torque",
     "zenoh_can",
     "socketcan",
     "auto",
@@ -336,7 +343,7 @@ def documents(draw: st.DrawFn) -> tuple[dict[str, Any], list[Mutation]]:
         elif op == "choice":
             key = "law" if name == "controller" else "kind"
             if name not in ("reference", "controller", "disturbance"):
-                key = draw(st.sampled_from(["jitter_kind", "trigger", "mode", "kind"]))
+                key = draw(st.sampled_from(["jitter_kind", "trigger", "mode", "kind", "on"]))
             value = draw(st.sampled_from(NAMES))
             table[key] = value
             mutations.append(Mutation(op, name, key, value))
@@ -405,7 +412,7 @@ def _finite_tree(value: Any, where: str) -> None:
 def check_accepted(sc: Any, controller: Any, context: Any, resolved: dict[str, Any]) -> None:
     """Every resolved value finite and within its declared range."""
     for table in _TABLES:
-        for key, value in resolved[table].items():
+        for key, value in resolved.get(table, {}).items():  # [impair] only when given
             for v in value if isinstance(value, list) else [value]:
                 if v is None or isinstance(v, bool | str):
                     continue

@@ -16,6 +16,7 @@ from hil.provenance import dumps_toml
 from hil.run.orchestrate import RunOptions, prepare
 from hil.scenario import (
     FaultsConfig,
+    ImpairConfig,
     build_loop,
     build_reference,
     design_context,
@@ -174,3 +175,40 @@ def test_run_settings_carry_the_faults_table(tmp_path: Path) -> None:
     resolved = tomllib.loads((run_dir / "scenario.resolved.toml").read_text())
     assert resolved["faults"] == expected
     assert RunSettings(scenario_path="x").faults == {}  # default: no injection
+
+
+def test_impair_is_absent_unless_given_and_round_trips(tmp_path: Path) -> None:
+    """No [impair]: none written back (a resolved file must not move a rerun into a network
+    namespace); given: written with its defaults and read back the same."""
+    plain = loads_scenario(MINIMAL)
+    assert plain.impair is None and "impair" not in scenario_dict(plain)
+    sc = loads_scenario(MINIMAL + '[impair]\non = "can"\nloss_every = 97\n', tmp_path)
+    assert sc.impair == ImpairConfig(on="can", loss_every=97)
+    controller, _, ctx = build_loop(sc)
+    data = tomllib.loads(dumps_toml(resolved_dict(sc, controller, ctx)))
+    assert data["impair"] == asdict(ImpairConfig(on="can", loss_every=97))
+    assert parse_scenario(data, tmp_path).impair == sc.impair
+    assert loads_scenario(MINIMAL + "[impair]\n").impair == ImpairConfig()  # count only
+
+
+@pytest.mark.parametrize(
+    ("table", "named"),
+    [
+        ("loss = 1.5\n", "[impair] loss must be in [0, 1]"),
+        ("loss = -0.1\n", "[impair] loss must be >= 0"),
+        ('loss = "1%"\n', "[impair] loss must be a number"),
+        ("loss_every = 2.0\n", "[impair] loss_every must be an integer"),
+        ("loss_every = -1\n", "[impair] loss_every must be >= 0"),
+        ("loss = 0.1\nloss_every = 9\n", "[impair] loss = 0.1 and loss_every = 9 exclude"),
+        ("rate_bps = 10\n", "[impair] rate_bps must be 0 (no limit) or at least 1000"),
+        ("rate_bps = nan\n", "[impair] rate_bps must be finite"),
+        ('on = "wifi"\n', "[impair] on must be one of 'all', 'can', 'zenoh'"),
+        ('can_frames = "torque"\n', "[impair] can_frames = 'torque' selects CAN frames"),
+        ('can_frames = "heartbeat"\non = "can"\n', "[impair] can_frames must be one of"),
+        ("los = 0.1\n", "[impair]: unknown key(s) los"),
+    ],
+)
+def test_bad_impair_is_refused_naming_the_key(table: str, named: str) -> None:
+    with pytest.raises(BadInputError) as info:
+        loads_scenario(MINIMAL + "[impair]\n" + table)
+    assert str(info.value).startswith(named) and "\n" not in str(info.value)

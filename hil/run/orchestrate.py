@@ -417,8 +417,11 @@ def _close_live(live: _Live, recorder: Recorder, run_dir: Path) -> None:
 
 def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
+    from hil.run import impair
     from hil.run.secure import RunIdentities
 
+    # [impair]: the run's own network namespace (this command is executed again inside it).
+    impairment = impair.enter(opts, check_options)
     scenario, settings, run_dir, info = prepare(opts)
     sup = Supervisor()
     error: str | None = None
@@ -459,6 +462,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         "recorded_messages": writer.count,
         "secure": opts.secure,
     }
+    extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
     summary = _write_results(run_dir, scenario, settings, info, extra)
     summary["run_dir"] = str(run_dir)
     return summary
