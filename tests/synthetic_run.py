@@ -54,6 +54,7 @@ class Loop:
     # Commands whose frames arrive twice, and single wheels' frames lost: (cmd_seq, node)
     duplicate_can_frames: set[int] = field(default_factory=set)
     lose_can_wheel_frames: set[tuple[int, int]] = field(default_factory=set)
+    watchdog_zero_cmds: set[int] = field(default_factory=set)  # the watchdog's zero torques
 
 
 def write(folder: Path, loop: Loop) -> None:
@@ -137,8 +138,13 @@ def write(folder: Path, loop: Loop) -> None:
             m = loop.drop_command_every
             dropped = bool(m and cmd_seq % m == m - 1)
             flags = TICK_DROPPED if dropped else 0
-            c.append("ticks", (k, deadline, wake, skipped, s, d, t_rx - loop.hop_state, t_rx, c0,
-                               c1, send, send + 5 * US, cmd_seq, 0.1, 0.2, flags))  # fmt: skip
+            if cmd_seq in loop.watchdog_zero_cmds:  # a zero torque computed from no sample
+                s_used, d_used, flags = -1, 0, flags | 1
+            else:
+                s_used, d_used = s, d
+            c.append("ticks", (k, deadline, wake, skipped, s_used, d_used, t_rx - loop.hop_state,
+                               t_rx, c0, c1, send, send + 5 * US, cmd_seq, 0.1, 0.2,
+                               flags))  # fmt: skip
             if not dropped:  # Zenoh always carries the command (applied or as the shadow)
                 recv = send + loop.hop_cmd
                 copies = 2 if cmd_seq in loop.duplicate_commands else 1

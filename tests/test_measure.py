@@ -250,6 +250,21 @@ def test_can_duplicates_are_counted_per_frame_and_wheel_and_never_make_a_command
     assert can["applied"] == can["received"] == can["sent"] - 1
 
 
+def test_a_watchdog_zero_torque_renews_no_age_on_either_path(tmp_path):
+    """The controller's watchdog sends zero torque computed from no sample: it is no landing
+    of a sampled command, so the age runs on from the last real one (D grows by the commands
+    it replaced), never counted from a sample time of 0."""
+    for path in ("zenoh", "can"):
+        clean = _measure(tmp_path / f"a{path}", Loop(cmd_path=path), _paper_bound())
+        m = _measure(
+            tmp_path / f"b{path}",
+            Loop(cmd_path=path, watchdog_zero_cmds={200, 201, 202}),
+            _paper_bound(),
+        )  # fmt: skip
+        d0, d = clean.certificate["d_max_s"], m.certificate["d_max_s"]
+        assert d == pytest.approx(d0 + 3 * 0.002, abs=1e-9), (path, d0, d)
+
+
 # --- the log itself -------------------------------------------------------------------------------
 
 

@@ -358,7 +358,10 @@ class _Run:
     def _can_commands(self, node: np.ndarray, land: np.ndarray, cmd: np.ndarray):
         """A CAN command is in force once both wheels' frames of it (or newer) have landed: the
         sample in force is the older of the two wheels' (a conservative age)."""
-        keep = cmd >= 0  # lifecycle zeros (-1) and unmatched frames (-2) are not commands
+        # Lifecycle zeros (-1) and unmatched frames (-2) are not commands; nor is a watchdog's
+        # zero torque, computed from no sample: it does not renew the age (as on Zenoh).
+        keep = cmd >= 0
+        keep[keep] = self._sample_of(cmd[keep]) > 0
         node, land, cmd = node[keep], land[keep], cmd[keep]
         nodes = np.unique(node)
         if nodes.size == 0:

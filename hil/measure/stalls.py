@@ -264,11 +264,14 @@ def _message_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None
         if c.off_bus.any():  # CAN: frames that never reached the bus (bus-off)
             ev["frames_not_on_bus"] = int(c.off_bus[sl][lost_c].sum())
         scores["command_lost"] = int(lost_c.sum()) * r.period
-    # A message held up while its receiver was stalled is the receiver's stall, not the wire's.
-    hop = c.hop[sl] if "plant_late" not in scores else np.zeros(0, np.int64)
+    # A message held up while its receiver was stalled is the receiver's stall, not the wire's:
+    # hops that the receiver's own lateness explains (within a period) do not count.
+    hop = c.hop[sl]
     hop = hop[hop >= 0]
+    hop = hop[hop > scores.get("plant_late", 0) + r.period]
     hs = r.state_hops_sorted
-    shop = hs.hop[_between(hs.stamps, lo, hi)] if "controller_late" not in scores else hop[:0]
+    shop = hs.hop[_between(hs.stamps, lo, hi)]
+    shop = shop[shop > scores.get("controller_late", 0) + r.period]
     worst = int(max(hop.max() if hop.size else 0, shop.max() if shop.size else 0))
     if worst >= r.period:
         ev["transport_worst_s"] = worst / 1e9
