@@ -179,7 +179,10 @@ def test_a_torque_frame_dropped_on_the_wire_is_one_lost_frame(spawn, tmp_path: P
     assert can_["frames_lost"] == exp["frames_lost"] > 0
     assert can_["lost"] == exp["commands_lost"]
     assert can_["value_mismatches"] == 0
-    assert hop["count"] == can_["frames_received"]
+    # The hop covers every frame sent up to the last sample; the counts stop 2 Ts earlier
+    # (while the drives still listen): at most the last 3 commands' frames apart.
+    assert 0 <= hop["count"] - can_["frames_received"] <= 2 * 3, (hop, can_)
+    assert "not_relatable" not in hop or hop["not_relatable"] <= can_["frames_ambiguous"]
     assert hop["p50_us"] < 2000, hop  # the true hop is a fraction of a millisecond
 
 
@@ -215,4 +218,5 @@ def test_tcp_loss_under_zenoh_shows_as_stalls_with_a_cause(spawn, tmp_path: Path
     assert decisive and all(st["cause"] != "unknown" for st in decisive), decisive
     assert stalls[0]["cause"] in TRANSPORT_CAUSES, stalls[0]
     assert code == 1 and verdict, err[-2000:]
-    assert "worst stall" in verdict[-1] and stalls[0]["cause"] in verdict[-1], verdict
+    assert "worst:" in verdict[-1] and stalls[0]["cause"] in verdict[-1], verdict
+    assert s["verdict"]["outcome"] == "FAIL" and stalls[0]["owner"] == "system", s["verdict"]
