@@ -55,6 +55,7 @@ class Loop:
     duplicate_can_frames: set[int] = field(default_factory=set)
     lose_can_wheel_frames: set[tuple[int, int]] = field(default_factory=set)
     watchdog_zero_cmds: set[int] = field(default_factory=set)  # the watchdog's zero torques
+    trigger: str = "periodic"  # what the controller's log says it ran (on_state: no deadlines)
 
 
 def write(folder: Path, loop: Loop) -> None:
@@ -64,7 +65,7 @@ def write(folder: Path, loop: Loop) -> None:
         folder / "controller.hoplog",
         "controller",
         CONTROLLER_TABLES,
-        {"period_ns": P, "trigger": "periodic", "lockstep": False, "cmd_path": loop.cmd_path,
+        {"period_ns": P, "trigger": loop.trigger, "lockstep": False, "cmd_path": loop.cmd_path,
          "epoch_ns": E},
     )  # fmt: skip
     p = HopLogWriter(

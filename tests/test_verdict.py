@@ -1,0 +1,164 @@
+"""The verdict's rules (hil.verdict.judge): whose failure each finding is.
+
+FAIL is the system under test's (controller, its host, the transport); INCONCLUSIVE the bench's
+(plant emulator, recorder, the bench's host) or logs that cannot relate a figure; PASS neither.
+The same stalls and thresholds land on different sides by their owner, and hil run's exit code
+follows (1 only for a broken limit or a certificate the system's own timing broke, unless
+--strict)."""
+
+from __future__ import annotations
+
+import pytest
+
+from hil.commands.run import _raise_on_negative
+from hil.errors import NegativeVerdictError
+from hil.verdict import FAIL, INCONCLUSIVE, PASS, RunFacts, constraints_from_peaks, judge
+
+LIMITS = {"phi1": 1.6, "phi2": 5.1, "varpi1": 3.3, "varpi2": 51.0}
+PEAKS = {"max_abs_v": 0.8, "max_abs_omega": 1.0, "max_abs_tau1": 3.3, "max_abs_tau2": 51.0}
+D_STAR = 0.0204
+
+
+def _stall(age: float, cause: str, owner: str, t: float = 2.0) -> dict:
+    return {"t_s": t, "age_s": age, "cause": cause, "owner": owner, "evidence": {}}
+
+
+def _cert(d: float, d_system: float, stalls: list[dict], held: object = "auto") -> dict:
+    return {
+        "path": "zenoh",
+        "d_max_s": d,
+        "d_star_s": D_STAR,
+        "margin_s": D_STAR - d,
+        "held": (d <= D_STAR) if held == "auto" else held,
+        "v_bound": 1.59,
+        "omega_bound": 5.0,
+        "d_system_s": d_system,
+        "stalls": stalls,
+    }
+
+
+def _judge(cert: dict, peaks: dict = PEAKS, violations=None, timing=None, messages=None, **kw):
+    return judge(
+        constraints_from_peaks(peaks, LIMITS),
+        violations or {},
+        cert,
+        timing if timing is not None else {},
+        messages or {},
+        RunFacts(**kw) if kw else None,
+    )
+
+
+def test_a_clean_run_passes():
+    v = _judge(_cert(0.003, 0.003, []))
+    assert v.outcome == PASS and v.reasons == [] and v.certificate == "held"
+
+
+def test_a_plant_stall_past_d_star_is_inconclusive_and_names_the_plant():
+    v = _judge(_cert(0.043, 0.0035, [_stall(0.043, "plant_late", "bench")]))
+    assert v.outcome == INCONCLUSIVE and not v.fail_reasons and not v.blocking
+    (reason,) = v.inconclusive_reasons
+    assert "the plant emulator stalled at t = 2.000 s" in reason and "3.500 ms <= D*" in reason
+    assert v.advice and "fifo" in v.advice[0]
+
+
+def test_the_same_stall_of_the_controller_fails_the_system():
+    v = _judge(_cert(0.045, 0.045, [_stall(0.045, "controller_late", "system")]))
+    assert v.outcome == FAIL and v.blocking == v.fail_reasons
+    assert (
+        "by the system's own timing; worst: t = 2.000 s, 45.000 ms, controller_late"
+        in (v.fail_reasons[0])
+    )
+
+
+def test_a_system_stall_beside_a_bench_stall_still_fails():
+    stalls = [_stall(0.06, "plant_late", "bench"), _stall(0.03, "command_lost", "system", 3.0)]
+    v = _judge(_cert(0.06, 0.03, stalls))
+    assert v.outcome == FAIL and "command_lost" in v.fail_reasons[0]
+
+
+def test_a_stall_of_unknown_cause_past_d_star_is_inconclusive():
+    v = _judge(_cert(0.03, 0.03, [_stall(0.03, "unknown", "unknown")]))
+    assert v.outcome == INCONCLUSIVE and "cannot tell" in v.inconclusive_reasons[0]
+
+
+def test_a_limit_broken_while_only_the_bench_stalled_is_inconclusive():
+    peaks = {**PEAKS, "max_abs_v": 1.7}
+    cert = _cert(0.05, 0.004, [_stall(0.05, "host_stalled", "bench")])
+    cert["v_bound"] = 2.2  # the bound at D = 50 ms: the break stays within it
+    v = _judge(cert, peaks, violations={"v": 12})
+    assert v.limits == "broken" and v.limits_broken == ["v"]
+    assert v.outcome == INCONCLUSIVE and not v.blocking
+    assert any("the bench's host stalled" in r for r in v.inconclusive_reasons)
+    # Without the bench's stall the same break is the system's.
+    v = _judge(_cert(0.004, 0.004, []), peaks, violations={"v": 12})
+    assert v.outcome == FAIL and v.blocking[0].startswith("limits of (2) broken: |v|")
+
+
+def test_a_can_matching_the_logs_cannot_decide_is_unknown_never_held():
+    cert = _cert(0.018, 0.018, [], held=None)
+    cert["d_max_upper_s"] = 0.024
+    v = _judge(cert)
+    assert v.certificate == "unknown" and v.outcome == INCONCLUSIVE
+    assert "from 18.000 ms to 24.000 ms" in v.inconclusive_reasons[0]
+
+
+def test_frames_carrying_another_torque_make_the_figures_untrusted():
+    v = _judge(_cert(0.003, 0.003, []), messages={"torque_can": {"value_mismatches": 3}})
+    assert v.outcome == INCONCLUSIVE and "3 received frames" in v.inconclusive_reasons[0]
+
+
+# 40 missed slots of 2000 (2 %): the system's share alone decides (threshold 1 % = 20 slots).
+@pytest.mark.parametrize(("in_bench", "outcome"), [(0, FAIL), (19, FAIL), (25, INCONCLUSIVE)])
+def test_missed_slots_inside_the_bench_stalls_are_not_the_systems(in_bench, outcome):
+    timing = {"deadline_misses": 40, "slots": 2000, "deadline_miss_rate": 0.02}
+    timing["deadline_misses_in_bench_stalls"] = in_bench
+    v = _judge(_cert(0.003, 0.003, []), timing=timing)
+    assert v.outcome == outcome
+    assert v.timing["deadline_misses"] == {"count": 40, "slots": 2000, "rate": 0.02}
+    assert not v.blocking  # a threshold alone never makes hil run exit 1 without --strict
+
+
+def test_a_run_cut_short_and_a_refused_real_time_policy_say_so():
+    sched = {"controller": {"requested": "fifo", "policy": "SCHED_OTHER"}}
+    v = _judge(
+        _cert(0.003, 0.003, []),
+        interrupted=True,
+        duration_s=10.0,
+        duration_run_s=1.234,
+        scheduling=sched,
+    )
+    assert v.outcome == PASS
+    assert v.notes[0] == "interrupted after 1.234 s of 10 s: the verdict covers only that"
+    assert "asked for SCHED_FIFO and got SCHED_OTHER" in v.notes[1]
+
+
+def test_hil_run_exits_1_on_the_systems_failure_and_with_strict_on_anything_but_pass():
+    inconclusive = {"verdict": _judge(
+        _cert(0.043, 0.0035, [_stall(0.043, "plant_late", "bench")])
+    ).as_dict()}  # fmt: skip
+    fail = {"verdict": _judge(
+        _cert(0.045, 0.045, [_stall(0.045, "controller_late", "system")])
+    ).as_dict()}  # fmt: skip
+    passed = {"verdict": _judge(_cert(0.003, 0.003, [])).as_dict()}
+    _raise_on_negative(inconclusive)  # the default: the bench's stall is no failure of yours
+    _raise_on_negative(passed, strict=True)
+    with pytest.raises(NegativeVerdictError, match="INCONCLUSIVE \\(--strict\\)"):
+        _raise_on_negative(inconclusive, strict=True)
+    for strict in (False, True):
+        with pytest.raises(NegativeVerdictError, match="certificate not held"):
+            _raise_on_negative(fail, strict=strict)
+
+
+def test_the_report_shows_figures_a_trigger_does_not_measure_as_n_a_never_0():
+    from hil.report.content import Section, _lateness
+
+    on_state = {"plant_wakeup_lateness": {"p50_us": 20.0}, "plant_deadline_misses": 0}
+    s = Section("lateness", "")
+    sched = {"controller": {"requested": "fifo", "policy": "SCHED_FIFO", "priority": 80}}
+    _lateness(s, {"timing": {"summary": on_state, "scheduling": sched}})
+    tables = [b for b in s.blocks if b[0] == "table"]
+    rows = {r[0]: r[1:] for _, _, body in tables for r in body}
+    assert set(rows["controller wake-up lateness"]) == {"n/a"}
+    assert rows["deadline_misses"] == ["n/a"] and rows["skipped_slots"] == ["n/a"]
+    assert rows["plant_deadline_misses"] == [0]
+    assert any("asked fifo, got SCHED_FIFO" in b[1] for b in s.blocks if b[0] == "p")
