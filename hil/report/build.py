@@ -291,6 +291,7 @@ def _timing_block(folder: Folder, rr: RunResult | None, cert: dict[str, Any]) ->
         "hop_logs_agree_with_summary": rr.agree if rr is not None else None,
         "faults": folder.summary.get("faults"),
         "scheduling": folder.summary.get("scheduling"),
+        "impair": folder.summary.get("impair"),
     }
 
 

@@ -360,6 +360,14 @@ def _messages(s: Section, data: dict[str, Any]) -> None:
             f"{fmt(injected)}. The services logged each one: the lost, duplicated and reordered "
             "counts below include them, and the certificate's stalls name them in their evidence."
         )
+    impair = data["timing"].get("impair")
+    if isinstance(impair, dict):
+        s.p(
+            f"The link was impaired on purpose ([impair], docs/impair.md): {impair.get('packets')}"
+            f" in a {impair.get('namespace')}; nftables matched {impair.get('matched_packets')} "
+            f"packets and dropped {impair.get('dropped_packets')}. The lost counts below can only "
+            "be those (and any the faults above injected)."
+        )
     msgs = data["timing"].get("messages") or {}
     keys = ("sent", "received", "lost", "duplicated", "reordered")
     s.table(
