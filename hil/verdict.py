@@ -282,25 +282,23 @@ def _thresholds(
 ) -> None:
     """Deadline misses, samples without a command and lost messages of the applied path and
     the State stream against their thresholds (the shadow path never counts)."""
-    misses, slots, rate = (
-        timing.get("deadline_misses"),
-        timing.get("slots"),
-        timing.get("deadline_miss_rate"),
-    )
-    if isinstance(misses, int) and isinstance(rate, int | float):
-        v.timing["deadline_misses"] = {"count": misses, "slots": slots, "rate": rate}
-        text = f"deadline misses: {misses} of {slots} slots ({_pct(rate)})"
-        bench = int(timing.get("deadline_misses_in_bench_stalls") or 0)
-        _over(v, text, rate, (misses - bench) / slots if slots else 0.0, bench,
-              th.max_deadline_miss_ratio)  # fmt: skip
-    n, judged = timing.get("samples_without_command"), timing.get("samples_judged")
-    rate = timing.get("samples_without_command_rate")
-    if isinstance(n, int) and isinstance(rate, int | float):
-        v.timing["samples_without_command"] = {"count": n, "judged": judged, "rate": rate}
-        text = f"samples without a command: {n} of {judged} ({_pct(rate)})"
-        bench = int(timing.get("samples_without_command_in_bench_stalls") or 0)
-        _over(v, text, rate, (n - bench) / judged if judged else 0.0, bench,
-              th.max_samples_without_command_ratio)  # fmt: skip
+    counts = (
+        # (name, count key, over key, rate key, the text, the over's name, threshold)
+        ("deadline_misses", "deadline_misses", "slots", "deadline_miss_rate",
+         "deadline misses: {n} of {over} slots", "slots", th.max_deadline_miss_ratio),
+        ("samples_without_command", "samples_without_command", "samples_judged",
+         "samples_without_command_rate", "samples without a command: {n} of {over}", "judged",
+         th.max_samples_without_command_ratio),
+    )  # fmt: skip
+    for name, key, over_key, rate_key, text, over_name, limit in counts:
+        n, over, rate = timing.get(key), timing.get(over_key), timing.get(rate_key)
+        if not isinstance(n, int) or not isinstance(rate, int | float):
+            continue  # not measured in this run: absent, never 0
+        v.timing[name] = {"count": n, over_name: over, "rate": rate}
+        bench = int(timing.get(f"{key}_in_bench_stalls") or 0)
+        system_rate = (n - bench) / over if over else 0.0
+        words = text.format(n=n, over=over) + f" ({_pct(rate)})"
+        _over(v, words, rate, system_rate, bench, limit)
     streams = [s for s in ("state", f"torque_{path}" if path else "") if s in messages]
     if streams:
         lost = sum(int(messages[s].get("lost", 0)) for s in streams)
