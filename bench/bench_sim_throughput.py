@@ -1,4 +1,4 @@
-"""Closed-loop robot-steps per second of the offline simulator (issue 2 benchmark).
+"""Closed-loop robot-steps per second of the offline simulator .
 
 One robot-step = one control period of one loop at Ts = 1 ms with the default plant integration
 (10 RK4 steps of 0.1 ms) and the unified law (Table 1) on the paper's tracking scenario. Measures

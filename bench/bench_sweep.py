@@ -7,7 +7,7 @@ same process and run, so their ratio is meaningful on a noisy machine. Medians o
 
     python bench/bench_sweep.py            # 10,000 loops x 0.2 s, 3 repeats
     python bench/bench_sweep.py --quick    # 1,000 loops x 0.05 s, 1 repeat
-Targets (issue 5): >= 2,000,000 robot-steps/s and >= 20x the single-run path.
+Targets: >= 2,000,000 robot-steps/s and >= 20x the single-run path.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The checks of issue 2 on the paper's runs (Section 4), at Ts = 1 ms with an RK4 plant at
+"""The checks of the paper's claims on its runs (Section 4), at Ts = 1 ms with an RK4 plant at
 h = 0.1 ms, on the single-run float simulator (about a minute on 2 cores, run in parallel)."""
 
 from __future__ import annotations

@@ -32,8 +32,8 @@ def register(app: typer.Typer) -> None:
         with an RK4 plant at 0.1 ms. Writes PNG figures (data as CSV beside each), table.md and
         table.json. The scenarios are the bundled paper_* ones (hil scenarios). Each group of
         figures is written as soon as its runs are done; Ctrl-C keeps what was written (and a
-        table of the runs done) and exits 130. Exit 1 when a check of issue 2 fails. Takes
-        about 2-4 minutes on 2 cores (--quick: under a minute)."""
+        table of the runs done) and exits 130. Exit 1 when a check of the paper's claims
+        fails. Takes about 2-4 minutes on 2 cores (--quick: under a minute)."""
         from hil.options import out_dir
         from hil.paper import failed_checks, run_paper
         from hil.sim import new_run_dir

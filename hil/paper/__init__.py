@@ -11,7 +11,7 @@ Every run uses the single-run float simulator at Ts = 1 ms, h = 0.1 ms and the d
 the scenario files (150 s, 300 s, 100 s), spread over ``jobs`` processes (default 2: the
 machine's cores); ``quick`` divides every duration by 5 for smoke tests (then the convergence
 checks are not judged). Each figure's data is a CSV beside its PNG; ``table.md`` and
-``table.json`` hold the measured figures and the checks of issue 2.
+``table.json`` hold the measured figures and the checks of the paper's claims.
 """
 
 from __future__ import annotations
@@ -119,7 +119,7 @@ def _row(run: PaperRun, result: SimResult) -> dict[str, Any]:
 
 
 def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
-    """The checks of issue 2 on the paper's runs (convergence checks skipped when quick)."""
+    """The checks of the paper's claims on its runs (convergence checks skipped when quick)."""
     out: list[dict[str, Any]] = []
 
     def add(name: str, ok: bool | None, measured: str) -> None:
@@ -180,7 +180,8 @@ def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note
             f"{r['max_abs_v']:.4g} | {r['max_abs_omega']:.4g} | {r['max_abs_tau1']:.4g} | "
             f"{r['max_abs_tau2']:.4g} | {v['v']}/{v['omega']}/{v['tau1']}/{v['tau2']} |"
         )
-    lines += ["", "## Checks (issue 2)", "", "| check | result | measured |", "|---|---|---|"]
+    lines += ["", "## Checks of the paper's claims", ""]
+    lines += ["| check | result | measured |", "|---|---|---|"]
     for c in check_rows:
         verdict = {True: "pass", False: "FAIL", None: "not judged"}[c["passed"]]
         lines.append(f"| {c['check']} | {verdict} | {c['measured']} |")

@@ -1,6 +1,6 @@
 """Figures of a report: each one a PNG (matplotlib, Agg backend, no display) and its data.
 
-Every figure is also written as data beside its picture (issue 5, part 5): a :class:`Figure`
+Every figure is also written as data beside its picture: a :class:`Figure`
 carries the plotted columns so the writer can save them as CSV.
 """
 
