@@ -65,6 +65,7 @@ class _Run(Protocol):
 
     def host_over(self, lo: int, hi: int) -> dict[str, Any] | None: ...
 
+
 STALL_LIMIT = 20  # stalls listed, worst first
 HOST_BUSY_PCT = 90.0  # host_overloaded: the CPUs this busy over the stall ...
 HOST_OTHERS_PCT = 50.0  # ... with at least this much of one CPU going to other processes
