@@ -8,11 +8,13 @@ from __future__ import annotations
 import json
 import signal
 import time
+import tomllib
 import uuid
 
 import can
 import pytest
 
+from hil.run.defaults import PAPER_TRACKING_TOML
 from protocol import keys
 from protocol.can import codec
 from protocol.messages import State, Status, decode_as
@@ -80,7 +82,8 @@ def test_hil_drives_runs_free_publishes_and_stops_within_a_second(spawn, sig):
         bus.send(can.Message(arbitration_id=0x038, data=b"\x00", is_extended_id=False))
         bus.send(can.Message(arbitration_id=0x02E, data=b"\x00\x00", is_extended_id=False))
         assert wait_until(lambda: len(states) > 20 and out.seen("rej 1 (wrong_dlc 1)"), 10)
-        assert states[-1].v == 0.0 and states[-1].y == -0.5  # at rest at the initial pose
+        initial = tomllib.loads(PAPER_TRACKING_TOML)["initial"]  # hil drives' default scenario
+        assert states[-1].v == 0.0 and states[-1].y == initial["y"]  # at rest where it started
         assert wait_until(
             lambda: any(s.counters.get("can_rej_wrong_dlc") == 1 for s in statuses), 10
         )

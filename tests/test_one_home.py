@@ -1,4 +1,4 @@
-"""One home for each shared constant (issue 12): the paper's limits and Table 1
+"""One home for each shared constant: the paper's limits and Table 1
 (protocol.paper), schema versions (protocol.versions), angle wrapping (protocol.angles)."""
 
 from __future__ import annotations
@@ -9,6 +9,7 @@ from pathlib import Path
 
 from controller_service.laws.base import Limits
 from controller_service.laws.unified import UnifiedParams
+from hil.bundled import bundled_path
 from hil.run.defaults import PAPER_TRACKING_TOML
 from protocol.paper import PAPER_LIMITS, TABLE1
 
@@ -26,9 +27,13 @@ def test_the_defaults_are_the_paper_s():
     assert Limits() == Limits(**PAPER_LIMITS)
     params = UnifiedParams()
     assert {k: getattr(params, k) for k in TABLE1} == dict(TABLE1)
-    # hil run's default scenario is TOML text: it must state the same numbers.
+    # hil run's default scenario is the bundled paper_tracking with the run's defaults over it:
+    # the same initial condition, gains and reference (one name, one scenario).
     default = tomllib.loads(PAPER_TRACKING_TOML)
-    assert default["limits"] == dict(PAPER_LIMITS)
+    bundled = tomllib.loads(bundled_path("paper_tracking").read_text())
+    for table in ("reference", "initial", "controller"):
+        assert default[table] == bundled[table], table
+    assert default.get("limits", PAPER_LIMITS) == dict(PAPER_LIMITS)
     assert {k: default["controller"][k] for k in TABLE1} == dict(TABLE1)
 
 
