@@ -554,8 +554,9 @@ def _messages(r: _Run) -> dict[str, Any]:
     return out
 
 
-def _can_window(r: _Run) -> tuple[np.ndarray, np.ndarray]:
-    """(this window's commands, per can_tx row: a frame of one of them). A command is this
+def _can_window(r: _Run) -> tuple[np.ndarray, np.ndarray, int]:
+    """(this window's commands, per can_tx row: a frame of one of them, the commands sent after
+    the window). A command is this
     window's if it was computed in it and its last frame was put on the bus by the end (a frame
     never on the bus counts at its compute time): a host stalled between compute and send must
     not make a frame sent after the plant stopped count as lost."""
@@ -574,15 +575,14 @@ def _can_window(r: _Run) -> tuple[np.ndarray, np.ndarray]:
     in_window = (first >= r.w0) & (last_put <= end)
     mine = np.zeros(is_cmd.size, bool)
     mine[is_cmd] = in_window[inv]
-    r.can_sent_after_window = int((last_put > end).sum())
-    return ids[in_window], mine
+    return ids[in_window], mine, int((last_put > end).sum())
 
 
 def _can_messages(r: _Run) -> dict[str, Any]:
     """Per command (every wheel's frame of one cycle) and per frame, with a per-wheel split;
     lifecycle zeros apart."""
     tx, c = r.logs["can_tx"], r._can
-    sent_cmds, mine = _can_window(r)
+    sent_cmds, mine, sent_after_window = _can_window(r)
     got = (c["cmd"] >= 0) & ~c["lost"] & ~c["duplicated"]
     wheels = np.unique(tx["node"])
     n_wheels = max(1, wheels.size)
@@ -618,7 +618,7 @@ def _can_messages(r: _Run) -> dict[str, Any]:
         "lifecycle_frames_sent": int((tx["cmd_seq"] < 0).sum()),
         "unmatched_frames_received": int(((c["cmd"] == UNMATCHED) & ~c["duplicated"]).sum()),
         "value_mismatches": int(r.value_mismatches),
-        "sent_after_window": r.can_sent_after_window,
+        "sent_after_window": sent_after_window,
         "per_node": per_node,
     }
     if r.applied == "can":
