@@ -27,7 +27,7 @@ pytestmark = pytest.mark.realtime
 def _zenoh_can() -> tuple[list[str], str, str]:
     channel = f"t{uuid.uuid4().hex[:8]}"
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    args = ["--can-interface", "zenoh_can", "--channel", channel, "--can-endpoint", endpoint]
+    args = ["--can-interface", "zenoh_can", "--can-channel", channel, "--can-endpoint", endpoint]
     return args, channel, endpoint
 
 

@@ -52,11 +52,17 @@ CanInterfaceOpt = Annotated[
     typer.Option(
         "--can-interface",
         "--interface",
-        help="python-can interface: zenoh_can, socketcan, udp_multicast, pcan, ...",
+        help="python-can interface: zenoh_can, socketcan, udp_multicast, pcan, ... "
+        "(--can-interface, as in hil run).",
     ),
 ]
 ChannelOpt = Annotated[
-    str | None, typer.Option(help="Bus channel: hil0 (zenoh_can), vcan0, can0, ...")
+    str | None,
+    typer.Option(
+        "--can-channel",
+        "--channel",
+        help="Bus channel: hil0 (zenoh_can), vcan0, can0, ... (--can-channel, as in hil run).",
+    ),
 ]
 BitrateOpt = Annotated[int | None, typer.Option(help="Bit/s (hardware, zenoh_can).")]
 CanEndpointOpt = Annotated[str | None, typer.Option(help="zenoh_can's Zenoh endpoint (loopback).")]
