@@ -269,11 +269,12 @@ def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
         v.fail_reasons.append(text)
         v.blocking.append(text)
         return
-    bench = _bench_stalls(cert)
-    what = _stall_words(bench[0]) if bench else "the bench stalled"
+    bench = [st for st in _bench_stalls(cert) if st["age_s"] > ds] or _bench_stalls(cert)
+    what = "; ".join(_stall_words(st) for st in bench[:3]) or "the bench stalled"
+    more = f" (and {len(bench) - 3} more)" if len(bench) > 3 else ""
     v.inconclusive_reasons.append(
-        f"inconclusive, the bench stalled: {head} only because {what}; without the bench's "
-        f"stalls D = {_ms(d_sys)} <= D*"
+        f"inconclusive, the bench stalled: {head} only because {what}{more}; without the "
+        f"bench's stalls D = {_ms(d_sys)} <= D*"
     )
 
 

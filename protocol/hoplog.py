@@ -139,7 +139,9 @@ HOST_TABLES: dict[str, tuple[str, ...]] = {
     # What the bench's host did (written by ``hil run``, every 0.1 s): CPU time in clock ticks
     # since boot, all CPUs together (/proc/stat: total, idle + iowait, steal: time the hypervisor
     # gave to another guest), runnable tasks (/proc/loadavg), and the CPU time (utime + stime)
-    # of the plant, the controller and ``hil run`` itself (the recorder) from /proc/PID/stat.
+    # of the plant, the controller and ``hil run`` itself (the recorder) from /proc/PID/stat,
+    # and the ns the plant's and the controller's main threads waited runnable for a CPU
+    # (/proc/PID/schedstat: a stopped or blocked process waits on no run queue).
     "host": (
         "time_ns",
         "cpu_total",
@@ -149,6 +151,8 @@ HOST_TABLES: dict[str, tuple[str, ...]] = {
         "plant_cpu",
         "controller_cpu",
         "recorder_cpu",
+        "plant_wait_ns",
+        "controller_wait_ns",
     ),
 }
 

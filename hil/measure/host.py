@@ -3,8 +3,9 @@
 Over [lo, hi], from the host samples bracketing it (every 0.1 s): ``busy_pct`` (all CPUs, of
 their capacity), ``steal_pct`` (time a hypervisor gave to another guest), ``runnable_max``
 (runnable tasks), and each bench process's CPU use in % of one CPU (``plant``, ``controller``,
-``recorder``: ``hil run`` itself). None when the run has no host log (``hil run`` older than
-it, or a simulation)."""
+``recorder``: ``hil run`` itself), and how long the plant's and the controller's main threads
+waited runnable for a CPU (``*_wait_s``, /proc/PID/schedstat). None when the run has no host
+log (``hil run`` older than it, or a simulation)."""
 
 from __future__ import annotations
 
@@ -42,4 +43,8 @@ def host_figures(
         c = h[f"{name}_cpu"]
         if c[a] >= 0 and c[b] >= 0:
             out[f"{name}_cpu_pct"] = 100.0 * int(c[b] - c[a]) / tick / seconds
+    for name in ("plant", "controller"):
+        w = h.get(f"{name}_wait_ns")
+        if w is not None and w.size > b and w[a] >= 0 and w[b] >= 0:
+            out[f"{name}_wait_s"] = int(w[b] - w[a]) / 1e9  # runnable, waiting for a CPU
     return out

@@ -17,8 +17,9 @@ over [the sample in force at its start, the landing that ends it]:
 | ``command_delayed`` | landings delayed by a ``[faults]`` burst | system |
 | ``plant_late`` | a plant sample there woke a period or more late | bench |
 | ``host_stalled`` | the controller AND the plant were both a period or more late | bench |
-| ``host_overloaded`` | the controller late while the host's CPUs were >= 90 % busy, | bench |
-|  | half a CPU or more of it with processes not of this run (``host.hoplog``) | |
+| ``host_overloaded`` | the controller late while runnable, waiting for a CPU (run-queue | bench |
+|  | wait >= half its lateness), the host's CPUs >= 90 % busy, half a CPU of it with | |
+|  | processes not of this run (``host.hoplog``) | |
 | ``startup`` | the stretch before the first landing (its owner from the same evidence) | either |
 | ``unknown`` | none of these | unknown |
 
@@ -200,17 +201,22 @@ def cause_of(r: _Run, lo: int, hi: int) -> tuple[str, dict[str, Any]]:
     if not scores:
         return "unknown", ev
     cause = max(scores, key=lambda k: scores[k])
-    if cause == "controller_late" and host is not None and _overloaded(host):
+    if cause == "controller_late" and host is not None and _overloaded(host, scores[cause]):
         cause = "host_overloaded"  # late because the host's CPUs went to others
     return cause, ev
 
 
-def _overloaded(host: dict[str, Any]) -> bool:
+def _overloaded(host: dict[str, Any], late_ns: float) -> bool:
     """The host's CPUs were nearly all busy, at least half a CPU of it with processes that are
-    not this run's (the bench's host load, not the system under test)."""
+    not this run's (the bench's host load, not the system under test), AND the controller spent
+    at least half its lateness runnable but waiting for a CPU (its run-queue wait,
+    /proc/PID/schedstat): a controller that was stopped or blocked waits on no run queue, and
+    its lateness is its own even on a busy host."""
     ours = sum(host.get(f"{p}_cpu_pct", 0.0) for p in ("plant", "controller", "recorder"))
     others = host["busy_pct"] * host["cpus"] - ours
-    return host["busy_pct"] >= HOST_BUSY_PCT and others >= HOST_OTHERS_PCT
+    waited = host.get("controller_wait_s")
+    starved = waited is not None and waited * 1e9 >= 0.5 * late_ns
+    return host["busy_pct"] >= HOST_BUSY_PCT and others >= HOST_OTHERS_PCT and starved
 
 
 def _controller_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None:
@@ -269,10 +275,13 @@ def _message_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None
     # hops that the receiver's own lateness explains (within a period) do not count.
     hop = c.hop[sl]
     hop = hop[hop >= 0]
-    hop = hop[hop > scores.get("plant_late", 0) + r.period]
+    # ... and one held up by a stalled sender (stamped, then stopped before it left) the
+    # sender's: a hop either end's lateness covers is no evidence against the wire.
+    ends = max(scores.get("plant_late", 0), scores.get("controller_late", 0))
+    hop = hop[hop > ends + r.period]
     hs = r.state_hops_sorted
     shop = hs.hop[_between(hs.stamps, lo, hi)]
-    shop = shop[shop > scores.get("controller_late", 0) + r.period]
+    shop = shop[shop > ends + r.period]
     worst = int(max(hop.max() if hop.size else 0, shop.max() if shop.size else 0))
     if worst >= r.period:
         ev["transport_worst_s"] = worst / 1e9

@@ -44,6 +44,17 @@ def _process_cpu(pid: int | None) -> int:
         return -1
 
 
+def _run_queue_wait(pid: int | None) -> int:
+    """ns the process's main thread has waited runnable for a CPU (-1: unknown)."""
+    if pid is None:
+        return -1
+    try:
+        with open(f"/proc/{pid}/schedstat") as f:
+            return int(f.read().split()[1])
+    except (OSError, IndexError, ValueError):
+        return -1
+
+
 class HostSampler:
     """A daemon thread that logs the host every :data:`INTERVAL_S` until closed."""
 
@@ -71,6 +82,8 @@ class HostSampler:
                 _process_cpu(self.pids["plant"]),
                 _process_cpu(self.pids["controller"]),
                 _process_cpu(os.getpid()),
+                _run_queue_wait(self.pids["plant"]),
+                _run_queue_wait(self.pids["controller"]),
             ),
         )
 
