@@ -60,6 +60,9 @@ class Loop:
     tick_late: tuple[int, ...] = ()  # extra lateness of tick k: tick_late[k % len], ns
     sample_late: tuple[int, ...] = ()  # extra wake-up lateness of plant sample k, ns
     plant_send: int = 100 * US  # plant: sample's wake-up -> its State sent
+    # (cmd_seq, extra ns): that Zenoh command arrives so much later (its sender stopped
+    # between stamping the send and sending it)
+    late_command: tuple[int, int] | None = None
 
 
 def _cyclic(pattern: tuple[int, ...], k: int) -> int:
@@ -157,6 +160,8 @@ def write(folder: Path, loop: Loop) -> None:
                                flags))  # fmt: skip
             if not dropped:  # Zenoh always carries the command (applied or as the shadow)
                 recv = send + loop.hop_cmd
+                if loop.late_command and cmd_seq == loop.late_command[0]:
+                    recv += loop.late_command[1]
                 copies = 2 if cmd_seq in loop.duplicate_commands else 1
                 for _ in range(copies):
                     p.append("cmd_rx", (0, cmd_seq, s, d, c0, send, recv, 0.1, 0.2, -1, 0))

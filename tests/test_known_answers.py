@@ -365,10 +365,13 @@ def test_new_stalls_have_owners_and_the_system_age_leaves_the_bench_out(tmp_path
     assert [(s["cause"], s["owner"]) for s in p["stalls"]] == [("plant_late", "bench")]
     assert p["stall_count"] == 1 and p["d_max_s"] == 0.03321
     assert p["d_system_s"] == (P / US + S2A_ZENOH) / 1e6  # the loop's own age, outside it
-    # Time above the threshold: from the crossing (sample in force + threshold) to the landing.
+    # Time above the threshold: from the crossing (sample in force + threshold) to the landing
+    # that brings the age below it: 430.195 ms for the controller's stall (sample 398 ms); for
+    # the plant's, 633.21 ms (sample 598 ms): the stalled sample's command (631.21 ms) is
+    # itself 31.21 ms old, the next one's brings the age down.
     thr = c["stall_threshold_s"]
     assert c["stalled_time_s"] == pytest.approx(0.032195 - thr, abs=1e-9)
-    assert p["stalled_time_s"] == pytest.approx(0.03321 - thr, abs=1e-9)
+    assert p["stalled_time_s"] == pytest.approx(0.03521 - thr, abs=1e-9)
 
 
 def test_new_every_stall_is_counted_beyond_the_20_listed(tmp_path):
@@ -382,6 +385,22 @@ def test_new_every_stall_is_counted_beyond_the_20_listed(tmp_path):
         25 * (peak - cert["stall_threshold_s"]), abs=1e-8
     )
     assert cert["d_system_s"] == cert["d_max_s"] == peak
+
+
+def test_new_a_controller_stopped_between_its_send_stamp_and_the_send_is_controller_late(tmp_path):
+    """A SIGSTOP that lands just after a tick stamped its command's send and before the command
+    left (seen in a real run): stopped from 401.1 ms to 431.1 ms, the command stamped at
+    401.06 ms arrives 150 µs after the resume. Its 30.19 ms "hop" is the sender's stall, as a
+    State held up by a stalled receiver is the receiver's: the cause is the controller."""
+    stop, resume = 401_100 * US, 431_100 * US
+    send = 400 * MS + P // 2 + (TICK_WAKE + TO_COMPUTE + COMPUTE + TO_SEND) * US
+    m = _measure(
+        tmp_path, "run", controller_stall=(stop, resume - stop),
+        late_command=(200, resume + HOP_CMD * US - (send + HOP_CMD * US)),
+    )  # fmt: skip
+    assert m.timing["hop_cmd_zenoh"]["max_us"] == (resume - send) / US + HOP_CMD
+    worst = m.certificate["stalls"][0]
+    assert (worst["cause"], worst["owner"]) == ("controller_late", "system"), worst
 
 
 # =================================================================================================
