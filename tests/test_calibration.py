@@ -260,7 +260,8 @@ def _check_stop(s: dict, stop: Stop, slots: Slots, lateness: dict, skipped: int,
     lo, hi = int((stop.end - d) // PERIOD_S), int((stop.resumed_by + 3 * MS - d) // PERIOD_S)
     assert lo <= slots.skipped <= hi, (slots.skipped, lo, hi)
     # The summary's figures are the log's, to the nanosecond: its max holds the stop's.
-    assert lateness["max_us"] == int(slots.late_ns.max()) / 1000.0 >= slots.lateness * 1e6
+    assert lateness["max_us"] == int(slots.late_ns.max()) / 1000.0
+    assert int(slots.late_ns.max()) >= round(slots.lateness * 1e9)
     assert lateness["count"] == slots.late_ns.size and skipped == slots.skipped_total
     # The command in force when it stopped (its sample at most one period and one normal
     # latency before) stayed until the first landing after the resume.
