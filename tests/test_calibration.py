@@ -105,11 +105,15 @@ class Stop:
 
 
 @contextmanager
-def _above_the_services() -> Iterator[None]:
+def _above_the_services(target: int) -> Iterator[None]:
     """This thread at SCHED_FIFO above the services' 80 while it aims and times a stop: at
     SCHED_OTHER their real-time threads can keep it off the CPU past the moment it aims at
-    (seen: a stop aimed 0.5 ms before a tick landed just after it). Where the host refuses,
-    the services fall back to SCHED_OTHER too, and so does this."""
+    (seen: a stop aimed 0.5 ms before a tick landed just after it). It runs on a CPU the
+    ``target`` process is not pinned to, where there is one: spinning above the target on its
+    own CPU would make it late before it is stopped. Where the host refuses real-time
+    scheduling the services run time-shared too, and so does this."""
+    cpus = os.sched_getaffinity(0)
+    other = cpus - os.sched_getaffinity(target)
     try:
         policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(90))
@@ -117,9 +121,12 @@ def _above_the_services() -> Iterator[None]:
         yield
         return
     try:
+        if other:
+            os.sched_setaffinity(0, other)
         yield
     finally:
         os.sched_setscheduler(0, policy, param)
+        os.sched_setaffinity(0, cpus)
 
 
 def _stall(proc: subprocess.Popen, out: Path, who: str, at_s: float, length_s: float) -> Stop:
@@ -127,10 +134,13 @@ def _stall(proc: subprocess.Popen, out: Path, who: str, at_s: float, length_s: f
     epoch = _epoch(out, proc)
     pid = json.loads((out / "processes.json").read_text())[who]
     at = epoch + int(at_s * 1e9)
-    delay = (at - 2_000_000 - time.monotonic_ns()) / 1e9
+    delay = (at - 5_000_000 - time.monotonic_ns()) / 1e9
     assert delay > 0, "the injection moment passed before the run was seen starting"
-    time.sleep(delay)  # to 2 ms before the moment, then spin: a sleep may wake late
-    with _above_the_services():
+    time.sleep(delay)
+    with _above_the_services(pid):
+        # Sleep to 0.3 ms before the moment (a real-time thread wakes within tens of µs),
+        # then spin to it.
+        time.sleep(max(0.0, (at - 300_000 - time.monotonic_ns()) / 1e9))
         while time.monotonic_ns() < at:
             pass
         t0 = time.monotonic_ns()
