@@ -56,6 +56,18 @@ class Loop:
     lose_can_wheel_frames: set[tuple[int, int]] = field(default_factory=set)
     watchdog_zero_cmds: set[int] = field(default_factory=set)  # the watchdog's zero torques
     trigger: str = "periodic"  # what the controller's log says it ran (on_state: no deadlines)
+    # Known-answer knobs (tests/test_known_answers.py); the defaults keep the loop above.
+    tick_late: tuple[int, ...] = ()  # extra lateness of tick k: tick_late[k % len], ns
+    sample_late: tuple[int, ...] = ()  # extra wake-up lateness of plant sample k, ns
+    plant_send: int = 100 * US  # plant: sample's wake-up -> its State sent
+    # (cmd_seq, extra ns): that Zenoh command arrives so much later (its sender stopped
+    # between stamping the send and sending it)
+    late_command: tuple[int, int] | None = None
+
+
+def _cyclic(pattern: tuple[int, ...], k: int) -> int:
+    """The k-th value of a repeating pattern (0 for none)."""
+    return pattern[k % len(pattern)] if pattern else 0
 
 
 def write(folder: Path, loop: Loop) -> None:
@@ -82,7 +94,7 @@ def write(folder: Path, loop: Loop) -> None:
     k = 0
     while k < loop.n:
         d = E + k * P
-        wake = d + 20 * US
+        wake = d + 20 * US + _cyclic(loop.sample_late, k)
         if loop.plant_stall and d >= E + loop.plant_stall[0] and d < E + sum(loop.plant_stall):
             wake = E + sum(loop.plant_stall) + 20 * US
             samples.append((seq, d, wake))
@@ -95,7 +107,7 @@ def write(folder: Path, loop: Loop) -> None:
     state_arrival: dict[int, int] = {}
     for s, d, wake in samples:
         dropped = loop.drop_state_every and s % loop.drop_state_every == loop.drop_state_every - 1
-        send = wake + 100 * US
+        send = wake + loop.plant_send
         p.append("samples", (s, d, wake, send, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
                              SAMPLE_DROPPED if dropped else 0))  # fmt: skip
         if not dropped and s not in loop.lose_states:
@@ -118,7 +130,7 @@ def write(folder: Path, loop: Loop) -> None:
         deadline = E + P // 2 + k * P
         if deadline > last_sample + 5 * P:
             break
-        wake = deadline + 15 * US
+        wake = deadline + 15 * US + _cyclic(loop.tick_late, k)
         skipped = 0
         if loop.controller_stall:
             s0 = E + loop.controller_stall[0]
@@ -148,6 +160,8 @@ def write(folder: Path, loop: Loop) -> None:
                                flags))  # fmt: skip
             if not dropped:  # Zenoh always carries the command (applied or as the shadow)
                 recv = send + loop.hop_cmd
+                if loop.late_command and cmd_seq == loop.late_command[0]:
+                    recv += loop.late_command[1]
                 copies = 2 if cmd_seq in loop.duplicate_commands else 1
                 for _ in range(copies):
                     p.append("cmd_rx", (0, cmd_seq, s, d, c0, send, recv, 0.1, 0.2, -1, 0))

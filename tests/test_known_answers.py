@@ -1,0 +1,466 @@
+"""Two-sided known answers for every timing figure of docs/realtime.md ("Timing figures").
+
+Each test writes a run's two hop logs from a script (tests/synthetic_run.py) in which every
+stamp is known, injects one known quantity (a wake-up pattern, a longer hop, a slower law, a
+stall, a loss) and checks the figure equals what was injected -- exactly, or within a stated
+tolerance on both sides -- and that the figures it must not move stay where they were. A
+floor alone (``>=``) would let a regression that doubles a figure pass. The same injections
+into real processes are in tests/test_calibration.py; docs/realtime.md lists, per figure,
+which test calibrates it (checked at the end of this file).
+
+The scripted loop's stamps (tests/synthetic_run.py, period P = 2 ms, 500 samples):
+plant sample d -> wakes d + 20 µs -> sends its State ``plant_send`` (100 µs) later -> the State
+arrives ``hop_state`` (200 µs) later; the controller's tick for slot k is due at d + P/2 and wakes
+15 µs late, starts computing 5 µs later, computes ``compute`` (30 µs), sends 10 µs later; the
+Zenoh command arrives ``hop_cmd`` (150 µs) later and lands ``delay`` after that; each CAN frame
+is put on the bus 5 µs after the Zenoh send and arrives 250 µs later.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from hil.measure import load_folder_logs, measure
+from hil.measure.figures import BoundInputs, Measurement
+from tests.synthetic_run import MS, US, Loop, write
+
+ROOT = Path(__file__).resolve().parent.parent
+P = 2 * MS
+H = 200 * US  # the plant's step: the command age is sampled on its grid
+# Fixed offsets of tests/synthetic_run.py (not knobs): see the module docstring.
+PLANT_WAKE, TICK_WAKE, TO_COMPUTE, TO_SEND, TO_BUS, CAN_HOP = 20, 15, 5, 10, 5, 250  # µs
+# The clean loop's figures in µs, from those stamps.
+HOP_STATE, COMPUTE, HOP_CMD, PLANT_SEND = 200, 30, 150, 100
+WAIT = P // 2 // US + TICK_WAKE + TO_COMPUTE - (PLANT_WAKE + PLANT_SEND + HOP_STATE)  # 700
+S2A_ZENOH = P // 2 // US + TICK_WAKE + TO_COMPUTE + COMPUTE + TO_SEND + HOP_CMD  # 1210
+S2A_CAN = S2A_ZENOH - HOP_CMD + TO_BUS + CAN_HOP  # 1315
+TICKS = 499  # slots due in the window [first sample, last sample]: deadlines 1 ms .. 997 ms
+JUDGED = 498  # samples up to 2 P before the last one
+
+
+def _paper_bound() -> BoundInputs:
+    from controller_service.laws.base import DesignContext
+
+    params = SimpleNamespace(m1=0.5, m2=0.5, l1=0.5, l2=0.5, lam=1.0, rho=1.0)
+    return BoundInputs(params, DesignContext(), False)
+
+
+def _measure(tmp_path: Path, name: str, **knobs) -> Measurement:
+    write(tmp_path / name, Loop(**knobs))
+    logs = load_folder_logs(tmp_path / name)
+    assert logs is not None
+    return measure(logs, _paper_bound())
+
+
+def _constant(summary: dict, value_us: float, count: int | None = None) -> None:
+    """Every value of the figure is ``value_us``: p50, max and mean all equal it."""
+    got = (summary["p50_us"], summary["max_us"], summary["mean_us"])
+    assert got == (value_us, value_us, pytest.approx(value_us)), summary
+    if count is not None:
+        assert summary["count"] == count, summary
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory) -> Measurement:
+    return _measure(tmp_path_factory.mktemp("clean"), "run")
+
+
+# --- the clean loop: every figure is the stamps' difference -------------------------------------
+
+
+def test_the_clean_loop_gives_each_figure_its_scripted_value(clean):
+    t = clean.timing
+    _constant(t["wakeup_lateness"], TICK_WAKE, TICKS)
+    _constant(t["period_jitter"], 0.0, TICKS - 1)
+    _constant(t["plant_wakeup_lateness"], PLANT_WAKE, 500)
+    _constant(t["plant_sample_to_send"], PLANT_WAKE + PLANT_SEND, 500)
+    _constant(t["compute"], COMPUTE)
+    _constant(t["hop_state"], HOP_STATE)
+    _constant(t["wait_for_tick"], WAIT)
+    _constant(t["hop_cmd_zenoh"], HOP_CMD)
+    _constant(t["hop_cmd_can"], CAN_HOP)
+    _constant(t["loop_transport_compute"], HOP_STATE + COMPUTE + HOP_CMD)
+    _constant(t["state_send_to_cmd_recv"], S2A_ZENOH - PLANT_WAKE - PLANT_SEND)
+    _constant(t["sample_to_apply_zenoh"], S2A_ZENOH)
+    _constant(t["sample_to_apply_can"], S2A_CAN)  # the CAN shadow: arrival - sample
+    _constant(t["sample_gap"], P / US, 498)  # 499 commands landed in the window
+    assert t["late_commands"] == t["samples_without_command"] == 0
+    assert t["samples_judged"] == JUDGED
+    assert t["startup_hold_s"] == S2A_ZENOH * US / 1e9
+    # The age saw-tooth: from S2A just after a landing to P + S2A just before the next; on the
+    # plant's 200 µs grid the ages of one period are 1400, 1600, ..., 3200 µs: p50 = 2200 µs.
+    assert t["command_age_zenoh"]["max_us"] == P / US + S2A_ZENOH
+    assert t["command_age_zenoh"]["p50_us"] == 2200.0
+    assert t["command_age_can"]["max_us"] == P / US + S2A_CAN  # the shadow's age
+    assert clean.certificate["d_max_s"] == (P / US + S2A_ZENOH) / 1e6
+
+
+# --- controller wake-ups ------------------------------------------------------------------------
+
+
+def test_a_known_wake_pattern_gives_lateness_and_jitter_exactly(tmp_path):
+    """Ticks wake 0, 100, 300 µs later in turn (k mod 3): lateness is 15 µs plus that; the
+    jitter |wake_k - wake_(k-1) - P| is 100, 200, 300 µs in turn."""
+    m = _measure(tmp_path, "run", tick_late=(0, 100 * US, 300 * US))
+    t = m.timing
+    extra = np.array([0, 100, 300])[np.arange(TICKS) % 3]
+    lat = t["wakeup_lateness"]
+    assert (lat["count"], lat["p50_us"], lat["max_us"]) == (TICKS, 115.0, 315.0)
+    assert lat["mean_us"] == pytest.approx(TICK_WAKE + extra.mean(), abs=1e-9)
+    jit = t["period_jitter"]
+    assert (jit["count"], jit["p50_us"], jit["max_us"]) == (TICKS - 1, 200.0, 300.0)
+    assert jit["mean_us"] == pytest.approx(np.abs(np.diff(extra)).mean(), abs=1e-9)
+    # What a later tick changes, and what it must not.
+    assert t["wait_for_tick"]["p50_us"] == WAIT + 100 and t["wait_for_tick"]["max_us"] == WAIT + 300
+    assert t["sample_to_apply_zenoh"]["max_us"] == S2A_ZENOH + 300
+    _constant(t["hop_state"], HOP_STATE)
+    _constant(t["loop_transport_compute"], HOP_STATE + COMPUTE + HOP_CMD)
+    _constant(t["plant_wakeup_lateness"], PLANT_WAKE)
+    assert t["late_commands"] == 0 and t["deadline_misses"] == 0
+
+
+def test_ticks_900us_late_make_exactly_those_commands_late(tmp_path):
+    """Every fifth tick wakes 900 µs late: its command lands 2110 µs after its sample, more
+    than one period; the others (1210 µs) are in time."""
+    m = _measure(tmp_path, "run", tick_late=(0, 0, 0, 0, 900 * US))
+    t = m.timing
+    late = len(range(4, JUDGED, 5))  # ticks k = 4, 9, ... of the judged samples k < 498
+    assert t["late_commands"] == late == 99
+    assert t["late_commands_rate"] == late / JUDGED
+    assert t["samples_without_command"] == 0
+    assert t["wakeup_lateness"]["max_us"] == TICK_WAKE + 900
+    assert t["sample_to_apply_zenoh"]["max_us"] == S2A_ZENOH + 900
+
+
+def test_a_30ms_controller_stall_gives_each_figure_exactly(tmp_path):
+    """SIGSTOP-like: no tick from 400 ms to 430 ms. The tick due at 401 ms wakes at 430 ms
+    (29 ms late, never re-based), 14 slots are skipped, and it computes from the newest state,
+    the sample of 428 ms: samples 400 .. 426 ms (14) never get a command. The command in force
+    since 399.21 ms (sample 398 ms) is replaced at 430.195 ms: D = 32.195 ms."""
+    m = _measure(tmp_path, "run", controller_stall=(400 * MS, 30 * MS))
+    t = m.timing
+    assert t["wakeup_lateness"]["max_us"] == 29_000.0
+    assert t["wakeup_lateness"]["p50_us"] == TICK_WAKE
+    assert t["skipped_slots"] == 14
+    # 430 ms - 399.015 ms against one period, then 431.015 - 430 ms against 15 periods.
+    assert t["period_jitter"]["max_us"] == 28_985.0
+    assert t["samples_without_command"] == 14
+    assert t["late_commands"] == 1  # the first one after it: 430.195 - 428 = 2.195 ms
+    assert t["sample_to_apply_zenoh"]["max_us"] == 2195.0
+    assert t["sample_gap"]["max_us"] == 15 * P / US  # landed samples 398 ms, then 428 ms
+    assert t["command_age_zenoh"]["max_us"] == 32_195.0
+    cert = m.certificate
+    assert cert["d_max_s"] == 0.032195
+    worst = cert["stalls"][0]
+    assert worst["cause"] == "controller_late" and worst["age_s"] == 0.032195
+    # It crossed the threshold that long after the sample in force (398 ms).
+    assert worst["t_s"] == pytest.approx(0.398 + cert["stall_threshold_s"], abs=1e-9)
+
+
+def test_a_30ms_plant_stall_gives_each_plant_figure_exactly(tmp_path):
+    """The plant's sample due at 600 ms wakes at 630.02 ms (30.02 ms late) and the next is at
+    632 ms: 15 sensor slots skipped. Its State goes out 100 µs after the wake."""
+    m = _measure(tmp_path, "run", plant_stall=(600 * MS, 30 * MS))
+    t = m.timing
+    assert t["plant_wakeup_lateness"]["max_us"] == 30_020.0
+    assert t["plant_wakeup_lateness"]["p50_us"] == PLANT_WAKE
+    assert t["plant_wakeup_lateness"]["count"] == 485  # 500 slots - 15 skipped
+    assert t["plant_skipped_slots"] == 15
+    assert t["plant_sample_to_send"]["max_us"] == 30_020.0 + PLANT_SEND
+    # The controller was on time throughout.
+    assert t["wakeup_lateness"]["max_us"] == TICK_WAKE
+    # The command of the 598 ms sample stays in force from 599.21 ms until the stalled sample's
+    # command lands at 631.21 ms: D = 33.21 ms.
+    assert t["command_age_zenoh"]["max_us"] == 33_210.0
+    worst = m.certificate["stalls"][0]
+    assert worst["cause"] == "plant_late" and worst["age_s"] == 0.03321
+    assert worst["t_s"] == pytest.approx(0.598 + m.certificate["stall_threshold_s"], abs=1e-9)
+
+
+# --- the plant's samples ------------------------------------------------------------------------
+
+
+def test_plant_wake_pattern_and_send_delay_are_found_exactly(tmp_path):
+    """Samples wake 0, 0, 300 µs later in turn, and each State goes out 400 µs (not 100) after
+    its wake: the plant's figures move by exactly that, the controller's do not."""
+    m = _measure(tmp_path, "run", sample_late=(0, 0, 300 * US), plant_send=400 * US)
+    t = m.timing
+    lat = t["plant_wakeup_lateness"]
+    assert (lat["p50_us"], lat["p90_us"], lat["max_us"]) == (20.0, 320.0, 320.0)
+    s2s = t["plant_sample_to_send"]
+    assert (s2s["p50_us"], s2s["max_us"]) == (PLANT_WAKE + 400, PLANT_WAKE + 400 + 300)
+    assert t["plant_deadline_misses"] == t["plant_skipped_slots"] == 0
+    _constant(t["hop_state"], HOP_STATE)  # the hop starts at the send
+    # The tick does not move: the state waits 300 µs less for it, and 0 or 300 µs more late.
+    assert t["wait_for_tick"]["max_us"] == WAIT - 300
+    assert t["wait_for_tick"]["p50_us"] == WAIT - 300
+    assert t["state_send_to_cmd_recv"]["max_us"] == S2A_ZENOH - PLANT_WAKE - 400
+    _constant(t["sample_to_apply_zenoh"], S2A_ZENOH)
+
+
+# --- the hops and the law -----------------------------------------------------------------------
+
+
+def test_a_200us_slower_law_raises_compute_and_what_contains_it_by_200us(tmp_path, clean):
+    m = _measure(tmp_path, "run", compute=(COMPUTE + 200) * US)
+    t, c = m.timing, clean.timing
+    _constant(t["compute"], COMPUTE + 200, c["compute"]["count"])
+    for fig in ("loop_transport_compute", "state_send_to_cmd_recv", "sample_to_apply_zenoh"):
+        assert t[fig]["p50_us"] - c[fig]["p50_us"] == 200.0, fig
+        assert t[fig]["max_us"] - c[fig]["max_us"] == 200.0, fig
+    for fig in ("hop_state", "wait_for_tick", "hop_cmd_zenoh", "hop_cmd_can"):
+        assert t[fig] == c[fig], fig
+
+
+def test_a_300us_longer_state_hop_is_found_and_absorbed_by_the_tick(tmp_path, clean):
+    m = _measure(tmp_path, "run", hop_state=(HOP_STATE + 300) * US)
+    t, c = m.timing, clean.timing
+    _constant(t["hop_state"], HOP_STATE + 300, c["hop_state"]["count"])
+    _constant(t["wait_for_tick"], WAIT - 300)
+    _constant(t["loop_transport_compute"], HOP_STATE + 300 + COMPUTE + HOP_CMD)
+    # The periodic tick still runs at its slot: the command is no later.
+    for fig in ("state_send_to_cmd_recv", "sample_to_apply_zenoh", "hop_cmd_zenoh", "compute"):
+        assert t[fig] == c[fig], fig
+
+
+def test_a_300us_longer_command_hop_on_zenoh_is_found_exactly(tmp_path, clean):
+    m = _measure(tmp_path, "run", hop_cmd=(HOP_CMD + 300) * US)
+    t, c = m.timing, clean.timing
+    _constant(t["hop_cmd_zenoh"], HOP_CMD + 300, c["hop_cmd_zenoh"]["count"])
+    _constant(t["loop_transport_compute"], HOP_STATE + COMPUTE + HOP_CMD + 300)
+    _constant(t["state_send_to_cmd_recv"], S2A_ZENOH + 300 - PLANT_WAKE - PLANT_SEND)
+    _constant(t["sample_to_apply_zenoh"], S2A_ZENOH + 300)
+    assert t["command_age_zenoh"]["max_us"] == P / US + S2A_ZENOH + 300
+    for fig in ("hop_state", "compute", "wait_for_tick", "hop_cmd_can"):
+        assert t[fig] == c[fig], fig
+
+
+@pytest.mark.parametrize("named", [True, False], ids=["named_frames", "bus_order"])
+def test_can_latencies_are_found_exactly_and_a_slower_bus_by_exactly_its_delay(tmp_path, named):
+    """The applied CAN path's absolute latencies (both matchings: frames named by the bus, and
+    per-node bus order), then every frame 300 µs slower on the wire."""
+    a = _measure(tmp_path, "a", cmd_path="can", named_frames=named)
+    b = _measure(tmp_path, "b", cmd_path="can", named_frames=named, slow_can_from=(0, 300 * US))
+    for m, extra in ((a, 0), (b, 300)):
+        t = m.timing
+        _constant(t["hop_cmd_can"], CAN_HOP + extra)
+        _constant(t["sample_to_apply_can"], S2A_CAN + extra)
+        assert t["command_age_can"]["max_us"] == P / US + S2A_CAN + extra
+        assert m.certificate["d_max_s"] * 1e6 == pytest.approx(P / US + S2A_CAN + extra)
+        _constant(t["hop_cmd_zenoh"], HOP_CMD)  # the Zenoh shadow does not move
+        _constant(t["sample_to_apply_zenoh"], S2A_ZENOH)
+        assert m.messages["torque_can"]["value_mismatches"] == 0
+    assert a.timing["startup_hold_s"] == S2A_CAN * US / 1e9
+
+
+def test_a_5ms_delay_shifts_apply_and_age_by_exactly_5ms_and_no_hop(tmp_path, clean):
+    m = _measure(tmp_path, "run", delay=5 * MS)
+    t, c = m.timing, clean.timing
+    _constant(t["sample_to_apply_zenoh"], S2A_ZENOH + 5000)
+    assert t["command_age_zenoh"]["max_us"] == P / US + S2A_ZENOH + 5000
+    # The grid's ages shift by 25 plant steps: p50 2200 -> 7200 µs.
+    assert t["command_age_zenoh"]["p50_us"] == c["command_age_zenoh"]["p50_us"] + 5000 == 7200.0
+    for fig in ("hop_cmd_zenoh", "state_send_to_cmd_recv", "loop_transport_compute"):
+        assert t[fig] == c[fig], fig  # the delay is after the arrival
+    # Judged: samples up to 2 P + delay before the last (k <= 494); every one landed late.
+    assert t["samples_judged"] == 495
+    assert t["late_commands"] == 495 and t["late_commands_rate"] == 1.0
+    assert t["samples_without_command"] == 0
+
+
+# --- what never landed -------------------------------------------------------------------------
+
+
+def test_lost_states_are_exactly_the_samples_without_command_and_the_gap(tmp_path):
+    m = _measure(tmp_path, "run", lose_states=set(range(100, 110)))
+    t = m.timing
+    assert t["samples_without_command"] == 10
+    assert t["samples_without_command_rate"] == 10 / JUDGED
+    assert t["sample_gap"]["max_us"] == 11 * P / US  # sample 99, then 110
+    assert t["sample_gap"]["count"] == 498 - 10
+    assert t["late_commands"] == 0
+    # The command of sample 99 stays in force until sample 110's lands.
+    assert t["command_age_zenoh"]["max_us"] == 11 * P / US + S2A_ZENOH
+
+
+def test_dropped_states_every_7th_are_exactly_the_samples_without_command(tmp_path):
+    m = _measure(tmp_path, "run", drop_state_every=7)
+    dropped = len(range(6, JUDGED, 7))  # samples 6, 13, ... judged (k < 498)
+    assert m.timing["samples_without_command"] == dropped == 71
+    assert m.timing["sample_gap"]["max_us"] == 2 * P / US
+    assert m.messages["state"]["lost"] == m.messages["state"]["injected_drops"] == 500 // 7
+
+
+# =================================================================================================
+# Figures whose definitions change (docs/realtime.md after the slot-based misses, the age from
+# t = 0 and the stall totals): these are written to the new definitions.
+# =================================================================================================
+
+
+def test_new_a_30ms_controller_stall_is_15_missed_slots(tmp_path):
+    """1 late tick + 14 skipped slots = 15 misses, over the 499 slots of the window."""
+    t = _measure(tmp_path, "run", controller_stall=(400 * MS, 30 * MS)).timing
+    assert t["late_ticks"] == 1 and t["skipped_slots"] == 14
+    assert t["deadline_misses"] == 15
+    assert t["ticks"] == TICKS - 14 and t["slots"] == TICKS
+    assert t["deadline_miss_rate"] == 15 / TICKS
+
+
+def test_new_a_clean_loop_misses_no_slot(clean):
+    t = clean.timing
+    assert (t["deadline_misses"], t["late_ticks"], t["skipped_slots"]) == (0, 0, 0)
+    assert t["slots"] == t["ticks"] == TICKS and t["deadline_miss_rate"] == 0.0
+    assert (t["plant_deadline_misses"], t["plant_slots"]) == (0, 500)
+
+
+def test_new_a_30ms_plant_stall_is_16_missed_sensor_slots(tmp_path):
+    """1 late sample + 15 skipped sensor slots, over the 500 slots of the window."""
+    t = _measure(tmp_path, "run", plant_stall=(600 * MS, 30 * MS)).timing
+    assert t["plant_skipped_slots"] == 15
+    assert t["plant_deadline_misses"] == 16
+    assert t["plant_slots"] == 500
+    assert t["plant_deadline_miss_rate"] == 16 / 500
+
+
+def test_new_on_state_runs_have_no_periodic_figures(tmp_path):
+    t = _measure(tmp_path, "run", trigger="on_state").timing
+    for key in ("wakeup_lateness", "deadline_misses", "late_ticks", "skipped_slots", "slots",
+                "deadline_miss_rate", "period_jitter", "ticks"):  # fmt: skip
+        assert key not in t, key
+    assert t["compute"]["count"] > 0 and "plant_deadline_misses" in t
+
+
+def test_new_the_command_age_counts_from_the_first_sample(tmp_path, clean):
+    """The controller wakes first at 40 ms (a late start): the plant holds zero torque until
+    the first command lands at 40.195 ms, so D = 40.195 ms (age from t = 0), and the age is
+    sampled at every plant step of the window, the start-up's too."""
+    m = _measure(tmp_path, "run", controller_stall=(0, 40 * MS))
+    t, cert = m.timing, m.certificate
+    assert t["startup_hold_s"] == 0.040195
+    assert t["command_age_zenoh"]["max_us"] == 40_195.0 and cert["d_max_s"] == 0.040195
+    assert cert["held"] is False
+    steps = (499 * P) // H  # the plant's steps from its first sample to its last
+    assert t["command_age_zenoh"]["count"] == steps
+    first = cert["stalls"][0]
+    assert first["cause"] == "startup" and first["t_s"] == 0.0 and first["age_s"] == 0.040195
+    assert first["owner"] == "system"  # no bench evidence: the plant woke on time
+    # A clean start: D stays one period past the loop's latency; the start-up's ages (0 to
+    # 1.2 ms on the grid) join the count.
+    c = clean.timing["command_age_zenoh"]
+    assert c["count"] == steps and c["max_us"] == P / US + S2A_ZENOH
+    assert c["p50_us"] == 2200.0
+
+
+def test_new_stalls_have_owners_and_the_system_age_leaves_the_bench_out(tmp_path):
+    c = _measure(tmp_path, "c", controller_stall=(400 * MS, 30 * MS)).certificate
+    p = _measure(tmp_path, "p", plant_stall=(600 * MS, 30 * MS)).certificate
+    assert [(s["cause"], s["owner"]) for s in c["stalls"]] == [("controller_late", "system")]
+    assert c["stall_count"] == 1 and c["d_system_s"] == c["d_max_s"] == 0.032195
+    # The plant's stall is one excursion (the age never fell below the threshold in it).
+    assert [(s["cause"], s["owner"]) for s in p["stalls"]] == [("plant_late", "bench")]
+    assert p["stall_count"] == 1 and p["d_max_s"] == 0.03321
+    assert p["d_system_s"] == (P / US + S2A_ZENOH) / 1e6  # the loop's own age, outside it
+    # Time above the threshold: from the crossing (sample in force + threshold) to the landing
+    # that brings the age below it: 430.195 ms for the controller's stall (sample 398 ms); for
+    # the plant's, 633.21 ms (sample 598 ms): the stalled sample's command (631.21 ms) is
+    # itself 31.21 ms old, the next one's brings the age down.
+    thr = c["stall_threshold_s"]
+    assert c["stalled_time_s"] == pytest.approx(0.032195 - thr, abs=1e-9)
+    assert p["stalled_time_s"] == pytest.approx(0.03521 - thr, abs=1e-9)
+
+
+def test_new_every_stall_is_counted_beyond_the_20_listed(tmp_path):
+    """25 stretches of 10 lost states, 38 samples apart: 25 excursions of 11 P + 1.21 ms."""
+    lost = {s for i in range(25) for s in range(20 + 38 * i, 30 + 38 * i)}
+    cert = _measure(tmp_path, "run", n=1000, lose_states=lost).certificate
+    assert len(cert["stalls"]) == 20 and cert["stall_count"] == 25
+    peak = (11 * P / US + S2A_ZENOH) / 1e6
+    assert all(s["age_s"] == peak and s["owner"] == "system" for s in cert["stalls"])
+    assert cert["stalled_time_s"] == pytest.approx(
+        25 * (peak - cert["stall_threshold_s"]), abs=1e-8
+    )
+    assert cert["d_system_s"] == cert["d_max_s"] == peak
+
+
+def test_new_a_controller_stopped_between_its_send_stamp_and_the_send_is_controller_late(tmp_path):
+    """A SIGSTOP that lands just after a tick stamped its command's send and before the command
+    left (seen in a real run): stopped from 401.1 ms to 431.1 ms, the command stamped at
+    401.06 ms arrives 150 µs after the resume. Its 30.19 ms "hop" is the sender's stall, as a
+    State held up by a stalled receiver is the receiver's: the cause is the controller."""
+    stop, resume = 401_100 * US, 431_100 * US
+    send = 400 * MS + P // 2 + (TICK_WAKE + TO_COMPUTE + COMPUTE + TO_SEND) * US
+    m = _measure(
+        tmp_path, "run", controller_stall=(stop, resume - stop),
+        late_command=(200, resume + HOP_CMD * US - (send + HOP_CMD * US)),
+    )  # fmt: skip
+    assert m.timing["hop_cmd_zenoh"]["max_us"] == (resume - send) / US + HOP_CMD
+    worst = m.certificate["stalls"][0]
+    assert (worst["cause"], worst["owner"]) == ("controller_late", "system"), worst
+
+
+# =================================================================================================
+# docs/realtime.md: every figure of the table has a calibration entry, and none is uncalibrated.
+# =================================================================================================
+
+
+def _section(text: str, heading: str) -> str:
+    """The body of the markdown section whose heading line starts with ``heading``."""
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(heading))
+    level = len(heading) - len(heading.lstrip("#"))
+    body = []
+    for line in lines[start + 1 :]:
+        m = re.match(r"(#+) ", line)
+        if m and len(m.group(1)) <= level:
+            break
+        body.append(line)
+    return "\n".join(body)
+
+
+def _table_figures(section: str) -> set[str]:
+    """The figure names in the first column of the section's table; a bare ``_rate`` is the
+    preceding name's rate."""
+    names: set[str] = set()
+    for line in section.splitlines():
+        if not line.startswith("| `"):
+            continue
+        prev = ""
+        for name in re.findall(r"`([^`]+)`", line.split("|")[1]):
+            name = prev + name if name.startswith("_") else name
+            names.add(name)
+            prev = name
+    return names
+
+
+def _items(section: str) -> list[str]:
+    """The section's list items, each with its continuation lines joined."""
+    items: list[str] = []
+    for line in section.splitlines():
+        if line.startswith("- "):
+            items.append(line[2:])
+        elif line.startswith("  ") and items:
+            items[-1] += " " + line.strip()
+    return items
+
+
+def test_every_figure_of_the_docs_table_is_calibrated():
+    text = (ROOT / "docs" / "realtime.md").read_text()
+    timing = _section(text, "## Timing figures")
+    figures = _table_figures(timing)
+    assert {"wakeup_lateness", "hop_cmd_can", "sample_gap", "late_commands_rate"} <= figures
+    calibrated: set[str] = set()
+    for item in _items(_section(timing, "### Calibration")):
+        head, _, how = item.partition(": ")
+        calibrated |= set(re.findall(r"`([^`]+)`", head))
+        refs = re.findall(r"(test_\w+\.py)::(\w+)", how)
+        assert refs, f"no test named for {head}"
+        for module, test in refs:
+            source = (ROOT / "tests" / module).read_text()
+            assert re.search(rf"^def {test}\(", source, re.M), f"{module}::{test} ({head})"
+    assert figures - calibrated == set(), "figures without a calibration entry"
+    assert _items(_section(timing, "### Uncalibrated figures")) == []
