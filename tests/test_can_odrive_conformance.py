@@ -11,6 +11,7 @@ import os
 import shlex
 import signal
 import sys
+import tomllib
 import uuid
 from importlib import resources
 from pathlib import Path
@@ -19,6 +20,7 @@ import can
 import cantools
 import pytest
 
+from hil.run.defaults import PAPER_TRACKING_TOML
 from protocol.can import codec
 from tests.procs import Lines, free_tcp_port, wait_until
 
@@ -123,10 +125,13 @@ def _check_drives_summary(summary: dict, echoes: bool) -> None:
     assert c["events"]["torque_clamped"] == 1
     assert c["requests"] >= 25  # every RTR of the session was answered by the edge at once
     assert (c["own_frames"] > 100) if echoes else (c["own_frames"] == 0)
-    # the robot went forward along its initial heading (0.3 rad) and turned left
+    # the robot went forward along its initial heading and turned left (hil drives' default
+    # scenario: hil run's, the bundled paper_tracking)
+    start = tomllib.loads(PAPER_TRACKING_TOML)["initial"]
     final = summary["robot"]["final"]
-    ahead = math.cos(0.3) * final["x"] + math.sin(0.3) * (final["y"] + 0.5)
-    assert ahead > 0.2 and final["theta"] > 0.3 + 0.1, final
+    th0 = start["theta"]
+    ahead = math.cos(th0) * (final["x"] - start["x"]) + math.sin(th0) * (final["y"] - start["y"])
+    assert ahead > 0.2 and final["theta"] > th0 + 0.1, final
     assert summary["robot"]["violations"] == {"v": 0, "omega": 0, "tau1": 0, "tau2": 0}
 
 
