@@ -56,6 +56,8 @@ class Loop:
     lose_can_wheel_frames: set[tuple[int, int]] = field(default_factory=set)
     watchdog_zero_cmds: set[int] = field(default_factory=set)  # the watchdog's zero torques
     trigger: str = "periodic"  # what the controller's log says it ran (on_state: no deadlines)
+    can_reader_stops_after: int | None = None  # ns after the last sample: later frames unread
+    can_hop: int = 250 * US  # every CAN frame's send to receive
     # Known-answer knobs (tests/test_known_answers.py); the defaults keep the loop above.
     tick_late: tuple[int, ...] = ()  # extra lateness of tick k: tick_late[k % len], ns
     sample_late: tuple[int, ...] = ()  # extra wake-up lateness of plant sample k, ns
@@ -192,10 +194,15 @@ def write(folder: Path, loop: Loop) -> None:
             # sample). A frame already on the bus but read late (slow_can_from) is received.
             continue
         i = tx_index[node]
-        tx_index[node] = i + 1
-        recv = send + 250 * US
+        recv = send + loop.can_hop
         if loop.slow_can_from and cseq >= loop.slow_can_from[0]:
             recv += loop.slow_can_from[1]
+        if (
+            loop.can_reader_stops_after is not None
+            and recv > last_sample + loop.can_reader_stops_after
+        ):
+            continue  # still on the bus when the plant stopped reading
+        tx_index[node] = i + 1
         p.append("cmd_rx", (1, i, -1, 0, 0, end if loop.named_frames else 0, recv, value, 0.0,
                              node, 0))  # fmt: skip
         if cseq in loop.duplicate_can_frames:  # the same frame once more, 10 µs later

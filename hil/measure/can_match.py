@@ -9,22 +9,26 @@ subsequence of the sends with the same bytes, each received after it was sent. T
 - **Named frames** (the ``zenoh_can`` bus names each frame by its modelled end of transmission,
   which sender and receiver both log): each arrival is the send of that name. Duplicates (a name
   seen again) and reorders (a name older than one already seen) are counted.
-- **Unnamed frames** (SocketCAN, a PCAN adapter, ``udp_multicast``): of every way to embed the
-  arrivals in the sends (same node, same bytes, order kept, received after sent), the match used
-  is the **latest** one: each arrival is the newest unmatched send of its bytes before it
-  (:func:`_embed_latest`, computed from the end), the smallest latencies the logs allow. A
-  frame lost on the wire is a send no arrival takes. It cannot shift later matches: an arrival
-  can only take a send with its own bytes sent before it arrived, and the newest such send is
-  its own whenever the transport's delay is shorter than the spacing of identical payloads.
-  Where it is not, the logs cannot decide, and this is found, not assumed: with H the largest
-  hop the latest matching needs anywhere in the run, the **earliest** embedding whose every hop
-  is at most H (:func:`_embed_earliest`) bounds every match from below. An arrival whose two
-  matches differ (a loss among identical payloads spaced closer than H, e.g. after a receiver
-  stall made H long, or a duplicate on such a bus) is counted ``ambiguous``; every CAN figure
-  it feeds carries that count (``not_relatable``), and the command age is also computed with the
-  earliest embedding, an upper bound on it, so the certificate is held only if it holds for both
-  (hil.measure.figures). An arrival that no send can explain (no earlier send of its bytes left)
-  is ``unmatched``; if its bytes are the previous arrival's, it is counted a duplicate.
+- **Unnamed frames** (SocketCAN, a PCAN adapter, ``udp_multicast``): the arrivals are embedded
+  in the sends (same node, same bytes, order kept, received after sent). Two embeddings bound
+  every other: the **earliest** (:func:`_embed_earliest`: nothing lost unless the bytes force
+  it) and the **latest** (:func:`_embed_latest`: each arrival the newest unmatched send of its
+  bytes before it, the smallest hops). A frame lost on the wire is a send no arrival takes; it
+  can shift no match outside the stretch where the two embeddings differ, since an arrival can
+  only take a send of its own bytes. Such a stretch exists only where identical payloads repeat
+  within the transport's delay or a loss keeps the pattern of payloads (two frames of an
+  alternating torque). There the two disagree by whole spacings of identical payloads, and the
+  one whose hops jump least across the stretch, the agreed matches on either side included, is
+  taken (:func:`_smoothest`): a transport's delay drifts, it does not jump by such spacings.
+  Losses make the earliest embedding jump (every later hop a spacing longer); a slow transport
+  that lost nothing makes the latest jump (hops a spacing shorter where a newer send of the same
+  bytes stood). Where both jump alike the logs cannot decide: those arrivals are counted
+  ``ambiguous``, every CAN figure they feed carries that count (``not_relatable``), and the
+  command age is also computed with the earliest embedding there, an upper bound on it, so the
+  certificate is held only if it holds for both (hil.measure.figures). ``realigned`` counts the
+  arrivals the two embeddings disagreed on and the smoother one settled. An arrival that no
+  send can explain is ``unmatched``; if its bytes are the previous arrival's, it is counted a
+  duplicate.
 """
 
 from __future__ import annotations
@@ -41,17 +45,16 @@ _BLOCK = 1024  # arrivals compared at once on the fast path (a mismatch costs at
 @dataclass(frozen=True)
 class NodeMatch:
     """One node's arrivals (in arrival order) matched to its sends (indices into the node's sends
-    in bus order; -1 none). ``latest`` is the match the figures use, ``earliest`` the bound."""
+    in bus order; -1 none). ``chosen`` is the match the figures use, ``earliest`` the bound of
+    the command age; they differ only where ``ambiguous``."""
 
-    latest: np.ndarray
+    chosen: np.ndarray
     earliest: np.ndarray
     duplicated: np.ndarray  # bool per arrival: a copy of a frame already received
     reordered: int  # arrivals older than one received before them (named buses only)
     named: bool
-
-    @property
-    def ambiguous(self) -> np.ndarray:
-        return (self.latest != self.earliest) & (self.latest >= 0)
+    ambiguous: np.ndarray  # bool per arrival: the logs cannot tell which of two sends it is
+    realigned: int = 0  # arrivals the two embeddings disagree on, settled by the smoother one
 
 
 def match_node(
@@ -74,23 +77,55 @@ def match_node(
                 seen[i] = True
         first = at[(at >= 0) & ~dup]
         reordered = int((first[1:] < np.maximum.accumulate(first)[:-1]).sum()) if first.size else 0
-        return NodeMatch(at, at, dup, reordered, True)
+        return NodeMatch(at, at, dup, reordered, True, np.zeros(m, bool))
     sv = np.asarray(send_value, np.float32).view(np.int32)  # compare the frame's bytes exactly
     rv = np.asarray(recv_value, np.float32).view(np.int32)
-    feasible = _embed_earliest(sv, send_ns, rv, recv_ns) >= 0
+    early = _embed_earliest(sv, send_ns, rv, recv_ns)
+    feasible = early >= 0
     late = np.full(m, -1, np.int64)
     late[feasible] = _embed_latest(sv, send_ns, rv[feasible], recv_ns[feasible])
-    early = np.full(m, -1, np.int64)
-    if feasible.any():
-        max_hop = int((recv_ns[feasible] - send_ns[late[feasible]]).max())
-        early[feasible] = _embed_earliest(
-            sv, send_ns, rv[feasible], recv_ns[feasible], max_hop=max_hop
-        )
     dup = np.zeros(m, bool)
     if m > 1:
         # An arrival no send explains, with the bytes of the arrival before it: a copy.
         dup[1:] = ~feasible[1:] & (rv[1:] == rv[:-1])
-    return NodeMatch(late, early, dup, 0, False)
+    chosen, tied = early.copy(), np.zeros(m, bool)
+    f = feasible
+    chosen[f], tied[f] = _smoothest(
+        early[f], late[f], recv_ns[f] - send_ns[early[f]], recv_ns[f] - send_ns[late[f]]
+    )
+    bound = np.where(tied, early, chosen)  # the oldest sends the logs leave open
+    return NodeMatch(chosen, bound, dup, 0, False, tied, int(((early != late) & f).sum()))
+
+
+def _smoothest(
+    early: np.ndarray, late: np.ndarray, h_early: np.ndarray, h_late: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(the match per arrival, where the logs could not decide). Per stretch where the two
+    embeddings differ (bounded by matches both agree on), the one whose hops jump least across
+    it, boundaries included: a transport's delay drifts, it does not jump by whole spacings of
+    identical payloads. A jump is a step of at least half the shift between the two; fewer
+    jumps win, then the smaller total variation; a tie is undecidable (the latest, the smaller
+    hops, is used and the stretch is marked). A run of lost frames makes the earliest embedding
+    jump (every later hop a spacing longer); a slow transport that lost nothing makes the latest
+    jump instead (hops a spacing shorter where a newer send of the same bytes stood), so
+    neither extreme is right everywhere."""
+    differ = early != late
+    out, tied = early.copy(), np.zeros(early.size, bool)
+    if not differ.any():
+        return out, tied
+    m = early.size
+    edges = np.diff(np.concatenate([[0], differ.astype(np.int8), [0]]))
+    for a, b in zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(),
+                    strict=True):  # fmt: skip
+        lo, hi = max(a - 1, 0), min(b + 1, m)  # with the agreed matches on either side
+        jump = 0.5 * float(np.abs(h_early[a:b] - h_late[a:b]).min())
+        steps_e, steps_l = np.abs(np.diff(h_early[lo:hi])), np.abs(np.diff(h_late[lo:hi]))
+        key_e = (int((steps_e >= jump).sum()), float(steps_e.sum()))
+        key_l = (int((steps_l >= jump).sum()), float(steps_l.sum()))
+        if key_l <= key_e:
+            out[a:b] = late[a:b]
+        tied[a:b] = key_l == key_e
+    return out, tied
 
 
 def _by_value(values: np.ndarray) -> dict[int, np.ndarray]:
@@ -101,30 +136,24 @@ def _by_value(values: np.ndarray) -> dict[int, np.ndarray]:
     return {int(k): order[bounds[n] : bounds[n + 1]] for n, k in enumerate(keys.tolist())}
 
 
-def _embed_earliest(
-    sv: np.ndarray, ss: np.ndarray, rv: np.ndarray, rr: np.ndarray, max_hop: int | None = None
-) -> np.ndarray:
+def _embed_earliest(sv: np.ndarray, ss: np.ndarray, rv: np.ndarray, rr: np.ndarray) -> np.ndarray:
     """For each arrival in order, the earliest send after the previous match with its bytes,
-    sent before it arrived (and no more than ``max_hop`` before); -1 (and the arrival skipped)
-    where there is none. Greedy is exact here: arrivals come in time order, so a later arrival
-    never needs an earlier send than the one taken."""
+    sent before it arrived; -1 (and the arrival skipped) where there is none: an arrival that
+    no send explains."""
     n, m = sv.size, rv.size
     out = np.full(m, -1, np.int64)
     where = _by_value(sv)
-    lo = rr - max_hop if max_hop is not None else np.full(m, np.iinfo(np.int64).min)
-    first_ok = np.searchsorted(ss, lo, side="left")  # the oldest send within the hop bound
     i = j = 0
     while j < m and i < n:
         k = min(_BLOCK, m - j, n - i)
-        cand = ss[i : i + k]
-        ok = (sv[i : i + k] == rv[j : j + k]) & (cand <= rr[j : j + k]) & (cand >= lo[j : j + k])
+        ok = (sv[i : i + k] == rv[j : j + k]) & (ss[i : i + k] <= rr[j : j + k])
         run = int(k if ok.all() else np.argmin(ok))
         out[j : j + run] = np.arange(i, i + run)
         i, j = i + run, j + run
         if run == k:
             continue
         idx = where.get(int(rv[j]))
-        pos = np.searchsorted(idx, max(i, int(first_ok[j]))) if idx is not None else 0
+        pos = np.searchsorted(idx, i) if idx is not None else 0
         if idx is not None and pos < idx.size and ss[idx[pos]] <= rr[j]:
             out[j] = idx[pos]
             i = int(idx[pos]) + 1

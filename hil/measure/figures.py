@@ -182,6 +182,7 @@ class _Run:
         self._frame_match: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.value_mismatches = 0
         self.can_reordered: dict[int, int] = {}
+        self.can_realigned = 0
         on_bus = tx["send_ns"] > 0
         for n in np.unique(np.concatenate([node, tx["node"][on_bus]])).tolist():
             mine = on_bus & (tx["node"] == n)
@@ -190,15 +191,16 @@ class _Run:
             nm = match_node(
                 tsend, tval, tx["bus_end_ns"][mine], recv[rows], value[rows], named[rows]
             )
-            ok, oke = nm.latest >= 0, nm.earliest >= 0
-            out["send"][rows[ok]] = tsend[nm.latest[ok]]
-            out["cmd"][rows[ok]] = tcmd[nm.latest[ok]]
+            ok, oke = nm.chosen >= 0, nm.earliest >= 0
+            out["send"][rows[ok]] = tsend[nm.chosen[ok]]
+            out["cmd"][rows[ok]] = tcmd[nm.chosen[ok]]
             out["cmd_early"][rows[oke]] = tcmd[nm.earliest[oke]]
             out["duplicated"][rows] = nm.duplicated
             out["ambiguous"][rows] = nm.ambiguous
-            same = np.float32(value[rows[ok]]) == np.float32(tval[nm.latest[ok]])
+            same = np.float32(value[rows[ok]]) == np.float32(tval[nm.chosen[ok]])
             self.value_mismatches += int((~same).sum())
             self.can_reordered[int(n)] = nm.reordered
+            self.can_realigned += nm.realigned
             self._frame_match[int(n)] = (idx[rows], out["cmd"][rows], out["cmd_early"][rows])
         return out
 
@@ -614,6 +616,7 @@ def _can_messages(r: _Run) -> dict[str, Any]:
         "frames_lost": frames_sent - frames_rx,
         "frames_not_on_bus": int((mine & (tx["send_ns"] <= 0)).sum()),
         "frames_ambiguous": int((c["ambiguous"] & ours).sum()),
+        "frames_realigned": r.can_realigned,
         "injected_frame_losses": int((c["lost"] & ours).sum()),
         "lifecycle_frames_sent": int((tx["cmd_seq"] < 0).sum()),
         "unmatched_frames_received": int(((c["cmd"] == UNMATCHED) & ~c["duplicated"]).sum()),
