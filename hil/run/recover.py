@@ -16,9 +16,12 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hil.errors import BadInputError
+
+if TYPE_CHECKING:
+    from hil.recording import RecordedMessage
 
 RECORDING = "recording.mcap"
 RESTORED_FROM = "plant.hoplog"
@@ -41,7 +44,7 @@ def is_run_folder(run_dir: Path) -> bool:
     )
 
 
-def missing_states(run_dir: Path, recording: Path) -> list[Any]:
+def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
     """The States the plant sent (its hop log's samples, less those a ``[faults]`` drop kept
     off the wire) that ``recording`` lacks, as :class:`hil.recording.RecordedMessage` in send
     order: each the recorder's own JSON of the State (:func:`hil.recording.to_jsonable` of the
@@ -109,7 +112,11 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
     rec = run_dir / RECORDING
     if RECORDING in todo:
         tmp = run_dir / (RECORDING + ".recovering")
-        lost = missing_states(run_dir, rec)
+        try:
+            lost = missing_states(run_dir, rec)
+        except (OSError, ValueError) as exc:  # an unreadable plant log: recover the rest
+            lost = []
+            done["restore_error"] = str(exc)
         counts = rewrite_complete(rec, tmp, attachments_of(run_dir), lost)
         os.replace(tmp, rec)
         done["recording"] = counts
