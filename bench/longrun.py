@@ -93,47 +93,55 @@ def run_sampled(out: Path, duration_s: float, *args: str, rate: float = 1000.0) 
     return got
 
 
+GROWTH_LIMIT_KB = 5 * 1024
+MIN_READINGS = 20
+
+
 def growth_kb(series: list[tuple[float, int]], warmup_s: float) -> dict[str, Any]:
     """RSS after warm-up (median of the first minute after it) and at the end (median of the
-    last 10 samples), and the growth between them."""
+    last 10 samples), and the growth between them. Too few readings after the warm-up give
+    ``growth_kb`` None with the reason in ``unknown``: never a growth of 0."""
     after = [kb for t, kb in series if t >= warmup_s]
-    if len(after) < 20:
-        return {"after_warmup_kb": None, "end_kb": None, "growth_kb": None}
+    if len(after) < MIN_READINGS:
+        return {
+            "after_warmup_kb": None,
+            "end_kb": None,
+            "growth_kb": None,
+            "unknown": f"{len(after)} memory readings after the {warmup_s:g} s warm-up "
+            f"({MIN_READINGS} needed)",
+        }
     start = float(np.median(after[: min(60, len(after) // 2)]))
     end = float(np.median(after[-10:]))
     return {"after_warmup_kb": start, "end_kb": end, "growth_kb": end - start}
 
 
+def growth_verdict(memory: dict[str, dict[str, Any]], names: tuple[str, ...]) -> dict[str, Any]:
+    """Whether every process in ``names`` grew less than 5 MB; a process whose growth is
+    unknown (no memory entry, too few readings) fails the target and is named."""
+    unknown = {
+        n: (memory.get(n) or {}).get("unknown") or "no memory readings at all"
+        for n in names
+        if (memory.get(n) or {}).get("growth_kb") is None
+    }
+    over = [n for n in names if n not in unknown and memory[n]["growth_kb"] >= GROWTH_LIMIT_KB]
+    return {"ok": not unknown and not over, "over_5mb": over, "unknown": unknown}
+
+
 def per_minute(run_dir: Path) -> list[dict[str, Any]]:
-    """Wake-up lateness p99 and applied-path command-age p99 per minute of the run (µs)."""
+    """Wake-up lateness and applied-path command age, p99 and max (µs), per minute of the run,
+    from one :func:`hil.measure.measure` of the whole run (:func:`hil.measure.windows.per_window`:
+    a stall across a minute's edge counts whole in the minute where it ended, never clipped)."""
     from hil.measure import load_folder_logs, measure
-    from hil.measure.age import AgeSegments, age_summary
+    from hil.measure.windows import MINUTE_NS, per_window
 
     logs = load_folder_logs(run_dir)
     if logs is None:
         return []
     m = measure(logs)
-    epoch = logs.epoch_ns
-    t, late = m.series.get("wakeup_lateness", (np.zeros(0), np.zeros(0)))
-    seg: AgeSegments = m.series[f"command_age_{m.series.get('applied_path', 'zenoh')}"]
-    h = int(logs.pmeta.get("plant_step_ns") or 100_000)
-    out = []
-    minutes = int(np.ceil((m.window_ns[1] - m.window_ns[0]) / 60e9))
-    for k in range(minutes):
-        lo, hi = epoch + int(k * 60e9), epoch + int((k + 1) * 60e9)
-        sel = (t >= k * 60) & (t < (k + 1) * 60)
-        keep = (seg.start >= lo) & (seg.start < hi)
-        part = AgeSegments(seg.start[keep], np.minimum(seg.end[keep], hi), seg.sample[keep])
-        age = age_summary(part, lo, h)
-        out.append(
-            {
-                "minute": k + 1,
-                "wakeup_lateness_p99_us": float(np.percentile(late[sel], 99, method="inverted_cdf"))
-                / 1e3
-                if sel.any()
-                else None,
-                "command_age_p99_us": age["p99_us"],
-                "command_age_max_us": age["max_us"],
-            }
-        )
-    return out
+    # the plant's step, with hil.measure's own fallback (a tenth of the control period)
+    step = int(
+        logs.pmeta.get("plant_step_ns")
+        or max(1, int(logs.pmeta.get("control_period_ns") or 1_000_000) // 10)
+    )
+    rows = per_window(m.series, logs.epoch_ns, m.window_ns, step, MINUTE_NS)
+    return [{"minute": r.pop("window") + 1, **r} for r in rows]

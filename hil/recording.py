@@ -20,10 +20,11 @@ Reader API (what ``hil report`` uses)::
 
 Crash safety: the writer closes its chunk and flushes the file at least every
 ``flush_interval`` (0.05 s: half the 0.1 s promised, the other half is slack for a recorder
-thread that falls behind on a loaded host), so a recorder killed at any moment loses at most
-what it received in the last 0.1 s; the
+thread that falls behind on a loaded host), so a recorder killed at any moment loses what it
+received in the last 0.1 s and what its queue still held (on a loaded host, much more); the
 readers here also read such a truncated file (up to its last whole chunk), and
-:func:`rewrite_complete` turns it into a complete, indexed MCAP (``hil recover``).
+:func:`rewrite_complete` turns it into a complete, indexed MCAP, with messages restored from
+elsewhere merged in (``hil recover`` restores the States from the plant's hop log).
 """
 
 from __future__ import annotations
@@ -385,20 +386,59 @@ def read_messages(
     yield from found
 
 
+def topic_values(path: str | Path, topic: str, key: str) -> Iterator[Any]:
+    """``data[key]`` of every message on ``topic`` of a possibly truncated recording, in file
+    order, one message at a time (an hour's States never sit in memory as dicts)."""
+    from mcap.records import Channel, Message
+
+    if is_complete(path):
+        for _t, _log, payload in read_topic_payloads(path, [topic]):
+            yield json.loads(payload).get(key)
+        return
+    ids: set[int] = set()
+    for rec in _stream_records(path):
+        if isinstance(rec, Channel) and rec.topic == topic:
+            ids.add(rec.id)
+        elif isinstance(rec, Message) and rec.channel_id in ids:
+            yield json.loads(rec.data).get(key)
+
+
 def rewrite_complete(
-    src: str | Path, dst: str | Path, attachments: Mapping[str, bytes] | None = None
+    src: str | Path,
+    dst: str | Path,
+    attachments: Mapping[str, bytes] | None = None,
+    extra: Iterable[RecordedMessage] = (),
 ) -> dict[str, int]:
     """A complete, indexed MCAP at ``dst`` from a possibly truncated ``src``: every whole
-    schema, channel, message, metadata and attachment, plus ``attachments``. Returns counts."""
+    schema, channel, message, metadata and attachment, plus ``attachments``, plus the messages
+    ``extra`` (sorted by log time; each merged before the first message of ``src`` logged after
+    it, on its topic's channel, registered as the writer does when ``src`` has none). Returns
+    counts (``restored``: the messages of ``extra`` written)."""
     from mcap.records import Attachment, Channel, Message, Metadata, Schema
 
-    counts = {"messages": 0, "attachments": 0}
+    counts = {"messages": 0, "attachments": 0, "restored": 0}
+    pending = list(extra)
     with open(dst, "wb") as out:
         w = Writer(out, compression=CompressionType.ZSTD)
         w.start(profile=PROFILE, library="hil-smc-bench (recovered)")
         schema_ids: dict[int, int] = {}
         channel_ids: dict[int, int] = {}
-        have: set[str] = set()
+        by_topic: dict[str, int] = {}
+
+        def add_extra(until: float) -> None:
+            while counts["restored"] < len(pending) and (
+                pending[counts["restored"]].log_time_ns <= until
+            ):
+                m = pending[counts["restored"]]
+                if m.topic not in by_topic:
+                    schema = w.register_schema(m.topic.replace("/", "."), "jsonschema",
+                                               json.dumps(GENERIC_SCHEMA).encode())  # fmt: skip
+                    by_topic[m.topic] = w.register_channel(m.topic, "json", schema)
+                data = json.dumps(to_jsonable(m.data), separators=(",", ":")).encode()
+                w.add_message(by_topic[m.topic], m.log_time_ns, data, m.publish_time_ns,
+                              m.sequence)  # fmt: skip
+                counts["restored"] += 1
+
         for rec in _stream_records(src):
             if isinstance(rec, Schema):
                 schema_ids[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
@@ -407,7 +447,9 @@ def rewrite_complete(
                     rec.topic, rec.message_encoding, schema_ids.get(rec.schema_id, 0),
                     dict(rec.metadata),
                 )  # fmt: skip
+                by_topic.setdefault(rec.topic, channel_ids[rec.id])
             elif isinstance(rec, Message) and rec.channel_id in channel_ids:
+                add_extra(rec.log_time)
                 w.add_message(
                     channel_ids[rec.channel_id], rec.log_time, rec.data, rec.publish_time,
                     rec.sequence,
@@ -418,8 +460,8 @@ def rewrite_complete(
             elif isinstance(rec, Attachment) and rec.name not in (attachments or {}):
                 w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type,
                                  rec.data)  # fmt: skip
-                have.add(rec.name)
                 counts["attachments"] += 1
+        add_extra(math.inf)
         for name, data in (attachments or {}).items():
             import time
 

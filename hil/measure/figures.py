@@ -344,6 +344,14 @@ class _Run:
         rows, found = self.tick_of(cmd)
         out = np.zeros(rows.size, np.int64)
         out[found] = self.ticks["state_sample_ns"][rows[found]]
+        if not found.all():
+            # A command the controller sent but never logged (killed: its log's last chunk
+            # lost) still carries its sample's time in the message the plant received.
+            rx = self.logs["cmd_rx"]
+            z = (rx["path"] == 0) & (rx["state_sample_ns"] > 0)
+            seq, samp = _first_per_key(rx["seq"][z], rx["state_sample_ns"][z])
+            got, has = _lookup(seq, samp, np.asarray(cmd, np.int64)[~found], missing=0)
+            out[~found] = np.where(has, got, 0)
         return out
 
     def _newest_wins(self, land: np.ndarray, cmd: np.ndarray):

@@ -49,7 +49,7 @@ COLUMNS: dict[str, dict[str, Any]] = {
         "cmd2": _F8, "flags": _I1,
     },
     "cmd_rx": {"path": _I1, "seq": _I8, "recv_ns": _I8, "node": _I2, "verdict": _I1,
-               "tau1": _F4, "send_ns": _I8},
+               "tau1": _F4, "send_ns": _I8, "state_sample_ns": _I8},
     "apply": {"path": _I1, "seq": _I8, "node": _I2, "recv_ns": _I8, "apply_ns": _I8,
               "outcome": _I1},
     "zero": {"timeout_ns": _I8, "applied_ns": _I8},

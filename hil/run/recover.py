@@ -2,10 +2,13 @@
 
 What a killed ``hil run`` leaves: the services' hop logs (streamed, and usually complete: the
 children get SIGTERM from the kernel when their parent dies and exit cleanly), the resolved
-scenario and settings, and a recording cut inside a chunk. Recovery rewrites the recording as a
-complete, indexed MCAP (every whole chunk, plus the hop logs and the resolved scenario as
-attachments) and rebuilds trace.csv and summary.json from the hop logs with the same code a
-finished run uses (:func:`hil.run.results.analyze`, :mod:`hil.measure`).
+scenario and settings, and a recording cut inside a chunk, without what the recorder's queue
+still held (on a loaded host, many States). Recovery rewrites the recording as a complete,
+indexed MCAP (every whole chunk, plus the hop logs and the resolved scenario as attachments),
+restores into it every State the plant sent that it lacks, from the plant's hop log (the same
+message the recorder writes, marked ``"restored_from": "plant.hoplog"``), and rebuilds
+trace.csv and summary.json from the hop logs with the same code a finished run uses
+(:func:`hil.run.results.analyze`, :mod:`hil.measure`).
 """
 
 from __future__ import annotations
@@ -13,11 +16,15 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hil.errors import BadInputError
 
+if TYPE_CHECKING:
+    from hil.recording import RecordedMessage
+
 RECORDING = "recording.mcap"
+RESTORED_FROM = "plant.hoplog"
 
 
 def needs_recovery(run_dir: Path) -> list[str]:
@@ -35,6 +42,55 @@ def is_run_folder(run_dir: Path) -> bool:
     return (run_dir / "run_settings.json").is_file() and (
         (run_dir / "plant.hoplog").is_file() or (run_dir / "controller.hoplog").is_file()
     )
+
+
+def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
+    """The States the plant sent (its hop log's samples, less those a ``[faults]`` drop kept
+    off the wire) that ``recording`` lacks, as :class:`hil.recording.RecordedMessage` in send
+    order: each the recorder's own JSON of the State (:func:`hil.recording.to_jsonable` of the
+    message, the measured state recomputed with the run's seeded sensor model, as the plant
+    did) plus ``restored_from``; logged and published at its send time (when the recorder
+    received it is not known)."""
+    import numpy as np
+
+    from hil.measure.logs import read_columns
+    from hil.recording import RecordedMessage, to_jsonable, topic_values
+    from plant_emulator.from_settings import sensor_of
+    from plant_emulator.sensors import measure
+    from protocol.hoplog import SAMPLE_DROPPED
+    from protocol.keys import state_key
+    from protocol.messages import State
+    from protocol.robot import RobotState
+    from protocol.settings import RunSettings
+
+    cols = ("seq", "sample_ns", "send_ns", "x", "y", "theta", "v", "omega", "flags")
+    if not (run_dir / "plant.hoplog").is_file():
+        return []
+    head, tables = read_columns(run_dir / "plant.hoplog", {"samples": cols})
+    s = tables["samples"]
+    settings = RunSettings.load(run_dir / "run_settings.json")
+    robot = str(head.meta.get("robot_id") or settings.robot_id)
+    topic = state_key(robot)
+    recorded = np.fromiter((v for v in topic_values(recording, topic, "seq") if v is not None),
+                           dtype=np.int64)  # fmt: skip
+    lost = ((s["flags"] & SAMPLE_DROPPED) == 0) & ~np.isin(s["seq"], recorded)
+    sensor = sensor_of(settings)
+    epoch = int(head.meta.get("epoch_ns") or 0)
+    period = max(1, int(head.meta.get("sensor_period_ns") or 1))
+    out = []
+    for i in np.nonzero(lost)[0].tolist():
+        sample, send = int(s["sample_ns"][i]), int(s["send_ns"][i])
+        true = RobotState(*(float(s[c][i]) for c in ("x", "y", "theta", "v", "omega")))
+        # The sensor's noise is a pure function of the sample's slot k on the epoch's grid.
+        m = measure(sensor, true, (sample - epoch + period // 2) // period)
+        msg = State(robot, int(s["seq"][i]), sample, send, float(m.x), float(m.y), float(m.theta),
+                    float(m.v), float(m.omega))  # fmt: skip
+        data = to_jsonable(msg)
+        data["type"] = "State"
+        data["restored_from"] = RESTORED_FROM
+        out.append(RecordedMessage(topic, send, send, 0, data))
+    out.sort(key=lambda m: m.log_time_ns)
+    return out
 
 
 def recover(run_dir: str | Path) -> dict[str, Any]:
@@ -56,7 +112,12 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
     rec = run_dir / RECORDING
     if RECORDING in todo:
         tmp = run_dir / (RECORDING + ".recovering")
-        counts = rewrite_complete(rec, tmp, attachments_of(run_dir))
+        try:
+            lost = missing_states(run_dir, rec)
+        except (OSError, ValueError) as exc:  # an unreadable plant log: recover the rest
+            lost = []
+            done["restore_error"] = str(exc)
+        counts = rewrite_complete(rec, tmp, attachments_of(run_dir), lost)
         os.replace(tmp, rec)
         done["recording"] = counts
     if "summary.json" in todo or "trace.csv" in todo:
