@@ -69,6 +69,7 @@ class CommandSource(Protocol):
 
     path: CmdPath
     keeps_order: bool  # landings keep the arrival order (frames on one bus)
+    applied: bool  # the run lands this source's commands (set by the service)
 
     def arrivals(self) -> list[Arrival]: ...
 
@@ -95,7 +96,6 @@ class ZenohCommands:
         rejections: RejectionCounter,
         tracker: SequenceTracker,
         stale_after_ns: int,
-        applied: bool,
     ) -> None:
         from runtime.zsession import payload_bytes
 
@@ -104,7 +104,7 @@ class ZenohCommands:
         self.rejections = rejections
         self.tracker = tracker
         self.stale_after_ns = stale_after_ns
-        self.applied = applied
+        self.applied = False
         self._payload = payload_bytes
         self._inbox: collections.deque[tuple[int, TorqueCommand]] = collections.deque()
         self._cond = threading.Condition()
@@ -195,10 +195,10 @@ class CanCommands:
     path = CmdPath.CAN
     keeps_order = True
 
-    def __init__(self, drives: CanDrives, drive_plant: DrivePlant, applied: bool) -> None:
+    def __init__(self, drives: CanDrives, drive_plant: DrivePlant) -> None:
         self.drives = drives
         self.drive_plant = drive_plant
-        self.applied = applied
+        self.applied = False
 
     def arrivals(self) -> list[Arrival]:
         out: list[Arrival] = []

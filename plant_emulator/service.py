@@ -171,10 +171,9 @@ class PlantService:
         cmd_path: str = "zenoh",
         command_timeout: float = 0.05,
         injector: DelayInjector | None = None,
-        can: CanDrives | None = None,
+        can: CanCommands | None = None,
         hoplog: HopLogWriter | None = None,
         faults: Faults | None = None,
-        drive_plant: DrivePlant | None = None,
     ) -> None:
         from runtime.zsession import publisher
 
@@ -188,7 +187,7 @@ class PlantService:
         self.applied_path = CmdPath.ZENOH if cmd_path == "zenoh" else CmdPath.CAN
         self.command_timeout_ns = int(command_timeout * 1e9)
         self.injector = injector or DelayInjector(0.0, 0.0, "uniform", 0)
-        self.can = can
+        self.can = None if can is None else can.drives  # the edge's counters
         self.rejections = RejectionCounter()
         self.cmd_tracker = SequenceTracker()
         self._pub_state = publisher(session, keys.state_key(robot_id))
@@ -216,14 +215,12 @@ class PlantService:
             self.rejections,
             self.cmd_tracker,
             self.command_timeout_ns,
-            applied=self.applied_path == CmdPath.ZENOH,
         )
-        self.sources: list[CommandSource] = [self.zenoh]
-        if can is not None and drive_plant is not None:
-            applied = self.applied_path == CmdPath.CAN
-            self.sources.append(CanCommands(can, drive_plant, applied))
+        self.sources: list[CommandSource] = [self.zenoh] if can is None else [self.zenoh, can]
+        for source in self.sources:
+            source.applied = source.path == self.applied_path
         # The source whose commands land (None: a CAN path without a bus, nothing lands).
-        self.applied = next((x for x in self.sources if x.path == self.applied_path), None)
+        self.applied = next((x for x in self.sources if x.applied), None)
 
     # --- helpers ------------------------------------------------------------------------
     def _t(self, ns: int) -> float:
@@ -589,12 +586,12 @@ def build_plant(s: RunSettings, at_rest: bool = False) -> tuple[PlantCore, Senso
 
 def _open_drives(
     s: RunSettings, core: PlantCore, hoplog: HopLogWriter, faults: Faults, stack: Any
-) -> tuple[CanDrives | None, DrivePlant | None]:
-    """The virtual ODrives on the run's CAN bus, and the plant's view of them (None, None
-    when the run has no CAN bus); their bus is closed by ``stack``."""
+) -> CanCommands | None:
+    """The virtual ODrives on the run's CAN bus as a command source (None when the run has no
+    CAN bus); their bus is closed by ``stack``."""
     bus = s.open_can_bus()
     if bus is None:
-        return None, None
+        return None
     from plant_emulator.drive_plant import bench_drive_config
     from plant_emulator.odrive import VirtualDrivePair
 
@@ -610,7 +607,7 @@ def _open_drives(
     can = CanDrives(bus, pair, hoplog, immediate=True, faults=faults)
     stack.callback(can.close)  # closes the bus: registered before anything can fail
     can.start()
-    return can, drive_plant
+    return CanCommands(can, drive_plant)
 
 
 def main_from_settings(settings_path: str) -> int:
@@ -656,7 +653,7 @@ def main_from_settings(settings_path: str) -> int:
         stack.callback(lambda: hoplog.close(svc.final_counters() if svc else None))
         session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
         stack.callback(session.close)
-        can, drive_plant = _open_drives(s, core, hoplog, faults, stack)
+        can = _open_drives(s, core, hoplog, faults, stack)
         svc = PlantService(
             core,
             sensor,
@@ -671,7 +668,6 @@ def main_from_settings(settings_path: str) -> int:
             can=can,
             hoplog=hoplog,
             faults=faults,
-            drive_plant=drive_plant,
         )
         if previous is not None:
             svc.continue_after(previous)
