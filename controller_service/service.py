@@ -8,7 +8,8 @@ Functional core, thin shell:
   is clamped to |tau1| <= varpi1, |tau2| <= varpi2 (2).
 - :class:`ControllerService` (the shell): receives State on Zenoh, wakes on absolute deadlines
   (``trigger = "periodic"``) or on each fresh state (``"on_state"``, and lockstep), publishes
-  TorqueCommand on Zenoh and Set_Input_Torque frames on the CAN bus (after the drive lifecycle),
+  each command on every command path it has (:mod:`controller_service.command_paths`: a
+  TorqueCommand on Zenoh, Set_Input_Torque frames on the CAN bus after the drive lifecycle),
   Telemetry and Status, and keeps the stale-state watchdog. Every hop is time-stamped into
   ``controller.hoplog`` (:mod:`protocol.hoplog`), streamed to disk while the run goes on;
   :mod:`hil.measure` turns it into the timing figures.
@@ -29,16 +30,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from controller_service.command_paths import NOT_SENT, CommandPath, Sent, ZenohCommandPath
 from controller_service.laws.base import Controller, Limits, RobotState
 from protocol import keys
-from protocol.faults import Faults, every_nth
+from protocol.faults import Faults
 from protocol.hoplog import (
     CONTROLLER_TABLES,
-    TICK_DROPPED,
-    TICK_DUPLICATED,
+    NO_SEQ,
+    NO_STAMP,
     TICK_NO_SEND,
-    TICK_REORDERED,
+    CanTxRow,
+    CmdPath,
     HopLogWriter,
+    StateRxRow,
+    TickRow,
     crashed_log,
 )
 from protocol.messages import (
@@ -58,7 +63,6 @@ from protocol.sequence import SequenceTracker
 from protocol.settings import RunSettings
 from runtime.realtime import DeadlineClock, SchedulingReport, setup_scheduling
 
-_NO_SEND = TICK_NO_SEND
 TELEMETRY_FIELDS = ("xe", "ye", "theta_e", "xi", "v_tilde", "w_tilde", "z1", "z2", "eta")
 
 
@@ -114,8 +118,11 @@ class CanCommandPath:
 
     A reader thread feeds heartbeats to the lifecycle (under a lock) and ticks it; the control
     loop only encodes and sends the two torque frames, stamping each send per node so the
-    plant's arrivals can be matched to this send log in per-node order.
+    plant's arrivals can be matched to this send log in per-node order. A
+    :class:`controller_service.command_paths.CommandPath`.
     """
+
+    path = CmdPath.CAN
 
     def __init__(
         self,
@@ -153,9 +160,9 @@ class CanCommandPath:
         self._pending_arm = True
         self._thread.start()
 
-    def _send(self, frames: list[Any], cmd_seq: int = -1) -> int:
+    def _send(self, frames: list[Any], cmd_seq: int = NO_SEQ) -> int:
         """Send frames; every Set_Input_Torque is logged per node with the command it carries
-        (-1: a lifecycle zero), so arrivals can be matched in per-node order."""
+        (NO_SEQ: a lifecycle zero), so arrivals can be matched in per-node order."""
         from protocol.can.codec import Cmd, split_id
 
         stamp = 0
@@ -166,7 +173,7 @@ class CanCommandPath:
         with self._send_lock:
             for f in frames:
                 node, cmd = split_id(f.arbitration_id)
-                sent = end = 0
+                sent = end = NO_STAMP
                 if bus_off:
                     self.injected_bus_off += 1  # a [faults] bus-off burst: the send fails
                 else:
@@ -182,7 +189,10 @@ class CanCommandPath:
                         self.send_errors += 1
                 if cmd == Cmd.SET_INPUT_TORQUE:
                     value = struct.unpack_from("<f", f.data)[0] if len(f.data) >= 4 else math.nan
-                    self.hoplog.append("can_tx", (node, sent, cmd_seq, value, end))
+                    row = CanTxRow(
+                        node=node, send_ns=sent, cmd_seq=cmd_seq, value=value, bus_end_ns=end
+                    )
+                    self.hoplog.append("can_tx", row)
         return stamp
 
     def _reader(self) -> None:
@@ -227,15 +237,21 @@ class CanCommandPath:
 
         return self.lifecycle.phase is Phase.ACTIVE
 
+    def send(self, cmd: TorqueCommand) -> Sent:
+        """The command's torques as Set_Input_Torque frames (no [faults] flags: bus-off bursts
+        are counted by the path)."""
+        return Sent(self.send_torques(cmd.tau1, cmd.tau2, cmd.seq))
+
     def send_torques(self, tau1: float, tau2: float, cmd_seq: int) -> int:
-        """Send both wheel torques; returns the send time (0 when the drives are not armed)."""
+        """Send both wheel torques; returns the send time (NO_STAMP when the drives are not
+        armed)."""
         from protocol.can.wheel_mapping import motor_torques
 
         q = motor_torques(self.geometry, tau1, tau2)
         with self._lock:
             frames = self.lifecycle.torque_frames(q.right, q.left)
         if not frames:
-            return 0
+            return NO_STAMP
         return self._send(frames, cmd_seq)
 
     def close(self) -> None:
@@ -283,7 +299,9 @@ class ControllerService:
         self.rejections = RejectionCounter()
         self.tracker = SequenceTracker()
         self._payload = payload_bytes
-        self._pub_cmd = publisher(session, keys.torque_key(robot_id))
+        self.faults = faults or Faults()
+        self.zenoh = ZenohCommandPath(session, robot_id, self.faults)
+        self.paths: list[CommandPath] = [self.zenoh] if can_path is None else [self.zenoh, can_path]
         self._pub_tel = publisher(session, keys.telemetry_key(robot_id))
         self._pub_status = publisher(session, keys.status_key(robot_id))
         self._newest: Received | None = None
@@ -292,17 +310,12 @@ class ControllerService:
         self._stale = False
         self.stale_entries = 0
         self._cmd_seq = 0
-        self._last_cmd: bytes | None = None
         self._tel_seq = 0
         self._status_seq = 0
         self._lock = threading.Lock()
         if hoplog is None:
             raise ValueError("the controller service needs a hop log")
         self.hoplog = hoplog
-        self.faults = faults or Faults()
-        self.injected = {"drops": 0, "duplicates": 0, "reorders": 0}
-        self._held: bytes | None = None  # a command a [faults] reorder publishes after the next
-        self._fault_flags = 0
         self.scheduling = SchedulingReport()
         self.clock: DeadlineClock | None = None
         self.cycles = 0
@@ -322,13 +335,19 @@ class ControllerService:
             verdict = self.tracker.observe(msg.seq)
             self.hoplog.append(
                 "state_rx",
-                (msg.seq, msg.sample_time_ns, msg.send_time_ns, recv_ns, verdict.code),
+                StateRxRow(
+                    seq=msg.seq,
+                    sample_ns=msg.sample_time_ns,
+                    send_ns=msg.send_time_ns,
+                    recv_ns=recv_ns,
+                    verdict=verdict.code,
+                ),
             )
             if not verdict.fresh:
-                if self.lockstep and msg.seq == self._last_used_seq and self._last_cmd:
+                if self.lockstep and msg.seq == self._last_used_seq:
                     # The plant re-sent the state because our command was lost: answer again
                     # with the same command (same seq), never recompute (memory moved on).
-                    self._pub_cmd.put(self._last_cmd)
+                    self.zenoh.resend_last()
                 return
             self.states_seen += 1
             rec = Received(msg, recv_ns)
@@ -372,39 +391,57 @@ class ControllerService:
             tel = {}
             c0 = c1 = time.monotonic_ns()
             state_seq = max(self._last_used_seq, 0)
-            sample_ns = send_state_ns = recv_ns = 0
+            sample_ns = send_state_ns = recv_ns = NO_STAMP
         else:
             # No new sample and not yet stale: the last command stands. The tick is still
             # logged, so wake-up lateness and jitter cover every cycle.
-            self.hoplog.append(
-                "ticks",
-                (k, deadline_ns, wake_ns, skipped, -1, 0, 0, 0, 0, 0, 0, 0, -1, 0.0, 0.0, _NO_SEND),
-            )
+            self.hoplog.append("ticks", self._idle_tick(k, deadline_ns, wake_ns, skipped))
             return
         cmd_seq = self._cmd_seq
-        zsend, csend, _ = self._publish(state_seq, sample_ns, c0, tau1, tau2, flags, tel)
-        flags |= self._fault_flags
+        zsend, csend, fault_flags = self._publish(state_seq, sample_ns, c0, tau1, tau2, flags, tel)
         self.cycles += 1
         self.hoplog.append(
             "ticks",
-            (
-                k,
-                deadline_ns,
-                wake_ns,
-                skipped,
-                state_seq,
-                sample_ns,
-                send_state_ns,
-                recv_ns,
-                c0,
-                c1,
-                zsend,
-                csend,
-                cmd_seq,
-                tau1,
-                tau2,
-                flags,
+            TickRow(
+                k=k,
+                deadline_ns=deadline_ns,
+                wake_ns=wake_ns,
+                skipped=skipped,
+                state_seq=state_seq,
+                state_sample_ns=sample_ns,
+                state_send_ns=send_state_ns,
+                state_recv_ns=recv_ns,
+                compute_start_ns=c0,
+                compute_end_ns=c1,
+                zenoh_send_ns=zsend,
+                can_send_ns=csend,
+                cmd_seq=cmd_seq,
+                tau1=tau1,
+                tau2=tau2,
+                flags=flags | fault_flags,
             ),
+        )
+
+    @staticmethod
+    def _idle_tick(k: int, deadline_ns: int, wake_ns: int, skipped: int) -> TickRow:
+        """The row of a tick that sent nothing."""
+        return TickRow(
+            k=k,
+            deadline_ns=deadline_ns,
+            wake_ns=wake_ns,
+            skipped=skipped,
+            state_seq=NO_SEQ,
+            state_sample_ns=NO_STAMP,
+            state_send_ns=NO_STAMP,
+            state_recv_ns=NO_STAMP,
+            compute_start_ns=NO_STAMP,
+            compute_end_ns=NO_STAMP,
+            zenoh_send_ns=NO_STAMP,
+            can_send_ns=NO_STAMP,
+            cmd_seq=NO_SEQ,
+            tau1=0.0,
+            tau2=0.0,
+            flags=TICK_NO_SEND,
         )
 
     def _publish(
@@ -416,9 +453,9 @@ class ControllerService:
         tau2: float,
         flags: int,
         tel: dict[str, Any],
-    ) -> tuple[int, int, bool]:
-        """Publish one command on Zenoh (unless a [faults] drop takes it) and CAN; returns the
-        two send times and whether the Zenoh message was dropped on purpose."""
+    ) -> tuple[int, int, int]:
+        """Send one command on every command path; returns the Zenoh and CAN send times
+        (NO_STAMP: not sent on that path) and the tick flags of the [faults] injections."""
         send_ns = time.monotonic_ns()
         cmd = TorqueCommand(
             self.robot_id,
@@ -433,10 +470,8 @@ class ControllerService:
             flags,
         )
         self._cmd_seq += 1
-        self._last_cmd = encode(cmd)
-        dropped, log_flags = self._put_command(self._last_cmd, cmd.seq, flags)
-        self._fault_flags = log_flags
-        csend = self.can_path.send_torques(tau1, tau2, cmd.seq) if self.can_path is not None else 0
+        sent = {p.path: p.send(cmd) for p in self.paths}
+        zenoh, can = sent.get(CmdPath.ZENOH, NOT_SENT), sent.get(CmdPath.CAN, NOT_SENT)
         if tel and all(n in tel for n in TELEMETRY_FIELDS):
             try:
                 self._pub_tel.put(
@@ -452,33 +487,7 @@ class ControllerService:
                 self._tel_seq += 1
             except ValueError:
                 self.rejections.count("telemetry_unencodable")
-        return send_ns, csend, dropped
-
-    def _put_command(self, payload: bytes, seq: int, flags: int) -> tuple[bool, int]:
-        """Put one command on Zenoh through the [faults] injections (protocol.faults);
-        returns (dropped, the tick's fault flags)."""
-        f = self.faults
-        held, self._held = self._held, None
-        out_flags = 0
-        if flags & FLAG_STOP:
-            pass
-        elif every_nth(seq, f.command_drop_every):
-            self.injected["drops"] += 1
-            if held is not None:
-                self._pub_cmd.put(held)
-            return True, TICK_DROPPED
-        elif every_nth(seq, f.command_reorder_every) and held is None:
-            self._held = payload  # published after the next command
-            self.injected["reorders"] += 1
-            return False, TICK_REORDERED
-        self._pub_cmd.put(payload)
-        if held is not None:
-            self._pub_cmd.put(held)
-        if not (flags & FLAG_STOP) and every_nth(seq, f.command_duplicate_every):
-            self._pub_cmd.put(payload)
-            self.injected["duplicates"] += 1
-            out_flags |= TICK_DUPLICATED
-        return False, out_flags
+        return zenoh.send_ns, can.send_ns, zenoh.flags | can.flags
 
     def publish_status(self, state: str = "running") -> None:
         flags = STATUS_WATCHDOG_TRIPPED if self._stale else 0
@@ -565,7 +574,7 @@ class ControllerService:
             "commands_sent": self._cmd_seq,
             "restarted": getattr(self, "restarted", False),
             "injected": {
-                **{f"command_{k}": v for k, v in self.injected.items()},
+                **{f"command_{k}": v for k, v in self.zenoh.injected.items()},
                 "can_bus_off_frames": self.can_path.injected_bus_off if self.can_path else 0,
             },
             "scheduling": self.scheduling.as_dict(),

@@ -31,7 +31,7 @@ from typing import Any
 from protocol.can.codec import BROADCAST_NODE, Cmd, Frame, is_request, split_id
 from protocol.can.drive_link import from_message, to_message
 from protocol.faults import Faults, frame_lost
-from protocol.hoplog import RX_LOST_BY_FAULT
+from protocol.hoplog import NO_SEQ, NO_STAMP, CmdPath, CmdRxRow, RxVerdict
 
 ECHO_WINDOW_NS = 1_000_000_000
 
@@ -117,7 +117,7 @@ class CanDrives:
         self._torque_cmd = Cmd.SET_INPUT_TORQUE
         self._split = split_id
         self._torque_frames: dict[int, int] = {}  # per node: Set_Input_Torque frames seen
-        # (receive ns, frame, index among the node's torque frames or -1)
+        # (receive ns, frame, index among the node's torque frames or NO_SEQ)
         self.inbox: collections.deque[tuple[int, Any, int]] = collections.deque()
         self.frames_in = 0
         self.frames_out = 0
@@ -158,7 +158,7 @@ class CanDrives:
                 continue
             self.frames_in += 1
             node, cmd = self._split(frame.arbitration_id)
-            index = -1
+            index = NO_SEQ
             if cmd == self._torque_cmd and not frame.is_remote:
                 # Logged with its index among the node's torque frames, its torque and, where
                 # the bus names frames (zenoh_can), that name: hil.measure matches it to the
@@ -168,11 +168,21 @@ class CanDrives:
                 lost = frame_lost(self.faults.can_frame_loss, self.faults.seed, node, i)
                 if self.hoplog is not None:
                     q = struct.unpack_from("<f", frame.data)[0] if len(frame.data) >= 4 else nan
-                    named = (self._sent_at(msg) if self._sent_at is not None else None) or 0
-                    verdict = RX_LOST_BY_FAULT if lost else 0
-                    self.hoplog.append(
-                        "cmd_rx", (1, i, -1, 0, 0, named, recv_ns, q, 0.0, node, verdict)
+                    named = (self._sent_at(msg) if self._sent_at is not None else None) or NO_STAMP
+                    row = CmdRxRow(
+                        path=CmdPath.CAN,
+                        seq=i,
+                        state_seq=NO_SEQ,
+                        state_sample_ns=NO_STAMP,
+                        compute_start_ns=NO_STAMP,
+                        send_ns=named,
+                        recv_ns=recv_ns,
+                        tau1=q,
+                        tau2=0.0,
+                        node=node,
+                        verdict=RxVerdict.LOST_BY_FAULT if lost else RxVerdict.ACCEPTED,
                     )
+                    self.hoplog.append("cmd_rx", row)
                 if lost:  # the drive's receiver never sees it ([faults] frame loss)
                     self.injected_frame_losses += 1
                     continue

@@ -6,13 +6,15 @@ Functional core, thin shell:
   integrated *lazily* up to each event's time (a command landing, a sensor tick) in RK4 steps of
   at most ``h`` (default Ts/10), with the scenario's disturbance and actuator lag, holding the
   newest command; it tracks the extremes and violations of (2) over every plant step.
-- :class:`PlantService` (the shell): publishes State at ``sensor_rate`` on absolute deadlines;
-  receives TorqueCommand on Zenoh and Set_Input_Torque frames on CAN (two virtual ODrives,
-  :mod:`plant_emulator.odrive`, on the bus edge of :mod:`plant_emulator.can_drives`, which
-  answers requests and sends their cyclic frames at their own rates in every mode); applies ONE
-  path (``cmd_path``) and stamps the other as a shadow; a command timeout on the applied path
-  zeroes the torque; ``[timing] delay`` and ``jitter`` are injected on the applied path
-  (newest by sequence number wins). Every sample, command arrival and landing is time-stamped
+- :class:`PlantService` (the shell): publishes State at ``sensor_rate`` on absolute deadlines
+  and orders the events between (landings, the command timeout). Commands come from two
+  sources (:mod:`plant_emulator.commands`): TorqueCommand on Zenoh and Set_Input_Torque frames
+  on CAN (two virtual ODrives, :mod:`plant_emulator.odrive`, on the bus edge of
+  :mod:`plant_emulator.can_drives`, which answers requests and sends their cyclic frames at
+  their own rates in every mode); the service lands ONE path's commands (``cmd_path``) and the
+  other is stamped as a shadow; a command timeout on the applied path zeroes the torque;
+  ``[timing] delay`` and ``jitter`` are injected on the applied path (newest by sequence
+  number wins). Every sample, command arrival and landing is time-stamped
   into ``plant.hoplog``
   (:mod:`protocol.hoplog`), streamed to disk while the run goes on.
 - Lockstep (:meth:`PlantService.run_lockstep`): State k is sent at virtual time t_k = k Ts,
@@ -22,17 +24,16 @@ Functional core, thin shell:
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import math
 import random
-import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from plant_emulator.can_drives import CanDrives
+from plant_emulator.commands import Arrival, CanCommands, CommandSource, ZenohCommands
 from plant_emulator.disturbances import Disturbance
 from plant_emulator.drive_plant import DrivePlant
 from plant_emulator.dynamics import Extremes, PlantState
@@ -41,23 +42,20 @@ from plant_emulator.sensors import Sensor, measure
 from protocol import keys
 from protocol.faults import Faults, every_nth
 from protocol.hoplog import (
-    APPLY_BURST,
-    APPLY_LANDED,
-    APPLY_REFUSED,
+    NO_NODE,
     PLANT_TABLES,
     SAMPLE_DROPPED,
     SAMPLE_DUPLICATED,
+    ApplyOutcome,
+    ApplyRow,
+    CmdPath,
     HopLogWriter,
+    SampleRow,
+    ZeroRow,
     crashed_log,
 )
-from protocol.messages import (
-    FLAG_STOP,
-    Status,
-    TorqueCommand,
-    decode_counted,
-    encode,
-)
 from protocol.messages import State as StateMsg
+from protocol.messages import Status, TorqueCommand, encode
 from protocol.rejections import RejectionCounter
 from protocol.robot import Limits
 from protocol.sequence import SequenceTracker
@@ -125,11 +123,16 @@ class PlantCore:
 
 @dataclass(order=True)
 class Pending:
+    """An arrival waiting to land at ``apply_ns`` (ties: in arrival order)."""
+
     apply_ns: int
     order: int
-    path: int = field(compare=False)
-    payload: Any = field(compare=False)
-    recv_ns: int = field(compare=False)
+    source: CommandSource = field(compare=False)
+    arrival: Arrival = field(compare=False)
+
+    @property
+    def recv_ns(self) -> int:
+        return self.arrival.recv_ns
 
 
 class DelayInjector:
@@ -168,12 +171,11 @@ class PlantService:
         cmd_path: str = "zenoh",
         command_timeout: float = 0.05,
         injector: DelayInjector | None = None,
-        can: CanDrives | None = None,
+        can: CanCommands | None = None,
         hoplog: HopLogWriter | None = None,
         faults: Faults | None = None,
-        drive_plant: DrivePlant | None = None,
     ) -> None:
-        from runtime.zsession import payload_bytes, publisher
+        from runtime.zsession import publisher
 
         self.core = core
         self.sensor = sensor
@@ -182,20 +184,16 @@ class PlantService:
         self.epoch_ns = int(epoch_ns)
         self.ts = ts
         self.sensor_period_ns = round(sensor_ts * 1e9)
-        self.applied_path = 0 if cmd_path == "zenoh" else 1
+        self.applied_path = CmdPath.ZENOH if cmd_path == "zenoh" else CmdPath.CAN
         self.command_timeout_ns = int(command_timeout * 1e9)
         self.injector = injector or DelayInjector(0.0, 0.0, "uniform", 0)
-        self.can = can
+        self.can = None if can is None else can.drives  # the edge's counters
         self.rejections = RejectionCounter()
         self.cmd_tracker = SequenceTracker()
-        self._payload = payload_bytes
         self._pub_state = publisher(session, keys.state_key(robot_id))
         self._pub_status = publisher(session, keys.status_key(robot_id))
-        self.zinbox: collections.deque[tuple[int, TorqueCommand]] = collections.deque()
-        self._cond = threading.Condition()
         self.pending: list[Pending] = []
         self._order = 0
-        self._last_applied_seq = -1
         self._last_cmd_recv_ns: int | None = None
         self.timed_out = False
         self.timeouts = 0
@@ -210,43 +208,25 @@ class PlantService:
         self._state_seq = 0
         self.resends = 0
         self._status_seq = 0
-        self.drive_plant = drive_plant
-        self._sub = session.declare_subscriber(keys.torque_key(robot_id), self._on_cmd)
-
-    # --- receive ----------------------------------------------------------------------
-    def _on_cmd(self, sample: Any) -> None:
-        recv_ns = time.monotonic_ns()
-        msg = decode_counted(self._payload(sample), self.rejections, TorqueCommand)
-        if msg is None:
-            return
-        if msg.robot_id != self.robot_id:
-            self.rejections.count("wrong_robot")
-            return
-        self.hoplog.append(
-            "cmd_rx",
-            (
-                0,
-                msg.seq,
-                msg.state_seq,
-                msg.state_sample_time_ns,
-                msg.compute_start_ns,
-                msg.send_time_ns,
-                recv_ns,
-                msg.tau1,
-                msg.tau2,
-                -1,
-                0,
-            ),
+        self.zenoh = ZenohCommands(
+            session,
+            robot_id,
+            hoplog,
+            self.rejections,
+            self.cmd_tracker,
+            self.command_timeout_ns,
         )
-        with self._cond:
-            self.zinbox.append((recv_ns, msg))
-            self._cond.notify_all()
+        self.sources: list[CommandSource] = [self.zenoh] if can is None else [self.zenoh, can]
+        for source in self.sources:
+            source.applied = source.path == self.applied_path
+        # The source whose commands land (None: a CAN path without a bus, nothing lands).
+        self.applied = next((x for x in self.sources if x.applied), None)
 
     # --- helpers ------------------------------------------------------------------------
     def _t(self, ns: int) -> float:
         return (ns - self.epoch_ns) / 1e9
 
-    def _publish_state(self, sample_ns: int, k: int, wake_ns: int, log: bool = True) -> tuple:
+    def _publish_state(self, sample_ns: int, k: int, wake_ns: int, log: bool = True) -> SampleRow:
         """Publish State k (unless a [faults] drop takes it); returns its log row, appended
         to the hop log unless ``log`` is false (lockstep patches it first)."""
         c = self.core
@@ -282,21 +262,21 @@ class PlantService:
                 self.rejections.count("state_unencodable")
         self.samples += 1
         s = c.state
-        row = (
-            msg.seq,
-            sample_ns,
-            wake_ns,
-            send_ns,
-            s.x,
-            s.y,
-            s.theta,
-            s.v,
-            s.omega,
-            s.tau1,
-            s.tau2,
-            c.cmd1,
-            c.cmd2,
-            flags,
+        row = SampleRow(
+            seq=msg.seq,
+            sample_ns=sample_ns,
+            wake_ns=wake_ns,
+            send_ns=send_ns,
+            x=s.x,
+            y=s.y,
+            theta=s.theta,
+            v=s.v,
+            omega=s.omega,
+            tau1=s.tau1,
+            tau2=s.tau2,
+            cmd1=c.cmd1,
+            cmd2=c.cmd2,
+            flags=flags,
         )
         if log:
             self.hoplog.append("samples", row)
@@ -332,50 +312,23 @@ class PlantService:
         self._pub_status.put(encode(msg))
 
     # --- events of the real-time loop -----------------------------------------------------
-    def _take_zenoh(self) -> None:
-        while self.zinbox:
-            recv_ns, msg = self.zinbox.popleft()
-            applied = self.applied_path == 0
-            if applied:
-                verdict = self.cmd_tracker.observe(msg.seq)
-                if not verdict.fresh:
-                    continue
-                if recv_ns - msg.state_sample_time_ns > self.command_timeout_ns:
-                    # Computed from a sample older than the command timeout (a link that came
-                    # back with old messages): a drive would have zeroed already; refuse it.
-                    self.rejections.count("stale_command")
-                    continue
+    def _take_arrivals(self) -> None:
+        """Queue every source's arrivals at their landing times: the receive time plus the
+        injected delay (``[timing]``, a [faults] burst); a source that keeps order (frames on
+        a bus) never has one overtake another."""
+        for source in self.sources:
+            last_apply = 0
+            for arrival in source.arrivals():
+                recv_ns = arrival.recv_ns
                 apply_ns = recv_ns + self.injector.extra_ns() + self._burst_ns(recv_ns)
+                if source.keeps_order:
+                    apply_ns = last_apply = max(apply_ns, last_apply)
                 self._order += 1
-                self.pending.append(Pending(apply_ns, self._order, 0, msg, recv_ns))
-
-    def _take_can(self) -> None:
-        """Queue the CAN frames of the applied path at their landing times (bus order kept);
-        on the shadow path the edge applies frames itself as they arrive."""
-        if self.can is None:
-            return
-        inbox = self.can.inbox
-        last_apply = 0
-        while inbox:
-            recv_ns, frame, index = inbox.popleft()
-            if self.applied_path == 1:
-                extra = self.injector.extra_ns() + self._burst_ns(recv_ns)
-                apply_ns = max(recv_ns + extra, last_apply)
-                last_apply = apply_ns
-                self._order += 1
-                self.pending.append(Pending(apply_ns, self._order, 1, (frame, index), recv_ns))
-            else:
-                with self.can.lock:
-                    answers = self.can.pair.receive(recv_ns / 1e9, frame)
-                self.can.send(answers)
+                self.pending.append(Pending(apply_ns, self._order, source, arrival))
 
     def _mono(self, t: float) -> float:
         """CLOCK_MONOTONIC seconds of plant time ``t`` (the drives' clock)."""
         return self.epoch_ns / 1e9 + t
-
-    def _drive_torques(self) -> tuple[float, float]:
-        assert self.drive_plant is not None
-        return self.drive_plant.torques()
 
     def _burst_ns(self, recv_ns: int) -> int:
         """Extra delay of a [faults] delay burst for a command arriving at ``recv_ns``."""
@@ -384,59 +337,47 @@ class PlantService:
             self.injected["delay_bursts"] += 1
         return int(extra * 1e9)
 
-    def _outcome(self, p: Pending) -> int:
+    def _outcome(self, p: Pending) -> ApplyOutcome:
         """apply.outcome of a landing: delayed by a [faults] burst, or on time."""
         burst = self.faults.delay_extra_s((p.recv_ns - self.epoch_ns) / 1e9) > 0.0
-        return APPLY_BURST if burst else APPLY_LANDED
+        return ApplyOutcome.BURST if burst else ApplyOutcome.LANDED
 
     def _apply(self, p: Pending) -> None:
         """Land one pending command at its time (the plant was advanced to it)."""
         apply_ns = max(p.apply_ns, self.epoch_ns + int(self.core.t * 1e9))
-        if p.path == 0:
-            msg: TorqueCommand = p.payload
-            if msg.seq < self._last_applied_seq:
-                self.rejections.count("overtaken")  # a newer command already landed
-                self.hoplog.append(
-                    "apply", (0, msg.seq, -1, p.recv_ns, apply_ns, msg.tau1, msg.tau2, 1)
-                )
-                return
-            self._last_applied_seq = msg.seq
-            if msg.flags & FLAG_STOP:
-                self.stopped_by_controller = True
-            self.core.hold(msg.tau1, msg.tau2)
-            self.hoplog.append(
-                "apply",
-                (0, msg.seq, -1, p.recv_ns, apply_ns, msg.tau1, msg.tau2, self._outcome(p)),
-            )
-        else:
-            from protocol.can.codec import Cmd, split_id
-
-            frame, index = p.payload
-            node, cmd = split_id(frame.arbitration_id)
-            with self.can.lock:
-                answers = self.can.pair.receive(apply_ns / 1e9, frame)
-                fed = self.can.pair.last_fed
-                t1, t2 = self._drive_torques()
-            if answers:
-                self.can.send(answers)
-            if cmd != Cmd.SET_INPUT_TORQUE or frame.is_remote:
-                self.core.hold(t1, t2)
-                return
-            self.core.hold(t1, t2)
-            outcome = self._outcome(p) if fed else APPLY_REFUSED
-            self.hoplog.append("apply", (1, index, node, p.recv_ns, apply_ns, t1, t2, outcome))
-            if not fed:
-                # refused by the drive (non-finite, short, disarmed...): a drive's watchdog
-                # is fed by accepted commands only, and so is the command timeout
-                return
+        got = p.source.land(p.arrival, apply_ns)
+        if got.hold is not None:
+            self.core.hold(*got.hold)
+        if got.outcome is None:  # not a command (a lifecycle frame): no landing
+            return
+        outcome = self._outcome(p) if got.outcome is ApplyOutcome.LANDED else got.outcome
+        if got.stop:
+            self.stopped_by_controller = True
+        row = ApplyRow(
+            path=p.source.path,
+            seq=p.arrival.seq,
+            node=got.node,
+            recv_ns=p.recv_ns,
+            apply_ns=apply_ns,
+            tau1=got.tau1,
+            tau2=got.tau2,
+            outcome=outcome,
+        )
+        self.hoplog.append("apply", row)
+        if outcome is ApplyOutcome.OVERTAKEN:
+            self.rejections.count("overtaken")  # a newer command already landed
+            return
+        if outcome is ApplyOutcome.REFUSED:
+            # A drive's watchdog is fed by accepted commands only, and so is the command
+            # timeout.
+            return
         self._last_cmd_recv_ns = p.recv_ns
         self.timed_out = False
 
     def _process_until(self, until_ns: int) -> None:
         """Land every pending command due by ``until_ns`` and the command timeout, in time
         order, advancing the plant lazily to each event."""
-        self._take_zenoh()
-        self._take_can()
+        self._take_arrivals()
         self.pending.sort()
         while True:
             due = self.pending[0] if self.pending and self.pending[0].apply_ns <= until_ns else None
@@ -452,12 +393,13 @@ class PlantService:
             ):
                 self.core.advance_to(max(self.core.t, self._t(timeout_ns)))
                 self.core.hold(0.0, 0.0)
-                if self.can is not None and self.applied_path == 1:
-                    with self.can.lock:
-                        self.can.pair.zero_inputs(timeout_ns / 1e9)
+                if self.applied is not None:
+                    self.applied.zero(timeout_ns)
                 self.timed_out = True
                 self.timeouts += 1
-                self.hoplog.append("zero", (timeout_ns, time.monotonic_ns()))
+                self.hoplog.append(
+                    "zero", ZeroRow(timeout_ns=timeout_ns, applied_ns=time.monotonic_ns())
+                )
                 continue
             if due is None:
                 break
@@ -466,16 +408,16 @@ class PlantService:
             self._apply(due)
         self.core.advance_to(max(self.core.t, self._t(until_ns)))
 
-    def _drives_step(self) -> None:
-        """The drives' feedback at the plant's time and one controller step (watchdog,
-        loops); on the applied CAN path the plant then holds what the drives apply."""
-        if self.can is None or self.drive_plant is None:
-            return
-        with self.can.lock:
-            self.drive_plant.update(self._mono(self.core.t), self.core.t, self.core.state)
-            torques = self._drive_torques()
-        if self.applied_path == 1 and torques != (self.core.cmd1, self.core.cmd2):
-            self.core.hold(*torques)
+    def _read_sources(self, now: float | None = None) -> None:
+        """Every source's receiver at the plant's time (the drives' feedback and one
+        controller step); the plant then holds what the applied one has in force. ``now``:
+        the receivers' clock (default: the monotonic time of the plant's time)."""
+        c = self.core
+        at = self._mono(c.t) if now is None else now
+        for source in self.sources:
+            torques = source.in_force(at, c.t, c.state)
+            if source is self.applied and torques is not None and torques != (c.cmd1, c.cmd2):
+                c.hold(*torques)
 
     # --- real time -----------------------------------------------------------------------
     def run_realtime(self, stop: Any, end_ns: int) -> None:
@@ -490,7 +432,7 @@ class PlantService:
                 break
             self._process_until(tick.deadline_ns)
             self._publish_state(tick.deadline_ns, tick.k, tick.wake_ns)
-            self._drives_step()
+            self._read_sources()
             if tick.wake_ns >= next_status:
                 next_status = tick.wake_ns + 200_000_000
                 self.publish_status()
@@ -524,7 +466,7 @@ class PlantService:
             # trace).
             at_tk = [e for e in landed if e[0].land == k * m]
             self._log_landings(at_tk, h)
-            self.hoplog.append("samples", (*row[:9], tau1, tau2, *row[11:]))
+            self.hoplog.append("samples", row._replace(tau1=tau1, tau2=tau2))
             self._log_landings(landed[len(at_tk) :], h)
             landed.clear()
         self.publish_status("stopped")
@@ -535,14 +477,23 @@ class PlantService:
             recv_ns, tau1, tau2 = cmd.note
             # Virtual time: the landing is ``cmd.land`` plant steps after the epoch.
             land_ns = self.epoch_ns + round(cmd.land * h * 1e9)
-            outcome = 0 if taken else 1
-            self.hoplog.append("apply", (0, cmd.seq, -1, recv_ns, land_ns, tau1, tau2, outcome))
+            row = ApplyRow(
+                path=CmdPath.ZENOH,
+                seq=cmd.seq,
+                node=NO_NODE,
+                recv_ns=recv_ns,
+                apply_ns=land_ns,
+                tau1=tau1,
+                tau2=tau2,
+                outcome=ApplyOutcome.LANDED if taken else ApplyOutcome.OVERTAKEN,
+            )
+            self.hoplog.append("apply", row)
             if not taken:
                 self.rejections.count("overtaken")
 
     def _exchange(
         self, k: int, sample_ns: int, wait_s: float, stop: Any
-    ) -> tuple[TorqueCommand, int, tuple] | None:
+    ) -> tuple[TorqueCommand, int, SampleRow] | None:
         """Publish State k and wait for the command computed from it (re-sending the state
         if a message was lost); returns (command, its receive time, State k's log row)."""
         deadline = time.monotonic() + wait_s
@@ -552,15 +503,9 @@ class PlantService:
                 self.samples -= 1
             self._state_seq = k
             row = self._publish_state(sample_ns, k, time.monotonic_ns(), log=False)
-            resend_at = time.monotonic() + 0.5
-            with self._cond:
-                while time.monotonic() < resend_at and not stop:
-                    while self.zinbox:
-                        recv_ns, msg = self.zinbox.popleft()
-                        if msg.state_seq == k and not (msg.flags & FLAG_STOP):
-                            self.cmd_tracker.observe(msg.seq)
-                            return msg, recv_ns, row
-                    self._cond.wait(timeout=0.05)
+            got = self.zenoh.reply_to(k, time.monotonic() + 0.5, stop)
+            if got is not None:
+                return *got, row
         return None
 
     def continue_after(self, previous: Any) -> None:
@@ -641,12 +586,12 @@ def build_plant(s: RunSettings, at_rest: bool = False) -> tuple[PlantCore, Senso
 
 def _open_drives(
     s: RunSettings, core: PlantCore, hoplog: HopLogWriter, faults: Faults, stack: Any
-) -> tuple[CanDrives | None, DrivePlant | None]:
-    """The virtual ODrives on the run's CAN bus, and the plant's view of them (None, None
-    when the run has no CAN bus); their bus is closed by ``stack``."""
+) -> CanCommands | None:
+    """The virtual ODrives on the run's CAN bus as a command source (None when the run has no
+    CAN bus); their bus is closed by ``stack``."""
     bus = s.open_can_bus()
     if bus is None:
-        return None, None
+        return None
     from plant_emulator.drive_plant import bench_drive_config
     from plant_emulator.odrive import VirtualDrivePair
 
@@ -662,7 +607,7 @@ def _open_drives(
     can = CanDrives(bus, pair, hoplog, immediate=True, faults=faults)
     stack.callback(can.close)  # closes the bus: registered before anything can fail
     can.start()
-    return can, drive_plant
+    return CanCommands(can, drive_plant)
 
 
 def main_from_settings(settings_path: str) -> int:
@@ -708,7 +653,7 @@ def main_from_settings(settings_path: str) -> int:
         stack.callback(lambda: hoplog.close(svc.final_counters() if svc else None))
         session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
         stack.callback(session.close)
-        can, drive_plant = _open_drives(s, core, hoplog, faults, stack)
+        can = _open_drives(s, core, hoplog, faults, stack)
         svc = PlantService(
             core,
             sensor,
@@ -723,7 +668,6 @@ def main_from_settings(settings_path: str) -> int:
             can=can,
             hoplog=hoplog,
             faults=faults,
-            drive_plant=drive_plant,
         )
         if previous is not None:
             svc.continue_after(previous)
@@ -747,9 +691,8 @@ def _serve(svc: PlantService, s: RunSettings, stop: Any, hoplog: HopLogWriter, s
         def idle() -> None:
             # The edge answers the lifecycle and sends the cyclic frames by itself; keep the
             # drives' feedback (the robot at its initial state) and watchdog current.
-            if can is not None and svc.drive_plant is not None:
-                with can.lock:
-                    svc.drive_plant.update(time.monotonic(), svc.core.t, svc.core.state)
+            for source in svc.sources:
+                source.in_force(time.monotonic(), svc.core.t, svc.core.state)
 
         got = gate.wait(stop, timeout=s.start_timeout, idle=idle)
         if got is None:
@@ -762,7 +705,7 @@ def _serve(svc: PlantService, s: RunSettings, stop: Any, hoplog: HopLogWriter, s
     hoplog.update_meta({"epoch_ns": svc.epoch_ns})
     if can is not None:
         # From t = 0 the applied CAN path lands each frame at its time in the plant's loop.
-        can.immediate = svc.applied_path != 1
+        can.immediate = svc.applied_path != CmdPath.CAN
     print(f"running epoch_ns={svc.epoch_ns} scheduling={sched.policy}", flush=True)
     if s.lockstep:
         from plant_emulator.from_settings import lockstep_offsets

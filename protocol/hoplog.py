@@ -23,8 +23,8 @@ parts (:func:`crashed_log`, :func:`read_hoplog`).
 
 A background thread writes a chunk at least every ``flush_interval`` seconds (default 0.1 s),
 so a killed service loses at most that much; a reader stops at a truncated last record and
-reports ``complete = False``. The loop thread only appends tuples to a list (no I/O, no
-packing), so logging costs the real-time loop well under a microsecond per row.
+reports ``complete = False``. The loop thread only builds a row (a NamedTuple: about a
+microsecond with keyword arguments) and appends it to a list (no I/O, no packing).
 """
 
 from __future__ import annotations
@@ -35,8 +35,9 @@ import threading
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from enum import IntEnum
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import msgpack
 
@@ -45,116 +46,197 @@ VERSION = 1
 SUFFIX = ".hoplog"
 
 # The tables each service writes (docs/realtime.md defines every stamp; one host, one
-# CLOCK_MONOTONIC, nanoseconds). Flags of a tick row beyond protocol.messages' command flags:
+# CLOCK_MONOTONIC, nanoseconds): one NamedTuple per table, whose fields name the columns (the
+# header's ``tables`` are their ``_fields``). A row packs as a msgpack array and an IntEnum as
+# its int, so the file format is that of positional tuples, and logs written before the row
+# types read the same.
+#
+# Sentinels: a column that has no value for a row holds one of these.
+NO_SEQ = -1  # no sequence number: a tick that sent nothing, a lifecycle zero's cmd_seq, a CAN
+# arrival's state_seq
+NO_NODE = -1  # no CAN node: a Zenoh command
+NO_STAMP = 0  # no time stamp: unknown, or the event never happened (a failed send)
+
+# Flags of a tick row beyond protocol.messages' command flags:
 TICK_NO_SEND = 1 << 8  # the tick found no fresh state and sent nothing (the last command stands)
 TICK_DROPPED = 1 << 9  # the command was computed but not published: a [faults] drop
 TICK_DUPLICATED = 1 << 10  # published twice: a [faults] duplicate
 TICK_REORDERED = 1 << 11  # published after the next command: a [faults] reorder
 SAMPLE_DROPPED = 1  # a plant sample whose State was not published: a [faults] drop
 SAMPLE_DUPLICATED = 2  # a State published twice: a [faults] duplicate
-# apply.outcome: 0 landed, 1 overtaken by a newer command (dropped), 2 landed late by a
-# [faults] burst, 3 refused by the drive (non-finite, short, disarmed: the torque in force
-# stays, it is no landing)
-APPLY_LANDED, APPLY_OVERTAKEN, APPLY_BURST, APPLY_REFUSED = 0, 1, 2, 3
-RX_LOST_BY_FAULT = 3  # cmd_rx.verdict: a CAN frame the drive's receiver lost ([faults])
+
+
+class CmdPath(IntEnum):
+    """The path a command took to the plant (cmd_rx.path, apply.path)."""
+
+    ZENOH = 0  # a TorqueCommand message
+    CAN = 1  # Set_Input_Torque frames through the drives
+
+
+class ApplyOutcome(IntEnum):
+    """What became of a command on the applied path (apply.outcome)."""
+
+    LANDED = 0  # in force from apply_ns
+    OVERTAKEN = 1  # a newer command was already in force: dropped
+    BURST = 2  # landed, late by a [faults] delay burst
+    REFUSED = 3  # refused by the drive (non-finite, short, disarmed): the torque in force
+    # stays, it is no landing
+
+
+class RxVerdict(IntEnum):
+    """What the receiver made of an arrival (state_rx.verdict, cmd_rx.verdict)."""
+
+    ACCEPTED = 0  # fresh: newer than every number seen
+    DUPLICATE = 1  # seen before
+    OLDER = 2  # older than one already seen
+    LOST_BY_FAULT = 3  # a CAN frame the drive's receiver lost ([faults] frame loss)
+
+
+# Tables of the controller.
+class TickRow(NamedTuple):
+    """One wake-up (periodic) or one fresh state (on_state, lockstep): k is the slot the tick
+    was due for and deadline_ns that slot's deadline (never re-based). A tick that sent nothing
+    (``TICK_NO_SEND``) has state_seq and cmd_seq NO_SEQ and no stamps."""
+
+    k: int
+    deadline_ns: int
+    wake_ns: int
+    skipped: int
+    state_seq: int
+    state_sample_ns: int
+    state_send_ns: int
+    state_recv_ns: int
+    compute_start_ns: int
+    compute_end_ns: int
+    zenoh_send_ns: int
+    can_send_ns: int
+    cmd_seq: int
+    tau1: float
+    tau2: float
+    flags: int
+
+
+class StateRxRow(NamedTuple):
+    """Every State of this robot that decoded, fresh or not (verdict: ACCEPTED, DUPLICATE,
+    OLDER)."""
+
+    seq: int
+    sample_ns: int
+    send_ns: int
+    recv_ns: int
+    verdict: RxVerdict
+
+
+class CanTxRow(NamedTuple):
+    """Every Set_Input_Torque frame sent, per node in bus order. cmd_seq NO_SEQ: a lifecycle
+    zero; send_ns NO_STAMP: the send failed (bus-off, injected or real), the frame never
+    reached the bus; value: the frame's Input_Torque (float32, N·m), which the matching of
+    arrivals checks; bus_end_ns: the bus's own name for the frame when it has one (zenoh_can:
+    the modelled end of transmission, which the receiver sees too), else NO_STAMP."""
+
+    node: int
+    send_ns: int
+    cmd_seq: int
+    value: float
+    bus_end_ns: int
+
+
+# Tables of the plant.
+class SampleRow(NamedTuple):
+    """One sensor sample: sample_ns is the slot's deadline (the sample time on the epoch's
+    grid), wake_ns when the plant woke for it, send_ns when State left; the robot's state,
+    the torque acting and the command held."""
+
+    seq: int
+    sample_ns: int
+    wake_ns: int
+    send_ns: int
+    x: float
+    y: float
+    theta: float
+    v: float
+    omega: float
+    tau1: float
+    tau2: float
+    cmd1: float
+    cmd2: float
+    flags: int
+
+
+class CmdRxRow(NamedTuple):
+    """Every command arrival on either path. For CAN, seq is the frame's index among the node's
+    Set_Input_Torque frames (matched to the controller's can_tx in per-node order), tau1 is the
+    frame's Input_Torque (N·m, the motor's), send_ns the bus's name for the frame when it has
+    one (zenoh_can: can_tx.bus_end_ns) else NO_STAMP, and state_seq/state_sample_ns are
+    unknown (NO_SEQ/NO_STAMP). A Zenoh arrival is logged before the tracker sees it
+    (ACCEPTED); a CAN one may be LOST_BY_FAULT."""
+
+    path: CmdPath
+    seq: int
+    state_seq: int
+    state_sample_ns: int
+    compute_start_ns: int
+    send_ns: int
+    recv_ns: int
+    tau1: float
+    tau2: float
+    node: int
+    verdict: RxVerdict
+
+
+class ApplyRow(NamedTuple):
+    """Every landing on the applied path, in time order (node NO_NODE on Zenoh)."""
+
+    path: CmdPath
+    seq: int
+    node: int
+    recv_ns: int
+    apply_ns: int
+    tau1: float
+    tau2: float
+    outcome: ApplyOutcome
+
+
+class ZeroRow(NamedTuple):
+    """The command timeout: when it fired and when the zero torque was in force on the wall
+    clock."""
+
+    timeout_ns: int
+    applied_ns: int
+
+
+class HostRow(NamedTuple):
+    """What the bench's host did (written by ``hil run``, every 0.1 s): CPU time in clock ticks
+    since boot, all CPUs together (/proc/stat: total, idle + iowait, steal: time the hypervisor
+    gave to another guest), runnable tasks (/proc/loadavg), and the CPU time (utime + stime) of
+    the plant, the controller and ``hil run`` itself (the recorder) from /proc/PID/stat, and the
+    ns the plant's and the controller's main threads waited runnable for a CPU
+    (/proc/PID/schedstat: a stopped or blocked process waits on no run queue)."""
+
+    time_ns: int
+    cpu_total: int
+    cpu_idle: int
+    cpu_steal: int
+    runnable: int
+    plant_cpu: int
+    controller_cpu: int
+    recorder_cpu: int
+    plant_wait_ns: int
+    controller_wait_ns: int
+
 
 CONTROLLER_TABLES: dict[str, tuple[str, ...]] = {
-    # One row per wake-up (periodic) or per fresh state (on_state, lockstep); k is the slot the
-    # tick was due for and deadline_ns that slot's deadline (never re-based).
-    "ticks": (
-        "k",
-        "deadline_ns",
-        "wake_ns",
-        "skipped",
-        "state_seq",
-        "state_sample_ns",
-        "state_send_ns",
-        "state_recv_ns",
-        "compute_start_ns",
-        "compute_end_ns",
-        "zenoh_send_ns",
-        "can_send_ns",
-        "cmd_seq",
-        "tau1",
-        "tau2",
-        "flags",
-    ),
-    # Every State of this robot that decoded, fresh or not (verdict: 0 fresh, 1 duplicate,
-    # 2 older than one already seen).
-    "state_rx": ("seq", "sample_ns", "send_ns", "recv_ns", "verdict"),
-    # Every Set_Input_Torque frame sent, per node in bus order; cmd_seq -1: a lifecycle zero;
-    # send_ns 0: the send failed (bus-off, injected or real), the frame never reached the bus;
-    # value: the frame's Input_Torque (float32, N·m), which the matching of arrivals checks;
-    # bus_end_ns: the bus's own name for the frame when it has one (zenoh_can: the modelled end
-    # of transmission, which the receiver sees too), else 0.
-    "can_tx": ("node", "send_ns", "cmd_seq", "value", "bus_end_ns"),
+    "ticks": TickRow._fields,
+    "state_rx": StateRxRow._fields,
+    "can_tx": CanTxRow._fields,
 }
 PLANT_TABLES: dict[str, tuple[str, ...]] = {
-    # One row per sensor sample: sample_ns is the slot's deadline (the sample time on the
-    # epoch's grid), wake_ns when the plant woke for it, send_ns when State left.
-    "samples": (
-        "seq",
-        "sample_ns",
-        "wake_ns",
-        "send_ns",
-        "x",
-        "y",
-        "theta",
-        "v",
-        "omega",
-        "tau1",
-        "tau2",
-        "cmd1",
-        "cmd2",
-        "flags",
-    ),
-    # Every command arrival on either path (path 0 Zenoh, 1 CAN); for CAN, seq is the frame's
-    # index among the node's Set_Input_Torque frames (matched to the controller's can_tx in
-    # per-node order), tau1 is the frame's Input_Torque (N·m, the motor's), send_ns the bus's
-    # name for the frame when it has one (zenoh_can: can_tx.bus_end_ns) else 0, and
-    # state_seq/state_sample_ns are unknown (-1/0). verdict: 0 accepted, 1 duplicate,
-    # 2 older than one already seen, 3 lost at the receiver by a [faults] injection.
-    "cmd_rx": (
-        "path",
-        "seq",
-        "state_seq",
-        "state_sample_ns",
-        "compute_start_ns",
-        "send_ns",
-        "recv_ns",
-        "tau1",
-        "tau2",
-        "node",
-        "verdict",
-    ),
-    # Every landing on the applied path, in time order (outcome 0 landed, 1 overtaken by a newer
-    # command already in force and dropped).
-    "apply": ("path", "seq", "node", "recv_ns", "apply_ns", "tau1", "tau2", "outcome"),
-    # The command timeout: when it fired and when the zero torque was in force on the wall clock.
-    "zero": ("timeout_ns", "applied_ns"),
+    "samples": SampleRow._fields,
+    "cmd_rx": CmdRxRow._fields,
+    "apply": ApplyRow._fields,
+    "zero": ZeroRow._fields,
 }
-
-
-HOST_TABLES: dict[str, tuple[str, ...]] = {
-    # What the bench's host did (written by ``hil run``, every 0.1 s): CPU time in clock ticks
-    # since boot, all CPUs together (/proc/stat: total, idle + iowait, steal: time the hypervisor
-    # gave to another guest), runnable tasks (/proc/loadavg), and the CPU time (utime + stime)
-    # of the plant, the controller and ``hil run`` itself (the recorder) from /proc/PID/stat,
-    # and the ns the plant's and the controller's main threads waited runnable for a CPU
-    # (/proc/PID/schedstat: a stopped or blocked process waits on no run queue).
-    "host": (
-        "time_ns",
-        "cpu_total",
-        "cpu_idle",
-        "cpu_steal",
-        "runnable",
-        "plant_cpu",
-        "controller_cpu",
-        "recorder_cpu",
-        "plant_wait_ns",
-        "controller_wait_ns",
-    ),
-}
+HOST_TABLES: dict[str, tuple[str, ...]] = {"host": HostRow._fields}
 
 
 class HopLogWriter:

@@ -18,6 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
+from protocol.hoplog import RxVerdict
+
 WINDOW = 64
 
 
@@ -34,11 +36,12 @@ class Verdict(Enum):
         return self is Verdict.FRESH
 
     @property
-    def code(self) -> int:
-        """The hop logs' verdict column: 0 fresh, 1 duplicate, 2 older than one already seen."""
+    def code(self) -> RxVerdict:
+        """The hop logs' verdict column: accepted (fresh), duplicate, or older than one already
+        seen."""
         if self is Verdict.FRESH:
-            return 0
-        return 1 if self is Verdict.DUPLICATE else 2
+            return RxVerdict.ACCEPTED
+        return RxVerdict.DUPLICATE if self is Verdict.DUPLICATE else RxVerdict.OLDER
 
 
 @dataclass

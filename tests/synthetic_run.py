@@ -8,12 +8,21 @@ from pathlib import Path
 
 from protocol.hoplog import (
     CONTROLLER_TABLES,
+    NO_NODE,
+    NO_SEQ,
     PLANT_TABLES,
     SAMPLE_DROPPED,
     TICK_DROPPED,
     TICK_NO_SEND,
+    ApplyOutcome,
+    CmdPath,
     HopLogWriter,
+    RxVerdict,
 )
+
+# Rows are written as positional tuples, as the services wrote them before the row types of
+# protocol.hoplog (the same bytes on disk): hil.measure must keep reading such logs.
+ZENOH, CAN, ACCEPTED = CmdPath.ZENOH, CmdPath.CAN, RxVerdict.ACCEPTED
 
 MS = 1_000_000
 US = 1_000
@@ -118,7 +127,7 @@ def write(folder: Path, loop: Loop) -> None:
     arrivals = sorted((t, s) for s, t in state_arrival.items())
     for t, s in arrivals:
         d = next(d for q, d, _ in samples if q == s)
-        c.append("state_rx", (s, d, t - loop.hop_state, t, 0))
+        c.append("state_rx", (s, d, t - loop.hop_state, t, ACCEPTED))
     cmd_seq = 0
     used = -1
     k = 0
@@ -127,7 +136,7 @@ def write(folder: Path, loop: Loop) -> None:
     can_tx_rows: list[tuple[int, int, int, float]] = []
     # Two lifecycle zeros per node before the run (arming).
     for node in (0, 1):
-        can_tx_rows.append((node, E - 50 * MS, -1, 0.0))
+        can_tx_rows.append((node, E - 50 * MS, NO_SEQ, 0.0))
     while True:
         deadline = E + P // 2 + k * P
         if deadline > last_sample + 5 * P:
@@ -141,8 +150,8 @@ def write(folder: Path, loop: Loop) -> None:
                 skipped = int((wake - deadline) // P)
         newest = [(t, s) for t, s in arrivals if t <= wake and s > used]
         if not newest:
-            c.append("ticks", (k, deadline, wake, skipped, -1, 0, 0, 0, 0, 0, 0, 0, -1, 0.0, 0.0,
-                               TICK_NO_SEND))  # fmt: skip
+            c.append("ticks", (k, deadline, wake, skipped, NO_SEQ, 0, 0, 0, 0, 0, 0, 0, NO_SEQ, 0.0,
+                               0.0, TICK_NO_SEND))  # fmt: skip
         else:
             t_rx, s = max(newest, key=lambda x: x[1])
             used = s
@@ -154,7 +163,7 @@ def write(folder: Path, loop: Loop) -> None:
             dropped = bool(m and cmd_seq % m == m - 1)
             flags = TICK_DROPPED if dropped else 0
             if cmd_seq in loop.watchdog_zero_cmds:  # a zero torque computed from no sample
-                s_used, d_used, flags = -1, 0, flags | 1
+                s_used, d_used, flags = NO_SEQ, 0, flags | 1
             else:
                 s_used, d_used = s, d
             c.append("ticks", (k, deadline, wake, skipped, s_used, d_used, t_rx - loop.hop_state,
@@ -166,9 +175,11 @@ def write(folder: Path, loop: Loop) -> None:
                     recv += loop.late_command[1]
                 copies = 2 if cmd_seq in loop.duplicate_commands else 1
                 for _ in range(copies):
-                    p.append("cmd_rx", (0, cmd_seq, s, d, c0, send, recv, 0.1, 0.2, -1, 0))
+                    p.append("cmd_rx", (ZENOH, cmd_seq, s, d, c0, send, recv, 0.1, 0.2, NO_NODE,
+                                        ACCEPTED))  # fmt: skip
                 if loop.cmd_path == "zenoh" and recv + loop.delay <= last_sample:
-                    p.append("apply", (0, cmd_seq, -1, recv, recv + loop.delay, 0.1, 0.2, 0))
+                    p.append("apply", (ZENOH, cmd_seq, NO_NODE, recv, recv + loop.delay, 0.1, 0.2,
+                                       ApplyOutcome.LANDED))  # fmt: skip
             for node in (0, 1):
                 # The torques a command sends alternate like a sign law's (exact in float32).
                 value = (0.25 if (cmd_seq + node) % 2 else -0.5) * (1 + node)
@@ -180,7 +191,7 @@ def write(folder: Path, loop: Loop) -> None:
                 can_tx_rows.append((node, put, cmd_seq, value))
             if loop.rearm_at is not None and s == loop.rearm_at:
                 for node in (0, 1):
-                    can_tx_rows.append((node, send + 50 * US, -1, 0.0))
+                    can_tx_rows.append((node, send + 50 * US, NO_SEQ, 0.0))
             cmd_seq += 1
         k += 1 + skipped
     # --- CAN: every frame sent arrives 250 µs later, in order per node ---
@@ -203,16 +214,17 @@ def write(folder: Path, loop: Loop) -> None:
         ):
             continue  # still on the bus when the plant stopped reading
         tx_index[node] = i + 1
-        p.append("cmd_rx", (1, i, -1, 0, 0, end if loop.named_frames else 0, recv, value, 0.0,
-                             node, 0))  # fmt: skip
+        p.append("cmd_rx", (CAN, i, NO_SEQ, 0, 0, end if loop.named_frames else 0, recv, value,
+                             0.0, node, ACCEPTED))  # fmt: skip
         if cseq in loop.duplicate_can_frames:  # the same frame once more, 10 µs later
             i = tx_index[node]
             tx_index[node] = i + 1
-            p.append("cmd_rx", (1, i, -1, 0, 0, end if loop.named_frames else 0, recv + 10 * US,
-                                 value, 0.0, node, 0))  # fmt: skip
+            p.append("cmd_rx", (CAN, i, NO_SEQ, 0, 0, end if loop.named_frames else 0,
+                                 recv + 10 * US, value, 0.0, node, ACCEPTED))  # fmt: skip
         forgotten = cseq in loop.forget_can_frames
         if loop.cmd_path == "can" and E <= recv <= last_sample and not forgotten:
             refused = cseq in loop.refuse_can_frames  # the drive refuses it: no landing
-            p.append("apply", (1, i, node, recv, recv + loop.delay, 0.0, 0.0, 3 if refused else 0))
+            outcome = ApplyOutcome.REFUSED if refused else ApplyOutcome.LANDED
+            p.append("apply", (CAN, i, node, recv, recv + loop.delay, 0.0, 0.0, outcome))
     c.close({"deadline_misses": 0})
     p.close({"extremes": {}})

@@ -22,20 +22,19 @@ from hil.measure.logs import RunLogs
 from hil.measure.stalls import find_stalls
 from hil.measure.stats import summarize_ns
 from protocol.hoplog import (
-    APPLY_BURST,
-    APPLY_LANDED,
-    APPLY_REFUSED,
-    RX_LOST_BY_FAULT,
     SAMPLE_DROPPED,
     SAMPLE_DUPLICATED,
     TICK_DROPPED,
     TICK_DUPLICATED,
     TICK_NO_SEND,
     TICK_REORDERED,
+    ApplyOutcome,
+    CmdPath,
+    RxVerdict,
 )
 
 PATHS = ("zenoh", "can")
-LANDINGS = (APPLY_LANDED, APPLY_BURST)  # apply outcomes that put a command in force
+LANDINGS = (ApplyOutcome.LANDED, ApplyOutcome.BURST)  # apply outcomes that put a command in force
 
 
 @dataclass(frozen=True)
@@ -168,7 +167,7 @@ class _Run:
         checked against its send's: ``value_mismatches`` counts disagreements.
         ``lost``: the receiver lost the frame on purpose ([faults] frame loss)."""
         rx, tx = self.logs["cmd_rx"], self.logs["can_tx"]
-        is_can = rx["path"] == 1
+        is_can = rx["path"] == CmdPath.CAN
         node, idx, recv = rx["node"][is_can], rx["seq"][is_can], rx["recv_ns"][is_can]
         named, value = rx["send_ns"][is_can], rx["tau1"][is_can]
         n_rx = node.size
@@ -176,8 +175,8 @@ class _Run:
             "node": node, "index": idx, "recv": recv, "send": np.zeros(n_rx, np.int64),
             "cmd": np.full(n_rx, UNMATCHED, np.int64),
             "cmd_early": np.full(n_rx, UNMATCHED, np.int64),
-            "lost": rx["verdict"][is_can] == RX_LOST_BY_FAULT, "duplicated": np.zeros(n_rx, bool),
-            "ambiguous": np.zeros(n_rx, bool),
+            "lost": rx["verdict"][is_can] == RxVerdict.LOST_BY_FAULT,
+            "duplicated": np.zeros(n_rx, bool), "ambiguous": np.zeros(n_rx, bool),
         }  # fmt: skip
         self._frame_match: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.value_mismatches = 0
@@ -229,7 +228,7 @@ class _Run:
         frames matched to the earliest sends the logs allow (the age's upper bound)."""
         if applied and path == "zenoh":
             ap = self.logs["apply"]
-            m = np.isin(ap["outcome"], LANDINGS) & (ap["path"] == 0)
+            m = np.isin(ap["outcome"], LANDINGS) & (ap["path"] == CmdPath.ZENOH)
             cmd, land = ap["seq"][m], ap["apply_ns"][m]
         elif applied:
             a = self.can_applies
@@ -238,7 +237,7 @@ class _Run:
             return self._can_commands(a["node"][m], a["land"][m], cmd[m])
         elif path == "zenoh":
             rx = self.logs["cmd_rx"]
-            m = rx["path"] == 0
+            m = rx["path"] == CmdPath.ZENOH
             cmd, land = rx["seq"][m], rx["recv_ns"][m]
         else:
             c = self._can
@@ -251,7 +250,7 @@ class _Run:
     def can_applies(self) -> dict[str, np.ndarray]:
         """The plant's CAN apply rows (every outcome) with the command each frame carried."""
         ap = self.logs["apply"]
-        m = ap["path"] == 1
+        m = ap["path"] == CmdPath.CAN
         node = ap["node"][m]
         return {
             "node": node,
@@ -298,7 +297,7 @@ class _Run:
         t = self.ticks
         if self.applied == "zenoh":
             rx = self.logs["cmd_rx"]
-            z = rx["path"] == 0
+            z = rx["path"] == CmdPath.ZENOH
             seq, recv = _first_per_key(rx["seq"][z], rx["recv_ns"][z])
             sent = (t["zenoh_send_ns"] > 0) & (t["cmd_seq"] >= 0)
             stamps, cmd = t["zenoh_send_ns"][sent], t["cmd_seq"][sent]
@@ -332,7 +331,7 @@ class _Run:
     def burst_sorted(self) -> Stamped:
         """Landings a [faults] burst delayed, by landing time, with the delay."""
         ap = self.logs["apply"]
-        b = ap["outcome"] == APPLY_BURST
+        b = ap["outcome"] == ApplyOutcome.BURST
         order = np.argsort(ap["apply_ns"][b], kind="stable")
         return Stamped(ap["apply_ns"][b][order], hop=(ap["apply_ns"] - ap["recv_ns"])[b][order])
 
@@ -475,7 +474,7 @@ def _hops(r: _Run, timing: dict[str, Any]) -> None:
     timing["hop_state"] = summarize_ns(t["state_recv_ns"][fresh] - t["state_send_ns"][fresh])
     timing["wait_for_tick"] = summarize_ns(t["compute_start_ns"][fresh] - t["state_recv_ns"][fresh])
     rx = r.logs["cmd_rx"]
-    z = rx["path"] == 0
+    z = rx["path"] == CmdPath.ZENOH
     seq, recv = _first_per_key(rx["seq"][z], rx["recv_ns"][z])
     i, found = r.tick_of(seq)
     seq, recv, i = seq[found], recv[found], i[found]
@@ -552,14 +551,14 @@ def _messages(r: _Run) -> dict[str, Any]:
     end = r.w1 - r.settle
     inwin = zsent & _in(t["zenoh_send_ns"], r.w0, end)
     rx = r.logs["cmd_rx"]
-    z = _stream_counts(t["cmd_seq"][inwin], rx["seq"][rx["path"] == 0])
+    z = _stream_counts(t["cmd_seq"][inwin], rx["seq"][rx["path"] == CmdPath.ZENOH])
     z["injected_drops"] = int(((t["flags"][inwin] & TICK_DROPPED) != 0).sum())
     z["injected_duplicates"] = int(((t["flags"][inwin] & TICK_DUPLICATED) != 0).sum())
     z["injected_reorders"] = int(((t["flags"][inwin] & TICK_REORDERED) != 0).sum())
     z["sent_after_window"] = int((zsent & (t["zenoh_send_ns"] > end)).sum())
     out["torque_zenoh"] = z
     tx = r.logs["can_tx"]
-    if tx["node"].size or (rx["path"] == 1).any():
+    if tx["node"].size or (rx["path"] == CmdPath.CAN).any():
         out["torque_can"] = _can_messages(r)
     return out
 
@@ -661,7 +660,7 @@ def _can_fates(r: _Run, received: np.ndarray, wheels: int) -> dict[str, int]:
     cmd, outcome = a["cmd"], a["outcome"]
     landed = np.isin(outcome, LANDINGS)
     applied = np.isin(received, _whole(cmd[landed], a["node"][landed], wheels))
-    refused = np.isin(received, cmd[outcome == APPLY_REFUSED]) & ~applied
+    refused = np.isin(received, cmd[outcome == ApplyOutcome.REFUSED]) & ~applied
     late_ids = c["cmd"][(c["cmd"] >= 0) & ~c["lost"] & (c["recv"] > r.w1)]
     late = np.isin(received, late_ids) & ~applied & ~refused
     return {

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from hil.measure.logs import HOST_FILE
-from protocol.hoplog import HOST_TABLES, HopLogWriter
+from protocol.hoplog import HOST_TABLES, HopLogWriter, HostRow
 
 INTERVAL_S = 0.1
 
@@ -71,21 +71,19 @@ class HostSampler:
 
     def sample(self) -> None:
         total, idle, steal = _cpu_line()
-        self.log.append(
-            "host",
-            (
-                time.monotonic_ns(),
-                total,
-                idle,
-                steal,
-                _runnable(),
-                _process_cpu(self.pids["plant"]),
-                _process_cpu(self.pids["controller"]),
-                _process_cpu(os.getpid()),
-                _run_queue_wait(self.pids["plant"]),
-                _run_queue_wait(self.pids["controller"]),
-            ),
+        row = HostRow(
+            time_ns=time.monotonic_ns(),
+            cpu_total=total,
+            cpu_idle=idle,
+            cpu_steal=steal,
+            runnable=_runnable(),
+            plant_cpu=_process_cpu(self.pids["plant"]),
+            controller_cpu=_process_cpu(self.pids["controller"]),
+            recorder_cpu=_process_cpu(os.getpid()),
+            plant_wait_ns=_run_queue_wait(self.pids["plant"]),
+            controller_wait_ns=_run_queue_wait(self.pids["controller"]),
         )
+        self.log.append("host", row)
 
     def _run(self) -> None:
         while not self._stop.wait(INTERVAL_S):
