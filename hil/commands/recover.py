@@ -15,8 +15,10 @@ def register(app: typer.Typer) -> None:
         run_dir: Annotated[Path, typer.Argument(help="A run folder whose hil run was killed.")],
     ) -> None:
         """Rewrite a truncated recording as a complete, indexed MCAP (the services' hop logs
-        and the resolved scenario attached) and rebuild trace.csv and summary.json from the hop
-        logs. Nothing to do for a whole folder. `hil report` runs this by itself.
+        and the resolved scenario attached), restore into it every State the plant sent that
+        the recorder had not written yet (from the plant's hop log, marked restored_from), and
+        rebuild trace.csv and summary.json from the hop logs. Nothing to do for a whole folder.
+        `hil report` runs this by itself.
 
         Exit 2 when DIR is not a run folder or the run was killed before its first sample."""
         from hil.run.recover import recover
