@@ -214,6 +214,21 @@ def test_can_derived_tables_equal_the_hand_written_ones():
     assert classes == OLD_MESSAGE
 
 
+@pytest.mark.parametrize(
+    ("enum", "choices"),
+    [
+        (codec.AxisState, "axis_state"),
+        (codec.ControlMode, "control_mode"),
+        (codec.InputMode, "input_mode"),
+        (codec.ProcedureResult, "procedure_result"),
+        (codec.ODriveError, "error"),
+    ],
+)
+def test_can_codec_enums_are_the_dbc_value_tables(enum, choices):
+    # the typed enums stay classes (for type checkers), so they are checked, not derived
+    assert {m.value: name for name, m in enum.__members__.items()} == CHOICES[choices]
+
+
 # --- every message, every signal at its edges, through the codec and through cantools -----
 def _f32(x: float) -> float:
     return struct.unpack("<f", struct.pack("<f", x))[0]

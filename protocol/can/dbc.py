@@ -3,8 +3,10 @@
 One table (:data:`MESSAGES`) holds every message of the firmware 0.6 protocol: command id,
 name, length, which side sends it and its signals (start bit, length, sign, float, scale, unit),
 as the ODrive CAN protocol page documents them
-(https://docs.odriverobotics.com/v/latest/manual/can-protocol.html). The codec
-(:mod:`protocol.can.codec`) and the shipped DBC (``odrive_cansimple.dbc``) both come from it.
+(https://docs.odriverobotics.com/v/latest/manual/can-protocol.html), and whether a drive answers
+a request for it. The codec (:mod:`protocol.can.codec`: its ``Cmd`` enum, field layouts and
+direction tables; ``Signal.field`` names the field that carries a signal) and the shipped DBC
+(``odrive_cansimple.dbc``) both come from it.
 
 A CANSimple frame id is ``node_id << 5 | cmd_id``, so a DBC needs one message set per node
 for a tool like ``cantools decode`` to name every frame on a bus. ODrive's own DBC covers axes
