@@ -1,10 +1,13 @@
 """ODrive CANSimple (firmware 0.6) frames <-> typed messages, through ``odrive_cansimple.dbc``.
 
-The arbitration id is 11 bits: ``node_id << 5 | cmd_id`` (node 0..63, cmd 0..31). Every
-message of the 0.6 protocol has a typed class here (the table of signals is
-:mod:`protocol.can.dbc`, which also renders the DBC). The shipped DBC holds the message sets of
-axes 0-7, as ODrive's own DBC does; the codec computes the id of any node and looks the
-message layout up by ``cmd_id`` (node 0's message of that cmd).
+The arbitration id is 11 bits: ``node_id << 5 | cmd_id`` (node 0..63, cmd 0..31). The message
+set is one table, :data:`protocol.can.dbc.MESSAGES`, which also renders the DBC; :data:`Cmd`,
+the field layouts, :data:`REQUESTABLE`, :data:`DRIVE_TO_HOST` and :data:`HOST_TO_DRIVE` are
+derived from it, and every message has a typed class here bound to its entry by name (a class
+whose fields are not its message's signals fails at import). Adding a message is one
+``MessageSpec`` plus one class. The shipped DBC holds the message sets of axes 0-7, as ODrive's
+own DBC does; the codec computes the id of any node and looks the message layout up by
+``cmd_id`` (node 0's message of that cmd).
 
 Requests. A ``Get_*`` message (and Heartbeat, Address) is requested with a remote (RTR) frame of
 its id, or, as the protocol page allows, with a data frame of that id and no payload: both
@@ -19,53 +22,35 @@ to 8) but never shorter; missing trailing bytes are the commonest real wiring/to
 from __future__ import annotations
 
 import math
+import re
 import struct
-from dataclasses import dataclass, fields
+from collections.abc import Callable
+from dataclasses import dataclass, fields, is_dataclass
 from enum import IntEnum, IntFlag
 from functools import cache, lru_cache
 from importlib import resources
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import cantools
 
-from protocol.can.dbc import BY_CMD
+from protocol.can.dbc import BY_CMD, CHOICES, MESSAGES, Signal
 
 DBC_NAME = "odrive_cansimple.dbc"
 MAX_NODE_ID = 0x3F
 BROADCAST_NODE = 0x3F  # Address (discovery) requests to every drive
 
 
-class Cmd(IntEnum):
-    """CANSimple 0.6 command ids."""
+def _member_name(name: str) -> str:
+    """``Set_Input_Torque`` -> ``SET_INPUT_TORQUE``, ``RxSdo`` -> ``RX_SDO``."""
+    return re.sub(r"(?<=[a-z])(?=[A-Z])", "_", name).upper()
 
-    GET_VERSION = 0x00
-    HEARTBEAT = 0x01
-    ESTOP = 0x02
-    GET_ERROR = 0x03
-    RX_SDO = 0x04
-    TX_SDO = 0x05
-    ADDRESS = 0x06
-    SET_AXIS_STATE = 0x07
-    GET_ENCODER_ESTIMATES = 0x09
-    SET_CONTROLLER_MODE = 0x0B
-    SET_INPUT_POS = 0x0C
-    SET_INPUT_VEL = 0x0D
-    SET_INPUT_TORQUE = 0x0E
-    SET_LIMITS = 0x0F
-    SET_TRAJ_VEL_LIMIT = 0x11
-    SET_TRAJ_ACCEL_LIMITS = 0x12
-    SET_TRAJ_INERTIA = 0x13
-    GET_IQ = 0x14
-    GET_TEMPERATURE = 0x15
-    REBOOT = 0x16
-    GET_BUS_VOLTAGE_CURRENT = 0x17
-    CLEAR_ERRORS = 0x18
-    SET_ABSOLUTE_POSITION = 0x19
-    SET_POS_GAIN = 0x1A
-    SET_VEL_GAINS = 0x1B
-    GET_TORQUES = 0x1C
-    GET_POWERS = 0x1D
-    ENTER_DFU_MODE = 0x1F
+
+# Built from the table so that a message is added in one place; the member names are the
+# protocol's names in upper snake case (Cmd.SET_INPUT_TORQUE, Cmd.GET_ENCODER_ESTIMATES).
+Cmd = IntEnum(
+    "Cmd", [(_member_name(m.name), m.cmd) for m in MESSAGES], module=__name__, qualname="Cmd"
+)
+Cmd.__doc__ = "CANSimple 0.6 command ids, one per message of :data:`protocol.can.dbc.MESSAGES`."
 
 
 class AxisState(IntEnum):
@@ -176,11 +161,74 @@ class Frame(NamedTuple):
     is_extended: bool = False
 
 
-# --- typed messages. ``node`` is the CANSimple node id of the axis the frame is about. ------
-# Drive -> host.
+# --- typed messages ----------------------------------------------------------------------
+# Each class carries one message of dbc.MESSAGES (@_carries, by the protocol's name); its
+# fields after ``node`` are that message's signals (Signal.field), in any order. The codec's
+# tables below are derived from the pairs; a class that does not fit its message fails at import.
 @dataclass(frozen=True)
-class Version:
+class Message:
+    """A CANSimple message; ``node`` is the node id of the axis the frame is about."""
+
     node: int
+
+
+_M = TypeVar("_M", bound=Message)
+_SPECS = {m.name: m for m in MESSAGES}
+# class -> (cmd, ((field, DBC signal), ...)) in the field order of the class (after node)
+_LAYOUT: dict[type[Message], tuple[Cmd, tuple[tuple[str, str], ...]]] = {}
+_CLASS_OF: dict[Cmd, type[Message]] = {}
+_CASTS: dict[type[Message], dict[str, type]] = {}  # field -> float, int or bool
+
+
+def _field_type(where: str, signal: Signal, annotation: object) -> type:
+    """The type the field ``where`` of ``signal`` must have (TypeError if it is annotated
+    otherwise): float for a float or scaled signal, bool or int for one bit, else int."""
+    name = annotation if isinstance(annotation, str) else getattr(annotation, "__name__", "")
+    if signal.is_float or signal.scale != 1.0:
+        allowed = {"float": float}
+    elif signal.length == 1:
+        allowed = {"bool": bool, "int": int}
+    else:
+        allowed = {"int": int}
+    if name not in allowed:
+        raise TypeError(f"{where} carries {signal.name}: it must be {' or '.join(allowed)}")
+    return allowed[name]
+
+
+def _carries(name: str) -> Callable[[type[_M]], type[_M]]:
+    """Class decorator: the dataclass carries the message ``name`` of dbc.MESSAGES."""
+    spec = _SPECS.get(name)
+    if spec is None:
+        raise TypeError(f"no CANSimple message is called {name!r}")
+    cmd = Cmd(spec.cmd)
+
+    def bind(cls: type[_M]) -> type[_M]:
+        if not (is_dataclass(cls) and issubclass(cls, Message)):
+            raise TypeError(f"{cls.__name__} must be a dataclass subclass of Message")
+        own = [f for f in fields(cls) if f.name != "node"]
+        by_field = {s.field: s for s in spec.signals}
+        if sorted(f.name for f in own) != sorted(by_field) or len(by_field) != len(spec.signals):
+            raise TypeError(
+                f"{cls.__name__} has fields {[f.name for f in own]}, but {name} has signals "
+                f"{[(s.name, s.field) for s in spec.signals]} (Signal.field names each one)"
+            )
+        casts = {
+            f.name: _field_type(f"{cls.__name__}.{f.name}", by_field[f.name], f.type) for f in own
+        }
+        if cmd in _CLASS_OF or cls in _LAYOUT:
+            raise TypeError(f"{cls.__name__} for {name}: each message has one class")
+        _LAYOUT[cls] = (cmd, tuple((f.name, by_field[f.name].name) for f in own))
+        _CASTS[cls] = casts
+        _CLASS_OF[cmd] = cls
+        return cls
+
+    return bind
+
+
+# Drive -> host.
+@_carries("Get_Version")
+@dataclass(frozen=True)
+class Version(Message):
     protocol_version: int = 2
     hw_version_major: int = 0
     hw_version_minor: int = 0
@@ -191,385 +239,214 @@ class Version:
     fw_version_unreleased: int = 0
 
 
+@_carries("Heartbeat")
 @dataclass(frozen=True)
-class Heartbeat:
-    node: int
+class Heartbeat(Message):
     axis_error: int
     axis_state: int
     procedure_result: int = 0
     trajectory_done: bool = False
 
 
+@_carries("Get_Error")
 @dataclass(frozen=True)
-class ErrorStatus:
+class ErrorStatus(Message):
     """Get_Error: the axis' active errors and the reason of its last disarm."""
 
-    node: int
     active_errors: int
     disarm_reason: int
 
 
+@_carries("TxSdo")
 @dataclass(frozen=True)
-class TxSdo:
-    node: int
+class TxSdo(Message):
     endpoint_id: int
     value: int
     reserved0: int = 0
     reserved1: int = 0
 
 
+@_carries("Get_Encoder_Estimates")
 @dataclass(frozen=True)
-class EncoderEstimates:
-    node: int
+class EncoderEstimates(Message):
     pos_rev: float
     vel_rev_s: float
 
 
+@_carries("Get_Iq")
 @dataclass(frozen=True)
-class Iq:
-    node: int
+class Iq(Message):
     iq_setpoint: float
     iq_measured: float
 
 
+@_carries("Get_Temperature")
 @dataclass(frozen=True)
-class Temperature:
-    node: int
+class Temperature(Message):
     fet_temperature: float
     motor_temperature: float
 
 
+@_carries("Get_Bus_Voltage_Current")
 @dataclass(frozen=True)
-class BusVoltageCurrent:
-    node: int
+class BusVoltageCurrent(Message):
     bus_voltage: float
     bus_current: float
 
 
+@_carries("Get_Torques")
 @dataclass(frozen=True)
-class Torques:
-    node: int
+class Torques(Message):
     torque_target: float
     torque_estimate: float
 
 
+@_carries("Get_Powers")
 @dataclass(frozen=True)
-class Powers:
-    node: int
+class Powers(Message):
     electrical_power: float
     mechanical_power: float
 
 
 # Host -> drive (Address goes both ways: a data frame asks a drive to take a node id, the
 # drive answers a discovery request with one).
+@_carries("Estop")
 @dataclass(frozen=True)
-class Estop:
-    node: int
+class Estop(Message):
+    pass
 
 
+@_carries("RxSdo")
 @dataclass(frozen=True)
-class RxSdo:
-    node: int
+class RxSdo(Message):
     opcode: int
     endpoint_id: int
     value: int
     reserved: int = 0
 
 
+@_carries("Address")
 @dataclass(frozen=True)
-class Address:
-    node: int
+class Address(Message):
     node_id: int
     serial_number: int
 
 
+@_carries("Set_Axis_State")
 @dataclass(frozen=True)
-class SetAxisState:
-    node: int
+class SetAxisState(Message):
     requested_state: int
 
 
+@_carries("Set_Controller_Mode")
 @dataclass(frozen=True)
-class SetControllerMode:
-    node: int
+class SetControllerMode(Message):
     control_mode: int
     input_mode: int
 
 
+@_carries("Set_Input_Pos")
 @dataclass(frozen=True)
-class SetInputPos:
-    node: int
+class SetInputPos(Message):
     input_pos: float
     vel_ff: float = 0.0
     torque_ff: float = 0.0
 
 
+@_carries("Set_Input_Vel")
 @dataclass(frozen=True)
-class SetInputVel:
-    node: int
+class SetInputVel(Message):
     input_vel: float
     torque_ff: float = 0.0
 
 
+@_carries("Set_Input_Torque")
 @dataclass(frozen=True)
-class SetInputTorque:
-    node: int
+class SetInputTorque(Message):
     torque_nm: float
 
 
+@_carries("Set_Limits")
 @dataclass(frozen=True)
-class SetLimits:
-    node: int
+class SetLimits(Message):
     velocity_limit: float
     current_limit: float
 
 
+@_carries("Set_Traj_Vel_Limit")
 @dataclass(frozen=True)
-class SetTrajVelLimit:
-    node: int
+class SetTrajVelLimit(Message):
     traj_vel_limit: float
 
 
+@_carries("Set_Traj_Accel_Limits")
 @dataclass(frozen=True)
-class SetTrajAccelLimits:
-    node: int
+class SetTrajAccelLimits(Message):
     accel_limit: float
     decel_limit: float
 
 
+@_carries("Set_Traj_Inertia")
 @dataclass(frozen=True)
-class SetTrajInertia:
-    node: int
+class SetTrajInertia(Message):
     inertia: float
 
 
+@_carries("Reboot")
 @dataclass(frozen=True)
-class Reboot:
-    node: int
+class Reboot(Message):
     action: int = 0
 
 
+@_carries("Clear_Errors")
 @dataclass(frozen=True)
-class ClearErrors:
-    node: int
+class ClearErrors(Message):
     identify: int = 0
 
 
+@_carries("Set_Absolute_Position")
 @dataclass(frozen=True)
-class SetAbsolutePosition:
-    node: int
+class SetAbsolutePosition(Message):
     position: float
 
 
+@_carries("Set_Pos_Gain")
 @dataclass(frozen=True)
-class SetPosGain:
-    node: int
+class SetPosGain(Message):
     pos_gain: float
 
 
+@_carries("Set_Vel_Gains")
 @dataclass(frozen=True)
-class SetVelGains:
-    node: int
+class SetVelGains(Message):
     vel_gain: float
     vel_integrator_gain: float
 
 
+@_carries("Enter_DFU_Mode")
 @dataclass(frozen=True)
-class EnterDfuMode:
-    node: int
+class EnterDfuMode(Message):
+    pass
 
 
 @dataclass(frozen=True)
-class Request:
+class Request(Message):
     """A request (RTR frame, or a data frame with no payload) for the drive's ``cmd`` message."""
 
-    node: int
     cmd: Cmd
 
 
-Message = (
-    Version
-    | Heartbeat
-    | ErrorStatus
-    | TxSdo
-    | EncoderEstimates
-    | Iq
-    | Temperature
-    | BusVoltageCurrent
-    | Torques
-    | Powers
-    | Estop
-    | RxSdo
-    | Address
-    | SetAxisState
-    | SetControllerMode
-    | SetInputPos
-    | SetInputVel
-    | SetInputTorque
-    | SetLimits
-    | SetTrajVelLimit
-    | SetTrajAccelLimits
-    | SetTrajInertia
-    | Reboot
-    | ClearErrors
-    | SetAbsolutePosition
-    | SetPosGain
-    | SetVelGains
-    | EnterDfuMode
-    | Request
-)
+_UNCARRIED = [m.name for m in MESSAGES if Cmd(m.cmd) not in _CLASS_OF]
+if _UNCARRIED:
+    raise TypeError(f"no codec class carries {_UNCARRIED}: add one with @_carries")
 
-# class -> (cmd, ((field, DBC signal), ...)) in the field order of the class (after node).
-_LAYOUT: dict[type, tuple[Cmd, tuple[tuple[str, str], ...]]] = {
-    Version: (
-        Cmd.GET_VERSION,
-        (
-            ("protocol_version", "Protocol_Version"),
-            ("hw_version_major", "Hw_Version_Major"),
-            ("hw_version_minor", "Hw_Version_Minor"),
-            ("hw_version_variant", "Hw_Version_Variant"),
-            ("fw_version_major", "Fw_Version_Major"),
-            ("fw_version_minor", "Fw_Version_Minor"),
-            ("fw_version_revision", "Fw_Version_Revision"),
-            ("fw_version_unreleased", "Fw_Version_Unreleased"),
-        ),
-    ),
-    Heartbeat: (
-        Cmd.HEARTBEAT,
-        (
-            ("axis_error", "Axis_Error"),
-            ("axis_state", "Axis_State"),
-            ("procedure_result", "Procedure_Result"),
-            ("trajectory_done", "Trajectory_Done_Flag"),
-        ),
-    ),
-    Estop: (Cmd.ESTOP, ()),
-    ErrorStatus: (
-        Cmd.GET_ERROR,
-        (("active_errors", "Active_Errors"), ("disarm_reason", "Disarm_Reason")),
-    ),
-    RxSdo: (
-        Cmd.RX_SDO,
-        (
-            ("opcode", "Opcode"),
-            ("endpoint_id", "Endpoint_ID"),
-            ("value", "Value"),
-            ("reserved", "Reserved"),
-        ),
-    ),
-    TxSdo: (
-        Cmd.TX_SDO,
-        (
-            ("endpoint_id", "Endpoint_ID"),
-            ("value", "Value"),
-            ("reserved0", "Reserved0"),
-            ("reserved1", "Reserved1"),
-        ),
-    ),
-    Address: (Cmd.ADDRESS, (("node_id", "Node_ID"), ("serial_number", "Serial_Number"))),
-    SetAxisState: (Cmd.SET_AXIS_STATE, (("requested_state", "Axis_Requested_State"),)),
-    EncoderEstimates: (
-        Cmd.GET_ENCODER_ESTIMATES,
-        (("pos_rev", "Pos_Estimate"), ("vel_rev_s", "Vel_Estimate")),
-    ),
-    SetControllerMode: (
-        Cmd.SET_CONTROLLER_MODE,
-        (("control_mode", "Control_Mode"), ("input_mode", "Input_Mode")),
-    ),
-    SetInputPos: (
-        Cmd.SET_INPUT_POS,
-        (("input_pos", "Input_Pos"), ("vel_ff", "Vel_FF"), ("torque_ff", "Torque_FF")),
-    ),
-    SetInputVel: (
-        Cmd.SET_INPUT_VEL,
-        (("input_vel", "Input_Vel"), ("torque_ff", "Input_Torque_FF")),
-    ),
-    SetInputTorque: (Cmd.SET_INPUT_TORQUE, (("torque_nm", "Input_Torque"),)),
-    SetLimits: (
-        Cmd.SET_LIMITS,
-        (("velocity_limit", "Velocity_Limit"), ("current_limit", "Current_Limit")),
-    ),
-    SetTrajVelLimit: (Cmd.SET_TRAJ_VEL_LIMIT, (("traj_vel_limit", "Traj_Vel_Limit"),)),
-    SetTrajAccelLimits: (
-        Cmd.SET_TRAJ_ACCEL_LIMITS,
-        (("accel_limit", "Traj_Accel_Limit"), ("decel_limit", "Traj_Decel_Limit")),
-    ),
-    SetTrajInertia: (Cmd.SET_TRAJ_INERTIA, (("inertia", "Traj_Inertia"),)),
-    Iq: (Cmd.GET_IQ, (("iq_setpoint", "Iq_Setpoint"), ("iq_measured", "Iq_Measured"))),
-    Temperature: (
-        Cmd.GET_TEMPERATURE,
-        (("fet_temperature", "FET_Temperature"), ("motor_temperature", "Motor_Temperature")),
-    ),
-    Reboot: (Cmd.REBOOT, (("action", "Action"),)),
-    BusVoltageCurrent: (
-        Cmd.GET_BUS_VOLTAGE_CURRENT,
-        (("bus_voltage", "Bus_Voltage"), ("bus_current", "Bus_Current")),
-    ),
-    ClearErrors: (Cmd.CLEAR_ERRORS, (("identify", "Identify"),)),
-    SetAbsolutePosition: (Cmd.SET_ABSOLUTE_POSITION, (("position", "Position"),)),
-    SetPosGain: (Cmd.SET_POS_GAIN, (("pos_gain", "Pos_Gain"),)),
-    SetVelGains: (
-        Cmd.SET_VEL_GAINS,
-        (("vel_gain", "Vel_Gain"), ("vel_integrator_gain", "Vel_Integrator_Gain")),
-    ),
-    Torques: (
-        Cmd.GET_TORQUES,
-        (("torque_target", "Torque_Target"), ("torque_estimate", "Torque_Estimate")),
-    ),
-    Powers: (
-        Cmd.GET_POWERS,
-        (("electrical_power", "Electrical_Power"), ("mechanical_power", "Mechanical_Power")),
-    ),
-    EnterDfuMode: (Cmd.ENTER_DFU_MODE, ()),
-}
-_CLASS_OF = {cmd: cls for cls, (cmd, _) in _LAYOUT.items()}
-
-# What a drive can be asked for (RTR or empty data frame): its drive -> host messages, plus
-# Address (discovery). TxSdo is only ever an answer to an RxSdo.
-REQUESTABLE = frozenset(
-    {
-        Cmd.GET_VERSION,
-        Cmd.HEARTBEAT,
-        Cmd.GET_ERROR,
-        Cmd.ADDRESS,
-        Cmd.GET_ENCODER_ESTIMATES,
-        Cmd.GET_IQ,
-        Cmd.GET_TEMPERATURE,
-        Cmd.GET_BUS_VOLTAGE_CURRENT,
-        Cmd.GET_TORQUES,
-        Cmd.GET_POWERS,
-    }
-)
-DRIVE_TO_HOST = (
-    Version,
-    Heartbeat,
-    ErrorStatus,
-    TxSdo,
-    EncoderEstimates,
-    Iq,
-    Temperature,
-    BusVoltageCurrent,
-    Torques,
-    Powers,
-)
+# What a drive can be asked for (RTR or empty data frame): MessageSpec.requestable, which is
+# its drive -> host messages but TxSdo (only ever an answer to an RxSdo), plus Address.
+REQUESTABLE = frozenset(Cmd(m.cmd) for m in MESSAGES if m.requestable)
+DRIVE_TO_HOST = tuple(_CLASS_OF[Cmd(m.cmd)] for m in MESSAGES if m.sender == "drive")
+# a requestable host message (Address) is also the drive's answer: it goes both ways
 HOST_TO_DRIVE = (
-    Estop,
-    RxSdo,
-    SetAxisState,
-    SetControllerMode,
-    SetInputPos,
-    SetInputVel,
-    SetInputTorque,
-    SetLimits,
-    SetTrajVelLimit,
-    SetTrajAccelLimits,
-    SetTrajInertia,
-    Reboot,
-    ClearErrors,
-    SetAbsolutePosition,
-    SetPosGain,
-    SetVelGains,
-    EnterDfuMode,
+    *(_CLASS_OF[Cmd(m.cmd)] for m in MESSAGES if m.sender == "host" and not m.requestable),
     Request,
 )
 _ENUMS: dict[str, type[IntEnum]] = {
@@ -578,7 +455,10 @@ _ENUMS: dict[str, type[IntEnum]] = {
     "Control_Mode": ControlMode,
     "Input_Mode": InputMode,
 }
-_SMALL_ENUMS = {"Action": 3, "Opcode": 1}  # largest valid value
+_SMALL_ENUMS = {  # largest valid value
+    "Action": max(CHOICES["reboot_action"]),
+    "Opcode": max(CHOICES["opcode"]),
+}
 
 
 @lru_cache(maxsize=1)
@@ -715,14 +595,5 @@ def _decode(frame: Frame, nodes: frozenset[int] | None) -> Message:
     for name, value in sig.items():
         if isinstance(value, float) and not math.isfinite(value):
             raise CanDecodeError("non_finite", f"{name}={value}")
-    kwargs: dict[str, Any] = {}
-    float_fields = {f.name for f in fields(cls) if f.type in ("float", float)}
-    for attr, signal in names:
-        value = sig[signal]
-        if attr in float_fields:
-            kwargs[attr] = float(value)
-        elif attr == "trajectory_done":
-            kwargs[attr] = bool(value)
-        else:
-            kwargs[attr] = int(value)
-    return cls(node, **kwargs)
+    casts = _CASTS[cls]
+    return cls(node, **{attr: casts[attr](sig[signal]) for attr, signal in names})

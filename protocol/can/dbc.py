@@ -3,8 +3,10 @@
 One table (:data:`MESSAGES`) holds every message of the firmware 0.6 protocol: command id,
 name, length, which side sends it and its signals (start bit, length, sign, float, scale, unit),
 as the ODrive CAN protocol page documents them
-(https://docs.odriverobotics.com/v/latest/manual/can-protocol.html). The codec
-(:mod:`protocol.can.codec`) and the shipped DBC (``odrive_cansimple.dbc``) both come from it.
+(https://docs.odriverobotics.com/v/latest/manual/can-protocol.html), and whether a drive answers
+a request for it. The codec (:mod:`protocol.can.codec`: its ``Cmd`` enum, field layouts and
+direction tables; ``Signal.field`` names the field that carries a signal) and the shipped DBC
+(``odrive_cansimple.dbc``) both come from it.
 
 A CANSimple frame id is ``node_id << 5 | cmd_id``, so a DBC needs one message set per node
 for a tool like ``cantools decode`` to name every frame on a bus. ODrive's own DBC covers axes
@@ -36,6 +38,12 @@ class Signal:
     unit: str = ""
     choices: str | None = None  # a key of CHOICES
     comment: str = ""
+    attr: str = ""  # the codec's field for it, when not the lower-cased name
+
+    @property
+    def field(self) -> str:
+        """The name of the codec dataclass field that carries this signal."""
+        return self.attr or self.name.lower()
 
 
 @dataclass(frozen=True)
@@ -47,15 +55,31 @@ class MessageSpec:
     signals: tuple[Signal, ...] = ()
     comment: str = ""
     cycle_ms: int = 0  # the firmware's default cyclic rate (0: only on request / not cyclic)
+    # The drive answers a remote frame (or an empty data frame) of this id with this message.
+    # A requestable "host" message (Address) therefore goes both ways.
+    requestable: bool = False
 
 
-def _f32(name: str, start: int, unit: str = "", comment: str = "") -> Signal:
-    return Signal(name, start, 32, False, True, unit=unit, comment=comment)
+def _f32(name: str, start: int, unit: str = "", attr: str = "") -> Signal:
+    return Signal(name, start, 32, False, True, unit=unit, attr=attr)
 
 
-def _u(name: str, start: int, length: int, choices: str | None = None, comment: str = ""):
+def _u(
+    name: str,
+    start: int,
+    length: int,
+    choices: str | None = None,
+    comment: str = "",
+    attr: str = "",
+) -> Signal:
     return Signal(
-        name, start, length, maximum=float(2**length - 1), choices=choices, comment=comment
+        name,
+        start,
+        length,
+        maximum=float(2**length - 1),
+        choices=choices,
+        comment=comment,
+        attr=attr,
     )
 
 
@@ -168,6 +192,7 @@ MESSAGES: tuple[MessageSpec, ...] = (
             _u("Fw_Version_Unreleased", 56, 8, comment="0 for official releases"),
         ),
         "On request (RTR). The virtual drive reports Fw_Version_Unreleased = 1.",
+        requestable=True,
     ),
     MessageSpec(
         0x01,
@@ -178,10 +203,11 @@ MESSAGES: tuple[MessageSpec, ...] = (
             _u("Axis_Error", 0, 32, "error", "active_errors | disarm_reason"),
             _u("Axis_State", 32, 8, "axis_state"),
             _u("Procedure_Result", 40, 8, "procedure_result"),
-            _u("Trajectory_Done_Flag", 48, 1),
+            _u("Trajectory_Done_Flag", 48, 1, attr="trajectory_done"),
         ),
         "Cyclic (heartbeat_msg_rate_ms, default 100 ms) and on request.",
         cycle_ms=100,
+        requestable=True,
     ),
     MessageSpec(0x02, "Estop", 0, "host", (), "Disarms the axis with ESTOP_REQUESTED."),
     MessageSpec(
@@ -194,6 +220,7 @@ MESSAGES: tuple[MessageSpec, ...] = (
             _u("Disarm_Reason", 32, 32, "error"),
         ),
         "On request (RTR) or cyclic (error_msg_rate_ms, default off).",
+        requestable=True,
     ),
     MessageSpec(
         0x04,
@@ -228,22 +255,27 @@ MESSAGES: tuple[MessageSpec, ...] = (
         "host",
         (_u("Node_ID", 0, 8), _u("Serial_Number", 8, 48)),
         "Discovery: an RTR (node id or 0x3F) is answered with the drive's node id and serial.",
+        requestable=True,
     ),
     MessageSpec(
         0x07,
         "Set_Axis_State",
         8,
         "host",
-        (_u("Axis_Requested_State", 0, 32, "axis_state"),),
+        (_u("Axis_Requested_State", 0, 32, "axis_state", attr="requested_state"),),
     ),
     MessageSpec(
         0x09,
         "Get_Encoder_Estimates",
         8,
         "drive",
-        (_f32("Pos_Estimate", 0, "rev"), _f32("Vel_Estimate", 32, "rev/s")),
+        (
+            _f32("Pos_Estimate", 0, "rev", attr="pos_rev"),
+            _f32("Vel_Estimate", 32, "rev/s", attr="vel_rev_s"),
+        ),
         "Cyclic (encoder_msg_rate_ms, default 10 ms) and on request.",
         cycle_ms=10,
+        requestable=True,
     ),
     MessageSpec(
         0x0B,
@@ -275,9 +307,11 @@ MESSAGES: tuple[MessageSpec, ...] = (
         "Set_Input_Vel",
         8,
         "host",
-        (_f32("Input_Vel", 0, "rev/s"), _f32("Input_Torque_FF", 32, "Nm")),
+        (_f32("Input_Vel", 0, "rev/s"), _f32("Input_Torque_FF", 32, "Nm", attr="torque_ff")),
     ),
-    MessageSpec(0x0E, "Set_Input_Torque", 8, "host", (_f32("Input_Torque", 0, "Nm"),)),
+    MessageSpec(
+        0x0E, "Set_Input_Torque", 8, "host", (_f32("Input_Torque", 0, "Nm", attr="torque_nm"),)
+    ),
     MessageSpec(
         0x0F,
         "Set_Limits",
@@ -291,15 +325,25 @@ MESSAGES: tuple[MessageSpec, ...] = (
         "Set_Traj_Accel_Limits",
         8,
         "host",
-        (_f32("Traj_Accel_Limit", 0, "rev/s^2"), _f32("Traj_Decel_Limit", 32, "rev/s^2")),
+        (
+            _f32("Traj_Accel_Limit", 0, "rev/s^2", attr="accel_limit"),
+            _f32("Traj_Decel_Limit", 32, "rev/s^2", attr="decel_limit"),
+        ),
     ),
-    MessageSpec(0x13, "Set_Traj_Inertia", 8, "host", (_f32("Traj_Inertia", 0, "Nm/(rev/s^2)"),)),
+    MessageSpec(
+        0x13,
+        "Set_Traj_Inertia",
+        8,
+        "host",
+        (_f32("Traj_Inertia", 0, "Nm/(rev/s^2)", attr="inertia"),),
+    ),
     MessageSpec(
         0x14,
         "Get_Iq",
         8,
         "drive",
         (_f32("Iq_Setpoint", 0, "A"), _f32("Iq_Measured", 32, "A")),
+        requestable=True,
     ),
     MessageSpec(
         0x15,
@@ -307,6 +351,7 @@ MESSAGES: tuple[MessageSpec, ...] = (
         8,
         "drive",
         (_f32("FET_Temperature", 0, "deg C"), _f32("Motor_Temperature", 32, "deg C")),
+        requestable=True,
     ),
     MessageSpec(0x16, "Reboot", 1, "host", (_u("Action", 0, 8, "reboot_action"),)),
     MessageSpec(
@@ -315,6 +360,7 @@ MESSAGES: tuple[MessageSpec, ...] = (
         8,
         "drive",
         (_f32("Bus_Voltage", 0, "V"), _f32("Bus_Current", 32, "A")),
+        requestable=True,
     ),
     MessageSpec(0x18, "Clear_Errors", 1, "host", (_u("Identify", 0, 8),)),
     MessageSpec(0x19, "Set_Absolute_Position", 8, "host", (_f32("Position", 0, "rev"),)),
@@ -332,6 +378,7 @@ MESSAGES: tuple[MessageSpec, ...] = (
         8,
         "drive",
         (_f32("Torque_Target", 0, "Nm"), _f32("Torque_Estimate", 32, "Nm")),
+        requestable=True,
     ),
     MessageSpec(
         0x1D,
@@ -339,6 +386,7 @@ MESSAGES: tuple[MessageSpec, ...] = (
         8,
         "drive",
         (_f32("Electrical_Power", 0, "W"), _f32("Mechanical_Power", 32, "W")),
+        requestable=True,
     ),
     MessageSpec(0x1F, "Enter_DFU_Mode", 0, "host", (), "Refused by the virtual drive (counted)."),
 )
