@@ -11,6 +11,7 @@ import csv
 import json
 import math
 import operator
+import os
 from pathlib import Path
 from typing import Any
 
@@ -163,7 +164,10 @@ def analyze(
     if summary.get("interrupted") and summary["duration_run_s"] is not None:
         summary["duration"] = summary["duration_run_s"]
     summary["verdict"] = run_verdict(summary, scenario).as_dict()
-    (run_dir / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2))
+    # Whole or absent, never half: a kill while it is written leaves the folder to recover.
+    tmp = run_dir / "summary.json.writing"
+    tmp.write_text(json.dumps(_jsonable(summary), indent=2))
+    os.replace(tmp, run_dir / "summary.json")
     return summary
 
 
