@@ -92,10 +92,13 @@ def _first_per_key(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np
     return uniq, values[first]
 
 
-def _lookup(keys: np.ndarray, values: np.ndarray, query: np.ndarray, missing: int = -1):
-    """values[keys == q] for each q (keys distinct), ``missing`` where absent; vectorised."""
-    order = np.argsort(keys, kind="stable")
-    ks = keys[order]
+def _lookup(
+    keys: np.ndarray, values: np.ndarray, query: np.ndarray, missing: int = -1, ordered=False
+):
+    """values[keys == q] for each q (keys distinct), ``missing`` where absent; vectorised.
+    ``ordered``: the keys are already ascending (no sort)."""
+    order = np.arange(keys.size) if ordered else np.argsort(keys, kind="stable")
+    ks = keys if ordered else keys[order]
     pos = np.clip(np.searchsorted(ks, query), 0, max(0, ks.size - 1))
     found = (ks.size > 0) & (ks[pos] == query) if ks.size else np.zeros(query.size, bool)
     out = np.full(query.size, missing, dtype=values.dtype if values.size else np.int64)
@@ -152,7 +155,10 @@ class _Run:
         # cmd_seq -> its tick row, and the sample it was computed from (the controller's own
         # record, not what the message claims).
         t = self.ticks
-        self.cmd_rows = np.nonzero(t["cmd_seq"] >= 0)[0]
+        rows = np.nonzero(t["cmd_seq"] >= 0)[0]
+        # Sorted by cmd_seq once: every join by command (tick_of) is then a search, not a sort.
+        order = np.argsort(t["cmd_seq"][rows], kind="stable")
+        self.cmd_rows = rows[order]
         self.cmd_keys = t["cmd_seq"][self.cmd_rows]
         self._can = self._match_can()
         self.series_without: np.ndarray | None = None  # sample times left without a command
@@ -337,7 +343,7 @@ class _Run:
 
     def tick_of(self, cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(tick row, found) of each command sequence number."""
-        return _lookup(self.cmd_keys, self.cmd_rows, np.asarray(cmd, np.int64))
+        return _lookup(self.cmd_keys, self.cmd_rows, np.asarray(cmd, np.int64), ordered=True)
 
     def _sample_of(self, cmd: np.ndarray) -> np.ndarray:
         rows, found = self.tick_of(cmd)
