@@ -11,7 +11,9 @@
 - ``"jiang2001"``: [19] with [controller.jiang2001] stab_eps, track_lam.
 - ``"package.module:Class"``: a user's controller, built as ``Class(params, context)`` where
   params is the whole [controller] table without ``law``; it must satisfy the Controller
-  protocol of :mod:`controller_service.laws.base`.
+  protocol of :mod:`controller_service.laws.base`. Its module is looked up in the installed
+  packages, then in the folders of ``law_path`` (:func:`law_path_for`: the scenario's folder and
+  the working directory), so a ``my_law.py`` next to the scenario needs no ``PYTHONPATH``.
 
 Sub-tables of the other baselines may sit beside a built-in law; they are not used but must be
 right (checked as if their law were chosen). Any other unknown key is refused with a ValueError
@@ -26,8 +28,10 @@ import importlib
 import inspect
 import math
 import re
+import sys
 import weakref
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
+from pathlib import Path
 from typing import Any
 
 from controller_service.design import resolve_auto
@@ -126,19 +130,47 @@ def _build_unified(law: str, table: Mapping[str, Any], context: DesignContext) -
     return controller
 
 
-def _build_user(path: str, table: Mapping[str, Any], context: DesignContext) -> Controller:
+def law_path_for(scenario_dir: str | Path | None) -> tuple[str, ...]:
+    """The folders a user's law module is looked up in after the installed packages: the
+    scenario's folder, then the working directory (absolute, each once). hil resolves them
+    once and writes them into the run's settings, so the services find the same module."""
+    folders = [Path.cwd()] if scenario_dir is None else [Path(scenario_dir), Path.cwd()]
+    out: list[str] = []
+    for folder in folders:
+        text = str(folder.resolve())
+        if text not in out:
+            out.append(text)
+    return tuple(out)
+
+
+def _import_law_module(path: str, module_name: str, law_path: Iterable[str]) -> Any:
+    """The user's module, looked up in the installed packages then in ``law_path``."""
+    folders = [str(f) for f in law_path]
+    # Appended, not prepended: a user's file never shadows an installed package; the folders
+    # stay on sys.path because the module may import its neighbours later, mid-run.
+    sys.path.extend(f for f in folders if f not in sys.path)
+    importlib.invalidate_caches()  # a module written after this process started
+    try:
+        return importlib.import_module(module_name)
+    except Exception as exc:  # the user's module may raise anything while it is imported
+        where = "; looked in the installed packages"
+        where += "".join(f", {f}" for f in folders)
+        raise ValueError(
+            f"[controller] law {path!r}: cannot import {module_name!r}: {_what(exc)}"
+            + (where if isinstance(exc, ModuleNotFoundError) else "")
+        ) from exc
+
+
+def _build_user(
+    path: str, table: Mapping[str, Any], context: DesignContext, law_path: Iterable[str] = ()
+) -> Controller:
     module_name, _, class_name = path.partition(":")
     if not module_name or not class_name:
         raise ValueError(
             f"[controller] law {path!r}: expected one of {', '.join(BUILTIN_LAWS)} "
             "or an import path 'package.module:Class'"
         )
-    try:
-        module = importlib.import_module(module_name)
-    except Exception as exc:  # the user's module may raise anything while it is imported
-        raise ValueError(
-            f"[controller] law {path!r}: cannot import {module_name!r}: {_what(exc)}"
-        ) from exc
+    module = _import_law_module(path, module_name, law_path)
     cls = module
     for part in class_name.split("."):
         cls = getattr(cls, part, None)
@@ -191,14 +223,18 @@ def _what(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def build_controller(table: Mapping[str, Any], context: DesignContext) -> Controller:
-    """The controller named by ``table["law"]`` (default "unified"), checked and ready."""
+def build_controller(
+    table: Mapping[str, Any], context: DesignContext, law_path: Iterable[str] = ()
+) -> Controller:
+    """The controller named by ``table["law"]`` (default "unified"), checked and ready; a
+    user's module is looked up in the installed packages, then in ``law_path``
+    (:func:`law_path_for`)."""
     law = check_table(table)
     if law in ("unified", "unified_boundary"):
         return _build_unified(law, table, context)
     if law in _BASELINE_TABLES:
         return _baseline(law, table, context)
-    return _build_user(law, table, context)
+    return _build_user(law, table, context, law_path)
 
 
 def resolved_controller_table(controller: Any) -> dict[str, Any]:

@@ -677,12 +677,13 @@ def design_context(scenario: Scenario, reference: Any) -> DesignContext:
 def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
     """(controller, reference, context) for the scenario; design errors become BadInputError."""
     from controller_service.design import DesignError
-    from controller_service.registry import build_controller
+    from controller_service.registry import build_controller, law_path_for
 
     reference = build_reference(scenario)
     context = design_context(scenario, reference)
     try:
-        controller = build_controller(dict(scenario.controller), context)
+        law_path = law_path_for(scenario.base_dir)
+        controller = build_controller(dict(scenario.controller), context, law_path)
     except DesignError as exc:
         raise BadInputError(design_message(exc)) from exc
     except ValueError as exc:

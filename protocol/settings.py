@@ -64,6 +64,9 @@ class RunSettings:
     controller: dict[str, Any] = field(default_factory=lambda: {"law": "unified"})
     reference: dict[str, Any] = field(default_factory=dict)
     base_dir: str = "."  # where a reference's relative file paths start
+    # folders a user's law module is looked up in after the installed packages (the scenario's
+    # folder and hil's working directory, controller_service.registry.law_path_for)
+    law_path: list[str] = field(default_factory=list)
     limits: dict[str, float] = field(default_factory=lambda: asdict(Limits()))
     # s1, s2 of Assumption 1 and mu1, mu2, k1, k2 of Assumption 2, as the design used them
     design: dict[str, float] = field(default_factory=_design)

@@ -29,7 +29,7 @@ def register(app: typer.Typer) -> None:
         from hil.report.compare import build_compare
         from hil.report.folder import load_folder
 
-        out_dir("--out", out)
+        out_dir("--out", out, default="runs")
         fa, fb = load_folder(dir_a), load_folder(dir_b)
         target = out or Path("runs") / time.strftime("compare-%Y%m%d-%H%M%S")
         build_compare(fa, fb, target)

@@ -38,7 +38,7 @@ def register(app: typer.Typer) -> None:
         from hil.paper import failed_checks, run_paper
         from hil.sim import new_run_dir
 
-        out_dir("--out", out)
+        out_dir("--out", out, default="runs")
         folder = out or new_run_dir("runs", "paper")
         table = run_paper(
             folder, quick=quick, jobs=jobs, traces=traces, log=lambda m: typer.echo(m, err=True)

@@ -12,6 +12,7 @@ import typer
 
 from hil import interrupts
 from hil.errors import BadInputError, NegativeVerdictError
+from hil.law.option import LawOpt
 
 DEFAULT_MAX_DURATION = 20.0
 SWEEP_HELP = (
@@ -86,10 +87,11 @@ def register(app: typer.Typer) -> None:
         seeds: SeedsOpt = None,
         duration: DurationOpt = None,
         strict: StrictOpt = False,
+        law: LawOpt = None,
     ) -> None:
         """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
         scenario, grid, loop_s, latencies = _checked_sweep(
-            scenario_file, out, ts, delay, jitter, seeds, duration
+            scenario_file, out, ts, delay, jitter, seeds, duration, law
         )
         target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
         target.mkdir(parents=True, exist_ok=True)
@@ -138,12 +140,15 @@ def _checked_sweep(
     jitter: str | None,
     seeds: int | None,
     duration: float | None,
+    law: str | None = None,
 ) -> tuple[Any, Any, float, Any]:
     """The scenario, its grid, the loop length and the latencies of a run it replays (or
     None), every option and the scenario checked before any folder is written
     (BadInputError: exit 2)."""
     from hil import options
     from hil.bundled import resolve_scenario
+    from hil.law.batch import batch_note
+    from hil.law.option import with_law
     from hil.scenario import (
         DELAY_MAX,
         DURATION_MAX,
@@ -165,8 +170,8 @@ def _checked_sweep(
         options.integer("--seeds", seeds, 1, SWEEP_SEEDS_MAX)
     if duration is not None:
         options.number("--duration", duration, 0.0, DURATION_MAX, positive=True)
-    options.out_dir("--out", out)
-    scenario = load_scenario(resolve_scenario(scenario_file))
+    options.out_dir("--out", out, default="runs")
+    scenario = with_law(load_scenario(resolve_scenario(scenario_file)), law)
     sw = scenario.sweep
     try:
         grid = make_grid(
@@ -187,7 +192,12 @@ def _checked_sweep(
             "--ts" if ts_grid else "[sweep] ts",
         ),
     )
-    build_loop(scenario)  # a bad reference or design fails before any folder is written
+    # A bad reference or design fails before any folder is written; a law that takes only
+    # floats is found here too, and the user told it runs one robot at a time.
+    controller, reference, _ = build_loop(scenario)
+    note = batch_note(controller, scenario, reference)
+    if note:
+        typer.echo(note, err=True)
     t = scenario.timing
     latencies = None
     if t.jitter_kind == "replay" and is_run_source(scenario.base_dir / t.replay):

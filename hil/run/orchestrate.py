@@ -67,6 +67,7 @@ class RunOptions:
     scheduling: str | None = None
     quiet: bool = False
     secure: bool = False  # router with authentication and access control (hil.run.secure)
+    law: str | None = None  # --law: the [controller] law instead of the scenario's
 
 
 class Recorder:
@@ -191,21 +192,22 @@ def check_options(opts: RunOptions) -> None:
     ):
         if value is not None:
             options.plain_string(name, value, empty=False)
-    options.out_dir("--out", opts.out)
+    options.out_dir("--out", opts.out, default="runs")
 
 
 def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
     """(scenario, its path, whether the user gave one, its default duration): the user's
     scenario (a file or a bundled name) or the paper's tracking circle."""
     from hil.bundled import resolve_scenario
+    from hil.law.option import with_law
     from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
     from hil.scenario import load_scenario, loads_scenario
 
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     if given is None:
-        scenario = loads_scenario(PAPER_TRACKING_TOML, run_dir)
+        scenario = with_law(loads_scenario(PAPER_TRACKING_TOML, run_dir), opts.law)
         return scenario, run_dir / "scenario.toml", False, DEFAULT_DURATION
-    scenario = load_scenario(given)
+    scenario = with_law(load_scenario(given), opts.law)
     return scenario, given.resolve(), True, scenario.run.duration
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from controller_service.registry import law_path_for
 from hil.errors import BadInputError
 from protocol.settings import RunSettings
 
@@ -82,6 +83,7 @@ def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSett
         "controller": dict(scenario.controller),
         "reference": dict(scenario.reference),
         "base_dir": str(scenario.base_dir.resolve()),
+        "law_path": list(law_path_for(scenario.base_dir)),
         "limits": dataclasses.asdict(scenario.limits),
         "initial": dataclasses.asdict(scenario.initial),
         "plant_step": scenario.plant_step,

@@ -26,6 +26,7 @@ import numpy as np
 from controller_service.from_settings import initial_memory
 from controller_service.laws.base import ReferenceSample, RobotState
 from controller_service.references import sample_array
+from hil.law.batch import for_batch
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
 from hil.sim.landing import extra_delays, jitter_samples_from, landing_offsets
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
@@ -501,6 +502,8 @@ def _batch_setup(
     """The loops' objects, initial states, landing offsets and seeds for N robots."""
     n = len(variations)
     controller, reference, context = loop or build_loop(scenario)
+    if memory is None:  # a law that takes only floats runs one robot at a time (hil.law.batch)
+        controller = for_batch(controller, scenario, reference)
     n_samples = max(1, round(scenario.run.duration / scenario.timing.ts))
     ini, timing = scenario.initial, scenario.timing
     starts = None
