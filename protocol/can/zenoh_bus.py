@@ -56,6 +56,7 @@ _HEADER = struct.Struct("<BBBxIQQ")
 _VERSION = 1
 _EXTENDED, _REMOTE, _ERROR = 1, 2, 4
 _RX_LIMIT = 100_000
+_RX_CHANNEL = 4096  # frames between Zenoh and the pump thread; full: Zenoh waits (BLOCK)
 _CHANNEL_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 
@@ -185,10 +186,25 @@ class ZenohCanBus(BusABC):
             congestion_control=zenoh.CongestionControl.BLOCK,
             priority=zenoh.Priority.REAL_TIME,
         )
-        self._sub = self._session.declare_subscriber(key, self._on_sample)
+        # Frames are pulled from a channel by a daemon thread, not pushed to a callback: Zenoh
+        # runs a Python callback in a thread of its own that is not a daemon, so a script that
+        # forgets shutdown() would never exit (python-can's own interfaces do exit).
+        self._sub = self._session.declare_subscriber(key, zenoh.handlers.FifoChannel(_RX_CHANNEL))
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
+        self._pump = threading.Thread(
+            target=self._pump_frames, name=f"zenoh_can-{channel}", daemon=True
+        )
+        self._pump.start()
 
     # --- receive path -------------------------------------------------------------------
+    def _pump_frames(self) -> None:
+        while True:
+            try:
+                sample = self._sub.recv()
+            except Exception:  # undeclared or the session closed: the bus is shut down
+                return
+            self._on_sample(sample)
+
     def _on_sample(self, sample: Any) -> None:
         try:
             msg, sender, end_ns = unpack_frame(bytes(sample.payload.to_bytes()))
