@@ -244,7 +244,8 @@ def test_can_zenoh_bus_does_not_keep_a_script_alive_that_forgets_shutdown(spawn,
         assert answered
         # Bounded: the old bus never exited (a non-daemon Zenoh callback thread).
         out, err = proc.communicate(timeout=10)
-        assert proc.returncode == 0, err
+        # 0, not an abort: frames still arriving while it ends must not crash it either
+        assert proc.returncode == 0, (proc.returncode, err)
         assert "got 0x22" in out
     finally:
         ours.shutdown()

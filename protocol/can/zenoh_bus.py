@@ -28,6 +28,7 @@ delivered on arrival and stamped with their arrival time.
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import heapq
 import ipaddress
@@ -38,6 +39,7 @@ import re
 import struct
 import threading
 import time
+import weakref
 from collections import deque
 from typing import Any
 
@@ -56,7 +58,6 @@ _HEADER = struct.Struct("<BBBxIQQ")
 _VERSION = 1
 _EXTENDED, _REMOTE, _ERROR = 1, 2, 4
 _RX_LIMIT = 100_000
-_RX_CHANNEL = 4096  # frames between Zenoh and the pump thread; full: Zenoh waits (BLOCK)
 _CHANNEL_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 
@@ -107,6 +108,27 @@ def unpack_frame(payload: bytes) -> tuple[Message, int, int]:
         check=False,
     )
     return msg, sender, end_ns
+
+
+def _shut_down_at_exit(bus: ZenohCanBus) -> None:
+    """Shut ``bus`` down when the interpreter ends, before it waits for its threads.
+
+    Zenoh calls a Python callback from a thread of its own that is not a daemon and ends only
+    when the subscriber is undeclared: a script that forgets ``shutdown()`` would wait for it
+    forever (python-can's own interfaces exit). ``atexit`` runs after that wait, so the hook
+    goes where ``concurrent.futures`` puts its own, before it. A weak reference: the hook does
+    not keep a bus alive that its user dropped."""
+    ref = weakref.ref(bus)
+
+    def hook() -> None:
+        alive = ref()
+        if alive is not None:
+            with contextlib.suppress(Exception):
+                alive.shutdown()
+
+    register = getattr(threading, "_register_atexit", None)
+    with contextlib.suppress(RuntimeError):  # the interpreter is already shutting down
+        (register or atexit.register)(hook)
 
 
 class ZenohCanBus(BusABC):
@@ -186,25 +208,11 @@ class ZenohCanBus(BusABC):
             congestion_control=zenoh.CongestionControl.BLOCK,
             priority=zenoh.Priority.REAL_TIME,
         )
-        # Frames are pulled from a channel by a daemon thread, not pushed to a callback: Zenoh
-        # runs a Python callback in a thread of its own that is not a daemon, so a script that
-        # forgets shutdown() would never exit (python-can's own interfaces do exit).
-        self._sub = self._session.declare_subscriber(key, zenoh.handlers.FifoChannel(_RX_CHANNEL))
+        self._sub = self._session.declare_subscriber(key, self._on_sample)
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
-        self._pump = threading.Thread(
-            target=self._pump_frames, name=f"zenoh_can-{channel}", daemon=True
-        )
-        self._pump.start()
+        _shut_down_at_exit(self)
 
     # --- receive path -------------------------------------------------------------------
-    def _pump_frames(self) -> None:
-        while True:
-            try:
-                sample = self._sub.recv()
-            except Exception:  # undeclared or the session closed: the bus is shut down
-                return
-            self._on_sample(sample)
-
     def _on_sample(self, sample: Any) -> None:
         try:
             msg, sender, end_ns = unpack_frame(bytes(sample.payload.to_bytes()))
