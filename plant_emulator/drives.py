@@ -181,12 +181,19 @@ class DrivesRunner:
         kinds = ", ".join(f"{k} {n}" for k, n in rej.items())
         ign = sum(c["ignored"].values())
         parts.append(
-            f"rx {rates[0]:.0f}/s tx {rates[1]:.0f}/s req {self.can.requests} "
+            f"rx {rates[0]:.0f}/s ({self.can.frames_in}) tx {rates[1]:.0f}/s "
+            f"({self.can.frames_out}) req {self.can.requests} "
             f"rej {sum(rej.values())}{f' ({kinds})' if kinds else ''} other {ign} "
             f"own {self.can.own_frames}"
         )
         parts.append(f"robot x={s.x:+.3f} y={s.y:+.3f} v={s.v:+.3f}")
+        parts.append(self.watchdog_words())
         return " | ".join(parts)
+
+    def watchdog_words(self) -> str:
+        """The drives' watchdog, as the status lines say it."""
+        timeout = self.can_settings.watchdog_timeout
+        return f"watchdog {timeout:g}s" if timeout > 0 else "watchdog off"
 
     def summary(self, elapsed: float, stopped_by: str) -> dict[str, Any]:
         e = self.core.extremes
@@ -236,7 +243,8 @@ class DrivesRunner:
         print(
             f"hil drives: right node {self.pair.node_right}, left node {self.pair.node_left} on "
             f"{cs.interface} {cs.channel}; plant and drives at {opts.control_rate:g} Hz, "
-            f"{sched.policy}; Ctrl-C to stop",
+            f"{sched.policy}; {self.watchdog_words()} (a drive that gets no command for that long "
+            "disarms: Clear_Errors, then Set_Axis_State re-arms it); Ctrl-C to stop",
             flush=True,
         )
         start_ns = time.monotonic_ns()

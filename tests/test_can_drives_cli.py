@@ -170,3 +170,73 @@ def test_hil_emulator_exits_on_sigint_mid_run(spawn, tmp_path):
     proc.send_signal(signal.SIGINT)
     assert proc.wait(timeout=5) == 0
     assert _hoplog_closed(tmp_path)
+
+
+class _Heartbeats:
+    """Every heartbeat of one node read from a bus, so a state the drive passed through is
+    seen even when a later one replaced it before the test looked."""
+
+    def __init__(self, bus: can.BusABC, node: int) -> None:
+        self.bus, self.node_id = bus, codec.frame_id(node, codec.Cmd.HEARTBEAT)
+        self.seen: list[tuple[int, int]] = []
+
+    def mark(self) -> int:
+        self._read()
+        return len(self.seen)
+
+    def since(self, mark: int, state: int, error: int) -> bool:
+        self._read()
+        return (state, error) in self.seen[mark:]
+
+    def _read(self) -> None:
+        while (msg := self.bus.recv(timeout=0.0)) is not None:
+            if msg.arbitration_id == self.node_id:
+                hb = codec.decode(codec.Frame(msg.arbitration_id, bytes(msg.data)))
+                self.seen.append((hb.axis_state, hb.axis_error))  # type: ignore[attr-defined]
+
+
+def test_hil_drives_watchdog_is_on_by_default_and_clear_errors_rearms_after_any_error(spawn):
+    """Armed, then left without commands: the default watchdog disarms the drive (said in the
+    status line); Clear_Errors then Set_Axis_State re-arm it, as the firmware does, after the
+    watchdog and after an Estop."""
+    bus_args, channel, can_endpoint = _zenoh_can()
+    drives = spawn.python(
+        ["-m", "hil", "drives", *bus_args, "--status-period", "0.3", "--scheduling", "other"],
+        text=True,
+    )
+    out = Lines(drives.stdout)
+    assert wait_until(lambda: out.seen("hil drives:"), 60), drives.stderr.read()
+    assert "watchdog 1s" in out.text()
+    bus = can.Bus(interface="zenoh_can", channel=channel, endpoint=can_endpoint)
+    try:
+        beats = _Heartbeats(bus, 1)
+
+        def send(msg: codec.Message) -> None:
+            f = codec.encode(msg)
+            bus.send(
+                can.Message(arbitration_id=f.arbitration_id, data=f.data, is_extended_id=False)
+            )
+
+        def then(action, state: int, error: int = 0) -> bool:  # type: ignore[no-untyped-def]
+            mark = beats.mark()
+            action()
+            return wait_until(lambda: beats.since(mark, state, error), 10)
+
+        def rearm() -> None:
+            send(codec.ClearErrors(1, 0))
+            send(codec.SetControllerMode(1, codec.ControlMode.TORQUE_CONTROL, 1))
+            send(codec.SetAxisState(1, codec.AxisState.CLOSED_LOOP_CONTROL))
+
+        closed, idle = codec.AxisState.CLOSED_LOOP_CONTROL, codec.AxisState.IDLE
+        assert then(rearm, closed)
+        # No command for the watchdog's 1 s: disarmed, the reason latched.
+        watchdog = int(codec.ODriveError.WATCHDOG_TIMER_EXPIRED)
+        assert then(lambda: None, idle, watchdog)
+        assert wait_until(lambda: out.seen("watchdog 1s"), 5)
+        assert then(rearm, closed)
+        assert then(lambda: send(codec.Estop(1)), idle, int(codec.ODriveError.ESTOP_REQUESTED))
+        assert then(rearm, closed)
+        # The status line counts every frame it received: 3 x 3 re-arming frames + the Estop.
+        assert wait_until(lambda: out.seen("rx 0/s (10) tx"), 10), out.text()[-600:]
+    finally:
+        bus.shutdown()

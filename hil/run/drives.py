@@ -9,6 +9,8 @@ from typing import Any
 from plant_emulator import drives
 from protocol.settings import RunSettings
 
+DEFAULT_WATCHDOG_S = 1.0  # the drives' watchdog unless the scenario or --watchdog-timeout says
+
 
 @dataclass
 class DrivesOptions(drives.DrivesOptions):
@@ -23,7 +25,7 @@ class DrivesOptions(drives.DrivesOptions):
     can_endpoint: str | None = None  # zenoh_can's endpoint
     node_left: int | None = None
     node_right: int | None = None
-    watchdog_timeout: float | None = None  # s; None: the scenario's [can] (0 = off)
+    watchdog_timeout: float | None = None  # s (0 = off); None: [can]'s, else DEFAULT_WATCHDOG_S
     robot_id: str | None = None
     scheduling: str | None = None  # "fifo" / "other"; None: the scenario's [realtime]
 
@@ -48,6 +50,10 @@ def drives_settings(opts: DrivesOptions) -> RunSettings:
 
     sc = _scenario(opts.scenario)
     can_table = dataclasses.asdict(sc.can)
+    if not can_table.get("watchdog_timeout"):
+        # A client that dies or forgets its torque must not leave the robot driven: on here,
+        # where nothing else watches the bus (in a run, the plant's command timeout does).
+        can_table["watchdog_timeout"] = DEFAULT_WATCHDOG_S
     for key in ("interface", "channel", "bitrate", "node_left", "node_right", "watchdog_timeout"):
         value = getattr(opts, key)
         if value is not None:
