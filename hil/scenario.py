@@ -29,6 +29,7 @@ from hil.options import LOCATOR, describe, number, plain_string, type_name
 from hil.provenance import provenance
 from plant_emulator.disturbances import KINDS as DISTURBANCE_KINDS
 from plant_emulator.disturbances import Disturbance, max_abs
+from plant_emulator.dynamics import Drag
 from plant_emulator.sensors import Sensor
 from protocol.can.bus_factory import CanSettings
 from protocol.can.wheel_mapping import RobotGeometry
@@ -70,13 +71,22 @@ class Initial:
 
 @dataclass(frozen=True)
 class PlantConfig:
-    """[plant]: RK4 step (None = ts/10), sensor noise and quantization, actuator lag."""
+    """[plant]: RK4 step (None = ts/10), sensor noise and quantization, actuator lag, and the
+    losses model (1) leaves out: viscous friction and a top speed (off, as in the paper)."""
 
     step: float | None = None
     noise_std: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
     noise_seed: int = 0
     quantization: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
     lag: float = 0.0
+    friction: tuple[float, ...] = (0.0, 0.0)  # 1/s on v and omega: v' = tau1 + d1 - c_v v
+    max_speed: tuple[float, ...] = ()  # (m/s, rad/s): |v|, |omega| held below; (): none
+
+    @property
+    def drag(self) -> Drag:
+        """The friction and top speed as the plant integrates them."""
+        top = self.max_speed or (math.inf, math.inf)
+        return Drag(self.friction[0], self.friction[1], top[0], top[1])
 
 
 @dataclass(frozen=True)
@@ -314,6 +324,8 @@ _RANGES: dict[tuple[str, str], tuple[float, float]] = {
     ("plant", "noise_seed"): (0, SEED_MAX),
     ("plant", "quantization"): (0.0, 1e6),
     ("plant", "lag"): (0.0, 1e6),
+    ("plant", "friction"): (0.0, 1e6),
+    ("plant", "max_speed"): (0.0, 1e6),
     ("timing", "ts"): (TS_MIN, TS_MAX),
     ("timing", "delay"): (0.0, DELAY_MAX),
     ("timing", "jitter"): (0.0, DELAY_MAX),
@@ -348,6 +360,7 @@ _POSITIVE = {("limits", k) for k in ("phi1", "phi2", "varpi1", "varpi2")} | {
     ("timing", "ts"),
     ("run", "duration"),
     ("plant", "step"),
+    ("plant", "max_speed"),
     ("disturbance", "period"),
     ("realtime", "rate"),
     ("realtime", "sensor_rate"),
@@ -392,6 +405,8 @@ _NON_NEGATIVE = {
     ("impair", "rate_bps"),
 }
 _FIVE = {("plant", "noise_std"), ("plant", "quantization")}
+# (table, key) -> the numbers of values a list may have
+_LENGTHS = {("plant", "friction"): (2,), ("plant", "max_speed"): (0, 2)}
 # [disturbance] keys each kind reads; any other key must keep its default (a value1 in a sine
 # table would be silently ignored otherwise).
 _DISTURBANCE_KEYS = {
@@ -439,6 +454,9 @@ def _check(table: str, key: str, value: Any) -> None:
     values = value if many else (value,)
     if (table, key) in _FIVE and len(values) != 5:
         raise BadInputError(f"{where} needs 5 values (x, y, theta, v, omega), got {len(values)}")
+    lengths = _LENGTHS.get((table, key))
+    if lengths is not None and len(values) not in lengths:
+        raise BadInputError(f"{where} needs 2 values (v, omega), got {len(values)}")
     positive = (table, key) in _POSITIVE
     non_negative = (table, key) in _NON_NEGATIVE
     low, high = _RANGES.get((table, key), (-MAX_MAGNITUDE, MAX_MAGNITUDE))

@@ -75,6 +75,8 @@ class RunSettings:
     # --- the plant: model (1) ---------------------------------------------------------------
     plant_step: float = 0.0001  # s, the RK4 step (ts divided into whole steps)
     lag: float = 0.0  # s, the actuator lag
+    friction: list[float] = field(default_factory=lambda: [0.0, 0.0])  # 1/s on v, omega
+    max_speed: list[float] = field(default_factory=list)  # m/s, rad/s; empty: no top speed
     disturbance: dict[str, Any] = field(default_factory=dict)  # [disturbance]
     sensor: dict[str, Any] = field(default_factory=dict)  # noise_std, quantization, seed
     # --- when commands land: delay, jitter (seeded) or a replay's latencies -----------------

@@ -240,3 +240,64 @@ def test_hil_drives_watchdog_is_on_by_default_and_clear_errors_rearms_after_any_
         assert wait_until(lambda: out.seen("rx 0/s (10) tx"), 10), out.text()[-600:]
     finally:
         bus.shutdown()
+
+
+def test_hil_drives_robot_with_friction_settles_and_stops_when_the_watchdog_disarms(
+    spawn, tmp_path
+):
+    """[plant] friction: under a held torque the robot tends to tau/c instead of speeding up
+    for ever (the drives' overspeed), and once the watchdog disarms the drives it stops."""
+    from hil.bundled import resolve_scenario
+
+    scenario = tmp_path / "friction.toml"
+    scenario.write_text(
+        resolve_scenario("paper_tracking").read_text() + "\n[plant]\nfriction = [2.0, 2.0]\n"
+    )
+    bus_args, channel, can_endpoint = _zenoh_can()
+    drives = spawn.python(
+        [
+            "-m",
+            "hil",
+            "drives",
+            str(scenario),
+            *bus_args,
+            "--duration",
+            "6",
+            "--status-period",
+            "0",
+            "--scheduling",
+            "other",
+        ],
+        text=True,
+    )
+    out = Lines(drives.stdout)
+    assert wait_until(lambda: out.seen("hil drives:"), 60), drives.stderr.read()
+    bus = can.Bus(interface="zenoh_can", channel=channel, endpoint=can_endpoint)
+    try:
+        beats = _Heartbeats(bus, 1)
+
+        def send(msg: codec.Message) -> None:
+            f = codec.encode(msg)
+            bus.send(
+                can.Message(arbitration_id=f.arbitration_id, data=f.data, is_extended_id=False)
+            )
+
+        for node in (0, 1):
+            send(codec.ClearErrors(node, 0))
+            send(codec.SetControllerMode(node, codec.ControlMode.TORQUE_CONTROL, 1))
+            send(codec.SetAxisState(node, codec.AxisState.CLOSED_LOOP_CONTROL))
+        assert wait_until(lambda: beats.since(0, codec.AxisState.CLOSED_LOOP_CONTROL, 0), 10)
+        # 0.05 Nm on both motors is tau1 = G (qR + qL) / (r m) = 2 m/s^2 (default robot)
+        end = time.monotonic() + 1.5
+        while time.monotonic() < end:  # a host's loop, then silence
+            send(codec.SetInputTorque(1, 0.05))
+            send(codec.SetInputTorque(0, 0.05))
+            time.sleep(0.02)
+    finally:
+        bus.shutdown()
+    assert drives.wait(timeout=30) == 0
+    summary = json.loads(out.text(5.0).strip().splitlines()[-1])["summary"]
+    robot = summary["robot"]
+    assert summary["can"]["events"]["watchdog_expired"] == 2  # both drives, after the silence
+    assert 0.5 < robot["max_abs_v"] <= 2.0 / 2.0 + 1e-6  # below tau1 / c
+    assert abs(robot["final"]["v"]) < 0.05 * robot["max_abs_v"]  # stopped by friction

@@ -88,6 +88,8 @@ def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSett
         "initial": dataclasses.asdict(scenario.initial),
         "plant_step": scenario.plant_step,
         "lag": plant.lag,
+        "friction": list(plant.friction),
+        "max_speed": list(plant.max_speed),
         "disturbance": dataclasses.asdict(scenario.disturbance),
         "sensor": {
             "noise_std": list(plant.noise_std),

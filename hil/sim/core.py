@@ -175,7 +175,12 @@ class _Single:
 
 def _plant(scenario: Scenario, seed: Any) -> Plant:
     return Plant(
-        scenario.plant_step, scenario.disturbance, scenario.plant.lag, seed, scenario.limits
+        scenario.plant_step,
+        scenario.disturbance,
+        scenario.plant.lag,
+        seed,
+        scenario.limits,
+        scenario.plant.drag,
     )
 
 
