@@ -484,11 +484,12 @@ def critical_age(
     """D*: the largest command age D >= 0 at which the sampled-data bound still implies (2),
     i.e. V(D) <= phi1 and W(D) <= phi2 (docs/sampled_data_bound.md, section 9).
 
-    D is DESIGN.md's "longest time any command stays in force after its sample" (max over j
-    of a_(j+1) - t_j, a the landing times; assumption A2 of the docs); :func:`certify` at
-    ``ts = D, delay = 0`` evaluates the bound at exactly that age, with the same formulas used
-    here: the push thresholds b1, b2 of ``boundary_layer``, max(|v0|, ...) and max(|w0|, ...),
-    and c2s = :func:`sampled_c2` at V(D). The v part is solved in closed form,
+    D is the command age of docs/design.md, "the longest time any command stays in force after
+    its sample" (max over j of a_(j+1) - t_j, a the landing times; assumption A2 of the docs);
+    :func:`certify` at ``ts = D, delay = 0`` evaluates the bound at exactly that age, with the
+    same formulas used here: the push thresholds b1, b2 of ``boundary_layer``, max(|v0|, ...)
+    and max(|w0|, ...), and c2s = :func:`sampled_c2` at V(D). The v part is solved in closed
+    form,
     D_v = (phi1 - max(|v0|, mu1 + m1 + b1)) / (varpi1 + s1) (stepped down by ulps until
     V(D_v) <= phi1 in floating point); the w part, nondecreasing in D (rho >= 0), is bisected
     on [0, D_v] to ``tol`` (1 ns), keeping the end at which W <= phi2. So certify at the

@@ -1,4 +1,4 @@
-"""Build a controller from a scenario's [controller] table (CONTRACT.md).
+"""Build a controller from a scenario's [controller] table (docs/scenario.md).
 
 ``law`` selects it:
 

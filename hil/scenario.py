@@ -1,4 +1,4 @@
-"""Scenario files (CONTRACT.md, documented key by key in docs/scenario.md).
+"""Scenario files (documented key by key in docs/scenario.md).
 
 One TOML file describes one closed loop. Every table is optional except [reference] and
 [initial]; defaults are the paper's Section 4 set-up. Everything is checked here, on load,

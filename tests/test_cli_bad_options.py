@@ -1,4 +1,4 @@
-"""Bad input at every edge (issue 11, item 5): every command's options.
+"""Bad input at every edge: every command's options.
 
 Each command runs as a real subprocess (``python -m hil ...``) with one bad value: negative,
 zero where a positive number goes, NaN, infinity, out of range, text where a number goes, an

@@ -1,4 +1,4 @@
-"""Long runs in bounded memory and linear time (issue 13), in short: a 20 s run at 1 kHz with
+"""Long runs in bounded memory and linear time, in short: a 20 s run at 1 kHz with
 both paths live keeps the services' memory flat and its logs read in chunks (hil.measure, as
 ``hil run`` and ``hil report`` read them) give every figure an independent in-memory reading
 gives; and the report of a 2 M-sample trace stays within a time and a memory bound (a

@@ -1,4 +1,4 @@
-"""The parts that make long runs linear and bounded (issue 13), each against the plain way it
+"""The parts that make long runs linear and bounded, each against the plain way it
 replaces: the chunked trace reader, the chunked CSV writers, min/max envelopes, the recording's
 telemetry reader and streamed attachments, references and disturbances on arrays of times, the
 batch path with per-robot start times, and the windowed ideal trajectory."""

@@ -66,7 +66,7 @@ def test_report_of_a_real_run_with_both_paths(tmp_path: Path, spawn) -> None:
     assert data["kind"] == "run"
     assert (code == 0) == data["verdict"]["ok"]
     summary = json.loads(summary_before)
-    # the certificate is summary.json's, field for field (CONTRACT.md's certificate object)
+    # the certificate is summary.json's, field for field (docs/run-folder.md's certificate object)
     for key in CONTRACT_KEYS:
         assert data["certificate"][key] == summary["certificate"][key], key
         assert written_by_run["certificate"][key] == summary["certificate"][key], key

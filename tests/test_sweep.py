@@ -19,7 +19,7 @@ from tests.scenario_text import CIRCLE_TABLE1
 from tests.synthetic_folder import write_synthetic_folder
 
 # m1 near its bound phi1 - mu1 = 1.1 and z1(0) = -m1, so alpha_v starts near mu1 + m1: with a
-# long delay the sampled sign law lets v run past phi1 = 1.6 (DESIGN.md's probe).
+# long delay the sampled sign law lets v run past phi1 = 1.6 (docs/design.md, section 2).
 EDGE = """
 [reference]
 kind = "circle"

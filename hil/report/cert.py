@@ -68,7 +68,7 @@ def certificate(sv: ScenarioView, ts: float, delay: float) -> CertificateFigures
     )
 
 
-#: The keys of the contract's certificate object (CONTRACT.md, "Timing figures of a run").
+#: The keys of the contract's certificate object (docs/realtime.md, "Timing figures").
 CONTRACT_KEYS = (
     "path",
     "d_max_s",

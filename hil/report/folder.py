@@ -1,4 +1,4 @@
-"""Reading a run or simulation folder (CONTRACT.md, "Run and simulation folders").
+"""Reading a run or simulation folder (docs/run-folder.md).
 
 A folder is: ``trace.csv`` (one row per control sample), ``summary.json``,
 ``scenario.resolved.toml`` and, for a real run, its recording (``*.mcap``). Anything else is

@@ -1,7 +1,7 @@
 """A run's one result, as the report and ``hil compare`` read it.
 
 Every timing figure, message count and the certificate of a run come from :mod:`hil.measure`
-(CONTRACT.md, "Timing figures of a run"): ``hil run`` writes them into summary.json's
+(docs/realtime.md, "Timing figures"): ``hil run`` writes them into summary.json's
 ``timing``, ``messages`` and ``certificate``, and this module hands exactly those on. The
 per-sample series that plots need (latency per command, wake-up lateness, command age) come
 from the same pipeline run on the folder's hop logs (:func:`hil.measure.folder.measure_logs`).

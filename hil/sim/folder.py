@@ -1,4 +1,4 @@
-"""A simulation folder (CONTRACT.md): scenario.resolved.toml, trace.csv, summary.json."""
+"""A simulation folder (docs/run-folder.md): scenario.resolved.toml, trace.csv, summary.json."""
 
 from __future__ import annotations
 
