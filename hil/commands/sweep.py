@@ -17,6 +17,7 @@ from hil.law.option import LawOpt
 DEFAULT_MAX_DURATION = 20.0
 SWEEP_HELP = (
     "Run the scenario over the \\[sweep] grids on the batch path (one batch per Ts) and write "
+    "sweep.html (the break point first, a heat map over Ts x delay, the results table), "
     "sweep.csv, sweep.json, sweep.md and PNG + CSV figures of tracking error, band width and "
     "constraint overshoot (max |v|/phi1, max |omega|/phi2) against Ts and delay, with the BREAK "
     "POINT: the smallest Ts / delay at which a limit of (2) broke.\n\n"
@@ -100,6 +101,7 @@ def register(app: typer.Typer) -> None:
         outcome, resolved = _run_with_progress(scenario, grid, loop_s, target)
         elapsed = time.perf_counter() - started
         from hil.sweep.outputs import write_outputs
+        from hil.sweep.page import write_sweep_page
         from hil.sweep.runner import certified_break
 
         meta = {
@@ -117,8 +119,9 @@ def register(app: typer.Typer) -> None:
         # A second Ctrl-C while the results are written would leave them half-written.
         with interrupts.shielded():
             doc = write_outputs(target, outcome.rows, grid, meta)
+            page = write_sweep_page(target, doc)
         first = doc["break_point"].get("first")
-        typer.echo(f"sweep: {target / 'sweep.md'}")
+        typer.echo(f"sweep: {page} (also sweep.md, sweep.csv, sweep.json)")
         typer.echo(
             "break point: none, the limits held everywhere"
             if first is None
