@@ -217,3 +217,17 @@ def test_hil_sweep_with_a_float_only_law_says_so_and_finishes(tmp_path: Path) ->
     assert "one robot at a time" in proc.stderr
     rows = (tmp_path / "sw" / "sweep.csv").read_text().splitlines()
     assert len(rows) == 1 + 4
+
+
+def test_the_template_runs_on_arrays_as_it_is(tmp_path: Path) -> None:
+    """hil new-law's law is written for the batch path: no robot-by-robot fallback."""
+    from hil.law.template import write_law
+
+    write_law("array_ready_law", tmp_path)
+    sc = with_law(
+        load_scenario(resolve_scenario("paper_tracking")), "array_ready_law:ArrayReadyLaw"
+    )
+    sc = dataclasses.replace(sc, base_dir=tmp_path).with_overrides(duration=1.0, ts=0.01)
+    controller, reference, _ = build_loop(sc)
+    assert for_batch(controller, sc, reference) is controller
+    assert batch_note(controller, sc, reference) is None
