@@ -98,6 +98,7 @@ def test_a_law_next_to_the_scenario_is_found_from_another_folder(tmp_path: Path)
     assert summary["law"] == "beside_law"
 
 
+@pytest.mark.realtime
 def test_a_law_in_the_working_directory_runs_in_hil_run(tmp_path: Path) -> None:
     """hil run: the controller is another process; it finds the law through the run's
     settings (law_path), not through its own working directory or PYTHONPATH."""
