@@ -79,6 +79,13 @@ def test_new_law_does_not_overwrite_without_force(tmp_path: Path) -> None:
     assert (tmp_path / "kept_law.py").read_text() == "# mine\n"
     assert _hil("new-law", "kept_law", "--force", cwd=tmp_path).returncode == 0
     assert "class KeptLaw" in (tmp_path / "kept_law.py").read_text()
+    # python -m hil puts the working directory on the path: the user's own kept_law.py there
+    # is not "an installed module of that name"
+    again = subprocess.run(
+        [sys.executable, "-m", "hil", "new-law", "kept_law", "--force"],
+        cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert again.returncode == 0, again.stderr
 
 
 def test_a_law_next_to_the_scenario_is_found_from_another_folder(tmp_path: Path) -> None:

@@ -24,8 +24,8 @@ def register(app: typer.Typer) -> None:
         from hil.law.template import check_name, class_name, write_law
         from hil.options import out_dir
 
-        check_name(name)
         out_dir("--dir", folder)
+        check_name(name, folder)
         written = write_law(name, folder, force)
         law = f"{name}:{class_name(name)}"
         for path in written:

@@ -212,15 +212,19 @@ def class_name(name: str) -> str:
     return "".join(part[:1].upper() + part[1:] for part in name.split("_") if part) or "Law"
 
 
-def check_name(name: str) -> str:
-    """A module name the bench can import from the user's folder, or BadInputError."""
+def check_name(name: str, folder: Path = Path(".")) -> str:
+    """A module name the bench can import from ``folder``, or BadInputError."""
     if not _NAME.fullmatch(name) or keyword.iskeyword(name):
         raise BadInputError(
             f"NAME {name!r}: use a Python module name (lower case letters, digits and _, "
             "not starting with a digit), e.g. my_law"
         )
-    # Installed packages are looked up first: a law named like one would never be found.
-    if importlib.util.find_spec(name) is not None:
+    # Installed packages are looked up first: a law named like one would never be found. The
+    # user's own file of that name (``python -m`` puts the working directory on the path) is
+    # not one: overwriting it is --force's question.
+    spec = importlib.util.find_spec(name)
+    own = {folder.resolve(), Path.cwd().resolve()}
+    if spec is not None and (spec.origin is None or Path(spec.origin).resolve().parent not in own):
         raise BadInputError(f"NAME {name!r}: a module of that name is installed; pick another")
     return name
 
