@@ -153,9 +153,8 @@ def _checked_sweep(
         build_loop,
         load_scenario,
     )
-    from hil.sim.landing import jitter_samples_from
+    from hil.sim.replay import is_run_source, jitter_samples_from, latencies_from_run
     from hil.sweep.grid import make_grid
-    from hil.sweep.replay import is_run_source, latencies_from_run
 
     # Options first: a bad one is refused before the plotting and runner modules load.
     ts_grid = options.grid("--ts", ts, TS_MIN, TS_MAX)
@@ -202,7 +201,7 @@ def _with_replay_file(scenario: Any, latencies: Any, target: Path) -> Any:
     replay.json in the sweep folder; unchanged when it replays no run."""
     if latencies is None:
         return scenario
-    from hil.sweep.replay import write_latency_file
+    from hil.sim.replay import write_latency_file
 
     t = scenario.timing
     lat = write_latency_file(latencies, target / "replay.json", scenario.base_dir / t.replay)

@@ -29,10 +29,12 @@ import numpy as np
 
 from hil import interrupts
 from hil.bundled import bundled_dir
+from hil.folder import layout, write_summary
+from hil.folder.jsonio import write_json
 from hil.provenance import dumps_toml
 from hil.scenario import load_scenario
 from hil.sim import SimResult, simulate
-from hil.sim.folder import write_json, write_run_folder
+from hil.sim.folder import write_run_folder
 
 QUICK_FACTOR = 5.0
 JOLT_WINDOW = 0.5
@@ -367,8 +369,8 @@ def _write_run(out: Path, res: SimResult, name: str, traces: bool) -> None:
         write_run_folder(res, run_dir)
     else:
         run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "scenario.resolved.toml").write_text(dumps_toml(res.resolved))
-        write_json(run_dir / "summary.json", res.summary)
+        (run_dir / layout.SCENARIO_RESOLVED).write_text(dumps_toml(res.resolved))
+        write_summary(run_dir, res.summary)
 
 
 def run_paper(

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.folder.trace_csv import write_trace_csv
 from hil.sim.core import SimResult
-from hil.sim.folder import write_trace_csv
 
 MAX_POINTS = 30000
 

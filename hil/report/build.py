@@ -24,14 +24,16 @@ from typing import Any
 import numpy as np
 
 from hil import trace_metrics
+from hil.folder import RunFolder as Folder
+from hil.folder.jsonio import write_json
+from hil.folder.layout import REPORT_HTML, REPORT_JSON, REPORT_MD
+from hil.folder.scenario_view import ScenarioView, view
+from hil.measure.certificate import scenario_certificate
 from hil.report import figures as fg
-from hil.report.cert import failed_conditions, scenario_certificate
-from hil.report.folder import Folder
 from hil.report.headline import headline
 from hil.report.html import render_html
 from hil.report.markdown import render_markdown
 from hil.report.measured import RunResult, run_result
-from hil.report.scenario_view import ScenarioView, view
 from hil.verdict import DEFAULT_THRESHOLDS, PEAK_KEYS, RunFacts, Thresholds, judge
 from protocol.versions import REPORT_SCHEMA_VERSION
 
@@ -75,7 +77,7 @@ def run_certificate(sv: ScenarioView, rr: RunResult) -> dict[str, Any]:
         }
     cert = json.loads(json.dumps(rr.certificate))  # a copy: the report never edits the summary
     cert["source"] = rr.source
-    cert["failed_conditions"] = failed_conditions(sv, cert.get("d_max_s"))
+    cert.setdefault("failed_conditions", [])
     return cert
 
 
@@ -168,7 +170,7 @@ def build_report(
     rr = run_result(folder)  # first: its peak (the hop logs' columns) before the trace's
     tr = folder.trace
     kind = "run" if rr is not None else folder.kind
-    cert = _folder_certificate(sv, rr, kind)
+    cert = _folder_certificate(sv, rr, kind, folder.summary)
     ideal_traj, ideal_note = None, "not requested"
     if ideal is not None:
         ideal_traj = ideal(folder)
@@ -195,11 +197,16 @@ def build_report(
     return Report(data, figs)
 
 
-def _folder_certificate(sv: ScenarioView, rr: RunResult | None, kind: str) -> dict[str, Any]:
-    """The measured certificate of a run with hop logs, else the scenario's."""
+def _folder_certificate(
+    sv: ScenarioView, rr: RunResult | None, kind: str, summary: dict[str, Any]
+) -> dict[str, Any]:
+    """The measured certificate of a run with hop logs, else the simulation's."""
     if rr is not None:
         return run_certificate(sv, rr)
-    cert = scenario_certificate(sv)
+    saved = summary.get("certificate")
+    if isinstance(saved, dict):  # a simulation's, computed once by hil sim
+        return {**saved, "source": saved.get("source") or "summary.json (hil sim)"}
+    cert = scenario_certificate(sv)  # a folder written before simulations saved theirs
     if kind == "run":  # a run folder from before hil.measure: neither hop logs nor figures
         cert["source"] = "scenario (the run has no hop logs and no measured certificate)"
     return cert
@@ -287,8 +294,7 @@ def _timing_block(folder: Folder, rr: RunResult | None, cert: dict[str, Any]) ->
         "messages": rr.messages if rr is not None else None,
         "source": rr.source if rr is not None else None,
         "applied_path": cert.get("path"),
-        "series": "hop logs (hil.measure)" if rr and rr.measurement else None,
-        "hop_logs_agree_with_summary": rr.agree if rr is not None else None,
+        "series": "series.npz (hil.measure)" if rr is not None else None,
         "faults": folder.summary.get("faults"),
         "scheduling": folder.summary.get("scheduling"),
         "impair": folder.summary.get("impair"),
@@ -477,22 +483,8 @@ def write_report(report: Report, out: Path) -> dict[str, Path]:
         files.append(entry)
     data = dict(report.data)
     data["figures"] = files
-    (out / "report.json").write_text(json.dumps(_jsonable(data), indent=2, allow_nan=False))
-    (out / "report.md").write_text(render_markdown(data, files))
-    (out / "report.html").write_text(render_html(data, report.figures))
-    return {"json": out / "report.json", "md": out / "report.md", "html": out / "report.html"}
-
-
-def _jsonable(obj: Any) -> Any:
-    """Non-finite floats become strings so report.json stays strict JSON."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, float | np.floating):
-        return float(obj) if math.isfinite(obj) else repr(float(obj))
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
+    paths = {"json": out / REPORT_JSON, "md": out / REPORT_MD, "html": out / REPORT_HTML}
+    write_json(paths["json"], data)
+    paths["md"].write_text(render_markdown(data, files))
+    paths["html"].write_text(render_html(data, report.figures))
+    return paths

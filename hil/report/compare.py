@@ -4,12 +4,11 @@ latency CDFs of both runs, and a table of summary, sampling-effect and timing fi
 their differences (B - A).
 
 A run's timing figures, message counts and certificate are its measurement
-(:func:`hil.measure.folder.measure_folder`, the one pipeline summary.json and the report also
-read), never figures of compare's own."""
+as the folder holds it (:func:`hil.measure.folder.measured`: summary.json and series.npz,
+measured once when the run ended), never figures of compare's own."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -17,14 +16,14 @@ from typing import Any
 import numpy as np
 
 from hil import trace_metrics
+from hil.folder import RunFolder as Folder
+from hil.folder.jsonio import write_json
+from hil.folder.scenario_view import view
 from hil.measure.figures import Measurement
-from hil.measure.folder import measure_folder
+from hil.measure.folder import measured
 from hil.report import figures as fg
-from hil.report.build import _jsonable
-from hil.report.folder import Folder
 from hil.report.html import CSS, esc, figure, table
 from hil.report.markdown import _md_table
-from hil.report.scenario_view import view
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
 PREFIX = "compare_"
@@ -144,7 +143,7 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
             [(la, pa), (lb + " (on A's times)", pb)],
         )
     )
-    ma, mb = measure_folder(fa.path), measure_folder(fb.path)
+    ma, mb = measured(fa), measured(fb)
     latency = {}
     for label, m in ((label_a, ma), (label_b, mb)):
         for path, values in (m.latency_us() if m is not None else {}).items():
@@ -166,7 +165,7 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         "rows": [{"figure": r[0], "a": r[1], "b": r[2], "b_minus_a": r[3]} for r in rows],
         "figures": files,
     }
-    (out / "compare.json").write_text(json.dumps(_jsonable(data), indent=2, allow_nan=False))
+    write_json(out / "compare.json", data)
     header = ["figure", la, lb, "B - A"]
     md = [f"# Comparison: {fa.path} vs {fb.path}", "", _md_table(header, rows), ""]
     for f in files:

@@ -383,11 +383,6 @@ def _messages(s: Section, data: dict[str, Any]) -> None:
 def _timing_summary(s: Section, data: dict[str, Any]) -> None:
     timing = data["timing"]["summary"] or {}
     s.p(f"From {data['timing'].get('source')}; definitions in docs/realtime.md.")
-    if data["timing"].get("hop_logs_agree_with_summary") is False:
-        s.p(
-            "Warning: the hop logs measured again do not give summary.json's figures (written "
-            "by another version?); the report shows summary.json's."
-        )
     s.table(
         ["figure", *PCT_KEYS],
         [[k, *(f.get(q) for q in PCT_KEYS)] for k, f in timing.items() if isinstance(f, dict)],

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hil.report.folder import Folder
+from hil.folder import RunFolder as Folder
 
 
 def memory_source(folder: Folder):

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import datetime as dt
 import json
 import os
 import signal
@@ -28,11 +27,12 @@ from typing import Any
 
 from hil import interrupts
 from hil.errors import BadInputError
+from hil.folder import layout, new_run_dir
 from hil.measure.logs import HOST_FILE
 from hil.recording import RecordingWriter, to_jsonable
 from hil.run.host_load import HostSampler
 from hil.supervisor import Supervisor
-from protocol.settings import RunSettings
+from protocol.settings import RunSettings, period_s
 from runtime.signals import stop_on_signals
 
 
@@ -40,15 +40,6 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def new_run_dir(base: Path = Path("runs")) -> Path:
-    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    for i in range(1000):
-        p = base / (f"run-{stamp}" + (f"-{i}" if i else ""))
-        if not p.exists():
-            return p
-    raise BadInputError("cannot find a free run folder name")
 
 
 @dataclass
@@ -204,7 +195,7 @@ def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     if given is None:
         scenario = loads_scenario(PAPER_TRACKING_TOML, run_dir)
-        return scenario, run_dir / "scenario.toml", False, DEFAULT_DURATION
+        return scenario, run_dir / layout.SCENARIO, False, DEFAULT_DURATION
     scenario = load_scenario(given)
     return scenario, given.resolve(), True, scenario.run.duration
 
@@ -258,7 +249,7 @@ def _run_settings(
         # The scenario's Ts bit for bit when no rate overrides it (1 / (1 / ts) may differ in
         # the last bit, and lockstep must see the simulator's sample times exactly).
         ts=ts_s,
-        sensor_ts=ts_s if sensor_rate == rate else 1.0 / sensor_rate,
+        sensor_ts=ts_s if sensor_rate == rate else period_s(sensor_rate),
         trigger=opts.trigger or rt.trigger,
         lockstep=opts.lockstep,
         # Lockstep is about values, not timing; and a SCHED_FIFO main thread there was seen to
@@ -295,7 +286,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     duration = opts.duration if opts.duration is not None else default_duration
     scenario = scenario.with_overrides(
         duration=duration,
-        ts=scenario.timing.ts if not rate_name else 1.0 / rate,
+        ts=scenario.timing.ts if not rate_name else period_s(rate),
         names=(
             "--duration" if opts.duration is not None else "[run] duration",
             f"1 / {rate_name}" if rate_name else "[timing] ts",
@@ -306,7 +297,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     run_dir.mkdir(parents=True, exist_ok=True)
     if not given:
         scenario_path.write_text(PAPER_TRACKING_TOML)
-    settings.save(run_dir / "run_settings.json")
+    settings.save(run_dir / layout.RUN_SETTINGS)
     run_facts = {
         "command": "hil run",
         "cmd_path": settings.cmd_path,
@@ -317,7 +308,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         "secure": opts.secure,
     }
     resolved = resolved_dict(scenario, controller, context, run_facts)
-    (run_dir / "scenario.resolved.toml").write_text(dumps_toml(resolved))
+    (run_dir / layout.SCENARIO_RESOLVED).write_text(dumps_toml(resolved))
     info = {
         "reference": reference,
         "context": context,
@@ -361,7 +352,7 @@ def _start_services(
     """The plant and the controller from the run's settings file; their PIDs in
     processes.json, for whoever needs to signal one (tests inject stalls), and watched by the
     host sampler."""
-    settings_path = str(run_dir / "run_settings.json")
+    settings_path = str(run_dir / layout.RUN_SETTINGS)
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
         sup.start_python(
             name,
@@ -370,7 +361,7 @@ def _start_services(
             stdout=logs.open(name),
             stderr=STDOUT,
         )
-    (run_dir / "processes.json").write_text(json.dumps({c.name: c.pid for c in sup.children}))
+    (run_dir / layout.PROCESSES).write_text(json.dumps({c.name: c.pid for c in sup.children}))
     for c in sup.children:
         if c.name in ("plant", "controller"):
             host.watch(c.name, c.pid)
@@ -428,7 +419,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     interrupted = False
     metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
-    writer = RecordingWriter(run_dir / "recording.mcap", metadata=metadata)
+    writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer)
     live = _Live()
     logs = _Logs(run_dir)
@@ -458,7 +449,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         "error": error,
         "wall_time_s": time.monotonic() - t_start,
         "exit_codes": codes,
-        "recording": "recording.mcap",
+        "recording": layout.RECORDING,
         "recorded_messages": writer.count,
         "secure": opts.secure,
     }
@@ -492,7 +483,7 @@ def _write_results(
     return summary
 
 
-ATTACHED = ("controller.hoplog", "plant.hoplog", HOST_FILE, "scenario.resolved.toml")
+ATTACHED = (layout.CONTROLLER_LOG, layout.PLANT_LOG, HOST_FILE, layout.SCENARIO_RESOLVED)
 
 
 def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:

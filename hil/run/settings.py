@@ -48,7 +48,7 @@ def robot_id_of(scenario: Any) -> str:
 def replay_latencies(scenario: Any) -> list[float] | None:
     """The latencies of ``[timing] replay`` (read once, here: a bad file fails before any
     service starts), or None for a seeded jitter."""
-    from hil.sim.landing import jitter_samples_from
+    from hil.sim.replay import jitter_samples_from
 
     t = scenario.timing
     if t.jitter_kind != "replay":

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from hil import trace_metrics
-from hil.report.cert import certificate
-from hil.report.scenario_view import view
+from hil.folder.scenario_view import view
+from hil.measure.certificate import certificate
 from hil.scenario import Scenario, resolved_dict
 from hil.sweep.grid import SweepGrid, SweepPoint
 
