@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from controller_service.certificate import certify, critical_age
 from hil.folder.records import Certificate, Summary
 from hil.measure import age as agemod
 from hil.measure.can_match import UNMATCHED, match_node
@@ -748,7 +749,6 @@ def _certificate(
     law D, D* None), with every stall counted and owned. ``held`` is True only if the bound
     holds for every matching of CAN frames the logs allow (at the upper bound of D), False if
     it fails even at the lower one, else None (unknown)."""
-    from controller_service.certificate import certify, critical_age
 
     empty = agemod.segments(np.zeros(0, np.int64), np.zeros(0, np.int64), r.w1)
     seg: agemod.AgeSegments = series.get(f"command_age_{r.applied}") or empty

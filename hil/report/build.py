@@ -28,13 +28,17 @@ from hil.folder import RunFolder as Folder
 from hil.folder.jsonio import write_json
 from hil.folder.layout import REPORT_HTML, REPORT_JSON, REPORT_MD
 from hil.folder.scenario_view import ScenarioView, view
+from hil.measure.age import envelope
 from hil.measure.certificate import scenario_certificate
 from hil.report import figures as fg
 from hil.report.headline import headline
 from hil.report.html import render_html
+from hil.report.ideal_sim import WINDOW_S
 from hil.report.markdown import render_markdown
 from hil.report.measured import RunResult, run_result
+from hil.report.telemetry import SLIDING, folder_telemetry
 from hil.verdict import DEFAULT_THRESHOLDS, PEAK_KEYS, RunFacts, Thresholds, judge
+from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
 from protocol.versions import REPORT_SCHEMA_VERSION
 
 FIGURE_PREFIX = "report_"
@@ -111,7 +115,6 @@ def verdict_block(
 def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.ndarray | None]:
     """The motor torques (N·m) the wheel mapping of [robot] makes of the applied tau1, tau2
     (protocol.can.wheel_mapping.motor_torques), the drives' states and the rejection counts."""
-    from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
 
     robot = folder.scenario.get("robot") or {}
     out: dict[str, Any] = {"geometry": None, "note": ""}
@@ -219,7 +222,6 @@ def _recorded_sliding(
     lacks them, else None."""
     if {"v_tilde", "w_tilde"} <= set(tr) or not folder.recordings:
         return None
-    from hil.report.telemetry import SLIDING, folder_telemetry
 
     tel = folder_telemetry(folder)
     rec = {k: tel[k] for k in SLIDING} if all(k in tel for k in SLIDING) else {}
@@ -307,7 +309,6 @@ def _ideal_note(ideal_traj: dict[str, np.ndarray] | None, tr: dict[str, np.ndarr
     starts = ideal_traj.get("window_start_t")
     if starts is None:
         return f"simulated at Ts/10 from the trace's first state at t = {tr['t'][0]:.6g} s"
-    from hil.report.ideal_sim import WINDOW_S
 
     return (
         f"windowed: simulated at Ts/10 in {len(starts)} windows of {WINDOW_S:g} s, each "
@@ -423,7 +424,6 @@ def _tracking_error_figure(
 def _run_figures(m: Any, rr: RunResult, cert: dict[str, Any]) -> list[fg.Figure]:
     """Latency histograms/CDFs, wake-up lateness and command age over time, all from the
     measurement's per-sample series."""
-    from hil.measure.age import envelope
 
     figs = []
     applied = cert.get("path")

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from hil.folder import RunFolder as Folder
+from hil.report.ideal_sim import simulate_ideal
+from hil.report.telemetry import folder_telemetry
 
 
 def memory_source(folder: Folder):
@@ -23,7 +25,6 @@ def memory_source(folder: Folder):
             return {f: np.asarray(tr[f], dtype=float)[rows] for f in fields}
         if "sample_ns" not in tr or not folder.recordings:
             return {}
-        from hil.report.telemetry import folder_telemetry
 
         tel = folder_telemetry(folder)
         if not all(f in tel for f in fields):
@@ -40,8 +41,4 @@ def memory_source(folder: Folder):
 
 
 def ideal_from_simulator(folder: Folder) -> dict[str, np.ndarray] | None:
-    try:
-        from hil.report.ideal_sim import simulate_ideal
-    except ImportError:
-        return None
     return simulate_ideal(folder.scenario, folder.path, folder.trace, memory_source(folder))

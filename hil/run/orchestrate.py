@@ -25,15 +25,38 @@ from pathlib import Path
 from subprocess import STDOUT
 from typing import Any
 
-from hil import interrupts
+import can
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from hil import interrupts, options
+from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
 from hil.folder import layout, new_run_dir
 from hil.measure.logs import HOST_FILE
+from hil.provenance import dumps_toml
 from hil.recording import RecordingWriter, to_jsonable
+from hil.run import impair
+from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
 from hil.run.host_load import HostSampler
+from hil.run.results import analyze, plot
+from hil.run.secure import RunIdentities
+from hil.run.settings import check_can_interface, effective_can_table, scenario_settings
+from hil.scenario import (
+    DURATION_MAX,
+    RATE_MAX,
+    build_loop,
+    load_scenario,
+    loads_scenario,
+    resolved_dict,
+)
 from hil.supervisor import Supervisor
-from protocol.settings import RunSettings, period_s
+from protocol.can.codec import decode as can_decode
+from protocol.can.drive_link import from_message
+from protocol.messages import DecodeError, Status, decode
+from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
 from runtime.signals import stop_on_signals
+from runtime.startgate import announce_start
+from runtime.zsession import open_session
 
 
 def free_port() -> int:
@@ -82,8 +105,6 @@ class Recorder:
 
     def _write_one(self, topic: str, t: int, payload: Any) -> None:
 
-        from protocol.messages import DecodeError, Status, decode
-
         if topic.startswith("can/"):
             data: dict[str, Any] = {
                 "arbitration_id": payload.arbitration_id,
@@ -92,9 +113,6 @@ class Recorder:
                 "is_remote_frame": bool(payload.is_remote_frame),
             }
             try:
-                from protocol.can.codec import decode as can_decode
-                from protocol.can.drive_link import from_message
-
                 m = can_decode(from_message(payload))
                 data["message"] = type(m).__name__
                 data["fields"] = to_jsonable(m) if hasattr(m, "__dataclass_fields__") else str(m)
@@ -145,8 +163,6 @@ class Recorder:
 def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any] | None:
     """A python-can Notifier on the run's bus feeding the recorder (None if no CAN)."""
     try:
-        import can
-
         bus = settings.open_can_bus()
         if bus is None:
             return None
@@ -164,9 +180,6 @@ SPIN_US_MAX = 1e6
 def check_options(opts: RunOptions) -> None:
     """The command-line options of ``hil run`` (and of the services run alone), each named in
     a BadInputError; the scenario's own keys are checked when it is loaded."""
-    from hil import options
-    from hil.scenario import DURATION_MAX, RATE_MAX
-    from protocol.settings import CMD_PATHS, TRIGGERS
 
     options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
     if opts.trigger is not None:
@@ -188,9 +201,6 @@ def check_options(opts: RunOptions) -> None:
 def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
     """(scenario, its path, whether the user gave one, its default duration): the user's
     scenario (a file or a bundled name) or the paper's tracking circle."""
-    from hil.bundled import resolve_scenario
-    from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
-    from hil.scenario import load_scenario, loads_scenario
 
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     if given is None:
@@ -202,7 +212,6 @@ def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float
 
 def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
     """The control rate (Hz) and the name of what set it ("" for the scenario's own Ts)."""
-    from hil.scenario import RATE_MAX
 
     rt = scenario.realtime
     if opts.rate is not None:
@@ -220,7 +229,6 @@ def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
 
 def _run_can_table(opts: RunOptions, scenario: Any) -> dict[str, Any]:
     """The run's [can] table with the command line's interface and channel, checked."""
-    from hil.run.settings import check_can_interface, effective_can_table
 
     can_table = effective_can_table(scenario, opts.can_interface)
     if opts.can_channel:
@@ -236,7 +244,6 @@ def _run_settings(
     opts: RunOptions, scenario: Any, context: Any, scenario_path: Path, run_dir: Path, rate: float
 ) -> RunSettings:
     """The settings both services read (:class:`protocol.settings.RunSettings`)."""
-    from hil.run.settings import scenario_settings
 
     rt = scenario.realtime
     ts_s = scenario.timing.ts  # already 1 / rate when a rate overrode it (prepare)
@@ -273,9 +280,6 @@ def _run_settings(
 
 def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     """Resolve the scenario and the run's settings; write the folder's first files."""
-    from hil.provenance import dumps_toml
-    from hil.run.defaults import PAPER_TRACKING_TOML
-    from hil.scenario import build_loop, resolved_dict
 
     check_options(opts)  # every option before the scenario: no folder, no process yet
     if opts.secure and opts.cmd_path == "can":
@@ -333,7 +337,6 @@ def _open_recorder_session(
 ) -> Any:
     """The recorder's Zenoh session: on the run's endpoint, or a router's client (started
     here) in router mode."""
-    from runtime.zsession import open_session
 
     if settings.zenoh_mode == "router":
         router_cmd = [sys.executable, "-m", "hil.run.router", settings.zenoh_endpoint]
@@ -377,7 +380,6 @@ def _start_and_follow(
 ) -> str | None:
     """Wait for both services to be ready, announce the epoch, follow the run to its end;
     returns an error, or None."""
-    from runtime.startgate import announce_start
 
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
     # that dies is noticed at once anyway.
@@ -408,8 +410,6 @@ def _close_live(live: _Live, recorder: Recorder, run_dir: Path) -> None:
 
 def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
-    from hil.run import impair
-    from hil.run.secure import RunIdentities
 
     # [impair]: the run's own network namespace (this command is executed again inside it).
     impairment = impair.enter(opts, check_options)
@@ -464,7 +464,6 @@ def _write_results(
 ) -> dict[str, Any]:
     """trace.csv, summary.json and trajectory.png from the hop logs; a second Ctrl-C while
     the folder is written is recorded, not raised (hil.interrupts)."""
-    from hil.run.results import analyze, plot
 
     with interrupts.shielded():
         summary = analyze(
@@ -559,7 +558,6 @@ def _progress(
         while not stop and plant.alive() and time.monotonic() < limit:
             time.sleep(0.05)
         return
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     with Progress(
         TextColumn("hil run"),

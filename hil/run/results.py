@@ -22,6 +22,7 @@ from hil.folder.trace_csv import read_trace
 from hil.measure.figures import Measurement
 from hil.measure.folder import measure_and_save
 from hil.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
+from hil.report.figures import envelope_indices, plt
 from hil.run.settings import rate_hz
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from hil.verdict import RunFacts, Verdict, constraints_from_peaks, judge
@@ -188,15 +189,6 @@ def run_verdict(summary: Summary, scenario: Any) -> Verdict:
 def plot(run_dir: Path) -> Path | None:
     """trajectory.png: path vs reference, position error and torques over time (long runs
     drawn from per-bin min/max envelopes, :func:`hil.report.figures.envelope_indices`)."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        from hil.report.figures import envelope_indices
-    except ImportError:
-        return None
     try:
         data = read_trace(run_dir / layout.TRACE)
     except BadInputError:
