@@ -84,14 +84,11 @@ CONTRACT_KEYS = (
 )
 
 
-def scenario_certificate(sv: ScenarioView) -> Certificate:
-    """A simulation's certificate in the contract's shape: D is the scenario's longest possible
-    command age, Ts + the worst delay (delay plus the jitter's bound), an upper bound of the
-    simulated ages; D* and the bounds as hil.measure computes them for a run."""
-    d = sv.ts + sv.worst_delay
-    out: Certificate = {
-        "path": None,
-        "d_max_s": d,
+def no_certificate(path: str | None, d_max: float | None, source: str) -> Certificate:
+    """A certificate object with D alone (a law without the bound, or before it is known)."""
+    return {
+        "path": path,
+        "d_max_s": d_max,
         "d_star_s": None,
         "margin_s": None,
         "held": None,
@@ -99,9 +96,19 @@ def scenario_certificate(sv: ScenarioView) -> Certificate:
         "omega_bound": None,
         "stall_threshold_s": None,
         "stalls": [],
-        "source": "scenario: D = Ts + worst delay (an upper bound of the simulated ages)",
+        "source": source,
         "failed_conditions": [],
     }
+
+
+def scenario_certificate(sv: ScenarioView) -> Certificate:
+    """A simulation's certificate in the contract's shape: D is the scenario's longest possible
+    command age, Ts + the worst delay (delay plus the jitter's bound), an upper bound of the
+    simulated ages; D* and the bounds as hil.measure computes them for a run."""
+    d = sv.ts + sv.worst_delay
+    out = no_certificate(
+        None, d, "scenario: D = Ts + worst delay (an upper bound of the simulated ages)"
+    )
     if sv.law not in UNIFIED_LAWS:
         out["source"] = "none (not a unified law)"
         return out

@@ -29,7 +29,7 @@ from hil.folder.jsonio import write_json
 from hil.folder.layout import REPORT_HTML, REPORT_JSON, REPORT_MD
 from hil.folder.scenario_view import ScenarioView, view
 from hil.measure.age import envelope
-from hil.measure.certificate import scenario_certificate
+from hil.measure.certificate import no_certificate, scenario_certificate
 from hil.report import figures as fg
 from hil.report.headline import headline
 from hil.report.html import render_html
@@ -66,19 +66,9 @@ def run_certificate(sv: ScenarioView, rr: RunResult) -> dict[str, Any]:
         path = rr.applied_path
         age = rr.timing.get(f"command_age_{path}") if path else None
         d = age.get("max_us") / 1e6 if isinstance(age, dict) and age.get("max_us") else None
-        return {
-            "path": path,
-            "d_max_s": d,
-            "d_star_s": None,
-            "margin_s": None,
-            "held": None,
-            "v_bound": None,
-            "omega_bound": None,
-            "stall_threshold_s": None,
-            "stalls": [],
-            "source": f"none (law {sv.law} has no certificate); D from {rr.source}",
-            "failed_conditions": [],
-        }
+        return dict(
+            no_certificate(path, d, f"none (law {sv.law} has no certificate); D from {rr.source}")
+        )
     cert = json.loads(json.dumps(rr.certificate))  # a copy: the report never edits the summary
     cert["source"] = rr.source
     cert.setdefault("failed_conditions", [])
