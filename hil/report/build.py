@@ -172,7 +172,7 @@ def build_report(
     metrics = _metrics(folder, sv, cert, (ideal_traj, ideal_note), sliding)
     verdict = verdict_block(metrics["constraints"], folder.summary, cert, rr, thresholds)
     drives, q = drives_block(folder, sv)
-    figs, sections = _figures(folder, sv, cert, rr, ideal_traj, sliding, q, drives)
+    figs, sections = _figures(folder, sv, cert, rr, (ideal_traj, sliding), q, drives, metrics)
     data = {
         "schema_version": REPORT_SCHEMA_VERSION,
         "folder": str(folder.path),
@@ -313,14 +313,17 @@ def _figures(
     sv: ScenarioView,
     cert: dict[str, Any],
     rr: RunResult | None,
-    ideal_traj: dict[str, np.ndarray] | None,
-    sliding: dict[str, tuple[np.ndarray, np.ndarray]] | None,
+    extra: tuple[dict[str, np.ndarray] | None, dict[str, tuple[np.ndarray, np.ndarray]] | None],
     q: np.ndarray | None,
     drives: dict[str, Any],
+    metrics: dict[str, Any],
 ) -> tuple[list[fg.Figure], list[str]]:
-    """Every figure, and the report's sections in order (see hil.report.content)."""
+    """Every figure, and the report's sections in order (see hil.report.content); ``extra``:
+    the ideal trajectory and the recorded sliding variables, where there are."""
     tr = folder.trace
+    ideal_traj, sliding = extra
     figs = _state_figures(tr, sv, cert, ideal_traj)
+    figs += _torque_figures(tr, sv, metrics)
     figs.append(_tracking_error_figure(tr, ideal_traj))
     panels = []
     for name, eps, unit in (("v_tilde", sv.eps1, "v~ [m/s]"), ("w_tilde", sv.eps2, "w~ [rad/s]")):
@@ -333,7 +336,7 @@ def _figures(
         figs.append(fg.stacked("bands", f"Sliding variables v~ and w~ of (10) ({src})", panels))
     if q is not None:
         figs.append(
-            fg.signal_with_limits(
+            fg.switching_band(
                 "motor_torques",
                 "Motor torques sent to the drives (wheel mapping of [robot])",
                 "q [N·m]",
@@ -358,7 +361,7 @@ def _state_figures(
     cert: dict[str, Any],
     ideal_traj: dict[str, np.ndarray] | None,
 ) -> list[fg.Figure]:
-    """The trajectory, the velocities against (2) and the torques against their bounds."""
+    """The trajectory and the velocities against (2) and their bounds."""
     t = tr["t"]
     lim = sv.limits
     traj = [("reference", tr["xd"], tr["yd"]), ("robot", tr["x"], tr["y"])]
@@ -376,23 +379,27 @@ def _state_figures(
         fg.signal_with_limits(
             "omega", "Angular velocity ω", "ω [rad/s]", t, [("omega", tr["omega"])], lim.phi2, wb
         ),
-        fg.signal_with_limits(
-            "tau1",
-            "τ1 of model (1) (normalized)",
-            "τ1 [m/s²]",
-            t,
-            [("tau1", tr["tau1"])],
-            lim.varpi1,
-        ),
-        fg.signal_with_limits(
-            "tau2",
-            "τ2 of model (1) (normalized)",
-            "τ2 [rad/s²]",
-            t,
-            [("tau2", tr["tau2"])],
-            lim.varpi2,
-        ),
     ]
+
+
+def _torque_figures(
+    tr: dict[str, np.ndarray], sv: ScenarioView, metrics: dict[str, Any]
+) -> list[fg.Figure]:
+    """τ1, τ2 as switching bands: envelope and duty, with how often they switch and how much
+    of the time they sit at the limit (the metrics' own figures)."""
+    out = []
+    for name, sym, unit, limit in (
+        ("tau1", "τ1", "τ1 [m/s²]", sv.limits.varpi1),
+        ("tau2", "τ2", "τ2 [rad/s²]", sv.limits.varpi2),
+    ):
+        rate = metrics["switching_rate"].get(name)
+        share = metrics["saturation_share"].get(name)
+        note = ""
+        if rate is not None and share is not None:
+            note = f"It switches {rate:.0f} times a second, at its limit {share:.1%} of the time."
+        title = f"{sym} of model (1) (normalized)"
+        out.append(fg.switching_band(name, title, unit, tr["t"], [(name, tr[name])], limit, note))
+    return out
 
 
 def _tracking_error_figure(

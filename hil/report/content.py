@@ -133,8 +133,8 @@ def _verdict(s: Section, data: dict[str, Any]) -> None:
     s.table(
         ["item", "state"],
         [
-            ["limits (2)", v["limits"]],
-            ["certificate", v["certificate"]],
+            ["limits (2): |v| ≤ φ1, |ω| ≤ φ2, |τ1| ≤ ϖ1, |τ2| ≤ ϖ2", v["limits"]],
+            ["certificate: D ≤ D*, so the paper's bound guarantees (2)", v["certificate"]],
             ["deadline misses (missed slots)", _na(v["deadline_misses"])],
             ["samples without a command", _na(v["samples_without_command"])],
             ["lost messages (State and the applied path)", _na(v["lost_messages"])],
@@ -281,13 +281,30 @@ def _drives(s: Section, data: dict[str, Any]) -> None:
 
 def _tracking_error(s: Section, data: dict[str, Any]) -> None:
     m = data["metrics"]
-    rows = [[k, v] for k, v in m["tracking"].items()]
+    s.p(
+        "(4): the position and heading error of the robot against the reference, seen from "
+        "the robot; positions in m, headings in rad."
+    )
+    rows = [[k, v, _unit_of(k)] for k, v in m["tracking"].items()]
     dev = m.get("deviation_from_ideal")
     if dev:
-        rows += [[f"deviation from ideal, {k}", v] for k, v in dev.items()]
-    rows.append(["deviation from ideal", m.get("deviation_from_ideal_note", "")])
-    s.table(["figure", "value"], rows)
+        rows += [[f"deviation from ideal, {k}", v, "m"] for k, v in dev.items()]
+    rows.append(["deviation from ideal", m.get("deviation_from_ideal_note", ""), ""])
+    s.table(["figure", "value", "unit"], rows)
     s.figure("tracking_error")
+
+
+def _unit_of(key: str) -> str:
+    """The unit of a figure from its name (every table says its units)."""
+    if "heading" in key:
+        return "rad"
+    if "position" in key or "deviation" in key:
+        return "m"
+    if key.endswith("_s") or key in ("window_s",):
+        return "s"
+    if key.endswith(("_rate", "_share")):
+        return "fraction"
+    return "count"
 
 
 def _bands(s: Section, data: dict[str, Any]) -> None:
@@ -331,8 +348,8 @@ def _lateness(s: Section, data: dict[str, Any]) -> None:
     # Missed slots: a stall of N periods misses N slots (late wake-ups + slots never run).
     keys = ("ticks", "slots", "deadline_misses", "late_ticks", "skipped_slots")
     keys += ("deadline_miss_rate", "plant_slots", "plant_deadline_misses", "plant_skipped_slots")
-    counts = [[k, _na(timing.get(k))] for k in keys] if timing else []
-    s.table(["count", "value"], counts)
+    counts = [[k, _na(timing.get(k)), _unit_of(k)] for k in keys] if timing else []
+    s.table(["figure", "value", "unit"], counts)
     sched = data["timing"].get("scheduling") or {}
     for role, got in sched.items():
         if isinstance(got, dict):
@@ -388,8 +405,8 @@ def _timing_summary(s: Section, data: dict[str, Any]) -> None:
         [[k, *(f.get(q) for q in PCT_KEYS)] for k, f in timing.items() if isinstance(f, dict)],
     )
     s.table(
-        ["figure", "value"],
-        [[k, f] for k, f in timing.items() if not isinstance(f, dict)],
+        ["figure", "value", "unit"],
+        [[k, f, _unit_of(k)] for k, f in timing.items() if not isinstance(f, dict | str)],
     )
 
 
