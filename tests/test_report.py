@@ -486,6 +486,18 @@ def test_compare_two_folders(tmp_path: Path, run_folder: Path, stall_folder: Pat
     assert rows["certificate.d_max_s"]["b"] == mb.certificate["d_max_s"]
     assert rows["certificate.held"]["b"] == 0.0
     assert rows["timing.samples_without_command"]["b"] == mb.timing["samples_without_command"]
+    # the page answers first: verdicts, D against D*, the limits, then what moved most
+    head = json.loads((out2 / "compare.json").read_text())["headline"]
+    assert head["lines"][0].startswith("Verdict: A ")
+    d_a, d_b = ma.certificate["d_max_s"] * 1e3, mb.certificate["d_max_s"] * 1e3
+    assert f"A D {d_a:.3f} ms of D*" in head["lines"][1] and f"B D {d_b:.3f} ms" in head["lines"][1]
+    assert head["lines"][2].startswith("Limits of (2)")
+    moved = {r[0]: r for r in head["most_moved"]}
+    assert moved["certificate.d_max_s"][4] == "s"  # the stall moved D most, with its unit
+    changes = [abs(r[3]) / (abs(r[1]) or 1.0) for r in head["most_moved"]]
+    assert changes == sorted(changes, reverse=True)
+    text = (out2 / "compare.html").read_text()
+    assert text.index("Verdict: A") < text.index("Every figure")
     assert (
         rows["timing.sample_to_apply_zenoh.p99_us"]["a"]
         == (ma.timing["sample_to_apply_zenoh"]["p99_us"])
@@ -493,3 +505,35 @@ def test_compare_two_folders(tmp_path: Path, run_folder: Path, stall_folder: Pat
     assert rows["messages.torque_zenoh.lost"]["b"] == 30
     assert (out2 / "compare_latency.png").is_file()
     assert main(["compare", str(run_folder), str(tmp_path / "none"), "--out", str(out)]) == 2
+
+
+def test_a_switching_torque_is_drawn_as_its_envelope_and_duty() -> None:
+    """A torque that switches between +limit and -limit with an 80 % duty: each bin (10
+    samples) has a band of [-1, 1] and a mean of 0.6, which a solid block of lines would hide."""
+    from hil.report import figures as fg
+
+    t = np.arange(4000) * 1e-3
+    tau = np.where(np.arange(4000) % 5 == 0, -1.0, 1.0)
+    f = fg.switching_band("tau1", "τ1", "τ1 [m/s²]", t, [("tau1", tau)], 1.0)
+    assert np.all(f.columns["tau1_min"] == -1.0) and np.all(f.columns["tau1_max"] == 1.0)
+    assert np.allclose(f.columns["tau1_mean"], 0.6)
+    assert np.array_equal(f.columns["tau1"], tau)  # the samples stay in the data file
+
+
+def test_a_far_latency_outlier_is_left_off_the_axis_and_listed() -> None:
+    from hil.report import figures as fg
+
+    values = np.concatenate([np.full(2000, 1000.0) + np.arange(2000) % 50, [170_000.0]])
+    f = fg.histogram_and_cdf("latency", "latency", {"zenoh": values})
+    assert "1 samples beyond the axis" in f.caption and "largest 170000 µs" in f.caption
+    assert f.columns["zenoh_sorted_us"].max() == 170_000.0  # left off the drawing, not the data
+    plain = fg.histogram_and_cdf("latency", "latency", {"zenoh": values[:-1]})
+    assert "beyond the axis" not in plain.caption
+
+
+def test_the_report_page_has_contents_and_folds_long_tables(run_folder: Path) -> None:
+    assert main(["report", str(run_folder), "--no-ideal"]) == 0
+    text = (run_folder / "report.html").read_text()
+    assert '<nav class="toc">' in text and 'href="#certificate"' in text
+    assert "<details><summary>" in text  # every timing figure: folded below the answers
+    assert text.index('<nav class="toc">') < text.index('id="verdict"')
