@@ -537,3 +537,21 @@ def test_the_report_page_has_contents_and_folds_long_tables(run_folder: Path) ->
     assert '<nav class="toc">' in text and 'href="#certificate"' in text
     assert "<details><summary>" in text  # every timing figure: folded below the answers
     assert text.index('<nav class="toc">') < text.index('id="verdict"')
+
+
+def test_a_report_needs_no_user_law_after_the_run(tmp_path: Path) -> None:
+    """Everything a report shows was measured or simulated already: a folder whose user law
+    cannot be imported any more is reported in full, the ideal trajectory left out with why."""
+    folder = write_synthetic_folder(tmp_path / "f", duration=0.5)
+    toml = folder / "scenario.resolved.toml"
+    text = toml.read_text()
+    start = text.index("[controller]")
+    end = text.index("\n[", start + 1)
+    toml.write_text(
+        text[:start] + '[controller]\nlaw = "no_such_user_module:MyLaw"\ngain = 2.0\n' + text[end:]
+    )
+    assert main(["report", str(folder)]) in (0, 1)  # the verdict's own exit code, never 2
+    data = json.loads((folder / "report.json").read_text())
+    assert data["scenario"]["law"] == "no_such_user_module:MyLaw"
+    note = data["metrics"]["deviation_from_ideal_note"]
+    assert note.startswith("not computed") and "no_such_user_module:MyLaw" in note

@@ -33,6 +33,7 @@ from hil.measure.certificate import no_certificate, scenario_certificate
 from hil.report import figures as fg
 from hil.report.headline import headline
 from hil.report.html import render_html
+from hil.report.ideal import IdealUnavailableError
 from hil.report.ideal_sim import WINDOW_S
 from hil.report.markdown import render_markdown
 from hil.report.measured import RunResult, run_result
@@ -166,8 +167,11 @@ def build_report(
     cert = _folder_certificate(sv, rr, kind, folder.summary)
     ideal_traj, ideal_note = None, "not requested"
     if ideal is not None:
-        ideal_traj = ideal(folder)
-        ideal_note = _ideal_note(ideal_traj, tr)
+        try:
+            ideal_traj = ideal(folder)
+            ideal_note = _ideal_note(ideal_traj, tr)
+        except IdealUnavailableError as exc:
+            ideal_note = str(exc)
     sliding = _recorded_sliding(folder, tr, rr)
     metrics = _metrics(folder, sv, cert, (ideal_traj, ideal_note), sliding)
     verdict = verdict_block(metrics["constraints"], folder.summary, cert, rr, thresholds)
