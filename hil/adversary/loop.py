@@ -44,8 +44,8 @@ class Schedule:
     """When each sample's command lands, shared by the loops of a group.
 
     ``ts``: the sample period; ``land``: (G, K) plant steps from sample k to its landing for G
-    landing draws over K samples (``LOST``: never lands; only with G = 1); ``group``: (N,) the
-    draw each loop uses; ``h``: the plant step (``ts`` / a whole number)."""
+    landing draws over K samples (``LOST``: never lands); ``group``: (N,) the draw each loop
+    uses; ``h``: the plant step (``ts`` / a whole number)."""
 
     ts: float
     h: float
@@ -97,6 +97,21 @@ def scenario_schedule(scenario: Scenario, n: int, seeds: np.ndarray | None = Non
     return Schedule(t.ts, scenario.plant_step, land, group)
 
 
+def absolute_landings(land: np.ndarray, m: int) -> np.ndarray:
+    """(G, K) landing steps on the plant grid; a ``LOST`` command lands with the earliest later
+    landing of its row (or at the run's end), where the newer command overrides it at once
+    (:meth:`plant_emulator.sampled.Hold.land` lands the older first): it never acts, and the
+    hold's queue stays in landing order."""
+    g, k = land.shape
+    steps = np.arange(k, dtype=np.int64) * m + land
+    lost = land == LOST
+    out = np.where(lost, np.iinfo(np.int64).max, steps)
+    # The earliest landing among the later samples of each row (a suffix minimum).
+    later = np.minimum.accumulate(out[:, ::-1], axis=1)[:, ::-1]
+    later = np.concatenate([later[:, 1:], np.full((g, 1), np.iinfo(np.int64).max)], axis=1)
+    return np.where(lost, np.minimum(later, k * m), steps)
+
+
 @dataclass
 class LoopPeaks:
     """Per loop: the largest |v|, |omega| over plant steps, |tau1|, |tau2| over commands, and
@@ -134,19 +149,23 @@ def _advance(
     h: float,
     span: tuple[int, int],
     coef: tuple[np.ndarray, ...],
+    own: tuple[Any, Any],
     limits: Any,
     ext: Extremes,
 ) -> PlantState:
-    """Integrate from plant step j to j_end, the disturbance re-chosen at every landing."""
+    """Integrate from plant step j to j_end, the disturbance re-chosen at every landing;
+    ``own`` = (the scenario's disturbance, its per-loop seeds) added on top (none when
+    searching)."""
     j, j_end = span
     a1, a2, b1, b2 = coef
+    dist, seeds = own
     marks = [*(hold.landings(j, j_end) if hold.pending else ()), j_end]
     for e in marks:
         c1, c2 = hold.cmd1, hold.cmd2
         d1 = a1 * np.sign(c1) + b1 * np.sign(state.v)
         d2 = a2 * np.sign(c2) + b2 * np.sign(state.omega)
         state = rk4_array(
-            state, c1 + d1, c2 + d2, 0.0, h, e - j, NO_DISTURBANCE, 0.0, None, limits, ext
+            state, c1 + d1, c2 + d2, j * h, h, e - j, dist, 0.0, seeds, limits, ext, j
         )
         if e < j_end:
             hold.land(e)
@@ -161,9 +180,12 @@ def run_loops(
     initial: PlantState,
     memory: Any = None,
     loop: tuple[Any, Any, Any] | None = None,
+    own_seeds: np.ndarray | None = None,
 ) -> LoopPeaks:
     """N loops of ``scenario``'s law and reference over ``schedule``, each disturbed by its
-    pattern ``modes`` (N, 2, B) within the scenario's s1, s2, from ``initial`` (arrays (N,))."""
+    pattern ``modes`` (N, 2, B) within the scenario's s1, s2, from ``initial`` (arrays (N,)).
+    ``own_seeds``: (N,) disturbance seeds; then the scenario's own disturbance acts too (use
+    with the mode ``none`` only, or the sum may exceed s1, s2)."""
     if scenario.plant.lag > 0.0:
         raise BadInputError("the worst-case search needs [plant] lag = 0 (docs: A4)")
     controller, reference, _context = loop or build_loop(scenario)
@@ -172,7 +194,9 @@ def run_loops(
     m = round(ts / h)
     k_all = schedule.samples
     together = schedule.land.shape[0] == 1
-    land = schedule.land[0].tolist() if together else schedule.land
+    steps = absolute_landings(schedule.land, m)
+    land = steps[0].tolist() if together else steps
+    own = (NO_DISTURBANCE, None) if own_seeds is None else (scenario.disturbance, own_seeds)
     a, b = _coefficients(modes, (scenario.disturbance.s1, scenario.disturbance.s2))
     blocks = modes.shape[2]
     limits = scenario.limits
@@ -194,16 +218,14 @@ def run_loops(
         np.maximum(peaks[0], np.abs(tau1), out=peaks[0])
         np.maximum(peaks[1], np.abs(tau2), out=peaks[1])
         j0 = k * m
-        offset = land[k] if together else land[schedule.group, k]
-        if not (together and offset == LOST):
-            hold.send(k, j0 + offset, tau1, tau2)
+        hold.send(k, land[k] if together else land[schedule.group, k], tau1, tau2)
         hold.land(j0)
         if 2 * k >= k_all:
             err = np.hypot(state.x - ref.xd, state.y - ref.yd)
             np.maximum(peaks[2], err, out=peaks[2])
         blk = k * blocks // k_all
         coef = (a[:, 0, blk], a[:, 1, blk], b[:, 0, blk], b[:, 1, blk])
-        state = _advance(state, hold, h, (j0, j0 + m), coef, limits, ext)
+        state = _advance(state, hold, h, (j0, j0 + m), coef, own, limits, ext)
     return LoopPeaks(
         np.asarray(ext.max_abs_v, dtype=float),
         np.asarray(ext.max_abs_omega, dtype=float),
