@@ -153,3 +153,18 @@ def test_record_round_trip_and_unreadable_files(tmp_path):
     (tmp_path / "margin.json").write_text("{not json")
     assert record.read(tmp_path) is None and record.report_lines(tmp_path) == []
     assert record.report_lines(tmp_path / "absent") == []
+
+
+def test_certify_prints_d_star_and_with_empirical_the_break_and_their_ratio(tmp_path, capsys):
+    path = tmp_path / "d.toml"
+    path.write_text(DISTURBED)
+    assert main(["certify", str(path)]) == 0
+    assert "D* = 44.89" in capsys.readouterr().out
+    assert main(["certify", str(path), "--json", "--empirical"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    emp = out["empirical"]
+    assert out["d_star_s"] == pytest.approx(0.0449, abs=2e-4)
+    # Sound: no break below D*; and the break is found, under a named disturbance.
+    assert emp["age_at_break_s"] > out["d_star_s"]
+    assert emp["ratio_to_d_star"] == pytest.approx(emp["age_at_break_s"] / out["d_star_s"])
+    assert emp["first_broken"] in ("|v|", "|omega|") and "d1" in emp["disturbance"]

@@ -37,6 +37,7 @@ class WorstDisturbance:
     loops: int
     rounds: list[float] = field(default_factory=list)  # best score after each round
     peaks: dict[str, float] = field(default_factory=dict)  # the worst loop's LoopPeaks
+    bounds: tuple[float, float] = (1.0, 1.0)  # s1, s2 the search had
 
     @property
     def broke(self) -> bool:
@@ -44,6 +45,8 @@ class WorstDisturbance:
 
     def describe(self) -> str:
         """The pattern in words: one mode per channel when constant, else the share of each."""
+        if self.bounds == (0.0, 0.0):
+            return "none (s1 = s2 = 0)"
         parts = []
         for ch, name in enumerate(("d1", "d2")):
             row = self.pattern[ch]
@@ -136,7 +139,8 @@ def worst_disturbance(
     probs = np.full((2, blocks, len(MODES)), 1.0 / len(MODES))
     kept_modes = np.zeros((0, 2, blocks), dtype=np.int8)
     kept_scores = np.zeros(0)
-    best = WorstDisturbance(-np.inf, "", modes[0], 0)
+    dist = scenario.disturbance
+    best = WorstDisturbance(-np.inf, "", modes[0], 0, bounds=(float(dist.s1), float(dist.s2)))
     for _ in range(rounds):
         peaks = run_loops(scenario, schedule, modes, initial, memory, loop)
         score, which = scores(peaks, scenario.limits, error_bound)
