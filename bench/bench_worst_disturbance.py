@@ -133,7 +133,7 @@ def main() -> None:
     )
     t2 = time.perf_counter()
     pattern = worst_score(_at(sc, worst), args.loops)[1] if worst is not None else None
-    age = (lambda d: None if d is None else ts + d)  # noqa: E731
+    age = lambda d: None if d is None else ts + d  # noqa: E731
     out = {
         "setup": args.setup,
         "ts": ts,

@@ -102,7 +102,7 @@ def _conservatism_lines(facts: dict[str, Any]) -> list[str]:
     if emp is None:
         return lines
     if emp["age_at_break_s"] is None:
-        lines.append("Empirical break: none found up to 1024 x this age under the worst disturbance.")
+        lines.append("Empirical break: none found up to 1024 x this age (worst disturbance).")
         return lines
     lines.append(
         f"Empirical break under the worst disturbance found: command age "

@@ -11,8 +11,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from protocol.versions import MARGIN_SCHEMA_VERSION
+
 FILE = "margin.json"
-SCHEMA_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -50,7 +51,7 @@ class MarginRecord:
     loops: int = 0
     elapsed_s: float = 0.0
     probes: tuple[MarginProbe, ...] = field(default_factory=tuple)
-    schema_version: int = SCHEMA_VERSION
+    schema_version: int = MARGIN_SCHEMA_VERSION
 
     @property
     def conservatism(self) -> float | None:
