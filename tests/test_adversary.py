@@ -75,6 +75,32 @@ def test_without_disturbance_the_loop_is_the_simulators():
     assert peaks.max_abs_omega == pytest.approx([s["max_abs_omega"] for s in ref], rel=1e-12)
 
 
+def test_the_scenarios_own_disturbance_is_the_simulators():
+    sc = dataclasses.replace(
+        _with(jitter=0.0),
+        disturbance=dataclasses.replace(SCENARIO.disturbance, kind="random", period=0.05),
+    )
+    n = 5
+    init = initial_states(sc, n, 0.3, 2)
+    seeds = 10 + np.arange(n, dtype=np.int64)
+    modes = np.zeros((n, 2, 1), dtype=np.int8)
+    peaks = run_loops(sc, scenario_schedule(sc, n), modes, init, own_seeds=seeds)
+    variations = [
+        RobotVariation(
+            x=init.x[i],
+            y=init.y[i],
+            theta=init.theta[i],
+            v=init.v[i],
+            omega=init.omega[i],
+            disturbance_seed=int(seeds[i]),
+        )
+        for i in range(n)
+    ]
+    ref = simulate_batch(sc, variations).summaries
+    assert peaks.max_abs_v == pytest.approx([s["max_abs_v"] for s in ref], rel=1e-12)
+    assert peaks.max_abs_omega == pytest.approx([s["max_abs_omega"] for s in ref], rel=1e-12)
+
+
 @pytest.mark.parametrize(
     ("mode", "v_end", "w_end"),
     [
