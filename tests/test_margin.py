@@ -168,3 +168,15 @@ def test_certify_prints_d_star_and_with_empirical_the_break_and_their_ratio(tmp_
     assert emp["age_at_break_s"] > out["d_star_s"]
     assert emp["ratio_to_d_star"] == pytest.approx(emp["age_at_break_s"] / out["d_star_s"])
     assert emp["first_broken"] in ("|v|", "|omega|") and "d1" in emp["disturbance"]
+
+
+def test_a_law_that_cannot_run_on_arrays_is_refused_by_name(tmp_path, capsys):
+    path = tmp_path / "pd.toml"
+    path.write_text(
+        USER_LAW.replace(
+            "tests.margin_user_law:SaturatedTracker", "tests.example_user_controller:SaturatedPD"
+        ).replace("gain = 20.0", "gain = 5.0")
+    )
+    assert main(["margin", str(path), "--out", str(tmp_path / "o"), "--seeds", "2"]) == 2
+    assert "SaturatedPD' failed on the batch path" in capsys.readouterr().err
+    assert not (tmp_path / "o" / "margin.json").exists()

@@ -26,6 +26,7 @@ import numpy as np
 
 from hil.adversary.loop import initial_states, run_loops
 from hil.adversary.search import LIMIT_NAMES, scores, worst_disturbance
+from hil.errors import BadInputError
 from hil.margin.record import MarginProbe, MarginRecord
 from hil.margin.timing import BaseTiming, scaled
 from hil.scenario import Scenario, build_loop
@@ -50,7 +51,23 @@ class MarginOptions:
 def probe(
     scenario: Scenario, base: BaseTiming, k: float, opts: MarginOptions, loop: Any
 ) -> tuple[MarginProbe, int]:
-    """One scale: the worst score over the loops, and how many loops ran."""
+    """One scale: the worst score over the loops, and how many loops ran; a law that cannot
+    run on arrays (the batch path) is bad input, named."""
+    try:
+        return _probe(scenario, base, k, opts, loop)
+    except BadInputError:
+        raise
+    except Exception as exc:  # the law may be the user's: whatever it raises on arrays
+        law = scenario.controller.get("law", "unified")
+        raise BadInputError(
+            f"[controller] law {law!r} failed on the batch path (numpy arrays of "
+            f"{opts.seeds} robots): {type(exc).__name__}: {exc}"
+        ) from exc
+
+
+def _probe(
+    scenario: Scenario, base: BaseTiming, k: float, opts: MarginOptions, loop: Any
+) -> tuple[MarginProbe, int]:
     sc, schedule = scaled(scenario, base, k, opts.seeds, opts.duration)
     init = initial_states(sc, opts.seeds, SPREAD, 0)
     age = schedule.max_age()
