@@ -4,6 +4,8 @@
 (bang-bang, switching when a command lands) over a replayed landing schedule;
 :mod:`hil.adversary.search` searches the switching patterns (the fixed bang-bang patterns, then
 cross-entropy over per-block choices) for the one that drives |v|/phi1 or |omega|/phi2 highest.
+``hil sweep --worst-disturbance`` runs it at every grid point (:mod:`hil.sweep.worst`),
+``hil margin --worst-disturbance`` at every scale (:mod:`hil.margin`).
 """
 
 from hil.adversary.loop import MODES, LoopPeaks, Schedule, run_loops, scenario_schedule

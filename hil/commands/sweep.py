@@ -133,7 +133,7 @@ def register(app: typer.Typer) -> None:
             else f"break point: Ts={first['ts']:g} s, delay={first['delay']:g} s"
         )
         if worst_disturbance and first is not None:
-            from hil.adversary.sweep import worst_at_break
+            from hil.sweep.worst import worst_at_break
 
             typer.echo(f"broken by: {worst_at_break(outcome.rows, first)}")
         if outcome.interrupted:
@@ -225,7 +225,7 @@ def _with_replay_file(scenario: Any, latencies: Any, target: Path) -> Any:
 def _run_with_progress(
     scenario: Any, grid: Any, loop_s: float, target: Path, worst: bool = False
 ) -> tuple[Any, Any]:
-    """:func:`hil.sweep.runner.run_sweep` (or, ``worst``, :func:`hil.adversary.sweep.
+    """:func:`hil.sweep.runner.run_sweep` (or, ``worst``, :func:`hil.sweep.worst.
     run_worst_sweep`) under a progress bar counting robot-steps."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -233,7 +233,7 @@ def _run_with_progress(
     from hil.sweep.runner import run_sweep
 
     if worst:
-        from hil.adversary.sweep import run_worst_sweep as run_sweep
+        from hil.sweep.worst import run_worst_sweep as run_sweep
 
     counts = {float(v): max(1, round(loop_s / v)) for v in grid.ts}
     per_group = len(grid) // len(grid.ts)

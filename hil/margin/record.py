@@ -1,19 +1,21 @@
 """``margin.json``: the result of ``hil margin``, written into the run (or output) folder, read
-back by the report. One typed record; unknown keys are ignored on reading so that a newer
-writer does not break an older reader."""
+back by the report. One typed record, written by the folder's JSON policy (non-finite numbers
+as null, atomic); unknown keys are ignored on reading so that a newer writer does not break an
+older reader."""
 
 from __future__ import annotations
 
 import dataclasses
-import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hil.errors import BadInputError
+from hil.folder import layout
+from hil.folder.jsonio import read_json_object, write_json
 from protocol.versions import MARGIN_SCHEMA_VERSION
 
-FILE = "margin.json"
+FILE = layout.MARGIN
 
 
 @dataclass(frozen=True)
@@ -77,24 +79,9 @@ class MarginRecord:
         return cls(**values)
 
 
-def _clean(value: Any) -> Any:
-    """JSON has no inf or NaN: they become None."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_clean(v) for v in value]
-    return value
-
-
 def write(folder: Path, record: MarginRecord) -> Path:
-    """margin.json in ``folder``, written whole (a temporary file renamed over it)."""
-    path = folder / FILE
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(_clean(record.to_dict()), indent=2, allow_nan=False))
-    tmp.replace(path)
-    return path
+    """margin.json in ``folder``, whole or not at all (:mod:`hil.folder.jsonio`)."""
+    return write_json(folder / FILE, record.to_dict())
 
 
 def read(folder: Path | str | None) -> MarginRecord | None:
@@ -102,9 +89,11 @@ def read(folder: Path | str | None) -> MarginRecord | None:
     if folder is None:
         return None
     path = Path(folder) / FILE
+    if not path.is_file():
+        return None
     try:
-        return MarginRecord.from_dict(json.loads(path.read_text()))
-    except (OSError, ValueError, TypeError):
+        return MarginRecord.from_dict(read_json_object(path))
+    except (BadInputError, TypeError, ValueError):
         return None
 
 

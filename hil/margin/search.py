@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from controller_service.certificate import critical_age
 from hil.adversary.loop import initial_states, run_loops
 from hil.adversary.search import LIMIT_NAMES, scores, worst_disturbance
 from hil.errors import BadInputError
@@ -165,8 +166,6 @@ def _d_star(scenario: Scenario, loop: Any) -> float | None:
     """The certificate's D* for a unified law (None for any other)."""
     if str(scenario.controller.get("law", "unified")) not in UNIFIED:
         return None
-    from controller_service.certificate import critical_age
-
     controller, _ref, context = loop
     params = getattr(controller, "params", None)
     if params is None:

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +26,8 @@ import numpy as np
 
 from hil.adversary.loop import LOST, Schedule
 from hil.errors import BadInputError
+from hil.folder import layout, load_folder, read_scenario
+from hil.measure.folder import measured
 from hil.scenario import Scenario, parse_scenario
 from plant_emulator.landing import extra_delays
 
@@ -77,19 +78,14 @@ def from_scenario(scenario: Scenario, seeds: int) -> BaseTiming:
 
 def run_scenario(folder: Path) -> Scenario:
     """The scenario a run folder ran (its scenario.resolved.toml)."""
-    path = folder / "scenario.resolved.toml"
-    try:
-        data = tomllib.loads(path.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise BadInputError(f"{path}: cannot read the run's scenario ({exc})") from exc
-    return parse_scenario(data, folder, str(path))
+    return parse_scenario(read_scenario(folder), folder, str(folder / layout.SCENARIO_RESOLVED))
 
 
 def from_run(folder: Path, scenario: Scenario) -> BaseTiming:
-    """The applied path's measured landings of a run folder (module doc)."""
-    from hil.measure.folder import measure_folder
-
-    m = measure_folder(folder)
+    """The applied path's measured landings of a run folder (module doc), from the folder's
+    measurement (:func:`hil.measure.folder.measured`: the saved series, or the hop logs
+    measured once)."""
+    m = measured(load_folder(folder, lazy=True))
     if m is None:
         raise BadInputError(f"{folder} has no hop logs: not a run of hil run")
     path = m.series.get("applied_path")
@@ -99,15 +95,19 @@ def from_run(folder: Path, scenario: Scenario) -> BaseTiming:
     ts = scenario.timing.ts
     sample = np.asarray(seg.sample, dtype=np.int64)
     land = np.asarray(seg.start, dtype=np.int64)
-    t0 = int(m.window_ns[0])
-    real = ~((land == t0) & (sample == t0))  # not the start-up hold (zero torque from t0)
+    # The segments cover the measured window: the first starts at its start (a start-up hold
+    # is a segment whose sample is that start, zero torque), the last ends at its end.
+    t0 = int(min(sample[0], land[0]))
+    real = ~((land == t0) & (sample == t0))
     index = np.rint((sample[real] - t0) * NS / ts).astype(np.int64)
-    k = max(int(index.max()) + 1 if index.size else 1, round((m.window_ns[1] - t0) * NS / ts))
+    span = round((int(seg.end[-1]) - t0) * NS / ts)
+    k = max(int(index.max()) + 1 if index.size else 1, span)
     latency = np.full(k, np.nan)
     ok = (index >= 0) & (index < k)
     latency[index[ok]] = (land[real][ok] - sample[real][ok]) * NS
-    d = (m.certificate or {}).get("d_max_s")
-    return BaseTiming(ts, latency[None, :], str(folder), d, path, cyclic=True)
+    cert = m.certificate or {}
+    d = cert.get("d_max_s") if hasattr(cert, "get") else None
+    return BaseTiming(ts, latency[None, :], str(folder), d, str(path), cyclic=True)
 
 
 def scaled(

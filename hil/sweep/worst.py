@@ -17,8 +17,8 @@ import numpy as np
 
 from hil.adversary.loop import initial_states, scenario_schedule
 from hil.adversary.search import worst_disturbance
-from hil.report.cert import certificate
-from hil.report.scenario_view import view
+from hil.folder.scenario_view import view
+from hil.measure.certificate import certificate
 from hil.scenario import Scenario, build_loop, resolved_dict
 from hil.sweep.grid import SweepGrid
 from hil.sweep.runner import SweepOutcome, point_row, scenario_at
