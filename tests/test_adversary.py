@@ -150,22 +150,34 @@ def _search(sc, n: int, rounds: int, seed: int):
     return schedule, best
 
 
-def test_no_break_below_d_star_in_10000_adversarial_loops():
-    controller, _ref, context = build_loop(SCENARIO)
-    d_star = critical_age(controller.params, context, False, v0=0.5, w0=0.5)
-    assert d_star == pytest.approx(0.0449, abs=2e-4)
+@pytest.mark.parametrize(
+    ("controller", "d_star_expected"),
+    [
+        ({"law": "unified", "rho": 0.5}, 0.0449),
+        # (19): the push threshold b1 = eps1 s1 / varpi1 moves the bound (section 2).
+        ({"law": "unified_boundary", "rho": 0.5, "eps1": 0.1, "eps2": 0.5}, 0.0443),
+    ],
+    ids=["sign", "boundary_layer"],
+)
+def test_no_break_below_d_star_in_10000_adversarial_loops(controller, d_star_expected):
+    sc = dataclasses.replace(SCENARIO, controller=controller)
+    law, _ref, context = build_loop(sc)
+    boundary = controller["law"] == "unified_boundary"
+    d_star = critical_age(law.params, context, boundary, v0=0.5, w0=0.5)
+    assert d_star == pytest.approx(d_star_expected, abs=2e-4)
     n, rounds = 2500, 4
-    schedule, best = _search(SCENARIO, n, rounds, seed=1)
+    schedule, best = _search(sc, n, rounds, seed=1)
     age = schedule.max_age()
     assert 0.9 * d_star <= age <= d_star  # just below D*, landing rounded to the plant step
     assert best.loops >= 10_000
-    cert = certify(controller.params, context, age, 0.0, False, v0=0.5, w0=0.5)
+    cert = certify(law.params, context, age, 0.0, boundary, v0=0.5, w0=0.5)
     assert not best.broke, best.as_dict()
     # Not only inside (2): inside the bound the certificate proves at that age.
     assert best.peaks["max_abs_v"] <= cert.v_bound and best.peaks["max_abs_omega"] <= cert.w_bound
-    # And it finds the proof's worst case: |v| comes within 10% of the certified excess over
-    # the alpha bound mu1 + m1 = 1 (the v bound is tight, section 2 of the note).
-    assert best.peaks["max_abs_v"] - 1.0 >= 0.9 * (cert.v_bound - 1.0)
+    if not boundary:
+        # And it finds the proof's worst case: |v| comes within 10% of the certified excess
+        # over the alpha bound mu1 + m1 = 1 (the sign law's v bound is tight, section 2).
+        assert best.peaks["max_abs_v"] - 1.0 >= 0.9 * (cert.v_bound - 1.0)
 
 
 def test_the_same_search_breaks_the_limits_beyond_d_star_and_beats_random():
