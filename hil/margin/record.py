@@ -122,7 +122,7 @@ def summary_lines(record: MarginRecord) -> list[str]:
         lines.append(f"Disturbance that broke it: {record.disturbance_at_break}.")
     if record.d_star_s and record.conservatism is not None:
         lines.append(
-            f"D* = {1e3 * record.d_star_s:.2f} ms, empirical break "
+            f"D* = {1e3 * record.d_star_s:.2f} ms, empirical break under {what} "
             f"{1e3 * (record.age_at_break_s or 0.0):.1f} ms: ratio {record.conservatism:.2f} "
             "(docs/sampled_data_bound.md, section 10)."
         )
