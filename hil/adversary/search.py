@@ -141,6 +141,8 @@ def worst_disturbance(
     kept_scores = np.zeros(0)
     dist = scenario.disturbance
     best = WorstDisturbance(-np.inf, "", modes[0], 0, bounds=(float(dist.s1), float(dist.s2)))
+    if best.bounds == (0.0, 0.0):
+        rounds = min(rounds, 1)  # no disturbance to search: every pattern is the same loop
     for _ in range(rounds):
         peaks = run_loops(scenario, schedule, modes, initial, memory, loop)
         score, which = scores(peaks, scenario.limits, error_bound)
