@@ -51,8 +51,10 @@ def _with(**timing) -> object:
     return dataclasses.replace(SCENARIO, timing=dataclasses.replace(SCENARIO.timing, **timing))
 
 
-def test_without_disturbance_the_loop_is_the_simulators():
+@pytest.mark.parametrize("noise", [0.0, 0.01], ids=["exact", "noisy_sensor"])
+def test_without_disturbance_the_loop_is_the_simulators(noise):
     sc = _with(jitter_kind="uniform")
+    sc = dataclasses.replace(sc, plant=dataclasses.replace(sc.plant, noise_std=(noise,) * 5))
     n = 6
     seeds = np.arange(n) % 3
     init = initial_states(sc, n, 0.3, 4)

@@ -16,9 +16,10 @@ disturbance chosen per channel by its mode (``MODES``):
 
 A *pattern* gives each loop one mode per channel and block of samples (``modes`` of shape
 (N, 2, B): the run is cut into B equal blocks of samples). The disturbance is added to the held
-torque (v' = tau1 + d1 is linear in both), so the plant's own disturbance is not used and the
-actuator must have no lag (A4 of docs/sampled_data_bound.md); the torque limits are checked on
-the commands.
+torque (v' = tau1 + d1 is linear in both), so the actuator must have no lag (A4 of
+docs/sampled_data_bound.md); the torque limits are checked on the commands. The scenario's own
+disturbance acts only when asked for (``own_seeds``: ``hil margin`` without the search), and
+its sensor (noise, quantization) as in the simulator, one noise seed for all loops.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from hil.scenario import Scenario, build_loop
 from plant_emulator.dynamics import NO_DISTURBANCE, Extremes, PlantState, rk4_array
 from plant_emulator.landing import extra_delays, landing_offsets
 from plant_emulator.sampled import Hold
+from plant_emulator.sensors import measure
 
 MODES = ("none", "aligned", "with_command", "outward")
 LOST = -1  # a sample whose command never lands
@@ -206,13 +208,17 @@ def run_loops(
         memory = controller.initial_memory(n, z1=scenario.initial.z1, z2=scenario.initial.z2)
     state = initial
     peaks = np.zeros((3, n))  # |tau1|, |tau2|, late position error
+    sensor = scenario.sensor
+    ideal = sensor.is_ideal
+    sensor_seeds = np.full(n, scenario.plant.noise_seed, dtype=np.int64)
     ones = np.ones(n)
     for k in range(k_all):
         t_k = k * ts
         ref = reference.sample(t_k)
         ref_arr = ReferenceSample(*(ones * float(value) for value in ref))
         rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
-        out, memory = controller.update(t_k, ts, rs, ref_arr, memory)
+        meas = rs if ideal else measure(sensor, rs, k, sensor_seeds)
+        out, memory = controller.update(t_k, ts, meas, ref_arr, memory)
         tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
         tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
         np.maximum(peaks[0], np.abs(tau1), out=peaks[0])
