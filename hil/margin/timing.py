@@ -12,7 +12,9 @@ delay plus the jitter's draw per seed.
 command age t - s_j of the replay is k times the base age (to the plant step): gaps (late or
 missing samples) and delays grow alike. The simulated duration stays the scenario's (capped);
 a run's base timing is replayed cyclically, each seed from its own starting sample, the first
-seed with the run's longest age in the middle of its window.
+seed with the run's longest age in the middle of its window. The cycle runs from the run's
+first landed sample to its last: the start-up hold (zero torque until the first command lands)
+is not replayed, so the replay's D can be below the run's when that hold was its longest age.
 """
 
 from __future__ import annotations
@@ -105,6 +107,11 @@ def from_run(folder: Path, scenario: Scenario) -> BaseTiming:
     latency = np.full(k, np.nan)
     ok = (index >= 0) & (index < k)
     latency[index[ok]] = (land[real][ok] - sample[real][ok]) * NS
+    # Replayed cyclically, the run's start-up hold and its unlanded tail would join into one
+    # gap the run never had: the cycle runs from the first landed sample to the last.
+    landed = np.flatnonzero(~np.isnan(latency))
+    if landed.size:
+        latency = latency[landed[0] : landed[-1] + 1]
     cert = m.certificate or {}
     d = cert.get("d_max_s") if hasattr(cert, "get") else None
     return BaseTiming(ts, latency[None, :], str(folder), d, str(path), cyclic=True)
