@@ -26,6 +26,8 @@ TRAJECTORY_PNG = "trajectory.png"
 REPORT_JSON = "report.json"
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
+#: hil margin's result (hil.margin.record).
+MARGIN = "margin.json"
 
 #: What every run or simulation folder holds once written.
 REQUIRED = (TRACE, SUMMARY, SCENARIO_RESOLVED)

@@ -8,6 +8,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+from hil.margin.record import report_lines as margin_lines
+
 SECTION_TITLES: dict[str, str] = {
     "headline": "The answers first",
     "terms": "What the words mean",
@@ -177,6 +179,8 @@ def _certificate(s: Section, data: dict[str, Any]) -> None:
             ["failed design conditions", ", ".join(c.get("failed_conditions") or []) or "none"],
         ],
     )
+    for line in margin_lines(data.get("folder")):  # hil margin's margin.json, when it ran
+        s.p(line)
     timing = (data.get("timing") or {}).get("summary") or {}
     if timing:
         path = c.get("path")
