@@ -171,9 +171,20 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         "figures": files,
     }
     write_json(out / "compare.json", data)
+    _write_pages(out, data, (la, lb), rows, figs)
+    return data
+
+
+def _write_pages(
+    out: Path, data: dict[str, Any], labels: tuple[str, str], rows: list[list[Any]], figs: list
+) -> None:
+    """compare.md and compare.html: the headline first, then every figure and the overlays."""
+    la, lb = labels
+    head, files = data["headline"], data["figures"]
+    fa, fb = data["a"], data["b"]
     header = ["figure", la, lb, "B - A"]
     moved_header = ["figure", la, lb, "B - A", "unit"]
-    md = [f"# Comparison: {fa.path} vs {fb.path}", "", *(f"- {t}" for t in head["lines"]), ""]
+    md = [f"# Comparison: {fa} vs {fb}", "", *(f"- {t}" for t in head["lines"]), ""]
     md += ["## The figures that moved most", "", _md_table(moved_header, head["most_moved"]), ""]
     md += ["## Every figure", "", _md_table(header, rows), ""]
     for f in files:
@@ -183,7 +194,7 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         f"<title>{esc('Comparison')}</title><style>{CSS}</style></head><body>",
-        f"<h1>Comparison: {esc(fa.path)} vs {esc(fb.path)}</h1>",
+        f"<h1>Comparison: {esc(fa)} vs {esc(fb)}</h1>",
         '<section id="headline"><div class="verdict unsure"><ul>',
         *(f"<li>{esc(t)}</li>" for t in head["lines"]),
         "</ul></div>",
@@ -199,4 +210,3 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         "</div></section></body></html>",
     ]
     (out / "compare.html").write_text("\n".join(html))
-    return data
