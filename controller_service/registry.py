@@ -6,7 +6,10 @@
   rho (Table 1 defaults: 0.5, 0.5, 0.5, 0.5, 1, 1; lam and rho may be ``"auto"``, see
   :func:`controller_service.design.resolve_auto`) and, for the boundary layer (19), eps1, eps2
   (default 0.1 each). The design is checked; a violation raises
-  :class:`controller_service.design.DesignError` (a ValueError).
+  :class:`controller_service.design.DesignError` (a ValueError). ``eta_rearm = true`` (default
+  false: the paper's law) wraps it in :class:`controller_service.laws.eta_rearm.
+  EtaRearmController` (eta reset to 1 when the reference comes to rest; keys
+  ``eta_rearm_dwell``, s, and ``eta_rearm_below``).
 - ``"jiang1997"``: [7] with the sub-table [controller.jiang1997] c1, c2 (7, 0.1).
 - ``"jiang2001"``: [19] with [controller.jiang2001] stab_eps, track_lam.
 - ``"package.module:Class"``: a user's controller, built as ``Class(params, context)`` where
@@ -36,6 +39,7 @@ from typing import Any
 
 from controller_service.design import resolve_auto
 from controller_service.laws.base import Controller, DesignContext
+from controller_service.laws.eta_rearm import EtaRearmController
 from controller_service.laws.jiang1997 import Jiang1997Controller
 from controller_service.laws.jiang2001 import Jiang2001Controller
 from controller_service.laws.unified import UnifiedController, UnifiedParams
@@ -43,6 +47,8 @@ from protocol.paper import EPS_DEFAULT, TABLE1
 
 BUILTIN_LAWS = ("unified", "unified_boundary", "jiang1997", "jiang2001")
 _BASELINE_TABLES = ("jiang1997", "jiang2001")
+# The unified law's eta re-arm (beyond the paper, off by default): controller_service.laws.eta_rearm
+REARM_KEYS = ("eta_rearm", "eta_rearm_dwell", "eta_rearm_below")
 
 # Tables of user controllers (whose objects cannot be asked for one) and notes of auto lam/rho.
 _user_tables: weakref.WeakKeyDictionary[Any, dict[str, Any]] = weakref.WeakKeyDictionary()
@@ -68,7 +74,7 @@ def _unified_values(law: str, table: Mapping[str, Any]) -> dict[str, Any]:
     keys = dict(TABLE1)
     if law == "unified_boundary":
         keys.update(EPS_DEFAULT)
-    unknown = sorted(map(str, set(table) - set(keys) - {"law", *_BASELINE_TABLES}))
+    unknown = sorted(map(str, set(table) - set(keys) - {"law", *_BASELINE_TABLES, *REARM_KEYS}))
     if unknown:
         hint = (
             " (eps1, eps2 need law = 'unified_boundary')" if {"eps1", "eps2"} & set(unknown) else ""
@@ -81,7 +87,27 @@ def _unified_values(law: str, table: Mapping[str, Any]) -> dict[str, Any]:
             values[key] = value
         else:
             values[key] = _number(key, value)
+    _rearm_values(table)
     return values
+
+
+def _rearm_values(table: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The eta re-arm options (keyword arguments of :class:`EtaRearmController`), None when
+    ``eta_rearm`` is off (the paper's law); ValueError naming a bad key."""
+    on = table.get("eta_rearm", False)
+    if not isinstance(on, bool):
+        raise ValueError(f"[controller] eta_rearm must be true or false, got {on!r}")
+    given = {k: table[k] for k in REARM_KEYS[1:] if k in table}
+    if not on:
+        if given:
+            raise ValueError(f"[controller] {', '.join(sorted(given))} need eta_rearm = true")
+        return None
+    out = {k.removeprefix("eta_rearm_"): _number(k, v) for k, v in given.items()}
+    if out.get("dwell", 1.0) <= 0.0:
+        raise ValueError(f"[controller] eta_rearm_dwell must be > 0 s, got {out['dwell']!r}")
+    if not 0.0 < out.get("below", 0.5) <= 1.0:
+        raise ValueError(f"[controller] eta_rearm_below must be in (0, 1], got {out['below']!r}")
+    return out
 
 
 def _baseline(law: str, table: Mapping[str, Any], context: DesignContext) -> Controller:
@@ -121,10 +147,13 @@ def check_table(table: Mapping[str, Any]) -> str:
     return law
 
 
-def _build_unified(law: str, table: Mapping[str, Any], context: DesignContext) -> UnifiedController:
+def _build_unified(law: str, table: Mapping[str, Any], context: DesignContext) -> Controller:
     values = _unified_values(law, table)
     resolved = resolve_auto(values, context)
-    controller = UnifiedController(UnifiedParams(**resolved.params), context)
+    controller: Any = UnifiedController(UnifiedParams(**resolved.params), context)
+    rearm = _rearm_values(table)
+    if rearm is not None:
+        controller = EtaRearmController(controller, **rearm)
     if resolved.notes:
         _notes[controller] = resolved.notes
     return controller

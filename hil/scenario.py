@@ -23,7 +23,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from controller_service.design import DesignError
 from controller_service.laws.base import DesignContext, Limits
+from controller_service.references import build_reference as _build
+from controller_service.references import check_table as check_reference
+from controller_service.registry import build_controller, resolved_controller_table
+from controller_service.registry import check_table as check_controller
 from hil.errors import BadInputError
 from hil.options import LOCATOR, describe, number, plain_string, type_name
 from hil.provenance import provenance
@@ -493,8 +498,6 @@ def _parse_table(name: str, raw: Any) -> Any:
 
 def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") -> Scenario:
     """A :class:`Scenario` from the parsed TOML ``data`` (BadInputError names any bad key)."""
-    from controller_service.references import check_table as check_reference
-    from controller_service.registry import check_table as check_controller
 
     allowed = {*_TABLES, "reference", "controller", "provenance"}
     unknown = sorted(map(str, set(data) - allowed))
@@ -621,7 +624,6 @@ def loads_scenario(text: str, base_dir: Path | None = None) -> Scenario:
 
 def build_reference(scenario: Scenario) -> Any:
     """The scenario's virtual robot (3); its errors become BadInputError."""
-    from controller_service.references import build_reference as _build
 
     try:
         return _build(scenario.reference, scenario.base_dir)
@@ -694,8 +696,7 @@ def design_context(scenario: Scenario, reference: Any) -> DesignContext:
 
 def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
     """(controller, reference, context) for the scenario; design errors become BadInputError."""
-    from controller_service.design import DesignError
-    from controller_service.registry import build_controller, law_path_for
+    from controller_service.registry import law_path_for
 
     reference = build_reference(scenario)
     context = design_context(scenario, reference)
@@ -751,7 +752,6 @@ def resolved_dict(
     extra_provenance: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """scenario.resolved.toml: every default filled (auto lam/rho resolved) plus [provenance]."""
-    from controller_service.registry import resolved_controller_table
 
     out = scenario_dict(scenario)
     out["controller"] = {**dict(scenario.controller), **resolved_controller_table(controller)}

@@ -32,7 +32,7 @@ from plant_emulator.drive_plant import DrivePlant, bench_drive_config
 from plant_emulator.odrive import VirtualDrivePair
 from plant_emulator.service import build_plant
 from protocol.can.codec import AxisState, Cmd, Frame
-from protocol.settings import RunSettings
+from protocol.settings import RunSettings, period_ns, period_s
 
 STATE_NAMES = {
     AxisState.IDLE: "IDLE",
@@ -234,7 +234,7 @@ class DrivesRunner:
         sched = setup_scheduling(scheduling, freeze_gc=False)
         gc.collect()
         gc.freeze()
-        period_ns = round(1e9 / opts.control_rate)
+        period = period_ns(period_s(opts.control_rate))
         state_every = (
             max(1, round(opts.control_rate / opts.state_rate)) if opts.state_rate > 0 else 0
         )
@@ -248,7 +248,7 @@ class DrivesRunner:
             flush=True,
         )
         start_ns = time.monotonic_ns()
-        clock = DeadlineClock(period_ns, start_ns)
+        clock = DeadlineClock(period, start_ns)
         next_status = start_ns + status_ns
         last = (start_ns, self.can.frames_in, self.can.frames_out)
         end_ns = start_ns + int(opts.duration * 1e9) if opts.duration else None

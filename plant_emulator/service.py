@@ -59,7 +59,7 @@ from protocol.messages import Status, TorqueCommand, encode
 from protocol.rejections import RejectionCounter
 from protocol.robot import Limits
 from protocol.sequence import SequenceTracker
-from protocol.settings import RunSettings
+from protocol.settings import RunSettings, period_ns
 from runtime.realtime import DeadlineClock, setup_scheduling
 
 
@@ -184,7 +184,7 @@ class PlantService:
         self.robot_id = robot_id
         self.epoch_ns = int(epoch_ns)
         self.ts = ts
-        self.sensor_period_ns = round(sensor_ts * 1e9)
+        self.sensor_period_ns = period_ns(sensor_ts)
         self.applied_path = CmdPath.ZENOH if cmd_path == "zenoh" else CmdPath.CAN
         self.command_timeout_ns = int(command_timeout * 1e9)
         self.injector = injector or DelayInjector(0.0, 0.0, "uniform", 0)
@@ -634,8 +634,8 @@ def main_from_settings(settings_path: str) -> int:
         PLANT_TABLES,
         {
             "robot_id": s.robot_id,
-            "sensor_period_ns": round(sensor_ts * 1e9),
-            "control_period_ns": round(s.ts * 1e9),
+            "sensor_period_ns": period_ns(sensor_ts),
+            "control_period_ns": period_ns(s.ts),
             "plant_step_ns": round(core.h * 1e9),
             "lockstep": s.lockstep,
             "cmd_path": s.cmd_path,

@@ -29,6 +29,16 @@ SETTINGS_VERSION = 2
 TS_MIN = 1.0 / 20_000.0  # s: the services' fastest period (20 kHz)
 
 
+def period_s(rate_hz: float) -> float:
+    """The period in seconds of a rate in Hz: the one rate-to-period conversion."""
+    return 1.0 / rate_hz
+
+
+def period_ns(seconds: float) -> int:
+    """A period in seconds as whole nanoseconds (what the services' clocks count)."""
+    return round(seconds * 1e9)
+
+
 def _initial() -> dict[str, float]:
     return {"x": 0.0, "y": 0.0, "theta": 0.0, "v": 0.0, "omega": 0.0, "z1": 0.0, "z2": 0.0}
 
@@ -141,9 +151,9 @@ class RunSettings:
         # A folder written before the period had one name (hil recover reads old folders).
         if "ts" not in values and ("ts_s" in data or "rate_hz" in data):
             ts_s = data.get("ts_s")
-            values["ts"] = ts_s if ts_s is not None else 1.0 / data["rate_hz"]
+            values["ts"] = ts_s if ts_s is not None else period_s(data["rate_hz"])
         if "sensor_ts" not in values and "sensor_rate_hz" in data:
-            values["sensor_ts"] = 1.0 / data["sensor_rate_hz"]
+            values["sensor_ts"] = period_s(data["sensor_rate_hz"])
         return cls(**values)
 
     @classmethod

@@ -420,7 +420,7 @@ def _every_frame_carries_its_commands_torque(out: Path, scenario: Path) -> None:
 
 
 def test_replay_from_the_recording_equals_replay_from_the_folder(tmp_path):
-    from hil.sweep.replay import latencies_from_run
+    from hil.sim.replay import latencies_from_run
 
     out = tmp_path / "run"
     proc = subprocess.run(

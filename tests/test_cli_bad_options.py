@@ -91,6 +91,13 @@ CASES: list[tuple[list[str], str]] = [
     (["certify", S, "--delay", "-1"], "--delay"),
     (["certify", S, "--delay", "nan"], "--delay"),
     (["certify", S, "--delay", "soon"], "--delay"),
+    # hil margin
+    (["margin", S, "--seeds", "0", "--out", "OUT"], "--seeds"),
+    (["margin", S, "--error-bound", "-1", "--out", "OUT"], "--error-bound"),
+    (["margin", S, "--error-bound", "nan", "--out", "OUT"], "--error-bound"),
+    (["margin", S, "--duration", "0", "--out", "OUT"], "--duration"),
+    (["margin", S, "--out", "FILE"], "--out"),
+    (["margin", "no_such_scenario", "--out", "OUT"], "no_such_scenario"),
     # hil can-load
     (["can-load", "--rate", "nan", "--bitrate", "1e6"], "--rate"),
     (["can-load", "--rate", "0", "--bitrate", "1e6"], "--rate"),

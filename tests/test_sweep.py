@@ -12,8 +12,8 @@ import pytest
 
 from hil.cli import main
 from hil.errors import BadInputError
+from hil.sim.replay import latencies_from_run
 from hil.sweep.grid import DEFAULT_DELAY, DEFAULT_TS, break_points, make_grid
-from hil.sweep.replay import latencies_from_run
 from tests.procs import wait_until
 from tests.scenario_text import CIRCLE_TABLE1
 from tests.synthetic_folder import write_synthetic_folder

@@ -184,8 +184,8 @@ def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
 
 def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
     """The report of the finished run, as ``hil report RUN_DIR`` writes it."""
+    from hil.folder import load_folder
     from hil.report.build import Thresholds, build_report, write_report
-    from hil.report.folder import load_folder
     from hil.report.ideal import ideal_from_simulator
 
     if not quiet:

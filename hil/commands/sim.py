@@ -69,10 +69,11 @@ def register(app: typer.Typer) -> None:
         Ctrl-C writes the folder with what was computed and exits 130. Exit 1 when a limit of
         (2) was broken at some plant step."""
         from hil.bundled import resolve_scenario
+        from hil.folder import new_run_dir
         from hil.law.option import with_law
         from hil.options import out_dir
         from hil.scenario import load_scenario
-        from hil.sim import new_run_dir, simulate, write_run_folder
+        from hil.sim import simulate, write_run_folder
 
         out_dir("--out", out, default="runs")
         path = resolve_scenario(scenario)

@@ -75,6 +75,14 @@ DurationOpt = Annotated[
     typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s)."),
 ]
 StrictOpt = Annotated[bool, typer.Option(help="Exit 1 when any loop of the grid broke a limit.")]
+WorstOpt = Annotated[
+    bool,
+    typer.Option(
+        "--worst-disturbance",
+        help="At every point, search the disturbance within |d1| <= s1, |d2| <= s2 that breaks "
+        "(2) first (hil.adversary) instead of the scenario's own.",
+    ),
+]
 
 
 def register(app: typer.Typer) -> None:
@@ -89,6 +97,7 @@ def register(app: typer.Typer) -> None:
         duration: DurationOpt = None,
         strict: StrictOpt = False,
         law: LawOpt = None,
+        worst_disturbance: WorstOpt = False,
     ) -> None:
         """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
         scenario, grid, loop_s, latencies = _checked_sweep(
@@ -98,7 +107,7 @@ def register(app: typer.Typer) -> None:
         target.mkdir(parents=True, exist_ok=True)
         scenario = _with_replay_file(scenario, latencies, target)
         started = time.perf_counter()
-        outcome, resolved = _run_with_progress(scenario, grid, loop_s, target)
+        outcome, resolved = _run_with_progress(scenario, grid, loop_s, target, worst_disturbance)
         elapsed = time.perf_counter() - started
         from hil.sweep.outputs import write_outputs
         from hil.sweep.page import write_sweep_page
@@ -114,6 +123,7 @@ def register(app: typer.Typer) -> None:
             "elapsed_s": elapsed,
             "robot_steps_per_s": outcome.robot_steps / elapsed if elapsed > 0 else None,
             "certificate": certified_break(scenario, grid),
+            "disturbance": "worst searched" if worst_disturbance else "the scenario's",
             "provenance": resolved.get("provenance", {}),
         }
         # A second Ctrl-C while the results are written would leave them half-written.
@@ -127,6 +137,10 @@ def register(app: typer.Typer) -> None:
             if first is None
             else f"break point: Ts={first['ts']:g} s, delay={first['delay']:g} s"
         )
+        if worst_disturbance and first is not None:
+            from hil.sweep.worst import worst_at_break
+
+            typer.echo(f"broken by: {worst_at_break(outcome.rows, first)}")
         if outcome.interrupted:
             # hil.cli exits 130: the interrupt was recorded by hil.interrupts.
             interrupts.note(f"partial results kept in {target}")
@@ -161,9 +175,8 @@ def _checked_sweep(
         build_loop,
         load_scenario,
     )
-    from hil.sim.landing import jitter_samples_from
+    from hil.sim.replay import is_run_source, jitter_samples_from, latencies_from_run
     from hil.sweep.grid import make_grid
-    from hil.sweep.replay import is_run_source, latencies_from_run
 
     # Options first: a bad one is refused before the plotting and runner modules load.
     ts_grid = options.grid("--ts", ts, TS_MIN, TS_MAX)
@@ -215,19 +228,25 @@ def _with_replay_file(scenario: Any, latencies: Any, target: Path) -> Any:
     replay.json in the sweep folder; unchanged when it replays no run."""
     if latencies is None:
         return scenario
-    from hil.sweep.replay import write_latency_file
+    from hil.sim.replay import write_latency_file
 
     t = scenario.timing
     lat = write_latency_file(latencies, target / "replay.json", scenario.base_dir / t.replay)
     return dataclasses.replace(scenario, timing=dataclasses.replace(t, replay=str(lat.resolve())))
 
 
-def _run_with_progress(scenario: Any, grid: Any, loop_s: float, target: Path) -> tuple[Any, Any]:
-    """:func:`hil.sweep.runner.run_sweep` under a progress bar counting robot-steps."""
+def _run_with_progress(
+    scenario: Any, grid: Any, loop_s: float, target: Path, worst: bool = False
+) -> tuple[Any, Any]:
+    """:func:`hil.sweep.runner.run_sweep` (or, ``worst``, :func:`hil.sweep.worst.
+    run_worst_sweep`) under a progress bar counting robot-steps."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from hil.sweep.outputs import write_csv
     from hil.sweep.runner import run_sweep
+
+    if worst:
+        from hil.sweep.worst import run_worst_sweep as run_sweep
 
     counts = {float(v): max(1, round(loop_s / v)) for v in grid.ts}
     per_group = len(grid) // len(grid.ts)

@@ -3,9 +3,14 @@ drives of :mod:`plant_emulator.drives` on them (which need no ``hil``)."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from hil.bundled import resolve_scenario
+from hil.run.defaults import PAPER_TRACKING_TOML
+from hil.run.settings import scenario_settings
+from hil.scenario import load_scenario, loads_scenario
 from plant_emulator import drives
 from protocol.settings import RunSettings
 
@@ -31,22 +36,15 @@ class DrivesOptions(drives.DrivesOptions):
 
 
 def _scenario(name: str | None) -> Any:
-    from hil.scenario import load_scenario, loads_scenario
 
     if name is None:
-        from hil.run.defaults import PAPER_TRACKING_TOML
-
         return loads_scenario(PAPER_TRACKING_TOML)
-    from hil.bundled import resolve_scenario
 
     return load_scenario(resolve_scenario(name))
 
 
 def drives_settings(opts: DrivesOptions) -> RunSettings:
     """The scenario with the command line's overrides, as the drives read it."""
-    import dataclasses
-
-    from hil.run.settings import scenario_settings
 
     sc = _scenario(opts.scenario)
     can_table = dataclasses.asdict(sc.can)
