@@ -27,7 +27,7 @@ from controller_service.design import DesignError
 from controller_service.laws.base import DesignContext, Limits
 from controller_service.references import build_reference as _build
 from controller_service.references import check_table as check_reference
-from controller_service.registry import build_controller, resolved_controller_table
+from controller_service.registry import build_controller, law_path_for, resolved_controller_table
 from controller_service.registry import check_table as check_controller
 from hil.errors import BadInputError
 from hil.options import LOCATOR, describe, number, plain_string, type_name
@@ -696,7 +696,6 @@ def design_context(scenario: Scenario, reference: Any) -> DesignContext:
 
 def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
     """(controller, reference, context) for the scenario; design errors become BadInputError."""
-    from controller_service.registry import law_path_for
 
     reference = build_reference(scenario)
     context = design_context(scenario, reference)

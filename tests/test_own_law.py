@@ -16,9 +16,10 @@ import pytest
 from controller_service.laws.base import DesignContext
 from controller_service.registry import build_controller
 from hil.bundled import resolve_scenario
+from hil.commands.law_option import LAW_HELP
 from hil.errors import BadInputError
 from hil.law.batch import PerRobot, batch_note, for_batch
-from hil.law.option import LAW_HELP, with_law
+from hil.law.option import with_law
 from hil.scenario import build_loop, load_scenario
 from hil.sim import RobotVariation, simulate, simulate_batch
 

@@ -9,8 +9,8 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
+from hil.commands.law_option import LawOpt
 from hil.errors import NegativeVerdictError
-from hil.law.option import LawOpt
 
 # The options of ``hil run``, one alias each, so that the command's signature stays short.
 ScenarioArg = Annotated[

@@ -8,8 +8,8 @@ from typing import Annotated
 import typer
 
 from hil import interrupts
+from hil.commands.law_option import LawOpt
 from hil.errors import NegativeVerdictError
-from hil.law.option import LawOpt
 
 
 def run_with_progress(fn, description: str, started: str = ""):  # type: ignore[no-untyped-def]

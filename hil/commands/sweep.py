@@ -11,8 +11,8 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
+from hil.commands.law_option import LawOpt
 from hil.errors import BadInputError, NegativeVerdictError
-from hil.law.option import LawOpt
 
 DEFAULT_MAX_DURATION = 20.0
 SWEEP_HELP = (

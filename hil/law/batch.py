@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from controller_service.laws.base import ControlOutput, ReferenceSample, RobotState
-from controller_service.registry import BUILTIN_LAWS
+from controller_service.registry import BUILTIN_LAWS, resolved_controller_table
 from hil.errors import BadInputError
 
 # Two robots that differ in every state field, so a law that mixes robots up is seen.
@@ -33,7 +33,6 @@ class PerRobot:
         self.name = str(getattr(law, "name", type(law).__name__))
 
     def resolved_table(self) -> dict[str, Any]:
-        from controller_service.registry import resolved_controller_table
 
         return resolved_controller_table(self.law)
 

@@ -1,23 +1,14 @@
-"""``--law module:Class``: the same option, help and meaning on ``hil run``, ``sim`` and
-``sweep``."""
+"""``--law module:Class``: what the option does to a scenario (the option itself, the same on
+``hil run``, ``sim`` and ``sweep``, is :mod:`hil.commands.law_option`)."""
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Annotated, Any
+from typing import Any
 
-import typer
-
+from controller_service.registry import check_table
 from hil.errors import BadInputError
 from hil.options import plain_string
-
-LAW_HELP = (
-    "Control law instead of the scenario's: unified, unified_boundary, jiang1997, jiang2001 or "
-    "your own 'module:Class' (a module next to the scenario or in the working directory is "
-    "found without PYTHONPATH; hil new-law writes one). The scenario's [controller] "
-    "parameters are kept only when they name the same law; otherwise the law's defaults."
-)
-LawOpt = Annotated[str | None, typer.Option("--law", help=LAW_HELP)]
 
 
 def with_law(scenario: Any, law: str | None) -> Any:
@@ -26,7 +17,6 @@ def with_law(scenario: Any, law: str | None) -> Any:
     folder or the working directory."""
     if law is None:
         return scenario
-    from controller_service.registry import check_table
 
     plain_string("--law", law, empty=False)
     if law == scenario.controller.get("law", "unified"):

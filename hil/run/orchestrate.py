@@ -32,6 +32,7 @@ from hil import interrupts, options
 from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
 from hil.folder import layout, new_run_dir
+from hil.law.option import with_law
 from hil.measure.logs import HOST_FILE
 from hil.provenance import dumps_toml
 from hil.recording import RecordingWriter, to_jsonable
@@ -202,7 +203,6 @@ def check_options(opts: RunOptions) -> None:
 def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
     """(scenario, its path, whether the user gave one, its default duration): the user's
     scenario (a file or a bundled name) or the paper's tracking circle."""
-    from hil.law.option import with_law
 
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     if given is None:
