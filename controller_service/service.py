@@ -645,6 +645,7 @@ def main_from_settings(settings_path: str) -> int:
     """Entry of ``python -m controller_service SETTINGS.json`` (``hil`` resolved the run into
     that file: :class:`protocol.settings.RunSettings`)."""
     from controller_service.from_settings import build_law
+    from runtime.clocksync import CLOCK_FILE, ClockProbe
     from runtime.startgate import StartGate
     from runtime.zsession import check_credentials, open_session
 
@@ -681,7 +682,12 @@ def main_from_settings(settings_path: str) -> int:
     )
     if previous is not None:
         svc.continue_after(_first_free_cmd_seq(previous, s.ts))
-    return _run_service(s, svc, gate, hoplog, can_path, session)
+    # The offset to the plant's clock, off the real-time thread (started before its scheduling).
+    clock = ClockProbe(session, s.robot_id, Path(s.out_dir) / CLOCK_FILE).start()
+    try:
+        return _run_service(s, svc, gate, hoplog, can_path, session)
+    finally:
+        clock.close()
 
 
 def _run_service(

@@ -33,6 +33,7 @@ from hil.recording import RecordingWriter, to_jsonable
 from hil.run.host_load import HostSampler
 from hil.supervisor import Supervisor
 from protocol.settings import RunSettings
+from runtime.clocksync import CLOCK_FILE
 from runtime.signals import stop_on_signals
 
 
@@ -492,7 +493,7 @@ def _write_results(
     return summary
 
 
-ATTACHED = ("controller.hoplog", "plant.hoplog", HOST_FILE, "scenario.resolved.toml")
+ATTACHED = ("controller.hoplog", "plant.hoplog", HOST_FILE, "scenario.resolved.toml", CLOCK_FILE)
 
 
 def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:
