@@ -435,7 +435,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     logs = _Logs(run_dir)
     codes: dict[str, int | None] = {}
     t_start = time.monotonic()
-    ids = RunIdentities(opts.secure)  # fresh passwords outside run_dir, or none
+    ids = RunIdentities(opts.secure, (settings.robot_id,))  # fresh passwords, or none
     host = HostSampler(run_dir)
     with stop_on_signals() as stop:
         try:
