@@ -43,7 +43,8 @@ from protocol import keys
 CLOCK_FILE = "clock-controller.csv"  # the controller's probe, in the run folder
 FILTER_SAMPLES = 8  # RFC 5905's clock filter register
 INTERVAL_S = 0.25
-REPLY_TIMEOUT_S = 1.0
+REPLY_TIMEOUT_S = 0.25  # a pong later than this is no use to the filter anyway
+FIRST_ESTIMATE_S = 3.0  # how long a service waits for its first estimate before "ready"
 CLOCK_PREFIX = "hilclock"  # not under hil/: recorders of hil/** never see the exchanges
 _PING = struct.Struct("<Qq")  # the probe's token, t1
 _PONG = struct.Struct("<Qqqq")  # the probe's token, t1, t2, t3
@@ -166,6 +167,13 @@ class ClockProbe:
         self._thread.start()
         return self
 
+    def wait_first(self, timeout: float = FIRST_ESTIMATE_S) -> Estimate | None:
+        """The first estimate, waiting up to ``timeout`` s for it (None: no echo answered)."""
+        deadline = time.monotonic() + timeout
+        while self.estimate is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        return self.estimate
+
     def _on_pong(self, sample: Any) -> None:
         t4 = time.monotonic_ns()  # first: the callback's own work is not round trip
         raw = bytes(sample.payload.to_bytes())
@@ -214,6 +222,20 @@ class ClockProbe:
             self._ping.undeclare()
         if self._file is not None:
             self._file.close()
+
+
+def clocks_differ(est: Estimate | None) -> bool:
+    """True when the estimate proves the two clocks differ: 0 lies outside offset +- its
+    uncertainty. One host's estimate always holds 0 (the bound is exact), so there nothing is
+    ever converted."""
+    return est is not None and abs(est.offset_ns) > est.uncertainty_ns
+
+
+def epoch_on_local_clock(epoch_ns: int, probe: ClockProbe) -> int:
+    """An epoch announced on the plant's clock, on this process' clock (unchanged unless the
+    clocks provably differ)."""
+    est = probe.estimate
+    return round(est.to_local(epoch_ns)) if clocks_differ(est) and est else epoch_ns
 
 
 def _main(argv: list[str]) -> int:

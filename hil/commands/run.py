@@ -43,6 +43,18 @@ SecureOpt = Annotated[
         "deploy/README.md).",
     ),
 ]
+LabOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="Run on the hosts of this lab (hil lab up; root): the plant and the recorder on "
+        "--plant-host, the controller on --controller-host, each through its host's router "
+        "(docs/lab.md). Needs --no-can.",
+    ),
+]
+PlantHostOpt = Annotated[str | None, typer.Option(help="The plant's lab host (default h1).")]
+ControllerHostOpt = Annotated[
+    str | None, typer.Option(help="The controller's lab host (default h2).")
+]
 StrictOpt = Annotated[
     bool,
     typer.Option(
@@ -80,6 +92,9 @@ def register(app: typer.Typer) -> None:
         secure: SecureOpt = False,
         report: ReportOpt = True,
         strict: StrictOpt = False,
+        lab: LabOpt = None,
+        plant_host: PlantHostOpt = None,
+        controller_host: ControllerHostOpt = None,
     ) -> None:
         """Run the controller against the emulated robot over Zenoh and CAN and record it."""
         from hil.run.orchestrate import RunOptions, execute
@@ -99,6 +114,9 @@ def register(app: typer.Typer) -> None:
                 spin_us=spin_us,
                 quiet=quiet,
                 secure=secure,
+                lab=lab,
+                plant_host=plant_host,
+                controller_host=controller_host,
             )
         )
         brief = _brief(summary, cmd_path)

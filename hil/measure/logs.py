@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from hil.measure.clocks import to_plant_clock
 from protocol.hoplog import (
     CONTROLLER_TABLES,
     FORMAT,
@@ -215,6 +216,7 @@ class RunLogs:
                 for name, cs in wanted.items():
                     logs.tables[name] = {c: _empty(c, COLUMNS[name][c]) for c in cs}
             setattr(logs, role, head)
+        to_plant_clock(logs.tables, controller.parent if controller is not None else None)
         return logs
 
     def __getitem__(self, table: str) -> dict[str, np.ndarray]:

@@ -36,6 +36,8 @@ from protocol.settings import RunSettings
 from runtime.clocksync import CLOCK_FILE
 from runtime.signals import stop_on_signals
 
+LAB_ROUTER = "tcp/127.0.0.1:7447"  # a lab host's own router, from inside the host (hil.lab)
+
 
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
@@ -68,6 +70,9 @@ class RunOptions:
     scheduling: str | None = None
     quiet: bool = False
     secure: bool = False  # router with authentication and access control (hil.run.secure)
+    lab: str | None = None  # run on a lab's hosts (hil.lab.placement)
+    plant_host: str | None = None
+    controller_host: str | None = None
 
 
 class Recorder:
@@ -268,8 +273,9 @@ def _run_settings(
         cmd_path=opts.cmd_path,
         can_live=opts.can_live,
         can=_run_can_table(opts, scenario),
-        zenoh_mode="router" if opts.secure else scenario.zenoh.mode,
-        zenoh_endpoint=f"tcp/127.0.0.1:{free_port()}",
+        # On a lab, each process is a client of its own host's router (hil.lab.placement).
+        zenoh_mode="router" if opts.secure or opts.lab else scenario.zenoh.mode,
+        zenoh_endpoint=LAB_ROUTER if opts.lab else f"tcp/127.0.0.1:{free_port()}",
         can_endpoint=f"tcp/127.0.0.1:{free_port()}",
         delay=scenario.timing.delay,
         out_dir=str(run_dir.resolve()),
@@ -339,12 +345,14 @@ class _Live:
 
 
 def _open_recorder_session(
-    settings: RunSettings, ids: Any, sup: Supervisor, logs: _Logs, stop: Any
+    settings: RunSettings, ids: Any, sup: Supervisor, logs: _Logs, stop: Any, lab: bool = False
 ) -> Any:
     """The recorder's Zenoh session: on the run's endpoint, or a router's client (started
-    here) in router mode."""
+    here) in router mode, or the client of the lab host's own router."""
     from runtime.zsession import open_session
 
+    if lab:
+        return open_session(settings.zenoh_endpoint, mode="client", credentials=None)
     if settings.zenoh_mode == "router":
         router_cmd = [sys.executable, "-m", "hil.run.router", settings.zenoh_endpoint]
         router_cmd += ids.router_args()
@@ -357,16 +365,18 @@ def _open_recorder_session(
 
 
 def _start_services(
-    sup: Supervisor, run_dir: Path, ids: Any, logs: _Logs, host: HostSampler
+    sup: Supervisor, run_dir: Path, ids: Any, logs: _Logs, host: HostSampler, placed: Any = None
 ) -> None:
-    """The plant and the controller from the run's settings file; their PIDs in
-    processes.json, for whoever needs to signal one (tests inject stalls), and watched by the
-    host sampler."""
+    """The plant and the controller from the run's settings file (each on its lab host when
+    ``placed``); their PIDs in processes.json, for whoever needs to signal one (tests inject
+    stalls), and watched by the host sampler."""
+    from hil.lab.placement import child_argv
+
     settings_path = str(run_dir / "run_settings.json")
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
-        sup.start_python(
+        sup.start(
             name,
-            ["-m", module, settings_path],
+            child_argv(placed, name, [sys.executable, "-m", module, settings_path]),
             env=ids.child_env(name),
             stdout=logs.open(name),
             stderr=STDOUT,
@@ -418,11 +428,14 @@ def _close_live(live: _Live, recorder: Recorder, run_dir: Path) -> None:
 
 def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
+    from hil.lab import placement
     from hil.run import impair
     from hil.run.secure import RunIdentities
 
-    # [impair]: the run's own network namespace (this command is executed again inside it).
-    impairment = impair.enter(opts, check_options)
+    # --lab: the recorder's lab host; [impair]: the run's own network namespace (either way
+    # this command is executed again there).
+    placed = placement.enter(opts, check_options)
+    impairment = None if placed else impair.enter(opts, check_options)
     scenario, settings, run_dir, info = prepare(opts)
     sup = Supervisor()
     error: str | None = None
@@ -439,11 +452,11 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     host = HostSampler(run_dir)
     with stop_on_signals() as stop:
         try:
-            live.session = _open_recorder_session(settings, ids, sup, logs, stop)
+            live.session = _open_recorder_session(settings, ids, sup, logs, stop, bool(placed))
             announcer = ids.announcer(live.session, settings.zenoh_endpoint)
             live.sub = live.session.declare_subscriber("hil/**", recorder.on_zenoh)
             live.can_rec = _can_recorder(settings, recorder)
-            _start_services(sup, run_dir, ids, logs, host)
+            _start_services(sup, run_dir, ids, logs, host, placed)
             error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
             interrupted = bool(stop)
         finally:
@@ -464,6 +477,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         "secure": opts.secure,
     }
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
+    placement.write_topology(placed, run_dir)
     summary = _write_results(run_dir, scenario, settings, info, extra)
     summary["run_dir"] = str(run_dir)
     return summary
