@@ -55,6 +55,9 @@ PlantHostOpt = Annotated[str | None, typer.Option(help="The plant's lab host (de
 ControllerHostOpt = Annotated[
     str | None, typer.Option(help="The controller's lab host (default h2).")
 ]
+RobotIdOpt = Annotated[
+    str | None, typer.Option(help="The robot's id (its keys hil/ID/...) instead of the scenario's.")
+]
 StrictOpt = Annotated[
     bool,
     typer.Option(
@@ -95,6 +98,7 @@ def register(app: typer.Typer) -> None:
         lab: LabOpt = None,
         plant_host: PlantHostOpt = None,
         controller_host: ControllerHostOpt = None,
+        robot_id: RobotIdOpt = None,
     ) -> None:
         """Run the controller against the emulated robot over Zenoh and CAN and record it."""
         from hil.run.orchestrate import RunOptions, execute
@@ -117,6 +121,7 @@ def register(app: typer.Typer) -> None:
                 lab=lab,
                 plant_host=plant_host,
                 controller_host=controller_host,
+                robot_id=robot_id,
             )
         )
         brief = _brief(summary, cmd_path)

@@ -73,6 +73,7 @@ class RunOptions:
     lab: str | None = None  # run on a lab's hosts (hil.lab.placement)
     plant_host: str | None = None
     controller_host: str | None = None
+    robot_id: str | None = None  # instead of the scenario's (hil fleet: one per robot)
 
 
 class Recorder:
@@ -198,6 +199,11 @@ def check_options(opts: RunOptions) -> None:
         if value is not None:
             options.plain_string(name, value, empty=False)
     options.out_dir("--out", opts.out)
+    if opts.robot_id is not None:
+        from protocol.keys import is_valid_robot_id
+
+        if not is_valid_robot_id(opts.robot_id):
+            raise BadInputError(f"--robot-id {opts.robot_id!r}: 1-64 characters of [A-Za-z0-9_.-]")
 
 
 def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
@@ -281,6 +287,8 @@ def _run_settings(
         out_dir=str(run_dir.resolve()),
         spin_us=opts.spin_us,
     )
+    if opts.robot_id is not None:
+        settings.robot_id = opts.robot_id
     if (os.cpu_count() or 1) >= 2:
         settings.cpu_controller, settings.cpu_plant = 1, 0
     settings.validate()
@@ -364,6 +372,13 @@ def _open_recorder_session(
     return open_session(settings.zenoh_endpoint, listen_endpoint=True, credentials=None)
 
 
+def robot_keys(settings: RunSettings) -> str:
+    """``hil/<robot>/**``: what the run's recorder records."""
+    from protocol.keys import robot_prefix
+
+    return robot_prefix(settings.robot_id)
+
+
 def _start_services(
     sup: Supervisor, run_dir: Path, ids: Any, logs: _Logs, host: HostSampler, placed: Any = None
 ) -> None:
@@ -397,6 +412,7 @@ def _start_and_follow(
 ) -> str | None:
     """Wait for both services to be ready, announce the epoch, follow the run to its end;
     returns an error, or None."""
+    from hil.fleet import barrier as fleet_barrier
     from runtime.startgate import announce_start
 
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
@@ -404,6 +420,7 @@ def _start_and_follow(
     ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
     if not _wait_ready(recorder, sup, stop, timeout=ready_timeout):
         return "services did not become ready"
+    fleet_barrier.wait(stop)  # a fleet's robots start together (no-op for one run)
     epoch = time.monotonic_ns() + 300_000_000
     for i in range(3):  # a start message lost to a racing link must not hang
         announce_start(announcer, settings.robot_id, epoch, seq=i)
@@ -454,7 +471,8 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         try:
             live.session = _open_recorder_session(settings, ids, sup, logs, stop, bool(placed))
             announcer = ids.announcer(live.session, settings.zenoh_endpoint)
-            live.sub = live.session.declare_subscriber("hil/**", recorder.on_zenoh)
+            # The run's own robot only: a fleet's robots may share the routers.
+            live.sub = live.session.declare_subscriber(robot_keys(settings), recorder.on_zenoh)
             live.can_rec = _can_recorder(settings, recorder)
             _start_services(sup, run_dir, ids, logs, host, placed)
             error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
