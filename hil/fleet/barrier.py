@@ -19,15 +19,22 @@ def env_for(folder: Path, robots: int, robot: str) -> dict[str, str]:
     return {ENV: f"{folder}:{robots}:{robot}"}
 
 
+def release(folder: Path, robot: str) -> None:
+    """Count a robot whose run ended before it was ready (hil fleet does it for a run that
+    exited): the others are not held for it."""
+    marks = folder / ".ready"
+    marks.mkdir(exist_ok=True)
+    (marks / robot).touch()
+
+
 def wait(stop: Any) -> None:
     """Mark this run ready and wait for the fleet's other runs (no-op outside a fleet)."""
     value = os.environ.get(ENV)
     if not value:
         return
     folder, n, robot = value.rsplit(":", 2)
+    release(Path(folder), robot)
     marks = Path(folder) / ".ready"
-    marks.mkdir(exist_ok=True)
-    (marks / robot).touch()
     deadline = time.monotonic() + TIMEOUT_S
     while not stop and time.monotonic() < deadline and len(list(marks.iterdir())) < int(n):
         time.sleep(0.02)

@@ -78,6 +78,9 @@ def execute(opts: FleetOptions, stop: Any) -> dict[str, int | None]:
             env = barrier.env_for(opts.out, opts.robots, robot)
             sup.start(robot, run_argv(opts, robot), env=env, stdout=log, stderr=log)
         while not stop and any(c.alive() for c in sup.children):
+            for c in sup.children:
+                if not c.alive():  # ended before the start (it may never have been ready)
+                    barrier.release(opts.out, c.name)
             time.sleep(0.1)
     finally:
         # A run that is still going gets SIGINT (it stops its services and writes its folder).

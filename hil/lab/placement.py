@@ -166,4 +166,10 @@ def write_topology(p: Placement | None, run_dir: Path) -> None:
             f"{', '.join(CROSS_HOST)} mix two clocks and are not valid",
             file=sys.stderr,
         )
+    from hil.lab.clockplot import plot_clock
+
+    try:
+        facts["clock"]["plot"] = getattr(plot_clock(run_dir), "name", None)
+    except Exception as exc:  # a plot must never cost the run its folder
+        print(f"warning: clock plot not written: {exc}", file=sys.stderr)
     (run_dir / TOPOLOGY_FILE).write_text(json.dumps(facts, indent=2) + "\n")

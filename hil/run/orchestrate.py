@@ -39,7 +39,24 @@ from runtime.signals import stop_on_signals
 LAB_ROUTER = "tcp/127.0.0.1:7447"  # a lab host's own router, from inside the host (hil.lab)
 
 
+# Ports the kernel never hands out on its own (below Linux's ephemeral range, 32768-60999): a
+# port from that range, free when picked, was seen taken by another process's ephemeral
+# listener or connection before the run's own listen (16 runs of a fleet at once).
+PORTS = (20000, 32000)
+
+
 def free_port() -> int:
+    """A loopback TCP port nothing listens on now, outside the ephemeral range."""
+    import random
+
+    for _ in range(200):
+        port = random.randrange(*PORTS)
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
@@ -484,6 +501,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             host.close()
             ids.close()
             logs.close()
+            placement.write_topology(placed, run_dir)  # before the recording takes it along
             _close_live(live, recorder, run_dir)
     extra = {
         "interrupted": interrupted,
@@ -495,7 +513,6 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         "secure": opts.secure,
     }
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
-    placement.write_topology(placed, run_dir)
     summary = _write_results(run_dir, scenario, settings, info, extra)
     summary["run_dir"] = str(run_dir)
     return summary
@@ -525,7 +542,9 @@ def _write_results(
     return summary
 
 
+# The clock exchanges and, on a lab, which host ran what (hil.lab.placement.TOPOLOGY_FILE).
 ATTACHED = ("controller.hoplog", "plant.hoplog", HOST_FILE, "scenario.resolved.toml", CLOCK_FILE)
+ATTACHED += ("topology.json",)
 
 
 def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:
