@@ -50,6 +50,16 @@ def test_a_fleet_over_loopback_gives_each_robot_its_own_loop_and_folder(tmp_path
     assert done.returncode in (0, 1), done.stderr[-3000:]
     fleet = _check_robot_folders(out, 2)
     assert fleet["fleet"]["robots"] == 2
+    # Each robot's folder is a complete run folder: hil report reads it.
+    report = subprocess.run(
+        [sys.executable, "-m", "hil", "report", str(out / "robot2")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+    )
+    assert report.returncode in (0, 1), report.stderr[-2000:]
+    assert (out / "robot2" / "report.html").is_file()
 
 
 @pytest.mark.skipif(lab_skip_reason() is not None, reason=lab_skip_reason() or "")
