@@ -36,8 +36,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import zenoh
-
 from protocol import keys
 
 CLOCK_FILE = "clock-controller.csv"  # the controller's probe, in the run folder
@@ -63,6 +61,8 @@ def pong_key(robot_id: str) -> str:
 
 
 def _publisher(session: Any, key: str) -> Any:
+    import zenoh  # here: hil.measure reads this module's file layout without loading Zenoh
+
     # Express: a batch would add its own wait to one direction only.
     return session.declare_publisher(key, express=True, priority=zenoh.Priority.REAL_TIME)
 

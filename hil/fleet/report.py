@@ -8,6 +8,9 @@ import json
 from pathlib import Path
 from typing import Any
 
+import matplotlib
+import matplotlib.pyplot as plt
+
 
 def _robot(folder: Path, code: int | None) -> dict[str, Any]:
     row: dict[str, Any] = {"robot": folder.name, "folder": folder.name, "exit_code": code}
@@ -80,11 +83,7 @@ def markdown(summary: dict[str, Any]) -> str:
 
 def plot(summary: dict[str, Any], path: Path) -> None:
     """D of each robot against its D*."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     rows = summary["per_robot"]
     names = [r["robot"] for r in rows]
     d = [(r.get("d_max_s") or 0) * 1e3 for r in rows]

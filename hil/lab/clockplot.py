@@ -6,19 +6,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+
+from hil.measure.clocks import read_track
+
 CLOCK_PLOT = "clock.png"
 
 
 def plot_clock(run_dir: Path) -> Path | None:
     """The plot, or None when the run has no estimates."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from hil.measure.clocks import read_track
-
     track = read_track(run_dir)
     if track.at_ns.size == 0:
         return None

@@ -22,6 +22,10 @@ from pathlib import Path
 from typing import Any
 
 from hil.errors import BadInputError
+from hil.lab.clockplot import plot_clock
+from hil.lab.lab import LOCAL_ROUTER, host_command, host_env, host_of, require_root
+from hil.lab.state import load
+from hil.measure.clocks import read_track
 
 PLACED_ENV = "HIL_LAB_PLACED"  # the PID of the ``hil run`` placed on the recorder's host
 TOPOLOGY_FILE = "topology.json"
@@ -41,9 +45,9 @@ class Placement:
         return {"plant": self.plant, "controller": self.controller}.get(process, self.recorder)
 
 
-def placement_of(opts: Any, check_options: Any = None) -> Placement | None:
+def placement_of(opts: Any, impaired: bool = False) -> Placement | None:
     """The run's placement, or None without ``--lab``; a bad combination is a BadInputError
-    (``check_options``: hil run's, so that a scenario's [impair] table is found)."""
+    (``impaired``: the scenario has an [impair] table)."""
     lab = getattr(opts, "lab", None)
     plant, controller = getattr(opts, "plant_host", None), getattr(opts, "controller_host", None)
     if lab is None:
@@ -57,21 +61,15 @@ def placement_of(opts: Any, check_options: Any = None) -> Placement | None:
             "--lab carries the Zenoh command path between hosts: add --no-can (a CAN bus "
             "does not cross the lab's routers)"
         )
-    if check_options is not None:
-        from hil.run.impair import plan_of
-
-        if plan_of(opts, check_options) is not None:
-            raise BadInputError(
-                "--lab impairs the lab's links (hil lab up --loss, --rate-bps):"
-                " a scenario with [impair] cannot run there"
-            )
+    if impaired:
+        raise BadInputError(
+            "--lab impairs the lab's links (hil lab up --loss, --rate-bps):"
+            " a scenario with [impair] cannot run there"
+        )
     return Placement(lab, plant or "h1", controller or "h2")
 
 
 def _state(p: Placement) -> Any:
-    from hil.lab.lab import host_of, require_root
-    from hil.lab.state import load
-
     require_root("hil run --lab")
     state = load(p.lab)
     if state is None or state.phase != "up":
@@ -85,19 +83,18 @@ def inside() -> bool:
     return os.environ.get(PLACED_ENV) == str(os.getpid())
 
 
-def enter(opts: Any, check_options: Any = None) -> Placement | None:
+def enter(opts: Any, impaired: bool, started_as_hil_run: bool) -> Placement | None:
     """Before ``hil run`` prepares anything: None without ``--lab``; else, the first time,
-    execute this same command again on the recorder's host (never returns)."""
-    p = placement_of(opts, check_options)
+    execute this same command again on the recorder's host (never returns). ``impaired``: the
+    scenario has [impair]; ``started_as_hil_run``: this process can be executed again as is."""
+    p = placement_of(opts, impaired)
     if p is None or inside():
         return p
-    if not _started_as_hil_run():
+    if not started_as_hil_run:
         raise BadInputError(
             "--lab: start it as `hil run` (or python -m hil run), which "
             "executes itself again on the plant's lab host"
         )
-    from hil.lab.lab import host_command, host_env
-
     state = _state(p)
     argv = host_command(state, p.recorder, [sys.executable, *sys.orig_argv[1:]])
     env = {**host_env(state), PLACED_ENV: str(os.getpid())}
@@ -107,26 +104,15 @@ def enter(opts: Any, check_options: Any = None) -> Placement | None:
     return p  # not reached
 
 
-def _started_as_hil_run() -> bool:
-    from hil.run.impair import _started_as_hil_run as started
-
-    return started()
-
-
 def child_argv(p: Placement | None, process: str, argv: list[str]) -> list[str]:
     """``argv`` of a run's child, on its host (unchanged on the recorder's host)."""
     if p is None or p.host_of(process) == p.recorder:
         return argv
-    from hil.lab.lab import host_command
-
     return host_command(_state(p), p.host_of(process), argv)
 
 
 def topology(p: Placement) -> dict[str, Any]:
     """Which host ran what, each host's injected offset, and the routers a message crosses."""
-    from hil.lab.lab import LOCAL_ROUTER, host_of
-    from hil.lab.state import load
-
     state = load(p.lab)
     hosts = {}
     for name in dict.fromkeys((p.plant, p.controller)):
@@ -153,8 +139,6 @@ def write_topology(p: Placement | None, run_dir: Path) -> None:
     plant's across hosts (its cross-host figures then compare nothing)."""
     if p is None:
         return
-    from hil.measure.clocks import read_track
-
     facts = topology(p)
     track = read_track(run_dir)
     facts["clock"] = track.facts()
@@ -166,8 +150,6 @@ def write_topology(p: Placement | None, run_dir: Path) -> None:
             f"{', '.join(CROSS_HOST)} mix two clocks and are not valid",
             file=sys.stderr,
         )
-    from hil.lab.clockplot import plot_clock
-
     try:
         facts["clock"]["plot"] = getattr(plot_clock(run_dir), "name", None)
     except Exception as exc:  # a plot must never cost the run its folder

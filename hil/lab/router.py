@@ -13,12 +13,12 @@ import signal
 import sys
 import threading
 
+import zenoh
+
+from protocol.zenoh_config import ZenohSettings, session_config
+
 
 def main(argv: list[str] | None = None) -> int:
-    import zenoh
-
-    from protocol.zenoh_config import ZenohSettings, session_config
-
     parser = argparse.ArgumentParser(prog="python -m hil.lab.router")
     parser.add_argument("--listen", action="append", default=[])
     parser.add_argument("--connect", action="append", default=[])

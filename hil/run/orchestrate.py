@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import datetime as dt
 import json
 import os
+import random
 import signal
 import socket
 import sys
@@ -26,15 +26,43 @@ from pathlib import Path
 from subprocess import STDOUT
 from typing import Any
 
-from hil import interrupts
+import can
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from hil import interrupts, options
+from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
+from hil.fleet import barrier as fleet_barrier
+from hil.folder import layout, new_run_dir
+from hil.lab import placement
+from hil.lab.placement import TOPOLOGY_FILE, child_argv
 from hil.measure.logs import HOST_FILE
+from hil.provenance import dumps_toml
 from hil.recording import RecordingWriter, to_jsonable
+from hil.run import impair
+from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
 from hil.run.host_load import HostSampler
+from hil.run.results import analyze, plot
+from hil.run.secure import RunIdentities
+from hil.run.settings import check_can_interface, effective_can_table, scenario_settings
+from hil.scenario import (
+    DURATION_MAX,
+    RATE_MAX,
+    build_loop,
+    load_scenario,
+    loads_scenario,
+    resolved_dict,
+)
 from hil.supervisor import Supervisor
-from protocol.settings import RunSettings
+from protocol.can.codec import decode as can_decode
+from protocol.can.drive_link import from_message
+from protocol.keys import is_valid_robot_id, robot_prefix
+from protocol.messages import DecodeError, Status, decode
+from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
 from runtime.clocksync import CLOCK_FILE
 from runtime.signals import stop_on_signals
+from runtime.startgate import announce_start
+from runtime.zsession import open_session
 
 LAB_ROUTER = "tcp/127.0.0.1:7447"  # a lab host's own router, from inside the host (hil.lab)
 
@@ -47,8 +75,6 @@ PORTS = (20000, 32000)
 
 def free_port() -> int:
     """A loopback TCP port nothing listens on now, outside the ephemeral range."""
-    import random
-
     for _ in range(200):
         port = random.randrange(*PORTS)
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
@@ -60,15 +86,6 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def new_run_dir(base: Path = Path("runs")) -> Path:
-    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    for i in range(1000):
-        p = base / (f"run-{stamp}" + (f"-{i}" if i else ""))
-        if not p.exists():
-            return p
-    raise BadInputError("cannot find a free run folder name")
 
 
 @dataclass
@@ -87,6 +104,7 @@ class RunOptions:
     scheduling: str | None = None
     quiet: bool = False
     secure: bool = False  # router with authentication and access control (hil.run.secure)
+    law: str | None = None  # --law: the [controller] law instead of the scenario's
     lab: str | None = None  # run on a lab's hosts (hil.lab.placement)
     plant_host: str | None = None
     controller_host: str | None = None
@@ -115,8 +133,6 @@ class Recorder:
 
     def _write_one(self, topic: str, t: int, payload: Any) -> None:
 
-        from protocol.messages import DecodeError, Status, decode
-
         if topic.startswith("can/"):
             data: dict[str, Any] = {
                 "arbitration_id": payload.arbitration_id,
@@ -125,9 +141,6 @@ class Recorder:
                 "is_remote_frame": bool(payload.is_remote_frame),
             }
             try:
-                from protocol.can.codec import decode as can_decode
-                from protocol.can.drive_link import from_message
-
                 m = can_decode(from_message(payload))
                 data["message"] = type(m).__name__
                 data["fields"] = to_jsonable(m) if hasattr(m, "__dataclass_fields__") else str(m)
@@ -178,8 +191,6 @@ class Recorder:
 def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any] | None:
     """A python-can Notifier on the run's bus feeding the recorder (None if no CAN)."""
     try:
-        import can
-
         bus = settings.open_can_bus()
         if bus is None:
             return None
@@ -197,9 +208,6 @@ SPIN_US_MAX = 1e6
 def check_options(opts: RunOptions) -> None:
     """The command-line options of ``hil run`` (and of the services run alone), each named in
     a BadInputError; the scenario's own keys are checked when it is loaded."""
-    from hil import options
-    from hil.scenario import DURATION_MAX, RATE_MAX
-    from protocol.settings import CMD_PATHS, TRIGGERS
 
     options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
     if opts.trigger is not None:
@@ -215,32 +223,26 @@ def check_options(opts: RunOptions) -> None:
     ):
         if value is not None:
             options.plain_string(name, value, empty=False)
-    options.out_dir("--out", opts.out)
-    if opts.robot_id is not None:
-        from protocol.keys import is_valid_robot_id
-
-        if not is_valid_robot_id(opts.robot_id):
-            raise BadInputError(f"--robot-id {opts.robot_id!r}: 1-64 characters of [A-Za-z0-9_.-]")
+    options.out_dir("--out", opts.out, default="runs")
+    if opts.robot_id is not None and not is_valid_robot_id(opts.robot_id):
+        raise BadInputError(f"--robot-id {opts.robot_id!r}: 1-64 characters of [A-Za-z0-9_.-]")
 
 
 def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
     """(scenario, its path, whether the user gave one, its default duration): the user's
     scenario (a file or a bundled name) or the paper's tracking circle."""
-    from hil.bundled import resolve_scenario
-    from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
-    from hil.scenario import load_scenario, loads_scenario
+    from hil.law.option import with_law
 
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     if given is None:
-        scenario = loads_scenario(PAPER_TRACKING_TOML, run_dir)
-        return scenario, run_dir / "scenario.toml", False, DEFAULT_DURATION
-    scenario = load_scenario(given)
+        scenario = with_law(loads_scenario(PAPER_TRACKING_TOML, run_dir), opts.law)
+        return scenario, run_dir / layout.SCENARIO, False, DEFAULT_DURATION
+    scenario = with_law(load_scenario(given), opts.law)
     return scenario, given.resolve(), True, scenario.run.duration
 
 
 def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
     """The control rate (Hz) and the name of what set it ("" for the scenario's own Ts)."""
-    from hil.scenario import RATE_MAX
 
     rt = scenario.realtime
     if opts.rate is not None:
@@ -258,7 +260,6 @@ def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
 
 def _run_can_table(opts: RunOptions, scenario: Any) -> dict[str, Any]:
     """The run's [can] table with the command line's interface and channel, checked."""
-    from hil.run.settings import check_can_interface, effective_can_table
 
     can_table = effective_can_table(scenario, opts.can_interface)
     if opts.can_channel:
@@ -274,7 +275,6 @@ def _run_settings(
     opts: RunOptions, scenario: Any, context: Any, scenario_path: Path, run_dir: Path, rate: float
 ) -> RunSettings:
     """The settings both services read (:class:`protocol.settings.RunSettings`)."""
-    from hil.run.settings import scenario_settings
 
     rt = scenario.realtime
     ts_s = scenario.timing.ts  # already 1 / rate when a rate overrode it (prepare)
@@ -287,7 +287,7 @@ def _run_settings(
         # The scenario's Ts bit for bit when no rate overrides it (1 / (1 / ts) may differ in
         # the last bit, and lockstep must see the simulator's sample times exactly).
         ts=ts_s,
-        sensor_ts=ts_s if sensor_rate == rate else 1.0 / sensor_rate,
+        sensor_ts=ts_s if sensor_rate == rate else period_s(sensor_rate),
         trigger=opts.trigger or rt.trigger,
         lockstep=opts.lockstep,
         # Lockstep is about values, not timing; and a SCHED_FIFO main thread there was seen to
@@ -314,9 +314,6 @@ def _run_settings(
 
 def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     """Resolve the scenario and the run's settings; write the folder's first files."""
-    from hil.provenance import dumps_toml
-    from hil.run.defaults import PAPER_TRACKING_TOML
-    from hil.scenario import build_loop, resolved_dict
 
     check_options(opts)  # every option before the scenario: no folder, no process yet
     if opts.secure and opts.cmd_path == "can":
@@ -327,7 +324,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     duration = opts.duration if opts.duration is not None else default_duration
     scenario = scenario.with_overrides(
         duration=duration,
-        ts=scenario.timing.ts if not rate_name else 1.0 / rate,
+        ts=scenario.timing.ts if not rate_name else period_s(rate),
         names=(
             "--duration" if opts.duration is not None else "[run] duration",
             f"1 / {rate_name}" if rate_name else "[timing] ts",
@@ -338,7 +335,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     run_dir.mkdir(parents=True, exist_ok=True)
     if not given:
         scenario_path.write_text(PAPER_TRACKING_TOML)
-    settings.save(run_dir / "run_settings.json")
+    settings.save(run_dir / layout.RUN_SETTINGS)
     run_facts = {
         "command": "hil run",
         "cmd_path": settings.cmd_path,
@@ -349,7 +346,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         "secure": opts.secure,
     }
     resolved = resolved_dict(scenario, controller, context, run_facts)
-    (run_dir / "scenario.resolved.toml").write_text(dumps_toml(resolved))
+    (run_dir / layout.SCENARIO_RESOLVED).write_text(dumps_toml(resolved))
     info = {
         "reference": reference,
         "context": context,
@@ -374,7 +371,6 @@ def _open_recorder_session(
 ) -> Any:
     """The recorder's Zenoh session: on the run's endpoint, or a router's client (started
     here) in router mode, or the client of the lab host's own router."""
-    from runtime.zsession import open_session
 
     if lab:
         return open_session(settings.zenoh_endpoint, mode="client", credentials=None)
@@ -391,8 +387,6 @@ def _open_recorder_session(
 
 def robot_keys(settings: RunSettings) -> str:
     """``hil/<robot>/**``: what the run's recorder records."""
-    from protocol.keys import robot_prefix
-
     return robot_prefix(settings.robot_id)
 
 
@@ -402,9 +396,7 @@ def _start_services(
     """The plant and the controller from the run's settings file (each on its lab host when
     ``placed``); their PIDs in processes.json, for whoever needs to signal one (tests inject
     stalls), and watched by the host sampler."""
-    from hil.lab.placement import child_argv
-
-    settings_path = str(run_dir / "run_settings.json")
+    settings_path = str(run_dir / layout.RUN_SETTINGS)
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
         sup.start(
             name,
@@ -413,7 +405,7 @@ def _start_services(
             stdout=logs.open(name),
             stderr=STDOUT,
         )
-    (run_dir / "processes.json").write_text(json.dumps({c.name: c.pid for c in sup.children}))
+    (run_dir / layout.PROCESSES).write_text(json.dumps({c.name: c.pid for c in sup.children}))
     for c in sup.children:
         if c.name in ("plant", "controller"):
             host.watch(c.name, c.pid)
@@ -429,8 +421,6 @@ def _start_and_follow(
 ) -> str | None:
     """Wait for both services to be ready, announce the epoch, follow the run to its end;
     returns an error, or None."""
-    from hil.fleet import barrier as fleet_barrier
-    from runtime.startgate import announce_start
 
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
     # that dies is noticed at once anyway.
@@ -462,13 +452,11 @@ def _close_live(live: _Live, recorder: Recorder, run_dir: Path) -> None:
 
 def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
-    from hil.lab import placement
-    from hil.run import impair
-    from hil.run.secure import RunIdentities
 
     # --lab: the recorder's lab host; [impair]: the run's own network namespace (either way
     # this command is executed again there).
-    placed = placement.enter(opts, check_options)
+    impaired = bool(opts.lab) and impair.plan_of(opts, check_options) is not None
+    placed = placement.enter(opts, impaired, impair.started_as_hil_run())
     impairment = None if placed else impair.enter(opts, check_options)
     scenario, settings, run_dir, info = prepare(opts)
     sup = Supervisor()
@@ -476,7 +464,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     interrupted = False
     metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
-    writer = RecordingWriter(run_dir / "recording.mcap", metadata=metadata)
+    writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer)
     live = _Live()
     logs = _Logs(run_dir)
@@ -508,7 +496,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         "error": error,
         "wall_time_s": time.monotonic() - t_start,
         "exit_codes": codes,
-        "recording": "recording.mcap",
+        "recording": layout.RECORDING,
         "recorded_messages": writer.count,
         "secure": opts.secure,
     }
@@ -523,7 +511,6 @@ def _write_results(
 ) -> dict[str, Any]:
     """trace.csv, summary.json and trajectory.png from the hop logs; a second Ctrl-C while
     the folder is written is recorded, not raised (hil.interrupts)."""
-    from hil.run.results import analyze, plot
 
     with interrupts.shielded():
         summary = analyze(
@@ -543,8 +530,8 @@ def _write_results(
 
 
 # The clock exchanges and, on a lab, which host ran what (hil.lab.placement.TOPOLOGY_FILE).
-ATTACHED = ("controller.hoplog", "plant.hoplog", HOST_FILE, "scenario.resolved.toml", CLOCK_FILE)
-ATTACHED += ("topology.json",)
+ATTACHED = (layout.CONTROLLER_LOG, layout.PLANT_LOG, HOST_FILE, layout.SCENARIO_RESOLVED)
+ATTACHED += (CLOCK_FILE, TOPOLOGY_FILE)
 
 
 def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:
@@ -620,7 +607,6 @@ def _progress(
         while not stop and plant.alive() and time.monotonic() < limit:
             time.sleep(0.05)
         return
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     with Progress(
         TextColumn("hil run"),

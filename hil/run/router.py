@@ -15,6 +15,12 @@ from __future__ import annotations
 import sys
 import time
 
+import zenoh
+
+from protocol.zenoh_acl import router_config
+from runtime.credentials import ENV_DICTIONARY, CredentialsError, dictionary_from_environment
+from runtime.zsession import session_config
+
 USAGE = (
     "usage: python -m hil.run.router ENDPOINT [--secure] [--robots=R1,R2,...] "
     "[--allow-non-loopback]"
@@ -24,10 +30,6 @@ ROBOTS = "--robots="
 
 
 def main(argv: list[str] | None = None) -> int:
-    import zenoh
-
-    from runtime.credentials import ENV_DICTIONARY, CredentialsError, dictionary_from_environment
-    from runtime.zsession import session_config
 
     args = sys.argv[1:] if argv is None else argv
     robots = [r for a in args if a.startswith(ROBOTS) for r in a[len(ROBOTS) :].split(",")]
@@ -46,8 +48,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: --secure needs {ENV_DICTIONARY}=/path/to/users (0600)", file=sys.stderr)
         return 2
     if dictionary is not None:
-        from protocol.zenoh_acl import router_config
-
         try:
             conf = router_config(
                 [rest[0]],
