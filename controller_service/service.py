@@ -536,7 +536,7 @@ def main_from_settings(settings_path: str) -> int:
         svc.continue_after(_first_free_cmd_seq(previous, s.ts))
     # The offset to the plant's clock, off the real-time thread (started before its scheduling).
     clock = ClockProbe(session, s.robot_id, Path(s.out_dir) / CLOCK_FILE).start()
-    if s.epoch_ns == 0:  # the start will be announced on the plant's clock: relate it first
+    if epoch_ns == 0:  # the start will be announced on the plant's clock: relate it first
         clock.wait_first()
     try:
         return _run_service(s, svc, gate, hoplog, can_path, session, clock)
