@@ -497,6 +497,7 @@ def main_from_settings(settings_path: str) -> int:
     """Entry of ``python -m controller_service SETTINGS.json`` (``hil`` resolved the run into
     that file: :class:`protocol.settings.RunSettings`)."""
     from controller_service.from_settings import build_law
+    from runtime.clocksync import CLOCK_FILE, ClockProbe
     from runtime.startgate import StartGate
     from runtime.zsession import check_credentials, open_session
 
@@ -533,7 +534,14 @@ def main_from_settings(settings_path: str) -> int:
     )
     if previous is not None:
         svc.continue_after(_first_free_cmd_seq(previous, s.ts))
-    return _run_service(s, svc, gate, hoplog, can_path, session)
+    # The offset to the plant's clock, off the real-time thread (started before its scheduling).
+    clock = ClockProbe(session, s.robot_id, Path(s.out_dir) / CLOCK_FILE).start()
+    if epoch_ns == 0:  # the start will be announced on the plant's clock: relate it first
+        clock.wait_first()
+    try:
+        return _run_service(s, svc, gate, hoplog, can_path, session, clock)
+    finally:
+        clock.close()
 
 
 def _run_service(
@@ -543,8 +551,11 @@ def _run_service(
     hoplog: HopLogWriter,
     can_path: CanCommandPath | None,
     session: Any,
+    clock: Any = None,
 ) -> int:
-    """Wait for the run's start (unless the epoch is known), run until stopped, close all."""
+    """Wait for the run's start (unless the epoch is known; announced on the plant's clock,
+    converted with ``clock``'s estimate), run until stopped, close all."""
+    from runtime.clocksync import epoch_on_local_clock
     from runtime.realtime import restore_gc
     from runtime.signals import stop_on_signals
 
@@ -560,7 +571,7 @@ def _run_service(
                 if got is None:
                     print("no start: stopped or start-gate timeout", flush=True)
                     return 1
-                epoch_ns = svc.epoch_ns = got
+                epoch_ns = svc.epoch_ns = got if clock is None else epoch_on_local_clock(got, clock)
             hoplog.update_meta({"epoch_ns": epoch_ns})
             if can_path is not None:
                 can_path.epoch_ns = epoch_ns

@@ -615,6 +615,7 @@ def _open_drives(
 def main_from_settings(settings_path: str) -> int:
     """Entry of ``python -m plant_emulator SETTINGS.json`` (``hil`` resolved the run into that
     file: :class:`protocol.settings.RunSettings`)."""
+    from runtime.clocksync import ClockEcho
     from runtime.signals import stop_on_signals
     from runtime.zsession import check_credentials, open_session
 
@@ -655,6 +656,7 @@ def main_from_settings(settings_path: str) -> int:
         stack.callback(lambda: hoplog.close(svc.final_counters() if svc else None))
         session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
         stack.callback(session.close)
+        stack.callback(ClockEcho(session, s.robot_id).close)  # others' offsets to this clock
         can = _open_drives(s, core, hoplog, faults, stack)
         svc = PlantService(
             core,

@@ -2,16 +2,21 @@
 
 Every session of a secure bench is a client of one router that authenticates it by user name
 and password (Zenoh's ``usrpwd``: a challenge-response, the password never crosses the link)
-and then applies the rules below, default deny. A role is a user name:
+and then applies the rules below, default deny. A login is a role, and for the roles that act
+for one robot, the role and the robot (``controller.robot1``: :func:`login`):
 
-- ``controller`` publishes ``hil/*/cmd/torque``, ``hil/*/telemetry``, ``hil/*/status``;
-- ``emulator`` publishes ``hil/*/state``, ``hil/*/status``;
-- ``recorder`` (``hil run``'s recorder) and ``monitor`` (an operator's tool) publish nothing;
-- ``run`` (``hil run``'s start announcement) publishes ``hil/*/status`` only;
-- every role but ``run`` may subscribe to ``hil/**`` and be delivered what is published there.
+- ``controller.<robot>`` publishes ``hil/<robot>/cmd/torque``, ``hil/<robot>/telemetry``,
+  ``hil/<robot>/status`` and its clock pings (``hilclock/<robot>/ping``), and reads only
+  ``hil/<robot>/**`` and the pongs of its robot's plant;
+- ``emulator.<robot>`` publishes ``hil/<robot>/state``, ``hil/<robot>/status`` and the clock
+  pongs, and reads only its robot's keys;
+- ``recorder`` (``hil run``'s recorder) and ``monitor`` (an operator's tool) publish nothing
+  and read ``hil/**``, every robot;
+- ``run`` (``hil run``'s start announcement) publishes ``hil/*/status`` only and reads nothing.
 
-``hil run --secure`` builds its router from :func:`router_inserts`, and
-``deploy/zenoh-router-acl.json5`` is :func:`deploy_json5` written out
+So one robot's controller can neither command another robot nor read its state.
+``hil run --secure`` builds its router from :func:`router_inserts` for the run's robots, and
+``deploy/zenoh-router-acl.json5`` is :func:`deploy_json5` written out for ``robot1``
 (``python -m protocol.zenoh_acl > deploy/zenoh-router-acl.json5``); a test checks that the
 file is exactly that text, so the deployed router and the tested one cannot drift apart.
 """
@@ -32,6 +37,8 @@ from protocol.zenoh_config import ZenohSettings, config_dict
 ALL = keys.ALL_ROBOTS  # hil/**
 DEPLOY_DICTIONARY = "/etc/hil/zenoh-users.txt"
 DEPLOY_LISTEN = ("tcp/127.0.0.1:7447",)
+DEPLOY_ROBOTS = ("robot1",)
+CLOCK_PREFIX = "hilclock"  # runtime.clocksync's exchanges (it cannot be imported here)
 
 
 def stream_key(suffix: str) -> str:
@@ -43,17 +50,30 @@ def stream_key(suffix: str) -> str:
 class Role:
     name: str
     publishes: tuple[str, ...]  # stream suffixes of protocol.keys
-    reads: bool  # may subscribe to hil/** and be delivered it
+    reads: bool  # may subscribe and be delivered (its robot's keys, or hil/** for all robots)
     what: str
+    per_robot: bool = False  # one login per robot, its rights on that robot's keys only
+    clock: str = ""  # the clock exchange it publishes (runtime.clocksync): ping or pong
 
     @property
     def put_keys(self) -> list[str]:
         return [stream_key(s) for s in self.publishes]
 
+    def robot_put_keys(self, robot: str) -> list[str]:
+        own = [f"{keys.PREFIX}/{keys.validate_robot_id(robot)}/{s}" for s in self.publishes]
+        return own + ([f"{CLOCK_PREFIX}/{robot}/{self.clock}"] if self.clock else [])
+
 
 ROLES: tuple[Role, ...] = (
-    Role("controller", (keys.TORQUE, keys.TELEMETRY, keys.STATUS), True, "the controller service"),
-    Role("emulator", (keys.STATE, keys.STATUS), True, "the plant emulator"),
+    Role(
+        "controller",
+        (keys.TORQUE, keys.TELEMETRY, keys.STATUS),
+        True,
+        "one robot's controller service",
+        per_robot=True,
+        clock="ping",
+    ),
+    Role("emulator", (keys.STATE, keys.STATUS), True, "one robot's plant", True, "pong"),
     Role("recorder", (), True, "hil run's recorder"),
     Role("monitor", (), True, "an operator's read-only tool"),
     Role("run", (keys.STATUS,), False, "hil run's start message"),
@@ -68,87 +88,121 @@ def role(name: str) -> Role:
     raise KeyError(f"no role {name!r} (roles: {', '.join(ROLE_NAMES)})")
 
 
-def access_control() -> dict[str, Any]:
-    """The router's ``access_control`` block (Zenoh 1.x ACL: rules, subjects, policies)."""
-    rules: list[dict[str, Any]] = []
-    subjects: list[dict[str, Any]] = []
-    policies: list[dict[str, Any]] = []
+def login(role_name: str, robot: str) -> str:
+    """The user name of ``role_name`` for ``robot``: ``controller.robot1`` for a role that
+    acts for one robot, the role's name for the others."""
+    return (
+        f"{role_name}.{keys.validate_robot_id(robot)}" if role(role_name).per_robot else role_name
+    )
+
+
+def logins(robots: Sequence[str]) -> dict[str, tuple[str, str | None]]:
+    """Every user name of a router for ``robots`` -> (its role, its robot or None)."""
+    out: dict[str, tuple[str, str | None]] = {}
     for r in ROLES:
-        if not r.publishes:
-            continue
-        subjects.append({"id": r.name, "usernames": [r.name]})
-        # What it may publish (ingress at the router), and the subscriptions on those keys it
-        # is told about (egress), so its own session does not filter its puts away.
-        rules.append(
-            {
-                "id": f"{r.name}-put",
-                "messages": ["put"],
-                "flows": ["ingress"],
-                "permission": "allow",
-                "key_exprs": r.put_keys,
-            }
-        )
-        rules.append(
-            {
-                "id": f"{r.name}-sees-subscribers",
-                "messages": ["declare_subscriber"],
-                "flows": ["egress"],
-                "permission": "allow",
-                "key_exprs": r.put_keys,
-            }
-        )
-        rule_ids = [f"{r.name}-put", f"{r.name}-sees-subscribers"]
-        policies.append({"rules": rule_ids, "subjects": [r.name]})
-    readers = [r.name for r in ROLES if r.reads]
-    subjects.append({"id": "readers", "usernames": readers})
-    rules.append(
+        if r.per_robot:
+            out.update({login(r.name, b): (r.name, b) for b in robots})
+        else:
+            out[r.name] = (r.name, None)
+    return out
+
+
+def _grants(rid: str, put_keys: list[str]) -> list[dict[str, Any]]:
+    """What it may publish (ingress at the router), and the subscriptions on those keys it is
+    told about (egress), so its own session does not filter its puts away."""
+    return [
         {
-            "id": "subscribe",
+            "id": f"{rid}-put",
+            "messages": ["put"],
+            "flows": ["ingress"],
+            "permission": "allow",
+            "key_exprs": put_keys,
+        },
+        {
+            "id": f"{rid}-sees-subscribers",
+            "messages": ["declare_subscriber"],
+            "flows": ["egress"],
+            "permission": "allow",
+            "key_exprs": put_keys,
+        },
+    ]
+
+
+def _reads(rid: str, key_exprs: list[str]) -> list[dict[str, Any]]:
+    """Subscribe to ``key_exprs`` and be delivered what is published there."""
+    return [
+        {
+            "id": f"{rid}-subscribe",
             "messages": ["declare_subscriber"],
             "flows": ["ingress", "egress"],
             "permission": "allow",
-            "key_exprs": [ALL],
-        }
-    )
-    rules.append(
+            "key_exprs": key_exprs,
+        },
         {
-            "id": "deliver",
+            "id": f"{rid}-deliver",
             "messages": ["put"],
             "flows": ["egress"],
             "permission": "allow",
-            "key_exprs": [ALL],
-        }
-    )
-    policies.append({"rules": ["subscribe", "deliver"], "subjects": ["readers"]})
-    return {
-        "enabled": True,
-        "default_permission": "deny",
-        "rules": rules,
-        "subjects": subjects,
-        "policies": policies,
-    }
+            "key_exprs": key_exprs,
+        },
+    ]
+
+
+def _subject(user: str, rules: list[dict[str, Any]], out: dict[str, list[dict[str, Any]]]) -> None:
+    out["rules"] += rules
+    out["subjects"].append({"id": user, "usernames": [user]})
+    out["policies"].append({"rules": [r["id"] for r in rules], "subjects": [user]})
+
+
+def access_control(robots: Sequence[str] = DEPLOY_ROBOTS) -> dict[str, Any]:
+    """The router's ``access_control`` block (Zenoh 1.x ACL: rules, subjects, policies) for
+    ``robots``: a subject per login, each with exactly its own rights."""
+    acl: dict[str, list[dict[str, Any]]] = {"rules": [], "subjects": [], "policies": []}
+    for r in ROLES:
+        if not r.per_robot:
+            rules = _grants(r.name, r.put_keys) if r.publishes else []
+            rules += _reads(r.name, [ALL]) if r.reads else []
+            if rules:
+                _subject(r.name, rules, acl)
+            continue
+        for robot in robots:
+            user = login(r.name, robot)
+            own = [keys.robot_prefix(robot), f"{CLOCK_PREFIX}/{robot}/**"]
+            _subject(user, _grants(user, r.robot_put_keys(robot)) + _reads(user, own), acl)
+    return {"enabled": True, "default_permission": "deny", **acl}
 
 
 def router_inserts(
-    listen: Sequence[str], dictionary_file: str, *, allow_non_loopback: bool = False
+    listen: Sequence[str],
+    dictionary_file: str,
+    *,
+    allow_non_loopback: bool = False,
+    robots: Sequence[str] = DEPLOY_ROBOTS,
 ) -> dict[str, Any]:
     """The router's configuration as ``key path -> value`` (what ``insert_json5`` takes): the
     bench's router settings (:mod:`protocol.zenoh_config`: multicast scouting off), usrpwd
-    authentication against ``dictionary_file`` (``user:password`` lines) and the ACL."""
+    authentication against ``dictionary_file`` (``user:password`` lines) and the ACL for
+    ``robots``."""
     settings = ZenohSettings(
         mode="router", listen=tuple(listen), allow_non_loopback=allow_non_loopback
     )
     out = config_dict(settings)
     out["transport/auth/usrpwd/dictionary_file"] = dictionary_file
-    out["access_control"] = access_control()
+    out["access_control"] = access_control(robots)
     return out
 
 
 def router_config(
-    listen: Sequence[str], dictionary_file: str, *, allow_non_loopback: bool = False
+    listen: Sequence[str],
+    dictionary_file: str,
+    *,
+    allow_non_loopback: bool = False,
+    robots: Sequence[str] = DEPLOY_ROBOTS,
 ) -> zenoh.Config:
     conf = zenoh.Config()
-    inserts = router_inserts(listen, dictionary_file, allow_non_loopback=allow_non_loopback)
+    inserts = router_inserts(
+        listen, dictionary_file, allow_non_loopback=allow_non_loopback, robots=robots
+    )
     for key, value in inserts.items():
         conf.insert_json5(key, json.dumps(value))
     return conf
@@ -170,7 +224,7 @@ _HEADER = """\
 // GENERATED from protocol/zenoh_acl.py: do not edit; regenerate with
 //   python -m protocol.zenoh_acl > deploy/zenoh-router-acl.json5
 // (tests/test_zenoh_secure.py checks this file is exactly that output.)
-// Default deny. Roles (user names):
+// Default deny. Logins (user names) for the robots {robots}:
 {roles}
 // dictionary_file: one "user:password" line per user, mode 0600, readable by the router only.
 // Clients set transport/auth/usrpwd/{{user,password}}; the bench's services take them from
@@ -184,12 +238,17 @@ def deploy_json5(
 ) -> str:
     """The text of ``deploy/zenoh-router-acl.json5``."""
     lines = []
-    for r in ROLES:
-        pub = ", ".join(r.put_keys) or "nothing"
-        reads = "reads hil/**" if r.reads else "reads nothing"
-        lines.append(f"//   {r.name} ({r.what}): publishes {pub}; {reads}")
+    for user, (name, robot) in logins(DEPLOY_ROBOTS).items():
+        r = role(name)
+        put = r.robot_put_keys(robot) if robot else r.put_keys
+        pub = ", ".join(put) or "nothing"
+        scope = f"hil/{robot}/**" if robot else ALL
+        reads = f"reads {scope}" if r.reads else "reads nothing"
+        reads += f" and {CLOCK_PREFIX}/{robot}/**" if robot else ""
+        lines.append(f"//   {user} ({r.what}): publishes {pub}; {reads}")
     body = _dump(_nest(router_inserts(listen, dictionary_file)), "")
-    return _HEADER.format(roles="\n".join(lines)) + body + "\n"
+    robots = ", ".join(DEPLOY_ROBOTS)
+    return _HEADER.format(roles="\n".join(lines), robots=robots) + body + "\n"
 
 
 def _dump(value: Any, indent: str) -> str:

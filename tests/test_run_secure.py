@@ -55,7 +55,7 @@ def _read_secrets(folder: Path) -> dict[str, cr.Credentials]:
     assert stat.S_IMODE(folder.stat().st_mode) == 0o700
     out = {}
     for role in zenoh_acl.ROLE_NAMES:
-        f = folder / credentials_file_name(role)
+        f = folder / credentials_file_name(zenoh_acl.login(role, ROBOT))
         assert stat.S_IMODE(f.stat().st_mode) == 0o600
         out[role] = cr.read_credentials_file(f)
     assert stat.S_IMODE((folder / DICTIONARY_NAME).stat().st_mode) == 0o600
@@ -151,7 +151,8 @@ def test_secure_run_keeps_credentials_private_and_out_of_the_run_folder(baseline
             assert env[cr.ENV_DICTIONARY] == str(folder / DICTIONARY_NAME)
             assert env.get(cr.ENV_FILE, "") == ""
         else:
-            assert env[cr.ENV_FILE] == str(folder / credentials_file_name(roles[child]))
+            user = zenoh_acl.login(roles[child], ROBOT)
+            assert env[cr.ENV_FILE] == str(folder / credentials_file_name(user))
             assert env.get(cr.ENV_DICTIONARY, "") == ""
     assert set(baseline["envs"]) >= {"controller", "plant"}
 
@@ -186,7 +187,7 @@ def test_intruders_reach_nothing_and_forged_robot_ids_are_counted(baseline, tmp_
         assert run.poll() is None
 
         def file_of(role: str) -> dict[str, str]:
-            return {cr.ENV_FILE: str(folder / credentials_file_name(role))}
+            return {cr.ENV_FILE: str(folder / credentials_file_name(zenoh_acl.login(role, ROBOT)))}
 
         flood = ["--rate", "1000", "--duration", "2", "--tau1", str(INTRUDER_TAU)]
         intruders = {

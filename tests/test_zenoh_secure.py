@@ -121,8 +121,15 @@ def _allowed(role: str, stream: str) -> bool:
     return stream in zenoh_acl.role(role).publishes
 
 
+ACL_ROBOT = zenoh_acl.DEPLOY_ROBOTS[0]  # the deploy file's robot; hil.run.router's default
+
+
 def _users(tmp_path: Path) -> dict[str, Credentials]:
-    creds = {r: Credentials(r, f"pw-{r}-{os.urandom(6).hex()}") for r in zenoh_acl.ROLE_NAMES}
+    """A password for every login of the router (keyed by role: one robot)."""
+    creds = {
+        role: Credentials(user, f"pw-{user}-{os.urandom(6).hex()}")
+        for user, (role, _) in zenoh_acl.logins([ACL_ROBOT]).items()
+    }
     cr.write_private(tmp_path / "users", cr.dictionary_text(creds.values()))
     return creds
 
@@ -155,7 +162,8 @@ def test_router_grants_each_role_exactly_its_rights(spawn, tmp_path, router) -> 
         else:
             sessions.append(_deploy_router(tmp_path, ep))
         # No credentials, a wrong password, an unknown user: no session at all.
-        for bad in (None, Credentials("controller", "wrong"), Credentials("eve", "guess")):
+        wrong = Credentials(creds["controller"].user, "wrong")
+        for bad in (None, wrong, Credentials("eve", "guess"), Credentials("controller", "x")):
             with pytest.raises(zenoh.ZError):
                 sessions.append(open_session(ep, mode="client", credentials=bad))
         witness_q: queue.Queue[tuple[str, bytes]] = queue.Queue()
@@ -179,12 +187,12 @@ def test_router_grants_each_role_exactly_its_rights(spawn, tmp_path, router) -> 
         while not expected <= seen and time.monotonic() < deadline:
             for r, s in pubs.items():
                 for st in STREAMS:
-                    s.put(f"hil/r1/{st}", f"{r}|{st}".encode())
+                    s.put(f"hil/{ACL_ROBOT}/{st}", f"{r}|{st}".encode())
             with contextlib.suppress(queue.Empty):
                 while True:
                     key, payload = witness_q.get(timeout=0.1)
                     r, st = payload.decode().split("|")
-                    assert key == f"hil/r1/{st}"
+                    assert key == f"hil/{ACL_ROBOT}/{st}"
                     seen.add((r, st))
         assert seen == expected, f"granted {sorted(seen)}, defined {sorted(expected)}"
         # Everything allowed went through (several rounds), nothing else did; and the "run"
@@ -244,9 +252,9 @@ def test_init_writes_private_deployment_credentials(tmp_path, monkeypatch, capsy
         {cr.ENV_DICTIONARY: str(tmp_path / "etc/zenoh-users.txt")}
     )
     lines = users.read_text().splitlines()
-    assert [line.split(":")[0] for line in lines] == list(zenoh_acl.ROLE_NAMES)
-    for role in zenoh_acl.ROLE_NAMES:
-        c = cr.read_credentials_file(tmp_path / "etc" / "credentials" / f"{role}.env")
+    assert [line.split(":")[0] for line in lines] == list(zenoh_acl.logins(["robot1"]))
+    for user in zenoh_acl.logins(["robot1"]):
+        c = cr.read_credentials_file(tmp_path / "etc" / "credentials" / f"{user}.env")
         assert f"{c.user}:{c.password}" in lines
     assert main(["init", str(tmp_path / "etc")]) == 2  # never overwrites
     assert "not overwritten" in capsys.readouterr().err

@@ -44,6 +44,21 @@ SecureOpt = Annotated[
         "deploy/README.md).",
     ),
 ]
+LabOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="Run on the hosts of this lab (hil lab up; root): the plant and the recorder on "
+        "--plant-host, the controller on --controller-host, each through its host's router "
+        "(docs/lab.md). Needs --no-can.",
+    ),
+]
+PlantHostOpt = Annotated[str | None, typer.Option(help="The plant's lab host (default h1).")]
+ControllerHostOpt = Annotated[
+    str | None, typer.Option(help="The controller's lab host (default h2).")
+]
+RobotIdOpt = Annotated[
+    str | None, typer.Option(help="The robot's id (its keys hil/ID/...) instead of the scenario's.")
+]
 StrictOpt = Annotated[
     bool,
     typer.Option(
@@ -93,6 +108,10 @@ def register(app: typer.Typer) -> None:
         strict: StrictOpt = False,
         law: LawOpt = None,
         as_json: JsonOpt = False,
+        lab: LabOpt = None,
+        plant_host: PlantHostOpt = None,
+        controller_host: ControllerHostOpt = None,
+        robot_id: RobotIdOpt = None,
     ) -> None:
         """Run the controller against the emulated robot over Zenoh and CAN and record it."""
         from hil.run.orchestrate import RunOptions, execute
@@ -113,6 +132,10 @@ def register(app: typer.Typer) -> None:
                 quiet=quiet,
                 secure=secure,
                 law=law,
+                lab=lab,
+                plant_host=plant_host,
+                controller_host=controller_host,
+                robot_id=robot_id,
             )
         )
         brief = _brief(summary, cmd_path)

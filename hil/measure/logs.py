@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from hil.folder import layout
+from hil.measure.clocks import to_plant_clock
 from hil.recording import read_attachments
 from protocol.hoplog import (
     CONTROLLER_TABLES,
@@ -218,6 +219,7 @@ class RunLogs:
                 for name, cs in wanted.items():
                     logs.tables[name] = {c: _empty(c, COLUMNS[name][c]) for c in cs}
             setattr(logs, role, head)
+        to_plant_clock(logs.tables, controller.parent if controller is not None else None)
         return logs
 
     def __getitem__(self, table: str) -> dict[str, np.ndarray]:

@@ -179,7 +179,7 @@ def inside() -> bool:
     return os.environ.get(NETNS_ENV) == str(os.getpid())
 
 
-def _started_as_hil_run() -> bool:
+def started_as_hil_run() -> bool:
     """True when this process is ``hil run`` from its own command line (``hil run ...`` or
     ``python -m hil run ...``): only then can it be executed again as it was started."""
 
@@ -243,7 +243,7 @@ def enter(opts: Any, check_options: Callable[[Any], None]) -> Impairment | None:
     if plan is None:
         return None
     if not inside():
-        if not _started_as_hil_run():
+        if not started_as_hil_run():
             raise BadInputError(
                 "[impair] runs in hil run's own network namespace: start it as `hil run` "
                 "(or python -m hil run), which re-executes itself under unshare --net"

@@ -15,6 +15,7 @@ import collections
 import contextlib
 import json
 import os
+import random
 import signal
 import socket
 import sys
@@ -31,7 +32,10 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from hil import interrupts, options
 from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
+from hil.fleet import barrier as fleet_barrier
 from hil.folder import layout, new_run_dir
+from hil.lab import placement
+from hil.lab.placement import TOPOLOGY_FILE, child_argv
 from hil.law.option import with_law
 from hil.measure.logs import HOST_FILE
 from hil.provenance import dumps_toml
@@ -53,14 +57,33 @@ from hil.scenario import (
 from hil.supervisor import Supervisor
 from protocol.can.codec import decode as can_decode
 from protocol.can.drive_link import from_message
+from protocol.keys import is_valid_robot_id, robot_prefix
 from protocol.messages import DecodeError, Status, decode
 from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
+from runtime.clocksync import CLOCK_FILE
 from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
 from runtime.zsession import open_session
 
+LAB_ROUTER = "tcp/127.0.0.1:7447"  # a lab host's own router, from inside the host (hil.lab)
+
+
+# Ports the kernel never hands out on its own (below Linux's ephemeral range, 32768-60999): a
+# port from that range, free when picked, was seen taken by another process's ephemeral
+# listener or connection before the run's own listen (16 runs of a fleet at once).
+PORTS = (20000, 32000)
+
 
 def free_port() -> int:
+    """A loopback TCP port nothing listens on now, outside the ephemeral range."""
+    for _ in range(200):
+        port = random.randrange(*PORTS)
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
@@ -83,6 +106,10 @@ class RunOptions:
     quiet: bool = False
     secure: bool = False  # router with authentication and access control (hil.run.secure)
     law: str | None = None  # --law: the [controller] law instead of the scenario's
+    lab: str | None = None  # run on a lab's hosts (hil.lab.placement)
+    plant_host: str | None = None
+    controller_host: str | None = None
+    robot_id: str | None = None  # instead of the scenario's (hil fleet: one per robot)
 
 
 class Recorder:
@@ -198,6 +225,8 @@ def check_options(opts: RunOptions) -> None:
         if value is not None:
             options.plain_string(name, value, empty=False)
     options.out_dir("--out", opts.out, default="runs")
+    if opts.robot_id is not None and not is_valid_robot_id(opts.robot_id):
+        raise BadInputError(f"--robot-id {opts.robot_id!r}: 1-64 characters of [A-Za-z0-9_.-]")
 
 
 def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
@@ -267,13 +296,16 @@ def _run_settings(
         cmd_path=opts.cmd_path,
         can_live=opts.can_live,
         can=_run_can_table(opts, scenario),
-        zenoh_mode="router" if opts.secure else scenario.zenoh.mode,
-        zenoh_endpoint=f"tcp/127.0.0.1:{free_port()}",
+        # On a lab, each process is a client of its own host's router (hil.lab.placement).
+        zenoh_mode="router" if opts.secure or opts.lab else scenario.zenoh.mode,
+        zenoh_endpoint=LAB_ROUTER if opts.lab else f"tcp/127.0.0.1:{free_port()}",
         can_endpoint=f"tcp/127.0.0.1:{free_port()}",
         delay=scenario.timing.delay,
         out_dir=str(run_dir.resolve()),
         spin_us=opts.spin_us,
     )
+    if opts.robot_id is not None:
+        settings.robot_id = opts.robot_id
     if (os.cpu_count() or 1) >= 2:
         settings.cpu_controller, settings.cpu_plant = 1, 0
     settings.validate()
@@ -335,11 +367,13 @@ class _Live:
 
 
 def _open_recorder_session(
-    settings: RunSettings, ids: Any, sup: Supervisor, logs: _Logs, stop: Any
+    settings: RunSettings, ids: Any, sup: Supervisor, logs: _Logs, stop: Any, lab: bool = False
 ) -> Any:
     """The recorder's Zenoh session: on the run's endpoint, or a router's client (started
-    here) in router mode."""
+    here) in router mode, or the client of the lab host's own router."""
 
+    if lab:
+        return open_session(settings.zenoh_endpoint, mode="client", credentials=None)
     if settings.zenoh_mode == "router":
         router_cmd = [sys.executable, "-m", "hil.run.router", settings.zenoh_endpoint]
         router_cmd += ids.router_args()
@@ -351,17 +385,22 @@ def _open_recorder_session(
     return open_session(settings.zenoh_endpoint, listen_endpoint=True, credentials=None)
 
 
+def robot_keys(settings: RunSettings) -> str:
+    """``hil/<robot>/**``: what the run's recorder records."""
+    return robot_prefix(settings.robot_id)
+
+
 def _start_services(
-    sup: Supervisor, run_dir: Path, ids: Any, logs: _Logs, host: HostSampler
+    sup: Supervisor, run_dir: Path, ids: Any, logs: _Logs, host: HostSampler, placed: Any = None
 ) -> None:
-    """The plant and the controller from the run's settings file; their PIDs in
-    processes.json, for whoever needs to signal one (tests inject stalls), and watched by the
-    host sampler."""
+    """The plant and the controller from the run's settings file (each on its lab host when
+    ``placed``); their PIDs in processes.json, for whoever needs to signal one (tests inject
+    stalls), and watched by the host sampler."""
     settings_path = str(run_dir / layout.RUN_SETTINGS)
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
-        sup.start_python(
+        sup.start(
             name,
-            ["-m", module, settings_path],
+            child_argv(placed, name, [sys.executable, "-m", module, settings_path]),
             env=ids.child_env(name),
             stdout=logs.open(name),
             stderr=STDOUT,
@@ -388,6 +427,7 @@ def _start_and_follow(
     ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
     if not _wait_ready(recorder, sup, stop, timeout=ready_timeout):
         return "services did not become ready"
+    fleet_barrier.wait(stop)  # a fleet's robots start together (no-op for one run)
     epoch = time.monotonic_ns() + 300_000_000
     for i in range(3):  # a start message lost to a racing link must not hang
         announce_start(announcer, settings.robot_id, epoch, seq=i)
@@ -413,8 +453,11 @@ def _close_live(live: _Live, recorder: Recorder, run_dir: Path) -> None:
 def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
 
-    # [impair]: the run's own network namespace (this command is executed again inside it).
-    impairment = impair.enter(opts, check_options)
+    # --lab: the recorder's lab host; [impair]: the run's own network namespace (either way
+    # this command is executed again there).
+    impaired = bool(opts.lab) and impair.plan_of(opts, check_options) is not None
+    placed = placement.enter(opts, impaired, impair.started_as_hil_run())
+    impairment = None if placed else impair.enter(opts, check_options)
     scenario, settings, run_dir, info = prepare(opts)
     sup = Supervisor()
     error: str | None = None
@@ -427,15 +470,16 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     logs = _Logs(run_dir)
     codes: dict[str, int | None] = {}
     t_start = time.monotonic()
-    ids = RunIdentities(opts.secure)  # fresh passwords outside run_dir, or none
+    ids = RunIdentities(opts.secure, (settings.robot_id,))  # fresh passwords, or none
     host = HostSampler(run_dir)
     with stop_on_signals() as stop:
         try:
-            live.session = _open_recorder_session(settings, ids, sup, logs, stop)
+            live.session = _open_recorder_session(settings, ids, sup, logs, stop, bool(placed))
             announcer = ids.announcer(live.session, settings.zenoh_endpoint)
-            live.sub = live.session.declare_subscriber("hil/**", recorder.on_zenoh)
+            # The run's own robot only: a fleet's robots may share the routers.
+            live.sub = live.session.declare_subscriber(robot_keys(settings), recorder.on_zenoh)
             live.can_rec = _can_recorder(settings, recorder)
-            _start_services(sup, run_dir, ids, logs, host)
+            _start_services(sup, run_dir, ids, logs, host, placed)
             error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
             interrupted = bool(stop)
         finally:
@@ -445,6 +489,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             host.close()
             ids.close()
             logs.close()
+            placement.write_topology(placed, run_dir)  # before the recording takes it along
             _close_live(live, recorder, run_dir)
     extra = {
         "interrupted": interrupted,
@@ -484,7 +529,9 @@ def _write_results(
     return summary
 
 
+# The clock exchanges and, on a lab, which host ran what (hil.lab.placement.TOPOLOGY_FILE).
 ATTACHED = (layout.CONTROLLER_LOG, layout.PLANT_LOG, HOST_FILE, layout.SCENARIO_RESOLVED)
+ATTACHED += (CLOCK_FILE, TOPOLOGY_FILE)
 
 
 def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:

@@ -1,9 +1,10 @@
 """``hil run --secure``: the whole bench through an authenticating router with access control.
 
-Per run, :class:`RunIdentities` makes one fresh random password per role of
-:mod:`protocol.zenoh_acl` and writes them to a new private folder OUTSIDE the run folder
-(``tempfile.mkdtemp``: mode 0700 under ``$TMPDIR``, named ``hil-secure-*``): one credentials
-file per role (mode 0600, ``HIL_ZENOH_USER=``/``HIL_ZENOH_PASSWORD=`` lines) and the router's
+Per run, :class:`RunIdentities` makes one fresh random password per login of
+:mod:`protocol.zenoh_acl` (a role, or a role for one robot: ``controller.robot1``) and writes
+them to a new private folder OUTSIDE the run folder (``tempfile.mkdtemp``: mode 0700 under
+``$TMPDIR``, named ``hil-secure-*``): one credentials
+file per login (mode 0600, ``HIL_ZENOH_USER=``/``HIL_ZENOH_PASSWORD=`` lines) and the router's
 user dictionary (mode 0600). Each child gets, in its environment, only the path of its own
 file (``HIL_ZENOH_CREDENTIALS``; the router ``HIL_ZENOH_DICTIONARY``), never a password, so
 ``ps e`` and ``/proc/PID/environ`` show none. The recorder in ``hil run`` reads everything as
@@ -16,8 +17,9 @@ Without ``--secure`` the same object clears any ``HIL_ZENOH_*`` variable inherit
 children: ``hil run``'s own router is open, and Zenoh refuses a client that presents
 credentials to a router that asks for none.
 
-``python -m hil.run.secure init DIR`` writes the same files for a deployment (deploy/README.md):
-``DIR/zenoh-users.txt`` for the router and ``DIR/credentials/<role>.env`` per role, all 0600.
+``python -m hil.run.secure init DIR [ROBOT ...]`` writes the same files for a deployment
+(deploy/README.md): ``DIR/zenoh-users.txt`` for the router and ``DIR/credentials/<login>.env``
+per login (robots: ``robot1`` unless named), all 0600.
 """
 
 from __future__ import annotations
@@ -27,10 +29,11 @@ import secrets
 import shutil
 import sys
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from protocol.zenoh_acl import ROLE_NAMES
+from protocol.zenoh_acl import DEPLOY_ROBOTS, login, logins
 from runtime.credentials import (
     ENV_DICTIONARY,
     ENV_FILE,
@@ -52,25 +55,29 @@ def credentials_file_name(role: str) -> str:
     return f"{role}.credentials"
 
 
-def new_credentials(source: str) -> dict[str, Credentials]:
-    """A fresh random password for every role of :mod:`protocol.zenoh_acl`."""
-    return {r: Credentials(r, secrets.token_urlsafe(PASSWORD_BYTES), source) for r in ROLE_NAMES}
+def new_credentials(source: str, robots: Sequence[str] = DEPLOY_ROBOTS) -> dict[str, Credentials]:
+    """A fresh random password for every login of :mod:`protocol.zenoh_acl` for ``robots``."""
+    return {
+        user: Credentials(user, secrets.token_urlsafe(PASSWORD_BYTES), source)
+        for user in logins(robots)
+    }
 
 
 def write_identities(
     creds: dict[str, Credentials], credentials_dir: Path, dictionary: Path, suffix: str
 ) -> None:
-    """One private credentials file per role, then the router's private dictionary."""
-    for role, c in creds.items():
-        write_private(credentials_dir / f"{role}{suffix}", credentials_text(c))
+    """One private credentials file per login, then the router's private dictionary."""
+    for user, c in creds.items():
+        write_private(credentials_dir / f"{user}{suffix}", credentials_text(c))
     write_private(dictionary, dictionary_text(creds.values()))
 
 
 class RunIdentities:
     """The run's credentials (``secure``) or the absence of any (see the module docstring)."""
 
-    def __init__(self, secure: bool) -> None:
+    def __init__(self, secure: bool, robots: Sequence[str] = DEPLOY_ROBOTS) -> None:
         self.secure = bool(secure)
+        self.robots = tuple(robots)
         self.folder: Path | None = None
         self._creds: dict[str, Credentials] = {}
         self._sessions: list[Any] = []
@@ -80,30 +87,33 @@ class RunIdentities:
     def _create(self) -> None:
         self.folder = Path(tempfile.mkdtemp(prefix="hil-secure-"))
         try:
-            self._creds = new_credentials("hil run")
+            self._creds = new_credentials("hil run", self.robots)
             suffix = credentials_file_name("")
             write_identities(self._creds, self.folder, self.folder / DICTIONARY_NAME, suffix)
         except BaseException:
             self.close()
             raise
 
-    def credentials(self, role: str) -> Credentials | None:
-        """The role's credentials (None when not secure)."""
-        return self._creds[role] if self.secure else None
+    def credentials(self, role: str, robot: str | None = None) -> Credentials | None:
+        """The login's credentials: ``role``, for ``robot`` (the first) if the role acts for
+        one robot (None when not secure)."""
+        return self._creds[login(role, robot or self.robots[0])] if self.secure else None
 
-    def child_env(self, child: str) -> dict[str, str]:
-        """Environment entries for ``child`` ("router", "controller", "plant"): its own
-        credentials file or dictionary, every other ``HIL_ZENOH_*`` variable cleared."""
+    def child_env(self, child: str, robot: str | None = None) -> dict[str, str]:
+        """Environment entries for ``child`` ("router", "controller", "plant"; of ``robot``,
+        the first by default): its own credentials file or dictionary, every other
+        ``HIL_ZENOH_*`` variable cleared."""
         env = dict.fromkeys(ENV_VARS, "")
         if self.folder is not None:
             if child == "router":
                 env[ENV_DICTIONARY] = str(self.folder / DICTIONARY_NAME)
             else:
-                env[ENV_FILE] = str(self.folder / credentials_file_name(CHILD_ROLES[child]))
+                user = login(CHILD_ROLES[child], robot or self.robots[0])
+                env[ENV_FILE] = str(self.folder / credentials_file_name(user))
         return env
 
     def router_args(self) -> list[str]:
-        return ["--secure"] if self.secure else []
+        return ["--secure", f"--robots={','.join(self.robots)}"] if self.secure else []
 
     def announcer(self, session: Any, endpoint: str) -> Any:
         """The session that publishes the start message: the recorder's own when not secure,
@@ -127,20 +137,23 @@ class RunIdentities:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m hil.run.secure init DIR``: a deployment's credentials (never overwritten)."""
+    """``python -m hil.run.secure init DIR [ROBOT ...]``: a deployment's credentials (never
+    overwritten)."""
     args = sys.argv[1:] if argv is None else argv
-    if len(args) != 2 or args[0] != "init":
-        print("usage: python -m hil.run.secure init DIR", file=sys.stderr)
+    if len(args) < 2 or args[0] != "init":
+        print("usage: python -m hil.run.secure init DIR [ROBOT ...]", file=sys.stderr)
         return 2
+    robots = args[2:] or list(DEPLOY_ROBOTS)
     root = Path(args[1])
     (root / "credentials").mkdir(mode=0o700, parents=True, exist_ok=True)
     dictionary = root / "zenoh-users.txt"
     try:
-        write_identities(new_credentials("init"), root / "credentials", dictionary, ".env")
+        creds = new_credentials("init", robots)
+        write_identities(creds, root / "credentials", dictionary, ".env")
     except FileExistsError as exc:
         print(f"error: {exc.filename} exists; not overwritten", file=sys.stderr)
         return 2
-    print(f"{dictionary} (the router's) and {root / 'credentials'}/<role>.env, mode 0600")
+    print(f"{dictionary} (the router's) and {root / 'credentials'}/<login>.env, mode 0600")
     return 0
 
 

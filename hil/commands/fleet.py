@@ -1,0 +1,73 @@
+"""``hil fleet SCENARIO --robots N``: N closed loops at once (hil.fleet, docs/fleet.md)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from hil import interrupts
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("fleet")
+    def fleet_cmd(
+        scenario: Annotated[Path, typer.Argument(help="Scenario TOML or a bundled name.")],
+        robots: Annotated[int, typer.Option(help="Number of robots (robot1..robotN).")] = 4,
+        out: Annotated[
+            Path, typer.Option(help="The fleet's folder (one run folder per robot).")
+        ] = Path("runs/fleet"),
+        duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
+        rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,
+        lab: Annotated[
+            str | None,
+            typer.Option(help="Run on this lab's hosts, all robots through its routers."),
+        ] = None,
+        plant_host: Annotated[str | None, typer.Option(help="The plants' lab host.")] = None,
+        controller_host: Annotated[
+            str | None, typer.Option(help="The controllers' lab host.")
+        ] = None,
+    ) -> None:
+        """Run N robots' closed loops at once, each its own `hil run` with its own robot id
+        (robotI: keys hil/robotI/...), controller, plant and run folder OUT/robotI (a complete
+        run folder: `hil report OUT/robotI`), then write the fleet report OUT/fleet.json,
+        fleet.md and fleet.png: per robot the verdict and D against D*; for the fleet the
+        command age p99, the samples without a command and the deadline miss rate. Each robot
+        is two processes (its plant, its controller) and a recorder: on a 2-core machine the
+        fleet stops meeting its deadlines at a few robots (docs/fleet.md).
+
+        Exit 1 when a robot's verdict is negative."""
+        from hil.bundled import resolve_scenario
+        from hil.errors import NegativeVerdictError
+        from hil.fleet import report
+        from hil.fleet.run import FleetOptions, execute
+        from runtime.signals import stop_on_signals
+
+        opts = FleetOptions(
+            resolve_scenario(scenario),
+            robots,
+            out,
+            duration,
+            rate,
+            lab,
+            plant_host,
+            controller_host,
+        )
+        with stop_on_signals() as stop:
+            codes = execute(opts, stop)
+            if stop:
+                interrupts.record(stop.signal)
+        facts = {"scenario": str(opts.scenario), "rate_hz": rate, "duration_s": duration}
+        facts["lab"] = lab
+        summary = report.write(out, codes, facts)
+        typer.echo(json.dumps(summary["fleet"], indent=2))
+        if stop:
+            interrupts.note(f"fleet folder written to {out}")
+            return
+        bad = [r["robot"] for r in summary["per_robot"] if r.get("exit_code") not in (0,)]
+        if bad:
+            raise NegativeVerdictError(
+                f"robots with a negative verdict or an error: {', '.join(bad)}"
+            )

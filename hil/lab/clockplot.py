@@ -1,0 +1,39 @@
+"""``clock.png`` of a run across hosts: the controller's offset estimates to the plant's clock
+over the run, each with its uncertainty (half the round trip of the exchange used), around
+their median, so that a drift, a step or a widening bound shows."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+
+from hil.measure.clocks import read_track
+
+CLOCK_PLOT = "clock.png"
+
+
+def plot_clock(run_dir: Path) -> Path | None:
+    """The plot, or None when the run has no estimates."""
+    matplotlib.use("Agg")
+    track = read_track(run_dir)
+    if track.at_ns.size == 0:
+        return None
+    t = (track.at_ns - track.at_ns[0]) / 1e9
+    mid = float(np.median(track.offset_ns))
+    dev = (track.offset_ns - mid) / 1e3
+    unc = track.uncertainty_ns / 1e3
+    fig, ax = plt.subplots(figsize=(7, 3))
+    ax.fill_between(t, dev - unc, dev + unc, alpha=0.3, step="post", label="+- uncertainty")
+    ax.step(t, dev, where="post", label="estimate")
+    ax.set_xlabel("controller time since its first estimate (s)")
+    ax.set_ylabel(f"offset - {mid / 1e9:.6f} s (us)")
+    ax.set_title("plant clock minus controller clock (RFC 5905 minimum-delay filter)", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = run_dir / CLOCK_PLOT
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
