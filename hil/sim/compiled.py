@@ -167,8 +167,12 @@ def _build() -> Any:
 
     @njit(parallel=True)
     def kernel(a: Any, off: Any, group: Any, c: Any, k0: int, k1: int) -> None:
-        for i in numba.prange(group.shape[0]):
-            robot(i, a, off[group[i]], c, k0, k1)
+        # Samples outside, robots inside: what the robots share at a sample (sin t, cos t, the
+        # reference's terms) is then loop-invariant and computed once; robots outside measured
+        # about half as fast.
+        for k in range(k0, k1):
+            for i in numba.prange(group.shape[0]):
+                robot(i, a, off[group[i]], c, k, k + 1)
 
     return kernel
 
