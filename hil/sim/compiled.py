@@ -167,12 +167,11 @@ def _build() -> Any:
 
     @njit(parallel=True)
     def kernel(a: Any, off: Any, group: Any, c: Any, k0: int, k1: int) -> None:
-        # Samples outside, robots inside: what the robots share at a sample (sin t, cos t, the
-        # reference's terms) is then loop-invariant and computed once; robots outside measured
-        # about half as fast.
-        for k in range(k0, k1):
-            for i in numba.prange(group.shape[0]):
-                robot(i, a, off[group[i]], c, k, k + 1)
+        # Robots outside, each running its samples k0..k1 in registers: one barrier a chunk.
+        # (Samples outside, robots inside, measured 20 % less per CPU second and stalls at each
+        # sample's barrier when another process takes a core.)
+        for i in numba.prange(group.shape[0]):
+            robot(i, a, off[group[i]], c, k0, k1)
 
     return kernel
 
