@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from typing import Any
 
 import numpy as np
@@ -47,6 +48,9 @@ CHUNK = 256  # samples per kernel call: progress and Ctrl-C are served between c
 # already compiled.
 MIN_WORK = 20_000_000
 _KERNEL: list[Any] = []
+# numba's default threading layer (workqueue) aborts the process when two threads launch
+# parallel kernels at once (e.g. a threaded sweep executor): one kernel call at a time.
+_LAUNCH = threading.Lock()
 
 
 class _ScalarMath:
@@ -178,8 +182,9 @@ def _build() -> Any:
 
 def kernel() -> Any:
     """The compiled kernel, built on first use."""
-    if not _KERNEL:
-        _KERNEL.append(_build())
+    with _LAUNCH:
+        if not _KERNEL:
+            _KERNEL.append(_build())
     return _KERNEL[0]
 
 
@@ -243,7 +248,8 @@ def run(batch: Any, scenario: Any, progress: Any) -> None:
     try:
         for k0 in range(0, n_samples, CHUNK):
             k1 = min(n_samples, k0 + CHUNK)
-            compiled(args, off, group, consts, k0, k1)
+            with _LAUNCH:
+                compiled(args, off, group, consts, k0, k1)
             batch.done = k1
             if progress is not None:
                 progress(k0 - k0 % every, n_samples)
