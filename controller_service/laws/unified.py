@@ -135,7 +135,7 @@ def make_step(ns: Any) -> Any:
 
     def step(t, dt, state, ref, memory, p):  # type: ignore[no-untyped-def]
         x, y, th, v, w = state
-        xd, yd, thd, vd, wd = ref[0], ref[1], ref[2], ref[3], ref[4]
+        xd, yd, thd, vd, wd = ref[:5]
         eta, z1, z2 = memory
         lam, rho, m1, m2, half_l1, half_l2, varpi1, varpi2, inv_eps1, inv_eps2 = p
         dx = x - xd
@@ -382,7 +382,7 @@ class UnifiedController:
         """Torques (10) or (19) at law time t and the memory advanced to t + dt (module doc)."""
         x = state[0]
         xd = ref[0]
-        eta = memory[0]
+        eta, z1, z2 = memory
         # The real-time path's floats pass one identity test each; anything else is sorted here.
         if not (x.__class__ is _float and eta.__class__ is _float and xd.__class__ is _float) and (
             isinstance(x, _ndarray) or isinstance(eta, _ndarray) or isinstance(xd, _ndarray)
@@ -414,8 +414,8 @@ class UnifiedController:
             "xi": xi,
             "v_tilde": vt,
             "w_tilde": wt,
-            "z1": memory[1],
-            "z2": memory[2],
+            "z1": z1,
+            "z2": z2,
             "eta": eta,
             "alpha_v": av,
             "alpha_w": aw,
