@@ -134,6 +134,9 @@ def _build() -> Any:
 
     @njit
     def robot(i: int, a: Any, off: Any, c: Any, k0: int, k1: int) -> None:
+        """Robot i from sample k0 to k1: law, send, land at t_k, advance to t_k+1, as the numpy
+        loop does (a: state, memory, hold, sent torques by sequence modulo the ring's length,
+        extremes, squared error sum, last sampled pose, reference table; c: constants)."""
         st, mem, hold, ring, ext, sq, last, refs = a
         ts, m, h, rms_from = c[0], int(c[1]), c[2], int(c[3])
         d = (c[4], c[5])
