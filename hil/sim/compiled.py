@@ -17,10 +17,10 @@ dropped (counted); the law's bad-input rule (zero torque, memory unchanged); the
 (2) over the step ends.
 
 It applies to the common sweep: the unified law (either variant, no eta re-arm), robots that
-share the clock and the reference, an ideal sensor, no actuator lag, a constant (or no)
-disturbance, no traces recorded and no per-sample callback. Anything else, numba missing, or
-``HIL_NO_COMPILED=1`` leaves the run to the numpy path, the reference: tests/test_batch_compiled.py
-checks that the two agree to 1e-12.
+share the clock and the reference, an ideal sensor, no actuator lag, no friction or top speed,
+a constant (or no) disturbance, no traces recorded and no per-sample callback. Anything else,
+numba missing, or ``HIL_NO_COMPILED=1`` leaves the run to the numpy path, the reference:
+tests/test_batch_compiled.py checks that the two agree to 1e-12.
 """
 
 from __future__ import annotations
@@ -200,6 +200,11 @@ def applies(run: Any, scenario: Any, on_sample: Any) -> bool:
         return False
     plant = run.plant
     if not _KERNEL and len(run.group) * run.n_samples < MIN_WORK:
+        return False
+    # Friction and a top speed (a plant's optional drag) are integrated stage by stage, which
+    # only the numpy path does.
+    drag = getattr(plant, "drag", None)
+    if drag is not None and drag.active:
         return False
     return (
         type(run.controller) is UnifiedController
