@@ -11,9 +11,11 @@ from pathlib import Path
 
 import pytest
 
-from hil.scenario import loads_scenario
+from hil.bundled import bundled_path
+from hil.scenario import load_scenario, loads_scenario
 from hil.sim import compiled, simulate_batch
 from hil.sim.core import RobotVariation
+from hil.sweep.runner import scenario_at
 
 BASE = """
 [reference]
@@ -92,6 +94,18 @@ def test_boundary_law_with_a_constant_disturbance_and_one_delay(monkeypatch):
     extra = '[disturbance]\nkind = "constant"\ns1 = 0.2\ns2 = 0.2\nvalue1 = 0.15\nvalue2 = -0.1'
     sc = _scenario("unified_boundary", delay=0.0025, extra=extra)
     variations = [RobotVariation(y=1.0 - 0.1 * i, theta=0.3 * i) for i in range(16)]
+    reference, fast = _both(sc, variations, monkeypatch)
+    _assert_equal(reference, fast)
+
+
+@pytest.mark.parametrize("name", ["paper_tracking", "paper_stabilization", "paper_chattering"])
+def test_the_papers_set_ups_with_delays_per_robot(name, monkeypatch):
+    """The bundled scenarios of the unified law, 0.5 s, robots with their own delay and seed."""
+    sc = load_scenario(bundled_path(name))
+    sc = scenario_at(sc, sc.timing.ts, 0.5)
+    variations = [
+        RobotVariation(delay=0.0004 * i, jitter=0.0005, jitter_seed=7 * i) for i in range(8)
+    ]
     reference, fast = _both(sc, variations, monkeypatch)
     _assert_equal(reference, fast)
 
