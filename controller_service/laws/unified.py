@@ -380,24 +380,19 @@ class UnifiedController:
         self, t: float, dt: float, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
     ) -> tuple[ControlOutput, UnifiedMemory]:
         """Torques (10) or (19) at law time t and the memory advanced to t + dt (module doc)."""
-        x = state[0]
-        xd = ref[0]
         eta, z1, z2 = memory
-        # The real-time path's floats pass one identity test each; anything else is sorted here.
-        if not (x.__class__ is _float and eta.__class__ is _float and xd.__class__ is _float) and (
-            isinstance(x, _ndarray) or isinstance(eta, _ndarray) or isinstance(xd, _ndarray)
-        ):
-            fast = self._update_array_shared_ref(t, dt, state, ref, memory)
-            if fast is not None:
-                return fast
-            fast = self._update_array_finite(t, dt, state, ref, memory)
-            if fast is not None:
-                return fast
-            return self._update_array(t, dt, state, ref, memory)
+        # Float memory means one robot on floats (the real-time path: one identity test); any
+        # other memory is sorted here, and arrays met in the float step send the call back.
+        if eta.__class__ is not _float and self._any_array(state, ref, memory):
+            return self._update_arrays(t, dt, state, ref, memory)
         try:
             (tau1, tau2, eta_n, z1_n, z2_n, xe, ye, the, _, _, xi, _, av, aw, vt, wt) = FLOAT_STEP(
                 t, dt, state, ref, memory, self._p
             )
+        except TypeError:
+            if not self._any_array(state, ref, memory):
+                raise
+            return self._update_arrays(t, dt, state, ref, memory)
         except (ValueError, OverflowError, ZeroDivisionError):
             # Finite but huge input overflows math functions (sin(inf), exp(1e308)).
             return self._reject_float(memory)
@@ -423,6 +418,27 @@ class UnifiedController:
         }
         memory_next = _new(UnifiedMemory, (eta_n, z1_n, z2_n))
         return _new(ControlOutput, (tau1, tau2, telemetry)), memory_next
+
+    @staticmethod
+    def _any_array(state: RobotState, ref: ReferenceSample, memory: UnifiedMemory) -> bool:
+        return (
+            isinstance(state[0], _ndarray)
+            or isinstance(memory[0], _ndarray)
+            or isinstance(ref[0], _ndarray)
+        )
+
+    def _update_arrays(
+        self, t: Any, dt: Any, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
+    ) -> tuple[ControlOutput, UnifiedMemory]:
+        """The array path: the batch simulator's shared-reference form when it applies, else
+        the finite fast form, else the masked general form."""
+        fast = self._update_array_shared_ref(t, dt, state, ref, memory)
+        if fast is not None:
+            return fast
+        fast = self._update_array_finite(t, dt, state, ref, memory)
+        if fast is not None:
+            return fast
+        return self._update_array(t, dt, state, ref, memory)
 
     def _torques(self, ns: Any, v_tilde: Any, w_tilde: Any) -> tuple[Any, Any]:
         """Torques (10), or (19) with the boundary layer, from the sliding variables."""
