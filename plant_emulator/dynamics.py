@@ -449,21 +449,26 @@ def held_steps(
     is as exact in real arithmetic but drifts from the single-run path by ~1e-12 in theta over
     20 s, where these additions stay within ~1e-15 of it.
     """
-    th, w, v = start
     hu2, hu1, hhu2 = rates
+    # Own copies, then augmented assignments: in place on arrays (fewer temporaries), plain
+    # rebinding on scalars; the caller's arrays are never written.
+    th, w, v = start[0] + 0.0, start[1] + 0.0, start[2] + 0.0
+    r2 = r2 + 0.0
     q_sum = 0.5 * z  # Q plus Z_0 / 2, which the end result subtracts
-    s_sum = z  # replaced by T_0 in the first step
-    for i in range(n):
+    s_sum = 0.0 * z  # 0 + T_0 = T_0 in the first step
+    for _ in range(n):
         p2 = z * r2
-        r2 = r2 * e_sq
-        p4 = p2 * r2  # Z_{i+1}
-        t = p2 * k + z + p4  # T_i
-        s_sum = t if i == 0 else s_sum + t
-        q_sum = q_sum + s_sum
-        z = p4
-        th = th + (w + hhu2) * h
-        w = w + hu2
-        v = v + hu1
+        r2 *= e_sq
+        t = p2 * k
+        t += z
+        z = p2  # P2's buffer becomes P4 = P2 R2 = Z_{i+1} (P2 is not needed after this)
+        z *= r2
+        t += z  # T_i
+        s_sum += t
+        q_sum += s_sum
+        th += (w + hhu2) * h
+        w += hu2
+        v += hu1
     return z, s_sum, q_sum, (th, w, v)
 
 
