@@ -519,10 +519,10 @@ def _advance_array_held(
     r2 = _unit(*_rot_small(hh * w))  # R2_0
     z = _unit(np.cos(th), np.sin(th))  # Z_0
     v_first = v + hu1
-    z, s_sum, q_sum, (th_end, w_end, v_end) = _held_steps(
+    z, s_sum, q_sum, (th_end, w_end, v_end) = held_steps(
         z, r2, e_sq, k, (th, w, v), (hu2, hu1, hhu2), h, n
     )
-    s_sum = _held_displacement(s_sum, q_sum, z, v, hu1, h6, n)
+    s_sum = held_displacement(s_sum, q_sum, z, v, hu1, h6, n)
     x = x + s_sum.real
     y = y + s_sum.imag
     _track_linear(ext.max_abs_v, ext.violations_v, lv, v, hu1, v_first, v_end, n)
@@ -531,67 +531,54 @@ def _advance_array_held(
     return PlantState(x, y, th_end, v_end, w_end, cmd1, cmd2)
 
 
-def _held_steps(
-    z: np.ndarray,
-    r2: np.ndarray,
-    e_sq: np.ndarray,
-    k: np.ndarray,
+def held_steps(
+    z: Any,
+    r2: Any,
+    e_sq: Any,
+    k: Any,
     start: tuple[Any, Any, Any],
     rates: tuple[Any, Any, Any],
     h: float,
     n: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[Any, Any, Any, tuple[Any, Any, Any]]:
     """The n steps of :func:`_advance_array_held`: Z_n, S, Q + Z_0 / 2 and (theta, omega, v)
-    at the end. ``start``: (theta_0, omega_0, v_0); ``rates``: (h u2, h u1, h u2 / 2)."""
-    th, w, v = start
+    at the end. ``start``: (theta_0, omega_0, v_0); ``rates``: (h u2, h u1, h u2 / 2); n >= 1.
+
+    Written with plain operators so that one source runs on numpy arrays of N robots (here) and
+    on one robot's complex and float scalars compiled by numba (:mod:`hil.sim.compiled`).
+    theta, omega and v take the additions of the stage-by-stage form (theta_{i+1} = theta_i +
+    (omega_i + h u2 / 2) h, omega_{i+1} = omega_i + h u2, v_{i+1} = v_i + h u1): a closed form
+    is as exact in real arithmetic but drifts from the single-run path by ~1e-12 in theta over
+    20 s, where these additions stay within ~1e-15 of it.
+    """
     hu2, hu1, hhu2 = rates
-    shape = z.shape
-    p2, p4, t, s_sum = (np.empty(shape, dtype=np.complex128) for _ in range(4))
+    # Own copies, then augmented assignments: in place on arrays (fewer temporaries), plain
+    # rebinding on scalars; the caller's arrays are never written.
+    th, w, v = start[0] + 0.0, start[1] + 0.0, start[2] + 0.0
+    r2 = r2 + 0.0
     q_sum = 0.5 * z  # Q plus Z_0 / 2, which the end result subtracts
-    # theta, omega, v step by step with the additions of the stage-by-stage form (theta_{i+1}
-    # = theta_i + h (omega_i + h u2 / 2), omega_{i+1} = omega_i + h u2, v_{i+1} = v_i + h u1),
-    # as rows of one array so that a step updates all three in one operation. A closed form is
-    # as exact in real arithmetic but drifts from the single-run path by ~1e-12 in theta over
-    # 20 s, where these additions stay within ~1e-15 of it.
-    twv = np.empty((3, *shape))
-    twv[0] = th
-    twv[1] = w
-    twv[2] = v
-    incr = np.empty((3, *shape))
-    incr[1] = hu2
-    incr[2] = hu1
-    for i in range(n):
-        np.multiply(z, r2, out=p2)
-        np.multiply(r2, e_sq, out=r2)
-        np.multiply(p2, r2, out=p4)  # Z_{i+1}
-        np.multiply(p2, k, out=t)
-        np.add(t, z, out=t)
-        np.add(t, p4, out=t)  # T_i
-        if i:
-            np.add(s_sum, t, out=s_sum)
-        else:
-            s_sum, t = t, s_sum
-        np.add(q_sum, s_sum, out=q_sum)
-        z, p4 = p4, z  # the next Z is this P4; the old Z's buffer is reused
-        np.add(twv[1], hhu2, out=incr[0])
-        np.multiply(incr[0], h, out=incr[0])
-        np.add(twv, incr, out=twv)
-    return z, s_sum, q_sum, twv
+    s_sum = 0.0 * z  # 0 + T_0 = T_0 in the first step
+    for _ in range(n):
+        p2 = z * r2
+        r2 *= e_sq
+        t = p2 * k
+        t += z
+        z = p2  # P2's buffer becomes P4 = P2 R2 = Z_{i+1} (P2 is not needed after this)
+        z *= r2
+        t += z  # T_i
+        s_sum += t
+        q_sum += s_sum
+        th += (w + hhu2) * h
+        w += hu2
+        v += hu1
+    return z, s_sum, q_sum, (th, w, v)
 
 
-def _held_displacement(
-    s_sum: np.ndarray, q_sum: np.ndarray, z: np.ndarray, v: Any, hu1: Any, h6: float, n: int
-) -> np.ndarray:
+def held_displacement(s_sum: Any, q_sum: Any, z: Any, v: Any, hu1: Any, h6: float, n: int) -> Any:
     """(h/6) (v_0 S + h u1 b) with b = (n + 1/2) S - Q + (Z_n - Z_0) / 2: the n steps' x + i y
-    displacement (``q_sum`` holds Q + Z_0 / 2; ``s_sum`` is overwritten)."""
-    b = np.multiply(s_sum, n + 0.5)
-    np.subtract(b, q_sum, out=b)
-    np.add(b, np.multiply(z, 0.5), out=b)
-    np.multiply(b, hu1, out=b)
-    np.multiply(s_sum, v, out=s_sum)
-    np.add(s_sum, b, out=s_sum)
-    np.multiply(s_sum, h6, out=s_sum)
-    return s_sum
+    displacement (``q_sum`` holds Q + Z_0 / 2). Arrays or scalars, as :func:`held_steps`."""
+    b = (s_sum * (n + 0.5) - q_sum + z * 0.5) * hu1
+    return (s_sum * v + b) * h6
 
 
 def track_initial(ext: Extremes, s: PlantState, limits: Limits) -> None:

@@ -3,7 +3,8 @@
 The real-time path steps one robot on plain Python floats (about 2 us a step); the batch path
 steps thousands of robots at once on numpy arrays. Numpy on scalars costs ~90 us a step, so the
 same source must run on ``math`` for floats and on ``numpy`` for arrays. Law code asks
-``namespace_for(x)`` once per call and uses only the functions defined here.
+``namespace_for(x)`` once per call and uses only the functions defined here, or (the unified
+law, ``make_step``) binds them once into a closure, which numba can also compile.
 """
 
 from __future__ import annotations

@@ -52,6 +52,11 @@ from controller_service.laws.base import (
 from protocol.paper import TABLE1
 from runtime.mathns import ARRAY_MATH, FLOAT_MATH
 
+# tuple.__new__ skips a NamedTuple's Python-level __new__ (a measurable part of one update).
+_new = tuple.__new__
+_float = float
+_ndarray = np.ndarray
+
 TELEMETRY_KEYS = (
     "xe",
     "ye",
@@ -105,6 +110,90 @@ class UnifiedSignals(NamedTuple):
     alpha_w: Any
 
 
+def make_step(ns: Any) -> Any:
+    """The law's one definition, bound to a math namespace: ``step(t, dt, state, ref, memory,
+    p)`` (state (x, y, theta, v, omega), the reference sample's first five fields used, memory
+    (eta, z1, z2)) with ``p`` = :meth:`UnifiedController.constants`.
+
+    Returns (tau1, tau2, eta, z1, z2 at t + dt, xe, ye, theta_e, r, f, xi, xi', alpha_v,
+    alpha_w, v_tilde, w_tilde). Errors (4), the signal xi and its derivative, (7), torques
+    (10) or (19) (``p``'s 1/eps1 > 0) and the memory rule of the module doc.
+
+    Why a closure: the functions of ``ns`` become closure variables, so the float path pays no
+    namespace lookup per call, the array path runs the same source on numpy, and numba compiles
+    the same source (:mod:`hil.sim.compiled`) with ``ns`` its scalar functions.
+    """
+    sin, cos, tanh, sqrt, exp, sign, clip = (
+        ns.sin,
+        ns.cos,
+        ns.tanh,
+        ns.sqrt,
+        ns.exp,
+        ns.sign,
+        ns.clip,
+    )
+
+    def step(t, dt, state, ref, memory, p):  # type: ignore[no-untyped-def]
+        x, y, th, v, w = state
+        xd, yd, thd, vd, wd = ref[:5]
+        eta, z1, z2 = memory
+        lam, rho, m1, m2, half_l1, half_l2, varpi1, varpi2, inv_eps1, inv_eps2 = p
+        dx = x - xd
+        dy = y - yd
+        c = cos(th)
+        s = sin(th)
+        xe = c * dx + s * dy
+        ye = c * dy - s * dx
+        the = th - thd
+        r = sqrt(1.0 + xe * xe + ye * ye)
+        tanh_r = tanh(r - 1.0)
+        sin_t = sin(t)
+        f = rho * tanh_r * sin_t
+        xi = eta * f
+        q = vd * vd + wd * wd
+        g = (xe * (v - vd * cos(the)) + ye * vd * sin(the)) / r
+        df = rho * (sin_t * (1.0 - tanh_r * tanh_r) * g + cos(t) * tanh_r)
+        dxi = eta * df - q * xi
+        half = 0.5 * (the + xi)
+        alpha_v = vd * cos(xi) - z1
+        alpha_w = dxi + wd - (lam * vd / r) * (xe * sin(half) + ye * cos(half)) - z2
+        v_tilde = v - alpha_v
+        w_tilde = w - alpha_w
+        if inv_eps1 > 0.0:  # (19)
+            tau1 = -varpi1 * clip(v_tilde * inv_eps1, -1.0, 1.0)
+            tau2 = -varpi2 * clip(w_tilde * inv_eps2, -1.0, 1.0)
+        else:  # (10)
+            tau1 = -varpi1 * sign(v_tilde)
+            tau2 = -varpi2 * sign(w_tilde)
+        eta_next = eta * exp(-q * dt)
+        z1_next = clip(z1 + dt * half_l1 * (xe / r - z1 / m1), -m1, m1)
+        z2_next = clip(z2 + dt * half_l2 * (sin(0.5 * (the - xi)) - z2 / m2), -m2, m2)
+        return (
+            tau1,
+            tau2,
+            eta_next,
+            z1_next,
+            z2_next,
+            xe,
+            ye,
+            the,
+            r,
+            f,
+            xi,
+            dxi,
+            alpha_v,
+            alpha_w,
+            v_tilde,
+            w_tilde,
+        )
+
+    return step
+
+
+FLOAT_STEP = make_step(FLOAT_MATH)
+ARRAY_STEP = make_step(ARRAY_MATH)
+
+
 def unified_signals(
     ns: Any,
     t: Any,
@@ -114,35 +203,13 @@ def unified_signals(
     lam: float,
     rho: float,
 ) -> UnifiedSignals:
-    """Errors (4), the time-varying signal xi and its derivative, and alpha_v, alpha_w (7).
-
-    ``state.v`` enters only through g = r' (the measured v); ``ns`` is FLOAT_MATH or ARRAY_MATH.
-    """
-    sin, cos = ns.sin, ns.cos
-    th = state.theta
-    vd = ref.vd
-    wd = ref.wd
-    eta = memory.eta
-    dx = state.x - ref.xd
-    dy = state.y - ref.yd
-    c = cos(th)
-    s = sin(th)
-    xe = c * dx + s * dy
-    ye = c * dy - s * dx
-    the = th - ref.thetad
-    r = ns.sqrt(1.0 + xe * xe + ye * ye)
-    tanh_r = ns.tanh(r - 1.0)
-    sin_t = sin(t)
-    f = rho * tanh_r * sin_t
-    xi = eta * f
-    q = vd * vd + wd * wd
-    g = (xe * (state.v - vd * cos(the)) + ye * vd * sin(the)) / r
-    df = rho * (sin_t * (1.0 - tanh_r * tanh_r) * g + cos(t) * tanh_r)
-    dxi = eta * df - q * xi
-    half = 0.5 * (the + xi)
-    alpha_v = vd * cos(xi) - memory.z1
-    alpha_w = dxi + wd - (lam * vd / r) * (xe * sin(half) + ye * cos(half)) - memory.z2
-    return UnifiedSignals(xe, ye, the, r, f, xi, dxi, alpha_v, alpha_w)
+    """Errors (4), the time-varying signal xi and its derivative, and alpha_v, alpha_w (7)
+    (the law's step without its torques and memory advance; ``ns`` is FLOAT_MATH or
+    ARRAY_MATH). ``state.v`` enters only through g = r' (the measured v)."""
+    step = ARRAY_STEP if ns.is_array else FLOAT_STEP
+    p = (lam, rho, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    out = step(t, 0.0, tuple(state[:5]), ref, tuple(memory[:3]), p)
+    return UnifiedSignals(*out[5:14])
 
 
 def lyapunov_v(sig: UnifiedSignals, memory: UnifiedMemory, params: UnifiedParams, ns: Any) -> Any:
@@ -274,6 +341,23 @@ class UnifiedController:
         self._boundary = params.eps1 is not None
         self._inv_eps1 = 1.0 / params.eps1 if params.eps1 is not None else 0.0
         self._inv_eps2 = 1.0 / params.eps2 if params.eps2 is not None else 0.0
+        self._p = self.constants()
+
+    def constants(self) -> tuple[float, ...]:
+        """The design constants of :func:`make_step`'s ``p``: lam, rho, m1, m2, l1 / 2, l2 / 2,
+        varpi1, varpi2, 1/eps1, 1/eps2 (0 for the sign law (10))."""
+        return (
+            self._lam,
+            self._rho,
+            self._m1,
+            self._m2,
+            self._half_l1,
+            self._half_l2,
+            self._varpi1,
+            self._varpi2,
+            self._inv_eps1,
+            self._inv_eps2,
+        )
 
     def initial_memory(self, n: int | None = None, z1: float = 0.0, z2: float = 0.0) -> Any:
         """eta(0) = 1 and the given z1(0), z2(0), clamped to |z1| <= m1, |z2| <= m2 as (8)
@@ -287,36 +371,74 @@ class UnifiedController:
     def signals(
         self, t: Any, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
     ) -> UnifiedSignals:
-        ns = (
-            ARRAY_MATH
-            if isinstance(state.x, np.ndarray) or isinstance(memory.eta, np.ndarray)
-            else FLOAT_MATH
-        )
-        return unified_signals(ns, t, state, ref, memory, self._lam, self._rho)
+        arrays = isinstance(state.x, np.ndarray) or isinstance(memory.eta, np.ndarray)
+        step = ARRAY_STEP if arrays else FLOAT_STEP
+        out = step(t, 0.0, tuple(state[:5]), ref, tuple(memory[:3]), self._p)
+        return UnifiedSignals(*out[5:14])
 
     def update(
         self, t: float, dt: float, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
     ) -> tuple[ControlOutput, UnifiedMemory]:
         """Torques (10) or (19) at law time t and the memory advanced to t + dt (module doc)."""
-        if (
-            isinstance(state.x, np.ndarray)
-            or isinstance(memory.eta, np.ndarray)
-            or isinstance(ref.xd, np.ndarray)
-        ):
-            fast = self._update_array_shared_ref(t, dt, state, ref, memory)
-            if fast is not None:
-                return fast
-            fast = self._update_array_finite(t, dt, state, ref, memory)
-            if fast is not None:
-                return fast
-            return self._update_array(t, dt, state, ref, memory)
-        if not _all_finite_float((t, dt, *state, *ref[:5], *memory)):
-            return self._reject_float(memory)
+        eta, z1, z2 = memory
+        # Float memory means one robot on floats (the real-time path: one identity test); any
+        # other memory is sorted here, and arrays met in the float step send the call back.
+        if eta.__class__ is not _float and self._any_array(state, ref, memory):
+            return self._update_arrays(t, dt, state, ref, memory)
         try:
-            return self._update_float(t, dt, state, ref, memory)
+            (tau1, tau2, eta_n, z1_n, z2_n, xe, ye, the, _, _, xi, _, av, aw, vt, wt) = FLOAT_STEP(
+                t, dt, state, ref, memory, self._p
+            )
+        except TypeError:
+            if not self._any_array(state, ref, memory):
+                raise
+            return self._update_arrays(t, dt, state, ref, memory)
         except (ValueError, OverflowError, ZeroDivisionError):
             # Finite but huge input overflows math functions (sin(inf), exp(1e308)).
             return self._reject_float(memory)
+        # Every input reaches one of these (dt directly, the state and the reference through the
+        # errors and the sliding variables, t through xi, the memory through its advance). A sum
+        # that is not finite means a non-finite input or an overflow: rejected either way.
+        total = t + dt + xe + ye + vt + wt + eta_n + z1_n + z2_n
+        if total - total != 0.0:
+            return self._reject_float(memory)
+        telemetry = {
+            "xe": xe,
+            "ye": ye,
+            "theta_e": the,
+            "xi": xi,
+            "v_tilde": vt,
+            "w_tilde": wt,
+            "z1": z1,
+            "z2": z2,
+            "eta": eta,
+            "alpha_v": av,
+            "alpha_w": aw,
+            "nonfinite": 0.0,
+        }
+        memory_next = _new(UnifiedMemory, (eta_n, z1_n, z2_n))
+        return _new(ControlOutput, (tau1, tau2, telemetry)), memory_next
+
+    @staticmethod
+    def _any_array(state: RobotState, ref: ReferenceSample, memory: UnifiedMemory) -> bool:
+        return (
+            isinstance(state[0], _ndarray)
+            or isinstance(memory[0], _ndarray)
+            or isinstance(ref[0], _ndarray)
+        )
+
+    def _update_arrays(
+        self, t: Any, dt: Any, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
+    ) -> tuple[ControlOutput, UnifiedMemory]:
+        """The array path: the batch simulator's shared-reference form when it applies, else
+        the finite fast form, else the masked general form."""
+        fast = self._update_array_shared_ref(t, dt, state, ref, memory)
+        if fast is not None:
+            return fast
+        fast = self._update_array_finite(t, dt, state, ref, memory)
+        if fast is not None:
+            return fast
+        return self._update_array(t, dt, state, ref, memory)
 
     def _torques(self, ns: Any, v_tilde: Any, w_tilde: Any) -> tuple[Any, Any]:
         """Torques (10), or (19) with the boundary layer, from the sliding variables."""
@@ -343,43 +465,9 @@ class UnifiedController:
         telemetry["nonfinite"] = 1.0
         return ControlOutput(0.0, 0.0, telemetry), memory
 
-    def _update_float(
-        self, t: float, dt: float, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
-    ) -> tuple[ControlOutput, UnifiedMemory]:
-        ns = FLOAT_MATH
-        sig = unified_signals(ns, t, state, ref, memory, self._lam, self._rho)
-        v_tilde = state.v - sig.alpha_v
-        w_tilde = state.omega - sig.alpha_w
-        tau1, tau2 = self._torques(ns, v_tilde, w_tilde)
-        vd, wd = ref.vd, ref.wd
-        z1, z2 = memory.z1, memory.z2
-        eta_next = memory.eta * ns.exp(-(vd * vd + wd * wd) * dt)
-        z1_next, z2_next = self._next_z(
-            ns, dt, z1, z2, sig.xe / sig.r, ns.sin(0.5 * (sig.theta_e - sig.xi))
-        )
-        # Finite inputs can still overflow (e.g. |x - xd| ~ 1e200 makes r infinite).
-        if not _all_finite_float((tau1, tau2, eta_next, z1_next, z2_next, v_tilde, w_tilde)):
-            return self._reject_float(memory)
-        telemetry = {
-            "xe": sig.xe,
-            "ye": sig.ye,
-            "theta_e": sig.theta_e,
-            "xi": sig.xi,
-            "v_tilde": v_tilde,
-            "w_tilde": w_tilde,
-            "z1": z1,
-            "z2": z2,
-            "eta": memory.eta,
-            "alpha_v": sig.alpha_v,
-            "alpha_w": sig.alpha_w,
-            "nonfinite": 0.0,
-        }
-        return ControlOutput(tau1, tau2, telemetry), UnifiedMemory(eta_next, z1_next, z2_next)
-
     def _update_array(
         self, t: Any, dt: Any, state: RobotState, ref: ReferenceSample, memory: UnifiedMemory
     ) -> tuple[ControlOutput, UnifiedMemory]:
-        ns = ARRAY_MATH
         fields = (
             *(np.asarray(value, dtype=float) for value in state),
             *(np.asarray(value, dtype=float) for value in ref[:5]),
@@ -399,15 +487,10 @@ class UnifiedController:
         mem = UnifiedMemory(*clean[10:13])
         t_arr, dt_arr = clean[13], clean[14]
         with np.errstate(all="ignore"):
-            sig = unified_signals(ns, t_arr, st, rf, mem, self._lam, self._rho)
-            v_tilde = st.v - sig.alpha_v
-            w_tilde = st.omega - sig.alpha_w
-            tau1, tau2 = self._torques(ns, v_tilde, w_tilde)
-            vd, wd = rf.vd, rf.wd
-            eta_next = mem.eta * ns.exp(-(vd * vd + wd * wd) * dt_arr)
-            z1_next, z2_next = self._next_z(
-                ns, dt_arr, mem.z1, mem.z2, sig.xe / sig.r, ns.sin(0.5 * (sig.theta_e - sig.xi))
-            )
+            out = ARRAY_STEP(t_arr, dt_arr, st, rf, mem, self._p)
+            tau1, tau2, eta_next, z1_next, z2_next = out[:5]
+            sig = UnifiedSignals(*out[5:14])
+            v_tilde, w_tilde = out[14], out[15]
             for value in (tau1, tau2, eta_next, z1_next, z2_next, v_tilde, w_tilde):
                 ok &= np.isfinite(value)
         zero = np.zeros(shape)
@@ -455,22 +538,16 @@ class UnifiedController:
                     return None
             elif not isinstance(value, (float, int)) or isinstance(value, bool):
                 return None
-        ns = ARRAY_MATH
         with np.errstate(all="ignore"):
             total = sum((*arrays, t, dt, *ref[:5]), 0.0)
             if not np.isfinite(total).all():
                 return None
             st = RobotState(*arrays[0:5])
             mem = UnifiedMemory(*arrays[5:8])
-            sig = unified_signals(ns, t, st, ref, mem, self._lam, self._rho)
-            v_tilde = st.v - sig.alpha_v
-            w_tilde = st.omega - sig.alpha_w
-            tau1, tau2 = self._torques(ns, v_tilde, w_tilde)
-            vd, wd = ref.vd, ref.wd
-            eta_next = mem.eta * ns.exp(-(vd * vd + wd * wd) * dt)
-            z1_next, z2_next = self._next_z(
-                ns, dt, mem.z1, mem.z2, sig.xe / sig.r, ns.sin(0.5 * (sig.theta_e - sig.xi))
-            )
+            out = ARRAY_STEP(t, dt, st, ref, mem, self._p)
+            tau1, tau2, eta_next, z1_next, z2_next = out[:5]
+            sig = UnifiedSignals(*out[5:14])
+            v_tilde, w_tilde = out[14], out[15]
             out_total = tau1 + tau2 + eta_next + z1_next + z2_next + v_tilde + w_tilde
             if not np.isfinite(out_total).all():
                 return None

@@ -30,6 +30,7 @@ from hil.folder.scenario_view import view
 from hil.law.batch import for_batch
 from hil.measure.certificate import scenario_certificate
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
+from hil.sim import compiled
 from hil.sim.replay import jitter_samples_from
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from plant_emulator.dynamics import Extremes, PlantState, track_initial
@@ -720,7 +721,10 @@ def simulate_batch(
     if not variations:
         raise ValueError("simulate_batch needs at least one robot")
     run = _batch_setup(scenario, variations, record, loop, t0, memory)
-    _batch_loop(run, scenario, progress, on_sample)
+    if compiled.applies(run, scenario, on_sample):  # the same loops, one numba kernel
+        compiled.run(run, scenario, progress)
+    else:
+        _batch_loop(run, scenario, progress, on_sample)
     if progress is not None and not run.interrupted:
         progress(run.done, run.n_samples)
     return _batch_result(run, scenario, variations)

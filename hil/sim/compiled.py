@@ -1,0 +1,288 @@
+"""The batch path compiled: one parallel numba kernel over robots, from the sources the
+numpy path and the float path run.
+
+What is compiled, and from where (no equation is written a second time):
+- the law: :func:`controller_service.laws.unified.make_step`, the closure the float path runs
+  on ``math``, bound to the same scalar functions;
+- the plant under a held torque: :func:`plant_emulator.dynamics.held_steps` and
+  :func:`~plant_emulator.dynamics.held_displacement`, the closed-form RK4 that the numpy path
+  runs on arrays, here on one robot's complex scalars (with exact phasors of the small stage
+  angles where the numpy path uses their Taylor polynomials: equal to rounding).
+
+What the kernel writes itself is bookkeeping, not equations: the zero-order hold and the
+landings of :mod:`plant_emulator.sampled` as index arithmetic over the landing-offset table
+(the numpy path keeps a queue of command objects, which numba cannot compile): command k lands
+at plant step k m + offset, the newest by sequence number wins, an older one landing later is
+dropped (counted); the law's bad-input rule (zero torque, memory unchanged); the extremes of
+(2) over the step ends.
+
+It applies to the common sweep: the unified law (either variant, no eta re-arm), robots that
+share the clock and the reference, an ideal sensor, no actuator lag, no friction or top speed,
+a constant (or no) disturbance, no traces recorded and no per-sample callback. Anything else,
+numba missing, or ``HIL_NO_COMPILED=1`` leaves the run to the numpy path, the reference:
+tests/test_batch_compiled.py checks that the two agree to 1e-12.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import threading
+from typing import Any
+
+import numpy as np
+
+from controller_service.laws.unified import TELEMETRY_KEYS, UnifiedController, make_step
+from plant_emulator.disturbances import disturbance_at
+from plant_emulator.dynamics import VIOLATION_RTOL, PlantState, held_displacement, held_steps
+from runtime.mathns import FLOAT_MATH
+
+try:  # a declared dependency; without it (a platform with no wheel) the numpy path runs
+    import numba
+except ImportError:  # pragma: no cover
+    numba = None
+
+CHUNK = 256  # samples per kernel call: progress and Ctrl-C are served between calls
+# Compiling the kernel takes a few seconds once per process (numba cannot cache the closures it
+# is made of): below this many robot-steps the numpy path finishes sooner, unless the kernel is
+# already compiled.
+MIN_WORK = 20_000_000
+_KERNEL: list[Any] = []
+# numba's default threading layer (workqueue) aborts the process when two threads launch
+# parallel kernels at once (e.g. a threaded sweep executor): one kernel call at a time.
+_LAUNCH = threading.Lock()
+
+
+class _ScalarMath:
+    """The float path's scalar functions, as numba compiles them."""
+
+    sin = math.sin
+    cos = math.cos
+    tanh = math.tanh
+    sqrt = math.sqrt
+    exp = math.exp
+
+    def __init__(self, sign: Any, clip: Any) -> None:
+        self.sign = sign
+        self.clip = clip
+
+
+def _plant_parts(njit: Any) -> tuple[Any, Any]:
+    """The compiled plant step under a held command and the landing of commands."""
+    steps = njit(held_steps)
+    displacement = njit(held_displacement)
+
+    @njit(inline="always")
+    def linear(e: Any, row: int, lim: float, q: float, dq: float, last: float, n: int) -> None:
+        """Extremes over the n step ends q + dq, ..., last (monotone: the peak is at an end)."""
+        peak = max(abs(q + dq), abs(last))
+        e[row] = max(e[row], peak)
+        if peak > lim:  # count the steps beyond the limit by replaying the additions
+            for _ in range(n):
+                q = q + dq
+                if abs(q) > lim:
+                    e[4 + row] += 1.0
+
+    @njit(inline="always")
+    def advance(s: Any, c1: float, c2: float, d: Any, h: float, n: int, e: Any, lims: Any) -> Any:
+        """n RK4 steps of model (1) under the held command (c1, c2), extremes updated."""
+        x, y, th, v, w = s
+        u1, u2 = c1 + d[0], c2 + d[1]
+        hu1, hu2, hhu2 = h * u1, h * u2, 0.5 * h * u2
+        ang_e = 0.5 * h * hhu2
+        ang_r = 0.5 * h * w
+        e_pos = complex(math.cos(ang_e), math.sin(ang_e))
+        r2 = complex(math.cos(ang_r), math.sin(ang_r))
+        z = complex(math.cos(th), math.sin(th))
+        k = 2.0 * (1.0 + e_pos)
+        z, s_sum, q_sum, ends = steps(z, r2, e_pos * e_pos, k, (th, w, v), (hu2, hu1, hhu2), h, n)
+        disp = displacement(s_sum, q_sum, z, v, hu1, h / 6.0, n)
+        e[2] = max(e[2], abs(c1))
+        e[3] = max(e[3], abs(c2))
+        e[6] += n * (abs(c1) > lims[2])
+        e[7] += n * (abs(c2) > lims[3])
+        linear(e, 0, lims[0], v, hu1, ends[2], n)
+        linear(e, 1, lims[1], w, hu2, ends[1], n)
+        return (x + disp.real, y + disp.imag, ends[0], ends[2], ends[1])
+
+    @njit(inline="always")
+    def land(j: int, k: int, off: Any, m: int, ring: Any, hd: Any) -> None:
+        """Land the commands due at plant step j, oldest first (hd: cmd1, cmd2, applied,
+        oldest pending, dropped)."""
+        nb = ring.shape[1]
+        for c in range(int(hd[3]), k + 1):
+            if c * m + off[c] == j:
+                if c > hd[2]:
+                    hd[0], hd[1], hd[2] = ring[0, c % nb], ring[1, c % nb], c
+                else:
+                    hd[4] += 1.0
+        while hd[3] <= k and int(hd[3]) * m + off[int(hd[3])] <= j:
+            hd[3] += 1.0
+
+    return advance, land
+
+
+def _build() -> Any:
+    """Compile the kernel (once per process, on its first call)."""
+    # Division by zero gives inf/NaN, as on numpy, instead of a test before every division
+    # (~7 % of the kernel); the law's bad-input rule then rejects it, as the float path does.
+    njit = functools.partial(numba.njit, error_model="numpy")
+    ns = _ScalarMath(njit(FLOAT_MATH.sign), njit(FLOAT_MATH.clip))
+    law = njit(make_step(ns))
+    advance, land = _plant_parts(njit)
+
+    @njit
+    def robot(i: int, a: Any, off: Any, c: Any, k0: int, k1: int) -> None:
+        """Robot i from sample k0 to k1: law, send, land at t_k, advance to t_k+1, as the numpy
+        loop does (a: state, memory, hold, sent torques by sequence modulo the ring's length,
+        extremes, squared error sum, last sampled pose, reference table; c: constants)."""
+        st, mem, hold, ring, ext, sq, last, refs = a
+        ts, m, h, rms_from = c[0], int(c[1]), c[2], int(c[3])
+        d = (c[4], c[5])
+        lims = (c[6], c[7], c[8], c[9])
+        p = (c[10], c[11], c[12], c[13], c[14], c[15], c[16], c[17], c[18], c[19])
+        s = (st[0, i], st[1, i], st[2, i], st[3, i], st[4, i])
+        memory = (mem[0, i], mem[1, i], mem[2, i])
+        hd, e, rg = hold[:, i], ext[:, i], ring[:, i]
+        nb = rg.shape[1]
+        for k in range(k0, k1):
+            ref = (refs[k, 0], refs[k, 1], refs[k, 2], refs[k, 3], refs[k, 4])
+            out = law(k * ts, ts, s, ref, memory, p)
+            total = k * ts + ts + out[2] + out[3] + out[4] + out[5] + out[6] + out[14] + out[15]
+            if total - total == 0.0:
+                rg[0, k % nb], rg[1, k % nb] = out[0], out[1]
+                memory = (out[2], out[3], out[4])
+            else:  # the law's bad-input rule
+                rg[0, k % nb], rg[1, k % nb] = 0.0, 0.0
+            j = k * m
+            land(j, k, off, m, rg, hd)
+            if k >= rms_from:
+                sq[i] += (s[0] - ref[0]) ** 2 + (s[1] - ref[1]) ** 2
+            last[0, i], last[1, i], last[2, i] = s[0], s[1], s[2]
+            j_end = j + m
+            while True:
+                nxt = j_end
+                for c in range(int(hd[3]), k + 1):
+                    lc = c * m + off[c]
+                    if j < lc < nxt:
+                        nxt = lc
+                s = advance(s, hd[0], hd[1], d, h, nxt - j, e, lims)
+                if nxt == j_end:
+                    break
+                land(nxt, k, off, m, rg, hd)
+                j = nxt
+        st[0, i], st[1, i], st[2, i], st[3, i], st[4, i] = s
+        mem[0, i], mem[1, i], mem[2, i] = memory
+
+    @njit(parallel=True)
+    def kernel(a: Any, off: Any, group: Any, c: Any, k0: int, k1: int) -> None:
+        # Robots outside, each running its samples k0..k1 in registers: one barrier a chunk.
+        # (Samples outside, robots inside, measured 20 % less per CPU second and stalls at each
+        # sample's barrier when another process takes a core.)
+        for i in numba.prange(group.shape[0]):
+            robot(i, a, off[group[i]], c, k0, k1)
+
+    return kernel
+
+
+def kernel() -> Any:
+    """The compiled kernel, built on first use."""
+    with _LAUNCH:
+        if not _KERNEL:
+            _KERNEL.append(_build())
+    return _KERNEL[0]
+
+
+def applies(run: Any, scenario: Any, on_sample: Any) -> bool:
+    """Whether the compiled path can run this batch (module doc)."""
+    if numba is None or os.environ.get("HIL_NO_COMPILED") == "1":
+        return False
+    plant = run.plant
+    if not _KERNEL and len(run.group) * run.n_samples < MIN_WORK:
+        return False
+    # Friction and a top speed (a plant's optional drag) are integrated stage by stage, which
+    # only the numpy path does.
+    drag = getattr(plant, "drag", None)
+    if drag is not None and drag.active:
+        return False
+    return (
+        type(run.controller) is UnifiedController
+        and run.starts is None
+        and scenario.sensor.is_ideal
+        and plant.lag <= 0.0
+        and plant.disturbance.is_constant
+        and on_sample is None
+        and not run.record
+    )
+
+
+def run(batch: Any, scenario: Any, progress: Any) -> None:
+    """Run the batch's loops in the kernel and leave in ``batch`` what the numpy loop leaves
+    (state, memory, extremes, hold, rms, last sample); Ctrl-C between chunks interrupts."""
+    n = len(batch.group)
+    n_samples, ts, m = batch.n_samples, scenario.timing.ts, scenario.substeps
+    refs = np.array([tuple(batch.reference.sample(k * ts))[:5] for k in range(n_samples)])
+    off = np.ascontiguousarray(np.reshape(np.asarray(batch.land, dtype=np.int64), (-1, n_samples)))
+    group = np.zeros(n, dtype=np.intp) if off.shape[0] == 1 else batch.group
+    state, ext, lim_r = batch.state, batch.ext, 1.0 + VIOLATION_RTOL
+    limits = scenario.limits
+    rms_from = math.floor(0.9 * n_samples)
+    args = (
+        np.array([state.x, state.y, state.theta, state.v, state.omega], dtype=float),
+        np.array(batch.memory[:3], dtype=float),
+        np.array([np.zeros(n), np.zeros(n), np.full(n, -1.0), np.zeros(n), np.zeros(n)]),
+        np.zeros((2, n, int(off.max()) // m + 3)),
+        np.array(
+            [ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2]
+            + [np.zeros(n)] * 4,
+            dtype=float,
+        ),
+        np.zeros(n),
+        np.zeros((3, n)),
+        refs,
+    )
+    consts = np.array(
+        [
+            ts,
+            m,
+            scenario.plant_step,
+            rms_from,
+            *disturbance_at(batch.plant.disturbance, 0.0),
+            *(q * lim_r for q in (limits.phi1, limits.phi2, limits.varpi1, limits.varpi2)),
+            *batch.controller.constants(),
+        ],
+        dtype=float,
+    )
+    compiled = kernel()
+    every = max(1, n_samples // 200)
+    try:
+        for k0 in range(0, n_samples, CHUNK):
+            k1 = min(n_samples, k0 + CHUNK)
+            with _LAUNCH:
+                compiled(args, off, group, consts, k0, k1)
+            batch.done = k1
+            if progress is not None:
+                progress(k0 - k0 % every, n_samples)
+    except KeyboardInterrupt:
+        batch.interrupted = True
+    _write_back(batch, args, m, rms_from, refs)
+
+
+def _write_back(batch: Any, args: tuple, m: int, rms_from: int, refs: Any) -> None:
+    st, mem, hold, _, e, sq, last = args[:7]
+    ext = batch.ext
+    ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2 = (e[q] for q in range(4))
+    counts = e[4:].astype(np.int64)
+    ext.violations_v, ext.violations_omega, ext.violations_tau1, ext.violations_tau2 = counts
+    ext.steps += batch.done * m
+    batch.state = PlantState(*st, hold[0], hold[1])
+    batch.memory = type(batch.memory)(*mem)
+    batch.hold.cmd1, batch.hold.cmd2 = hold[0], hold[1]
+    batch.hold.dropped = hold[4].astype(np.int64)
+    sq_n = batch.done - rms_from
+    batch.rms = np.sqrt(sq / sq_n) if sq_n > 0 else np.full(len(sq), np.nan)
+    if batch.done:
+        xd, yd, thd = (float(q) for q in refs[batch.done - 1, :3])
+        batch.last = (last[0], last[1], last[2], xd, yd, thd)
+    batch.tel_keys = list(TELEMETRY_KEYS)
