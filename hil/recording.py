@@ -1,13 +1,16 @@
 """MCAP recordings of a run: a writer for the recorder and a reader for reports.
 
 Encoding choice: every message is stored as a JSON mirror of its msgpack payload (MCAP message
-encoding ``json`` with a ``jsonschema`` schema per topic). The wire format stays msgpack; the
-recording decodes it once, off the real-time path, in the recorder. Why JSON and not the raw
+encoding ``json`` with a ``jsonschema`` schema per topic, typed field by field from the
+protocol's definitions by :mod:`hil.schemas`; the robot's pose also as Foxglove's well-known
+``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``). Recordings written before the schemas
+were typed (every channel ``{"type": "object"}``) read the same. The wire format stays msgpack;
+the recording decodes it once, off the real-time path, in the recorder. Why JSON and not the raw
 msgpack bytes: ``json`` + ``jsonschema`` is a well-known MCAP profile that the ``mcap`` CLI
 (``mcap cat --json``) and Foxglove decode and plot with no plug-in, whereas msgpack is not one
 of Foxglove's encodings. CAN frames are stored the same way (arbitration id, data as hex,
-decoded signals when the codec knows them). The cost (a few tens of microseconds a message)
-is paid by the recorder process, never by the controller or the plant.
+decoded signals when the codec knows them). The cost (a few tens of microseconds a message) is
+paid by the recorder process, never by the controller or the plant.
 
 Reader API (what ``hil report`` uses)::
 
@@ -40,8 +43,9 @@ from typing import Any, BinaryIO
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
+from hil.schemas import schema_for_topic, schema_name
+
 PROFILE = ""
-GENERIC_SCHEMA: dict[str, Any] = {"type": "object", "additionalProperties": True}
 
 
 _PLAIN = frozenset((int, str, bool, type(None)))
@@ -170,12 +174,15 @@ class RecordingWriter:
             self._writer.add_metadata("run", {str(k): str(v) for k, v in metadata.items()})
 
     def channel(self, topic: str, schema: Mapping[str, Any] | None = None) -> int:
+        """The channel of ``topic``, registered on first use with ``schema`` (default: the
+        topic's own, :func:`hil.schemas.schema_for_topic`)."""
         ch = self._channels.get(topic)
         if ch is None:
+            typed = dict(schema or schema_for_topic(topic))
             schema_id = self._writer.register_schema(
-                name=topic.replace("/", "."),
+                name=schema_name(topic, typed),
                 encoding="jsonschema",
-                data=json.dumps(dict(schema or GENERIC_SCHEMA)).encode(),
+                data=json.dumps(typed).encode(),
             )
             ch = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=schema_id
@@ -237,12 +244,15 @@ class RecordingWriter:
     ) -> None:
         """:meth:`add_attachment` of a file's content, streamed from disk a block at a time.
 
-        Why: ``mcap``'s ``add_attachment`` builds the whole record in memory (the data copied
-        three times), so attaching an hour's hop logs (~1 GB) would need GBs at the end of a
-        run. The record written here is byte for byte the one ``add_attachment`` writes (same
-        fields, record CRC, data-section CRC, attachment index and statistics); it reaches into
-        the ``mcap`` Writer's private state to do so, and falls back to ``add_attachment``
-        when that state is not there (another ``mcap`` version).
+        Why not ``mcap``'s public ``Writer.add_attachment``: it takes the data as one bytes
+        object and builds the whole record in a BytesIO before writing it (the data copied
+        three times: the bytes, the record buffer, its ``getvalue``), so attaching an hour's
+        hop logs (~1 GB) would need GBs at the end of a run, and ``mcap`` has no public call
+        that streams an attachment. The record written here is byte for byte the one
+        ``add_attachment`` writes (same fields, record CRC, data-section CRC, attachment index
+        and statistics; tests/test_long_run_parts.py compares the two files); it reaches into
+        the Writer's private (name-mangled) state to do so, and uses the public
+        ``add_attachment`` whenever that state is not there (another ``mcap`` version).
         """
         import time
         import zlib
@@ -431,8 +441,9 @@ def rewrite_complete(
             ):
                 m = pending[counts["restored"]]
                 if m.topic not in by_topic:
-                    schema = w.register_schema(m.topic.replace("/", "."), "jsonschema",
-                                               json.dumps(GENERIC_SCHEMA).encode())  # fmt: skip
+                    typed = schema_for_topic(m.topic)
+                    schema = w.register_schema(schema_name(m.topic, typed), "jsonschema",
+                                               json.dumps(typed).encode())  # fmt: skip
                     by_topic[m.topic] = w.register_channel(m.topic, "json", schema)
                 data = json.dumps(to_jsonable(m.data), separators=(",", ":")).encode()
                 w.add_message(by_topic[m.topic], m.log_time_ns, data, m.publish_time_ns,
@@ -577,3 +588,17 @@ def _chunk_records(chunk: bytes, compression: str, size: int) -> bytes:
     if compression == "":
         return data
     raise ValueError(f"unsupported chunk compression {compression!r}")
+
+
+def write_pose(writer: RecordingWriter, state_topic: str, log_time_ns: int, state: Any) -> None:
+    """The State's pose beside it, as Foxglove's well-known schemas: ``hil/<id>/pose``
+    (foxglove.PoseInFrame) and ``hil/<id>/tf`` (foxglove.FrameTransform world -> <id>), so
+    Foxglove's 3D panel shows the robot from the recording alone."""
+    from hil.schemas import POSE, TF, frame_transform, pose_in_frame
+
+    base = state_topic.rsplit("/", 1)[0]
+    t, x, y, th = state.sample_time_ns, state.x, state.y, state.theta
+    pose = pose_in_frame(t, x, y, th)
+    writer.write(f"{base}/{POSE}", log_time_ns, pose, publish_time_ns=t, jsonable=True)
+    tf = frame_transform(t, state.robot_id, x, y, th)
+    writer.write(f"{base}/{TF}", log_time_ns, tf, publish_time_ns=t, jsonable=True)

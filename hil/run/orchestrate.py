@@ -29,7 +29,7 @@ from typing import Any
 from hil import interrupts
 from hil.errors import BadInputError
 from hil.measure.logs import HOST_FILE
-from hil.recording import RecordingWriter, to_jsonable
+from hil.recording import RecordingWriter, to_jsonable, write_pose
 from hil.run.host_load import HostSampler
 from hil.supervisor import Supervisor
 from protocol.settings import RunSettings
@@ -113,8 +113,9 @@ class Recorder:
             return
         try:
             m = decode(payload)
-        except DecodeError as exc:
-            self.writer.write(topic, t, {"rejected": exc.reason, "raw": payload})
+        except DecodeError as exc:  # its own channel: each topic's messages fit its schema
+            rejected = {"topic": topic, "reason": exc.reason, "raw": payload.hex()}
+            self.writer.write("recorder/rejected", t, rejected, jsonable=True)
             return
         d = to_jsonable(m)  # one walk; asdict first made a deep copy for nothing
         d["type"] = type(m).__name__
@@ -122,6 +123,7 @@ class Recorder:
         self.writer.write(topic, t, d, publish_time_ns=publish, jsonable=True)
         if topic.endswith("/state"):
             self.states += 1
+            write_pose(self.writer, topic, t, m)
         if isinstance(m, Status):
             self.statuses[m.role] = m
 
