@@ -244,15 +244,13 @@ class RecordingWriter:
     ) -> None:
         """:meth:`add_attachment` of a file's content, streamed from disk a block at a time.
 
-        Why not ``mcap``'s public ``Writer.add_attachment``: it takes the data as one bytes
-        object and builds the whole record in a BytesIO before writing it (the data copied
-        three times: the bytes, the record buffer, its ``getvalue``), so attaching an hour's
-        hop logs (~1 GB) would need GBs at the end of a run, and ``mcap`` has no public call
-        that streams an attachment. The record written here is byte for byte the one
-        ``add_attachment`` writes (same fields, record CRC, data-section CRC, attachment index
-        and statistics; tests/test_long_run_parts.py compares the two files); it reaches into
-        the Writer's private (name-mangled) state to do so, and uses the public
-        ``add_attachment`` whenever that state is not there (another ``mcap`` version).
+        Why not ``mcap``'s public ``Writer.add_attachment``: it takes one bytes object and
+        builds the whole record in a BytesIO (the data held three times), so an hour's hop logs
+        (~1 GB) would need GBs, and ``mcap`` has no public call that streams an attachment.
+        The record written here is byte for byte the one ``add_attachment`` writes (fields,
+        CRCs, attachment index, statistics; tests/test_long_run_parts.py compares the files)
+        through the Writer's private (name-mangled) state, and the public ``add_attachment``
+        is used whenever that state is not there (another ``mcap`` version).
         """
         import time
         import zlib

@@ -266,3 +266,59 @@ def frame_transform(t_ns: int, child: str, x: float, y: float, theta: float) -> 
         "translation": {"x": x, "y": y, "z": 0.0},
         "rotation": _quaternion(theta),
     }
+
+
+def _num(description: str, minimum: float | None = None) -> dict[str, Any]:
+    out: dict[str, Any] = {"type": "number", "description": description}
+    if minimum is not None:
+        out["minimum"] = minimum
+    return out
+
+
+def _nullable(description: str) -> dict[str, Any]:
+    return {"type": ["number", "null"], "minimum": 0, "description": description}
+
+
+TIMING = "live/timing"  # hil/<robot_id>/live/timing: the live view's once-a-second figures
+LIVE_TIMING = _object(
+    "hil.LiveTiming",
+    {
+        "t_s": _num("seconds since the live view saw the first State", 0),
+        "states": {"type": "integer", "minimum": 0, "description": "States seen"},
+        "commands": {"type": "integer", "minimum": 0, "description": "TorqueCommands seen"},
+        "command_age_now_ms": _nullable(
+            "at the newest State: its sample time - the sample time of the newest command "
+            "seen before it (the command in force, as the live view saw it)"
+        ),
+        "command_age_max_ms": _nullable("the largest command_age_now_ms so far: live D"),
+        "d_star_ms": _nullable("D*: the largest command age the certificate allows"),
+        "age_margin_ms": {
+            "type": ["number", "null"],
+            "description": "D* - command_age_max_ms (negative: D > D* so far)",
+        },
+        "lateness_now_us": _nullable(
+            "the newest command's compute start - the previous one's - Ts, at least 0: how "
+            "late the controller's tick ran after its predecessor"
+        ),
+        "lateness_max_us": _nullable("the largest lateness_now_us so far"),
+        "deadline_misses": {
+            "type": ["integer", "null"],
+            "minimum": 0,
+            "description": "the controller's own count (its Status)",
+        },
+        "states_without_command": {
+            "type": "integer",
+            "minimum": 0,
+            "description": "States no command was computed from within 0.1 s of their arrival",
+        },
+        "max_abs_v": _num("largest |v| so far, m/s", 0),
+        "max_abs_omega": _num("largest |omega| so far, rad/s", 0),
+        "verdict": {"type": "string", "enum": ["PASS", "FAIL", "INCONCLUSIVE", "WAITING"]},
+        "reasons": {"type": "string", "description": "why, in one line ('' for PASS)"},
+    },
+    "The live view's timing figures, once a second: live estimates; summary.json holds the "
+    "run's measured figures (docs/realtime.md).",
+)
+REFERENCE = "reference"  # hil/<robot_id>/reference: foxglove.PoseInFrame of the reference
+_SUFFIX_SCHEMA[TIMING] = LIVE_TIMING
+_SUFFIX_SCHEMA[REFERENCE] = POSE_IN_FRAME

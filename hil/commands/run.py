@@ -43,6 +43,22 @@ SecureOpt = Annotated[
         "deploy/README.md).",
     ),
 ]
+LiveOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--live",
+        metavar="[PORT]",
+        help="Serve the run live over the Foxglove WebSocket protocol on this port (bare "
+        "--live: 8765; 0: any free port), from a process of its own (docs/live.md).",
+    ),
+]
+LiveHostOpt = Annotated[
+    str,
+    typer.Option(
+        help="Address the live view binds to. Anything but loopback exposes the run's data "
+        "to whoever reaches it (no login, no TLS): a warning says so."
+    ),
+]
 StrictOpt = Annotated[
     bool,
     typer.Option(
@@ -80,6 +96,8 @@ def register(app: typer.Typer) -> None:
         secure: SecureOpt = False,
         report: ReportOpt = True,
         strict: StrictOpt = False,
+        live: LiveOpt = None,
+        live_host: LiveHostOpt = "127.0.0.1",
     ) -> None:
         """Run the controller against the emulated robot over Zenoh and CAN and record it."""
         from hil.run.orchestrate import RunOptions, execute
@@ -99,6 +117,8 @@ def register(app: typer.Typer) -> None:
                 spin_us=spin_us,
                 quiet=quiet,
                 secure=secure,
+                live_port=live,
+                live_host=live_host,
             )
         )
         brief = _brief(summary, cmd_path)

@@ -67,6 +67,8 @@ class RunOptions:
     scheduling: str | None = None
     quiet: bool = False
     secure: bool = False  # router with authentication and access control (hil.run.secure)
+    live_port: int | None = None  # serve the run live (hil.live) on this port; None: no
+    live_host: str = "127.0.0.1"
 
 
 class Recorder:
@@ -194,6 +196,11 @@ def check_options(opts: RunOptions) -> None:
         if value is not None:
             options.plain_string(name, value, empty=False)
     options.out_dir("--out", opts.out)
+    from hil.live.launch import check
+
+    check(opts.live_port, opts.live_host)
+    if opts.live_port is not None and opts.secure:
+        raise BadInputError("--live does not log in to a --secure run's router")
 
 
 def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
@@ -444,6 +451,10 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             announcer = ids.announcer(live.session, settings.zenoh_endpoint)
             live.sub = live.session.declare_subscriber("hil/**", recorder.on_zenoh)
             live.can_rec = _can_recorder(settings, recorder)
+            if opts.live_port is not None:  # its own process: no cycle of the recorder's
+                from hil.live.launch import start_for_run
+
+                start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs)
             _start_services(sup, run_dir, ids, logs, host)
             error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
             interrupted = bool(stop)
@@ -594,7 +605,7 @@ def _progress(
 def _stop_children(sup: Supervisor, settings: RunSettings) -> dict[str, int | None]:
     codes: dict[str, int | None] = {}
     # The plant ends by itself at the run's end; the controller is stopped next, then the rest.
-    for name in ("plant", "controller", "router"):
+    for name in ("plant", "controller", "router", "live"):
         for c in sup.children:
             if c.name != name:
                 continue
