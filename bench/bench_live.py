@@ -27,8 +27,8 @@ from pathlib import Path
 from typing import Any
 
 import _here  # noqa: F401 - this checkout first on sys.path
-from bench_rt_loop import combine, figures_of
 
+from bench.bench_rt_loop import combine, figures_of
 from tests.procs import free_tcp_port
 
 ROOT = Path(__file__).resolve().parent.parent

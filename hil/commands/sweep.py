@@ -73,6 +73,17 @@ DurationOpt = Annotated[
     typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s)."),
 ]
 StrictOpt = Annotated[bool, typer.Option(help="Exit 1 when any loop of the grid broke a limit.")]
+WorkersOpt = Annotated[int | None, typer.Option(help="Run the grid's chunks on N local processes.")]
+SchedulerOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="Run the grid's chunks on a Dask cluster, tcp://HOST:PORT of its scheduler "
+        "(pip install 'hil-smc-bench[cluster]'; docs/reports.md)."
+    ),
+]
+ChunkSizeOpt = Annotated[
+    int | None, typer.Option(help="Grid points per chunk (default 16; same Ts in a chunk).")
+]
 
 
 def register(app: typer.Typer) -> None:
@@ -86,16 +97,29 @@ def register(app: typer.Typer) -> None:
         seeds: SeedsOpt = None,
         duration: DurationOpt = None,
         strict: StrictOpt = False,
+        workers: WorkersOpt = None,
+        scheduler: SchedulerOpt = None,
+        chunk_size: ChunkSizeOpt = None,
     ) -> None:
         """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
+        from hil.sweep import cluster
+
         scenario, grid, loop_s, latencies = _checked_sweep(
             scenario_file, out, ts, delay, jitter, seeds, duration
         )
+        chunked = cluster.wanted(workers, scheduler, chunk_size)
+        executor = cluster.open_executor(workers, scheduler, chunk_size) if chunked else None
         target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
         target.mkdir(parents=True, exist_ok=True)
         scenario = _with_replay_file(scenario, latencies, target)
         started = time.perf_counter()
-        outcome, resolved = _run_with_progress(scenario, grid, loop_s, target)
+        if executor is None:
+            outcome, resolved = _run_with_progress(scenario, grid, loop_s, target)
+            where: dict[str, Any] = {}
+        else:
+            outcome, resolved, where = cluster.run_with_executor(
+                scenario, grid, loop_s, target, executor, chunk_size
+            )
         elapsed = time.perf_counter() - started
         from hil.sweep.outputs import write_outputs
         from hil.sweep.runner import certified_break
@@ -111,6 +135,7 @@ def register(app: typer.Typer) -> None:
             "robot_steps_per_s": outcome.robot_steps / elapsed if elapsed > 0 else None,
             "certificate": certified_break(scenario, grid),
             "provenance": resolved.get("provenance", {}),
+            **where,
         }
         # A second Ctrl-C while the results are written would leave them half-written.
         with interrupts.shielded():
