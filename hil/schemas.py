@@ -313,6 +313,12 @@ LIVE_TIMING = _object(
         },
         "max_abs_v": _num("largest |v| so far, m/s", 0),
         "max_abs_omega": _num("largest |omega| so far, rad/s", 0),
+        "view_backlog": {
+            "type": "integer",
+            "minimum": 0,
+            "description": "messages the live view had received and not yet served (grows "
+            "when the view falls behind the run)",
+        },
         "verdict": {"type": "string", "enum": ["PASS", "FAIL", "INCONCLUSIVE", "WAITING"]},
         "reasons": {"type": "string", "description": "why, in one line ('' for PASS)"},
     },

@@ -117,8 +117,8 @@ class LiveTiming:
             return "INCONCLUSIVE", "; ".join(doubts)
         return "PASS", ""
 
-    def snapshot(self, now_ns: int) -> dict[str, Any]:
-        """The figures now (the ``hil.LiveTiming`` message)."""
+    def snapshot(self, now_ns: int, backlog: int = 0) -> dict[str, Any]:
+        """The figures now (the ``hil.LiveTiming`` message); ``backlog``: the view's queue."""
         self._expire(now_ns)
         b = self.bounds
         d_star_ms = None if b.d_star_s is None else b.d_star_s * 1e3
@@ -141,6 +141,7 @@ class LiveTiming:
             "states_without_command": self.unanswered,
             "max_abs_v": self.max_v,
             "max_abs_omega": self.max_w,
+            "view_backlog": int(backlog),
             "verdict": outcome,
             "reasons": reasons,
         }

@@ -113,10 +113,10 @@ class LiveView:
         """One CAN frame as the recorder's JSON (:func:`can_frame_record`)."""
         self._log(f"can/{channel}", frame, recv_ns)
 
-    def tick(self, now_ns: int | None = None) -> dict[str, Any]:
+    def tick(self, now_ns: int | None = None, backlog: int = 0) -> dict[str, Any]:
         """Publish the timing figures (call once a second); returns them."""
         now = time.monotonic_ns() if now_ns is None else now_ns
-        snap = self.timing.snapshot(now)
+        snap = self.timing.snapshot(now, backlog)
         self._log(f"hil/{self.robot_id}/{schemas.TIMING}", snap, now)
         return snap
 

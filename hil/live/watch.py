@@ -140,7 +140,7 @@ def serve(args: argparse.Namespace) -> int:
                 if not _drain(view, q):
                     time.sleep(0.005)
                 if time.monotonic() >= next_tick:
-                    view.tick()
+                    view.tick(backlog=len(q))
                     next_tick += 1.0
         finally:
             _close(opened)
