@@ -43,7 +43,7 @@ from typing import Any, BinaryIO
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from hil.schemas import schema_for_topic, schema_name
+from hil.schemas import POSE, TF, WORLD_FRAME, schema_for_topic, schema_name
 
 PROFILE = ""
 
@@ -201,11 +201,17 @@ class RecordingWriter:
     ) -> None:
         """Append one message; ``jsonable``: ``data`` is already :func:`to_jsonable`'s output
         (the recorder converts as it decodes, and a second walk would cost every message)."""
+        safe = data if jsonable else to_jsonable(data)
+        payload = json.dumps(safe, separators=(",", ":")).encode()
+        self.write_payload(topic, log_time_ns, payload, publish_time_ns)
+
+    def write_payload(
+        self, topic: str, log_time_ns: int, payload: bytes, publish_time_ns: int | None = None
+    ) -> None:
+        """Append one message already serialized as JSON (``payload``: UTF-8 bytes)."""
         ch = self.channel(topic)
         seq = self._seq[topic]
         self._seq[topic] = seq + 1
-        safe = data if jsonable else to_jsonable(data)
-        payload = json.dumps(safe, separators=(",", ":")).encode()
         self._writer.add_message(
             channel_id=ch,
             log_time=int(log_time_ns),
@@ -591,12 +597,21 @@ def _chunk_records(chunk: bytes, compression: str, size: int) -> bytes:
 def write_pose(writer: RecordingWriter, state_topic: str, log_time_ns: int, state: Any) -> None:
     """The State's pose beside it, as Foxglove's well-known schemas: ``hil/<id>/pose``
     (foxglove.PoseInFrame) and ``hil/<id>/tf`` (foxglove.FrameTransform world -> <id>), so
-    Foxglove's 3D panel shows the robot from the recording alone."""
-    from hil.schemas import POSE, TF, frame_transform, pose_in_frame
+    Foxglove's 3D panel shows the robot from the recording alone.
 
+    The JSON is formatted here rather than built as dicts and dumped: the recorder writes these
+    two for every State (a decoded State's floats are finite, so ``repr`` is valid JSON), and
+    json.dumps of two nested dicts tripled the recorder's cost of a State."""
     base = state_topic.rsplit("/", 1)[0]
-    t, x, y, th = state.sample_time_ns, state.x, state.y, state.theta
-    pose = pose_in_frame(t, x, y, th)
-    writer.write(f"{base}/{POSE}", log_time_ns, pose, publish_time_ns=t, jsonable=True)
-    tf = frame_transform(t, state.robot_id, x, y, th)
-    writer.write(f"{base}/{TF}", log_time_ns, tf, publish_time_ns=t, jsonable=True)
+    t = state.sample_time_ns
+    sec, nsec = divmod(t, 1_000_000_000)
+    half = 0.5 * state.theta
+    stamp = f'{{"sec":{sec},"nsec":{nsec}}}'
+    xyz = f'{{"x":{state.x!r},"y":{state.y!r},"z":0.0}}'
+    quat = f'{{"x":0.0,"y":0.0,"z":{math.sin(half)!r},"w":{math.cos(half)!r}}}'
+    pose = (f'{{"timestamp":{stamp},"frame_id":"{WORLD_FRAME}",'
+            f'"pose":{{"position":{xyz},"orientation":{quat}}}}}')  # fmt: skip
+    writer.write_payload(f"{base}/{POSE}", log_time_ns, pose.encode(), t)
+    tf = (f'{{"timestamp":{stamp},"parent_frame_id":"{WORLD_FRAME}","child_frame_id":'
+          f'{json.dumps(state.robot_id)},"translation":{xyz},"rotation":{quat}}}')  # fmt: skip
+    writer.write_payload(f"{base}/{TF}", log_time_ns, tf.encode(), t)

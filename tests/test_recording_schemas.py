@@ -170,3 +170,21 @@ def test_a_recording_written_before_the_schemas_were_typed_still_reads(tmp_path)
     counts = rewrite_complete(src, tmp_path / "new.mcap")
     assert counts["messages"] == 8
     assert list_topics(tmp_path / "new.mcap") == list_topics(FIXTURE)
+
+
+def test_the_recorders_formatted_pose_is_the_schemas_pose(tmp_path):
+    """hil.recording.write_pose formats the JSON itself (speed): it must be exactly what the
+    hil.schemas helpers build, for any pose a State can carry."""
+    from hil.recording import write_pose
+
+    path = tmp_path / "p.mcap"
+    poses = [State("robot0", i, 3_000_000_007 * i, 0, 1e-7 * i - 2.5, 1e5 / (i + 1),
+                   -1e3 + 17.3 * i, 0.0, 0.0) for i in range(50)]  # fmt: skip
+    with RecordingWriter(path) as w:
+        for st in poses:
+            write_pose(w, "hil/robot0/state", st.seq, st)
+    got = {(m.topic, m.log_time_ns): m.data for m in read_messages(path)}
+    for st in poses:
+        t, x, y, th = st.sample_time_ns, st.x, st.y, st.theta
+        assert got[("hil/robot0/pose", st.seq)] == schemas.pose_in_frame(t, x, y, th)
+        assert got[("hil/robot0/tf", st.seq)] == schemas.frame_transform(t, "robot0", x, y, th)
