@@ -280,3 +280,31 @@ def test_the_shipped_layout_is_the_tools_and_names_only_served_topics():
     for path in topics | {"hil/robot0/live/timing", "hil/robot0/state", "hil/robot0/cmd/torque"}:
         assert path in text
         assert schemas.schema_for_topic(path) is not schemas.GENERIC, path
+
+
+def test_a_busy_live_port_is_refused_before_anything_starts(tmp_path):
+    import socket
+    import sys
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        out = tmp_path / "run"
+        proc = subprocess.run(
+            [sys.executable, "-m", "hil", "run", "--duration", "1", "--quiet", "--out", str(out),
+             "--live", str(port)],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert f"--live {port}" in proc.stderr and not out.exists()
+
+
+def test_binding_beyond_loopback_warns_that_it_exposes_the_run(capsys):
+    from hil.live.launch import check
+
+    check(0, "127.0.0.1")
+    assert capsys.readouterr().err == ""
+    check(0, "0.0.0.0")  # a bind test only: nothing listens, nothing is sent
+    err = capsys.readouterr().err
+    assert "warning: --live-host 0.0.0.0" in err and "anyone" in err and "no login" in err

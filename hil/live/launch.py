@@ -42,6 +42,7 @@ def check(port: int | None, host: str) -> None:
         return
     options.integer("--live", port, 0, 65535)
     options.plain_string("--live-host", host, empty=False)
+    _check_free(host, port)
     if host not in LOOPBACK:
         print(
             f"warning: --live-host {host}: the live view serves the run's data (pose, "
@@ -49,6 +50,24 @@ def check(port: int | None, host: str) -> None:
             "login and no TLS",
             file=sys.stderr,
         )
+
+
+def _check_free(host: str, port: int) -> None:
+    """BadInputError now if ``host:port`` cannot be bound (in use, not an address of this
+    machine), before any folder or process: the view's own bind would fail later."""
+    import socket
+
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except OSError as exc:
+        raise BadInputError(f"--live-host {host}: {exc}") from exc
+    family, _, _, _, addr = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(addr)
+        except OSError as exc:
+            raise BadInputError(f"--live {port} on {host}: {exc.strerror or exc}") from exc
 
 
 def argv_for(settings_path: Path, port: int, host: str, resolved: Path | None,
