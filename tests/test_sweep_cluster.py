@@ -117,15 +117,22 @@ def test_the_command_line_refuses_what_it_cannot_run():
     assert executor_for(None, None).name == "in-process"
 
 
-def test_hil_sweep_workers_writes_what_the_in_process_sweep_writes(tmp_path):
+def test_hil_sweep_on_workers_or_a_scheduler_writes_what_the_in_process_sweep_writes(tmp_path):
     base = [sys.executable, "-m", "hil", "sweep", "paper_tracking", "--ts", "0.01,0.02",
             "--delay", "0,0.01", "--jitter", "0,0.002", "--seeds", "2", "--duration", "2",
             "--chunk-size", "3"]  # fmt: skip
-    for name, extra in (("here", []), ("pool", ["--workers", "2"])):
-        proc = subprocess.run([*base, "--out", str(tmp_path / name), *extra],
-                              capture_output=True, text=True, timeout=300)  # fmt: skip
-        assert proc.returncode == 0, proc.stderr[-2000:]
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster:  # fmt: skip
+        address = cluster.scheduler_address
+        for name, extra in (("here", []), ("pool", ["--workers", "2"]),
+                            ("dask", ["--scheduler", address])):  # fmt: skip
+            proc = subprocess.run([*base, "--out", str(tmp_path / name), *extra],
+                                  capture_output=True, text=True, timeout=300)  # fmt: skip
+            assert proc.returncode == 0, proc.stderr[-2000:]
     here = (tmp_path / "here" / "sweep.csv").read_text()
-    assert here == (tmp_path / "pool" / "sweep.csv").read_text()
-    meta = json.loads((tmp_path / "pool" / "sweep.json").read_text())
-    assert meta["executor"] == "2 local processes" and meta["chunks"] == 6
+    for name, executor in (("pool", "2 local processes"), ("dask", f"Dask cluster at {address}")):
+        assert here == (tmp_path / name / "sweep.csv").read_text(), name
+        meta = json.loads((tmp_path / name / "sweep.json").read_text())
+        assert meta["executor"] == executor and meta["chunks"] == 6
