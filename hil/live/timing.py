@@ -61,7 +61,7 @@ class LiveTiming:
         self.states += 1
         if self.first_state_ns is None:
             self.first_state_ns, self.first_recv_ns = st.sample_time_ns, recv_ns
-        since = self.in_force_sample_ns if self.in_force_sample_ns is not None else None
+        since = self.in_force_sample_ns
         age = st.sample_time_ns - (since if since is not None else self.first_state_ns)
         self.age_now_ns = age
         self.age_max_ns = age if self.age_max_ns is None else max(self.age_max_ns, age)
