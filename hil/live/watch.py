@@ -22,6 +22,7 @@ from hil.live.timing import Bounds
 from protocol.settings import RunSettings
 
 QUEUE_MAX = 200_000  # messages; past it the oldest are dropped (a live view may skip)
+NICENESS = 10
 
 
 def bounds_of(settings: RunSettings, resolved: Path | None) -> Bounds:
@@ -122,9 +123,14 @@ def _drain(view: Any, q: collections.deque) -> int:
 
 def serve(args: argparse.Namespace) -> int:
     """Serve until a signal; the exit code."""
+    import os
+
     from hil.live.view import LiveView
     from runtime.signals import stop_on_signals
 
+    # Below the run's processes on the CPU: when the view and a service want the same core,
+    # the service gets it (the view only falls behind, which its timing message shows).
+    os.nice(NICENESS)
     settings = RunSettings.load(args.settings)
     bounds = bounds_of(settings, args.resolved)
     reference = None if args.no_reference else reference_of(settings)
