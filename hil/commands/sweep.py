@@ -82,7 +82,7 @@ SchedulerOpt = Annotated[
     ),
 ]
 ChunkSizeOpt = Annotated[
-    int | None, typer.Option(help="Grid points per chunk (default 16; same Ts in a chunk).")
+    int | None, typer.Option(help="Grid points per chunk (default 64; same Ts in a chunk).")
 ]
 
 
