@@ -1,4 +1,4 @@
-"""Long runs: how memory and the report's time scale with the run's length (issue 13).
+"""Long runs: how memory and the report's time scale with the run's length.
 
     python bench/bench_long_run.py                  # 1, 2 and 10 minutes
     python bench/bench_long_run.py --full           # also 60 minutes
@@ -18,7 +18,7 @@ runs it) in a subprocess whose peak resident memory comes from the kernel (``wai
 - the report's wall time and peak memory, and its time per minute of run (flat = linear);
 - the files' sizes: the hop logs, the recording, trace.csv.
 
-Targets (issue 13): the report of a 60-minute run in under 2 minutes and 1.5 GB on a 2-core
+Targets: the report of a 60-minute run in under 2 minutes and 1.5 GB on a 2-core
 machine; service memory flat.
 """
 

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import _here  # noqa: F401  (this checkout first on sys.path)
 
+from hil.folder import load_folder
 from hil.report.build import build_report, write_report
-from hil.report.folder import load_folder
 from hil.report.ideal import ideal_from_simulator
 from tests.synthetic_folder import write_synthetic_folder
 

@@ -48,7 +48,8 @@ class CertificateError(ValueError):
 
 @dataclass(frozen=True)
 class Condition:
-    """One checked inequality ``value < bound`` (strict) or ``value <= bound``.
+    """One checked inequality ``value < bound`` (strict) or ``value <= bound``, or with
+    ``above`` ``value > bound`` (a gain that must be positive: shown as given, not negated).
 
     ``kind``: "assumption" (Assumption 1/2), "design" ((9), (11), (12), positivity), "sampled"
     (the bounds of docs/sampled_data_bound.md) or "info" (reported, not part of ``held``).
@@ -60,10 +61,12 @@ class Condition:
     strict: bool
     kind: str
     held: bool
+    above: bool = False
 
     @property
     def margin(self) -> float:
-        return self.bound - self.value
+        """How far the value is inside its bound (negative: outside)."""
+        return self.value - self.bound if self.above else self.bound - self.value
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -71,6 +74,7 @@ class Condition:
             "value": _json_float(self.value),
             "bound": _json_float(self.bound),
             "strict": self.strict,
+            "relation": ">" if self.above else ("<" if self.strict else "<="),
             "kind": self.kind,
             "held": self.held,
             "margin": _json_float(self.margin),
@@ -85,6 +89,11 @@ def _cond(name: str, value: float, bound: float, kind: str, strict: bool = True)
     # "value < bound" is False for NaN, so a NaN never passes.
     ok = (value < bound) if strict else (value <= bound)
     return Condition(name, float(value), float(bound), strict, kind, bool(ok))
+
+
+def _cond_above(name: str, value: float, bound: float, kind: str) -> Condition:
+    """``value > bound`` (strict); NaN never passes."""
+    return Condition(name, float(value), float(bound), True, kind, bool(value > bound), True)
 
 
 @dataclass(frozen=True)
@@ -243,7 +252,7 @@ def _paper_conditions(
     for name in ("m1", "m2", "l1", "l2", "lam", "rho") + (
         ("eps1", "eps2") if boundary_layer else ()
     ):
-        conds.append(_cond(f"{name} > 0", -g[name], 0.0, "design"))
+        conds.append(_cond_above(f"{name} > 0", g[name], 0.0, "design"))
     conds += [
         _cond("(9) m1 < phi1 - mu1", g["m1"], lim.phi1 - mu1, "design"),
         _cond("(9) m2 < phi2 - mu2", g["m2"], lim.phi2 - mu2, "design"),
@@ -484,11 +493,12 @@ def critical_age(
     """D*: the largest command age D >= 0 at which the sampled-data bound still implies (2),
     i.e. V(D) <= phi1 and W(D) <= phi2 (docs/sampled_data_bound.md, section 9).
 
-    D is DESIGN.md's "longest time any command stays in force after its sample" (max over j
-    of a_(j+1) - t_j, a the landing times; assumption A2 of the docs); :func:`certify` at
-    ``ts = D, delay = 0`` evaluates the bound at exactly that age, with the same formulas used
-    here: the push thresholds b1, b2 of ``boundary_layer``, max(|v0|, ...) and max(|w0|, ...),
-    and c2s = :func:`sampled_c2` at V(D). The v part is solved in closed form,
+    D is the command age of docs/design.md, "the longest time any command stays in force after
+    its sample" (max over j of a_(j+1) - t_j, a the landing times; assumption A2 of the docs);
+    :func:`certify` at ``ts = D, delay = 0`` evaluates the bound at exactly that age, with the
+    same formulas used here: the push thresholds b1, b2 of ``boundary_layer``, max(|v0|, ...)
+    and max(|w0|, ...), and c2s = :func:`sampled_c2` at V(D). The v part is solved in closed
+    form,
     D_v = (phi1 - max(|v0|, mu1 + m1 + b1)) / (varpi1 + s1) (stepped down by ulps until
     V(D_v) <= phi1 in floating point); the w part, nondecreasing in D (rho >= 0), is bisected
     on [0, D_v] to ``tol`` (1 ns), keeping the end at which W <= phi2. So certify at the

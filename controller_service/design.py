@@ -54,7 +54,7 @@ class DesignError(ValueError):
 
 
 def design_constants(context: DesignContext, v_bound: float | None = None) -> dict[str, float]:
-    """The constants c0..c7 of Theorem 1 (see DESIGN.md section 1, with s1 in c5).
+    """The constants c0..c7 of Theorem 1 (docs/design.md, section 1, with s1 in c5).
 
     ``v_bound`` replaces phi1 wherever phi1 stands for the bound on |v| (c0, c3, c5): under
     sampling |v| may exceed phi1, and the sampled-data certificate then needs the larger value.

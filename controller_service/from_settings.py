@@ -35,7 +35,7 @@ def design_context(s: RunSettings) -> DesignContext:
 def build_law(s: RunSettings) -> tuple[Any, Any, Any, str]:
     """(the law, the reference (3), its memory at t = 0, the law's name) for the run ``s``."""
     reference = build_reference(s.reference, Path(s.base_dir))
-    controller = build_controller(dict(s.controller), design_context(s))
+    controller = build_controller(dict(s.controller), design_context(s), s.law_path)
     memory = initial_memory(controller, None, s.initial["z1"], s.initial["z2"])
     law = str(s.controller.get("law", getattr(controller, "name", "unified")))
     return controller, reference, memory, law

@@ -515,7 +515,7 @@ def check_table(table: Mapping[str, Any]) -> str:
 
 
 def build_reference(table: Mapping[str, Any], base_dir: Path) -> Reference:
-    """The reference named by a scenario's [reference] table (CONTRACT.md).
+    """The reference named by a scenario's [reference] table (docs/scenario.md).
 
     Unknown kinds, unknown keys, missing required keys, non-numbers and numbers out of range
     raise ValueError naming them (:func:`check_table`). The design bounds mu1, mu2, k1, k2 are

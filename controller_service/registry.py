@@ -1,4 +1,4 @@
-"""Build a controller from a scenario's [controller] table (CONTRACT.md).
+"""Build a controller from a scenario's [controller] table (docs/scenario.md).
 
 ``law`` selects it:
 
@@ -6,12 +6,17 @@
   rho (Table 1 defaults: 0.5, 0.5, 0.5, 0.5, 1, 1; lam and rho may be ``"auto"``, see
   :func:`controller_service.design.resolve_auto`) and, for the boundary layer (19), eps1, eps2
   (default 0.1 each). The design is checked; a violation raises
-  :class:`controller_service.design.DesignError` (a ValueError).
+  :class:`controller_service.design.DesignError` (a ValueError). ``eta_rearm = true`` (default
+  false: the paper's law) wraps it in :class:`controller_service.laws.eta_rearm.
+  EtaRearmController` (eta reset to 1 when the reference comes to rest; keys
+  ``eta_rearm_dwell``, s, and ``eta_rearm_below``).
 - ``"jiang1997"``: [7] with the sub-table [controller.jiang1997] c1, c2 (7, 0.1).
 - ``"jiang2001"``: [19] with [controller.jiang2001] stab_eps, track_lam.
 - ``"package.module:Class"``: a user's controller, built as ``Class(params, context)`` where
   params is the whole [controller] table without ``law``; it must satisfy the Controller
-  protocol of :mod:`controller_service.laws.base`.
+  protocol of :mod:`controller_service.laws.base`. Its module is looked up in the installed
+  packages, then in the folders of ``law_path`` (:func:`law_path_for`: the scenario's folder and
+  the working directory), so a ``my_law.py`` next to the scenario needs no ``PYTHONPATH``.
 
 Sub-tables of the other baselines may sit beside a built-in law; they are not used but must be
 right (checked as if their law were chosen). Any other unknown key is refused with a ValueError
@@ -26,12 +31,15 @@ import importlib
 import inspect
 import math
 import re
+import sys
 import weakref
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
+from pathlib import Path
 from typing import Any
 
 from controller_service.design import resolve_auto
 from controller_service.laws.base import Controller, DesignContext
+from controller_service.laws.eta_rearm import EtaRearmController
 from controller_service.laws.jiang1997 import Jiang1997Controller
 from controller_service.laws.jiang2001 import Jiang2001Controller
 from controller_service.laws.unified import UnifiedController, UnifiedParams
@@ -39,6 +47,8 @@ from protocol.paper import EPS_DEFAULT, TABLE1
 
 BUILTIN_LAWS = ("unified", "unified_boundary", "jiang1997", "jiang2001")
 _BASELINE_TABLES = ("jiang1997", "jiang2001")
+# The unified law's eta re-arm (beyond the paper, off by default): controller_service.laws.eta_rearm
+REARM_KEYS = ("eta_rearm", "eta_rearm_dwell", "eta_rearm_below")
 
 # Tables of user controllers (whose objects cannot be asked for one) and notes of auto lam/rho.
 _user_tables: weakref.WeakKeyDictionary[Any, dict[str, Any]] = weakref.WeakKeyDictionary()
@@ -64,7 +74,7 @@ def _unified_values(law: str, table: Mapping[str, Any]) -> dict[str, Any]:
     keys = dict(TABLE1)
     if law == "unified_boundary":
         keys.update(EPS_DEFAULT)
-    unknown = sorted(map(str, set(table) - set(keys) - {"law", *_BASELINE_TABLES}))
+    unknown = sorted(map(str, set(table) - set(keys) - {"law", *_BASELINE_TABLES, *REARM_KEYS}))
     if unknown:
         hint = (
             " (eps1, eps2 need law = 'unified_boundary')" if {"eps1", "eps2"} & set(unknown) else ""
@@ -77,7 +87,27 @@ def _unified_values(law: str, table: Mapping[str, Any]) -> dict[str, Any]:
             values[key] = value
         else:
             values[key] = _number(key, value)
+    _rearm_values(table)
     return values
+
+
+def _rearm_values(table: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The eta re-arm options (keyword arguments of :class:`EtaRearmController`), None when
+    ``eta_rearm`` is off (the paper's law); ValueError naming a bad key."""
+    on = table.get("eta_rearm", False)
+    if not isinstance(on, bool):
+        raise ValueError(f"[controller] eta_rearm must be true or false, got {on!r}")
+    given = {k: table[k] for k in REARM_KEYS[1:] if k in table}
+    if not on:
+        if given:
+            raise ValueError(f"[controller] {', '.join(sorted(given))} need eta_rearm = true")
+        return None
+    out = {k.removeprefix("eta_rearm_"): _number(k, v) for k, v in given.items()}
+    if out.get("dwell", 1.0) <= 0.0:
+        raise ValueError(f"[controller] eta_rearm_dwell must be > 0 s, got {out['dwell']!r}")
+    if not 0.0 < out.get("below", 0.5) <= 1.0:
+        raise ValueError(f"[controller] eta_rearm_below must be in (0, 1], got {out['below']!r}")
+    return out
 
 
 def _baseline(law: str, table: Mapping[str, Any], context: DesignContext) -> Controller:
@@ -117,28 +147,59 @@ def check_table(table: Mapping[str, Any]) -> str:
     return law
 
 
-def _build_unified(law: str, table: Mapping[str, Any], context: DesignContext) -> UnifiedController:
+def _build_unified(law: str, table: Mapping[str, Any], context: DesignContext) -> Controller:
     values = _unified_values(law, table)
     resolved = resolve_auto(values, context)
-    controller = UnifiedController(UnifiedParams(**resolved.params), context)
+    controller: Any = UnifiedController(UnifiedParams(**resolved.params), context)
+    rearm = _rearm_values(table)
+    if rearm is not None:
+        controller = EtaRearmController(controller, **rearm)
     if resolved.notes:
         _notes[controller] = resolved.notes
     return controller
 
 
-def _build_user(path: str, table: Mapping[str, Any], context: DesignContext) -> Controller:
+def law_path_for(scenario_dir: str | Path | None) -> tuple[str, ...]:
+    """The folders a user's law module is looked up in after the installed packages: the
+    scenario's folder, then the working directory (absolute, each once). hil resolves them
+    once and writes them into the run's settings, so the services find the same module."""
+    folders = [Path.cwd()] if scenario_dir is None else [Path(scenario_dir), Path.cwd()]
+    out: list[str] = []
+    for folder in folders:
+        text = str(folder.resolve())
+        if text not in out:
+            out.append(text)
+    return tuple(out)
+
+
+def _import_law_module(path: str, module_name: str, law_path: Iterable[str]) -> Any:
+    """The user's module, looked up in the installed packages then in ``law_path``."""
+    folders = [str(f) for f in law_path]
+    # Appended, not prepended: a user's file never shadows an installed package; the folders
+    # stay on sys.path because the module may import its neighbours later, mid-run.
+    sys.path.extend(f for f in folders if f not in sys.path)
+    importlib.invalidate_caches()  # a module written after this process started
+    try:
+        return importlib.import_module(module_name)
+    except Exception as exc:  # the user's module may raise anything while it is imported
+        where = "; looked in the installed packages"
+        where += "".join(f", {f}" for f in folders)
+        raise ValueError(
+            f"[controller] law {path!r}: cannot import {module_name!r}: {_what(exc)}"
+            + (where if isinstance(exc, ModuleNotFoundError) else "")
+        ) from exc
+
+
+def _build_user(
+    path: str, table: Mapping[str, Any], context: DesignContext, law_path: Iterable[str] = ()
+) -> Controller:
     module_name, _, class_name = path.partition(":")
     if not module_name or not class_name:
         raise ValueError(
             f"[controller] law {path!r}: expected one of {', '.join(BUILTIN_LAWS)} "
             "or an import path 'package.module:Class'"
         )
-    try:
-        module = importlib.import_module(module_name)
-    except Exception as exc:  # the user's module may raise anything while it is imported
-        raise ValueError(
-            f"[controller] law {path!r}: cannot import {module_name!r}: {_what(exc)}"
-        ) from exc
+    module = _import_law_module(path, module_name, law_path)
     cls = module
     for part in class_name.split("."):
         cls = getattr(cls, part, None)
@@ -191,14 +252,18 @@ def _what(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def build_controller(table: Mapping[str, Any], context: DesignContext) -> Controller:
-    """The controller named by ``table["law"]`` (default "unified"), checked and ready."""
+def build_controller(
+    table: Mapping[str, Any], context: DesignContext, law_path: Iterable[str] = ()
+) -> Controller:
+    """The controller named by ``table["law"]`` (default "unified"), checked and ready; a
+    user's module is looked up in the installed packages, then in ``law_path``
+    (:func:`law_path_for`)."""
     law = check_table(table)
     if law in ("unified", "unified_boundary"):
         return _build_unified(law, table, context)
     if law in _BASELINE_TABLES:
         return _baseline(law, table, context)
-    return _build_user(law, table, context)
+    return _build_user(law, table, context, law_path)
 
 
 def resolved_controller_table(controller: Any) -> dict[str, Any]:

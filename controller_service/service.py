@@ -23,14 +23,18 @@ from __future__ import annotations
 
 import contextlib
 import math
-import struct
 import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from controller_service.command_paths import NOT_SENT, CommandPath, Sent, ZenohCommandPath
+from controller_service.command_paths import (
+    NOT_SENT,
+    CanCommandPath,
+    CommandPath,
+    ZenohCommandPath,
+)
 from controller_service.laws.base import Controller, Limits, RobotState
 from protocol import keys
 from protocol.faults import Faults
@@ -39,7 +43,6 @@ from protocol.hoplog import (
     NO_SEQ,
     NO_STAMP,
     TICK_NO_SEND,
-    CanTxRow,
     CmdPath,
     HopLogWriter,
     StateRxRow,
@@ -60,7 +63,7 @@ from protocol.messages import (
 )
 from protocol.rejections import RejectionCounter
 from protocol.sequence import SequenceTracker
-from protocol.settings import RunSettings
+from protocol.settings import RunSettings, period_ns
 from runtime.realtime import DeadlineClock, SchedulingReport, setup_scheduling
 
 TELEMETRY_FIELDS = ("xe", "ye", "theta_e", "xi", "v_tilde", "w_tilde", "z1", "z2", "eta")
@@ -113,157 +116,6 @@ class Received:
     recv_ns: int
 
 
-class CanCommandPath:
-    """The controller's CAN edge: HostLifecycle for both drives, torques as Set_Input_Torque.
-
-    A reader thread feeds heartbeats to the lifecycle (under a lock) and ticks it; the control
-    loop only encodes and sends the two torque frames, stamping each send per node so the
-    plant's arrivals can be matched to this send log in per-node order. A
-    :class:`controller_service.command_paths.CommandPath`.
-    """
-
-    path = CmdPath.CAN
-
-    def __init__(
-        self,
-        bus: Any,
-        lifecycle: Any,
-        geometry: Any,
-        hoplog: HopLogWriter,
-        faults: Faults | None = None,
-    ) -> None:
-        from protocol.can.drive_link import from_message, to_message
-
-        self.bus = bus
-        self.lifecycle = lifecycle
-        self.geometry = geometry
-        self._to = to_message
-        self._from = from_message
-        self._lock = threading.Lock()
-        self._send_lock = threading.Lock()
-        self._pending_arm = False
-        self._stop = threading.Event()
-        self.sent_frames = 0
-        self.send_errors = 0
-        self.arm_sends = 0  # lifecycle sequences sent: each holds one zero torque per node
-        self.rearms = 0
-        self.hoplog = hoplog
-        self.faults = faults or Faults()
-        self.epoch_ns = 0  # set at the start: bus-off bursts are placed in run time
-        self.injected_bus_off = 0
-        self._thread = threading.Thread(target=self._reader, name="can-reader", daemon=True)
-
-    def start(self) -> None:
-        """Arm the drives once both are heard (their heartbeats): frames sent before a drive
-        listens would be lost, and on a bus that names no frame (socketcan) a lost frame
-        shifts the matching of every later one."""
-        self._pending_arm = True
-        self._thread.start()
-
-    def _send(self, frames: list[Any], cmd_seq: int = NO_SEQ) -> int:
-        """Send frames; every Set_Input_Torque is logged per node with the command it carries
-        (NO_SEQ: a lifecycle zero), so arrivals can be matched in per-node order."""
-        from protocol.can.codec import Cmd, split_id
-
-        stamp = 0
-        now = time.monotonic_ns()
-        bus_off = self.epoch_ns > 0 and self.faults.bus_off((now - self.epoch_ns) / 1e9)
-        # One sender at a time (the control loop and the lifecycle's reader thread both send):
-        # the log's order is then the bus's, which the matching of arrivals relies on.
-        with self._send_lock:
-            for f in frames:
-                node, cmd = split_id(f.arbitration_id)
-                sent = end = NO_STAMP
-                if bus_off:
-                    self.injected_bus_off += 1  # a [faults] bus-off burst: the send fails
-                else:
-                    try:
-                        # Stamped when handed to the bus, as a TorqueCommand is stamped before
-                        # its put: a hop is then never negative.
-                        handed = time.monotonic_ns()
-                        self.bus.send(self._to(f), timeout=0.05)
-                        sent = stamp = handed
-                        end = int(getattr(self.bus, "last_end_ns", 0) or 0)
-                        self.sent_frames += 1
-                    except Exception:
-                        self.send_errors += 1
-                if cmd == Cmd.SET_INPUT_TORQUE:
-                    value = struct.unpack_from("<f", f.data)[0] if len(f.data) >= 4 else math.nan
-                    row = CanTxRow(
-                        node=node, send_ns=sent, cmd_seq=cmd_seq, value=value, bus_end_ns=end
-                    )
-                    self.hoplog.append("can_tx", row)
-        return stamp
-
-    def _reader(self) -> None:
-        while not self._stop.is_set():
-            try:
-                msg = self.bus.recv(timeout=0.05)
-            except Exception:
-                if self._stop.is_set():
-                    return
-                continue
-            now = time.monotonic()
-            with self._lock:
-                if msg is not None:
-                    self.lifecycle.receive(now, self._from(msg))
-                frames = self._lifecycle_frames(now)
-            if frames:
-                self._send(frames)
-
-    def _lifecycle_frames(self, now: float) -> list[Any]:
-        """What the lifecycle sends now (under the lock): the first arming once both drives
-        are heard, its retries, and a counted re-arm after a drive faulted."""
-        if self._pending_arm:
-            if not all(d.heartbeats > 0 for d in self.lifecycle.drives.values()):
-                return []
-            self._pending_arm = False
-            self.arm_sends += 1
-            return self.lifecycle.start(now)
-        frames = self.lifecycle.tick(now)
-        if frames:
-            self.arm_sends += 1  # a re-sent lifecycle (it carries a zero torque)
-        elif self.lifecycle.fault_reason and not self._stop.is_set():
-            # A drive faulted (e.g. heartbeats late on a stalled host): re-arm rather than stay
-            # silent for the rest of the run; counted.
-            frames = self.lifecycle.start(now)
-            self.arm_sends += 1
-            self.rearms += 1
-        return frames
-
-    @property
-    def active(self) -> bool:
-        from protocol.can.drive_profile import Phase
-
-        return self.lifecycle.phase is Phase.ACTIVE
-
-    def send(self, cmd: TorqueCommand) -> Sent:
-        """The command's torques as Set_Input_Torque frames (no [faults] flags: bus-off bursts
-        are counted by the path)."""
-        return Sent(self.send_torques(cmd.tau1, cmd.tau2, cmd.seq))
-
-    def send_torques(self, tau1: float, tau2: float, cmd_seq: int) -> int:
-        """Send both wheel torques; returns the send time (NO_STAMP when the drives are not
-        armed)."""
-        from protocol.can.wheel_mapping import motor_torques
-
-        q = motor_torques(self.geometry, tau1, tau2)
-        with self._lock:
-            frames = self.lifecycle.torque_frames(q.right, q.left)
-        if not frames:
-            return NO_STAMP
-        return self._send(frames, cmd_seq)
-
-    def close(self) -> None:
-        with self._lock:
-            frames = self.lifecycle.stop()
-        self._send(frames)
-        self._stop.set()
-        self._thread.join(timeout=1.0)
-        with contextlib.suppress(Exception):  # a bus already gone is fine on the way out
-            self.bus.shutdown()
-
-
 class ControllerService:
     """The shell around :class:`ControlCore` (see the module docstring)."""
 
@@ -289,7 +141,7 @@ class ControllerService:
         self.session = session
         self.robot_id = robot_id
         self.epoch_ns = int(epoch_ns)
-        self.period_ns = round(ts * 1e9)
+        self.period_ns = period_ns(ts)
         self.trigger = "on_state" if lockstep else trigger
         self.lockstep = lockstep
         self.state_timeout_ns = int(state_timeout * 1e9)
@@ -603,7 +455,7 @@ def _open_hoplog(s: RunSettings, previous: Any) -> HopLogWriter:
         CONTROLLER_TABLES,
         {
             "robot_id": s.robot_id,
-            "period_ns": round(s.ts * 1e9),
+            "period_ns": period_ns(s.ts),
             "trigger": "on_state" if s.lockstep else s.trigger,
             "lockstep": s.lockstep,
             "cmd_path": s.cmd_path,

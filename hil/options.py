@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -108,10 +109,14 @@ def grid(where: str, text: str | None, low: float, high: float) -> tuple[float, 
     return tuple(values)
 
 
-def out_dir(where: str, path: Path | str | None) -> Path | None:
+def out_dir(where: str, path: Path | str | None, default: Path | str | None = None) -> Path | None:
     """A folder a command may create and write: an existing folder, or a path whose nearest
-    existing parent is a writable folder."""
+    existing parent is a writable folder. Without ``path`` the command's ``default`` folder
+    (e.g. ``runs``) is checked instead, named as the default in the message."""
     if path is None:
+        if default is None:
+            return None
+        out_dir(f"{where} not given, so its default", default)
         return None
     p = Path(path)
     plain_string(where, str(p), empty=False)
@@ -124,6 +129,14 @@ def out_dir(where: str, path: Path | str | None) -> Path | None:
         raise BadInputError(f"{where} {p}: {parent} is not a folder")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise BadInputError(f"{where} {p}: {parent} is not writable")
+    # Permission bits do not tell (root may write anywhere, /proc takes no folder, a
+    # read-only mount): a folder made and removed at once does, before any work starts.
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".hil-probe-", dir=parent))
+    except OSError as exc:
+        raise BadInputError(
+            f"{where} {p}: cannot write in {parent.resolve()} ({exc.strerror})"
+        ) from exc
     return p
 
 

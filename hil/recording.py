@@ -35,13 +35,22 @@ from __future__ import annotations
 import json
 import math
 import struct
+import tempfile
+import time
+import zlib
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
+import lz4.frame
+import zstandard
+from mcap.data_stream import RecordBuilder
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
+from mcap.records import Attachment, AttachmentIndex, Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, IndexType, Writer
 
 from hil.schemas import POSE, TF, WORLD_FRAME, schema_for_topic, schema_name
 
@@ -99,9 +108,6 @@ class _SpilledIndexes:
     The writer only appends to and iterates over its list, which this class provides."""
 
     def __init__(self) -> None:
-        import tempfile
-
-        from mcap.data_stream import RecordBuilder
 
         self._file = tempfile.TemporaryFile(prefix="hil-chunk-index-")  # noqa: SIM115
         self._builder = RecordBuilder()
@@ -151,7 +157,6 @@ class RecordingWriter:
         flush_interval: float = 0.05,
         spill_indexes: bool = True,
     ) -> None:
-        import time
 
         self.path = Path(path)
         self._stream: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - closed in close()
@@ -236,7 +241,6 @@ class RecordingWriter:
     ) -> None:
         """A file carried inside the recording (the services' hop logs: a recording alone then
         reproduces every timing figure of the run)."""
-        import time
 
         now = time.time_ns()
         self._writer.add_attachment(now, now, name, media_type, bytes(data))
@@ -258,8 +262,6 @@ class RecordingWriter:
         through the Writer's private (name-mangled) state, and the public ``add_attachment``
         is used whenever that state is not there (another ``mcap`` version).
         """
-        import time
-        import zlib
 
         now = time.time_ns() if time_ns is None else int(time_ns)
         w = self._writer
@@ -269,9 +271,6 @@ class RecordingWriter:
         if not all(hasattr(w, a) for a in private):
             self._writer.add_attachment(now, now, name, media_type, Path(path).read_bytes())
             return
-        from mcap.opcode import Opcode
-        from mcap.records import AttachmentIndex
-        from mcap.writer import IndexType
 
         size = Path(path).stat().st_size
         name_b, media_b = name.encode(), media_type.encode()
@@ -353,7 +352,6 @@ def is_complete(path: str | Path) -> bool:
 
 def _stream_records(path: str | Path) -> Iterator[Any]:
     """Every whole record of a possibly truncated recording, in file order."""
-    from mcap.stream_reader import StreamReader
 
     with open(path, "rb") as f:
         reader = StreamReader(f, record_size_limit=None)
@@ -381,7 +379,6 @@ def read_messages(
                     data=json.loads(message.data),
                 )
         return
-    from mcap.records import Channel, Message
 
     channels: dict[int, str] = {}
     found: list[RecordedMessage] = []
@@ -403,7 +400,6 @@ def read_messages(
 def topic_values(path: str | Path, topic: str, key: str) -> Iterator[Any]:
     """``data[key]`` of every message on ``topic`` of a possibly truncated recording, in file
     order, one message at a time (an hour's States never sit in memory as dicts)."""
-    from mcap.records import Channel, Message
 
     if is_complete(path):
         for _t, _log, payload in read_topic_payloads(path, [topic]):
@@ -428,7 +424,6 @@ def rewrite_complete(
     ``extra`` (sorted by log time; each merged before the first message of ``src`` logged after
     it, on its topic's channel, registered as the writer does when ``src`` has none). Returns
     counts (``restored``: the messages of ``extra`` written)."""
-    from mcap.records import Attachment, Channel, Message, Metadata, Schema
 
     counts = {"messages": 0, "attachments": 0, "restored": 0}
     pending = list(extra)
@@ -478,8 +473,6 @@ def rewrite_complete(
                 counts["attachments"] += 1
         add_extra(math.inf)
         for name, data in (attachments or {}).items():
-            import time
-
             now = time.time_ns()
             w.add_attachment(now, now, name, "application/octet-stream", bytes(data))
             counts["attachments"] += 1
@@ -504,7 +497,6 @@ def list_topics(path: str | Path) -> dict[str, int]:
 
 def read_attachments(path: str | Path, names: Iterable[str] | None = None) -> dict[str, bytes]:
     """Name -> data of the recording's attachments (optionally only ``names``)."""
-    from mcap.records import Attachment
 
     wanted = set(names) if names is not None else None
     out: dict[str, bytes] = {}
@@ -582,12 +574,8 @@ def _chunk_records(chunk: bytes, compression: str, size: int) -> bytes:
     data_len = struct.unpack_from("<Q", chunk, at)[0]
     data = chunk[at + 8 : at + 8 + data_len]
     if compression == "zstd":
-        import zstandard
-
         return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
     if compression == "lz4":
-        import lz4.frame
-
         return lz4.frame.decompress(data)
     if compression == "":
         return data

@@ -1,4 +1,4 @@
-"""Scenario files (CONTRACT.md, documented key by key in docs/scenario.md).
+"""Scenario files (documented key by key in docs/scenario.md).
 
 One TOML file describes one closed loop. Every table is optional except [reference] and
 [initial]; defaults are the paper's Section 4 set-up. Everything is checked here, on load,
@@ -23,12 +23,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from controller_service.design import DesignError
 from controller_service.laws.base import DesignContext, Limits
+from controller_service.references import build_reference as _build
+from controller_service.references import check_table as check_reference
+from controller_service.registry import build_controller, law_path_for, resolved_controller_table
+from controller_service.registry import check_table as check_controller
 from hil.errors import BadInputError
 from hil.options import LOCATOR, describe, number, plain_string, type_name
 from hil.provenance import provenance
 from plant_emulator.disturbances import KINDS as DISTURBANCE_KINDS
 from plant_emulator.disturbances import Disturbance, max_abs
+from plant_emulator.dynamics import Drag
 from plant_emulator.sensors import Sensor
 from protocol.can.bus_factory import CanSettings
 from protocol.can.wheel_mapping import RobotGeometry
@@ -70,13 +76,22 @@ class Initial:
 
 @dataclass(frozen=True)
 class PlantConfig:
-    """[plant]: RK4 step (None = ts/10), sensor noise and quantization, actuator lag."""
+    """[plant]: RK4 step (None = ts/10), sensor noise and quantization, actuator lag, and the
+    losses model (1) leaves out: viscous friction and a top speed (off, as in the paper)."""
 
     step: float | None = None
     noise_std: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
     noise_seed: int = 0
     quantization: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
     lag: float = 0.0
+    friction: tuple[float, ...] = (0.0, 0.0)  # 1/s on v and omega: v' = tau1 + d1 - c_v v
+    max_speed: tuple[float, ...] = ()  # (m/s, rad/s): |v|, |omega| held below; (): none
+
+    @property
+    def drag(self) -> Drag:
+        """The friction and top speed as the plant integrates them."""
+        top = self.max_speed or (math.inf, math.inf)
+        return Drag(self.friction[0], self.friction[1], top[0], top[1])
 
 
 @dataclass(frozen=True)
@@ -314,6 +329,8 @@ _RANGES: dict[tuple[str, str], tuple[float, float]] = {
     ("plant", "noise_seed"): (0, SEED_MAX),
     ("plant", "quantization"): (0.0, 1e6),
     ("plant", "lag"): (0.0, 1e6),
+    ("plant", "friction"): (0.0, 1e6),
+    ("plant", "max_speed"): (0.0, 1e6),
     ("timing", "ts"): (TS_MIN, TS_MAX),
     ("timing", "delay"): (0.0, DELAY_MAX),
     ("timing", "jitter"): (0.0, DELAY_MAX),
@@ -348,6 +365,7 @@ _POSITIVE = {("limits", k) for k in ("phi1", "phi2", "varpi1", "varpi2")} | {
     ("timing", "ts"),
     ("run", "duration"),
     ("plant", "step"),
+    ("plant", "max_speed"),
     ("disturbance", "period"),
     ("realtime", "rate"),
     ("realtime", "sensor_rate"),
@@ -392,6 +410,8 @@ _NON_NEGATIVE = {
     ("impair", "rate_bps"),
 }
 _FIVE = {("plant", "noise_std"), ("plant", "quantization")}
+# (table, key) -> the numbers of values a list may have
+_LENGTHS = {("plant", "friction"): (2,), ("plant", "max_speed"): (0, 2)}
 # [disturbance] keys each kind reads; any other key must keep its default (a value1 in a sine
 # table would be silently ignored otherwise).
 _DISTURBANCE_KEYS = {
@@ -439,6 +459,9 @@ def _check(table: str, key: str, value: Any) -> None:
     values = value if many else (value,)
     if (table, key) in _FIVE and len(values) != 5:
         raise BadInputError(f"{where} needs 5 values (x, y, theta, v, omega), got {len(values)}")
+    lengths = _LENGTHS.get((table, key))
+    if lengths is not None and len(values) not in lengths:
+        raise BadInputError(f"{where} needs 2 values (v, omega), got {len(values)}")
     positive = (table, key) in _POSITIVE
     non_negative = (table, key) in _NON_NEGATIVE
     low, high = _RANGES.get((table, key), (-MAX_MAGNITUDE, MAX_MAGNITUDE))
@@ -475,8 +498,6 @@ def _parse_table(name: str, raw: Any) -> Any:
 
 def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") -> Scenario:
     """A :class:`Scenario` from the parsed TOML ``data`` (BadInputError names any bad key)."""
-    from controller_service.references import check_table as check_reference
-    from controller_service.registry import check_table as check_controller
 
     allowed = {*_TABLES, "reference", "controller", "provenance"}
     unknown = sorted(map(str, set(data) - allowed))
@@ -603,7 +624,6 @@ def loads_scenario(text: str, base_dir: Path | None = None) -> Scenario:
 
 def build_reference(scenario: Scenario) -> Any:
     """The scenario's virtual robot (3); its errors become BadInputError."""
-    from controller_service.references import build_reference as _build
 
     try:
         return _build(scenario.reference, scenario.base_dir)
@@ -676,13 +696,12 @@ def design_context(scenario: Scenario, reference: Any) -> DesignContext:
 
 def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
     """(controller, reference, context) for the scenario; design errors become BadInputError."""
-    from controller_service.design import DesignError
-    from controller_service.registry import build_controller
 
     reference = build_reference(scenario)
     context = design_context(scenario, reference)
     try:
-        controller = build_controller(dict(scenario.controller), context)
+        law_path = law_path_for(scenario.base_dir)
+        controller = build_controller(dict(scenario.controller), context, law_path)
     except DesignError as exc:
         raise BadInputError(design_message(exc)) from exc
     except ValueError as exc:
@@ -732,7 +751,6 @@ def resolved_dict(
     extra_provenance: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """scenario.resolved.toml: every default filled (auto lam/rho resolved) plus [provenance]."""
-    from controller_service.registry import resolved_controller_table
 
     out = scenario_dict(scenario)
     out["controller"] = {**dict(scenario.controller), **resolved_controller_table(controller)}

@@ -20,6 +20,7 @@ from dataclasses import fields
 from typing import Any
 
 from protocol import messages as pm
+from protocol.can import codec
 from protocol.keys import ROBOT_ID_RE
 
 GENERIC: dict[str, Any] = {"type": "object", "additionalProperties": True}
@@ -85,8 +86,6 @@ _CAN_TYPES: dict[str, dict[str, Any]] = {
 
 
 def _can_classes() -> list[type]:
-    from protocol.can import codec
-
     out: list[type] = []
     todo = list(codec.Message.__subclasses__())
     while todo:

@@ -1,4 +1,4 @@
-"""The columns every trace.csv starts with (CONTRACT.md), shared by runs, simulations and
+"""The columns every trace.csv starts with (docs/run-folder.md), shared by runs, simulations and
 reports so the three cannot drift apart."""
 
 from __future__ import annotations

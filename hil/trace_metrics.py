@@ -36,7 +36,8 @@ import numpy as np
 from protocol.angles import wrap_angle
 
 PERCENTILES: tuple[float, ...] = (50.0, 90.0, 99.0, 99.9)
-# summary.json counts a violation beyond 1e-9 relative (CONTRACT.md); use the same tolerance.
+# summary.json counts a violation beyond 1e-9 relative (docs/design.md, section 3); use the
+# same tolerance.
 LIMIT_REL_TOL = 1e-9
 
 
@@ -159,7 +160,7 @@ def saturation_share(tau: np.ndarray, varpi: float, fraction: float = SATURATION
 @dataclass(frozen=True)
 class ConstraintFigure:
     """One constraint of (2): the measured peak against its limit and (velocities) the
-    sampled-data bound of DESIGN.md / the certificate."""
+    sampled-data bound of docs/sampled_data_bound.md / the certificate."""
 
     name: str
     peak: float

@@ -24,6 +24,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from hil.folder.records import Summary
+
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
 LIMIT_REL_TOL = 1e-9
 LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
@@ -57,7 +59,7 @@ class RunFacts:
     scheduling: dict[str, Any] | None = None  # requested and obtained, per service
 
     @classmethod
-    def of(cls, summary: dict[str, Any]) -> RunFacts | None:
+    def of(cls, summary: Summary) -> RunFacts | None:
         """How a run went, from its summary (None for a simulation)."""
         if summary.get("kind") != "run":
             return None
@@ -107,9 +109,7 @@ PEAK_KEYS = {"v": "max_abs_v", "omega": "max_abs_omega", "tau1": "max_abs_tau1"}
 PEAK_KEYS["tau2"] = "max_abs_tau2"
 
 
-def constraints_from_peaks(
-    summary: dict[str, Any], limits: dict[str, float]
-) -> dict[str, dict[str, Any]]:
+def constraints_from_peaks(summary: Summary, limits: dict[str, float]) -> dict[str, dict[str, Any]]:
     """Per limit of (2) its peak over every plant step (summary.json's ``max_abs_*``), the
     limit and whether it held (peaks not measured are left out)."""
     out = {}

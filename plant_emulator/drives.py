@@ -32,7 +32,7 @@ from plant_emulator.drive_plant import DrivePlant, bench_drive_config
 from plant_emulator.odrive import VirtualDrivePair
 from plant_emulator.service import build_plant
 from protocol.can.codec import AxisState, Cmd, Frame
-from protocol.settings import RunSettings
+from protocol.settings import RunSettings, period_ns, period_s
 
 STATE_NAMES = {
     AxisState.IDLE: "IDLE",
@@ -181,12 +181,19 @@ class DrivesRunner:
         kinds = ", ".join(f"{k} {n}" for k, n in rej.items())
         ign = sum(c["ignored"].values())
         parts.append(
-            f"rx {rates[0]:.0f}/s tx {rates[1]:.0f}/s req {self.can.requests} "
+            f"rx {rates[0]:.0f}/s ({self.can.frames_in}) tx {rates[1]:.0f}/s "
+            f"({self.can.frames_out}) req {self.can.requests} "
             f"rej {sum(rej.values())}{f' ({kinds})' if kinds else ''} other {ign} "
             f"own {self.can.own_frames}"
         )
         parts.append(f"robot x={s.x:+.3f} y={s.y:+.3f} v={s.v:+.3f}")
+        parts.append(self.watchdog_words())
         return " | ".join(parts)
+
+    def watchdog_words(self) -> str:
+        """The drives' watchdog, as the status lines say it."""
+        timeout = self.can_settings.watchdog_timeout
+        return f"watchdog {timeout:g}s" if timeout > 0 else "watchdog off"
 
     def summary(self, elapsed: float, stopped_by: str) -> dict[str, Any]:
         e = self.core.extremes
@@ -227,7 +234,7 @@ class DrivesRunner:
         sched = setup_scheduling(scheduling, freeze_gc=False)
         gc.collect()
         gc.freeze()
-        period_ns = round(1e9 / opts.control_rate)
+        period = period_ns(period_s(opts.control_rate))
         state_every = (
             max(1, round(opts.control_rate / opts.state_rate)) if opts.state_rate > 0 else 0
         )
@@ -236,11 +243,12 @@ class DrivesRunner:
         print(
             f"hil drives: right node {self.pair.node_right}, left node {self.pair.node_left} on "
             f"{cs.interface} {cs.channel}; plant and drives at {opts.control_rate:g} Hz, "
-            f"{sched.policy}; Ctrl-C to stop",
+            f"{sched.policy}; {self.watchdog_words()} (a drive that gets no command for that long "
+            "disarms: Clear_Errors, then Set_Axis_State re-arms it); Ctrl-C to stop",
             flush=True,
         )
         start_ns = time.monotonic_ns()
-        clock = DeadlineClock(period_ns, start_ns)
+        clock = DeadlineClock(period, start_ns)
         next_status = start_ns + status_ns
         last = (start_ns, self.can.frames_in, self.can.frames_out)
         end_ns = start_ns + int(opts.duration * 1e9) if opts.duration else None

@@ -51,6 +51,25 @@ class PlantState(NamedTuple):
         return RobotState(self.x, self.y, self.theta, self.v, self.omega)
 
 
+class Drag(NamedTuple):
+    """What model (1) leaves out, for a robot that should slow down by itself: viscous
+    friction (v' = tau1 + d1 - c_v v, omega' = tau2 + d2 - c_omega omega, in 1/s) and a top
+    speed (|v| <= v_max, |omega| <= omega_max, held at every plant step, as a motor at its
+    no-load speed). Off by default and in the paper's scenarios."""
+
+    c_v: float = 0.0
+    c_omega: float = 0.0
+    v_max: float = math.inf
+    omega_max: float = math.inf
+
+    @property
+    def active(self) -> bool:
+        return bool(self.c_v or self.c_omega) or math.isfinite(self.v_max + self.omega_max)
+
+
+NO_DRAG = Drag()
+
+
 def _decays(h: float, lag: float) -> tuple[float, float]:
     if lag <= 0.0:
         return 0.0, 0.0
@@ -104,14 +123,18 @@ def rk4_float(
     limits: Limits,
     ext: Extremes,
     step0: int | None = None,
+    drag: Drag = NO_DRAG,
 ) -> PlantState:
     """``n`` classical RK4 steps of model (1) from ``t0`` with the command held, on floats,
     updating ``ext`` every step (the one-robot fast path of :func:`rk4_array`).
 
     ``step0``: the index of the first step on the run's plant grid; when given, step i starts at
     ``(step0 + i) * h``, so times (and the random disturbance's hold index) do not depend on
-    where an integration segment began.
+    where an integration segment began. ``drag``: friction and top speed (:class:`Drag`; with
+    them the steps are :func:`rk4_drag`'s).
     """
+    if drag.active:
+        return rk4_drag(s, cmd1, cmd2, t0, h, n, disturbance, lag, seed, limits, ext, step0, drag)
     x, y, th, v, w, a1, a2 = s
     hh = 0.5 * h
     h6 = h / 6.0
@@ -163,6 +186,81 @@ def rk4_float(
     return PlantState(x, y, th, v, w, a1, a2)
 
 
+def rk4_drag(
+    s: PlantState,
+    cmd1: Any,
+    cmd2: Any,
+    t0: Any,
+    h: float,
+    n: int,
+    disturbance: Disturbance,
+    lag: float,
+    seed: Any,
+    limits: Limits,
+    ext: Extremes,
+    step0: int | None,
+    drag: Drag,
+) -> PlantState:
+    """:func:`rk4_float`'s steps (floats) or :func:`rk4_array`'s (arrays) with the friction
+    and the top speed of ``drag``: the textbook stages, one at a time (no fast path: the
+    losses are off unless a scenario asks for them)."""
+    x, y, th, v, w, a1, a2 = s
+    arrays = isinstance(x, np.ndarray)
+    cos, sin = (np.cos, np.sin) if arrays else (math.cos, math.sin)
+    cv, cw = drag.c_v, drag.c_omega
+    hh, h6 = 0.5 * h, h / 6.0
+    eh, ee = _decays(h, lag)
+    if lag <= 0.0:
+        a1, a2 = cmd1, cmd2
+    a1h = a1e = cmd1
+    a2h = a2e = cmd2
+    for i in range(n):
+        if lag > 0.0:
+            a1h, a2h = cmd1 + (a1 - cmd1) * eh, cmd2 + (a2 - cmd2) * eh
+            a1e, a2e = cmd1 + (a1 - cmd1) * ee, cmd2 + (a2 - cmd2) * ee
+        t = t0 + i * h if step0 is None else (step0 + i) * h
+        d10, d20 = disturbance_at(disturbance, t, seed)
+        d1h, d2h = disturbance_at(disturbance, t + hh, seed)
+        d1e, d2e = disturbance_at(disturbance, t + h, seed)
+        # stage k: (x', y', theta', v', omega') at the stage's state, torque and disturbance
+        k1 = (v * cos(th), v * sin(th), w, a1 + d10 - cv * v, a2 + d20 - cw * w)
+        th2, v2, w2 = th + hh * k1[2], v + hh * k1[3], w + hh * k1[4]
+        k2 = (v2 * cos(th2), v2 * sin(th2), w2, a1h + d1h - cv * v2, a2h + d2h - cw * w2)
+        th3, v3, w3 = th + hh * k2[2], v + hh * k2[3], w + hh * k2[4]
+        k3 = (v3 * cos(th3), v3 * sin(th3), w3, a1h + d1h - cv * v3, a2h + d2h - cw * w3)
+        th4, v4, w4 = th + h * k3[2], v + h * k3[3], w + h * k3[4]
+        k4 = (v4 * cos(th4), v4 * sin(th4), w4, a1e + d1e - cv * v4, a2e + d2e - cw * w4)
+        x, y, th, v, w = (
+            q + h6 * (p1 + 2.0 * p2 + 2.0 * p3 + p4)
+            for q, p1, p2, p3, p4 in zip((x, y, th, v, w), k1, k2, k3, k4, strict=True)
+        )
+        if arrays:
+            v, w = np.clip(v, -drag.v_max, drag.v_max), np.clip(w, -drag.omega_max, drag.omega_max)
+        else:
+            v = max(-drag.v_max, min(drag.v_max, v))
+            w = max(-drag.omega_max, min(drag.omega_max, w))
+        a1, a2 = a1e, a2e
+        _track_step(ext, v, w, a1, a2, limits)
+    ext.steps += n
+    return PlantState(x, y, th, v, w, a1, a2)
+
+
+def _track_step(ext: Extremes, v: Any, w: Any, a1: Any, a2: Any, limits: Limits) -> None:
+    """One plant step's extremes and violations (floats or arrays)."""
+    lv, lw, lt1, lt2 = _thresholds(limits)
+    if isinstance(v, np.ndarray):
+        _track_array(ext, v, w, lv, lw)
+        _track_torque(ext, np.broadcast_to(a1, v.shape), np.broadcast_to(a2, v.shape), lt1, lt2, 1)
+        return
+    av, aw, at1, at2 = abs(v), abs(w), abs(a1), abs(a2)
+    ext.max_abs_v, ext.max_abs_omega = max(ext.max_abs_v, av), max(ext.max_abs_omega, aw)
+    ext.max_abs_tau1, ext.max_abs_tau2 = max(ext.max_abs_tau1, at1), max(ext.max_abs_tau2, at2)
+    ext.violations_v += av > lv
+    ext.violations_omega += aw > lw
+    ext.violations_tau1 += at1 > lt1
+    ext.violations_tau2 += at2 > lt2
+
+
 def _rot(c: np.ndarray, s: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """cos and sin of (angle + d) from c = cos(angle), s = sin(angle), |d| <= 0.02.
 
@@ -205,15 +303,19 @@ def rk4_array(
     limits: Limits,
     ext: Extremes,
     step0: int | None = None,
+    drag: Drag = NO_DRAG,
 ) -> PlantState:
     """``n`` classical RK4 steps of model (1) on arrays of N robots, updating ``ext`` every step
-    (times and ``step0`` as in :func:`rk4_float`; ``t0`` may be one start time per robot).
+    (times, ``step0`` and ``drag`` as in :func:`rk4_float`; ``t0`` may be one start time per
+    robot).
 
     The stage formulas are :func:`rk4_float`'s; cos/sin at the stage angles are rotated from
     one exact evaluation per call while the stage increments stay small (module docstring),
     else evaluated exactly at every stage; a held torque without lag under a constant
     disturbance is summed in closed form (:func:`_advance_array_held`).
     """
+    if drag.active:
+        return rk4_drag(s, cmd1, cmd2, t0, h, n, disturbance, lag, seed, limits, ext, step0, drag)
     d2bound = max(abs(disturbance.value2), abs(disturbance.amplitude2), disturbance.s2)
     if disturbance.kind == "none":
         d2bound = 0.0

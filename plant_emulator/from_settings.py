@@ -8,9 +8,11 @@ simulator builds its own, so lockstep equals the simulation bit for bit.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from plant_emulator.dynamics import PlantState
+from plant_emulator.dynamics import NO_DRAG, Drag, PlantState
 from plant_emulator.landing import extra_delays, landing_offsets
 from plant_emulator.sensors import Sensor
 from protocol.settings import RunSettings
@@ -21,6 +23,14 @@ def initial_state(s: RunSettings, at_rest: bool = False) -> PlantState:
     i = s.initial
     v, omega = (0.0, 0.0) if at_rest else (i["v"], i["omega"])
     return PlantState(i["x"], i["y"], i["theta"], v, omega, 0.0, 0.0)
+
+
+def drag_of(s: RunSettings) -> Drag:
+    """The friction and top speed of [plant] (none when the settings have neither)."""
+    c_v, c_omega = s.friction or (0.0, 0.0)
+    v_max, omega_max = s.max_speed or (math.inf, math.inf)
+    drag = Drag(float(c_v), float(c_omega), float(v_max), float(omega_max))
+    return drag if drag.active else NO_DRAG
 
 
 def sensor_of(s: RunSettings) -> Sensor:

@@ -33,21 +33,22 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from plant_emulator.disturbances import Disturbance
-from plant_emulator.dynamics import Extremes, PlantState, rk4_array, rk4_float
+from plant_emulator.dynamics import NO_DRAG, Drag, Extremes, PlantState, rk4_array, rk4_float
 from protocol.robot import Limits
 
 
 @dataclass(frozen=True)
 class Plant:
     """Model (1) as integrated between events: plant step ``h``, disturbance (d1, d2) with its
-    seed (an int, None for the disturbance's own, or one per robot), actuator lag, and the
-    limits (2) whose violations the extremes count."""
+    seed (an int, None for the disturbance's own, or one per robot), actuator lag, the limits
+    (2) whose violations the extremes count, and the friction and top speed (off: none)."""
 
     h: float
     disturbance: Disturbance
     lag: float
     seed: Any
     limits: Limits
+    drag: Drag = NO_DRAG
 
 
 class Command(NamedTuple):
@@ -163,20 +164,21 @@ def advance_period(
     # The RK4 call is written out here rather than in a helper: the single-run path takes this
     # step once a control period, where one more call layer was a measurable overhead.
     h, dist, lag, seed, limits = plant.h, plant.disturbance, plant.lag, plant.seed, plant.limits
+    drag = plant.drag
     rk4 = rk4_array if state.x.__class__ is np.ndarray else rk4_float
     grid = t0 is None
     for e in hold.landings(j, j_end) if hold.pending else ():
         start = j * h if grid else t0 + j * h
         c1, c2 = hold.cmd1, hold.cmd2
         state = rk4(
-            state, c1, c2, start, h, e - j, dist, lag, seed, limits, ext, j if grid else None
+            state, c1, c2, start, h, e - j, dist, lag, seed, limits, ext, j if grid else None, drag
         )
         hold.land(e)
         j = e
     start = j * h if grid else t0 + j * h
     c1, c2 = hold.cmd1, hold.cmd2
     return rk4(
-        state, c1, c2, start, h, j_end - j, dist, lag, seed, limits, ext, j if grid else None
+        state, c1, c2, start, h, j_end - j, dist, lag, seed, limits, ext, j if grid else None, drag
     )
 
 
@@ -207,4 +209,6 @@ def integrate_span(
         plant.seed,
         plant.limits,
         ext,
+        None,
+        plant.drag,
     )

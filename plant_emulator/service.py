@@ -36,7 +36,7 @@ from plant_emulator.can_drives import CanDrives
 from plant_emulator.commands import Arrival, CanCommands, CommandSource, ZenohCommands
 from plant_emulator.disturbances import Disturbance
 from plant_emulator.drive_plant import DrivePlant
-from plant_emulator.dynamics import Extremes, PlantState
+from plant_emulator.dynamics import NO_DRAG, Drag, Extremes, PlantState
 from plant_emulator.sampled import Command, Hold, Plant, advance_period, integrate_span
 from plant_emulator.sensors import Sensor, measure
 from protocol import keys
@@ -59,7 +59,7 @@ from protocol.messages import Status, TorqueCommand, encode
 from protocol.rejections import RejectionCounter
 from protocol.robot import Limits
 from protocol.sequence import SequenceTracker
-from protocol.settings import RunSettings
+from protocol.settings import RunSettings, period_ns
 from runtime.realtime import DeadlineClock, setup_scheduling
 
 
@@ -73,6 +73,7 @@ class PlantCore:
     disturbance: Disturbance = field(default_factory=Disturbance)
     lag: float = 0.0
     seed: int | None = None
+    drag: Drag = NO_DRAG
     t: float = 0.0
     cmd1: float = 0.0
     cmd2: float = 0.0
@@ -81,7 +82,7 @@ class PlantCore:
     @property
     def plant(self) -> Plant:
         """The model's parameters as :mod:`plant_emulator.sampled` integrates them."""
-        return Plant(self.h, self.disturbance, self.lag, self.seed, self.limits)
+        return Plant(self.h, self.disturbance, self.lag, self.seed, self.limits, self.drag)
 
     def advance_to(self, t1: float) -> None:
         """Integrate from ``self.t`` to ``t1`` with the held command (steps of at most h)."""
@@ -183,7 +184,7 @@ class PlantService:
         self.robot_id = robot_id
         self.epoch_ns = int(epoch_ns)
         self.ts = ts
-        self.sensor_period_ns = round(sensor_ts * 1e9)
+        self.sensor_period_ns = period_ns(sensor_ts)
         self.applied_path = CmdPath.ZENOH if cmd_path == "zenoh" else CmdPath.CAN
         self.command_timeout_ns = int(command_timeout * 1e9)
         self.injector = injector or DelayInjector(0.0, 0.0, "uniform", 0)
@@ -568,7 +569,7 @@ def build_plant(s: RunSettings, at_rest: bool = False) -> tuple[PlantCore, Senso
     """(the core, the sensor) for the run ``s`` from its settings alone (``at_rest``: the
     initial pose with v = omega = 0, as the free-running drives start)."""
     from plant_emulator.dynamics import track_initial
-    from plant_emulator.from_settings import initial_state, sensor_of
+    from plant_emulator.from_settings import drag_of, initial_state, sensor_of
 
     limits = s.limits_value
     core = PlantCore(
@@ -578,6 +579,7 @@ def build_plant(s: RunSettings, at_rest: bool = False) -> tuple[PlantCore, Senso
         disturbance=Disturbance(**s.disturbance),
         lag=s.lag,
         seed=None,
+        drag=drag_of(s),
         extremes=Extremes(),
     )
     track_initial(core.extremes, core.state, limits)
@@ -632,8 +634,8 @@ def main_from_settings(settings_path: str) -> int:
         PLANT_TABLES,
         {
             "robot_id": s.robot_id,
-            "sensor_period_ns": round(sensor_ts * 1e9),
-            "control_period_ns": round(s.ts * 1e9),
+            "sensor_period_ns": period_ns(sensor_ts),
+            "control_period_ns": period_ns(s.ts),
             "plant_step_ns": round(core.h * 1e9),
             "lockstep": s.lockstep,
             "cmd_path": s.cmd_path,

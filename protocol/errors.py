@@ -2,7 +2,7 @@
 
 It lives at the bottom so that the services (a bad credentials file, a bad settings file) and
 ``hil`` (a bad scenario key, a bad option) raise the same class, which :func:`hil.cli.main`
-maps to exit code 2 (CONTRACT.md)."""
+maps to exit code 2 (README.md, "Commands")."""
 
 from __future__ import annotations
 

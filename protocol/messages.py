@@ -2,7 +2,7 @@
 
 Every message is one msgpack array ``[type_tag, schema_version, field_1, ..., field_n]`` with the
 fields in the order of the dataclass below (docs/protocol.md says why an array and not a map).
-Times are integer nanoseconds of ``time.monotonic_ns()`` on one host (DESIGN.md section 3);
+Times are integer nanoseconds of ``time.monotonic_ns()`` on one host (docs/design.md, section 3);
 units are SI. The names follow the paper: tau1, tau2 are the torques of model (1), xe, ye,
 theta_e the tracking errors (4), xi = eta f the time-varying signal (Section 3, unnumbered),
 v_tilde, w_tilde the sliding variables of (10), z1, z2 the adaptive states of (8), eta the

@@ -1,6 +1,6 @@
 """Counted rejections: every decoder and receiver in the project reports what it refused here.
 
-DESIGN.md section 3: bad input gets a clear, counted rejection, never a crash. One counter per
+docs/design.md, section 3: bad input gets a clear, counted rejection, never a crash. One counter per
 receiver (or one shared by a process); reasons are short snake_case words such as
 ``"wrong_type"`` or ``"out_of_range"`` (see :mod:`protocol.messages` for the message reasons).
 """

@@ -1,6 +1,6 @@
 """Receiver-side sequence tracking: gaps (lost), duplicates and reordering, counted not guessed.
 
-DESIGN.md section 3 and CONTRACT.md (message counts sent, received, lost, duplicated,
+docs/design.md, section 3, and summary.json's `messages` (counts sent, received, lost, duplicated,
 reordered). Only a message newer than the last accepted one is *fresh* and may be used; a late
 (reordered) or repeated message is rejected and counted, because a stale torque applied after
 a newer one is worse than none.

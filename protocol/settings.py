@@ -29,6 +29,16 @@ SETTINGS_VERSION = 2
 TS_MIN = 1.0 / 20_000.0  # s: the services' fastest period (20 kHz)
 
 
+def period_s(rate_hz: float) -> float:
+    """The period in seconds of a rate in Hz: the one rate-to-period conversion."""
+    return 1.0 / rate_hz
+
+
+def period_ns(seconds: float) -> int:
+    """A period in seconds as whole nanoseconds (what the services' clocks count)."""
+    return round(seconds * 1e9)
+
+
 def _initial() -> dict[str, float]:
     return {"x": 0.0, "y": 0.0, "theta": 0.0, "v": 0.0, "omega": 0.0, "z1": 0.0, "z2": 0.0}
 
@@ -64,6 +74,9 @@ class RunSettings:
     controller: dict[str, Any] = field(default_factory=lambda: {"law": "unified"})
     reference: dict[str, Any] = field(default_factory=dict)
     base_dir: str = "."  # where a reference's relative file paths start
+    # folders a user's law module is looked up in after the installed packages (the scenario's
+    # folder and hil's working directory, controller_service.registry.law_path_for)
+    law_path: list[str] = field(default_factory=list)
     limits: dict[str, float] = field(default_factory=lambda: asdict(Limits()))
     # s1, s2 of Assumption 1 and mu1, mu2, k1, k2 of Assumption 2, as the design used them
     design: dict[str, float] = field(default_factory=_design)
@@ -72,6 +85,8 @@ class RunSettings:
     # --- the plant: model (1) ---------------------------------------------------------------
     plant_step: float = 0.0001  # s, the RK4 step (ts divided into whole steps)
     lag: float = 0.0  # s, the actuator lag
+    friction: list[float] = field(default_factory=lambda: [0.0, 0.0])  # 1/s on v, omega
+    max_speed: list[float] = field(default_factory=list)  # m/s, rad/s; empty: no top speed
     disturbance: dict[str, Any] = field(default_factory=dict)  # [disturbance]
     sensor: dict[str, Any] = field(default_factory=dict)  # noise_std, quantization, seed
     # --- when commands land: delay, jitter (seeded) or a replay's latencies -----------------
@@ -136,9 +151,9 @@ class RunSettings:
         # A folder written before the period had one name (hil recover reads old folders).
         if "ts" not in values and ("ts_s" in data or "rate_hz" in data):
             ts_s = data.get("ts_s")
-            values["ts"] = ts_s if ts_s is not None else 1.0 / data["rate_hz"]
+            values["ts"] = ts_s if ts_s is not None else period_s(data["rate_hz"])
         if "sensor_ts" not in values and "sensor_rate_hz" in data:
-            values["sensor_ts"] = 1.0 / data["sensor_rate_hz"]
+            values["sensor_ts"] = period_s(data["sensor_rate_hz"])
         return cls(**values)
 
     @classmethod

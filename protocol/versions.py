@@ -18,3 +18,5 @@ REPORT_SCHEMA_VERSION = 2
 COMPARE_SCHEMA_VERSION = 1
 # sweep.json (hil sweep, hil.sweep.outputs).
 SWEEP_SCHEMA_VERSION = 1
+# margin.json (hil margin, hil.margin.record).
+MARGIN_SCHEMA_VERSION = 1

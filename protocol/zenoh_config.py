@@ -1,6 +1,6 @@
 """Zenoh session configuration and publisher QoS for the bench (zenoh-python 1.x).
 
-Three modes, all confined to the host by default (ENVIRONMENT.md: no packet may leave it):
+Three modes, all confined to the host by default (no packet may leave it unless asked):
 
 - ``peer``: listens on explicit loopback endpoints (default ``tcp/127.0.0.1:0``, an ephemeral
   loopback port, because Zenoh's own default listens on every interface) and connects to the
@@ -11,7 +11,7 @@ Three modes, all confined to the host by default (ENVIRONMENT.md: no packet may 
   authentication and access control (default deny, ``put`` and subscriptions on ``hil/**``
   allowed for one user); the bench's per-role router is :mod:`protocol.zenoh_acl`.
 
-``ZenohSettings`` is what a scenario's ``[zenoh]`` table maps to (CONTRACT.md: mode,
+``ZenohSettings`` is what a scenario's ``[zenoh]`` table maps to (docs/scenario.md: mode,
 endpoints, robot_id; ``listen`` and ``connect`` may be given explicitly).
 """
 
@@ -178,7 +178,7 @@ def router_acl_config(
     key_expr: str = ALL_ROBOTS,
     allow_non_loopback: bool = False,
 ) -> zenoh.Config:
-    """A router with user/password authentication and access control (ENVIRONMENT.md).
+    """A router with user/password authentication and access control (deploy/README.md).
 
     ``dictionary_file`` holds ``user:password`` lines of everyone allowed to open a session;
     the access control denies everything by default and allows ``allowed_user`` to put on and

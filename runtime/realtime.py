@@ -1,8 +1,8 @@
 """The real-time shell's timing primitives: scheduling set-up and an absolute-deadline clock.
 
 The control law (7)-(10) is sampled: its guarantees under sampling need the longest gap Ts
-between sample times and the sample-to-apply latency delta small and known (DESIGN.md, "Beyond
-the paper"). So the loop
+between sample times and the sample-to-apply latency delta small and known (docs/design.md,
+section 2). So the loop
 
 - wakes on absolute deadlines ``start + k * period`` of ``CLOCK_MONOTONIC`` (no drift: a late
   wake-up never shifts later deadlines), sleeping with ``clock_nanosleep(TIMER_ABSTIME)`` up to

@@ -41,7 +41,7 @@ pytestmark = [pytest.mark.realtime, pytest.mark.slow]
 RATE = 500
 PERIOD_S = 1.0 / RATE
 MS = 1e-3
-STOP_S = 0.040  # the SIGSTOP of the known-answer stalls (the 40 ms)
+STOP_S = 0.040  # the SIGSTOP of the known-answer stalls (40 ms)
 LEAD_S = 0.0005  # the stop starts this long before the stopped service's next deadline
 BUSY_US = 200.0  # the slow law's busy wait (tests/busy_law.py)
 
@@ -420,7 +420,7 @@ def _every_frame_carries_its_commands_torque(out: Path, scenario: Path) -> None:
 
 
 def test_replay_from_the_recording_equals_replay_from_the_folder(tmp_path):
-    from hil.sweep.replay import latencies_from_run
+    from hil.sim.replay import latencies_from_run
 
     out = tmp_path / "run"
     proc = subprocess.run(

@@ -170,3 +170,134 @@ def test_hil_emulator_exits_on_sigint_mid_run(spawn, tmp_path):
     proc.send_signal(signal.SIGINT)
     assert proc.wait(timeout=5) == 0
     assert _hoplog_closed(tmp_path)
+
+
+class _Heartbeats:
+    """Every heartbeat of one node read from a bus, so a state the drive passed through is
+    seen even when a later one replaced it before the test looked."""
+
+    def __init__(self, bus: can.BusABC, node: int) -> None:
+        self.bus, self.node_id = bus, codec.frame_id(node, codec.Cmd.HEARTBEAT)
+        self.seen: list[tuple[int, int]] = []
+
+    def mark(self) -> int:
+        self._read()
+        return len(self.seen)
+
+    def since(self, mark: int, state: int, error: int) -> bool:
+        self._read()
+        return (state, error) in self.seen[mark:]
+
+    def _read(self) -> None:
+        while (msg := self.bus.recv(timeout=0.0)) is not None:
+            if msg.arbitration_id == self.node_id:
+                hb = codec.decode(codec.Frame(msg.arbitration_id, bytes(msg.data)))
+                self.seen.append((hb.axis_state, hb.axis_error))  # type: ignore[attr-defined]
+
+
+def test_hil_drives_watchdog_is_on_by_default_and_clear_errors_rearms_after_any_error(spawn):
+    """Armed, then left without commands: the default watchdog disarms the drive (said in the
+    status line); Clear_Errors then Set_Axis_State re-arm it, as the firmware does, after the
+    watchdog and after an Estop."""
+    bus_args, channel, can_endpoint = _zenoh_can()
+    drives = spawn.python(
+        ["-m", "hil", "drives", *bus_args, "--status-period", "0.3", "--scheduling", "other"],
+        text=True,
+    )
+    out = Lines(drives.stdout)
+    assert wait_until(lambda: out.seen("hil drives:"), 60), drives.stderr.read()
+    assert "watchdog 1s" in out.text()
+    bus = can.Bus(interface="zenoh_can", channel=channel, endpoint=can_endpoint)
+    try:
+        beats = _Heartbeats(bus, 1)
+
+        def send(msg: codec.Message) -> None:
+            f = codec.encode(msg)
+            bus.send(
+                can.Message(arbitration_id=f.arbitration_id, data=f.data, is_extended_id=False)
+            )
+
+        def then(action, state: int, error: int = 0) -> bool:  # type: ignore[no-untyped-def]
+            mark = beats.mark()
+            action()
+            return wait_until(lambda: beats.since(mark, state, error), 10)
+
+        def rearm() -> None:
+            send(codec.ClearErrors(1, 0))
+            send(codec.SetControllerMode(1, codec.ControlMode.TORQUE_CONTROL, 1))
+            send(codec.SetAxisState(1, codec.AxisState.CLOSED_LOOP_CONTROL))
+
+        closed, idle = codec.AxisState.CLOSED_LOOP_CONTROL, codec.AxisState.IDLE
+        assert then(rearm, closed)
+        # No command for the watchdog's 1 s: disarmed, the reason latched.
+        watchdog = int(codec.ODriveError.WATCHDOG_TIMER_EXPIRED)
+        assert then(lambda: None, idle, watchdog)
+        assert wait_until(lambda: out.seen("watchdog 1s"), 5)
+        assert then(rearm, closed)
+        assert then(lambda: send(codec.Estop(1)), idle, int(codec.ODriveError.ESTOP_REQUESTED))
+        assert then(rearm, closed)
+        # The status line counts every frame it received: 3 x 3 re-arming frames + the Estop.
+        assert wait_until(lambda: out.seen("rx 0/s (10) tx"), 10), out.text()[-600:]
+    finally:
+        bus.shutdown()
+
+
+def test_hil_drives_robot_with_friction_settles_and_stops_when_the_watchdog_disarms(
+    spawn, tmp_path
+):
+    """[plant] friction: under a held torque the robot tends to tau/c instead of speeding up
+    for ever (the drives' overspeed), and once the watchdog disarms the drives it stops."""
+    from hil.bundled import resolve_scenario
+
+    scenario = tmp_path / "friction.toml"
+    scenario.write_text(
+        resolve_scenario("paper_tracking").read_text() + "\n[plant]\nfriction = [2.0, 2.0]\n"
+    )
+    bus_args, channel, can_endpoint = _zenoh_can()
+    drives = spawn.python(
+        [
+            "-m",
+            "hil",
+            "drives",
+            str(scenario),
+            *bus_args,
+            "--duration",
+            "6",
+            "--status-period",
+            "0",
+            "--scheduling",
+            "other",
+        ],
+        text=True,
+    )
+    out = Lines(drives.stdout)
+    assert wait_until(lambda: out.seen("hil drives:"), 60), drives.stderr.read()
+    bus = can.Bus(interface="zenoh_can", channel=channel, endpoint=can_endpoint)
+    try:
+        beats = _Heartbeats(bus, 1)
+
+        def send(msg: codec.Message) -> None:
+            f = codec.encode(msg)
+            bus.send(
+                can.Message(arbitration_id=f.arbitration_id, data=f.data, is_extended_id=False)
+            )
+
+        for node in (0, 1):
+            send(codec.ClearErrors(node, 0))
+            send(codec.SetControllerMode(node, codec.ControlMode.TORQUE_CONTROL, 1))
+            send(codec.SetAxisState(node, codec.AxisState.CLOSED_LOOP_CONTROL))
+        assert wait_until(lambda: beats.since(0, codec.AxisState.CLOSED_LOOP_CONTROL, 0), 10)
+        # 0.05 Nm on both motors is tau1 = G (qR + qL) / (r m) = 2 m/s^2 (default robot)
+        end = time.monotonic() + 1.5
+        while time.monotonic() < end:  # a host's loop, then silence
+            send(codec.SetInputTorque(1, 0.05))
+            send(codec.SetInputTorque(0, 0.05))
+            time.sleep(0.02)
+    finally:
+        bus.shutdown()
+    assert drives.wait(timeout=30) == 0
+    summary = json.loads(out.text(5.0).strip().splitlines()[-1])["summary"]
+    robot = summary["robot"]
+    assert summary["can"]["events"]["watchdog_expired"] == 2  # both drives, after the silence
+    assert 0.5 < robot["max_abs_v"] <= 2.0 / 2.0 + 1e-6  # below tau1 / c
+    assert abs(robot["final"]["v"]) < 0.05 * robot["max_abs_v"]  # stopped by friction

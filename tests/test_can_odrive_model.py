@@ -304,6 +304,54 @@ def test_can_overspeed_disarms_with_velocity_limit_violation():
     assert 6.0 <= rotor.vel <= 6.2  # tripped at 1.2 x vel_limit
 
 
+@pytest.mark.parametrize("error", ["overspeed", "bad_config", "watchdog", "estop"])
+def test_can_clear_errors_then_a_state_request_rearms_after_any_error(error):
+    """As the firmware: Clear_Errors, then Set_Axis_State CLOSED_LOOP_CONTROL re-arms the axis
+    once the cause has gone; while it lasts (a motor still beyond 1.2 vel_limit, a mode it
+    cannot run) the axis disarms again at once with the same error."""
+    config = DriveConfig(
+        torque_limit=0.5, vel_limit=5.0, enable_torque_mode_vel_limit=False, watchdog_timeout=0.1
+    )
+    rotor = Rotor(config)
+    rotor.arm(ControlMode.TORQUE_CONTROL)
+    if error == "overspeed":
+        rotor.send(codec.SetInputTorque(3, 0.1))
+        rotor.run(0.2)
+        want = ODriveError.VELOCITY_LIMIT_VIOLATION
+
+        def cause_gone() -> None:  # the motor has slowed down (friction, a hand)
+            rotor.vel = 1.0
+            rotor.axis.feedback(rotor.t, rotor.pos, rotor.vel)
+
+        mode = ControlMode.TORQUE_CONTROL, InputMode.PASSTHROUGH
+    elif error == "bad_config":
+        rotor.send(codec.SetControllerMode(3, ControlMode.TORQUE_CONTROL, InputMode.MIRROR))
+        want, cause_gone = ODriveError.BAD_CONFIG, lambda: None
+        mode = ControlMode.TORQUE_CONTROL, InputMode.MIRROR
+    elif error == "watchdog":
+        rotor.run(0.3)  # no command for longer than the watchdog's 0.1 s
+        want, cause_gone = ODriveError.WATCHDOG_TIMER_EXPIRED, lambda: None
+        mode = ControlMode.TORQUE_CONTROL, InputMode.PASSTHROUGH
+    else:
+        rotor.send(codec.Estop(3))
+        want, cause_gone = ODriveError.ESTOP_REQUESTED, lambda: None
+        mode = ControlMode.TORQUE_CONTROL, InputMode.PASSTHROUGH
+    assert not rotor.axis.armed and rotor.ask(Cmd.HEARTBEAT).axis_error == want
+
+    def rearm(input_mode: int) -> codec.Heartbeat:
+        rotor.send(codec.ClearErrors(3))
+        rotor.send(codec.SetControllerMode(3, mode[0], input_mode))
+        rotor.send(codec.SetAxisState(3, AxisState.CLOSED_LOOP_CONTROL))
+        return rotor.ask(Cmd.HEARTBEAT)
+
+    if error in ("overspeed", "bad_config"):  # the cause still there: tripped again at once
+        hb = rearm(mode[1])
+        assert (hb.axis_state, hb.axis_error) == (AxisState.IDLE, want)
+    cause_gone()
+    hb = rearm(InputMode.PASSTHROUGH)
+    assert (hb.axis_state, hb.axis_error) == (AxisState.CLOSED_LOOP_CONTROL, 0)
+
+
 def test_can_torque_mode_velocity_limiter_of_the_firmware_defaults():
     rotor = Rotor(DriveConfig(torque_limit=0.5))  # firmware: 2 rev/s, limiter on
     rotor.arm(ControlMode.TORQUE_CONTROL)

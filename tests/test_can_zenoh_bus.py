@@ -209,3 +209,43 @@ def test_can_bus_factory_opens_virtual_and_zenoh():
         assert isinstance(bus, ZenohCanBus) and bus.bitrate == 1_000_000
     finally:
         bus.shutdown()
+
+
+FORGETFUL = """
+import sys, can
+bus = can.Bus(interface="zenoh_can", channel="f", endpoint=sys.argv[1])
+bus.send(can.Message(arbitration_id=0x21, data=b"\\x01", is_extended_id=False))
+msg = bus.recv(timeout=30)
+print("got", hex(msg.arbitration_id) if msg else None, flush=True)
+# no bus.shutdown(): the interpreter must exit anyway, as with python-can's own interfaces
+"""
+
+
+def test_can_zenoh_bus_does_not_keep_a_script_alive_that_forgets_shutdown(spawn, tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    script = tmp_path / "forgetful.py"
+    script.write_text(FORGETFUL)
+    ours = can.Bus(interface="zenoh_can", channel="f", endpoint=endpoint)
+    try:
+        proc = spawn.python([str(script), endpoint], text=True)
+        # Answer its frame, so its receive path (the one that used to hold the interpreter)
+        # has delivered a frame before it ends.
+        first = ours.recv(timeout=30)
+        assert first is not None and first.arbitration_id == 0x21
+        # It may have joined before or after our answer: send until it has received one.
+        answered = wait_until(
+            lambda: (
+                ours.send(can.Message(arbitration_id=0x22, is_extended_id=False))
+                or proc.poll() is not None
+            ),
+            timeout=30,
+            interval=0.05,
+        )
+        assert answered
+        # Bounded: the old bus never exited (a non-daemon Zenoh callback thread).
+        out, err = proc.communicate(timeout=10)
+        # 0, not an abort: frames still arriving while it ends must not crash it either
+        assert proc.returncode == 0, (proc.returncode, err)
+        assert "got 0x22" in out
+    finally:
+        ours.shutdown()

@@ -233,3 +233,21 @@ def test_cli_bad_input(tmp_path):
     assert main(["certify", str(tmp_path / "missing.toml")]) == 2
     assert main(["certify", _write(tmp_path), "--ts", "-1"]) == 2
     assert main(["certify", _write(tmp_path, law="jiang1997")]) == 2
+
+
+def test_positive_gains_are_shown_as_given_not_negated(tmp_path, capsys):
+    """ "m1 > 0" reads value m1 (0.7 here), bound 0, margin 0.7: the table and the JSON both."""
+    cert = certify(SimpleNamespace(**{**vars(TABLE1), "m1": 0.7}), PAPER, 0.001, 0.0, False)
+    c = cert.condition("m1 > 0")
+    assert (c.value, c.bound, c.margin, c.held) == (0.7, 0.0, 0.7, True)
+    assert c.to_dict()["relation"] == ">" and cert.condition("(9) m1").to_dict()["relation"] == "<"
+    bad = certify(SimpleNamespace(**{**vars(TABLE1), "rho": -0.2}), PAPER, 0.001, 0.0, False)
+    r = bad.condition("rho > 0")
+    assert (r.value, r.margin, r.held) == (-0.2, -0.2, False)
+    path = _write(tmp_path, m1=0.7)
+    main(["certify", path, "--ts", "0.001", "--delay", "0"])
+    rows = [line for line in capsys.readouterr().out.splitlines() if "> 0" in line]
+    m1_row = next(line for line in rows if "m1 > 0" in line)
+    cells = [cell.strip() for cell in m1_row.split("│")[1:-1]]
+    assert cells[1:4] == ["0.7", "0", "0.7"], m1_row
+    assert not any("-0.5" in line or "-0.7" in line for line in rows), rows

@@ -1,4 +1,4 @@
-"""MUST-HOLD check of issue 5: the sampled-data bound of docs/sampled_data_bound.md is never
+"""MUST-HOLD check: the sampled-data bound of docs/sampled_data_bound.md is never
 exceeded in >= 1,000 simulated loops per law, and a design outside it does break |v| <= phi1.
 
 The batch loop here is deliberately small and explicit (the shared batch simulator was not yet

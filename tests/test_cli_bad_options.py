@@ -1,4 +1,4 @@
-"""Bad input at every edge (issue 11, item 5): every command's options.
+"""Bad input at every edge: every command's options.
 
 Each command runs as a real subprocess (``python -m hil ...``) with one bad value: negative,
 zero where a positive number goes, NaN, infinity, out of range, text where a number goes, an
@@ -37,6 +37,9 @@ CASES: list[tuple[list[str], str]] = [
     (["sim", S, "--duration", "1e6", "--ts", "1e-5", "--out", "OUT"], "--duration"),
     (["sim", S, "--out", "FILE"], "--out"),
     (["sim", S, "--nope", "1"], "--nope"),
+    (["sim", S, "--out", "UNWRITABLE"], "--out"),
+    (["sim", S, "--law", "not a law", "--out", "OUT"], "--law"),
+    (["sim", S, "--law", "no_such_law_module:Law", "--out", "OUT"], "no_such_law_module"),
     # hil run (each fails before its folder and its processes)
     (["run", "--rate", "nan", "--out", "OUT"], "--rate"),
     (["run", "--rate", "0", "--out", "OUT"], "--rate"),
@@ -53,6 +56,8 @@ CASES: list[tuple[list[str], str]] = [
     (["run", "--spin-us", "-1", "--out", "OUT"], "--spin-us"),
     (["run", "--spin-us", "nan", "--out", "OUT"], "--spin-us"),
     (["run", "--out", "FILE"], "--out"),
+    (["run", "--out", "UNWRITABLE"], "--out"),
+    (["run", "--law", "nonsense", "--out", "OUT"], "--law"),
     # hil controller / hil emulator run alone
     (["controller", S, "--endpoint", "localhost", "--out", "OUT"], "--endpoint"),
     (["emulator", S, "--can-endpoint", "", "--out", "OUT"], "--can-endpoint"),
@@ -77,6 +82,8 @@ CASES: list[tuple[list[str], str]] = [
     (["sweep", S, "--duration", "0", "--out", "OUT"], "--duration"),
     (["sweep", S, "--duration", "1000", "--ts", "1e-6", "--out", "OUT"], "--duration"),
     (["sweep", S, "--out", "FILE"], "--out"),
+    (["sweep", S, "--out", "UNWRITABLE"], "--out"),
+    (["sweep", S, "--law", "a:b:c", "--out", "OUT"], "--law"),
     # hil certify
     (["certify", S, "--ts", "nan"], "--ts"),
     (["certify", S, "--ts", "0"], "--ts"),
@@ -84,6 +91,13 @@ CASES: list[tuple[list[str], str]] = [
     (["certify", S, "--delay", "-1"], "--delay"),
     (["certify", S, "--delay", "nan"], "--delay"),
     (["certify", S, "--delay", "soon"], "--delay"),
+    # hil margin
+    (["margin", S, "--seeds", "0", "--out", "OUT"], "--seeds"),
+    (["margin", S, "--error-bound", "-1", "--out", "OUT"], "--error-bound"),
+    (["margin", S, "--error-bound", "nan", "--out", "OUT"], "--error-bound"),
+    (["margin", S, "--duration", "0", "--out", "OUT"], "--duration"),
+    (["margin", S, "--out", "FILE"], "--out"),
+    (["margin", "no_such_scenario", "--out", "OUT"], "no_such_scenario"),
     # hil can-load
     (["can-load", "--rate", "nan", "--bitrate", "1e6"], "--rate"),
     (["can-load", "--rate", "0", "--bitrate", "1e6"], "--rate"),
@@ -101,7 +115,11 @@ CASES: list[tuple[list[str], str]] = [
     (["report", "OUT", "--max-lost-ratio", "2"], "--max-lost-ratio"),
     (["report", "OUT", "--max-lost-ratio", "-0.1"], "--max-lost-ratio"),
     (["report", "OUT", "--out", "FILE"], "--out"),
+    (["report", "SIMDIR", "--out", "UNWRITABLE"], "--out"),
     (["compare", "OUT", "OUT", "--out", "FILE"], "--out"),
+    (["compare", "SIMDIR", "SIMDIR", "--out", "UNWRITABLE"], "--out"),
+    (["paper", "--out", "UNWRITABLE"], "--out"),
+    (["new-law", "my-law"], "NAME"),
     (["paper", "--jobs", "0", "--out", "OUT"], "--jobs"),
     (["paper", "--jobs", "two", "--out", "OUT"], "--jobs"),
     (["paper", "--out", "FILE"], "--out"),
@@ -118,7 +136,7 @@ def _id(case: tuple[list[str], str]) -> str:
 
 @pytest.mark.parametrize(("args", "option"), CASES, ids=[_id(c) for c in CASES])
 def test_a_bad_option_exits_2_with_one_line_naming_it(
-    tmp_path: Path, args: list[str], option: str
+    tmp_path: Path, sim_folder: Path, args: list[str], option: str
 ) -> None:
     out = tmp_path / "out"
     file = tmp_path / "file.txt"
@@ -130,6 +148,9 @@ def test_a_bad_option_exits_2_with_one_line_naming_it(
         "FILE": file,
         "SETTINGS": settings,
         "MISSING": tmp_path / "missing.json",
+        # /proc takes no new folder, whoever runs the test (root's permission bits say yes)
+        "UNWRITABLE": Path("/proc/hil-no-such-folder/out"),
+        "SIMDIR": sim_folder,
     }
     argv = [str(names.get(a, a)) for a in args]
     proc = subprocess.run(
@@ -147,6 +168,36 @@ def test_a_bad_option_exits_2_with_one_line_naming_it(
     assert option in lines[0], lines[0]
     assert not out.exists() and not (tmp_path / "runs").exists(), "a folder was written"
     assert file.read_text() == "not a folder\n"
+
+
+@pytest.fixture(scope="module")
+def sim_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished simulation folder, for report and compare."""
+    from hil.bundled import resolve_scenario
+    from hil.scenario import load_scenario
+    from hil.sim import simulate, write_run_folder
+
+    sc = load_scenario(resolve_scenario(S)).with_overrides(duration=0.2, ts=0.01)
+    return write_run_folder(simulate(sc), tmp_path_factory.mktemp("sim") / "sim")
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["sim", S], ["sweep", S, "--ts", "0.01", "--duration", "0.1"], ["run"], ["paper", "--quick"]],
+    ids=["sim", "sweep", "run", "paper"],
+)
+def test_an_unwritable_default_folder_is_refused_before_any_work(args: list[str]) -> None:
+    """Without --out, the default runs/ under the working directory is checked first."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "hil", *args],
+        cwd="/proc",  # no folder can be made here
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=_env(),
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.startswith("error: --out not given, so its default runs: cannot write in")
 
 
 def _env() -> dict[str, str]:

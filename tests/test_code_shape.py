@@ -1,4 +1,4 @@
-"""Code shape of the product packages: no function longer than MAX_LINES (issue 12).
+"""Code shape of the product packages: no function longer than MAX_LINES.
 
 A long function does several jobs; split it into named pieces that say them. The count is
 ``end_lineno - lineno + 1`` of every ``def``, read with :mod:`ast`: from the def line (so

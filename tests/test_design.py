@@ -28,7 +28,7 @@ def test_paper_constants_give_the_papers_bounds():
     assert c["c2"] == pytest.approx(3.39)
     lam_max = lam_bound(PAPER, m2=0.5, l2=0.5)
     rho_max = rho_bound(PAPER, m1=0.5, m2=0.5, l1=0.5, l2=0.5, lam=1.0)
-    # DESIGN.md: by (11)-(12) lam < 5.96, rho < 1.02 at Table 1.
+    # docs/design.md: by (11)-(12) lam < 5.96, rho < 1.02 at Table 1.
     assert 5.95 < lam_max < 5.97
     assert 1.015 < rho_max < 1.025
 

@@ -1,4 +1,4 @@
-"""Long runs in bounded memory and linear time (issue 13), in short: a 20 s run at 1 kHz with
+"""Long runs in bounded memory and linear time, in short: a 20 s run at 1 kHz with
 both paths live keeps the services' memory flat and its logs read in chunks (hil.measure, as
 ``hil run`` and ``hil report`` read them) give every figure an independent in-memory reading
 gives; and the report of a 2 M-sample trace stays within a time and a memory bound (a
@@ -123,7 +123,7 @@ def test_the_report_of_two_million_samples_is_quick_and_small(tmp_path: Path) ->
     """2 M samples (33 minutes at 1 kHz): about 10 s and 0.6 GB here; bounds 60 s and 1 GB.
     Every figure's data holds its drawn samples (the extremes of each time bin), not 2 M
     rows, and keeps the true peak."""
-    from hil.report.folder import read_trace
+    from hil.folder import read_trace
     from tests.synthetic_folder import write_synthetic_folder
 
     folder = write_synthetic_folder(tmp_path / "long", duration=2000.0, rate=1000.0)

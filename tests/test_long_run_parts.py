@@ -1,4 +1,4 @@
-"""The parts that make long runs linear and bounded (issue 13), each against the plain way it
+"""The parts that make long runs linear and bounded, each against the plain way it
 replaces: the chunked trace reader, the chunked CSV writers, min/max envelopes, the recording's
 telemetry reader and streamed attachments, references and disturbances on arrays of times, the
 batch path with per-robot start times, and the windowed ideal trajectory."""
@@ -20,7 +20,7 @@ from hil.errors import BadInputError
 
 
 def test_the_chunked_trace_reader_equals_loadtxt(tmp_path: Path, monkeypatch) -> None:
-    from hil.report import folder as fmod
+    from hil.folder import trace_csv as fmod
 
     rng = np.random.default_rng(3)
     data = rng.normal(size=(101, 11)) * 10.0 ** rng.integers(-12, 12, size=(101, 11))
@@ -358,8 +358,8 @@ def test_the_windowed_ideal_of_an_ideal_loop_is_the_loop(tmp_path: Path, monkeyp
     """Restarted at each window from the robot's state and the law's memory (the trace's own
     columns here), the ideal retraces an ideal loop on both routes; with the law's initial
     memory at each restart it does not."""
+    from hil.folder import load_folder
     from hil.report import ideal_sim
-    from hil.report.folder import load_folder
     from hil.report.ideal import ideal_from_simulator, memory_source
 
     folder = load_folder(_ideal_run_folder(tmp_path, 12.0))

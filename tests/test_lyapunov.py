@@ -1,6 +1,6 @@
 """The Lyapunov argument of Theorem 1 on the reduced closed loop (16) with (8).
 
-On the sliding manifold (v = alpha_v, w = alpha_w) DESIGN.md gives
+On the sliding manifold (v = alpha_v, w = alpha_w) docs/design.md (section 1) gives
     V' = ye vd sin(xi)/r - z1^2/m1 - 2 z2^2/(lam m2),
 so V(t) minus the integral of |vd sin xi| never increases (|ye/r| < 1).
 """
@@ -144,5 +144,5 @@ def test_v_minus_integral_never_increases_on_the_reduced_loop(vd, wd, X0, min_dr
     W, _ = rk4_run(X0, vd, wd, duration=12.0)
     increases = np.diff(W)
     assert increases.max() <= 1e-10
-    # ... and the run is not trivial: V decreased (slowly at rest, as DESIGN.md reports).
+    # ... and the run is not trivial: V decreased (slowly at rest, as docs/design.md says).
     assert W[-1] < W[0] - min_drop

@@ -1,7 +1,8 @@
 """The pair as real processes on the wall clock: the paper's circle over Zenoh and over CAN.
 
 Checks: the tracking error falls, and |v|, |omega| stay within the sampled-data bound of
-DESIGN.md evaluated at the run's measured D (the applied path's largest command age).
+docs/sampled_data_bound.md evaluated at the run's measured D (the applied path's largest
+command age).
 """
 
 from __future__ import annotations

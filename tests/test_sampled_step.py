@@ -20,8 +20,8 @@ import plant_emulator.service as service
 from hil.bundled import bundled_path
 from hil.scenario import load_scenario
 from hil.sim.core import RobotVariation, simulate, simulate_batch
-from hil.sim.landing import extra_delays, landing_offsets
 from plant_emulator.dynamics import Extremes, PlantState, track_initial
+from plant_emulator.landing import extra_delays, landing_offsets
 from plant_emulator.sampled import Hold
 from plant_emulator.service import PlantCore
 

@@ -1,4 +1,4 @@
-"""Bad input at every edge (issue 11, item 5): generated scenario files.
+"""Bad input at every edge: generated scenario files.
 
 Documents are mutations of the bundled scenarios (``hil.bundled``), of the same scenarios with
 every table written out (``scenario_dict``) and of a few bases that reach the other kinds

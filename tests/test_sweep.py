@@ -12,14 +12,14 @@ import pytest
 
 from hil.cli import main
 from hil.errors import BadInputError
+from hil.sim.replay import latencies_from_run
 from hil.sweep.grid import DEFAULT_DELAY, DEFAULT_TS, break_points, make_grid
-from hil.sweep.replay import latencies_from_run
 from tests.procs import wait_until
 from tests.scenario_text import CIRCLE_TABLE1
 from tests.synthetic_folder import write_synthetic_folder
 
 # m1 near its bound phi1 - mu1 = 1.1 and z1(0) = -m1, so alpha_v starts near mu1 + m1: with a
-# long delay the sampled sign law lets v run past phi1 = 1.6 (DESIGN.md's probe).
+# long delay the sampled sign law lets v run past phi1 = 1.6 (docs/design.md, section 2).
 EDGE = """
 [reference]
 kind = "circle"

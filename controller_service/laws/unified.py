@@ -5,7 +5,7 @@ shape (N,) (batch path) through :mod:`runtime.mathns`. When the N robots share t
 and the reference sample (the simulator's batches), a variant of the array path evaluates the
 same formulas with fewer array operations (``_update_array_shared_ref``; equal to rounding).
 
-Law (DESIGN.md section 1, signs restored):
+Law (docs/design.md, section 1, signs restored):
 
 - errors (4): xe = cos th (x-xd) + sin th (y-yd), ye = -sin th (x-xd) + cos th (y-yd),
   theta_e = th - thd. theta_e is NOT wrapped: the law uses half angles (period 4 pi), so

@@ -20,7 +20,8 @@ from hil.errors import BadInputError, NegativeVerdictError
 
 _UNIFIED = ("unified", "unified_boundary")
 _GAINS = ("m1", "m2", "l1", "l2", "lam", "rho")
-_IGNORED = ("law", "jiang1997", "jiang2001")
+# The eta re-arm keeps eta in [0, 1], all the bound uses (docs/laws.md): the same certificate.
+_IGNORED = ("law", "jiang1997", "jiang2001", "eta_rearm", "eta_rearm_dwell", "eta_rearm_below")
 
 
 def _worst_delay(timing: Any) -> float:
@@ -72,8 +73,52 @@ def _table(cert: Any, title: str) -> Any:
     return table
 
 
+def _conservatism(scenario: Any, params: Any, context: Any, boundary: bool, age: Any) -> dict:
+    """D* and, when ``age`` = (ts, delay) is given, the empirical break under the worst
+    disturbance found (hil.margin.conservatism) and their ratio."""
+    from controller_service.certificate import critical_age
+
+    init = scenario.initial
+    d_star = critical_age(params, context, boundary, v0=init.v, w0=init.omega)
+    out: dict[str, Any] = {"d_star_s": d_star}
+    if age is not None:
+        from hil.margin.conservatism import empirical_break
+
+        rec = empirical_break(scenario, *age)
+        out["empirical"] = {
+            "age_at_break_s": rec.age_at_break_s,
+            "k_star": rec.k_star,
+            "first_broken": rec.first_broken,
+            "disturbance": rec.disturbance_at_break,
+            "loops": rec.loops,
+            "ratio_to_d_star": rec.conservatism,
+        }
+    return out
+
+
+def _conservatism_lines(facts: dict[str, Any]) -> list[str]:
+    lines = [f"D* = {1e3 * facts['d_star_s']:.3f} ms: the largest command age the bound allows."]
+    emp = facts.get("empirical")
+    if emp is None:
+        return lines
+    if emp["age_at_break_s"] is None:
+        lines.append("Empirical break: none found up to 1024 x this age (worst disturbance).")
+        return lines
+    lines.append(
+        f"Empirical break under the worst disturbance found: command age "
+        f"{1e3 * emp['age_at_break_s']:.1f} ms ({emp['first_broken']} first; "
+        f"{emp['disturbance']}; {emp['loops']} loops)."
+    )
+    if emp["ratio_to_d_star"] is not None:
+        lines.append(
+            f"Ratio empirical break / D* = {emp['ratio_to_d_star']:.2f} "
+            "(docs/sampled_data_bound.md, section 10)."
+        )
+    return lines
+
+
 def certify_scenario(
-    path: str, ts: float | None, delay: float | None
+    path: str, ts: float | None, delay: float | None, empirical: bool = False
 ) -> tuple[Any, Any, dict[str, Any]]:
     """(certificate, proposal or None, facts) for a scenario file; BadInputError on bad input."""
     from controller_service.certificate import CertificateError, certify, propose
@@ -119,6 +164,9 @@ def certify_scenario(
         "law": "unified_boundary" if boundary else "unified",
         "params": dict(vars(params)),
         "auto_notes": notes,
+        **_conservatism(
+            scenario, params, context, boundary, (ts_used, delay_used) if empirical else None
+        ),
     }
     return cert, proposal, facts
 
@@ -141,9 +189,15 @@ def register(app: typer.Typer) -> None:
             help="Worst sample-to-apply latency, s (default: [timing] delay + jitter bound).",
         ),
         as_json: bool = typer.Option(False, "--json", help="Print the certificate as JSON."),
+        empirical: bool = typer.Option(
+            False,
+            "--empirical",
+            help="Also search where (2) really breaks under the worst disturbance (batch "
+            "simulation, hil.margin; seconds to minutes) and print its ratio to D*.",
+        ),
     ) -> None:
         """Is (2) guaranteed for the sampled, delayed loop? (docs/sampled_data_bound.md)"""
-        cert, proposal, facts = certify_scenario(scenario, ts, delay)
+        cert, proposal, facts = certify_scenario(scenario, ts, delay, empirical)
         if as_json:
             out = {**facts, "certificate": cert.to_dict()}
             if proposal is not None:
@@ -173,6 +227,8 @@ def register(app: typer.Typer) -> None:
                 console.print(f"- {note}")
             verdict = "GUARANTEED" if cert.held else "NOT guaranteed"
             console.print(f"(2) is {verdict} at this period and worst delay.")
+            for line in _conservatism_lines(facts):
+                console.print(line)
             if proposal is not None:
                 if proposal.params is None:
                     console.print(f"No admissible design: {proposal.reason}")

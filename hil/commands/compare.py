@@ -25,11 +25,11 @@ def register(app: typer.Typer) -> None:
         (hil.measure: timing, messages, certificate) with their differences (B - A):
         compare.html, compare.md, compare.json, PNG + CSV per figure. Exit 0, or 2 when a
         folder is not a run."""
+        from hil.folder import load_folder
         from hil.options import out_dir
         from hil.report.compare import build_compare
-        from hil.report.folder import load_folder
 
-        out_dir("--out", out)
+        out_dir("--out", out, default="runs")
         fa, fb = load_folder(dir_a), load_folder(dir_b)
         target = out or Path("runs") / time.strftime("compare-%Y%m%d-%H%M%S")
         build_compare(fa, fb, target)

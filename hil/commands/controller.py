@@ -1,10 +1,10 @@
-"""``hil controller``: the controller service alone (:mod:`hil.run.service_command`)."""
+"""``hil controller``: the controller service alone (:mod:`hil.commands.service_command`)."""
 
 from __future__ import annotations
 
 import typer
 
-from hil.run.service_command import register_service_command
+from hil.commands.service_command import register_service_command
 
 
 def register(app: typer.Typer) -> None:

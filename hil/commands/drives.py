@@ -82,7 +82,10 @@ MsgRateOpt = Annotated[
 ]
 WatchdogOpt = Annotated[
     float | None,
-    typer.Option(help="Drive watchdog, s (0: off, as the firmware ships; default: [can])."),
+    typer.Option(
+        help="Drive watchdog, s: a drive gets no command for this long and disarms (0: off, "
+        "as the firmware ships). Default: [can] watchdog_timeout if set, else 1 s."
+    ),
 ]
 StateRateOpt = Annotated[
     float, typer.Option(help="Publish State (and Status) on Zenoh at this rate, Hz.")

@@ -34,11 +34,11 @@ def register(app: typer.Typer) -> None:
         figures is written as soon as its runs are done; Ctrl-C keeps what was written (and a
         table of the runs done) and exits 130. Exit 1 when a check of the paper's claims
         fails. Takes about 2-4 minutes on 2 cores (--quick: under a minute)."""
+        from hil.folder import new_run_dir
         from hil.options import out_dir
         from hil.paper import failed_checks, run_paper
-        from hil.sim import new_run_dir
 
-        out_dir("--out", out)
+        out_dir("--out", out, default="runs")
         folder = out or new_run_dir("runs", "paper")
         table = run_paper(
             folder, quick=quick, jobs=jobs, traces=traces, log=lambda m: typer.echo(m, err=True)

@@ -56,9 +56,9 @@ def register(app: typer.Typer) -> None:
         hil.measure). Exit 0 all good, 1 negative verdict (limit broken, certificate not held
         or exceeded, too many deadline misses, samples without a command or lost messages),
         2 not a run folder."""
+        from hil.folder import load_folder
         from hil.options import number, out_dir
         from hil.report.build import Thresholds, build_report, write_report
-        from hil.report.folder import load_folder
         from hil.report.ideal import ideal_from_simulator
         from hil.run.recover import is_run_folder, needs_recovery, recover
 

@@ -9,6 +9,7 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
+from hil.commands.law_option import LawOpt
 from hil.errors import NegativeVerdictError
 
 # The options of ``hil run``, one alias each, so that the command's signature stays short.
@@ -78,6 +79,16 @@ ReportOpt = Annotated[
 ]
 
 
+JsonOpt = Annotated[
+    bool,
+    typer.Option(
+        "--json",
+        help="Print the run's brief (folder, figures, verdict, report) as JSON on stdout, for "
+        "scripts; the plain result line then goes to stderr.",
+    ),
+]
+
+
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run(
@@ -96,6 +107,8 @@ def register(app: typer.Typer) -> None:
         secure: SecureOpt = False,
         report: ReportOpt = True,
         strict: StrictOpt = False,
+        law: LawOpt = None,
+        as_json: JsonOpt = False,
         live: LiveOpt = None,
         live_host: LiveHostOpt = "127.0.0.1",
     ) -> None:
@@ -117,6 +130,7 @@ def register(app: typer.Typer) -> None:
                 spin_us=spin_us,
                 quiet=quiet,
                 secure=secure,
+                law=law,
                 live_port=live,
                 live_host=live_host,
             )
@@ -126,9 +140,13 @@ def register(app: typer.Typer) -> None:
         stopped = summary.get("interrupted") or interrupts.happened()
         if report and run_dir and not stopped and not summary.get("error"):
             brief["report"] = _write_report(Path(run_dir), quiet)
-        typer.echo(json.dumps(brief, indent=2))
-        # One plain line; a negative exit prints its own reason (hil.cli) after it.
-        typer.echo(f"result: {verdict_line(summary)}", err=True)
+        report_html = (brief.get("report") or {}).get("html")
+        line = f"result: {verdict_line(summary, report_html)}"
+        # One plain line ends the run (a negative exit prints its own reason, hil.cli, after
+        # it); --json puts the brief on stdout for scripts and the line on stderr.
+        if as_json:
+            typer.echo(json.dumps(brief, indent=2))
+        typer.echo(line, err=as_json)
         if stopped:
             # hil.cli exits 130: hil.run.orchestrate recorded the signal in hil.interrupts.
             interrupts.note(f"run folder written to {run_dir}")
@@ -166,21 +184,28 @@ def _raise_on_negative(summary: dict[str, Any], strict: bool = False) -> None:
         raise NegativeVerdictError(f"{v.get('outcome')} (--strict): {'; '.join(v['reasons'])}")
 
 
-def verdict_line(summary: dict[str, Any]) -> str:
-    """One plain line: the outcome, why, and D against D* where there is a certificate."""
+def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
+    """One plain line: the outcome, why, D against D* where there is a certificate, notes,
+    and where to read more (the report, else the run folder)."""
     v = summary.get("verdict") or {}
     cert = summary.get("certificate") or {}
     d, ds = cert.get("d_max_s"), cert.get("d_star_s")
     age = f"D {d * 1e3:.2f} ms of D* {ds * 1e3:.2f} ms" if d is not None and ds else ""
     why = "; ".join(v.get("reasons") or []) or f"limits {v.get('limits', '?')}"
     notes = "; ".join(v.get("notes") or [])
-    return ": ".join(x for x in (v.get("outcome", "?"), why, age, notes) if x)
+    line = f"{v.get('outcome', '?')}: " + ", ".join(x for x in (why, age) if x)
+    if notes:
+        line += f" ({notes})"
+    if report:
+        return f"{line}; report: {report}"
+    run_dir = summary.get("run_dir")
+    return f"{line}; run folder: {run_dir}" if run_dir else line
 
 
 def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
     """The report of the finished run, as ``hil report RUN_DIR`` writes it."""
+    from hil.folder import load_folder
     from hil.report.build import Thresholds, build_report, write_report
-    from hil.report.folder import load_folder
     from hil.report.ideal import ideal_from_simulator
 
     if not quiet:

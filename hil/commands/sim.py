@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from hil import interrupts
+from hil.commands.law_option import LawOpt
 from hil.errors import NegativeVerdictError
 
 
@@ -59,6 +60,7 @@ def register(app: typer.Typer) -> None:
         ts: Annotated[
             float | None, typer.Option("--ts", help="Override [timing] ts, the control period (s).")
         ] = None,
+        law: LawOpt = None,
     ) -> None:
         """Simulate one closed loop offline (law at Ts with zero-order hold, RK4 plant, delay and
         jitter as the scenario says) and write scenario.resolved.toml, trace.csv, summary.json.
@@ -67,13 +69,15 @@ def register(app: typer.Typer) -> None:
         Ctrl-C writes the folder with what was computed and exits 130. Exit 1 when a limit of
         (2) was broken at some plant step."""
         from hil.bundled import resolve_scenario
+        from hil.folder import new_run_dir
+        from hil.law.option import with_law
         from hil.options import out_dir
         from hil.scenario import load_scenario
-        from hil.sim import new_run_dir, simulate, write_run_folder
+        from hil.sim import simulate, write_run_folder
 
-        out_dir("--out", out)
+        out_dir("--out", out, default="runs")
         path = resolve_scenario(scenario)
-        sc = load_scenario(path).with_overrides(duration=duration, ts=ts)
+        sc = with_law(load_scenario(path), law).with_overrides(duration=duration, ts=ts)
         target = out or new_run_dir("runs", "sim")
         result = run_with_progress(
             lambda p: simulate(sc, progress=p),

@@ -11,11 +11,13 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
+from hil.commands.law_option import LawOpt
 from hil.errors import BadInputError, NegativeVerdictError
 
 DEFAULT_MAX_DURATION = 20.0
 SWEEP_HELP = (
     "Run the scenario over the \\[sweep] grids on the batch path (one batch per Ts) and write "
+    "sweep.html (the break point first, a heat map over Ts x delay, the results table), "
     "sweep.csv, sweep.json, sweep.md and PNG + CSV figures of tracking error, band width and "
     "constraint overshoot (max |v|/phi1, max |omega|/phi2) against Ts and delay, with the BREAK "
     "POINT: the smallest Ts / delay at which a limit of (2) broke.\n\n"
@@ -73,6 +75,14 @@ DurationOpt = Annotated[
     typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s)."),
 ]
 StrictOpt = Annotated[bool, typer.Option(help="Exit 1 when any loop of the grid broke a limit.")]
+WorstOpt = Annotated[
+    bool,
+    typer.Option(
+        "--worst-disturbance",
+        help="At every point, search the disturbance within |d1| <= s1, |d2| <= s2 that breaks "
+        "(2) first (hil.adversary) instead of the scenario's own.",
+    ),
+]
 WorkersOpt = Annotated[int | None, typer.Option(help="Run the grid's chunks on N local processes.")]
 SchedulerOpt = Annotated[
     str | None,
@@ -97,6 +107,8 @@ def register(app: typer.Typer) -> None:
         seeds: SeedsOpt = None,
         duration: DurationOpt = None,
         strict: StrictOpt = False,
+        law: LawOpt = None,
+        worst_disturbance: WorstOpt = False,
         workers: WorkersOpt = None,
         scheduler: SchedulerOpt = None,
         chunk_size: ChunkSizeOpt = None,
@@ -105,16 +117,20 @@ def register(app: typer.Typer) -> None:
         from hil.sweep import cluster
 
         scenario, grid, loop_s, latencies = _checked_sweep(
-            scenario_file, out, ts, delay, jitter, seeds, duration
+            scenario_file, out, ts, delay, jitter, seeds, duration, law
         )
         chunked = cluster.wanted(workers, scheduler, chunk_size)
+        if chunked and worst_disturbance:
+            raise BadInputError("--worst-disturbance runs in this process only (no chunks yet)")
         executor = cluster.open_executor(workers, scheduler, chunk_size) if chunked else None
         target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
         target.mkdir(parents=True, exist_ok=True)
         scenario = _with_replay_file(scenario, latencies, target)
         started = time.perf_counter()
         if executor is None:
-            outcome, resolved = _run_with_progress(scenario, grid, loop_s, target)
+            outcome, resolved = _run_with_progress(
+                scenario, grid, loop_s, target, worst_disturbance
+            )
             where: dict[str, Any] = {}
         else:
             outcome, resolved, where = cluster.run_with_executor(
@@ -122,6 +138,7 @@ def register(app: typer.Typer) -> None:
             )
         elapsed = time.perf_counter() - started
         from hil.sweep.outputs import write_outputs
+        from hil.sweep.page import write_sweep_page
         from hil.sweep.runner import certified_break
 
         meta = {
@@ -134,19 +151,25 @@ def register(app: typer.Typer) -> None:
             "elapsed_s": elapsed,
             "robot_steps_per_s": outcome.robot_steps / elapsed if elapsed > 0 else None,
             "certificate": certified_break(scenario, grid),
+            "disturbance": "worst searched" if worst_disturbance else "the scenario's",
             "provenance": resolved.get("provenance", {}),
             **where,
         }
         # A second Ctrl-C while the results are written would leave them half-written.
         with interrupts.shielded():
             doc = write_outputs(target, outcome.rows, grid, meta)
+            page = write_sweep_page(target, doc)
         first = doc["break_point"].get("first")
-        typer.echo(f"sweep: {target / 'sweep.md'}")
+        typer.echo(f"sweep: {page} (also sweep.md, sweep.csv, sweep.json)")
         typer.echo(
             "break point: none, the limits held everywhere"
             if first is None
             else f"break point: Ts={first['ts']:g} s, delay={first['delay']:g} s"
         )
+        if worst_disturbance and first is not None:
+            from hil.sweep.worst import worst_at_break
+
+            typer.echo(f"broken by: {worst_at_break(outcome.rows, first)}")
         if outcome.interrupted:
             # hil.cli exits 130: the interrupt was recorded by hil.interrupts.
             interrupts.note(f"partial results kept in {target}")
@@ -163,12 +186,15 @@ def _checked_sweep(
     jitter: str | None,
     seeds: int | None,
     duration: float | None,
+    law: str | None = None,
 ) -> tuple[Any, Any, float, Any]:
     """The scenario, its grid, the loop length and the latencies of a run it replays (or
     None), every option and the scenario checked before any folder is written
     (BadInputError: exit 2)."""
     from hil import options
     from hil.bundled import resolve_scenario
+    from hil.law.batch import batch_note
+    from hil.law.option import with_law
     from hil.scenario import (
         DELAY_MAX,
         DURATION_MAX,
@@ -178,9 +204,8 @@ def _checked_sweep(
         build_loop,
         load_scenario,
     )
-    from hil.sim.landing import jitter_samples_from
+    from hil.sim.replay import is_run_source, jitter_samples_from, latencies_from_run
     from hil.sweep.grid import make_grid
-    from hil.sweep.replay import is_run_source, latencies_from_run
 
     # Options first: a bad one is refused before the plotting and runner modules load.
     ts_grid = options.grid("--ts", ts, TS_MIN, TS_MAX)
@@ -190,8 +215,8 @@ def _checked_sweep(
         options.integer("--seeds", seeds, 1, SWEEP_SEEDS_MAX)
     if duration is not None:
         options.number("--duration", duration, 0.0, DURATION_MAX, positive=True)
-    options.out_dir("--out", out)
-    scenario = load_scenario(resolve_scenario(scenario_file))
+    options.out_dir("--out", out, default="runs")
+    scenario = with_law(load_scenario(resolve_scenario(scenario_file)), law)
     sw = scenario.sweep
     try:
         grid = make_grid(
@@ -212,7 +237,12 @@ def _checked_sweep(
             "--ts" if ts_grid else "[sweep] ts",
         ),
     )
-    build_loop(scenario)  # a bad reference or design fails before any folder is written
+    # A bad reference or design fails before any folder is written; a law that takes only
+    # floats is found here too, and the user told it runs one robot at a time.
+    controller, reference, _ = build_loop(scenario)
+    note = batch_note(controller, scenario, reference)
+    if note:
+        typer.echo(note, err=True)
     t = scenario.timing
     latencies = None
     if t.jitter_kind == "replay" and is_run_source(scenario.base_dir / t.replay):
@@ -227,19 +257,25 @@ def _with_replay_file(scenario: Any, latencies: Any, target: Path) -> Any:
     replay.json in the sweep folder; unchanged when it replays no run."""
     if latencies is None:
         return scenario
-    from hil.sweep.replay import write_latency_file
+    from hil.sim.replay import write_latency_file
 
     t = scenario.timing
     lat = write_latency_file(latencies, target / "replay.json", scenario.base_dir / t.replay)
     return dataclasses.replace(scenario, timing=dataclasses.replace(t, replay=str(lat.resolve())))
 
 
-def _run_with_progress(scenario: Any, grid: Any, loop_s: float, target: Path) -> tuple[Any, Any]:
-    """:func:`hil.sweep.runner.run_sweep` under a progress bar counting robot-steps."""
+def _run_with_progress(
+    scenario: Any, grid: Any, loop_s: float, target: Path, worst: bool = False
+) -> tuple[Any, Any]:
+    """:func:`hil.sweep.runner.run_sweep` (or, ``worst``, :func:`hil.sweep.worst.
+    run_worst_sweep`) under a progress bar counting robot-steps."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from hil.sweep.outputs import write_csv
     from hil.sweep.runner import run_sweep
+
+    if worst:
+        from hil.sweep.worst import run_worst_sweep as run_sweep
 
     counts = {float(v): max(1, round(loop_s / v)) for v in grid.ts}
     per_group = len(grid) // len(grid.ts)

@@ -8,8 +8,10 @@ server has no login and no TLS, so anyone who reaches the port sees the run.
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,6 +19,7 @@ from typing import Any
 
 from hil import options
 from hil.errors import BadInputError
+from hil.supervisor import Supervisor
 
 DEFAULT_PORT = 8765
 DEFAULT_HOST = "127.0.0.1"
@@ -55,8 +58,6 @@ def check(port: int | None, host: str) -> None:
 def _check_free(host: str, port: int) -> None:
     """BadInputError now if ``host:port`` cannot be bound (in use, not an address of this
     machine), before any folder or process: the view's own bind would fail later."""
-    import socket
-
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except OSError as exc:
@@ -117,10 +118,6 @@ class DrivesLive:
     """The live process of ``hil drives`` (settings in a temporary folder), stopped by PID."""
 
     def __init__(self, settings: Any, port: int, host: str) -> None:
-        import tempfile
-
-        from hil.supervisor import Supervisor
-
         self._dir = tempfile.TemporaryDirectory(prefix="hil-live-")
         folder = Path(self._dir.name)
         settings.save(folder / "run_settings.json")

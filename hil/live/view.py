@@ -16,13 +16,18 @@ time), so Foxglove's plots share one clock (the host's ``CLOCK_MONOTONIC``).
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from typing import Any
 
+import foxglove
+
 from hil import schemas
 from hil.live.timing import Bounds, LiveTiming
 from hil.recording import to_jsonable
+from protocol.can.codec import decode as can_decode
+from protocol.can.drive_link import from_message
 from protocol.messages import State, Status, Telemetry, TorqueCommand
 
 ReferenceFn = Callable[[float], tuple[float, float, float]]  # t (s) -> (x, y, theta)
@@ -40,8 +45,6 @@ class LiveView:
         reference: ReferenceFn | None = None,
         name: str = "hil-smc-bench",
     ) -> None:
-        import foxglove
-
         self.robot_id = robot_id
         self.timing = LiveTiming(bounds)
         self.reference = reference
@@ -68,8 +71,6 @@ class LiveView:
         return ch
 
     def _schema(self, topic: str) -> Any:
-        import json
-
         doc = schemas.schema_for_topic(topic)
         return self._foxglove.Schema(
             name=schemas.schema_name(topic, doc),
@@ -140,9 +141,6 @@ def can_frame_record(msg: Any) -> dict[str, Any]:
         "is_remote_frame": bool(msg.is_remote_frame),
     }
     try:
-        from protocol.can.codec import decode as can_decode
-        from protocol.can.drive_link import from_message
-
         m = can_decode(from_message(msg))
         data["message"] = type(m).__name__
         data["fields"] = to_jsonable(m)

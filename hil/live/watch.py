@@ -13,13 +13,25 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
+import os
 import sys
 import time
+import tomllib
 from pathlib import Path
 from typing import Any
 
+import can
+
+from controller_service.certificate import critical_age
+from controller_service.references import build_reference
 from hil.live.timing import Bounds
+from hil.live.view import LiveView, can_frame_record
+from hil.measure.folder import bound_inputs
+from protocol.messages import DecodeError, decode
 from protocol.settings import RunSettings
+from runtime.signals import stop_on_signals
+from runtime.zsession import open_session, payload_bytes
 
 QUEUE_MAX = 200_000  # messages; past it the oldest are dropped (a live view may skip)
 NICENESS = 10
@@ -30,11 +42,6 @@ def bounds_of(settings: RunSettings, resolved: Path | None) -> Bounds:
     Ts and the limits (2) from the settings."""
     d_star = None
     if resolved is not None and resolved.is_file():
-        import tomllib
-
-        from controller_service.certificate import critical_age
-        from hil.measure.folder import bound_inputs
-
         try:
             b = bound_inputs(tomllib.loads(resolved.read_text()))
             if b is not None:
@@ -47,8 +54,6 @@ def bounds_of(settings: RunSettings, resolved: Path | None) -> Bounds:
 
 def reference_of(settings: RunSettings) -> Any:
     """t -> (xd, yd, thetad) of the run's reference (None when it cannot be built)."""
-    from controller_service.references import build_reference
-
     try:
         ref = build_reference(settings.reference, Path(settings.base_dir))
     except Exception:
@@ -63,10 +68,6 @@ def reference_of(settings: RunSettings) -> Any:
 
 def _open_inputs(settings: RunSettings, zenoh_mode: str, q: collections.deque) -> list[Any]:
     """The Zenoh subscription and the CAN listener, feeding ``q``; what to close, in order."""
-    import can
-
-    from runtime.zsession import open_session, payload_bytes
-
     opened: list[Any] = []
     try:
         session = open_session(settings.zenoh_endpoint, mode=zenoh_mode, credentials=None)
@@ -93,8 +94,6 @@ def _open_inputs(settings: RunSettings, zenoh_mode: str, q: collections.deque) -
 
 
 def _close(opened: list[Any]) -> None:
-    import contextlib
-
     for thing in opened:
         with contextlib.suppress(Exception):  # closing what is already gone is fine here
             for name in ("undeclare", "stop", "shutdown", "close"):
@@ -104,9 +103,6 @@ def _close(opened: list[Any]) -> None:
 
 
 def _drain(view: Any, q: collections.deque) -> int:
-    from hil.live.view import can_frame_record
-    from protocol.messages import DecodeError, decode
-
     n = 0
     while q:
         topic, t, payload = q.popleft()
@@ -123,11 +119,6 @@ def _drain(view: Any, q: collections.deque) -> int:
 
 def serve(args: argparse.Namespace) -> int:
     """Serve until a signal; the exit code."""
-    import os
-
-    from hil.live.view import LiveView
-    from runtime.signals import stop_on_signals
-
     # Below the run's processes on the CPU: when the view and a service want the same core,
     # the service gets it (the view only falls behind, which its timing message shows).
     os.nice(NICENESS)

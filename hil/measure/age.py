@@ -8,7 +8,7 @@ by counting, per landing, the grid points whose age is at most v (an arithmetic 
 and bisecting on v: exact (every percentile is an age some step really had), in memory linear
 in the number of landings, whatever the run's length.
 
-D, the quantity of the sampled-data bound (DESIGN.md, docs/sampled_data_bound.md), is the
+D, the quantity of the sampled-data bound (docs/design.md, docs/sampled_data_bound.md), is the
 largest age: max over j of a_(j+1) - s_j, the last step before each next landing.
 """
 

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from controller_service.certificate import certify, critical_age
+from hil.folder.records import Certificate, Summary
 from hil.measure import age as agemod
 from hil.measure.can_match import UNMATCHED, match_node
 from hil.measure.host import host_figures
@@ -67,10 +69,51 @@ class Measurement:
 
     timing: dict[str, Any] = field(default_factory=dict)
     messages: dict[str, Any] = field(default_factory=dict)
-    certificate: dict[str, Any] | None = None
+    certificate: Certificate | None = None
     series: dict[str, Any] = field(default_factory=dict)
     window_ns: tuple[int, int] = (0, 0)
     host: dict[str, Any] | None = None  # the bench's host over the window (hil.measure.host)
+    epoch_ns: int | None = None  # the run's time origin (trace.csv's t = 0)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The series as flat named arrays (what the folder saves as series.npz): an age
+        series as NAME.start/.end/.sample, a time series as NAME.t/.v."""
+        out: dict[str, np.ndarray] = {"epoch_ns": np.asarray(self.epoch_ns or 0, np.int64)}
+        for key, value in self.series.items():
+            if isinstance(value, agemod.AgeSegments):
+                for part in ("start", "end", "sample"):
+                    out[f"{key}.{part}"] = np.asarray(getattr(value, part))
+            elif isinstance(value, tuple):
+                out[f"{key}.t"], out[f"{key}.v"] = (np.asarray(v) for v in value)
+            else:
+                out[key] = np.asarray(value)
+        return out
+
+    @classmethod
+    def from_saved(cls, summary: Summary, arrays: dict[str, np.ndarray]) -> Measurement:
+        """The measurement as a folder holds it: summary.json's objects and the saved series
+        (:meth:`arrays`), nothing recomputed."""
+        series: dict[str, Any] = {}
+        for key, value in arrays.items():
+            name, _, part = key.partition(".")
+            if part == "start":
+                series[name] = agemod.AgeSegments(
+                    value, arrays[f"{name}.end"], arrays[f"{name}.sample"]
+                )
+            elif part == "t":
+                series[name] = (value, arrays[f"{name}.v"])
+            elif not part and key != "epoch_ns":
+                series[key] = str(value) if value.dtype.kind == "U" else value
+        timing = summary.get("timing")
+        return cls(
+            timing=timing if isinstance(timing, dict) else {},
+            messages=summary.get("messages") or {},
+            certificate=summary.get("certificate"),
+            series=series,
+            window_ns=(0, 0),
+            host=summary.get("host"),
+            epoch_ns=int(arrays["epoch_ns"]) if "epoch_ns" in arrays else None,
+        )
 
     def latency_us(self) -> dict[str, np.ndarray]:
         """Sample-to-apply latency per path in µs (applied: apply - sample, shadow: receive -
@@ -403,7 +446,7 @@ class _Run:
 def measure(logs: RunLogs, bound: BoundInputs | None = None) -> Measurement:
     """The run's figures (see the module docstring and docs/realtime.md)."""
     r = _Run(logs)
-    out = Measurement(window_ns=(r.w0, r.w1))
+    out = Measurement(window_ns=(r.w0, r.w1), epoch_ns=logs.epoch_ns)
     if r.samples["sample_ns"].size == 0:
         out.timing = {"units": "us", "note": "no plant samples: the plant never ran"}
         return out
@@ -701,12 +744,11 @@ def _bench_shares(r: _Run, windows: list[tuple[int, int]], timing: dict[str, Any
 
 def _certificate(
     r: _Run, b: BoundInputs | None, series: dict[str, Any], timing: dict[str, Any]
-) -> dict[str, Any]:
+) -> Certificate:
     """The sampled-data certificate at the measured D (for a law with the bound; for any other
     law D, D* None), with every stall counted and owned. ``held`` is True only if the bound
     holds for every matching of CAN frames the logs allow (at the upper bound of D), False if
     it fails even at the lower one, else None (unknown)."""
-    from controller_service.certificate import certify, critical_age
 
     empty = agemod.segments(np.zeros(0, np.int64), np.zeros(0, np.int64), r.w1)
     seg: agemod.AgeSegments = series.get(f"command_age_{r.applied}") or empty
@@ -729,7 +771,7 @@ def _certificate(
     threshold_ns = int(max(3 * r.ts, 0.5 * d_star * 1e9 if d_star is not None else 0))
     stalls = find_stalls(r, seg, threshold_ns, int(d_star * 1e9) if d_star is not None else None)
     _bench_shares(r, stalls.bench_windows, timing)
-    out = {
+    out: Certificate = {
         "path": r.applied,
         "d_max_s": d_max,
         "d_star_s": d_star,
@@ -746,4 +788,6 @@ def _certificate(
     }
     if d_upper_ns != d_max_ns and d_upper_ns is not None:
         out["d_max_upper_s"] = d_upper_ns / 1e9  # the largest D the CAN logs allow
+    # The design conditions of the bound that fail at the measured D (certify at Ts = D).
+    out["failed_conditions"] = [c.name for c in cert.failed()] if cert is not None else []
     return out

@@ -1,23 +1,27 @@
-"""The measurement of a run folder (or a recording): hop logs + the resolved scenario."""
+"""A run folder's measurement: made once from its hop logs, saved, and read back.
+
+:func:`measure_and_save` is the one producer (``hil run`` and ``hil recover`` call it through
+:func:`hil.run.results.analyze`; a folder written before series.npz existed gets it on first
+read). Everything after the run reads :func:`measured` and computes no figure of its own.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import tomllib
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
+from hil.folder import RunFolder, layout, read_series, write_series
+from hil.folder.scenario_view import UNIFIED_LAWS, view
 from hil.measure.figures import BoundInputs, Measurement, measure
 from hil.measure.logs import RunLogs, load_folder_logs, load_recording_logs
-
-UNIFIED_LAWS = ("unified", "unified_boundary")
+from hil.recording import read_attachments
 
 
 def bound_inputs(resolved: dict[str, Any]) -> BoundInputs | None:
     """The certificate's inputs from a resolved scenario (None: the law has no certificate)."""
-    from types import SimpleNamespace
-
-    from hil.report.scenario_view import view
-
     sv = view(resolved)
     if sv.law not in UNIFIED_LAWS:
         return None
@@ -28,7 +32,7 @@ def bound_inputs(resolved: dict[str, Any]) -> BoundInputs | None:
 
 def resolved_scenario(folder: Path) -> dict[str, Any] | None:
     try:
-        return tomllib.loads((folder / "scenario.resolved.toml").read_text())
+        return tomllib.loads((folder / layout.SCENARIO_RESOLVED).read_text())
     except (OSError, ValueError):
         return None
 
@@ -38,7 +42,7 @@ def measure_logs(logs: RunLogs, resolved: dict[str, Any] | None) -> Measurement:
 
 
 def measure_folder(folder: str | Path) -> Measurement | None:
-    """The run folder's measurement (None when it has no hop logs: a simulation folder)."""
+    """The run folder's measurement from its hop logs (None when it has none: a simulation)."""
     folder = Path(folder)
     logs = load_folder_logs(folder)
     if logs is None:
@@ -46,15 +50,42 @@ def measure_folder(folder: str | Path) -> Measurement | None:
     return measure_logs(logs, resolved_scenario(folder))
 
 
+def measure_and_save(folder: Path, logs: RunLogs | None = None) -> Measurement | None:
+    """Measure the folder's hop logs (``logs`` when already read) and save the series."""
+    logs = logs if logs is not None else load_folder_logs(folder)
+    if logs is None or logs.plant is None:
+        return None
+    m = measure_logs(logs, resolved_scenario(folder))
+    # A read-only folder is still read; it is measured again next time.
+    with contextlib.suppress(OSError):
+        write_series(folder, m.arrays())
+    return m
+
+
+def measured(folder: RunFolder) -> Measurement | None:
+    """The run's measurement as its folder holds it: summary.json's figures and the saved
+    series (None for a simulation). A folder from before series.npz is measured once, here,
+    by the same :func:`measure_and_save`; summary.json is never rewritten."""
+    arrays = read_series(folder.path)
+    if arrays is None:
+        if not folder.has_hop_logs():
+            return None
+        m = measure_and_save(folder.path)
+        if m is None:
+            return None
+        arrays = m.arrays()
+        if not isinstance(folder.summary.get("timing"), dict):
+            return m  # a summary without figures: the measurement is all there is
+    return Measurement.from_saved(folder.summary, arrays)
+
+
 def measure_recording(path: str | Path) -> Measurement | None:
     """The same from a recording alone (its attached hop logs and resolved scenario)."""
-    from hil.recording import read_attachments
-
     logs = load_recording_logs(path)
     if logs is None:
         return None
     resolved = None
-    toml = read_attachments(path, names=("scenario.resolved.toml",)).get("scenario.resolved.toml")
+    toml = read_attachments(path, names=(layout.SCENARIO_RESOLVED,)).get(layout.SCENARIO_RESOLVED)
     if toml is not None:
         resolved = tomllib.loads(toml.decode())
     return measure_logs(logs, resolved)

@@ -9,6 +9,7 @@ recording (``*.mcap``), so a recording alone reproduces every figure.
 
 from __future__ import annotations
 
+import tempfile
 from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from hil.folder import layout
+from hil.recording import read_attachments
 from protocol.hoplog import (
     CONTROLLER_TABLES,
     FORMAT,
@@ -26,9 +29,9 @@ from protocol.hoplog import (
     iter_records,
 )
 
-CONTROLLER_FILE = "controller.hoplog"
-PLANT_FILE = "plant.hoplog"
-HOST_FILE = "host.hoplog"  # hil run's samples of the bench's host (hil.run.host_load)
+CONTROLLER_FILE = layout.CONTROLLER_LOG
+PLANT_FILE = layout.PLANT_LOG
+HOST_FILE = layout.HOST_LOG  # hil run's samples of the bench's host (hil.run.host_load)
 
 _F8, _F4, _I8, _I4, _I2, _I1 = np.float64, np.float32, np.int64, np.int32, np.int16, np.int8
 # The columns read, with their types (every stamp int64: nanoseconds, exact). Sequence numbers
@@ -263,10 +266,6 @@ def load_folder_logs(
 
 def load_recording_logs(path: str | Path) -> RunLogs | None:
     """The hop logs carried as attachments of a recording (None when it has none)."""
-    import tempfile
-
-    from hil.recording import read_attachments
-
     found = read_attachments(path, names=(CONTROLLER_FILE, PLANT_FILE, HOST_FILE))
     if not found:
         return None

@@ -29,10 +29,13 @@ import numpy as np
 
 from hil import interrupts
 from hil.bundled import bundled_dir
+from hil.folder import layout, write_summary
+from hil.folder.jsonio import write_json
+from hil.paper import figures as fg
 from hil.provenance import dumps_toml
 from hil.scenario import load_scenario
 from hil.sim import SimResult, simulate
-from hil.sim.folder import write_json, write_run_folder
+from hil.sim.folder import write_run_folder
 
 QUICK_FACTOR = 5.0
 JOLT_WINDOW = 0.5
@@ -190,7 +193,6 @@ def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note
 
 def _task_figures(results: dict[str, SimResult], out: Path, name: str) -> list[Path]:
     """Figures 2-6 (tracking) or 7-11 (stabilization): trajectory, v, omega, tau1, tau2."""
-    from hil.paper import figures as fg
 
     first, task = {"tracking": (2, "Tracking"), "stabilization": (7, "Stabilization")}[name]
     r = results[name]
@@ -224,7 +226,6 @@ def _task_figures(results: dict[str, SimResult], out: Path, name: str) -> list[P
 
 def _chattering_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
     """Figures 12-14: errors, tau1 and tau2 of the chattering reduction (19)."""
-    from hil.paper import figures as fg
 
     ch = results["chattering"]
     lim = ch.scenario.limits
@@ -257,7 +258,6 @@ def _chattering_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
 
 def _jiang1997_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
     """Figures 15-17: [7] on the tracking task."""
-    from hil.paper import figures as fg
 
     j7 = results["compare_jiang1997"]
     lim = j7.scenario.limits
@@ -284,7 +284,6 @@ def _jiang1997_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
 
 def _compare_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
     """Figures 18-20: [19] and the unified law on circle_then_stop."""
-    from hil.paper import figures as fg
 
     pair = [
         ("[19]", results["compare_jiang2001"]),
@@ -367,8 +366,8 @@ def _write_run(out: Path, res: SimResult, name: str, traces: bool) -> None:
         write_run_folder(res, run_dir)
     else:
         run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "scenario.resolved.toml").write_text(dumps_toml(res.resolved))
-        write_json(run_dir / "summary.json", res.summary)
+        (run_dir / layout.SCENARIO_RESOLVED).write_text(dumps_toml(res.resolved))
+        write_summary(run_dir, res.summary)
 
 
 def run_paper(

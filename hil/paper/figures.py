@@ -8,10 +8,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
+from hil.folder.trace_csv import write_trace_csv
 from hil.sim.core import SimResult
-from hil.sim.folder import write_trace_csv
 
 MAX_POINTS = 30000
 
@@ -21,10 +23,8 @@ def _stride(n: int) -> int:
 
 
 def _pyplot():  # type: ignore[no-untyped-def]
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     return plt
 

@@ -24,15 +24,22 @@ from typing import Any
 import numpy as np
 
 from hil import trace_metrics
+from hil.folder import RunFolder as Folder
+from hil.folder.jsonio import write_json
+from hil.folder.layout import REPORT_HTML, REPORT_JSON, REPORT_MD
+from hil.folder.scenario_view import ScenarioView, view
+from hil.measure.age import envelope
+from hil.measure.certificate import no_certificate, scenario_certificate
 from hil.report import figures as fg
-from hil.report.cert import failed_conditions, scenario_certificate
-from hil.report.folder import Folder
 from hil.report.headline import headline
 from hil.report.html import render_html
+from hil.report.ideal import IdealUnavailableError
+from hil.report.ideal_sim import WINDOW_S
 from hil.report.markdown import render_markdown
 from hil.report.measured import RunResult, run_result
-from hil.report.scenario_view import ScenarioView, view
+from hil.report.telemetry import SLIDING, folder_telemetry
 from hil.verdict import DEFAULT_THRESHOLDS, PEAK_KEYS, RunFacts, Thresholds, judge
+from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
 from protocol.versions import REPORT_SCHEMA_VERSION
 
 FIGURE_PREFIX = "report_"
@@ -60,22 +67,12 @@ def run_certificate(sv: ScenarioView, rr: RunResult) -> dict[str, Any]:
         path = rr.applied_path
         age = rr.timing.get(f"command_age_{path}") if path else None
         d = age.get("max_us") / 1e6 if isinstance(age, dict) and age.get("max_us") else None
-        return {
-            "path": path,
-            "d_max_s": d,
-            "d_star_s": None,
-            "margin_s": None,
-            "held": None,
-            "v_bound": None,
-            "omega_bound": None,
-            "stall_threshold_s": None,
-            "stalls": [],
-            "source": f"none (law {sv.law} has no certificate); D from {rr.source}",
-            "failed_conditions": [],
-        }
+        return dict(
+            no_certificate(path, d, f"none (law {sv.law} has no certificate); D from {rr.source}")
+        )
     cert = json.loads(json.dumps(rr.certificate))  # a copy: the report never edits the summary
     cert["source"] = rr.source
-    cert["failed_conditions"] = failed_conditions(sv, cert.get("d_max_s"))
+    cert.setdefault("failed_conditions", [])
     return cert
 
 
@@ -109,7 +106,6 @@ def verdict_block(
 def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.ndarray | None]:
     """The motor torques (N·m) the wheel mapping of [robot] makes of the applied tau1, tau2
     (protocol.can.wheel_mapping.motor_torques), the drives' states and the rejection counts."""
-    from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
 
     robot = folder.scenario.get("robot") or {}
     out: dict[str, Any] = {"geometry": None, "note": ""}
@@ -168,16 +164,19 @@ def build_report(
     rr = run_result(folder)  # first: its peak (the hop logs' columns) before the trace's
     tr = folder.trace
     kind = "run" if rr is not None else folder.kind
-    cert = _folder_certificate(sv, rr, kind)
+    cert = _folder_certificate(sv, rr, kind, folder.summary)
     ideal_traj, ideal_note = None, "not requested"
     if ideal is not None:
-        ideal_traj = ideal(folder)
-        ideal_note = _ideal_note(ideal_traj, tr)
+        try:
+            ideal_traj = ideal(folder)
+            ideal_note = _ideal_note(ideal_traj, tr)
+        except IdealUnavailableError as exc:
+            ideal_note = str(exc)
     sliding = _recorded_sliding(folder, tr, rr)
     metrics = _metrics(folder, sv, cert, (ideal_traj, ideal_note), sliding)
     verdict = verdict_block(metrics["constraints"], folder.summary, cert, rr, thresholds)
     drives, q = drives_block(folder, sv)
-    figs, sections = _figures(folder, sv, cert, rr, ideal_traj, sliding, q, drives)
+    figs, sections = _figures(folder, sv, cert, rr, (ideal_traj, sliding), q, drives, metrics)
     data = {
         "schema_version": REPORT_SCHEMA_VERSION,
         "folder": str(folder.path),
@@ -195,11 +194,16 @@ def build_report(
     return Report(data, figs)
 
 
-def _folder_certificate(sv: ScenarioView, rr: RunResult | None, kind: str) -> dict[str, Any]:
-    """The measured certificate of a run with hop logs, else the scenario's."""
+def _folder_certificate(
+    sv: ScenarioView, rr: RunResult | None, kind: str, summary: dict[str, Any]
+) -> dict[str, Any]:
+    """The measured certificate of a run with hop logs, else the simulation's."""
     if rr is not None:
         return run_certificate(sv, rr)
-    cert = scenario_certificate(sv)
+    saved = summary.get("certificate")
+    if isinstance(saved, dict):  # a simulation's, computed once by hil sim
+        return {**saved, "source": saved.get("source") or "summary.json (hil sim)"}
+    cert = scenario_certificate(sv)  # a folder written before simulations saved theirs
     if kind == "run":  # a run folder from before hil.measure: neither hop logs nor figures
         cert["source"] = "scenario (the run has no hop logs and no measured certificate)"
     return cert
@@ -212,7 +216,6 @@ def _recorded_sliding(
     lacks them, else None."""
     if {"v_tilde", "w_tilde"} <= set(tr) or not folder.recordings:
         return None
-    from hil.report.telemetry import SLIDING, folder_telemetry
 
     tel = folder_telemetry(folder)
     rec = {k: tel[k] for k in SLIDING} if all(k in tel for k in SLIDING) else {}
@@ -287,8 +290,7 @@ def _timing_block(folder: Folder, rr: RunResult | None, cert: dict[str, Any]) ->
         "messages": rr.messages if rr is not None else None,
         "source": rr.source if rr is not None else None,
         "applied_path": cert.get("path"),
-        "series": "hop logs (hil.measure)" if rr and rr.measurement else None,
-        "hop_logs_agree_with_summary": rr.agree if rr is not None else None,
+        "series": "series.npz (hil.measure)" if rr is not None else None,
         "faults": folder.summary.get("faults"),
         "scheduling": folder.summary.get("scheduling"),
         "impair": folder.summary.get("impair"),
@@ -301,7 +303,6 @@ def _ideal_note(ideal_traj: dict[str, np.ndarray] | None, tr: dict[str, np.ndarr
     starts = ideal_traj.get("window_start_t")
     if starts is None:
         return f"simulated at Ts/10 from the trace's first state at t = {tr['t'][0]:.6g} s"
-    from hil.report.ideal_sim import WINDOW_S
 
     return (
         f"windowed: simulated at Ts/10 in {len(starts)} windows of {WINDOW_S:g} s, each "
@@ -316,14 +317,17 @@ def _figures(
     sv: ScenarioView,
     cert: dict[str, Any],
     rr: RunResult | None,
-    ideal_traj: dict[str, np.ndarray] | None,
-    sliding: dict[str, tuple[np.ndarray, np.ndarray]] | None,
+    extra: tuple[dict[str, np.ndarray] | None, dict[str, tuple[np.ndarray, np.ndarray]] | None],
     q: np.ndarray | None,
     drives: dict[str, Any],
+    metrics: dict[str, Any],
 ) -> tuple[list[fg.Figure], list[str]]:
-    """Every figure, and the report's sections in order (see hil.report.content)."""
+    """Every figure, and the report's sections in order (see hil.report.content); ``extra``:
+    the ideal trajectory and the recorded sliding variables, where there are."""
     tr = folder.trace
+    ideal_traj, sliding = extra
     figs = _state_figures(tr, sv, cert, ideal_traj)
+    figs += _torque_figures(tr, sv, metrics)
     figs.append(_tracking_error_figure(tr, ideal_traj))
     panels = []
     for name, eps, unit in (("v_tilde", sv.eps1, "v~ [m/s]"), ("w_tilde", sv.eps2, "w~ [rad/s]")):
@@ -336,7 +340,7 @@ def _figures(
         figs.append(fg.stacked("bands", f"Sliding variables v~ and w~ of (10) ({src})", panels))
     if q is not None:
         figs.append(
-            fg.signal_with_limits(
+            fg.switching_band(
                 "motor_torques",
                 "Motor torques sent to the drives (wheel mapping of [robot])",
                 "q [N·m]",
@@ -361,7 +365,7 @@ def _state_figures(
     cert: dict[str, Any],
     ideal_traj: dict[str, np.ndarray] | None,
 ) -> list[fg.Figure]:
-    """The trajectory, the velocities against (2) and the torques against their bounds."""
+    """The trajectory and the velocities against (2) and their bounds."""
     t = tr["t"]
     lim = sv.limits
     traj = [("reference", tr["xd"], tr["yd"]), ("robot", tr["x"], tr["y"])]
@@ -379,23 +383,27 @@ def _state_figures(
         fg.signal_with_limits(
             "omega", "Angular velocity ω", "ω [rad/s]", t, [("omega", tr["omega"])], lim.phi2, wb
         ),
-        fg.signal_with_limits(
-            "tau1",
-            "τ1 of model (1) (normalized)",
-            "τ1 [m/s²]",
-            t,
-            [("tau1", tr["tau1"])],
-            lim.varpi1,
-        ),
-        fg.signal_with_limits(
-            "tau2",
-            "τ2 of model (1) (normalized)",
-            "τ2 [rad/s²]",
-            t,
-            [("tau2", tr["tau2"])],
-            lim.varpi2,
-        ),
     ]
+
+
+def _torque_figures(
+    tr: dict[str, np.ndarray], sv: ScenarioView, metrics: dict[str, Any]
+) -> list[fg.Figure]:
+    """τ1, τ2 as switching bands: envelope and duty, with how often they switch and how much
+    of the time they sit at the limit (the metrics' own figures)."""
+    out = []
+    for name, sym, unit, limit in (
+        ("tau1", "τ1", "τ1 [m/s²]", sv.limits.varpi1),
+        ("tau2", "τ2", "τ2 [rad/s²]", sv.limits.varpi2),
+    ):
+        rate = metrics["switching_rate"].get(name)
+        share = metrics["saturation_share"].get(name)
+        note = ""
+        if rate is not None and share is not None:
+            note = f"It switches {rate:.0f} times a second, at its limit {share:.1%} of the time."
+        title = f"{sym} of model (1) (normalized)"
+        out.append(fg.switching_band(name, title, unit, tr["t"], [(name, tr[name])], limit, note))
+    return out
 
 
 def _tracking_error_figure(
@@ -417,7 +425,6 @@ def _tracking_error_figure(
 def _run_figures(m: Any, rr: RunResult, cert: dict[str, Any]) -> list[fg.Figure]:
     """Latency histograms/CDFs, wake-up lateness and command age over time, all from the
     measurement's per-sample series."""
-    from hil.measure.age import envelope
 
     figs = []
     applied = cert.get("path")
@@ -477,22 +484,8 @@ def write_report(report: Report, out: Path) -> dict[str, Path]:
         files.append(entry)
     data = dict(report.data)
     data["figures"] = files
-    (out / "report.json").write_text(json.dumps(_jsonable(data), indent=2, allow_nan=False))
-    (out / "report.md").write_text(render_markdown(data, files))
-    (out / "report.html").write_text(render_html(data, report.figures))
-    return {"json": out / "report.json", "md": out / "report.md", "html": out / "report.html"}
-
-
-def _jsonable(obj: Any) -> Any:
-    """Non-finite floats become strings so report.json stays strict JSON."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, float | np.floating):
-        return float(obj) if math.isfinite(obj) else repr(float(obj))
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
+    paths = {"json": out / REPORT_JSON, "md": out / REPORT_MD, "html": out / REPORT_HTML}
+    write_json(paths["json"], data)
+    paths["md"].write_text(render_markdown(data, files))
+    paths["html"].write_text(render_html(data, report.figures))
+    return paths

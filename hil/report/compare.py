@@ -4,12 +4,11 @@ latency CDFs of both runs, and a table of summary, sampling-effect and timing fi
 their differences (B - A).
 
 A run's timing figures, message counts and certificate are its measurement
-(:func:`hil.measure.folder.measure_folder`, the one pipeline summary.json and the report also
-read), never figures of compare's own."""
+as the folder holds it (:func:`hil.measure.folder.measured`: summary.json and series.npz,
+measured once when the run ended), never figures of compare's own."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -17,14 +16,15 @@ from typing import Any
 import numpy as np
 
 from hil import trace_metrics
+from hil.folder import RunFolder as Folder
+from hil.folder.jsonio import write_json
+from hil.folder.scenario_view import view
 from hil.measure.figures import Measurement
-from hil.measure.folder import measure_folder
+from hil.measure.folder import measured
 from hil.report import figures as fg
-from hil.report.build import _jsonable
-from hil.report.folder import Folder
+from hil.report.compare_headline import compare_headline
 from hil.report.html import CSS, esc, figure, table
 from hil.report.markdown import _md_table
-from hil.report.scenario_view import view
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
 PREFIX = "compare_"
@@ -122,12 +122,14 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
     for key, title, unit, limit in (
         ("v", "Linear velocity v", "v [m/s]", sva.limits.phi1),
         ("omega", "Angular velocity ω", "ω [rad/s]", sva.limits.phi2),
-        ("tau1", "Torque τ1", "τ1 [N·m]", sva.limits.varpi1),
-        ("tau2", "Torque τ2", "τ2 [N·m]", sva.limits.varpi2),
+        ("tau1", "τ1 of model (1) (normalized)", "τ1 [m/s²]", sva.limits.varpi1),
+        ("tau2", "τ2 of model (1) (normalized)", "τ2 [rad/s²]", sva.limits.varpi2),
     ):
         # Different rates have different sample times: put B on A's time axis for the data file.
         tb_on_a = np.interp(ta["t"], tb["t"], tb[key])
-        f = fg.signal_with_limits(
+        # Switching torques as their envelope and duty per bin (a solid block otherwise).
+        draw = fg.switching_band if key.startswith("tau") else fg.signal_with_limits
+        f = draw(
             key, title, unit, ta["t"], [(la, ta[key]), (lb + " (on A's times)", tb_on_a)], limit
         )
         figs.append(f)
@@ -144,7 +146,7 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
             [(la, pa), (lb + " (on A's times)", pb)],
         )
     )
-    ma, mb = measure_folder(fa.path), measure_folder(fb.path)
+    ma, mb = measured(fa), measured(fb)
     latency = {}
     for label, m in ((label_a, ma), (label_b, mb)):
         for path, values in (m.latency_us() if m is not None else {}).items():
@@ -155,6 +157,7 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         )
     a_fig, b_fig = figures_of(fa, ma), figures_of(fb, mb)
     rows = compare_rows(a_fig, b_fig)
+    head = compare_headline(fa, fb, a_fig, b_fig, rows)
     files = []
     for f in figs:
         png, csv_path = f.write(out, PREFIX)
@@ -163,12 +166,27 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         "schema_version": COMPARE_SCHEMA_VERSION,
         "a": str(fa.path),
         "b": str(fb.path),
+        "headline": head,
         "rows": [{"figure": r[0], "a": r[1], "b": r[2], "b_minus_a": r[3]} for r in rows],
         "figures": files,
     }
-    (out / "compare.json").write_text(json.dumps(_jsonable(data), indent=2, allow_nan=False))
+    write_json(out / "compare.json", data)
+    _write_pages(out, data, (la, lb), rows, figs)
+    return data
+
+
+def _write_pages(
+    out: Path, data: dict[str, Any], labels: tuple[str, str], rows: list[list[Any]], figs: list
+) -> None:
+    """compare.md and compare.html: the headline first, then every figure and the overlays."""
+    la, lb = labels
+    head, files = data["headline"], data["figures"]
+    fa, fb = data["a"], data["b"]
     header = ["figure", la, lb, "B - A"]
-    md = [f"# Comparison: {fa.path} vs {fb.path}", "", _md_table(header, rows), ""]
+    moved_header = ["figure", la, lb, "B - A", "unit"]
+    md = [f"# Comparison: {fa} vs {fb}", "", *(f"- {t}" for t in head["lines"]), ""]
+    md += ["## The figures that moved most", "", _md_table(moved_header, head["most_moved"]), ""]
+    md += ["## Every figure", "", _md_table(header, rows), ""]
     for f in files:
         md += [f"![{f['title']}]({f['png']})", "", f"Data: [{f['data']}]({f['data']})", ""]
     (out / "compare.md").write_text("\n".join(md) + "\n")
@@ -176,13 +194,19 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         f"<title>{esc('Comparison')}</title><style>{CSS}</style></head><body>",
-        f"<h1>Comparison: {esc(fa.path)} vs {esc(fb.path)}</h1>",
-        '<section id="figures_table"><h2>Summary figures</h2>',
-        table(header, rows),
+        f"<h1>Comparison: {esc(fa)} vs {esc(fb)}</h1>",
+        '<section id="headline"><div class="verdict unsure"><ul>',
+        *(f"<li>{esc(t)}</li>" for t in head["lines"]),
+        "</ul></div>",
+        "<h2>The figures that moved most</h2>",
+        table(moved_header, head["most_moved"]),
         "</section>",
-        '<section id="overlays"><h2>Overlays</h2>',
+        '<section id="figures_table"><h2>Every figure</h2>',
+        f"<details><summary>{len(rows)} figures of A and B</summary>",
+        table(header, rows),
+        "</details></section>",
+        '<section id="overlays"><h2>Overlays</h2><div class="figs">',
         *(figure(f, PREFIX) for f in figs),
-        "</section></body></html>",
+        "</div></section></body></html>",
     ]
     (out / "compare.html").write_text("\n".join(html))
-    return data

@@ -8,6 +8,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+from hil.margin.record import report_lines as margin_lines
+
 SECTION_TITLES: dict[str, str] = {
     "headline": "The answers first",
     "terms": "What the words mean",
@@ -133,8 +135,8 @@ def _verdict(s: Section, data: dict[str, Any]) -> None:
     s.table(
         ["item", "state"],
         [
-            ["limits (2)", v["limits"]],
-            ["certificate", v["certificate"]],
+            ["limits (2): |v| ≤ φ1, |ω| ≤ φ2, |τ1| ≤ ϖ1, |τ2| ≤ ϖ2", v["limits"]],
+            ["certificate: D ≤ D*, so the paper's bound guarantees (2)", v["certificate"]],
             ["deadline misses (missed slots)", _na(v["deadline_misses"])],
             ["samples without a command", _na(v["samples_without_command"])],
             ["lost messages (State and the applied path)", _na(v["lost_messages"])],
@@ -177,6 +179,8 @@ def _certificate(s: Section, data: dict[str, Any]) -> None:
             ["failed design conditions", ", ".join(c.get("failed_conditions") or []) or "none"],
         ],
     )
+    for line in margin_lines(data.get("folder")):  # hil margin's margin.json, when it ran
+        s.p(line)
     timing = (data.get("timing") or {}).get("summary") or {}
     if timing:
         path = c.get("path")
@@ -281,13 +285,30 @@ def _drives(s: Section, data: dict[str, Any]) -> None:
 
 def _tracking_error(s: Section, data: dict[str, Any]) -> None:
     m = data["metrics"]
-    rows = [[k, v] for k, v in m["tracking"].items()]
+    s.p(
+        "(4): the position and heading error of the robot against the reference, seen from "
+        "the robot; positions in m, headings in rad."
+    )
+    rows = [[k, v, _unit_of(k)] for k, v in m["tracking"].items()]
     dev = m.get("deviation_from_ideal")
     if dev:
-        rows += [[f"deviation from ideal, {k}", v] for k, v in dev.items()]
-    rows.append(["deviation from ideal", m.get("deviation_from_ideal_note", "")])
-    s.table(["figure", "value"], rows)
+        rows += [[f"deviation from ideal, {k}", v, "m"] for k, v in dev.items()]
+    rows.append(["deviation from ideal", m.get("deviation_from_ideal_note", ""), ""])
+    s.table(["figure", "value", "unit"], rows)
     s.figure("tracking_error")
+
+
+def _unit_of(key: str) -> str:
+    """The unit of a figure from its name (every table says its units)."""
+    if "heading" in key:
+        return "rad"
+    if "position" in key or "deviation" in key:
+        return "m"
+    if key.endswith("_s") or key in ("window_s",):
+        return "s"
+    if key.endswith(("_rate", "_share")):
+        return "fraction"
+    return "count"
 
 
 def _bands(s: Section, data: dict[str, Any]) -> None:
@@ -331,8 +352,8 @@ def _lateness(s: Section, data: dict[str, Any]) -> None:
     # Missed slots: a stall of N periods misses N slots (late wake-ups + slots never run).
     keys = ("ticks", "slots", "deadline_misses", "late_ticks", "skipped_slots")
     keys += ("deadline_miss_rate", "plant_slots", "plant_deadline_misses", "plant_skipped_slots")
-    counts = [[k, _na(timing.get(k))] for k in keys] if timing else []
-    s.table(["count", "value"], counts)
+    counts = [[k, _na(timing.get(k)), _unit_of(k)] for k in keys] if timing else []
+    s.table(["figure", "value", "unit"], counts)
     sched = data["timing"].get("scheduling") or {}
     for role, got in sched.items():
         if isinstance(got, dict):
@@ -383,18 +404,13 @@ def _messages(s: Section, data: dict[str, Any]) -> None:
 def _timing_summary(s: Section, data: dict[str, Any]) -> None:
     timing = data["timing"]["summary"] or {}
     s.p(f"From {data['timing'].get('source')}; definitions in docs/realtime.md.")
-    if data["timing"].get("hop_logs_agree_with_summary") is False:
-        s.p(
-            "Warning: the hop logs measured again do not give summary.json's figures (written "
-            "by another version?); the report shows summary.json's."
-        )
     s.table(
         ["figure", *PCT_KEYS],
         [[k, *(f.get(q) for q in PCT_KEYS)] for k, f in timing.items() if isinstance(f, dict)],
     )
     s.table(
-        ["figure", "value"],
-        [[k, f] for k, f in timing.items() if not isinstance(f, dict)],
+        ["figure", "value", "unit"],
+        [[k, f, _unit_of(k)] for k, f in timing.items() if not isinstance(f, dict | str)],
     )
 
 

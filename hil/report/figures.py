@@ -256,16 +256,94 @@ def signal_with_limits(
     return Figure(name, title, _png(fig), cols, _envelope_caption(np.size(t), idx))
 
 
+#: Time bins of a switching signal's band: each drawn as its min-max range and its mean.
+BAND_BINS = 400
+
+
+def switching_band(
+    name: str,
+    title: str,
+    unit: str,
+    t: np.ndarray,
+    series: Sequence[tuple[str, np.ndarray]],
+    limit: float | None = None,
+    note: str = "",
+) -> Figure:
+    """A signal that switches faster than a plot can show (a sliding-mode torque): per time
+    bin its min-max range (shaded: the envelope) and its mean (line: the duty), with the limit
+    of (2) as red dashed lines. A solid block of lines would hide both."""
+    t = np.asarray(t, dtype=float)
+    bins = max(1, min(BAND_BINS, t.size // 4))
+    starts = np.unique(np.searchsorted(t, np.linspace(t[0], t[-1], bins + 1)[:-1]))
+    mid = t[starts] if starts.size < 2 else np.append((t[starts[:-1]] + t[starts[1:]]) / 2, t[-1])
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    # The samples themselves (as signal_with_limits writes them), then the drawn bins.
+    idx = _drawn(t, [y for _, y in series])
+    cols: dict[str, np.ndarray] = {"t": _data(t, idx)}
+    cols.update({label: _data(np.asarray(y), idx) for label, y in series})
+    cols["t_bin_s"] = mid
+    for i, (label, y) in enumerate(series):
+        y = np.asarray(y, dtype=float)
+        lo, hi = np.fmin.reduceat(y, starts), np.fmax.reduceat(y, starts)
+        sums = np.add.reduceat(np.nan_to_num(y), starts)
+        mean = sums / np.maximum(np.add.reduceat(np.isfinite(y).astype(float), starts), 1)
+        color = f"C{i}"
+        ax.fill_between(mid, lo, hi, color=color, alpha=0.25, linewidth=0, step="mid",
+                        label=f"{label}: min-max per bin")  # fmt: skip
+        ax.plot(mid, mean, color=color, linewidth=1.2, label=f"{label}: mean per bin")
+        cols.update({f"{label}_min": lo, f"{label}_max": hi, f"{label}_mean": mean})
+    if limit is not None:
+        ax.axhline(limit, label=f"limit ±{limit:g}", **LIMIT_STYLE)
+        ax.axhline(-limit, **LIMIT_STYLE)
+        cols["limit"] = np.array([limit])
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel(unit)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7, loc="upper right")
+    ax.set_title(title)
+    fig.tight_layout()
+    width = (t[-1] - t[0]) / bins if t.size > 1 else 0.0
+    caption = (
+        f"Drawn per {width * 1e3:.3g} ms bin: the shaded band is the signal's min-max range "
+        "(its envelope), the line its mean (its duty)."
+    )
+    return Figure(name, title, _png(fig), cols, (caption + " " + note).strip())
+
+
+#: A latency histogram's axis ends here (a quantile of the pooled samples) when the largest
+#: sample is far beyond it: one outlier would squeeze every other sample into one bar.
+CLIP_QUANTILE = 0.999
+CLIP_FACTOR = 3.0
+
+
+def _clip(samples: Mapping[str, np.ndarray]) -> float | None:
+    pooled = np.concatenate([np.asarray(v, dtype=float).ravel() for v in samples.values()])
+    pooled = pooled[np.isfinite(pooled)]
+    if pooled.size < 10:
+        return None
+    q = float(np.quantile(pooled, CLIP_QUANTILE))
+    return q * 1.05 if q > 0 and pooled.max() > CLIP_FACTOR * q else None
+
+
 def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) -> Figure:
     """Histogram and empirical CDF of latency samples (microseconds), one curve per path."""
     fig, (ax_h, ax_c) = plt.subplots(1, 2, figsize=(9, 3.4))
     cols: dict[str, np.ndarray] = {}
     captions: list[str] = []
+    clip = _clip(samples) if samples else None
     for label, values in samples.items():
         v = np.sort(np.asarray(values, dtype=float))
         if v.size == 0:
             continue
-        counts, edges = np.histogram(v, bins=min(80, max(10, v.size // 20)))
+        shown = v if clip is None else v[v <= clip]
+        counts, edges = np.histogram(shown, bins=min(80, max(10, shown.size // 20)))
+        if clip is not None and shown.size < v.size:
+            out = v[v > clip]
+            largest = ", ".join(f"{x:.0f}" for x in out[::-1][:5])
+            captions.append(
+                f"{label}: {out.size} samples beyond the axis ({clip:.0f} µs, 1.05 x the "
+                f"pooled p99.9) are left out of the drawing, not of the data: largest {largest} µs."
+            )
         ax_h.stairs(counts, edges, label=label)
         cdf = np.arange(1, v.size + 1) / v.size
         idx = cdf_indices(v.size)
@@ -287,6 +365,8 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
         ax.legend(fontsize=8)
     ax_h.set_ylabel("count")
     ax_h.set_yscale("log")
+    if clip is not None:
+        ax_c.set_xlim(right=clip)
     ax_c.set_ylabel("fraction ≤ x")
     ax_h.set_title("histogram")
     ax_c.set_title("CDF")

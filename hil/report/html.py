@@ -16,7 +16,9 @@ from hil.report.figures import Figure
 
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
-max-width:1000px;color:#222;line-height:1.4}
+max-width:1200px;padding:0 1em;color:#222;line-height:1.4}
+.figs{display:grid;grid-template-columns:repeat(auto-fit,minmax(520px,1fr));gap:0 1.2em}
+nav.toc{columns:2;font-size:.95em;margin:.5em 0 1em}nav.toc a{text-decoration:none}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
 table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:.25em .6em;
 text-align:left;font-variant-numeric:tabular-nums}th{background:#f4f4f4}
@@ -49,6 +51,32 @@ def figure(f: Figure, prefix: str = "report_") -> str:
     )
 
 
+#: Tables longer than this are folded (a <details> the reader opens): the page answers first.
+FOLD_ROWS = 12
+
+
+def _folded(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    rows = list(rows)
+    if len(rows) <= FOLD_ROWS:
+        return table(header, rows)
+    return (
+        f"<details><summary>{len(rows)} rows: {esc(', '.join(header))}</summary>"
+        f"{table(header, rows)}</details>"
+    )
+
+
+def _grid(figures: list[str]) -> list[str]:
+    if len(figures) < 2:
+        return figures
+    return ['<div class="figs">', *figures, "</div>"]
+
+
+def toc(entries: Iterable[tuple[str, str]]) -> str:
+    """The page's table of contents: a link to each section."""
+    links = "".join(f'<li><a href="#{esc(i)}">{esc(t)}</a></li>' for i, t in entries)
+    return f'<nav class="toc"><strong>Contents</strong><ol>{links}</ol></nav>'
+
+
 def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
     by_name = {f.name: f for f in figs}
     ok = data["verdict"]["ok"]
@@ -60,7 +88,8 @@ def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
         f"<style>{CSS}</style></head><body>",
         f"<h1>What timing did to the law: {esc(data['folder'])}</h1>",
     ]
-    for section in sections(data):
+    listed = list(sections(data))
+    for section in listed:
         parts.append(f'<section id="{esc(section.id)}">')
         if section.id == "headline":
             outcome = data["verdict"].get("outcome", "PASS" if ok else "FAIL")
@@ -68,16 +97,22 @@ def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
             parts.append(f'<div class="verdict {cls}"><strong>{outcome}</strong>')
         else:
             parts.append(f"<h2>{esc(section.title)}</h2>")
+        pending: list[str] = []  # figures in a row share a two-column grid
         for block in section.blocks:
             kind = block[0]
+            if kind == "figure":
+                if block[1] in by_name:
+                    pending.append(figure(by_name[block[1]]))
+                continue
+            parts.extend(_grid(pending))
+            pending = []
             if kind == "p":
                 parts.append(f"<p>{esc(block[1])}</p>")
             elif kind == "list":
                 parts.append("<ul>" + "".join(f"<li>{esc(t)}</li>" for t in block[1]) + "</ul>")
             elif kind == "table":
-                parts.append(table(block[1], block[2]))
-            elif kind == "figure" and block[1] in by_name:
-                parts.append(figure(by_name[block[1]]))
+                parts.append(_folded(block[1], block[2]))
+        parts.extend(_grid(pending))
         if section.id == "headline":
             parts.append("</div>")
             parts.append(
@@ -85,6 +120,7 @@ def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
                 f"Ts {esc(fmt(s['ts']))} s · delay {esc(fmt(s['delay']))} s"
                 f" · jitter {esc(fmt(s['jitter']))} s ({esc(s['jitter_kind'])})</p>"
             )
+            parts.append(toc((x.id, x.title) for x in listed[1:]))
         parts.append("</section>")
     parts.append("</body></html>")
     return "\n".join(parts)

@@ -25,7 +25,8 @@ def render_markdown(data: dict[str, Any], files: Sequence[dict[str, str]]) -> st
     by_name = {f["name"]: f for f in files}
     s = data["scenario"]
     out = [f"# What timing did to the law: {data['folder']}", ""]
-    for section in sections(data):
+    listed = list(sections(data))
+    for section in listed:
         if section.id != "headline":
             out += [f"## {section.title}", ""]
         for block in section.blocks:
@@ -50,6 +51,8 @@ def render_markdown(data: dict[str, Any], files: Sequence[dict[str, str]]) -> st
             out += [
                 f"{data['kind']} · law `{s['law']}` · Ts {fmt(s['ts'])} s · delay "
                 f"{fmt(s['delay'])} s · jitter {fmt(s['jitter'])} s ({s['jitter_kind']})",
+                "",
+                "Contents: " + " · ".join(x.title for x in listed[1:]),
                 "",
             ]
     return "\n".join(out) + "\n"

@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from hil.recording import list_topics, read_topic_payloads
+
 #: The telemetry read, in groups whose values a message carries together: the sliding
 #: variables, and the unified law's memory.
 SLIDING = ("v_tilde", "w_tilde")
@@ -51,7 +53,6 @@ def recorded_telemetry(
     message gives the values of a group when it carries every name of the group as a number
     (the time is its ``time_ns``, else its log time). Telemetry may be decimated; a truncated
     recording gives what was read."""
-    from hil.recording import list_topics, read_topic_payloads
 
     times = [array("q") for _ in groups]
     vals = [[array("d") for _ in g] for g in groups]

@@ -3,11 +3,18 @@ drives of :mod:`plant_emulator.drives` on them (which need no ``hil``)."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from hil.bundled import resolve_scenario
+from hil.run.defaults import PAPER_TRACKING_TOML
+from hil.run.settings import scenario_settings
+from hil.scenario import load_scenario, loads_scenario
 from plant_emulator import drives
 from protocol.settings import RunSettings
+
+DEFAULT_WATCHDOG_S = 1.0  # the drives' watchdog unless the scenario or --watchdog-timeout says
 
 
 @dataclass
@@ -23,31 +30,28 @@ class DrivesOptions(drives.DrivesOptions):
     can_endpoint: str | None = None  # zenoh_can's endpoint
     node_left: int | None = None
     node_right: int | None = None
-    watchdog_timeout: float | None = None  # s; None: the scenario's [can] (0 = off)
+    watchdog_timeout: float | None = None  # s (0 = off); None: [can]'s, else DEFAULT_WATCHDOG_S
     robot_id: str | None = None
     scheduling: str | None = None  # "fifo" / "other"; None: the scenario's [realtime]
 
 
 def _scenario(name: str | None) -> Any:
-    from hil.scenario import load_scenario, loads_scenario
 
     if name is None:
-        from hil.run.defaults import PAPER_TRACKING_TOML
-
         return loads_scenario(PAPER_TRACKING_TOML)
-    from hil.bundled import resolve_scenario
 
     return load_scenario(resolve_scenario(name))
 
 
 def drives_settings(opts: DrivesOptions) -> RunSettings:
     """The scenario with the command line's overrides, as the drives read it."""
-    import dataclasses
-
-    from hil.run.settings import scenario_settings
 
     sc = _scenario(opts.scenario)
     can_table = dataclasses.asdict(sc.can)
+    if not can_table.get("watchdog_timeout"):
+        # A client that dies or forgets its torque must not leave the robot driven: on here,
+        # where nothing else watches the bus (in a run, the plant's command timeout does).
+        can_table["watchdog_timeout"] = DEFAULT_WATCHDOG_S
     for key in ("interface", "channel", "bitrate", "node_left", "node_right", "watchdog_timeout"):
         value = getattr(opts, key)
         if value is not None:

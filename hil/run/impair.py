@@ -31,7 +31,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import hil
+from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
+from hil.run.settings import effective_can_table
+from hil.scenario import load_scenario
+from protocol.can.codec import Cmd, frame_id
 
 NETNS_ENV = "HIL_IMPAIR_NETNS"  # the PID of the ``hil run`` that made this namespace
 TABLE = "hil_impair"
@@ -84,7 +89,6 @@ def msgpack_uint(value: int) -> bytes:
 
 def torque_selector(node: int) -> str:
     """The nftables match of one drive's Set_Input_Torque frames on udp_multicast."""
-    from protocol.can.codec import Cmd, frame_id
 
     value = msgpack_uint(frame_id(node, Cmd.SET_INPUT_TORQUE))
     key_bits = (UDP_HEADER + ARBITRATION_KEY_OFFSET) * 8
@@ -156,9 +160,6 @@ def ruleset(plan: Plan) -> str:
 def plan_of(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
     """The run's plan, or None when its scenario has no [impair] table; ``check_options``
     (hil run's) first, so a bad option is reported as it always is."""
-    from hil.bundled import resolve_scenario
-    from hil.run.settings import effective_can_table
-    from hil.scenario import load_scenario
 
     if opts.scenario is None:
         return None
@@ -181,7 +182,6 @@ def inside() -> bool:
 def _started_as_hil_run() -> bool:
     """True when this process is ``hil run`` from its own command line (``hil run ...`` or
     ``python -m hil run ...``): only then can it be executed again as it was started."""
-    import hil
 
     argv0 = Path(sys.argv[0])
     own = argv0.name == "hil" or argv0.resolve() == Path(hil.__file__).parent / "__main__.py"

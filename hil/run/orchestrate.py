@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import datetime as dt
 import json
 import os
 import signal
@@ -26,29 +25,47 @@ from pathlib import Path
 from subprocess import STDOUT
 from typing import Any
 
-from hil import interrupts
+import can
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from hil import interrupts, options
+from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
+from hil.folder import layout, new_run_dir
+from hil.law.option import with_law
+from hil.live.launch import check as live_check
+from hil.live.launch import start_for_run
 from hil.measure.logs import HOST_FILE
+from hil.provenance import dumps_toml
 from hil.recording import RecordingWriter, to_jsonable, write_pose
+from hil.run import impair
+from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
 from hil.run.host_load import HostSampler
+from hil.run.results import analyze, plot
+from hil.run.secure import RunIdentities
+from hil.run.settings import check_can_interface, effective_can_table, scenario_settings
+from hil.scenario import (
+    DURATION_MAX,
+    RATE_MAX,
+    build_loop,
+    load_scenario,
+    loads_scenario,
+    resolved_dict,
+)
 from hil.supervisor import Supervisor
-from protocol.settings import RunSettings
+from protocol.can.codec import decode as can_decode
+from protocol.can.drive_link import from_message
+from protocol.messages import DecodeError, Status, decode
+from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
 from runtime.signals import stop_on_signals
+from runtime.startgate import announce_start
+from runtime.zsession import open_session
 
 
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def new_run_dir(base: Path = Path("runs")) -> Path:
-    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    for i in range(1000):
-        p = base / (f"run-{stamp}" + (f"-{i}" if i else ""))
-        if not p.exists():
-            return p
-    raise BadInputError("cannot find a free run folder name")
 
 
 @dataclass
@@ -69,6 +86,7 @@ class RunOptions:
     secure: bool = False  # router with authentication and access control (hil.run.secure)
     live_port: int | None = None  # serve the run live (hil.live) on this port; None: no
     live_host: str = "127.0.0.1"
+    law: str | None = None  # --law: the [controller] law instead of the scenario's
 
 
 class Recorder:
@@ -93,8 +111,6 @@ class Recorder:
 
     def _write_one(self, topic: str, t: int, payload: Any) -> None:
 
-        from protocol.messages import DecodeError, Status, decode
-
         if topic.startswith("can/"):
             data: dict[str, Any] = {
                 "arbitration_id": payload.arbitration_id,
@@ -103,9 +119,6 @@ class Recorder:
                 "is_remote_frame": bool(payload.is_remote_frame),
             }
             try:
-                from protocol.can.codec import decode as can_decode
-                from protocol.can.drive_link import from_message
-
                 m = can_decode(from_message(payload))
                 data["message"] = type(m).__name__
                 data["fields"] = to_jsonable(m) if hasattr(m, "__dataclass_fields__") else str(m)
@@ -158,8 +171,6 @@ class Recorder:
 def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any] | None:
     """A python-can Notifier on the run's bus feeding the recorder (None if no CAN)."""
     try:
-        import can
-
         bus = settings.open_can_bus()
         if bus is None:
             return None
@@ -177,9 +188,6 @@ SPIN_US_MAX = 1e6
 def check_options(opts: RunOptions) -> None:
     """The command-line options of ``hil run`` (and of the services run alone), each named in
     a BadInputError; the scenario's own keys are checked when it is loaded."""
-    from hil import options
-    from hil.scenario import DURATION_MAX, RATE_MAX
-    from protocol.settings import CMD_PATHS, TRIGGERS
 
     options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
     if opts.trigger is not None:
@@ -195,10 +203,8 @@ def check_options(opts: RunOptions) -> None:
     ):
         if value is not None:
             options.plain_string(name, value, empty=False)
-    options.out_dir("--out", opts.out)
-    from hil.live.launch import check
-
-    check(opts.live_port, opts.live_host)
+    options.out_dir("--out", opts.out, default="runs")
+    live_check(opts.live_port, opts.live_host)
     if opts.live_port is not None and opts.secure:
         raise BadInputError("--live does not log in to a --secure run's router")
 
@@ -206,21 +212,17 @@ def check_options(opts: RunOptions) -> None:
 def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
     """(scenario, its path, whether the user gave one, its default duration): the user's
     scenario (a file or a bundled name) or the paper's tracking circle."""
-    from hil.bundled import resolve_scenario
-    from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
-    from hil.scenario import load_scenario, loads_scenario
 
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     if given is None:
-        scenario = loads_scenario(PAPER_TRACKING_TOML, run_dir)
-        return scenario, run_dir / "scenario.toml", False, DEFAULT_DURATION
-    scenario = load_scenario(given)
+        scenario = with_law(loads_scenario(PAPER_TRACKING_TOML, run_dir), opts.law)
+        return scenario, run_dir / layout.SCENARIO, False, DEFAULT_DURATION
+    scenario = with_law(load_scenario(given), opts.law)
     return scenario, given.resolve(), True, scenario.run.duration
 
 
 def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
     """The control rate (Hz) and the name of what set it ("" for the scenario's own Ts)."""
-    from hil.scenario import RATE_MAX
 
     rt = scenario.realtime
     if opts.rate is not None:
@@ -238,7 +240,6 @@ def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
 
 def _run_can_table(opts: RunOptions, scenario: Any) -> dict[str, Any]:
     """The run's [can] table with the command line's interface and channel, checked."""
-    from hil.run.settings import check_can_interface, effective_can_table
 
     can_table = effective_can_table(scenario, opts.can_interface)
     if opts.can_channel:
@@ -254,7 +255,6 @@ def _run_settings(
     opts: RunOptions, scenario: Any, context: Any, scenario_path: Path, run_dir: Path, rate: float
 ) -> RunSettings:
     """The settings both services read (:class:`protocol.settings.RunSettings`)."""
-    from hil.run.settings import scenario_settings
 
     rt = scenario.realtime
     ts_s = scenario.timing.ts  # already 1 / rate when a rate overrode it (prepare)
@@ -267,7 +267,7 @@ def _run_settings(
         # The scenario's Ts bit for bit when no rate overrides it (1 / (1 / ts) may differ in
         # the last bit, and lockstep must see the simulator's sample times exactly).
         ts=ts_s,
-        sensor_ts=ts_s if sensor_rate == rate else 1.0 / sensor_rate,
+        sensor_ts=ts_s if sensor_rate == rate else period_s(sensor_rate),
         trigger=opts.trigger or rt.trigger,
         lockstep=opts.lockstep,
         # Lockstep is about values, not timing; and a SCHED_FIFO main thread there was seen to
@@ -291,9 +291,6 @@ def _run_settings(
 
 def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     """Resolve the scenario and the run's settings; write the folder's first files."""
-    from hil.provenance import dumps_toml
-    from hil.run.defaults import PAPER_TRACKING_TOML
-    from hil.scenario import build_loop, resolved_dict
 
     check_options(opts)  # every option before the scenario: no folder, no process yet
     if opts.secure and opts.cmd_path == "can":
@@ -304,7 +301,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     duration = opts.duration if opts.duration is not None else default_duration
     scenario = scenario.with_overrides(
         duration=duration,
-        ts=scenario.timing.ts if not rate_name else 1.0 / rate,
+        ts=scenario.timing.ts if not rate_name else period_s(rate),
         names=(
             "--duration" if opts.duration is not None else "[run] duration",
             f"1 / {rate_name}" if rate_name else "[timing] ts",
@@ -315,7 +312,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     run_dir.mkdir(parents=True, exist_ok=True)
     if not given:
         scenario_path.write_text(PAPER_TRACKING_TOML)
-    settings.save(run_dir / "run_settings.json")
+    settings.save(run_dir / layout.RUN_SETTINGS)
     run_facts = {
         "command": "hil run",
         "cmd_path": settings.cmd_path,
@@ -326,7 +323,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         "secure": opts.secure,
     }
     resolved = resolved_dict(scenario, controller, context, run_facts)
-    (run_dir / "scenario.resolved.toml").write_text(dumps_toml(resolved))
+    (run_dir / layout.SCENARIO_RESOLVED).write_text(dumps_toml(resolved))
     info = {
         "reference": reference,
         "context": context,
@@ -351,7 +348,6 @@ def _open_recorder_session(
 ) -> Any:
     """The recorder's Zenoh session: on the run's endpoint, or a router's client (started
     here) in router mode."""
-    from runtime.zsession import open_session
 
     if settings.zenoh_mode == "router":
         router_cmd = [sys.executable, "-m", "hil.run.router", settings.zenoh_endpoint]
@@ -370,7 +366,7 @@ def _start_services(
     """The plant and the controller from the run's settings file; their PIDs in
     processes.json, for whoever needs to signal one (tests inject stalls), and watched by the
     host sampler."""
-    settings_path = str(run_dir / "run_settings.json")
+    settings_path = str(run_dir / layout.RUN_SETTINGS)
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
         sup.start_python(
             name,
@@ -379,7 +375,7 @@ def _start_services(
             stdout=logs.open(name),
             stderr=STDOUT,
         )
-    (run_dir / "processes.json").write_text(json.dumps({c.name: c.pid for c in sup.children}))
+    (run_dir / layout.PROCESSES).write_text(json.dumps({c.name: c.pid for c in sup.children}))
     for c in sup.children:
         if c.name in ("plant", "controller"):
             host.watch(c.name, c.pid)
@@ -395,7 +391,6 @@ def _start_and_follow(
 ) -> str | None:
     """Wait for both services to be ready, announce the epoch, follow the run to its end;
     returns an error, or None."""
-    from runtime.startgate import announce_start
 
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
     # that dies is noticed at once anyway.
@@ -426,8 +421,6 @@ def _close_live(live: _Live, recorder: Recorder, run_dir: Path) -> None:
 
 def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
-    from hil.run import impair
-    from hil.run.secure import RunIdentities
 
     # [impair]: the run's own network namespace (this command is executed again inside it).
     impairment = impair.enter(opts, check_options)
@@ -437,7 +430,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     interrupted = False
     metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
-    writer = RecordingWriter(run_dir / "recording.mcap", metadata=metadata)
+    writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer)
     live = _Live()
     logs = _Logs(run_dir)
@@ -452,8 +445,6 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             live.sub = live.session.declare_subscriber("hil/**", recorder.on_zenoh)
             live.can_rec = _can_recorder(settings, recorder)
             if opts.live_port is not None:  # its own process: no cycle of the recorder's
-                from hil.live.launch import start_for_run
-
                 start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs)
             _start_services(sup, run_dir, ids, logs, host)
             error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
@@ -471,7 +462,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         "error": error,
         "wall_time_s": time.monotonic() - t_start,
         "exit_codes": codes,
-        "recording": "recording.mcap",
+        "recording": layout.RECORDING,
         "recorded_messages": writer.count,
         "secure": opts.secure,
     }
@@ -486,7 +477,6 @@ def _write_results(
 ) -> dict[str, Any]:
     """trace.csv, summary.json and trajectory.png from the hop logs; a second Ctrl-C while
     the folder is written is recorded, not raised (hil.interrupts)."""
-    from hil.run.results import analyze, plot
 
     with interrupts.shielded():
         summary = analyze(
@@ -505,7 +495,7 @@ def _write_results(
     return summary
 
 
-ATTACHED = ("controller.hoplog", "plant.hoplog", HOST_FILE, "scenario.resolved.toml")
+ATTACHED = (layout.CONTROLLER_LOG, layout.PLANT_LOG, HOST_FILE, layout.SCENARIO_RESOLVED)
 
 
 def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:
@@ -581,7 +571,6 @@ def _progress(
         while not stop and plant.alive() and time.monotonic() < limit:
             time.sleep(0.05)
         return
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     with Progress(
         TextColumn("hil run"),

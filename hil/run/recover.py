@@ -13,25 +13,42 @@ trace.csv and summary.json from the hop logs with the same code a finished run u
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
+
+import numpy as np
 
 from hil.errors import BadInputError
+from hil.folder import layout
+from hil.folder.jsonio import write_json
+from hil.measure.logs import read_columns
+from hil.recording import (
+    RecordedMessage,
+    is_complete,
+    rewrite_complete,
+    to_jsonable,
+    topic_values,
+)
+from hil.run.orchestrate import attachments_of
+from hil.run.results import analyze, plot
+from hil.scenario import build_loop, loads_scenario
+from plant_emulator.from_settings import sensor_of
+from plant_emulator.sensors import measure
+from protocol.hoplog import SAMPLE_DROPPED
+from protocol.keys import state_key
+from protocol.messages import State
+from protocol.robot import RobotState
+from protocol.settings import RunSettings
 
-if TYPE_CHECKING:
-    from hil.recording import RecordedMessage
-
-RECORDING = "recording.mcap"
-RESTORED_FROM = "plant.hoplog"
+RECORDING = layout.RECORDING
+RESTORED_FROM = layout.PLANT_LOG
 
 
 def needs_recovery(run_dir: Path) -> list[str]:
     """What is missing or broken in a run folder (empty: nothing to do)."""
-    from hil.recording import is_complete
 
-    missing = [n for n in ("trace.csv", "summary.json") if not (run_dir / n).is_file()]
+    missing = [n for n in (layout.TRACE, layout.SUMMARY) if not (run_dir / n).is_file()]
     rec = run_dir / RECORDING
     if rec.is_file() and not is_complete(rec):
         missing.append(RECORDING)
@@ -39,8 +56,8 @@ def needs_recovery(run_dir: Path) -> list[str]:
 
 
 def is_run_folder(run_dir: Path) -> bool:
-    return (run_dir / "run_settings.json").is_file() and (
-        (run_dir / "plant.hoplog").is_file() or (run_dir / "controller.hoplog").is_file()
+    return (run_dir / layout.RUN_SETTINGS).is_file() and (
+        (run_dir / layout.PLANT_LOG).is_file() or (run_dir / layout.CONTROLLER_LOG).is_file()
     )
 
 
@@ -51,24 +68,13 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
     message, the measured state recomputed with the run's seeded sensor model, as the plant
     did) plus ``restored_from``; logged and published at its send time (when the recorder
     received it is not known)."""
-    import numpy as np
-
-    from hil.measure.logs import read_columns
-    from hil.recording import RecordedMessage, to_jsonable, topic_values
-    from plant_emulator.from_settings import sensor_of
-    from plant_emulator.sensors import measure
-    from protocol.hoplog import SAMPLE_DROPPED
-    from protocol.keys import state_key
-    from protocol.messages import State
-    from protocol.robot import RobotState
-    from protocol.settings import RunSettings
 
     cols = ("seq", "sample_ns", "send_ns", "x", "y", "theta", "v", "omega", "flags")
-    if not (run_dir / "plant.hoplog").is_file():
+    if not (run_dir / layout.PLANT_LOG).is_file():
         return []
-    head, tables = read_columns(run_dir / "plant.hoplog", {"samples": cols})
+    head, tables = read_columns(run_dir / layout.PLANT_LOG, {"samples": cols})
     s = tables["samples"]
-    settings = RunSettings.load(run_dir / "run_settings.json")
+    settings = RunSettings.load(run_dir / layout.RUN_SETTINGS)
     robot = str(head.meta.get("robot_id") or settings.robot_id)
     topic = state_key(robot)
     recorded = np.fromiter((v for v in topic_values(recording, topic, "seq") if v is not None),
@@ -96,11 +102,6 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
 def recover(run_dir: str | Path) -> dict[str, Any]:
     """Make a killed run's folder whole; returns what was done. BadInputError when the folder
     is not a run folder (no settings, no hop logs) or holds no sample to rebuild from."""
-    from hil.recording import rewrite_complete
-    from hil.run.orchestrate import attachments_of
-    from hil.run.results import analyze, plot
-    from hil.scenario import build_loop, loads_scenario
-    from protocol.settings import RunSettings
 
     run_dir = Path(run_dir)
     if not is_run_folder(run_dir):
@@ -120,9 +121,9 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
         counts = rewrite_complete(rec, tmp, attachments_of(run_dir), lost)
         os.replace(tmp, rec)
         done["recording"] = counts
-    if "summary.json" in todo or "trace.csv" in todo:
-        settings = RunSettings.load(run_dir / "run_settings.json")
-        resolved = run_dir / "scenario.resolved.toml"
+    if layout.SUMMARY in todo or layout.TRACE in todo:
+        settings = RunSettings.load(run_dir / layout.RUN_SETTINGS)
+        resolved = run_dir / layout.SCENARIO_RESOLVED
         try:
             scenario = loads_scenario(resolved.read_text(), run_dir)
         except (OSError, ValueError) as exc:
@@ -143,5 +144,5 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
         except Exception as exc:  # plots are a convenience; the figures are in summary.json
             done["plot_error"] = str(exc)
         done["samples"] = summary["samples"]
-    (run_dir / "recovered.json").write_text(json.dumps(done, indent=2))
+    write_json(run_dir / layout.RECOVERED, done)
     return done

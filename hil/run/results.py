@@ -8,18 +8,21 @@ sample) and the run's outcome (errors, extremes, violations over every plant ste
 from __future__ import annotations
 
 import csv
-import json
 import math
 import operator
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from hil.errors import BadInputError
+from hil.folder import layout, write_summary
+from hil.folder.records import Summary
+from hil.folder.trace_csv import read_trace
 from hil.measure.figures import Measurement
-from hil.measure.folder import measure_logs, resolved_scenario
+from hil.measure.folder import measure_and_save
 from hil.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
+from hil.report.figures import envelope_indices, plt
 from hil.run.settings import rate_hz
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from hil.verdict import RunFacts, Verdict, constraints_from_peaks, judge
@@ -64,7 +67,7 @@ def write_trace(
     pos_err = np.empty(n)
     head_err = 0.0
     sample = reference.sample
-    with (run_dir / "trace.csv").open("w", newline="") as f:
+    with (run_dir / layout.TRACE).open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow([*TRACE_COLUMNS, *COMMAND_COLUMNS, "sample_ns", "state_seq"])
         for r0 in range(0, n, TRACE_CHUNK_ROWS):
@@ -99,10 +102,10 @@ def analyze(
     context: Any,
     controller_params: dict[str, Any],
     extra: dict[str, Any],
-) -> dict[str, Any]:
+) -> Summary:
     """Write trace.csv and summary.json from the two hop logs; returns the summary."""
     logs = load_folder_logs(run_dir) or RunLogs.read(None, None)
-    m = measure_logs(logs, resolved_scenario(run_dir)) if logs.plant else Measurement()
+    m = (measure_and_save(run_dir, logs) if logs.plant else None) or Measurement()
     # The figures' columns go before the trace's are read: an hour's run holds one set at a
     # time (the two reads cost a second pass over the logs, ~10 s an hour).
     logs.tables.clear()
@@ -115,7 +118,7 @@ def analyze(
     tail = pos_err[-max(1, n // 10) :].tolist() if n else []
     pinfo, cinfo = logs.pinfo, logs.cinfo
     ext = pinfo.get("extremes", {})
-    summary: dict[str, Any] = {
+    summary: Summary = {
         "schema_version": SCHEMA_VERSION,
         "kind": "run",
         "final_position_error": float(pos_err[-1]) if n else None,
@@ -165,13 +168,11 @@ def analyze(
         summary["duration"] = summary["duration_run_s"]
     summary["verdict"] = run_verdict(summary, scenario).as_dict()
     # Whole or absent, never half: a kill while it is written leaves the folder to recover.
-    tmp = run_dir / "summary.json.writing"
-    tmp.write_text(json.dumps(_jsonable(summary), indent=2))
-    os.replace(tmp, run_dir / "summary.json")
+    write_summary(run_dir, summary)
     return summary
 
 
-def run_verdict(summary: dict[str, Any], scenario: Any) -> Verdict:
+def run_verdict(summary: Summary, scenario: Any) -> Verdict:
     """The run's verdict (:func:`hil.verdict.judge`) at the default thresholds."""
     lim = scenario.limits
     limits = {k: float(getattr(lim, k)) for k in ("phi1", "phi2", "varpi1", "varpi2")}
@@ -185,37 +186,11 @@ def run_verdict(summary: dict[str, Any], scenario: Any) -> Verdict:
     )
 
 
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.floating):
-        return float(obj)
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return repr(obj)
-    return obj
-
-
 def plot(run_dir: Path) -> Path | None:
     """trajectory.png: path vs reference, position error and torques over time (long runs
     drawn from per-bin min/max envelopes, :func:`hil.report.figures.envelope_indices`)."""
     try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        from hil.report.figures import envelope_indices
-    except ImportError:
-        return None
-    from hil.errors import BadInputError
-    from hil.report.folder import read_trace
-
-    try:
-        data = read_trace(run_dir / "trace.csv")
+        data = read_trace(run_dir / layout.TRACE)
     except BadInputError:
         return None
     t = data["t"]
@@ -239,7 +214,7 @@ def plot(run_dir: Path) -> Path | None:
     ax[2].legend()
     ax[2].set_xlabel("t (s)")
     fig.tight_layout()
-    out = run_dir / "trajectory.png"
+    out = run_dir / layout.TRAJECTORY_PNG
     fig.savefig(out, dpi=90)
     plt.close(fig)
     return out

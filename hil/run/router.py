@@ -14,15 +14,17 @@ from __future__ import annotations
 import sys
 import time
 
+import zenoh
+
+from protocol.zenoh_acl import router_config
+from runtime.credentials import ENV_DICTIONARY, CredentialsError, dictionary_from_environment
+from runtime.zsession import session_config
+
 USAGE = "usage: python -m hil.run.router ENDPOINT [--secure] [--allow-non-loopback]"
 FLAGS = ("--secure", "--allow-non-loopback")
 
 
 def main(argv: list[str] | None = None) -> int:
-    import zenoh
-
-    from runtime.credentials import ENV_DICTIONARY, CredentialsError, dictionary_from_environment
-    from runtime.zsession import session_config
 
     args = sys.argv[1:] if argv is None else argv
     flags = {a for a in args if a.startswith("--")}
@@ -39,8 +41,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: --secure needs {ENV_DICTIONARY}=/path/to/users (0600)", file=sys.stderr)
         return 2
     if dictionary is not None:
-        from protocol.zenoh_acl import router_config
-
         conf = router_config(
             [rest[0]], str(dictionary), allow_non_loopback="--allow-non-loopback" in flags
         )

@@ -40,6 +40,7 @@ from runtime.credentials import (
     dictionary_text,
     write_private,
 )
+from runtime.zsession import open_session
 
 # hil run's children -> their role (user name) on the router.
 CHILD_ROLES = {"controller": "controller", "plant": "emulator"}
@@ -109,7 +110,6 @@ class RunIdentities:
         else a second client session as ``run`` (the recorder may not publish)."""
         if not self.secure:
             return session
-        from runtime.zsession import open_session
 
         own = open_session(endpoint, mode="client", credentials=self._creds["run"])
         self._sessions.append(own)

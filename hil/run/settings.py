@@ -10,7 +10,12 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+import can.interfaces
+
+from controller_service.registry import law_path_for
 from hil.errors import BadInputError
+from hil.measure.folder import resolved_scenario
+from hil.sim.replay import jitter_samples_from
 from protocol.settings import RunSettings
 
 GEOMETRY_KEYS = ("mass", "yaw_inertia", "wheel_radius", "half_track", "gear_ratio")
@@ -31,7 +36,6 @@ def effective_can_table(scenario: Any, interface: str | None = None) -> dict[str
 def check_can_interface(name: str, where: str) -> None:
     """``name`` must be an interface python-can knows (its own and plug-ins such as zenoh_can);
     checked before a run starts its services, which would fail opening the bus."""
-    import can.interfaces
 
     known = sorted(can.interfaces.VALID_INTERFACES)
     if name not in known:
@@ -48,7 +52,6 @@ def robot_id_of(scenario: Any) -> str:
 def replay_latencies(scenario: Any) -> list[float] | None:
     """The latencies of ``[timing] replay`` (read once, here: a bad file fails before any
     service starts), or None for a seeded jitter."""
-    from hil.sim.landing import jitter_samples_from
 
     t = scenario.timing
     if t.jitter_kind != "replay":
@@ -82,10 +85,13 @@ def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSett
         "controller": dict(scenario.controller),
         "reference": dict(scenario.reference),
         "base_dir": str(scenario.base_dir.resolve()),
+        "law_path": list(law_path_for(scenario.base_dir)),
         "limits": dataclasses.asdict(scenario.limits),
         "initial": dataclasses.asdict(scenario.initial),
         "plant_step": scenario.plant_step,
         "lag": plant.lag,
+        "friction": list(plant.friction),
+        "max_speed": list(plant.max_speed),
         "disturbance": dataclasses.asdict(scenario.disturbance),
         "sensor": {
             "noise_std": list(plant.noise_std),
@@ -109,7 +115,6 @@ def rate_hz(run_dir: Any, settings: RunSettings) -> float:
     """The control rate of a run as the user asked for it (``--rate``, ``[realtime] rate`` or
     1 / ``[timing] ts``), for summary.json: the folder's ``[provenance] rate_hz``, exactly as
     ``hil run`` wrote it; 1 / ts when the folder has none."""
-    from hil.measure.folder import resolved_scenario
 
     resolved = resolved_scenario(run_dir) or {}
     value = resolved.get("provenance", {}).get("rate_hz")

@@ -13,8 +13,8 @@ from hil.sim.core import (
     simulate,
     simulate_batch,
 )
-from hil.sim.folder import new_run_dir, write_run_folder
-from hil.sim.landing import jitter_samples_from
+from hil.sim.folder import write_run_folder
+from hil.sim.replay import jitter_samples_from
 
 __all__ = [
     "BASE_COLUMNS",
@@ -22,7 +22,6 @@ __all__ = [
     "RobotVariation",
     "SimResult",
     "jitter_samples_from",
-    "new_run_dir",
     "simulate",
     "simulate_batch",
     "write_run_folder",

@@ -2,7 +2,7 @@
 
 At each sample k (t_k = k Ts) the law gets the measured state (noise and quantization of
 [plant]), the reference sample and the law time t_k; its command lands at
-t_k + delay + extra_k rounded to the plant step h (see :mod:`hil.sim.landing`); when delays
+t_k + delay + extra_k rounded to the plant step h (see :mod:`hil.sim.replay`); when delays
 reorder commands the newest by sequence number wins and older ones are dropped (counted).
 Between landings the command is held (zero-order hold) and model (1) is integrated by RK4 at
 step h = Ts / ceil(Ts / [plant] step). Before the first command lands the torque is zero.
@@ -26,10 +26,14 @@ import numpy as np
 from controller_service.from_settings import initial_memory
 from controller_service.laws.base import ReferenceSample, RobotState
 from controller_service.references import sample_array
+from hil.folder.scenario_view import view
+from hil.law.batch import for_batch
+from hil.measure.certificate import scenario_certificate
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
-from hil.sim.landing import extra_delays, jitter_samples_from, landing_offsets
+from hil.sim.replay import jitter_samples_from
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from plant_emulator.dynamics import Extremes, PlantState, track_initial
+from plant_emulator.landing import extra_delays, landing_offsets
 from plant_emulator.sampled import Hold, Plant, advance_period
 from plant_emulator.sensors import measure
 from protocol.angles import wrap_angle
@@ -174,7 +178,12 @@ class _Single:
 
 def _plant(scenario: Scenario, seed: Any) -> Plant:
     return Plant(
-        scenario.plant_step, scenario.disturbance, scenario.plant.lag, seed, scenario.limits
+        scenario.plant_step,
+        scenario.disturbance,
+        scenario.plant.lag,
+        seed,
+        scenario.limits,
+        scenario.plant.drag,
     )
 
 
@@ -316,6 +325,8 @@ def _single_result(run: _Single, scenario: Scenario) -> SimResult:
     jseed, dseed, sseed = run.seeds
     summary["seeds"] = {"timing": jseed, "disturbance": dseed, "sensor": sseed}
     resolved = resolved_dict(scenario, controller, run.context)
+    # The bound at the scenario's timing, once, here: the report reads it, as it reads a run's.
+    summary["certificate"] = scenario_certificate(view(resolved))
     return SimResult(scenario, resolved, columns, trace, summary, run.interrupted)
 
 
@@ -501,6 +512,8 @@ def _batch_setup(
     """The loops' objects, initial states, landing offsets and seeds for N robots."""
     n = len(variations)
     controller, reference, context = loop or build_loop(scenario)
+    if memory is None:  # a law that takes only floats runs one robot at a time (hil.law.batch)
+        controller = for_batch(controller, scenario, reference)
     n_samples = max(1, round(scenario.run.duration / scenario.timing.ts))
     ini, timing = scenario.initial, scenario.timing
     starts = None

@@ -18,9 +18,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from hil.folder.scenario_view import view
+from hil.measure.certificate import certificate
 from hil.scenario import Scenario
+from hil.sim import RobotVariation, simulate_batch
+from hil.sweep.executors import InProcess
 from hil.sweep.grid import SweepGrid, SweepPoint
-from hil.sweep.runner import RECORD_LIMIT, SweepOutcome, point_row, scenario_at
+from hil.sweep.runner import RECORD_LIMIT, SweepOutcome, _band, point_row, scenario_at
 
 # Points per chunk: the batch path's cost per robot falls with the batch's size (numpy's
 # per-step overhead is shared), 128 points in chunks of 8 took 6x as long as in one chunk;
@@ -67,11 +71,6 @@ def chunks_of(
 
 def run_chunk(chunk: Chunk) -> ChunkResult:
     """Simulate one chunk and build its rows (a top-level function: pickled to workers)."""
-    from hil.report.cert import certificate
-    from hil.report.scenario_view import view
-    from hil.sim import RobotVariation, simulate_batch
-    from hil.sweep.runner import _band
-
     variations = [
         RobotVariation(delay=p.delay, jitter=p.jitter, jitter_seed=p.seed) for p in chunk.points
     ]
@@ -111,8 +110,6 @@ def run_chunked(
     """The sweep on ``executor`` (default: in this process), as :func:`run_sweep` returns it:
     the rows in the grid's order (Ts groups longest first); ``groups_done`` counts the Ts
     groups whose every chunk finished. Ctrl-C keeps the chunks done."""
-    from hil.sweep.executors import InProcess
-
     ex = executor if executor is not None else InProcess()
     chunks = chunks_of(scenario, grid, duration, chunk_size)
     done: list[ChunkResult] = []

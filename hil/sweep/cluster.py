@@ -7,8 +7,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+from hil import options
 from hil.errors import BadInputError
-from hil.sweep.chunks import DEFAULT_CHUNK
+from hil.sweep.chunks import DEFAULT_CHUNK, chunks_of, run_chunked
+from hil.sweep.executors import executor_for
+from hil.sweep.outputs import write_csv
 
 CHUNK_MAX = 1_000_000
 
@@ -20,9 +25,6 @@ def wanted(workers: int | None, scheduler: str | None, chunk_size: int | None) -
 
 def open_executor(workers: int | None, scheduler: str | None, chunk_size: int | None) -> Any:
     """The executor, every option checked first (BadInputError: exit 2, before any folder)."""
-    from hil import options
-    from hil.sweep.executors import executor_for
-
     if chunk_size is not None:
         options.integer("--chunk-size", chunk_size, 1, CHUNK_MAX)
     if scheduler is not None and workers is not None:
@@ -34,11 +36,6 @@ def run_with_executor(
     scenario: Any, grid: Any, loop_s: float, target: Path, executor: Any, chunk_size: int | None
 ) -> tuple[Any, dict[str, Any], dict[str, Any]]:
     """(outcome, resolved, what to add to sweep.json's meta); the executor closed after."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-    from hil.sweep.chunks import chunks_of, run_chunked
-    from hil.sweep.outputs import write_csv
-
     size = chunk_size or DEFAULT_CHUNK
     n = len(chunks_of(scenario, grid, loop_s, size))
     try:

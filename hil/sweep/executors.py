@@ -15,11 +15,19 @@ functions and plain dataclasses only.
 
 from __future__ import annotations
 
+import multiprocessing
 import re
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Protocol
 
+from hil import options
 from hil.errors import BadInputError
+
+try:  # the optional extra [cluster]: without it, only --scheduler is refused
+    from distributed import Client
+except ImportError:
+    Client = None
 
 WORKERS_MAX = 1024
 _SCHEDULER_RE = re.compile(r"tcp://[A-Za-z0-9.\-\[\]:]+:[0-9]{1,5}")
@@ -49,9 +57,6 @@ class ProcessPool:
     """``workers`` local processes."""
 
     def __init__(self, workers: int) -> None:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
         self.name = f"{workers} local processes"
         ctx = multiprocessing.get_context("spawn")
         self._pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
@@ -68,12 +73,10 @@ class DaskCluster:
 
     def __init__(self, address: str | None = None, client: Any = None) -> None:
         if client is None:
-            try:
-                from distributed import Client
-            except ImportError:
+            if Client is None:
                 raise BadInputError(
                     "--scheduler needs Dask distributed: pip install 'hil-smc-bench[cluster]'"
-                ) from None
+                )
             try:
                 client = Client(address, timeout=30)
             except OSError as exc:
@@ -100,8 +103,6 @@ class DaskCluster:
 
 def executor_for(workers: int | None, scheduler: str | None) -> Executor:
     """The executor the command line asks for (BadInputError for a bad or double choice)."""
-    from hil import options
-
     if workers is not None and scheduler is not None:
         raise BadInputError("--workers and --scheduler exclude each other")
     if scheduler is not None:

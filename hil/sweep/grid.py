@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from typing import Any
 
 # Defaults when the scenario has no [sweep] table: Ts from 0.5 ms to 50 ms around the paper's
-# 1 ms; delays from none to 50 ms (the DESIGN.md probe broke phi1 at Ts = 50 ms, 100 ms delay
-# only with m1 near its bound); no extra jitter; one seed.
+# 1 ms; delays from none to 50 ms (the probe of docs/design.md, section 2, broke phi1 at
+# Ts = 50 ms, 100 ms delay only with m1 near its bound); no extra jitter; one seed.
 DEFAULT_TS: tuple[float, ...] = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05)
 DEFAULT_DELAY: tuple[float, ...] = (0.0, 0.002, 0.01, 0.05)
 DEFAULT_JITTER: tuple[float, ...] = (0.0,)

@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import csv
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from hil.folder.jsonio import jsonable, write_json
 from hil.report import figures as fg
-from hil.report.build import _jsonable
 from hil.sweep.grid import SweepGrid, aggregate, break_points
 from protocol.versions import SWEEP_SCHEMA_VERSION
 
@@ -123,7 +122,7 @@ def write_outputs(
             "defaulted": list(grid.defaulted),
         },
         **meta,
-        "break_point": _jsonable(
+        "break_point": jsonable(
             {
                 **bp,
                 "ts_by_delay": [
@@ -137,7 +136,7 @@ def write_outputs(
         "rows": rows,
         "figures": files,
     }
-    (out / "sweep.json").write_text(json.dumps(_jsonable(doc), indent=2, allow_nan=False))
+    write_json(out / "sweep.json", doc)
     (out / "sweep.md").write_text(_markdown(doc, bp, files))
     return doc
 

@@ -16,9 +16,10 @@ from typing import Any
 import numpy as np
 
 from hil import trace_metrics
-from hil.report.cert import certificate
-from hil.report.scenario_view import view
-from hil.scenario import Scenario, resolved_dict
+from hil.folder.scenario_view import view
+from hil.measure.certificate import certificate
+from hil.scenario import Scenario, build_loop, resolved_dict, scenario_dict
+from hil.sim import RobotVariation, simulate_batch
 from hil.sweep.grid import SweepGrid, SweepPoint
 
 RECORD_LIMIT = 64
@@ -102,7 +103,6 @@ def run_sweep(
     on_group: Callable[[list[dict[str, Any]]], None] | None = None,
 ) -> tuple[SweepOutcome, dict[str, Any]]:
     """All groups of the grid; returns the outcome and the resolved scenario (provenance)."""
-    from hil.sim import RobotVariation, simulate_batch
 
     outcome = SweepOutcome()
     resolved: dict[str, Any] = {}
@@ -154,7 +154,6 @@ def run_sweep(
 
 
 def _tables(sc: Scenario) -> dict[str, Any]:
-    from hil.scenario import scenario_dict
 
     return scenario_dict(sc)
 
@@ -175,8 +174,6 @@ def certified_break(scenario: Scenario, grid: SweepGrid) -> dict[str, Any]:
 
 def _resolved_or_dict(scenario: Scenario) -> dict[str, Any]:
     try:
-        from hil.scenario import build_loop
-
         controller, _ref, context = build_loop(scenario)
         return resolved_dict(scenario, controller, context)
     except Exception:

@@ -40,13 +40,16 @@ def from_message(msg: can.Message) -> Frame:
 
 
 class DriveLink:
-    """Moves frames between ``bus`` and ``lifecycle`` on the wall clock (time.monotonic)."""
+    """The host's one CAN edge: moves frames between ``bus`` and ``lifecycle`` on the wall
+    clock (time.monotonic). The controller's CAN command path is one
+    (:class:`controller_service.command_paths.CanCommandPath`), with a reader thread and a
+    send log of its own."""
 
     def __init__(self, bus: can.BusABC, lifecycle: HostLifecycle) -> None:
         self.bus = bus
         self.lifecycle = lifecycle
 
-    def send(self, frames: list[Frame]) -> None:
+    def send_frames(self, frames: list[Frame]) -> None:
         for frame in frames:
             self.bus.send(to_message(frame), timeout=0.1)
 
@@ -58,22 +61,22 @@ class DriveLink:
             if msg is None:
                 break
             self.lifecycle.receive(time.monotonic(), from_message(msg))
-        self.send(self.lifecycle.tick(time.monotonic()))
+        self.send_frames(self.lifecycle.tick(time.monotonic()))
 
     def arm(self, timeout: float) -> bool:
         """Run the lifecycle until both drives are in closed loop or ``timeout`` passes."""
-        self.send(self.lifecycle.start(time.monotonic()))
+        self.send_frames(self.lifecycle.start(time.monotonic()))
         deadline = time.monotonic() + timeout
         while self.lifecycle.phase is Phase.ARMING and time.monotonic() < deadline:
             self.pump(0.02)
         return self.lifecycle.phase is Phase.ACTIVE
 
     def command(self, q_right: float, q_left: float) -> None:
-        self.send(self.lifecycle.torque_frames(q_right, q_left))
+        self.send_frames(self.lifecycle.torque_frames(q_right, q_left))
 
     def disarm(self, estop: bool = False, confirm_timeout: float = 0.0) -> bool:
         """Zero torque and IDLE (or Estop); optionally wait for heartbeats confirming it."""
-        self.send(self.lifecycle.stop(estop))
+        self.send_frames(self.lifecycle.stop(estop))
         deadline = time.monotonic() + confirm_timeout
         while True:
             if all(v.axis_state == AxisState.IDLE for v in self.lifecycle.drives.values()):

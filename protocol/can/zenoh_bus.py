@@ -28,6 +28,7 @@ delivered on arrival and stamped with their arrival time.
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import heapq
 import ipaddress
@@ -38,6 +39,7 @@ import re
 import struct
 import threading
 import time
+import weakref
 from collections import deque
 from typing import Any
 
@@ -106,6 +108,27 @@ def unpack_frame(payload: bytes) -> tuple[Message, int, int]:
         check=False,
     )
     return msg, sender, end_ns
+
+
+def _shut_down_at_exit(bus: ZenohCanBus) -> None:
+    """Shut ``bus`` down when the interpreter ends, before it waits for its threads.
+
+    Zenoh calls a Python callback from a thread of its own that is not a daemon and ends only
+    when the subscriber is undeclared: a script that forgets ``shutdown()`` would wait for it
+    forever (python-can's own interfaces exit). ``atexit`` runs after that wait, so the hook
+    goes where ``concurrent.futures`` puts its own, before it. A weak reference: the hook does
+    not keep a bus alive that its user dropped."""
+    ref = weakref.ref(bus)
+
+    def hook() -> None:
+        alive = ref()
+        if alive is not None:
+            with contextlib.suppress(Exception):
+                alive.shutdown()
+
+    register = getattr(threading, "_register_atexit", None)
+    with contextlib.suppress(RuntimeError):  # the interpreter is already shutting down
+        (register or atexit.register)(hook)
 
 
 class ZenohCanBus(BusABC):
@@ -187,6 +210,7 @@ class ZenohCanBus(BusABC):
         )
         self._sub = self._session.declare_subscriber(key, self._on_sample)
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
+        _shut_down_at_exit(self)
 
     # --- receive path -------------------------------------------------------------------
     def _on_sample(self, sample: Any) -> None:

@@ -12,7 +12,7 @@ import struct
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
-#: The modules the guest needs, in the order that worked (see ENVIRONMENT.md): virtio PCI and
+#: The modules the guest needs, in the order that worked (docs/vcan.md): virtio PCI and
 #: 9p to reach the host's root file system, then CAN, raw CAN sockets and vcan itself.
 GUEST_MODULES: tuple[str, ...] = (
     "virtio_ring",

@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from controller_service.laws.base import DesignContext, Limits
+from hil.errors import BadInputError
+from hil.scenario import build_reference, design_context, parse_scenario
 
 UNIFIED_LAWS = ("unified", "unified_boundary")
 
@@ -65,8 +67,6 @@ def _without_none(table: Mapping[str, Any]) -> dict[str, Any]:
 def view(scenario: Mapping[str, Any], base_dir: Path | None = None) -> ScenarioView:
     """The view of a scenario's tables (``scenario.resolved.toml`` parsed, or a scenario dict);
     ``base_dir`` resolves a reference's file when its bounds mu1..k2 must be computed."""
-    from hil.errors import BadInputError
-    from hil.scenario import build_reference, design_context, parse_scenario
 
     # The period every figure of a report scales with: a resolved scenario always states it,
     # so its absence is a broken folder, not the default's 1 ms.

@@ -1,20 +1,10 @@
-"""Reading a run or simulation folder (CONTRACT.md, "Run and simulation folders").
-
-A folder is: ``trace.csv`` (one row per control sample), ``summary.json``,
-``scenario.resolved.toml`` and, for a real run, its recording (``*.mcap``). Anything else is
-not a run: :func:`load_folder` raises :class:`hil.errors.BadInputError` (exit code 2) with
-the reason.
-"""
+"""trace.csv: one row per control sample (docs/run-folder.md, "trace.csv"), read and written."""
 
 from __future__ import annotations
 
 import csv
 import itertools
-import json
-import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -22,35 +12,12 @@ from hil.errors import BadInputError
 from hil.trace import TRACE_COLUMNS
 
 
-@dataclass
-class Folder:
-    """One run or simulation folder, loaded. ``trace`` is read on first use when the folder
-    was loaded lazily (:func:`load_folder`): a run's report measures the hop logs first, so
-    the trace's columns and the measurement's never sit in memory together at its peak."""
-
-    path: Path
-    trace_data: dict[str, np.ndarray] | None
-    summary: dict[str, Any]
-    scenario: dict[str, Any]
-    recordings: list[Path] = field(default_factory=list)
-    #: What more than one part of the report reads (the recorded telemetry), read once.
-    cache: dict[str, Any] = field(default_factory=dict, repr=False)
-
-    @property
-    def trace(self) -> dict[str, np.ndarray]:
-        """trace.csv's columns (:func:`read_trace`; BadInputError when it is not a trace)."""
-        if self.trace_data is None:
-            self.trace_data = read_trace(self.path / "trace.csv")
-        return self.trace_data
-
-    @property
-    def kind(self) -> str:
-        """ "run" (has a recording or a timing object) or "simulation"."""
-        return "run" if self.recordings or "timing" in self.summary else "simulation"
-
-    @property
-    def name(self) -> str:
-        return self.path.name
+def write_trace_csv(path: Path, columns: list[str], trace: np.ndarray) -> None:
+    """A simulation's trace: ``trace`` rows under the ``columns`` header."""
+    with path.open("w") as f:
+        f.write(",".join(columns) + "\n")
+        if len(trace):
+            np.savetxt(f, trace, delimiter=",", fmt="%.10g")
 
 
 #: Rows parsed per call of the C reader (np.loadtxt): ~4 MB of floats at 15 columns.
@@ -125,35 +92,3 @@ def read_trace(path: Path) -> dict[str, np.ndarray]:
     if not np.all(np.isfinite(t)) or np.any(t[1:] < t[:-1]):
         raise BadInputError(f"{path}: column t is not finite and non-decreasing")
     return trace
-
-
-def load_folder(path: str | Path, lazy: bool = False) -> Folder:
-    """Load and check a run or simulation folder; BadInputError when it is not one.
-
-    ``lazy``: check only the trace's header now and read its rows on first use (a bad row
-    then raises BadInputError there)."""
-    p = Path(path)
-    if not p.is_dir():
-        raise BadInputError(f"{p}: not a folder")
-    for required in ("trace.csv", "summary.json", "scenario.resolved.toml"):
-        if not (p / required).is_file():
-            raise BadInputError(f"{p}: not a run or simulation folder (no {required})")
-    try:
-        summary = json.loads((p / "summary.json").read_text())
-    except (OSError, ValueError) as exc:
-        raise BadInputError(f"{p / 'summary.json'}: not JSON ({exc})") from exc
-    if not isinstance(summary, dict):
-        raise BadInputError(f"{p / 'summary.json'}: not a JSON object")
-    try:
-        scenario = tomllib.loads((p / "scenario.resolved.toml").read_text())
-    except (OSError, ValueError) as exc:
-        raise BadInputError(f"{p / 'scenario.resolved.toml'}: not TOML ({exc})") from exc
-    if lazy:
-        trace_header(p / "trace.csv")
-    return Folder(
-        path=p,
-        trace_data=None if lazy else read_trace(p / "trace.csv"),
-        summary=summary,
-        scenario=scenario,
-        recordings=sorted(p.glob("*.mcap")),
-    )

@@ -1,4 +1,5 @@
-"""The sampled-data certificate at a given period and delay, for a report or a sweep.
+"""The sampled-data certificate at a given period and delay, for a simulation or a sweep
+(a run's certificate is measured: :func:`hil.measure.figures.measure`).
 
 Uses :func:`controller_service.certificate.certify` (docs/sampled_data_bound.md). Only the
 unified laws (10) and (19) have a certificate.
@@ -10,8 +11,9 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any
 
-from controller_service.certificate import certify
-from hil.report.scenario_view import UNIFIED_LAWS, ScenarioView
+from controller_service.certificate import certify, critical_age
+from hil.folder.records import Certificate
+from hil.folder.scenario_view import UNIFIED_LAWS, ScenarioView
 
 
 @dataclass(frozen=True)
@@ -68,7 +70,7 @@ def certificate(sv: ScenarioView, ts: float, delay: float) -> CertificateFigures
     )
 
 
-#: The keys of the contract's certificate object (CONTRACT.md, "Timing figures of a run").
+#: The keys of a certificate object (docs/run-folder.md, "certificate").
 CONTRACT_KEYS = (
     "path",
     "d_max_s",
@@ -82,24 +84,11 @@ CONTRACT_KEYS = (
 )
 
 
-def failed_conditions(sv: ScenarioView, d_max: float | None) -> list[str]:
-    """The names of the certificate's conditions that fail at command age ``d_max`` (the same
-    call as hil.measure's: ``certify`` at ts = D, delay = 0)."""
-    if d_max is None or sv.law not in UNIFIED_LAWS:
-        return []
-    return list(certificate(sv, d_max, 0.0).detail.get("failed", []))
-
-
-def scenario_certificate(sv: ScenarioView) -> dict[str, Any]:
-    """A simulation's certificate in the contract's shape: D is the scenario's longest possible
-    command age, Ts + the worst delay (delay plus the jitter's bound), an upper bound of the
-    simulated ages; D* and the bounds as hil.measure computes them for a run."""
-    from controller_service.certificate import critical_age
-
-    d = sv.ts + sv.worst_delay
-    out: dict[str, Any] = {
-        "path": None,
-        "d_max_s": d,
+def no_certificate(path: str | None, d_max: float | None, source: str) -> Certificate:
+    """A certificate object with D alone (a law without the bound, or before it is known)."""
+    return {
+        "path": path,
+        "d_max_s": d_max,
         "d_star_s": None,
         "margin_s": None,
         "held": None,
@@ -107,9 +96,19 @@ def scenario_certificate(sv: ScenarioView) -> dict[str, Any]:
         "omega_bound": None,
         "stall_threshold_s": None,
         "stalls": [],
-        "source": "scenario: D = Ts + worst delay (an upper bound of the simulated ages)",
+        "source": source,
         "failed_conditions": [],
     }
+
+
+def scenario_certificate(sv: ScenarioView) -> Certificate:
+    """A simulation's certificate in the contract's shape: D is the scenario's longest possible
+    command age, Ts + the worst delay (delay plus the jitter's bound), an upper bound of the
+    simulated ages; D* and the bounds as hil.measure computes them for a run."""
+    d = sv.ts + sv.worst_delay
+    out = no_certificate(
+        None, d, "scenario: D = Ts + worst delay (an upper bound of the simulated ages)"
+    )
     if sv.law not in UNIFIED_LAWS:
         out["source"] = "none (not a unified law)"
         return out

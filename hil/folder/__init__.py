@@ -1,0 +1,138 @@
+"""The run or simulation folder: its one owner (layout, reading, writing; docs/run-folder.md).
+
+A folder is ``trace.csv`` (one row per control sample), ``summary.json`` (the result),
+``scenario.resolved.toml`` and, for a real run, the services' hop logs, the measurement's
+per-sample series (``series.npz``) and the recording (``*.mcap``). Every file name is in
+:mod:`hil.folder.layout`, every JSON file follows :mod:`hil.folder.jsonio`. Anything else is
+not a run: :func:`load_folder` raises :class:`hil.errors.BadInputError` (exit code 2) with
+the reason.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+
+from hil.errors import BadInputError
+from hil.folder import layout
+from hil.folder.jsonio import read_json_object, write_json
+from hil.folder.records import Summary
+from hil.folder.trace_csv import read_trace, trace_header
+
+
+@dataclass
+class RunFolder:
+    """One run or simulation folder, loaded. ``trace`` is read on first use when the folder
+    was loaded lazily (:func:`load_folder`), so a long run's trace and its series never sit in
+    memory together."""
+
+    path: Path
+    trace_data: dict[str, np.ndarray] | None
+    summary: Summary
+    scenario: dict[str, Any]
+    recordings: list[Path] = field(default_factory=list)
+    #: What more than one part of the report reads (the recorded telemetry), read once.
+    cache: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def trace(self) -> dict[str, np.ndarray]:
+        """trace.csv's columns (BadInputError when it is not a trace)."""
+        if self.trace_data is None:
+            self.trace_data = read_trace(self.path / layout.TRACE)
+        return self.trace_data
+
+    @property
+    def kind(self) -> str:
+        """ "run" (has a recording or a timing object) or "simulation"."""
+        return "run" if self.recordings or "timing" in self.summary else "simulation"
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    def file(self, name: str) -> Path:
+        return self.path / name
+
+    def has_hop_logs(self) -> bool:
+        return has_hop_logs(self.path)
+
+    def series(self) -> dict[str, np.ndarray] | None:
+        """The measurement's saved per-sample series (None: not measured yet, or a sim)."""
+        return read_series(self.path)
+
+
+def has_hop_logs(path: Path) -> bool:
+    return (path / layout.PLANT_LOG).is_file() or (path / layout.CONTROLLER_LOG).is_file()
+
+
+def read_scenario(path: Path) -> dict[str, Any]:
+    """The folder's resolved scenario; BadInputError when it is missing or not TOML."""
+    f = path / layout.SCENARIO_RESOLVED
+    try:
+        return tomllib.loads(f.read_text())
+    except (OSError, ValueError) as exc:
+        raise BadInputError(f"{f}: not TOML ({exc})") from exc
+
+
+def write_summary(path: Path, summary: Summary) -> Path:
+    return write_json(path / layout.SUMMARY, summary)
+
+
+def write_series(path: Path, arrays: dict[str, np.ndarray]) -> Path:
+    """The measurement's series, written whole (a temporary file renamed)."""
+    out = path / layout.SERIES
+    tmp = path / (layout.SERIES + ".writing.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(out)
+    return out
+
+
+def read_series(path: Path) -> dict[str, np.ndarray] | None:
+    f = path / layout.SERIES
+    if not f.is_file():
+        return None
+    try:
+        with np.load(f, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise BadInputError(f"{f}: not the measurement's series ({exc})") from exc
+
+
+def new_run_dir(root: str | Path = "runs", prefix: str = "run") -> Path:
+    """A fresh folder name under ``root``: ``PREFIX-YYYYmmdd-HHMMSS`` (local time), suffixed
+    ``-1``, ``-2``... when taken."""
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    for i in range(1000):
+        p = Path(root) / (f"{prefix}-{stamp}" + (f"-{i}" if i else ""))
+        if not p.exists():
+            return p
+    raise BadInputError(f"cannot find a free folder name under {root}")
+
+
+def load_folder(path: str | Path, lazy: bool = False) -> RunFolder:
+    """Load and check a run or simulation folder; BadInputError when it is not one.
+
+    ``lazy``: check only the trace's header now and read its rows on first use (a bad row
+    then raises BadInputError there)."""
+    p = Path(path)
+    if not p.is_dir():
+        raise BadInputError(f"{p}: not a folder")
+    for required in layout.REQUIRED:
+        if not (p / required).is_file():
+            raise BadInputError(f"{p}: not a run or simulation folder (no {required})")
+    summary = cast(Summary, read_json_object(p / layout.SUMMARY))
+    scenario = read_scenario(p)
+    if lazy:
+        trace_header(p / layout.TRACE)
+    return RunFolder(
+        path=p,
+        trace_data=None if lazy else read_trace(p / layout.TRACE),
+        summary=summary,
+        scenario=scenario,
+        recordings=sorted(p.glob("*.mcap")),
+    )

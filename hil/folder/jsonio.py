@@ -1,0 +1,61 @@
+"""The one JSON policy of every file the bench writes (docs/run-folder.md, "JSON").
+
+numpy scalars and arrays become plain numbers and lists, tuples lists, keys strings, and a
+non-finite number (NaN, ±inf) becomes ``null``: JSON has no NaN, and every reader already
+takes ``null`` as "not measured". Files are written whole or not at all (a temporary file
+renamed over the old one), so a kill mid-write never leaves half a JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hil.errors import BadInputError
+
+
+def jsonable(obj: Any) -> Any:
+    """``obj`` as plain JSON values under the policy above."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [jsonable(v) for v in obj.tolist()]
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.floating):
+        obj = float(obj)
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def dumps(obj: Any, indent: int | None = 2) -> str:
+    return json.dumps(jsonable(obj), indent=indent, allow_nan=False)
+
+
+def write_json(path: Path, obj: Any) -> Path:
+    """Write ``obj`` to ``path`` atomically under the policy above."""
+    tmp = path.with_name(path.name + ".writing")
+    tmp.write_text(dumps(obj) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def read_json_object(path: Path) -> dict[str, Any]:
+    """A JSON object from ``path``; BadInputError naming the file otherwise."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise BadInputError(f"{path}: not JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise BadInputError(f"{path}: not a JSON object")
+    return data

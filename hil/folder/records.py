@@ -1,0 +1,86 @@
+"""The typed records a run folder holds (docs/run-folder.md): summary.json and its certificate.
+
+They stay JSON objects on disk and dicts in memory (scripts read them as such); these
+TypedDicts say which keys exist and what each holds, so a reader and a type checker agree with
+the writer. The measurement is :class:`hil.measure.figures.Measurement`, the scenario's view
+:class:`hil.folder.scenario_view.ScenarioView`.
+"""
+
+from __future__ import annotations
+
+from typing import Any, TypedDict
+
+
+class Stall(TypedDict, total=False):
+    t_s: float
+    age_s: float
+    cause: str
+    owner: str
+
+
+class Certificate(TypedDict, total=False):
+    """The sampled-data certificate at the measured command age D (``hil.measure``), or at a
+    simulation's D = Ts + worst delay (``hil.measure.certificate.scenario_certificate``)."""
+
+    path: str | None  # the applied path, never a shadow
+    d_max_s: float | None  # the command age D, on the plant's clock
+    d_max_upper_s: float  # the largest D the CAN logs allow, when the matching is ambiguous
+    d_star_s: float | None  # the largest D for which (2) is guaranteed (None: no bound)
+    margin_s: float | None  # d_star_s - d_max_s
+    held: bool | None  # None: unknown (ambiguous CAN matching)
+    v_bound: float | None
+    omega_bound: float | None
+    failed_conditions: list[str]
+    stall_threshold_s: float | None
+    stall_count: int
+    stalled_time_s: float
+    stalls_by_owner: dict[str, int]
+    d_system_s: float | None
+    stalls: list[Stall]
+    source: str
+    error: str  # the design the certificate rejected, and why
+
+
+class Summary(TypedDict, total=False):
+    """summary.json of a run (``hil.run.results.analyze``) or a simulation (``hil.sim``)."""
+
+    schema_version: int
+    kind: str  # "run"; absent for a simulation
+    final_position_error: float | None
+    final_heading_error: float | None
+    rms_position_error: float | None
+    initial_position_error: float | None
+    max_abs_v: float | None
+    max_abs_omega: float | None
+    max_abs_tau1: float | None
+    max_abs_tau2: float | None
+    violations: dict[str, int]
+    samples: int
+    duration: float
+    # a run
+    lockstep: bool
+    cmd_path: str
+    trigger: str
+    rate_hz: float
+    timing: dict[str, Any]  # figure name -> percentiles or count (docs/realtime.md)
+    messages: dict[str, Any]  # stream -> sent, received, lost, duplicated, reordered
+    certificate: Certificate | None
+    host: dict[str, Any] | None
+    logs_complete: dict[str, bool]
+    rejections: dict[str, Any]
+    watchdog: dict[str, int]
+    can: dict[str, Any]
+    faults: dict[str, Any]
+    scheduling: dict[str, Any]
+    interrupted: bool
+    recovered: bool
+    error: str | None
+    duration_run_s: float | None
+    duration_planned_s: float
+    verdict: dict[str, Any]  # hil.verdict.Verdict.as_dict()
+    # a simulation
+    limits: dict[str, float]
+    law: str
+    ts: float
+    plant_step: float
+    seeds: dict[str, int]

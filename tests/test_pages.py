@@ -1,0 +1,48 @@
+"""The pages as a reader sees them: report.html and compare.html rendered by headless Chromium
+at 1280 px (tools/screenshot.py). Each answers first, fits the width, and stays a page one
+scrolls, not a wall (the run report was 10,500 px tall before its figures shared rows and its
+long tables were folded)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from hil.cli import main
+from tests.synthetic_folder import write_synthetic_folder
+from tools.screenshot import screenshot
+
+#: Taller than this and a reader loses the page (px at 1280 wide).
+MAX_HEIGHT = 9_000
+
+pytestmark = pytest.mark.skipif(
+    shutil.which("chromium") is None, reason="no chromium (.ci/run installs it)"
+)
+
+
+def _fits(png: Path) -> tuple[int, bool]:
+    img = np.asarray(Image.open(png).convert("RGB"))
+    background = img[-1, -1]
+    right_edge = img[:, -8:]  # content running off the right: the page is wider than 1280 px
+    return img.shape[0], bool((right_edge == background).all())
+
+
+def test_the_run_report_answers_first_and_fits_the_screen(tmp_path: Path) -> None:
+    folder = write_synthetic_folder(tmp_path / "run", run=True, delay=0.0005, duration=4.0)
+    assert main(["report", str(folder), "--no-ideal"]) == 0
+    height = screenshot(folder / "report.html", tmp_path / "report.png")
+    h, fits = _fits(tmp_path / "report.png")
+    assert height == h and h < MAX_HEIGHT and fits, (h, fits)
+
+
+def test_the_compare_page_fits_the_screen(tmp_path: Path) -> None:
+    a = write_synthetic_folder(tmp_path / "a", run=True, delay=0.0005, duration=2.0)
+    b = write_synthetic_folder(tmp_path / "b", run=True, delay=0.002, duration=2.0)
+    assert main(["compare", str(a), str(b), "--out", str(tmp_path / "cmp")]) == 0
+    screenshot(tmp_path / "cmp" / "compare.html", tmp_path / "compare.png")
+    h, fits = _fits(tmp_path / "compare.png")
+    assert h < MAX_HEIGHT and fits, (h, fits)

@@ -1,0 +1,51 @@
+"""``hil run`` ends with one plain line: the outcome, why, D against D*, and where the report
+is; ``--json`` gives scripts the brief as JSON on stdout and the line on stderr."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.realtime
+
+LINE = re.compile(r"result: (PASS|FAIL|INCONCLUSIVE): .*; (report|run folder): (\S+)$")
+
+
+def _run(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "hil", "run", "--duration", "1", "--quiet", *args],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+
+
+def test_hil_run_ends_with_one_line_naming_the_outcome_and_the_report(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    proc = _run(tmp_path, "--out", str(out))
+    assert proc.returncode in (0, 1), proc.stderr[-3000:]
+    lines = proc.stdout.strip().splitlines()
+    assert len(lines) == 1, proc.stdout  # no JSON blob without --json
+    m = LINE.fullmatch(lines[0])
+    assert m and m.group(2) == "report", lines[0]
+    assert Path(m.group(3)) == out / "report.html" and (out / "report.html").is_file()
+    summary = json.loads((out / "summary.json").read_text())
+    assert m.group(1) == summary["verdict"]["outcome"]
+    if summary["certificate"].get("d_star_s"):
+        assert " ms of D* " in lines[0]
+
+
+def test_hil_run_json_gives_the_brief_on_stdout_and_the_line_on_stderr(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    proc = _run(tmp_path, "--out", str(out), "--json", "--no-report")
+    assert proc.returncode in (0, 1), proc.stderr[-3000:]
+    brief = json.loads(proc.stdout)
+    assert Path(brief["run_dir"]) == out and brief["verdict"] in ("PASS", "FAIL", "INCONCLUSIVE")
+    m = LINE.fullmatch(proc.stderr.strip().splitlines()[0])
+    assert m and m.group(2) == "run folder" and Path(m.group(3)) == out, proc.stderr
