@@ -1,13 +1,16 @@
 """MCAP recordings of a run: a writer for the recorder and a reader for reports.
 
 Encoding choice: every message is stored as a JSON mirror of its msgpack payload (MCAP message
-encoding ``json`` with a ``jsonschema`` schema per topic). The wire format stays msgpack; the
-recording decodes it once, off the real-time path, in the recorder. Why JSON and not the raw
+encoding ``json`` with a ``jsonschema`` schema per topic, typed field by field from the
+protocol's definitions by :mod:`hil.schemas`; the robot's pose also as Foxglove's well-known
+``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``). Recordings written before the schemas
+were typed (every channel ``{"type": "object"}``) read the same. The wire format stays msgpack;
+the recording decodes it once, off the real-time path, in the recorder. Why JSON and not the raw
 msgpack bytes: ``json`` + ``jsonschema`` is a well-known MCAP profile that the ``mcap`` CLI
 (``mcap cat --json``) and Foxglove decode and plot with no plug-in, whereas msgpack is not one
 of Foxglove's encodings. CAN frames are stored the same way (arbitration id, data as hex,
-decoded signals when the codec knows them). The cost (a few tens of microseconds a message)
-is paid by the recorder process, never by the controller or the plant.
+decoded signals when the codec knows them). The cost (a few tens of microseconds a message) is
+paid by the recorder process, never by the controller or the plant.
 
 Reader API (what ``hil report`` uses)::
 
@@ -49,8 +52,9 @@ from mcap.records import Attachment, AttachmentIndex, Channel, Message, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, IndexType, Writer
 
+from hil.schemas import POSE, TF, WORLD_FRAME, schema_for_topic, schema_name
+
 PROFILE = ""
-GENERIC_SCHEMA: dict[str, Any] = {"type": "object", "additionalProperties": True}
 
 
 _PLAIN = frozenset((int, str, bool, type(None)))
@@ -175,12 +179,15 @@ class RecordingWriter:
             self._writer.add_metadata("run", {str(k): str(v) for k, v in metadata.items()})
 
     def channel(self, topic: str, schema: Mapping[str, Any] | None = None) -> int:
+        """The channel of ``topic``, registered on first use with ``schema`` (default: the
+        topic's own, :func:`hil.schemas.schema_for_topic`)."""
         ch = self._channels.get(topic)
         if ch is None:
+            typed = dict(schema or schema_for_topic(topic))
             schema_id = self._writer.register_schema(
-                name=topic.replace("/", "."),
+                name=schema_name(topic, typed),
                 encoding="jsonschema",
-                data=json.dumps(dict(schema or GENERIC_SCHEMA)).encode(),
+                data=json.dumps(typed).encode(),
             )
             ch = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=schema_id
@@ -199,11 +206,17 @@ class RecordingWriter:
     ) -> None:
         """Append one message; ``jsonable``: ``data`` is already :func:`to_jsonable`'s output
         (the recorder converts as it decodes, and a second walk would cost every message)."""
+        safe = data if jsonable else to_jsonable(data)
+        payload = json.dumps(safe, separators=(",", ":")).encode()
+        self.write_payload(topic, log_time_ns, payload, publish_time_ns)
+
+    def write_payload(
+        self, topic: str, log_time_ns: int, payload: bytes, publish_time_ns: int | None = None
+    ) -> None:
+        """Append one message already serialized as JSON (``payload``: UTF-8 bytes)."""
         ch = self.channel(topic)
         seq = self._seq[topic]
         self._seq[topic] = seq + 1
-        safe = data if jsonable else to_jsonable(data)
-        payload = json.dumps(safe, separators=(",", ":")).encode()
         self._writer.add_message(
             channel_id=ch,
             log_time=int(log_time_ns),
@@ -241,12 +254,13 @@ class RecordingWriter:
     ) -> None:
         """:meth:`add_attachment` of a file's content, streamed from disk a block at a time.
 
-        Why: ``mcap``'s ``add_attachment`` builds the whole record in memory (the data copied
-        three times), so attaching an hour's hop logs (~1 GB) would need GBs at the end of a
-        run. The record written here is byte for byte the one ``add_attachment`` writes (same
-        fields, record CRC, data-section CRC, attachment index and statistics); it reaches into
-        the ``mcap`` Writer's private state to do so, and falls back to ``add_attachment``
-        when that state is not there (another ``mcap`` version).
+        Why not ``mcap``'s public ``Writer.add_attachment``: it takes one bytes object and
+        builds the whole record in a BytesIO (the data held three times), so an hour's hop logs
+        (~1 GB) would need GBs, and ``mcap`` has no public call that streams an attachment.
+        The record written here is byte for byte the one ``add_attachment`` writes (fields,
+        CRCs, attachment index, statistics; tests/test_long_run_parts.py compares the files)
+        through the Writer's private (name-mangled) state, and the public ``add_attachment``
+        is used whenever that state is not there (another ``mcap`` version).
         """
 
         now = time.time_ns() if time_ns is None else int(time_ns)
@@ -426,8 +440,9 @@ def rewrite_complete(
             ):
                 m = pending[counts["restored"]]
                 if m.topic not in by_topic:
-                    schema = w.register_schema(m.topic.replace("/", "."), "jsonschema",
-                                               json.dumps(GENERIC_SCHEMA).encode())  # fmt: skip
+                    typed = schema_for_topic(m.topic)
+                    schema = w.register_schema(schema_name(m.topic, typed), "jsonschema",
+                                               json.dumps(typed).encode())  # fmt: skip
                     by_topic[m.topic] = w.register_channel(m.topic, "json", schema)
                 data = json.dumps(to_jsonable(m.data), separators=(",", ":")).encode()
                 w.add_message(by_topic[m.topic], m.log_time_ns, data, m.publish_time_ns,
@@ -565,3 +580,26 @@ def _chunk_records(chunk: bytes, compression: str, size: int) -> bytes:
     if compression == "":
         return data
     raise ValueError(f"unsupported chunk compression {compression!r}")
+
+
+def write_pose(writer: RecordingWriter, state_topic: str, log_time_ns: int, state: Any) -> None:
+    """The State's pose beside it, as Foxglove's well-known schemas: ``hil/<id>/pose``
+    (foxglove.PoseInFrame) and ``hil/<id>/tf`` (foxglove.FrameTransform world -> <id>), so
+    Foxglove's 3D panel shows the robot from the recording alone.
+
+    The JSON is formatted here rather than built as dicts and dumped: the recorder writes these
+    two for every State (a decoded State's floats are finite, so ``repr`` is valid JSON), and
+    json.dumps of two nested dicts tripled the recorder's cost of a State."""
+    base = state_topic.rsplit("/", 1)[0]
+    t = state.sample_time_ns
+    sec, nsec = divmod(t, 1_000_000_000)
+    half = 0.5 * state.theta
+    stamp = f'{{"sec":{sec},"nsec":{nsec}}}'
+    xyz = f'{{"x":{state.x!r},"y":{state.y!r},"z":0.0}}'
+    quat = f'{{"x":0.0,"y":0.0,"z":{math.sin(half)!r},"w":{math.cos(half)!r}}}'
+    pose = (f'{{"timestamp":{stamp},"frame_id":"{WORLD_FRAME}",'
+            f'"pose":{{"position":{xyz},"orientation":{quat}}}}}')  # fmt: skip
+    writer.write_payload(f"{base}/{POSE}", log_time_ns, pose.encode(), t)
+    tf = (f'{{"timestamp":{stamp},"parent_frame_id":"{WORLD_FRAME}","child_frame_id":'
+          f'{json.dumps(state.robot_id)},"translation":{xyz},"rotation":{quat}}}')  # fmt: skip
+    writer.write_payload(f"{base}/{TF}", log_time_ns, tf.encode(), t)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -97,6 +97,19 @@ DurationOpt = Annotated[
 ]
 SchedulingOpt = Annotated[str | None, typer.Option(help="fifo or other (default: the scenario's).")]
 OutOpt = Annotated[Path | None, typer.Option(help="Also write summary.json in this folder.")]
+LiveOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--live",
+        metavar="[PORT]",
+        help="Serve the drives' frames (and State, with --state-rate) live over the Foxglove "
+        "WebSocket protocol on this port (bare --live: 8765), from a process of its own "
+        "(docs/live.md).",
+    ),
+]
+LiveHostOpt = Annotated[
+    str, typer.Option(help="Address the live view binds to (not loopback: a warning).")
+]
 
 
 def register(app: typer.Typer) -> None:
@@ -120,11 +133,13 @@ def register(app: typer.Typer) -> None:
         duration: DurationOpt = None,
         scheduling: SchedulingOpt = None,
         out: OutOpt = None,
+        live: LiveOpt = None,
+        live_host: LiveHostOpt = "127.0.0.1",
     ) -> None:
         """Run the robot with its two virtual ODrives (CANSimple 0.6) on a CAN bus for any
         ODrive client, free running (no start gate), until Ctrl-C or SIGTERM: one status line
         a second, a JSON summary at the end (docs/can.md)."""
-        from hil.run.drives import DrivesOptions, run_drives
+        from hil.run.drives import DrivesOptions
 
         if scheduling not in (None, "fifo", "other"):
             raise BadInputError("--scheduling must be fifo or other")
@@ -150,9 +165,29 @@ def register(app: typer.Typer) -> None:
         )
         import can
 
+        from hil.live.launch import check
+
+        check(live, live_host)
         try:
-            code = run_drives(opts)
+            code = _run_watched(opts, live, live_host)
         except (ValueError, OSError, can.CanError) as exc:  # a refused bus or configuration
             raise BadInputError(str(exc)) from exc
         if code:
             raise typer.Exit(code)
+
+
+def _run_watched(opts: Any, live: int | None, live_host: str) -> int:
+    """:func:`hil.run.drives.run_drives`, with the live view's process around it if asked."""
+    from hil.run.drives import drives_settings, run_drives
+
+    if live is None:
+        return run_drives(opts)
+    from hil.live.launch import DrivesLive
+
+    settings = drives_settings(opts)
+    settings.zenoh_endpoint = opts.zenoh_endpoint  # where the drives publish State, Status
+    watcher = DrivesLive(settings, live, live_host)
+    try:
+        return run_drives(opts)
+    finally:
+        watcher.close()

@@ -59,6 +59,22 @@ ControllerHostOpt = Annotated[
 RobotIdOpt = Annotated[
     str | None, typer.Option(help="The robot's id (its keys hil/ID/...) instead of the scenario's.")
 ]
+LiveOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--live",
+        metavar="[PORT]",
+        help="Serve the run live over the Foxglove WebSocket protocol on this port (bare "
+        "--live: 8765; 0: any free port), from a process of its own (docs/live.md).",
+    ),
+]
+LiveHostOpt = Annotated[
+    str,
+    typer.Option(
+        help="Address the live view binds to. Anything but loopback exposes the run's data "
+        "to whoever reaches it (no login, no TLS): a warning says so."
+    ),
+]
 StrictOpt = Annotated[
     bool,
     typer.Option(
@@ -112,6 +128,8 @@ def register(app: typer.Typer) -> None:
         plant_host: PlantHostOpt = None,
         controller_host: ControllerHostOpt = None,
         robot_id: RobotIdOpt = None,
+        live: LiveOpt = None,
+        live_host: LiveHostOpt = "127.0.0.1",
     ) -> None:
         """Run the controller against the emulated robot over Zenoh and CAN and record it."""
         from hil.run.orchestrate import RunOptions, execute
@@ -136,6 +154,8 @@ def register(app: typer.Typer) -> None:
                 plant_host=plant_host,
                 controller_host=controller_host,
                 robot_id=robot_id,
+                live_port=live,
+                live_host=live_host,
             )
         )
         brief = _brief(summary, cmd_path)

@@ -83,6 +83,17 @@ WorstOpt = Annotated[
         "(2) first (hil.adversary) instead of the scenario's own.",
     ),
 ]
+WorkersOpt = Annotated[int | None, typer.Option(help="Run the grid's chunks on N local processes.")]
+SchedulerOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="Run the grid's chunks on a Dask cluster, tcp://HOST:PORT of its scheduler "
+        "(pip install 'hil-smc-bench[cluster]'; docs/reports.md)."
+    ),
+]
+ChunkSizeOpt = Annotated[
+    int | None, typer.Option(help="Grid points per chunk (default 64; same Ts in a chunk).")
+]
 
 
 def register(app: typer.Typer) -> None:
@@ -98,16 +109,33 @@ def register(app: typer.Typer) -> None:
         strict: StrictOpt = False,
         law: LawOpt = None,
         worst_disturbance: WorstOpt = False,
+        workers: WorkersOpt = None,
+        scheduler: SchedulerOpt = None,
+        chunk_size: ChunkSizeOpt = None,
     ) -> None:
         """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
+        from hil.sweep import cluster
+
         scenario, grid, loop_s, latencies = _checked_sweep(
             scenario_file, out, ts, delay, jitter, seeds, duration, law
         )
+        chunked = cluster.wanted(workers, scheduler, chunk_size)
+        if chunked and worst_disturbance:
+            raise BadInputError("--worst-disturbance runs in this process only (no chunks yet)")
+        executor = cluster.open_executor(workers, scheduler, chunk_size) if chunked else None
         target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
         target.mkdir(parents=True, exist_ok=True)
         scenario = _with_replay_file(scenario, latencies, target)
         started = time.perf_counter()
-        outcome, resolved = _run_with_progress(scenario, grid, loop_s, target, worst_disturbance)
+        if executor is None:
+            outcome, resolved = _run_with_progress(
+                scenario, grid, loop_s, target, worst_disturbance
+            )
+            where: dict[str, Any] = {}
+        else:
+            outcome, resolved, where = cluster.run_with_executor(
+                scenario, grid, loop_s, target, executor, chunk_size
+            )
         elapsed = time.perf_counter() - started
         from hil.sweep.outputs import write_outputs
         from hil.sweep.page import write_sweep_page
@@ -125,6 +153,7 @@ def register(app: typer.Typer) -> None:
             "certificate": certified_break(scenario, grid),
             "disturbance": "worst searched" if worst_disturbance else "the scenario's",
             "provenance": resolved.get("provenance", {}),
+            **where,
         }
         # A second Ctrl-C while the results are written would leave them half-written.
         with interrupts.shielded():

@@ -37,9 +37,11 @@ from hil.folder import layout, new_run_dir
 from hil.lab import placement
 from hil.lab.placement import TOPOLOGY_FILE, child_argv
 from hil.law.option import with_law
+from hil.live.launch import check as live_check
+from hil.live.launch import start_for_run
 from hil.measure.logs import HOST_FILE
 from hil.provenance import dumps_toml
-from hil.recording import RecordingWriter, to_jsonable
+from hil.recording import RecordingWriter, to_jsonable, write_pose
 from hil.run import impair
 from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
 from hil.run.host_load import HostSampler
@@ -105,6 +107,8 @@ class RunOptions:
     scheduling: str | None = None
     quiet: bool = False
     secure: bool = False  # router with authentication and access control (hil.run.secure)
+    live_port: int | None = None  # serve the run live (hil.live) on this port; None: no
+    live_host: str = "127.0.0.1"
     law: str | None = None  # --law: the [controller] law instead of the scenario's
     lab: str | None = None  # run on a lab's hosts (hil.lab.placement)
     plant_host: str | None = None
@@ -151,8 +155,9 @@ class Recorder:
             return
         try:
             m = decode(payload)
-        except DecodeError as exc:
-            self.writer.write(topic, t, {"rejected": exc.reason, "raw": payload})
+        except DecodeError as exc:  # its own channel: each topic's messages fit its schema
+            rejected = {"topic": topic, "reason": exc.reason, "raw": payload.hex()}
+            self.writer.write("recorder/rejected", t, rejected, jsonable=True)
             return
         d = to_jsonable(m)  # one walk; asdict first made a deep copy for nothing
         d["type"] = type(m).__name__
@@ -160,6 +165,7 @@ class Recorder:
         self.writer.write(topic, t, d, publish_time_ns=publish, jsonable=True)
         if topic.endswith("/state"):
             self.states += 1
+            write_pose(self.writer, topic, t, m)
         if isinstance(m, Status):
             self.statuses[m.role] = m
 
@@ -227,6 +233,9 @@ def check_options(opts: RunOptions) -> None:
     options.out_dir("--out", opts.out, default="runs")
     if opts.robot_id is not None and not is_valid_robot_id(opts.robot_id):
         raise BadInputError(f"--robot-id {opts.robot_id!r}: 1-64 characters of [A-Za-z0-9_.-]")
+    live_check(opts.live_port, opts.live_host)
+    if opts.live_port is not None and opts.secure:
+        raise BadInputError("--live does not log in to a --secure run's router")
 
 
 def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
@@ -479,6 +488,8 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             # The run's own robot only: a fleet's robots may share the routers.
             live.sub = live.session.declare_subscriber(robot_keys(settings), recorder.on_zenoh)
             live.can_rec = _can_recorder(settings, recorder)
+            if opts.live_port is not None:  # its own process: no cycle of the recorder's
+                start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs)
             _start_services(sup, run_dir, ids, logs, host, placed)
             error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
             interrupted = bool(stop)
@@ -630,7 +641,7 @@ def _progress(
 def _stop_children(sup: Supervisor, settings: RunSettings) -> dict[str, int | None]:
     codes: dict[str, int | None] = {}
     # The plant ends by itself at the run's end; the controller is stopped next, then the rest.
-    for name in ("plant", "controller", "router"):
+    for name in ("plant", "controller", "router", "live"):
         for c in sup.children:
             if c.name != name:
                 continue

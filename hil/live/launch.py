@@ -1,0 +1,137 @@
+"""Starting the live view's process for ``hil run --live`` and ``hil drives --live``.
+
+``--live [PORT]``: the port is optional on the command line (default :data:`DEFAULT_PORT`,
+Foxglove's own); :func:`expand_live_flag` gives a bare ``--live`` its default before the
+command line is parsed. ``--live-host`` binds elsewhere than loopback, with a warning: the
+server has no login and no TLS, so anyone who reaches the port sees the run.
+"""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from hil import options
+from hil.errors import BadInputError
+from hil.supervisor import Supervisor
+
+DEFAULT_PORT = 8765
+DEFAULT_HOST = "127.0.0.1"
+START_TIMEOUT_S = 30.0
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+def expand_live_flag(argv: Sequence[str]) -> list[str]:
+    """``argv`` with each bare ``--live`` (not followed by a port number) as
+    ``--live=DEFAULT_PORT``."""
+    out = list(argv)
+    for i, arg in enumerate(out):
+        if arg == "--":
+            break
+        if arg == "--live" and not (i + 1 < len(out) and out[i + 1].isdigit()):
+            out[i] = f"--live={DEFAULT_PORT}"
+    return out
+
+
+def check(port: int | None, host: str) -> None:
+    """The live options, each named in a BadInputError; a warning for a non-loopback host."""
+    if port is None:
+        return
+    options.integer("--live", port, 0, 65535)
+    options.plain_string("--live-host", host, empty=False)
+    _check_free(host, port)
+    if host not in LOOPBACK:
+        print(
+            f"warning: --live-host {host}: the live view serves the run's data (pose, "
+            "commands, CAN frames, timing) to anyone who can reach that address; it has no "
+            "login and no TLS",
+            file=sys.stderr,
+        )
+
+
+def _check_free(host: str, port: int) -> None:
+    """BadInputError now if ``host:port`` cannot be bound (in use, not an address of this
+    machine), before any folder or process: the view's own bind would fail later."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except OSError as exc:
+        raise BadInputError(f"--live-host {host}: {exc}") from exc
+    family, _, _, _, addr = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(addr)
+        except OSError as exc:
+            raise BadInputError(f"--live {port} on {host}: {exc.strerror or exc}") from exc
+
+
+def argv_for(settings_path: Path, port: int, host: str, resolved: Path | None,
+             zenoh_mode: str) -> list[str]:  # fmt: skip
+    """The live process's arguments after the interpreter."""
+    argv = ["-m", "hil.live", str(settings_path), "--host", host, "--port", str(port)]
+    argv += ["--zenoh-mode", zenoh_mode]
+    argv += ["--resolved", str(resolved)] if resolved is not None else ["--no-reference"]
+    return argv
+
+
+def wait_url(log: Path, alive: Any, timeout: float = START_TIMEOUT_S) -> str:
+    """The ``ws://`` address the live process printed in ``log`` once it listens;
+    BadInputError if it exits first (a port in use) or stays silent ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        text = log.read_text(errors="replace") if log.exists() else ""
+        for line in text.splitlines():
+            if line.startswith("live: ws://"):
+                return line.split(" ", 1)[1]
+        if not alive():
+            tail = text.strip().splitlines()[-3:]
+            raise BadInputError("the live view did not start: " + " / ".join(tail))
+        time.sleep(0.05)
+    raise BadInputError(f"the live view did not start within {timeout:g} s ({log})")
+
+
+def announce(url: str) -> None:
+    print(
+        f"live view: {url} (Foxglove or Lichtblick: Open connection > Foxglove WebSocket; "
+        "layout docs/live-layout.json)",
+        file=sys.stderr,
+    )
+
+
+def start_for_run(sup: Any, run_dir: Path, port: int, host: str, logs: Any) -> str:
+    """The live process of ``hil run`` (a supervised child, stopped with the others)."""
+    argv = argv_for(run_dir / "run_settings.json", port, host,
+                    run_dir / "scenario.resolved.toml", "client")  # fmt: skip
+    child = sup.start_python("live", argv, stdout=logs.open("live"), stderr=subprocess.STDOUT)
+    url = wait_url(run_dir / "live.log", child.alive)
+    announce(url)
+    return url
+
+
+class DrivesLive:
+    """The live process of ``hil drives`` (settings in a temporary folder), stopped by PID."""
+
+    def __init__(self, settings: Any, port: int, host: str) -> None:
+        self._dir = tempfile.TemporaryDirectory(prefix="hil-live-")
+        folder = Path(self._dir.name)
+        settings.save(folder / "run_settings.json")
+        self._sup = Supervisor()
+        argv = argv_for(folder / "run_settings.json", port, host, None, "client")
+        self._log = (folder / "live.log").open("wb")
+        child = self._sup.start_python("live", argv, stdout=self._log, stderr=subprocess.STDOUT)
+        try:
+            announce(wait_url(folder / "live.log", child.alive))
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        self._sup.stop_all(grace=5.0)
+        self._log.close()
+        self._dir.cleanup()

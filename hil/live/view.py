@@ -1,0 +1,149 @@
+"""The live view's Foxglove WebSocket server and what it publishes (foxglove-sdk).
+
+Channels (JSON, each with its schema from :mod:`hil.schemas`, the recording's own):
+
+- ``hil/<id>/state``, ``.../cmd/torque``, ``.../telemetry``, ``.../status``: the protocol's
+  messages as the recording mirrors them;
+- ``hil/<id>/pose`` (``foxglove.PoseInFrame``), ``hil/<id>/tf`` (``foxglove.FrameTransform``
+  world -> <id>) and ``hil/<id>/reference`` (``foxglove.PoseInFrame`` of the reference at the
+  State's sample time, once the run's epoch is known) for the 3D panel;
+- ``can/<channel>``: the drives' frames, decoded as the recording decodes them;
+- ``hil/<id>/live/timing`` (``hil.LiveTiming``): :mod:`hil.live.timing`'s figures once a second.
+
+Log time of every message: the sender's stamp where it has one (State sample time, command send
+time), so Foxglove's plots share one clock (the host's ``CLOCK_MONOTONIC``).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from typing import Any
+
+import foxglove
+
+from hil import schemas
+from hil.live.timing import Bounds, LiveTiming
+from hil.recording import to_jsonable
+from protocol.can.codec import decode as can_decode
+from protocol.can.drive_link import from_message
+from protocol.messages import State, Status, Telemetry, TorqueCommand
+
+ReferenceFn = Callable[[float], tuple[float, float, float]]  # t (s) -> (x, y, theta)
+
+
+class LiveView:
+    """Publishes decoded messages on a Foxglove WebSocket server (started here)."""
+
+    def __init__(
+        self,
+        robot_id: str,
+        bounds: Bounds,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        reference: ReferenceFn | None = None,
+        name: str = "hil-smc-bench",
+    ) -> None:
+        self.robot_id = robot_id
+        self.timing = LiveTiming(bounds)
+        self.reference = reference
+        self.epoch_ns: int | None = None
+        self._foxglove = foxglove
+        self.context = foxglove.Context()
+        self._channels: dict[str, Any] = {}
+        self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
+        self.port = int(self.server.port)
+        self.host = host
+        self.published = 0
+        base = f"hil/{robot_id}"
+        for suffix in ("state", "cmd/torque", "telemetry", "status", schemas.POSE, schemas.TF,
+                       schemas.REFERENCE, schemas.TIMING):  # fmt: skip
+            self.channel(f"{base}/{suffix}")  # advertised from the start, also when idle
+
+    def channel(self, topic: str) -> Any:
+        ch = self._channels.get(topic)
+        if ch is None:
+            ch = self._foxglove.Channel(
+                topic, schema=self._schema(topic), message_encoding="json", context=self.context
+            )
+            self._channels[topic] = ch
+        return ch
+
+    def _schema(self, topic: str) -> Any:
+        doc = schemas.schema_for_topic(topic)
+        return self._foxglove.Schema(
+            name=schemas.schema_name(topic, doc),
+            encoding="jsonschema",
+            data=json.dumps(doc).encode(),
+        )
+
+    def _log(self, topic: str, data: dict[str, Any], log_time: int) -> None:
+        ch = self.channel(topic)
+        if ch.has_sinks():  # nobody subscribed: no JSON to build
+            ch.log(data, log_time=int(log_time))
+            self.published += 1
+
+    def on_message(self, topic: str, msg: Any, recv_ns: int) -> None:
+        """One decoded protocol message received on ``topic``."""
+        if isinstance(msg, State):
+            self.timing.on_state(msg, recv_ns)
+            self._log(topic, _mirror(msg), msg.sample_time_ns)
+            self._pose(topic.rsplit("/", 1)[0], msg)
+        elif isinstance(msg, TorqueCommand):
+            self.timing.on_command(msg, recv_ns)
+            self._log(topic, _mirror(msg), msg.send_time_ns)
+        elif isinstance(msg, Status):
+            self.timing.on_status(msg)
+            if self.epoch_ns is None and int(msg.counters.get("epoch_ns", 0)) > 0:
+                self.epoch_ns = int(msg.counters["epoch_ns"])
+            self._log(topic, _mirror(msg), msg.time_ns)
+        elif isinstance(msg, Telemetry):
+            self._log(topic, _mirror(msg), msg.time_ns)
+
+    def _pose(self, base: str, st: State) -> None:
+        t = st.sample_time_ns
+        self._log(f"{base}/{schemas.POSE}", schemas.pose_in_frame(t, st.x, st.y, st.theta), t)
+        tf = schemas.frame_transform(t, st.robot_id, st.x, st.y, st.theta)
+        self._log(f"{base}/{schemas.TF}", tf, t)
+        if self.reference is not None and self.epoch_ns is not None:
+            x, y, th = self.reference((t - self.epoch_ns) / 1e9)
+            self._log(f"{base}/{schemas.REFERENCE}", schemas.pose_in_frame(t, x, y, th), t)
+
+    def on_can(self, channel: str, frame: dict[str, Any], recv_ns: int) -> None:
+        """One CAN frame as the recorder's JSON (:func:`can_frame_record`)."""
+        self._log(f"can/{channel}", frame, recv_ns)
+
+    def tick(self, now_ns: int | None = None, backlog: int = 0) -> dict[str, Any]:
+        """Publish the timing figures (call once a second); returns them."""
+        now = time.monotonic_ns() if now_ns is None else now_ns
+        snap = self.timing.snapshot(now, backlog)
+        self._log(f"hil/{self.robot_id}/{schemas.TIMING}", snap, now)
+        return snap
+
+    def close(self) -> None:
+        """Stop the server: every client sees its connection closed."""
+        self.server.stop()
+
+
+def _mirror(msg: Any) -> dict[str, Any]:
+    d = to_jsonable(msg)
+    d["type"] = type(msg).__name__
+    return d
+
+
+def can_frame_record(msg: Any) -> dict[str, Any]:
+    """A python-can message as the recorder writes it (schema ``hil.CanFrame``)."""
+    data: dict[str, Any] = {
+        "arbitration_id": msg.arbitration_id,
+        "data": bytes(msg.data).hex(),
+        "dlc": msg.dlc,
+        "is_remote_frame": bool(msg.is_remote_frame),
+    }
+    try:
+        m = can_decode(from_message(msg))
+        data["message"] = type(m).__name__
+        data["fields"] = to_jsonable(m)
+    except Exception as exc:  # a frame the codec refuses is still shown, with why
+        data["decode_error"] = str(exc)
+    return data

@@ -1,0 +1,156 @@
+"""The live view's own process: ``python -m hil.live SETTINGS.json --port P [--host H] ...``.
+
+Why a process of its own: ``hil drives`` runs its real-time loop in its own process, and
+``hil run``'s recorder must keep its pace; here decoding and serving cost neither of them a
+cycle (only the Zenoh router side of the run forwards the messages to one more client). It
+subscribes to ``hil/**`` on the run's Zenoh endpoint and listens to the run's CAN bus (both
+read-only), and serves :class:`hil.live.view.LiveView` until SIGINT or SIGTERM, then closes
+the server (every client sees the close). It prints one line ``live: ws://HOST:PORT`` on
+stdout once the server listens.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import contextlib
+import os
+import sys
+import time
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import can
+
+from controller_service.certificate import critical_age
+from controller_service.references import build_reference
+from hil.live.timing import Bounds
+from hil.live.view import LiveView, can_frame_record
+from hil.measure.folder import bound_inputs
+from protocol.messages import DecodeError, decode
+from protocol.settings import RunSettings
+from runtime.signals import stop_on_signals
+from runtime.zsession import open_session, payload_bytes
+
+QUEUE_MAX = 200_000  # messages; past it the oldest are dropped (a live view may skip)
+NICENESS = 10
+
+
+def bounds_of(settings: RunSettings, resolved: Path | None) -> Bounds:
+    """D* from the resolved scenario as the run's summary computes it (None: no certificate),
+    Ts and the limits (2) from the settings."""
+    d_star = None
+    if resolved is not None and resolved.is_file():
+        try:
+            b = bound_inputs(tomllib.loads(resolved.read_text()))
+            if b is not None:
+                d_star = critical_age(b.params, b.context, b.boundary_layer, v0=b.v0, w0=b.w0)
+        except Exception as exc:  # a design the certificate refuses: no D*, still a view
+            print(f"live: no D* ({exc})", file=sys.stderr)
+    lim = settings.limits
+    return Bounds(d_star, float(settings.ts), float(lim["phi1"]), float(lim["phi2"]))
+
+
+def reference_of(settings: RunSettings) -> Any:
+    """t -> (xd, yd, thetad) of the run's reference (None when it cannot be built)."""
+    try:
+        ref = build_reference(settings.reference, Path(settings.base_dir))
+    except Exception:
+        return None
+
+    def pose(t: float) -> tuple[float, float, float]:
+        s = ref.sample(max(0.0, t))
+        return float(s.xd), float(s.yd), float(s.thetad)
+
+    return pose
+
+
+def _open_inputs(settings: RunSettings, zenoh_mode: str, q: collections.deque) -> list[Any]:
+    """The Zenoh subscription and the CAN listener, feeding ``q``; what to close, in order."""
+    opened: list[Any] = []
+    try:
+        session = open_session(settings.zenoh_endpoint, mode=zenoh_mode, credentials=None)
+    except Exception as exc:  # hil drives without a Zenoh peer: the view shows the CAN side
+        print(f"live: Zenoh messages not shown: {exc}", file=sys.stderr)
+    else:
+        sub = session.declare_subscriber(
+            "hil/**", lambda s: q.append((str(s.key_expr), time.monotonic_ns(), payload_bytes(s)))
+        )
+        opened[:0] = [sub, session]
+    settings.can_live = True
+    try:
+        bus = settings.open_can_bus()
+    except Exception as exc:  # the view still shows the Zenoh side
+        print(f"live: CAN frames not shown: {exc}", file=sys.stderr)
+        bus = None
+    if bus is not None:
+        channel = str(settings.can.get("channel", "can"))
+        notifier = can.Notifier(
+            bus, [lambda m: q.append((f"can/{channel}", time.monotonic_ns(), m))], timeout=0.1
+        )
+        opened[:0] = [notifier, bus]
+    return opened
+
+
+def _close(opened: list[Any]) -> None:
+    for thing in opened:
+        with contextlib.suppress(Exception):  # closing what is already gone is fine here
+            for name in ("undeclare", "stop", "shutdown", "close"):
+                if hasattr(thing, name):
+                    getattr(thing, name)()
+                    break
+
+
+def _drain(view: Any, q: collections.deque) -> int:
+    n = 0
+    while q:
+        topic, t, payload = q.popleft()
+        n += 1
+        if topic.startswith("can/"):
+            view.on_can(topic[4:], can_frame_record(payload), t)
+            continue
+        try:
+            view.on_message(topic, decode(payload), t)
+        except DecodeError:
+            continue  # the recording keeps rejected payloads; the view shows messages
+    return n
+
+
+def serve(args: argparse.Namespace) -> int:
+    """Serve until a signal; the exit code."""
+    # Below the run's processes on the CPU: when the view and a service want the same core,
+    # the service gets it (the view only falls behind, which its timing message shows).
+    os.nice(NICENESS)
+    settings = RunSettings.load(args.settings)
+    bounds = bounds_of(settings, args.resolved)
+    reference = None if args.no_reference else reference_of(settings)
+    q: collections.deque = collections.deque(maxlen=QUEUE_MAX)
+    with stop_on_signals() as stop:
+        view = LiveView(settings.robot_id, bounds, args.host, args.port, reference)
+        opened: list[Any] = []
+        try:
+            opened = _open_inputs(settings, args.zenoh_mode, q)
+            print(f"live: ws://{args.host}:{view.port}", flush=True)
+            next_tick = time.monotonic() + 1.0
+            while not stop:
+                if not _drain(view, q):
+                    time.sleep(0.005)
+                if time.monotonic() >= next_tick:
+                    view.tick(backlog=len(q))
+                    next_tick += 1.0
+        finally:
+            _close(opened)
+            view.close()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m hil.live", description=__doc__)
+    p.add_argument("settings", type=Path, help="the run's run_settings.json")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=8765)
+    p.add_argument("--resolved", type=Path, default=None, help="scenario.resolved.toml: D*")
+    p.add_argument("--zenoh-mode", default="client", choices=("client", "peer"))
+    p.add_argument("--no-reference", action="store_true", help="no reference pose (drives)")
+    return serve(p.parse_args(argv))

@@ -1,0 +1,329 @@
+"""JSON Schemas of everything ``hil`` records or serves live, derived from the definitions.
+
+One place for both the MCAP recording (:mod:`hil.recording`) and the live view
+(:mod:`hil.live`): each protocol message's schema is built from ``protocol.messages.SPECS``
+(field order, kind and range), each CAN frame's from the CANSimple dataclasses of
+``protocol.can.codec``, so a field added to the protocol is typed here without an edit. The
+robot's pose uses Foxglove's well-known ``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``
+(JSON profile of the published schemas), which Foxglove's 3D panel draws.
+
+A record is the recorder's JSON mirror of a decoded message: the dataclass's fields, the
+class's ``TAG`` and ``type`` (the class name). Every property is typed and required, no other
+property is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import fields
+from typing import Any
+
+from protocol import messages as pm
+from protocol.can import codec
+from protocol.keys import ROBOT_ID_RE
+
+GENERIC: dict[str, Any] = {"type": "object", "additionalProperties": True}
+
+_KIND_SCHEMA = {
+    pm._ROBOT_ID: {"type": "string", "pattern": f"^{ROBOT_ID_RE.pattern}$"},
+    pm._NAME: {"type": "string", "pattern": f"^{pm._NAME_RE.pattern}$"},
+    pm._LAW: {"type": "string", "pattern": f"^{pm._LAW_RE.pattern}$"},
+}
+
+
+def _field_schema(kind: int, lo: float, hi: float) -> dict[str, Any]:
+    if kind == pm._INT:
+        return {"type": "integer", "minimum": int(lo), "maximum": int(hi)}
+    if kind == pm._FLOAT:
+        return {"type": "number", "minimum": lo, "maximum": hi}
+    if kind == pm._COUNTERS:
+        return {
+            "type": "object",
+            "maxProperties": pm.MAX_COUNTERS,
+            "propertyNames": {"pattern": f"^{pm._NAME_RE.pattern}$"},
+            "additionalProperties": {"type": "integer", "minimum": 0, "maximum": int(hi)},
+        }
+    return dict(_KIND_SCHEMA[kind])
+
+
+def message_schema(cls: type) -> dict[str, Any]:
+    """The schema of the recorder's JSON of one protocol message class (``SPECS[cls]``)."""
+    props: dict[str, Any] = {
+        "TAG": {"type": "integer", "const": cls.TAG},  # type: ignore[attr-defined]
+        "type": {"type": "string", "const": cls.__name__},
+    }
+    for name, kind, lo, hi in pm.SPECS[cls]:
+        props[name] = _field_schema(kind, lo, hi)
+    return _object(f"hil.{cls.__name__}", props, cls.__doc__)
+
+
+def _object(title: str, props: dict[str, Any], doc: str | None = None) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": title,
+        "type": "object",
+        "properties": props,
+        "required": list(props),
+        "additionalProperties": False,
+    }
+    if doc:
+        out["description"] = " ".join(doc.split())
+    return out
+
+
+MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {cls.__name__: message_schema(cls) for cls in pm.SPECS}
+
+# A float signal decoded from the wire may be NaN or infinite: the recorder writes those as
+# the strings hil.recording.to_jsonable gives (JSON has no NaN).
+_NON_FINITE = [repr(math.nan), repr(math.inf), repr(-math.inf)]
+_CAN_TYPES: dict[str, dict[str, Any]] = {
+    "int": {"type": "integer"},
+    "Cmd": {"type": "integer", "minimum": 0, "maximum": 0x1F},
+    "bool": {"type": "boolean"},
+    "float": {"anyOf": [{"type": "number"}, {"type": "string", "enum": _NON_FINITE}]},
+}
+
+
+def _can_classes() -> list[type]:
+    out: list[type] = []
+    todo = list(codec.Message.__subclasses__())
+    while todo:
+        cls = todo.pop(0)
+        out.append(cls)
+        todo.extend(cls.__subclasses__())
+    return out
+
+
+def can_frame_schema() -> dict[str, Any]:
+    """A CAN frame as the recorder writes it: the raw frame, and either the CANSimple message
+    it decodes to (``message``: the class name, ``fields``: its signals, each typed from the
+    class) or ``decode_error``."""
+    signals: dict[str, dict[str, Any]] = {}
+    names = []
+    for cls in _can_classes():
+        names.append(cls.__name__)
+        for f in fields(cls):
+            typed = _CAN_TYPES.get(str(f.type))
+            if typed is None:
+                raise TypeError(f"{cls.__name__}.{f.name}: no JSON type for {f.type!r}")
+            if signals.setdefault(f.name, typed) != typed:
+                raise TypeError(f"CAN field {f.name} has two types across messages")
+    frame = _object(
+        "hil.CanFrame",
+        {
+            "arbitration_id": {"type": "integer", "minimum": 0, "maximum": 0x1FFFFFFF},
+            "data": {"type": "string", "pattern": "^([0-9a-f]{2}){0,64}$"},
+            "dlc": {"type": "integer", "minimum": 0, "maximum": 64},
+            "is_remote_frame": {"type": "boolean"},
+            "message": {"type": "string", "enum": sorted(names)},
+            "fields": {
+                "type": "object",
+                "properties": signals,
+                "required": ["node"],
+                "additionalProperties": False,
+            },
+            "decode_error": {"type": "string"},
+        },
+        "A CAN frame and what the CANSimple codec decodes it to.",
+    )
+    frame["required"] = ["arbitration_id", "data", "dlc", "is_remote_frame"]
+    frame["oneOf"] = [{"required": ["message", "fields"]}, {"required": ["decode_error"]}]
+    return frame
+
+
+RECORDER_ERROR = _object(
+    "hil.RecorderError",
+    {"topic": {"type": "string"}, "error": {"type": "string"}},
+    "A message the recorder failed to write (the run goes on).",
+)
+REJECTED = _object(
+    "hil.Rejected",
+    {
+        "topic": {"type": "string"},
+        "reason": {"type": "string", "pattern": "^[a-z_]+$"},
+        "raw": {"type": "string", "pattern": "^([0-9a-f]{2})*$"},
+    },
+    "A payload the protocol's decoder refused (reason: protocol.messages.DecodeError), as hex.",
+)
+
+# Foxglove's well-known schemas (foxglove-sdk schemas/jsonschema), by their names: the 3D panel
+# recognises a channel by the schema name.
+_NUMBER = {"type": "number"}
+_TIME = {
+    "type": "object",
+    "title": "time",
+    "properties": {
+        "sec": {"type": "integer", "minimum": 0},
+        "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
+    },
+    "required": ["sec", "nsec"],
+    "additionalProperties": False,
+}
+
+
+def _xyz(title: str, keys: str) -> dict[str, Any]:
+    return {
+        "type": "object",
+        "title": title,
+        "properties": {k: _NUMBER for k in keys},
+        "required": list(keys),
+        "additionalProperties": False,
+    }
+
+
+_VECTOR3 = _xyz("foxglove.Vector3", "xyz")
+_QUATERNION = _xyz("foxglove.Quaternion", "xyzw")
+POSE_IN_FRAME = _object(
+    "foxglove.PoseInFrame",
+    {
+        "timestamp": _TIME,
+        "frame_id": {"type": "string"},
+        "pose": {
+            "type": "object",
+            "title": "foxglove.Pose",
+            "properties": {"position": _VECTOR3, "orientation": _QUATERNION},
+            "required": ["position", "orientation"],
+            "additionalProperties": False,
+        },
+    },
+    "A timestamped pose for an object or reference frame in 3D space",
+)
+FRAME_TRANSFORM = _object(
+    "foxglove.FrameTransform",
+    {
+        "timestamp": _TIME,
+        "parent_frame_id": {"type": "string"},
+        "child_frame_id": {"type": "string"},
+        "translation": _VECTOR3,
+        "rotation": _QUATERNION,
+    },
+    "A transform between two reference frames in 3D space",
+)
+WELL_KNOWN = {s["title"]: s for s in (POSE_IN_FRAME, FRAME_TRANSFORM)}
+
+WORLD_FRAME = "world"
+POSE = "pose"  # hil/<robot_id>/pose: foxglove.PoseInFrame of each State
+TF = "tf"  # hil/<robot_id>/tf: foxglove.FrameTransform world -> <robot_id>
+CAN_FRAME = can_frame_schema()
+
+_SUFFIX_SCHEMA = {
+    "state": MESSAGE_SCHEMAS["State"],
+    "cmd/torque": MESSAGE_SCHEMAS["TorqueCommand"],
+    "status": MESSAGE_SCHEMAS["Status"],
+    "telemetry": MESSAGE_SCHEMAS["Telemetry"],
+    POSE: POSE_IN_FRAME,
+    TF: FRAME_TRANSFORM,
+}
+_HIL_TOPIC = re.compile(rf"hil/{ROBOT_ID_RE.pattern}/(.+)")
+_FIXED = {"recorder/errors": RECORDER_ERROR, "recorder/rejected": REJECTED}
+
+
+def schema_for_topic(topic: str) -> dict[str, Any]:
+    """The schema of a recorded topic (:data:`GENERIC` for a topic nobody defined)."""
+    fixed = _FIXED.get(topic)
+    if fixed is not None:
+        return fixed
+    if topic.startswith("can/"):
+        return CAN_FRAME
+    m = _HIL_TOPIC.fullmatch(topic)
+    if m is not None:
+        return _SUFFIX_SCHEMA.get(m.group(1), GENERIC)
+    return GENERIC
+
+
+def schema_name(topic: str, schema: dict[str, Any]) -> str:
+    """The MCAP schema name: the schema's title (Foxglove matches well-known ones by it), or
+    the topic with dots for an untitled one."""
+    return str(schema.get("title") or topic.replace("/", "."))
+
+
+def _stamp(t_ns: int) -> dict[str, int]:
+    sec, nsec = divmod(int(t_ns), 1_000_000_000)
+    return {"sec": sec, "nsec": nsec}
+
+
+def _quaternion(theta: float) -> dict[str, float]:
+    return {"x": 0.0, "y": 0.0, "z": math.sin(theta / 2.0), "w": math.cos(theta / 2.0)}
+
+
+def pose_in_frame(t_ns: int, x: float, y: float, theta: float) -> dict[str, Any]:
+    """foxglove.PoseInFrame of a planar pose (x, y, heading theta) in the world frame."""
+    return {
+        "timestamp": _stamp(t_ns),
+        "frame_id": WORLD_FRAME,
+        "pose": {"position": {"x": x, "y": y, "z": 0.0}, "orientation": _quaternion(theta)},
+    }
+
+
+def frame_transform(t_ns: int, child: str, x: float, y: float, theta: float) -> dict[str, Any]:
+    """foxglove.FrameTransform world -> ``child`` of a planar pose."""
+    return {
+        "timestamp": _stamp(t_ns),
+        "parent_frame_id": WORLD_FRAME,
+        "child_frame_id": child,
+        "translation": {"x": x, "y": y, "z": 0.0},
+        "rotation": _quaternion(theta),
+    }
+
+
+def _num(description: str, minimum: float | None = None) -> dict[str, Any]:
+    out: dict[str, Any] = {"type": "number", "description": description}
+    if minimum is not None:
+        out["minimum"] = minimum
+    return out
+
+
+def _nullable(description: str) -> dict[str, Any]:
+    return {"type": ["number", "null"], "minimum": 0, "description": description}
+
+
+TIMING = "live/timing"  # hil/<robot_id>/live/timing: the live view's once-a-second figures
+LIVE_TIMING = _object(
+    "hil.LiveTiming",
+    {
+        "t_s": _num("seconds since the live view saw the first State", 0),
+        "states": {"type": "integer", "minimum": 0, "description": "States seen"},
+        "commands": {"type": "integer", "minimum": 0, "description": "TorqueCommands seen"},
+        "command_age_now_ms": _nullable(
+            "at the newest State: its sample time - the sample time of the newest command "
+            "seen before it (the command in force, as the live view saw it)"
+        ),
+        "command_age_max_ms": _nullable("the largest command_age_now_ms so far: live D"),
+        "d_star_ms": _nullable("D*: the largest command age the certificate allows"),
+        "age_margin_ms": {
+            "type": ["number", "null"],
+            "description": "D* - command_age_max_ms (negative: D > D* so far)",
+        },
+        "lateness_now_us": _nullable(
+            "the newest command's compute start - the previous one's - Ts, at least 0: how "
+            "late the controller's tick ran after its predecessor"
+        ),
+        "lateness_max_us": _nullable("the largest lateness_now_us so far"),
+        "deadline_misses": {
+            "type": ["integer", "null"],
+            "minimum": 0,
+            "description": "the controller's own count (its Status)",
+        },
+        "states_without_command": {
+            "type": "integer",
+            "minimum": 0,
+            "description": "States no command was computed from within 0.1 s of their arrival",
+        },
+        "max_abs_v": _num("largest |v| so far, m/s", 0),
+        "max_abs_omega": _num("largest |omega| so far, rad/s", 0),
+        "view_backlog": {
+            "type": "integer",
+            "minimum": 0,
+            "description": "messages the live view had received and not yet served (grows "
+            "when the view falls behind the run)",
+        },
+        "verdict": {"type": "string", "enum": ["PASS", "FAIL", "INCONCLUSIVE", "WAITING"]},
+        "reasons": {"type": "string", "description": "why, in one line ('' for PASS)"},
+    },
+    "The live view's timing figures, once a second: live estimates; summary.json holds the "
+    "run's measured figures (docs/realtime.md).",
+)
+REFERENCE = "reference"  # hil/<robot_id>/reference: foxglove.PoseInFrame of the reference
+_SUFFIX_SCHEMA[TIMING] = LIVE_TIMING
+_SUFFIX_SCHEMA[REFERENCE] = POSE_IN_FRAME
