@@ -51,7 +51,13 @@ def assert_negative_verdict_explained(summary: dict, stderr: str) -> None:
     assert any("certificate not held" in r for r in verdict["blocking"]), verdict
     if cert["d_max_s"] > cert["d_star_s"]:
         assert cert["d_system_s"] > cert["d_star_s"], cert
-        assert any(s["owner"] == "system" for s in cert["stalls"]), "D > D*, no system stall"
+        # Counted over every excursion (the list holds only the worst 20, which on a slow host,
+        # the QEMU guest, can all be the bench's own): a stall not the bench's, the system's or
+        # one whose cause the logs cannot tell, which the verdict holds against the system.
+        by_owner = cert.get("stalls_by_owner") or {}
+        owned = sum((by_owner.get(o) or {}).get("count", 0) for o in ("system", "unknown"))
+        listed = any(s["owner"] in ("system", "unknown") for s in cert["stalls"])
+        assert owned > 0 or listed, ("D > D*, no stall of the system", by_owner)
 
 
 def check_certified_bound(summary: dict, scenario_path: str) -> None:

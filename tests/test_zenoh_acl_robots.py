@@ -74,6 +74,17 @@ def test_robot2s_controller_is_refused_on_robot1s_keys_while_both_run(spawn, tmp
         # robot 2's controller asks for robot 1's state: it must be delivered none of it.
         with contextlib.suppress(Exception):  # a refused declaration may also raise
             s["controller.robot2"].declare_subscriber(keys.state_key("robot1"), counter("ctrl2"))
+        # A subscription reaches the router asynchronously: put on each allowed route until one
+        # sample arrives, so that what follows counts the rules, not the start-up.
+        for who, sess, key in (
+            ("plant1", "controller.robot1", keys.torque_key("robot1")),
+            ("plant2", "controller.robot2", keys.torque_key("robot2")),
+            ("ctrl1", "emulator.robot1", keys.state_key("robot1")),
+        ):
+            up = lambda who=who, sess=sess, key=key: (  # noqa: E731
+                s[sess].put(key, "route-up|0") or got[(who, "route-up")] > 0
+            )
+            assert wait_until(up, 20), (who, dict(got))
         # Both robots' loops at once; robot 2's controller also puts on robot 1's command key.
         for i in range(N):
             s["controller.robot2"].put(keys.torque_key("robot1"), f"ctrl2-forged|{i}")
