@@ -57,7 +57,10 @@ def assert_negative_verdict_explained(summary: dict, stderr: str) -> None:
         by_owner = cert.get("stalls_by_owner") or {}
         owned = sum((by_owner.get(o) or {}).get("count", 0) for o in ("system", "unknown"))
         listed = any(s["owner"] in ("system", "unknown") for s in cert["stalls"])
-        assert owned > 0 or listed, ("D > D*, no stall of the system", by_owner)
+        # Or no excursion at all (the stall threshold is max(3 Ts, D*/2): at 50 Hz, 60 ms): D
+        # above D* is then the system's own steady timing, its period and delays.
+        steady = not cert.get("stall_count") and cert["d_system_s"] == cert["d_max_s"]
+        assert owned > 0 or listed or steady, ("D > D*, no stall of the system", cert)
 
 
 def check_certified_bound(summary: dict, scenario_path: str) -> None:
