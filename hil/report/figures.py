@@ -239,6 +239,22 @@ def signal_with_limits(
     for label, y in series:
         ax.plot(td, y if idx is None else y[idx], linewidth=0.9, label=label)
         cols[label] = _data(y, idx)
+    _limits_and_axes(ax, cols, limit, bound, unit, title, fontsize=8)
+    fig.tight_layout()
+    return Figure(name, title, _png(fig), cols, _envelope_caption(np.size(t), idx))
+
+
+def _limits_and_axes(
+    ax: plt.Axes,
+    cols: dict[str, np.ndarray],
+    limit: float | None,
+    bound: float | None,
+    unit: str,
+    title: str,
+    fontsize: int,
+) -> None:
+    """The limit of (2) (red dashed) and the sampled-data bound (dotted) as ± lines, then the
+    axes' labels, grid, legend and title of a signal against time."""
     if limit is not None:
         ax.axhline(limit, label=f"limit ±{limit:g}", **LIMIT_STYLE)
         ax.axhline(-limit, **LIMIT_STYLE)
@@ -250,10 +266,8 @@ def signal_with_limits(
     ax.set_xlabel("t [s]")
     ax.set_ylabel(unit)
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
+    ax.legend(fontsize=fontsize, loc="upper right")
     ax.set_title(title)
-    fig.tight_layout()
-    return Figure(name, title, _png(fig), cols, _envelope_caption(np.size(t), idx))
 
 
 #: Time bins of a switching signal's band: each drawn as its min-max range and its mean.
@@ -292,15 +306,7 @@ def switching_band(
                         label=f"{label}: min-max per bin")  # fmt: skip
         ax.plot(mid, mean, color=color, linewidth=1.2, label=f"{label}: mean per bin")
         cols.update({f"{label}_min": lo, f"{label}_max": hi, f"{label}_mean": mean})
-    if limit is not None:
-        ax.axhline(limit, label=f"limit ±{limit:g}", **LIMIT_STYLE)
-        ax.axhline(-limit, **LIMIT_STYLE)
-        cols["limit"] = np.array([limit])
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel(unit)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, loc="upper right")
-    ax.set_title(title)
+    _limits_and_axes(ax, cols, limit, None, unit, title, fontsize=7)
     fig.tight_layout()
     width = (t[-1] - t[0]) / bins if t.size > 1 else 0.0
     caption = (
