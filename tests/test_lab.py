@@ -33,9 +33,14 @@ if sys.argv[1] == "sub":
         time.sleep(0.02)
     print("received", len(got), flush=True)
 else:
-    time.sleep(0.5)  # the router learns the subscriber of the other host before the first put
+    pub = s.declare_publisher("lab/test")
+    # The subscriber on the other host reaches this router through the lab's (lossy) link:
+    # put only once Zenoh says the publisher has a match (bounded wait on that condition).
+    deadline = time.monotonic() + 30
+    while not pub.matching_status.matching and time.monotonic() < deadline:
+        time.sleep(0.02)
     for i in range(int(sys.argv[2])):
-        s.put("lab/test", b"x")
+        pub.put(b"x")
         time.sleep(0.005)
 s.close()
 """
