@@ -74,6 +74,9 @@ class Loop:
     # (cmd_seq, extra ns): that Zenoh command arrives so much later (its sender stopped
     # between stamping the send and sending it)
     late_command: tuple[int, int] | None = None
+    # (from ns after epoch, length ns): States sent in it are held on the wire and all arrive
+    # at its end, in order (TCP's head-of-line blocking behind a retransmission)
+    hold_states: tuple[int, int] | None = None
 
 
 def _cyclic(pattern: tuple[int, ...], k: int) -> int:
@@ -116,18 +119,22 @@ def write(folder: Path, loop: Loop) -> None:
         seq += 1
         k += 1
     state_arrival: dict[int, int] = {}
+    state_sent: dict[int, int] = {}
     for s, d, wake in samples:
         dropped = loop.drop_state_every and s % loop.drop_state_every == loop.drop_state_every - 1
         send = wake + loop.plant_send
         p.append("samples", (s, d, wake, send, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
                              SAMPLE_DROPPED if dropped else 0))  # fmt: skip
         if not dropped and s not in loop.lose_states:
+            state_sent[s] = send
             state_arrival[s] = send + loop.hop_state
+            if loop.hold_states and 0 <= send - E - loop.hold_states[0] < loop.hold_states[1]:
+                state_arrival[s] = E + sum(loop.hold_states) + loop.hop_state
     # --- the controller: ticks at + P/2, the newest state in hand ---
     arrivals = sorted((t, s) for s, t in state_arrival.items())
     for t, s in arrivals:
         d = next(d for q, d, _ in samples if q == s)
-        c.append("state_rx", (s, d, t - loop.hop_state, t, ACCEPTED))
+        c.append("state_rx", (s, d, state_sent[s], t, ACCEPTED))
     cmd_seq = 0
     used = -1
     k = 0
@@ -166,7 +173,7 @@ def write(folder: Path, loop: Loop) -> None:
                 s_used, d_used, flags = NO_SEQ, 0, flags | 1
             else:
                 s_used, d_used = s, d
-            c.append("ticks", (k, deadline, wake, skipped, s_used, d_used, t_rx - loop.hop_state,
+            c.append("ticks", (k, deadline, wake, skipped, s_used, d_used, state_sent[s],
                                t_rx, c0, c1, send, send + 5 * US, cmd_seq, 0.1, 0.2,
                                flags))  # fmt: skip
             if not dropped:  # Zenoh always carries the command (applied or as the shadow)

@@ -403,6 +403,19 @@ def test_new_a_controller_stopped_between_its_send_stamp_and_the_send_is_control
     assert (worst["cause"], worst["owner"]) == ("controller_late", "system"), worst
 
 
+def test_new_states_held_on_the_wire_and_superseded_before_use_are_transport_late(tmp_path):
+    """TCP holds the States sent from 400 ms for 40 ms behind a lost segment, then delivers
+    them all at once (seen with 5 % loss on the Zenoh links): the tick after takes the newest,
+    whose own hop is short, so only the arrival rows of the superseded States show the hold.
+    The stall is the wire's: transport_late, the worst hold its evidence."""
+    m = _measure(tmp_path, "run", hold_states=(400 * MS, 40 * MS))
+    worst = m.certificate["stalls"][0]
+    assert (worst["cause"], worst["owner"]) == ("transport_late", "system"), worst
+    # The first State held: sent at 400.12 ms (sample 400 ms + wake 20 µs + send 100 µs),
+    # delivered at 440 ms + the 200 µs hop.
+    assert worst["evidence"]["transport_worst_s"] == pytest.approx((40_200 - 120) / 1e6)
+
+
 # =================================================================================================
 # docs/realtime.md: every figure of the table has a calibration entry, and none is uncalibrated.
 # =================================================================================================

@@ -332,12 +332,14 @@ class _Run:
 
     @cached_property
     def state_hops_sorted(self) -> Stamped:
-        """State hops (controller receive - plant send) by sample time."""
-        t = self.ticks
-        ok = (t["state_recv_ns"] > 0) & (t["state_send_ns"] > 0)
-        order = np.argsort(t["state_sample_ns"][ok], kind="stable")
-        hop = (t["state_recv_ns"] - t["state_send_ns"])[ok][order]
-        return Stamped(t["state_sample_ns"][ok][order], hop=hop)
+        """State hops (controller receive - plant send) by sample time, of every State that
+        arrived: a State the wire held up (a TCP retransmission) is often superseded before a
+        tick uses it, and only its arrival row shows the hold."""
+        rx = self.logs["state_rx"]
+        ok = (rx["recv_ns"] > 0) & (rx["send_ns"] > 0)
+        order = np.argsort(rx["sample_ns"][ok], kind="stable")
+        hop = (rx["recv_ns"] - rx["send_ns"])[ok][order]
+        return Stamped(rx["sample_ns"][ok][order], hop=hop)
 
     @cached_property
     def commands_sorted(self) -> Stamped:

@@ -45,7 +45,7 @@ COLUMNS: dict[str, dict[str, Any]] = {
         "compute_start_ns": _I8, "compute_end_ns": _I8, "zenoh_send_ns": _I8,
         "can_send_ns": _I8, "cmd_seq": _I8, "tau1": _F8, "tau2": _F8, "flags": _I4,
     },
-    "state_rx": {"seq": _I8, "recv_ns": _I8},
+    "state_rx": {"seq": _I8, "sample_ns": _I8, "send_ns": _I8, "recv_ns": _I8},
     "can_tx": {"node": _I2, "send_ns": _I8, "cmd_seq": _I8, "value": _F4, "bus_end_ns": _I8},
     "samples": {
         "seq": _I8, "sample_ns": _I8, "wake_ns": _I8, "send_ns": _I8, "x": _F8, "y": _F8,
