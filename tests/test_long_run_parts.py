@@ -382,6 +382,27 @@ def test_the_windowed_ideal_of_an_ideal_loop_is_the_loop(tmp_path: Path, monkeyp
     assert "window_start_t" in ideal_from_simulator(folder)
 
 
+def test_the_windowed_ideal_spread_over_processes_equals_it_in_one(tmp_path: Path, monkeypatch):
+    """An hour's ideal spreads its windows over the CPUs: the windows split into runs of
+    consecutive windows, the second run simulated in a spawned process, the rows joined back
+    in order: the same numbers as all windows in this process."""
+    from hil.folder import load_folder
+    from hil.report import ideal_sim
+    from hil.report.ideal import memory_source
+
+    folder = load_folder(_ideal_run_folder(tmp_path, 12.0))
+    tr, source = folder.trace, memory_source(folder)
+    monkeypatch.setattr(ideal_sim, "BATCH_MIN_WINDOWS", 1)
+    monkeypatch.setattr(ideal_sim, "_groups", lambda windows: 1)
+    together = ideal_sim.simulate_ideal(folder.scenario, folder.path, tr, source, window=2.5)
+    monkeypatch.setattr(ideal_sim, "_groups", lambda windows: 2)
+    spread = ideal_sim.simulate_ideal(folder.scenario, folder.path, tr, source, window=2.5)
+    for k in ("t", "x", "y", "theta", "window_start_t"):
+        assert np.array_equal(spread[k], together[k]), k
+    # ... and it is the loop itself (an ideal loop is its own ideal): no row was misplaced
+    assert np.allclose(spread["x"], tr["x"], rtol=0, atol=1e-9)
+
+
 @pytest.mark.parametrize("bad_row", [(1, 2), tuple(range(9))])
 def test_a_hop_log_row_of_the_wrong_width_is_refused_by_name(tmp_path: Path, bad_row) -> None:
     from hil.measure.logs import FIGURE_COLUMNS, RunLogs, read_columns

@@ -21,8 +21,14 @@ took the robot from the continuous-time loop in at most WINDOW_S seconds.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
+import os
+import pickle
+import subprocess
+import sys
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +44,8 @@ START_STATE = ("x", "y", "theta", "v", "omega")
 WINDOW_S = 10.0
 #: From this many windows on, the batch path simulates them all at once.
 BATCH_MIN_WINDOWS = 8
+#: ... and from this many per process on, it spreads them over the CPUs (one process each).
+PARALLEL_MIN_WINDOWS = 32
 #: Law memory at trace rows: field names, row indices -> field -> values (NaN: unknown).
 MemorySource = Callable[[tuple[str, ...], np.ndarray], dict[str, np.ndarray]]
 
@@ -135,35 +143,139 @@ def _windowed(
     window: float,
 ) -> dict[str, np.ndarray]:
     t = np.asarray(trace["t"], dtype=float)
-    n = t.size
     starts = window_starts(t, window)
-    w_count = starts.size
-    ends = np.append(starts[1:], n)
-    t_start = t[starts]
-    t_stop = np.append(t[starts[1:]], t[-1])
-    sc0 = ideal_scenario(resolved, base, trace_start(trace))
+    start0 = trace_start(trace)
+    sc0 = ideal_scenario(resolved, base, start0)
     fine = sc0.timing.ts
+    t_stop = np.append(t[starts[1:]], t[-1])
     # fine samples 0 .. steps of every window reach its last row (the next window's start)
-    steps = max(1, math.ceil(float(np.max(t_stop - t_start)) / fine - 1e-9) + 1)
+    steps = max(1, math.ceil(float(np.max(t_stop - t[starts])) / fine - 1e-9) + 1)
     loop = build_loop(sc0)
     memory, known = _window_memories(loop[0], sc0, starts, memory_source)
-    variations = [
-        RobotVariation(**{s: float(trace[s][row]) for s in START_STATE}) for row in starts
-    ]
-    out = {name: np.empty(n) for name in ("x", "y", "theta")}
-    if w_count >= BATCH_MIN_WINDOWS:
-        hook = _Interpolator(t, starts, ends, t_start, fine, steps, out)
-        sc = dataclasses.replace(sc0, run=dataclasses.replace(sc0.run, duration=steps * fine))
-        simulate_batch(sc, variations, loop=loop, t0=t_start, memory=memory, on_sample=hook)
+    states = {s: np.asarray(trace[s], dtype=float)[starts] for s in START_STATE}
+    whole = _Windows(dict(resolved), base, start0, t, starts, memory, known, states, steps)
+    if starts.size < BATCH_MIN_WINDOWS:
+        out = _one_by_one(whole, loop)
     else:
-        sc = dataclasses.replace(sc0, run=dataclasses.replace(sc0.run, duration=(steps + 1) * fine))
-        for i in range(w_count):
-            mem_i = type(memory)(*(float(np.asarray(f)[i]) for f in memory)) if known[i] else None
-            res = simulate(sc, variations[i], t0=float(t_start[i]), memory=mem_i, loop=loop)
-            rows = slice(starts[i], ends[i])
-            for name in out:
-                out[name][rows] = np.interp(t[rows], res.column("t"), res.column(name))
-    return {"t": t.copy(), **out, "window_start_t": t_start}
+        # Only memory of per-window arrays (a NamedTuple, as the bundled laws keep) splits.
+        groups = _groups(starts.size) if hasattr(memory, "_fields") else 1
+        out = _spread(whole.split(groups), loop)
+    return {"t": t.copy(), **out, "window_start_t": t[starts]}
+
+
+def _groups(windows: int) -> int:
+    """Processes for the batch route: one per CPU this process may use, each with at least
+    :data:`PARALLEL_MIN_WINDOWS` windows (fewer are not worth a process's start-up)."""
+    return max(1, min(len(os.sched_getaffinity(0)), windows // PARALLEL_MIN_WINDOWS))
+
+
+@dataclass(frozen=True)
+class _Windows:
+    """Consecutive windows of a trace, all a process needs to simulate them (picklable): the
+    trace's times from the first window's first row to the last window's last, the windows'
+    first rows in them, and each window's law memory and starting state."""
+
+    resolved: dict[str, Any]
+    base: Path
+    start0: dict[str, float]  # the whole trace's first state: the scenario the ideal runs
+    t: np.ndarray
+    starts: np.ndarray
+    memory: Any  # the law's memory, per window (arrays)
+    known: np.ndarray
+    states: dict[str, np.ndarray]
+    steps: int
+
+    def split(self, groups: int) -> list[_Windows]:
+        """``groups`` runs of consecutive windows, as even as they divide."""
+        cuts = np.linspace(0, self.starts.size, groups + 1).round().astype(int)
+        rows = np.append(self.starts, self.t.size)
+        parts = []
+        for a, b in itertools.pairwise(cuts):
+            lo, hi = int(rows[a]), int(rows[b])
+            parts.append(
+                dataclasses.replace(
+                    self,
+                    t=self.t[lo:hi],
+                    starts=self.starts[a:b] - lo,
+                    memory=type(self.memory)(*(np.asarray(f)[a:b] for f in self.memory)),
+                    known=self.known[a:b],
+                    states={k: v[a:b] for k, v in self.states.items()},
+                )
+            )
+        return parts
+
+    def variations(self) -> list[RobotVariation]:
+        n = self.starts.size
+        return [
+            RobotVariation(**{s: float(self.states[s][i]) for s in START_STATE}) for i in range(n)
+        ]
+
+    def scenario(self) -> Any:
+        return ideal_scenario(self.resolved, self.base, self.start0)
+
+
+def _spread(parts: list[_Windows], loop: Any) -> dict[str, np.ndarray]:
+    """Each part on the batch path, the first in this process and each other one at the same
+    time in a Python process of its own (``python -m hil.report.ideal_worker``, the part
+    pickled on its stdin, the rows on its stdout: no multiprocessing, which would import the
+    caller's main module again); the rows joined in order. A part whose process fails (a law
+    its fresh interpreter cannot import) runs here after the first."""
+    procs: list[subprocess.Popen[bytes]] = []
+    try:
+        for part in parts[1:]:
+            argv = [sys.executable, "-m", "hil.report.ideal_worker"]
+            proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+            procs.append(proc)
+            assert proc.stdin is not None
+            with proc.stdin:
+                pickle.dump(part, proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        done = [_batch(parts[0], loop)]
+        for part, proc in zip(parts[1:], procs, strict=True):
+            assert proc.stdout is not None
+            raw = proc.stdout.read()
+            if proc.wait() == 0:
+                done.append(pickle.loads(raw))
+            else:  # the same work, here
+                done.append(_batch(part, loop))
+    finally:
+        for proc in procs:  # Ctrl-C: the other processes stop with this one
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    return {name: np.concatenate([d[name] for d in done]) for name in ("x", "y", "theta")}
+
+
+def _batch(w: _Windows, loop: Any = None) -> dict[str, np.ndarray]:
+    """All windows of ``w`` at once on the batch path (one robot per window)."""
+    sc0 = w.scenario()
+    loop = loop if loop is not None else build_loop(sc0)
+    n = w.t.size
+    ends = np.append(w.starts[1:], n)
+    t_start = w.t[w.starts]
+    fine = sc0.timing.ts
+    out = {name: np.empty(n) for name in ("x", "y", "theta")}
+    hook = _Interpolator(w.t, w.starts, ends, t_start, fine, w.steps, out)
+    sc = dataclasses.replace(sc0, run=dataclasses.replace(sc0.run, duration=w.steps * fine))
+    simulate_batch(sc, w.variations(), loop=loop, t0=t_start, memory=w.memory, on_sample=hook)
+    return out
+
+
+def _one_by_one(w: _Windows, loop: Any) -> dict[str, np.ndarray]:
+    """The windows one after the other on the single path."""
+    sc0 = w.scenario()
+    fine = sc0.timing.ts
+    sc = dataclasses.replace(sc0, run=dataclasses.replace(sc0.run, duration=(w.steps + 1) * fine))
+    n = w.t.size
+    ends = np.append(w.starts[1:], n)
+    out = {name: np.empty(n) for name in ("x", "y", "theta")}
+    for i, var in enumerate(w.variations()):
+        mem_i = type(w.memory)(*(float(np.asarray(f)[i]) for f in w.memory)) if w.known[i] else None
+        t0 = float(w.t[w.starts[i]])
+        res = simulate(sc, var, t0=t0, memory=mem_i, loop=loop)
+        rows = slice(w.starts[i], ends[i])
+        for name in out:
+            out[name][rows] = np.interp(w.t[rows], res.column("t"), res.column(name))
+    return out
 
 
 class _Interpolator:
