@@ -23,25 +23,10 @@ import _here  # noqa: F401  (this checkout first on sys.path)
 from hil.folder import load_folder
 from hil.report.build import build_report, write_report
 from hil.report.ideal import ideal_from_simulator
+from tests.scenario_text import circle
 from tests.synthetic_folder import write_synthetic_folder
 
-SCENARIO = """
-[reference]
-kind = "circle"
-vd = 0.5
-wd = 0.2
-
-[initial]
-x = -1.0
-y = 1.0
-theta = 0.0
-
-[timing]
-ts = 0.001
-
-[run]
-duration = 60.0
-"""
+SCENARIO = circle(timing={"ts": 0.001}, run={"duration": 60.0})
 
 
 def make_folder(root: Path, synthetic: bool) -> Path:

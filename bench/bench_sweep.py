@@ -32,30 +32,9 @@ from hil.scenario import loads_scenario
 from hil.sim import compiled, simulate, simulate_batch
 from hil.sweep.grid import make_grid
 from hil.sweep.runner import run_sweep, scenario_at
+from tests.scenario_text import TABLE1, circle
 
-SCENARIO = """
-[reference]
-kind = "circle"
-vd = 0.5
-wd = 0.2
-
-[initial]
-x = -1.0
-y = 1.0
-theta = 0.0
-
-[controller]
-law = "unified"
-m1 = 0.5
-m2 = 0.5
-l1 = 0.5
-l2 = 0.5
-lam = 1.0
-rho = 1.0
-
-[timing]
-ts = 0.001
-"""
+SCENARIO = circle(controller=TABLE1, timing={"ts": 0.001})
 
 
 def main() -> None:

@@ -29,33 +29,13 @@ from hil.adversary.loop import initial_states
 from hil.scenario import build_loop, loads_scenario
 from hil.sim import RobotVariation, simulate_batch
 from plant_emulator.dynamics import VIOLATION_RTOL
+from tests.scenario_text import NEAR, circle
 
 SETUPS = {
     "paper": ("1.0", 0.05, 0.5, 0.001, 4.0),
     "montecarlo": ("0.5", 0.3, 3.0, 0.02, 4.0),
 }
-TEXT = """
-[reference]
-kind = "circle"
-vd = 0.5
-wd = 0.2
-[initial]
-x = -1.0
-y = -0.6
-theta = 0.5
-[controller]
-law = "unified"
-rho = {rho}
-[disturbance]
-kind = "random"
-s1 = {s1}
-s2 = {s2}
-period = 0.1
-[timing]
-ts = {ts}
-[run]
-duration = {duration}
-"""
+
 ROUNDS = 3
 SPREAD = 0.3
 
@@ -120,7 +100,15 @@ def main() -> None:
     ap.add_argument("--tol", type=float, default=0.002)
     args = ap.parse_args()
     rho, s1, s2, ts, duration = SETUPS[args.setup]
-    sc = loads_scenario(TEXT.format(rho=rho, s1=s1, s2=s2, ts=ts, duration=duration))
+    sc = loads_scenario(
+        circle(
+            NEAR,
+            controller={"law": "unified", "rho": float(rho)},
+            disturbance={"kind": "random", "s1": s1, "s2": s2, "period": 0.1},
+            timing={"ts": ts},
+            run={"duration": duration},
+        )
+    )
     controller, _ref, context = build_loop(sc)
     d_star = critical_age(controller.params, context, False)
     t0 = time.perf_counter()

@@ -1,23 +1,43 @@
-"""Scenario text shared by tests: the paper's circle with Table 1 gains, 1.4 m off the circle at
-the start; each test appends the tables it varies ([timing], [run], [sweep])."""
+"""Scenario text shared by tests and benchmarks: the paper's circle, started off it; each user
+adds the tables it varies ([controller], [disturbance], [timing], [run], [sweep])."""
 
-CIRCLE_TABLE1 = """
-[reference]
-kind = "circle"
-vd = 0.5
-wd = 0.2
+from __future__ import annotations
 
-[initial]
-x = -1.0
-y = 1.0
-theta = 0.0
+from typing import Any
 
-[controller]
-law = "unified"
-m1 = 0.5
-m2 = 0.5
-l1 = 0.5
-l2 = 0.5
-lam = 1.0
-rho = 1.0
-"""
+#: The paper's circle (vd = 0.5 m/s, wd = 0.2 rad/s).
+CIRCLE = {"kind": "circle", "vd": 0.5, "wd": 0.2}
+#: 1.4 m off the circle, heading along x (the Table 1 runs).
+FAR = {"x": -1.0, "y": 1.0, "theta": 0.0}
+#: 0.6 m off, turned 0.5 rad away (the margin and adversary set-ups).
+NEAR = {"x": -1.0, "y": -0.6, "theta": 0.5}
+#: The paper's Table 1 gains.
+TABLE1 = {"law": "unified", "m1": 0.5, "m2": 0.5, "l1": 0.5, "l2": 0.5, "lam": 1.0, "rho": 1.0}
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return f'"{v}"'
+    return repr(v)
+
+
+def toml_text(**tables: dict[str, Any] | None) -> str:
+    """TOML of flat tables (None: left out), in the order given."""
+    out = []
+    for name, table in tables.items():
+        if table is None:
+            continue
+        out.append(f"[{name}]")
+        out += [f"{k} = {_value(v)}" for k, v in table.items()]
+        out.append("")
+    return "\n".join(out)
+
+
+def circle(initial: dict[str, float] = FAR, **tables: dict[str, Any] | None) -> str:
+    """The circle from ``initial``, then ``tables``."""
+    return toml_text(reference=CIRCLE, initial=initial, **tables)
+
+
+CIRCLE_TABLE1 = circle(controller=TABLE1)

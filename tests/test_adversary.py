@@ -18,32 +18,18 @@ from hil.cli import main
 from hil.scenario import build_loop, loads_scenario
 from hil.sim import RobotVariation, simulate_batch
 from plant_emulator.dynamics import PlantState
+from tests.scenario_text import NEAR, circle
 
 # The paper's limits, circle and gains but rho = 0.5, so that (12) holds with disturbance bounds
 # s1 = 0.3, s2 = 3 (tests/test_certified_bound_montecarlo.py's set-up): D* = 44.9 ms.
-TEXT = """
-[reference]
-kind = "circle"
-vd = 0.5
-wd = 0.2
-[initial]
-x = -1.0
-y = -0.6
-theta = 0.5
-[controller]
-law = "unified"
-rho = 0.5
-[disturbance]
-kind = "constant"
-s1 = 0.3
-s2 = 3.0
-[timing]
-ts = 0.02
-delay = 0.02
-jitter = 0.004
-[run]
-duration = 3.0
-"""
+DISTURBANCE = {"s1": 0.3, "s2": 3.0}
+TIMING = {"ts": 0.02, "delay": 0.02, "jitter": 0.004}
+CONTROLLER = {"law": "unified", "rho": 0.5}
+RUN = {"duration": 3.0}
+TEXT = circle(
+    NEAR, controller=CONTROLLER, disturbance={"kind": "constant", **DISTURBANCE},
+    timing=TIMING, run=RUN,
+)  # fmt: skip
 SCENARIO = loads_scenario(TEXT)
 
 
@@ -209,7 +195,8 @@ def test_the_same_search_breaks_the_limits_beyond_d_star_and_beats_random():
 
 def test_sweep_worst_disturbance_breaks_no_later_than_random(tmp_path):
     path = tmp_path / "dist.toml"
-    path.write_text(TEXT.replace('kind = "constant"', 'kind = "random"\nperiod = 0.1'))
+    random = {"kind": "random", **DISTURBANCE, "period": 0.1}
+    path.write_text(circle(NEAR, controller=CONTROLLER, disturbance=random, timing=TIMING, run=RUN))
     grid = ["--ts", "0.05", "--delay", "0,0.05", "--duration", "2"]
     assert main(["sweep", str(path), "--out", str(tmp_path / "r"), *grid, "--seeds", "8"]) == 0
     out = tmp_path / "w"

@@ -16,35 +16,15 @@ from hil.scenario import load_scenario, loads_scenario
 from hil.sim import compiled, simulate_batch
 from hil.sim.core import RobotVariation
 from hil.sweep.runner import scenario_at
-
-BASE = """
-[reference]
-kind = "circle"
-vd = 0.5
-wd = 0.2
-
-[initial]
-x = -1.0
-y = 1.0
-theta = 0.0
-
-[controller]
-law = "{law}"
-{eps}
-
-[timing]
-ts = 0.001
-delay = {delay}
-
-[run]
-duration = 0.4
-{extra}
-"""
+from tests.scenario_text import circle
 
 
 def _scenario(law: str = "unified", delay: float = 0.0, extra: str = "") -> object:
-    eps = "eps1 = 0.1\neps2 = 0.1" if law == "unified_boundary" else ""
-    text = BASE.format(law=law, eps=eps, delay=delay, extra=extra)
+    eps = {"eps1": 0.1, "eps2": 0.1} if law == "unified_boundary" else {}
+    text = circle(
+        controller={"law": law, **eps}, timing={"ts": 0.001, "delay": delay}, run={"duration": 0.4}
+    )
+    text += extra
     return loads_scenario(text, Path.cwd())
 
 

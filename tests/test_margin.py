@@ -13,51 +13,23 @@ from hil.cli import main
 from hil.margin import record
 from hil.margin.record import MarginProbe, MarginRecord
 from hil.margin.timing import from_run, run_scenario, scaled
+from tests.scenario_text import NEAR, circle
 from tests.synthetic_folder import write_synthetic_folder
 
-USER_LAW = """
-[reference]
-kind = "circle"
-vd = 0.5
-wd = 0.2
-[initial]
-x = -1.0
-y = -0.6
-theta = 0.5
-[controller]
-law = "tests.margin_user_law:SaturatedTracker"
-gain = 20.0
-[timing]
-ts = 0.01
-delay = 0.02
-jitter = 0.005
-[run]
-duration = 6.0
-"""
-
-DISTURBED = """
-[reference]
-kind = "circle"
-vd = 0.5
-wd = 0.2
-[initial]
-x = -1.0
-y = -0.6
-theta = 0.5
-[controller]
-law = "unified"
-rho = 0.5
-[disturbance]
-kind = "random"
-s1 = 0.3
-s2 = 3.0
-period = 0.1
-[timing]
-ts = 0.02
-delay = 0.02
-[run]
-duration = 3.0
-"""
+DISTURBANCE = {"s1": 0.3, "s2": 3.0}
+USER_LAW = circle(
+    NEAR,
+    controller={"law": "tests.margin_user_law:SaturatedTracker", "gain": 20.0},
+    timing={"ts": 0.01, "delay": 0.02, "jitter": 0.005},
+    run={"duration": 6.0},
+)
+DISTURBED = circle(
+    NEAR,
+    controller={"law": "unified", "rho": 0.5},
+    disturbance={"kind": "random", **DISTURBANCE, "period": 0.1},
+    timing={"ts": 0.02, "delay": 0.02},
+    run={"duration": 3.0},
+)
 
 
 def _margin(tmp_path: Path, text: str, name: str, *extra: str) -> tuple[int, MarginRecord]:

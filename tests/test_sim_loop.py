@@ -18,19 +18,11 @@ from hil.cli import main
 from hil.scenario import build_loop, loads_scenario
 from hil.sim import RobotVariation, jitter_samples_from, simulate, simulate_batch, write_run_folder
 from runtime.mathns import namespace_for
+from tests.scenario_text import NEAR, circle
 
-TRACKING = """
-[reference]
-kind = "circle"
-vd = 0.5
-wd = 0.2
-[initial]
-x = -1.0
-y = -0.6
-theta = 0.5
-[run]
-duration = {duration}
-"""
+
+def tracking(duration: float) -> str:
+    return circle(NEAR, run={"duration": duration})
 
 
 class SaturatedPD:
@@ -75,7 +67,7 @@ class SequenceEcho:
 
 
 def _scenario(extra: str = "", duration: float = 2.0, tmp: Path | None = None):  # type: ignore[no-untyped-def]
-    return loads_scenario(TRACKING.format(duration=duration) + extra, tmp)
+    return loads_scenario(tracking(duration) + extra, tmp)
 
 
 MIXED = """
@@ -175,8 +167,7 @@ def test_replay_latencies_from_file(tmp_path: Path) -> None:
 def test_user_controller_by_import_path_runs_and_folder_is_complete(tmp_path: Path) -> None:
     scen = tmp_path / "pd.toml"
     scen.write_text(
-        TRACKING.format(duration=3.0)
-        + '[controller]\nlaw = "tests.test_sim_loop:SaturatedPD"\nkp = 3.0\n'
+        tracking(3.0) + '[controller]\nlaw = "tests.test_sim_loop:SaturatedPD"\nkp = 3.0\n'
     )
     out = tmp_path / "run"
     assert main(["sim", str(scen), "--out", str(out), "--duration", "2", "--ts", "0.002"]) == 0
@@ -219,7 +210,7 @@ def test_user_controller_by_import_path_runs_and_folder_is_complete(tmp_path: Pa
 
 def test_broken_limit_gives_exit_1(tmp_path: Path) -> None:
     scen = tmp_path / "j7.toml"
-    scen.write_text(TRACKING.format(duration=4.0) + '[controller]\nlaw = "jiang1997"\n')
+    scen.write_text(tracking(4.0) + '[controller]\nlaw = "jiang1997"\n')
     assert main(["sim", str(scen), "--out", str(tmp_path / "o")]) == 1
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["violations"]["v"] > 0 and summary["max_abs_v"] > 1.6
@@ -249,7 +240,7 @@ def test_batch_of_identical_robots_agrees_and_scales() -> None:
 
 def test_a_loop_started_at_t0_runs_the_reference_and_the_law_from_there(tmp_path: Path) -> None:
     """simulate(t0=): the ideal trajectory of a run whose first sample came late."""
-    sc = loads_scenario(TRACKING.format(duration=0.2), tmp_path)
+    sc = loads_scenario(tracking(0.2), tmp_path)
     late = simulate(sc, t0=0.5)
     t = late.column("t")
     assert t[0] == 0.5 and t[1] == pytest.approx(0.5 + sc.timing.ts)
