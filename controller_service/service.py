@@ -36,6 +36,7 @@ from controller_service.command_paths import (
     ZenohCommandPath,
 )
 from controller_service.laws.base import Controller, Limits, RobotState
+from controller_service.tick_phase import PhaseLearner
 from protocol import keys
 from protocol.faults import Faults
 from protocol.hoplog import (
@@ -134,6 +135,7 @@ class ControllerService:
         spin_ns: int = 0,
         hoplog: HopLogWriter | None = None,
         faults: Faults | None = None,
+        tick_phase: str = "half",
     ) -> None:
         from runtime.zsession import payload_bytes, publisher
 
@@ -172,6 +174,8 @@ class ControllerService:
         self.clock: DeadlineClock | None = None
         self.cycles = 0
         self.states_seen = 0
+        learn = tick_phase == "auto" and self.trigger == "periodic"
+        self.phase_learner = PhaseLearner(self.period_ns) if learn else None
         self._sub = session.declare_subscriber(keys.state_key(robot_id), self._on_state)
 
     # --- receive ------------------------------------------------------------------------
@@ -202,6 +206,8 @@ class ControllerService:
                     self.zenoh.resend_last()
                 return
             self.states_seen += 1
+            if self.phase_learner is not None:
+                self.phase_learner.state(recv_ns - msg.sample_time_ns, recv_ns - msg.send_time_ns)
             rec = Received(msg, recv_ns)
             self._newest = rec
             if self.trigger == "on_state":
@@ -228,6 +234,8 @@ class ControllerService:
                 self._law_time(st), RobotState(st.x, st.y, st.theta, st.v, st.omega)
             )
             c1 = time.monotonic_ns()
+            if self.phase_learner is not None:
+                self.phase_learner.compute(c1 - c0)
             state_seq, sample_ns, send_state_ns, recv_ns = (
                 st.seq,
                 st.sample_time_ns,
@@ -391,6 +399,8 @@ class ControllerService:
             while not stop and (end_ns is None or time.monotonic_ns() < end_ns):
                 tick = self.clock.next()
                 self._cycle(tick.k, tick.deadline_ns, tick.wake_ns, self._newest, tick.skipped)
+                if self.phase_learner is not None:
+                    self._rephase(tick.k)
                 if tick.wake_ns >= next_status:
                     next_status = tick.wake_ns + status_every_ns
                     self.publish_status()
@@ -405,6 +415,23 @@ class ControllerService:
                     next_status = now + status_every_ns
                     self.publish_status()
         self.publish_status("stopped")
+
+    def _rephase(self, k: int) -> None:
+        """Move the ticks to the learnt phase (controller_service.tick_phase), once: from slot
+        k + 1 on, due at epoch + phase + slot Ts. The shift is under a period either way, so
+        the next deadline stays ahead and no slot is skipped; it is logged so that the period
+        jitter does not count it."""
+        assert self.phase_learner is not None and self.clock is not None
+        choice = self.phase_learner.choice()
+        if choice is None:
+            return
+        origin = self.epoch_ns + choice.phase_ns
+        shift = origin - self.clock.start_ns
+        self.clock.start_ns = origin
+        self.phase_learner = None
+        self.hoplog.update_meta(
+            {**choice.as_meta(), "tick_phase_from_k": k + 1, "tick_phase_shift_ns": shift}
+        )
 
     def send_stop(self) -> None:
         """A last zero command flagged STOP, so the plant idles at once."""
@@ -461,6 +488,7 @@ def _open_hoplog(s: RunSettings, previous: Any) -> HopLogWriter:
             "cmd_path": s.cmd_path,
             "state_timeout_s": s.state_timeout,
             "epoch_ns": s.epoch_ns,
+            "tick_phase": s.tick_phase,
         },
         append=previous is not None,
     )
@@ -531,6 +559,7 @@ def main_from_settings(settings_path: str) -> int:
         spin_ns=int(s.spin_us * 1000),
         hoplog=hoplog,
         faults=faults,
+        tick_phase=s.tick_phase,
     )
     if previous is not None:
         svc.continue_after(_first_free_cmd_seq(previous, s.ts))

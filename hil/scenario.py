@@ -40,6 +40,7 @@ from protocol.can.bus_factory import CanSettings
 from protocol.can.wheel_mapping import RobotGeometry
 from protocol.faults import Faults
 from protocol.messages import ANGLE_MAX, POSITION_MAX, SPEED_MAX, TORQUE_MAX, TURN_RATE_MAX
+from protocol.settings import TICK_PHASES, TRIGGERS
 from protocol.versions import SIM_SCHEMA_VERSION as SCHEMA_VERSION  # hil.sim.core's name
 
 JITTER_KINDS = ("uniform", "normal", "replay")
@@ -128,6 +129,7 @@ class RealtimeConfig:
     rate: float | None = None
     sensor_rate: float | None = None
     trigger: str = "periodic"
+    tick_phase: str = "half"
     state_timeout: float = 0.05
     command_timeout: float = 0.05
     scheduling: str = "fifo"
@@ -297,7 +299,8 @@ _TABLES: dict[str, type] = {
 _CHOICES: dict[tuple[str, str], tuple[str, ...]] = {
     ("disturbance", "kind"): DISTURBANCE_KINDS,
     ("timing", "jitter_kind"): JITTER_KINDS,
-    ("realtime", "trigger"): ("periodic", "on_state"),
+    ("realtime", "trigger"): TRIGGERS,
+    ("realtime", "tick_phase"): TICK_PHASES,
     ("realtime", "scheduling"): ("fifo", "other"),
     ("zenoh", "mode"): ("peer", "client", "router"),
     ("impair", "on"): IMPAIR_ON,

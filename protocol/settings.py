@@ -25,6 +25,8 @@ from protocol.robot import Limits
 
 CMD_PATHS = ("zenoh", "can")
 TRIGGERS = ("periodic", "on_state")
+# where the periodic controller ticks after the sample (controller_service.tick_phase)
+TICK_PHASES = ("half", "auto")
 SETTINGS_VERSION = 2
 TS_MIN = 1.0 / 20_000.0  # s: the services' fastest period (20 kHz)
 
@@ -59,6 +61,7 @@ class RunSettings:
     ts: float = 0.001  # s, the control period T_s
     sensor_ts: float = 0.001  # s between the plant's State samples
     trigger: str = "periodic"
+    tick_phase: str = "half"  # where the periodic ticks fall after the sample (half, auto)
     lockstep: bool = False
     state_timeout: float = 0.05
     command_timeout: float = 0.05
@@ -114,6 +117,8 @@ class RunSettings:
             raise BadInputError(f"cmd path must be one of {CMD_PATHS}, got {self.cmd_path!r}")
         if self.trigger not in TRIGGERS:
             raise BadInputError(f"[realtime] trigger must be one of {TRIGGERS}")
+        if self.tick_phase not in TICK_PHASES:
+            raise BadInputError(f"[realtime] tick_phase must be one of {TICK_PHASES}")
         for name in ("ts", "sensor_ts", "state_timeout", "command_timeout", "plant_step"):
             v = getattr(self, name)
             if isinstance(v, bool) or not (

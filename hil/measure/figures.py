@@ -478,6 +478,31 @@ def _missed_slots(late: np.ndarray, skipped: np.ndarray, period: int) -> dict[st
     }
 
 
+def _phase_shift(r: _Run, k: np.ndarray) -> np.ndarray:
+    """Per tick gap: the learnt phase's one shift (controller_service.tick_phase) where the
+    gap crosses the slot it took effect at, else 0: the move is not jitter."""
+    cm = r.logs.cmeta
+    if cm.get("tick_phase_from_k") is None:
+        return np.zeros(max(k.size - 1, 0), np.int64)
+    at = int(cm["tick_phase_from_k"])
+    return int(cm.get("tick_phase_shift_ns") or 0) * ((k[1:] >= at) & (k[:-1] < at))
+
+
+def _tick_phase(r: _Run) -> dict[str, Any]:
+    """Where the periodic ticks fell after the sample: the rule, and for "auto" the phase
+    learnt and what it was learnt from (controller_service.tick_phase), in µs."""
+    cm = r.logs.cmeta
+    out: dict[str, Any] = {"rule": str(cm.get("tick_phase") or "half")}
+    out["phase_us"] = r.period / 2e3
+    if cm.get("tick_phase_phase_ns") is not None:
+        us = {"phase_ns": "phase_us", "arrival_q_ns": "arrival_p99_us", "path_q_ns": "path_p99_us"}
+        out.update({v: int(cm[f"tick_phase_{k}"]) / 1e3 for k, v in us.items()})
+        out["window_open"] = bool(cm["tick_phase_window_open"])
+        out["clocks_related"] = bool(cm["tick_phase_clocks_related"])
+        out["from_tick"] = int(cm["tick_phase_from_k"])
+    return out
+
+
 def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
     """Wake-up figures where the trigger mode measures them; absent (never 0) elsewhere."""
     t = r.ticks
@@ -493,7 +518,9 @@ def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
         timing["slots"] = miss["slots"]
         timing["deadline_miss_rate"] = miss["rate"]
         k, wake = t["k"][win], t["wake_ns"][win]
-        timing["period_jitter"] = summarize_ns(np.abs(np.diff(wake) - np.diff(k) * r.period))
+        expected = np.diff(k) * r.period + _phase_shift(r, k)
+        timing["period_jitter"] = summarize_ns(np.abs(np.diff(wake) - expected))
+        timing["tick_phase"] = _tick_phase(r)
         series["wakeup_lateness"] = ((t["deadline_ns"][win] - r.epoch) / 1e9, late)
     s = r.samples
     if not r.lockstep and s["wake_ns"].size:

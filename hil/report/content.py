@@ -401,12 +401,33 @@ def _messages(s: Section, data: dict[str, Any]) -> None:
     )
 
 
+def _tick_phase_line(p: dict[str, Any]) -> str:
+    """Where the periodic ticks fell after the sample (controller_service.tick_phase)."""
+    line = f"The periodic controller ticked {p['phase_us']:.0f} µs after each sample ({p['rule']}"
+    if "arrival_p99_us" not in p:
+        return line + ")."
+    if not p.get("clocks_related", True):
+        return line + ": the clocks of the plant and the controller differ, kept at half)."
+    shut = "" if p["window_open"] else "; no phase serves every sample: the loop needs more"
+    return (
+        f"{line}: learnt from States arriving by {p['arrival_p99_us']:.0f} µs at p99 and "
+        f"{p['path_p99_us']:.0f} µs of compute and hop after the tick{shut})."
+    )
+
+
 def _timing_summary(s: Section, data: dict[str, Any]) -> None:
     timing = data["timing"]["summary"] or {}
     s.p(f"From {data['timing'].get('source')}; definitions in docs/realtime.md.")
+    phase = timing.get("tick_phase")
+    if isinstance(phase, dict):
+        s.p(_tick_phase_line(phase))
     s.table(
         ["figure", *PCT_KEYS],
-        [[k, *(f.get(q) for q in PCT_KEYS)] for k, f in timing.items() if isinstance(f, dict)],
+        [
+            [k, *(f.get(q) for q in PCT_KEYS)]
+            for k, f in timing.items()
+            if isinstance(f, dict) and "p50_us" in f
+        ],
     )
     s.table(
         ["figure", "value", "unit"],

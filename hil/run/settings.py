@@ -76,6 +76,7 @@ def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSett
         "ts": float(timing.ts),
         "sensor_ts": float(timing.ts),
         "trigger": scenario.realtime.trigger,
+        "tick_phase": scenario.realtime.tick_phase,
         "state_timeout": scenario.realtime.state_timeout,
         "command_timeout": scenario.realtime.command_timeout,
         "scheduling": scenario.realtime.scheduling,
