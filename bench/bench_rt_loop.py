@@ -42,14 +42,17 @@ FIFO_SCENARIO = """
 [realtime]
 scheduling = "fifo"
 trigger = "{trigger}"
+tick_phase = "{tick_phase}"
 """
 
 
-def run_loop(rate: float, duration: float, trigger: str, tmp: Path) -> dict[str, Any]:
+def run_loop(
+    rate: float, duration: float, trigger: str, tmp: Path, tick_phase: str = "half"
+) -> dict[str, Any]:
     scen = tmp / f"scen-{trigger}.toml"
     scen.write_text(
         (ROOT / "hil" / "scenarios" / "paper_tracking.toml").read_text()
-        + FIFO_SCENARIO.format(trigger=trigger)
+        + FIFO_SCENARIO.format(trigger=trigger, tick_phase=tick_phase)
     )
     out = tmp / f"run-{rate:g}-{trigger}"
     proc = subprocess.run(
@@ -241,7 +244,9 @@ def one_rate(rate: float, a: argparse.Namespace, rtt_p50: float, tmp: Path) -> d
     ct = cyclictest(round(1e6 / rate), min(a.duration, 10.0), a.repeats)
     per = {}
     for trigger in ("periodic", "on_state"):
-        per[trigger] = combine([run_loop(rate, a.duration, trigger, tmp) for _ in range(a.repeats)])
+        per[trigger] = combine(
+            [run_loop(rate, a.duration, trigger, tmp, a.tick_phase) for _ in range(a.repeats)]
+        )
     paced = [paced_pingpong(rate, 2000 if a.quick else 10_000) for _ in range(a.repeats)]
     paced_p50 = statistics.median(x["p50_us"] for x in paced)
     p, o = per["periodic"], per["on_state"]
@@ -268,6 +273,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=30.0)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--quick", action="store_true", help="5 s runs, 1 repeat")
+    phase = "[realtime] tick_phase of the periodic runs (docs/realtime.md)"
+    ap.add_argument("--tick-phase", choices=("half", "auto"), default="half", help=phase)
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
     if a.quick:
@@ -277,6 +284,7 @@ def main(argv: list[str] | None = None) -> int:
     result: dict[str, Any] = {
         "duration_s": a.duration,
         "repeats": a.repeats,
+        "tick_phase": a.tick_phase,
         "over_repeats": {
             "median": sorted(n for n, f in {**FIGURES, **OPTIONAL}.items() if f[2] == MEDIAN),
             "worst": sorted(n for n, f in {**FIGURES, **OPTIONAL}.items() if f[2] == WORST),
