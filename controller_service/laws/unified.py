@@ -314,6 +314,15 @@ def _xi_shared_ref(
     return r, xi, dxi, s_b, c_b
 
 
+def _step_total(
+    t: Any, dt: Any, xe: Any, ye: Any, vt: Any, wt: Any, eta_n: Any, z1_n: Any, z2_n: Any
+) -> Any:
+    """The sum every path checks, in one order: not finite means a non-finite input or an
+    overflow (huge finite inputs), rejected either way, so that the float and the array paths
+    reject the same robots (the float path writes it inline: one call less per update)."""
+    return t + dt + xe + ye + vt + wt + eta_n + z1_n + z2_n
+
+
 class UnifiedController:
     """The unified law (10) (``name = "unified"``) or its boundary-layer variant (19)
     (``name = "unified_boundary"``, when eps1 and eps2 are given).
@@ -399,7 +408,7 @@ class UnifiedController:
         # Every input reaches one of these (dt directly, the state and the reference through the
         # errors and the sliding variables, t through xi, the memory through its advance). A sum
         # that is not finite means a non-finite input or an overflow: rejected either way.
-        total = t + dt + xe + ye + vt + wt + eta_n + z1_n + z2_n
+        total = t + dt + xe + ye + vt + wt + eta_n + z1_n + z2_n  # _step_total, inline
         if total - total != 0.0:
             return self._reject_float(memory)
         telemetry = {
@@ -493,6 +502,11 @@ class UnifiedController:
             v_tilde, w_tilde = out[14], out[15]
             for value in (tau1, tau2, eta_next, z1_next, z2_next, v_tilde, w_tilde):
                 ok &= np.isfinite(value)
+            # ... and the float path's rule: finite values whose sum overflows are rejected too
+            ok &= np.isfinite(
+                _step_total(t_arr, dt_arr, sig.xe, sig.ye, v_tilde, w_tilde, eta_next, z1_next,
+                            z2_next)
+            )  # fmt: skip
         zero = np.zeros(shape)
         telemetry = {
             "xe": np.where(ok, sig.xe, zero),
@@ -548,8 +562,8 @@ class UnifiedController:
             tau1, tau2, eta_next, z1_next, z2_next = out[:5]
             sig = UnifiedSignals(*out[5:14])
             v_tilde, w_tilde = out[14], out[15]
-            out_total = tau1 + tau2 + eta_next + z1_next + z2_next + v_tilde + w_tilde
-            if not np.isfinite(out_total).all():
+            total = _step_total(t, dt, sig.xe, sig.ye, v_tilde, w_tilde, eta_next, z1_next, z2_next)
+            if not np.isfinite(total).all():
                 return None
 
         def own(value: Any) -> np.ndarray:  # an array of its own, shape (N,)
@@ -620,7 +634,8 @@ class UnifiedController:
             eta_next = eta * math.exp(-q * dt_s)
             sin_diff = s_a * c_b - c_a * s_b  # sin((theta_e - xi) / 2)
             z1_next, z2_next = self._next_z(ARRAY_MATH, dt_s, z1, z2, xe / r, sin_diff)
-            if not np.isfinite(v_tilde + w_tilde + eta_next + z1_next + z2_next).all():
+            total = _step_total(t_s, dt_s, xe, ye, v_tilde, w_tilde, eta_next, z1_next, z2_next)
+            if not np.isfinite(total).all():
                 return None
         telemetry = {
             "xe": xe,

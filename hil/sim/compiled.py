@@ -149,7 +149,8 @@ def _build() -> Any:
         for k in range(k0, k1):
             ref = (refs[k, 0], refs[k, 1], refs[k, 2], refs[k, 3], refs[k, 4])
             out = law(k * ts, ts, s, ref, memory, p)
-            total = k * ts + ts + out[2] + out[3] + out[4] + out[5] + out[6] + out[14] + out[15]
+            # the law's rejection sum in its one order (unified._step_total)
+            total = k * ts + ts + out[5] + out[6] + out[14] + out[15] + out[2] + out[3] + out[4]
             if total - total == 0.0:
                 rg[0, k % nb], rg[1, k % nb] = out[0], out[1]
                 memory = (out[2], out[3], out[4])
