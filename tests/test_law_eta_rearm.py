@@ -17,6 +17,7 @@ from controller_service.registry import build_controller, resolved_controller_ta
 from hil.bundled import resolve_scenario
 from hil.scenario import load_scenario
 from hil.sim import simulate_batch
+from hil.sim.core import RobotVariation
 
 CONTEXT = DesignContext()
 STATE = RobotState(0.0, 0.3, 0.1, 0.0, 0.0)
@@ -149,9 +150,11 @@ AFTER = 30.0  # s after the reference has come to rest
 KICK = {"eta_rearm": True, "eta_rearm_dwell": 8.0, "eta_rearm_tol": 0.02}
 
 
-def _circle_then_stop(extra: dict) -> tuple[np.ndarray, list[str], dict]:
+def _circle_then_stop(extra: dict) -> tuple[list[np.ndarray], list[str], list[dict]]:
     """The bundled circle_then_stop at Ts = 10 ms (coarse, so that 60 s of tracking leaves a
-    lateral error of about 0.28 m at the stop, and fast: about 2 s on the batch path)."""
+    lateral error of about 0.3 m at the stop, and fast: one batch of 8 robots in about 2 s),
+    from the bundled initial pose and 7 others within 0.3 m and 0.3 rad of it (seeded): the
+    sampled sign law is sensitive to rounding, so one robot alone could pass or fail by luck."""
     sc = load_scenario(resolve_scenario("paper_circle_then_stop_unified"))
     sc = dataclasses.replace(
         sc,
@@ -160,38 +163,47 @@ def _circle_then_stop(extra: dict) -> tuple[np.ndarray, list[str], dict]:
         timing=dataclasses.replace(sc.timing, ts=0.01),
         run=dataclasses.replace(sc.run, duration=STOP + 5.0 + AFTER),
     )
-    result = simulate_batch(sc, 1, record=[0])
-    return result.traces[0], result.columns, result.summaries[0]
+    base = np.array([sc.initial.x, sc.initial.y, sc.initial.theta])
+    moves = np.vstack([np.zeros(3), np.random.default_rng(5).uniform(-0.3, 0.3, (7, 3))])
+    robots = [RobotVariation(*(base + d)) for d in moves]
+    result = simulate_batch(sc, robots, record=list(range(len(robots))))
+    n = len(robots)
+    return [result.traces[i] for i in range(n)], result.columns, list(result.summaries)
 
 
 def test_after_60_s_of_tracking_only_the_kick_brings_the_robot_to_the_stop_point():
-    """Without the re-arm eta is ~1e-8 at the stop and the lateral error of 0.28 m stays; the
-    eta-only re-arm fires once and removes 0.05 m of it in 30 s (at rest the paper's xi is of
+    """Without the re-arm eta is ~1e-8 at the stop and the lateral error of ~0.3 m stays; the
+    eta-only re-arm fires once and removes ~0.05 m of it in 30 s (at rest the paper's xi is of
     the order of the squared error); the kick brings the position error below 0.05 m (over the
-    last 2 s of the 30) with a few resets, at least a dwell apart. The limits (2) hold in all
-    three runs. The heading is NOT below 0.05 rad there: see the next test."""
+    last 2 s of the 30) with a few resets, at least a dwell apart. The limits (2) hold in every
+    run. The heading is NOT below 0.05 rad there: see the next test."""
     rest_at = STOP + 5.0
-    ends = {}
+    ends: dict[str, list] = {}
     for name, extra in (("paper", {}), ("eta", {"eta_rearm": True}), ("kick", KICK)):
-        trace, cols, summary = _circle_then_stop(extra)
-        assert summary["limits_held"]
-        t = trace[:, cols.index("t")]
-        pos = trace[:, cols.index("position_error")]
-        i0 = np.searchsorted(t, rest_at)
-        ends[name] = (pos[i0], pos[t >= rest_at + AFTER - 2.0].max())
-        if name != "paper":
+        traces, cols, summaries = _circle_then_stop(extra)
+        ends[name] = []
+        for trace, summary in zip(traces, summaries, strict=True):
+            assert summary["limits_held"]
+            t = trace[:, cols.index("t")]
+            pos = trace[:, cols.index("position_error")]
+            ends[name].append(
+                (pos[np.searchsorted(t, rest_at)], pos[t >= rest_at + AFTER - 2].max())
+            )
+            eta_end = trace[-1, cols.index("eta")]
+            if name == "paper":
+                assert eta_end < 1e-6
+                continue
             fired = t[trace[:, cols.index("eta_rearmed")] > 0]
             assert fired[0] == pytest.approx(rest_at, abs=0.011)  # first at rest
             assert np.all(np.diff(fired) >= KICK["eta_rearm_dwell"] - 1e-9)
-            assert len(fired) == (1 if name == "eta" else 4)
-            assert trace[-1, cols.index("eta")] == 1.0
-        else:
-            assert trace[-1, cols.index("eta")] < 1e-6
-    assert ends["paper"][0] > 0.25 and ends["paper"][1] > 0.25  # stuck
-    assert ends["eta"][0] == pytest.approx(ends["paper"][0], abs=1e-9)  # same loop until rest
-    assert 0.2 < ends["eta"][1] < ends["eta"][0] - 0.03  # decreasing, far from 0.05 m
-    assert ends["kick"][0] == pytest.approx(ends["paper"][0], abs=1e-9)
-    assert ends["kick"][1] < 0.05
+            assert len(fired) == 1 if name == "eta" else 2 <= len(fired) <= 4
+            assert eta_end == 1.0
+    paper, eta, kick = (np.array(ends[k]) for k in ("paper", "eta", "kick"))
+    assert np.all(paper[:, 0] > 0.25) and np.all(paper[:, 1] > 0.25)  # stuck
+    assert eta[:, 0] == pytest.approx(paper[:, 0], abs=1e-9)  # the same loops until rest
+    assert kick[:, 0] == pytest.approx(paper[:, 0], abs=1e-9)
+    assert np.all(eta[:, 1] > 0.2) and np.all(eta[:, 1] < eta[:, 0] - 0.03)  # slow
+    assert np.all(kick[:, 1] < 0.05)
 
 
 def test_at_10_ms_the_papers_law_keeps_the_heading_in_a_limit_cycle_wider_than_0_05_rad():
