@@ -139,8 +139,20 @@ def test_float_and_array_paths_agree(tol):
         assert out_f.telemetry["eta_rearmed"] == out_a.telemetry["eta_rearmed"][i]
         assert tuple(mem_f) == pytest.approx(tuple(float(v[i]) for v in mem_a), abs=1e-12)
     # Rejected input keeps the paper's rule: zero torque, memory unchanged.
-    bad, _ = law.update(1.0, 1e-3, STATE._replace(x=float("nan")), AT_REST, RearmMemory(1, 0, 0, 0))
-    assert bad.tau1 == 0.0 and bad.telemetry["nonfinite"] == 1.0
+    ready = RearmMemory(0.1, 0.2, 0.3, 9.0)  # at rest, past the dwell: the rule would fire
+    for field in ("x", "theta"):
+        for value in (float("nan"), float("inf")):
+            bad_state = STATE._replace(**{field: value})
+            bad, mem = law.update(1.0, 1e-3, bad_state, AT_REST, ready)
+            assert bad.tau1 == 0.0 and bad.telemetry["nonfinite"] == 1.0
+            assert tuple(mem) == tuple(ready) and bad.telemetry["eta_rearmed"] == 0.0
+            # On arrays, element-wise: the good robot is re-armed, the bad one left alone.
+            pair = RobotState(*(np.array([g, b]) for g, b in zip(STATE, bad_state, strict=True)))
+            both = RearmMemory(*(np.full(2, v) for v in ready))
+            bad, mem = law.update(1.0, 1e-3, pair, AT_REST, both)
+            assert bad.telemetry["nonfinite"].tolist() == [0.0, 1.0]
+            assert bad.telemetry["eta_rearmed"].tolist() == [1.0, 0.0]
+            assert [float(v[1]) for v in mem] == list(ready)
     assert isinstance(law.signals(0.0, STATE, MOVING, memory=(1.0, 0.0, 0.0, 0.0)).xi, float)
     assert UnifiedMemory(*law.initial_memory()[:3]) == UnifiedMemory(1.0, 0.0, 0.0)
 

@@ -51,6 +51,29 @@ BELOW_DEFAULT = 0.5  # reset only an eta that has decayed below this
 KICK_FULL = 0.2  # m: a position error from this on gets the full kick z2 = -m2 sgn(xe ye)
 
 
+def _errors(ns: Any, state: RobotState, ref: ReferenceSample) -> tuple[Any, Any]:
+    """xe ye and |p| = sqrt(xe^2 + ye^2) of the errors (4); |p| = 0 (no kick) where they are not
+    finite (math raises on cos(inf), numpy warns: both quietened, the law rejects that input)."""
+    if ns.is_array:
+        with np.errstate(all="ignore"):
+            return _errors_any(ns, state, ref)
+    try:
+        return _errors_any(ns, state, ref)
+    except (ValueError, OverflowError):
+        return 0.0, 0.0
+
+
+def _errors_any(ns: Any, state: RobotState, ref: ReferenceSample) -> tuple[Any, Any]:
+    dx = state.x - ref.xd
+    dy = state.y - ref.yd
+    c = ns.cos(state.theta)
+    s = ns.sin(state.theta)
+    xe = c * dx + s * dy
+    ye = c * dy - s * dx
+    p = ns.sqrt(xe * xe + ye * ye)
+    return xe * ye, ns.where(ns.isfinite(p), p, 0.0)
+
+
 class RearmMemory(NamedTuple):
     """The paper's eta, z1, z2 and the law time since eta was last reset."""
 
@@ -96,13 +119,24 @@ class EtaRearmController:
         self, t: Any, dt: Any, state: RobotState, ref: ReferenceSample, memory: RearmMemory
     ) -> tuple[ControlOutput, RearmMemory]:
         """Reset the memory if the rule of the module doc fires, then the paper's law."""
-        arrays = any(isinstance(v, np.ndarray) for v in (*memory, *state[:3], *ref[:5]))
+        arrays = False
+        for value in (*memory, *state[:3], *ref[:5]):
+            if value.__class__ is not float and isinstance(value, np.ndarray):
+                arrays = True
+                break
         eta, z1, z2, since, fired = self._rearm(
             ARRAY_MATH if arrays else FLOAT_MATH, state, ref, memory
         )
         out, nxt = self.inner.update(t, dt, state, ref, UnifiedMemory(eta, z1, z2))
+        # Input the law rejects leaves the whole memory as it was, the reset included.
+        nxt = RearmMemory(*nxt, since + dt)
+        bad = out.telemetry["nonfinite"] > 0.0
+        if arrays or bad:
+            ns = ARRAY_MATH if arrays else FLOAT_MATH
+            nxt = RearmMemory(*(ns.where(bad, o, n) for o, n in zip(memory, nxt, strict=True)))
+            fired = ns.where(bad, 0.0, fired)
         out.telemetry["eta_rearmed"] = fired
-        return out, RearmMemory(nxt.eta, nxt.z1, nxt.z2, since + dt)
+        return out, nxt
 
     def _rearm(self, ns: Any, state: RobotState, ref: ReferenceSample, memory: RearmMemory) -> Any:
         """The memory after the rule (one source for floats and arrays): eta, z1, z2, since and
@@ -112,18 +146,11 @@ class EtaRearmController:
         ready = rest & (since >= self.dwell)
         fire = ready & (eta < self.below)
         if self.tol is not None:
-            dx = state.x - ref.xd
-            dy = state.y - ref.yd
-            c = ns.cos(state.theta)
-            s = ns.sin(state.theta)
-            xe = c * dx + s * dy
-            ye = c * dy - s * dx
-            p = ns.sqrt(xe * xe + ye * ye)
+            cross, p = _errors(ns, state, ref)
             kick = ready & (p > self.tol)
-            turn = ns.where(xe * ye > 0.0, -1.0, ns.where(xe * ye < 0.0, 1.0, -1.0))
-            z2_kick = turn * self._m2 * ns.minimum(1.0, p / KICK_FULL)
-            z1 = ns.where(kick, 0.0 * z1, z1)
-            z2 = ns.where(kick, z2_kick, z2)
+            turn = ns.where(cross > 0.0, -1.0, ns.where(cross < 0.0, 1.0, -1.0))
+            z1 = ns.where(kick, 0.0, z1)
+            z2 = ns.where(kick, turn * self._m2 * ns.minimum(1.0, p / KICK_FULL), z2)
             fire = fire | kick
         eta = ns.where(fire, 1.0, eta)
         since = ns.where(fire, 0.0, since)
