@@ -32,6 +32,10 @@ def test_default_is_the_papers_law_and_the_option_wraps_it():
     table = resolved_controller_table(law)
     assert table["eta_rearm"] is True and table["eta_rearm_dwell"] == 2.0
     assert type(build_controller(table, CONTEXT)) is EtaRearmController  # the table rebuilds it
+    kick = build_controller({"eta_rearm": True, "eta_rearm_tol": 0.02}, CONTEXT)
+    assert resolved_controller_table(kick)["eta_rearm_tol"] == 0.02
+    assert build_controller(resolved_controller_table(kick), CONTEXT).tol == 0.02
+    assert "eta_rearm_tol" not in table  # without the key: the eta-only re-arm
 
 
 @pytest.mark.parametrize(
