@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from controller_service.laws.eta_rearm import EtaRearmController, RearmMemory
 from controller_service.laws.unified import UnifiedController, UnifiedMemory
 from controller_service.registry import build_controller, resolved_controller_table
 from hil.bundled import resolve_scenario
+from hil.commands.certify import certify_scenario
 from hil.scenario import load_scenario
 from hil.sim import simulate_batch
 from hil.sim.core import RobotVariation
@@ -242,3 +244,16 @@ def test_at_10_ms_the_papers_law_keeps_the_heading_in_a_limit_cycle_wider_than_0
     heading = np.abs(trace[last, cols.index("heading_error")])
     assert 0.05 < heading.max() < 0.1
     assert np.abs(np.diff(trace[last, cols.index("omega")])).max() == pytest.approx(0.51)
+
+
+def test_the_certificate_is_the_papers_with_the_rearm_and_the_kick(tmp_path):
+    """The bound of (2) uses the memory only through its box, which every reset keeps: `hil
+    certify` accepts the re-arm keys and gives the paper's certificate."""
+    bundled = resolve_scenario("paper_circle_then_stop_unified")
+    keys = "eta_rearm = true\neta_rearm_dwell = 8.0\neta_rearm_tol = 0.02\n"
+    path = tmp_path / "kick.toml"
+    path.write_text(Path(bundled).read_text().replace("rho = 1.0\n", "rho = 1.0\n" + keys))
+    assert load_scenario(path).controller["eta_rearm_tol"] == 0.02
+    assert (
+        certify_scenario(str(path), None, None)[0] == certify_scenario(str(bundled), None, None)[0]
+    )
