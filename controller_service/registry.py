@@ -9,7 +9,8 @@
   :class:`controller_service.design.DesignError` (a ValueError). ``eta_rearm = true`` (default
   false: the paper's law) wraps it in :class:`controller_service.laws.eta_rearm.
   EtaRearmController` (eta reset to 1 when the reference comes to rest; keys
-  ``eta_rearm_dwell``, s, and ``eta_rearm_below``).
+  ``eta_rearm_dwell``, s, ``eta_rearm_below`` and ``eta_rearm_tol``, m: also reset z1, z2 to
+  turn the robot towards the stop point while its position error exceeds it).
 - ``"jiang1997"``: [7] with the sub-table [controller.jiang1997] c1, c2 (7, 0.1).
 - ``"jiang2001"``: [19] with [controller.jiang2001] stab_eps, track_lam.
 - ``"package.module:Class"``: a user's controller, built as ``Class(params, context)`` where
@@ -48,7 +49,7 @@ from protocol.paper import EPS_DEFAULT, TABLE1
 BUILTIN_LAWS = ("unified", "unified_boundary", "jiang1997", "jiang2001")
 _BASELINE_TABLES = ("jiang1997", "jiang2001")
 # The unified law's eta re-arm (beyond the paper, off by default): controller_service.laws.eta_rearm
-REARM_KEYS = ("eta_rearm", "eta_rearm_dwell", "eta_rearm_below")
+REARM_KEYS = ("eta_rearm", "eta_rearm_dwell", "eta_rearm_below", "eta_rearm_tol")
 
 # Tables of user controllers (whose objects cannot be asked for one) and notes of auto lam/rho.
 _user_tables: weakref.WeakKeyDictionary[Any, dict[str, Any]] = weakref.WeakKeyDictionary()
@@ -107,6 +108,8 @@ def _rearm_values(table: Mapping[str, Any]) -> dict[str, Any] | None:
         raise ValueError(f"[controller] eta_rearm_dwell must be > 0 s, got {out['dwell']!r}")
     if not 0.0 < out.get("below", 0.5) <= 1.0:
         raise ValueError(f"[controller] eta_rearm_below must be in (0, 1], got {out['below']!r}")
+    if out.get("tol", 1.0) <= 0.0:
+        raise ValueError(f"[controller] eta_rearm_tol must be > 0 m, got {out['tol']!r}")
     return out
 
 

@@ -14,9 +14,24 @@ unchanged on the re-armed memory. While the reference rests eta' = 0, so one res
 dwell bounds the resets to one per ``dwell`` even for a reference that stops and starts. eta
 stays in [0, 1], which is all the constraint proofs use (docs/laws.md, "eta re-arm").
 
+With ``tol`` (metres, key ``eta_rearm_tol``; default None: eta only) the re-arm also resets
+the law's other memory, the **kick**: at a sample where the reference is at rest, at least
+``dwell`` seconds have passed since the last reset and the position error |p| = sqrt(xe^2 +
+ye^2) exceeds ``tol``, the memory becomes
+
+    eta = 1,   z1 = 0,   z2 = -m2 sgn(xe ye) min(1, |p| / KICK_FULL)     (sgn(0) taken as +1)
+
+Why: at rest the paper's law drives v = -z1 and w = xi' - z2, with xi of the order of the
+squared error (rho tanh(r - 1) ~ |p|^2 / 2), so a lateral error of 0.3 m is removed over many
+minutes. A z2 of size m2 turns the robot by up to ~0.65 rad (the heading loop of (8) at rest:
+e'' + (l2 / (2 m2)) e' + (l2 / 4) e = 0), towards pointing its axis at the stop point (the sign
+of xe ye); the law's own xe loop (z1) then drives it along that axis and the heading loop turns
+it back. The kick shrinks with the error so that the heading swing does too. Every kick keeps
+the memory in the box 0 <= eta <= 1, |z1| <= m1, |z2| <= m2 that the constraint proofs use.
+
 Memory: the paper's (eta, z1, z2) and ``since``, the law time since the last reset (starts at
-``dwell``: a reference at rest from t = 0 with eta(0) = 1 never triggers). Telemetry: the
-paper's keys and ``eta_rearmed`` (1 at the sample where eta was reset).
+``dwell``: a reference at rest from t = 0 with eta(0) = 1 never triggers an eta-only re-arm).
+Telemetry: the paper's keys and ``eta_rearmed`` (1 at the sample where the memory was reset).
 """
 
 from __future__ import annotations
@@ -28,10 +43,35 @@ import numpy as np
 
 from controller_service.laws.base import ControlOutput, ReferenceSample, RobotState
 from controller_service.laws.unified import UnifiedController, UnifiedMemory
+from runtime.mathns import ARRAY_MATH, FLOAT_MATH
 
 REST_TOL = 1e-9  # |vd| + |wd| at or below this is a reference at rest
 DWELL_DEFAULT = 5.0  # s between resets at least
 BELOW_DEFAULT = 0.5  # reset only an eta that has decayed below this
+KICK_FULL = 0.2  # m: a position error from this on gets the full kick z2 = -m2 sgn(xe ye)
+
+
+def _errors(ns: Any, state: RobotState, ref: ReferenceSample) -> tuple[Any, Any]:
+    """xe ye and |p| = sqrt(xe^2 + ye^2) of the errors (4); |p| = 0 (no kick) where they are not
+    finite (math raises on cos(inf), numpy warns: both quietened, the law rejects that input)."""
+    if ns.is_array:
+        with np.errstate(all="ignore"):
+            return _errors_any(ns, state, ref)
+    try:
+        return _errors_any(ns, state, ref)
+    except (ValueError, OverflowError):
+        return 0.0, 0.0
+
+
+def _errors_any(ns: Any, state: RobotState, ref: ReferenceSample) -> tuple[Any, Any]:
+    dx = state.x - ref.xd
+    dy = state.y - ref.yd
+    c = ns.cos(state.theta)
+    s = ns.sin(state.theta)
+    xe = c * dx + s * dy
+    ye = c * dy - s * dx
+    p = ns.sqrt(xe * xe + ye * ye)
+    return xe * ye, ns.where(ns.isfinite(p), p, 0.0)
 
 
 class RearmMemory(NamedTuple):
@@ -48,19 +88,27 @@ class EtaRearmController:
     (module doc). Same name, parameters and design checks as the wrapped law."""
 
     def __init__(
-        self, inner: UnifiedController, dwell: float = DWELL_DEFAULT, below: float = BELOW_DEFAULT
+        self,
+        inner: UnifiedController,
+        dwell: float = DWELL_DEFAULT,
+        below: float = BELOW_DEFAULT,
+        tol: float | None = None,
     ) -> None:
         dwell, below = float(dwell), float(below)
         if not (math.isfinite(dwell) and dwell > 0.0):
             raise ValueError(f"[controller] eta_rearm_dwell must be > 0 s, got {dwell!r}")
         if not (0.0 < below <= 1.0):
             raise ValueError(f"[controller] eta_rearm_below must be in (0, 1], got {below!r}")
+        if tol is not None and not (math.isfinite(tol) and tol > 0.0):
+            raise ValueError(f"[controller] eta_rearm_tol must be > 0 m, got {tol!r}")
         self.inner = inner
         self.dwell = dwell
         self.below = below
+        self.tol = None if tol is None else float(tol)
         self.name = inner.name
         self.params = inner.params
         self.context = inner.context
+        self._m2 = float(inner.params.m2)
 
     def initial_memory(self, n: int | None = None, z1: float = 0.0, z2: float = 0.0) -> Any:
         eta, z1_0, z2_0 = self.inner.initial_memory(n, z1=z1, z2=z2)
@@ -70,23 +118,43 @@ class EtaRearmController:
     def update(
         self, t: Any, dt: Any, state: RobotState, ref: ReferenceSample, memory: RearmMemory
     ) -> tuple[ControlOutput, RearmMemory]:
-        """Reset eta if the rule of the module doc fires, then the paper's law."""
-        eta, z1, z2, since = memory
-        if isinstance(eta, np.ndarray) or isinstance(ref.vd, np.ndarray):
-            rest = np.abs(ref.vd) + np.abs(ref.wd) <= REST_TOL
-            fire = rest & (eta < self.below) & (since >= self.dwell)
-            eta = np.where(fire, 1.0, eta)
-            since = np.where(fire, 0.0, since)
-            fired: Any = fire.astype(float)
-        else:
-            fire = abs(ref.vd) + abs(ref.wd) <= REST_TOL and eta < self.below
-            fire = fire and since >= self.dwell
-            if fire:
-                eta, since = 1.0, 0.0
-            fired = 1.0 if fire else 0.0
+        """Reset the memory if the rule of the module doc fires, then the paper's law."""
+        arrays = False
+        for value in (*memory, *state[:3], *ref[:5]):
+            if value.__class__ is not float and isinstance(value, np.ndarray):
+                arrays = True
+                break
+        eta, z1, z2, since, fired = self._rearm(
+            ARRAY_MATH if arrays else FLOAT_MATH, state, ref, memory
+        )
         out, nxt = self.inner.update(t, dt, state, ref, UnifiedMemory(eta, z1, z2))
+        # Input the law rejects leaves the whole memory as it was, the reset included.
+        nxt = RearmMemory(*nxt, since + dt)
+        bad = out.telemetry["nonfinite"] > 0.0
+        if arrays or bad:
+            ns = ARRAY_MATH if arrays else FLOAT_MATH
+            nxt = RearmMemory(*(ns.where(bad, o, n) for o, n in zip(memory, nxt, strict=True)))
+            fired = ns.where(bad, 0.0, fired)
         out.telemetry["eta_rearmed"] = fired
-        return out, RearmMemory(nxt.eta, nxt.z1, nxt.z2, since + dt)
+        return out, nxt
+
+    def _rearm(self, ns: Any, state: RobotState, ref: ReferenceSample, memory: RearmMemory) -> Any:
+        """The memory after the rule (one source for floats and arrays): eta, z1, z2, since and
+        1.0 where it fired (else 0.0)."""
+        eta, z1, z2, since = memory
+        rest = ns.abs(ref.vd) + ns.abs(ref.wd) <= REST_TOL
+        ready = rest & (since >= self.dwell)
+        fire = ready & (eta < self.below)
+        if self.tol is not None:
+            cross, p = _errors(ns, state, ref)
+            kick = ready & (p > self.tol)
+            turn = ns.where(cross > 0.0, -1.0, ns.where(cross < 0.0, 1.0, -1.0))
+            z1 = ns.where(kick, 0.0, z1)
+            z2 = ns.where(kick, turn * self._m2 * ns.minimum(1.0, p / KICK_FULL), z2)
+            fire = fire | kick
+        eta = ns.where(fire, 1.0, eta)
+        since = ns.where(fire, 0.0, since)
+        return eta, z1, z2, since, ns.where(fire, 1.0, 0.0)
 
     def signals(self, t: Any, state: RobotState, ref: ReferenceSample, memory: Any) -> Any:
         return self.inner.signals(t, state, ref, UnifiedMemory(*memory[:3]))
@@ -98,4 +166,5 @@ class EtaRearmController:
             "eta_rearm": True,
             "eta_rearm_dwell": self.dwell,
             "eta_rearm_below": self.below,
+            **({} if self.tol is None else {"eta_rearm_tol": self.tol}),
         }

@@ -20,8 +20,10 @@ from hil.errors import BadInputError, NegativeVerdictError
 
 _UNIFIED = ("unified", "unified_boundary")
 _GAINS = ("m1", "m2", "l1", "l2", "lam", "rho")
-# The eta re-arm keeps eta in [0, 1], all the bound uses (docs/laws.md): the same certificate.
-_IGNORED = ("law", "jiang1997", "jiang2001", "eta_rearm", "eta_rearm_dwell", "eta_rearm_below")
+# The eta re-arm keeps eta in [0, 1] and z1, z2 in [-m, m], all the bound uses (docs/laws.md):
+# the same certificate.
+_REARM = ("eta_rearm", "eta_rearm_dwell", "eta_rearm_below", "eta_rearm_tol")
+_IGNORED = ("law", "jiang1997", "jiang2001", *_REARM)
 
 
 def _worst_delay(timing: Any) -> float:
