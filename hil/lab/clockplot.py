@@ -4,21 +4,22 @@ their median, so that a drift, a step or a widening bound shows."""
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 
-from hil.measure.clocks import read_track
+from hil.measure.clocks import ClockTrack, read_track
 
 CLOCK_PLOT = "clock.png"
 
 
-def plot_clock(run_dir: Path) -> Path | None:
-    """The plot, or None when the run has no estimates."""
+def clock_png(track: ClockTrack) -> bytes | None:
+    """The plot as PNG bytes, or None when there are no estimates (the run's clock.png and
+    the report's figure are the same picture)."""
     matplotlib.use("Agg")
-    track = read_track(run_dir)
     if track.at_ns.size == 0:
         return None
     t = (track.at_ns - track.at_ns[0]) / 1e9
@@ -33,7 +34,17 @@ def plot_clock(run_dir: Path) -> Path | None:
     ax.set_title("plant clock minus controller clock (RFC 5905 minimum-delay filter)", fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    path = run_dir / CLOCK_PLOT
-    fig.savefig(path, dpi=100)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
+    return buf.getvalue()
+
+
+def plot_clock(run_dir: Path) -> Path | None:
+    """The plot, or None when the run has no estimates."""
+    png = clock_png(read_track(run_dir))
+    if png is None:
+        return None
+    path = run_dir / CLOCK_PLOT
+    path.write_bytes(png)
     return path

@@ -38,6 +38,7 @@ from hil.report.ideal_sim import WINDOW_S
 from hil.report.markdown import render_markdown
 from hil.report.measured import RunResult, run_result
 from hil.report.telemetry import SLIDING, folder_telemetry
+from hil.report.topology_section import add as add_topology
 from hil.verdict import DEFAULT_THRESHOLDS, PEAK_KEYS, RunFacts, Thresholds, judge
 from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
 from protocol.versions import REPORT_SCHEMA_VERSION
@@ -190,6 +191,7 @@ def build_report(
         "verdict": verdict,
         "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
     }
+    add_topology(folder.path, data, figs)  # "Where it ran", for a run across lab hosts
     data["headline"] = headline(data, folder.summary)
     return Report(data, figs)
 
