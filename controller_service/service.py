@@ -521,17 +521,94 @@ def _first_free_cmd_seq(previous: Any, ts: float) -> int:
     return max(seqs, default=-1) + 1 + math.ceil(1.0 / ts - 1e-9)
 
 
-def main_from_settings(settings_path: str) -> int:
-    """Entry of ``python -m controller_service SETTINGS.json`` (``hil`` resolved the run into
-    that file: :class:`protocol.settings.RunSettings`)."""
-    from controller_service.from_settings import build_law
-    from runtime.clocksync import CLOCK_FILE, ClockProbe
-    from runtime.startgate import StartGate
+def main_from_settings(settings_path: str, *more: str) -> int:
+    """Entry of ``python -m controller_service SETTINGS.json [MORE.json ...]`` (``hil``
+    resolved the run into that file: :class:`protocol.settings.RunSettings`); several files:
+    one process hosts each of those robots' controllers (:func:`main_group`)."""
+    from runtime.realtime import restore_gc
+    from runtime.signals import stop_on_signals
     from runtime.zsession import check_credentials, open_session
 
+    if more:
+        return main_group([settings_path, *more])
     s = RunSettings.load(settings_path)
     s.validate()
     check_credentials(s.zenoh_endpoint, s.zenoh_mode)  # a bad credentials file: exit before a log
+    session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
+    parts = build_service(s, session)
+    if parts.svc.epoch_ns == 0:  # the start will be announced on the plant's clock: relate it
+        parts.clock.wait_first()
+    try:
+        with stop_on_signals() as stop:
+            # Scheduling first, readiness after: the set-up (mlockall, a full collection, the
+            # GC frozen) takes tens of ms, which must not eat into the run's first periods.
+            sched = setup_scheduling(s.scheduling, cpu=s.cpu_controller)
+            try:
+                return _run_service(s, parts, stop, sched)
+            finally:
+                restore_gc()
+    finally:
+        parts.clock.close()
+        session.close()
+
+
+def main_group(paths: list[str]) -> int:
+    """Several robots' controllers in one process (a fleet on few cores: runtime.group): each
+    its own :class:`ControllerService` (its keys, law memory, hop log in its own run folder,
+    clock probe, deadlines on its own epoch) in its own thread; the session, the scheduling
+    and the signals shared."""
+    from runtime.group import check_group, run_threads
+    from runtime.realtime import restore_gc
+    from runtime.signals import stop_on_signals
+    from runtime.zsession import check_credentials, open_session
+
+    settings = [RunSettings.load(p) for p in paths]
+    for s in settings:
+        s.validate()
+    check_group(settings)
+    first = settings[0]
+    check_credentials(first.zenoh_endpoint, first.zenoh_mode)
+    session = open_session(first.zenoh_endpoint, mode=first.zenoh_mode)
+    built = [build_service(s, session) for s in settings]
+    try:
+        for parts in built:
+            if parts.svc.epoch_ns == 0:
+                parts.clock.wait_first()
+        with stop_on_signals() as stop:
+            # Once, before the threads (they inherit the policy and the CPU).
+            sched = setup_scheduling(first.scheduling, cpu=first.cpu_controller)
+            try:
+                bodies = [
+                    lambda s=s, p=p: _run_service(s, p, stop, sched)
+                    for s, p in zip(settings, built, strict=True)
+                ]
+                return run_threads([s.robot_id for s in settings], bodies)
+            finally:
+                restore_gc()
+    finally:
+        for parts in built:
+            parts.clock.close()
+        session.close()
+
+
+@dataclass
+class Parts:
+    """One robot's controller as built before its run: the service, its start gate, hop log,
+    CAN path and clock probe (started)."""
+
+    svc: ControllerService
+    gate: Any
+    hoplog: HopLogWriter
+    can_path: CanCommandPath | None
+    clock: Any
+
+
+def build_service(s: RunSettings, session: Any) -> Parts:
+    """One robot's controller on ``session``, its clock probe started."""
+    from controller_service.from_settings import build_law
+    from runtime.clocksync import CLOCK_FILE, ClockProbe
+    from runtime.startgate import StartGate
+
     controller, reference, memory, law_name = build_law(s)
     core = ControlCore(controller, reference, s.ts, s.limits_value, memory=memory)
     faults = Faults.of(s.faults)
@@ -539,7 +616,6 @@ def main_from_settings(settings_path: str) -> int:
     # that log, its epoch and its command numbering (the plant's tracker sees no gap).
     previous = crashed_log(Path(s.out_dir) / HOPLOG_NAME)
     hoplog = _open_hoplog(s, previous)
-    session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
     can_path = _open_can_path(s, hoplog, faults)
     epoch_ns = s.epoch_ns or (int(previous.meta["epoch_ns"]) if previous is not None else 0)
     gate = StartGate(session, s.robot_id, "controller")
@@ -565,54 +641,35 @@ def main_from_settings(settings_path: str) -> int:
         svc.continue_after(_first_free_cmd_seq(previous, s.ts))
     # The offset to the plant's clock, off the real-time thread (started before its scheduling).
     clock = ClockProbe(session, s.robot_id, Path(s.out_dir) / CLOCK_FILE).start()
-    if epoch_ns == 0:  # the start will be announced on the plant's clock: relate it first
-        clock.wait_first()
-    try:
-        return _run_service(s, svc, gate, hoplog, can_path, session, clock)
-    finally:
-        clock.close()
+    return Parts(svc, gate, hoplog, can_path, clock)
 
 
-def _run_service(
-    s: RunSettings,
-    svc: ControllerService,
-    gate: Any,
-    hoplog: HopLogWriter,
-    can_path: CanCommandPath | None,
-    session: Any,
-    clock: Any = None,
-) -> int:
+def _run_service(s: RunSettings, parts: Parts, stop: Any, sched: SchedulingReport) -> int:
     """Wait for the run's start (unless the epoch is known; announced on the plant's clock,
-    converted with ``clock``'s estimate), run until stopped, close all."""
+    converted with the clock probe's estimate), run until stopped, close the robot's own
+    parts (not the session)."""
     from runtime.clocksync import epoch_on_local_clock
-    from runtime.realtime import restore_gc
-    from runtime.signals import stop_on_signals
 
-    with stop_on_signals() as stop:
-        # Scheduling first, readiness after: the set-up (mlockall, a full collection, the GC
-        # frozen) takes tens of ms, which must not eat into the run's first periods.
-        sched = setup_scheduling(s.scheduling, cpu=s.cpu_controller)
-        svc.scheduling = sched
-        try:
-            epoch_ns = svc.epoch_ns
-            if epoch_ns == 0:
-                got = gate.wait(stop)
-                if got is None:
-                    print("no start: stopped or start-gate timeout", flush=True)
-                    return 1
-                epoch_ns = svc.epoch_ns = got if clock is None else epoch_on_local_clock(got, clock)
-            hoplog.update_meta({"epoch_ns": epoch_ns})
-            if can_path is not None:
-                can_path.epoch_ns = epoch_ns
-            end_ns = None if s.lockstep else epoch_ns + int((s.duration + 2.0) * 1e9)
-            print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
-            svc.run(stop, end_ns, sched)
-        finally:
-            restore_gc()
-            with contextlib.suppress(Exception):  # the session may be gone on the way out
-                svc.send_stop()
-            if can_path is not None:
-                can_path.close()
-            hoplog.close(svc.final_counters())
-            session.close()
+    svc, hoplog, can_path = parts.svc, parts.hoplog, parts.can_path
+    svc.scheduling = sched
+    try:
+        epoch_ns = svc.epoch_ns
+        if epoch_ns == 0:
+            got = parts.gate.wait(stop)
+            if got is None:
+                print("no start: stopped or start-gate timeout", flush=True)
+                return 1
+            epoch_ns = svc.epoch_ns = epoch_on_local_clock(got, parts.clock)
+        hoplog.update_meta({"epoch_ns": epoch_ns})
+        if can_path is not None:
+            can_path.epoch_ns = epoch_ns
+        end_ns = None if s.lockstep else epoch_ns + int((s.duration + 2.0) * 1e9)
+        print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
+        svc.run(stop, end_ns, sched)
+    finally:
+        with contextlib.suppress(Exception):  # the session may be gone on the way out
+            svc.send_stop()
+        if can_path is not None:
+            can_path.close()
+        hoplog.close(svc.final_counters())
     return 0

@@ -612,16 +612,62 @@ def _open_drives(
     return CanCommands(can, drive_plant)
 
 
-def main_from_settings(settings_path: str) -> int:
-    """Entry of ``python -m plant_emulator SETTINGS.json`` (``hil`` resolved the run into that
-    file: :class:`protocol.settings.RunSettings`)."""
-    from runtime.clocksync import ClockEcho
+def main_from_settings(settings_path: str, *more: str) -> int:
+    """Entry of ``python -m plant_emulator SETTINGS.json [MORE.json ...]`` (``hil`` resolved
+    the run into that file: :class:`protocol.settings.RunSettings`); several files: one
+    process emulates each of those robots (:func:`main_group`)."""
     from runtime.signals import stop_on_signals
     from runtime.zsession import check_credentials, open_session
 
+    if more:
+        return main_group([settings_path, *more])
     s = RunSettings.load(settings_path)
     s.validate()
     check_credentials(s.zenoh_endpoint, s.zenoh_mode)  # a bad credentials file: exit before a log
+    with contextlib.ExitStack() as stack:
+        # Signals first: a Ctrl-C during the set-up (Zenoh, CAN) must stop the start gate too.
+        stop = stack.enter_context(stop_on_signals())
+        session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
+        stack.callback(session.close)
+        svc, hoplog = build_service(s, session, stack)
+        return _serve(svc, s, stop, hoplog, stack)
+
+
+def main_group(paths: list[str]) -> int:
+    """Several robots' plants in one process (a fleet on few cores: runtime.group): each its
+    own :class:`PlantService` (its keys, state, hop log in its own run folder, deadlines on
+    its own epoch) in its own thread; the session, the scheduling and the signals shared."""
+    from runtime.group import check_group, run_threads
+    from runtime.realtime import restore_gc
+    from runtime.signals import stop_on_signals
+    from runtime.zsession import check_credentials, open_session
+
+    settings = [RunSettings.load(p) for p in paths]
+    for s in settings:
+        s.validate()
+    check_group(settings)
+    first = settings[0]
+    check_credentials(first.zenoh_endpoint, first.zenoh_mode)
+    with contextlib.ExitStack() as stack:
+        stop = stack.enter_context(stop_on_signals())
+        session = open_session(first.zenoh_endpoint, mode=first.zenoh_mode)
+        stack.callback(session.close)
+        built = [build_service(s, session, stack) for s in settings]
+        # Once, before the threads (they inherit the policy and the CPU).
+        sched = setup_scheduling(first.scheduling, cpu=first.cpu_plant, freeze_gc=True)
+        stack.callback(restore_gc)
+        bodies = [
+            lambda svc=svc, s=s, log=log: _serve(svc, s, stop, log, stack, sched)
+            for (svc, log), s in zip(built, settings, strict=True)
+        ]
+        return run_threads([s.robot_id for s in settings], bodies)
+
+
+def build_service(s: RunSettings, session: Any, stack: Any) -> tuple[PlantService, HopLogWriter]:
+    """One robot's plant service and its hop log on ``session``; what it opened is closed
+    by ``stack``."""
+    from runtime.clocksync import ClockEcho
+
     core, sensor = build_plant(s)
     sensor_ts = s.ts if s.lockstep else s.sensor_ts
     faults = Faults.of(s.faults)
@@ -649,37 +695,42 @@ def main_from_settings(settings_path: str) -> int:
         },
         append=previous is not None,
     )
-    with contextlib.ExitStack() as stack:
-        # Signals first: a Ctrl-C during the set-up (Zenoh, CAN) must stop the start gate too.
-        stop = stack.enter_context(stop_on_signals())
-        svc: PlantService | None = None
-        stack.callback(lambda: hoplog.close(svc.final_counters() if svc else None))
-        session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
-        stack.callback(session.close)
-        stack.callback(ClockEcho(session, s.robot_id).close)  # others' offsets to this clock
-        can = _open_drives(s, core, hoplog, faults, stack)
-        svc = PlantService(
-            core,
-            sensor,
-            session,
-            s.robot_id,
-            s.epoch_ns,
-            s.ts,
-            sensor_ts,
-            cmd_path=s.cmd_path,
-            command_timeout=s.command_timeout,
-            injector=DelayInjector(s.delay, s.jitter, s.jitter_kind, s.seed),
-            can=can,
-            hoplog=hoplog,
-            faults=faults,
-        )
-        if previous is not None:
-            svc.continue_after(previous)
-        return _serve(svc, s, stop, hoplog, stack)
+    box: list[PlantService] = []
+    stack.callback(lambda: hoplog.close(box[0].final_counters() if box else None))
+    stack.callback(ClockEcho(session, s.robot_id).close)  # others' offsets to this clock
+    can = _open_drives(s, core, hoplog, faults, stack)
+    svc = PlantService(
+        core,
+        sensor,
+        session,
+        s.robot_id,
+        s.epoch_ns,
+        s.ts,
+        sensor_ts,
+        cmd_path=s.cmd_path,
+        command_timeout=s.command_timeout,
+        injector=DelayInjector(s.delay, s.jitter, s.jitter_kind, s.seed),
+        can=can,
+        hoplog=hoplog,
+        faults=faults,
+    )
+    box.append(svc)
+    if previous is not None:
+        svc.continue_after(previous)
+    return svc, hoplog
 
 
-def _serve(svc: PlantService, s: RunSettings, stop: Any, hoplog: HopLogWriter, stack: Any) -> int:
-    """The start gate (unless the epoch is given), then the run; returns the exit code."""
+def _serve(
+    svc: PlantService,
+    s: RunSettings,
+    stop: Any,
+    hoplog: HopLogWriter,
+    stack: Any,
+    sched: Any = None,
+) -> int:
+    """The start gate (unless the epoch is given), then the run; returns the exit code.
+    ``sched``: the process' scheduling, already set up (a group of robots); else set up
+    here."""
     from runtime.realtime import restore_gc
     from runtime.startgate import StartGate
 
@@ -687,8 +738,9 @@ def _serve(svc: PlantService, s: RunSettings, stop: Any, hoplog: HopLogWriter, s
     gate = StartGate(svc.session, s.robot_id, "plant")
     # Scheduling first, readiness after: the set-up (mlockall, a full collection, the GC
     # frozen) must be done before t = 0, or the first samples start late.
-    sched = setup_scheduling(s.scheduling, cpu=s.cpu_plant, freeze_gc=True)
-    stack.callback(restore_gc)
+    if sched is None:
+        sched = setup_scheduling(s.scheduling, cpu=s.cpu_plant, freeze_gc=True)
+        stack.callback(restore_gc)
     hoplog.update_meta({"scheduling": sched.as_dict()})
     if svc.epoch_ns == 0:
 

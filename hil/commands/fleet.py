@@ -29,14 +29,24 @@ def register(app: typer.Typer) -> None:
         controller_host: Annotated[
             str | None, typer.Option(help="The controllers' lab host.")
         ] = None,
+        per_process: Annotated[
+            int,
+            typer.Option(
+                help="Robots per process: K robots' plants in one plant process and their "
+                "controllers in one controller process (each robot its own keys, state, "
+                "deadlines and run folder); 1: one `hil run` per robot."
+            ),
+        ] = 1,
     ) -> None:
         """Run N robots' closed loops at once, each its own `hil run` with its own robot id
         (robotI: keys hil/robotI/...), controller, plant and run folder OUT/robotI (a complete
         run folder: `hil report OUT/robotI`), then write the fleet report OUT/fleet.json,
         fleet.md and fleet.png: per robot the verdict and D against D*; for the fleet the
         command age p99, the samples without a command and the deadline miss rate. Each robot
-        is two processes (its plant, its controller) and a recorder: on a 2-core machine the
-        fleet stops meeting its deadlines at a few robots (docs/fleet.md).
+        is two processes (its plant, its controller) and a recorder, unless --per-process K
+        groups K robots into one plant process, one controller process and one recorder
+        (threads sharing a Zenoh session, each robot on its own keys hil/robotI/...): a
+        2-core machine then fits tens of robots at 100 Hz (docs/fleet.md).
 
         Exit 1 when a robot's verdict is negative."""
         from hil.bundled import resolve_scenario
@@ -54,6 +64,7 @@ def register(app: typer.Typer) -> None:
             lab,
             plant_host,
             controller_host,
+            per_process,
         )
         with stop_on_signals() as stop:
             codes = execute(opts, stop)
@@ -61,6 +72,7 @@ def register(app: typer.Typer) -> None:
                 interrupts.record(stop.signal)
         facts = {"scenario": str(opts.scenario), "rate_hz": rate, "duration_s": duration}
         facts["lab"] = lab
+        facts["per_process"] = per_process
         summary = report.write(out, codes, facts)
         typer.echo(json.dumps(summary["fleet"], indent=2))
         if stop:

@@ -5,10 +5,15 @@ processes and its own run folder, all started together and stopped together.
 Over loopback each robot's sessions form their own peer mesh (one Zenoh session per process,
 as separate robots would have); with ``--lab`` every process is a client of its lab host's
 router, so all robots' traffic crosses the same routers (hil.lab.placement).
+
+``--per-process K`` (K > 1): robots in groups of K, each group one ``python -m hil.run.group``
+with one plant process and one controller process for its K robots (hil.run.group); each robot
+still has its own keys, state, deadlines and run folder.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from dataclasses import dataclass
@@ -32,6 +37,7 @@ class FleetOptions:
     lab: str | None = None
     plant_host: str | None = None
     controller_host: str | None = None
+    per_process: int = 1  # robots per plant and per controller process
 
 
 def robot_ids(n: int) -> list[str]:
@@ -57,9 +63,45 @@ def run_argv(opts: FleetOptions, robot: str) -> list[str]:
     return argv
 
 
+def groups(opts: FleetOptions) -> list[list[str]]:
+    """The robots of each process group (one robot each without ``--per-process``)."""
+    ids = robot_ids(opts.robots)
+    k = max(1, opts.per_process)
+    return [ids[i : i + k] for i in range(0, len(ids), k)]
+
+
+def group_argv(opts: FleetOptions, robots: list[str]) -> list[str]:
+    """``python -m hil.run.group`` of one group, its spec written into the fleet's folder."""
+    spec = {
+        "scenario": str(opts.scenario),
+        "robots": robots,
+        "out": str(opts.out),
+        "duration": opts.duration,
+        "rate": opts.rate,
+        "fleet_size": opts.robots,
+    }
+    path = opts.out / f".group-{robots[0]}.spec.json"
+    path.write_text(json.dumps(spec, indent=2) + "\n")
+    return [sys.executable, "-m", "hil.run.group", str(path)]
+
+
+def group_codes(opts: FleetOptions, robots: list[str], code: int | None) -> dict[str, int | None]:
+    """Each robot's exit code from its group's file (the group's own code for a robot the
+    file does not have: the group ended before it wrote it)."""
+    try:
+        got = json.loads((opts.out / f".group-{robots[0]}.codes.json").read_text())
+    except (OSError, ValueError):
+        got = {}
+    return {r: got.get(r, code if code else 1) for r in robots}
+
+
 def check(opts: FleetOptions) -> None:
     if not 1 <= opts.robots <= ROBOTS_MAX:
         raise BadInputError(f"--robots {opts.robots}: 1 to {ROBOTS_MAX}")
+    if not 1 <= opts.per_process <= ROBOTS_MAX:
+        raise BadInputError(f"--per-process {opts.per_process}: 1 to {ROBOTS_MAX}")
+    if opts.per_process > 1 and opts.lab:
+        raise BadInputError("--per-process runs over loopback: not with --lab (yet)")
     if opts.out.exists() and any(opts.out.iterdir()):
         raise BadInputError(f"--out {opts.out}: exists and is not empty")
 
@@ -71,20 +113,30 @@ def execute(opts: FleetOptions, stop: Any) -> dict[str, int | None]:
     opts.out.mkdir(parents=True, exist_ok=True)
     sup = Supervisor()
     logs = []
+    members = {g[0]: g for g in groups(opts)}
+    grouped = opts.per_process > 1
     try:
-        for robot in robot_ids(opts.robots):
-            log = (opts.out / f"{robot}.log").open("wb")
+        for first, robots in members.items():
+            log = (opts.out / f"{first}.log").open("wb")
             logs.append(log)
-            env = barrier.env_for(opts.out, opts.robots, robot)
-            sup.start(robot, run_argv(opts, robot), env=env, stdout=log, stderr=log)
+            env = barrier.env_for(opts.out, opts.robots, first)
+            argv = group_argv(opts, robots) if grouped else run_argv(opts, first)
+            sup.start(first, argv, env=env, stdout=log, stderr=log)
         while not stop and any(c.alive() for c in sup.children):
             for c in sup.children:
                 if not c.alive():  # ended before the start (it may never have been ready)
-                    barrier.release(opts.out, c.name)
+                    for robot in members[c.name]:
+                        barrier.release(opts.out, robot)
             time.sleep(0.1)
     finally:
         # A run that is still going gets SIGINT (it stops its services and writes its folder).
-        codes = {c.name: c.stop(grace=60.0) for c in sup.children}
+        codes = {c.name: c.stop(grace=60.0 + 5.0 * len(members[c.name])) for c in sup.children}
         for log in logs:
             log.close()
-    return codes
+    if not grouped:
+        return codes
+    return {
+        r: c
+        for first, code in codes.items()
+        for r, c in group_codes(opts, members[first], code).items()
+    }

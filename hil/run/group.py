@@ -1,0 +1,229 @@
+"""``python -m hil.run.group SPEC.json``: several robots' closed loops in three processes, for a
+fleet on a 2-core machine (``hil fleet --per-process K``).
+
+What ``hil run`` does for one robot, done for K robots at once: each robot gets its own run
+folder (``OUT/robotI``: its settings, scenario, hop logs, ``recording.mcap`` of its own keys
+``hil/robotI/**``, summary), so ``hil report`` reads each folder unchanged and every figure keeps
+its definition. What is shared: one plant process emulating the K robots and one controller
+process hosting their K controllers (runtime.group: one thread and one service object per
+robot, on the process' one Zenoh session and scheduling set-up), and this recorder process
+(one session on the group's loopback endpoint, one subscriber and one recording per robot).
+Robot I's epoch is shifted by (I - 1) / N of a period (N: the fleet's size), so the robots'
+deadlines interleave instead of all falling on the same instant.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from subprocess import STDOUT
+from typing import Any
+
+from hil.fleet import barrier as fleet_barrier
+from hil.folder import layout
+from hil.measure.logs import HOST_FILE
+from hil.recording import RecordingWriter
+from hil.run.host_load import HostSampler
+from hil.run.orchestrate import (
+    Recorder,
+    RunOptions,
+    _Logs,
+    _progress,
+    _stop_children,
+    _wait_ready,
+    _write_results,
+    attachment_files,
+    free_port,
+    prepare,
+)
+from hil.run.secure import RunIdentities
+from hil.supervisor import Supervisor
+from protocol.keys import robot_prefix
+from protocol.settings import RunSettings, period_ns
+from runtime.signals import stop_on_signals
+from runtime.startgate import announce_start
+from runtime.zsession import open_session
+
+START_GRID_NS = 500_000_000
+
+
+@dataclass
+class GroupSpec:
+    """One group of a fleet: its robots, the fleet's folder and the run's options."""
+
+    scenario: str
+    robots: list[str]
+    out: str
+    duration: float | None = None
+    rate: float | None = None
+    fleet_size: int = 0  # N: robot I's epoch is shifted by (I - 1) / N of a period
+
+    def save(self, path: Path) -> None:
+        path.write_text(json.dumps(asdict(self), indent=2) + "\n")
+
+
+def codes_file(out: Path, first: str) -> Path:
+    """Where a group writes each robot's exit code (as ``hil run`` would exit for it)."""
+    return out / f".group-{first}.codes.json"
+
+
+@dataclass
+class _Robot:
+    id: str
+    scenario: Any
+    settings: RunSettings
+    run_dir: Path
+    info: dict[str, Any]
+    writer: RecordingWriter
+    recorder: Recorder
+
+
+def _prepare(spec: GroupSpec, endpoint: str) -> list[_Robot]:
+    """Each robot's run folder, as ``hil run --robot-id R --no-can`` prepares it, every robot
+    on the group's one endpoint."""
+    robots = []
+    for r in spec.robots:
+        opts = RunOptions(scenario=Path(spec.scenario), duration=spec.duration, rate=spec.rate)
+        opts.out, opts.quiet, opts.can_live, opts.robot_id = Path(spec.out) / r, True, False, r
+        scenario, settings, run_dir, info = prepare(opts)
+        settings.zenoh_endpoint = endpoint
+        settings.save(run_dir / layout.RUN_SETTINGS)
+        meta = {"robot_id": r, "cmd_path": settings.cmd_path, "lockstep": settings.lockstep}
+        meta.update({"rate_hz": info["rate_hz"], "group": ",".join(spec.robots)})
+        writer = RecordingWriter(run_dir / layout.RECORDING, metadata=meta)
+        robots.append(_Robot(r, scenario, settings, run_dir, info, writer, Recorder(writer)))
+    return robots
+
+
+def _start_services(sup: Supervisor, robots: list[_Robot], logs: _Logs, host: HostSampler) -> None:
+    """One plant process and one controller process for every robot of the group."""
+    paths = [str(r.run_dir / layout.RUN_SETTINGS) for r in robots]
+    ids = RunIdentities(False, [r.id for r in robots])
+    for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
+        sup.start(
+            name,
+            [sys.executable, "-m", module, *paths],
+            env=ids.child_env(name),
+            stdout=logs.open(f"{robots[0].id}-group-{name}"),
+            stderr=STDOUT,
+        )
+    pids = {c.name: c.pid for c in sup.children}
+    for r in robots:
+        (r.run_dir / layout.PROCESSES).write_text(json.dumps(pids))
+    for c in sup.children:
+        host.watch(c.name, c.pid)
+
+
+def phase_ns(robot: str, position: int, n: int, period: int) -> int:
+    """Robot I's epoch shift: (I - 1) / N of a period (I: the number in ``robotI``, else its
+    position in the group)."""
+    m = re.fullmatch(r"robot(\d+)", robot)
+    index = int(m.group(1)) - 1 if m else position
+    return period * (index % n) // n if n > 0 else 0
+
+
+def _start_and_follow(spec: GroupSpec, robots: list[_Robot], sup: Supervisor, session: Any,
+                      stop: Any) -> str | None:  # fmt: skip
+    """Wait until every robot's plant and controller are ready, start them together (with
+    the rest of the fleet), follow the run to its end; returns an error, or None."""
+    deadline = time.monotonic() + float(os.environ.get("HIL_READY_TIMEOUT", "300"))
+    for r in robots:
+        if not _wait_ready(r.recorder, sup, stop, max(0.0, deadline - time.monotonic())):
+            return f"services of {r.id} did not become ready"
+    barrier = os.environ.get(fleet_barrier.ENV)
+    if barrier:  # every robot of this group is ready
+        for r in robots:
+            fleet_barrier.release(Path(barrier.rsplit(":", 2)[0]), r.id)
+    fleet_barrier.wait(stop)
+    # On a grid: the fleet's groups, released together within the barrier's poll, pick the
+    # same base (one host, one clock), so the phases interleave across groups too.
+    base = -(-(time.monotonic_ns() + 300_000_000) // START_GRID_NS) * START_GRID_NS
+    n = spec.fleet_size or len(robots)
+    epochs = [base + phase_ns(r.id, i, n, period_ns(r.settings.ts)) for i, r in enumerate(robots)]
+    for seq in range(3):  # a start message lost to a racing link must not hang
+        for r, epoch in zip(robots, epochs, strict=True):
+            announce_start(session, r.id, epoch, seq=seq)
+        time.sleep(0.02)
+    _progress(robots[0].settings, robots[0].recorder, sup, stop, True)
+    return None
+
+
+def robot_code(summary: dict[str, Any]) -> int:
+    """The exit code ``hil run`` gives this robot's summary (hil.commands.run, not strict)."""
+    v = summary.get("verdict") or {}
+    return 1 if summary.get("error") or v.get("blocking") else 0
+
+
+def execute(spec: GroupSpec, stop: Any) -> dict[str, int]:
+    """Run the group; each robot's exit code (also written to :func:`codes_file`)."""
+    out = Path(spec.out)
+    out.mkdir(parents=True, exist_ok=True)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    robots = _prepare(spec, endpoint)
+    sup, logs = Supervisor(), _Logs(out)
+    host = HostSampler(robots[0].run_dir)
+    session, subs, error = None, [], None
+    t0 = time.monotonic()
+    try:
+        session = open_session(endpoint, listen_endpoint=True, credentials=None)
+        for r in robots:  # each robot's keys into its own recording
+            subs.append(session.declare_subscriber(robot_prefix(r.id), r.recorder.on_zenoh))
+        _start_services(sup, robots, logs, host)
+        error = _start_and_follow(spec, robots, sup, session, stop)
+    finally:
+        codes = _stop_children(sup, robots[0].settings)
+        host.close()
+        logs.close()
+        for sub in subs:
+            sub.undeclare()
+        if session is not None:
+            session.close()
+        for r in robots:
+            if r is not robots[0] and (robots[0].run_dir / HOST_FILE).is_file():
+                shutil.copyfile(robots[0].run_dir / HOST_FILE, r.run_dir / HOST_FILE)
+            r.recorder.close(attachment_files(r.run_dir))
+    return _results(spec, robots, codes, error, bool(stop), time.monotonic() - t0)
+
+
+def _results(spec: GroupSpec, robots: list[_Robot], codes: dict[str, int | None],
+             error: str | None, interrupted: bool, wall: float) -> dict[str, int]:  # fmt: skip
+    """Each robot's trace.csv, summary.json and plots, as ``hil run`` writes them."""
+    out: dict[str, int] = {}
+    for r in robots:
+        extra = {
+            "interrupted": interrupted,
+            "error": error,
+            "wall_time_s": wall,
+            "exit_codes": codes,
+            "recording": layout.RECORDING,
+            "recorded_messages": r.writer.count,
+            "secure": False,
+            "shared_processes": {"robots": list(spec.robots), "processes": ["plant", "controller"]},
+        }
+        summary = _write_results(r.run_dir, r.scenario, r.settings, r.info, extra)
+        out[r.id] = robot_code(summary)
+    codes_file(Path(spec.out), spec.robots[0]).write_text(json.dumps(out) + "\n")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: python -m hil.run.group SPEC.json (written by hil fleet)", file=sys.stderr)
+        return 2
+    spec = GroupSpec(**json.loads(Path(args[0]).read_text()))
+    with stop_on_signals() as stop:
+        codes = execute(spec, stop)
+    if stop:
+        return 130
+    return max(codes.values(), default=0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
