@@ -1,17 +1,18 @@
 """A fleet of N robots on this machine: where it stops meeting its deadlines, and why.
 
-For each rate and each N, ``hil fleet paper_tracking --robots N`` over loopback (each robot:
-its own ``hil run``, plant and controller processes and recorder, started together). Per
+For each rate and each N, ``hil fleet paper_tracking --robots N --per-process K`` over loopback
+(K = N by default: one plant process emulating every robot, one controller process hosting
+every robot's controller, one recorder, each robot on its own keys and deadlines; ``--per-process
+1``: each robot its own ``hil run``, plant and controller processes and recorder). Per
 (rate, N): the fleet's command-age p99 (max over robots) beside D*, the samples without a
 command, the controller deadline-miss rate, how many robots passed, and the machine's CPU use
 over the fleet's run (from /proc/stat: user + system of both cores, the why). Writes
 ``fleet_scaling.json`` and a plot ``fleet_scaling.png`` (each figure against N).
 
-    python bench/bench_fleet.py                      # 100 Hz: N = 1, 4, 16; 500 Hz: 1, 4, 16
+    python bench/bench_fleet.py                      # 100 Hz: N = 1, 4, 16, 64; 500 Hz: 1, 4, 16
     python bench/bench_fleet.py --n 1 4 --rates 100  # a subset
+    python bench/bench_fleet.py --per-process 1      # one hil run per robot (3 N processes)
     python bench/bench_fleet.py --duration 10 --out DIR
-
-N = 64 is allowed (``--n 64``) but needs 192 Python interpreters at once (about 70 MB each).
 """
 
 from __future__ import annotations
@@ -37,10 +38,15 @@ def cpu_ticks() -> tuple[int, int]:
     return sum(f) - idle, sum(f)
 
 
-def one(n: int, rate: float, duration: float, out: Path) -> dict[str, Any]:
+DEFAULT_N = {100.0: [1, 4, 16, 64], 500.0: [1, 4, 16]}
+
+
+def one(n: int, rate: float, duration: float, out: Path, per: int = 0) -> dict[str, Any]:
     b0, t0 = cpu_ticks()
     w0 = time.monotonic()
+    k = min(per or n, n)
     args = ["--robots", str(n), "--rate", str(rate), "--duration", str(duration)]
+    args += ["--per-process", str(k)]
     done = subprocess.run(
         [sys.executable, "-m", "hil", "fleet", "paper_tracking", *args, "--out", str(out)],
         capture_output=True,
@@ -57,6 +63,8 @@ def one(n: int, rate: float, duration: float, out: Path) -> dict[str, Any]:
     return {
         "robots": n,
         "rate_hz": rate,
+        "per_process": k,
+        "processes": 3 * -(-n // k),
         "passed": f["passed"],
         "command_age_p99_ms_max": (f["command_age_p99_us_max"] or 0) / 1e3,
         "d_star_ms": min(d_star) * 1e3 if d_star else None,
@@ -64,7 +72,29 @@ def one(n: int, rate: float, duration: float, out: Path) -> dict[str, Any]:
         "deadline_miss_rate": f["deadline_miss_rate"],
         "cpu_busy": (b1 - b0) / max(1, t1 - t0),
         "wall_s": time.monotonic() - w0,
+        **why(out, n),
     }
+
+
+def why(out: Path, n: int) -> dict[str, Any]:
+    """Where the time went, worst robot: the processes' CPU (robot1's, shared by its group),
+    the wake-ups (scheduling) and the hops (transport) of every robot."""
+    host: dict[str, Any] = {}
+    worst: dict[str, float] = {}
+    for i in range(1, n + 1):
+        try:
+            s = json.loads((out / f"robot{i}" / "summary.json").read_text())
+        except (OSError, ValueError):
+            continue
+        if i == 1:
+            host = s.get("host") or {}
+        t = s.get("timing") or {}
+        for key in ("wakeup_lateness", "plant_wakeup_lateness", "hop_state", "hop_cmd_zenoh"):
+            p99 = (t.get(key) or {}).get("p99_us")
+            if p99 is not None:
+                worst[f"{key}_p99_ms_max"] = max(worst.get(f"{key}_p99_ms_max", 0.0), p99 / 1e3)
+    cpu = {f"{k}": host.get(k) for k in ("plant_cpu_pct", "controller_cpu_pct", "recorder_cpu_pct")}
+    return {**cpu, **worst}
 
 
 def plot(rows: list[dict[str, Any]], path: Path) -> None:
@@ -97,12 +127,13 @@ def main() -> int:
     ap.add_argument("--rates", type=float, nargs="+", default=[100.0, 500.0])
     ap.add_argument("--duration", type=float, default=5.0)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--per-process", type=int, default=0, help="robots per process (0: all)")
     a = ap.parse_args()
     out = a.out or Path(tempfile.mkdtemp(prefix="bench-fleet-"))
     rows = []
     for rate in a.rates:
-        for n in a.n or [1, 4, 16]:
-            row = one(n, rate, a.duration, out / f"r{rate:g}-n{n}")
+        for n in a.n or DEFAULT_N.get(rate, [1, 4, 16]):
+            row = one(n, rate, a.duration, out / f"r{rate:g}-n{n}", a.per_process)
             row.setdefault("robots", n)
             row.setdefault("rate_hz", rate)
             rows.append(row)
