@@ -67,8 +67,14 @@ def test_each_robot_closes_its_own_loop_on_its_own_keys(fleet: Path) -> None:
         ctrl = read_hoplog(folder / "controller.hoplog").final
         assert "wrong_robot" not in plant["rejections"]
         got = plant["cmd_counts"]
-        assert 0.95 * ctrl["commands_sent"] <= got["received"] <= ctrl["commands_sent"], got
-        assert got["lost"] == 0 and got["duplicated"] == 0, got
+        assert got["received"] <= ctrl["commands_sent"], (got, ctrl["commands_sent"])
+        # Another robot's command stream (its own numbering) would show as duplicates and
+        # reorderings in this one's.
+        assert got["duplicated"] == 0 and got["reordered"] == 0, got
+        # The loop closed: the commands sent while the plant ran reached it.
+        summary = json.loads((folder / "summary.json").read_text())
+        torque = summary["messages"]["torque_zenoh"]
+        assert torque["sent"] > 100 and torque["received"] >= 0.95 * torque["sent"], torque
 
 
 def test_each_robot_keeps_its_own_deadlines_interleaved(fleet: Path) -> None:
