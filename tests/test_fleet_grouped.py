@@ -17,7 +17,7 @@ from protocol.errors import BadInputError
 from protocol.hoplog import read_hoplog
 from protocol.settings import RunSettings
 from runtime.group import check_group
-from tests.lab_helpers import ROOT
+from tests.lab_helpers import ROOT, lab, lab_name, lab_skip_reason
 
 ROBOTS, PER_PROCESS, RATE = 4, 2, 100
 
@@ -112,3 +112,24 @@ def test_one_process_refuses_robots_that_cannot_share_it() -> None:
     with pytest.raises(BadInputError, match="twice"):
         check_group([a, a])
     check_group([a, RunSettings(robot_id="robot2", zenoh_endpoint="tcp/127.0.0.1:20001")])
+
+
+@pytest.mark.skipif(lab_skip_reason() is not None, reason=lab_skip_reason() or "")
+def test_a_grouped_fleet_across_two_lab_hosts(tmp_path: Path) -> None:
+    """Two robots per process, plants on h1 and controllers on h2 whose clocks differ: every
+    robot's loop closes through the two routers, each controller relates its own clock."""
+    out = tmp_path / "fleet"
+    with lab(lab_name("g"), "--hosts", "2", "--offset=h2=-1.7") as name:
+        args = ["paper_tracking", "--robots", "4", "--per-process", "2", "--lab", name]
+        args += ["--plant-host", "h1", "--controller-host", "h2", "--duration", "2"]
+        done = _hil("fleet", *args, "--rate", str(RATE), "--out", str(out))
+    assert done.returncode in (0, 1), done.stderr[-3000:]
+    for i in range(1, 5):
+        folder = out / f"robot{i}"
+        topo = json.loads((folder / "topology.json").read_text())
+        assert topo["processes"]["controller"] == "h2" and topo["clock"]["converted"]
+        summary = json.loads((folder / "summary.json").read_text())
+        torque = summary["messages"]["torque_zenoh"]
+        assert torque["sent"] > 100 and torque["received"] >= 0.95 * torque["sent"], torque
+    pids = [json.loads((out / f"robot{i}" / "processes.json").read_text()) for i in (1, 2)]
+    assert pids[0] == pids[1]

@@ -79,6 +79,9 @@ def group_argv(opts: FleetOptions, robots: list[str]) -> list[str]:
         "duration": opts.duration,
         "rate": opts.rate,
         "fleet_size": opts.robots,
+        "lab": opts.lab,
+        "plant_host": opts.plant_host,
+        "controller_host": opts.controller_host,
     }
     path = opts.out / f".group-{robots[0]}.spec.json"
     path.write_text(json.dumps(spec, indent=2) + "\n")
@@ -100,8 +103,6 @@ def check(opts: FleetOptions) -> None:
         raise BadInputError(f"--robots {opts.robots}: 1 to {ROBOTS_MAX}")
     if not 1 <= opts.per_process <= ROBOTS_MAX:
         raise BadInputError(f"--per-process {opts.per_process}: 1 to {ROBOTS_MAX}")
-    if opts.per_process > 1 and opts.lab:
-        raise BadInputError("--per-process runs over loopback: not with --lab (yet)")
     if opts.out.exists() and any(opts.out.iterdir()):
         raise BadInputError(f"--out {opts.out}: exists and is not empty")
 

@@ -27,10 +27,13 @@ from typing import Any
 
 from hil.fleet import barrier as fleet_barrier
 from hil.folder import layout
+from hil.lab import placement
+from hil.lab.placement import child_argv
 from hil.measure.logs import HOST_FILE
 from hil.recording import RecordingWriter
 from hil.run.host_load import HostSampler
 from hil.run.orchestrate import (
+    LAB_ROUTER,
     Recorder,
     RunOptions,
     _Logs,
@@ -63,6 +66,21 @@ class GroupSpec:
     duration: float | None = None
     rate: float | None = None
     fleet_size: int = 0  # N: robot I's epoch is shifted by (I - 1) / N of a period
+    lab: str | None = None  # on a lab's hosts (hil.lab.placement), through their routers
+    plant_host: str | None = None
+    controller_host: str | None = None
+
+    def options(self, robot: str | None = None) -> RunOptions:
+        """``hil run``'s options for one robot of the group (``--no-can``, quiet)."""
+        opts = RunOptions(scenario=Path(self.scenario), duration=self.duration, rate=self.rate)
+        opts.quiet, opts.can_live, opts.robot_id = True, False, robot
+        opts.out = None if robot is None else Path(self.out) / robot
+        opts.lab, opts.plant_host, opts.controller_host = (
+            self.lab,
+            self.plant_host,
+            self.controller_host,
+        )
+        return opts
 
     def save(self, path: Path) -> None:
         path.write_text(json.dumps(asdict(self), indent=2) + "\n")
@@ -84,15 +102,13 @@ class _Robot:
     recorder: Recorder
 
 
-def _prepare(spec: GroupSpec, endpoint: str) -> list[_Robot]:
+def _prepare(spec: GroupSpec, endpoint: str | None) -> list[_Robot]:
     """Each robot's run folder, as ``hil run --robot-id R --no-can`` prepares it, every robot
-    on the group's one endpoint."""
+    on the group's one endpoint (None: a lab host's router, as ``hil run --lab`` sets)."""
     robots = []
     for r in spec.robots:
-        opts = RunOptions(scenario=Path(spec.scenario), duration=spec.duration, rate=spec.rate)
-        opts.out, opts.quiet, opts.can_live, opts.robot_id = Path(spec.out) / r, True, False, r
-        scenario, settings, run_dir, info = prepare(opts)
-        settings.zenoh_endpoint = endpoint
+        scenario, settings, run_dir, info = prepare(spec.options(r))
+        settings.zenoh_endpoint = endpoint or settings.zenoh_endpoint
         settings.save(run_dir / layout.RUN_SETTINGS)
         meta = {"robot_id": r, "cmd_path": settings.cmd_path, "lockstep": settings.lockstep}
         meta.update({"rate_hz": info["rate_hz"], "group": ",".join(spec.robots)})
@@ -101,14 +117,17 @@ def _prepare(spec: GroupSpec, endpoint: str) -> list[_Robot]:
     return robots
 
 
-def _start_services(sup: Supervisor, robots: list[_Robot], logs: _Logs, host: HostSampler) -> None:
-    """One plant process and one controller process for every robot of the group."""
+def _start_services(
+    sup: Supervisor, robots: list[_Robot], logs: _Logs, host: HostSampler, placed: Any
+) -> None:
+    """One plant process and one controller process for every robot of the group (each on
+    its lab host when ``placed``)."""
     paths = [str(r.run_dir / layout.RUN_SETTINGS) for r in robots]
     ids = RunIdentities(False, [r.id for r in robots])
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
         sup.start(
             name,
-            [sys.executable, "-m", module, *paths],
+            child_argv(placed, name, [sys.executable, "-m", module, *paths]),
             env=ids.child_env(name),
             stdout=logs.open(f"{robots[0].id}-group-{name}"),
             stderr=STDOUT,
@@ -160,21 +179,25 @@ def robot_code(summary: dict[str, Any]) -> int:
     return 1 if summary.get("error") or v.get("blocking") else 0
 
 
-def execute(spec: GroupSpec, stop: Any) -> dict[str, int]:
-    """Run the group; each robot's exit code (also written to :func:`codes_file`)."""
+def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
+    """Run the group (``placed``: on a lab's hosts, this process on the recorder's); each
+    robot's exit code (also written to :func:`codes_file`)."""
     out = Path(spec.out)
     out.mkdir(parents=True, exist_ok=True)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = None if placed else f"tcp/127.0.0.1:{free_port()}"
     robots = _prepare(spec, endpoint)
     sup, logs = Supervisor(), _Logs(out)
     host = HostSampler(robots[0].run_dir)
     session, subs, error = None, [], None
     t0 = time.monotonic()
     try:
-        session = open_session(endpoint, listen_endpoint=True, credentials=None)
+        if placed:  # the client of the lab host's own router, as hil run --lab
+            session = open_session(LAB_ROUTER, mode="client", credentials=None)
+        else:
+            session = open_session(endpoint, listen_endpoint=True, credentials=None)
         for r in robots:  # each robot's keys into its own recording
             subs.append(session.declare_subscriber(robot_prefix(r.id), r.recorder.on_zenoh))
-        _start_services(sup, robots, logs, host)
+        _start_services(sup, robots, logs, host, placed)
         error = _start_and_follow(spec, robots, sup, session, stop)
     finally:
         codes = _stop_children(sup, robots[0].settings)
@@ -187,6 +210,7 @@ def execute(spec: GroupSpec, stop: Any) -> dict[str, int]:
         for r in robots:
             if r is not robots[0] and (robots[0].run_dir / HOST_FILE).is_file():
                 shutil.copyfile(robots[0].run_dir / HOST_FILE, r.run_dir / HOST_FILE)
+            placement.write_topology(placed, r.run_dir)  # before the recording takes it along
             r.recorder.close(attachment_files(r.run_dir))
     return _results(spec, robots, codes, error, bool(stop), time.monotonic() - t0)
 
@@ -218,8 +242,10 @@ def main(argv: list[str] | None = None) -> int:
         print("usage: python -m hil.run.group SPEC.json (written by hil fleet)", file=sys.stderr)
         return 2
     spec = GroupSpec(**json.loads(Path(args[0]).read_text()))
+    # --lab: executes this same command again on the recorder's lab host (as hil run does).
+    placed = placement.enter(spec.options(), False, True)
     with stop_on_signals() as stop:
-        codes = execute(spec, stop)
+        codes = execute(spec, stop, placed)
     if stop:
         return 130
     return max(codes.values(), default=0)
