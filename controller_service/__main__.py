@@ -3,7 +3,8 @@ settings file alone.
 
 ``hil`` writes that file (``run_settings.json`` in a run folder, or
 ``hil controller SCENARIO --write-settings FILE``); this entry needs nothing but the service's own
-packages below ``hil`` (docs/architecture.md). ``--settings FILE`` is the same.
+packages below ``hil`` (docs/architecture.md). ``--settings FILE`` is the same. Several
+files (one per robot, ``hil fleet --per-process``): one process serves each of those robots.
 Exit codes: 0 done, 1 no start, 2 a bad settings file.
 """
 

@@ -46,7 +46,7 @@ def register(app: typer.Typer) -> None:
         is two processes (its plant, its controller) and a recorder, unless --per-process K
         groups K robots into one plant process, one controller process and one recorder
         (threads sharing a Zenoh session, each robot on its own keys hil/robotI/...): a
-        2-core machine then fits tens of robots at 100 Hz (docs/fleet.md).
+        2-core machine then fits about 32 robots at 100 Hz and 8 at 500 Hz (docs/fleet.md).
 
         Exit 1 when a robot's verdict is negative."""
         from hil.bundled import resolve_scenario
