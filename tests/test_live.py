@@ -308,3 +308,41 @@ def test_binding_beyond_loopback_warns_that_it_exposes_the_run(capsys):
     check(0, "0.0.0.0")  # a bind test only: nothing listens, nothing is sent
     err = capsys.readouterr().err
     assert "warning: --live-host 0.0.0.0" in err and "anyone" in err and "no login" in err
+
+
+@pytest.mark.realtime
+def test_a_fleet_is_served_live_each_robot_on_its_own_topics(spawn, tmp_path):
+    """``hil fleet --live``: one server for the fleet (two robots in one group of processes);
+    each robot's pose and its own timing arrive on its own topics, with its own epoch."""
+    out = tmp_path / "fleet"
+    port = free_tcp_port()
+    fleet = spawn.python(
+        ["-m", "hil", "fleet", "paper_tracking", "--robots", "2", "--per-process", "2",
+         "--duration", "30", "--rate", "100", "--out", str(out), "--live", str(port)],
+        stderr=subprocess.PIPE,
+    )  # fmt: skip
+    url = _wait_url(out, fleet)
+    assert url == f"ws://127.0.0.1:{port}"
+    robots = ("robot1", "robot2")
+    wanted = [f"hil/{r}/{t}" for r in robots for t in ("pose", "live/timing")]
+    with connect(url, subprotocols=SUBPROTOCOLS, open_timeout=30, max_size=None) as ws:
+        client = _Client(ws)
+        deadline = time.monotonic() + 60
+        while not set(wanted) <= set(client.channels) and time.monotonic() < deadline:
+            client.pump(0.2)
+        client.subscribe(wanted)
+        while time.monotonic() < deadline and not all(
+            len(client.got.get(f"hil/{r}/live/timing", ())) >= 3 and client.got.get(f"hil/{r}/pose")
+            for r in robots
+        ):
+            client.pump(0.5)
+        for r in robots:
+            poses = client.got[f"hil/{r}/pose"]
+            assert abs(_rate(poses) / 100 - 1) < 0.05, (r, _rate(poses))
+            last = client.got[f"hil/{r}/live/timing"][-1][1]
+            assert last["states"] > 0 and last["command_age_max_ms"] is not None, (r, last)
+    fleet.send_signal(signal.SIGINT)
+    fleet.wait(timeout=180)
+    assert (out / "robot1" / "summary.json").is_file() and (
+        out / "robot2" / "summary.json"
+    ).is_file()

@@ -9,6 +9,18 @@ from typing import Annotated
 import typer
 
 from hil import interrupts
+from hil.commands.run import LiveHostOpt
+
+LiveOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--live",
+        metavar="[PORT]",
+        help="Serve every robot of the fleet live over the Foxglove WebSocket protocol on "
+        "this port (bare --live: 8765; 0: any free port): each robot's pose, messages and "
+        "timing on its own topics hil/robotI/..., from a process of its own (docs/live.md).",
+    ),
+]
 
 
 def register(app: typer.Typer) -> None:
@@ -37,6 +49,8 @@ def register(app: typer.Typer) -> None:
                 "deadlines and run folder); 1: one `hil run` per robot."
             ),
         ] = 1,
+        live: LiveOpt = None,
+        live_host: LiveHostOpt = "127.0.0.1",
     ) -> None:
         """Run N robots' closed loops at once, each its own `hil run` with its own robot id
         (robotI: keys hil/robotI/...), controller, plant and run folder OUT/robotI (a complete
@@ -47,12 +61,15 @@ def register(app: typer.Typer) -> None:
         groups K robots into one plant process, one controller process and one recorder
         (threads sharing a Zenoh session, each robot on its own keys hil/robotI/...): a
         2-core machine then fits about 32 robots at 100 Hz and 8 at 500 Hz (docs/fleet.md).
+        --live serves every robot of the fleet on one Foxglove WebSocket server (docs/live.md).
 
         Exit 1 when a robot's verdict is negative."""
         from hil.bundled import resolve_scenario
         from hil.errors import NegativeVerdictError
         from hil.fleet import report
-        from hil.fleet.run import FleetOptions, execute
+        from hil.fleet.run import FleetOptions, execute, robot_ids
+        from hil.live.launch import FleetLive
+        from hil.live.launch import check as live_check
         from runtime.signals import stop_on_signals
 
         opts = FleetOptions(
@@ -66,8 +83,10 @@ def register(app: typer.Typer) -> None:
             controller_host,
             per_process,
         )
+        live_check(live, live_host)
+        watcher = None if live is None else FleetLive(out, robot_ids(robots), live, live_host)
         with stop_on_signals() as stop:
-            codes = execute(opts, stop)
+            codes = execute(opts, stop, watcher)
             if stop:
                 interrupts.record(stop.signal)
         facts = {"scenario": str(opts.scenario), "rate_hz": rate, "duration_s": duration}

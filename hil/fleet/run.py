@@ -107,9 +107,10 @@ def check(opts: FleetOptions) -> None:
         raise BadInputError(f"--out {opts.out}: exists and is not empty")
 
 
-def execute(opts: FleetOptions, stop: Any) -> dict[str, int | None]:
+def execute(opts: FleetOptions, stop: Any, live: Any = None) -> dict[str, int | None]:
     """Start every robot's ``hil run`` at once and wait for all (or for ``stop``: then each
-    gets SIGINT and writes its folder); the exit code of each."""
+    gets SIGINT and writes its folder); the exit code of each. ``live``: a watcher polled
+    while the fleet runs and closed after it (``hil fleet --live``: hil.live.launch.FleetLive)."""
     check(opts)
     opts.out.mkdir(parents=True, exist_ok=True)
     sup = Supervisor()
@@ -124,6 +125,8 @@ def execute(opts: FleetOptions, stop: Any) -> dict[str, int | None]:
             argv = group_argv(opts, robots) if grouped else run_argv(opts, first)
             sup.start(first, argv, env=env, stdout=log, stderr=log)
         while not stop and any(c.alive() for c in sup.children):
+            if live is not None:
+                live.poll()
             for c in sup.children:
                 if not c.alive():  # ended before the start (it may never have been ready)
                     for robot in members[c.name]:
@@ -134,6 +137,8 @@ def execute(opts: FleetOptions, stop: Any) -> dict[str, int | None]:
         codes = {c.name: c.stop(grace=60.0 + 5.0 * len(members[c.name])) for c in sup.children}
         for log in logs:
             log.close()
+        if live is not None:
+            live.close()
     if not grouped:
         return codes
     return {

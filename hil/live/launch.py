@@ -1,4 +1,5 @@
-"""Starting the live view's process for ``hil run --live`` and ``hil drives --live``.
+"""Starting the live view's process for ``hil run --live``, ``hil drives --live`` and
+``hil fleet --live``.
 
 ``--live [PORT]``: the port is optional on the command line (default :data:`DEFAULT_PORT`,
 Foxglove's own); :func:`expand_live_flag` gives a bare ``--live`` its default before the
@@ -71,10 +72,11 @@ def _check_free(host: str, port: int) -> None:
             raise BadInputError(f"--live {port} on {host}: {exc.strerror or exc}") from exc
 
 
-def argv_for(settings_path: Path, port: int, host: str, resolved: Path | None,
+def argv_for(settings_path: Path | Sequence[Path], port: int, host: str, resolved: Path | None,
              zenoh_mode: str) -> list[str]:  # fmt: skip
-    """The live process's arguments after the interpreter."""
-    argv = ["-m", "hil.live", str(settings_path), "--host", host, "--port", str(port)]
+    """The live process's arguments after the interpreter (a fleet: each robot's settings)."""
+    paths = [settings_path] if isinstance(settings_path, Path) else list(settings_path)
+    argv = ["-m", "hil.live", *map(str, paths), "--host", host, "--port", str(port)]
     argv += ["--zenoh-mode", zenoh_mode]
     argv += ["--resolved", str(resolved)] if resolved is not None else ["--no-reference"]
     return argv
@@ -135,3 +137,33 @@ class DrivesLive:
         self._sup.stop_all(grace=5.0)
         self._log.close()
         self._dir.cleanup()
+
+
+class FleetLive:
+    """The live process of ``hil fleet``: every robot of the fleet on one server, started as
+    soon as each robot's run folder holds its settings (:meth:`poll`), stopped by PID."""
+
+    def __init__(self, out: Path, robots: Sequence[str], port: int, host: str) -> None:
+        self.settings = [out / r / "run_settings.json" for r in robots]
+        self.resolved = out / robots[0] / "scenario.resolved.toml"
+        self.port, self.host = port, host
+        self.log_path = out / "live.log"
+        self._sup = Supervisor()
+        self._log: Any = None
+        self.url: str | None = None
+
+    def poll(self) -> None:
+        """Start the view once every robot's settings exist (a no-op before and after)."""
+        if self._log is not None or not all(p.is_file() for p in self.settings):
+            return
+        resolved = self.resolved if self.resolved.is_file() else None
+        argv = argv_for(self.settings, self.port, self.host, resolved, "client")
+        self._log = self.log_path.open("wb")
+        child = self._sup.start_python("live", argv, stdout=self._log, stderr=subprocess.STDOUT)
+        self.url = wait_url(self.log_path, child.alive)
+        announce(self.url)
+
+    def close(self) -> None:
+        self._sup.stop_all(grace=5.0)
+        if self._log is not None:
+            self._log.close()

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import foxglove
@@ -38,17 +38,18 @@ class LiveView:
 
     def __init__(
         self,
-        robot_id: str,
+        robot_ids: Sequence[str],
         bounds: Bounds,
         host: str = "127.0.0.1",
         port: int = 8765,
         reference: ReferenceFn | None = None,
         name: str = "hil-smc-bench",
     ) -> None:
-        self.robot_id = robot_id
-        self.timing = LiveTiming(bounds)
+        self.robot_ids = list(robot_ids)
+        # One timing per robot (a fleet's robots each have their own deadlines and epoch).
+        self.timings = {r: LiveTiming(bounds) for r in self.robot_ids}
         self.reference = reference
-        self.epoch_ns: int | None = None
+        self.epochs: dict[str, int] = {}
         self._foxglove = foxglove
         self.context = foxglove.Context()
         self._channels: dict[str, Any] = {}
@@ -56,10 +57,10 @@ class LiveView:
         self.port = int(self.server.port)
         self.host = host
         self.published = 0
-        base = f"hil/{robot_id}"
-        for suffix in ("state", "cmd/torque", "telemetry", "status", schemas.POSE, schemas.TF,
-                       schemas.REFERENCE, schemas.TIMING):  # fmt: skip
-            self.channel(f"{base}/{suffix}")  # advertised from the start, also when idle
+        for robot in self.robot_ids:
+            for suffix in ("state", "cmd/torque", "telemetry", "status", schemas.POSE,
+                           schemas.TF, schemas.REFERENCE, schemas.TIMING):  # fmt: skip
+                self.channel(f"hil/{robot}/{suffix}")  # advertised from the start
 
     def channel(self, topic: str) -> Any:
         ch = self._channels.get(topic)
@@ -85,18 +86,24 @@ class LiveView:
             self.published += 1
 
     def on_message(self, topic: str, msg: Any, recv_ns: int) -> None:
-        """One decoded protocol message received on ``topic``."""
+        """One decoded protocol message received on ``topic`` (its robot's timing counts it
+        when the robot is one of this view's)."""
+        robot = getattr(msg, "robot_id", "")
+        timing = self.timings.get(robot)
         if isinstance(msg, State):
-            self.timing.on_state(msg, recv_ns)
+            if timing is not None:
+                timing.on_state(msg, recv_ns)
             self._log(topic, _mirror(msg), msg.sample_time_ns)
             self._pose(topic.rsplit("/", 1)[0], msg)
         elif isinstance(msg, TorqueCommand):
-            self.timing.on_command(msg, recv_ns)
+            if timing is not None:
+                timing.on_command(msg, recv_ns)
             self._log(topic, _mirror(msg), msg.send_time_ns)
         elif isinstance(msg, Status):
-            self.timing.on_status(msg)
-            if self.epoch_ns is None and int(msg.counters.get("epoch_ns", 0)) > 0:
-                self.epoch_ns = int(msg.counters["epoch_ns"])
+            if timing is not None:
+                timing.on_status(msg)
+            if robot not in self.epochs and int(msg.counters.get("epoch_ns", 0)) > 0:
+                self.epochs[robot] = int(msg.counters["epoch_ns"])
             self._log(topic, _mirror(msg), msg.time_ns)
         elif isinstance(msg, Telemetry):
             self._log(topic, _mirror(msg), msg.time_ns)
@@ -106,20 +113,22 @@ class LiveView:
         self._log(f"{base}/{schemas.POSE}", schemas.pose_in_frame(t, st.x, st.y, st.theta), t)
         tf = schemas.frame_transform(t, st.robot_id, st.x, st.y, st.theta)
         self._log(f"{base}/{schemas.TF}", tf, t)
-        if self.reference is not None and self.epoch_ns is not None:
-            x, y, th = self.reference((t - self.epoch_ns) / 1e9)
+        epoch = self.epochs.get(st.robot_id)
+        if self.reference is not None and epoch is not None:
+            x, y, th = self.reference((t - epoch) / 1e9)
             self._log(f"{base}/{schemas.REFERENCE}", schemas.pose_in_frame(t, x, y, th), t)
 
     def on_can(self, channel: str, frame: dict[str, Any], recv_ns: int) -> None:
         """One CAN frame as the recorder's JSON (:func:`can_frame_record`)."""
         self._log(f"can/{channel}", frame, recv_ns)
 
-    def tick(self, now_ns: int | None = None, backlog: int = 0) -> dict[str, Any]:
-        """Publish the timing figures (call once a second); returns them."""
+    def tick(self, now_ns: int | None = None, backlog: int = 0) -> dict[str, dict[str, Any]]:
+        """Publish each robot's timing figures (call once a second); returns them by robot."""
         now = time.monotonic_ns() if now_ns is None else now_ns
-        snap = self.timing.snapshot(now, backlog)
-        self._log(f"hil/{self.robot_id}/{schemas.TIMING}", snap, now)
-        return snap
+        snaps = {r: t.snapshot(now, backlog) for r, t in self.timings.items()}
+        for robot, snap in snaps.items():
+            self._log(f"hil/{robot}/{schemas.TIMING}", snap, now)
+        return snaps
 
     def close(self) -> None:
         """Stop the server: every client sees its connection closed."""

@@ -1,12 +1,13 @@
-"""The live view's own process: ``python -m hil.live SETTINGS.json --port P [--host H] ...``.
+"""The live view's own process: ``python -m hil.live SETTINGS.json... --port P [--host H] ...``.
 
 Why a process of its own: ``hil drives`` runs its real-time loop in its own process, and
 ``hil run``'s recorder must keep its pace; here decoding and serving cost neither of them a
 cycle (only the Zenoh router side of the run forwards the messages to one more client). It
-subscribes to ``hil/**`` on the run's Zenoh endpoint and listens to the run's CAN bus (both
-read-only), and serves :class:`hil.live.view.LiveView` until SIGINT or SIGTERM, then closes
-the server (every client sees the close). It prints one line ``live: ws://HOST:PORT`` on
-stdout once the server listens.
+subscribes to each robot's keys ``hil/<id>/**`` on that robot's Zenoh endpoint (one session
+per endpoint: a fleet's robots, each with its own settings file) and, for one robot, listens to
+its CAN bus (both read-only), and serves :class:`hil.live.view.LiveView` until SIGINT or
+SIGTERM, then closes the server (every client sees the close). It prints one line
+``live: ws://HOST:PORT`` on stdout once the server listens.
 """
 
 from __future__ import annotations
@@ -66,18 +67,36 @@ def reference_of(settings: RunSettings) -> Any:
     return pose
 
 
-def _open_inputs(settings: RunSettings, zenoh_mode: str, q: collections.deque) -> list[Any]:
-    """The Zenoh subscription and the CAN listener, feeding ``q``; what to close, in order."""
+def _subscribe(endpoint: str, robots: list[str], mode: str, q: collections.deque) -> list[Any]:
+    """One session on ``endpoint`` subscribed to each of ``robots``' keys; what to close."""
     opened: list[Any] = []
     try:
-        session = open_session(settings.zenoh_endpoint, mode=zenoh_mode, credentials=None)
+        session = open_session(endpoint, mode=mode, credentials=None)
     except Exception as exc:  # hil drives without a Zenoh peer: the view shows the CAN side
-        print(f"live: Zenoh messages not shown: {exc}", file=sys.stderr)
-    else:
+        print(f"live: Zenoh messages of {', '.join(robots)} not shown: {exc}", file=sys.stderr)
+        return opened
+    opened.append(session)
+    for robot in robots:
         sub = session.declare_subscriber(
-            "hil/**", lambda s: q.append((str(s.key_expr), time.monotonic_ns(), payload_bytes(s)))
+            f"hil/{robot}/**",
+            lambda s: q.append((str(s.key_expr), time.monotonic_ns(), payload_bytes(s))),
         )
-        opened[:0] = [sub, session]
+        opened.insert(0, sub)
+    return opened
+
+
+def _open_inputs(runs: list[RunSettings], zenoh_mode: str, q: collections.deque) -> list[Any]:
+    """The Zenoh subscriptions (each robot's keys on its own endpoint, once) and, for one
+    robot, the CAN listener, feeding ``q``; what to close, in order."""
+    by_endpoint: dict[str, list[str]] = {}
+    for s in runs:
+        by_endpoint.setdefault(s.zenoh_endpoint, []).append(s.robot_id)
+    opened: list[Any] = []
+    for endpoint, robots in by_endpoint.items():
+        opened[:0] = _subscribe(endpoint, robots, zenoh_mode, q)
+    if len(runs) > 1:  # a fleet runs without CAN
+        return opened
+    settings = runs[0]
     settings.can_live = True
     try:
         bus = settings.open_can_bus()
@@ -122,15 +141,16 @@ def serve(args: argparse.Namespace) -> int:
     # Below the run's processes on the CPU: when the view and a service want the same core,
     # the service gets it (the view only falls behind, which its timing message shows).
     os.nice(NICENESS)
-    settings = RunSettings.load(args.settings)
+    runs = [RunSettings.load(path) for path in args.settings]
+    settings = runs[0]  # a fleet's robots share the scenario: its bounds and reference
     bounds = bounds_of(settings, args.resolved)
     reference = None if args.no_reference else reference_of(settings)
     q: collections.deque = collections.deque(maxlen=QUEUE_MAX)
     with stop_on_signals() as stop:
-        view = LiveView(settings.robot_id, bounds, args.host, args.port, reference)
+        view = LiveView([s.robot_id for s in runs], bounds, args.host, args.port, reference)
         opened: list[Any] = []
         try:
-            opened = _open_inputs(settings, args.zenoh_mode, q)
+            opened = _open_inputs(runs, args.zenoh_mode, q)
             print(f"live: ws://{args.host}:{view.port}", flush=True)
             next_tick = time.monotonic() + 1.0
             while not stop:
@@ -147,7 +167,8 @@ def serve(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m hil.live", description=__doc__)
-    p.add_argument("settings", type=Path, help="the run's run_settings.json")
+    p.add_argument("settings", type=Path, nargs="+",
+                   help="the run's run_settings.json (a fleet: each robot's)")  # fmt: skip
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8765)
     p.add_argument("--resolved", type=Path, default=None, help="scenario.resolved.toml: D*")
