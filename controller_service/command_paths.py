@@ -72,6 +72,15 @@ class ZenohCommandPath:
         self._held: bytes | None = None  # a command a [faults] reorder publishes after the next
         self._last: bytes | None = None
 
+    def matched(self) -> bool:
+        """Whether a subscriber of the command key (the plant) is reachable now: the route
+        exists, so the first command is not lost to one still forming (True where the
+        Zenoh build cannot tell)."""
+        try:
+            return bool(self._pub.matching_status.matching)
+        except Exception:  # an older zenoh without matching status: nothing to wait for
+            return True
+
     def send(self, cmd: TorqueCommand) -> Sent:
         self._last = encode(cmd)
         return Sent(cmd.send_time_ns, self._put(self._last, cmd.seq, cmd.flags))

@@ -19,6 +19,8 @@ from typing import Any
 from protocol import keys
 from protocol.messages import Status, decode_as, encode
 
+READY_WITHIN_S = 5.0  # a readiness condition that never holds delays the start this long
+
 
 class StartGate:
     def __init__(self, session: Any, robot_id: str, role: str) -> None:
@@ -53,15 +55,23 @@ class StartGate:
             self._event.set()
 
     def wait(
-        self, stop: Any, timeout: float = 60.0, idle: Callable[[], None] | None = None
+        self,
+        stop: Any,
+        timeout: float = 60.0,
+        idle: Callable[[], None] | None = None,
+        ready: Callable[[], bool] | None = None,
     ) -> int | None:
-        """Announce readiness every 50 ms until the epoch arrives; None on stop/timeout."""
-        deadline = time.monotonic() + timeout
+        """Announce readiness every 50 ms until the epoch arrives; None on stop/timeout.
+        ``ready``: readiness is announced only once it holds (e.g. the controller's command
+        publisher has the plant's subscriber: through routers a route forms some time after
+        both declared), or after :data:`READY_WITHIN_S` in any case."""
+        start = time.monotonic()
+        deadline = start + timeout
         while not stop and time.monotonic() < deadline:
-            self._pub.put(
-                encode(Status(self.robot_id, self._seq, time.monotonic_ns(), self.role, "ready"))
-            )
-            self._seq += 1
+            if ready is None or time.monotonic() - start > READY_WITHIN_S or ready():
+                now = time.monotonic_ns()
+                self._pub.put(encode(Status(self.robot_id, self._seq, now, self.role, "ready")))
+                self._seq += 1
             if self._event.wait(0.05):
                 break
             if idle is not None:
