@@ -118,14 +118,15 @@ class LiveTiming:
         return "PASS", ""
 
     def snapshot(self, now_ns: int, backlog: int = 0) -> dict[str, Any]:
-        """The figures now (the ``hil.LiveTiming`` message); ``backlog``: the view's queue."""
+        """The figures now (the ``hil.LiveTiming`` message); ``backlog``: the view's queue.
+        A figure not known yet (or D* without a certificate) is left out, not null."""
         self._expire(now_ns)
         b = self.bounds
         d_star_ms = None if b.d_star_s is None else b.d_star_s * 1e3
         age_max_ms = _ms(self.age_max_ns)
         outcome, reasons = self.verdict()
         first = self.first_recv_ns if self.first_recv_ns is not None else now_ns
-        return {
+        figures = {
             "t_s": max(0.0, (now_ns - first) / 1e9),
             "states": self.states,
             "commands": self.commands,
@@ -145,6 +146,7 @@ class LiveTiming:
             "verdict": outcome,
             "reasons": reasons,
         }
+        return {k: v for k, v in figures.items() if v is not None}
 
 
 def _ms(ns: int | None) -> float | None:
