@@ -31,11 +31,11 @@ LEGACY_PANEL_TYPES = {"ThreeDee": "3D"}
 # Seen from above (2D), centred on the paper's circle (radius vd/wd = 2.5 m about (0, 2.5)),
 # wide enough for the robot's start at (-1, -0.6); every field, as Foxglove's own layouts do.
 CAMERA = fl.ThreeDeeCameraState(
-    distance=9.0,
+    distance=15.0,
     perspective=False,
     phi=0.0,
     target=(0.0, 0.0, 0.0),
-    target_offset=(0.0, 2.0, 0.0),
+    target_offset=(0.0, 2.5, 0.0),
     target_orientation=(0.0, 0.0, 0.0, 1.0),
     theta_offset=0.0,
     fovy=45.0,

@@ -103,6 +103,11 @@ MAIN_JS = """(async () => {
 """
 
 
+# The sidebar's Topics tab (Studio opens Problems by itself when a channel has one).
+SHOW_TOPICS = """[...document.querySelectorAll('[role=tab]')]
+  .filter((tab) => tab.innerText.trim() === 'Topics').forEach((tab) => tab.click())"""
+
+
 def prepare_viewer(folder: Path) -> None:
     """Studio's web bundle, React 17 and the page above in ``folder`` (npm once)."""
     bundle = folder / "assets" / "index.js"
@@ -279,6 +284,8 @@ def shoot(out: Path, viewer: Path, wait: float, width: int, height: int) -> str:
             time.sleep(5)
             with live_run(Path(tmp), port, duration=wait + 120):
                 time.sleep(wait)
+                page.call("Runtime.evaluate", expression=SHOW_TOPICS)
+                time.sleep(3)  # the topics' rates, measured anew
                 shot = page.call("Page.captureScreenshot", format="png")
         finally:
             page.close()
