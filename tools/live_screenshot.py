@@ -126,10 +126,11 @@ def prepare_viewer(folder: Path) -> None:
             for name in ("react", "react-dom"):
                 umd = pkg[f"{name}-17.0.2"] / "umd" / f"{name}.production.min.js"
                 shutil.copy(umd, folder)
-        text = bundle.read_text()
-        if text.count(OLD_NAME) != 1:
-            sys.exit(f"{bundle}: the client's subprotocol line is not where it was")
+    text = bundle.read_text()
+    if text.count(OLD_NAME) == 1:
         bundle.write_text(text.replace(OLD_NAME, NEW_NAME))
+    elif text.count(NEW_NAME) != 1:
+        sys.exit(f"{bundle}: the client's subprotocol line is not where it was")
     (folder / "index.html").write_text(INDEX_HTML)
     (folder / "main.js").write_text(MAIN_JS)
     shutil.copy(LAYOUT, folder / "layout.json")
