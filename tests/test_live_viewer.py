@@ -15,6 +15,8 @@ import pytest
 
 from hil import schemas
 from hil.live.timing import Bounds, LiveTiming
+from protocol.hoplog import NO_STAMP
+from protocol.messages import FLAG_WATCHDOG_ZERO, State, TorqueCommand
 
 _FIELD_TYPES = {"boolean", "string", "number", "integer", "object", "array"}
 
@@ -97,3 +99,21 @@ def test_the_lichtblick_layout_is_the_sdk_layout_as_a_panel_tree():
         config = dict(legacy["configById"][panel_id])
         assert config.pop("foxglovePanelTitle") == panel["title"]
         assert config == panel["config"]
+
+
+def test_a_watchdog_zero_command_before_the_first_state_is_not_the_command_in_force():
+    # Seen in the viewer: the controller, up before the plant's first State, sends watchdog
+    # zeros that name no sample (NO_STAMP); the live D was then the monotonic clock's age.
+    ms = 1_000_000
+    t0 = 7 * 3600 * 1000 * ms  # a machine up for 7 h
+    timing = LiveTiming(Bounds(d_star_s=0.02, ts_s=0.001, phi1=1.0, phi2=2.0))
+    zero = TorqueCommand("r", 0, 0, NO_STAMP, t0, t0, 0.0, 0.0, "u", FLAG_WATCHDOG_ZERO)
+    timing.on_command(zero, t0)
+    for k in range(1, 4):
+        t = t0 + k * ms
+        timing.on_state(State("r", k, t, t, 0.0, 0.0, 0.0, 0.0, 0.0), t)
+        cmd = TorqueCommand("r", k, k, t, t, t, 0.0, 0.0, "u")
+        timing.on_command(cmd, t)
+    snap = timing.snapshot(t0 + 4 * ms)
+    assert snap["command_age_max_ms"] == pytest.approx(1.0)  # one Ts: the previous State's
+    assert snap["commands"] == 4 and snap["verdict"] == "PASS"

@@ -20,6 +20,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
+from protocol.hoplog import NO_STAMP
 from protocol.messages import State, Status, TorqueCommand
 
 UNANSWERED_AFTER_NS = 100_000_000
@@ -72,7 +73,12 @@ class LiveTiming:
 
     def on_command(self, cmd: TorqueCommand, recv_ns: int) -> None:
         self.commands += 1
-        if self.in_force_sample_ns is None or cmd.state_sample_time_ns > self.in_force_sample_ns:
+        # A watchdog zero or the final stop names no State (sample time NO_STAMP): taken as the
+        # command in force, it made every State's age its sample time, the clock's own age.
+        named = cmd.state_sample_time_ns != NO_STAMP
+        if named and (
+            self.in_force_sample_ns is None or cmd.state_sample_time_ns > self.in_force_sample_ns
+        ):
             self.in_force_sample_ns = cmd.state_sample_time_ns
         if self.last_compute_ns is not None:
             gap = cmd.compute_start_ns - self.last_compute_ns
