@@ -38,8 +38,11 @@ def _field_schema(kind: int, lo: float, hi: float) -> dict[str, Any]:
     if kind == pm._FLOAT:
         return {"type": "number", "minimum": lo, "maximum": hi}
     if kind == pm._COUNTERS:
+        # "properties": {} says nothing to a validator; Foxglove-family viewers (Lichtblick,
+        # Foxglove Studio) refuse an object schema without it, and with it the whole channel.
         return {
             "type": "object",
+            "properties": {},
             "maxProperties": pm.MAX_COUNTERS,
             "propertyNames": {"pattern": f"^{pm._NAME_RE.pattern}$"},
             "additionalProperties": {"type": "integer", "minimum": 0, "maximum": int(hi)},
@@ -274,8 +277,17 @@ def _num(description: str, minimum: float | None = None) -> dict[str, Any]:
     return out
 
 
-def _nullable(description: str) -> dict[str, Any]:
-    return {"type": ["number", "null"], "minimum": 0, "description": description}
+def _unknown_at_first(description: str) -> dict[str, Any]:
+    return {"type": "number", "minimum": 0, "description": description + " (absent until known)"}
+
+
+# Figures unknown at the start of a run, or without a certificate, are left out of the message
+# rather than null: the JSON Schema parser of Foxglove-family viewers (Lichtblick, Foxglove
+# Studio) takes one "type" name per field and refuses the channel for ["number", "null"].
+_OPTIONAL_TIMING = (
+    "command_age_now_ms", "command_age_max_ms", "d_star_ms", "age_margin_ms",
+    "lateness_now_us", "lateness_max_us", "deadline_misses",
+)  # fmt: skip
 
 
 TIMING = "live/timing"  # hil/<robot_id>/live/timing: the live view's once-a-second figures
@@ -285,25 +297,26 @@ LIVE_TIMING = _object(
         "t_s": _num("seconds since the live view saw the first State", 0),
         "states": {"type": "integer", "minimum": 0, "description": "States seen"},
         "commands": {"type": "integer", "minimum": 0, "description": "TorqueCommands seen"},
-        "command_age_now_ms": _nullable(
+        "command_age_now_ms": _unknown_at_first(
             "at the newest State: its sample time - the sample time of the newest command "
             "seen before it (the command in force, as the live view saw it)"
         ),
-        "command_age_max_ms": _nullable("the largest command_age_now_ms so far: live D"),
-        "d_star_ms": _nullable("D*: the largest command age the certificate allows"),
+        "command_age_max_ms": _unknown_at_first("the largest command_age_now_ms so far: live D"),
+        "d_star_ms": _unknown_at_first("D*: the largest command age the certificate allows"),
         "age_margin_ms": {
-            "type": ["number", "null"],
-            "description": "D* - command_age_max_ms (negative: D > D* so far)",
+            "type": "number",
+            "description": "D* - command_age_max_ms (negative: D > D* so far; absent until "
+            "both are known)",
         },
-        "lateness_now_us": _nullable(
+        "lateness_now_us": _unknown_at_first(
             "the newest command's compute start - the previous one's - Ts, at least 0: how "
             "late the controller's tick ran after its predecessor"
         ),
-        "lateness_max_us": _nullable("the largest lateness_now_us so far"),
+        "lateness_max_us": _unknown_at_first("the largest lateness_now_us so far"),
         "deadline_misses": {
-            "type": ["integer", "null"],
+            "type": "integer",
             "minimum": 0,
-            "description": "the controller's own count (its Status)",
+            "description": "the controller's own count (its Status; absent until one arrived)",
         },
         "states_without_command": {
             "type": "integer",
@@ -324,6 +337,7 @@ LIVE_TIMING = _object(
     "The live view's timing figures, once a second: live estimates; summary.json holds the "
     "run's measured figures (docs/realtime.md).",
 )
+LIVE_TIMING["required"] = [k for k in LIVE_TIMING["required"] if k not in _OPTIONAL_TIMING]
 REFERENCE = "reference"  # hil/<robot_id>/reference: foxglove.PoseInFrame of the reference
 _SUFFIX_SCHEMA[TIMING] = LIVE_TIMING
 _SUFFIX_SCHEMA[REFERENCE] = POSE_IN_FRAME

@@ -20,6 +20,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
+from protocol.hoplog import NO_STAMP
 from protocol.messages import State, Status, TorqueCommand
 
 UNANSWERED_AFTER_NS = 100_000_000
@@ -72,7 +73,12 @@ class LiveTiming:
 
     def on_command(self, cmd: TorqueCommand, recv_ns: int) -> None:
         self.commands += 1
-        if self.in_force_sample_ns is None or cmd.state_sample_time_ns > self.in_force_sample_ns:
+        # A watchdog zero or the final stop names no State (sample time NO_STAMP): taken as the
+        # command in force, it made every State's age its sample time, the clock's own age.
+        named = cmd.state_sample_time_ns != NO_STAMP
+        if named and (
+            self.in_force_sample_ns is None or cmd.state_sample_time_ns > self.in_force_sample_ns
+        ):
             self.in_force_sample_ns = cmd.state_sample_time_ns
         if self.last_compute_ns is not None:
             gap = cmd.compute_start_ns - self.last_compute_ns
@@ -118,14 +124,15 @@ class LiveTiming:
         return "PASS", ""
 
     def snapshot(self, now_ns: int, backlog: int = 0) -> dict[str, Any]:
-        """The figures now (the ``hil.LiveTiming`` message); ``backlog``: the view's queue."""
+        """The figures now (the ``hil.LiveTiming`` message); ``backlog``: the view's queue.
+        A figure not known yet (or D* without a certificate) is left out, not null."""
         self._expire(now_ns)
         b = self.bounds
         d_star_ms = None if b.d_star_s is None else b.d_star_s * 1e3
         age_max_ms = _ms(self.age_max_ns)
         outcome, reasons = self.verdict()
         first = self.first_recv_ns if self.first_recv_ns is not None else now_ns
-        return {
+        figures = {
             "t_s": max(0.0, (now_ns - first) / 1e9),
             "states": self.states,
             "commands": self.commands,
@@ -145,6 +152,7 @@ class LiveTiming:
             "verdict": outcome,
             "reasons": reasons,
         }
+        return {k: v for k, v in figures.items() if v is not None}
 
 
 def _ms(ns: int | None) -> float | None:
