@@ -637,17 +637,13 @@ def main_group(paths: list[str]) -> int:
     """Several robots' plants in one process (a fleet on few cores: runtime.group): each its
     own :class:`PlantService` (its keys, state, hop log in its own run folder, deadlines on
     its own epoch) in its own thread; the session, the scheduling and the signals shared."""
-    from runtime.group import check_group, run_threads
+    from runtime.group import load_group, run_threads
     from runtime.realtime import restore_gc
     from runtime.signals import stop_on_signals
-    from runtime.zsession import check_credentials, open_session
+    from runtime.zsession import open_session
 
-    settings = [RunSettings.load(p) for p in paths]
-    for s in settings:
-        s.validate()
-    check_group(settings)
+    settings = load_group(paths)
     first = settings[0]
-    check_credentials(first.zenoh_endpoint, first.zenoh_mode)
     with contextlib.ExitStack() as stack:
         stop = stack.enter_context(stop_on_signals())
         session = open_session(first.zenoh_endpoint, mode=first.zenoh_mode)

@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 
 from protocol.errors import BadInputError
 from protocol.settings import RunSettings
+from runtime.zsession import check_credentials
 
 JOIN_POLL_S = 0.2  # the main thread wakes this often: signal handlers run on it only
 # A robot's thread that wakes at its deadline while another thread holds the GIL waits up to
@@ -63,3 +64,14 @@ def check_group(settings: Sequence[RunSettings]) -> None:
                     f"robot {s.robot_id}: {name} {getattr(s, name)!r} differs from robot "
                     f"{first.robot_id}'s {getattr(first, name)!r} (one process, one {name})"
                 )
+
+
+def load_group(paths: Sequence[str]) -> list[RunSettings]:
+    """One process's robots: each settings file loaded and validated, the group checked
+    (:func:`check_group`) and the session's credentials too, before anything is written."""
+    settings = [RunSettings.load(p) for p in paths]
+    for s in settings:
+        s.validate()
+    check_group(settings)
+    check_credentials(settings[0].zenoh_endpoint, settings[0].zenoh_mode)
+    return settings
