@@ -13,7 +13,7 @@ from protocol import keys
 from protocol.messages import Status, decode_as
 from runtime.startgate import READY_WITHIN_S, StartGate
 from runtime.zsession import open_session, payload_bytes
-from tests.procs import free_tcp_port
+from tests.procs import free_tcp_port, wait_until
 
 
 class _Stop:
@@ -24,13 +24,6 @@ class _Stop:
 
     def __bool__(self) -> bool:
         return self.set_
-
-
-def _wait_for(cond, timeout: float = 10.0) -> bool:
-    end = time.monotonic() + timeout
-    while not cond() and time.monotonic() < end:
-        time.sleep(0.01)
-    return cond()
 
 
 def test_the_controller_is_ready_only_once_the_plants_subscription_reaches_it():
@@ -56,7 +49,7 @@ def test_the_controller_is_ready_only_once_the_plants_subscription_reaches_it():
         assert readies == [] and not path.matched()  # no route for commands: not ready
         subscribed = time.monotonic()
         sub = plant.declare_subscriber(keys.torque_key("robot3"), lambda s: None)
-        assert _wait_for(lambda: bool(readies)), "never ready after the plant subscribed"
+        assert wait_until(lambda: bool(readies), 10), "never ready after the plant subscribed"
         assert path.matched() and readies[0] >= subscribed
         assert readies[0] - subscribed < READY_WITHIN_S  # the route, not the fallback
         stop.set_ = True
