@@ -7,6 +7,7 @@ from typing import Annotated, Any
 
 import typer
 
+from hil.commands.live_options import LiveHostOpt, live_opt
 from hil.errors import BadInputError
 
 _RATE_NAMES = {
@@ -97,19 +98,7 @@ DurationOpt = Annotated[
 ]
 SchedulingOpt = Annotated[str | None, typer.Option(help="fifo or other (default: the scenario's).")]
 OutOpt = Annotated[Path | None, typer.Option(help="Also write summary.json in this folder.")]
-LiveOpt = Annotated[
-    int | None,
-    typer.Option(
-        "--live",
-        metavar="[PORT]",
-        help="Serve the drives' frames (and State, with --state-rate) live over the Foxglove "
-        "WebSocket protocol on this port (bare --live: 8765), from a process of its own "
-        "(docs/live.md).",
-    ),
-]
-LiveHostOpt = Annotated[
-    str, typer.Option(help="Address the live view binds to (not loopback: a warning).")
-]
+LiveOpt = live_opt("the drives' frames (and State, with --state-rate)")
 
 
 def register(app: typer.Typer) -> None:

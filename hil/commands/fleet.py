@@ -9,18 +9,9 @@ from typing import Annotated
 import typer
 
 from hil import interrupts
-from hil.commands.run import LiveHostOpt
+from hil.commands.live_options import LiveHostOpt, live_opt
 
-LiveOpt = Annotated[
-    int | None,
-    typer.Option(
-        "--live",
-        metavar="[PORT]",
-        help="Serve every robot of the fleet live over the Foxglove WebSocket protocol on "
-        "this port (bare --live: 8765; 0: any free port): each robot's pose, messages and "
-        "timing on its own topics hil/robotI/..., from a process of its own (docs/live.md).",
-    ),
-]
+LiveOpt = live_opt("every robot of the fleet, each on its own topics hil/robotI/...,")
 
 
 def register(app: typer.Typer) -> None:

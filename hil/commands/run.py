@@ -10,6 +10,7 @@ import typer
 
 from hil import interrupts
 from hil.commands.law_option import LawOpt
+from hil.commands.live_options import LiveHostOpt, live_opt
 from hil.errors import NegativeVerdictError
 
 # The options of ``hil run``, one alias each, so that the command's signature stays short.
@@ -59,22 +60,7 @@ ControllerHostOpt = Annotated[
 RobotIdOpt = Annotated[
     str | None, typer.Option(help="The robot's id (its keys hil/ID/...) instead of the scenario's.")
 ]
-LiveOpt = Annotated[
-    int | None,
-    typer.Option(
-        "--live",
-        metavar="[PORT]",
-        help="Serve the run live over the Foxglove WebSocket protocol on this port (bare "
-        "--live: 8765; 0: any free port), from a process of its own (docs/live.md).",
-    ),
-]
-LiveHostOpt = Annotated[
-    str,
-    typer.Option(
-        help="Address the live view binds to. Anything but loopback exposes the run's data "
-        "to whoever reaches it (no login, no TLS): a warning says so."
-    ),
-]
+LiveOpt = live_opt("the run")
 StrictOpt = Annotated[
     bool,
     typer.Option(
