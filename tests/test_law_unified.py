@@ -11,11 +11,14 @@ from hypothesis import strategies as st
 
 from controller_service.laws.base import Controller, DesignContext, ReferenceSample, RobotState
 from controller_service.laws.unified import (
+    FLOAT_STEP,
     TELEMETRY_KEYS,
     UnifiedController,
     UnifiedMemory,
     UnifiedParams,
+    make_step,
 )
+from runtime.mathns import FLOAT_MATH
 
 CONTEXT = DesignContext()
 SIGN = UnifiedController(UnifiedParams(), CONTEXT)
@@ -202,3 +205,41 @@ def test_closed_loop_sanity_circle_converges_within_limits():
     error, max_v, max_w = euler_loop(SIGN, circle.sample, (0.0, -1.0, 0.0, 0.0, 0.0), 40.0)
     assert error < 0.05
     assert max_v <= 1.6 and max_w <= 5.1
+
+
+EDGES = st.sampled_from([0.0, -0.0, 1e-300, -1e-300, 0.1, -0.1, math.nan, math.inf, -math.inf])
+SCALAR = st.one_of(st.floats(-4, 4), EDGES)
+
+
+def _same_bits(a: tuple, b: tuple) -> bool:
+    """Equal as IEEE values: signed zeros apart, NaN equal to NaN."""
+    return len(a) == len(b) and all(
+        (x != x and y != y) or (x == y and math.copysign(1.0, x) == math.copysign(1.0, y))
+        for x, y in zip(a, b, strict=True)
+    )
+
+
+@settings(max_examples=500, deadline=None)
+@given(
+    st.lists(SCALAR, min_size=15, max_size=15),
+    st.sampled_from([0.0, 10.0]),  # 1/eps: (10) or the boundary layer (19)
+)
+def test_the_float_step_is_the_laws_one_definition_with_its_helpers_inline(values, inv_eps):
+    """FLOAT_STEP is make_step's own source compiled with sign and clip written inline
+    (runtime.mathns.inline_float_helpers): bit for bit the closure that calls FloatMath's
+    helpers, on edge values (signed zeros: sign(-0.0) = 0, NaN, inf) and either torque law,
+    and it calls neither helper."""
+    called = make_step(FLOAT_MATH)
+    t, dt = values[0], abs(values[1]) * 1e-3
+    state, ref, memory = tuple(values[2:7]), tuple(values[7:12]), tuple(values[12:15])
+    p = (1.0, 1.0, 0.5, 0.5, 0.25, 0.25, 3.3, 51.0, inv_eps, inv_eps)
+    results = []
+    for step in (FLOAT_STEP, called):
+        try:
+            results.append(step(t, dt, state, ref, memory, p))
+        except (ValueError, OverflowError, ZeroDivisionError) as exc:
+            results.append(type(exc))
+    inline, plain = results
+    assert inline == plain if isinstance(plain, type) else _same_bits(inline, plain)
+    free = FLOAT_STEP.__code__.co_freevars
+    assert "sign" not in free and "clip" not in free and "sin" in free

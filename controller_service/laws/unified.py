@@ -50,7 +50,7 @@ from controller_service.laws.base import (
     RobotState,
 )
 from protocol.paper import TABLE1
-from runtime.mathns import ARRAY_MATH, FLOAT_MATH
+from runtime.mathns import ARRAY_MATH, FLOAT_MATH, inline_float_helpers
 
 # tuple.__new__ skips a NamedTuple's Python-level __new__ (a measurable part of one update).
 _new = tuple.__new__
@@ -190,7 +190,7 @@ def make_step(ns: Any) -> Any:
     return step
 
 
-FLOAT_STEP = make_step(FLOAT_MATH)
+FLOAT_STEP = inline_float_helpers(make_step, FLOAT_MATH)
 ARRAY_STEP = make_step(ARRAY_MATH)
 
 
