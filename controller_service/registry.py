@@ -10,7 +10,8 @@
   false: the paper's law) wraps it in :class:`controller_service.laws.eta_rearm.
   EtaRearmController` (eta reset to 1 when the reference comes to rest; keys
   ``eta_rearm_dwell``, s, ``eta_rearm_below`` and ``eta_rearm_tol``, m: also reset z1, z2 to
-  turn the robot towards the stop point while its position error exceeds it).
+  turn the robot towards the stop point while its position error exceeds it, then to stop its
+  turn back as the heading crosses its target).
 - ``"jiang1997"``: [7] with the sub-table [controller.jiang1997] c1, c2 (7, 0.1).
 - ``"jiang2001"``: [19] with [controller.jiang2001] stab_eps, track_lam.
 - ``"package.module:Class"``: a user's controller, built as ``Class(params, context)`` where

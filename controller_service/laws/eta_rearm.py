@@ -15,19 +15,31 @@ dwell bounds the resets to one per ``dwell`` even for a reference that stops and
 stays in [0, 1], which is all the constraint proofs use (docs/laws.md, "eta re-arm").
 
 With ``tol`` (metres, key ``eta_rearm_tol``; default None: eta only) the re-arm also resets
-the law's other memory, the **kick**: at a sample where the reference is at rest, at least
-``dwell`` seconds have passed since the last reset and the position error |p| = sqrt(xe^2 +
-ye^2) exceeds ``tol``, the memory becomes
+the law's other memory, in two phases. At a sample where the reference is at rest and at least
+``dwell`` seconds have passed since the last reset:
 
-    eta = 1,   z1 = 0,   z2 = -m2 sgn(xe ye) min(1, |p| / KICK_FULL)     (sgn(0) taken as +1)
+- **kick**, while the position error |p| = sqrt(xe^2 + ye^2) exceeds ``tol``:
+
+      eta = 1,   z1 = 0,   z2 = -m2 sgn(xe ye)     (sgn(0) taken as +1)
+
+- **align**, once |p| <= ``tol``, at a sample where the heading error is within
+  ``ALIGN_BAND`` (|sin(theta_e / 2)| <= sin(ALIGN_BAND / 2)) and |z2| exceeds m2
+  sin(ALIGN_BAND / 2), the most that (8) settles at for such a heading error (a larger z2 is a
+  turn still stored in the filter):
+
+      eta = 1,   z1 = 0,   z2 = 0
 
 Why: at rest the paper's law drives v = -z1 and w = xi' - z2, with xi of the order of the
-squared error (rho tanh(r - 1) ~ |p|^2 / 2), so a lateral error of 0.3 m is removed over many
-minutes. A z2 of size m2 turns the robot by up to ~0.65 rad (the heading loop of (8) at rest:
-e'' + (l2 / (2 m2)) e' + (l2 / 4) e = 0), towards pointing its axis at the stop point (the sign
-of xe ye); the law's own xe loop (z1) then drives it along that axis and the heading loop turns
-it back. The kick shrinks with the error so that the heading swing does too. Every kick keeps
-the memory in the box 0 <= eta <= 1, |z1| <= m1, |z2| <= m2 that the constraint proofs use.
+squared error (rho tanh(r - 1) ~ |p|^2 / 2), so a lateral error of 0.15 m is removed over many
+minutes. A kick turns the robot towards pointing its axis at the stop point (the sign of xe
+ye; it flips once the axis points there), and the law's own xe loop (z1) drives it along that
+axis; kicks a dwell apart keep turning it until it does. Once the robot is within ``tol`` the
+law's heading loop turns it back; with the sign law sampled at a few ms the heading at rest
+moves at a fixed rate (about varpi2 Ts / 2) and z2 lags it by the filter's time constant
+2 m2 / l2, so the turn back overshoots and the swings die out over tens of seconds. The align
+reset clears that stored lag as the heading crosses its target: afterwards the heading is in
+the sign law's own limit cycle. Every reset keeps the memory in the box 0 <= eta <= 1,
+|z1| <= m1, |z2| <= m2 that the constraint proofs use (docs/laws.md, "eta re-arm").
 
 Memory: the paper's (eta, z1, z2) and ``since``, the law time since the last reset (starts at
 ``dwell``: a reference at rest from t = 0 with eta(0) = 1 never triggers an eta-only re-arm).
@@ -48,22 +60,28 @@ from runtime.mathns import ARRAY_MATH, FLOAT_MATH
 REST_TOL = 1e-9  # |vd| + |wd| at or below this is a reference at rest
 DWELL_DEFAULT = 5.0  # s between resets at least
 BELOW_DEFAULT = 0.5  # reset only an eta that has decayed below this
-KICK_FULL = 0.2  # m: a position error from this on gets the full kick z2 = -m2 sgn(xe ye)
+# rad: the align reset waits for the heading error to be this small. Well below the 0.05 rad a
+# stop is judged by, and wider than the heading moves in one sample at rest (|w| is within one
+# torque step varpi2 Ts of |alpha_w| <= m2 + |xi'|: about 1 rad/s, 0.01 rad per sample at
+# Ts = 10 ms), so the band is not stepped over.
+ALIGN_BAND = 0.02
+_ALIGN_SIN = math.sin(0.5 * ALIGN_BAND)
 
 
-def _errors(ns: Any, state: RobotState, ref: ReferenceSample) -> tuple[Any, Any]:
-    """xe ye and |p| = sqrt(xe^2 + ye^2) of the errors (4); |p| = 0 (no kick) where they are not
-    finite (math raises on cos(inf), numpy warns: both quietened, the law rejects that input)."""
+def _errors(ns: Any, state: RobotState, ref: ReferenceSample) -> tuple[Any, Any, Any]:
+    """xe ye, |p| = sqrt(xe^2 + ye^2) of the errors (4) and sin(theta_e / 2); where they are not
+    finite |p| = 0 and sin(theta_e / 2) = 1, so neither a kick nor an align is taken (math
+    raises on cos(inf), numpy warns: both quietened, the law rejects that input)."""
     if ns.is_array:
         with np.errstate(all="ignore"):
             return _errors_any(ns, state, ref)
     try:
         return _errors_any(ns, state, ref)
     except (ValueError, OverflowError):
-        return 0.0, 0.0
+        return 0.0, 0.0, 1.0
 
 
-def _errors_any(ns: Any, state: RobotState, ref: ReferenceSample) -> tuple[Any, Any]:
+def _errors_any(ns: Any, state: RobotState, ref: ReferenceSample) -> tuple[Any, Any, Any]:
     dx = state.x - ref.xd
     dy = state.y - ref.yd
     c = ns.cos(state.theta)
@@ -71,7 +89,11 @@ def _errors_any(ns: Any, state: RobotState, ref: ReferenceSample) -> tuple[Any, 
     xe = c * dx + s * dy
     ye = c * dy - s * dx
     p = ns.sqrt(xe * xe + ye * ye)
-    return xe * ye, ns.where(ns.isfinite(p), p, 0.0)
+    # The law's half angle (theta_e is not wrapped); xi is left out: within tol it is at most
+    # rho (sqrt(1 + tol^2) - 1), under 1e-3 rad for tol <= 0.04 m, far inside ALIGN_BAND.
+    half = ns.sin(0.5 * (state.theta - ref.thetad))
+    ok = ns.isfinite(p) & ns.isfinite(half)
+    return xe * ye, ns.where(ok, p, 0.0), ns.where(ok, half, 1.0)
 
 
 class RearmMemory(NamedTuple):
@@ -146,12 +168,18 @@ class EtaRearmController:
         ready = rest & (since >= self.dwell)
         fire = ready & (eta < self.below)
         if self.tol is not None:
-            cross, p = _errors(ns, state, ref)
+            cross, p, half = _errors(ns, state, ref)
             kick = ready & (p > self.tol)
+            align = (
+                ready
+                & (p <= self.tol)
+                & (ns.abs(half) <= _ALIGN_SIN)
+                & (ns.abs(z2) > self._m2 * _ALIGN_SIN)
+            )
             turn = ns.where(cross > 0.0, -1.0, ns.where(cross < 0.0, 1.0, -1.0))
-            z1 = ns.where(kick, 0.0, z1)
-            z2 = ns.where(kick, turn * self._m2 * ns.minimum(1.0, p / KICK_FULL), z2)
-            fire = fire | kick
+            z1 = ns.where(kick | align, 0.0, z1)
+            z2 = ns.where(kick, turn * self._m2, ns.where(align, 0.0, z2))
+            fire = fire | kick | align
         eta = ns.where(fire, 1.0, eta)
         since = ns.where(fire, 0.0, since)
         return eta, z1, z2, since, ns.where(fire, 1.0, 0.0)
