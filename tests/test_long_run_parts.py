@@ -53,6 +53,45 @@ def test_the_chunked_trace_reader_equals_loadtxt(tmp_path: Path, monkeypatch) ->
         fmod.read_trace(short)
 
 
+def test_a_lazy_trace_reads_the_rarely_read_columns_only_when_asked(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """A lazily loaded folder's trace (hil.folder.trace_csv.TraceColumns) answers keys from the
+    header, reads every column but the rarely read ones in one pass on first use, and those in
+    a pass of their own only when one is asked for; each equal to the whole read."""
+    from hil.folder import trace_csv as fmod
+
+    from hil.trace import TRACE_COLUMNS
+
+    names = [*TRACE_COLUMNS, "tau1_cmd", "tau2_cmd", "state_seq"]
+    rng = np.random.default_rng(4)
+    data = rng.normal(size=(50, len(names)))
+    data[:, 0] = np.arange(50) * 0.01
+    path = tmp_path / "trace.csv"
+    path.write_text(
+        ",".join(names) + "\n" + "".join(",".join(repr(float(v)) for v in r) + "\n" for r in data)
+    )
+    passes: list[list[str] | None] = []
+    whole = fmod.read_trace(path)
+
+    def counted(p, columns=None):
+        passes.append(None if columns is None else list(columns))
+        return whole_read(p, columns)
+
+    whole_read = fmod.read_trace
+    monkeypatch.setattr(fmod, "read_trace", counted)
+    lazy = fmod.TraceColumns(path)
+    assert list(lazy) == names and "tau1_cmd" in lazy and "v_tilde" not in lazy and not passes
+    assert np.array_equal(lazy["x"], whole["x"])
+    assert passes == [list(TRACE_COLUMNS)]
+    assert np.array_equal(lazy["tau1"], whole["tau1"]) and len(passes) == 1  # already read
+    assert np.array_equal(lazy["state_seq"], whole["state_seq"])
+    assert passes[1] == ["tau1_cmd", "tau2_cmd", "state_seq"]
+    assert all(np.array_equal(lazy[n], whole[n]) for n in names) and len(passes) == 2
+    with pytest.raises(KeyError):
+        lazy["v_tilde"]
+
+
 def test_figure_data_and_run_traces_are_written_as_one_csv_row_per_sample(tmp_path: Path) -> None:
     """The chunked writers give the same bytes as ``csv.writer`` with ``repr`` per cell."""
     from hil.report import figures as fg

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import datetime as dt
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -22,7 +23,7 @@ from hil.errors import BadInputError
 from hil.folder import layout
 from hil.folder.jsonio import read_json_object, write_json
 from hil.folder.records import Summary
-from hil.folder.trace_csv import read_trace, trace_header
+from hil.folder.trace_csv import TraceColumns, read_trace, trace_header
 
 
 @dataclass
@@ -32,7 +33,7 @@ class RunFolder:
     memory together."""
 
     path: Path
-    trace_data: dict[str, np.ndarray] | None
+    trace_data: Mapping[str, np.ndarray] | None
     summary: Summary
     scenario: dict[str, Any]
     recordings: list[Path] = field(default_factory=list)
@@ -40,10 +41,12 @@ class RunFolder:
     cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
-    def trace(self) -> dict[str, np.ndarray]:
-        """trace.csv's columns (BadInputError when it is not a trace)."""
+    def trace(self) -> Mapping[str, np.ndarray]:
+        """trace.csv's columns (BadInputError when it is not a trace); a lazily loaded
+        folder's read on first use, the rarely read ones only if asked for
+        (:class:`hil.folder.trace_csv.TraceColumns`)."""
         if self.trace_data is None:
-            self.trace_data = read_trace(self.path / layout.TRACE)
+            self.trace_data = TraceColumns(self.path / layout.TRACE)
         return self.trace_data
 
     @property

@@ -88,9 +88,14 @@ def recorded_telemetry(
         if not times[g]:
             continue
         tn = np.frombuffer(times[g], dtype=np.int64)
-        order = np.argsort(tn, kind="stable")
-        for k, col in zip(names, vals[g], strict=True):
-            out[k] = (tn[order], np.frombuffer(col, dtype=np.float64)[order])
+        columns = [np.frombuffer(col, dtype=np.float64) for col in vals[g]]
+        if tn.size > 1 and not np.all(tn[1:] >= tn[:-1]):
+            # Recordings are written in time order, so this is rare; sorted copies otherwise
+            # (an hour's sorted telemetry would double the report's largest arrays).
+            order = np.argsort(tn, kind="stable")
+            tn, columns = tn[order], [c[order] for c in columns]
+        for k, col in zip(names, columns, strict=True):
+            out[k] = (tn, col)
     return out
 
 
@@ -101,6 +106,14 @@ def folder_telemetry(folder: Any) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     if "telemetry" not in cache:
         cache["telemetry"] = recorded_telemetry(folder.recordings)
     return cache["telemetry"]
+
+
+def forget_memory(folder: Any) -> None:
+    """Drop the law's memory from a folder's cached telemetry: the windowed ideal is its only
+    reader, and an hour's three columns and their times (~115 MB) would otherwise stay until
+    the report is written."""
+    for name in MEMORY:
+        folder.cache.get("telemetry", {}).pop(name, None)
 
 
 def sliding_from_recordings(paths: Iterable[Path]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
