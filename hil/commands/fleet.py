@@ -61,8 +61,10 @@ def register(app: typer.Typer) -> None:
         from hil.fleet.run import FleetOptions, execute, robot_ids
         from hil.live.launch import FleetLive
         from hil.live.launch import check as live_check
+        from hil.options import out_dir
         from runtime.signals import stop_on_signals
 
+        out_dir("--out", out)
         opts = FleetOptions(
             resolve_scenario(scenario),
             robots,
