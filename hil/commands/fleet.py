@@ -10,6 +10,7 @@ import typer
 
 from hil import interrupts
 from hil.commands.live_options import LiveHostOpt, live_opt
+from hil.options import out_dir
 
 LiveOpt = live_opt("every robot of the fleet, each on its own topics hil/robotI/...,")
 
@@ -61,7 +62,6 @@ def register(app: typer.Typer) -> None:
         from hil.fleet.run import FleetOptions, execute, robot_ids
         from hil.live.launch import FleetLive
         from hil.live.launch import check as live_check
-        from hil.options import out_dir
         from runtime.signals import stop_on_signals
 
         out_dir("--out", out)
