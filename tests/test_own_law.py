@@ -136,9 +136,9 @@ def _move_law_away(folder: Path, name: str) -> None:
 
 def _report_and_compare_without_the_law(cwd: Path, folder: Path, law: str) -> None:
     """hil report and hil compare of ``folder`` in full, from ``cwd`` where ``law`` was found
-    when it ran and is not found now; the ideal trajectory, the one fresh simulation, left out
-    with why."""
-    report = _hil("report", str(folder), cwd=cwd)
+    when it ran and is not found now, even asked to run it again (--ideal): the ideal
+    trajectory, the one fresh simulation, left out with why."""
+    report = _hil("report", str(folder), "--ideal", cwd=cwd)
     assert report.returncode in (0, 1), report.stderr[-3000:]  # the verdict's exit, never 2
     assert "Traceback" not in report.stderr, report.stderr[-3000:]
     data = json.loads((folder / "report.json").read_text())
@@ -159,18 +159,29 @@ def _report_and_compare_without_the_law(cwd: Path, folder: Path, law: str) -> No
 
 
 def test_report_and_compare_of_a_users_law_need_no_module_after_the_run(tmp_path: Path) -> None:
-    """While the module is where the simulation found it, the report simulates the ideal
-    trajectory with it (the same lookup: no PYTHONPATH); once it is gone, report and compare
-    still read the whole folder."""
+    """The report never imports the user's module on its own; asked (--ideal), it finds it as
+    the simulation did (no PYTHONPATH) and simulates the ideal trajectory with it; once the
+    module is gone, report and compare still read the whole folder."""
     assert _hil("new-law", "moved_law", cwd=tmp_path).returncode == 0
+    marker = tmp_path / "imported.txt"  # the module leaves a mark each time it is imported
+    with (tmp_path / "moved_law.py").open("a") as module:
+        module.write(f"\nopen({str(marker)!r}, 'a').write('imported\\n')\n")
     out = tmp_path / "runs" / "moved"
     sim = _hil("sim", "paper_tracking", "--law", "moved_law:MovedLaw", "--duration", "2",
                "--out", str(out), cwd=tmp_path)  # fmt: skip
-    assert sim.returncode in (0, 1), sim.stderr[-3000:]
+    assert sim.returncode in (0, 1) and marker.is_file(), sim.stderr[-3000:]
+    marker.unlink()
+
+    def note() -> str:
+        return json.loads((out / "report.json").read_text())["metrics"]["deviation_from_ideal_note"]
+
     report = _hil("report", str(out), cwd=tmp_path)
     assert report.returncode in (0, 1), report.stderr[-3000:]
-    note = json.loads((out / "report.json").read_text())["metrics"]["deviation_from_ideal_note"]
-    assert note.startswith("simulated at Ts/10"), note
+    assert not marker.exists(), "the report imported the user's module on its own"
+    assert note().startswith("not computed") and "--ideal" in note(), note()
+    report = _hil("report", str(out), "--ideal", cwd=tmp_path)
+    assert report.returncode in (0, 1), report.stderr[-3000:]
+    assert marker.is_file() and note().startswith("simulated at Ts/10"), note()
     _move_law_away(tmp_path, "moved_law")
     _report_and_compare_without_the_law(tmp_path, out, "moved_law:MovedLaw")
 

@@ -2,11 +2,12 @@
 jitter) standing in for continuous time, from the trace's first state and time; a trace
 longer than :data:`hil.report.ideal_sim.WINDOW_S` gets the windowed ideal, each window
 restarted from the robot's state and the law's memory at its start (hil.report.ideal_sim).
-A user's law is looked up as the bench looks it up for a simulation (the installed packages,
-the run's scenario folder, the working directory); when its module is not found there, or
-fails there (it may have changed since the run), :class:`IdealUnavailableError` and the report
-says why: the run measured everything else the report shows, only this fresh simulation needs
-the law.
+A user's law is not run again unless asked (``hil report DIR --ideal``): the report shows what
+the run measured and never imports the user's module on its own (it may have changed since
+the run, or be gone; and at Ts/10 in Python the ideal costs ten times the run's steps). Asked,
+it is looked up as the bench looks it up for a simulation (the installed packages, the run's
+scenario folder, the working directory); not found there, or failing there,
+:class:`IdealUnavailableError`, and the report says why.
 """
 
 from __future__ import annotations
@@ -69,8 +70,15 @@ def law_findable(law: str, folders: Iterable[str] = ()) -> bool:
     return importlib.machinery.PathFinder.find_spec(top, [str(f) for f in folders]) is not None
 
 
-def ideal_from_simulator(folder: Folder) -> dict[str, np.ndarray] | None:
+def ideal_from_simulator(folder: Folder, user_law: bool = False) -> dict[str, np.ndarray] | None:
+    """The folder's ideal trajectory; with a user's law only when ``user_law`` (asked for)."""
     law = str((folder.scenario.get("controller") or {}).get("law", "unified"))
+    if ":" in law and not user_law:
+        raise IdealUnavailableError(
+            f"not computed: the law {law!r} is your own, and the report does not run it again "
+            "unless asked (hil report DIR --ideal; at Ts/10 it costs ten times the run's "
+            "steps); every other figure is the run's own and needs no law"
+        )
     folders = law_path_for(base_dir_of(folder.scenario, folder.path))
     if not law_findable(law, folders):
         raise IdealUnavailableError(
