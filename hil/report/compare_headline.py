@@ -12,6 +12,7 @@ from typing import Any
 
 from hil.folder import RunFolder
 from hil.report.compare_names import label_of, unit_of
+from hil.verdict import short_reason
 
 LIMIT_RATIOS = (("v", "|v|/φ1"), ("omega", "|ω|/φ2"), ("tau1", "|τ1|/ϖ1"), ("tau2", "|τ2|/ϖ2"))
 #: How many of the most-moved figures the headline lists.
@@ -44,20 +45,7 @@ def _why(folder: RunFolder) -> str | None:
     v = folder.summary.get("verdict")
     if not isinstance(v, dict) or v.get("outcome") in (None, "PASS") or not v.get("reasons"):
         return None
-    return _first_clause(str(v["reasons"][0]))
-
-
-def _first_clause(text: str, limit: int = WHY_CHARS) -> str:
-    """``text`` up to its first "; " outside parentheses, cut at a word within ``limit``."""
-    depth = 0
-    for i, ch in enumerate(text):
-        depth += {"(": 1, ")": -1}.get(ch, 0)
-        if depth == 0 and text.startswith("; ", i):
-            text = text[:i]
-            break
-    if len(text) <= limit:
-        return text
-    return text[:limit].rsplit(" ", 1)[0] + " (…)"
+    return short_reason(str(v["reasons"][0]), WHY_CHARS)
 
 
 def most_moved(rows: list[list[Any]], n: int = MOST_MOVED) -> list[list[Any]]:
