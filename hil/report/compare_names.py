@@ -22,6 +22,12 @@ NAMES = {
     "max_over_limit.omega": "max |ω| / φ2 (the limit of (2) on ω)",
     "max_over_limit.tau1": "max |τ1| / ϖ1 (the limit of (2) on τ1)",
     "max_over_limit.tau2": "max |τ2| / ϖ2 (the limit of (2) on τ2)",
+    "timing.startup_hold_s": "start-up hold: first command landed after the first sample",
+    "timing.late_commands": "late commands (applied more than Ts after their sample)",
+    "timing.late_commands_rate": "late commands, share of the samples",
+    "timing.compute.p50_us": "controller compute time, p50",
+    "timing.compute.p99_us": "controller compute time, p99",
+    "timing.compute.max_us": "controller compute time, max",
     "band_p99.v_tilde": "band of v~ = v − α_v (p99 of |v~| once reached)",
     "band_p99.w_tilde": "band of w~ = ω − α_ω (p99 of |w~| once reached)",
 }

@@ -441,7 +441,9 @@ def _lateness(s: Section, data: dict[str, Any]) -> None:
     # Missed slots: a stall of N periods misses N slots (late wake-ups + slots never run).
     keys = ("ticks", "slots", "deadline_misses", "late_ticks", "skipped_slots")
     keys += ("deadline_miss_rate", "plant_slots", "plant_deadline_misses", "plant_skipped_slots")
-    counts = [[k, _na(timing.get(k)), _unit_of(k)] for k in keys] if timing else []
+    counts = (
+        [[k.replace("_", " "), _na(timing.get(k)), _unit_of(k)] for k in keys] if timing else []
+    )
     s.table(["figure", "value", "unit"], counts)
     sched = data["timing"].get("scheduling") or {}
     for role, got in sched.items():
