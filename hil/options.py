@@ -140,6 +140,20 @@ def out_dir(where: str, path: Path | str | None, default: Path | str | None = No
     return p
 
 
+def out_file(where: str, path: Path | str) -> Path:
+    """A file a command may write (its folder made if missing): not a folder itself, and its
+    folder one :func:`out_dir` accepts."""
+    p = Path(path)
+    plain_string(where, str(p), empty=False)
+    if p.is_dir():
+        raise BadInputError(f"{where} {p}: is a folder, not a file")
+    try:
+        out_dir(where, p.parent)
+    except BadInputError as exc:  # named by the file the user gave, not by its folder
+        raise BadInputError(f"{where} {p}: {str(exc).split(': ', 1)[1]}") from exc
+    return p
+
+
 def existing_file(where: str, path: Path | str) -> Path:
     p = Path(path)
     if not p.is_file():

@@ -355,3 +355,17 @@ def _facts(v: Verdict, facts: RunFacts | None) -> None:
                 f"the {role} asked for SCHED_FIFO and got {sched.get('policy')}: wake-up "
                 "lateness, deadline misses and command age are those of a time-shared host"
             )
+
+
+def short_reason(text: str, limit: int = 200) -> str:
+    """A reason as one line quotes it: up to its first "; " outside parentheses (the rest are
+    its details, which the report keeps), cut at a word within ``limit`` characters."""
+    depth = 0
+    for i, ch in enumerate(text):
+        depth += {"(": 1, ")": -1}.get(ch, 0)
+        if depth == 0 and text.startswith("; ", i):
+            text = text[:i]
+            break
+    if len(text) <= limit:
+        return text
+    return text[:limit].rsplit(" ", 1)[0] + " (…)"

@@ -1,5 +1,5 @@
 """bench/bench_performance.py's table: each row reads the figure its benchmark writes and judges
-it against the issue's target (the benchmarks themselves run on a quiet machine, not here)."""
+it against the row's target (the benchmarks themselves run on a quiet machine, not here)."""
 
 from __future__ import annotations
 

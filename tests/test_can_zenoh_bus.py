@@ -212,11 +212,12 @@ def test_can_bus_factory_opens_virtual_and_zenoh():
 
 
 FORGETFUL = """
-import sys, can
+import sys, time, can
 bus = can.Bus(interface="zenoh_can", channel="f", endpoint=sys.argv[1])
 bus.send(can.Message(arbitration_id=0x21, data=b"\\x01", is_extended_id=False))
 msg = bus.recv(timeout=30)
 print("got", hex(msg.arbitration_id) if msg else None, flush=True)
+print("end", time.monotonic(), flush=True)  # the script's last statement (one clock per host)
 # no bus.shutdown(): the interpreter must exit anyway, as with python-can's own interfaces
 """
 
@@ -241,11 +242,15 @@ def test_can_zenoh_bus_does_not_keep_a_script_alive_that_forgets_shutdown(spawn,
             timeout=30,
             interval=0.05,
         )
+        exited_by = time.monotonic()  # at most one poll interval after it exited
         assert answered
-        # Bounded: the old bus never exited (a non-daemon Zenoh callback thread).
+        # The old bus never exited (a non-daemon Zenoh callback thread); ours must within 1 s
+        # of the script's last statement, as python-can's own interfaces do.
         out, err = proc.communicate(timeout=10)
         # 0, not an abort: frames still arriving while it ends must not crash it either
         assert proc.returncode == 0, (proc.returncode, err)
         assert "got 0x22" in out
+        end = float(out.split("end ")[1].split()[0])
+        assert exited_by - end < 1.0, f"exited {exited_by - end:.2f} s after its last statement"
     finally:
         ours.shutdown()

@@ -69,6 +69,13 @@ CASES: list[tuple[list[str], str]] = [
     (["emulator", "--settings", "SETTINGS"], "--settings"),
     (["controller", "--out", "OUT"], "--settings"),
     (["emulator", S, "--out", "FILE"], "--out"),
+    (["controller", S, "--write-settings", "UNWRITABLE"], "--write-settings"),
+    (["emulator", S, "--write-settings", "DIR"], "--write-settings"),
+    # hil drives, hil fleet (no --duration: drives that started would never end)
+    (["drives", "--out", "UNWRITABLE"], "--out"),
+    (["drives", "--out", "FILE"], "--out"),
+    (["fleet", S, "--robots", "1", "--out", "UNWRITABLE"], "--out"),
+    (["fleet", S, "--robots", "1", "--out", "FILE"], "--out"),
     # hil sweep
     (["sweep", S, "--ts", "0", "--out", "OUT"], "--ts"),
     (["sweep", S, "--ts", "0.001,nan", "--out", "OUT"], "--ts"),
@@ -110,6 +117,8 @@ CASES: list[tuple[list[str], str]] = [
     (["can-load", "--rate", "1000", "--bitrate", "1e6", "--encoder-rate", "nan"], "--encoder"),
     (["can-load", "--rate", "1000", "--bitrate", "1e6", "--out", "FILE"], "--out"),
     (["can-load", "--bitrate", "1e6"], "--rate"),
+    (["can-dbc", "--out", "UNWRITABLE"], "--out"),
+    (["can-dbc", "--out", "FILE"], "--out"),
     # hil report / compare / paper / scenarios
     (["report", "OUT", "--max-deadline-miss-ratio", "nan"], "--max-deadline-miss-ratio"),
     (["report", "OUT", "--max-lost-ratio", "2"], "--max-lost-ratio"),
@@ -151,6 +160,7 @@ def test_a_bad_option_exits_2_with_one_line_naming_it(
         # /proc takes no new folder, whoever runs the test (root's permission bits say yes)
         "UNWRITABLE": Path("/proc/hil-no-such-folder/out"),
         "SIMDIR": sim_folder,
+        "DIR": tmp_path,
     }
     argv = [str(names.get(a, a)) for a in args]
     proc = subprocess.run(

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -121,6 +122,68 @@ def test_a_law_in_the_working_directory_runs_in_hil_run(tmp_path: Path) -> None:
     summary = json.loads((out / "summary.json").read_text())
     assert summary["messages"]["torque_zenoh"]["received"] > 0, summary["messages"]
     assert "cwd_law" in (out / "scenario.resolved.toml").read_text()
+    # The run is over: its report and a comparison need the law no more.
+    _move_law_away(tmp_path, "cwd_law")
+    _report_and_compare_without_the_law(tmp_path, out, "cwd_law:CwdLaw")
+
+
+def _move_law_away(folder: Path, name: str) -> None:
+    """The user's module leaves the folder (renamed, deleted, another machine): not even a
+    compiled copy stays where the bench looks."""
+    (folder / f"{name}.py").rename(folder / f"{name}.py.moved")
+    shutil.rmtree(folder / "__pycache__", ignore_errors=True)
+
+
+def _report_and_compare_without_the_law(cwd: Path, folder: Path, law: str) -> None:
+    """hil report and hil compare of ``folder`` in full, from ``cwd`` where ``law`` was found
+    when it ran and is not found now, even asked to run it again (--ideal): the ideal
+    trajectory, the one fresh simulation, left out with why."""
+    report = _hil("report", str(folder), "--ideal", cwd=cwd)
+    assert report.returncode in (0, 1), report.stderr[-3000:]  # the verdict's exit, never 2
+    assert "Traceback" not in report.stderr, report.stderr[-3000:]
+    data = json.loads((folder / "report.json").read_text())
+    assert data["scenario"]["law"] == law
+    note = data["metrics"]["deviation_from_ideal_note"]
+    assert note.startswith("not computed") and "not found here" in note, note
+    assert {"headline", "verdict", "trajectory", "tracking_error"} <= set(data["sections"])
+    assert data["metrics"]["tracking"]["final_position_error"] >= 0.0
+    html = (folder / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 5  # every figure drawn from the folder
+    baseline = cwd / "baseline"
+    sim = _hil("sim", "paper_tracking", "--duration", "1", "--out", str(baseline), cwd=cwd)
+    assert sim.returncode == 0, sim.stderr[-3000:]
+    compare = _hil("compare", str(folder), str(baseline), "--out", str(cwd / "cmp"), cwd=cwd)
+    assert compare.returncode == 0 and "Traceback" not in compare.stderr, compare.stderr[-3000:]
+    rows = {r["figure"]: r for r in json.loads((cwd / "cmp" / "compare.json").read_text())["rows"]}
+    assert rows["summary.max_abs_v"]["a"] > 0.0 and rows["summary.max_abs_v"]["b"] > 0.0
+
+
+def test_report_and_compare_of_a_users_law_need_no_module_after_the_run(tmp_path: Path) -> None:
+    """The report never imports the user's module on its own; asked (--ideal), it finds it as
+    the simulation did (no PYTHONPATH) and simulates the ideal trajectory with it; once the
+    module is gone, report and compare still read the whole folder."""
+    assert _hil("new-law", "moved_law", cwd=tmp_path).returncode == 0
+    marker = tmp_path / "imported.txt"  # the module leaves a mark each time it is imported
+    with (tmp_path / "moved_law.py").open("a") as module:
+        module.write(f"\nopen({str(marker)!r}, 'a').write('imported\\n')\n")
+    out = tmp_path / "runs" / "moved"
+    sim = _hil("sim", "paper_tracking", "--law", "moved_law:MovedLaw", "--duration", "2",
+               "--out", str(out), cwd=tmp_path)  # fmt: skip
+    assert sim.returncode in (0, 1) and marker.is_file(), sim.stderr[-3000:]
+    marker.unlink()
+
+    def note() -> str:
+        return json.loads((out / "report.json").read_text())["metrics"]["deviation_from_ideal_note"]
+
+    report = _hil("report", str(out), cwd=tmp_path)
+    assert report.returncode in (0, 1), report.stderr[-3000:]
+    assert not marker.exists(), "the report imported the user's module on its own"
+    assert note().startswith("not computed") and "--ideal" in note(), note()
+    report = _hil("report", str(out), "--ideal", cwd=tmp_path)
+    assert report.returncode in (0, 1), report.stderr[-3000:]
+    assert marker.is_file() and note().startswith("simulated at Ts/10"), note()
+    _move_law_away(tmp_path, "moved_law")
+    _report_and_compare_without_the_law(tmp_path, out, "moved_law:MovedLaw")
 
 
 def test_a_missing_law_says_where_it_looked(tmp_path: Path) -> None:

@@ -1,5 +1,5 @@
-"""The pages as a reader sees them: report.html and compare.html rendered by headless Chromium
-at 1280 px (tools/screenshot.py). Each answers first, fits the width, and stays a page one
+"""The pages as a reader sees them: report.html, compare.html and sweep.html rendered by headless
+Chromium at 1280 px (tools/screenshot.py). Each answers first, fits the width, and stays a page one
 scrolls, not a wall (the run report was 10,500 px tall before its figures shared rows and its
 long tables were folded)."""
 
@@ -46,3 +46,14 @@ def test_the_compare_page_fits_the_screen(tmp_path: Path) -> None:
     screenshot(tmp_path / "cmp" / "compare.html", tmp_path / "compare.png")
     h, fits = _fits(tmp_path / "compare.png")
     assert h < MAX_HEIGHT and fits, (h, fits)
+
+
+def test_the_sweep_page_answers_first_and_fits_the_screen(tmp_path: Path) -> None:
+    out = tmp_path / "sweep"
+    args = ["sweep", "paper_tracking", "--duration", "1", "--ts", "0.005,0.02", "--delay", "0,0.01"]
+    assert main([*args, "--out", str(out)]) == 0
+    page = (out / "sweep.html").read_text()
+    assert page.index('class="answer') < page.index('class="heat"') < page.index("<h2>Results")
+    height = screenshot(out / "sweep.html", tmp_path / "sweep.png")
+    h, fits = _fits(tmp_path / "sweep.png")
+    assert height == h and h < MAX_HEIGHT and fits, (h, fits)

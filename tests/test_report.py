@@ -24,6 +24,7 @@ import pytest
 from hil.cli import main
 from hil.measure.certificate import CONTRACT_KEYS
 from hil.report.measured import SOURCE
+from tests.page_tables import numbers_without_unit, tables, unglossed
 from tests.synthetic_folder import write_synthetic_folder
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -490,10 +491,13 @@ def test_compare_two_folders(tmp_path: Path, run_folder: Path, stall_folder: Pat
     head = json.loads((out2 / "compare.json").read_text())["headline"]
     assert head["lines"][0].startswith("Verdict: A ")
     d_a, d_b = ma.certificate["d_max_s"] * 1e3, mb.certificate["d_max_s"] * 1e3
-    assert f"A D {d_a:.3f} ms of D*" in head["lines"][1] and f"B D {d_b:.3f} ms" in head["lines"][1]
-    assert head["lines"][2].startswith("Limits of (2)")
+    age = head["lines"][1]
+    assert f"A D = {d_a:.3f} ms of D* = " in age and f"B D = {d_b:.3f} ms" in age
+    assert "D: the longest a command stayed in force" in age  # each symbol said in words
+    assert head["lines"][2].startswith("Limits of (2), the bounds φ1, φ2 on the velocities")
     moved = {r[0]: r for r in head["most_moved"]}
-    assert moved["certificate.d_max_s"][4] == "s"  # the stall moved D most, with its unit
+    # the stall moved D most, with its unit and its name in words
+    assert moved["certificate.d_max_s"][4:] == ["s", "D, the longest a command stayed in force"]
     changes = [abs(r[3]) / (abs(r[1]) or 1.0) for r in head["most_moved"]]
     assert changes == sorted(changes, reverse=True)
     text = (out2 / "compare.html").read_text()
@@ -504,6 +508,19 @@ def test_compare_two_folders(tmp_path: Path, run_folder: Path, stall_folder: Pat
     )
     assert rows["messages.torque_zenoh.lost"]["b"] == 30
     assert (out2 / "compare_latency.png").is_file()
+    # A verdict that is not PASS says why, in its first reason's words, right after it.
+    judged = tmp_path / "judged"
+    shutil.copytree(stall_folder, judged)
+    summary = json.loads((judged / "summary.json").read_text())
+    reason = "samples without a command: 30 of 100 (30.000 %; all at 2 s) > 1.000 %; and more"
+    summary["verdict"] = {"outcome": "FAIL", "reasons": [reason]}
+    (judged / "summary.json").write_text(json.dumps(summary))
+    assert main(["compare", str(run_folder), str(judged), "--out", str(tmp_path / "c3")]) == 0
+    lines = json.loads((tmp_path / "c3" / "compare.json").read_text())["headline"]["lines"]
+    assert lines[0].endswith(", B FAIL.")
+    assert (
+        lines[1] == "Why B: samples without a command: 30 of 100 (30.000 %; all at 2 s) > 1.000 %."
+    )
     assert main(["compare", str(run_folder), str(tmp_path / "none"), "--out", str(out)]) == 2
 
 
@@ -555,3 +572,25 @@ def test_a_report_needs_no_user_law_after_the_run(tmp_path: Path) -> None:
     assert data["scenario"]["law"] == "no_such_user_module:MyLaw"
     note = data["metrics"]["deviation_from_ideal_note"]
     assert note.startswith("not computed") and "no_such_user_module:MyLaw" in note
+
+
+def _page_text(page: str) -> str:
+    import html
+
+    return html.unescape(re.sub(r"<[^>]+>", " ", page))
+
+
+def test_every_table_gives_units_and_every_symbol_its_sentence(
+    tmp_path: Path, run_folder: Path, stall_folder: Path
+) -> None:
+    """The run report and the compare page: every number of every table has its unit in its
+    table (header, row label or unit column), and each symbol of the paper a sentence."""
+    assert main(["report", str(stall_folder), "--no-ideal"]) == 1  # stalls, drives, messages
+    assert main(["compare", str(run_folder), str(stall_folder), "--out", str(tmp_path)]) == 0
+    for page in (stall_folder / "report.html", tmp_path / "compare.html"):
+        text = page.read_text()
+        assert len(tables(text)) >= 2, page.name  # the check reads the real tables
+        assert not numbers_without_unit(text), (page.name, numbers_without_unit(text)[:10])
+        words = _page_text(text)
+        assert "D*" in words and "(2)" in words, page.name
+        assert not unglossed(words), (page.name, unglossed(words))

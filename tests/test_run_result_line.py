@@ -38,7 +38,7 @@ def test_hil_run_ends_with_one_line_naming_the_outcome_and_the_report(tmp_path: 
     summary = json.loads((out / "summary.json").read_text())
     assert m.group(1) == summary["verdict"]["outcome"]
     if summary["certificate"].get("d_star_s"):
-        assert " ms of D* " in lines[0]
+        assert (" ms of D* " in lines[0]) != ("D* = " in lines[0])  # D against D*, said once
 
 
 def test_hil_run_json_gives_the_brief_on_stdout_and_the_line_on_stderr(tmp_path: Path) -> None:
@@ -49,3 +49,29 @@ def test_hil_run_json_gives_the_brief_on_stdout_and_the_line_on_stderr(tmp_path:
     assert Path(brief["run_dir"]) == out and brief["verdict"] in ("PASS", "FAIL", "INCONCLUSIVE")
     m = LINE.fullmatch(proc.stderr.strip().splitlines()[0])
     assert m and m.group(2) == "run folder" and Path(m.group(3)) == out, proc.stderr
+
+
+def test_the_line_quotes_a_long_reason_up_to_its_details_and_d_once() -> None:
+    """A bench stall's reason lists every stall: the line keeps its first clause (the report
+    has the rest) and does not repeat D against D* after a reason that says it."""
+    from hil.commands.run import verdict_line
+
+    stall = (
+        "inconclusive, the bench stalled: command age D = 85.690 ms > D* = 20.442 ms on the "
+        "zenoh path (margin -65.248 ms; failing: sampled |w| bound <= phi2) only because the "
+        "plant emulator stalled at t = 9.478 s (command age 85.690 ms, plant_late)"
+    )
+    summary = {
+        "verdict": {"outcome": "INCONCLUSIVE", "reasons": [stall + "; " + "another stall; " * 20]},
+        "certificate": {"d_max_s": 0.08569, "d_star_s": 0.020442},
+    }
+    line = verdict_line(summary, "runs/r/report.html")
+    assert line.startswith("INCONCLUSIVE: inconclusive, the bench stalled: command age D = ")
+    assert line.endswith("; report: runs/r/report.html") and len(line) < 300, line
+    assert "another stall" not in line and line.count("D* ") == 1, line
+    summary = {
+        "verdict": {"outcome": "PASS", "reasons": [], "limits": "held"},
+        "certificate": {"d_max_s": 0.0035, "d_star_s": 0.020442},
+    }
+    line = verdict_line(summary, "runs/r/report.html")
+    assert line == "PASS: limits held, D 3.50 ms of D* 20.44 ms; report: runs/r/report.html"

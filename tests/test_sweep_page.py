@@ -3,6 +3,7 @@ table with units, from the same document as sweep.json; and ``hil sweep`` writes
 
 from __future__ import annotations
 
+import html
 import json
 import re
 import subprocess
@@ -10,6 +11,7 @@ import sys
 from pathlib import Path
 
 from hil.sweep.page import COLOURS, heat_cells, sweep_html
+from tests.page_tables import numbers_without_unit, tables, unglossed
 
 
 def _row(ts: float, delay: float, over_v: float, violations: int, seed: int = 0) -> dict:
@@ -95,3 +97,8 @@ def test_hil_sweep_writes_the_page(tmp_path: Path) -> None:
     assert table.count("<tr") == 1 + len(doc["rows"]) == 5
     for f in doc["figures"]:
         assert (out / f["png"]).is_file() and f'src="{f["png"]}"' in page
+    # a unit beside every number, a sentence beside every symbol, the scenario's own limits
+    assert len(tables(page)) == 2 and not numbers_without_unit(page), numbers_without_unit(page)
+    words = html.unescape(re.sub(r"<[^>]+>", " ", page))
+    assert not unglossed(words), unglossed(words)
+    assert "|v| ≤ φ1 = 1.6 m/s and |ω| ≤ φ2 = 5.1 rad/s" in words

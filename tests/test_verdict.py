@@ -157,8 +157,8 @@ def test_the_report_shows_figures_a_trigger_does_not_measure_as_n_a_never_0():
     sched = {"controller": {"requested": "fifo", "policy": "SCHED_FIFO", "priority": 80}}
     _lateness(s, {"timing": {"summary": on_state, "scheduling": sched}})
     tables = [b for b in s.blocks if b[0] == "table"]
-    rows = {r[0]: r[1:] for _, _, body in tables for r in body}
+    rows = {r[0]: r[1:] for block in tables for r in block[2]}
     assert set(rows["controller wake-up lateness"]) == {"n/a"}
-    assert rows["deadline_misses"] == ["n/a", "count"] and rows["skipped_slots"] == ["n/a", "count"]
-    assert rows["plant_deadline_misses"] == [0, "count"]
+    assert rows["deadline misses"] == ["n/a", "count"] and rows["skipped slots"] == ["n/a", "count"]
+    assert rows["plant deadline misses"] == [0, "count"]
     assert any("asked fifo, got SCHED_FIFO" in b[1] for b in s.blocks if b[0] == "p")

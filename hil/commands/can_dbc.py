@@ -25,8 +25,10 @@ def register(app: typer.Typer) -> None:
         """Write the ODrive CANSimple (firmware 0.6) DBC with one message set per node id, so
         that `cantools decode` names every frame of those nodes. The file shipped in the
         package (protocol/can/odrive_cansimple.dbc) is the one for 0-7, as ODrive's own."""
+        from hil.options import out_dir
         from protocol.can.dbc import parse_nodes, render
 
+        out_dir("--out", out)
         try:
             text = render(parse_nodes(nodes))
         except ValueError as exc:

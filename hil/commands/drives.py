@@ -9,6 +9,7 @@ import typer
 
 from hil.commands.live_options import LiveHostOpt, live_opt
 from hil.errors import BadInputError
+from hil.options import out_dir
 
 _RATE_NAMES = {
     "heartbeat": 0x01,
@@ -134,6 +135,7 @@ def register(app: typer.Typer) -> None:
             raise BadInputError("--scheduling must be fifo or other")
         if duration is not None and not duration > 0:
             raise BadInputError("--duration must be > 0")
+        out_dir("--out", out)  # before the drives run, not when they stop
         opts = DrivesOptions(
             scenario=scenario,
             interface=can_interface,

@@ -10,6 +10,7 @@ import typer
 
 from hil import interrupts
 from hil.commands.live_options import LiveHostOpt, live_opt
+from hil.options import out_dir
 
 LiveOpt = live_opt("every robot of the fleet, each on its own topics hil/robotI/...,")
 
@@ -63,6 +64,7 @@ def register(app: typer.Typer) -> None:
         from hil.live.launch import check as live_check
         from runtime.signals import stop_on_signals
 
+        out_dir("--out", out)
         opts = FleetOptions(
             resolve_scenario(scenario),
             robots,

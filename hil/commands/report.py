@@ -21,13 +21,15 @@ def register(app: typer.Typer) -> None:
             typer.Option("--out", help="Where to write the report (default: the folder itself)."),
         ] = None,
         ideal: Annotated[
-            bool,
+            bool | None,
             typer.Option(
                 "--ideal/--no-ideal",
                 help="Simulate the same scenario at a fine period (Ts/10) for the deviation "
-                "from the ideal trajectory (needs the simulator).",
+                "from the ideal trajectory. Default: for the built-in laws only; a law of your "
+                "own (module:Class) is run again, from its module, only with --ideal.",
+                show_default=False,
             ),
-        ] = True,
+        ] = None,
         max_deadline_miss_ratio: Annotated[
             float,
             typer.Option(help="Deadline misses above this fraction of cycles: negative verdict."),
@@ -56,6 +58,8 @@ def register(app: typer.Typer) -> None:
         hil.measure). Exit 0 all good, 1 negative verdict (limit broken, certificate not held
         or exceeded, too many deadline misses, samples without a command or lost messages),
         2 not a run folder."""
+        from functools import partial
+
         from hil.folder import load_folder
         from hil.options import number, out_dir
         from hil.report.build import Thresholds, build_report, write_report
@@ -73,7 +77,7 @@ def register(app: typer.Typer) -> None:
         loaded = load_folder(folder, lazy=True)
         rep = build_report(
             loaded,
-            ideal=ideal_from_simulator if ideal else None,
+            ideal=None if ideal is False else partial(ideal_from_simulator, user_law=bool(ideal)),
             thresholds=Thresholds(
                 max_deadline_miss_ratio, max_lost_ratio, max_samples_without_command_ratio
             ),

@@ -54,6 +54,7 @@ def _settings_from_scenario(
     s.epoch_ns = links["epoch_ns"]
     s.start_timeout = start_timeout
     settings = write_settings if write_settings is not None else run_dir / f"{name}_settings.json"
+    settings.parent.mkdir(parents=True, exist_ok=True)  # checked writable before any work
     s.save(settings)
     return settings
 
@@ -102,6 +103,8 @@ def register_service_command(app: typer.Typer, name: str, module: str, what: str
         options.locator("--endpoint", endpoint)
         options.locator("--can-endpoint", can_endpoint)
         options.integer("--epoch-ns", epoch_ns, 0, 2**63 - 1)
+        if write_settings is not None:
+            options.out_file("--write-settings", write_settings)
         if settings is not None:
             check_settings_file(settings)
         main_from_settings = importlib.import_module(module).main_from_settings

@@ -139,22 +139,13 @@ def register(app: typer.Typer) -> None:
         elapsed = time.perf_counter() - started
         from hil.sweep.outputs import write_outputs
         from hil.sweep.page import write_sweep_page
-        from hil.sweep.runner import certified_break
 
-        meta = {
-            "scenario_file": str(scenario_file),
-            "law": str(scenario.controller.get("law", "unified")),
-            "duration": loop_s,
-            "interrupted": outcome.interrupted,
-            "groups_done": outcome.groups_done,
-            "robot_steps": outcome.robot_steps,
-            "elapsed_s": elapsed,
-            "robot_steps_per_s": outcome.robot_steps / elapsed if elapsed > 0 else None,
-            "certificate": certified_break(scenario, grid),
-            "disturbance": "worst searched" if worst_disturbance else "the scenario's",
-            "provenance": resolved.get("provenance", {}),
+        meta = _meta(scenario, scenario_file, grid, loop_s, outcome, elapsed)
+        meta.update(
+            disturbance="worst searched" if worst_disturbance else "the scenario's",
+            provenance=resolved.get("provenance", {}),
             **where,
-        }
+        )
         # A second Ctrl-C while the results are written would leave them half-written.
         with interrupts.shielded():
             doc = write_outputs(target, outcome.rows, grid, meta)
@@ -306,3 +297,24 @@ def _run_with_progress(
         return run_sweep(
             scenario, grid, loop_s, progress, lambda rows: write_csv(target / "sweep.csv", rows)
         )
+
+
+def _meta(
+    scenario: Any, scenario_file: Path, grid: Any, loop_s: float, outcome: Any, elapsed: float
+) -> dict[str, Any]:
+    """What sweep.json says of the sweep beside its rows: the scenario, its law and limits
+    (the page names them), the loop length, how far it got and how fast, the certificate."""
+    from hil.sweep.runner import certified_break
+
+    return {
+        "scenario_file": str(scenario_file),
+        "law": str(scenario.controller.get("law", "unified")),
+        "limits": {"phi1": scenario.limits.phi1, "phi2": scenario.limits.phi2},
+        "duration": loop_s,
+        "interrupted": outcome.interrupted,
+        "groups_done": outcome.groups_done,
+        "robot_steps": outcome.robot_steps,
+        "elapsed_s": elapsed,
+        "robot_steps_per_s": outcome.robot_steps / elapsed if elapsed > 0 else None,
+        "certificate": certified_break(scenario, grid),
+    }

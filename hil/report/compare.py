@@ -23,11 +23,17 @@ from hil.measure.figures import Measurement
 from hil.measure.folder import measured
 from hil.report import figures as fg
 from hil.report.compare_headline import compare_headline
+from hil.report.compare_names import label_of, unit_of
+from hil.report.content import NORMALIZED, SLIDING
 from hil.report.html import CSS, esc, figure, table
 from hil.report.markdown import _md_table
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
 PREFIX = "compare_"
+MOVED_NOTE = (
+    "The figures whose value changed most from A to B, relative to A's value (the change "
+    "itself where A is 0), largest first."
+)
 
 
 def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]:
@@ -46,6 +52,8 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
     )
     out: dict[str, float] = {"ts": sv.ts, "delay": sv.delay, "jitter": sv.jitter}
     for k, v in folder.summary.items():
+        if k == "schema_version":
+            continue  # the file's format, not a figure of the run
         if isinstance(v, int | float) and not isinstance(v, bool):
             out[f"summary.{k}"] = float(v)
         elif isinstance(v, dict) and k == "violations":
@@ -182,11 +190,14 @@ def _write_pages(
     la, lb = labels
     head, files = data["headline"], data["figures"]
     fa, fb = data["a"], data["b"]
-    header = ["figure", la, lb, "B - A"]
-    moved_header = ["figure", la, lb, "B - A", "unit"]
+    header = ["figure", "key (compare.json)", la, lb, "B − A", "unit"]
+    every = [[label_of(k), k, a, b, d, unit_of(k)] for k, a, b, d in rows]
+    moved_header = ["figure", la, lb, "B − A", "unit"]
+    moved = [[r[5], *r[1:5]] for r in head["most_moved"]]
     md = [f"# Comparison: {fa} vs {fb}", "", *(f"- {t}" for t in head["lines"]), ""]
-    md += ["## The figures that moved most", "", _md_table(moved_header, head["most_moved"]), ""]
-    md += ["## Every figure", "", _md_table(header, rows), ""]
+    md += ["## The figures that moved most", "", MOVED_NOTE, "", _md_table(moved_header, moved)]
+    md += ["", "## Every figure", "", SLIDING, "", _md_table(header, every), ""]
+    md += ["## Overlays", "", NORMALIZED, ""]
     for f in files:
         md += [f"![{f['title']}]({f['png']})", "", f"Data: [{f['data']}]({f['data']})", ""]
     (out / "compare.md").write_text("\n".join(md) + "\n")
@@ -199,13 +210,17 @@ def _write_pages(
         *(f"<li>{esc(t)}</li>" for t in head["lines"]),
         "</ul></div>",
         "<h2>The figures that moved most</h2>",
-        table(moved_header, head["most_moved"]),
+        f"<p>{esc(MOVED_NOTE)}</p>",
+        table(moved_header, moved),
         "</section>",
         '<section id="figures_table"><h2>Every figure</h2>',
-        f"<details><summary>{len(rows)} figures of A and B</summary>",
-        table(header, rows),
+        f"<p>{esc(SLIDING)}</p>",
+        f"<details><summary>{len(rows)} figures of A and B, each with its unit</summary>",
+        table(header, every),
         "</details></section>",
-        '<section id="overlays"><h2>Overlays</h2><div class="figs">',
+        '<section id="overlays"><h2>Overlays</h2>',
+        f"<p>{esc(NORMALIZED)}</p>",
+        '<div class="figs">',
         *(figure(f, PREFIX) for f in figs),
         "</div></section></body></html>",
     ]

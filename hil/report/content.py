@@ -24,7 +24,7 @@ SECTION_TITLES: dict[str, str] = {
     "latency": "Sample-to-apply latency per path (histogram and CDF)",
     "lateness": "Wake-up lateness over time",
     "messages": "Messages per stream",
-    "timing_summary": "Every timing figure (summary.json `timing`, from hil.measure)",
+    "timing_summary": "Every timing figure (summary.json's timing, from hil.measure)",
 }
 
 NORMALIZED = (
@@ -41,6 +41,13 @@ WHAT_4 = (
     "The tracking errors (4) are the robot's position error seen from the robot itself (xe "
     "ahead, ye to its left) and its heading error θe = θ − θd, both measured against the "
     "virtual robot (3) that runs the reference."
+)
+SLIDING = (
+    "v~ = v − α_v and w~ = ω − α_ω are the sliding variables of (10): how far the robot's "
+    "velocities are from the ones the law steers them to (α_v, α_ω of (7)); the law switches "
+    "its torque on their sign. Once they first reach zero (the reaching time) sampling keeps "
+    "them in a band around zero instead of on it: the narrower, the closer to the "
+    "continuous-time law."
 )
 WHAT_CERT = (
     "The certificate is the sampled-data bound of docs/sampled_data_bound.md: as long as no "
@@ -62,9 +69,10 @@ class Section:
     def items(self, texts: list[str]) -> None:
         self.blocks.append(("list", texts))
 
-    def table(self, header: list[str], rows: list[list[Any]]) -> None:
+    def table(self, header: list[str], rows: list[list[Any]], fold: str | None = None) -> None:
+        """``fold``: the HTML shows the table folded under this line (whatever its length)."""
         if rows:
-            self.blocks.append(("table", header, rows))
+            self.blocks.append(("table", header, rows, fold))
 
     def figure(self, name: str) -> None:
         self.blocks.append(("figure", name))
@@ -80,8 +88,37 @@ def fmt(value: Any) -> str:
             return str(value)
         return f"{value:.6g}"
     if isinstance(value, dict):
-        return ", ".join(f"{k} {fmt(v)}" for k, v in value.items()) or "none"
+        return ", ".join(_named(str(k), v) for k, v in value.items()) or "none"
     return str(value)
+
+
+# A figure's unit from its key's suffix (how summary.json names them): shown in a reader's unit.
+# A rate ("_rev_s": rev/s) is matched before the plain seconds it ends like.
+_SUFFIX_UNITS = (
+    ("_rev_s", 1.0, "rev/s"),
+    ("_rad_s", 1.0, "rad/s"),
+    ("_m_s", 1.0, "m/s"),
+    ("_per_s", 1.0, "/s"),
+    ("_hz", 1.0, "Hz"),
+    ("_nm", 1.0, "N·m"),
+    ("_rev", 1.0, "rev"),
+    ("_pct", 1.0, "%"),
+    ("_us", 1.0, "µs"),
+    ("_ms", 1.0, "ms"),
+    ("_s", 1e3, "ms"),
+)
+
+
+def _named(key: str, value: Any) -> str:
+    """``controller_lateness_s 0.000101`` as "controller lateness 0.101 ms": a dict's entry in
+    words and a unit, the nested ones in parentheses."""
+    if isinstance(value, dict):
+        return f"{key.replace('_', ' ')} ({fmt(value)})"
+    for suffix, scale, unit in _SUFFIX_UNITS:
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        if key.endswith(suffix) and number:
+            return f"{key.removesuffix(suffix).replace('_', ' ')} {value * scale:.3g} {unit}"
+    return f"{key.replace('_', ' ')} {fmt(value)}"
 
 
 def _ms(x: Any) -> Any:
@@ -89,6 +126,8 @@ def _ms(x: Any) -> Any:
 
 
 PCT_KEYS = ("p50_us", "p90_us", "p99_us", "p999_us", "max_us", "count")
+#: The percentile columns as a table heads them.
+PCT_HEADER = ["p50 [µs]", "p90 [µs]", "p99 [µs]", "p99.9 [µs]", "max [µs]", "count"]
 
 
 NOT_MEASURED = "n/a"
@@ -194,17 +233,26 @@ def _certificate(s: Section, data: dict[str, Any]) -> None:
                 "Command age at every plant step (age of information, per path); the applied "
                 f"path's max is D. Start-up hold: {fmt(timing.get('startup_hold_s'))} s."
             )
-            s.table(["path", *PCT_KEYS], rows)
+            s.table(["path", *PCT_HEADER], rows)
     stalls = c.get("stalls") or []
     if stalls:
-        s.table(
-            ["t [s]", "age [ms]", "cause", "evidence"],
-            [
-                [st.get("t_s"), _ms(st.get("age_s")), st.get("cause"), st.get("evidence")]
-                for st in stalls
-            ],
+        s.p(
+            "Stalls: the commands that stayed in force longest (above the stall threshold), "
+            "each with its cause and what the logs show around it (how late each service "
+            "woke, how long it was silent, how busy the host was)."
         )
+        header = ["t [s]", "age [ms]", "cause", "evidence"]
+        rows = [
+            [st.get("t_s"), _ms(st.get("age_s")), st.get("cause"), st.get("evidence")]
+            for st in stalls
+        ]
+        s.table(header, rows[:SHOWN_STALLS])  # the headline's stalls; the rest one click away
+        s.table(header, rows[SHOWN_STALLS:], fold=f"{len(rows) - SHOWN_STALLS} more stalls")
     s.figure("command_age")
+
+
+#: Stalls shown open (the ones the headline names); the others are folded.
+SHOWN_STALLS = 3
 
 
 def _trajectory(s: Section, data: dict[str, Any]) -> None:
@@ -216,21 +264,31 @@ def _trajectory(s: Section, data: dict[str, Any]) -> None:
     s.figure("trajectory")
 
 
+#: Each signal of (2) as a table names it, with its unit.
+SIGNALS = {"v": "v [m/s]", "omega": "ω [rad/s]", "tau1": "τ1 [m/s²]", "tau2": "τ2 [rad/s²]"}
+
+
 def _constraint_rows(data: dict[str, Any], names: tuple[str, ...]) -> list[list[Any]]:
     rows = []
     for n in names:
         c = data["metrics"]["constraints"][n]
-        rows.append(
-            [n, c["peak"], c["limit"], c["ratio"], c["held"], c["bound"], c["within_bound"]]
-        )
+        values = (c["peak"], c["limit"], c["ratio"], c["held"], c["bound"], c["within_bound"])
+        rows.append([SIGNALS[n], *values])
     return rows
 
 
-CONSTRAINT_HEADER = ["signal", "max |·|", "limit", "max/limit", "held", "sampled-data bound"]
-CONSTRAINT_HEADER.append("within bound")
+CONSTRAINT_HEADER = ["signal [unit]", "max |·|", "limit", "max/limit (1: at the limit)", "held"]
+CONSTRAINT_HEADER += ["sampled-data bound", "within bound"]
+BOUND_GLOSS = (
+    "max |·| is the largest magnitude over every plant step, limit the bound of (2), both in "
+    "the signal's unit; the sampled-data bound is the largest |v|, |ω| the certificate "
+    "allows at this folder's Ts and delay (it may exceed the limit when the certificate does "
+    "not hold; none for τ1, τ2, which the law clips to ϖ1, ϖ2 itself)."
+)
 
 
 def _velocities(s: Section, data: dict[str, Any]) -> None:
+    s.p(BOUND_GLOSS)
     s.table(CONSTRAINT_HEADER, _constraint_rows(data, ("v", "omega")))
     s.figure("v")
     s.figure("omega")
@@ -269,8 +327,8 @@ def _drives(s: Section, data: dict[str, Any]) -> None:
         for side in ("controller", "plant"):
             st = can.get(side)
             if isinstance(st, dict):
-                rows += [[side, k, st[k]] for k in st]
-        s.table(["side", "drive/bus state", "value"], rows)
+                rows += [[side, k.replace("_", " "), st[k], _count_unit(st[k])] for k in st]
+        s.table(["side", "drive/bus state", "value", "unit"], rows)
     else:
         s.p("No CAN bus in this folder (a simulation, or a run without CAN).")
     counts = d.get("rejection_counts")
@@ -289,13 +347,29 @@ def _tracking_error(s: Section, data: dict[str, Any]) -> None:
         "(4): the position and heading error of the robot against the reference, seen from "
         "the robot; positions in m, headings in rad."
     )
-    rows = [[k, v, _unit_of(k)] for k, v in m["tracking"].items()]
+    rows = [
+        [TRACKING.get(k, k.replace("_", " ")), v, _unit_of(k)] for k, v in m["tracking"].items()
+    ]
     dev = m.get("deviation_from_ideal")
     if dev:
         rows += [[f"deviation from ideal, {k}", v, "m"] for k, v in dev.items()]
     rows.append(["deviation from ideal", m.get("deviation_from_ideal_note", ""), ""])
     s.table(["figure", "value", "unit"], rows)
     s.figure("tracking_error")
+
+
+def _count_unit(value: Any) -> str:
+    """The drives' and the bus's counters are counts; their other states are words."""
+    return "count" if isinstance(value, int) and not isinstance(value, bool) else ""
+
+
+#: The tracking figures of hil.trace_metrics in words.
+TRACKING = {
+    "final_position_error": "position error at the end",
+    "final_heading_error": "heading error θe at the end",
+    "max_position_error": "largest position error",
+    "rms_position_error_last10": "RMS position error, last 10 % of the run",
+}
 
 
 def _unit_of(key: str) -> str:
@@ -319,12 +393,15 @@ def _bands(s: Section, data: dict[str, Any]) -> None:
             rows.append([name, "not available", None, None, None])
         else:
             rows.append([name, b["reaching_time"], b["band_p99"], b["band_max"], b["band_spread"]])
-    s.p(f"v~ and w~ from: {m.get('bands_source')}.")
-    s.table(["variable", "reaching time [s]", "band p99 |·|", "band max |·|", "max - min"], rows)
+    s.p(f"{SLIDING} v~ in m/s, w~ in rad/s; from {m.get('bands_source')}.")
+    s.table(
+        ["variable", "reaching time [s]", "band p99 |·|", "band max |·|", "max − min"],
+        [[{"v_tilde": "v~ [m/s]", "w_tilde": "w~ [rad/s]"}.get(r[0], r[0]), *r[1:]] for r in rows],
+    )
     sw, sat = m["switching_rate"], m["saturation_share"]
     s.table(
-        ["torque", "switching rate [1/s]", "saturation share (|τ| ≥ 0.999 ϖ)"],
-        [[k, sw[k], sat[k]] for k in ("tau1", "tau2")],
+        ["torque", "switching rate [1/s]", "share of samples at the limit (|τ| ≥ 0.999 ϖ)"],
+        [[SIGNALS[k], sw[k], sat[k]] for k in ("tau1", "tau2")],
     )
     s.figure("bands")
 
@@ -336,7 +413,13 @@ def _latency(s: Section, data: dict[str, Any]) -> None:
         (f"sample_to_apply_{p}", f"{p} ({'applied' if p == path else 'shadow: receive'})")
         for p in ("zenoh", "can")
     ] + [("hop_cmd_zenoh", "command hop zenoh"), ("hop_cmd_can", "command hop can")]
-    s.table(["figure", *PCT_KEYS], _pct_rows(timing, names))
+    s.p(
+        "Sample-to-apply: from the moment the plant sampled the state to the moment the "
+        "command computed from it took effect at the plant (a shadow path: arrived). Command "
+        "hop: from the controller's send to the plant's receipt. Percentiles over every command "
+        "(p99: 99 % took at most this long); definitions in docs/realtime.md."
+    )
+    s.table(["figure", *PCT_HEADER], _pct_rows(timing, names))
     s.figure("latency")
 
 
@@ -347,12 +430,20 @@ def _lateness(s: Section, data: dict[str, Any]) -> None:
         ("period_jitter", "controller period jitter"),
         ("plant_wakeup_lateness", "plant wake-up lateness"),
     ]
+    s.p(
+        "Wake-up lateness: how long after its due time a service's periodic tick woke (the "
+        "controller's ticks, the plant's samples). Period jitter: how far the gap between two "
+        "ticks was from their slots' gap. A tick a whole period late or a slot never run is a "
+        "missed slot (a deadline miss)."
+    )
     measured_here = ("wakeup_lateness", "period_jitter") if timing else ()
-    s.table(["figure", *PCT_KEYS], _pct_rows(timing, names, measured_here))
+    s.table(["figure", *PCT_HEADER], _pct_rows(timing, names, measured_here))
     # Missed slots: a stall of N periods misses N slots (late wake-ups + slots never run).
     keys = ("ticks", "slots", "deadline_misses", "late_ticks", "skipped_slots")
     keys += ("deadline_miss_rate", "plant_slots", "plant_deadline_misses", "plant_skipped_slots")
-    counts = [[k, _na(timing.get(k)), _unit_of(k)] for k in keys] if timing else []
+    counts = (
+        [[k.replace("_", " "), _na(timing.get(k)), _unit_of(k)] for k in keys] if timing else []
+    )
     s.table(["figure", "value", "unit"], counts)
     sched = data["timing"].get("scheduling") or {}
     for role, got in sched.items():
@@ -422,7 +513,7 @@ def _timing_summary(s: Section, data: dict[str, Any]) -> None:
     if isinstance(phase, dict):
         s.p(_tick_phase_line(phase))
     s.table(
-        ["figure", *PCT_KEYS],
+        ["figure", *PCT_HEADER],
         [
             [k, *(f.get(q) for q in PCT_KEYS)]
             for k, f in timing.items()

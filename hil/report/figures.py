@@ -372,7 +372,10 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
     ax_h.set_ylabel("count")
     ax_h.set_yscale("log")
     if clip is not None:
-        ax_c.set_xlim(right=clip)
+        # both ends: left to itself the axis keeps the clipped outliers' margin on the left
+        pooled = np.concatenate([np.asarray(v, dtype=float).ravel() for v in samples.values()])
+        low = float(np.min(pooled[np.isfinite(pooled)]))
+        ax_c.set_xlim(low - 0.05 * (clip - low), clip)
     ax_c.set_ylabel("fraction ≤ x")
     ax_h.set_title("histogram")
     ax_c.set_title("CDF")

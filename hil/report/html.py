@@ -55,14 +55,12 @@ def figure(f: Figure, prefix: str = "report_") -> str:
 FOLD_ROWS = 12
 
 
-def _folded(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+def _folded(header: Sequence[str], rows: Sequence[Sequence[Any]], fold: str | None = None) -> str:
     rows = list(rows)
-    if len(rows) <= FOLD_ROWS:
+    if fold is None and len(rows) <= FOLD_ROWS:
         return table(header, rows)
-    return (
-        f"<details><summary>{len(rows)} rows: {esc(', '.join(header))}</summary>"
-        f"{table(header, rows)}</details>"
-    )
+    summary = fold or f"{len(rows)} rows: {', '.join(header)}"
+    return f"<details><summary>{esc(summary)}</summary>{table(header, rows)}</details>"
 
 
 def _grid(figures: list[str]) -> list[str]:
@@ -111,7 +109,7 @@ def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
             elif kind == "list":
                 parts.append("<ul>" + "".join(f"<li>{esc(t)}</li>" for t in block[1]) + "</ul>")
             elif kind == "table":
-                parts.append(_folded(block[1], block[2]))
+                parts.append(_folded(block[1], block[2], block[3]))
         parts.extend(_grid(pending))
         if section.id == "headline":
             parts.append("</div>")

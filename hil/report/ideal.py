@@ -2,18 +2,25 @@
 jitter) standing in for continuous time, from the trace's first state and time; a trace
 longer than :data:`hil.report.ideal_sim.WINDOW_S` gets the windowed ideal, each window
 restarted from the robot's state and the law's memory at its start (hil.report.ideal_sim).
-A user's law whose module cannot be found here (the run measured everything the report shows;
-only this fresh simulation needs the law): :class:`IdealUnavailableError`, and the report says why.
+A user's law is not run again unless asked (``hil report DIR --ideal``): the report shows what
+the run measured and never imports the user's module on its own (it may have changed since
+the run, or be gone; and at Ts/10 in Python the ideal costs ten times the run's steps). Asked,
+it is looked up as the bench looks it up for a simulation (the installed packages, the run's
+scenario folder, the working directory); not found there, or failing there,
+:class:`IdealUnavailableError`, and the report says why.
 """
 
 from __future__ import annotations
 
+import importlib.machinery
 import importlib.util
+from collections.abc import Iterable
 
 import numpy as np
 
+from controller_service.registry import law_path_for
 from hil.folder import RunFolder as Folder
-from hil.report.ideal_sim import simulate_ideal
+from hil.report.ideal_sim import base_dir_of, simulate_ideal
 from hil.report.telemetry import folder_telemetry
 
 
@@ -47,22 +54,44 @@ class IdealUnavailableError(Exception):
     """The ideal trajectory cannot be simulated here (the reason is the message)."""
 
 
-def law_findable(law: str) -> bool:
-    """A built-in law, or a user's law whose module is found (without importing it)."""
+def law_findable(law: str, folders: Iterable[str] = ()) -> bool:
+    """A built-in law, or a user's law whose module is found (without importing it) in the
+    installed packages or, as :func:`controller_service.registry.build_controller` looks for
+    it, in ``folders``."""
     module = law.partition(":")[0] if ":" in law else ""
     if not module:
         return True
     try:
-        return importlib.util.find_spec(module) is not None
+        if importlib.util.find_spec(module) is not None:
+            return True
     except (ImportError, ValueError):
-        return False
+        pass
+    top = module.split(".")[0]  # a package in one of the folders: its submodule is checked
+    return importlib.machinery.PathFinder.find_spec(top, [str(f) for f in folders]) is not None
 
 
-def ideal_from_simulator(folder: Folder) -> dict[str, np.ndarray] | None:
+def ideal_from_simulator(folder: Folder, user_law: bool = False) -> dict[str, np.ndarray] | None:
+    """The folder's ideal trajectory; with a user's law only when ``user_law`` (asked for)."""
     law = str((folder.scenario.get("controller") or {}).get("law", "unified"))
-    if not law_findable(law):
+    if ":" in law and not user_law:
+        raise IdealUnavailableError(
+            f"not computed: the law {law!r} is your own, and the report does not run it again "
+            "unless asked (hil report DIR --ideal; at Ts/10 it costs ten times the run's "
+            "steps); every other figure is the run's own and needs no law"
+        )
+    folders = law_path_for(base_dir_of(folder.scenario, folder.path))
+    if not law_findable(law, folders):
         raise IdealUnavailableError(
             f"not computed: the ideal simulation needs the law {law!r}, whose module is not "
-            "importable here (every other figure is the run's own and needs no law)"
+            f"found here (looked in the installed packages, {', '.join(folders)}; every other "
+            "figure is the run's own and needs no law)"
         )
-    return simulate_ideal(folder.scenario, folder.path, folder.trace, memory_source(folder))
+    if ":" not in law:
+        return simulate_ideal(folder.scenario, folder.path, folder.trace, memory_source(folder))
+    try:
+        return simulate_ideal(folder.scenario, folder.path, folder.trace, memory_source(folder))
+    except Exception as exc:  # the user's module, maybe edited since the run, may raise anything
+        raise IdealUnavailableError(
+            f"not computed: the law {law!r} failed in the ideal simulation here "
+            f"({type(exc).__name__}: {exc}; every other figure is the run's own and needs no law)"
+        ) from exc

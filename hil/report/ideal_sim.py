@@ -88,7 +88,9 @@ def window_starts(t: np.ndarray, window: float = WINDOW_S) -> np.ndarray:
     return np.unique(rows[rows < t.size])
 
 
-def _base_dir(resolved: Mapping[str, Any], folder: Path) -> Path:
+def base_dir_of(resolved: Mapping[str, Any], folder: Path) -> Path:
+    """The folder the ideal's scenario is read in: the run's scenario file's, else the run
+    folder (a csv reference and a user's law module are looked up there)."""
     source = (resolved.get("provenance") or {}).get("scenario_file")
     if isinstance(source, str) and Path(source).parent.is_dir():
         return Path(source).resolve().parent  # a csv reference is relative to the scenario
@@ -106,7 +108,7 @@ def simulate_ideal(
     the trace spans at most ``window`` seconds (at the fine period's own times), else the
     windowed ideal at the trace's sample times (module docstring; the dict then also holds
     ``window_start_t``, the windows' start times)."""
-    base = _base_dir(resolved, folder)
+    base = base_dir_of(resolved, folder)
     if trace is not None and float(trace["t"][-1] - trace["t"][0]) > window * (1.0 + 1e-9):
         return _windowed(resolved, base, trace, memory_source, window)
     start = trace_start(trace) if trace is not None else None

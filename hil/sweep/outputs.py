@@ -42,10 +42,10 @@ CSV_COLUMNS = (
 # (metric, y label, how to aggregate over jitter and seeds, reference line)
 FIGURES: tuple[tuple[str, str, str, float | None], ...] = (
     ("rms_position_error", "tracking error: RMS position error, last 10% [m]", "mean", None),
-    ("band_v", "band of v~ (p99 |v~| after reaching)", "max", None),
-    ("band_w", "band of w~ (p99 |w~| after reaching)", "max", None),
-    ("overshoot_v", "max |v| / phi1", "max", 1.0),
-    ("overshoot_omega", "max |omega| / phi2", "max", 1.0),
+    ("band_v", "band of v~: p99 |v~| after reaching [m/s]", "max", None),
+    ("band_w", "band of w~: p99 |w~| after reaching [rad/s]", "max", None),
+    ("overshoot_v", "max |v| / φ1 (1: the limit)", "max", 1.0),
+    ("overshoot_omega", "max |ω| / φ2 (1: the limit)", "max", 1.0),
 )
 
 

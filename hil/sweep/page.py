@@ -30,11 +30,11 @@ COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("age", "age Ts + delay + jitter [s]", "g"),
     ("rms_position_error", "RMS position error, last 10 % [m]", ".4g"),
     ("max_abs_v", "max |v| [m/s]", ".4g"),
-    ("max_abs_omega", "max |omega| [rad/s]", ".4g"),
-    ("overshoot_v", "max |v| / phi1", ".3f"),
-    ("overshoot_omega", "max |omega| / phi2", ".3f"),
-    ("violations", "plant steps beyond a limit", "d"),
-    ("certified", "certificate holds", ""),
+    ("max_abs_omega", "max |ω| [rad/s]", ".4g"),
+    ("overshoot_v", "max |v| / φ1 (1: the limit)", ".3f"),
+    ("overshoot_omega", "max |ω| / φ2 (1: the limit)", ".3f"),
+    ("violations", "plant steps beyond a limit [count]", "d"),
+    ("certified", "certificate holds (age ≤ D*)", ""),
 )
 
 STYLE = """
@@ -50,6 +50,8 @@ th { background: #f2f2f2; }
   border: 1px solid #bbb; }
 img { max-width: 100%; border: 1px solid #ddd; margin: 8px 0; }
 .note { color: #555; font-size: 0.9em; }
+.figs { display: grid; grid-template-columns: 1fr 1fr; gap: 8px 20px; }
+figure { margin: 0; } figcaption { color: #555; font-size: 0.9em; }
 """
 
 
@@ -83,6 +85,25 @@ def _answer(doc: Mapping[str, Any]) -> str:
         f"{bp.get('violating_points', '?')} of {n} loops broke a limit{partial}."
     )
     return f'<p class="answer broke">{_e(text)}</p>'
+
+
+def _terms(doc: Mapping[str, Any]) -> str:
+    """The paper's symbols the page uses, each in a plain sentence (with the scenario's own
+    limits where the document has them)."""
+    lim = doc.get("limits") or {}
+    phi1 = f" = {lim['phi1']:g} m/s" if "phi1" in lim else ""
+    phi2 = f" = {lim['phi2']:g} rad/s" if "phi2" in lim else ""
+    return (
+        f"What the words mean: (2) are the limits the law must keep, |v| ≤ φ1{phi1} and "
+        f"|ω| ≤ φ2{phi2} on the velocities and |τ1| ≤ ϖ1, |τ2| ≤ ϖ2 on the inputs (which the "
+        "law clips itself). Ts is the control period, the delay is added to every command and "
+        "the jitter moves each wake-up of the controller: together they bound how old the "
+        "state behind a command can be (its age, Ts + delay + jitter). A loop is one closed-"
+        "loop simulation at one grid point and seed. v~ and w~ are the sliding variables of "
+        "(10): how far v and ω are from the velocities the law steers them to; their band is "
+        "how far from zero sampling keeps them. The certificate is the paper's sampled-data "
+        "bound (docs/sampled_data_bound.md): while no command is older than D*, (2) holds."
+    )
 
 
 def _certificate_line(doc: Mapping[str, Any]) -> str:
@@ -136,9 +157,10 @@ def _heat_map(doc: Mapping[str, Any]) -> str:
         f'<span style="background:{COLOURS["none"]}">not run</span></p>'
     )
     return (
-        "<p>Each cell: the worst of max |v| / phi1 and max |omega| / phi2 over the jitters and "
-        "seeds of that (Ts, delay); 1.00 is the limit.</p>"
-        f'<table class="heat"><tr><th></th>{head}</tr>{"".join(body)}</table>{legend}'
+        "<p>Each cell: the worst of max |v| / φ1 and max |ω| / φ2 over the jitters and "
+        "seeds of that (Ts, delay), a share of the limit: 1.00 is the limit.</p>"
+        f'<table class="heat"><tr><th>worst max / limit</th>{head}</tr>{"".join(body)}</table>'
+        f"{legend}"
     )
 
 
@@ -163,11 +185,13 @@ def _figures(doc: Mapping[str, Any]) -> str:
     out = []
     for f in doc.get("figures") or []:
         out.append(
-            f"<h3>{_e(f['title'])}</h3>"
-            f'<img src="{_e(f["png"])}" alt="{_e(f["title"])}">'
-            f'<p class="note">data: <a href="{_e(f["data"])}">{_e(f["data"])}</a></p>'
+            f'<figure><img src="{_e(f["png"])}" alt="{_e(f["title"])}"><figcaption>'
+            f'{_e(f["title"])} (data: <a href="{_e(f["data"])}">{_e(f["data"])}</a>)'
+            "</figcaption></figure>"
         )
-    return "".join(out) or "<p>No figures (no loop finished).</p>"
+    if not out:
+        return "<p>No figures (no loop finished).</p>"
+    return '<div class="figs">' + "".join(out) + "</div>"
 
 
 def sweep_html(doc: Mapping[str, Any]) -> str:
@@ -187,6 +211,7 @@ def sweep_html(doc: Mapping[str, Any]) -> str:
         "<h1>Sweep of the sampling period Ts and the delay</h1>",
         _answer(doc),
         f"<p>{_e(_certificate_line(doc))}</p>",
+        f"<p>{_e(_terms(doc))}</p>",
         f'<p class="note">{_e(facts)} Files: <a href="sweep.csv">sweep.csv</a>, '
         '<a href="sweep.json">sweep.json</a>, <a href="sweep.md">sweep.md</a>.</p>',
         "<h2>Where the limits break: Ts x delay</h2>",
