@@ -103,6 +103,7 @@ CASES: list[tuple[list[str], str]] = [
     (["margin", S, "--error-bound", "-1", "--out", "OUT"], "--error-bound"),
     (["margin", S, "--error-bound", "nan", "--out", "OUT"], "--error-bound"),
     (["margin", S, "--duration", "0", "--out", "OUT"], "--duration"),
+    (["margin", S, "--k-max", "0.5", "--out", "OUT"], "--k-max"),
     (["margin", S, "--out", "FILE"], "--out"),
     (["margin", "no_such_scenario", "--out", "OUT"], "no_such_scenario"),
     # hil can-load

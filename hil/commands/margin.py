@@ -39,6 +39,14 @@ ErrorOpt = Annotated[
 DurationOpt = Annotated[
     float | None, typer.Option(help="Simulated seconds per loop (default: the run's, <= 20 s).")
 ]
+KMaxOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--k-max",
+        help="The largest scale tried (default 64); when the limits still hold there, no k* "
+        "is found below it (a loop at Ts = 1 ms that breaks near 100 ms of age needs ~100).",
+    ),
+]
 OutOpt = Annotated[
     Path | None, typer.Option(help="Folder for margin.json when the source is a scenario.")
 ]
@@ -66,6 +74,7 @@ def register(app: typer.Typer) -> None:
         worst_disturbance: WorstOpt = False,
         error_bound: ErrorOpt = None,
         duration: DurationOpt = None,
+        k_max: KMaxOpt = None,
         out: OutOpt = None,
     ) -> None:
         """How much worse may the timing get before a limit of (2) breaks? (k*)"""
@@ -74,6 +83,8 @@ def register(app: typer.Typer) -> None:
         from hil.margin.search import MarginOptions, find_margin
 
         options.integer("--seeds", seeds, 1, 100_000)
+        if k_max is not None:
+            options.number("--k-max", k_max, 1.0, 1e6)
         if error_bound is not None:
             options.number("--error-bound", error_bound, 0.0, 1e6, positive=True)
         if duration is not None:
@@ -82,7 +93,11 @@ def register(app: typer.Typer) -> None:
         scenario, base, folder = _source(source, seeds)
         loop_s = duration if duration is not None else min(scenario.run.duration, 20.0)
         opts = MarginOptions(
-            seeds=seeds, duration=loop_s, worst=worst_disturbance, error_bound=error_bound
+            seeds=seeds,
+            duration=loop_s,
+            worst=worst_disturbance,
+            error_bound=error_bound,
+            k_max=MarginOptions.k_max if k_max is None else k_max,
         )
 
         def show(p) -> None:
