@@ -594,3 +594,20 @@ def test_every_table_gives_units_and_every_symbol_its_sentence(
         words = _page_text(text)
         assert "D*" in words and "(2)" in words, page.name
         assert not unglossed(words), (page.name, unglossed(words))
+
+
+def test_the_headline_names_no_d_star_for_a_law_without_one() -> None:
+    """A user's law with no certificate still has stalls (above 3 Ts); the headline lists them
+    as the longest and never speaks of a D* it does not have. The paper's law keeps its rule."""
+    from hil.report.headline import _stalls
+
+    stall = {"t_s": 1.5, "age_s": 0.012, "cause": "controller_late", "owner": "bench"}
+    cert = {"path": "zenoh", "stall_threshold_s": 0.003, "stalls": [stall], "stall_count": 1,
+            "stalled_time_s": 0.009, "d_star_s": None}  # fmt: skip
+    _, own = _stalls({"kind": "run", "certificate": cert})
+    assert "D*" not in own.replace("no D* for this law", ""), own
+    assert own.startswith("Stalls longest (no D* for this law) (top 1 of 1 above 3.000 ms"), own
+    _, none = _stalls({"kind": "run", "certificate": {**cert, "stalls": [], "stall_count": 0}})
+    assert "threshold 3 Ts = 3.000 ms" in none and "D*" not in none, none
+    _, paper = _stalls({"kind": "run", "certificate": {**cert, "d_star_s": 0.02}})
+    assert paper.startswith("Stalls closest to D* (top 1 of 1 above 3.000 ms"), paper

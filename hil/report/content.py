@@ -131,6 +131,8 @@ PCT_HEADER = ["p50 [µs]", "p90 [µs]", "p99 [µs]", "p99.9 [µs]", "max [µs]",
 
 
 NOT_MEASURED = "n/a"
+# The stall threshold's rule, by whether the law has a D* (index: no D*).
+_STALL_RULE = ("stall threshold max(3 Ts, D*/2) [ms]", "stall threshold 3 Ts (no D*) [ms]")
 
 
 def _pct_rows(
@@ -214,7 +216,7 @@ def _certificate(s: Section, data: dict[str, Any]) -> None:
             ["held", c.get("held")],
             ["v bound [m/s]", c.get("v_bound")],
             ["ω bound [rad/s]", c.get("omega_bound")],
-            ["stall threshold max(3 Ts, D*/2) [ms]", _ms(c.get("stall_threshold_s"))],
+            [_STALL_RULE[c.get("d_star_s") is None], _ms(c.get("stall_threshold_s"))],
             ["failed design conditions", ", ".join(c.get("failed_conditions") or []) or "none"],
         ],
     )

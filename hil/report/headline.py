@@ -105,10 +105,10 @@ def _stalls(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
         return out, "Stalls: not measured in a simulation (every command lands after its delay)."
     if thr is None:
         return out, "Stalls: no stall threshold without a certificate."
+    rule = "max(3 Ts, D*/2)" if cert.get("d_star_s") is not None else "3 Ts"
     if not stalls:
         return out, (
-            f"Stalls: none; the command age never exceeded the stall threshold "
-            f"max(3 Ts, D*/2) = {ms(thr)}."
+            f"Stalls: none; the command age never exceeded the stall threshold {rule} = {ms(thr)}."
         )
     items = "; ".join(
         f"t = {s['t_s']:.3f} s, age {ms(s['age_s'])}, cause {s['cause']}"
@@ -116,9 +116,9 @@ def _stalls(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
         for s in top
     )
     spent = f", {ms(stalled)} in all above it" if stalled is not None else ""
-    return out, (
-        f"Stalls closest to D* (top {len(top)} of {total} above {ms(thr)}{spent}): {items}."
-    )
+    # A law without a certificate has no D*: its threshold is 3 Ts and the list is the longest.
+    which = "closest to D*" if cert.get("d_star_s") is not None else "longest (no D* for this law)"
+    return out, f"Stalls {which} (top {len(top)} of {total} above {ms(thr)}{spent}): {items}."
 
 
 def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, Any], str]:
