@@ -97,6 +97,8 @@ def test_margin_of_a_run_folder_replays_its_measured_timing(tmp_path):
     assert main(["report", str(folder)]) in (0, 1)
     text = (folder / "report.md").read_text()
     assert "Timing margin" in text and "ratio" in text
+    margin = json.loads((folder / "report.json").read_text())["margin"]  # k* in report.json
+    assert margin["k_star"] == rec.k_star and margin["k_held"] == rec.k_held
 
 
 def test_record_round_trip_and_unreadable_files(tmp_path):
@@ -120,11 +122,10 @@ def test_record_round_trip_and_unreadable_files(tmp_path):
     assert record.read(tmp_path) == rec
     data = json.loads((tmp_path / "margin.json").read_text())
     assert data["conservatism"] == 2.0 and np.isfinite(data["k_star"])
-    lines = record.report_lines(tmp_path)
+    lines = record.summary_lines(record.read(tmp_path))
     assert "k* = 2" in lines[0] and "|omega| at k = 2" in lines[0] and "ratio 2.00" in lines[2]
     (tmp_path / "margin.json").write_text("{not json")
-    assert record.read(tmp_path) is None and record.report_lines(tmp_path) == []
-    assert record.report_lines(tmp_path / "absent") == []
+    assert record.read(tmp_path) is None and record.read(tmp_path / "absent") is None
 
 
 def test_certify_prints_d_star_and_with_empirical_the_break_and_their_ratio(tmp_path, capsys):

@@ -128,8 +128,3 @@ def summary_lines(record: MarginRecord) -> list[str]:
         )
     return lines
 
-
-def report_lines(folder: Path | str | None) -> list[str]:
-    """The report's lines for a folder's margin.json (none when absent)."""
-    record = read(folder)
-    return [] if record is None else summary_lines(record)

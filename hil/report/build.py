@@ -28,6 +28,7 @@ from hil.folder import RunFolder as Folder
 from hil.folder.jsonio import write_json
 from hil.folder.layout import REPORT_HTML, REPORT_JSON, REPORT_MD
 from hil.folder.scenario_view import ScenarioView, view
+from hil.margin import record as margin_record
 from hil.measure.age import envelope
 from hil.measure.certificate import no_certificate, scenario_certificate
 from hil.report import figures as fg
@@ -190,11 +191,19 @@ def build_report(
         "drives": drives,
         "timing": _timing_block(folder, rr, cert),
         "verdict": verdict,
+        "margin": _margin_block(folder.path),
         "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
     }
     add_topology(folder.path, data, figs)  # "Where it ran", for a run across lab hosts
     data["headline"] = headline(data, folder.summary)
     return Report(data, figs)
+
+
+def _margin_block(path: Path) -> dict[str, Any] | None:
+    """``hil margin``'s record of the folder (k* and how it was found), None if it never ran:
+    report.json carries it, and the pages read it from there."""
+    record = margin_record.read(path)
+    return None if record is None else record.to_dict()
 
 
 def _folder_certificate(

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from hil.margin.record import report_lines as margin_lines
+from hil.margin.record import MarginRecord, summary_lines
 
 SECTION_TITLES: dict[str, str] = {
     "headline": "The answers first",
@@ -220,8 +220,9 @@ def _certificate(s: Section, data: dict[str, Any]) -> None:
             ["failed design conditions", ", ".join(c.get("failed_conditions") or []) or "none"],
         ],
     )
-    for line in margin_lines(data.get("folder")):  # hil margin's margin.json, when it ran
-        s.p(line)
+    if data.get("margin"):  # hil margin's record, when it ran on the folder
+        for line in summary_lines(MarginRecord.from_dict(data["margin"])):
+            s.p(line)
     timing = (data.get("timing") or {}).get("summary") or {}
     if timing:
         path = c.get("path")
