@@ -60,7 +60,6 @@ def test_a_lazy_trace_reads_the_rarely_read_columns_only_when_asked(
     header, reads every column but the rarely read ones in one pass on first use, and those in
     a pass of their own only when one is asked for; each equal to the whole read."""
     from hil.folder import trace_csv as fmod
-
     from hil.trace import TRACE_COLUMNS
 
     names = [*TRACE_COLUMNS, "tau1_cmd", "tau2_cmd", "state_seq"]

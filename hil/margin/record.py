@@ -127,4 +127,3 @@ def summary_lines(record: MarginRecord) -> list[str]:
             "(docs/sampled_data_bound.md, section 10)."
         )
     return lines
-
