@@ -153,3 +153,25 @@ def test_a_law_that_cannot_run_on_arrays_is_refused_by_name(tmp_path, capsys):
     assert main(["margin", str(path), "--out", str(tmp_path / "o"), "--seeds", "2"]) == 2
     assert "SaturatedPD' failed on the batch path" in capsys.readouterr().err
     assert not (tmp_path / "o" / "margin.json").exists()
+
+
+def test_margin_of_a_simulation_folder_is_its_scenarios_and_lands_in_its_report(tmp_path):
+    """A hil sim folder has no measured timing: hil margin replays its scenario's [timing]
+    (the same k* as the scenario itself), writes margin.json into it, and its report shows k*.
+    A folder of neither kind is refused (exit 2) and gets no margin.json."""
+    path = tmp_path / "d.toml"
+    path.write_text(DISTURBED)
+    sim = tmp_path / "sim"
+    assert main(["sim", str(path), "--out", str(sim)]) in (0, 1)
+    code = main(["margin", str(sim), "--seeds", "4"])
+    rec = record.read(sim)
+    assert rec is not None and rec.source.startswith("scenario timing")
+    _, own = _margin(tmp_path, DISTURBED, "own", "--seeds", "4")
+    assert rec.k_star == own.k_star and rec.k_held == own.k_held and rec.k_star is not None
+    assert code == (1 if rec.k_star <= 1.0 else 0)
+    assert main(["report", str(sim)]) in (0, 1)
+    assert json.loads((sim / "report.json").read_text())["margin"]["k_star"] == rec.k_star
+    assert "Timing margin k* =" in (sim / "report.md").read_text()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["margin", str(empty)]) == 2 and record.read(empty) is None

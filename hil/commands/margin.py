@@ -1,10 +1,11 @@
 """``hil margin RUN_OR_SCENARIO``: the timing margin k* of a run or a scenario.
 
 Replays a run folder's measured timing (the applied path's landings, hil.measure) or a
-scenario's [timing] in the batch simulator with every command age scaled by k, over many
-seeds, and bisects for the smallest k at which a limit of (2) (or ``--error-bound``) breaks.
-Writes margin.json into the run folder (a scenario: into --out). Exit 0 when the margin is at
-least 1 (the limits hold at the measured timing), 1 when k* < 1, 2 on bad input.
+scenario's [timing] (a bundled or TOML scenario, or the folder of a hil sim) in the batch
+simulator with every command age scaled by k, over many seeds, and bisects for the smallest k
+at which a limit of (2) (or ``--error-bound``) breaks. Writes margin.json into the run or
+simulation folder (a scenario: into --out). Exit 0 when the margin is at least 1 (the limits
+hold at the measured timing), 1 when k* < 1, 2 on bad input.
 """
 
 from __future__ import annotations
@@ -19,7 +20,10 @@ from hil.errors import NegativeVerdictError
 
 SourceArg = Annotated[
     str,
-    typer.Argument(help="A run folder of hil run, a scenario TOML or a bundled scenario's name."),
+    typer.Argument(
+        help="A folder of hil run (its measured timing) or hil sim (its scenario's timing), "
+        "a scenario TOML or a bundled scenario's name."
+    ),
 ]
 SeedsOpt = Annotated[int, typer.Option(help="Loops per scale (timing draws, initial states).")]
 WorstOpt = Annotated[
@@ -55,13 +59,19 @@ OutOpt = Annotated[
 def _source(text: str, seeds: int):
     """(scenario, base timing, folder for margin.json or None)."""
     from hil.bundled import resolve_scenario
+    from hil.folder import has_hop_logs, load_folder
     from hil.margin.timing import from_run, from_scenario, run_scenario
     from hil.scenario import load_scenario
 
     path = Path(text)
     if path.is_dir():
         scenario = run_scenario(path)
-        return scenario, from_run(path, scenario), path
+        if has_hop_logs(path):
+            return scenario, from_run(path, scenario), path
+        # A simulation's folder: nothing was measured, so its scenario's [timing] is replayed
+        # and margin.json goes beside the simulation's report.
+        load_folder(path, lazy=True)  # BadInputError when it is no folder of hil sim either
+        return scenario, from_scenario(scenario, seeds), path
     scenario = load_scenario(resolve_scenario(text))
     return scenario, from_scenario(scenario, seeds), None
 
