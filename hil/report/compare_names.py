@@ -6,6 +6,8 @@ scripts use; a reader gets words and a unit beside each number instead.
 
 from __future__ import annotations
 
+from hil.verdict import UNITS as SIGNAL_UNITS
+
 #: Figures a reader looks for by name, in words (the paper's symbols glossed).
 NAMES = {
     "ts": "Ts, the control period",
@@ -41,12 +43,11 @@ GROUPS = {
     "switching_rate": "switching rate",
     "saturation_share": "share of samples at the limit",
 }
-#: Units of the signals of (2), by their names in keys.
-SIGNAL_UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "m/s²", "tau2": "rad/s²"}
 
 
 def unit_of(key: str) -> str:
-    """The unit of a compared figure, from its name ("count" for what is counted)."""
+    """The unit of a figure, from its name ("count" for what is counted): the compare page's
+    and the report's tables."""
     group, _, last = key.rpartition(".")
     if last.endswith("_us"):
         return "µs"
@@ -60,7 +61,7 @@ def unit_of(key: str) -> str:
         return "yes = 1"
     if "heading" in last:
         return "rad"
-    if "position" in last or group == "tracking":
+    if "position" in last or "deviation" in last or group == "tracking":
         return "m"
     if group == "switching_rate":
         return "1/s"

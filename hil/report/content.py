@@ -9,6 +9,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hil.margin.record import MarginRecord, summary_lines
+from hil.report.compare_names import unit_of
+from hil.report.headline import SYMBOL
+from hil.verdict import UNITS
 
 SECTION_TITLES: dict[str, str] = {
     "headline": "The answers first",
@@ -268,7 +271,7 @@ def _trajectory(s: Section, data: dict[str, Any]) -> None:
 
 
 #: Each signal of (2) as a table names it, with its unit.
-SIGNALS = {"v": "v [m/s]", "omega": "ω [rad/s]", "tau1": "τ1 [m/s²]", "tau2": "τ2 [rad/s²]"}
+SIGNALS = {k: f"{sym} [{UNITS[k]}]" for k, sym in SYMBOL.items()}
 
 
 def _constraint_rows(data: dict[str, Any], names: tuple[str, ...]) -> list[list[Any]]:
@@ -350,9 +353,7 @@ def _tracking_error(s: Section, data: dict[str, Any]) -> None:
         "(4): the position and heading error of the robot against the reference, seen from "
         "the robot; positions in m, headings in rad."
     )
-    rows = [
-        [TRACKING.get(k, k.replace("_", " ")), v, _unit_of(k)] for k, v in m["tracking"].items()
-    ]
+    rows = [[TRACKING.get(k, k.replace("_", " ")), v, unit_of(k)] for k, v in m["tracking"].items()]
     dev = m.get("deviation_from_ideal")
     if dev:
         rows += [[f"deviation from ideal, {k}", v, "m"] for k, v in dev.items()]
@@ -373,19 +374,6 @@ TRACKING = {
     "max_position_error": "largest position error",
     "rms_position_error_last10": "RMS position error, last 10 % of the run",
 }
-
-
-def _unit_of(key: str) -> str:
-    """The unit of a figure from its name (every table says its units)."""
-    if "heading" in key:
-        return "rad"
-    if "position" in key or "deviation" in key:
-        return "m"
-    if key.endswith("_s") or key in ("window_s",):
-        return "s"
-    if key.endswith(("_rate", "_share")):
-        return "fraction"
-    return "count"
 
 
 def _bands(s: Section, data: dict[str, Any]) -> None:
@@ -444,9 +432,7 @@ def _lateness(s: Section, data: dict[str, Any]) -> None:
     # Missed slots: a stall of N periods misses N slots (late wake-ups + slots never run).
     keys = ("ticks", "slots", "deadline_misses", "late_ticks", "skipped_slots")
     keys += ("deadline_miss_rate", "plant_slots", "plant_deadline_misses", "plant_skipped_slots")
-    counts = (
-        [[k.replace("_", " "), _na(timing.get(k)), _unit_of(k)] for k in keys] if timing else []
-    )
+    counts = [[k.replace("_", " "), _na(timing.get(k)), unit_of(k)] for k in keys] if timing else []
     s.table(["figure", "value", "unit"], counts)
     sched = data["timing"].get("scheduling") or {}
     for role, got in sched.items():
@@ -525,7 +511,7 @@ def _timing_summary(s: Section, data: dict[str, Any]) -> None:
     )
     s.table(
         ["figure", "value", "unit"],
-        [[k, f, _unit_of(k)] for k, f in timing.items() if not isinstance(f, dict | str)],
+        [[k, f, unit_of(k)] for k, f in timing.items() if not isinstance(f, dict | str)],
     )
 
 

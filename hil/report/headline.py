@@ -13,11 +13,12 @@ from __future__ import annotations
 
 from typing import Any
 
-LIMITS = (
-    ("v", "φ1", "m/s"),
-    ("omega", "φ2", "rad/s"),
-    ("tau1", "ϖ1", "m/s²"),
-    ("tau2", "ϖ2", "rad/s²"),
+from hil.verdict import UNITS
+
+#: Each signal of (2): its key, its limit's symbol and its unit (hil.verdict's).
+LIMITS = tuple(
+    (k, limit, UNITS[k])
+    for k, limit in (("v", "φ1"), ("omega", "φ2"), ("tau1", "ϖ1"), ("tau2", "ϖ2"))
 )
 SYMBOL = {"v": "v", "omega": "ω", "tau1": "τ1", "tau2": "τ2"}
 TOP_STALLS = 3

@@ -73,7 +73,8 @@ def law_findable(law: str, folders: Iterable[str] = ()) -> bool:
 def ideal_from_simulator(folder: Folder, user_law: bool = False) -> dict[str, np.ndarray] | None:
     """The folder's ideal trajectory; with a user's law only when ``user_law`` (asked for)."""
     law = str((folder.scenario.get("controller") or {}).get("law", "unified"))
-    if ":" in law and not user_law:
+    own = ":" in law  # module:Class, the user's (the built-in laws are plain names)
+    if own and not user_law:
         raise IdealUnavailableError(
             f"not computed: the law {law!r} is your own, and the report does not run it again "
             "unless asked (hil report DIR --ideal; at Ts/10 it costs ten times the run's "
@@ -86,11 +87,11 @@ def ideal_from_simulator(folder: Folder, user_law: bool = False) -> dict[str, np
             f"found here (looked in the installed packages, {', '.join(folders)}; every other "
             "figure is the run's own and needs no law)"
         )
-    if ":" not in law:
-        return simulate_ideal(folder.scenario, folder.path, folder.trace, memory_source(folder))
     try:
         return simulate_ideal(folder.scenario, folder.path, folder.trace, memory_source(folder))
     except Exception as exc:  # the user's module, maybe edited since the run, may raise anything
+        if not own:
+            raise  # a built-in law's failure is the bench's bug: shown, not explained away
         raise IdealUnavailableError(
             f"not computed: the law {law!r} failed in the ideal simulation here "
             f"({type(exc).__name__}: {exc}; every other figure is the run's own and needs no law)"
