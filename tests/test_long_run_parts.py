@@ -270,6 +270,36 @@ def test_telemetry_read_by_message_index_equals_the_mcap_reader(tmp_path: Path) 
     assert set(sliding_from_recordings([rec])) == {"v_tilde", "w_tilde"}
 
 
+def test_telemetry_messages_that_do_not_carry_a_group_are_skipped_in_place(tmp_path) -> None:
+    """A message without time_ns is placed at its log time, one whose values are not all
+    numbers (a bool, a string, null) is skipped for that
+    group only; a payload that is not JSON is None in its place, so the others keep their own
+    log times (the batch is then decoded one by one, NaN by the standard library)."""
+    from hil.recording import RecordingWriter
+    from hil.report.telemetry import _decode, recorded_telemetry
+
+    assert _decode([b'{"a": 1}', b"not json", b'{"a": NaN}', b"[1]"])[:2] == [{"a": 1}, None]
+    assert math.isnan(_decode([b'{"a": NaN}'])[0]["a"])
+    rec = tmp_path / "r.mcap"
+    w = RecordingWriter(rec, metadata={"robot_id": "r"}, flush_interval=0.0)
+    rows = [
+        {"time_ns": 10, "v_tilde": 1.0, "w_tilde": 2, "z1": 0.0, "z2": 0.0, "eta": 1.0},
+        {"v_tilde": 3.0, "w_tilde": 4.0},  # no time_ns: its log time, 1002
+        {"time_ns": 30, "v_tilde": True, "w_tilde": 1.0, "z1": 1.0, "z2": 2.0, "eta": 0.5},
+        {"time_ns": 40, "v_tilde": "5", "w_tilde": 1.0},
+        {"time_ns": 50, "v_tilde": float("nan"), "w_tilde": 6.0, "z1": None},
+        {"time_ns": 60, "v_tilde": 7.0, "w_tilde": 8.0},
+    ]
+    for i, row in enumerate(rows):
+        w.write("hil/r/telemetry", 1_000 + i, row)
+    w.close()
+    tel = recorded_telemetry([rec])
+    tn, v = tel["v_tilde"]  # the writer writes NaN as null: that row is not a number
+    assert tn.tolist() == [10, 60, 1001] and v.tolist() == [1.0, 7.0, 3.0]
+    assert tel["w_tilde"][1].tolist() == [2.0, 8.0, 4.0]
+    assert tel["z1"][0].tolist() == [10, 30] and tel["eta"][1].tolist() == [1.0, 0.5]
+
+
 # --------------------------------------------------------------------------- arrays of times
 
 
@@ -375,7 +405,7 @@ def test_batch_robots_with_their_own_start_times_are_single_runs(tmp_path: Path,
 # --------------------------------------------------------------------------- windowed ideal
 
 
-def _ideal_run_folder(tmp_path: Path, duration: float) -> Path:
+def _ideal_run_folder(tmp_path: Path, duration: float, kind: str = "sine") -> Path:
     """A simulation folder whose loop already is its own ideal: simulated at Ts/10 with no
     delay, its resolved scenario saying Ts (so the report's ideal is at that same period)."""
     from hil.scenario import loads_scenario
@@ -383,7 +413,7 @@ def _ideal_run_folder(tmp_path: Path, duration: float) -> Path:
 
     sc = loads_scenario(
         SCENARIO.format(
-            kind="sine", disturbance=DISTURBANCE["sine"], ts=0.001, step=0.001, duration=duration
+            kind=kind, disturbance=DISTURBANCE[kind], ts=0.001, step=0.001, duration=duration
         ),
         tmp_path,
     )
@@ -439,6 +469,47 @@ def test_the_windowed_ideal_spread_over_processes_equals_it_in_one(tmp_path: Pat
         assert np.array_equal(spread[k], together[k]), k
     # ... and it is the loop itself (an ideal loop is its own ideal): no row was misplaced
     assert np.allclose(spread["x"], tr["x"], rtol=0, atol=1e-9)
+
+
+def test_the_windowed_ideal_on_the_compiled_kernel_equals_the_numpy_one(
+    tmp_path: Path, monkeypatch
+):
+    """The bundled law on the common plant (here with no disturbance): all windows go, as one
+    part, to one worker process (the kernel uses every CPU itself), and that part's batch on
+    the compiled kernel gives the numpy batch path's ideal to 1e-12."""
+    from hil.folder import load_folder
+    from hil.report import ideal_sim
+    from hil.report.ideal import memory_source
+    from hil.sim import compiled
+
+    folder = load_folder(_ideal_run_folder(tmp_path, 12.0, kind="none"))
+    tr = folder.trace
+    monkeypatch.setattr(ideal_sim, "BATCH_MIN_WINDOWS", 1)
+    monkeypatch.setattr(compiled, "MIN_WORK", 0)
+    routes: list[tuple[int, bool]] = []
+    real_spread = ideal_sim._spread
+
+    def spread(parts, loop, here=True):
+        routes.append((len(parts), here))
+        parts_seen.extend(parts)
+        return real_spread(parts, loop, here)
+
+    parts_seen: list = []
+    monkeypatch.setattr(ideal_sim, "_spread", spread)
+    whole = ideal_sim.simulate_ideal(folder.scenario, folder.path, tr, memory_source(folder), 2.5)
+    assert routes == [(1, False)]  # one part, in a worker
+    for k in ("x", "y", "theta"):
+        assert np.allclose(whole[k], tr[k], rtol=0, atol=1e-9), k  # the loop is its own ideal
+    kernel_runs: list[int] = []
+    real_run = compiled.run
+    monkeypatch.setattr(compiled, "run", lambda *a: kernel_runs.append(1) or real_run(*a))
+    fast = ideal_sim._batch(parts_seen[0])  # what the worker runs, here
+    monkeypatch.setenv("HIL_NO_COMPILED", "1")
+    reference = ideal_sim._batch(parts_seen[0])
+    assert kernel_runs == [1]
+    for k in ("x", "y", "theta"):
+        assert np.allclose(fast[k], reference[k], rtol=0, atol=1e-12), k
+        assert np.allclose(fast[k], tr[k], rtol=0, atol=1e-9), k
 
 
 @pytest.mark.parametrize("bad_row", [(1, 2), tuple(range(9))])

@@ -21,7 +21,7 @@ import numpy as np
 from controller_service.registry import law_path_for
 from hil.folder import RunFolder as Folder
 from hil.report.ideal_sim import base_dir_of, simulate_ideal
-from hil.report.telemetry import folder_telemetry
+from hil.report.telemetry import folder_telemetry, forget_memory
 
 
 def memory_source(folder: Folder):
@@ -45,6 +45,7 @@ def memory_source(folder: Folder):
             tn, values = tel[f]
             i = np.searchsorted(tn, when, side="right") - 1
             out[f] = np.where(i >= 0, values[np.maximum(i, 0)], np.nan)
+        forget_memory(folder)  # read once, at the windows' starts: not kept beside the ideal
         return out
 
     return at

@@ -10,8 +10,12 @@ the folder has it (a simulation's trace columns, or a run's recorded telemetry; 
 law's initial memory), and runs to the next window's start. All windows are simulated at once
 on the batch path (:func:`hil.sim.simulate_batch`, one robot per window, each with its own start
 time), so an hour's run costs one window's worth of steps on arrays of a few hundred robots
-instead of 36 M steps on the single path; with fewer than :data:`BATCH_MIN_WINDOWS` windows
-the single path takes them one by one (the batch path's per-step overhead only pays off across
+instead of 36 M steps on the single path. Where the compiled kernel computes the law and the
+plant (:func:`hil.sim.compiled.compiles`: the bundled unified laws on the common plant) and the
+windows' steps repay its compilation, the batch runs there, on every CPU, in one process of its
+own (the compiler's memory leaves with it); otherwise on the numpy batch path, its windows
+spread over processes, one per CPU. With fewer than :data:`BATCH_MIN_WINDOWS` windows the
+single path takes them one by one (the batch path's per-step overhead only pays off across
 many windows; both paths do the same arithmetic, to rounding). The ideal is returned at the
 trace's own sample times (linear interpolation between the fine samples of the sample's
 window), so the deviation from it is measured within each window: how far sampling and delay
@@ -35,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from hil.scenario import build_loop, parse_scenario
-from hil.sim import simulate, simulate_batch
+from hil.sim import compiled, simulate, simulate_batch
 from hil.sim.core import RobotVariation, _initial_memory
 
 FINE_FACTOR = 10
@@ -158,6 +162,10 @@ def _windowed(
     whole = _Windows(dict(resolved), base, start0, t, starts, memory, known, states, steps)
     if starts.size < BATCH_MIN_WINDOWS:
         out = _one_by_one(whole, loop)
+    elif compiled.compiles(loop[0], sc0) and starts.size * steps >= compiled.MIN_WORK:
+        # one parallel kernel over the windows, on every CPU, in a process of its own: the
+        # compiler's and the interpolation's memory leave with it, not beside the report's
+        out = _spread([whole], loop, here=False)
     else:
         # Only memory of per-window arrays (a NamedTuple, as the bundled laws keep) splits.
         groups = _groups(starts.size) if hasattr(memory, "_fields") else 1
@@ -216,23 +224,25 @@ class _Windows:
         return ideal_scenario(self.resolved, self.base, self.start0)
 
 
-def _spread(parts: list[_Windows], loop: Any) -> dict[str, np.ndarray]:
-    """Each part on the batch path, the first in this process and each other one at the same
-    time in a Python process of its own (``python -m hil.report.ideal_worker``, the part
-    pickled on its stdin, the rows on its stdout: no multiprocessing, which would import the
-    caller's main module again); the rows joined in order. A part whose process fails (a law
-    its fresh interpreter cannot import) runs here after the first."""
+def _spread(parts: list[_Windows], loop: Any, here: bool = True) -> dict[str, np.ndarray]:
+    """Each part on the batch path, the first in this process (unless not ``here``) and each
+    other one at the same time in a Python process of its own (``python -m
+    hil.report.ideal_worker``, the part pickled on its stdin, the rows on its stdout: no
+    multiprocessing, which would import the caller's main module again); the rows joined in
+    order. A part whose process fails (a law its fresh interpreter cannot import) runs here
+    after the others."""
+    away = parts[1:] if here else parts
     procs: list[subprocess.Popen[bytes]] = []
     try:
-        for part in parts[1:]:
+        for part in away:
             argv = [sys.executable, "-m", "hil.report.ideal_worker"]
             proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
             procs.append(proc)
             assert proc.stdin is not None
             with proc.stdin:
                 pickle.dump(part, proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
-        done = [_batch(parts[0], loop)]
-        for part, proc in zip(parts[1:], procs, strict=True):
+        done = [_batch(parts[0], loop)] if here else []
+        for part, proc in zip(away, procs, strict=True):
             assert proc.stdout is not None
             raw = proc.stdout.read()
             if proc.wait() == 0:
@@ -296,12 +306,15 @@ class _Interpolator:
         steps: int,
         out: dict[str, np.ndarray],
     ) -> None:
-        win = np.repeat(np.arange(starts.size), ends - starts)
+        # int32 rows and robots: an hour's trace has a few million rows, and these tables
+        # live through the whole simulation beside the trace
+        win = np.repeat(np.arange(starts.size, dtype=np.int32), ends - starts)
         u = (t - t_start[win]) / fine
-        k = np.clip(np.floor(u).astype(np.int64), 0, steps - 1)
-        self.order = np.argsort(k, kind="stable")
+        k = np.clip(np.floor(u).astype(np.int32), 0, steps - 1)
+        self.order = np.argsort(k, kind="stable").astype(np.int32)
         self.bounds = np.searchsorted(k[self.order], np.arange(steps + 2), side="left")
         self.robot = win[self.order]
+        del win
         self.weight = np.clip(u - k, 0.0, 1.0)[self.order]
         self.out = out
 

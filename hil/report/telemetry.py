@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import orjson
 
 from hil.recording import list_topics, read_topic_payloads
 
@@ -30,20 +31,29 @@ _BATCH = 4096
 
 
 def _decode(payloads: list[bytes]) -> list[Any]:
+    """The payloads decoded, one value each (None for a payload that is not JSON). orjson
+    first (an hour's telemetry is millions of messages); what it refuses and the standard
+    library reads (NaN, integers beyond 64 bits) is read as the recording's writer wrote it."""
     try:
-        return json.loads(b"[" + b",".join(payloads) + b"]")
-    except ValueError:  # one bad payload: decode one by one, skipping it
-        out = []
+        return orjson.loads(b"[" + b",".join(payloads) + b"]")
+    except ValueError:  # decode one by one, keeping the others in place
+        out: list[Any] = []
         for p in payloads:
             try:
-                out.append(json.loads(p))
+                out.append(orjson.loads(p))
             except ValueError:
-                continue
+                try:
+                    out.append(json.loads(p))
+                except ValueError:
+                    out.append(None)
         return out
 
 
 def _number(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+_PLAIN = frozenset((int, float))  # JSON's numbers (bool is its own type: not one of them)
 
 
 def recorded_telemetry(
@@ -58,18 +68,23 @@ def recorded_telemetry(
     vals = [[array("d") for _ in g] for g in groups]
 
     def take(batch: list[tuple[int, bytes]]) -> None:
-        for (log_time, _), d in zip(batch, _decode([p for _, p in batch]), strict=False):
-            if not isinstance(d, dict):
+        decoded = _decode([p for _, p in batch])
+        dicts = [d if type(d) is dict else {} for d in decoded]
+        when = [d.get("time_ns", t) for d, (t, _) in zip(dicts, batch, strict=True)]
+        whole = set(map(type, when)) <= {int}
+        for g, names in enumerate(groups):
+            cols = [[d.get(k) for d in dicts] for k in names]
+            if whole and all(set(map(type, col)) <= _PLAIN for col in cols):
+                times[g].extend(when)  # every message carries the group: whole columns
+                for out, col in zip(vals[g], cols, strict=True):
+                    out.extend(col)
                 continue
-            when = d.get("time_ns", log_time)
-            if not _number(when):
-                continue
-            for g, names in enumerate(groups):
-                row = [d.get(k) for k in names]
-                if all(_number(v) for v in row):
-                    times[g].append(int(when))
-                    for col, v in zip(vals[g], row, strict=True):
-                        col.append(v)
+            for i, tw in enumerate(when):  # some do not: message by message
+                row = [col[i] for col in cols]
+                if _number(tw) and all(_number(v) for v in row):
+                    times[g].append(int(tw))
+                    for out, v in zip(vals[g], row, strict=True):
+                        out.append(v)
 
     for path in paths:
         batch: list[tuple[int, bytes]] = []

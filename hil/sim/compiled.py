@@ -16,10 +16,14 @@ at plant step k m + offset, the newest by sequence number wins, an older one lan
 dropped (counted); the law's bad-input rule (zero torque, memory unchanged); the extremes of
 (2) over the step ends.
 
-It applies to the common sweep: the unified law (either variant, no eta re-arm), robots that
-share the clock and the reference, an ideal sensor, no actuator lag, no friction or top speed,
-a constant (or no) disturbance, no traces recorded and no per-sample callback. Anything else,
-numba missing, or ``HIL_NO_COMPILED=1`` leaves the run to the numpy path, the reference:
+It applies to the common sweep and to a long run's windowed ideal (robots with their own
+start time, law memory and per-sample callback): the unified law (either variant, no eta
+re-arm), an ideal sensor, no actuator lag, no friction or top speed, a constant (or no)
+disturbance, no traces recorded. Robots that start at their own times get the reference
+sampled per robot a chunk at a time (:func:`controller_service.references.sample_array`, as
+the numpy path samples it); a per-sample callback gets the robots' state at each sample, which
+the kernel leaves in a table a chunk long. Anything else, numba missing, or
+``HIL_NO_COMPILED=1`` leaves the run to the numpy path, the reference:
 tests/test_batch_compiled.py checks that the two agree to 1e-12.
 """
 
@@ -29,11 +33,13 @@ import functools
 import math
 import os
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from controller_service.laws.unified import TELEMETRY_KEYS, UnifiedController, make_step
+from controller_service.references import sample_array
 from plant_emulator.disturbances import disturbance_at
 from plant_emulator.dynamics import VIOLATION_RTOL, PlantState, held_displacement, held_steps
 from runtime.mathns import FLOAT_MATH
@@ -136,8 +142,13 @@ def _build() -> Any:
     def robot(i: int, a: Any, off: Any, c: Any, k0: int, k1: int) -> None:
         """Robot i from sample k0 to k1: law, send, land at t_k, advance to t_k+1, as the numpy
         loop does (a: state, memory, hold, sent torques by sequence modulo the ring's length,
-        extremes, squared error sum, last sampled pose, reference table; c: constants)."""
-        st, mem, hold, ring, ext, sq, last, refs = a
+        extremes, squared error sum, last sampled pose, the chunk's reference table (one
+        column for all robots, or one per robot), the robots' first-sample times, the chunk's
+        state table (empty: not kept); c: constants)."""
+        st, mem, hold, ring, ext, sq, last, refs, t0, trail = a
+        # one column for all robots, else robot i's (int64 both: prange's index may be unsigned)
+        col = np.int64(i) if refs.shape[1] > 1 else np.int64(0)
+        keep = trail.shape[0] > 0
         ts, m, h, rms_from = c[0], int(c[1]), c[2], int(c[3])
         d = (c[4], c[5])
         lims = (c[6], c[7], c[8], c[9])
@@ -147,10 +158,16 @@ def _build() -> Any:
         hd, e, rg = hold[:, i], ext[:, i], ring[:, i]
         nb = rg.shape[1]
         for k in range(k0, k1):
-            ref = (refs[k, 0], refs[k, 1], refs[k, 2], refs[k, 3], refs[k, 4])
-            out = law(k * ts, ts, s, ref, memory, p)
+            r = refs[k - k0, col]
+            ref = (r[0], r[1], r[2], r[3], r[4])
+            if keep:  # the state at t_k, as the numpy loop hands it to on_sample
+                row = trail[k - k0]
+                row[0, i], row[1, i], row[2, i], row[3, i], row[4, i] = s
+                row[5, i], row[6, i] = hd[0], hd[1]
+            t_k = t0[i] + k * ts
+            out = law(t_k, ts, s, ref, memory, p)
             # the law's rejection sum in its one order (unified._step_total)
-            total = k * ts + ts + out[5] + out[6] + out[14] + out[15] + out[2] + out[3] + out[4]
+            total = t_k + ts + out[5] + out[6] + out[14] + out[15] + out[2] + out[3] + out[4]
             if total - total == 0.0:
                 rg[0, k % nb], rg[1, k % nb] = out[0], out[1]
                 memory = (out[2], out[3], out[4])
@@ -195,41 +212,63 @@ def kernel() -> Any:
     return _KERNEL[0]
 
 
-def applies(run: Any, scenario: Any, on_sample: Any) -> bool:
-    """Whether the compiled path can run this batch (module doc)."""
+def compiles(controller: Any, scenario: Any) -> bool:
+    """Whether the kernel computes this law and plant (module doc), numba present and allowed
+    (whatever the amount of work)."""
     if numba is None or os.environ.get("HIL_NO_COMPILED") == "1":
-        return False
-    plant = run.plant
-    if not _KERNEL and len(run.group) * run.n_samples < MIN_WORK:
         return False
     # Friction and a top speed (a plant's optional drag) are integrated stage by stage, which
     # only the numpy path does.
-    drag = getattr(plant, "drag", None)
-    if drag is not None and drag.active:
-        return False
+    drag = scenario.plant.drag
     return (
-        type(run.controller) is UnifiedController
-        and run.starts is None
+        type(controller) is UnifiedController
+        and not (drag is not None and drag.active)
         and scenario.sensor.is_ideal
-        and plant.lag <= 0.0
-        and plant.disturbance.is_constant
-        and on_sample is None
-        and not run.record
+        and scenario.plant.lag <= 0.0
+        and scenario.disturbance.is_constant
     )
 
 
-def run(batch: Any, scenario: Any, progress: Any) -> None:
+def applies(run: Any, scenario: Any) -> bool:
+    """Whether the compiled path runs this batch: :func:`compiles`, no trace recorded, and
+    work enough to repay the compilation (unless the kernel is already compiled)."""
+    if not _KERNEL and len(run.group) * run.n_samples < MIN_WORK:
+        return False
+    return compiles(run.controller, scenario) and not run.record
+
+
+def _references(batch: Any, ts: float, k0: int, k1: int, shared: Any) -> np.ndarray:
+    """The reference of samples k0 .. k1 - 1: (samples, 1, 5) from the table of all samples
+    when the robots share the clock, else (samples, robots, 5), sampled on arrays at each
+    robot's own t0 + k Ts as the numpy loop samples it."""
+    if batch.starts is None:
+        return shared[k0:k1, None, :]
+    t = batch.starts[None, :] + (np.arange(k0, k1, dtype=float) * ts)[:, None]
+    ref = sample_array(batch.reference, t)
+    return np.ascontiguousarray(np.stack([np.asarray(q, dtype=float) for q in ref[:5]], axis=-1))
+
+
+def run(
+    batch: Any,
+    scenario: Any,
+    progress: Any,
+    on_sample: Callable[[int, PlantState], None] | None = None,
+) -> None:
     """Run the batch's loops in the kernel and leave in ``batch`` what the numpy loop leaves
-    (state, memory, extremes, hold, rms, last sample); Ctrl-C between chunks interrupts."""
+    (state, memory, extremes, hold, rms, last sample); ``on_sample(k, state)`` is called as the
+    numpy loop calls it, after each chunk for its samples; Ctrl-C between chunks interrupts."""
     n = len(batch.group)
     n_samples, ts, m = batch.n_samples, scenario.timing.ts, scenario.substeps
-    refs = np.array([tuple(batch.reference.sample(k * ts))[:5] for k in range(n_samples)])
+    shared = None
+    if batch.starts is None:
+        shared = np.array([tuple(batch.reference.sample(k * ts))[:5] for k in range(n_samples)])
     off = np.ascontiguousarray(np.reshape(np.asarray(batch.land, dtype=np.int64), (-1, n_samples)))
     group = np.zeros(n, dtype=np.intp) if off.shape[0] == 1 else batch.group
     state, ext, lim_r = batch.state, batch.ext, 1.0 + VIOLATION_RTOL
     limits = scenario.limits
     rms_from = math.floor(0.9 * n_samples)
-    args = (
+    t0 = np.zeros(n) if batch.starts is None else np.asarray(batch.starts, dtype=float)
+    head = (
         np.array([state.x, state.y, state.theta, state.v, state.omega], dtype=float),
         np.array(batch.memory[:3], dtype=float),
         np.array([np.zeros(n), np.zeros(n), np.full(n, -1.0), np.zeros(n), np.zeros(n)]),
@@ -241,7 +280,6 @@ def run(batch: Any, scenario: Any, progress: Any) -> None:
         ),
         np.zeros(n),
         np.zeros((3, n)),
-        refs,
     )
     consts = np.array(
         [
@@ -257,20 +295,31 @@ def run(batch: Any, scenario: Any, progress: Any) -> None:
     )
     compiled = kernel()
     every = max(1, n_samples // 200)
+    last_ref = None
     try:
         for k0 in range(0, n_samples, CHUNK):
             k1 = min(n_samples, k0 + CHUNK)
+            refs = _references(batch, ts, k0, k1, shared)
+            # a new table each chunk: a callback may keep the state it was handed
+            trail = np.empty((k1 - k0 if on_sample else 0, 7, n))
             with _LAUNCH:
-                compiled(args, off, group, consts, k0, k1)
-            batch.done = k1
+                compiled((*head, refs, t0, trail), off, group, consts, k0, k1)
+            batch.done, last_ref = k1, refs[-1]
+            if on_sample is not None:
+                for k in range(k0, k1):
+                    on_sample(k, PlantState(*trail[k - k0]))
             if progress is not None:
                 progress(k0 - k0 % every, n_samples)
     except KeyboardInterrupt:
         batch.interrupted = True
-    _write_back(batch, args, m, rms_from, refs)
+    _write_back(batch, head, m, rms_from, last_ref)
+    if on_sample is not None and not batch.interrupted:
+        on_sample(n_samples, batch.state)
 
 
-def _write_back(batch: Any, args: tuple, m: int, rms_from: int, refs: Any) -> None:
+def _write_back(batch: Any, args: tuple, m: int, rms_from: int, ref: Any) -> None:
+    """The kernel's arrays back into the batch; ``ref``: the last sample's reference (one row
+    for all robots, or one per robot)."""
     st, mem, hold, _, e, sq, last = args[:7]
     ext = batch.ext
     ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2 = (e[q] for q in range(4))
@@ -284,6 +333,8 @@ def _write_back(batch: Any, args: tuple, m: int, rms_from: int, refs: Any) -> No
     sq_n = batch.done - rms_from
     batch.rms = np.sqrt(sq / sq_n) if sq_n > 0 else np.full(len(sq), np.nan)
     if batch.done:
-        xd, yd, thd = (float(q) for q in refs[batch.done - 1, :3])
-        batch.last = (last[0], last[1], last[2], xd, yd, thd)
+        # the last sample's reference: a float each for robots that share it, else arrays
+        shared = batch.starts is None
+        pose = (float(ref[0, q]) if shared else ref[:, q].copy() for q in range(3))
+        batch.last = (last[0], last[1], last[2], *pose)
     batch.tel_keys = list(TELEMETRY_KEYS)

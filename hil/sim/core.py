@@ -721,8 +721,8 @@ def simulate_batch(
     if not variations:
         raise ValueError("simulate_batch needs at least one robot")
     run = _batch_setup(scenario, variations, record, loop, t0, memory)
-    if compiled.applies(run, scenario, on_sample):  # the same loops, one numba kernel
-        compiled.run(run, scenario, progress)
+    if compiled.applies(run, scenario):  # the same loops, one numba kernel
+        compiled.run(run, scenario, progress, on_sample)
     else:
         _batch_loop(run, scenario, progress, on_sample)
     if progress is not None and not run.interrupted:
