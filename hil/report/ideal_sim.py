@@ -11,8 +11,8 @@ law's initial memory), and runs to the next window's start. All windows are simu
 on the batch path (:func:`hil.sim.simulate_batch`, one robot per window, each with its own start
 time), so an hour's run costs one window's worth of steps on arrays of a few hundred robots
 instead of 36 M steps on the single path. Where the compiled kernel computes the law and the
-plant (:func:`hil.sim.compiled.compiles`: the bundled unified laws on the common plant) and the
-windows' steps repay its compilation, the batch runs there, on every CPU, in one process of its
+plant and the windows' steps repay its compilation (:func:`hil.sim.compiled.chosen`: the
+bundled unified laws on the common plant), the batch runs there, on every CPU, in one process of its
 own (the compiler's memory leaves with it); otherwise on the numpy batch path, its windows
 spread over processes, one per CPU. With fewer than :data:`BATCH_MIN_WINDOWS` windows the
 single path takes them one by one (the batch path's per-step overhead only pays off across
@@ -162,7 +162,7 @@ def _windowed(
     whole = _Windows(dict(resolved), base, start0, t, starts, memory, known, states, steps)
     if starts.size < BATCH_MIN_WINDOWS:
         out = _one_by_one(whole, loop)
-    elif compiled.compiles(loop[0], sc0) and starts.size * steps >= compiled.MIN_WORK:
+    elif compiled.chosen(loop[0], sc0, starts.size * steps):
         # one parallel kernel over the windows, on every CPU, in a process of its own: the
         # compiler's and the interpolation's memory leave with it, not beside the report's
         out = _spread([whole], loop, here=False)

@@ -49,11 +49,11 @@ def _decode(payloads: list[bytes]) -> list[Any]:
         return out
 
 
-def _number(v: Any) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool)
-
-
 _PLAIN = frozenset((int, float))  # JSON's numbers (bool is its own type: not one of them)
+
+
+def _number(v: Any) -> bool:
+    return type(v) in _PLAIN  # decoded JSON holds these exact types, never subclasses
 
 
 def recorded_telemetry(
@@ -71,7 +71,7 @@ def recorded_telemetry(
         decoded = _decode([p for _, p in batch])
         dicts = [d if type(d) is dict else {} for d in decoded]
         when = [d.get("time_ns", t) for d, (t, _) in zip(dicts, batch, strict=True)]
-        whole = set(map(type, when)) <= {int}
+        whole = set(map(type, when)) <= {int}  # times: integers only, for array('q')
         for g, names in enumerate(groups):
             cols = [[d.get(k) for d in dicts] for k in names]
             if whole and all(set(map(type, col)) <= _PLAIN for col in cols):

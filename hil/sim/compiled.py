@@ -229,12 +229,15 @@ def compiles(controller: Any, scenario: Any) -> bool:
     )
 
 
+def chosen(controller: Any, scenario: Any, work: int) -> bool:
+    """Whether a batch of ``work`` robot-steps of this law and plant runs on the kernel: it
+    :func:`compiles` them, and the work repays the compilation (unless already compiled)."""
+    return (bool(_KERNEL) or work >= MIN_WORK) and compiles(controller, scenario)
+
+
 def applies(run: Any, scenario: Any) -> bool:
-    """Whether the compiled path runs this batch: :func:`compiles`, no trace recorded, and
-    work enough to repay the compilation (unless the kernel is already compiled)."""
-    if not _KERNEL and len(run.group) * run.n_samples < MIN_WORK:
-        return False
-    return compiles(run.controller, scenario) and not run.record
+    """Whether the compiled path runs this batch: :func:`chosen`, and no trace recorded."""
+    return not run.record and chosen(run.controller, scenario, len(run.group) * run.n_samples)
 
 
 def _references(batch: Any, ts: float, k0: int, k1: int, shared: Any) -> np.ndarray:
