@@ -43,16 +43,22 @@ FIFO_SCENARIO = """
 scheduling = "fifo"
 trigger = "{trigger}"
 tick_phase = "{tick_phase}"
+idle = "{idle}"
 """
 
 
 def run_loop(
-    rate: float, duration: float, trigger: str, tmp: Path, tick_phase: str = "half"
+    rate: float,
+    duration: float,
+    trigger: str,
+    tmp: Path,
+    tick_phase: str = "half",
+    idle: str = "poll",
 ) -> dict[str, Any]:
     scen = tmp / f"scen-{trigger}.toml"
     scen.write_text(
         (ROOT / "hil" / "scenarios" / "paper_tracking.toml").read_text()
-        + FIFO_SCENARIO.format(trigger=trigger, tick_phase=tick_phase)
+        + FIFO_SCENARIO.format(trigger=trigger, tick_phase=tick_phase, idle=idle)
     )
     out = tmp / f"run-{rate:g}-{trigger}"
     proc = subprocess.run(
@@ -241,11 +247,14 @@ def one_rate(rate: float, a: argparse.Namespace, rtt_p50: float, tmp: Path) -> d
     ping-pong at the same rate."""
     from bench.cyclictest_baseline import baseline as cyclictest
 
-    ct = cyclictest(round(1e6 / rate), min(a.duration, 10.0), a.repeats)
+    ct = cyclictest(round(1e6 / rate), min(a.duration, 10.0), a.repeats, a.idle == "poll")
     per = {}
     for trigger in ("periodic", "on_state"):
         per[trigger] = combine(
-            [run_loop(rate, a.duration, trigger, tmp, a.tick_phase) for _ in range(a.repeats)]
+            [
+                run_loop(rate, a.duration, trigger, tmp, a.tick_phase, a.idle)
+                for _ in range(a.repeats)
+            ]
         )
     paced = [paced_pingpong(rate, 2000 if a.quick else 10_000) for _ in range(a.repeats)]
     paced_p50 = statistics.median(x["p50_us"] for x in paced)
@@ -275,8 +284,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="5 s runs, 1 repeat")
     phase = "[realtime] tick_phase of the periodic runs (docs/realtime.md)"
     ap.add_argument("--tick-phase", choices=("half", "auto"), default="half", help=phase)
+    idle = (
+        "[realtime] idle of the runs, and of the baselines: with 'poll' (the default, as the "
+        "services run) this process holds the CPUs out of slow idle states for the whole "
+        "benchmark, so the ping-pong runs under the loop's machine setting (cyclictest makes "
+        "the same request itself)"
+    )
+    ap.add_argument("--idle", choices=("poll", "os"), default="poll", help=idle)
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
+    if a.idle == "poll":
+        from runtime.realtime import hold_cpu_latency
+
+        try:
+            hold_cpu_latency()
+        except OSError as exc:
+            print(f"bench_rt_loop: CPU latency request refused ({exc})", file=sys.stderr)
     if a.quick:
         a.duration, a.repeats = 5.0, 1
     from bench.zenoh_pingpong import zenoh_pingpong
@@ -285,6 +308,7 @@ def main(argv: list[str] | None = None) -> int:
         "duration_s": a.duration,
         "repeats": a.repeats,
         "tick_phase": a.tick_phase,
+        "idle": a.idle,
         "over_repeats": {
             "median": sorted(n for n, f in {**FIGURES, **OPTIONAL}.items() if f[2] == MEDIAN),
             "worst": sorted(n for n, f in {**FIGURES, **OPTIONAL}.items() if f[2] == WORST),

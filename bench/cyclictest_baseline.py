@@ -43,7 +43,9 @@ def percentile_from_histogram(hist: dict[int, int], pct: float) -> float | None:
     return float(max(hist))
 
 
-def run_once(interval_us: int, duration_s: float, fifo: bool) -> dict[str, Any]:
+def run_once(interval_us: int, duration_s: float, fifo: bool, poll: bool = True) -> dict[str, Any]:
+    """One cyclictest run; ``poll`` keeps its default CPU latency request of 0 us (the
+    services' ``[realtime] idle = "poll"``), else ``--laptop`` drops it (``idle = "os"``)."""
     exe = shutil.which("cyclictest")
     if exe is None:
         raise SystemExit("cyclictest not found: apt-get install rt-tests")
@@ -66,6 +68,8 @@ def run_once(interval_us: int, duration_s: float, fifo: bool) -> dict[str, Any]:
             argv += ["-m", "-p", "80"]
         else:
             argv += ["-p", "0"]
+        if not poll:
+            argv += ["--laptop"]
         subprocess.run(argv, check=True, capture_output=True, timeout=duration_s + 30)
         data = json.loads(out.read_text())
     thread = data["thread"]["0"]
@@ -79,9 +83,11 @@ def run_once(interval_us: int, duration_s: float, fifo: bool) -> dict[str, Any]:
     }
 
 
-def baseline(interval_us: int, duration_s: float, repeats: int) -> dict[str, Any]:
+def baseline(
+    interval_us: int, duration_s: float, repeats: int, poll: bool = True
+) -> dict[str, Any]:
     fifo = fifo_permitted()
-    runs = [run_once(interval_us, duration_s, fifo) for _ in range(repeats)]
+    runs = [run_once(interval_us, duration_s, fifo, poll) for _ in range(repeats)]
     med = {
         k: statistics.median(r[k] for r in runs if r[k] is not None)
         for k in ("p50_us", "p99_us", "max_us", "avg_us")
@@ -92,6 +98,7 @@ def baseline(interval_us: int, duration_s: float, repeats: int) -> dict[str, Any
         "duration_s": duration_s,
         "policy": "SCHED_FIFO/80" if fifo else "SCHED_OTHER",
         "repeats": repeats,
+        "cpu_latency_request": "0 us" if poll else "none (--laptop)",
         "median": med,
         "runs": runs,
     }

@@ -542,7 +542,7 @@ def main_from_settings(settings_path: str, *more: str) -> int:
         with stop_on_signals() as stop:
             # Scheduling first, readiness after: the set-up (mlockall, a full collection, the
             # GC frozen) takes tens of ms, which must not eat into the run's first periods.
-            sched = setup_scheduling(s.scheduling, cpu=s.cpu_controller)
+            sched = setup_scheduling(s.scheduling, cpu=s.cpu_controller, idle=s.idle)
             try:
                 return _run_service(s, parts, stop, sched)
             finally:
@@ -572,7 +572,7 @@ def main_group(paths: list[str]) -> int:
                 parts.clock.wait_first()
         with stop_on_signals() as stop:
             # Once, before the threads (they inherit the policy and the CPU).
-            sched = setup_scheduling(first.scheduling, cpu=first.cpu_controller)
+            sched = setup_scheduling(first.scheduling, cpu=first.cpu_controller, idle=first.idle)
             try:
                 bodies = [
                     lambda s=s, p=p: _run_service(s, p, stop, sched)

@@ -40,7 +40,7 @@ from protocol.can.bus_factory import CanSettings
 from protocol.can.wheel_mapping import RobotGeometry
 from protocol.faults import Faults
 from protocol.messages import ANGLE_MAX, POSITION_MAX, SPEED_MAX, TORQUE_MAX, TURN_RATE_MAX
-from protocol.settings import TICK_PHASES, TRIGGERS
+from protocol.settings import IDLE_POLICIES, TICK_PHASES, TRIGGERS
 from protocol.versions import SIM_SCHEMA_VERSION as SCHEMA_VERSION  # hil.sim.core's name
 
 JITTER_KINDS = ("uniform", "normal", "replay")
@@ -133,6 +133,7 @@ class RealtimeConfig:
     state_timeout: float = 0.05
     command_timeout: float = 0.05
     scheduling: str = "fifo"
+    idle: str = "poll"
 
 
 @dataclass(frozen=True)
@@ -302,6 +303,7 @@ _CHOICES: dict[tuple[str, str], tuple[str, ...]] = {
     ("realtime", "trigger"): TRIGGERS,
     ("realtime", "tick_phase"): TICK_PHASES,
     ("realtime", "scheduling"): ("fifo", "other"),
+    ("realtime", "idle"): IDLE_POLICIES,
     ("zenoh", "mode"): ("peer", "client", "router"),
     ("impair", "on"): IMPAIR_ON,
     ("impair", "can_frames"): IMPAIR_CAN_FRAMES,

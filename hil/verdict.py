@@ -355,6 +355,12 @@ def _facts(v: Verdict, facts: RunFacts | None) -> None:
                 f"the {role} asked for SCHED_FIFO and got {sched.get('policy')}: wake-up "
                 "lateness, deadline misses and command age are those of a time-shared host"
             )
+        refused = (sched.get("errors") or {}).get("idle")
+        if refused:
+            v.notes.append(
+                f"the {role} could not hold the CPUs out of slow idle states ({refused}): every "
+                "hop and wake-up also pays the CPUs' wake-up from idle ([realtime] idle)"
+            )
 
 
 def short_reason(text: str, limit: int = 200) -> str:

@@ -231,7 +231,7 @@ class DrivesRunner:
         scheduling = self.settings.scheduling
         # Threads exist now, so SCHED_FIFO reaches the reader and the cyclic sender too. The
         # collector stays on (the process runs for hours); what exists now is frozen once.
-        sched = setup_scheduling(scheduling, freeze_gc=False)
+        sched = setup_scheduling(scheduling, freeze_gc=False, idle=self.settings.idle)
         gc.collect()
         gc.freeze()
         period = period_ns(period_s(opts.control_rate))

@@ -650,7 +650,9 @@ def main_group(paths: list[str]) -> int:
         stack.callback(session.close)
         built = [build_service(s, session, stack) for s in settings]
         # Once, before the threads (they inherit the policy and the CPU).
-        sched = setup_scheduling(first.scheduling, cpu=first.cpu_plant, freeze_gc=True)
+        sched = setup_scheduling(
+            first.scheduling, cpu=first.cpu_plant, freeze_gc=True, idle=first.idle
+        )
         stack.callback(restore_gc)
         bodies = [
             lambda svc=svc, s=s, log=log: _serve(svc, s, stop, log, stack, sched)
@@ -735,7 +737,7 @@ def _serve(
     # Scheduling first, readiness after: the set-up (mlockall, a full collection, the GC
     # frozen) must be done before t = 0, or the first samples start late.
     if sched is None:
-        sched = setup_scheduling(s.scheduling, cpu=s.cpu_plant, freeze_gc=True)
+        sched = setup_scheduling(s.scheduling, cpu=s.cpu_plant, freeze_gc=True, idle=s.idle)
         stack.callback(restore_gc)
     hoplog.update_meta({"scheduling": sched.as_dict()})
     if svc.epoch_ns == 0:

@@ -27,6 +27,8 @@ CMD_PATHS = ("zenoh", "can")
 TRIGGERS = ("periodic", "on_state")
 # where the periodic controller ticks after the sample (controller_service.tick_phase)
 TICK_PHASES = ("half", "auto")
+# "poll": the services hold the CPUs out of slow idle states (runtime.realtime.hold_cpu_latency)
+IDLE_POLICIES = ("poll", "os")
 SETTINGS_VERSION = 2
 TS_MIN = 1.0 / 20_000.0  # s: the services' fastest period (20 kHz)
 
@@ -66,6 +68,7 @@ class RunSettings:
     state_timeout: float = 0.05
     command_timeout: float = 0.05
     scheduling: str = "fifo"
+    idle: str = "poll"  # the CPUs' idle states while the service runs (runtime.realtime)
     cmd_path: str = "zenoh"
     can_live: bool = True
     can: dict[str, Any] = field(default_factory=dict)
@@ -131,6 +134,8 @@ class RunSettings:
             raise BadInputError("[realtime] rate above 20 kHz is not supported")
         if self.scheduling not in ("fifo", "other"):
             raise BadInputError("[realtime] scheduling must be 'fifo' or 'other'")
+        if self.idle not in IDLE_POLICIES:
+            raise BadInputError(f"[realtime] idle must be one of {IDLE_POLICIES}")
         if not isinstance(self.faults, dict):
             raise BadInputError(f"faults must be a table, got {self.faults!r}")
         for key, v in self.faults.items():

@@ -8,7 +8,8 @@ section 2). So the loop
   wake-up never shifts later deadlines), sleeping with ``clock_nanosleep(TIMER_ABSTIME)`` up to
   ``spin_ns`` before the deadline and spinning the rest when that measurably helps;
 - where permitted runs SCHED_FIFO, pinned to one CPU, with memory locked (``mlockall``) and the
-  garbage collector frozen and disabled, and reports what it got.
+  garbage collector frozen and disabled, keeps the CPUs out of idle states that are slow to
+  leave (PM QoS ``/dev/cpu_dma_latency``, as cyclictest does), and reports what it got.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ CLOCK_MONOTONIC = 1
 TIMER_ABSTIME = 1
 MCL_CURRENT = 1
 MCL_FUTURE = 2
+PM_QOS_CPU_LATENCY = "/dev/cpu_dma_latency"
 
 
 class _Timespec(ctypes.Structure):
@@ -131,6 +133,7 @@ class SchedulingReport:
     mlockall: bool = False
     gc_frozen: bool = False
     helper_threads: int = 0
+    idle: str = "os"
     errors: dict[str, str] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
@@ -143,9 +146,19 @@ def setup_scheduling(
     cpu: int | None = None,
     lock_memory: bool = True,
     freeze_gc: bool = True,
+    idle: str = "poll",
 ) -> SchedulingReport:
-    """Apply what the platform permits; never fail because a privilege is missing."""
+    """Apply what the platform permits; never fail because a privilege is missing.
+
+    ``idle="poll"`` holds the kernel's CPU latency request at 0 us for the life of the process
+    (:func:`hold_cpu_latency`); ``"os"`` leaves the host's idle policy alone."""
     report = SchedulingReport(requested=scheduling)
+    if idle == "poll":
+        try:
+            hold_cpu_latency()
+            report.idle = "poll"
+        except OSError as exc:
+            report.errors["idle"] = str(exc)
     if scheduling == "fifo":
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -206,6 +219,29 @@ def _raise_helper_threads(priority: int) -> int:
         except OSError:
             pass
     return n
+
+
+_held_cpu_latency: list[int] = []
+
+
+def hold_cpu_latency(path: str | None = None) -> None:
+    """Ask the kernel (PM QoS) for a 0 us CPU wake-up latency until this process exits.
+
+    An idle CPU otherwise sleeps in an idle state that takes tens of microseconds to leave (a
+    virtual CPU halts and the host must schedule it again): every wake-up of the loop, of
+    Zenoh's threads and of the peer pays it. The request lives as long as the file stays open,
+    and the kernel drops it when the process ends, however it ends. cyclictest makes the same
+    request by default, so a wake-up compared with its figure is compared like with like.
+    Idempotent; raises ``OSError`` where the file is missing or not writable (root)."""
+    if _held_cpu_latency:
+        return
+    fd = os.open(path or PM_QOS_CPU_LATENCY, os.O_WRONLY | os.O_CLOEXEC)
+    try:
+        os.write(fd, (0).to_bytes(4, sys.byteorder, signed=True))
+    except OSError:
+        os.close(fd)
+        raise
+    _held_cpu_latency.append(fd)
 
 
 def restore_gc() -> None:

@@ -59,6 +59,10 @@ def test_paper_circle_over_zenoh_at_500hz(tmp_path):
     # The CAN path was live as a shadow and measured too.
     assert s["messages"]["torque_can"]["received"] > 0
     assert s["scheduling"]["controller"]["policy"] in ("SCHED_FIFO", "SCHED_OTHER")
+    # [realtime] idle = "poll" by default: held by both services, or refused with the reason.
+    for role in ("controller", "plant"):
+        got = s["scheduling"][role]
+        assert got["idle"] == "poll" or got["errors"]["idle"], got
 
 
 @pytest.mark.slow

@@ -132,6 +132,18 @@ def test_a_run_cut_short_and_a_refused_real_time_policy_say_so():
     assert "asked for SCHED_FIFO and got SCHED_OTHER" in v.notes[1]
 
 
+def test_a_refused_cpu_latency_request_is_said():
+    refused = {"errors": {"idle": "[Errno 13] Permission denied"}}
+    sched = {"plant": {"requested": "fifo", "policy": "SCHED_FIFO", "idle": "os", **refused}}
+    v = _judge(_cert(0.003, 0.003, []), scheduling=sched)
+    assert v.outcome == PASS
+    assert len(v.notes) == 1
+    assert "plant could not hold the CPUs out of slow idle states" in v.notes[0]
+    assert "Permission denied" in v.notes[0]
+    held = {"plant": {"requested": "fifo", "policy": "SCHED_FIFO", "idle": "poll", "errors": {}}}
+    assert _judge(_cert(0.003, 0.003, []), scheduling=held).notes == []
+
+
 def test_hil_run_exits_1_on_the_systems_failure_and_with_strict_on_anything_but_pass():
     inconclusive = {"verdict": _judge(
         _cert(0.043, 0.0035, [_stall(0.043, "plant_late", "bench")])
@@ -162,3 +174,4 @@ def test_the_report_shows_figures_a_trigger_does_not_measure_as_n_a_never_0():
     assert rows["deadline misses"] == ["n/a", "count"] and rows["skipped slots"] == ["n/a", "count"]
     assert rows["plant deadline misses"] == [0, "count"]
     assert any("asked fifo, got SCHED_FIFO" in b[1] for b in s.blocks if b[0] == "p")
+    assert any("CPU idle os" in b[1] for b in s.blocks if b[0] == "p")  # an old folder's

@@ -439,8 +439,9 @@ def _lateness(s: Section, data: dict[str, Any]) -> None:
         if isinstance(got, dict):
             s.p(
                 f"Scheduling of the {role}: asked {got.get('requested')}, got {got.get('policy')}"
-                f" (priority {got.get('priority')}); the policy changes wake-up lateness, "
-                "deadline misses and the command age."
+                f" (priority {got.get('priority')}), CPU idle {got.get('idle', 'os')}; the "
+                "policy changes wake-up lateness, deadline misses and the command age, and an "
+                "idle policy other than poll adds the CPUs' wake-up from idle to every hop."
             )
     s.figure("lateness")
 

@@ -80,6 +80,7 @@ def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSett
         "state_timeout": scenario.realtime.state_timeout,
         "command_timeout": scenario.realtime.command_timeout,
         "scheduling": scenario.realtime.scheduling,
+        "idle": scenario.realtime.idle,
         "can": effective_can_table(scenario),
         "robot": {k: getattr(scenario.robot, k) for k in GEOMETRY_KEYS},
         "zenoh_mode": scenario.zenoh.mode,

@@ -1,0 +1,90 @@
+"""The services' CPU latency request ([realtime] idle, runtime.realtime.hold_cpu_latency).
+
+An idle CPU of this kind of machine sleeps in a state that takes tens of microseconds to leave;
+with ``idle = "poll"`` each service holds the kernel's PM QoS request at 0 us while it lives
+(as cyclictest does), and the kernel drops it when the process ends. The kernel's current
+target is what ``/dev/cpu_dma_latency`` reads back, so the test reads the effect itself.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from protocol.errors import BadInputError
+from protocol.settings import RunSettings
+from runtime.realtime import PM_QOS_CPU_LATENCY
+
+ROOT = Path(__file__).resolve().parent.parent
+
+HOLDER = """
+import sys
+from runtime.realtime import setup_scheduling
+r = setup_scheduling("other", lock_memory=False, freeze_gc=False, idle=sys.argv[1])
+print(r.idle, r.errors.get("idle", ""), flush=True)
+sys.stdin.read()
+"""
+
+
+def _current_us() -> int:
+    with open(PM_QOS_CPU_LATENCY, "rb") as f:
+        return int.from_bytes(f.read(4), sys.byteorder, signed=True)
+
+
+def _usable() -> bool:
+    return os.access(PM_QOS_CPU_LATENCY, os.R_OK | os.W_OK)
+
+
+@pytest.mark.skipif(not _usable(), reason="needs /dev/cpu_dma_latency, readable and writable")
+def test_poll_holds_the_request_while_the_process_lives_and_os_leaves_it():
+    if _current_us() == 0:
+        pytest.skip("another process already holds the CPU latency at 0 us")
+    before = _current_us()
+    for idle, expect_while in (("os", before), ("poll", 0)):
+        proc = subprocess.Popen(
+            [sys.executable, "-c", HOLDER, idle],
+            cwd=ROOT,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            got = proc.stdout.readline().split()
+            assert got == [idle], got  # what it reports is what it asked for, with no error
+            assert _current_us() == expect_while
+        finally:
+            proc.kill()
+            proc.wait()
+        assert _current_us() == before  # the kernel dropped the request with the process
+
+
+def test_a_refused_request_is_reported_not_raised(tmp_path):
+    """Where the request cannot be made (here: the kernel refuses to write a directory, a real
+    error without needing an unprivileged user) the service runs on, idle "os", and says why."""
+    refusing = "import runtime.realtime as r; r.PM_QOS_CPU_LATENCY = sys.argv[2]\n"
+    code = HOLDER.replace(
+        "from runtime.realtime import setup_scheduling\n",
+        refusing + "from runtime.realtime import setup_scheduling\n",
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code, "poll", str(tmp_path)],
+        cwd=ROOT,
+        input="",
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+    idle, _, why = proc.stdout.strip().partition(" ")
+    assert idle == "os"
+    assert "Is a directory" in why
+
+
+def test_an_unknown_idle_policy_is_a_clear_error():
+    s = RunSettings(idle="deep")
+    with pytest.raises(BadInputError, match=r"\[realtime\] idle must be one of \('poll', 'os'\)"):
+        s.validate()
