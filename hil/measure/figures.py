@@ -23,6 +23,7 @@ from hil.measure.host import host_figures
 from hil.measure.logs import RunLogs
 from hil.measure.stalls import find_stalls
 from hil.measure.stats import summarize_ns
+from protocol.can.codec import MAX_NODE_ID
 from protocol.hoplog import (
     SAMPLE_DROPPED,
     SAMPLE_DUPLICATED,
@@ -36,6 +37,7 @@ from protocol.hoplog import (
 )
 
 PATHS = ("zenoh", "can")
+_NODES = MAX_NODE_ID + 1  # the node part of a frame key (_frame_keys)
 LANDINGS = (ApplyOutcome.LANDED, ApplyOutcome.BURST)  # apply outcomes that put a command in force
 
 
@@ -716,15 +718,20 @@ def _can_messages(r: _Run) -> dict[str, Any]:
 
 def _distinct_frames(c: dict[str, np.ndarray], sel: np.ndarray) -> int:
     """Distinct frames among the selected arrivals (by the command and wheel they carry)."""
-    pairs = np.stack([c["cmd"][sel], c["node"][sel].astype(np.int64)])
-    return int(np.unique(pairs, axis=1).shape[1])
+    return int(np.unique(_frame_keys(c["cmd"][sel], c["node"][sel])).size)
+
+
+def _frame_keys(cmd: np.ndarray, node: np.ndarray) -> np.ndarray:
+    """One int64 per (command, wheel) pair, ordered as the pairs are (command, then wheel):
+    a 1-D key sorts in place, where ``np.unique(axis=1)`` over the stacked pairs copies them
+    twice (about 240 MB over an hour's 7 M frames). CANSimple node ids are 6 bits."""
+    return cmd.astype(np.int64) * _NODES + node.astype(np.int64)
 
 
 def _whole(cmd: np.ndarray, node: np.ndarray, wheels: int) -> np.ndarray:
     """The commands among ``cmd`` (one entry a frame, ``node`` its wheel) with a frame from
     every wheel: a duplicate of one wheel's frame never stands in for the other's."""
-    pairs = np.unique(np.stack([cmd, node.astype(np.int64)]), axis=1)
-    ids, counts = np.unique(pairs[0], return_counts=True)
+    ids, counts = np.unique(np.unique(_frame_keys(cmd, node)) // _NODES, return_counts=True)
     return ids[counts >= wheels]
 
 
