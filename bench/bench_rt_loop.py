@@ -5,8 +5,9 @@ figures are the Zenoh loop's own) and each trigger mode it reports, over the rep
 p50/p99 as the median of the repeats' own p50/p99 and each maximum, count of misses or skipped
 slots and rate of misses as the worst repeat's (one stalled repeat of three shows):
 
-- wake-up lateness p50/p99/max beside ``cyclictest`` at the same interval and policy
-  (target: p99 within 2x of cyclictest's), periodic mode only (n/a in on_state);
+- wake-up lateness p50/p99/max beside ``cyclictest`` at the same interval, policy and CPU
+  latency request (``--idle``; target: p99 within 2x of cyclictest's), periodic mode only (n/a
+  in on_state);
 - the loop's transport + compute time (State hop plant -> controller, the law's compute,
   command hop controller -> plant; the periodic trigger's wait for its tick excluded) beside a
   raw Zenoh ping-pong RTT between two Python processes (target: p50 within 1.3x of it);
