@@ -60,7 +60,13 @@ from protocol.rejections import RejectionCounter
 from protocol.robot import Limits
 from protocol.sequence import SequenceTracker
 from protocol.settings import RunSettings, period_ns
-from runtime.realtime import DeadlineClock, setup_scheduling
+from runtime.realtime import DeadlineClock, setup_scheduling, sleep_until_ns
+
+# The part of each sensor period the plant integrates after its sample time (at most half the
+# period); the rest is integrated before it, while the plant waits. A State then leaves about a
+# wake-up and one or two RK4 steps after its sample, where integrating the whole period first
+# took ~60 us of Python on this project's 2-vCPU guest.
+INTEGRATE_AFTER_SAMPLE_NS = 150_000
 
 
 @dataclass
@@ -427,7 +433,15 @@ class PlantService:
         clock = DeadlineClock(self.sensor_period_ns, self.epoch_ns, first_k=first)
         self.clock = clock
         next_status = time.monotonic_ns()
+        lead = min(INTEGRATE_AFTER_SAMPLE_NS, self.sensor_period_ns // 2)
         while not stop:
+            early = clock.due_ns() - lead
+            if time.monotonic_ns() < early:
+                # Most of the period is integrated before the sample: every command landing
+                # by `early` has arrived, so the plant is the same, and the State leaves the
+                # sample time with only the last `lead` of dynamics still to integrate.
+                sleep_until_ns(early)
+                self._process_until(early)
             tick = clock.next()
             if tick.deadline_ns > end_ns:
                 break

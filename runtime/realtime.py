@@ -108,6 +108,10 @@ class DeadlineClock:
         self.misses = 0
         self.skipped = 0
 
+    def due_ns(self) -> int:
+        """The deadline of the tick :meth:`next` waits for (unless that one is missed)."""
+        return self.start_ns + (self.k + 1) * self.period_ns
+
     def next(self) -> Tick:
         k = self.k + 1
         deadline = self.start_ns + k * self.period_ns
