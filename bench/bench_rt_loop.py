@@ -39,6 +39,8 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from protocol.settings import IDLE_POLICIES  # noqa: E402 (after the path is set)
+
 FIFO_SCENARIO = """
 [realtime]
 scheduling = "fifo"
@@ -291,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
         "benchmark, so the ping-pong runs under the loop's machine setting (cyclictest makes "
         "the same request itself)"
     )
-    ap.add_argument("--idle", choices=("poll", "os"), default="poll", help=idle)
+    ap.add_argument("--idle", choices=IDLE_POLICIES, default="poll", help=idle)
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
     if a.idle == "poll":

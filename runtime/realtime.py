@@ -114,7 +114,7 @@ class DeadlineClock:
 
     def next(self) -> Tick:
         k = self.k + 1
-        deadline = self.start_ns + k * self.period_ns
+        deadline = self.due_ns()
         wake = wait_until_ns(deadline, self.spin_ns)
         late_slots = (wake - deadline) // self.period_ns
         skipped = 0
