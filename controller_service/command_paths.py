@@ -34,6 +34,7 @@ from protocol.hoplog import (
     HopLogWriter,
 )
 from protocol.messages import FLAG_STOP, TorqueCommand, encode
+from runtime.tap import Tap
 
 
 class Sent(NamedTuple):
@@ -63,21 +64,30 @@ class ZenohCommandPath:
 
     path = CmdPath.ZENOH
 
-    def __init__(self, session: Any, robot_id: str, faults: Faults | None = None) -> None:
+    def __init__(
+        self, session: Any, robot_id: str, faults: Faults | None = None, tap: Tap | None = None
+    ) -> None:
         from runtime.zsession import publisher
 
-        self._pub = publisher(session, keys.torque_key(robot_id))
+        self._publisher = publisher(session, keys.torque_key(robot_id))
+        self._tap = tap
         self.faults = faults or Faults()
         self.injected = {"drops": 0, "duplicates": 0, "reorders": 0}
         self._held: bytes | None = None  # a command a [faults] reorder publishes after the next
         self._last: bytes | None = None
+
+    def _pub_put(self, payload: bytes) -> None:
+        """One command on the wire, and in the service's tap."""
+        self._publisher.put(payload)
+        if self._tap is not None:
+            self._tap.sent(keys.TORQUE, time.monotonic_ns(), payload)
 
     def matched(self) -> bool:
         """Whether a subscriber of the command key (the plant) is reachable now: the route
         exists, so the first command is not lost to one still forming (True where the
         Zenoh build cannot tell)."""
         try:
-            return bool(self._pub.matching_status.matching)
+            return bool(self._publisher.matching_status.matching)
         except Exception:  # an older zenoh without matching status: nothing to wait for
             return True
 
@@ -90,7 +100,7 @@ class ZenohCommandPath:
         because the command was lost); False when there is none."""
         if not self._last:
             return False
-        self._pub.put(self._last)
+        self._pub_put(self._last)
         return True
 
     def _put(self, payload: bytes, seq: int, flags: int) -> int:
@@ -103,17 +113,17 @@ class ZenohCommandPath:
         elif every_nth(seq, f.command_drop_every):
             self.injected["drops"] += 1
             if held is not None:
-                self._pub.put(held)
+                self._pub_put(held)
             return TICK_DROPPED
         elif every_nth(seq, f.command_reorder_every) and held is None:
             self._held = payload  # published after the next command
             self.injected["reorders"] += 1
             return TICK_REORDERED
-        self._pub.put(payload)
+        self._pub_put(payload)
         if held is not None:
-            self._pub.put(held)
+            self._pub_put(held)
         if not (flags & FLAG_STOP) and every_nth(seq, f.command_duplicate_every):
-            self._pub.put(payload)
+            self._pub_put(payload)
             self.injected["duplicates"] += 1
             out_flags |= TICK_DUPLICATED
         return out_flags

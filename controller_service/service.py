@@ -66,6 +66,7 @@ from protocol.rejections import RejectionCounter
 from protocol.sequence import SequenceTracker
 from protocol.settings import RunSettings, period_ns
 from runtime.realtime import DeadlineClock, SchedulingReport, setup_scheduling
+from runtime.tap import Tap
 
 TELEMETRY_FIELDS = ("xe", "ye", "theta_e", "xi", "v_tilde", "w_tilde", "z1", "z2", "eta")
 
@@ -154,7 +155,9 @@ class ControllerService:
         self.tracker = SequenceTracker()
         self._payload = payload_bytes
         self.faults = faults or Faults()
-        self.zenoh = ZenohCommandPath(session, robot_id, self.faults)
+        # Observers read what this service sent from its tap (protocol.tap), not the loop's keys.
+        self.tap = Tap(session, robot_id, "controller")
+        self.zenoh = ZenohCommandPath(session, robot_id, self.faults, self.tap)
         self.paths: list[CommandPath] = [self.zenoh] if can_path is None else [self.zenoh, can_path]
         self._pub_tel = publisher(session, keys.telemetry_key(robot_id))
         self._pub_status = publisher(session, keys.status_key(robot_id))
@@ -181,37 +184,51 @@ class ControllerService:
     # --- receive ------------------------------------------------------------------------
     def _on_state(self, sample: Any) -> None:
         recv_ns = time.monotonic_ns()
-        msg = decode_counted(self._payload(sample), self.rejections, State)
+        payload = self._payload(sample)
+        msg = decode_counted(
+            payload,
+            self.rejections,
+            State,
+            lambda why: self.tap.rejected(keys.STATE, recv_ns, payload, why),
+        )
         if msg is None:
             return
         if msg.robot_id != self.robot_id:
             self.rejections.count("wrong_robot")
+            self.tap.rejected(keys.STATE, recv_ns, payload, "wrong_robot")
             return
         with self._lock:
-            verdict = self.tracker.observe(msg.seq)
-            self.hoplog.append(
-                "state_rx",
-                StateRxRow(
-                    seq=msg.seq,
-                    sample_ns=msg.sample_time_ns,
-                    send_ns=msg.send_time_ns,
-                    recv_ns=recv_ns,
-                    verdict=verdict.code,
-                ),
-            )
-            if not verdict.fresh:
-                if self.lockstep and msg.seq == self._last_used_seq:
-                    # The plant re-sent the state because our command was lost: answer again
-                    # with the same command (same seq), never recompute (memory moved on).
-                    self.zenoh.resend_last()
-                return
-            self.states_seen += 1
-            if self.phase_learner is not None:
-                self.phase_learner.state(recv_ns - msg.sample_time_ns, recv_ns - msg.send_time_ns)
-            rec = Received(msg, recv_ns)
-            self._newest = rec
-            if self.trigger == "on_state":
-                self._cycle(msg.seq, recv_ns, recv_ns, rec)
+            self._take_state(msg, recv_ns)
+        if self.trigger == "on_state":
+            # After the command left; the next State is a period away.
+            self.tap.flush_if_due(time.monotonic_ns())
+
+    def _take_state(self, msg: State, recv_ns: int) -> None:
+        """A decoded State of this robot (under the service's lock): logged, then used."""
+        verdict = self.tracker.observe(msg.seq)
+        self.hoplog.append(
+            "state_rx",
+            StateRxRow(
+                seq=msg.seq,
+                sample_ns=msg.sample_time_ns,
+                send_ns=msg.send_time_ns,
+                recv_ns=recv_ns,
+                verdict=verdict.code,
+            ),
+        )
+        if not verdict.fresh:
+            if self.lockstep and msg.seq == self._last_used_seq:
+                # The plant re-sent the state because our command was lost: answer again
+                # with the same command (same seq), never recompute (memory moved on).
+                self.zenoh.resend_last()
+            return
+        self.states_seen += 1
+        if self.phase_learner is not None:
+            self.phase_learner.state(recv_ns - msg.sample_time_ns, recv_ns - msg.send_time_ns)
+        rec = Received(msg, recv_ns)
+        self._newest = rec
+        if self.trigger == "on_state":
+            self._cycle(msg.seq, recv_ns, recv_ns, rec)
 
     # --- one control cycle -----------------------------------------------------------------
     def _law_time(self, st: State) -> float:
@@ -334,16 +351,16 @@ class ControllerService:
         zenoh, can = sent.get(CmdPath.ZENOH, NOT_SENT), sent.get(CmdPath.CAN, NOT_SENT)
         if tel and all(n in tel for n in TELEMETRY_FIELDS):
             try:
-                self._pub_tel.put(
-                    encode(
-                        Telemetry(
-                            self.robot_id,
-                            self._tel_seq,
-                            sample_ns,
-                            *(float(tel[n]) for n in TELEMETRY_FIELDS),
-                        )
+                payload = encode(
+                    Telemetry(
+                        self.robot_id,
+                        self._tel_seq,
+                        sample_ns,
+                        *(float(tel[n]) for n in TELEMETRY_FIELDS),
                     )
                 )
+                self._pub_tel.put(payload)
+                self.tap.sent(keys.TELEMETRY, time.monotonic_ns(), payload)
                 self._tel_seq += 1
             except ValueError:
                 self.rejections.count("telemetry_unencodable")
@@ -399,6 +416,7 @@ class ControllerService:
             while not stop and (end_ns is None or time.monotonic_ns() < end_ns):
                 tick = self.clock.next()
                 self._cycle(tick.k, tick.deadline_ns, tick.wake_ns, self._newest, tick.skipped)
+                self.tap.flush_if_due(tick.wake_ns)  # the command has left
                 if self.phase_learner is not None:
                     self._rephase(tick.k)
                 if tick.wake_ns >= next_status:
@@ -411,6 +429,7 @@ class ControllerService:
                 if not self.lockstep and now - self._last_fresh_ns > self.state_timeout_ns:
                     with self._lock:
                         self._cycle(-1, now, now, None)
+                    self.tap.flush_if_due(now)  # no State comes: nothing else flushes
                 if now >= next_status:
                     next_status = now + status_every_ns
                     self.publish_status()
@@ -457,6 +476,7 @@ class ControllerService:
                 "can_bus_off_frames": self.can_path.injected_bus_off if self.can_path else 0,
             },
             "scheduling": self.scheduling.as_dict(),
+            "tap": self.tap.counters(),
             "can": None
             if self.can_path is None
             else {
@@ -665,6 +685,7 @@ def _run_service(s: RunSettings, parts: Parts, stop: Any, sched: SchedulingRepor
     finally:
         with contextlib.suppress(Exception):  # the session may be gone on the way out
             svc.send_stop()
+        svc.tap.close()  # the stop command too; a closed session is counted, not raised
         if can_path is not None:
             can_path.close()
         hoplog.close(svc.final_counters())

@@ -146,8 +146,11 @@ REJECTED = _object(
         "topic": {"type": "string"},
         "reason": {"type": "string", "pattern": "^[a-z_]+$"},
         "raw": {"type": "string", "pattern": "^([0-9a-f]{2})*$"},
+        "by": {"type": "string", "pattern": "^[a-z][a-z0-9_]*$"},
     },
-    "A payload the protocol's decoder refused (reason: protocol.messages.DecodeError), as hex.",
+    "A payload refused, as hex: by the service that received it (by: its role; reason: "
+    "protocol.messages.DecodeError's, or wrong_robot) or by the recorder's own decoder "
+    "(by: recorder).",
 )
 
 # Foxglove's well-known schemas (foxglove-sdk schemas/jsonschema), by their names: the 3D panel

@@ -40,6 +40,7 @@ from protocol.hoplog import (
 from protocol.messages import FLAG_STOP, TorqueCommand, decode_counted
 from protocol.rejections import RejectionCounter
 from protocol.sequence import SequenceTracker
+from runtime.tap import Tap
 
 
 class Arrival(NamedTuple):
@@ -96,10 +97,12 @@ class ZenohCommands:
         rejections: RejectionCounter,
         tracker: SequenceTracker,
         stale_after_ns: int,
+        tap: Tap | None = None,
     ) -> None:
         from runtime.zsession import payload_bytes
 
         self.robot_id = robot_id
+        self.tap = tap
         self.hoplog = hoplog
         self.rejections = rejections
         self.tracker = tracker
@@ -111,13 +114,24 @@ class ZenohCommands:
         self._last_landed_seq = -1
         self._sub = session.declare_subscriber(keys.torque_key(robot_id), self._on_cmd)
 
+    def _refused(self, recv_ns: int, payload: bytes, reason: str) -> None:
+        if self.tap is not None:
+            self.tap.rejected(keys.TORQUE, recv_ns, payload, reason)
+
     def _on_cmd(self, sample: Any) -> None:
         recv_ns = time.monotonic_ns()
-        msg = decode_counted(self._payload(sample), self.rejections, TorqueCommand)
+        payload = self._payload(sample)
+        msg = decode_counted(
+            payload,
+            self.rejections,
+            TorqueCommand,
+            lambda why: self._refused(recv_ns, payload, why),
+        )
         if msg is None:
             return
         if msg.robot_id != self.robot_id:
             self.rejections.count("wrong_robot")
+            self._refused(recv_ns, payload, "wrong_robot")
             return
         row = CmdRxRow(
             path=CmdPath.ZENOH,

@@ -31,6 +31,7 @@ from plant_emulator.can_drives import CanDrives
 from plant_emulator.drive_plant import DrivePlant, bench_drive_config
 from plant_emulator.odrive import VirtualDrivePair
 from plant_emulator.service import build_plant
+from protocol import keys
 from protocol.can.codec import AxisState, Cmd, Frame
 from protocol.settings import RunSettings, period_ns, period_s
 
@@ -99,6 +100,7 @@ class DrivesRunner:
         self.session: Any = None
         self._pub_state: Any = None
         self._pub_status: Any = None
+        self.tap: Any = None
         self._state_seq = 0
         self._status_seq = 0
         self.status_lines = 0
@@ -125,12 +127,13 @@ class DrivesRunner:
 
     # --- Zenoh -------------------------------------------------------------------------------
     def open_zenoh(self) -> None:
-        from protocol import keys
+        from runtime.tap import Tap
         from runtime.zsession import open_session, publisher
 
         self.session = open_session(self.opts.zenoh_endpoint)
         self._pub_state = publisher(self.session, keys.state_key(self.robot_id))
         self._pub_status = publisher(self.session, keys.status_key(self.robot_id))
+        self.tap = Tap(self.session, self.robot_id, "drives")  # what a live view reads
 
     def publish_state(self, sample_ns: int) -> None:
         from protocol.messages import State, encode
@@ -150,7 +153,9 @@ class DrivesRunner:
         )
         self._state_seq += 1
         with contextlib.suppress(ValueError):  # a state beyond the message's ranges
-            self._pub_state.put(encode(msg))
+            payload = encode(msg)
+            self._pub_state.put(payload)
+            self.tap.sent(keys.STATE, msg.send_time_ns, payload)
 
     def publish_status(self, state: str) -> None:
         from protocol.messages import Status, encode
@@ -261,6 +266,7 @@ class DrivesRunner:
             self.step(tick.deadline_ns)
             if state_every and tick.k % state_every == 0:
                 self.publish_state(tick.deadline_ns)
+                self.tap.flush_if_due(tick.wake_ns)
             if status_ns and tick.wake_ns >= next_status:
                 while next_status <= tick.wake_ns:
                     next_status += status_ns
@@ -273,6 +279,7 @@ class DrivesRunner:
                     self.publish_status("running")
         elapsed = (time.monotonic_ns() - start_ns) / 1e9
         if self.session is not None:
+            self.tap.close()
             self.publish_status("stopped")
         summary = self.summary(elapsed, stopped_by)
         summary["scheduling"] = sched.as_dict()

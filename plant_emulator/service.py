@@ -61,6 +61,7 @@ from protocol.robot import Limits
 from protocol.sequence import SequenceTracker
 from protocol.settings import RunSettings, period_ns
 from runtime.realtime import DeadlineClock, setup_scheduling, sleep_until_ns
+from runtime.tap import Tap
 
 # The part of each sensor period the plant integrates after its sample time (at most half the
 # period); the rest is integrated before it, while the plant waits. A State then leaves about a
@@ -215,6 +216,8 @@ class PlantService:
         self._state_seq = 0
         self.resends = 0
         self._status_seq = 0
+        # Observers read what this service sent from its tap (protocol.tap), not the loop's keys.
+        self.tap = Tap(session, robot_id, "plant")
         self.zenoh = ZenohCommands(
             session,
             robot_id,
@@ -222,6 +225,7 @@ class PlantService:
             self.rejections,
             self.cmd_tracker,
             self.command_timeout_ns,
+            self.tap,
         )
         self.sources: list[CommandSource] = [self.zenoh] if can is None else [self.zenoh, can]
         for source in self.sources:
@@ -265,6 +269,7 @@ class PlantService:
                 payload = encode(msg)
                 for _ in range(copies):
                     self._pub_state.put(payload)
+                    self.tap.sent(keys.STATE, send_ns, payload)
             except ValueError:
                 self.rejections.count("state_unencodable")
         self.samples += 1
@@ -442,6 +447,8 @@ class PlantService:
                 # sample time with only the last `lead` of dynamics still to integrate.
                 sleep_until_ns(early)
                 self._process_until(early)
+                # The quiet point of the period: the last command landed, the State not due.
+                self.tap.flush_if_due(early)
             tick = clock.next()
             if tick.deadline_ns > end_ns:
                 break
@@ -451,6 +458,8 @@ class PlantService:
             if tick.wake_ns >= next_status:
                 next_status = tick.wake_ns + 200_000_000
                 self.publish_status()
+                self.tap.flush_if_late(tick.wake_ns)  # a plant too late for its quiet point
+        self.tap.close()
         self.publish_status("stopped")
 
     # --- lockstep --------------------------------------------------------------------------
@@ -484,6 +493,8 @@ class PlantService:
             self.hoplog.append("samples", row._replace(tau1=tau1, tau2=tau2))
             self._log_landings(landed[len(at_tk) :], h)
             landed.clear()
+            self.tap.flush_if_due(time.monotonic_ns())
+        self.tap.close()
         self.publish_status("stopped")
 
     def _log_landings(self, landed: list[tuple[Command, bool]], h: float) -> None:
@@ -572,6 +583,7 @@ class PlantService:
             },
             "deadline_misses": self.clock.misses if self.clock else 0,
             "skipped_slots": self.clock.skipped if self.clock else 0,
+            "tap": self.tap.counters(),
             "can": None if self.can is None else self.can.counters(),
         }
 

@@ -1,4 +1,5 @@
-"""Zenoh key expressions of the bench: ``hil/<robot_id>/{state,cmd/torque,telemetry,status}``.
+"""Zenoh key expressions of the bench: ``hil/<robot_id>/{state,cmd/torque,telemetry,status}``
+and each service's tap of them, ``hil/<robot_id>/tap/<role>`` (:mod:`protocol.tap`).
 
 A robot id is one key chunk: 1 to 64 characters from ``[A-Za-z0-9_.-]``. That excludes every
 character with a meaning in Zenoh key expressions (``/`` separates chunks, ``*`` and ``$*`` are
@@ -75,8 +76,30 @@ def status_key(robot_id: str) -> str:
 
 
 def robot_prefix(robot_id: str) -> str:
-    """``hil/<robot_id>/**``: every stream of one robot (for recorders)."""
+    """``hil/<robot_id>/**``: every stream of one robot."""
     return _key(robot_id, "**")
+
+
+TAP = "tap"
+
+
+def tap_key(robot_id: str, role: str) -> str:
+    """``hil/<robot_id>/tap/<role>``: the batches of what the service ``role`` sent
+    (:mod:`protocol.tap`)."""
+    return _key(robot_id, f"{TAP}/{role}")
+
+
+def observed_keys(robot_id: str) -> tuple[str, str]:
+    """What an observer of one robot (a recorder, a live view) subscribes to: the status key
+    and every service's tap, never the loop's own keys (an observer there would receive every
+    State and command as the loop does; :mod:`protocol.tap` says what that cost)."""
+    return status_key(robot_id), _key(robot_id, f"{TAP}/*")
+
+
+def is_tap_key(key: str) -> bool:
+    """Whether a concrete key is a tap's (``hil/<robot_id>/tap/<role>``)."""
+    parts = str(key).split("/")
+    return len(parts) == 4 and parts[0] == PREFIX and parts[2] == TAP
 
 
 ALL_ROBOTS = f"{PREFIX}/**"

@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 import numbers
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from operator import attrgetter
 from typing import Any, ClassVar, TypeVar
@@ -327,14 +328,17 @@ def encode(msg: Message) -> bytes:
     return msgpack.packb([cls.TAG, MESSAGE_SCHEMA_VERSION, *values], use_bin_type=True)
 
 
-def decode(data: Any) -> Message:
-    """Decode any message; raises only :class:`DecodeError` (reasons in the module docstring)."""
+def unpack_array(data: Any, max_bytes: int) -> list[Any]:
+    """The msgpack array ``[tag, version, ...]`` in ``data`` (at most ``max_bytes``), its
+    header checked for two ints, or one :class:`DecodeError` (``not_bytes``, ``too_large``,
+    ``malformed``, ``trailing_bytes``, ``not_array``, ``bad_header``); what the tag and
+    version mean is the caller's."""
     if type(data) is not bytes:
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise DecodeError("not_bytes", type(data).__name__)
         data = bytes(data)
-    if len(data) > MAX_MESSAGE_BYTES:
-        raise DecodeError("too_large", f"{len(data)} > {MAX_MESSAGE_BYTES} bytes")
+    if len(data) > max_bytes:
+        raise DecodeError("too_large", f"{len(data)} > {max_bytes} bytes")
     try:
         obj = msgpack.unpackb(data, raw=False, strict_map_key=True, timestamp=0)
     except msgpack.ExtraData:
@@ -343,9 +347,15 @@ def decode(data: Any) -> Message:
         raise DecodeError("malformed", type(e).__name__) from None
     if type(obj) is not list:
         raise DecodeError("not_array", type(obj).__name__)
-    n = len(obj)
-    if n < 2 or type(obj[0]) is not int or type(obj[1]) is not int:
+    if len(obj) < 2 or type(obj[0]) is not int or type(obj[1]) is not int:
         raise DecodeError("bad_header", None)
+    return obj
+
+
+def decode(data: Any) -> Message:
+    """Decode any message; raises only :class:`DecodeError` (reasons in the module docstring)."""
+    obj = unpack_array(data, MAX_MESSAGE_BYTES)
+    n = len(obj)
     cls = MESSAGE_TYPES.get(obj[0])
     if cls is None:
         raise DecodeError("unknown_type", obj[0])
@@ -368,11 +378,17 @@ def decode_as(cls: type[M], data: Any) -> M:
 
 
 def decode_counted(
-    data: Any, rejections: RejectionCounter, expected: type[M] | None = None
+    data: Any,
+    rejections: RejectionCounter,
+    expected: type[M] | None = None,
+    on_reject: Callable[[str], None] | None = None,
 ) -> M | None:
-    """Decode for a receiver: the message, or None with the rejection counted by reason."""
+    """Decode for a receiver: the message, or None with the rejection counted by reason (and
+    the reason handed to ``on_reject``: a service's tap keeps the refused payload)."""
     try:
         return decode(data) if expected is None else decode_as(expected, data)  # type: ignore[return-value]
     except DecodeError as e:
         rejections.count(e.reason)
+        if on_reject is not None:
+            on_reject(e.reason)
         return None

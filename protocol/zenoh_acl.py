@@ -6,10 +6,11 @@ and then applies the rules below, default deny. A login is a role, and for the r
 for one robot, the role and the robot (``controller.robot1``: :func:`login`):
 
 - ``controller.<robot>`` publishes ``hil/<robot>/cmd/torque``, ``hil/<robot>/telemetry``,
-  ``hil/<robot>/status`` and its clock pings (``hilclock/<robot>/ping``), and reads only
-  ``hil/<robot>/**`` and the pongs of its robot's plant;
-- ``emulator.<robot>`` publishes ``hil/<robot>/state``, ``hil/<robot>/status`` and the clock
-  pongs, and reads only its robot's keys;
+  ``hil/<robot>/status``, its tap ``hil/<robot>/tap/controller`` (:mod:`protocol.tap`) and
+  its clock pings (``hilclock/<robot>/ping``), and reads only ``hil/<robot>/**`` and the pongs
+  of its robot's plant;
+- ``emulator.<robot>`` publishes ``hil/<robot>/state``, ``hil/<robot>/status``, its tap
+  ``hil/<robot>/tap/plant`` and the clock pongs, and reads only its robot's keys;
 - ``recorder`` (``hil run``'s recorder) and ``monitor`` (an operator's tool) publish nothing
   and read ``hil/**``, every robot;
 - ``run`` (``hil run``'s start announcement) publishes ``hil/*/status`` only and reads nothing.
@@ -67,13 +68,20 @@ class Role:
 ROLES: tuple[Role, ...] = (
     Role(
         "controller",
-        (keys.TORQUE, keys.TELEMETRY, keys.STATUS),
+        (keys.TORQUE, keys.TELEMETRY, keys.STATUS, f"{keys.TAP}/controller"),
         True,
         "one robot's controller service",
         per_robot=True,
         clock="ping",
     ),
-    Role("emulator", (keys.STATE, keys.STATUS), True, "one robot's plant", True, "pong"),
+    Role(
+        "emulator",
+        (keys.STATE, keys.STATUS, f"{keys.TAP}/plant"),
+        True,
+        "one robot's plant",
+        True,
+        "pong",
+    ),
     Role("recorder", (), True, "hil run's recorder"),
     Role("monitor", (), True, "an operator's read-only tool"),
     Role("run", (keys.STATUS,), False, "hil run's start message"),

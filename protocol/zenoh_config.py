@@ -157,6 +157,11 @@ def config_dict(settings: ZenohSettings) -> dict[str, Any]:
         # batches ride out a 16 ms starvation at 1 kHz; longer outages still drop, counted.
         "transport/link/tx/queue/size/real_time": TX_QUEUE_BATCHES,
         "transport/link/tx/queue/size/interactive_high": TX_QUEUE_BATCHES,
+        # Zenoh's shared-memory transport copies every put over 3 KB into a 16 MB pool of
+        # /dev/shm that it creates on first use: the second such put (a tap batch) stalled
+        # its caller, the real-time thread, for 6 ms (33 ms under SCHED_FIFO in a run). The
+        # bench's messages are under 4 KB and cross TCP on loopback anyway.
+        "transport/shared_memory/enabled": False,
     }
 
 
@@ -251,6 +256,10 @@ STATE_QOS = PublisherQos(zenoh.Priority.INTERACTIVE_HIGH, zenoh.CongestionContro
 # the loop. Status is rare and must arrive (a tripped watchdog): BLOCK.
 TELEMETRY_QOS = PublisherQos(zenoh.Priority.DATA, zenoh.CongestionControl.DROP, False)
 STATUS_QOS = PublisherQos(zenoh.Priority.DATA_HIGH, zenoh.CongestionControl.BLOCK, False)
+# A tap batch (protocol.tap) is for observers: the lowest priority, so it never delays a
+# command or a state on a shared link, and dropped rather than waited for (its receiver counts
+# the batch's sequence gap).
+TAP_QOS = PublisherQos(zenoh.Priority.DATA_LOW, zenoh.CongestionControl.DROP, False)
 
 
 def declare_publisher(session: zenoh.Session, key: str, qos: PublisherQos) -> zenoh.Publisher:

@@ -18,7 +18,7 @@ from typing import Any
 
 import zenoh
 
-from protocol import zenoh_config
+from protocol import keys, zenoh_config
 from protocol.zenoh_config import DEFAULT_PEER_LISTEN, ZenohSettings
 from runtime.credentials import Credentials, CredentialsError, from_environment
 
@@ -87,11 +87,14 @@ _QOS_BY_SUFFIX = (
     ("/telemetry", zenoh_config.TELEMETRY_QOS),
     ("/status", zenoh_config.STATUS_QOS),
 )
+_TAP_CHUNK = f"/{keys.TAP}/"
 
 
 def publisher(session: Any, key: str, qos: zenoh_config.PublisherQos | None = None) -> Any:
     """A publisher with ``qos``, by default the QoS that :mod:`protocol.zenoh_config` gives the
     key's message (an unknown key without ``qos`` is an error: no silent default)."""
+    if qos is None and _TAP_CHUNK in key:
+        qos = zenoh_config.TAP_QOS
     if qos is None:
         qos = next((q for suffix, q in _QOS_BY_SUFFIX if key.endswith(suffix)), None)
     if qos is None:

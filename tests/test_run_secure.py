@@ -251,9 +251,16 @@ def test_intruders_reach_nothing_and_forged_robot_ids_are_counted(baseline, tmp_
     assert counts["lost"] < 100 and counts["received"] <= sent["sent"] + 50, (counts, sent)
     assert s["rejections"]["plant"].get("wrong_robot") == FORGED_COUNT, s["rejections"]
     assert s["rejections"]["controller"].get("wrong_robot") == FORGED_COUNT, s["rejections"]
-    # The recorder (through the same router) saw the forged messages but no intruder's command.
-    torques = [m.data for m in read_messages(out / "recording.mcap", [keys.torque_key(ROBOT)])]
+    # The recording (the services' taps, through the same router) holds no intruder's command,
+    # and each forged message as the service that refused it: the plant the torques, the
+    # controller the states, each as another robot's.
+    rec = out / "recording.mcap"
+    torques = [m.data for m in read_messages(rec, [keys.torque_key(ROBOT)])]
     assert not [d for d in torques if d.get("tau1") == INTRUDER_TAU]
-    assert len([d for d in torques if d.get("robot_id") == "robot9"]) == FORGED_COUNT
+    assert not [d for d in torques if d.get("robot_id") == "robot9"]
+    refused = [m.data for m in read_messages(rec, ["recorder/rejected"])]
+    for by, key in (("plant", keys.torque_key(ROBOT)), ("controller", keys.state_key(ROBOT))):
+        mine = [d for d in refused if (d["by"], d["topic"]) == (by, key)]
+        assert len(mine) == FORGED_COUNT and {d["reason"] for d in mine} == {"wrong_robot"}
     _no_password_in(out, creds)
     assert not folder.exists()

@@ -24,7 +24,9 @@ from tests.procs import Lines, free_tcp_port, wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
 DEPLOY_ACL = ROOT / "deploy" / "zenoh-router-acl.json5"
-STREAMS = (keys.STATE, keys.TORQUE, keys.TELEMETRY, keys.STATUS)
+# The loop's streams and both services' taps (protocol.tap): each role may put exactly its own.
+STREAMS = (keys.STATE, keys.TORQUE, keys.TELEMETRY, keys.STATUS, f"{keys.TAP}/controller",
+           f"{keys.TAP}/plant")  # fmt: skip
 NO_ENV = dict.fromkeys(cr.ENV_VARS, "")
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -60,8 +60,6 @@ def register(app: typer.Typer) -> None:
         from hil.errors import NegativeVerdictError
         from hil.fleet import report
         from hil.fleet.run import FleetOptions, execute, robot_ids
-        from hil.live.launch import FleetLive
-        from hil.live.launch import check as live_check
         from runtime.signals import stop_on_signals
 
         out_dir("--out", out)
@@ -76,8 +74,7 @@ def register(app: typer.Typer) -> None:
             controller_host,
             per_process,
         )
-        live_check(live, live_host)
-        watcher = None if live is None else FleetLive(out, robot_ids(robots), live, live_host)
+        watcher = _live_watcher(out, robot_ids(robots), live, live_host, lab)
         with stop_on_signals() as stop:
             codes = execute(opts, stop, watcher)
             if stop:
@@ -95,3 +92,14 @@ def register(app: typer.Typer) -> None:
             raise NegativeVerdictError(
                 f"robots with a negative verdict or an error: {', '.join(bad)}"
             )
+
+
+def _live_watcher(
+    out: Path, robots: list[str], live: int | None, live_host: str, lab: str | None
+) -> Any:
+    """The fleet's live view (None without --live), its port checked first."""
+    from hil.live.launch import FleetLive
+    from hil.live.launch import check as live_check
+
+    live_check(live, live_host)
+    return None if live is None else FleetLive(out, robots, live, live_host, lab is not None)

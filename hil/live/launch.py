@@ -73,11 +73,12 @@ def _check_free(host: str, port: int) -> None:
 
 
 def argv_for(settings_path: Path | Sequence[Path], port: int, host: str, resolved: Path | None,
-             zenoh_mode: str) -> list[str]:  # fmt: skip
-    """The live process's arguments after the interpreter (a fleet: each robot's settings)."""
+             zenoh_mode: str, other_clocks: bool = False) -> list[str]:  # fmt: skip
+    """The live process's arguments after the interpreter (a fleet: each robot's settings;
+    ``other_clocks``: the services run on a lab's hosts, whose clocks are not the view's)."""
     paths = [settings_path] if isinstance(settings_path, Path) else list(settings_path)
     argv = ["-m", "hil.live", *map(str, paths), "--host", host, "--port", str(port)]
-    argv += ["--zenoh-mode", zenoh_mode]
+    argv += ["--zenoh-mode", zenoh_mode] + (["--other-clocks"] if other_clocks else [])
     argv += ["--resolved", str(resolved)] if resolved is not None else ["--no-reference"]
     return argv
 
@@ -106,10 +107,12 @@ def announce(url: str) -> None:
     )
 
 
-def start_for_run(sup: Any, run_dir: Path, port: int, host: str, logs: Any) -> str:
+def start_for_run(
+    sup: Any, run_dir: Path, port: int, host: str, logs: Any, other_clocks: bool = False
+) -> str:
     """The live process of ``hil run`` (a supervised child, stopped with the others)."""
     argv = argv_for(run_dir / "run_settings.json", port, host,
-                    run_dir / "scenario.resolved.toml", "client")  # fmt: skip
+                    run_dir / "scenario.resolved.toml", "client", other_clocks)  # fmt: skip
     child = sup.start_python("live", argv, stdout=logs.open("live"), stderr=subprocess.STDOUT)
     url = wait_url(run_dir / "live.log", child.alive)
     announce(url)
@@ -143,8 +146,11 @@ class FleetLive:
     """The live process of ``hil fleet``: every robot of the fleet on one server, started as
     soon as each robot's run folder holds its settings (:meth:`poll`), stopped by PID."""
 
-    def __init__(self, out: Path, robots: Sequence[str], port: int, host: str) -> None:
+    def __init__(
+        self, out: Path, robots: Sequence[str], port: int, host: str, lab: bool = False
+    ) -> None:
         self.settings = [out / r / "run_settings.json" for r in robots]
+        self.lab = lab
         self.resolved = out / robots[0] / "scenario.resolved.toml"
         self.port, self.host = port, host
         self.log_path = out / "live.log"
@@ -157,7 +163,7 @@ class FleetLive:
         if self._log is not None or not all(p.is_file() for p in self.settings):
             return
         resolved = self.resolved if self.resolved.is_file() else None
-        argv = argv_for(self.settings, self.port, self.host, resolved, "client")
+        argv = argv_for(self.settings, self.port, self.host, resolved, "client", self.lab)
         self._log = self.log_path.open("wb")
         child = self._sup.start_python("live", argv, stdout=self._log, stderr=subprocess.STDOUT)
         self.url = wait_url(self.log_path, child.alive)

@@ -26,8 +26,6 @@ import foxglove
 from hil import schemas
 from hil.live.timing import Bounds, LiveTiming
 from hil.recording import to_jsonable
-from protocol.can.codec import decode as can_decode
-from protocol.can.drive_link import from_message
 from protocol.messages import State, Status, Telemetry, TorqueCommand
 
 ReferenceFn = Callable[[float], tuple[float, float, float]]  # t (s) -> (x, y, theta)
@@ -139,20 +137,3 @@ def _mirror(msg: Any) -> dict[str, Any]:
     d = to_jsonable(msg)
     d["type"] = type(msg).__name__
     return d
-
-
-def can_frame_record(msg: Any) -> dict[str, Any]:
-    """A python-can message as the recorder writes it (schema ``hil.CanFrame``)."""
-    data: dict[str, Any] = {
-        "arbitration_id": msg.arbitration_id,
-        "data": bytes(msg.data).hex(),
-        "dlc": msg.dlc,
-        "is_remote_frame": bool(msg.is_remote_frame),
-    }
-    try:
-        m = can_decode(from_message(msg))
-        data["message"] = type(m).__name__
-        data["fields"] = to_jsonable(m)
-    except Exception as exc:  # a frame the codec refuses is still shown, with why
-        data["decode_error"] = str(exc)
-    return data

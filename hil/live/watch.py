@@ -27,8 +27,10 @@ import can
 from controller_service.certificate import critical_age
 from controller_service.references import build_reference
 from hil.live.timing import Bounds
-from hil.live.view import LiveView, can_frame_record
+from hil.live.view import LiveView
 from hil.measure.folder import bound_inputs
+from hil.observe import InTimeOrder, TapReader, can_frame_record
+from protocol.keys import observed_keys
 from protocol.messages import DecodeError, decode
 from protocol.settings import RunSettings
 from runtime.signals import stop_on_signals
@@ -77,11 +79,12 @@ def _subscribe(endpoint: str, robots: list[str], mode: str, q: collections.deque
         return opened
     opened.append(session)
     for robot in robots:
-        sub = session.declare_subscriber(
-            f"hil/{robot}/**",
-            lambda s: q.append((str(s.key_expr), time.monotonic_ns(), payload_bytes(s))),
-        )
-        opened.insert(0, sub)
+        for key in observed_keys(robot):  # the taps, never the loop's own keys
+            sub = session.declare_subscriber(
+                key,
+                lambda s: q.append((str(s.key_expr), time.monotonic_ns(), payload_bytes(s))),
+            )
+            opened.insert(0, sub)
     return opened
 
 
@@ -121,7 +124,11 @@ def _close(opened: list[Any]) -> None:
                     break
 
 
-def _drain(view: Any, q: collections.deque) -> int:
+def _drain(
+    view: Any, q: collections.deque, taps: TapReader, order: InTimeOrder, now_ns: int | None
+) -> int:
+    """Feed the view what arrived, the services' messages in their time order (``now_ns``:
+    those at least the hold old; None: all); the number of inputs taken."""
     n = 0
     while q:
         topic, t, payload = q.popleft()
@@ -129,10 +136,14 @@ def _drain(view: Any, q: collections.deque) -> int:
         if topic.startswith("can/"):
             view.on_can(topic[4:], can_frame_record(payload), t)
             continue
+        for m in taps.read(topic, t, payload):
+            if not m.rejected:  # the recording keeps refused payloads; the view shows messages
+                order.push(m)
+    for m in order.ready(now_ns):
         try:
-            view.on_message(topic, decode(payload), t)
+            view.on_message(m.topic, decode(m.payload), m.log_time_ns)
         except DecodeError:
-            continue  # the recording keeps rejected payloads; the view shows messages
+            continue
     return n
 
 
@@ -146,6 +157,9 @@ def serve(args: argparse.Namespace) -> int:
     bounds = bounds_of(settings, args.resolved)
     reference = None if args.no_reference else reference_of(settings)
     q: collections.deque = collections.deque(maxlen=QUEUE_MAX)
+    # On the run's clock where the services share this host's; a lab's hosts do not.
+    taps = TapReader(same_clock=not args.other_clocks)
+    order = InTimeOrder()
     with stop_on_signals() as stop:
         view = LiveView([s.robot_id for s in runs], bounds, args.host, args.port, reference)
         opened: list[Any] = []
@@ -154,7 +168,7 @@ def serve(args: argparse.Namespace) -> int:
             print(f"live: ws://{args.host}:{view.port}", flush=True)
             next_tick = time.monotonic() + 1.0
             while not stop:
-                if not _drain(view, q):
+                if not _drain(view, q, taps, order, time.monotonic_ns()):
                     time.sleep(0.005)
                 if time.monotonic() >= next_tick:
                     view.tick(backlog=len(q))
@@ -174,4 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--resolved", type=Path, default=None, help="scenario.resolved.toml: D*")
     p.add_argument("--zenoh-mode", default="client", choices=("client", "peer"))
     p.add_argument("--no-reference", action="store_true", help="no reference pose (drives)")
+    p.add_argument("--other-clocks", action="store_true",
+                   help="the services run on a lab's hosts: their stamps are not on this "
+                   "host's clock")  # fmt: skip
     return serve(p.parse_args(argv))

@@ -44,10 +44,10 @@ from hil.run.orchestrate import (
     attachment_files,
     free_port,
     prepare,
+    robot_keys,
 )
 from hil.run.secure import RunIdentities
 from hil.supervisor import Supervisor
-from protocol.keys import robot_prefix
 from protocol.settings import RunSettings, period_ns
 from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
@@ -104,7 +104,8 @@ class _Robot:
 
 def _prepare(spec: GroupSpec, endpoint: str | None) -> list[_Robot]:
     """Each robot's run folder, as ``hil run --robot-id R --no-can`` prepares it, every robot
-    on the group's one endpoint (None: a lab host's router, as ``hil run --lab`` sets)."""
+    on the group's one endpoint (None: a lab host's router, as ``hil run --lab`` sets: the
+    services' clocks are then not the recorder's)."""
     robots = []
     for r in spec.robots:
         scenario, settings, run_dir, info = prepare(spec.options(r))
@@ -113,7 +114,8 @@ def _prepare(spec: GroupSpec, endpoint: str | None) -> list[_Robot]:
         meta = {"robot_id": r, "cmd_path": settings.cmd_path, "lockstep": settings.lockstep}
         meta.update({"rate_hz": info["rate_hz"], "group": ",".join(spec.robots)})
         writer = RecordingWriter(run_dir / layout.RECORDING, metadata=meta)
-        robots.append(_Robot(r, scenario, settings, run_dir, info, writer, Recorder(writer)))
+        recorder = Recorder(writer, same_clock=endpoint is not None)
+        robots.append(_Robot(r, scenario, settings, run_dir, info, writer, recorder))
     return robots
 
 
@@ -195,8 +197,8 @@ def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
             session = open_session(LAB_ROUTER, mode="client", credentials=None)
         else:
             session = open_session(endpoint, listen_endpoint=True, credentials=None)
-        for r in robots:  # each robot's keys into its own recording
-            subs.append(session.declare_subscriber(robot_prefix(r.id), r.recorder.on_zenoh))
+        for r in robots:  # each robot's status and taps into its own recording
+            subs += [session.declare_subscriber(k, r.recorder.on_zenoh) for k in robot_keys(r.id)]
         _start_services(sup, robots, logs, host, placed)
         error = _start_and_follow(spec, robots, sup, session, stop)
     finally:
@@ -227,6 +229,7 @@ def _results(spec: GroupSpec, robots: list[_Robot], codes: dict[str, int | None]
             "exit_codes": codes,
             "recording": layout.RECORDING,
             "recorded_messages": r.writer.count,
+            "recorder": r.recorder.taps.counts(),
             "secure": False,
             "shared_processes": {"robots": list(spec.robots), "processes": ["plant", "controller"]},
         }

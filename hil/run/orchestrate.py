@@ -21,7 +21,7 @@ import socket
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from subprocess import STDOUT
 from typing import Any
@@ -40,6 +40,7 @@ from hil.law.option import with_law
 from hil.live.launch import check as live_check
 from hil.live.launch import start_for_run
 from hil.measure.logs import HOST_FILE
+from hil.observe import TapReader, can_frame_record
 from hil.provenance import dumps_toml
 from hil.recording import RecordingWriter, to_jsonable, write_pose
 from hil.run import impair
@@ -57,9 +58,7 @@ from hil.scenario import (
     resolved_dict,
 )
 from hil.supervisor import Supervisor
-from protocol.can.codec import decode as can_decode
-from protocol.can.drive_link import from_message
-from protocol.keys import is_valid_robot_id, robot_prefix
+from protocol.keys import is_valid_robot_id, observed_keys
 from protocol.messages import DecodeError, Status, decode
 from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
 from runtime.clocksync import CLOCK_FILE
@@ -117,10 +116,13 @@ class RunOptions:
 
 
 class Recorder:
-    """Receives every ``hil/**`` Zenoh message and every CAN frame; writes them off-thread."""
+    """Receives the robot's status and its services' taps (:func:`robot_keys`: every message
+    they sent and every payload they refused, :mod:`hil.observe`) and every CAN frame; writes
+    them off-thread. ``same_clock``: the services share this process's clock (not a lab run)."""
 
-    def __init__(self, writer: RecordingWriter) -> None:
+    def __init__(self, writer: RecordingWriter, same_clock: bool = True) -> None:
         self.writer = writer
+        self.taps = TapReader(same_clock)
         self.queue: collections.deque[tuple[str, int, Any]] = collections.deque()
         self.states = 0
         self.statuses: dict[str, Any] = {}
@@ -137,27 +139,29 @@ class Recorder:
         self.queue.append((f"can/{channel}", time.monotonic_ns(), msg))
 
     def _write_one(self, topic: str, t: int, payload: Any) -> None:
-
         if topic.startswith("can/"):
-            data: dict[str, Any] = {
-                "arbitration_id": payload.arbitration_id,
-                "data": bytes(payload.data).hex(),
-                "dlc": payload.dlc,
-                "is_remote_frame": bool(payload.is_remote_frame),
-            }
-            try:
-                m = can_decode(from_message(payload))
-                data["message"] = type(m).__name__
-                data["fields"] = to_jsonable(m) if hasattr(m, "__dataclass_fields__") else str(m)
-            except Exception as exc:
-                data["decode_error"] = str(exc)
-            self.writer.write(topic, t, data, jsonable=True)
+            self._write_can(topic, t, payload)
             return
+        for m in self.taps.read(topic, t, payload):
+            if m.rejected:
+                self._write_rejected(m.topic, m.log_time_ns, m.payload, m.rejected, m.by)
+            else:
+                self._write_message(m.topic, m.log_time_ns, m.payload)
+
+    def _write_rejected(self, topic: str, t: int, payload: bytes, reason: str, by: str) -> None:
+        """A payload refused (by a service on receipt, or by the recorder's own decoder), on
+        its own channel: each topic's messages fit its schema."""
+        rejected = {"topic": topic, "reason": reason, "raw": payload.hex(), "by": by}
+        self.writer.write("recorder/rejected", t, rejected, jsonable=True)
+
+    def _write_can(self, topic: str, t: int, payload: Any) -> None:
+        self.writer.write(topic, t, can_frame_record(payload), jsonable=True)
+
+    def _write_message(self, topic: str, t: int, payload: bytes) -> None:
         try:
             m = decode(payload)
-        except DecodeError as exc:  # its own channel: each topic's messages fit its schema
-            rejected = {"topic": topic, "reason": exc.reason, "raw": payload.hex()}
-            self.writer.write("recorder/rejected", t, rejected, jsonable=True)
+        except DecodeError as exc:
+            self._write_rejected(topic, t, payload, exc.reason, "recorder")
             return
         d = to_jsonable(m)  # one walk; asdict first made a deep copy for nothing
         d["type"] = type(m).__name__
@@ -371,7 +375,7 @@ class _Live:
     """What ``hil run`` opened for one run, closed by :func:`_close_live` whatever happened."""
 
     session: Any = None
-    sub: Any = None
+    subs: list[Any] = field(default_factory=list)
     can_rec: tuple[Any, Any] | None = None
 
 
@@ -394,9 +398,10 @@ def _open_recorder_session(
     return open_session(settings.zenoh_endpoint, listen_endpoint=True, credentials=None)
 
 
-def robot_keys(settings: RunSettings) -> str:
-    """``hil/<robot>/**``: what the run's recorder records."""
-    return robot_prefix(settings.robot_id)
+def robot_keys(robot_id: str) -> tuple[str, ...]:
+    """What a run's recorder subscribes to: the robot's status and its services' taps
+    (:func:`protocol.keys.observed_keys`), never the loop's own keys."""
+    return observed_keys(robot_id)
 
 
 def _start_services(
@@ -448,8 +453,8 @@ def _start_and_follow(
 def _close_live(live: _Live, recorder: Recorder, run_dir: Path) -> None:
     """Close the subscription, the CAN recorder and the session, then the recording (with
     the hop logs attached)."""
-    if live.sub is not None:
-        live.sub.undeclare()
+    for sub in live.subs:
+        sub.undeclare()
     if live.can_rec is not None:
         live.can_rec[1].stop()
         with contextlib.suppress(Exception):  # a bus already gone is fine here
@@ -474,7 +479,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
     writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
-    recorder = Recorder(writer)
+    recorder = Recorder(writer, same_clock=not placed)
     live = _Live()
     logs = _Logs(run_dir)
     codes: dict[str, int | None] = {}
@@ -486,10 +491,13 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             live.session = _open_recorder_session(settings, ids, sup, logs, stop, bool(placed))
             announcer = ids.announcer(live.session, settings.zenoh_endpoint)
             # The run's own robot only: a fleet's robots may share the routers.
-            live.sub = live.session.declare_subscriber(robot_keys(settings), recorder.on_zenoh)
+            live.subs = [
+                live.session.declare_subscriber(key, recorder.on_zenoh)
+                for key in robot_keys(settings.robot_id)
+            ]
             live.can_rec = _can_recorder(settings, recorder)
             if opts.live_port is not None:  # its own process: no cycle of the recorder's
-                start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs)
+                start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs, bool(placed))
             _start_services(sup, run_dir, ids, logs, host, placed)
             error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
             interrupted = bool(stop)
@@ -509,6 +517,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
         "exit_codes": codes,
         "recording": layout.RECORDING,
         "recorded_messages": writer.count,
+        "recorder": recorder.taps.counts(),
         "secure": opts.secure,
     }
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
