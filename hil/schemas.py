@@ -206,7 +206,6 @@ FRAME_TRANSFORM = _object(
     },
     "A transform between two reference frames in 3D space",
 )
-WELL_KNOWN = {s["title"]: s for s in (POSE_IN_FRAME, FRAME_TRANSFORM)}
 
 WORLD_FRAME = "world"
 POSE = "pose"  # hil/<robot_id>/pose: foxglove.PoseInFrame of each State

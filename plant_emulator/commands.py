@@ -62,7 +62,6 @@ class Landing(NamedTuple):
     node: int = NO_NODE
     tau1: float = 0.0
     tau2: float = 0.0
-    stop: bool = False  # the controller's last command (FLAG_STOP)
 
 
 class CommandSource(Protocol):
@@ -177,7 +176,6 @@ class ZenohCommands:
             ApplyOutcome.LANDED,
             tau1=msg.tau1,
             tau2=msg.tau2,
-            stop=bool(msg.flags & FLAG_STOP),
         )
 
     def zero(self, at_ns: int) -> None:

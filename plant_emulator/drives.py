@@ -103,7 +103,6 @@ class DrivesRunner:
         self.tap: Any = None
         self._state_seq = 0
         self._status_seq = 0
-        self.status_lines = 0
 
     # --- the plant, under the edge's lock ----------------------------------------------------
     def _advance(self, now_ns: int) -> float:
@@ -274,7 +273,6 @@ class DrivesRunner:
                 rates = ((self.can.frames_in - last[1]) / dt, (self.can.frames_out - last[2]) / dt)
                 last = (tick.wake_ns, self.can.frames_in, self.can.frames_out)
                 print(self.status_line((tick.wake_ns - start_ns) / 1e9, rates), flush=True)
-                self.status_lines += 1
                 if self.session is not None:
                     self.publish_status("running")
         elapsed = (time.monotonic_ns() - start_ns) / 1e9

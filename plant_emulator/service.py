@@ -205,7 +205,6 @@ class PlantService:
         self._last_cmd_recv_ns: int | None = None
         self.timed_out = False
         self.timeouts = 0
-        self.stopped_by_controller = False
         if hoplog is None:
             raise ValueError("the plant service needs a hop log")
         self.hoplog = hoplog
@@ -363,8 +362,6 @@ class PlantService:
         if got.outcome is None:  # not a command (a lifecycle frame): no landing
             return
         outcome = self._outcome(p) if got.outcome is ApplyOutcome.LANDED else got.outcome
-        if got.stop:
-            self.stopped_by_controller = True
         row = ApplyRow(
             path=p.source.path,
             seq=p.arrival.seq,

@@ -224,14 +224,6 @@ def lyapunov_v(sig: UnifiedSignals, memory: UnifiedMemory, params: UnifiedParams
     )
 
 
-def _all_finite_float(values: tuple[float, ...]) -> bool:
-    # x - x is 0.0 for finite x and NaN for inf/NaN; one pass, no function calls per value.
-    acc = 0.0
-    for value in values:
-        acc += value - value
-    return acc == 0.0
-
-
 def _shared_scalar(value: Any, n: int) -> float | None:
     """``value`` as one finite float when it is a scalar or an (n,) array of one value."""
     if isinstance(value, np.ndarray):

@@ -16,7 +16,6 @@ at removal). The owner marks:
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import secrets
@@ -93,11 +92,6 @@ class LabState:
         self.made.append(item)
         self.save()
         return item
-
-    def forget(self, item: Made) -> None:
-        with contextlib.suppress(ValueError):
-            self.made.remove(item)
-        self.save()
 
     def owns_process(self, item: Made) -> bool:
         """The recorded process is still the one the lab started (see the module docstring)."""

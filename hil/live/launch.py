@@ -23,7 +23,6 @@ from hil.errors import BadInputError
 from hil.supervisor import Supervisor
 
 DEFAULT_PORT = 8765
-DEFAULT_HOST = "127.0.0.1"
 START_TIMEOUT_S = 30.0
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 

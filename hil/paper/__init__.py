@@ -324,14 +324,6 @@ FIGURE_GROUPS: tuple[tuple[tuple[str, ...], FigureWriter], ...] = (
 )
 
 
-def make_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
-    """Figures 2-20 in the paper's style (PNG, data as CSV beside each)."""
-    figs: list[Path] = []
-    for _needs, write in FIGURE_GROUPS:
-        figs += write(results, out)
-    return figs
-
-
 def _ignore_sigint() -> None:
     """Pool workers leave Ctrl-C to the parent, which stops them (a terminal sends SIGINT to
     the whole process group)."""

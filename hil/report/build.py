@@ -53,10 +53,6 @@ class Report:
     data: dict[str, Any]
     figures: list[fg.Figure] = field(default_factory=list)
 
-    @property
-    def negative(self) -> bool:
-        return not self.data["verdict"]["ok"]
-
 
 # --------------------------------------------------------------------------- certificate
 

@@ -363,7 +363,6 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     info = {
         "reference": reference,
         "context": context,
-        "controller_params": dict(resolved["controller"]),
         "scenario": scenario,
         "rate_hz": float(rate),
     }
@@ -539,7 +538,6 @@ def _write_results(
             settings,
             info["reference"],
             info["context"],
-            info["controller_params"],
             extra,
         )
         try:

@@ -100,7 +100,6 @@ def analyze(
     settings: Any,
     reference: Any,
     context: Any,
-    controller_params: dict[str, Any],
     extra: dict[str, Any],
 ) -> Summary:
     """Write trace.csv and summary.json from the two hop logs; returns the summary."""
