@@ -3,9 +3,10 @@
 Each module in :mod:`hil.commands` defines ``register(app: typer.Typer) -> None``; modules are
 discovered, so adding a command never edits this file. Exit codes follow the contract:
 0 success, 1 negative verdict (a limit broken, a certificate not held), 2 bad usage or input,
-130 interrupted (Ctrl-C; what was done is kept). The interrupt is recorded by the project's own
-SIGINT handler (:mod:`hil.interrupts`), so the exit code does not depend on what the CLI library
-does with a KeyboardInterrupt.
+3 the tool itself failed (an unexpected exception: its traceback is printed; a script must not
+read it as a verdict), 130 interrupted (Ctrl-C; what was done is kept). The interrupt is
+recorded by the project's own SIGINT handler (:mod:`hil.interrupts`), so the exit code does
+not depend on what the CLI library does with a KeyboardInterrupt.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 import sys
+import traceback
 
 import typer
 
@@ -49,6 +51,10 @@ def _register_commands() -> None:
 
 
 _register_commands()
+
+# Python's own exit code for an uncaught exception is 1, the code of a negative verdict: a
+# script running ``hil report`` would read a crash as FAIL.
+INTERNAL_ERROR = 3
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -103,7 +109,14 @@ def _dispatch(argv: list[str] | None) -> int:
             if callable(show):
                 show()
             return int(code)
-        raise
+        traceback.print_exc()
+        typer.echo(
+            f"internal error: {type(exc).__name__}: {one_line(exc)} (a fault of hil itself, not "
+            f"a verdict on your system: exit code {INTERNAL_ERROR}; please report it with the "
+            "traceback above)",
+            err=True,
+        )
+        return INTERNAL_ERROR
     # With standalone_mode off the CLI library returns typer.Exit codes instead of raising them.
     return returned if isinstance(returned, int) else 0
 

@@ -16,18 +16,12 @@ from protocol.settings import RunSettings
 from runtime.zsession import check_credentials
 
 JOIN_POLL_S = 0.2  # the main thread wakes this often: signal handlers run on it only
-# A robot's thread that wakes at its deadline while another thread holds the GIL waits up to
-# the switch interval for it: Python's default 5 ms is half a period at 100 Hz. 64 robots at
-# 100 Hz in one process, same machine and load, one run each: 0.5 ms gave wake-up p99 1.2 ms
-# and 29 of 64 robots passing, 5 ms gave 21 ms and none (docs/fleet.md).
-GIL_SWITCH_S = 0.0005
 
 
 def run_threads(names: Sequence[str], bodies: Sequence[Callable[[], int]]) -> int:
     """Run each body in its own thread (named after its robot) until all end; the process'
     exit code is the largest of theirs (an exception counts as 1 and is printed)."""
     codes: dict[str, int] = {}
-    sys.setswitchinterval(GIL_SWITCH_S)
 
     def wrap(name: str, body: Callable[[], int]) -> None:
         try:

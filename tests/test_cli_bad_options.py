@@ -217,3 +217,34 @@ def _env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
     return env
+
+
+FAULTY_REPORT = """
+import sys
+import hil.folder
+
+
+def load_folder(*args, **kwargs):
+    raise RuntimeError("injected fault")
+
+
+hil.folder.load_folder = load_folder
+from hil.cli import main
+
+sys.exit(main(["report", sys.argv[1]]))
+"""
+
+
+def test_a_fault_of_hil_itself_exits_3_never_as_a_verdict(tmp_path: Path) -> None:
+    """Python's own code for an uncaught exception is 1, which is the negative verdict's: a
+    script reading ``hil report``'s exit code would take a crash for FAIL. An exception the
+    command did not expect (injected where ``hil report`` loads the folder) exits 3, with its
+    traceback and one line saying it is the tool's fault."""
+    proc = subprocess.run(
+        [sys.executable, "-c", FAULTY_REPORT, str(tmp_path)],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 3, (proc.returncode, proc.stderr[-2000:])
+    assert "Traceback" in proc.stderr and "RuntimeError: injected fault" in proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("internal error: RuntimeError: injected fault") and "exit code 3" in last

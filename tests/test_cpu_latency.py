@@ -88,3 +88,21 @@ def test_an_unknown_idle_policy_is_a_clear_error():
     s = RunSettings(idle="deep")
     with pytest.raises(BadInputError, match=r"\[realtime\] idle must be one of \('poll', 'os'\)"):
         s.validate()
+
+
+def test_every_service_process_shortens_the_gil_switch_interval():
+    """A thread waking at its deadline waits up to the switch interval for the GIL: the set-up
+    every service runs sets it (runtime.realtime.GIL_SWITCH_S), whatever the policy."""
+    code = (
+        "import sys\n"
+        "from runtime.realtime import GIL_SWITCH_S, setup_scheduling\n"
+        "before = sys.getswitchinterval()\n"
+        "setup_scheduling('other', lock_memory=False, freeze_gc=False, idle='os')\n"
+        "print(before, sys.getswitchinterval(), GIL_SWITCH_S)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
+    ).stdout.split()
+    before, after, wanted = (float(x) for x in out)
+    assert before == pytest.approx(0.005)  # Python's default: what the set-up changes
+    assert after == pytest.approx(wanted) and wanted <= 0.001

@@ -136,7 +136,7 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
             "recording": RECORDING,
             "note": "hil run did not finish; rebuilt by hil recover from the services' hop logs",
         }
-        summary = analyze(run_dir, scenario, settings, reference, context, {}, extra)
+        summary = analyze(run_dir, scenario, settings, reference, context, extra)
         if not summary.get("samples"):
             raise BadInputError(f"{run_dir}: the run was killed before its first sample")
         try:
