@@ -219,29 +219,29 @@ def _env() -> dict[str, str]:
     return env
 
 
-FAULTY_REPORT = """
+# A command with a fault of its own, registered on the real app beside the real commands (not
+# a patch inside one command, which would stop injecting if that command's imports moved).
+FAULTY_COMMAND = """
 import sys
-import hil.folder
+from hil.cli import app, main
 
 
-def load_folder(*args, **kwargs):
+@app.command("faulty")
+def faulty(folder: str) -> None:
     raise RuntimeError("injected fault")
 
 
-hil.folder.load_folder = load_folder
-from hil.cli import main
-
-sys.exit(main(["report", sys.argv[1]]))
+sys.exit(main(["faulty", sys.argv[1]]))
 """
 
 
 def test_a_fault_of_hil_itself_exits_3_never_as_a_verdict(tmp_path: Path) -> None:
     """Python's own code for an uncaught exception is 1, which is the negative verdict's: a
-    script reading ``hil report``'s exit code would take a crash for FAIL. An exception the
-    command did not expect (injected where ``hil report`` loads the folder) exits 3, with its
-    traceback and one line saying it is the tool's fault."""
+    script reading ``hil report``'s exit code would take a crash for FAIL. An exception a
+    command did not expect exits 3, with its traceback and one line saying it is the tool's
+    fault."""
     proc = subprocess.run(
-        [sys.executable, "-c", FAULTY_REPORT, str(tmp_path)],
+        [sys.executable, "-c", FAULTY_COMMAND, str(tmp_path)],
         cwd=ROOT, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert proc.returncode == 3, (proc.returncode, proc.stderr[-2000:])
