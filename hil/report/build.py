@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -54,57 +54,9 @@ class Report:
     figures: list[fg.Figure] = field(default_factory=list)
 
 
-# --------------------------------------------------------------------------- certificate
-
-
-def run_certificate(sv: ScenarioView, rr: RunResult) -> dict[str, Any]:
-    """The run's certificate: summary.json's object as it is (hil.measure's), with where it
-    came from and the names of the design conditions that fail at its D."""
-    if rr.certificate is None:
-        # No certificate in the run (not a unified law): D is still measured.
-        path = rr.applied_path
-        age = rr.timing.get(f"command_age_{path}") if path else None
-        d = age.get("max_us") / 1e6 if isinstance(age, dict) and age.get("max_us") else None
-        return dict(
-            no_certificate(path, d, f"none (law {sv.law} has no certificate); D from {rr.source}")
-        )
-    cert = json.loads(json.dumps(rr.certificate))  # a copy: the report never edits the summary
-    cert["source"] = rr.source
-    cert.setdefault("failed_conditions", [])
-    return cert
-
-
-# --------------------------------------------------------------------------- verdict
-
-
-def verdict_block(
-    cons: dict[str, Any],
-    summary: dict[str, Any],
-    cert: dict[str, Any],
-    rr: RunResult | None,
-    thresholds: Thresholds,
-) -> dict[str, Any]:
-    """The verdict (:func:`hil.verdict.judge`, the one implementation ``hil run`` also uses)
-    with the report's thresholds."""
-    v = judge(
-        cons,
-        summary.get("violations") or {},
-        cert,
-        rr.timing if rr is not None else None,
-        rr.messages if rr is not None else None,
-        RunFacts.of(summary),
-        thresholds,
-    )
-    return v.as_dict()
-
-
-# --------------------------------------------------------------------------- drives
-
-
 def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.ndarray | None]:
     """The motor torques (N·m) the wheel mapping of [robot] makes of the applied tau1, tau2
     (protocol.can.wheel_mapping.motor_torques), the drives' states and the rejection counts."""
-
     robot = folder.scenario.get("robot") or {}
     out: dict[str, Any] = {"geometry": None, "note": ""}
     q = None
@@ -127,10 +79,9 @@ def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.n
                 "max_abs_q_left_nm": float(np.nanmax(np.abs(ql))),
             }
         )
-    summary = folder.summary
-    out["can"] = summary.get("can") if isinstance(summary.get("can"), dict) else None
-    rej = summary.get("rejections") if isinstance(summary.get("rejections"), dict) else None
-    out["rejections"] = rej
+    can, rej = folder.summary.get("can"), folder.summary.get("rejections")
+    out["can"] = can if isinstance(can, dict) else None
+    out["rejections"] = rej if isinstance(rej, dict) else None
     out["rejection_counts"] = (
         {k: _count(v) for k, v in rej.items()} if isinstance(rej, dict) else None
     )
@@ -139,16 +90,9 @@ def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.n
 
 def _count(obj: Any) -> int:
     """The sum of every count in a (nested) rejection dict."""
-    if isinstance(obj, bool):
-        return 0
-    if isinstance(obj, int | float):
-        return int(obj)
     if isinstance(obj, dict):
         return sum(_count(v) for v in obj.values())
-    return 0
-
-
-# --------------------------------------------------------------------------- the report
+    return int(obj) if isinstance(obj, int | float) and not isinstance(obj, bool) else 0
 
 
 def build_report(
@@ -173,7 +117,17 @@ def build_report(
         forget_memory(folder)
     sliding = _recorded_sliding(folder, tr, rr)
     metrics = _metrics(folder, sv, cert, (ideal_traj, ideal_note), sliding)
-    verdict = verdict_block(metrics["constraints"], folder.summary, cert, rr, thresholds)
+    # hil.verdict.judge: the one implementation hil run also uses, with the report's thresholds
+    verdict = judge(
+        metrics["constraints"],
+        folder.summary.get("violations") or {},
+        cert,
+        rr.timing if rr is not None else None,
+        rr.messages if rr is not None else None,
+        RunFacts.of(folder.summary),
+        thresholds,
+    ).as_dict()
+    margin = margin_record.read(folder.path)  # hil margin's record, None if it never ran
     drives, q = drives_block(folder, sv)
     figs, sections = _figures(folder, sv, cert, rr, (ideal_traj, sliding), q, drives, metrics)
     data = {
@@ -187,7 +141,7 @@ def build_report(
         "drives": drives,
         "timing": _timing_block(folder, rr, cert),
         "verdict": verdict,
-        "margin": _margin_block(folder.path),
+        "margin": None if margin is None else margin.to_dict(),
         "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
     }
     add_topology(folder.path, data, figs)  # "Where it ran", for a run across lab hosts
@@ -195,19 +149,24 @@ def build_report(
     return Report(data, figs)
 
 
-def _margin_block(path: Path) -> dict[str, Any] | None:
-    """``hil margin``'s record of the folder (k* and how it was found), None if it never ran:
-    report.json carries it, and the pages read it from there."""
-    record = margin_record.read(path)
-    return None if record is None else record.to_dict()
-
-
 def _folder_certificate(
     sv: ScenarioView, rr: RunResult | None, kind: str, summary: dict[str, Any]
 ) -> dict[str, Any]:
-    """The measured certificate of a run with hop logs, else the simulation's."""
+    """A run's certificate: summary.json's (hil.measure's, copied: the report never edits the
+    summary), with where it came from and the design conditions that fail at its D; else the
+    simulation's."""
+    if rr is not None and rr.certificate is None:
+        # No certificate in the run (not a unified law): D is still measured.
+        path = rr.applied_path
+        age = rr.timing.get(f"command_age_{path}") if path else None
+        d = age.get("max_us") / 1e6 if isinstance(age, dict) and age.get("max_us") else None
+        note = f"none (law {sv.law} has no certificate); D from {rr.source}"
+        return dict(no_certificate(path, d, note))
     if rr is not None:
-        return run_certificate(sv, rr)
+        cert = json.loads(json.dumps(rr.certificate))
+        cert["source"] = rr.source
+        cert.setdefault("failed_conditions", [])
+        return cert
     saved = summary.get("certificate")
     if isinstance(saved, dict):  # a simulation's, computed once by hil sim
         return {**saved, "source": saved.get("source") or "summary.json (hil sim)"}
@@ -224,7 +183,6 @@ def _recorded_sliding(
     lacks them, else None."""
     if {"v_tilde", "w_tilde"} <= set(tr) or not folder.recordings:
         return None
-
     tel = folder_telemetry(folder)
     rec = {k: tel[k] for k in SLIDING} if all(k in tel for k in SLIDING) else {}
     if not rec:
@@ -244,13 +202,9 @@ def _metrics(
     with summary.json's peaks folded in."""
     tr = folder.trace
     ideal_traj, ideal_note = ideal
-    lim = sv.limits
     metrics = trace_metrics.sampling_effects(
         tr,
-        phi1=lim.phi1,
-        phi2=lim.phi2,
-        varpi1=lim.varpi1,
-        varpi2=lim.varpi2,
+        **asdict(sv.limits),
         v_bound=cert.get("v_bound"),
         w_bound=cert.get("omega_bound"),
         eps1=sv.eps1,
@@ -274,22 +228,8 @@ def _metrics(
 
 
 def _scenario_block(sv: ScenarioView) -> dict[str, Any]:
-    lim = sv.limits
-    return {
-        "law": sv.law,
-        "ts": sv.ts,
-        "delay": sv.delay,
-        "jitter": sv.jitter,
-        "jitter_kind": sv.jitter_kind,
-        "limits": {
-            "phi1": lim.phi1,
-            "phi2": lim.phi2,
-            "varpi1": lim.varpi1,
-            "varpi2": lim.varpi2,
-        },
-        "eps1": sv.eps1,
-        "eps2": sv.eps2,
-    }
+    out = {k: getattr(sv, k) for k in ("law", "ts", "delay", "jitter", "jitter_kind")}
+    return {**out, "limits": asdict(sv.limits), "eps1": sv.eps1, "eps2": sv.eps2}
 
 
 def _timing_block(folder: Folder, rr: RunResult | None, cert: dict[str, Any]) -> dict[str, Any]:
@@ -311,7 +251,6 @@ def _ideal_note(ideal_traj: dict[str, np.ndarray] | None, tr: dict[str, np.ndarr
     starts = ideal_traj.get("window_start_t")
     if starts is None:
         return f"simulated at Ts/10 from the trace's first state at t = {tr['t'][0]:.6g} s"
-
     return (
         f"windowed: simulated at Ts/10 in {len(starts)} windows of {WINDOW_S:g} s, each "
         f"restarted from the robot's state (and the law's recorded memory, where the folder "
@@ -433,7 +372,6 @@ def _tracking_error_figure(
 def _run_figures(m: Any, rr: RunResult, cert: dict[str, Any]) -> list[fg.Figure]:
     """Latency histograms/CDFs, wake-up lateness and command age over time, all from the
     measurement's per-sample series."""
-
     figs = []
     applied = cert.get("path")
     lat = m.latency_us()
@@ -476,9 +414,6 @@ def _run_figures(m: Any, rr: RunResult, cert: dict[str, Any]) -> list[fg.Figure]
             )
         )
     return figs
-
-
-# --------------------------------------------------------------------------- writing
 
 
 def write_report(report: Report, out: Path) -> dict[str, Path]:

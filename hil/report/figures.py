@@ -1,8 +1,5 @@
-"""Figures of a report: each one a PNG (matplotlib, Agg backend, no display) and its data.
-
-Every figure is also written as data beside its picture: a :class:`Figure`
-carries the plotted columns so the writer can save them as CSV.
-"""
+"""Figures of a report: each one a PNG (matplotlib, Agg backend, no display) and the columns
+it was drawn from, which the writer saves as CSV beside it."""
 
 from __future__ import annotations
 
@@ -11,6 +8,7 @@ import io
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -128,19 +126,51 @@ def _first_per_bin(hits: np.ndarray, bin_of: np.ndarray) -> np.ndarray:
     return hits[keep]
 
 
+def _labels(ax: plt.Axes, xlabel: str, ylabel: str, title: str, **legend: Any) -> None:
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(True, alpha=0.3, which=legend.pop("which", "major"))
+    ax.legend(**legend)
+    ax.set_title(title)
+
+
 def _drawn(t: np.ndarray, ys: Sequence[np.ndarray]) -> np.ndarray | None:
     """:func:`envelope_indices`, or None when every sample is drawn."""
     t = np.asarray(t)
     return envelope_indices(t, ys) if t.size > MAX_DRAWN_POINTS else None
 
 
-def _sorted_by_time(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _plot_drawn(
+    ax: plt.Axes,
+    label: str,
+    xy: tuple[np.ndarray, np.ndarray],
+    idx: np.ndarray | None,
+    keys: tuple[str, str],
+    cols: dict[str, np.ndarray],
+    captions: list[str],
+    **style: Any,
+) -> None:
+    """Plot the samples ``idx`` (None: all) of ``xy``, keep their data under ``keys`` and, for
+    a series drawn from its envelope, say so in ``captions``."""
+    x, y = xy
+    ax.plot(x if idx is None else x[idx], y if idx is None else y[idx], label=label, **style)
+    cols[keys[0]] = _data(x, idx)
+    cols[keys[1]] = _data(y, idx)
+    if idx is not None:
+        captions.append(f"{label}: {_envelope_caption(np.size(x), idx)}")
+
+
+def _time_series(
+    ax: plt.Axes, label: str, t: np.ndarray, y: np.ndarray, cols: dict, captions: list[str]
+) -> None:
+    """One series with its own time axis (sorted by time first), as a thin line."""
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     if t.size > 1 and np.any(t[1:] < t[:-1]):
         order = np.argsort(t, kind="stable")
-        return t[order], y[order]
-    return t, y
+        t, y = t[order], y[order]
+    keys = (f"{label}_t", label)
+    _plot_drawn(ax, label, (t, y), _drawn(t, [y]), keys, cols, captions, linewidth=0.8)
 
 
 def _data(full: np.ndarray, idx: np.ndarray | None) -> np.ndarray:
@@ -202,22 +232,13 @@ def trajectory(
     for i, (label, x, y) in enumerate(series):
         # long paths: in each bin of samples, those at the smallest and largest X and Y
         idx = _drawn(np.arange(np.size(x)), [x, y])
-        xs, ys = (x, y) if idx is None else (x[idx], y[idx])
-        ax.plot(xs, ys, label=label, **_trajectory_style(label, i))
-        cols[f"{label}_x"] = _data(x, idx)
-        cols[f"{label}_y"] = _data(y, idx)
-        if idx is not None:
-            captions.append(f"{label}: {_envelope_caption(np.size(x), idx)}")
+        keys = (f"{label}_x", f"{label}_y")
+        _plot_drawn(ax, label, (x, y), idx, keys, cols, captions, **_trajectory_style(label, i))
     if series:
         first = next((s for s in series if s[0].startswith("robot")), series[0])
         ax.plot(first[1][0], first[2][0], "ko", markersize=4, label=f"{first[0]} start")
-    ax.set_xlabel("X [m]")
-    ax.set_ylabel("Y [m]")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title(title)
-    cols = {k: np.asarray(v) for k, v in cols.items()}
+    _labels(ax, "X [m]", "Y [m]", title, fontsize=8)
     return Figure("trajectory", title, _png(fig), cols, " ".join(captions))
 
 
@@ -263,11 +284,7 @@ def _limits_and_axes(
         ax.axhline(bound, label=f"sampled-data bound ±{bound:.3g}", **BOUND_STYLE)
         ax.axhline(-bound, **BOUND_STYLE)
         cols["bound"] = np.array([bound])
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel(unit)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=fontsize, loc="upper right")
-    ax.set_title(title)
+    _labels(ax, "t [s]", unit, title, fontsize=fontsize, loc="upper right")
 
 
 #: Time bins of a switching signal's band: each drawn as its min-max range and its mean.
@@ -405,19 +422,8 @@ def over_time(
     cols: dict[str, np.ndarray] = {}
     captions = []
     for label, (t, y) in series.items():
-        t, y = _sorted_by_time(t, y)
-        idx = _drawn(t, [y])
-        ax.plot(t if idx is None else t[idx], y if idx is None else y[idx], linewidth=0.8,
-                label=label)  # fmt: skip
-        cols[f"{label}_t"] = _data(t, idx)
-        cols[label] = _data(y, idx)
-        if idx is not None:
-            captions.append(f"{label}: {_envelope_caption(t.size, idx)}")
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel(unit)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title(title)
+        _time_series(ax, label, t, y, cols, captions)
+    _labels(ax, "t [s]", unit, title, fontsize=8)
     fig.tight_layout()
     return Figure(name, title, _png(fig), cols, " ".join(captions))
 
@@ -435,20 +441,13 @@ def stacked(
     cols: dict[str, np.ndarray] = {}
     captions = []
     for ax, (label, unit, t, y, thr) in zip(axes, panels, strict=True):
-        t, y = _sorted_by_time(t, y)
-        idx = _drawn(t, [y])
-        ax.plot(t if idx is None else t[idx], y if idx is None else y[idx], linewidth=0.8,
-                label=label)  # fmt: skip
-        if idx is not None:
-            captions.append(f"{label}: {_envelope_caption(t.size, idx)}")
+        _time_series(ax, label, t, y, cols, captions)
         if thr:
             ax.axhline(thr, color="grey", linestyle=":", linewidth=1.0, label=f"±{thr:g}")
             ax.axhline(-thr, color="grey", linestyle=":", linewidth=1.0)
         ax.set_ylabel(unit)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8, loc="upper right")
-        cols[f"{label}_t"] = _data(t, idx)
-        cols[label] = _data(y, idx)
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(title)
     fig.tight_layout()
@@ -489,11 +488,7 @@ def age_envelope(
         ax.plot(st[:, 0], st[:, 1] * 1e3, "kx", markersize=6, label="stalls")
         cols["stall_t_s"] = st[:, 0]
         cols["stall_age_ms"] = st[:, 1] * 1e3
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("command age [ms]")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
-    ax.set_title(title)
+    _labels(ax, "t [s]", "command age [ms]", title, fontsize=8, loc="upper right")
     fig.tight_layout()
     return Figure(name, title, _png(fig), cols)
 
@@ -525,10 +520,6 @@ def against_parameter(
     elif positive.size:
         # delay 0 belongs on the axis: log spacing above the smallest positive value
         ax.set_xscale("symlog", linthresh=float(positive.min()))
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel(ylabel)
-    ax.grid(True, alpha=0.3, which="both")
-    ax.legend(fontsize=7)
-    ax.set_title(title)
+    _labels(ax, xlabel, ylabel, title, fontsize=7, which="both")
     fig.tight_layout()
     return Figure(name, title, _png(fig), cols)
