@@ -23,7 +23,7 @@ import pytest
 
 from hil.cli import main
 from hil.measure.certificate import CONTRACT_KEYS
-from hil.report.measured import SOURCE
+from hil.report.build import SOURCE
 from tests.page_tables import numbers_without_unit, tables, unglossed
 from tests.synthetic_folder import write_synthetic_folder
 

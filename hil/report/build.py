@@ -8,8 +8,9 @@ only ever read.
 Where the numbers come from (docs/reports.md): for a run, the certificate and every timing
 figure and message count are summary.json's ``certificate``, ``timing`` and ``messages``, which
 ``hil run`` took from :mod:`hil.measure`; the plots draw that pipeline's per-sample series
-(:mod:`hil.report.measured`). The report never evaluates the bound at a timing of its own. A
-simulation folder (no hop logs) is certified at its scenario's timing (:mod:`hil.report.cert`).
+(series.npz; :func:`hil.measure.folder.measured`). The report never evaluates the bound at a
+timing of its own, nor computes a figure. A simulation folder (no hop logs) is certified at its
+scenario's timing (:func:`hil.measure.certificate.scenario_certificate`).
 """
 
 from __future__ import annotations
@@ -31,13 +32,14 @@ from hil.folder.scenario_view import ScenarioView, view
 from hil.margin import record as margin_record
 from hil.measure.age import envelope
 from hil.measure.certificate import no_certificate, scenario_certificate
+from hil.measure.figures import Measurement
+from hil.measure.folder import measured
 from hil.report import figures as fg
 from hil.report.headline import headline
 from hil.report.html import render_html
 from hil.report.ideal import IdealUnavailableError
 from hil.report.ideal_sim import WINDOW_S
 from hil.report.markdown import render_markdown
-from hil.report.measured import RunResult, run_result
 from hil.report.telemetry import SLIDING, folder_telemetry, forget_memory
 from hil.report.topology_section import add as add_topology
 from hil.verdict import DEFAULT_THRESHOLDS, PEAK_KEYS, RunFacts, Thresholds, judge
@@ -45,6 +47,7 @@ from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_
 from protocol.versions import REPORT_SCHEMA_VERSION
 
 FIGURE_PREFIX = "report_"
+SOURCE = "summary.json and series.npz (hil.measure, measured once when the run ended)"
 IdealProvider = Callable[[Folder], dict[str, np.ndarray] | None]
 
 
@@ -103,10 +106,10 @@ def build_report(
 ) -> Report:
     """The report of one run or simulation folder: metrics, certificate, verdict, figures."""
     sv = view(folder.scenario)
-    rr = run_result(folder)  # first: its peak (the hop logs' columns) before the trace's
+    m = measured(folder)  # first: its peak (the hop logs' columns) before the trace's
     tr = folder.trace
-    kind = "run" if rr is not None else folder.kind
-    cert = _folder_certificate(sv, rr, kind, folder.summary)
+    kind = "run" if m is not None else folder.kind
+    cert = _folder_certificate(sv, m, kind, folder.summary)
     ideal_traj, ideal_note = None, "not requested"
     if ideal is not None:
         try:
@@ -115,21 +118,21 @@ def build_report(
         except IdealUnavailableError as exc:
             ideal_note = str(exc)
         forget_memory(folder)
-    sliding = _recorded_sliding(folder, tr, rr)
+    sliding = _recorded_sliding(folder, tr, m)
     metrics = _metrics(folder, sv, cert, (ideal_traj, ideal_note), sliding)
     # hil.verdict.judge: the one implementation hil run also uses, with the report's thresholds
     verdict = judge(
         metrics["constraints"],
         folder.summary.get("violations") or {},
         cert,
-        rr.timing if rr is not None else None,
-        rr.messages if rr is not None else None,
+        m.timing if m is not None else None,
+        (m.messages or {}) if m is not None else None,
         RunFacts.of(folder.summary),
         thresholds,
     ).as_dict()
     margin = margin_record.read(folder.path)  # hil margin's record, None if it never ran
     drives, q = drives_block(folder, sv)
-    figs, sections = _figures(folder, sv, cert, rr, (ideal_traj, sliding), q, drives, metrics)
+    figs, sections = _figures(folder, sv, cert, m, (ideal_traj, sliding), q, drives, metrics)
     data = {
         "schema_version": REPORT_SCHEMA_VERSION,
         "folder": str(folder.path),
@@ -139,7 +142,7 @@ def build_report(
         "metrics": metrics,
         "certificate": cert,
         "drives": drives,
-        "timing": _timing_block(folder, rr, cert),
+        "timing": _timing_block(folder, m, cert),
         "verdict": verdict,
         "margin": None if margin is None else margin.to_dict(),
         "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
@@ -150,21 +153,21 @@ def build_report(
 
 
 def _folder_certificate(
-    sv: ScenarioView, rr: RunResult | None, kind: str, summary: dict[str, Any]
+    sv: ScenarioView, m: Measurement | None, kind: str, summary: dict[str, Any]
 ) -> dict[str, Any]:
     """A run's certificate: summary.json's (hil.measure's, copied: the report never edits the
     summary), with where it came from and the design conditions that fail at its D; else the
     simulation's."""
-    if rr is not None and rr.certificate is None:
+    if m is not None and m.certificate is None:
         # No certificate in the run (not a unified law): D is still measured.
-        path = rr.applied_path
-        age = rr.timing.get(f"command_age_{path}") if path else None
+        path = str(m.series["applied_path"]) if m.series.get("applied_path") else None
+        age = m.timing.get(f"command_age_{path}") if path else None
         d = age.get("max_us") / 1e6 if isinstance(age, dict) and age.get("max_us") else None
-        note = f"none (law {sv.law} has no certificate); D from {rr.source}"
+        note = f"none (law {sv.law} has no certificate); D from {SOURCE}"
         return dict(no_certificate(path, d, note))
-    if rr is not None:
-        cert = json.loads(json.dumps(rr.certificate))
-        cert["source"] = rr.source
+    if m is not None:
+        cert = json.loads(json.dumps(m.certificate))
+        cert["source"] = SOURCE
         cert.setdefault("failed_conditions", [])
         return cert
     saved = summary.get("certificate")
@@ -177,7 +180,7 @@ def _folder_certificate(
 
 
 def _recorded_sliding(
-    folder: Folder, tr: dict[str, np.ndarray], rr: RunResult | None
+    folder: Folder, tr: dict[str, np.ndarray], m: Measurement | None
 ) -> dict[str, tuple[np.ndarray, np.ndarray]] | None:
     """v~, w~ from the recorded telemetry (time in s from the run's epoch) when the trace
     lacks them, else None."""
@@ -187,7 +190,7 @@ def _recorded_sliding(
     rec = {k: tel[k] for k in SLIDING} if all(k in tel for k in SLIDING) else {}
     if not rec:
         return None
-    base = rr.epoch_ns if rr is not None and rr.epoch_ns else int(rec["v_tilde"][0][0])
+    base = m.epoch_ns if m is not None and m.epoch_ns else int(rec["v_tilde"][0][0])
     return {k: ((tn - base) / 1e9, vals) for k, (tn, vals) in rec.items()}
 
 
@@ -232,13 +235,13 @@ def _scenario_block(sv: ScenarioView) -> dict[str, Any]:
     return {**out, "limits": asdict(sv.limits), "eps1": sv.eps1, "eps2": sv.eps2}
 
 
-def _timing_block(folder: Folder, rr: RunResult | None, cert: dict[str, Any]) -> dict[str, Any]:
+def _timing_block(folder: Folder, m: Measurement | None, cert: dict[str, Any]) -> dict[str, Any]:
     return {
-        "summary": rr.timing if rr is not None else None,
-        "messages": rr.messages if rr is not None else None,
-        "source": rr.source if rr is not None else None,
+        "summary": m.timing if m is not None else None,
+        "messages": (m.messages or {}) if m is not None else None,
+        "source": SOURCE if m is not None else None,
         "applied_path": cert.get("path"),
-        "series": "series.npz (hil.measure)" if rr is not None else None,
+        "series": "series.npz (hil.measure)" if m is not None else None,
         "faults": folder.summary.get("faults"),
         "scheduling": folder.summary.get("scheduling"),
         "impair": folder.summary.get("impair"),
@@ -263,7 +266,7 @@ def _figures(
     folder: Folder,
     sv: ScenarioView,
     cert: dict[str, Any],
-    rr: RunResult | None,
+    m: Measurement | None,
     extra: tuple[dict[str, np.ndarray] | None, dict[str, tuple[np.ndarray, np.ndarray]] | None],
     q: np.ndarray | None,
     drives: dict[str, Any],
@@ -298,10 +301,8 @@ def _figures(
         )
     sections = ["headline", "terms", "verdict", "certificate", "trajectory", "velocities"]
     sections += ["torques", "drives", "tracking_error", "bands"]
-    m = rr.measurement if rr is not None else None
     if m is not None:
-        figs += _run_figures(m, rr, cert)
-    if rr is not None:
+        figs += _run_figures(m, cert)
         sections += ["latency", "lateness", "messages", "timing_summary"]
     return figs, sections
 
@@ -369,7 +370,7 @@ def _tracking_error_figure(
     return fg.signal_with_limits("tracking_error", "Tracking error (4)", "error", t, err_series)
 
 
-def _run_figures(m: Any, rr: RunResult, cert: dict[str, Any]) -> list[fg.Figure]:
+def _run_figures(m: Measurement, cert: dict[str, Any]) -> list[fg.Figure]:
     """Latency histograms/CDFs, wake-up lateness and command age over time, all from the
     measurement's per-sample series."""
     figs = []
@@ -398,9 +399,9 @@ def _run_figures(m: Any, rr: RunResult, cert: dict[str, Any]) -> list[fg.Figure]
     )
     for p in paths:
         seg = m.series[f"command_age_{p}"]
-        if len(seg) and rr.epoch_ns is not None:
+        if len(seg) and m.epoch_ns is not None:
             label = f"{p} (applied)" if p == applied else f"{p} (shadow)"
-            env[label] = envelope(seg, rr.epoch_ns)
+            env[label] = envelope(seg, m.epoch_ns)
     if env:
         stalls = [(s["t_s"], s["age_s"]) for s in cert.get("stalls") or []]
         figs.append(

@@ -1,7 +1,7 @@
 """``hil compare DIR_A DIR_B``: two folders side by side (Zenoh path against CAN path, two
 rates, a run against its simulation): overlaid trajectories, velocities and torques, the
 latency CDFs of both runs, and a table of summary, sampling-effect and timing figures with
-their differences (B - A).
+their differences (B - A); first, the headline: the differences that matter, with units.
 
 A run's timing figures, message counts and certificate are its measurement
 as the folder holds it (:func:`hil.measure.folder.measured`: summary.json and series.npz,
@@ -10,6 +10,7 @@ measured once when the run ended), never figures of compare's own."""
 from __future__ import annotations
 
 import math
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -22,14 +23,19 @@ from hil.folder.scenario_view import view
 from hil.measure.figures import Measurement
 from hil.measure.folder import measured
 from hil.report import figures as fg
-from hil.report.compare_headline import compare_headline
 from hil.report.compare_names import label_of, unit_of
 from hil.report.content import NORMALIZED, SLIDING
 from hil.report.html import CSS, esc, figure, table
 from hil.report.markdown import _md_table
+from hil.verdict import short_reason
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
 PREFIX = "compare_"
+LIMIT_RATIOS = (("v", "|v|/φ1"), ("omega", "|ω|/φ2"), ("tau1", "|τ1|/ϖ1"), ("tau2", "|τ2|/ϖ2"))
+#: How many of the most-moved figures the headline lists.
+MOST_MOVED = 8
+#: How much of a verdict's first reason the headline quotes (the reports have all of it).
+WHY_CHARS = 200
 MOVED_NOTE = (
     "The figures whose value changed most from A to B, relative to A's value (the change "
     "itself where A is 0), largest first."
@@ -40,15 +46,8 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
     """The scalar figures compared: summary.json's numbers, the sampling effects and, for a
     run, its measurement's timing figures, message counts and certificate."""
     sv = view(folder.scenario)
-    lim = sv.limits
     eff = trace_metrics.sampling_effects(
-        folder.trace,
-        phi1=lim.phi1,
-        phi2=lim.phi2,
-        varpi1=lim.varpi1,
-        varpi2=lim.varpi2,
-        eps1=sv.eps1,
-        eps2=sv.eps2,
+        folder.trace, **asdict(sv.limits), eps1=sv.eps1, eps2=sv.eps2
     )
     out: dict[str, float] = {"ts": sv.ts, "delay": sv.delay, "jitter": sv.jitter}
     for k, v in folder.summary.items():
@@ -60,17 +59,13 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
             for kk, vv in v.items():
                 if isinstance(vv, int | float):
                     out[f"violations.{kk}"] = float(vv)
-    for k, v in eff["tracking"].items():
-        out[f"tracking.{k}"] = v
-    for name, c in eff["constraints"].items():
-        out[f"max_over_limit.{name}"] = c["ratio"]
+    out.update({f"tracking.{k}": v for k, v in eff["tracking"].items()})
+    out.update({f"max_over_limit.{k}": c["ratio"] for k, c in eff["constraints"].items()})
     for name, b in eff["bands"].items():
         if b is not None:
             out[f"band_p99.{name}"] = b["band_p99"] if b["band_p99"] is not None else math.nan
-    for name, r in eff["switching_rate"].items():
-        out[f"switching_rate.{name}"] = r
-    for name, r in eff["saturation_share"].items():
-        out[f"saturation_share.{name}"] = r
+    for group in ("switching_rate", "saturation_share"):
+        out.update({f"{group}.{k}": r for k, r in eff[group].items()})
     if m is not None:
         out.update(measured_figures(m))
     return out
@@ -112,6 +107,79 @@ def compare_rows(a: dict[str, float], b: dict[str, float]) -> list[list[Any]]:
         diff = vb - va if va is not None and vb is not None else None
         rows.append([key, va, vb, diff])
     return rows
+
+
+def _outcome(folder: Folder) -> str:
+    v = folder.summary.get("verdict")
+    if isinstance(v, dict) and v.get("outcome"):
+        return str(v["outcome"])
+    held = folder.summary.get("limits_held")
+    return "limits held" if held else ("limits broken" if held is False else "n/a")
+
+
+def _ms(x: Any) -> str:
+    return f"{x * 1e3:.3f} ms" if isinstance(x, int | float) and math.isfinite(x) else "n/a"
+
+
+def _age(folder: Folder) -> str:
+    c = folder.summary.get("certificate")
+    if not isinstance(c, dict):
+        return "D n/a"
+    return f"D = {_ms(c.get('d_max_s'))} of D* = {_ms(c.get('d_star_s'))}"
+
+
+def _why(folder: Folder) -> str | None:
+    """The first reason of a verdict that is not PASS, up to its details."""
+    v = folder.summary.get("verdict")
+    if not isinstance(v, dict) or v.get("outcome") in (None, "PASS") or not v.get("reasons"):
+        return None
+    return short_reason(str(v["reasons"][0]), WHY_CHARS)
+
+
+def most_moved(rows: list[list[Any]], n: int = MOST_MOVED) -> list[list[Any]]:
+    """The rows whose value changed most relative to A (absolute change where A is 0)."""
+    scored = []
+    for key, a, b, diff in rows:
+        if diff is None or not math.isfinite(diff) or diff == 0 or key in ("ts", "delay"):
+            continue
+        base = abs(a) if a else 1.0
+        scored.append((abs(diff) / base, [key, a, b, diff, unit_of(key), label_of(key)]))
+    scored.sort(key=lambda s: -s[0])
+    out: list[list[Any]] = []
+    seen = set()
+    for _, row in scored:  # one figure under two keys (summary and tracking) is listed once
+        if (row[5], row[1], row[2]) not in seen and len(out) < n:
+            seen.add((row[5], row[1], row[2]))
+            out.append(row)
+    return out
+
+
+def compare_headline(
+    fa: Folder, fb: Folder, a: dict[str, float], b: dict[str, float], rows: list[list[Any]]
+) -> dict[str, Any]:
+    """What compare says first, with units: the verdicts, the command age D against D* and
+    the limits of (2) of both folders, then the figures that moved most (relative change,
+    largest first). Every number is one the two folders already hold."""
+    lines = [f"Verdict: A {_outcome(fa)}, B {_outcome(fb)}."]
+    lines += [f"Why {n}: {why.rstrip('.')}." for n, f in (("A", fa), ("B", fb)) if (why := _why(f))]
+    lines.append(
+        f"Command age: A {_age(fa)}; B {_age(fb)} (D: the longest a command stayed in force "
+        "after the sample it was computed from; D*: the longest the paper's bound allows "
+        "while still guaranteeing the limits (2))."
+    )
+    limits = []
+    for name, sym in LIMIT_RATIOS:
+        ra, rb = a.get(f"max_over_limit.{name}"), b.get(f"max_over_limit.{name}")
+        if ra is not None and rb is not None:
+            limits.append(f"max {sym} {ra:.3f} → {rb:.3f}")
+    if limits:
+        lines.append(
+            "Limits of (2), the bounds φ1, φ2 on the velocities and ϖ1, ϖ2 on the inputs "
+            "the law must keep, as peak / limit from A to B (1 = at the limit): "
+            + "; ".join(limits)
+            + "."
+        )
+    return {"lines": lines, "most_moved": most_moved(rows)}
 
 
 def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b: str = "B"):

@@ -4,7 +4,7 @@ render (paragraphs, lists, tables, figures): one text, two formats."""
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -12,23 +12,6 @@ from hil.margin.record import MarginRecord, summary_lines
 from hil.report.compare_names import unit_of
 from hil.report.headline import SYMBOL
 from hil.verdict import UNITS
-
-SECTION_TITLES: dict[str, str] = {
-    "headline": "The answers first",
-    "terms": "What the words mean",
-    "verdict": "Verdict",
-    "certificate": "Command age and the certificate",
-    "trajectory": "Trajectory in the plane",
-    "velocities": "Velocities v and ω against (2)",
-    "torques": "Inputs τ1 and τ2 of model (1) against (2)",
-    "drives": "CAN and drives: motor torques, drive states, rejections",
-    "tracking_error": "Tracking error (4) and deviation from the ideal trajectory",
-    "bands": "Quasi-sliding bands, switching and saturation",
-    "latency": "Sample-to-apply latency per path (histogram and CDF)",
-    "lateness": "Wake-up lateness over time",
-    "messages": "Messages per stream",
-    "timing_summary": "Every timing figure (summary.json's timing, from hil.measure)",
-}
 
 NORMALIZED = (
     "Model (1) is normalized: v' = τ1 + d1 and ω' = τ2 + d2, so τ1 is an acceleration (m/s²) "
@@ -155,8 +138,9 @@ def _pct_rows(
 
 def sections(data: dict[str, Any]) -> Iterator[Section]:
     for sid in data["sections"]:
-        s = Section(sid, SECTION_TITLES[sid])
-        BUILDERS[sid](s, data)
+        title, build = SECTIONS[sid]
+        s = Section(sid, title)
+        build(s, data)
         yield s
 
 
@@ -516,19 +500,26 @@ def _timing_summary(s: Section, data: dict[str, Any]) -> None:
     )
 
 
-BUILDERS = {
-    "headline": _headline,
-    "terms": _terms,
-    "verdict": _verdict,
-    "certificate": _certificate,
-    "trajectory": _trajectory,
-    "velocities": _velocities,
-    "torques": _torques,
-    "drives": _drives,
-    "tracking_error": _tracking_error,
-    "bands": _bands,
-    "latency": _latency,
-    "lateness": _lateness,
-    "messages": _messages,
-    "timing_summary": _timing_summary,
+#: Each section's title and the function that writes its blocks.
+SECTIONS: dict[str, tuple[str, Callable[[Section, dict[str, Any]], None]]] = {
+    "headline": ("The answers first", _headline),
+    "terms": ("What the words mean", _terms),
+    "verdict": ("Verdict", _verdict),
+    "certificate": ("Command age and the certificate", _certificate),
+    "trajectory": ("Trajectory in the plane", _trajectory),
+    "velocities": ("Velocities v and ω against (2)", _velocities),
+    "torques": ("Inputs τ1 and τ2 of model (1) against (2)", _torques),
+    "drives": ("CAN and drives: motor torques, drive states, rejections", _drives),
+    "tracking_error": (
+        "Tracking error (4) and deviation from the ideal trajectory",
+        _tracking_error,
+    ),
+    "bands": ("Quasi-sliding bands, switching and saturation", _bands),
+    "latency": ("Sample-to-apply latency per path (histogram and CDF)", _latency),
+    "lateness": ("Wake-up lateness over time", _lateness),
+    "messages": ("Messages per stream", _messages),
+    "timing_summary": (
+        "Every timing figure (summary.json's timing, from hil.measure)",
+        _timing_summary,
+    ),
 }

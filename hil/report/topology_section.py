@@ -183,5 +183,4 @@ def build(s: content.Section, data: dict[str, Any]) -> None:
     )
 
 
-content.SECTION_TITLES[SECTION] = TITLE
-content.BUILDERS[SECTION] = build
+content.SECTIONS[SECTION] = (TITLE, build)
