@@ -10,7 +10,7 @@ from typing import Any
 
 from hil.margin.record import MarginRecord, summary_lines
 from hil.report.compare_names import unit_of
-from hil.report.headline import SYMBOL
+from hil.report.headline import SYMBOL, TOP_STALLS
 from hil.verdict import UNITS
 
 NORMALIZED = (
@@ -70,9 +70,7 @@ def fmt(value: Any) -> str:
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, float):
-        if not math.isfinite(value):
-            return str(value)
-        return f"{value:.6g}"
+        return f"{value:.6g}" if math.isfinite(value) else str(value)
     if isinstance(value, dict):
         return ", ".join(_named(str(k), v) for k, v in value.items()) or "none"
     return str(value)
@@ -236,13 +234,9 @@ def _certificate(s: Section, data: dict[str, Any]) -> None:
             [st.get("t_s"), _ms(st.get("age_s")), st.get("cause"), st.get("evidence")]
             for st in stalls
         ]
-        s.table(header, rows[:SHOWN_STALLS])  # the headline's stalls; the rest one click away
-        s.table(header, rows[SHOWN_STALLS:], fold=f"{len(rows) - SHOWN_STALLS} more stalls")
+        s.table(header, rows[:TOP_STALLS])  # the headline's stalls; the rest one click away
+        s.table(header, rows[TOP_STALLS:], fold=f"{len(rows) - TOP_STALLS} more stalls")
     s.figure("command_age")
-
-
-#: Stalls shown open (the ones the headline names); the others are folded.
-SHOWN_STALLS = 3
 
 
 def _trajectory(s: Section, data: dict[str, Any]) -> None:

@@ -15,11 +15,8 @@ from typing import Any
 
 from hil.verdict import UNITS
 
-#: Each signal of (2): its key, its limit's symbol and its unit (hil.verdict's).
-LIMITS = tuple(
-    (k, limit, UNITS[k])
-    for k, limit in (("v", "φ1"), ("omega", "φ2"), ("tau1", "ϖ1"), ("tau2", "ϖ2"))
-)
+#: Each signal of (2) and its limit's symbol (its unit is hil.verdict's).
+LIMITS = {"v": "φ1", "omega": "φ2", "tau1": "ϖ1", "tau2": "ϖ2"}
 SYMBOL = {"v": "v", "omega": "ω", "tau1": "τ1", "tau2": "τ2"}
 TOP_STALLS = 3
 
@@ -28,17 +25,14 @@ def ms(seconds: float) -> str:
     return f"{seconds * 1e3:.3f} ms"
 
 
-def percent(x: float) -> str:
-    return f"{100.0 * x:.3f} %"
-
-
 def _limits(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, Any], str]:
     cons = data["metrics"]["constraints"]
     violations = summary.get("violations") or {}
     out: dict[str, Any] = {"held": data["verdict"]["limits"] == "held"}
     parts = []
     broken = []
-    for key, name, unit in LIMITS:
+    for key, name in LIMITS.items():
+        unit = UNITS[key]
         c = cons[key]
         n = violations.get(key)
         n = int(n) if isinstance(n, int | float) and not isinstance(n, bool) else None
@@ -129,7 +123,7 @@ def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, A
     if data["kind"] == "run" and isinstance(n, int) and isinstance(rate, int | float):
         return (
             {"count": n, "judged": judged, "rate": rate},
-            f"Samples without a command: {n} of {judged} ({percent(rate)}).",
+            f"Samples without a command: {n} of {judged} ({100.0 * rate:.3f} %).",
         )
     if data["kind"] == "run":
         return {"count": None, "judged": None, "rate": None}, (
@@ -144,10 +138,12 @@ def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, A
 
 def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
     """The four answers and the verdict, as data and as the report's first lines."""
-    limits, l_text = _limits(data, summary)
-    age, a_text = _command_age(data)
-    stalls, s_text = _stalls(data)
-    samples, n_text = _samples(data, summary)
+    answers = {
+        "limits": _limits(data, summary),
+        "command_age": _command_age(data),
+        "stalls": _stalls(data),
+        "samples_without_command": _samples(data, summary),
+    }
     v = data["verdict"]
     verdict = v.get("outcome", "PASS" if v["ok"] else "FAIL")
     v_text = (
@@ -155,17 +151,9 @@ def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
     )
     if v.get("notes"):
         v_text += " " + " ".join(v["notes"])
+    lines = [{"key": k, "text": text} for k, (_, text) in answers.items()]
     return {
         "verdict": verdict,
-        "limits": limits,
-        "command_age": age,
-        "stalls": stalls,
-        "samples_without_command": samples,
-        "lines": [
-            {"key": "limits", "text": l_text},
-            {"key": "command_age", "text": a_text},
-            {"key": "stalls", "text": s_text},
-            {"key": "samples_without_command", "text": n_text},
-            {"key": "verdict", "text": v_text},
-        ],
+        **{k: facts for k, (facts, _) in answers.items()},
+        "lines": [*lines, {"key": "verdict", "text": v_text}],
     }

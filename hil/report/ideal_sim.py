@@ -1,25 +1,21 @@
-"""The ideal trajectory by the offline simulator (hil.sim): the folder's own scenario with
-Ts/10 as control period, no delay and no jitter, so the law acts almost continuously, started
-from the trace's first state and time (a run's first sample may come late: the reference and
-the law's clock then start there, as they did in the run).
+"""The ideal trajectory by the offline simulator (hil.sim): the folder's own scenario at Ts/10,
+no delay, no jitter (the law acts almost continuously), from the trace's first state and time (a
+run's first sample may come late: the reference and the law's clock then start there, as in the
+run).
 
-A trace longer than one window (:data:`WINDOW_S`) gets a *windowed* ideal instead: the trace is
-cut into windows of WINDOW_S seconds; the ideal of each window starts from the robot's state at
-the window's first sample, at that sample's time, with the law's memory of that sample where
-the folder has it (a simulation's trace columns, or a run's recorded telemetry; otherwise the
-law's initial memory), and runs to the next window's start. All windows are simulated at once
-on the batch path (:func:`hil.sim.simulate_batch`, one robot per window, each with its own start
-time), so an hour's run costs one window's worth of steps on arrays of a few hundred robots
-instead of 36 M steps on the single path. Where the compiled kernel computes the law and the
-plant and the windows' steps repay its compilation (:func:`hil.sim.compiled.chosen`: the
-bundled unified laws on the common plant), the batch runs there, on every CPU, in one process of its
-own (the compiler's memory leaves with it); otherwise on the numpy batch path, its windows
-spread over processes, one per CPU. With fewer than :data:`BATCH_MIN_WINDOWS` windows the
-single path takes them one by one (the batch path's per-step overhead only pays off across
-many windows; both paths do the same arithmetic, to rounding). The ideal is returned at the
-trace's own sample times (linear interpolation between the fine samples of the sample's
-window), so the deviation from it is measured within each window: how far sampling and delay
-took the robot from the continuous-time loop in at most WINDOW_S seconds.
+A trace longer than :data:`WINDOW_S` gets a *windowed* ideal: each window of WINDOW_S seconds
+starts from the robot's state at its first sample, at that sample's time, with the law's memory
+there where the folder has it (a simulation's trace columns, a run's recorded telemetry; else
+the initial memory), and runs to the next window's start. All windows run at once on the batch
+path (:func:`hil.sim.simulate_batch`, one robot per window), so an hour's run costs one window's
+steps on a few hundred robots instead of 36 M single steps: on the compiled kernel where it
+computes the law and plant and repays its compilation (:func:`hil.sim.compiled.chosen`), on every
+CPU in one process of its own (the compiler's memory leaves with it); else on the numpy batch
+path, spread over one process per CPU. Below :data:`BATCH_MIN_WINDOWS` windows the single path
+takes them one by one (the batch's per-step overhead pays off only across many windows; both do
+the same arithmetic, to rounding). The ideal is returned at the trace's sample times (linear
+interpolation between its window's fine samples), so the deviation is measured within each
+window: how far sampling and delay took the robot from the continuous loop in WINDOW_S seconds.
 """
 
 from __future__ import annotations
@@ -75,11 +71,11 @@ def ideal_scenario(
     return dataclasses.replace(sc, timing=timing, plant=plant)
 
 
-def trace_start(trace: Mapping[str, np.ndarray], row: int = 0) -> dict[str, float]:
-    """The trace's time and state at ``row`` (default its first), and how long it runs."""
-    out = {k: float(trace[k][row]) for k in START_STATE}
-    out["t0"] = float(trace["t"][row])
-    out["duration"] = float(trace["t"][-1] - trace["t"][row])
+def trace_start(trace: Mapping[str, np.ndarray]) -> dict[str, float]:
+    """The trace's first time and state, and how long it runs."""
+    out = {k: float(trace[k][0]) for k in START_STATE}
+    out["t0"] = float(trace["t"][0])
+    out["duration"] = float(trace["t"][-1] - trace["t"][0])
     return out
 
 
@@ -220,14 +216,23 @@ class _Windows:
             RobotVariation(**{s: float(self.states[s][i]) for s in START_STATE}) for i in range(n)
         ]
 
-    def scenario(self) -> Any:
-        return ideal_scenario(self.resolved, self.base, self.start0)
+    def scenario(self, steps: int) -> Any:
+        """The ideal's scenario, run for ``steps`` fine periods."""
+        sc = ideal_scenario(self.resolved, self.base, self.start0)
+        return dataclasses.replace(
+            sc, run=dataclasses.replace(sc.run, duration=steps * sc.timing.ts)
+        )
+
+    def rows(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Each window's end row, and the ideal's columns to fill, one row per trace row."""
+        ends = np.append(self.starts[1:], self.t.size)
+        return ends, {name: np.empty(self.t.size) for name in ("x", "y", "theta")}
 
 
 def _spread(parts: list[_Windows], loop: Any, here: bool = True) -> dict[str, np.ndarray]:
     """Each part on the batch path, the first in this process (unless not ``here``) and each
     other one at the same time in a Python process of its own (``python -m
-    hil.report.ideal_worker``, the part pickled on its stdin, the rows on its stdout: no
+    hil.report.ideal_sim``, the part pickled on its stdin, the rows on its stdout: no
     multiprocessing, which would import the caller's main module again); the rows joined in
     order. A part whose process fails (a law its fresh interpreter cannot import) runs here
     after the others."""
@@ -235,7 +240,7 @@ def _spread(parts: list[_Windows], loop: Any, here: bool = True) -> dict[str, np
     procs: list[subprocess.Popen[bytes]] = []
     try:
         for part in away:
-            argv = [sys.executable, "-m", "hil.report.ideal_worker"]
+            argv = [sys.executable, "-m", "hil.report.ideal_sim"]
             proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
             procs.append(proc)
             assert proc.stdin is not None
@@ -259,27 +264,19 @@ def _spread(parts: list[_Windows], loop: Any, here: bool = True) -> dict[str, np
 
 def _batch(w: _Windows, loop: Any = None) -> dict[str, np.ndarray]:
     """All windows of ``w`` at once on the batch path (one robot per window)."""
-    sc0 = w.scenario()
-    loop = loop if loop is not None else build_loop(sc0)
-    n = w.t.size
-    ends = np.append(w.starts[1:], n)
+    sc = w.scenario(w.steps)
+    ends, out = w.rows()
     t_start = w.t[w.starts]
-    fine = sc0.timing.ts
-    out = {name: np.empty(n) for name in ("x", "y", "theta")}
-    hook = _Interpolator(w.t, w.starts, ends, t_start, fine, w.steps, out)
-    sc = dataclasses.replace(sc0, run=dataclasses.replace(sc0.run, duration=w.steps * fine))
+    hook = _Interpolator(w, ends, sc.timing.ts, out)
+    loop = loop if loop is not None else build_loop(sc)
     simulate_batch(sc, w.variations(), loop=loop, t0=t_start, memory=w.memory, on_sample=hook)
     return out
 
 
 def _one_by_one(w: _Windows, loop: Any) -> dict[str, np.ndarray]:
     """The windows one after the other on the single path."""
-    sc0 = w.scenario()
-    fine = sc0.timing.ts
-    sc = dataclasses.replace(sc0, run=dataclasses.replace(sc0.run, duration=(w.steps + 1) * fine))
-    n = w.t.size
-    ends = np.append(w.starts[1:], n)
-    out = {name: np.empty(n) for name in ("x", "y", "theta")}
+    sc = w.scenario(w.steps + 1)
+    ends, out = w.rows()
     for i, var in enumerate(w.variations()):
         mem_i = type(w.memory)(*(float(np.asarray(f)[i]) for f in w.memory)) if w.known[i] else None
         t0 = float(w.t[w.starts[i]])
@@ -296,23 +293,14 @@ class _Interpolator:
     the order of k, so a step touches only the rows whose k is j (they take the state) or
     j - 1 (they move towards it)."""
 
-    def __init__(
-        self,
-        t: np.ndarray,
-        starts: np.ndarray,
-        ends: np.ndarray,
-        t_start: np.ndarray,
-        fine: float,
-        steps: int,
-        out: dict[str, np.ndarray],
-    ) -> None:
+    def __init__(self, w: _Windows, ends: np.ndarray, fine: float, out: dict[str, np.ndarray]):
         # int32 rows and robots: an hour's trace has a few million rows, and these tables
         # live through the whole simulation beside the trace
-        win = np.repeat(np.arange(starts.size, dtype=np.int32), ends - starts)
-        u = (t - t_start[win]) / fine
-        k = np.clip(np.floor(u).astype(np.int32), 0, steps - 1)
+        win = np.repeat(np.arange(w.starts.size, dtype=np.int32), ends - w.starts)
+        u = (w.t - w.t[w.starts][win]) / fine
+        k = np.clip(np.floor(u).astype(np.int32), 0, w.steps - 1)
         self.order = np.argsort(k, kind="stable").astype(np.int32)
-        self.bounds = np.searchsorted(k[self.order], np.arange(steps + 2), side="left")
+        self.bounds = np.searchsorted(k[self.order], np.arange(w.steps + 2), side="left")
         self.robot = win[self.order]
         del win
         self.weight = np.clip(u - k, 0.0, 1.0)[self.order]
@@ -331,3 +319,8 @@ class _Interpolator:
                 for name, col in self.out.items():
                     left = col[rows]
                     col[rows] = left + w * (getattr(state, name)[robots] - left)
+
+
+if __name__ == "__main__":  # a worker of _spread: the part pickled on stdin, its rows on stdout
+    rows = _batch(pickle.load(sys.stdin.buffer))
+    pickle.dump(rows, sys.stdout.buffer, protocol=pickle.HIGHEST_PROTOCOL)

@@ -1,13 +1,10 @@
-"""v~ and w~ of (10) out of a run's recording (``*.mcap``, :mod:`hil.recording`): the
-controller's telemetry messages, for the report's quasi-sliding bands when trace.csv has no
-``v_tilde``/``w_tilde`` columns (a run's trace holds the plant's samples, not the law's
-internals), and the law's memory (z1, z2, eta) from which the windowed ideal trajectory of a
-long run restarts (:mod:`hil.report.ideal_sim`). Timing figures never come from here: they are
-hil.measure's.
+"""The controller's telemetry out of a run's recording (``*.mcap``): v~ and w~ of (10) for the
+quasi-sliding bands when trace.csv lacks them (a run's trace holds the plant's samples, not the
+law's internals), and the law's memory (z1, z2, eta) from which a long run's windowed ideal
+restarts (:mod:`hil.report.ideal_sim`). Never a timing figure: those are hil.measure's.
 
-Read with :func:`hil.recording.read_topic_payloads` (only the telemetry topics' messages,
-decoded a batch at a time into numpy columns), so an hour's recording costs seconds and a few
-arrays of its telemetry's length.
+Only the telemetry topics are read (:func:`hil.recording.read_topic_payloads`), decoded a batch
+at a time into numpy columns: an hour's recording costs seconds and a few arrays of its length.
 """
 
 from __future__ import annotations

@@ -1,13 +1,10 @@
-"""The report's "Where it ran" section, for a run across lab hosts (``topology.json``): which
-host ran each service, each host's injected clock offset, the controller's estimated offset to
-the plant's clock and its uncertainty over the run, and the routers each hop figure crossed, so
-that a reader can tell a network delay (a hop through routers, corrected by the estimate within
-its uncertainty) from a scheduling delay (a late wake-up or a long compute: one host's clock,
-no router, no correction).
-
-A run on one host has no ``topology.json`` and no such section (as a simulation has no timing
-sections). :func:`add` is called by :func:`hil.report.build.build_report`; the section's text
-is built by :func:`build`, registered with the other sections of :mod:`hil.report.content`.
+"""The report's "Where it ran" section, for a run across lab hosts (``topology.json``; a run on
+one host has none): which host ran each service, each host's injected clock offset, the
+controller's estimated offset to the plant's clock and its uncertainty, and the routers each hop
+figure crossed, so that a reader can tell a network delay (through routers, corrected by the
+estimate within its uncertainty) from a scheduling delay (one host's clock, no correction).
+:func:`add` puts it into the report; :func:`build`, registered in :mod:`hil.report.content`,
+writes its text.
 """
 
 from __future__ import annotations
@@ -51,10 +48,8 @@ def _load(folder: Path) -> dict[str, Any] | None:
 
 def _routers(topo: dict[str, Any], stream: str | None) -> list[str]:
     hops = topo.get("router_hops") or {}
-    if stream is None:
-        return []
     out: list[str] = []
-    for part in stream.split("+"):
+    for part in stream.split("+") if stream else ():
         out += [r for r in hops.get(part) or [] if r not in out]
     return out
 
@@ -91,18 +86,10 @@ def facts(folder: Path) -> dict[str, Any] | None:
     hosts = topo.get("hosts") or {}
     injected = [h.get("offset_s") for h in hosts.values()]
     procs = topo["processes"]
-    plant = hosts.get(procs.get("plant")) or {}
-    ctrl = hosts.get(procs.get("controller")) or {}
-    difference = None
-    if isinstance(plant.get("offset_s"), int | float) and isinstance(
-        ctrl.get("offset_s"), int | float
-    ):
-        difference = float(plant["offset_s"]) - float(ctrl["offset_s"])
-    return {
-        **topo,
-        "injected_offsets_s": injected,
-        "injected_difference_s": difference,
-    }
+    plant, ctrl = ((hosts.get(procs.get(p)) or {}).get("offset_s") for p in ("plant", "controller"))
+    numbers = isinstance(plant, int | float) and isinstance(ctrl, int | float)
+    difference = float(plant) - float(ctrl) if numbers else None
+    return {**topo, "injected_offsets_s": injected, "injected_difference_s": difference}
 
 
 def add(folder: Path, data: dict[str, Any], figs: list[Figure]) -> None:
@@ -130,11 +117,8 @@ def add(folder: Path, data: dict[str, Any], figs: list[Figure]) -> None:
 def _clock_text(f: dict[str, Any]) -> str:
     clock = f.get("clock") or {}
     if not clock.get("related"):
-        return (
-            "The controller's clock was never related to the plant's: "
-            + (clock.get("warning") or "the cross-host figures are not valid")
-            + "."
-        )
+        warning = clock.get("warning") or "the cross-host figures are not valid"
+        return f"The controller's clock was never related to the plant's: {warning}."
     med = clock["offset_ns_median"] / 1e9
     lo, hi = (x / 1e9 for x in clock["offset_ns_range"])
     text = (
