@@ -35,11 +35,11 @@ from hil.measure.certificate import no_certificate, scenario_certificate
 from hil.measure.figures import Measurement
 from hil.measure.folder import measured
 from hil.report import figures as fg
+from hil.report.content import render_markdown
 from hil.report.headline import headline
 from hil.report.html import render_html
 from hil.report.ideal import IdealUnavailableError
 from hil.report.ideal_sim import WINDOW_S
-from hil.report.markdown import render_markdown
 from hil.report.telemetry import SLIDING, folder_telemetry, forget_memory
 from hil.report.topology_section import add as add_topology
 from hil.verdict import DEFAULT_THRESHOLDS, PEAK_KEYS, RunFacts, Thresholds, judge
@@ -73,15 +73,10 @@ def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.n
         tr = folder.trace
         qr, ql = motor_torques(g, tr["tau1"], tr["tau2"])
         q = np.vstack([qr, ql])
-        lim = sv.limits
-        out.update(
-            {
-                "geometry": {k: getattr(g, k) for k in RobotGeometry.__dataclass_fields__},
-                "motor_torque_limit_nm": motor_torque_limit(g, lim.varpi1, lim.varpi2),
-                "max_abs_q_right_nm": float(np.nanmax(np.abs(qr))),
-                "max_abs_q_left_nm": float(np.nanmax(np.abs(ql))),
-            }
-        )
+        out["geometry"] = {k: getattr(g, k) for k in RobotGeometry.__dataclass_fields__}
+        out["motor_torque_limit_nm"] = motor_torque_limit(g, sv.limits.varpi1, sv.limits.varpi2)
+        out["max_abs_q_right_nm"] = float(np.nanmax(np.abs(qr)))
+        out["max_abs_q_left_nm"] = float(np.nanmax(np.abs(ql)))
     can, rej = folder.summary.get("can"), folder.summary.get("rejections")
     out["can"] = can if isinstance(can, dict) else None
     out["rejections"] = rej if isinstance(rej, dict) else None
@@ -121,15 +116,9 @@ def build_report(
     sliding = _recorded_sliding(folder, tr, m)
     metrics = _metrics(folder, sv, cert, (ideal_traj, ideal_note), sliding)
     # hil.verdict.judge: the one implementation hil run also uses, with the report's thresholds
-    verdict = judge(
-        metrics["constraints"],
-        folder.summary.get("violations") or {},
-        cert,
-        m.timing if m is not None else None,
-        (m.messages or {}) if m is not None else None,
-        RunFacts.of(folder.summary),
-        thresholds,
-    ).as_dict()
+    timing, messages = (m.timing, m.messages or {}) if m is not None else (None, None)
+    violations, facts = folder.summary.get("violations") or {}, RunFacts.of(folder.summary)
+    verdict = judge(metrics["constraints"], violations, cert, timing, messages, facts, thresholds)
     margin = margin_record.read(folder.path)  # hil margin's record, None if it never ran
     drives, q = drives_block(folder, sv)
     figs, sections = _figures(folder, sv, cert, m, (ideal_traj, sliding), q, drives, metrics)
@@ -143,7 +132,7 @@ def build_report(
         "certificate": cert,
         "drives": drives,
         "timing": _timing_block(folder, m, cert),
-        "verdict": verdict,
+        "verdict": verdict.as_dict(),
         "margin": None if margin is None else margin.to_dict(),
         "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
     }
@@ -205,16 +194,9 @@ def _metrics(
     with summary.json's peaks folded in."""
     tr = folder.trace
     ideal_traj, ideal_note = ideal
-    metrics = trace_metrics.sampling_effects(
-        tr,
-        **asdict(sv.limits),
-        v_bound=cert.get("v_bound"),
-        w_bound=cert.get("omega_bound"),
-        eps1=sv.eps1,
-        eps2=sv.eps2,
-        ideal=ideal_traj,
-        sliding=sliding,
-    )
+    extra = {"v_bound": cert.get("v_bound"), "w_bound": cert.get("omega_bound")}
+    extra |= {"eps1": sv.eps1, "eps2": sv.eps2, "ideal": ideal_traj, "sliding": sliding}
+    metrics = trace_metrics.sampling_effects(tr, **asdict(sv.limits), **extra)
     metrics["deviation_from_ideal_note"] = ideal_note
     metrics["bands_source"] = (
         "trace.csv" if "v_tilde" in tr else ("recorded telemetry" if sliding else "unavailable")
@@ -277,7 +259,16 @@ def _figures(
     tr = folder.trace
     ideal_traj, sliding = extra
     figs = _state_figures(tr, sv, cert, ideal_traj)
-    figs += _torque_figures(tr, sv, metrics)
+    for name, sym, unit, limit in (
+        ("tau1", "τ1", "τ1 [m/s²]", sv.limits.varpi1),
+        ("tau2", "τ2", "τ2 [rad/s²]", sv.limits.varpi2),
+    ):  # switching bands (envelope and duty), with the metrics' switching rate and saturation
+        rate, share = metrics["switching_rate"].get(name), metrics["saturation_share"].get(name)
+        note = ""
+        if rate is not None and share is not None:
+            note = f"It switches {rate:.0f} times a second, at its limit {share:.1%} of the time."
+        title = f"{sym} of model (1) (normalized)"
+        figs.append(fg.switching_band(name, title, unit, tr["t"], [(name, tr[name])], limit, note))
     figs.append(_tracking_error_figure(tr, ideal_traj))
     panels = []
     for name, eps, unit in (("v_tilde", sv.eps1, "v~ [m/s]"), ("w_tilde", sv.eps2, "w~ [rad/s]")):
@@ -289,16 +280,9 @@ def _figures(
         src = "trace" if "v_tilde" in tr else "recorded telemetry"
         figs.append(fg.stacked("bands", f"Sliding variables v~ and w~ of (10) ({src})", panels))
     if q is not None:
-        figs.append(
-            fg.switching_band(
-                "motor_torques",
-                "Motor torques sent to the drives (wheel mapping of [robot])",
-                "q [N·m]",
-                tr["t"],
-                [("right", q[0]), ("left", q[1])],
-                drives.get("motor_torque_limit_nm"),
-            )
-        )
+        title = "Motor torques sent to the drives (wheel mapping of [robot])"
+        series, limit = [("right", q[0]), ("left", q[1])], drives.get("motor_torque_limit_nm")
+        figs.append(fg.switching_band("motor_torques", title, "q [N·m]", tr["t"], series, limit))
     sections = ["headline", "terms", "verdict", "certificate", "trajectory", "velocities"]
     sections += ["torques", "drives", "tracking_error", "bands"]
     if m is not None:
@@ -332,26 +316,6 @@ def _state_figures(
             "omega", "Angular velocity ω", "ω [rad/s]", t, [("omega", tr["omega"])], lim.phi2, wb
         ),
     ]
-
-
-def _torque_figures(
-    tr: dict[str, np.ndarray], sv: ScenarioView, metrics: dict[str, Any]
-) -> list[fg.Figure]:
-    """τ1, τ2 as switching bands: envelope and duty, with how often they switch and how much
-    of the time they sit at the limit (the metrics' own figures)."""
-    out = []
-    for name, sym, unit, limit in (
-        ("tau1", "τ1", "τ1 [m/s²]", sv.limits.varpi1),
-        ("tau2", "τ2", "τ2 [rad/s²]", sv.limits.varpi2),
-    ):
-        rate = metrics["switching_rate"].get(name)
-        share = metrics["saturation_share"].get(name)
-        note = ""
-        if rate is not None and share is not None:
-            note = f"It switches {rate:.0f} times a second, at its limit {share:.1%} of the time."
-        title = f"{sym} of model (1) (normalized)"
-        out.append(fg.switching_band(name, title, unit, tr["t"], [(name, tr[name])], limit, note))
-    return out
 
 
 def _tracking_error_figure(
@@ -404,16 +368,9 @@ def _run_figures(m: Measurement, cert: dict[str, Any]) -> list[fg.Figure]:
             env[label] = envelope(seg, m.epoch_ns)
     if env:
         stalls = [(s["t_s"], s["age_s"]) for s in cert.get("stalls") or []]
-        figs.append(
-            fg.age_envelope(
-                "command_age",
-                "Command age over time (age of the command in force at each plant step)",
-                env,
-                cert.get("d_star_s"),
-                cert.get("stall_threshold_s"),
-                stalls,
-            )
-        )
+        title = "Command age over time (age of the command in force at each plant step)"
+        lines = (cert.get("d_star_s"), cert.get("stall_threshold_s"))
+        figs.append(fg.age_envelope("command_age", title, env, *lines, stalls))
     return figs
 
 

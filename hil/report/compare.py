@@ -1,11 +1,9 @@
 """``hil compare DIR_A DIR_B``: two folders side by side (Zenoh path against CAN path, two
 rates, a run against its simulation): overlaid trajectories, velocities and torques, the
 latency CDFs of both runs, and a table of summary, sampling-effect and timing figures with
-their differences (B - A); first, the headline: the differences that matter, with units.
-
-A run's timing figures, message counts and certificate are its measurement
-as the folder holds it (:func:`hil.measure.folder.measured`: summary.json and series.npz,
-measured once when the run ended), never figures of compare's own."""
+their differences (B - A); first, the headline: the differences that matter, with units. A
+run's timing figures, message counts and certificate are its measurement as the folder holds it
+(:func:`hil.measure.folder.measured`), never figures of compare's own."""
 
 from __future__ import annotations
 
@@ -23,10 +21,8 @@ from hil.folder.scenario_view import view
 from hil.measure.figures import Measurement
 from hil.measure.folder import measured
 from hil.report import figures as fg
-from hil.report.compare_names import label_of, unit_of
-from hil.report.content import NORMALIZED, SLIDING
+from hil.report.content import NORMALIZED, SLIDING, _md_table, label_of, unit_of
 from hil.report.html import CSS, esc, figure, table
-from hil.report.markdown import _md_table
 from hil.verdict import short_reason
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
@@ -101,12 +97,10 @@ def _number(x: Any) -> bool:
 
 
 def compare_rows(a: dict[str, float], b: dict[str, float]) -> list[list[Any]]:
-    rows = []
-    for key in sorted(set(a) | set(b)):
-        va, vb = a.get(key), b.get(key)
-        diff = vb - va if va is not None and vb is not None else None
-        rows.append([key, va, vb, diff])
-    return rows
+    both = set(a) & set(b)
+    return [
+        [k, a.get(k), b.get(k), b[k] - a[k] if k in both else None] for k in sorted(set(a) | set(b))
+    ]
 
 
 def _outcome(folder: Folder) -> str:
@@ -174,10 +168,8 @@ def compare_headline(
             limits.append(f"max {sym} {ra:.3f} → {rb:.3f}")
     if limits:
         lines.append(
-            "Limits of (2), the bounds φ1, φ2 on the velocities and ϖ1, ϖ2 on the inputs "
-            "the law must keep, as peak / limit from A to B (1 = at the limit): "
-            + "; ".join(limits)
-            + "."
+            "Limits of (2), the bounds φ1, φ2 on the velocities and ϖ1, ϖ2 on the inputs the "
+            f"law must keep, as peak / limit from A to B (1 = at the limit): {'; '.join(limits)}."
         )
     return {"lines": lines, "most_moved": most_moved(rows)}
 
@@ -205,23 +197,12 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         tb_on_a = np.interp(ta["t"], tb["t"], tb[key])
         # Switching torques as their envelope and duty per bin (a solid block otherwise).
         draw = fg.switching_band if key.startswith("tau") else fg.signal_with_limits
-        f = draw(
-            key, title, unit, ta["t"], [(la, ta[key]), (lb + " (on A's times)", tb_on_a)], limit
-        )
-        figs.append(f)
+        series = [(la, ta[key]), (lb + " (on A's times)", tb_on_a)]
+        figs.append(draw(key, title, unit, ta["t"], series, limit))
     pa = trace_metrics.position_error(ta["x"], ta["y"], ta["xd"], ta["yd"])
-    pb = np.interp(
-        ta["t"], tb["t"], trace_metrics.position_error(tb["x"], tb["y"], tb["xd"], tb["yd"])
-    )
-    figs.append(
-        fg.signal_with_limits(
-            "position_error",
-            "Position error",
-            "m",
-            ta["t"],
-            [(la, pa), (lb + " (on A's times)", pb)],
-        )
-    )
+    pb = trace_metrics.position_error(tb["x"], tb["y"], tb["xd"], tb["yd"])
+    series = [(la, pa), (lb + " (on A's times)", np.interp(ta["t"], tb["t"], pb))]
+    figs.append(fg.signal_with_limits("position_error", "Position error", "m", ta["t"], series))
     ma, mb = measured(fa), measured(fb)
     latency = {}
     for label, m in ((label_a, ma), (label_b, mb)):

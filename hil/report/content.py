@@ -1,15 +1,15 @@
-"""What the report says, section by section, as blocks that report.md and report.html both
-render (paragraphs, lists, tables, figures): one text, two formats."""
+"""What the report says, section by section, as blocks that report.md (:func:`render_markdown`)
+and report.html (:mod:`hil.report.html`) both render (paragraphs, lists, tables, figures): one
+text, two formats."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from hil.margin.record import MarginRecord, summary_lines
-from hil.report.compare_names import unit_of
 from hil.report.headline import SYMBOL, TOP_STALLS
 from hil.verdict import UNITS
 
@@ -157,7 +157,7 @@ def _na(value: Any) -> Any:
 
 def _verdict(s: Section, data: dict[str, Any]) -> None:
     v = data["verdict"]
-    s.title = f"Verdict: {v.get('outcome', 'PASS' if v['ok'] else 'FAIL')}"
+    s.title = f"Verdict: {data['headline']['verdict']}"
     s.table(
         ["item", "state"],
         [
@@ -252,13 +252,13 @@ def _trajectory(s: Section, data: dict[str, Any]) -> None:
 SIGNALS = {k: f"{sym} [{UNITS[k]}]" for k, sym in SYMBOL.items()}
 
 
-def _constraint_rows(data: dict[str, Any], names: tuple[str, ...]) -> list[list[Any]]:
-    rows = []
+def _constraints(s: Section, data: dict[str, Any], names: tuple[str, ...]) -> None:
+    """The signals' figures against (2) and their bounds, as a table and as plots."""
+    cons = data["metrics"]["constraints"]
+    keys = ("peak", "limit", "ratio", "held", "bound", "within_bound")
+    s.table(CONSTRAINT_HEADER, [[SIGNALS[n], *(cons[n][k] for k in keys)] for n in names])
     for n in names:
-        c = data["metrics"]["constraints"][n]
-        values = (c["peak"], c["limit"], c["ratio"], c["held"], c["bound"], c["within_bound"])
-        rows.append([SIGNALS[n], *values])
-    return rows
+        s.figure(n)
 
 
 CONSTRAINT_HEADER = ["signal [unit]", "max |·|", "limit", "max/limit (1: at the limit)", "held"]
@@ -273,27 +273,21 @@ BOUND_GLOSS = (
 
 def _velocities(s: Section, data: dict[str, Any]) -> None:
     s.p(BOUND_GLOSS)
-    s.table(CONSTRAINT_HEADER, _constraint_rows(data, ("v", "omega")))
-    s.figure("v")
-    s.figure("omega")
+    _constraints(s, data, ("v", "omega"))
 
 
 def _torques(s: Section, data: dict[str, Any]) -> None:
     s.p("τ1 in m/s², τ2 in rad/s²: the normalized inputs of model (1) (see above).")
-    s.table(CONSTRAINT_HEADER, _constraint_rows(data, ("tau1", "tau2")))
-    s.figure("tau1")
-    s.figure("tau2")
+    _constraints(s, data, ("tau1", "tau2"))
 
 
 def _drives(s: Section, data: dict[str, Any]) -> None:
     d = data["drives"]
     if d.get("geometry"):
-        g = d["geometry"]
+        robot = ", ".join(f"{k} {fmt(v)}" for k, v in d["geometry"].items())
         s.p(
             "Motor torques q_R, q_L = (r/G) (m τ1/2 ± J τ2/(2b)) of the applied τ1, τ2 "
-            "(protocol/can/wheel_mapping.py) with the scenario's [robot]: "
-            + ", ".join(f"{k} {fmt(v)}" for k, v in g.items())
-            + "."
+            f"(protocol/can/wheel_mapping.py) with the scenario's [robot]: {robot}."
         )
         s.table(
             ["figure", "value [N·m]"],
@@ -319,8 +313,7 @@ def _drives(s: Section, data: dict[str, Any]) -> None:
     if isinstance(counts, dict):
         rej = d.get("rejections") or {}
         s.table(
-            ["where", "rejections", "by reason"],
-            [[k, n, rej.get(k)] for k, n in counts.items()],
+            ["where", "rejections", "by reason"], [[k, n, rej.get(k)] for k, n in counts.items()]
         )
     s.figure("motor_torques")
 
@@ -356,17 +349,14 @@ TRACKING = {
 
 def _bands(s: Section, data: dict[str, Any]) -> None:
     m = data["metrics"]
+    keys = ("reaching_time", "band_p99", "band_max", "band_spread")
+    names = {"v_tilde": "v~ [m/s]", "w_tilde": "w~ [rad/s]"}
     rows = []
-    for name, b in m["bands"].items():
-        if b is None:
-            rows.append([name, "not available", None, None, None])
-        else:
-            rows.append([name, b["reaching_time"], b["band_p99"], b["band_max"], b["band_spread"]])
+    for n, b in m["bands"].items():
+        values = ["not available", None, None, None] if b is None else [b[k] for k in keys]
+        rows.append([names.get(n, n), *values])
     s.p(f"{SLIDING} v~ in m/s, w~ in rad/s; from {m.get('bands_source')}.")
-    s.table(
-        ["variable", "reaching time [s]", "band p99 |·|", "band max |·|", "max − min"],
-        [[{"v_tilde": "v~ [m/s]", "w_tilde": "w~ [rad/s]"}.get(r[0], r[0]), *r[1:]] for r in rows],
-    )
+    s.table(["variable", "reaching time [s]", "band p99 |·|", "band max |·|", "max − min"], rows)
     sw, sat = m["switching_rate"], m["saturation_share"]
     s.table(
         ["torque", "switching rate [1/s]", "share of samples at the limit (|τ| ≥ 0.999 ϖ)"],
@@ -517,3 +507,137 @@ SECTIONS: dict[str, tuple[str, Callable[[Section, dict[str, Any]], None]]] = {
         _timing_summary,
     ),
 }
+
+
+# What a compared figure is called on the page and in which unit, from its key (the keys,
+# ``timing.hop_cmd_can.p99_us``, stay what compare.json and scripts use).
+
+#: Figures a reader looks for by name, in words (the paper's symbols glossed).
+NAMES = {
+    "ts": "Ts, the control period",
+    "delay": "delay added to every command",
+    "jitter": "jitter of the controller's wake-ups",
+    "certificate.d_max_s": "D, the longest a command stayed in force",
+    "certificate.d_star_s": "D*, the longest the paper's bound allows",
+    "certificate.margin_s": "margin D* − D",
+    "certificate.held": "certificate held (D ≤ D* and the design conditions)",
+    "certificate.stalls": "stalls (commands in force above the stall threshold)",
+    "certificate.v_bound": "largest |v| the bound allows",
+    "certificate.omega_bound": "largest |ω| the bound allows",
+    "max_over_limit.v": "max |v| / φ1 (the limit of (2) on v)",
+    "max_over_limit.omega": "max |ω| / φ2 (the limit of (2) on ω)",
+    "max_over_limit.tau1": "max |τ1| / ϖ1 (the limit of (2) on τ1)",
+    "max_over_limit.tau2": "max |τ2| / ϖ2 (the limit of (2) on τ2)",
+    "timing.startup_hold_s": "start-up hold: first command landed after the first sample",
+    "timing.late_commands": "late commands (applied more than Ts after their sample)",
+    "timing.late_commands_rate": "late commands, share of the samples",
+    "timing.compute.p50_us": "controller compute time, p50",
+    "timing.compute.p99_us": "controller compute time, p99",
+    "timing.compute.max_us": "controller compute time, max",
+    "band_p99.v_tilde": "band of v~ = v − α_v (p99 of |v~| once reached)",
+    "band_p99.w_tilde": "band of w~ = ω − α_ω (p99 of |w~| once reached)",
+}
+#: Where a figure comes from, as its key's first part names it (else that part in words).
+GROUPS = {
+    "summary": "",
+    "tracking": "",
+    "timing": "",
+    "violations": "plant steps beyond (2)",
+    "saturation_share": "share of samples at the limit",
+}
+
+
+def unit_of(key: str) -> str:
+    """The unit of a figure, from its name ("count" for what is counted): the compare page's
+    and the report's tables."""
+    group, _, last = key.rpartition(".")
+    if last.endswith("_us"):
+        return "µs"
+    if last.endswith("_hz"):
+        return "Hz"
+    if last.endswith("_s") or last in ("ts", "delay", "jitter", "duration"):
+        return "s"
+    if group == "max_over_limit":
+        return "x limit"
+    if last == "held":
+        return "yes = 1"
+    if "heading" in last:
+        return "rad"
+    if "position" in last or "deviation" in last or group == "tracking":
+        return "m"
+    if group == "switching_rate":
+        return "1/s"
+    if last.endswith(("_rate", "_share")) or group == "saturation_share":
+        return "fraction"
+    if last.startswith("max_abs_"):
+        return UNITS.get(last.removeprefix("max_abs_"), "")
+    if last == "v_bound" or last == "v_tilde":
+        return "m/s"
+    if last in ("omega_bound", "w_tilde"):
+        return "rad/s"
+    return "" if last == "schema_version" else "count"
+
+
+def label_of(key: str) -> str:
+    """The figure in words: its name where it has one, else its key's words without the unit
+    suffix (the unit column says it) and the group it belongs to."""
+    if key in NAMES:
+        return NAMES[key]
+    parts = key.split(".")
+    group = parts[0] if len(parts) > 1 else ""
+    words = []
+    for part in parts[1:] if group else parts:
+        for suffix in ("_us", "_hz", "_s"):
+            part = part.removesuffix(suffix)
+        words.append(part.replace("_", " ").replace("p999", "p99.9"))
+    name = ", ".join(words)
+    where = GROUPS.get(group, group.replace("_", " "))
+    return f"{where}: {name}" if where else name
+
+
+def _cell(value: Any) -> str:
+    return fmt(value).replace("|", "\\|").replace("\n", " ")
+
+
+def _md_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def render_markdown(data: dict[str, Any], files: Sequence[dict[str, str]]) -> str:
+    """report.md: the sections, figures as PNG files beside it; the headline first."""
+    by_name = {f["name"]: f for f in files}
+    s = data["scenario"]
+    out = [f"# What timing did to the law: {data['folder']}", ""]
+    listed = list(sections(data))
+    for section in listed:
+        if section.id != "headline":
+            out += [f"## {section.title}", ""]
+        for block in section.blocks:
+            kind = block[0]
+            if kind == "p":
+                out += [block[1], ""]
+            elif kind == "list":
+                out += [f"- {text}" for text in block[1]] + [""]
+            elif kind == "table":
+                out += [_md_table(block[1], block[2]), ""]
+            elif kind == "figure":
+                f = by_name.get(block[1])
+                if f:
+                    out += [
+                        f"![{f['title']}]({f['png']})",
+                        "",
+                        f"Data: [{f['data']}]({f['data']})"
+                        + (f". {f['caption']}" if f.get("caption") else ""),
+                        "",
+                    ]
+        if section.id == "headline":
+            out += [
+                f"{data['kind']} · law `{s['law']}` · Ts {fmt(s['ts'])} s · delay "
+                f"{fmt(s['delay'])} s · jitter {fmt(s['jitter'])} s ({s['jitter_kind']})",
+                "",
+                "Contents: " + " · ".join(x.title for x in listed[1:]),
+                "",
+            ]
+    return "\n".join(out) + "\n"

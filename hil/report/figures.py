@@ -48,12 +48,10 @@ WRITE_CHUNK_ROWS = 16_384
 
 
 def write_columns(path: Path, columns: Mapping[str, np.ndarray]) -> None:
-    """Columns of unequal length are padded with empty cells (histograms beside CDFs).
-
-    Each cell is ``repr(float(value))`` (the shortest text that reads back to the same
-    float); rows are formatted a chunk at a time by ``map`` and ``str.join`` rather than one
-    ``csv`` call per row, so millions of rows take seconds, in bounded memory.
-    """
+    """Columns as CSV, those of unequal length padded with empty cells (histograms beside
+    CDFs); each cell ``repr(float(value))``, the shortest text that reads back to the same float.
+    Formatted a chunk at a time by ``map`` and ``str.join``, not one ``csv`` call per row:
+    millions of rows take seconds, in bounded memory."""
     names = list(columns)
     arrays = [np.asarray(columns[n]).ravel() for n in names]
     rows = max((a.size for a in arrays), default=0)
@@ -86,13 +84,9 @@ def envelope_indices(
     sample index): in each of ``bins`` equal bins of ``t``, the first sample at each series'
     minimum and at its maximum, and the first missing (NaN) sample, so that every bin's true
     extremes (a limit crossing, a single-sample spike) and every gap are drawn; plus the first
-    and the last sample. Sorted, unique. All samples when there are at most
-    :data:`MAX_DRAWN_POINTS`.
-
-    Linear in the number of samples, with a few temporary arrays of its size. ``bins``
-    defaults to as many as keep the result within :data:`MAX_DRAWN_POINTS` (at most
-    :data:`ENVELOPE_BINS`).
-    """
+    and the last sample. Sorted, unique; all samples up to :data:`MAX_DRAWN_POINTS`. ``bins``
+    defaults to as many as keep within that (at most :data:`ENVELOPE_BINS`). Linear in the
+    number of samples, with a few temporary arrays of its size."""
     t = np.asarray(t, dtype=float)
     n = t.size
     if n <= MAX_DRAWN_POINTS:

@@ -1,12 +1,9 @@
-"""The report's first lines: the four answers, in words and numbers.
-
-1. Were the limits of (2) held, and by what margin (each peak as a share of its limit)?
-2. The command age D against D* (the certificate) and the margin.
-3. The stalls that came closest to D*: when, how long, why (top 3).
-4. The share of plant samples that never got a command.
-
-Every number is one already in the report: the peaks of summary.json (every plant step) and
-the trace, the certificate (for a run: summary.json's, i.e. hil.measure's), the timing object.
+"""The report's first lines, in words and numbers: (1) were the limits of (2) held, and by what
+margin (each peak as a share of its limit)? (2) The command age D against D* (the certificate)
+and the margin. (3) The stalls closest to D*: when, how long, why (top 3). (4) The share of
+plant samples that never got a command. Every number is one already in the report: the peaks
+of summary.json (every plant step) and the trace, the certificate (for a run: hil.measure's),
+the timing object.
 """
 
 from __future__ import annotations
@@ -61,14 +58,7 @@ def _command_age(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
     cert = data["certificate"]
     d, ds, margin = cert.get("d_max_s"), cert.get("d_star_s"), cert.get("margin_s")
     path = cert.get("path")
-    out = {
-        "path": path,
-        "d_max_s": d,
-        "d_star_s": ds,
-        "margin_s": margin,
-        "held": cert.get("held"),
-        "source": cert.get("source"),
-    }
+    out = {k: cert.get(k) for k in ("path", "d_max_s", "d_star_s", "margin_s", "held", "source")}
     if data["kind"] != "run" or path is None:
         what = f"Command age D ≤ Ts + worst delay = {ms(d)} (the scenario's timing)"
     elif d is None:

@@ -1,8 +1,5 @@
-"""Self-contained HTML: inline CSS, figures as base64 PNG data URIs, no script, no link.
-
-Opens offline: nothing in the page refers to a network resource. The sections and their text
-are hil.report.content's, the same as report.md's; the headline comes first.
-"""
+"""Self-contained HTML that opens offline: inline CSS, figures as base64 PNG data URIs, no
+script, no link. The sections and their text are hil.report.content's, as report.md's."""
 
 from __future__ import annotations
 
@@ -43,11 +40,11 @@ def table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
 
 def figure(f: Figure, prefix: str = "report_") -> str:
     b64 = base64.b64encode(f.png).decode("ascii")
+    caption = f" {esc(f.caption)}" if f.caption else ""
     return (
         f'<figure><img alt="{esc(f.title)}" src="data:image/png;base64,{b64}">'
         f"<figcaption>{esc(f.title)} (data: <code>{esc(prefix + f.name)}.csv</code>)"
-        + (f" {esc(f.caption)}" if f.caption else "")
-        + "</figcaption></figure>"
+        f"{caption}</figcaption></figure>"
     )
 
 
@@ -56,7 +53,6 @@ FOLD_ROWS = 12
 
 
 def _folded(header: Sequence[str], rows: Sequence[Sequence[Any]], fold: str | None = None) -> str:
-    rows = list(rows)
     if fold is None and len(rows) <= FOLD_ROWS:
         return table(header, rows)
     summary = fold or f"{len(rows)} rows: {', '.join(header)}"
@@ -64,9 +60,7 @@ def _folded(header: Sequence[str], rows: Sequence[Sequence[Any]], fold: str | No
 
 
 def _grid(figures: list[str]) -> list[str]:
-    if len(figures) < 2:
-        return figures
-    return ['<div class="figs">', *figures, "</div>"]
+    return ['<div class="figs">', *figures, "</div>"] if len(figures) > 1 else figures
 
 
 def toc(entries: Iterable[tuple[str, str]]) -> str:
@@ -77,7 +71,6 @@ def toc(entries: Iterable[tuple[str, str]]) -> str:
 
 def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
     by_name = {f.name: f for f in figs}
-    ok = data["verdict"]["ok"]
     s = data["scenario"]
     parts = [
         "<!DOCTYPE html>",
@@ -90,7 +83,7 @@ def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
     for section in listed:
         parts.append(f'<section id="{esc(section.id)}">')
         if section.id == "headline":
-            outcome = data["verdict"].get("outcome", "PASS" if ok else "FAIL")
+            outcome = data["headline"]["verdict"]
             cls = {"PASS": "ok", "INCONCLUSIVE": "unsure"}.get(outcome, "bad")
             parts.append(f'<div class="verdict {cls}"><strong>{outcome}</strong>')
         else:
@@ -112,13 +105,13 @@ def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
                 parts.append(_folded(block[1], block[2], block[3]))
         parts.extend(_grid(pending))
         if section.id == "headline":
-            parts.append("</div>")
-            parts.append(
+            parts += [
+                "</div>",
                 f"<p>{esc(data['kind'])} · law <code>{esc(s['law'])}</code> · "
                 f"Ts {esc(fmt(s['ts']))} s · delay {esc(fmt(s['delay']))} s"
-                f" · jitter {esc(fmt(s['jitter']))} s ({esc(s['jitter_kind'])})</p>"
-            )
-            parts.append(toc((x.id, x.title) for x in listed[1:]))
+                f" · jitter {esc(fmt(s['jitter']))} s ({esc(s['jitter_kind'])})</p>",
+                toc((x.id, x.title) for x in listed[1:]),
+            ]
         parts.append("</section>")
     parts.append("</body></html>")
     return "\n".join(parts)

@@ -1,13 +1,10 @@
-"""The ideal trajectory of a folder: the simulator at a fine period (Ts/10, no delay, no
-jitter) standing in for continuous time, from the trace's first state and time; a trace
-longer than :data:`hil.report.ideal_sim.WINDOW_S` gets the windowed ideal, each window
-restarted from the robot's state and the law's memory at its start (hil.report.ideal_sim).
-A user's law is not run again unless asked (``hil report DIR --ideal``): the report shows what
-the run measured and never imports the user's module on its own (it may have changed since
-the run, or be gone; and at Ts/10 in Python the ideal costs ten times the run's steps). Asked,
-it is looked up as the bench looks it up for a simulation (the installed packages, the run's
-scenario folder, the working directory); not found there, or failing there,
-:class:`IdealUnavailableError`, and the report says why.
+"""The ideal trajectory of a folder (:mod:`hil.report.ideal_sim`: Ts/10, no delay, no jitter,
+standing in for continuous time; windowed for a long trace). A user's law is not run again
+unless asked (``hil report DIR --ideal``): the report shows what the run measured and never
+imports the user's module on its own (it may have changed since the run, or be gone; and at
+Ts/10 in Python the ideal costs ten times the run's steps). Asked, it is looked up as for a
+simulation (the installed packages, the run's scenario folder, the working directory); not
+found there, or failing there, :class:`IdealUnavailableError`, and the report says why.
 """
 
 from __future__ import annotations
@@ -35,7 +32,6 @@ def memory_source(folder: Folder):
             return {f: np.asarray(tr[f], dtype=float)[rows] for f in fields}
         if "sample_ns" not in tr or not folder.recordings:
             return {}
-
         tel = folder_telemetry(folder)
         if not all(f in tel for f in fields):
             return {}

@@ -60,7 +60,6 @@ def recorded_telemetry(
     message gives the values of a group when it carries every name of the group as a number
     (the time is its ``time_ns``, else its log time). Telemetry may be decimated; a truncated
     recording gives what was read."""
-
     times = [array("q") for _ in groups]
     vals = [[array("d") for _ in g] for g in groups]
 

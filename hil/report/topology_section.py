@@ -64,17 +64,11 @@ def _hop_rows(topo: dict[str, Any], timing: dict[str, Any], unc_us: float | None
         if not isinstance(f, dict):
             continue
         two = name in cross
-        rows.append(
-            [
-                name,
-                " -> ".join(f"{p}@{procs.get(p)}" for p in path),
-                " -> ".join(_routers(topo, stream)) or "none (one host)",
-                "two, corrected" if two else f"{procs.get(path[0])}'s alone",
-                f.get("p50_us"),
-                f.get("p99_us"),
-                unc_us if two else 0.0,
-            ]
-        )
+        hosts = " -> ".join(f"{p}@{procs.get(p)}" for p in path)
+        routers = " -> ".join(_routers(topo, stream)) or "none (one host)"
+        clocks = "two, corrected" if two else f"{procs.get(path[0])}'s alone"
+        bound = unc_us if two else 0.0
+        rows.append([name, hosts, routers, clocks, f.get("p50_us"), f.get("p99_us"), bound])
     return rows
 
 
