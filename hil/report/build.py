@@ -1,16 +1,12 @@
-"""``hil report DIR``: the sampling-effect report of one run or simulation folder.
+"""``hil report DIR``: :func:`build_report` turns a loaded run or simulation folder into a plain
+dict (headline, metrics, certificate, verdict) and figures; :func:`write_report` writes
+report.json, report.md (PNG + CSV figures beside it) and a self-contained report.html.
 
-Functional core, thin shell: :func:`build_report` turns a loaded folder into a plain dict (headline,
-metrics, certificate, verdict) and a list of figures; :func:`write_report` writes report.json,
-report.md (figures as PNG + CSV beside it) and a self-contained report.html. summary.json is
-only ever read.
-
-Where the numbers come from (docs/reports.md): for a run, the certificate and every timing
-figure and message count are summary.json's ``certificate``, ``timing`` and ``messages``, which
-``hil run`` took from :mod:`hil.measure`; the plots draw that pipeline's per-sample series
-(series.npz; :func:`hil.measure.folder.measured`). The report never evaluates the bound at a
-timing of its own, nor computes a figure. A simulation folder (no hop logs) is certified at its
-scenario's timing (:func:`hil.measure.certificate.scenario_certificate`).
+Where the numbers come from (docs/reports.md): a run's certificate, timing figures and message
+counts are summary.json's, which ``hil run`` took from :mod:`hil.measure`; the plots draw that
+pipeline's per-sample series (series.npz; :func:`hil.measure.folder.measured`). summary.json is
+only ever read, and the report computes no figure of its own. A simulation folder (no hop logs)
+is certified at its scenario's timing (:func:`hil.measure.certificate.scenario_certificate`).
 """
 
 from __future__ import annotations
@@ -131,7 +127,14 @@ def build_report(
         "metrics": metrics,
         "certificate": cert,
         "drives": drives,
-        "timing": _timing_block(folder, m, cert),
+        "timing": {
+            "summary": timing,
+            "messages": messages,
+            "source": SOURCE if m is not None else None,
+            "applied_path": cert.get("path"),
+            "series": "series.npz (hil.measure)" if m is not None else None,
+            **{k: folder.summary.get(k) for k in ("faults", "scheduling", "impair")},
+        },
         "verdict": verdict.as_dict(),
         "margin": None if margin is None else margin.to_dict(),
         "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
@@ -217,19 +220,6 @@ def _scenario_block(sv: ScenarioView) -> dict[str, Any]:
     return {**out, "limits": asdict(sv.limits), "eps1": sv.eps1, "eps2": sv.eps2}
 
 
-def _timing_block(folder: Folder, m: Measurement | None, cert: dict[str, Any]) -> dict[str, Any]:
-    return {
-        "summary": m.timing if m is not None else None,
-        "messages": (m.messages or {}) if m is not None else None,
-        "source": SOURCE if m is not None else None,
-        "applied_path": cert.get("path"),
-        "series": "series.npz (hil.measure)" if m is not None else None,
-        "faults": folder.summary.get("faults"),
-        "scheduling": folder.summary.get("scheduling"),
-        "impair": folder.summary.get("impair"),
-    }
-
-
 def _ideal_note(ideal_traj: dict[str, np.ndarray] | None, tr: dict[str, np.ndarray]) -> str:
     if ideal_traj is None:
         return "no simulator"
@@ -298,24 +288,18 @@ def _state_figures(
     ideal_traj: dict[str, np.ndarray] | None,
 ) -> list[fg.Figure]:
     """The trajectory and the velocities against (2) and their bounds."""
-    t = tr["t"]
-    lim = sv.limits
     traj = [("reference", tr["xd"], tr["yd"]), ("robot", tr["x"], tr["y"])]
     if ideal_traj is not None:
-        label = "ideal (Ts/10, no delay)"
-        if "window_start_t" in ideal_traj:
-            label = "ideal (Ts/10, no delay, restarted every window)"
-        traj.append((label, ideal_traj["x"], ideal_traj["y"]))
-    vb, wb = cert.get("v_bound"), cert.get("omega_bound")
-    return [
-        fg.trajectory(traj),
-        fg.signal_with_limits(
-            "v", "Linear velocity v", "v [m/s]", t, [("v", tr["v"])], lim.phi1, vb
-        ),
-        fg.signal_with_limits(
-            "omega", "Angular velocity ω", "ω [rad/s]", t, [("omega", tr["omega"])], lim.phi2, wb
-        ),
-    ]
+        again = ", restarted every window" if "window_start_t" in ideal_traj else ""
+        traj.append((f"ideal (Ts/10, no delay{again})", ideal_traj["x"], ideal_traj["y"]))
+    figs = [fg.trajectory(traj)]
+    for key, title, unit, limit, bound in (
+        ("v", "Linear velocity v", "v [m/s]", sv.limits.phi1, cert.get("v_bound")),
+        ("omega", "Angular velocity ω", "ω [rad/s]", sv.limits.phi2, cert.get("omega_bound")),
+    ):
+        series = [(key, tr[key])]
+        figs.append(fg.signal_with_limits(key, title, unit, tr["t"], series, limit, bound))
+    return figs
 
 
 def _tracking_error_figure(
@@ -358,8 +342,7 @@ def _run_figures(m: Measurement, cert: dict[str, Any]) -> list[fg.Figure]:
         figs.append(fg.over_time("lateness", "Wake-up lateness over time", "µs", late))
     env = {}
     paths = sorted(
-        (p for p in ("zenoh", "can") if f"command_age_{p}" in m.series),
-        key=lambda p: p != applied,
+        (p for p in ("zenoh", "can") if f"command_age_{p}" in m.series), key=lambda p: p != applied
     )
     for p in paths:
         seg = m.series[f"command_age_{p}"]

@@ -76,21 +76,10 @@ def fmt(value: Any) -> str:
     return str(value)
 
 
-# A figure's unit from its key's suffix (how summary.json names them): shown in a reader's unit.
-# A rate ("_rev_s": rev/s) is matched before the plain seconds it ends like.
-_SUFFIX_UNITS = (
-    ("_rev_s", 1.0, "rev/s"),
-    ("_rad_s", 1.0, "rad/s"),
-    ("_m_s", 1.0, "m/s"),
-    ("_per_s", 1.0, "/s"),
-    ("_hz", 1.0, "Hz"),
-    ("_nm", 1.0, "N·m"),
-    ("_rev", 1.0, "rev"),
-    ("_pct", 1.0, "%"),
-    ("_us", 1.0, "µs"),
-    ("_ms", 1.0, "ms"),
-    ("_s", 1e3, "ms"),
-)
+# A figure's unit from its key's suffix (how summary.json names them): shown in a reader's unit
+# (seconds in ms). A rate ("_rev_s": rev/s) is matched before the plain seconds it ends like.
+_SUFFIX_UNITS = {"_rev_s": "rev/s", "_rad_s": "rad/s", "_m_s": "m/s", "_per_s": "/s", "_hz": "Hz"}
+_SUFFIX_UNITS |= {"_nm": "N·m", "_rev": "rev", "_pct": "%", "_us": "µs", "_ms": "ms", "_s": "ms"}
 
 
 def _named(key: str, value: Any) -> str:
@@ -98,9 +87,10 @@ def _named(key: str, value: Any) -> str:
     words and a unit, the nested ones in parentheses."""
     if isinstance(value, dict):
         return f"{key.replace('_', ' ')} ({fmt(value)})"
-    for suffix, scale, unit in _SUFFIX_UNITS:
-        number = isinstance(value, int | float) and not isinstance(value, bool)
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    for suffix, unit in _SUFFIX_UNITS.items():
         if key.endswith(suffix) and number:
+            scale = 1e3 if suffix == "_s" else 1.0
             return f"{key.removesuffix(suffix).replace('_', ' ')} {value * scale:.3g} {unit}"
     return f"{key.replace('_', ' ')} {fmt(value)}"
 
@@ -209,19 +199,18 @@ def _certificate(s: Section, data: dict[str, Any]) -> None:
         for line in summary_lines(MarginRecord.from_dict(data["margin"])):
             s.p(line)
     timing = (data.get("timing") or {}).get("summary") or {}
-    if timing:
-        path = c.get("path")
-        names = [
-            (f"command_age_{p}", f"{p} ({'applied' if p == path else 'shadow'})")
-            for p in ("zenoh", "can")
-        ]
-        rows = _pct_rows(timing, names)
-        if rows:
-            s.p(
-                "Command age at every plant step (age of information, per path); the applied "
-                f"path's max is D. Start-up hold: {fmt(timing.get('startup_hold_s'))} s."
-            )
-            s.table(["path", *PCT_HEADER], rows)
+    path = c.get("path")
+    names = [
+        (f"command_age_{p}", f"{p} ({'applied' if p == path else 'shadow'})")
+        for p in ("zenoh", "can")
+    ]
+    rows = _pct_rows(timing, names)
+    if rows:
+        s.p(
+            "Command age at every plant step (age of information, per path); the applied "
+            f"path's max is D. Start-up hold: {fmt(timing.get('startup_hold_s'))} s."
+        )
+        s.table(["path", *PCT_HEADER], rows)
     stalls = c.get("stalls") or []
     if stalls:
         s.p(
@@ -440,14 +429,12 @@ def _messages(s: Section, data: dict[str, Any]) -> None:
         )
     msgs = data["timing"].get("messages") or {}
     keys = ("sent", "received", "lost", "duplicated", "reordered")
-    s.table(
-        ["stream", *keys, "more"],
-        [
-            [name, *(st.get(k) for k in keys), {k: v for k, v in st.items() if k not in keys}]
-            for name, st in msgs.items()
-            if isinstance(st, dict)
-        ],
-    )
+    rows = []
+    for name, st in msgs.items():
+        if isinstance(st, dict):
+            more = {k: v for k, v in st.items() if k not in keys}
+            rows.append([name, *(st.get(k) for k in keys), more])
+    s.table(["stream", *keys, "more"], rows)
 
 
 def _tick_phase_line(p: dict[str, Any]) -> str:
@@ -470,14 +457,8 @@ def _timing_summary(s: Section, data: dict[str, Any]) -> None:
     phase = timing.get("tick_phase")
     if isinstance(phase, dict):
         s.p(_tick_phase_line(phase))
-    s.table(
-        ["figure", *PCT_HEADER],
-        [
-            [k, *(f.get(q) for q in PCT_KEYS)]
-            for k, f in timing.items()
-            if isinstance(f, dict) and "p50_us" in f
-        ],
-    )
+    names = [(k, k) for k, f in timing.items() if isinstance(f, dict) and "p50_us" in f]
+    s.table(["figure", *PCT_HEADER], _pct_rows(timing, names))
     s.table(
         ["figure", "value", "unit"],
         [[k, f, unit_of(k)] for k, f in timing.items() if not isinstance(f, dict | str)],

@@ -168,9 +168,8 @@ def _time_series(
 
 
 def _data(full: np.ndarray, idx: np.ndarray | None) -> np.ndarray:
-    """A column of a figure's data file: complete up to :data:`MAX_DATA_ROWS` samples, else
-    the drawn samples (every bin's extremes; the complete series is in the folder's
-    trace.csv or hop logs)."""
+    """A column of a figure's data file: complete up to :data:`MAX_DATA_ROWS` samples, else the
+    drawn samples (every bin's extremes; the whole series is in trace.csv or the hop logs)."""
     full = np.asarray(full)
     if idx is None or full.size <= MAX_DATA_ROWS:
         return full
@@ -254,22 +253,14 @@ def signal_with_limits(
     for label, y in series:
         ax.plot(td, y if idx is None else y[idx], linewidth=0.9, label=label)
         cols[label] = _data(y, idx)
-    _limits_and_axes(ax, cols, limit, bound, unit, title, fontsize=8)
+    _limit_lines(ax, cols, limit, bound)
+    _labels(ax, "t [s]", unit, title, fontsize=8, loc="upper right")
     fig.tight_layout()
     return Figure(name, title, _png(fig), cols, _envelope_caption(np.size(t), idx))
 
 
-def _limits_and_axes(
-    ax: plt.Axes,
-    cols: dict[str, np.ndarray],
-    limit: float | None,
-    bound: float | None,
-    unit: str,
-    title: str,
-    fontsize: int,
-) -> None:
-    """The limit of (2) (red dashed) and the sampled-data bound (dotted) as ± lines, then the
-    axes' labels, grid, legend and title of a signal against time."""
+def _limit_lines(ax: plt.Axes, cols: dict, limit: float | None, bound: float | None) -> None:
+    """The limit of (2) (red dashed) and the sampled-data bound (dotted) as ± lines."""
     if limit is not None:
         ax.axhline(limit, label=f"limit ±{limit:g}", **LIMIT_STYLE)
         ax.axhline(-limit, **LIMIT_STYLE)
@@ -278,7 +269,6 @@ def _limits_and_axes(
         ax.axhline(bound, label=f"sampled-data bound ±{bound:.3g}", **BOUND_STYLE)
         ax.axhline(-bound, **BOUND_STYLE)
         cols["bound"] = np.array([bound])
-    _labels(ax, "t [s]", unit, title, fontsize=fontsize, loc="upper right")
 
 
 #: Time bins of a switching signal's band: each drawn as its min-max range and its mean.
@@ -317,7 +307,8 @@ def switching_band(
                         label=f"{label}: min-max per bin")  # fmt: skip
         ax.plot(mid, mean, color=color, linewidth=1.2, label=f"{label}: mean per bin")
         cols.update({f"{label}_min": lo, f"{label}_max": hi, f"{label}_mean": mean})
-    _limits_and_axes(ax, cols, limit, None, unit, title, fontsize=7)
+    _limit_lines(ax, cols, limit, None)
+    _labels(ax, "t [s]", unit, title, fontsize=7, loc="upper right")
     fig.tight_layout()
     width = (t[-1] - t[0]) / bins if t.size > 1 else 0.0
     caption = (
@@ -423,9 +414,7 @@ def over_time(
 
 
 def stacked(
-    name: str,
-    title: str,
-    panels: Sequence[tuple[str, str, np.ndarray, np.ndarray, float | None]],
+    name: str, title: str, panels: Sequence[tuple[str, str, np.ndarray, np.ndarray, float | None]]
 ) -> Figure:
     """One signal per axis, stacked (v~ above w~: their scales differ by an order of
     magnitude): (label, unit, t, y, threshold) per panel; a threshold (the boundary layer's
@@ -466,22 +455,18 @@ def age_envelope(
             ax.fill_between(t, lo * 1e3, hi * 1e3, step="mid", alpha=0.6, label=label)
         else:
             ax.plot(t, hi * 1e3, linewidth=0.7, color="grey", linestyle="--", label=f"{label} max")
-        cols[f"{label}_t_s"] = t
-        cols[f"{label}_min_ms"] = lo * 1e3
-        cols[f"{label}_max_ms"] = hi * 1e3
+        cols |= {f"{label}_t_s": t, f"{label}_min_ms": lo * 1e3, f"{label}_max_ms": hi * 1e3}
     if d_star is not None and np.isfinite(d_star):
         ax.axhline(d_star * 1e3, label=f"D* {d_star * 1e3:.3g} ms", **LIMIT_STYLE)
         cols["d_star_ms"] = np.array([d_star * 1e3])
     if threshold is not None:
-        ax.axhline(
-            threshold * 1e3, label=f"stall threshold {threshold * 1e3:.3g} ms", **BOUND_STYLE
-        )
+        label = f"stall threshold {threshold * 1e3:.3g} ms"
+        ax.axhline(threshold * 1e3, label=label, **BOUND_STYLE)
         cols["stall_threshold_ms"] = np.array([threshold * 1e3])
     if stalls:
         st = np.array(stalls, dtype=float)
         ax.plot(st[:, 0], st[:, 1] * 1e3, "kx", markersize=6, label="stalls")
-        cols["stall_t_s"] = st[:, 0]
-        cols["stall_age_ms"] = st[:, 1] * 1e3
+        cols |= {"stall_t_s": st[:, 0], "stall_age_ms": st[:, 1] * 1e3}
     _labels(ax, "t [s]", "command age [ms]", title, fontsize=8, loc="upper right")
     fig.tight_layout()
     return Figure(name, title, _png(fig), cols)

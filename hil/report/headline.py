@@ -33,17 +33,11 @@ def _limits(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, An
         c = cons[key]
         n = violations.get(key)
         n = int(n) if isinstance(n, int | float) and not isinstance(n, bool) else None
-        out[key] = {
-            "max": c["peak"],
-            "limit": c["limit"],
-            "percent_of_limit": 100.0 * c["ratio"],
-            "violations": n,
-        }
+        pct = 100.0 * c["ratio"]
+        out[key] = {"max": c["peak"], "limit": c["limit"], "percent_of_limit": pct, "violations": n}
         sym = SYMBOL[key]
-        parts.append(
-            f"max |{sym}| = {c['peak']:.4g} {unit} is {100.0 * c['ratio']:.1f} % of "
-            f"{name} = {c['limit']:.4g} {unit}"
-        )
+        limit = f"{name} = {c['limit']:.4g} {unit}"
+        parts.append(f"max |{sym}| = {c['peak']:.4g} {unit} is {pct:.1f} % of {limit}")
         if (n or 0) > 0:
             broken.append(f"|{sym}| beyond {name} at {n} plant steps")
         elif not c["held"]:

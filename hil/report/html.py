@@ -63,12 +63,6 @@ def _grid(figures: list[str]) -> list[str]:
     return ['<div class="figs">', *figures, "</div>"] if len(figures) > 1 else figures
 
 
-def toc(entries: Iterable[tuple[str, str]]) -> str:
-    """The page's table of contents: a link to each section."""
-    links = "".join(f'<li><a href="#{esc(i)}">{esc(t)}</a></li>' for i, t in entries)
-    return f'<nav class="toc"><strong>Contents</strong><ol>{links}</ol></nav>'
-
-
 def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
     by_name = {f.name: f for f in figs}
     s = data["scenario"]
@@ -80,6 +74,8 @@ def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
         f"<h1>What timing did to the law: {esc(data['folder'])}</h1>",
     ]
     listed = list(sections(data))
+    # the table of contents: a link to each section after the headline
+    links = "".join(f'<li><a href="#{esc(x.id)}">{esc(x.title)}</a></li>' for x in listed[1:])
     for section in listed:
         parts.append(f'<section id="{esc(section.id)}">')
         if section.id == "headline":
@@ -110,7 +106,7 @@ def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
                 f"<p>{esc(data['kind'])} · law <code>{esc(s['law'])}</code> · "
                 f"Ts {esc(fmt(s['ts']))} s · delay {esc(fmt(s['delay']))} s"
                 f" · jitter {esc(fmt(s['jitter']))} s ({esc(s['jitter_kind'])})</p>",
-                toc((x.id, x.title) for x in listed[1:]),
+                f'<nav class="toc"><strong>Contents</strong><ol>{links}</ol></nav>',
             ]
         parts.append("</section>")
     parts.append("</body></html>")

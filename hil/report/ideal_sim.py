@@ -219,9 +219,8 @@ class _Windows:
     def scenario(self, steps: int) -> Any:
         """The ideal's scenario, run for ``steps`` fine periods."""
         sc = ideal_scenario(self.resolved, self.base, self.start0)
-        return dataclasses.replace(
-            sc, run=dataclasses.replace(sc.run, duration=steps * sc.timing.ts)
-        )
+        run = dataclasses.replace(sc.run, duration=steps * sc.timing.ts)
+        return dataclasses.replace(sc, run=run)
 
     def rows(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Each window's end row, and the ideal's columns to fill, one row per trace row."""
@@ -249,11 +248,8 @@ def _spread(parts: list[_Windows], loop: Any, here: bool = True) -> dict[str, np
         done = [_batch(parts[0], loop)] if here else []
         for part, proc in zip(away, procs, strict=True):
             assert proc.stdout is not None
-            raw = proc.stdout.read()
-            if proc.wait() == 0:
-                done.append(pickle.loads(raw))
-            else:  # the same work, here
-                done.append(_batch(part, loop))
+            raw = proc.stdout.read()  # a failed process: the same work, here
+            done.append(pickle.loads(raw) if proc.wait() == 0 else _batch(part, loop))
     finally:
         for proc in procs:  # Ctrl-C: the other processes stop with this one
             if proc.poll() is None:

@@ -38,14 +38,6 @@ HOP_FIGURES: tuple[tuple[str, str | None, tuple[str, ...]], ...] = (
 )
 
 
-def _load(folder: Path) -> dict[str, Any] | None:
-    try:
-        topo = json.loads((folder / TOPOLOGY_FILE).read_text())
-    except (OSError, ValueError):
-        return None
-    return topo if isinstance(topo, dict) and isinstance(topo.get("processes"), dict) else None
-
-
 def _routers(topo: dict[str, Any], stream: str | None) -> list[str]:
     hops = topo.get("router_hops") or {}
     out: list[str] = []
@@ -74,8 +66,11 @@ def _hop_rows(topo: dict[str, Any], timing: dict[str, Any], unc_us: float | None
 
 def facts(folder: Path) -> dict[str, Any] | None:
     """The section's facts (report.json ``topology``), or None for a run on one host."""
-    topo = _load(folder)
-    if topo is None:
+    try:
+        topo = json.loads((folder / TOPOLOGY_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(topo, dict) or not isinstance(topo.get("processes"), dict):
         return None
     hosts = topo.get("hosts") or {}
     injected = [h.get("offset_s") for h in hosts.values()]
