@@ -599,7 +599,7 @@ def test_every_table_gives_units_and_every_symbol_its_sentence(
 def test_the_headline_names_no_d_star_for_a_law_without_one() -> None:
     """A user's law with no certificate still has stalls (above 3 Ts); the headline lists them
     as the longest and never speaks of a D* it does not have. The paper's law keeps its rule."""
-    from hil.report.headline import _stalls
+    from hil.report.content import _stalls
 
     stall = {"t_s": 1.5, "age_s": 0.012, "cause": "controller_late", "owner": "bench"}
     cert = {"path": "zenoh", "stall_threshold_s": 0.003, "stalls": [stall], "stall_count": 1,

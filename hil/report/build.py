@@ -31,8 +31,7 @@ from hil.measure.certificate import no_certificate, scenario_certificate
 from hil.measure.figures import Measurement
 from hil.measure.folder import measured
 from hil.report import figures as fg
-from hil.report.content import render_markdown
-from hil.report.headline import headline
+from hil.report.content import headline, render_markdown
 from hil.report.html import render_html
 from hil.report.ideal import IdealUnavailableError
 from hil.report.ideal_sim import WINDOW_S
@@ -147,9 +146,8 @@ def build_report(
 def _folder_certificate(
     sv: ScenarioView, m: Measurement | None, kind: str, summary: dict[str, Any]
 ) -> dict[str, Any]:
-    """A run's certificate: summary.json's (hil.measure's, copied: the report never edits the
-    summary), with where it came from and the design conditions that fail at its D; else the
-    simulation's."""
+    """A run's certificate (a copy of summary.json's: the report never edits it), with where it
+    came from and the design conditions failing at its D; else the simulation's."""
     if m is not None and m.certificate is None:
         # No certificate in the run (not a unified law): D is still measured.
         path = str(m.series["applied_path"]) if m.series.get("applied_path") else None

@@ -70,21 +70,17 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
 def measured_figures(m: Measurement) -> dict[str, float]:
     """timing.*, messages.* and certificate.* of a run's measurement, as numbers."""
     out: dict[str, float] = {}
+    quantiles, kept = ("p50_us", "p99_us", "max_us"), ("sent", "lost", "duplicated", "reordered")
     for name, f in m.timing.items():
-        if isinstance(f, dict):
-            for q in ("p50_us", "p99_us", "max_us"):
-                if _number(f.get(q)):
-                    out[f"timing.{name}.{q}"] = float(f[q])
-        elif _number(f):
-            out[f"timing.{name}"] = float(f)
+        values = {f"{name}.{q}": f.get(q) for q in quantiles} if isinstance(f, dict) else {name: f}
+        out.update({f"timing.{k}": float(v) for k, v in values.items() if _number(v)})
     for stream, counts in m.messages.items():
-        for k in ("sent", "lost", "duplicated", "reordered"):
-            if _number(counts.get(k)):
-                out[f"messages.{stream}.{k}"] = float(counts[k])
+        out.update(
+            {f"messages.{stream}.{k}": float(counts[k]) for k in kept if _number(counts.get(k))}
+        )
     cert = m.certificate or {}
-    for k in ("d_max_s", "d_star_s", "margin_s", "v_bound", "omega_bound"):
-        if _number(cert.get(k)):
-            out[f"certificate.{k}"] = float(cert[k])
+    keys = ("d_max_s", "d_star_s", "margin_s", "v_bound", "omega_bound")
+    out.update({f"certificate.{k}": float(cert[k]) for k in keys if _number(cert.get(k))})
     if isinstance(cert.get("held"), bool):
         out["certificate.held"] = float(cert["held"])
     if "stalls" in cert:
@@ -209,9 +205,8 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         for path, values in (m.latency_us() if m is not None else {}).items():
             latency[f"{label} {path}"] = values
     if latency:
-        figs.append(
-            fg.histogram_and_cdf("latency", "Sample-to-apply latency per run and path", latency)
-        )
+        title = "Sample-to-apply latency per run and path"
+        figs.append(fg.histogram_and_cdf("latency", title, latency))
     a_fig, b_fig = figures_of(fa, ma), figures_of(fb, mb)
     rows = compare_rows(a_fig, b_fig)
     head = compare_headline(fa, fb, a_fig, b_fig, rows)

@@ -48,10 +48,9 @@ WRITE_CHUNK_ROWS = 16_384
 
 
 def write_columns(path: Path, columns: Mapping[str, np.ndarray]) -> None:
-    """Columns as CSV, those of unequal length padded with empty cells (histograms beside
-    CDFs); each cell ``repr(float(value))``, the shortest text that reads back to the same float.
-    Formatted a chunk at a time by ``map`` and ``str.join``, not one ``csv`` call per row:
-    millions of rows take seconds, in bounded memory."""
+    """Columns as CSV, unequal ones padded with empty cells (histograms beside CDFs); each cell
+    ``repr(float(value))``, the shortest text that reads back the same. A chunk at a time by
+    ``map`` and ``str.join``, not a ``csv`` call per row: millions of rows in seconds."""
     names = list(columns)
     arrays = [np.asarray(columns[n]).ravel() for n in names]
     rows = max((a.size for a in arrays), default=0)
@@ -284,9 +283,8 @@ def switching_band(
     limit: float | None = None,
     note: str = "",
 ) -> Figure:
-    """A signal that switches faster than a plot can show (a sliding-mode torque): per time
-    bin its min-max range (shaded: the envelope) and its mean (line: the duty), with the limit
-    of (2) as red dashed lines. A solid block of lines would hide both."""
+    """A signal switching faster than a plot shows (a sliding-mode torque: a solid block of lines
+    otherwise): per time bin its min-max range (envelope) and mean (duty); the limit of (2)."""
     t = np.asarray(t, dtype=float)
     bins = max(1, min(BAND_BINS, t.size // 4))
     starts = np.unique(np.searchsorted(t, np.linspace(t[0], t[-1], bins + 1)[:-1]))
@@ -367,30 +365,23 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
                 f"{label}: CDF of {v.size} samples drawn at {idx.size} points, denser towards "
                 f"the tail (the largest 1000 all drawn); its data holds {data}."
             )
-    for ax in (ax_h, ax_c):
-        ax.set_xlabel("µs")
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8)
-    ax_h.set_ylabel("count")
+    _labels(ax_h, "µs", "count", "histogram", fontsize=8)
+    _labels(ax_c, "µs", "fraction ≤ x", "CDF", fontsize=8)
     ax_h.set_yscale("log")
     if clip is not None:
         # both ends: left to itself the axis keeps the clipped outliers' margin on the left
         pooled = np.concatenate([np.asarray(v, dtype=float).ravel() for v in samples.values()])
         low = float(np.min(pooled[np.isfinite(pooled)]))
         ax_c.set_xlim(low - 0.05 * (clip - low), clip)
-    ax_c.set_ylabel("fraction ≤ x")
-    ax_h.set_title("histogram")
-    ax_c.set_title("CDF")
     fig.suptitle(title)
     fig.tight_layout()
     return Figure(name, title, _png(fig), cols, " ".join(captions))
 
 
 def cdf_indices(n: int, points: int = 2_000, tail: int = 1_000) -> np.ndarray:
-    """Which of ``n`` sorted samples an empirical CDF draws: all up to
-    :data:`MAX_DRAWN_POINTS`, else ``points`` evenly spaced, ``points`` spaced evenly on a
-    log scale of the distance from the top (the tail, p99.9 and beyond, where stalls show),
-    the largest ``tail`` samples, and the first and last."""
+    """Which of ``n`` sorted samples an empirical CDF draws: all up to :data:`MAX_DRAWN_POINTS`,
+    else ``points`` evenly spaced, ``points`` evenly on a log scale of the distance from the top
+    (the tail, p99.9 and beyond, where stalls show), the largest ``tail``, the first and last."""
     if n <= MAX_DRAWN_POINTS:
         return np.arange(n)
     even = np.linspace(0, n - 1, points).round().astype(np.int64)
@@ -416,9 +407,8 @@ def over_time(
 def stacked(
     name: str, title: str, panels: Sequence[tuple[str, str, np.ndarray, np.ndarray, float | None]]
 ) -> Figure:
-    """One signal per axis, stacked (v~ above w~: their scales differ by an order of
-    magnitude): (label, unit, t, y, threshold) per panel; a threshold (the boundary layer's
-    eps) is drawn as grey dotted lines at +-threshold."""
+    """One signal per axis, stacked (v~ above w~: their scales differ tenfold): (label, unit, t,
+    y, threshold) per panel; a threshold (the boundary layer's eps) as grey dotted ± lines."""
     fig, axes = plt.subplots(len(panels), 1, figsize=(7, 2.4 * len(panels)), sharex=True)
     axes = np.atleast_1d(axes)
     cols: dict[str, np.ndarray] = {}
@@ -428,9 +418,7 @@ def stacked(
         if thr:
             ax.axhline(thr, color="grey", linestyle=":", linewidth=1.0, label=f"±{thr:g}")
             ax.axhline(-thr, color="grey", linestyle=":", linewidth=1.0)
-        ax.set_ylabel(unit)
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right")
+        _labels(ax, "", unit, "", fontsize=8, loc="upper right")  # the figure has the title
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(title)
     fig.tight_layout()

@@ -105,9 +105,8 @@ def simulate_ideal(
     window: float = WINDOW_S,
 ) -> dict[str, np.ndarray] | None:
     """The ideal trajectory (t, x, y, theta): one simulation from the trace's first state when
-    the trace spans at most ``window`` seconds (at the fine period's own times), else the
-    windowed ideal at the trace's sample times (module docstring; the dict then also holds
-    ``window_start_t``, the windows' start times)."""
+    the trace spans at most ``window`` seconds (at the fine period's times), else the windowed
+    ideal at the trace's sample times, with ``window_start_t`` (module docstring)."""
     base = base_dir_of(resolved, folder)
     if trace is not None and float(trace["t"][-1] - trace["t"][0]) > window * (1.0 + 1e-9):
         return _windowed(resolved, base, trace, memory_source, window)
@@ -229,12 +228,10 @@ class _Windows:
 
 
 def _spread(parts: list[_Windows], loop: Any, here: bool = True) -> dict[str, np.ndarray]:
-    """Each part on the batch path, the first in this process (unless not ``here``) and each
-    other one at the same time in a Python process of its own (``python -m
-    hil.report.ideal_sim``, the part pickled on its stdin, the rows on its stdout: no
-    multiprocessing, which would import the caller's main module again); the rows joined in
-    order. A part whose process fails (a law its fresh interpreter cannot import) runs here
-    after the others."""
+    """Each part on the batch path, the first here (unless not ``here``), each other one at the
+    same time in a process of its own (``python -m hil.report.ideal_sim``, pickled on stdin and
+    stdout: no multiprocessing, which would import the caller's main module again); the rows
+    joined in order. A part whose process fails (a law it cannot import) runs here after."""
     away = parts[1:] if here else parts
     procs: list[subprocess.Popen[bytes]] = []
     try:
