@@ -25,9 +25,12 @@ from hil.folder import RunFolder as Folder
 from hil.folder.jsonio import write_json
 from hil.folder.layout import REPORT_HTML, REPORT_JSON, REPORT_MD
 from hil.folder.scenario_view import ScenarioView, view
+from hil.lab.clockplot import clock_png
+from hil.lab.placement import TOPOLOGY_FILE
 from hil.margin import record as margin_record
 from hil.measure.age import envelope
 from hil.measure.certificate import no_certificate, scenario_certificate
+from hil.measure.clocks import read_track
 from hil.measure.figures import Measurement
 from hil.measure.folder import measured
 from hil.report import figures as fg
@@ -36,7 +39,6 @@ from hil.report.html import render_html
 from hil.report.ideal import IdealUnavailableError
 from hil.report.ideal_sim import WINDOW_S
 from hil.report.telemetry import SLIDING, folder_telemetry, forget_memory
-from hil.report.topology_section import add as add_topology
 from hil.verdict import DEFAULT_THRESHOLDS, PEAK_KEYS, RunFacts, Thresholds, judge
 from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
 from protocol.versions import REPORT_SCHEMA_VERSION
@@ -138,9 +140,40 @@ def build_report(
         "margin": None if margin is None else margin.to_dict(),
         "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
     }
-    add_topology(folder.path, data, figs)  # "Where it ran", for a run across lab hosts
+    _add_topology(folder.path, data, figs)  # "Where it ran", for a run across lab hosts
     data["headline"] = headline(data, folder.summary)
     return Report(data, figs)
+
+
+def _add_topology(folder: Path, data: dict[str, Any], figs: list[fg.Figure]) -> None:
+    """The "Where it ran" section of a run across lab hosts (``topology.json``, with report.json's
+    ``topology``) and the clock figure, when the run has estimates; nothing for one host."""
+    try:
+        topo = json.loads((folder / TOPOLOGY_FILE).read_text())
+    except (OSError, ValueError):
+        return
+    if not isinstance(topo, dict) or not isinstance(topo.get("processes"), dict):
+        return
+    hosts = topo.get("hosts") or {}
+    injected = [h.get("offset_s") for h in hosts.values()]
+    procs = topo["processes"]
+    plant, ctrl = ((hosts.get(procs.get(p)) or {}).get("offset_s") for p in ("plant", "controller"))
+    numbers = isinstance(plant, int | float) and isinstance(ctrl, int | float)
+    difference = float(plant) - float(ctrl) if numbers else None
+    data["topology"] = {**topo, "injected_offsets_s": injected, "injected_difference_s": difference}
+    sections = data["sections"]
+    at = sections.index("latency") if "latency" in sections else len(sections)
+    sections.insert(at, "topology")
+    track = read_track(folder)
+    png = clock_png(track)
+    if png is not None:
+        columns = {
+            "t_s": (track.at_ns - track.at_ns[0]) / 1e9,
+            "offset_ns": track.offset_ns.astype(float),
+            "uncertainty_ns": track.uncertainty_ns.astype(float),
+        }
+        caption = "Offset estimates of the controller's clock to the plant's, with uncertainty."
+        figs.append(fg.Figure("clock_offset", "Clock offset over the run", png, columns, caption))
 
 
 def _folder_certificate(

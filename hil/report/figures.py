@@ -37,8 +37,7 @@ class Figure:
     caption: str = ""
 
     def write(self, folder: Path, prefix: str) -> tuple[Path, Path]:
-        png_path = folder / f"{prefix}{self.name}.png"
-        csv_path = folder / f"{prefix}{self.name}.csv"
+        png_path, csv_path = (folder / f"{prefix}{self.name}.{ext}" for ext in ("png", "csv"))
         png_path.write_bytes(self.png)
         write_columns(csv_path, self.columns)
         return png_path, csv_path

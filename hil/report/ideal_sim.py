@@ -272,8 +272,7 @@ def _one_by_one(w: _Windows, loop: Any) -> dict[str, np.ndarray]:
     ends, out = w.rows()
     for i, var in enumerate(w.variations()):
         mem_i = type(w.memory)(*(float(np.asarray(f)[i]) for f in w.memory)) if w.known[i] else None
-        t0 = float(w.t[w.starts[i]])
-        res = simulate(sc, var, t0=t0, memory=mem_i, loop=loop)
+        res = simulate(sc, var, t0=float(w.t[w.starts[i]]), memory=mem_i, loop=loop)
         rows = slice(w.starts[i], ends[i])
         for name in out:
             out[name][rows] = np.interp(w.t[rows], res.column("t"), res.column(name))

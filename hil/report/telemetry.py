@@ -105,8 +105,7 @@ def recorded_telemetry(
             # (an hour's sorted telemetry would double the report's largest arrays).
             order = np.argsort(tn, kind="stable")
             tn, columns = tn[order], [c[order] for c in columns]
-        for k, col in zip(names, columns, strict=True):
-            out[k] = (tn, col)
+        out.update({k: (tn, col) for k, col in zip(names, columns, strict=True)})
     return out
 
 
