@@ -177,12 +177,8 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
     la, lb = f"{label_a}: {fa.name}", f"{label_b}: {fb.name}"
     sva = view(fa.scenario)
     ta, tb = fa.trace, fb.trace
-    figs = [
-        fg.trajectory(
-            [(la, ta["x"], ta["y"]), (lb, tb["x"], tb["y"]), ("reference", ta["xd"], ta["yd"])],
-            "Trajectories overlaid",
-        ),
-    ]
+    paths = [(la, ta["x"], ta["y"]), (lb, tb["x"], tb["y"]), ("reference", ta["xd"], ta["yd"])]
+    figs = [fg.trajectory(paths, "Trajectories overlaid")]
     for key, title, unit, limit in (
         ("v", "Linear velocity v", "v [m/s]", sva.limits.phi1),
         ("omega", "Angular velocity ω", "ω [rad/s]", sva.limits.phi2),

@@ -842,13 +842,9 @@ def render_markdown(data: dict[str, Any], files: Sequence[dict[str, str]]) -> st
             elif kind == "figure":
                 f = by_name.get(block[1])
                 if f:
-                    out += [
-                        f"![{f['title']}]({f['png']})",
-                        "",
-                        f"Data: [{f['data']}]({f['data']})"
-                        + (f". {f['caption']}" if f.get("caption") else ""),
-                        "",
-                    ]
+                    caption = f". {f['caption']}" if f.get("caption") else ""
+                    data_line = f"Data: [{f['data']}]({f['data']}){caption}"
+                    out += [f"![{f['title']}]({f['png']})", "", data_line, ""]
         if section.id == "headline":
             out += [
                 f"{data['kind']} · law `{s['law']}` · Ts {fmt(s['ts'])} s · delay "
