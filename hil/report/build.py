@@ -210,11 +210,10 @@ def _recorded_sliding(
     if {"v_tilde", "w_tilde"} <= set(tr) or not folder.recordings:
         return None
     tel = folder_telemetry(folder)
-    rec = {k: tel[k] for k in SLIDING} if all(k in tel for k in SLIDING) else {}
-    if not rec:
+    if not all(k in tel for k in SLIDING):
         return None
-    base = m.epoch_ns if m is not None and m.epoch_ns else int(rec["v_tilde"][0][0])
-    return {k: ((tn - base) / 1e9, vals) for k, (tn, vals) in rec.items()}
+    base = m.epoch_ns if m is not None and m.epoch_ns else int(tel["v_tilde"][0][0])
+    return {k: ((tel[k][0] - base) / 1e9, tel[k][1]) for k in SLIDING}
 
 
 def _metrics(
@@ -398,8 +397,7 @@ def write_report(report: Report, out: Path) -> dict[str, Path]:
         if f.caption:
             entry["caption"] = f.caption
         files.append(entry)
-    data = dict(report.data)
-    data["figures"] = files
+    data = {**report.data, "figures": files}
     paths = {"json": out / REPORT_JSON, "md": out / REPORT_MD, "html": out / REPORT_HTML}
     write_json(paths["json"], data)
     paths["md"].write_text(render_markdown(data, files))
