@@ -21,7 +21,7 @@ from hil.measure import age as agemod
 from hil.measure.can_match import UNMATCHED, match_node
 from hil.measure.host import host_figures
 from hil.measure.logs import RunLogs
-from hil.measure.stalls import find_stalls
+from hil.measure.stalls import Stamped, find_stalls
 from hil.measure.stats import summarize_ns
 from protocol.can.codec import MAX_NODE_ID
 from protocol.hoplog import (
@@ -39,18 +39,6 @@ from protocol.hoplog import (
 PATHS = ("zenoh", "can")
 _NODES = MAX_NODE_ID + 1  # the node part of a frame key (_frame_keys)
 LANDINGS = (ApplyOutcome.LANDED, ApplyOutcome.BURST)  # apply outcomes that put a command in force
-
-
-@dataclass(frozen=True)
-class Stamped:
-    """Rows of one kind sorted by a time stamp, with what a stall's cause needs of them."""
-
-    stamps: np.ndarray
-    late: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    arrived: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    injected: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    hop: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    off_bus: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # CAN: never sent
 
 
 @dataclass(frozen=True)
@@ -142,13 +130,15 @@ def _lookup(
 ):
     """values[keys == q] for each q (keys distinct), ``missing`` where absent; vectorised.
     ``ordered``: the keys are already ascending (no sort)."""
-    order = np.arange(keys.size) if ordered else np.argsort(keys, kind="stable")
-    ks = keys if ordered else keys[order]
-    pos = np.clip(np.searchsorted(ks, query), 0, max(0, ks.size - 1))
-    found = (ks.size > 0) & (ks[pos] == query) if ks.size else np.zeros(query.size, bool)
     out = np.full(query.size, missing, dtype=values.dtype if values.size else np.int64)
-    if ks.size:
-        out[found] = values[order][pos[found]]
+    if keys.size == 0:
+        return out, np.zeros(query.size, bool)
+    if not ordered:
+        order = np.argsort(keys, kind="stable")
+        keys, values = keys[order], values[order]
+    pos = np.clip(np.searchsorted(keys, query), 0, keys.size - 1)
+    found = keys[pos] == query
+    out[found] = values[pos[found]]
     return out, found
 
 
@@ -425,24 +415,14 @@ class _Run:
         keep = cmd >= 0
         keep[keep] = self._sample_of(cmd[keep]) > 0
         node, land, cmd = node[keep], land[keep], cmd[keep]
-        nodes = np.unique(node)
-        if nodes.size == 0:
-            z = np.zeros(0, np.int64)
-            return z, z, z
         order = np.argsort(land, kind="stable")
         node, land, cmd = node[order], land[order], cmd[order]
         eff = np.full(land.size, np.iinfo(np.int64).max)
-        for n in nodes.tolist():
-            mine = node == n
-            last = np.where(mine, cmd, -1)
-            last = np.maximum.accumulate(last)  # the newest command of node n landed so far
-            eff = np.minimum(eff, last)
-        valid = eff >= 0
-        land, eff = land[valid], eff[valid]
-        if eff.size == 0:
-            z = np.zeros(0, np.int64)
-            return z, z, z
-        change = np.concatenate([[True], eff[1:] != eff[:-1]])
+        for n in np.unique(node).tolist():
+            # the newest command of node n landed so far
+            eff = np.minimum(eff, np.maximum.accumulate(np.where(node == n, cmd, -1)))
+        land, eff = land[eff >= 0], eff[eff >= 0]
+        change = np.diff(eff, prepend=-1) != 0
         land, eff = land[change], eff[change]
         return land, self._sample_of(eff), eff
 
