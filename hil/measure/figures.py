@@ -100,7 +100,6 @@ class Measurement:
             messages=summary.get("messages") or {},
             certificate=summary.get("certificate"),
             series=series,
-            window_ns=(0, 0),
             host=summary.get("host"),
             epoch_ns=int(arrays["epoch_ns"]) if "epoch_ns" in arrays else None,
         )
@@ -187,26 +186,21 @@ class _Run:
         sn = self.samples["sample_ns"]
         self.w0 = int(sn[0]) if sn.size else 0
         self.w1 = int(sn[-1]) if sn.size else 0
-        # cmd_seq -> its tick row, and the sample it was computed from (the controller's own
-        # record, not what the message claims).
+        # cmd_seq -> its tick row (the controller's own record, not what the message claims),
+        # sorted by cmd_seq once: every join by command (tick_of) is then a search, not a sort.
         t = self.ticks
         rows = np.nonzero(t["cmd_seq"] >= 0)[0]
-        # Sorted by cmd_seq once: every join by command (tick_of) is then a search, not a sort.
         order = np.argsort(t["cmd_seq"][rows], kind="stable")
         self.cmd_rows = rows[order]
         self.cmd_keys = t["cmd_seq"][self.cmd_rows]
         self._can = self._match_can()
         self.series_without: np.ndarray | None = None  # sample times left without a command
 
-    # --- CAN: arrivals matched to sends (hil.measure.can_match) ------------------------------
     def _match_can(self) -> dict[str, np.ndarray]:
-        """Every CAN torque frame that reached a drive's receiver, matched to the send it came
-        from (:mod:`hil.measure.can_match`: by the bus's name for it where there is one, else
-        by bytes and order, a lost frame shifting nothing), with the earliest match the logs
-        allow beside it (``cmd_early``: the command age's upper bound), duplicates, and the
-        arrivals the logs cannot relate (``ambiguous``). The torque each frame carries is
-        checked against its send's: ``value_mismatches`` counts disagreements.
-        ``lost``: the receiver lost the frame on purpose ([faults] frame loss)."""
+        """Every CAN torque frame a drive received, matched to its send (hil.measure.can_match),
+        with the earliest match beside it (``cmd_early``: the command age's upper bound),
+        duplicates, the ``ambiguous`` ones and the ``lost`` ones ([faults] frame loss);
+        ``value_mismatches`` counts frames whose torque differs from their send's."""
         rx, tx = self.logs["cmd_rx"], self.logs["can_tx"]
         is_can = rx["path"] == CmdPath.CAN
         node, idx, recv = rx["node"][is_can], rx["seq"][is_can], rx["recv_ns"][is_can]
@@ -260,7 +254,6 @@ class _Run:
             out[mine[found]] = (cmd_early if early else cmd)[order[pos[found]]]
         return out
 
-    # --- landings: (time, sample) of each command put in force, per path -----------------------
     def landings(
         self, path: str, applied: bool, early: bool = False
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -306,7 +299,7 @@ class _Run:
         meta = self.logs.host.meta if self.logs.host is not None else {}
         return host_figures(self.logs["host"], meta, lo, hi) if "host" in self.logs.tables else None
 
-    # --- what a stall's cause joins, sorted by time once (hil.measure.stalls) ----------------
+    # What a stall's cause joins (hil.measure.stalls), sorted by time once.
     @cached_property
     def wake_sorted(self) -> Stamped:
         t = self.ticks
@@ -625,10 +618,9 @@ def _messages(r: _Run) -> dict[str, Any]:
 
 def _can_window(r: _Run) -> tuple[np.ndarray, np.ndarray, int]:
     """(this window's commands, per can_tx row: a frame of one of them, the commands sent after
-    the window). A command is this
-    window's if it was computed in it and its last frame was put on the bus by the end (a frame
-    never on the bus counts at its compute time): a host stalled between compute and send must
-    not make a frame sent after the plant stopped count as lost."""
+    the window). A command is this window's if it was computed in it and its last frame was put
+    on the bus by the end (a frame never on the bus counts at its compute time): a host stalled
+    between compute and send must not make a frame sent after the plant stopped count as lost."""
     t, tx = r.ticks, r.logs["can_tx"]
     rows, found = r.tick_of(tx["cmd_seq"])
     when = np.zeros(tx["cmd_seq"].size, np.int64)
@@ -661,7 +653,8 @@ def _can_messages(r: _Run) -> dict[str, Any]:
     for n in wheels.tolist():
         on_n = c["node"] == n
         sent_n = int((mine & (tx["node"] == n)).sum())
-        rx_n = _distinct_frames(c, got & ours & on_n)
+        sel = got & ours & on_n  # distinct frames: by the command and wheel they carry
+        rx_n = int(np.unique(_frame_keys(c["cmd"][sel], c["node"][sel])).size)
         per_node[str(n)] = {
             "frames_sent": sent_n,
             "frames_received": rx_n,
@@ -694,11 +687,6 @@ def _can_messages(r: _Run) -> dict[str, Any]:
     if r.applied == "can":
         out.update(_can_fates(r, received, n_wheels))
     return out
-
-
-def _distinct_frames(c: dict[str, np.ndarray], sel: np.ndarray) -> int:
-    """Distinct frames among the selected arrivals (by the command and wheel they carry)."""
-    return int(np.unique(_frame_keys(c["cmd"][sel], c["node"][sel])).size)
 
 
 def _frame_keys(cmd: np.ndarray, node: np.ndarray) -> np.ndarray:
