@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from hil.folder.records import Summary
-from hil.trace_metrics import LIMIT_REL_TOL
+from hil.trace_metrics import LIMIT_REL_TOL, ConstraintFigure
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
 LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
@@ -88,16 +88,12 @@ class Verdict:
     thresholds: dict[str, float] = field(default_factory=dict)
 
     @property
-    def ok(self) -> bool:
-        return self.outcome == PASS
-
-    @property
     def reasons(self) -> list[str]:
         return [*self.fail_reasons, *self.inconclusive_reasons]
 
     def as_dict(self) -> dict[str, Any]:
         out = asdict(self)
-        out["ok"] = self.ok
+        out["ok"] = self.outcome == PASS
         out["reasons"] = self.reasons
         for key in ("deadline_misses", "samples_without_command", "lost_messages"):
             found = self.timing.get(key) or {}
@@ -115,12 +111,8 @@ def constraints_from_peaks(summary: Summary, limits: dict[str, float]) -> dict[s
     for key, skey in PEAK_KEYS.items():
         peak, limit = summary.get(skey), limits.get(LIMIT_NAMES[key])
         if isinstance(peak, int | float) and isinstance(limit, int | float) and limit > 0:
-            out[key] = {
-                "peak": float(peak),
-                "limit": float(limit),
-                "ratio": float(peak) / float(limit),
-                "held": float(peak) <= float(limit) * (1.0 + LIMIT_REL_TOL),
-            }
+            c = ConstraintFigure(key, float(peak), float(limit), None)
+            out[key] = {"peak": c.peak, "limit": c.limit, "ratio": c.ratio, "held": c.held}
     return out
 
 
