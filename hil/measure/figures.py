@@ -453,16 +453,6 @@ def _missed_slots(late: np.ndarray, skipped: np.ndarray, period: int) -> dict[st
     }
 
 
-def _phase_shift(r: _Run, k: np.ndarray) -> np.ndarray:
-    """Per tick gap: the learnt phase's one shift (controller_service.tick_phase) where the
-    gap crosses the slot it took effect at, else 0: the move is not jitter."""
-    cm = r.logs.cmeta
-    if cm.get("tick_phase_from_k") is None:
-        return np.zeros(max(k.size - 1, 0), np.int64)
-    at = int(cm["tick_phase_from_k"])
-    return int(cm.get("tick_phase_shift_ns") or 0) * ((k[1:] >= at) & (k[:-1] < at))
-
-
 def _tick_phase(r: _Run) -> dict[str, Any]:
     """Where the periodic ticks fell after the sample: the rule, and for "auto" the phase
     learnt and what it was learnt from (controller_service.tick_phase), in µs."""
@@ -493,7 +483,13 @@ def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
         timing["slots"] = miss["slots"]
         timing["deadline_miss_rate"] = miss["rate"]
         k, wake = t["k"][win], t["wake_ns"][win]
-        expected = np.diff(k) * r.period + _phase_shift(r, k)
+        expected = np.diff(k) * r.period
+        at = r.logs.cmeta.get("tick_phase_from_k")
+        if at is not None:
+            # The learnt phase's one shift (controller_service.tick_phase) is not jitter: the
+            # gap that crosses the slot it took effect at expects it.
+            shift = int(r.logs.cmeta.get("tick_phase_shift_ns") or 0)
+            expected = expected + shift * ((k[1:] >= int(at)) & (k[:-1] < int(at)))
         timing["period_jitter"] = summarize_ns(np.abs(np.diff(wake) - expected))
         timing["tick_phase"] = _tick_phase(r)
         series["wakeup_lateness"] = ((t["deadline_ns"][win] - r.epoch) / 1e9, late)
@@ -530,10 +526,10 @@ def _hops(r: _Run, timing: dict[str, Any]) -> None:
     z = rx["path"] == CmdPath.ZENOH
     seq, recv = _first_per_key(rx["seq"][z], rx["recv_ns"][z])
     i, found = r.tick_of(seq)
-    seq, recv, i = seq[found], recv[found], i[found]
+    recv, i = recv[found], i[found]
     send = t["zenoh_send_ns"][i]
     ok = (send > 0) & _in(t["state_sample_ns"][i], r.w0, r.w1)
-    seq, recv, i, send = seq[ok], recv[ok], i[ok], send[ok]
+    recv, i, send = recv[ok], i[ok], send[ok]
     hop = recv - send
     timing["hop_cmd_zenoh"] = summarize_ns(hop)
     f = fresh[i]
@@ -753,15 +749,15 @@ def _certificate(
     law D, D* None), with every stall counted and owned. ``held`` is True only if the bound
     holds for every matching of CAN frames the logs allow (at the upper bound of D), False if
     it fails even at the lower one, else None (unknown)."""
-
     empty = agemod.segments(np.zeros(0, np.int64), np.zeros(0, np.int64), r.w1)
     seg: agemod.AgeSegments = series.get(f"command_age_{r.applied}") or empty
     upper: agemod.AgeSegments = series.get(f"command_age_{r.applied}_upper") or seg
     d_max_ns, d_upper_ns = agemod.max_age(seg), agemod.max_age(upper)
     d_max = d_max_ns / 1e9 if d_max_ns is not None else None
-    d_star = cert = held = None
+    d_star = d_star_ns = cert = held = None
     if b is not None:
         d_star = critical_age(b.params, b.context, b.boundary_layer, v0=b.v0, w0=b.w0)
+        d_star_ns = int(d_star * 1e9)
 
         def held_at(d: float | None) -> tuple[bool, Any]:
             if d is None:
@@ -773,7 +769,7 @@ def _certificate(
         high_ok = held_at(d_upper_ns / 1e9)[0] if d_upper_ns != d_max_ns else low_ok
         held = True if high_ok else (False if not low_ok else None)
     threshold_ns = int(max(3 * r.ts, 0.5 * d_star * 1e9 if d_star is not None else 0))
-    stalls = find_stalls(r, seg, threshold_ns, int(d_star * 1e9) if d_star is not None else None)
+    stalls = find_stalls(r, seg, threshold_ns, d_star_ns)
     _bench_shares(r, stalls.bench_windows, timing)
     out: Certificate = {
         "path": r.applied,

@@ -38,14 +38,9 @@ def lateness_windows(
 def age_windows(
     seg: AgeSegments, grid0_ns: int, step_ns: int, origin_ns: int, width_ns: int, n: int
 ) -> list[dict[str, Any]]:
-    """Command-age summary (µs) per window, each segment whole in the window of its end.
-
-    ``grid0_ns``/``step_ns``: the plant's step grid (the whole run's, so every step is counted
-    once); ``max_us`` is the largest peak (end - sample) of the window's segments and
-    ``max_at_ns`` where it occurred (that segment's end); windows without a segment are empty
-    summaries with ``max_at_ns`` None."""
-    # Segments ending outside [origin, origin + n w) go to the first or last window (the run's
-    # own edges: the last segment ends exactly at the run's end).
+    """Command-age summary (µs) per window on the plant's step grid ``grid0_ns``/``step_ns``
+    (module docstring), with ``max_at_ns``: the end of the largest peak's segment (None in a
+    window without a segment). Segments ending outside the windows go to the first or last."""
     k = np.clip((np.asarray(seg.end, np.int64) - origin_ns) // np.int64(width_ns), 0, n - 1)
     out = []
     for i in range(n):
@@ -72,11 +67,9 @@ def per_window(
     width_ns: int = MINUTE_NS,
 ) -> list[dict[str, Any]]:
     """Wake-up lateness and applied-path command age (p99 and max, µs) per window of
-    ``width_ns`` from the run's epoch, from :func:`hil.measure.measure`'s ``series``.
-
-    ``window_ns`` is the measurement's (first, last plant sample); ``step_ns`` the plant's step.
-    A figure the run did not measure (no wake-up lateness in ``on_state`` or lockstep runs) is
-    None in every window, not 0."""
+    ``width_ns`` from the run's epoch, from :func:`hil.measure.measure`'s ``series`` and
+    ``window_ns`` (first, last plant sample). A figure the run did not measure (no wake-up
+    lateness in ``on_state`` or lockstep runs) is None in every window, not 0."""
     w0, w1 = int(window_ns[0]), int(window_ns[1])
     n = max(1, -(-(w1 - int(epoch_ns)) // int(width_ns)))  # windows up to w1, at least 1
     late = series.get("wakeup_lateness")
