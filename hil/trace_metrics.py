@@ -41,9 +41,6 @@ PERCENTILES: tuple[float, ...] = (50.0, 90.0, 99.0, 99.9)
 LIMIT_REL_TOL = 1e-9
 
 
-# --------------------------------------------------------------------------- percentiles
-
-
 def percentile(values: Iterable[float] | np.ndarray, q: float) -> float:
     """The q-th percentile (0 <= q <= 100), exact: numpy's ``inverted_cdf``, the smallest
     sample with at least q % of the samples at or below it (q = 0: the minimum)."""
@@ -69,9 +66,6 @@ def _pkey(q: float) -> str:
     return "p" + (f"{q:g}".replace(".", ""))
 
 
-# --------------------------------------------------------------------------- angles and errors
-
-
 def position_error(x: np.ndarray, y: np.ndarray, xd: np.ndarray, yd: np.ndarray) -> np.ndarray:
     """Euclidean distance to the virtual robot (3): sqrt(xe^2 + ye^2) of (4)."""
     return np.hypot(np.asarray(x) - np.asarray(xd), np.asarray(y) - np.asarray(yd))
@@ -80,9 +74,6 @@ def position_error(x: np.ndarray, y: np.ndarray, xd: np.ndarray, yd: np.ndarray)
 def heading_error(theta: np.ndarray, thetad: np.ndarray) -> np.ndarray:
     """theta_e = theta - theta_d of (4), wrapped to (-pi, pi]."""
     return wrap_angle(np.asarray(theta) - np.asarray(thetad))
-
-
-# --------------------------------------------------------------------------- band and switching
 
 
 @dataclass(frozen=True)
@@ -99,26 +90,17 @@ class Band:
         return asdict(self)
 
 
-def reaching_index(s: np.ndarray, threshold: float = 0.0) -> int | None:
-    """Index of the first sample on or across the manifold s = 0 (see the module docstring)."""
-    s = np.asarray(s, dtype=float)
-    if s.size == 0:
-        return None
-    inside = np.abs(s) <= threshold
-    signs = np.sign(s)
-    crossed = np.zeros(s.size, dtype=bool)
-    crossed[1:] = signs[1:] * signs[:-1] < 0
-    hit = np.flatnonzero(inside | crossed)
-    return int(hit[0]) if hit.size else None
-
-
 def quasi_sliding_band(t: np.ndarray, s: np.ndarray, threshold: float = 0.0) -> Band:
     """Reaching time and band of s after it (p99 |s|, max |s|, max(s) - min(s))."""
     t = np.asarray(t, dtype=float)
     s = np.asarray(s, dtype=float)
-    k = reaching_index(s, threshold)
-    if k is None:
+    # The reaching time: the first sample on or across the manifold (module docstring).
+    crossed = np.zeros(s.size, dtype=bool)
+    crossed[1:] = np.sign(s[1:]) * np.sign(s[:-1]) < 0
+    hit = np.flatnonzero((np.abs(s) <= threshold) | crossed)
+    if hit.size == 0:
         return Band(None, None, None, None, 0)
+    k = int(hit[0])
     after = s[k:]
     mag = np.abs(after)
     return Band(
@@ -154,9 +136,6 @@ def saturation_share(tau: np.ndarray, varpi: float, fraction: float = SATURATION
     return float(np.count_nonzero(known >= fraction * varpi) / known.size)
 
 
-# --------------------------------------------------------------------------- constraints
-
-
 @dataclass(frozen=True)
 class ConstraintFigure:
     """One constraint of (2): the measured peak against its limit and (velocities) the
@@ -178,9 +157,7 @@ class ConstraintFigure:
 
     @property
     def within_bound(self) -> bool | None:
-        if self.bound is None:
-            return None
-        return self.peak <= self.bound * (1.0 + LIMIT_REL_TOL)
+        return None if self.bound is None else self.peak <= self.bound * (1.0 + LIMIT_REL_TOL)
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -194,9 +171,6 @@ class ConstraintFigure:
         }
 
 
-# --------------------------------------------------------------------------- ideal trajectory
-
-
 def deviation_from_ideal(
     t: np.ndarray,
     x: np.ndarray,
@@ -208,21 +182,7 @@ def deviation_from_ideal(
     """Distance at each sample time between the trace and the ideal trajectory (the same
     scenario simulated at a fine period, standing in for continuous time), the ideal one
     linearly interpolated onto the trace's times."""
-    xi = np.interp(t, t_ideal, x_ideal)
-    yi = np.interp(t, t_ideal, y_ideal)
-    return np.hypot(np.asarray(x) - xi, np.asarray(y) - yi)
-
-
-# --------------------------------------------------------------------------- whole trace
-
-
-def last_fraction_rms(t: np.ndarray, e: np.ndarray, fraction: float = 0.1) -> float:
-    """RMS of e over the last ``fraction`` of the run (as summary.json's rms_position_error)."""
-    t = np.asarray(t, dtype=float)
-    e = np.asarray(e, dtype=float)
-    start = t[-1] - fraction * (t[-1] - t[0])
-    tail = e[t >= start]
-    return float(np.sqrt(np.mean(tail**2))) if tail.size else float("nan")
+    return position_error(x, y, np.interp(t, t_ideal, x_ideal), np.interp(t, t_ideal, y_ideal))
 
 
 def _peak(values: np.ndarray) -> float:
@@ -255,6 +215,9 @@ def sampling_effects(
     t = np.asarray(trace["t"], dtype=float)
     pos = position_error(trace["x"], trace["y"], trace["xd"], trace["yd"])
     head = heading_error(trace["theta"], trace["thetad"])
+    # RMS over the last 10 % of the run (as summary.json's rms_position_error).
+    tail = pos[t >= t[-1] - 0.1 * (t[-1] - t[0])]
+    rms = float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan
     out: dict[str, Any] = {
         "duration": float(t[-1] - t[0]) if t.size else 0.0,
         "samples": int(t.size),
@@ -262,7 +225,7 @@ def sampling_effects(
             "final_position_error": float(pos[-1]),
             "final_heading_error": float(head[-1]),
             "max_position_error": float(pos.max()),
-            "rms_position_error_last10": last_fraction_rms(t, pos),
+            "rms_position_error_last10": rms,
         },
     }
     bands: dict[str, Any] = {}

@@ -25,9 +25,9 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from hil.folder.records import Summary
+from hil.trace_metrics import LIMIT_REL_TOL, ConstraintFigure
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
-LIMIT_REL_TOL = 1e-9
 LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
 UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "m/s²", "tau2": "rad/s²"}
 BENCH_ADVICE = (
@@ -88,16 +88,12 @@ class Verdict:
     thresholds: dict[str, float] = field(default_factory=dict)
 
     @property
-    def ok(self) -> bool:
-        return self.outcome == PASS
-
-    @property
     def reasons(self) -> list[str]:
         return [*self.fail_reasons, *self.inconclusive_reasons]
 
     def as_dict(self) -> dict[str, Any]:
         out = asdict(self)
-        out["ok"] = self.ok
+        out["ok"] = self.outcome == PASS
         out["reasons"] = self.reasons
         for key in ("deadline_misses", "samples_without_command", "lost_messages"):
             found = self.timing.get(key) or {}
@@ -105,8 +101,7 @@ class Verdict:
         return out
 
 
-PEAK_KEYS = {"v": "max_abs_v", "omega": "max_abs_omega", "tau1": "max_abs_tau1"}
-PEAK_KEYS["tau2"] = "max_abs_tau2"
+PEAK_KEYS = {key: f"max_abs_{key}" for key in LIMIT_NAMES}
 
 
 def constraints_from_peaks(summary: Summary, limits: dict[str, float]) -> dict[str, dict[str, Any]]:
@@ -116,12 +111,8 @@ def constraints_from_peaks(summary: Summary, limits: dict[str, float]) -> dict[s
     for key, skey in PEAK_KEYS.items():
         peak, limit = summary.get(skey), limits.get(LIMIT_NAMES[key])
         if isinstance(peak, int | float) and isinstance(limit, int | float) and limit > 0:
-            out[key] = {
-                "peak": float(peak),
-                "limit": float(limit),
-                "ratio": float(peak) / float(limit),
-                "held": float(peak) <= float(limit) * (1.0 + LIMIT_REL_TOL),
-            }
+            c = ConstraintFigure(key, float(peak), float(limit), None)
+            out[key] = {"peak": c.peak, "limit": c.limit, "ratio": c.ratio, "held": c.held}
     return out
 
 
@@ -175,6 +166,12 @@ def judge(
     return v
 
 
+def _blocking(v: Verdict, text: str) -> None:
+    """A failure that is the run's own (a limit, the certificate): ``hil run`` exits 1."""
+    v.fail_reasons.append(text)
+    v.blocking.append(text)
+
+
 def _limits(
     v: Verdict, cons: dict[str, Any], violations: dict[str, Any], cert: dict[str, Any] | None
 ) -> None:
@@ -197,8 +194,7 @@ def _limits(
             # The bound guarantees (2) at the system's own D: the bench's stall broke it.
             v.inconclusive_reasons.append(f"{text}, while {_stall_words(bench[0])}")
         else:
-            v.fail_reasons.append(text)
-            v.blocking.append(text)
+            _blocking(v, text)
     v.limits_broken = sorted(broken)
     v.limits = "broken" if broken else "held"
 
@@ -215,12 +211,11 @@ def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) 
         if b is not None and k in cons and cons[k]["peak"] > b * (1.0 + LIMIT_REL_TOL)
     ]
     for k, b in beyond:
-        text = (
+        _blocking(
+            v,
             f"measured beyond the sampled-data bound: max |{k}| = {cons[k]['peak']:.4g} "
-            f"{UNITS[k]} > {b:.4g} {UNITS[k]}"
+            f"{UNITS[k]} > {b:.4g} {UNITS[k]}",
         )
-        v.fail_reasons.append(text)
-        v.blocking.append(text)
     v.certificate = "broken" if beyond else {True: "held", False: "not held"}.get(held, "unknown")
     if held is None:
         up = cert.get("d_max_upper_s")
@@ -232,16 +227,12 @@ def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) 
     if held:
         return
     if d is None:
-        text = f"certificate not held: no command ever landed{where} (D unknown)"
-        v.fail_reasons.append(text)
-        v.blocking.append(text)
+        _blocking(v, f"certificate not held: no command ever landed{where} (D unknown)")
     elif d > ds:
         _age_beyond(v, cert, where)
     else:
         failed = ", ".join(cert.get("failed_conditions") or []) or "see the certificate"
-        text = f"certificate not held: design conditions broken ({failed}) at D = {_ms(d)}"
-        v.fail_reasons.append(text)
-        v.blocking.append(text)
+        _blocking(v, f"certificate not held: design conditions broken ({failed}) at D = {_ms(d)}")
 
 
 def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
@@ -266,8 +257,7 @@ def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
         if mine:
             w = mine[0]
             text += f"; worst: t = {w['t_s']:.3f} s, {_ms(w['age_s'])}, {w['cause']}"
-        v.fail_reasons.append(text)
-        v.blocking.append(text)
+        _blocking(v, text)
         return
     bench = [st for st in _bench_stalls(cert) if st["age_s"] > ds] or _bench_stalls(cert)
     what = "; ".join(_stall_words(st) for st in bench[:3]) or "the bench stalled"
@@ -284,18 +274,18 @@ def _thresholds(
     """Deadline misses, samples without a command and lost messages of the applied path and
     the State stream against their thresholds (the shadow path never counts)."""
     counts = (
-        # (name, count key, over key, rate key, the text, the over's name, threshold)
-        ("deadline_misses", "deadline_misses", "slots", "deadline_miss_rate",
+        # (count key, over key, rate key, the text, the over's name, threshold)
+        ("deadline_misses", "slots", "deadline_miss_rate",
          "deadline misses: {n} of {over} slots", "slots", th.max_deadline_miss_ratio),
-        ("samples_without_command", "samples_without_command", "samples_judged",
-         "samples_without_command_rate", "samples without a command: {n} of {over}", "judged",
+        ("samples_without_command", "samples_judged", "samples_without_command_rate",
+         "samples without a command: {n} of {over}", "judged",
          th.max_samples_without_command_ratio),
     )  # fmt: skip
-    for name, key, over_key, rate_key, text, over_name, limit in counts:
+    for key, over_key, rate_key, text, over_name, limit in counts:
         n, over, rate = timing.get(key), timing.get(over_key), timing.get(rate_key)
         if not isinstance(n, int) or not isinstance(rate, int | float):
             continue  # not measured in this run: absent, never 0
-        v.timing[name] = {"count": n, over_name: over, "rate": rate}
+        v.timing[key] = {"count": n, over_name: over, "rate": rate}
         bench = int(timing.get(f"{key}_in_bench_stalls") or 0)
         system_rate = (n - bench) / over if over else 0.0
         words = text.format(n=n, over=over) + f" ({_pct(rate)})"

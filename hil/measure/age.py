@@ -1,12 +1,10 @@
 """Command age (age of information) at every plant step, computed exactly from the landings.
 
 A landing is (a_j, s_j): at a_j the plant started holding a command computed from the sample
-taken at s_j. Between a_j and the next landing a_(j+1) the age of the command in force at time
-t is t - s_j, a saw tooth. The plant steps on the grid g_i = g0 + i h (h the plant's step), so
-the age at every plant step is g_i - s_j for the landing in force. Its percentiles are computed
-by counting, per landing, the grid points whose age is at most v (an arithmetic progression)
-and bisecting on v: exact (every percentile is an age some step really had), in memory linear
-in the number of landings, whatever the run's length.
+taken at s_j. Until the next landing a_(j+1) the age at time t is t - s_j, a saw tooth, and at
+every plant step g_i = g0 + i h (h the plant's step) it is g_i - s_j. Its percentiles count,
+per landing, the steps whose age is at most v (an arithmetic progression) and bisect on v:
+exact (an age some step really had), in memory linear in the number of landings.
 
 D, the quantity of the sampled-data bound (docs/design.md, docs/sampled_data_bound.md), is the
 largest age: max over j of a_(j+1) - s_j, the last step before each next landing.
@@ -47,27 +45,14 @@ def segments(
     plant holds zero torque, is a segment of its own whose age counts from ``start_ns`` (the
     sampled-data bound's assumption A2 counts the age from t = 0)."""
     land = np.asarray(land_ns, dtype=np.int64)
-    samp = np.asarray(sample_ns, dtype=np.int64)
     order = np.argsort(land, kind="stable")
-    land, samp = land[order], samp[order]
-    keep = land <= end_ns
-    land, samp = land[keep], samp[keep]
+    land, samp = land[order], np.asarray(sample_ns, dtype=np.int64)[order]
+    land, samp = land[land <= end_ns], samp[land <= end_ns]
     if start_ns is not None and (land.size == 0 or int(land[0]) > start_ns):
         land = np.concatenate([[np.int64(start_ns)], land])
         samp = np.concatenate([[np.int64(start_ns)], samp])
-    if land.size == 0:
-        e = np.zeros(0, np.int64)
-        return AgeSegments(e, e, e)
-    end = np.append(land[1:], np.int64(end_ns))
+    end = np.append(land[1:], np.int64(end_ns)) if land.size else land
     return AgeSegments(land, end, samp)
-
-
-def _grid_range(seg: AgeSegments, g0: int, h: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per segment, the grid indices [lo, hi) of the plant steps inside [start, end)."""
-    lo = -((g0 - seg.start) // h)  # ceil((start - g0) / h)
-    hi = -((g0 - seg.end) // h)
-    lo = np.maximum(lo, 0)
-    return lo, np.maximum(hi, lo)
 
 
 def _count_le(seg: AgeSegments, lo: np.ndarray, hi: np.ndarray, g0: int, h: int, v: int) -> int:
@@ -81,7 +66,9 @@ def age_summary(seg: AgeSegments, g0: int, h: int) -> dict[str, Any]:
     """count, p50/p90/p99/p999, max, mean (µs) of the age at every plant step g0 + i h."""
     if len(seg) == 0 or h <= 0:
         return empty_summary()
-    lo, hi = _grid_range(seg, g0, h)
+    # Per segment, the grid indices [lo, hi) of the plant steps inside [start, end).
+    lo = np.maximum(-((g0 - seg.start) // h), 0)  # ceil((start - g0) / h)
+    hi = np.maximum(-((g0 - seg.end) // h), lo)
     n = hi - lo
     total = int(n.sum())
     if total == 0:
@@ -123,8 +110,7 @@ def envelope(
     if len(seg) == 0:
         z = np.zeros(0)
         return z, z, z
-    lo_t, hi_t = int(seg.start[0]), int(seg.end[-1])
-    edges = np.linspace(lo_t, hi_t, bins + 1)
+    edges = np.linspace(int(seg.start[0]), int(seg.end[-1]), bins + 1)
     t = (edges[:-1] + edges[1:]) / 2.0
     # Age at the bin edges (piecewise linear between landings) and the peaks inside each bin.
     idx = np.clip(np.searchsorted(seg.start, edges, side="right") - 1, 0, len(seg) - 1)

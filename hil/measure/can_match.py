@@ -100,15 +100,11 @@ def match_node(
 def _smoothest(
     early: np.ndarray, late: np.ndarray, h_early: np.ndarray, h_late: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(the match per arrival, where the logs could not decide). Per stretch where the two
-    embeddings differ (bounded by matches both agree on), the one whose hops jump least across
-    it, boundaries included: a transport's delay drifts, it does not jump by whole spacings of
-    identical payloads. A jump is a step of at least half the shift between the two; fewer
+    """(the match per arrival, where the logs could not decide): per stretch where the two
+    embeddings differ, the one whose hops jump least across it, its agreed neighbours included
+    (module docstring). A jump is a step of at least half the shift between the two; fewer
     jumps win, then the smaller total variation; a tie is undecidable (the latest, the smaller
-    hops, is used and the stretch is marked). A run of lost frames makes the earliest embedding
-    jump (every later hop a spacing longer); a slow transport that lost nothing makes the latest
-    jump instead (hops a spacing shorter where a newer send of the same bytes stood), so
-    neither extreme is right everywhere."""
+    hops, is used and the stretch is marked)."""
     differ = early != late
     out, tied = early.copy(), np.zeros(early.size, bool)
     if not differ.any():

@@ -7,7 +7,7 @@ unified laws (10) and (19) have a certificate.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from types import SimpleNamespace
 from typing import Any
 
@@ -27,46 +27,22 @@ class CertificateFigures:
     detail: dict[str, Any]
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "ts": self.ts,
-            "delay": self.delay,
-            "v_bound": self.v_bound,
-            "w_bound": self.w_bound,
-            "held": self.held,
-            "source": self.source,
-            "detail": self.detail,
-        }
+        return asdict(self)
 
 
 def certificate(sv: ScenarioView, ts: float, delay: float) -> CertificateFigures:
     if sv.law not in UNIFIED_LAWS:
         return CertificateFigures(ts, delay, None, None, None, "none (not a unified law)", {})
+    source = "controller_service.certificate"
+    params = SimpleNamespace(**sv.controller)
     try:
-        cert = certify(
-            SimpleNamespace(**sv.controller),
-            sv.context,
-            ts,
-            delay,
-            sv.boundary_layer,
-            v0=sv.v0,
-            w0=sv.w0,
-        )
+        cert = certify(params, sv.context, ts, delay, sv.boundary_layer, v0=sv.v0, w0=sv.w0)
     except Exception as exc:  # a design the certificate rejects is a figure, not a crash
-        return CertificateFigures(
-            ts, delay, None, None, False, "controller_service.certificate", {"error": str(exc)}
-        )
-    detail = cert.to_dict() if hasattr(cert, "to_dict") else {}
-    failed = getattr(cert, "failed", None)
-    if callable(failed):
-        detail["failed"] = [c.name for c in failed()]
+        return CertificateFigures(ts, delay, None, None, False, source, {"error": str(exc)})
+    detail = {**cert.to_dict(), "failed": [c.name for c in cert.failed()]}
+    held = bool(cert.held)
     return CertificateFigures(
-        ts,
-        delay,
-        float(cert.v_bound),
-        float(cert.w_bound),
-        bool(cert.held),
-        "controller_service.certificate",
-        detail,
+        ts, delay, float(cert.v_bound), float(cert.w_bound), held, source, detail
     )
 
 
@@ -86,19 +62,9 @@ CONTRACT_KEYS = (
 
 def no_certificate(path: str | None, d_max: float | None, source: str) -> Certificate:
     """A certificate object with D alone (a law without the bound, or before it is known)."""
-    return {
-        "path": path,
-        "d_max_s": d_max,
-        "d_star_s": None,
-        "margin_s": None,
-        "held": None,
-        "v_bound": None,
-        "omega_bound": None,
-        "stall_threshold_s": None,
-        "stalls": [],
-        "source": source,
-        "failed_conditions": [],
-    }
+    out = dict.fromkeys(CONTRACT_KEYS)
+    out.update(path=path, d_max_s=d_max, stalls=[], source=source, failed_conditions=[])
+    return out
 
 
 def scenario_certificate(sv: ScenarioView) -> Certificate:
@@ -112,30 +78,18 @@ def scenario_certificate(sv: ScenarioView) -> Certificate:
     if sv.law not in UNIFIED_LAWS:
         out["source"] = "none (not a unified law)"
         return out
+    params = SimpleNamespace(**sv.controller)
     try:
-        d_star = critical_age(
-            SimpleNamespace(**sv.controller),
-            sv.context,
-            sv.boundary_layer,
-            v0=sv.v0,
-            w0=sv.w0,
-        )
+        d_star = critical_age(params, sv.context, sv.boundary_layer, v0=sv.v0, w0=sv.w0)
     except Exception as exc:  # a design the certificate rejects is a figure, not a crash
         out["held"] = False
         out["error"] = str(exc)
         return out
     c = certificate(sv, d, 0.0)
     out["failed_conditions"] = list(c.detail.get("failed", []))
-    out.update(
-        {
-            "d_star_s": d_star,
-            "margin_s": d_star - d,
-            "held": bool(c.held) and d <= d_star,
-            "v_bound": c.v_bound,
-            "omega_bound": c.w_bound,
-            "stall_threshold_s": max(3 * sv.ts, 0.5 * d_star),
-        }
-    )
+    out.update(d_star_s=d_star, margin_s=d_star - d, held=bool(c.held) and d <= d_star)
+    out.update(v_bound=c.v_bound, omega_bound=c.w_bound)
+    out["stall_threshold_s"] = max(3 * sv.ts, 0.5 * d_star)
     if c.held is False and "error" in c.detail:
         out["error"] = c.detail["error"]
     return out

@@ -1,15 +1,13 @@
 """The controller's stamps on the plant's clock, when the two clocks provably differ.
 
 Every stamp is its own host's ``CLOCK_MONOTONIC`` (docs/clocks.md). When the controller ran on
-another host than the plant, its stamps are converted to the plant's clock as the hop logs are
-read, with the controller's own estimates of the offset (``clock-controller.csv``, written by
-runtime.clocksync): each stamp with the estimate in force when it was taken (the filter's
-newest at or before it; the first estimate before that). Then every figure is on the plant's
-clock: figures of one host (the controller's compute, the plant's command age D) are
-differences of one clock and do not change; figures that cross hosts (a state's flight to the
-controller, a command's to the plant) are corrected, each within the estimate's uncertainty
-(half the round trip of the exchange used). Nothing is converted when the estimates hold 0
-(one host: the bound is exact, so it always does) or when there are none.
+another host, its stamps are converted to the plant's clock as the hop logs are read, each with
+the controller's estimate of the offset in force when it was taken (``clock-controller.csv``,
+runtime.clocksync: the newest at or before it; the first before that). Figures of one host (the
+controller's compute, the command age D) do not change; figures that cross hosts (a state's
+flight to the controller, a command's to the plant) are corrected, each within the estimate's
+uncertainty (half the round trip of the exchange used). Nothing is converted when the
+estimates hold 0 (one host: the bound is exact, so it always does) or when there are none.
 """
 
 from __future__ import annotations
@@ -76,15 +74,13 @@ class ClockTrack:
 
 def read_track(folder: Path) -> ClockTrack:
     """The estimates in ``folder/clock-controller.csv`` (none when it is absent)."""
-    rows: list[tuple[int, int, int]] = []
     try:
         lines = (folder / CLOCK_FILE).read_text().splitlines()[1:]
     except OSError:
         lines = []
-    for line in lines:
-        f = line.split(",")
-        if len(f) == 8 and all(x.lstrip("-").isdigit() for x in f):
-            rows.append((int(f[3]), int(f[6]), int(f[7])))
+    fields = [line.split(",") for line in lines]
+    ok = [f for f in fields if len(f) == 8 and all(x.lstrip("-").isdigit() for x in f)]
+    rows = [(int(f[3]), int(f[6]), int(f[7])) for f in ok]
     a = np.asarray(rows, dtype=np.int64).reshape(-1, 3)
     return ClockTrack(a[:, 0], a[:, 1], a[:, 2])
 
@@ -99,7 +95,6 @@ def to_plant_clock(tables: dict[str, dict[str, np.ndarray]], folder: Path | None
     for table, columns in CONTROLLER_CLOCK.items():
         for c in columns:
             col = tables.get(table, {}).get(c)
-            if col is None or col.size == 0:
-                continue
-            stamped = col != 0
-            col[stamped] = col[stamped] + track.offset_at(col[stamped])
+            if col is not None and col.size:
+                stamped = col != 0
+                col[stamped] = col[stamped] + track.offset_at(col[stamped])

@@ -21,7 +21,7 @@ from hil.measure import age as agemod
 from hil.measure.can_match import UNMATCHED, match_node
 from hil.measure.host import host_figures
 from hil.measure.logs import RunLogs
-from hil.measure.stalls import find_stalls
+from hil.measure.stalls import Stamped, find_stalls
 from hil.measure.stats import summarize_ns
 from protocol.can.codec import MAX_NODE_ID
 from protocol.hoplog import (
@@ -39,18 +39,6 @@ from protocol.hoplog import (
 PATHS = ("zenoh", "can")
 _NODES = MAX_NODE_ID + 1  # the node part of a frame key (_frame_keys)
 LANDINGS = (ApplyOutcome.LANDED, ApplyOutcome.BURST)  # apply outcomes that put a command in force
-
-
-@dataclass(frozen=True)
-class Stamped:
-    """Rows of one kind sorted by a time stamp, with what a stall's cause needs of them."""
-
-    stamps: np.ndarray
-    late: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    arrived: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    injected: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    hop: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    off_bus: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # CAN: never sent
 
 
 @dataclass(frozen=True)
@@ -112,7 +100,6 @@ class Measurement:
             messages=summary.get("messages") or {},
             certificate=summary.get("certificate"),
             series=series,
-            window_ns=(0, 0),
             host=summary.get("host"),
             epoch_ns=int(arrays["epoch_ns"]) if "epoch_ns" in arrays else None,
         )
@@ -142,13 +129,15 @@ def _lookup(
 ):
     """values[keys == q] for each q (keys distinct), ``missing`` where absent; vectorised.
     ``ordered``: the keys are already ascending (no sort)."""
-    order = np.arange(keys.size) if ordered else np.argsort(keys, kind="stable")
-    ks = keys if ordered else keys[order]
-    pos = np.clip(np.searchsorted(ks, query), 0, max(0, ks.size - 1))
-    found = (ks.size > 0) & (ks[pos] == query) if ks.size else np.zeros(query.size, bool)
     out = np.full(query.size, missing, dtype=values.dtype if values.size else np.int64)
-    if ks.size:
-        out[found] = values[order][pos[found]]
+    if keys.size == 0:
+        return out, np.zeros(query.size, bool)
+    if not ordered:
+        order = np.argsort(keys, kind="stable")
+        keys, values = keys[order], values[order]
+    pos = np.clip(np.searchsorted(keys, query), 0, keys.size - 1)
+    found = keys[pos] == query
+    out[found] = values[pos[found]]
     return out, found
 
 
@@ -197,26 +186,21 @@ class _Run:
         sn = self.samples["sample_ns"]
         self.w0 = int(sn[0]) if sn.size else 0
         self.w1 = int(sn[-1]) if sn.size else 0
-        # cmd_seq -> its tick row, and the sample it was computed from (the controller's own
-        # record, not what the message claims).
+        # cmd_seq -> its tick row (the controller's own record, not what the message claims),
+        # sorted by cmd_seq once: every join by command (tick_of) is then a search, not a sort.
         t = self.ticks
         rows = np.nonzero(t["cmd_seq"] >= 0)[0]
-        # Sorted by cmd_seq once: every join by command (tick_of) is then a search, not a sort.
         order = np.argsort(t["cmd_seq"][rows], kind="stable")
         self.cmd_rows = rows[order]
         self.cmd_keys = t["cmd_seq"][self.cmd_rows]
         self._can = self._match_can()
         self.series_without: np.ndarray | None = None  # sample times left without a command
 
-    # --- CAN: arrivals matched to sends (hil.measure.can_match) ------------------------------
     def _match_can(self) -> dict[str, np.ndarray]:
-        """Every CAN torque frame that reached a drive's receiver, matched to the send it came
-        from (:mod:`hil.measure.can_match`: by the bus's name for it where there is one, else
-        by bytes and order, a lost frame shifting nothing), with the earliest match the logs
-        allow beside it (``cmd_early``: the command age's upper bound), duplicates, and the
-        arrivals the logs cannot relate (``ambiguous``). The torque each frame carries is
-        checked against its send's: ``value_mismatches`` counts disagreements.
-        ``lost``: the receiver lost the frame on purpose ([faults] frame loss)."""
+        """Every CAN torque frame a drive received, matched to its send (hil.measure.can_match),
+        with the earliest match beside it (``cmd_early``: the command age's upper bound),
+        duplicates, the ``ambiguous`` ones and the ``lost`` ones ([faults] frame loss);
+        ``value_mismatches`` counts frames whose torque differs from their send's."""
         rx, tx = self.logs["cmd_rx"], self.logs["can_tx"]
         is_can = rx["path"] == CmdPath.CAN
         node, idx, recv = rx["node"][is_can], rx["seq"][is_can], rx["recv_ns"][is_can]
@@ -270,7 +254,6 @@ class _Run:
             out[mine[found]] = (cmd_early if early else cmd)[order[pos[found]]]
         return out
 
-    # --- landings: (time, sample) of each command put in force, per path -----------------------
     def landings(
         self, path: str, applied: bool, early: bool = False
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -316,7 +299,7 @@ class _Run:
         meta = self.logs.host.meta if self.logs.host is not None else {}
         return host_figures(self.logs["host"], meta, lo, hi) if "host" in self.logs.tables else None
 
-    # --- what a stall's cause joins, sorted by time once (hil.measure.stalls) ----------------
+    # What a stall's cause joins (hil.measure.stalls), sorted by time once.
     @cached_property
     def wake_sorted(self) -> Stamped:
         t = self.ticks
@@ -425,24 +408,14 @@ class _Run:
         keep = cmd >= 0
         keep[keep] = self._sample_of(cmd[keep]) > 0
         node, land, cmd = node[keep], land[keep], cmd[keep]
-        nodes = np.unique(node)
-        if nodes.size == 0:
-            z = np.zeros(0, np.int64)
-            return z, z, z
         order = np.argsort(land, kind="stable")
         node, land, cmd = node[order], land[order], cmd[order]
         eff = np.full(land.size, np.iinfo(np.int64).max)
-        for n in nodes.tolist():
-            mine = node == n
-            last = np.where(mine, cmd, -1)
-            last = np.maximum.accumulate(last)  # the newest command of node n landed so far
-            eff = np.minimum(eff, last)
-        valid = eff >= 0
-        land, eff = land[valid], eff[valid]
-        if eff.size == 0:
-            z = np.zeros(0, np.int64)
-            return z, z, z
-        change = np.concatenate([[True], eff[1:] != eff[:-1]])
+        for n in np.unique(node).tolist():
+            # the newest command of node n landed so far
+            eff = np.minimum(eff, np.maximum.accumulate(np.where(node == n, cmd, -1)))
+        land, eff = land[eff >= 0], eff[eff >= 0]
+        change = np.diff(eff, prepend=-1) != 0
         land, eff = land[change], eff[change]
         return land, self._sample_of(eff), eff
 
@@ -480,16 +453,6 @@ def _missed_slots(late: np.ndarray, skipped: np.ndarray, period: int) -> dict[st
     }
 
 
-def _phase_shift(r: _Run, k: np.ndarray) -> np.ndarray:
-    """Per tick gap: the learnt phase's one shift (controller_service.tick_phase) where the
-    gap crosses the slot it took effect at, else 0: the move is not jitter."""
-    cm = r.logs.cmeta
-    if cm.get("tick_phase_from_k") is None:
-        return np.zeros(max(k.size - 1, 0), np.int64)
-    at = int(cm["tick_phase_from_k"])
-    return int(cm.get("tick_phase_shift_ns") or 0) * ((k[1:] >= at) & (k[:-1] < at))
-
-
 def _tick_phase(r: _Run) -> dict[str, Any]:
     """Where the periodic ticks fell after the sample: the rule, and for "auto" the phase
     learnt and what it was learnt from (controller_service.tick_phase), in µs."""
@@ -520,7 +483,13 @@ def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
         timing["slots"] = miss["slots"]
         timing["deadline_miss_rate"] = miss["rate"]
         k, wake = t["k"][win], t["wake_ns"][win]
-        expected = np.diff(k) * r.period + _phase_shift(r, k)
+        expected = np.diff(k) * r.period
+        at = r.logs.cmeta.get("tick_phase_from_k")
+        if at is not None:
+            # The learnt phase's one shift (controller_service.tick_phase) is not jitter: the
+            # gap that crosses the slot it took effect at expects it.
+            shift = int(r.logs.cmeta.get("tick_phase_shift_ns") or 0)
+            expected = expected + shift * ((k[1:] >= int(at)) & (k[:-1] < int(at)))
         timing["period_jitter"] = summarize_ns(np.abs(np.diff(wake) - expected))
         timing["tick_phase"] = _tick_phase(r)
         series["wakeup_lateness"] = ((t["deadline_ns"][win] - r.epoch) / 1e9, late)
@@ -557,10 +526,10 @@ def _hops(r: _Run, timing: dict[str, Any]) -> None:
     z = rx["path"] == CmdPath.ZENOH
     seq, recv = _first_per_key(rx["seq"][z], rx["recv_ns"][z])
     i, found = r.tick_of(seq)
-    seq, recv, i = seq[found], recv[found], i[found]
+    recv, i = recv[found], i[found]
     send = t["zenoh_send_ns"][i]
     ok = (send > 0) & _in(t["state_sample_ns"][i], r.w0, r.w1)
-    seq, recv, i, send = seq[ok], recv[ok], i[ok], send[ok]
+    recv, i, send = recv[ok], i[ok], send[ok]
     hop = recv - send
     timing["hop_cmd_zenoh"] = summarize_ns(hop)
     f = fresh[i]
@@ -645,10 +614,9 @@ def _messages(r: _Run) -> dict[str, Any]:
 
 def _can_window(r: _Run) -> tuple[np.ndarray, np.ndarray, int]:
     """(this window's commands, per can_tx row: a frame of one of them, the commands sent after
-    the window). A command is this
-    window's if it was computed in it and its last frame was put on the bus by the end (a frame
-    never on the bus counts at its compute time): a host stalled between compute and send must
-    not make a frame sent after the plant stopped count as lost."""
+    the window). A command is this window's if it was computed in it and its last frame was put
+    on the bus by the end (a frame never on the bus counts at its compute time): a host stalled
+    between compute and send must not make a frame sent after the plant stopped count as lost."""
     t, tx = r.ticks, r.logs["can_tx"]
     rows, found = r.tick_of(tx["cmd_seq"])
     when = np.zeros(tx["cmd_seq"].size, np.int64)
@@ -681,7 +649,8 @@ def _can_messages(r: _Run) -> dict[str, Any]:
     for n in wheels.tolist():
         on_n = c["node"] == n
         sent_n = int((mine & (tx["node"] == n)).sum())
-        rx_n = _distinct_frames(c, got & ours & on_n)
+        sel = got & ours & on_n  # distinct frames: by the command and wheel they carry
+        rx_n = int(np.unique(_frame_keys(c["cmd"][sel], c["node"][sel])).size)
         per_node[str(n)] = {
             "frames_sent": sent_n,
             "frames_received": rx_n,
@@ -714,11 +683,6 @@ def _can_messages(r: _Run) -> dict[str, Any]:
     if r.applied == "can":
         out.update(_can_fates(r, received, n_wheels))
     return out
-
-
-def _distinct_frames(c: dict[str, np.ndarray], sel: np.ndarray) -> int:
-    """Distinct frames among the selected arrivals (by the command and wheel they carry)."""
-    return int(np.unique(_frame_keys(c["cmd"][sel], c["node"][sel])).size)
 
 
 def _frame_keys(cmd: np.ndarray, node: np.ndarray) -> np.ndarray:
@@ -785,15 +749,15 @@ def _certificate(
     law D, D* None), with every stall counted and owned. ``held`` is True only if the bound
     holds for every matching of CAN frames the logs allow (at the upper bound of D), False if
     it fails even at the lower one, else None (unknown)."""
-
     empty = agemod.segments(np.zeros(0, np.int64), np.zeros(0, np.int64), r.w1)
     seg: agemod.AgeSegments = series.get(f"command_age_{r.applied}") or empty
     upper: agemod.AgeSegments = series.get(f"command_age_{r.applied}_upper") or seg
     d_max_ns, d_upper_ns = agemod.max_age(seg), agemod.max_age(upper)
     d_max = d_max_ns / 1e9 if d_max_ns is not None else None
-    d_star = cert = held = None
+    d_star = d_star_ns = cert = held = None
     if b is not None:
         d_star = critical_age(b.params, b.context, b.boundary_layer, v0=b.v0, w0=b.w0)
+        d_star_ns = int(d_star * 1e9)
 
         def held_at(d: float | None) -> tuple[bool, Any]:
             if d is None:
@@ -805,7 +769,7 @@ def _certificate(
         high_ok = held_at(d_upper_ns / 1e9)[0] if d_upper_ns != d_max_ns else low_ok
         held = True if high_ok else (False if not low_ok else None)
     threshold_ns = int(max(3 * r.ts, 0.5 * d_star * 1e9 if d_star is not None else 0))
-    stalls = find_stalls(r, seg, threshold_ns, int(d_star * 1e9) if d_star is not None else None)
+    stalls = find_stalls(r, seg, threshold_ns, d_star_ns)
     _bench_shares(r, stalls.bench_windows, timing)
     out: Certificate = {
         "path": r.applied,

@@ -30,8 +30,6 @@ from protocol.hoplog import (
     iter_records,
 )
 
-CONTROLLER_FILE = layout.CONTROLLER_LOG
-PLANT_FILE = layout.PLANT_LOG
 HOST_FILE = layout.HOST_LOG  # hil run's samples of the bench's host (hil.run.host_load)
 
 _F8, _F4, _I8, _I4, _I2, _I1 = np.float64, np.float32, np.int64, np.int32, np.int16, np.int8
@@ -83,20 +81,15 @@ TRACE_SOURCE_COLUMNS: dict[str, tuple[str, ...]] = {
 _TYPECODE = {_F8: "d", _F4: "f", _I8: "q", _I4: "i", _I2: "h", _I1: "b"}
 
 
-def _buffer(name: str, dtype: Any) -> array:
-    return array("q" if name in NARROW else _TYPECODE[dtype])
-
-
-def _finish(buf: array, name: str, dtype: Any) -> np.ndarray:
-    """The column as numpy (a view of ``buf``); sequence numbers int32 when they fit."""
+def _column(buf: array | None, name: str, dtype: Any) -> np.ndarray:
+    """The column as numpy (a view of ``buf``, empty without it); sequence numbers int32 when
+    they fit."""
+    if buf is None:
+        return np.zeros(0, np.int32 if name in NARROW else dtype)
     a = np.frombuffer(buf, dtype=np.int64 if name in NARROW else dtype)
     if name in NARROW and (a.size == 0 or (int(a.min()) >= -(2**31) and int(a.max()) < 2**31)):
         return a.astype(np.int32)
     return a
-
-
-def _empty(name: str, dtype: Any) -> np.ndarray:
-    return np.zeros(0, np.int32 if name in NARROW else dtype)
 
 
 @dataclass
@@ -146,7 +139,10 @@ def read_columns(
             for name in tables:
                 cols = fields.get(name, [])
                 index[name] = {c: cols.index(c) for c in tables[name] if c in cols}
-                parts[name] = {c: _buffer(c, COLUMNS[name][c]) for c in index[name]}
+                parts[name] = {
+                    c: array("q" if c in NARROW else _TYPECODE[COLUMNS[name][c]])
+                    for c in index[name]
+                }
         elif fields is None:
             continue
         elif kind == "rows" and rec.get("table") in parts:
@@ -173,13 +169,10 @@ def read_columns(
     if fields is None:
         raise HopLogError(f"{path}: no hop-log header")
     head.truncated = end < size
-    out: dict[str, dict[str, np.ndarray]] = {}
+    out: dict[str, dict[str, np.ndarray]] = {name: {} for name in tables}
     for name, wanted in tables.items():
-        out[name] = {}
         for c in wanted:
-            buf = parts.get(name, {}).pop(c, None)
-            dtype = COLUMNS[name][c]
-            out[name][c] = _finish(buf, c, dtype) if buf is not None else _empty(c, dtype)
+            out[name][c] = _column(parts.get(name, {}).pop(c, None), c, COLUMNS[name][c])
     return head, out
 
 
@@ -217,7 +210,7 @@ class RunLogs:
                     head = None
             if head is None:
                 for name, cs in wanted.items():
-                    logs.tables[name] = {c: _empty(c, COLUMNS[name][c]) for c in cs}
+                    logs.tables[name] = {c: _column(None, c, COLUMNS[name][c]) for c in cs}
             setattr(logs, role, head)
         to_plant_clock(logs.tables, controller.parent if controller is not None else None)
         return logs
@@ -258,7 +251,7 @@ def load_folder_logs(
 ) -> RunLogs | None:
     """The hop logs of a run folder (None when it has neither); ``columns`` as RunLogs.read."""
     folder = Path(folder)
-    c, p, h = folder / CONTROLLER_FILE, folder / PLANT_FILE, folder / HOST_FILE
+    c, p, h = folder / layout.CONTROLLER_LOG, folder / layout.PLANT_LOG, folder / HOST_FILE
     if not c.is_file() and not p.is_file():
         return None
     return RunLogs.read(
@@ -268,7 +261,7 @@ def load_folder_logs(
 
 def load_recording_logs(path: str | Path) -> RunLogs | None:
     """The hop logs carried as attachments of a recording (None when it has none)."""
-    found = read_attachments(path, names=(CONTROLLER_FILE, PLANT_FILE, HOST_FILE))
+    found = read_attachments(path, names=(layout.CONTROLLER_LOG, layout.PLANT_LOG, HOST_FILE))
     if not found:
         return None
     with tempfile.TemporaryDirectory(prefix="hil-hoplogs-") as tmp:
@@ -277,5 +270,5 @@ def load_recording_logs(path: str | Path) -> RunLogs | None:
             paths[name] = Path(tmp) / name
             paths[name].write_bytes(data)
         return RunLogs.read(
-            paths.get(CONTROLLER_FILE), paths.get(PLANT_FILE), host=paths.get(HOST_FILE)
+            paths.get(layout.CONTROLLER_LOG), paths.get(layout.PLANT_LOG), host=paths.get(HOST_FILE)
         )

@@ -36,15 +36,19 @@ from typing import Any, Protocol
 import numpy as np
 
 from hil.measure.age import AgeSegments
+from hil.measure.host import PROCESSES
 
 
-class Stamped(Protocol):
+@dataclass(frozen=True)
+class Stamped:
+    """Rows of one kind sorted by a time stamp, with what a stall's cause needs of them."""
+
     stamps: np.ndarray
-    late: np.ndarray
-    arrived: np.ndarray
-    injected: np.ndarray
-    hop: np.ndarray
-    off_bus: np.ndarray
+    late: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    arrived: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    injected: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    hop: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    off_bus: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # CAN: never sent
 
 
 class _Run(Protocol):
@@ -71,17 +75,9 @@ STALL_LIMIT = 20  # stalls listed, worst first
 HOST_BUSY_PCT = 90.0  # host_overloaded: the CPUs this busy over the stall ...
 HOST_OTHERS_PCT = 50.0  # ... with at least this much of one CPU going to other processes
 CAUSE_LIMIT = 2000  # excursions whose cause is looked up (every one above D*, then the worst)
-OWNER = {
-    "controller_late": "system",
-    "state_lost": "system",
-    "command_lost": "system",
-    "transport_late": "system",
-    "command_delayed": "system",
-    "plant_late": "bench",
-    "host_stalled": "bench",
-    "host_overloaded": "bench",
-    "unknown": "unknown",
-}
+_SYSTEM = ("controller_late", "state_lost", "command_lost", "transport_late", "command_delayed")
+_BENCH = ("plant_late", "host_stalled", "host_overloaded")
+OWNER = {**dict.fromkeys(_SYSTEM, "system"), **dict.fromkeys(_BENCH, "bench"), "unknown": "unknown"}
 
 
 @dataclass
@@ -190,8 +186,15 @@ def cause_of(r: _Run, lo: int, hi: int) -> tuple[str, dict[str, Any]]:
     controller and a plant both late there is the host's stall."""
     scores: dict[str, float] = {}
     ev: dict[str, Any] = {}
-    _controller_evidence(r, lo, hi, scores, ev)
-    _plant_evidence(r, lo, hi, scores, ev)
+    w, s = r.wake_sorted, r.samples
+    if r.trigger == "periodic" and w.stamps.size:
+        late = w.late[_between(w.stamps, lo, hi)]
+        _late_or_silent("controller", late, _longest_quiet(w.stamps, lo, hi), r.period, scores, ev)
+    if not r.lockstep and s["wake_ns"].size:
+        sl = _between(s["sample_ns"], lo, hi)
+        late = s["wake_ns"][sl] - s["sample_ns"][sl]
+        quiet = _longest_quiet(s["sample_ns"], lo, hi)
+        _late_or_silent("plant", late, quiet, r.sensor_period, scores, ev)
     _message_evidence(r, lo, hi, scores, ev)
     if "controller_late" in scores and "plant_late" in scores:
         scores["host_stalled"] = max(scores.pop("controller_late"), scores.pop("plant_late"))
@@ -212,46 +215,27 @@ def _overloaded(host: dict[str, Any], late_ns: float) -> bool:
     at least half its lateness runnable but waiting for a CPU (its run-queue wait,
     /proc/PID/schedstat): a controller that was stopped or blocked waits on no run queue, and
     its lateness is its own even on a busy host."""
-    ours = sum(host.get(f"{p}_cpu_pct", 0.0) for p in ("plant", "controller", "recorder"))
+    ours = sum(host.get(f"{p}_cpu_pct", 0.0) for p in PROCESSES)
     others = host["busy_pct"] * host["cpus"] - ours
     waited = host.get("controller_wait_s")
     starved = waited is not None and waited * 1e9 >= 0.5 * late_ns
     return host["busy_pct"] >= HOST_BUSY_PCT and others >= HOST_OTHERS_PCT and starved
 
 
-def _controller_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None:
-    w = r.wake_sorted
-    if r.trigger != "periodic" or w.stamps.size == 0:
-        return
-    sl = _between(w.stamps, lo, hi)
-    if sl.stop > sl.start:
-        worst = int(w.late[sl].max())
-        ev["controller_lateness_s"] = worst / 1e9
-        if worst >= r.period:
-            scores["controller_late"] = worst
-    # No tick at all for longer than the period's slack: the controller was down (killed,
-    # restarting): it did not wake, the latest of lates.
-    quiet = _longest_quiet(w.stamps, lo, hi)
-    if quiet >= 2 * r.period:
-        ev["controller_silent_s"] = quiet / 1e9
-        scores["controller_late"] = max(scores.get("controller_late", 0), quiet)
-
-
-def _plant_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None:
-    s = r.samples
-    if r.lockstep or s["wake_ns"].size == 0:
-        return
-    sl = _between(s["sample_ns"], lo, hi)
-    if sl.stop > sl.start:
-        worst = int((s["wake_ns"][sl] - s["sample_ns"][sl]).max())
-        ev["plant_lateness_s"] = worst / 1e9
-        if worst >= r.sensor_period:
-            scores["plant_late"] = worst
-    # The plant sleeping through slots (no sample at all) is its lateness too.
-    quiet = _longest_quiet(s["sample_ns"], lo, hi)
-    if quiet >= 2 * r.sensor_period:
-        ev["plant_silent_s"] = quiet / 1e9
-        scores["plant_late"] = max(scores.get("plant_late", 0), quiet)
+def _late_or_silent(
+    who: str, late: np.ndarray, quiet: int, period: int, scores: dict, ev: dict
+) -> None:
+    """``who`` late over a stall: the worst ``late`` of its wake-ups there, or no wake-up at all
+    for ``quiet`` >= two periods (the controller down: killed, restarting; the plant sleeping
+    through slots), the latest of lates."""
+    if late.size:
+        worst = int(late.max())
+        ev[f"{who}_lateness_s"] = worst / 1e9
+        if worst >= period:
+            scores[f"{who}_late"] = worst
+    if quiet >= 2 * period:
+        ev[f"{who}_silent_s"] = quiet / 1e9
+        scores[f"{who}_late"] = max(scores.get(f"{who}_late", 0), quiet)
 
 
 def _message_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None:

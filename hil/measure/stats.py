@@ -15,25 +15,17 @@ PERCENTILES = (("p50_us", 50.0), ("p90_us", 90.0), ("p99_us", 99.0), ("p999_us",
 
 
 def empty_summary() -> dict[str, Any]:
-    out: dict[str, Any] = {"count": 0}
-    for name, _ in PERCENTILES:
-        out[name] = None
-    out["max_us"] = None
-    out["mean_us"] = None
-    return out
+    return {"count": 0, **dict.fromkeys([name for name, _ in PERCENTILES] + ["max_us", "mean_us"])}
 
 
 def summarize_ns(values_ns: Any) -> dict[str, Any]:
     """count, p50/p90/p99/p999/max/mean in microseconds of durations given in nanoseconds."""
-    v = np.asarray(values_ns, dtype=np.int64).ravel() if len(values_ns) else np.zeros(0, np.int64)
+    v = np.asarray(values_ns, dtype=np.int64).ravel()
     if v.size == 0:
         return empty_summary()
-    out: dict[str, Any] = {"count": int(v.size)}
     qs = np.percentile(v, [q for _, q in PERCENTILES], method="inverted_cdf")
-    for (name, _), q in zip(PERCENTILES, qs, strict=True):
-        out[name] = int(q) / 1000.0
-    out["max_us"] = int(v.max()) / 1000.0
-    out["mean_us"] = float(v.mean()) / 1000.0
+    quantiles = {name: q for (name, _), q in zip(PERCENTILES, qs, strict=True)}
+    out = summary_from_quantiles(v.size, quantiles, v.max(), v.mean())
     neg = int((v < 0).sum())
     if neg:
         out["negative"] = neg
@@ -41,7 +33,7 @@ def summarize_ns(values_ns: Any) -> dict[str, Any]:
 
 
 def summary_from_quantiles(
-    count: int, quantile_ns: dict[str, int], max_ns: int, mean_ns: float
+    count: int, quantile_ns: dict[str, Any], max_ns: int, mean_ns: float
 ) -> dict[str, Any]:
     """The same object from percentiles computed elsewhere (the command age's exact counts)."""
     if count == 0:

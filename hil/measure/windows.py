@@ -24,18 +24,6 @@ from hil.measure.stats import summarize_ns
 MINUTE_NS = 60_000_000_000
 
 
-def window_count(origin_ns: int, end_ns: int, width_ns: int) -> int:
-    """How many windows of ``width_ns`` from ``origin_ns`` cover up to ``end_ns`` (at least 1)."""
-    return max(1, -(-(int(end_ns) - int(origin_ns)) // int(width_ns)))
-
-
-def window_index(t_ns: np.ndarray, origin_ns: int, width_ns: int, n: int) -> np.ndarray:
-    """The window of each instant; instants outside [origin, origin + n w) go to the first or
-    last window (the run's own edges: the last segment ends exactly at the run's end)."""
-    k = (np.asarray(t_ns, dtype=np.int64) - np.int64(origin_ns)) // np.int64(width_ns)
-    return np.clip(k, 0, n - 1)
-
-
 def lateness_windows(
     t_s: np.ndarray, late_ns: np.ndarray, origin_s: float, width_s: float, n: int
 ) -> list[dict[str, Any]]:
@@ -50,13 +38,10 @@ def lateness_windows(
 def age_windows(
     seg: AgeSegments, grid0_ns: int, step_ns: int, origin_ns: int, width_ns: int, n: int
 ) -> list[dict[str, Any]]:
-    """Command-age summary (µs) per window, each segment whole in the window of its end.
-
-    ``grid0_ns``/``step_ns``: the plant's step grid (the whole run's, so every step is counted
-    once); ``max_us`` is the largest peak (end - sample) of the window's segments and
-    ``max_at_ns`` where it occurred (that segment's end); windows without a segment are empty
-    summaries with ``max_at_ns`` None."""
-    k = window_index(seg.end, origin_ns, width_ns, n)
+    """Command-age summary (µs) per window on the plant's step grid ``grid0_ns``/``step_ns``
+    (module docstring), with ``max_at_ns``: the end of the largest peak's segment (None in a
+    window without a segment). Segments ending outside the windows go to the first or last."""
+    k = np.clip((np.asarray(seg.end, np.int64) - origin_ns) // np.int64(width_ns), 0, n - 1)
     out = []
     for i in range(n):
         mine = k == i
@@ -82,33 +67,27 @@ def per_window(
     width_ns: int = MINUTE_NS,
 ) -> list[dict[str, Any]]:
     """Wake-up lateness and applied-path command age (p99 and max, µs) per window of
-    ``width_ns`` from the run's epoch, from :func:`hil.measure.measure`'s ``series``.
-
-    ``window_ns`` is the measurement's (first, last plant sample); ``step_ns`` the plant's step.
-    A figure the run did not measure (no wake-up lateness in ``on_state`` or lockstep runs) is
-    None in every window, not 0."""
+    ``width_ns`` from the run's epoch, from :func:`hil.measure.measure`'s ``series`` and
+    ``window_ns`` (first, last plant sample). A figure the run did not measure (no wake-up
+    lateness in ``on_state`` or lockstep runs) is None in every window, not 0."""
     w0, w1 = int(window_ns[0]), int(window_ns[1])
-    n = window_count(epoch_ns, w1, width_ns)
+    n = max(1, -(-(w1 - int(epoch_ns)) // int(width_ns)))  # windows up to w1, at least 1
     late = series.get("wakeup_lateness")
-    lat = (
-        lateness_windows(late[0], late[1], 0.0, width_ns / 1e9, n)
-        if late is not None
-        else [None] * n
-    )
+    lat = [None] * n if late is None else lateness_windows(*late, 0.0, width_ns / 1e9, n)
     seg = series.get(f"command_age_{series.get('applied_path', 'zenoh')}")
     age = age_windows(seg, w0, step_ns, epoch_ns, width_ns, n) if seg is not None else [None] * n
     out = []
     for i in range(n):
-        a = age[i] or {}
+        w, a = lat[i] or {}, age[i] or {}
         at = a.get("max_at_ns")
         out.append(
             {
                 "window": i,
                 "start_s": i * width_ns / 1e9,
                 "end_s": (i + 1) * width_ns / 1e9,
-                "wakeup_lateness_p99_us": (lat[i] or {}).get("p99_us"),
-                "wakeup_lateness_max_us": (lat[i] or {}).get("max_us"),
-                "wakeup_lateness_count": (lat[i] or {}).get("count"),
+                "wakeup_lateness_p99_us": w.get("p99_us"),
+                "wakeup_lateness_max_us": w.get("max_us"),
+                "wakeup_lateness_count": w.get("count"),
                 "command_age_p99_us": a.get("p99_us"),
                 "command_age_max_us": a.get("max_us"),
                 "command_age_max_at_s": None if at is None else (at - epoch_ns) / 1e9,
