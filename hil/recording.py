@@ -1,33 +1,24 @@
 """MCAP recordings of a run: a writer for the recorder and a reader for reports.
 
-Encoding choice: every message is stored as a JSON mirror of its msgpack payload (MCAP message
-encoding ``json`` with a ``jsonschema`` schema per topic, typed field by field from the
-protocol's definitions by :mod:`hil.schemas`; the robot's pose also as Foxglove's well-known
-``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``). Recordings written before the schemas
-were typed (every channel ``{"type": "object"}``) read the same. The wire format stays msgpack;
-the recording decodes it once, off the real-time path, in the recorder. Why JSON and not the raw
-msgpack bytes: ``json`` + ``jsonschema`` is a well-known MCAP profile that the ``mcap`` CLI
-(``mcap cat --json``) and Foxglove decode and plot with no plug-in, whereas msgpack is not one
-of Foxglove's encodings. CAN frames are stored the same way (arbitration id, data as hex,
-decoded signals when the codec knows them). The cost (a few tens of microseconds a message) is
-paid by the recorder process, never by the controller or the plant.
+Every message is stored as a JSON mirror of its msgpack payload (message encoding ``json``, a
+``jsonschema`` schema per topic typed from the protocol by :mod:`hil.schemas`; the robot's pose
+also as Foxglove's ``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``); recordings of
+untyped schemas (``{"type": "object"}``) read the same. Why JSON and not the msgpack bytes:
+``json`` + ``jsonschema`` is a well-known MCAP profile that ``mcap cat --json`` and Foxglove
+decode with no plug-in; msgpack is not a Foxglove encoding. CAN frames are stored the same way
+(arbitration id, data as hex, decoded signals when the codec knows them). The decoding (a few
+tens of microseconds a message) is paid by the recorder, never by the controller or the plant.
 
-Reader API (what ``hil report`` uses)::
-
-    from hil.recording import read_messages, list_topics
-    for msg in read_messages(path, topics=["hil/robot0/state"]):
-        msg.topic, msg.log_time_ns, msg.publish_time_ns, msg.data  # data: a dict
-
+Reader: :func:`read_messages` gives :class:`RecordedMessage` (``data``: a dict);
 ``log_time_ns`` is when the recorder received the message (``time.monotonic_ns()``), and
 ``publish_time_ns`` the sender's own stamp when the message carries one (else the log time).
 
 Crash safety: the writer closes its chunk and flushes the file at least every
 ``flush_interval`` (0.05 s: half the 0.1 s promised, the other half is slack for a recorder
-thread that falls behind on a loaded host), so a recorder killed at any moment loses what it
-received in the last 0.1 s and what its queue still held (on a loaded host, much more); the
-readers here also read such a truncated file (up to its last whole chunk), and
-:func:`rewrite_complete` turns it into a complete, indexed MCAP, with messages restored from
-elsewhere merged in (``hil recover`` restores the States from the plant's hop log).
+thread that falls behind on a loaded host), so a killed recorder loses what it received in the
+last 0.1 s and what its queue still held; the readers here also read such a truncated file (up
+to its last whole chunk), and :func:`rewrite_complete` turns it into a complete, indexed MCAP,
+with messages restored from elsewhere merged in (``hil recover``: the plant's hop log's States).
 """
 
 from __future__ import annotations
@@ -108,7 +99,6 @@ class _SpilledIndexes:
     The writer only appends to and iterates over its list, which this class provides."""
 
     def __init__(self) -> None:
-
         self._file = tempfile.TemporaryFile(prefix="hil-chunk-index-")  # noqa: SIM115
         self._builder = RecordBuilder()
         self._count = 0
@@ -157,7 +147,6 @@ class RecordingWriter:
         flush_interval: float = 0.05,
         spill_indexes: bool = True,
     ) -> None:
-
         self.path = Path(path)
         self._stream: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - closed in close()
         self._writer = Writer(self._stream, compression=CompressionType.ZSTD)
@@ -241,7 +230,6 @@ class RecordingWriter:
     ) -> None:
         """A file carried inside the recording (the services' hop logs: a recording alone then
         reproduces every timing figure of the run)."""
-
         now = time.time_ns()
         self._writer.add_attachment(now, now, name, media_type, bytes(data))
 
@@ -262,7 +250,6 @@ class RecordingWriter:
         through the Writer's private (name-mangled) state, and the public ``add_attachment``
         is used whenever that state is not there (another ``mcap`` version).
         """
-
         now = time.time_ns() if time_ns is None else int(time_ns)
         w = self._writer
         private = ("_Writer__stream", "_Writer__flush", "_Writer__statistics",
@@ -320,9 +307,6 @@ class RecordingWriter:
                 )
             )
 
-    def add_metadata(self, name: str, data: Mapping[str, Any]) -> None:
-        self._writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
-
     def close(self) -> None:
         if self._closed:
             return
@@ -341,18 +325,22 @@ class RecordingWriter:
         self.close()
 
 
-def is_complete(path: str | Path) -> bool:
-    """Whether the recording ends with its summary and footer (a clean finish)."""
+def _summary(path: str | Path) -> Any:
+    """The recording's summary section; None unless it ends with it (a clean finish)."""
     try:
         with open(path, "rb") as f:
-            return make_reader(f).get_summary() is not None
+            return make_reader(f).get_summary()
     except Exception:  # a truncated file makes the indexed reader raise anything
-        return False
+        return None
+
+
+def is_complete(path: str | Path) -> bool:
+    """Whether the recording ends with its summary and footer (a clean finish)."""
+    return _summary(path) is not None
 
 
 def _stream_records(path: str | Path) -> Iterator[Any]:
     """Every whole record of a possibly truncated recording, in file order."""
-
     with open(path, "rb") as f:
         reader = StreamReader(f, record_size_limit=None)
         try:
@@ -370,13 +358,9 @@ def read_messages(
     if is_complete(path):
         with open(path, "rb") as f:
             reader = make_reader(f)
-            for _s, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
+            for _s, ch, m in reader.iter_messages(topics=wanted, log_time_order=True):
                 yield RecordedMessage(
-                    topic=channel.topic,
-                    log_time_ns=message.log_time,
-                    publish_time_ns=message.publish_time,
-                    sequence=message.sequence,
-                    data=json.loads(message.data),
+                    ch.topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data)
                 )
         return
 
@@ -400,7 +384,6 @@ def read_messages(
 def topic_values(path: str | Path, topic: str, key: str) -> Iterator[Any]:
     """``data[key]`` of every message on ``topic`` of a possibly truncated recording, in file
     order, one message at a time (an hour's States never sit in memory as dicts)."""
-
     if is_complete(path):
         for _t, _log, payload in read_topic_payloads(path, [topic]):
             yield json.loads(payload).get(key)
@@ -416,14 +399,14 @@ def topic_values(path: str | Path, topic: str, key: str) -> Iterator[Any]:
 def rewrite_complete(
     src: str | Path,
     dst: str | Path,
-    attachments: Mapping[str, bytes] | None = None,
+    attachments: Mapping[str, bytes | Path] | None = None,
     extra: Iterable[RecordedMessage] = (),
 ) -> dict[str, int]:
     """A complete, indexed MCAP at ``dst`` from a possibly truncated ``src``: every whole
-    schema, channel, message, metadata and attachment, plus ``attachments``, plus the messages
-    ``extra`` (sorted by log time; each merged before the first message of ``src`` logged after
-    it, on its topic's channel, registered as the writer does when ``src`` has none). Returns
-    counts (``restored``: the messages of ``extra`` written)."""
+    schema, channel, message, metadata and attachment, plus ``attachments`` (data, or a file
+    to read), plus the messages ``extra`` (sorted by log time; each merged before the first
+    message of ``src`` logged after it, on its topic's channel, registered as the writer does
+    when ``src`` has none). Returns counts (``restored``: the messages of ``extra`` written)."""
 
     counts = {"messages": 0, "attachments": 0, "restored": 0}
     pending = list(extra)
@@ -474,7 +457,8 @@ def rewrite_complete(
         add_extra(math.inf)
         for name, data in (attachments or {}).items():
             now = time.time_ns()
-            w.add_attachment(now, now, name, "application/octet-stream", bytes(data))
+            blob = data.read_bytes() if isinstance(data, Path) else bytes(data)
+            w.add_attachment(now, now, name, "application/octet-stream", blob)
             counts["attachments"] += 1
         w.finish()
     return counts
@@ -482,10 +466,7 @@ def rewrite_complete(
 
 def list_topics(path: str | Path) -> dict[str, int]:
     """Topic -> message count, from the recording's summary section."""
-    summary = None
-    if is_complete(path):
-        with open(path, "rb") as f:
-            summary = make_reader(f).get_summary()
+    summary = _summary(path)
     if summary is None or summary.statistics is None:
         counts: dict[str, int] = {}
         for m in read_messages(path):
@@ -497,7 +478,6 @@ def list_topics(path: str | Path) -> dict[str, int]:
 
 def read_attachments(path: str | Path, names: Iterable[str] | None = None) -> dict[str, bytes]:
     """Name -> data of the recording's attachments (optionally only ``names``)."""
-
     wanted = set(names) if names is not None else None
     out: dict[str, bytes] = {}
     if is_complete(path):
@@ -533,10 +513,7 @@ def read_topic_payloads(
     :func:`read_messages` instead.
     """
     wanted = set(topics)
-    summary = None
-    if is_complete(path):
-        with open(path, "rb") as f:
-            summary = make_reader(f).get_summary()
+    summary = _summary(path)
     if summary is None or not summary.chunk_indexes:
         for m in read_messages(path, topics=sorted(wanted)):
             yield m.topic, m.log_time_ns, json.dumps(m.data).encode()

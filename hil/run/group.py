@@ -44,10 +44,11 @@ from hil.run.orchestrate import (
     attachment_files,
     free_port,
     prepare,
-    robot_keys,
+    run_extra,
 )
 from hil.run.secure import RunIdentities
 from hil.supervisor import Supervisor
+from protocol.keys import observed_keys
 from protocol.settings import RunSettings, period_ns
 from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
@@ -98,7 +99,6 @@ class _Robot:
     settings: RunSettings
     run_dir: Path
     info: dict[str, Any]
-    writer: RecordingWriter
     recorder: Recorder
 
 
@@ -115,7 +115,7 @@ def _prepare(spec: GroupSpec, endpoint: str | None) -> list[_Robot]:
         meta.update({"rate_hz": info["rate_hz"], "group": ",".join(spec.robots)})
         writer = RecordingWriter(run_dir / layout.RECORDING, metadata=meta)
         recorder = Recorder(writer, same_clock=endpoint is not None)
-        robots.append(_Robot(r, scenario, settings, run_dir, info, writer, recorder))
+        robots.append(_Robot(r, scenario, settings, run_dir, info, recorder))
     return robots
 
 
@@ -198,7 +198,9 @@ def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
         else:
             session = open_session(endpoint, listen_endpoint=True, credentials=None)
         for r in robots:  # each robot's status and taps into its own recording
-            subs += [session.declare_subscriber(k, r.recorder.on_zenoh) for k in robot_keys(r.id)]
+            subs += [
+                session.declare_subscriber(k, r.recorder.on_zenoh) for k in observed_keys(r.id)
+            ]
         _start_services(sup, robots, logs, host, placed)
         error = _start_and_follow(spec, robots, sup, session, stop)
     finally:
@@ -221,18 +223,10 @@ def _results(spec: GroupSpec, robots: list[_Robot], codes: dict[str, int | None]
              error: str | None, interrupted: bool, wall: float) -> dict[str, int]:  # fmt: skip
     """Each robot's trace.csv, summary.json and plots, as ``hil run`` writes them."""
     out: dict[str, int] = {}
+    shared = {"robots": list(spec.robots), "processes": ["plant", "controller"]}
     for r in robots:
-        extra = {
-            "interrupted": interrupted,
-            "error": error,
-            "wall_time_s": wall,
-            "exit_codes": codes,
-            "recording": layout.RECORDING,
-            "recorded_messages": r.writer.count,
-            "recorder": r.recorder.taps.counts(),
-            "secure": False,
-            "shared_processes": {"robots": list(spec.robots), "processes": ["plant", "controller"]},
-        }
+        extra = run_extra(interrupted, error, wall, codes, r.recorder, False)
+        extra["shared_processes"] = shared
         summary = _write_results(r.run_dir, r.scenario, r.settings, r.info, extra)
         out[r.id] = robot_code(summary)
     codes_file(Path(spec.out), spec.robots[0]).write_text(json.dumps(out) + "\n")

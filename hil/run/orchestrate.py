@@ -116,9 +116,10 @@ class RunOptions:
 
 
 class Recorder:
-    """Receives the robot's status and its services' taps (:func:`robot_keys`: every message
-    they sent and every payload they refused, :mod:`hil.observe`) and every CAN frame; writes
-    them off-thread. ``same_clock``: the services share this process's clock (not a lab run)."""
+    """Receives the robot's status and its services' taps (:func:`protocol.keys.observed_keys`:
+    every message they sent and every payload they refused, :mod:`hil.observe`) and every CAN
+    frame; writes them off-thread. ``same_clock``: the services share this process's clock (not
+    a lab run)."""
 
     def __init__(self, writer: RecordingWriter, same_clock: bool = True) -> None:
         self.writer = writer
@@ -140,7 +141,7 @@ class Recorder:
 
     def _write_one(self, topic: str, t: int, payload: Any) -> None:
         if topic.startswith("can/"):
-            self._write_can(topic, t, payload)
+            self.writer.write(topic, t, can_frame_record(payload), jsonable=True)
             return
         for m in self.taps.read(topic, t, payload):
             if m.rejected:
@@ -153,9 +154,6 @@ class Recorder:
         its own channel: each topic's messages fit its schema."""
         rejected = {"topic": topic, "reason": reason, "raw": payload.hex(), "by": by}
         self.writer.write("recorder/rejected", t, rejected, jsonable=True)
-
-    def _write_can(self, topic: str, t: int, payload: Any) -> None:
-        self.writer.write(topic, t, can_frame_record(payload), jsonable=True)
 
     def _write_message(self, topic: str, t: int, payload: bytes) -> None:
         try:
@@ -219,7 +217,6 @@ SPIN_US_MAX = 1e6
 def check_options(opts: RunOptions) -> None:
     """The command-line options of ``hil run`` (and of the services run alone), each named in
     a BadInputError; the scenario's own keys are checked when it is loaded."""
-
     options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
     if opts.trigger is not None:
         options.choice("--trigger", opts.trigger, TRIGGERS)
@@ -245,7 +242,6 @@ def check_options(opts: RunOptions) -> None:
 def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
     """(scenario, its path, whether the user gave one, its default duration): the user's
     scenario (a file or a bundled name) or the paper's tracking circle."""
-
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     if given is None:
         scenario = with_law(loads_scenario(PAPER_TRACKING_TOML, run_dir), opts.law)
@@ -256,7 +252,6 @@ def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float
 
 def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
     """The control rate (Hz) and the name of what set it ("" for the scenario's own Ts)."""
-
     rt = scenario.realtime
     if opts.rate is not None:
         return opts.rate, "--rate"
@@ -273,7 +268,6 @@ def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
 
 def _run_can_table(opts: RunOptions, scenario: Any) -> dict[str, Any]:
     """The run's [can] table with the command line's interface and channel, checked."""
-
     can_table = effective_can_table(scenario, opts.can_interface)
     if opts.can_channel:
         can_table["channel"] = opts.can_channel
@@ -288,7 +282,6 @@ def _run_settings(
     opts: RunOptions, scenario: Any, context: Any, scenario_path: Path, run_dir: Path, rate: float
 ) -> RunSettings:
     """The settings both services read (:class:`protocol.settings.RunSettings`)."""
-
     rt = scenario.realtime
     ts_s = scenario.timing.ts  # already 1 / rate when a rate overrode it (prepare)
     sensor_rate = rate if opts.lockstep else (rt.sensor_rate or rate)
@@ -327,7 +320,6 @@ def _run_settings(
 
 def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     """Resolve the scenario and the run's settings; write the folder's first files."""
-
     check_options(opts)  # every option before the scenario: no folder, no process yet
     if opts.secure and opts.cmd_path == "can":
         raise BadInputError("--secure guards the Zenoh command path; the CAN bus has no login")
@@ -383,7 +375,6 @@ def _open_recorder_session(
 ) -> Any:
     """The recorder's Zenoh session: on the run's endpoint, or a router's client (started
     here) in router mode, or the client of the lab host's own router."""
-
     if lab:
         return open_session(settings.zenoh_endpoint, mode="client", credentials=None)
     if settings.zenoh_mode == "router":
@@ -395,12 +386,6 @@ def _open_recorder_session(
         creds = ids.credentials("recorder")
         return open_session(settings.zenoh_endpoint, mode="client", credentials=creds)
     return open_session(settings.zenoh_endpoint, listen_endpoint=True, credentials=None)
-
-
-def robot_keys(robot_id: str) -> tuple[str, ...]:
-    """What a run's recorder subscribes to: the robot's status and its services' taps
-    (:func:`protocol.keys.observed_keys`), never the loop's own keys."""
-    return observed_keys(robot_id)
 
 
 def _start_services(
@@ -434,7 +419,6 @@ def _start_and_follow(
 ) -> str | None:
     """Wait for both services to be ready, announce the epoch, follow the run to its end;
     returns an error, or None."""
-
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
     # that dies is noticed at once anyway.
     ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
@@ -465,7 +449,6 @@ def _close_live(live: _Live, recorder: Recorder, run_dir: Path) -> None:
 
 def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
-
     # --lab: the recorder's lab host; [impair]: the run's own network namespace (either way
     # this command is executed again there).
     impaired = bool(opts.lab) and impair.plan_of(opts, check_options) is not None
@@ -492,7 +475,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             # The run's own robot only: a fleet's robots may share the routers.
             live.subs = [
                 live.session.declare_subscriber(key, recorder.on_zenoh)
-                for key in robot_keys(settings.robot_id)
+                for key in observed_keys(settings.robot_id)
             ]
             live.can_rec = _can_recorder(settings, recorder)
             if opts.live_port is not None:  # its own process: no cycle of the recorder's
@@ -509,20 +492,27 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             logs.close()
             placement.write_topology(placed, run_dir)  # before the recording takes it along
             _close_live(live, recorder, run_dir)
-    extra = {
-        "interrupted": interrupted,
-        "error": error,
-        "wall_time_s": time.monotonic() - t_start,
-        "exit_codes": codes,
-        "recording": layout.RECORDING,
-        "recorded_messages": writer.count,
-        "recorder": recorder.taps.counts(),
-        "secure": opts.secure,
-    }
+    extra = run_extra(interrupted, error, time.monotonic() - t_start, codes, recorder, opts.secure)
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
     summary = _write_results(run_dir, scenario, settings, info, extra)
     summary["run_dir"] = str(run_dir)
     return summary
+
+
+def run_extra(
+    interrupted: bool, error: str | None, wall: float, codes: Any, recorder: Recorder, secure: bool
+) -> dict[str, Any]:
+    """What ``hil run`` adds to summary.json about the run itself (in this key order)."""
+    return {
+        "interrupted": interrupted,
+        "error": error,
+        "wall_time_s": wall,
+        "exit_codes": codes,
+        "recording": layout.RECORDING,
+        "recorded_messages": recorder.writer.count,
+        "recorder": recorder.taps.counts(),
+        "secure": secure,
+    }
 
 
 def _write_results(
@@ -530,16 +520,8 @@ def _write_results(
 ) -> dict[str, Any]:
     """trace.csv, summary.json and trajectory.png from the hop logs; a second Ctrl-C while
     the folder is written is recorded, not raised (hil.interrupts)."""
-
     with interrupts.shielded():
-        summary = analyze(
-            run_dir,
-            scenario,
-            settings,
-            info["reference"],
-            info["context"],
-            extra,
-        )
+        summary = analyze(run_dir, scenario, settings, info["reference"], info["context"], extra)
         try:
             plot(run_dir)
         except Exception as exc:
@@ -553,34 +535,20 @@ ATTACHED += (CLOCK_FILE, TOPOLOGY_FILE)
 
 
 def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:
-    """The files a recording carries (as :func:`attachments_of`), by path, to be streamed."""
+    """The files a recording carries so that it alone reproduces the run's figures, by path
+    (streamed when attached)."""
     return {name: run_dir / name for name in ATTACHED if (run_dir / name).is_file()}
 
 
-def attachments_of(run_dir: Path) -> dict[str, bytes]:
-    """The files a recording carries so that it alone reproduces the run's figures."""
-    out: dict[str, bytes] = {}
-    for name in ATTACHED:
-        with contextlib.suppress(OSError):
-            out[name] = (run_dir / name).read_bytes()
-    return out
-
-
-class _Logs:
+class _Logs(contextlib.ExitStack):
     """The children's console logs (``<name>.log`` in the run folder), closed at the end."""
 
     def __init__(self, run_dir: Path) -> None:
+        super().__init__()
         self.run_dir = run_dir
-        self.files: list[Any] = []
 
     def open(self, name: str) -> Any:
-        f = (self.run_dir / f"{name}.log").open("wb")
-        self.files.append(f)
-        return f
-
-    def close(self) -> None:
-        for f in self.files:
-            f.close()
+        return self.enter_context((self.run_dir / f"{name}.log").open("wb"))
 
 
 def _wait_port(endpoint: str, stop: Any, timeout: float) -> bool:
@@ -600,8 +568,7 @@ def _wait_ready(recorder: Recorder, sup: Supervisor, stop: Any, timeout: float) 
         roles = {r for r, m in recorder.statuses.items() if m.state == "ready"}
         if {"plant", "controller"} <= roles:
             return True
-        dead = sup.any_exited()
-        if dead is not None:
+        if sup.any_exited() is not None:
             return False
         time.sleep(0.02)
     return False

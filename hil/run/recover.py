@@ -30,7 +30,7 @@ from hil.recording import (
     to_jsonable,
     topic_values,
 )
-from hil.run.orchestrate import attachments_of
+from hil.run.orchestrate import attachment_files
 from hil.run.results import analyze, plot
 from hil.scenario import build_loop, loads_scenario
 from plant_emulator.from_settings import sensor_of
@@ -118,7 +118,7 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
         except (OSError, ValueError) as exc:  # an unreadable plant log: recover the rest
             lost = []
             done["restore_error"] = str(exc)
-        counts = rewrite_complete(rec, tmp, attachments_of(run_dir), lost)
+        counts = rewrite_complete(rec, tmp, attachment_files(run_dir), lost)
         os.replace(tmp, rec)
         done["recording"] = counts
     if layout.SUMMARY in todo or layout.TRACE in todo:
