@@ -407,7 +407,6 @@ def rewrite_complete(
     to read), plus the messages ``extra`` (sorted by log time; each merged before the first
     message of ``src`` logged after it, on its topic's channel, registered as the writer does
     when ``src`` has none). Returns counts (``restored``: the messages of ``extra`` written)."""
-
     counts = {"messages": 0, "attachments": 0, "restored": 0}
     pending = list(extra)
     with open(dst, "wb") as out:

@@ -36,7 +36,6 @@ class DrivesOptions(drives.DrivesOptions):
 
 
 def _scenario(name: str | None) -> Any:
-
     if name is None:
         return loads_scenario(PAPER_TRACKING_TOML)
 
@@ -45,7 +44,6 @@ def _scenario(name: str | None) -> Any:
 
 def drives_settings(opts: DrivesOptions) -> RunSettings:
     """The scenario with the command line's overrides, as the drives read it."""
-
     sc = _scenario(opts.scenario)
     can_table = dataclasses.asdict(sc.can)
     if not can_table.get("watchdog_timeout"):

@@ -89,7 +89,6 @@ def msgpack_uint(value: int) -> bytes:
 
 def torque_selector(node: int) -> str:
     """The nftables match of one drive's Set_Input_Torque frames on udp_multicast."""
-
     value = msgpack_uint(frame_id(node, Cmd.SET_INPUT_TORQUE))
     key_bits = (UDP_HEADER + ARBITRATION_KEY_OFFSET) * 8
     value_bits = key_bits + len(ARBITRATION_KEY) * 8
@@ -160,7 +159,6 @@ def ruleset(plan: Plan) -> str:
 def plan_of(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
     """The run's plan, or None when its scenario has no [impair] table; ``check_options``
     (hil run's) first, so a bad option is reported as it always is."""
-
     if opts.scenario is None:
         return None
     check_options(opts)
@@ -182,7 +180,6 @@ def inside() -> bool:
 def started_as_hil_run() -> bool:
     """True when this process is ``hil run`` from its own command line (``hil run ...`` or
     ``python -m hil run ...``): only then can it be executed again as it was started."""
-
     argv0 = Path(sys.argv[0])
     own = argv0.name == "hil" or argv0.resolve() == Path(hil.__file__).parent / "__main__.py"
     return own and len(sys.argv) > 1 and sys.argv[1] == "run"

@@ -47,7 +47,6 @@ RESTORED_FROM = layout.PLANT_LOG
 
 def needs_recovery(run_dir: Path) -> list[str]:
     """What is missing or broken in a run folder (empty: nothing to do)."""
-
     missing = [n for n in (layout.TRACE, layout.SUMMARY) if not (run_dir / n).is_file()]
     rec = run_dir / RECORDING
     if rec.is_file() and not is_complete(rec):
@@ -68,7 +67,6 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
     message, the measured state recomputed with the run's seeded sensor model, as the plant
     did) plus ``restored_from``; logged and published at its send time (when the recorder
     received it is not known)."""
-
     cols = ("seq", "sample_ns", "send_ns", "x", "y", "theta", "v", "omega", "flags")
     if not (run_dir / layout.PLANT_LOG).is_file():
         return []
@@ -102,7 +100,6 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
 def recover(run_dir: str | Path) -> dict[str, Any]:
     """Make a killed run's folder whole; returns what was done. BadInputError when the folder
     is not a run folder (no settings, no hop logs) or holds no sample to rebuild from."""
-
     run_dir = Path(run_dir)
     if not is_run_folder(run_dir):
         raise BadInputError(f"{run_dir}: not a hil run folder (no run_settings.json or hop logs)")

@@ -30,7 +30,6 @@ ROBOTS = "--robots="
 
 
 def main(argv: list[str] | None = None) -> int:
-
     args = sys.argv[1:] if argv is None else argv
     robots = [r for a in args if a.startswith(ROBOTS) for r in a[len(ROBOTS) :].split(",")]
     args = [a for a in args if not a.startswith(ROBOTS)]
