@@ -37,16 +37,6 @@ def happened() -> bool:
     return _signum is not None
 
 
-def signal_name() -> str | None:
-    """The recorded signal's name (``"SIGINT"``), or None."""
-    if _signum is None:
-        return None
-    try:
-        return signal.Signals(_signum).name
-    except ValueError:
-        return f"signal {_signum}"
-
-
 def note(text: str) -> None:
     """Say what the interrupted command kept (printed by ``main`` after ``interrupted:``)."""
     global _note
@@ -54,15 +44,19 @@ def note(text: str) -> None:
 
 
 def message() -> str:
-    """The one line ``main`` prints: ``interrupted: <what was kept>``."""
-    what = _note or f"stopped by {signal_name() or 'SIGINT'}"
-    return f"interrupted: {what}"
+    """The one line ``main`` prints: ``interrupted: <what was kept>`` (by default, the signal)."""
+    if _note:
+        return f"interrupted: {_note}"
+    try:
+        name = signal.Signals(_signum or signal.SIGINT).name
+    except ValueError:
+        name = f"signal {_signum}"
+    return f"interrupted: stopped by {name}"
 
 
 def reset() -> None:
     global _signum, _note
-    _signum = None
-    _note = None
+    _signum, _note = None, None
 
 
 def handler(signum: int, frame: FrameType | None) -> None:

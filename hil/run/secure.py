@@ -3,11 +3,11 @@
 Per run, :class:`RunIdentities` makes one fresh random password per login of
 :mod:`protocol.zenoh_acl` (a role, or a role for one robot: ``controller.robot1``) and writes
 them to a new private folder OUTSIDE the run folder (``tempfile.mkdtemp``: mode 0700 under
-``$TMPDIR``, named ``hil-secure-*``): one credentials
-file per login (mode 0600, ``HIL_ZENOH_USER=``/``HIL_ZENOH_PASSWORD=`` lines) and the router's
-user dictionary (mode 0600). Each child gets, in its environment, only the path of its own
-file (``HIL_ZENOH_CREDENTIALS``; the router ``HIL_ZENOH_DICTIONARY``), never a password, so
-``ps e`` and ``/proc/PID/environ`` show none. The recorder in ``hil run`` reads everything as
+``$TMPDIR``, named ``hil-secure-*``): one credentials file per login (mode 0600,
+``HIL_ZENOH_USER=``/``HIL_ZENOH_PASSWORD=`` lines) and the router's user dictionary (mode
+0600). Each child gets, in its environment, only the path of its own file
+(``HIL_ZENOH_CREDENTIALS``; the router ``HIL_ZENOH_DICTIONARY``), never a password, so ``ps e``
+and ``/proc/PID/environ`` show none. The recorder in ``hil run`` reads everything as
 ``recorder`` (no right to publish), and the start announcement is published by a second
 session as ``run`` (may publish Status only). The folder is deleted when the run ends; if
 ``hil run`` is SIGKILLed it stays behind, but its passwords die with the router, which the
@@ -81,10 +81,8 @@ class RunIdentities:
         self.folder: Path | None = None
         self._creds: dict[str, Credentials] = {}
         self._sessions: list[Any] = []
-        if self.secure:
-            self._create()
-
-    def _create(self) -> None:
+        if not self.secure:
+            return
         self.folder = Path(tempfile.mkdtemp(prefix="hil-secure-"))
         try:
             self._creds = new_credentials("hil run", self.robots)
@@ -120,7 +118,6 @@ class RunIdentities:
         else a second client session as ``run`` (the recorder may not publish)."""
         if not self.secure:
             return session
-
         own = open_session(endpoint, mode="client", credentials=self._creds["run"])
         self._sessions.append(own)
         return own
