@@ -1,21 +1,13 @@
 """``[impair]``: packets of a run's real links dropped and counted by the kernel, in the run's
-own network namespace (docs/impair.md).
+own network namespace (docs/impair.md: which packets ``on`` selects, and how).
 
 ``hil run`` with an ``[impair]`` table re-executes itself under ``unshare --net`` (unshare execs,
 so the PID stays) with :data:`NETNS_ENV` set to that PID. There :func:`enter` brings the
-namespace's loopback up (multicast on, with the route python-can's ``udp_multicast`` needs),
-installs the nftables rules that select, count and drop packets at the input hook, and a ``tc``
-token bucket on the loopback when ``rate_bps`` is set. The recorder, the router and both
-services then run inside: nothing touches the host's network, and the namespace ends with the
-run's last process. :func:`finish` reads the kernel's own counters into summary.json ``impair``
-and writes the rules to ``impair.nft``.
-
-Which packets (``on``): ``zenoh``, every TCP packet (all of the run's Zenoh links, whatever
-ports gossip chose; with ``[can] interface = "zenoh_can"`` its CAN frames ride on them too);
-``can``, the UDP packets to ``udp_multicast``'s port, one CAN frame each (``can_frames =
-"torque"``: only the drives' Set_Input_Torque frames, matched in the packet's payload); ``all``,
-both. Each packet is seen once: on the loopback every packet passes the input hook once, before
-any socket (the multicast group's members, the sender's own looped copy) receives it.
+loopback up (multicast on, with the route python-can's ``udp_multicast`` needs) and installs
+the nftables rules that select, count and drop packets at the input hook (each packet passes it
+once, before any socket receives it), and a ``tc`` token bucket when ``rate_bps`` is set. The
+whole run lives inside: nothing touches the host's network. :func:`finish` reads the kernel's
+counters into summary.json ``impair`` and writes the rules to ``impair.nft``.
 """
 
 from __future__ import annotations
@@ -30,6 +22,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import msgpack
 
 import hil
 from hil.bundled import resolve_scenario
@@ -79,12 +73,8 @@ class Impairment:
 
 
 def msgpack_uint(value: int) -> bytes:
-    """``value`` as msgpack writes a non-negative integer below 2**16 (python-can's ids)."""
-    if value < 0x80:
-        return bytes([value])
-    if value < 0x100:
-        return bytes([0xCC, value])
-    return bytes([0xCD]) + value.to_bytes(2, "big")
+    """``value`` as msgpack (python-can's ``pack_message``) writes a non-negative integer."""
+    return bytes(msgpack.packb(value))
 
 
 def torque_selector(node: int) -> str:
