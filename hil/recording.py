@@ -23,6 +23,7 @@ with messages restored from elsewhere merged in (``hil recover``: the plant's ho
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import struct
@@ -34,13 +35,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
-import lz4.frame
-import zstandard
-from mcap.data_stream import RecordBuilder
+from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Attachment, AttachmentIndex, Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Attachment, AttachmentIndex, Channel, Chunk, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.writer import CompressionType, IndexType, Writer
 
 from hil.schemas import POSE, TF, WORLD_FRAME, schema_for_topic, schema_name
@@ -528,7 +527,7 @@ def read_topic_payloads(
                 continue
             f.seek(ci.chunk_start_offset)
             chunk = f.read(ci.chunk_length)
-            records = _chunk_records(chunk, ci.compression, ci.uncompressed_size)
+            records = _chunk_records(chunk)
             for cid, index_offset in present:
                 f.seek(index_offset)
                 head = f.read(1 + 8 + 2 + 4)
@@ -542,20 +541,13 @@ def read_topic_payloads(
                     yield topic, pairs[i], records[at + 31 : at + 9 + length]
 
 
-def _chunk_records(chunk: bytes, compression: str, size: int) -> bytes:
+def _chunk_records(raw: bytes) -> bytes:
     """The uncompressed records of one Chunk record (opcode, length, then the fields)."""
-    at = 1 + 8 + 8 + 8 + 8 + 4  # opcode, length, start and end time, size, crc
-    name_len = struct.unpack_from("<I", chunk, at)[0]
-    at += 4 + name_len
-    data_len = struct.unpack_from("<Q", chunk, at)[0]
-    data = chunk[at + 8 : at + 8 + data_len]
-    if compression == "zstd":
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == "lz4":
-        return lz4.frame.decompress(data)
-    if compression == "":
-        return data
-    raise ValueError(f"unsupported chunk compression {compression!r}")
+    chunk = Chunk.read(ReadDataStream(io.BytesIO(raw[1 + 8 :])))
+    if chunk.compression not in ("", "zstd", "lz4"):
+        raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
+    records, size = get_chunk_data_stream(chunk)
+    return records.read(size)
 
 
 def write_pose(writer: RecordingWriter, state_topic: str, log_time_ns: int, state: Any) -> None:
