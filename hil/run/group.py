@@ -22,13 +22,11 @@ import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from subprocess import STDOUT
 from typing import Any
 
 from hil.fleet import barrier as fleet_barrier
 from hil.folder import layout
 from hil.lab import placement
-from hil.lab.placement import child_argv
 from hil.measure.logs import HOST_FILE
 from hil.recording import RecordingWriter
 from hil.run.host_load import HostSampler
@@ -38,6 +36,7 @@ from hil.run.orchestrate import (
     RunOptions,
     _Logs,
     _progress,
+    _start_services,
     _stop_children,
     _wait_ready,
     _write_results,
@@ -119,28 +118,6 @@ def _prepare(spec: GroupSpec, endpoint: str | None) -> list[_Robot]:
     return robots
 
 
-def _start_services(
-    sup: Supervisor, robots: list[_Robot], logs: _Logs, host: HostSampler, placed: Any
-) -> None:
-    """One plant process and one controller process for every robot of the group (each on
-    its lab host when ``placed``)."""
-    paths = [str(r.run_dir / layout.RUN_SETTINGS) for r in robots]
-    ids = RunIdentities(False, [r.id for r in robots])
-    for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
-        sup.start(
-            name,
-            child_argv(placed, name, [sys.executable, "-m", module, *paths]),
-            env=ids.child_env(name),
-            stdout=logs.open(f"{robots[0].id}-group-{name}"),
-            stderr=STDOUT,
-        )
-    pids = {c.name: c.pid for c in sup.children}
-    for r in robots:
-        (r.run_dir / layout.PROCESSES).write_text(json.dumps(pids))
-    for c in sup.children:
-        host.watch(c.name, c.pid)
-
-
 def phase_ns(robot: str, position: int, n: int, period: int) -> int:
     """Robot I's epoch shift: (I - 1) / N of a period (I: the number in ``robotI``, else its
     position in the group)."""
@@ -201,7 +178,9 @@ def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
             subs += [
                 session.declare_subscriber(k, r.recorder.on_zenoh) for k in observed_keys(r.id)
             ]
-        _start_services(sup, robots, logs, host, placed)
+        ids = RunIdentities(False, [r.id for r in robots])
+        run_dirs = [r.run_dir for r in robots]
+        _start_services(sup, run_dirs, ids, logs, host, placed, f"{robots[0].id}-group-")
         error = _start_and_follow(spec, robots, sup, session, stop)
     finally:
         codes = _stop_children(sup, robots[0].settings)

@@ -389,21 +389,29 @@ def _open_recorder_session(
 
 
 def _start_services(
-    sup: Supervisor, run_dir: Path, ids: Any, logs: _Logs, host: HostSampler, placed: Any = None
+    sup: Supervisor,
+    run_dirs: list[Path],
+    ids: Any,
+    logs: _Logs,
+    host: HostSampler,
+    placed: Any = None,
+    log_prefix: str = "",
 ) -> None:
-    """The plant and the controller from the run's settings file (each on its lab host when
-    ``placed``); their PIDs in processes.json, for whoever needs to signal one (tests inject
-    stalls), and watched by the host sampler."""
-    settings_path = str(run_dir / layout.RUN_SETTINGS)
+    """One plant and one controller process for the run folders' robots, from their settings
+    files (each on its lab host when ``placed``); their PIDs in each folder's processes.json,
+    for whoever needs to signal one (tests inject stalls), and watched by the host sampler."""
+    paths = [str(d / layout.RUN_SETTINGS) for d in run_dirs]
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
         sup.start(
             name,
-            child_argv(placed, name, [sys.executable, "-m", module, settings_path]),
+            child_argv(placed, name, [sys.executable, "-m", module, *paths]),
             env=ids.child_env(name),
-            stdout=logs.open(name),
+            stdout=logs.open(log_prefix + name),
             stderr=STDOUT,
         )
-    (run_dir / layout.PROCESSES).write_text(json.dumps({c.name: c.pid for c in sup.children}))
+    pids = json.dumps({c.name: c.pid for c in sup.children})
+    for d in run_dirs:
+        (d / layout.PROCESSES).write_text(pids)
     for c in sup.children:
         if c.name in ("plant", "controller"):
             host.watch(c.name, c.pid)
@@ -456,15 +464,12 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     impairment = None if placed else impair.enter(opts, check_options)
     scenario, settings, run_dir, info = prepare(opts)
     sup = Supervisor()
-    error: str | None = None
-    interrupted = False
     metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
     writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer, same_clock=not placed)
     live = _Live()
     logs = _Logs(run_dir)
-    codes: dict[str, int | None] = {}
     t_start = time.monotonic()
     ids = RunIdentities(opts.secure, (settings.robot_id,))  # fresh passwords, or none
     host = HostSampler(run_dir)
@@ -480,7 +485,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             live.can_rec = _can_recorder(settings, recorder)
             if opts.live_port is not None:  # its own process: no cycle of the recorder's
                 start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs, bool(placed))
-            _start_services(sup, run_dir, ids, logs, host, placed)
+            _start_services(sup, [run_dir], ids, logs, host, placed)
             error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
             interrupted = bool(stop)
         finally:
