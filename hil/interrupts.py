@@ -1,15 +1,12 @@
 """Ctrl-C as the project sees it, whatever the CLI library does with a KeyboardInterrupt.
 
-:func:`hil.cli.main` installs :func:`handler` for SIGINT (:func:`installed`). The handler
-records that an interrupt happened and raises KeyboardInterrupt as Python's own would, so a
-command's loop can catch it and keep what it computed (``hil sim``, ``hil sweep``,
-``hil paper``). Whatever then happens (the command returns normally, raises SystemExit, or the
-CLI library turns the KeyboardInterrupt into an exception of its own), ``main`` looks at the
-record and exits 130 after one line ``interrupted: ...``. Code that stops on signals with its
-own handler (``hil run``'s :func:`runtime.signals.stop_on_signals`) calls :func:`record` itself.
-
-A command says what it kept with :func:`note`; :func:`shielded` makes a second Ctrl-C while
-results are written only recorded, not raised, so the files are never left half-written.
+:func:`hil.cli.main` installs :func:`handler` for SIGINT (:func:`installed`): it records the
+interrupt and raises KeyboardInterrupt, so a command's loop can catch it and keep what it
+computed. Whatever then happens (a normal return, SystemExit, or the CLI library's own
+exception), ``main`` sees the record and exits 130 after one line ``interrupted: ...``. Code with
+its own signal handler (``hil run``'s :func:`runtime.signals.stop_on_signals`) calls
+:func:`record`. A command says what it kept with :func:`note`; :func:`shielded` makes a second
+Ctrl-C while results are written only recorded, so no file is left half-written.
 """
 
 from __future__ import annotations

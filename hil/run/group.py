@@ -1,15 +1,11 @@
 """``python -m hil.run.group SPEC.json``: several robots' closed loops in three processes, for a
 fleet on a 2-core machine (``hil fleet --per-process K``).
 
-What ``hil run`` does for one robot, done for K robots at once: each robot gets its own run
-folder (``OUT/robotI``: its settings, scenario, hop logs, ``recording.mcap`` of its own keys
-``hil/robotI/**``, summary), so ``hil report`` reads each folder unchanged and every figure keeps
-its definition. What is shared: one plant process emulating the K robots and one controller
-process hosting their K controllers (runtime.group: one thread and one service object per
-robot, on the process' one Zenoh session and scheduling set-up), and this recorder process
-(one session on the group's loopback endpoint, one subscriber and one recording per robot).
-Robot I's epoch is shifted by (I - 1) / N of a period (N: the fleet's size), so the robots'
-deadlines interleave instead of all falling on the same instant.
+Each robot keeps its own run folder (``OUT/robotI``, its keys' recording included), so
+``hil report`` reads it unchanged and every figure keeps its definition; the K robots share one
+plant process, one controller process (runtime.group) and this recorder (docs/fleet.md). Robot
+I's epoch is shifted by (I - 1) / N of a period (N: the fleet's size), so the robots' deadlines
+interleave instead of all falling on the same instant.
 """
 
 from __future__ import annotations

@@ -1,14 +1,12 @@
 """``hil recover DIR``: a run folder made whole after ``hil run`` died (SIGKILL, power loss).
 
-What a killed ``hil run`` leaves: the services' hop logs (streamed, and usually complete: the
-children get SIGTERM from the kernel when their parent dies and exit cleanly), the resolved
-scenario and settings, and a recording cut inside a chunk, without what the recorder's queue
-still held (on a loaded host, many States). Recovery rewrites the recording as a complete,
-indexed MCAP (every whole chunk, plus the hop logs and the resolved scenario as attachments),
-restores into it every State the plant sent that it lacks, from the plant's hop log (the same
-message the recorder writes, marked ``"restored_from": "plant.hoplog"``), and rebuilds
-trace.csv and summary.json from the hop logs with the same code a finished run uses
-(:func:`hil.run.results.analyze`, :mod:`hil.measure`).
+A killed ``hil run`` leaves the services' hop logs (usually complete: the kernel SIGTERMs the
+children with their parent), the resolved scenario and settings, and a recording cut inside a
+chunk, without what the recorder's queue still held. Recovery rewrites the recording as a
+complete, indexed MCAP (whole chunks, plus the run's attachments), restores every State the
+plant sent that it lacks from the plant's hop log (marked ``"restored_from": "plant.hoplog"``),
+and rebuilds trace.csv and summary.json with the code a finished run uses
+(:func:`hil.run.results.analyze`). docs/reliability.md, "Crash-safe runs".
 """
 
 from __future__ import annotations

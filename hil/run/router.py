@@ -2,12 +2,11 @@
 [--robots=R1,R2,...] [--allow-non-loopback]`` (what ``hil run`` starts in router mode; tests
 restart it with the same command).
 
-With ``--secure`` (or whenever ``HIL_ZENOH_DICTIONARY`` names a user dictionary) the router
-authenticates every session against that dictionary (``user:password`` lines, a private file:
-:mod:`runtime.credentials`) and applies the bench's access control, default deny
-(:mod:`protocol.zenoh_acl`) for the robots named (default ``robot1``). Only such a router may
-listen off the host (``--allow-non-loopback``): an open router on a network is what the access
-control is for.
+With ``--secure`` (or whenever ``HIL_ZENOH_DICTIONARY`` names a user dictionary,
+:mod:`runtime.credentials`) the router authenticates every session and applies the bench's
+access control, default deny (:mod:`protocol.zenoh_acl`), for the robots named (default
+``robot1``). Only such a router may listen off the host (``--allow-non-loopback``): an open
+router on a network is what the access control is for.
 """
 
 from __future__ import annotations
