@@ -272,26 +272,22 @@ class RecordingWriter:
         offset = stream.tell()
         head = struct.pack("<BQ", int(Opcode.ATTACHMENT), length) + body
         crc = zlib.crc32(body)
-        section = w._Writer__data_section_crc
-        use_section = w._Writer__enable_data_crcs
-        stream.write(head)
-        if use_section:
-            section = zlib.crc32(head, section)
+
+        def put(data: bytes) -> None:  # into the file and the data section's CRC, if kept
+            stream.write(data)
+            if w._Writer__enable_data_crcs:
+                w._Writer__data_section_crc = zlib.crc32(data, w._Writer__data_section_crc)
+
+        put(head)
         copied = 0
         with open(path, "rb") as f:
             while copied < size and (block := f.read(min(1 << 20, size - copied))):
-                stream.write(block)
+                put(block)
                 crc = zlib.crc32(block, crc)
-                if use_section:
-                    section = zlib.crc32(block, section)
                 copied += len(block)
         if copied != size:
             raise OSError(f"{path}: changed while it was attached ({copied} of {size} bytes)")
-        tail = struct.pack("<I", crc)
-        stream.write(tail)
-        if use_section:
-            section = zlib.crc32(tail, section)
-        w._Writer__data_section_crc = section
+        put(struct.pack("<I", crc))
         w._Writer__statistics.attachment_count += 1
         if w._Writer__index_types & IndexType.ATTACHMENT:
             w._Writer__attachment_indexes.append(
