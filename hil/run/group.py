@@ -82,11 +82,6 @@ class GroupSpec:
         path.write_text(json.dumps(asdict(self), indent=2) + "\n")
 
 
-def codes_file(out: Path, first: str) -> Path:
-    """Where a group writes each robot's exit code (as ``hil run`` would exit for it)."""
-    return out / f".group-{first}.codes.json"
-
-
 @dataclass
 class _Robot:
     id: str
@@ -156,7 +151,7 @@ def robot_code(summary: dict[str, Any]) -> int:
 
 def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
     """Run the group (``placed``: on a lab's hosts, this process on the recorder's); each
-    robot's exit code (also written to :func:`codes_file`)."""
+    robot's exit code (also written to ``OUT/.group-<first robot>.codes.json``)."""
     out = Path(spec.out)
     out.mkdir(parents=True, exist_ok=True)
     endpoint = None if placed else f"tcp/127.0.0.1:{free_port()}"
@@ -204,7 +199,8 @@ def _results(spec: GroupSpec, robots: list[_Robot], codes: dict[str, int | None]
         extra["shared_processes"] = shared
         summary = _write_results(r.run_dir, r.scenario, r.settings, r.info, extra)
         out[r.id] = robot_code(summary)
-    codes_file(Path(spec.out), spec.robots[0]).write_text(json.dumps(out) + "\n")
+    # Where hil fleet reads each robot's exit code (as ``hil run`` would exit for it).
+    (Path(spec.out) / f".group-{spec.robots[0]}.codes.json").write_text(json.dumps(out) + "\n")
     return out
 
 

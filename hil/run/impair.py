@@ -64,14 +64,6 @@ class Plan:
     warning: str = ""
 
 
-@dataclass
-class Impairment:
-    """An impairment installed in this process' namespace (:func:`enter`)."""
-
-    plan: Plan
-    rules: str
-
-
 def msgpack_uint(value: int) -> bytes:
     """``value`` as msgpack (python-can's ``pack_message``) writes a non-negative integer."""
     return bytes(msgpack.packb(value))
@@ -206,26 +198,25 @@ def _run(argv: list[str], stdin: str | None = None) -> str:
     return proc.stdout
 
 
-def _install(plan: Plan) -> str:
-    """Loopback up with multicast and its route, the rules, the rate limit; the rules' text."""
+def _install(plan: Plan) -> None:
+    """Loopback up with multicast and its route, the rules, the rate limit."""
     _run(["ip", "link", "set", "lo", "up"])
     _run(["ip", "link", "set", "lo", "multicast", "on"])
     _run(["ip", "route", "add", "224.0.0.0/4", "dev", "lo"])
-    rules = ruleset(plan)
-    _run(["nft", "-f", "-"], stdin=rules)
+    _run(["nft", "-f", "-"], stdin=ruleset(plan))
     rate = plan.config.rate_bps
     if rate > 0:
         burst = max(2 * (RATE_MTU + 14), round(rate / 8 * 0.004))
         _run(["ip", "link", "set", "lo", "mtu", str(RATE_MTU)])
         tbf = ["rate", f"{round(rate)}bit", "burst", str(burst), "latency", RATE_LATENCY]
         _run(["tc", "qdisc", "add", "dev", "lo", "root", "tbf", *tbf])
-    return rules
 
 
-def enter(opts: Any, check_options: Callable[[Any], None]) -> Impairment | None:
+def enter(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
     """Before ``hil run`` prepares anything: None without [impair]; else, the first time,
     execute this same command again in a fresh network namespace (never returns), and inside
-    it install the impairment. BadInputError (exit 2) when that cannot be done."""
+    it install the impairment and return its plan. BadInputError (exit 2) when that cannot be
+    done."""
     plan = plan_of(opts, check_options)
     if plan is None:
         return None
@@ -242,7 +233,8 @@ def enter(opts: Any, check_options: Callable[[Any], None]) -> Impairment | None:
         os.execve(unshare, [unshare, "--net", "--", sys.executable, *sys.orig_argv[1:]], env)
     if plan.warning:
         print(f"warning: {plan.warning}", file=sys.stderr)
-    return Impairment(plan, _install(plan))
+    _install(plan)
+    return plan
 
 
 def _nft_counters() -> dict[str, int]:
@@ -273,13 +265,12 @@ def _tc_counters() -> dict[str, Any]:
     }
 
 
-def finish(impairment: Impairment | None, run_dir: Path) -> dict[str, Any]:
+def finish(plan: Plan | None, run_dir: Path) -> dict[str, Any]:
     """summary.json's ``impair`` (the kernel's counters, read after the run) and
     ``impair.nft`` in the run folder; {} for a run without [impair]."""
-    if impairment is None:
+    if plan is None:
         return {}
-    plan = impairment.plan
-    (run_dir / "impair.nft").write_text(impairment.rules)
+    (run_dir / "impair.nft").write_text(ruleset(plan))
     facts: dict[str, Any] = {
         "config": dataclasses.asdict(plan.config),
         "namespace": "private (unshare --net), loopback only",
