@@ -39,16 +39,13 @@ from protocol.messages import State
 from protocol.robot import RobotState
 from protocol.settings import RunSettings
 
-RECORDING = layout.RECORDING
-RESTORED_FROM = layout.PLANT_LOG
-
 
 def needs_recovery(run_dir: Path) -> list[str]:
     """What is missing or broken in a run folder (empty: nothing to do)."""
     missing = [n for n in (layout.TRACE, layout.SUMMARY) if not (run_dir / n).is_file()]
-    rec = run_dir / RECORDING
+    rec = run_dir / layout.RECORDING
     if rec.is_file() and not is_complete(rec):
-        missing.append(RECORDING)
+        missing.append(layout.RECORDING)
     return missing
 
 
@@ -89,7 +86,7 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
                     float(m.v), float(m.omega))  # fmt: skip
         data = to_jsonable(msg)
         data["type"] = "State"
-        data["restored_from"] = RESTORED_FROM
+        data["restored_from"] = layout.PLANT_LOG
         out.append(RecordedMessage(topic, send, send, 0, data))
     out.sort(key=lambda m: m.log_time_ns)
     return out
@@ -105,9 +102,9 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
     done: dict[str, Any] = {"folder": str(run_dir), "repaired": todo}
     if not todo:
         return done
-    rec = run_dir / RECORDING
-    if RECORDING in todo:
-        tmp = run_dir / (RECORDING + ".recovering")
+    rec = run_dir / layout.RECORDING
+    if layout.RECORDING in todo:
+        tmp = run_dir / (layout.RECORDING + ".recovering")
         try:
             lost = missing_states(run_dir, rec)
         except (OSError, ValueError) as exc:  # an unreadable plant log: recover the rest
@@ -128,7 +125,7 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
             "interrupted": True,
             "error": None,
             "recovered": True,
-            "recording": RECORDING,
+            "recording": layout.RECORDING,
             "note": "hil run did not finish; rebuilt by hil recover from the services' hop logs",
         }
         summary = analyze(run_dir, scenario, settings, reference, context, extra)
