@@ -83,13 +83,11 @@ def installed() -> Iterator[None]:
     installed and a KeyboardInterrupt is still mapped by ``main``.
     """
     reset()
-    previous = None
-    ours = False
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.getsignal(signal.SIGINT)
-        if previous != signal.SIG_IGN:
-            signal.signal(signal.SIGINT, handler)
-            ours = True
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGINT) if main else None
+    ours = main and previous != signal.SIG_IGN
+    if ours:
+        signal.signal(signal.SIGINT, handler)
     try:
         yield
     finally:

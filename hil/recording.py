@@ -23,6 +23,7 @@ with messages restored from elsewhere merged in (``hil recover``: the plant's ho
 
 from __future__ import annotations
 
+import collections
 import io
 import json
 import math
@@ -344,6 +345,17 @@ def _stream_records(path: str | Path) -> Iterator[Any]:
             return
 
 
+def _streamed_messages(path: str | Path) -> Iterator[tuple[str, Message]]:
+    """(topic, Message record) of every whole message of a possibly truncated recording, in
+    file order."""
+    channels: dict[int, str] = {}
+    for rec in _stream_records(path):
+        if isinstance(rec, Channel):
+            channels[rec.id] = rec.topic
+        elif isinstance(rec, Message) and rec.channel_id in channels:
+            yield channels[rec.channel_id], rec
+
+
 def read_messages(
     path: str | Path, topics: Iterable[str] | None = None
 ) -> Iterator[RecordedMessage]:
@@ -359,21 +371,12 @@ def read_messages(
                 )
         return
 
-    channels: dict[int, str] = {}
-    found: list[RecordedMessage] = []
-    for rec in _stream_records(path):
-        if isinstance(rec, Channel):
-            channels[rec.id] = rec.topic
-        elif isinstance(rec, Message):
-            topic = channels.get(rec.channel_id)
-            if topic is None or (wanted is not None and topic not in wanted):
-                continue
-            found.append(
-                RecordedMessage(topic, rec.log_time, rec.publish_time, rec.sequence,
-                                json.loads(rec.data))
-            )  # fmt: skip
-    found.sort(key=lambda m: m.log_time_ns)
-    yield from found
+    found = [
+        RecordedMessage(topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data))
+        for topic, m in _streamed_messages(path)
+        if wanted is None or topic in wanted
+    ]
+    yield from sorted(found, key=lambda m: m.log_time_ns)
 
 
 def topic_values(path: str | Path, topic: str, key: str) -> Iterator[Any]:
@@ -383,12 +386,9 @@ def topic_values(path: str | Path, topic: str, key: str) -> Iterator[Any]:
         for _t, _log, payload in read_topic_payloads(path, [topic]):
             yield json.loads(payload).get(key)
         return
-    ids: set[int] = set()
-    for rec in _stream_records(path):
-        if isinstance(rec, Channel) and rec.topic == topic:
-            ids.add(rec.id)
-        elif isinstance(rec, Message) and rec.channel_id in ids:
-            yield json.loads(rec.data).get(key)
+    for t, m in _streamed_messages(path):
+        if t == topic:
+            yield json.loads(m.data).get(key)
 
 
 def rewrite_complete(
@@ -403,7 +403,7 @@ def rewrite_complete(
     message of ``src`` logged after it, on its topic's channel, registered as the writer does
     when ``src`` has none). Returns counts (``restored``: the messages of ``extra`` written)."""
     counts = {"messages": 0, "attachments": 0, "restored": 0}
-    pending = list(extra)
+    pending = collections.deque(extra)
     with open(dst, "wb") as out:
         w = Writer(out, compression=CompressionType.ZSTD)
         w.start(profile=PROFILE, library="hil-smc-bench (recovered)")
@@ -412,10 +412,8 @@ def rewrite_complete(
         by_topic: dict[str, int] = {}
 
         def add_extra(until: float) -> None:
-            while counts["restored"] < len(pending) and (
-                pending[counts["restored"]].log_time_ns <= until
-            ):
-                m = pending[counts["restored"]]
+            while pending and pending[0].log_time_ns <= until:
+                m = pending.popleft()
                 if m.topic not in by_topic:
                     typed = schema_for_topic(m.topic)
                     schema = w.register_schema(schema_name(m.topic, typed), "jsonschema",
@@ -462,10 +460,7 @@ def list_topics(path: str | Path) -> dict[str, int]:
     """Topic -> message count, from the recording's summary section."""
     summary = _summary(path)
     if summary is None or summary.statistics is None:
-        counts: dict[str, int] = {}
-        for m in read_messages(path):
-            counts[m.topic] = counts.get(m.topic, 0) + 1
-        return counts
+        return dict(collections.Counter(m.topic for m in read_messages(path)))
     by_id = {cid: ch.topic for cid, ch in summary.channels.items()}
     return {by_id[cid]: int(n) for cid, n in summary.statistics.channel_message_counts.items()}
 

@@ -587,12 +587,6 @@ def _progress(
     plant = next(c for c in sup.children if c.name == "plant")
     t0 = time.monotonic()
     limit = t0 + (settings.duration + 30.0 if not settings.lockstep else 1e9)
-
-    def fraction() -> float:
-        if total:
-            return min(1.0, recorder.states / total)
-        return min(1.0, (time.monotonic() - t0) / settings.duration)
-
     if quiet or not sys.stderr.isatty():
         while not stop and plant.alive() and time.monotonic() < limit:
             time.sleep(0.05)
@@ -613,7 +607,8 @@ def _progress(
             if st is not None:
                 c = st.counters
                 info = f"cycles {c.get('cycles', 0)} misses {c.get('deadline_misses', 0)}"
-            prog.update(task, completed=fraction(), info=info)
+            done = recorder.states / total if total else (time.monotonic() - t0) / settings.duration
+            prog.update(task, completed=min(1.0, done), info=info)
             time.sleep(0.1)
 
 
