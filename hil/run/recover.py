@@ -21,13 +21,7 @@ from hil.errors import BadInputError
 from hil.folder import layout
 from hil.folder.jsonio import write_json
 from hil.measure.logs import read_columns
-from hil.recording import (
-    RecordedMessage,
-    is_complete,
-    rewrite_complete,
-    to_jsonable,
-    topic_values,
-)
+from hil.recording import RecordedMessage, is_complete, rewrite_complete, to_jsonable, topic_values
 from hil.run.orchestrate import attachment_files
 from hil.run.results import analyze, plot
 from hil.scenario import build_loop, loads_scenario

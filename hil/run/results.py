@@ -94,12 +94,7 @@ def write_trace(
 
 
 def analyze(
-    run_dir: Path,
-    scenario: Any,
-    settings: Any,
-    reference: Any,
-    context: Any,
-    extra: dict[str, Any],
+    run_dir: Path, scenario: Any, settings: Any, reference: Any, context: Any, extra: dict[str, Any]
 ) -> Summary:
     """Write trace.csv and summary.json from the two hop logs; returns the summary."""
     logs = load_folder_logs(run_dir) or RunLogs.read(None, None)
