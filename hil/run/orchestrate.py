@@ -21,7 +21,7 @@ import socket
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from subprocess import STDOUT
 from typing import Any
@@ -352,22 +352,8 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     }
     resolved = resolved_dict(scenario, controller, context, run_facts)
     (run_dir / layout.SCENARIO_RESOLVED).write_text(dumps_toml(resolved))
-    info = {
-        "reference": reference,
-        "context": context,
-        "scenario": scenario,
-        "rate_hz": float(rate),
-    }
+    info = {"reference": reference, "context": context, "rate_hz": float(rate)}
     return scenario, settings, run_dir, info
-
-
-@dataclass
-class _Live:
-    """What ``hil run`` opened for one run, closed by :func:`_close_live` whatever happened."""
-
-    session: Any = None
-    subs: list[Any] = field(default_factory=list)
-    can_rec: tuple[Any, Any] | None = None
 
 
 def _open_recorder_session(
@@ -441,17 +427,19 @@ def _start_and_follow(
     return None
 
 
-def _close_live(live: _Live, recorder: Recorder, run_dir: Path) -> None:
-    """Close the subscription, the CAN recorder and the session, then the recording (with
-    the hop logs attached)."""
-    for sub in live.subs:
+def _close_live(
+    session: Any, subs: list[Any], can_rec: Any, recorder: Recorder, run_dir: Path
+) -> None:
+    """Close what ``hil run`` opened, whatever happened: the subscriptions, the CAN recorder
+    and the session, then the recording (with the hop logs attached)."""
+    for sub in subs:
         sub.undeclare()
-    if live.can_rec is not None:
-        live.can_rec[1].stop()
+    if can_rec is not None:
+        can_rec[1].stop()
         with contextlib.suppress(Exception):  # a bus already gone is fine here
-            live.can_rec[0].shutdown()
-    if live.session is not None:
-        live.session.close()
+            can_rec[0].shutdown()
+    if session is not None:
+        session.close()
     recorder.close(attachment_files(run_dir))
 
 
@@ -468,21 +456,21 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
     writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer, same_clock=not placed)
-    live = _Live()
+    session, subs, can_rec = None, [], None
     logs = _Logs(run_dir)
     t_start = time.monotonic()
     ids = RunIdentities(opts.secure, (settings.robot_id,))  # fresh passwords, or none
     host = HostSampler(run_dir)
     with stop_on_signals() as stop:
         try:
-            live.session = _open_recorder_session(settings, ids, sup, logs, stop, bool(placed))
-            announcer = ids.announcer(live.session, settings.zenoh_endpoint)
+            session = _open_recorder_session(settings, ids, sup, logs, stop, bool(placed))
+            announcer = ids.announcer(session, settings.zenoh_endpoint)
             # The run's own robot only: a fleet's robots may share the routers.
-            live.subs = [
-                live.session.declare_subscriber(key, recorder.on_zenoh)
+            subs = [
+                session.declare_subscriber(key, recorder.on_zenoh)
                 for key in observed_keys(settings.robot_id)
             ]
-            live.can_rec = _can_recorder(settings, recorder)
+            can_rec = _can_recorder(settings, recorder)
             if opts.live_port is not None:  # its own process: no cycle of the recorder's
                 start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs, bool(placed))
             _start_services(sup, [run_dir], ids, logs, host, placed)
@@ -496,7 +484,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             ids.close()
             logs.close()
             placement.write_topology(placed, run_dir)  # before the recording takes it along
-            _close_live(live, recorder, run_dir)
+            _close_live(session, subs, can_rec, recorder, run_dir)
     extra = run_extra(interrupted, error, time.monotonic() - t_start, codes, recorder, opts.secure)
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
     summary = _write_results(run_dir, scenario, settings, info, extra)
