@@ -143,12 +143,6 @@ def _start_and_follow(spec: GroupSpec, robots: list[_Robot], sup: Supervisor, se
     return None
 
 
-def robot_code(summary: dict[str, Any]) -> int:
-    """The exit code ``hil run`` gives this robot's summary (hil.commands.run, not strict)."""
-    v = summary.get("verdict") or {}
-    return 1 if summary.get("error") or v.get("blocking") else 0
-
-
 def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
     """Run the group (``placed``: on a lab's hosts, this process on the recorder's); each
     robot's exit code (also written to ``OUT/.group-<first robot>.codes.json``)."""
@@ -198,7 +192,9 @@ def _results(spec: GroupSpec, robots: list[_Robot], codes: dict[str, int | None]
         extra = run_extra(interrupted, error, wall, codes, r.recorder, False)
         extra["shared_processes"] = shared
         summary = _write_results(r.run_dir, r.scenario, r.settings, r.info, extra)
-        out[r.id] = robot_code(summary)
+        # The exit code hil run gives this summary (hil.commands.run, not strict).
+        blocking = (summary.get("verdict") or {}).get("blocking")
+        out[r.id] = 1 if summary.get("error") or blocking else 0
     # Where hil fleet reads each robot's exit code (as ``hil run`` would exit for it).
     (Path(spec.out) / f".group-{spec.robots[0]}.codes.json").write_text(json.dumps(out) + "\n")
     return out
