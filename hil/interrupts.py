@@ -1,15 +1,12 @@
 """Ctrl-C as the project sees it, whatever the CLI library does with a KeyboardInterrupt.
 
-:func:`hil.cli.main` installs :func:`handler` for SIGINT (:func:`installed`). The handler
-records that an interrupt happened and raises KeyboardInterrupt as Python's own would, so a
-command's loop can catch it and keep what it computed (``hil sim``, ``hil sweep``,
-``hil paper``). Whatever then happens (the command returns normally, raises SystemExit, or the
-CLI library turns the KeyboardInterrupt into an exception of its own), ``main`` looks at the
-record and exits 130 after one line ``interrupted: ...``. Code that stops on signals with its
-own handler (``hil run``'s :func:`runtime.signals.stop_on_signals`) calls :func:`record` itself.
-
-A command says what it kept with :func:`note`; :func:`shielded` makes a second Ctrl-C while
-results are written only recorded, not raised, so the files are never left half-written.
+:func:`hil.cli.main` installs :func:`handler` for SIGINT (:func:`installed`): it records the
+interrupt and raises KeyboardInterrupt, so a command's loop can catch it and keep what it
+computed. Whatever then happens (a normal return, SystemExit, or the CLI library's own
+exception), ``main`` sees the record and exits 130 after one line ``interrupted: ...``. Code with
+its own signal handler (``hil run``'s :func:`runtime.signals.stop_on_signals`) calls
+:func:`record`. A command says what it kept with :func:`note`; :func:`shielded` makes a second
+Ctrl-C while results are written only recorded, so no file is left half-written.
 """
 
 from __future__ import annotations
@@ -37,16 +34,6 @@ def happened() -> bool:
     return _signum is not None
 
 
-def signal_name() -> str | None:
-    """The recorded signal's name (``"SIGINT"``), or None."""
-    if _signum is None:
-        return None
-    try:
-        return signal.Signals(_signum).name
-    except ValueError:
-        return f"signal {_signum}"
-
-
 def note(text: str) -> None:
     """Say what the interrupted command kept (printed by ``main`` after ``interrupted:``)."""
     global _note
@@ -54,15 +41,19 @@ def note(text: str) -> None:
 
 
 def message() -> str:
-    """The one line ``main`` prints: ``interrupted: <what was kept>``."""
-    what = _note or f"stopped by {signal_name() or 'SIGINT'}"
-    return f"interrupted: {what}"
+    """The one line ``main`` prints: ``interrupted: <what was kept>`` (by default, the signal)."""
+    if _note:
+        return f"interrupted: {_note}"
+    try:
+        name = signal.Signals(_signum or signal.SIGINT).name
+    except ValueError:
+        name = f"signal {_signum}"
+    return f"interrupted: stopped by {name}"
 
 
 def reset() -> None:
     global _signum, _note
-    _signum = None
-    _note = None
+    _signum, _note = None, None
 
 
 def handler(signum: int, frame: FrameType | None) -> None:
@@ -92,13 +83,11 @@ def installed() -> Iterator[None]:
     installed and a KeyboardInterrupt is still mapped by ``main``.
     """
     reset()
-    previous = None
-    ours = False
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.getsignal(signal.SIGINT)
-        if previous != signal.SIG_IGN:
-            signal.signal(signal.SIGINT, handler)
-            ours = True
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGINT) if main else None
+    ours = main and previous != signal.SIG_IGN
+    if ours:
+        signal.signal(signal.SIGINT, handler)
     try:
         yield
     finally:

@@ -1,37 +1,30 @@
 """MCAP recordings of a run: a writer for the recorder and a reader for reports.
 
-Encoding choice: every message is stored as a JSON mirror of its msgpack payload (MCAP message
-encoding ``json`` with a ``jsonschema`` schema per topic, typed field by field from the
-protocol's definitions by :mod:`hil.schemas`; the robot's pose also as Foxglove's well-known
-``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``). Recordings written before the schemas
-were typed (every channel ``{"type": "object"}``) read the same. The wire format stays msgpack;
-the recording decodes it once, off the real-time path, in the recorder. Why JSON and not the raw
-msgpack bytes: ``json`` + ``jsonschema`` is a well-known MCAP profile that the ``mcap`` CLI
-(``mcap cat --json``) and Foxglove decode and plot with no plug-in, whereas msgpack is not one
-of Foxglove's encodings. CAN frames are stored the same way (arbitration id, data as hex,
-decoded signals when the codec knows them). The cost (a few tens of microseconds a message) is
-paid by the recorder process, never by the controller or the plant.
+Every message is stored as a JSON mirror of its msgpack payload (message encoding ``json``, a
+``jsonschema`` schema per topic typed from the protocol by :mod:`hil.schemas`; the robot's pose
+also as Foxglove's ``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``); recordings of
+untyped schemas (``{"type": "object"}``) read the same. Why JSON and not the msgpack bytes:
+``json`` + ``jsonschema`` is a well-known MCAP profile that ``mcap cat --json`` and Foxglove
+decode with no plug-in; msgpack is not a Foxglove encoding. CAN frames are stored the same way
+(arbitration id, data as hex, decoded signals when the codec knows them). The decoding (a few
+tens of microseconds a message) is paid by the recorder, never by the controller or the plant.
 
-Reader API (what ``hil report`` uses)::
-
-    from hil.recording import read_messages, list_topics
-    for msg in read_messages(path, topics=["hil/robot0/state"]):
-        msg.topic, msg.log_time_ns, msg.publish_time_ns, msg.data  # data: a dict
-
+Reader: :func:`read_messages` gives :class:`RecordedMessage` (``data``: a dict);
 ``log_time_ns`` is when the recorder received the message (``time.monotonic_ns()``), and
 ``publish_time_ns`` the sender's own stamp when the message carries one (else the log time).
 
 Crash safety: the writer closes its chunk and flushes the file at least every
 ``flush_interval`` (0.05 s: half the 0.1 s promised, the other half is slack for a recorder
-thread that falls behind on a loaded host), so a recorder killed at any moment loses what it
-received in the last 0.1 s and what its queue still held (on a loaded host, much more); the
-readers here also read such a truncated file (up to its last whole chunk), and
-:func:`rewrite_complete` turns it into a complete, indexed MCAP, with messages restored from
-elsewhere merged in (``hil recover`` restores the States from the plant's hop log).
+thread that falls behind on a loaded host), so a killed recorder loses what it received in the
+last 0.1 s and what its queue still held; the readers here also read such a truncated file (up
+to its last whole chunk), and :func:`rewrite_complete` turns it into a complete, indexed MCAP,
+with messages restored from elsewhere merged in (``hil recover``: the plant's hop log's States).
 """
 
 from __future__ import annotations
 
+import collections
+import io
 import json
 import math
 import struct
@@ -43,13 +36,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
-import lz4.frame
-import zstandard
-from mcap.data_stream import RecordBuilder
+from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Attachment, AttachmentIndex, Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Attachment, AttachmentIndex, Channel, Chunk, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.writer import CompressionType, IndexType, Writer
 
 from hil.schemas import POSE, TF, WORLD_FRAME, schema_for_topic, schema_name
@@ -108,7 +99,6 @@ class _SpilledIndexes:
     The writer only appends to and iterates over its list, which this class provides."""
 
     def __init__(self) -> None:
-
         self._file = tempfile.TemporaryFile(prefix="hil-chunk-index-")  # noqa: SIM115
         self._builder = RecordBuilder()
         self._count = 0
@@ -157,7 +147,6 @@ class RecordingWriter:
         flush_interval: float = 0.05,
         spill_indexes: bool = True,
     ) -> None:
-
         self.path = Path(path)
         self._stream: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - closed in close()
         self._writer = Writer(self._stream, compression=CompressionType.ZSTD)
@@ -241,7 +230,6 @@ class RecordingWriter:
     ) -> None:
         """A file carried inside the recording (the services' hop logs: a recording alone then
         reproduces every timing figure of the run)."""
-
         now = time.time_ns()
         self._writer.add_attachment(now, now, name, media_type, bytes(data))
 
@@ -262,7 +250,6 @@ class RecordingWriter:
         through the Writer's private (name-mangled) state, and the public ``add_attachment``
         is used whenever that state is not there (another ``mcap`` version).
         """
-
         now = time.time_ns() if time_ns is None else int(time_ns)
         w = self._writer
         private = ("_Writer__stream", "_Writer__flush", "_Writer__statistics",
@@ -286,26 +273,22 @@ class RecordingWriter:
         offset = stream.tell()
         head = struct.pack("<BQ", int(Opcode.ATTACHMENT), length) + body
         crc = zlib.crc32(body)
-        section = w._Writer__data_section_crc
-        use_section = w._Writer__enable_data_crcs
-        stream.write(head)
-        if use_section:
-            section = zlib.crc32(head, section)
+
+        def put(data: bytes) -> None:  # into the file and the data section's CRC, if kept
+            stream.write(data)
+            if w._Writer__enable_data_crcs:
+                w._Writer__data_section_crc = zlib.crc32(data, w._Writer__data_section_crc)
+
+        put(head)
         copied = 0
         with open(path, "rb") as f:
             while copied < size and (block := f.read(min(1 << 20, size - copied))):
-                stream.write(block)
+                put(block)
                 crc = zlib.crc32(block, crc)
-                if use_section:
-                    section = zlib.crc32(block, section)
                 copied += len(block)
         if copied != size:
             raise OSError(f"{path}: changed while it was attached ({copied} of {size} bytes)")
-        tail = struct.pack("<I", crc)
-        stream.write(tail)
-        if use_section:
-            section = zlib.crc32(tail, section)
-        w._Writer__data_section_crc = section
+        put(struct.pack("<I", crc))
         w._Writer__statistics.attachment_count += 1
         if w._Writer__index_types & IndexType.ATTACHMENT:
             w._Writer__attachment_indexes.append(
@@ -319,9 +302,6 @@ class RecordingWriter:
                     media_type=media_type,
                 )
             )
-
-    def add_metadata(self, name: str, data: Mapping[str, Any]) -> None:
-        self._writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
 
     def close(self) -> None:
         if self._closed:
@@ -341,24 +321,39 @@ class RecordingWriter:
         self.close()
 
 
-def is_complete(path: str | Path) -> bool:
-    """Whether the recording ends with its summary and footer (a clean finish)."""
+def _summary(path: str | Path) -> Any:
+    """The recording's summary section; None unless it ends with it (a clean finish)."""
     try:
         with open(path, "rb") as f:
-            return make_reader(f).get_summary() is not None
+            return make_reader(f).get_summary()
     except Exception:  # a truncated file makes the indexed reader raise anything
-        return False
+        return None
+
+
+def is_complete(path: str | Path) -> bool:
+    """Whether the recording ends with its summary and footer (a clean finish)."""
+    return _summary(path) is not None
 
 
 def _stream_records(path: str | Path) -> Iterator[Any]:
     """Every whole record of a possibly truncated recording, in file order."""
-
     with open(path, "rb") as f:
         reader = StreamReader(f, record_size_limit=None)
         try:
             yield from reader.records
         except Exception:  # the tail of a killed writer: stop at the last whole record
             return
+
+
+def _streamed_messages(path: str | Path) -> Iterator[tuple[str, Message]]:
+    """(topic, Message record) of every whole message of a possibly truncated recording, in
+    file order."""
+    channels: dict[int, str] = {}
+    for rec in _stream_records(path):
+        if isinstance(rec, Channel):
+            channels[rec.id] = rec.topic
+        elif isinstance(rec, Message) and rec.channel_id in channels:
+            yield channels[rec.channel_id], rec
 
 
 def read_messages(
@@ -370,63 +365,45 @@ def read_messages(
     if is_complete(path):
         with open(path, "rb") as f:
             reader = make_reader(f)
-            for _s, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
+            for _s, ch, m in reader.iter_messages(topics=wanted, log_time_order=True):
                 yield RecordedMessage(
-                    topic=channel.topic,
-                    log_time_ns=message.log_time,
-                    publish_time_ns=message.publish_time,
-                    sequence=message.sequence,
-                    data=json.loads(message.data),
+                    ch.topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data)
                 )
         return
 
-    channels: dict[int, str] = {}
-    found: list[RecordedMessage] = []
-    for rec in _stream_records(path):
-        if isinstance(rec, Channel):
-            channels[rec.id] = rec.topic
-        elif isinstance(rec, Message):
-            topic = channels.get(rec.channel_id)
-            if topic is None or (wanted is not None and topic not in wanted):
-                continue
-            found.append(
-                RecordedMessage(topic, rec.log_time, rec.publish_time, rec.sequence,
-                                json.loads(rec.data))
-            )  # fmt: skip
-    found.sort(key=lambda m: m.log_time_ns)
-    yield from found
+    found = [
+        RecordedMessage(topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data))
+        for topic, m in _streamed_messages(path)
+        if wanted is None or topic in wanted
+    ]
+    yield from sorted(found, key=lambda m: m.log_time_ns)
 
 
 def topic_values(path: str | Path, topic: str, key: str) -> Iterator[Any]:
     """``data[key]`` of every message on ``topic`` of a possibly truncated recording, in file
     order, one message at a time (an hour's States never sit in memory as dicts)."""
-
     if is_complete(path):
         for _t, _log, payload in read_topic_payloads(path, [topic]):
             yield json.loads(payload).get(key)
         return
-    ids: set[int] = set()
-    for rec in _stream_records(path):
-        if isinstance(rec, Channel) and rec.topic == topic:
-            ids.add(rec.id)
-        elif isinstance(rec, Message) and rec.channel_id in ids:
-            yield json.loads(rec.data).get(key)
+    for t, m in _streamed_messages(path):
+        if t == topic:
+            yield json.loads(m.data).get(key)
 
 
 def rewrite_complete(
     src: str | Path,
     dst: str | Path,
-    attachments: Mapping[str, bytes] | None = None,
+    attachments: Mapping[str, bytes | Path] | None = None,
     extra: Iterable[RecordedMessage] = (),
 ) -> dict[str, int]:
     """A complete, indexed MCAP at ``dst`` from a possibly truncated ``src``: every whole
-    schema, channel, message, metadata and attachment, plus ``attachments``, plus the messages
-    ``extra`` (sorted by log time; each merged before the first message of ``src`` logged after
-    it, on its topic's channel, registered as the writer does when ``src`` has none). Returns
-    counts (``restored``: the messages of ``extra`` written)."""
-
+    schema, channel, message, metadata and attachment, plus ``attachments`` (data, or a file
+    to read), plus the messages ``extra`` (sorted by log time; each merged before the first
+    message of ``src`` logged after it, on its topic's channel, registered as the writer does
+    when ``src`` has none). Returns counts (``restored``: the messages of ``extra`` written)."""
     counts = {"messages": 0, "attachments": 0, "restored": 0}
-    pending = list(extra)
+    pending = collections.deque(extra)
     with open(dst, "wb") as out:
         w = Writer(out, compression=CompressionType.ZSTD)
         w.start(profile=PROFILE, library="hil-smc-bench (recovered)")
@@ -435,10 +412,8 @@ def rewrite_complete(
         by_topic: dict[str, int] = {}
 
         def add_extra(until: float) -> None:
-            while counts["restored"] < len(pending) and (
-                pending[counts["restored"]].log_time_ns <= until
-            ):
-                m = pending[counts["restored"]]
+            while pending and pending[0].log_time_ns <= until:
+                m = pending.popleft()
                 if m.topic not in by_topic:
                     typed = schema_for_topic(m.topic)
                     schema = w.register_schema(schema_name(m.topic, typed), "jsonschema",
@@ -474,7 +449,8 @@ def rewrite_complete(
         add_extra(math.inf)
         for name, data in (attachments or {}).items():
             now = time.time_ns()
-            w.add_attachment(now, now, name, "application/octet-stream", bytes(data))
+            blob = data.read_bytes() if isinstance(data, Path) else bytes(data)
+            w.add_attachment(now, now, name, "application/octet-stream", blob)
             counts["attachments"] += 1
         w.finish()
     return counts
@@ -482,22 +458,15 @@ def rewrite_complete(
 
 def list_topics(path: str | Path) -> dict[str, int]:
     """Topic -> message count, from the recording's summary section."""
-    summary = None
-    if is_complete(path):
-        with open(path, "rb") as f:
-            summary = make_reader(f).get_summary()
+    summary = _summary(path)
     if summary is None or summary.statistics is None:
-        counts: dict[str, int] = {}
-        for m in read_messages(path):
-            counts[m.topic] = counts.get(m.topic, 0) + 1
-        return counts
+        return dict(collections.Counter(m.topic for m in read_messages(path)))
     by_id = {cid: ch.topic for cid, ch in summary.channels.items()}
     return {by_id[cid]: int(n) for cid, n in summary.statistics.channel_message_counts.items()}
 
 
 def read_attachments(path: str | Path, names: Iterable[str] | None = None) -> dict[str, bytes]:
     """Name -> data of the recording's attachments (optionally only ``names``)."""
-
     wanted = set(names) if names is not None else None
     out: dict[str, bytes] = {}
     if is_complete(path):
@@ -533,10 +502,7 @@ def read_topic_payloads(
     :func:`read_messages` instead.
     """
     wanted = set(topics)
-    summary = None
-    if is_complete(path):
-        with open(path, "rb") as f:
-            summary = make_reader(f).get_summary()
+    summary = _summary(path)
     if summary is None or not summary.chunk_indexes:
         for m in read_messages(path, topics=sorted(wanted)):
             yield m.topic, m.log_time_ns, json.dumps(m.data).encode()
@@ -552,7 +518,7 @@ def read_topic_payloads(
                 continue
             f.seek(ci.chunk_start_offset)
             chunk = f.read(ci.chunk_length)
-            records = _chunk_records(chunk, ci.compression, ci.uncompressed_size)
+            records = _chunk_records(chunk)
             for cid, index_offset in present:
                 f.seek(index_offset)
                 head = f.read(1 + 8 + 2 + 4)
@@ -566,20 +532,13 @@ def read_topic_payloads(
                     yield topic, pairs[i], records[at + 31 : at + 9 + length]
 
 
-def _chunk_records(chunk: bytes, compression: str, size: int) -> bytes:
+def _chunk_records(raw: bytes) -> bytes:
     """The uncompressed records of one Chunk record (opcode, length, then the fields)."""
-    at = 1 + 8 + 8 + 8 + 8 + 4  # opcode, length, start and end time, size, crc
-    name_len = struct.unpack_from("<I", chunk, at)[0]
-    at += 4 + name_len
-    data_len = struct.unpack_from("<Q", chunk, at)[0]
-    data = chunk[at + 8 : at + 8 + data_len]
-    if compression == "zstd":
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == "lz4":
-        return lz4.frame.decompress(data)
-    if compression == "":
-        return data
-    raise ValueError(f"unsupported chunk compression {compression!r}")
+    chunk = Chunk.read(ReadDataStream(io.BytesIO(raw[1 + 8 :])))
+    if chunk.compression not in ("", "zstd", "lz4"):
+        raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
+    records, size = get_chunk_data_stream(chunk)
+    return records.read(size)
 
 
 def write_pose(writer: RecordingWriter, state_topic: str, log_time_ns: int, state: Any) -> None:

@@ -21,20 +21,12 @@ from typing import Any
 PR_SET_PDEATHSIG = 1
 
 
-def _libc() -> ctypes.CDLL | None:
-    name = ctypes.util.find_library("c") or "libc.so.6"
-    try:
-        return ctypes.CDLL(name, use_errno=True)
-    except OSError:
-        return None
-
-
 def _die_with_parent(parent_pid: int, sig: int = signal.SIGTERM) -> Callable[[], None]:
     """A ``preexec_fn`` that asks the kernel for ``sig`` when the parent dies."""
 
     def preexec() -> None:
-        libc = _libc()
-        if libc is not None:
+        with contextlib.suppress(OSError):  # no libc to load: no signal asked
+            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
             libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
         # The parent may have died between fork and prctl: then no signal would ever come.
         if os.getppid() != parent_pid:
@@ -87,12 +79,9 @@ class Supervisor:
         stderr: Any = None,
         cwd: str | None = None,
     ) -> Child:
-        full_env = dict(os.environ)
-        if env:
-            full_env.update(env)
         proc = subprocess.Popen(
             list(argv),
-            env=full_env,
+            env={**os.environ, **(env or {})},
             stdout=stdout,
             stderr=stderr,
             cwd=cwd,
@@ -109,13 +98,7 @@ class Supervisor:
         return self.start(name, [sys.executable, *module_args], **kw)
 
     def any_exited(self) -> Child | None:
-        for c in self.children:
-            if not c.alive():
-                return c
-        return None
+        return next((c for c in self.children if not c.alive()), None)
 
     def stop_all(self, grace: float = 5.0) -> dict[str, int | None]:
-        codes: dict[str, int | None] = {}
-        for c in reversed(self.children):
-            codes[c.name] = c.stop(grace)
-        return codes
+        return {c.name: c.stop(grace) for c in reversed(self.children)}

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
 
 from hil.bundled import resolve_scenario
 from hil.run.defaults import PAPER_TRACKING_TOML
@@ -35,18 +34,12 @@ class DrivesOptions(drives.DrivesOptions):
     scheduling: str | None = None  # "fifo" / "other"; None: the scenario's [realtime]
 
 
-def _scenario(name: str | None) -> Any:
-
-    if name is None:
-        return loads_scenario(PAPER_TRACKING_TOML)
-
-    return load_scenario(resolve_scenario(name))
-
-
 def drives_settings(opts: DrivesOptions) -> RunSettings:
     """The scenario with the command line's overrides, as the drives read it."""
-
-    sc = _scenario(opts.scenario)
+    if opts.scenario is None:
+        sc = loads_scenario(PAPER_TRACKING_TOML)
+    else:
+        sc = load_scenario(resolve_scenario(opts.scenario))
     can_table = dataclasses.asdict(sc.can)
     if not can_table.get("watchdog_timeout"):
         # A client that dies or forgets its torque must not leave the robot driven: on here,

@@ -1,15 +1,11 @@
 """``python -m hil.run.group SPEC.json``: several robots' closed loops in three processes, for a
 fleet on a 2-core machine (``hil fleet --per-process K``).
 
-What ``hil run`` does for one robot, done for K robots at once: each robot gets its own run
-folder (``OUT/robotI``: its settings, scenario, hop logs, ``recording.mcap`` of its own keys
-``hil/robotI/**``, summary), so ``hil report`` reads each folder unchanged and every figure keeps
-its definition. What is shared: one plant process emulating the K robots and one controller
-process hosting their K controllers (runtime.group: one thread and one service object per
-robot, on the process' one Zenoh session and scheduling set-up), and this recorder process
-(one session on the group's loopback endpoint, one subscriber and one recording per robot).
-Robot I's epoch is shifted by (I - 1) / N of a period (N: the fleet's size), so the robots'
-deadlines interleave instead of all falling on the same instant.
+Each robot keeps its own run folder (``OUT/robotI``, its keys' recording included), so
+``hil report`` reads it unchanged and every figure keeps its definition; the K robots share one
+plant process, one controller process (runtime.group) and this recorder (docs/fleet.md). Robot
+I's epoch is shifted by (I - 1) / N of a period (N: the fleet's size), so the robots' deadlines
+interleave instead of all falling on the same instant.
 """
 
 from __future__ import annotations
@@ -22,13 +18,11 @@ import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from subprocess import STDOUT
 from typing import Any
 
 from hil.fleet import barrier as fleet_barrier
 from hil.folder import layout
 from hil.lab import placement
-from hil.lab.placement import child_argv
 from hil.measure.logs import HOST_FILE
 from hil.recording import RecordingWriter
 from hil.run.host_load import HostSampler
@@ -38,16 +32,18 @@ from hil.run.orchestrate import (
     RunOptions,
     _Logs,
     _progress,
+    _start_services,
     _stop_children,
     _wait_ready,
     _write_results,
     attachment_files,
     free_port,
     prepare,
-    robot_keys,
+    run_extra,
 )
 from hil.run.secure import RunIdentities
 from hil.supervisor import Supervisor
+from protocol.keys import observed_keys
 from protocol.settings import RunSettings, period_ns
 from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
@@ -86,11 +82,6 @@ class GroupSpec:
         path.write_text(json.dumps(asdict(self), indent=2) + "\n")
 
 
-def codes_file(out: Path, first: str) -> Path:
-    """Where a group writes each robot's exit code (as ``hil run`` would exit for it)."""
-    return out / f".group-{first}.codes.json"
-
-
 @dataclass
 class _Robot:
     id: str
@@ -98,7 +89,6 @@ class _Robot:
     settings: RunSettings
     run_dir: Path
     info: dict[str, Any]
-    writer: RecordingWriter
     recorder: Recorder
 
 
@@ -115,30 +105,8 @@ def _prepare(spec: GroupSpec, endpoint: str | None) -> list[_Robot]:
         meta.update({"rate_hz": info["rate_hz"], "group": ",".join(spec.robots)})
         writer = RecordingWriter(run_dir / layout.RECORDING, metadata=meta)
         recorder = Recorder(writer, same_clock=endpoint is not None)
-        robots.append(_Robot(r, scenario, settings, run_dir, info, writer, recorder))
+        robots.append(_Robot(r, scenario, settings, run_dir, info, recorder))
     return robots
-
-
-def _start_services(
-    sup: Supervisor, robots: list[_Robot], logs: _Logs, host: HostSampler, placed: Any
-) -> None:
-    """One plant process and one controller process for every robot of the group (each on
-    its lab host when ``placed``)."""
-    paths = [str(r.run_dir / layout.RUN_SETTINGS) for r in robots]
-    ids = RunIdentities(False, [r.id for r in robots])
-    for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
-        sup.start(
-            name,
-            child_argv(placed, name, [sys.executable, "-m", module, *paths]),
-            env=ids.child_env(name),
-            stdout=logs.open(f"{robots[0].id}-group-{name}"),
-            stderr=STDOUT,
-        )
-    pids = {c.name: c.pid for c in sup.children}
-    for r in robots:
-        (r.run_dir / layout.PROCESSES).write_text(json.dumps(pids))
-    for c in sup.children:
-        host.watch(c.name, c.pid)
 
 
 def phase_ns(robot: str, position: int, n: int, period: int) -> int:
@@ -175,15 +143,9 @@ def _start_and_follow(spec: GroupSpec, robots: list[_Robot], sup: Supervisor, se
     return None
 
 
-def robot_code(summary: dict[str, Any]) -> int:
-    """The exit code ``hil run`` gives this robot's summary (hil.commands.run, not strict)."""
-    v = summary.get("verdict") or {}
-    return 1 if summary.get("error") or v.get("blocking") else 0
-
-
 def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
     """Run the group (``placed``: on a lab's hosts, this process on the recorder's); each
-    robot's exit code (also written to :func:`codes_file`)."""
+    robot's exit code (also written to ``OUT/.group-<first robot>.codes.json``)."""
     out = Path(spec.out)
     out.mkdir(parents=True, exist_ok=True)
     endpoint = None if placed else f"tcp/127.0.0.1:{free_port()}"
@@ -198,8 +160,12 @@ def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
         else:
             session = open_session(endpoint, listen_endpoint=True, credentials=None)
         for r in robots:  # each robot's status and taps into its own recording
-            subs += [session.declare_subscriber(k, r.recorder.on_zenoh) for k in robot_keys(r.id)]
-        _start_services(sup, robots, logs, host, placed)
+            subs += [
+                session.declare_subscriber(k, r.recorder.on_zenoh) for k in observed_keys(r.id)
+            ]
+        ids = RunIdentities(False, [r.id for r in robots])
+        run_dirs = [r.run_dir for r in robots]
+        _start_services(sup, run_dirs, ids, logs, host, placed, f"{robots[0].id}-group-")
         error = _start_and_follow(spec, robots, sup, session, stop)
     finally:
         codes = _stop_children(sup, robots[0].settings)
@@ -221,21 +187,16 @@ def _results(spec: GroupSpec, robots: list[_Robot], codes: dict[str, int | None]
              error: str | None, interrupted: bool, wall: float) -> dict[str, int]:  # fmt: skip
     """Each robot's trace.csv, summary.json and plots, as ``hil run`` writes them."""
     out: dict[str, int] = {}
+    shared = {"robots": list(spec.robots), "processes": ["plant", "controller"]}
     for r in robots:
-        extra = {
-            "interrupted": interrupted,
-            "error": error,
-            "wall_time_s": wall,
-            "exit_codes": codes,
-            "recording": layout.RECORDING,
-            "recorded_messages": r.writer.count,
-            "recorder": r.recorder.taps.counts(),
-            "secure": False,
-            "shared_processes": {"robots": list(spec.robots), "processes": ["plant", "controller"]},
-        }
+        extra = run_extra(interrupted, error, wall, codes, r.recorder, False)
+        extra["shared_processes"] = shared
         summary = _write_results(r.run_dir, r.scenario, r.settings, r.info, extra)
-        out[r.id] = robot_code(summary)
-    codes_file(Path(spec.out), spec.robots[0]).write_text(json.dumps(out) + "\n")
+        # The exit code hil run gives this summary (hil.commands.run, not strict).
+        blocking = (summary.get("verdict") or {}).get("blocking")
+        out[r.id] = 1 if summary.get("error") or blocking else 0
+    # Where hil fleet reads each robot's exit code (as ``hil run`` would exit for it).
+    (Path(spec.out) / f".group-{spec.robots[0]}.codes.json").write_text(json.dumps(out) + "\n")
     return out
 
 

@@ -32,25 +32,18 @@ def _runnable() -> int:
         return int(f.read().split()[3].split("/")[0])
 
 
-def _process_cpu(pid: int | None) -> int:
-    """utime + stime of a process (clock ticks); -1 when it is gone or unknown."""
+def _process_cpu(pid: int | None, wait: bool = False) -> int:
+    """utime + stime of a process (clock ticks), or with ``wait`` the ns its main thread has
+    waited runnable for a CPU; -1 when it is gone or unknown."""
     if pid is None:
         return -1
     try:
-        with open(f"/proc/{pid}/stat") as f:
-            rest = f.read().rsplit(")", 1)[1].split()
+        with open(f"/proc/{pid}/{'schedstat' if wait else 'stat'}") as f:
+            text = f.read()
+        if wait:
+            return int(text.split()[1])
+        rest = text.rsplit(")", 1)[1].split()
         return int(rest[11]) + int(rest[12])
-    except (OSError, IndexError, ValueError):
-        return -1
-
-
-def _run_queue_wait(pid: int | None) -> int:
-    """ns the process's main thread has waited runnable for a CPU (-1: unknown)."""
-    if pid is None:
-        return -1
-    try:
-        with open(f"/proc/{pid}/schedstat") as f:
-            return int(f.read().split()[1])
     except (OSError, IndexError, ValueError):
         return -1
 
@@ -80,8 +73,8 @@ class HostSampler:
             plant_cpu=_process_cpu(self.pids["plant"]),
             controller_cpu=_process_cpu(self.pids["controller"]),
             recorder_cpu=_process_cpu(os.getpid()),
-            plant_wait_ns=_run_queue_wait(self.pids["plant"]),
-            controller_wait_ns=_run_queue_wait(self.pids["controller"]),
+            plant_wait_ns=_process_cpu(self.pids["plant"], wait=True),
+            controller_wait_ns=_process_cpu(self.pids["controller"], wait=True),
         )
         self.log.append("host", row)
 

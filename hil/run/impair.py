@@ -1,21 +1,13 @@
 """``[impair]``: packets of a run's real links dropped and counted by the kernel, in the run's
-own network namespace (docs/impair.md).
+own network namespace (docs/impair.md: which packets ``on`` selects, and how).
 
 ``hil run`` with an ``[impair]`` table re-executes itself under ``unshare --net`` (unshare execs,
 so the PID stays) with :data:`NETNS_ENV` set to that PID. There :func:`enter` brings the
-namespace's loopback up (multicast on, with the route python-can's ``udp_multicast`` needs),
-installs the nftables rules that select, count and drop packets at the input hook, and a ``tc``
-token bucket on the loopback when ``rate_bps`` is set. The recorder, the router and both
-services then run inside: nothing touches the host's network, and the namespace ends with the
-run's last process. :func:`finish` reads the kernel's own counters into summary.json ``impair``
-and writes the rules to ``impair.nft``.
-
-Which packets (``on``): ``zenoh``, every TCP packet (all of the run's Zenoh links, whatever
-ports gossip chose; with ``[can] interface = "zenoh_can"`` its CAN frames ride on them too);
-``can``, the UDP packets to ``udp_multicast``'s port, one CAN frame each (``can_frames =
-"torque"``: only the drives' Set_Input_Torque frames, matched in the packet's payload); ``all``,
-both. Each packet is seen once: on the loopback every packet passes the input hook once, before
-any socket (the multicast group's members, the sender's own looped copy) receives it.
+loopback up (multicast on, with the route python-can's ``udp_multicast`` needs) and installs
+the nftables rules that select, count and drop packets at the input hook (each packet passes it
+once, before any socket receives it), and a ``tc`` token bucket when ``rate_bps`` is set. The
+whole run lives inside: nothing touches the host's network. :func:`finish` reads the kernel's
+counters into summary.json ``impair`` and writes the rules to ``impair.nft``.
 """
 
 from __future__ import annotations
@@ -30,6 +22,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import msgpack
 
 import hil
 from hil.bundled import resolve_scenario
@@ -70,26 +64,13 @@ class Plan:
     warning: str = ""
 
 
-@dataclass
-class Impairment:
-    """An impairment installed in this process' namespace (:func:`enter`)."""
-
-    plan: Plan
-    rules: str
-
-
 def msgpack_uint(value: int) -> bytes:
-    """``value`` as msgpack writes a non-negative integer below 2**16 (python-can's ids)."""
-    if value < 0x80:
-        return bytes([value])
-    if value < 0x100:
-        return bytes([0xCC, value])
-    return bytes([0xCD]) + value.to_bytes(2, "big")
+    """``value`` as msgpack (python-can's ``pack_message``) writes a non-negative integer."""
+    return bytes(msgpack.packb(value))
 
 
 def torque_selector(node: int) -> str:
     """The nftables match of one drive's Set_Input_Torque frames on udp_multicast."""
-
     value = msgpack_uint(frame_id(node, Cmd.SET_INPUT_TORQUE))
     key_bits = (UDP_HEADER + ARBITRATION_KEY_OFFSET) * 8
     value_bits = key_bits + len(ARBITRATION_KEY) * 8
@@ -160,7 +141,6 @@ def ruleset(plan: Plan) -> str:
 def plan_of(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
     """The run's plan, or None when its scenario has no [impair] table; ``check_options``
     (hil run's) first, so a bad option is reported as it always is."""
-
     if opts.scenario is None:
         return None
     check_options(opts)
@@ -182,7 +162,6 @@ def inside() -> bool:
 def started_as_hil_run() -> bool:
     """True when this process is ``hil run`` from its own command line (``hil run ...`` or
     ``python -m hil run ...``): only then can it be executed again as it was started."""
-
     argv0 = Path(sys.argv[0])
     own = argv0.name == "hil" or argv0.resolve() == Path(hil.__file__).parent / "__main__.py"
     return own and len(sys.argv) > 1 and sys.argv[1] == "run"
@@ -219,26 +198,25 @@ def _run(argv: list[str], stdin: str | None = None) -> str:
     return proc.stdout
 
 
-def _install(plan: Plan) -> str:
-    """Loopback up with multicast and its route, the rules, the rate limit; the rules' text."""
+def _install(plan: Plan) -> None:
+    """Loopback up with multicast and its route, the rules, the rate limit."""
     _run(["ip", "link", "set", "lo", "up"])
     _run(["ip", "link", "set", "lo", "multicast", "on"])
     _run(["ip", "route", "add", "224.0.0.0/4", "dev", "lo"])
-    rules = ruleset(plan)
-    _run(["nft", "-f", "-"], stdin=rules)
+    _run(["nft", "-f", "-"], stdin=ruleset(plan))
     rate = plan.config.rate_bps
     if rate > 0:
         burst = max(2 * (RATE_MTU + 14), round(rate / 8 * 0.004))
         _run(["ip", "link", "set", "lo", "mtu", str(RATE_MTU)])
         tbf = ["rate", f"{round(rate)}bit", "burst", str(burst), "latency", RATE_LATENCY]
         _run(["tc", "qdisc", "add", "dev", "lo", "root", "tbf", *tbf])
-    return rules
 
 
-def enter(opts: Any, check_options: Callable[[Any], None]) -> Impairment | None:
+def enter(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
     """Before ``hil run`` prepares anything: None without [impair]; else, the first time,
     execute this same command again in a fresh network namespace (never returns), and inside
-    it install the impairment. BadInputError (exit 2) when that cannot be done."""
+    it install the impairment and return its plan. BadInputError (exit 2) when that cannot be
+    done."""
     plan = plan_of(opts, check_options)
     if plan is None:
         return None
@@ -255,7 +233,8 @@ def enter(opts: Any, check_options: Callable[[Any], None]) -> Impairment | None:
         os.execve(unshare, [unshare, "--net", "--", sys.executable, *sys.orig_argv[1:]], env)
     if plan.warning:
         print(f"warning: {plan.warning}", file=sys.stderr)
-    return Impairment(plan, _install(plan))
+    _install(plan)
+    return plan
 
 
 def _nft_counters() -> dict[str, int]:
@@ -286,13 +265,12 @@ def _tc_counters() -> dict[str, Any]:
     }
 
 
-def finish(impairment: Impairment | None, run_dir: Path) -> dict[str, Any]:
+def finish(plan: Plan | None, run_dir: Path) -> dict[str, Any]:
     """summary.json's ``impair`` (the kernel's counters, read after the run) and
     ``impair.nft`` in the run folder; {} for a run without [impair]."""
-    if impairment is None:
+    if plan is None:
         return {}
-    plan = impairment.plan
-    (run_dir / "impair.nft").write_text(impairment.rules)
+    (run_dir / "impair.nft").write_text(ruleset(plan))
     facts: dict[str, Any] = {
         "config": dataclasses.asdict(plan.config),
         "namespace": "private (unshare --net), loopback only",

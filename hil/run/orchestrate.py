@@ -21,7 +21,7 @@ import socket
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from subprocess import STDOUT
 from typing import Any
@@ -116,9 +116,10 @@ class RunOptions:
 
 
 class Recorder:
-    """Receives the robot's status and its services' taps (:func:`robot_keys`: every message
-    they sent and every payload they refused, :mod:`hil.observe`) and every CAN frame; writes
-    them off-thread. ``same_clock``: the services share this process's clock (not a lab run)."""
+    """Receives the robot's status and its services' taps (:func:`protocol.keys.observed_keys`:
+    every message they sent and every payload they refused, :mod:`hil.observe`) and every CAN
+    frame; writes them off-thread. ``same_clock``: the services share this process's clock (not
+    a lab run)."""
 
     def __init__(self, writer: RecordingWriter, same_clock: bool = True) -> None:
         self.writer = writer
@@ -140,7 +141,7 @@ class Recorder:
 
     def _write_one(self, topic: str, t: int, payload: Any) -> None:
         if topic.startswith("can/"):
-            self._write_can(topic, t, payload)
+            self.writer.write(topic, t, can_frame_record(payload), jsonable=True)
             return
         for m in self.taps.read(topic, t, payload):
             if m.rejected:
@@ -153,9 +154,6 @@ class Recorder:
         its own channel: each topic's messages fit its schema."""
         rejected = {"topic": topic, "reason": reason, "raw": payload.hex(), "by": by}
         self.writer.write("recorder/rejected", t, rejected, jsonable=True)
-
-    def _write_can(self, topic: str, t: int, payload: Any) -> None:
-        self.writer.write(topic, t, can_frame_record(payload), jsonable=True)
 
     def _write_message(self, topic: str, t: int, payload: bytes) -> None:
         try:
@@ -219,7 +217,6 @@ SPIN_US_MAX = 1e6
 def check_options(opts: RunOptions) -> None:
     """The command-line options of ``hil run`` (and of the services run alone), each named in
     a BadInputError; the scenario's own keys are checked when it is loaded."""
-
     options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
     if opts.trigger is not None:
         options.choice("--trigger", opts.trigger, TRIGGERS)
@@ -245,7 +242,6 @@ def check_options(opts: RunOptions) -> None:
 def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
     """(scenario, its path, whether the user gave one, its default duration): the user's
     scenario (a file or a bundled name) or the paper's tracking circle."""
-
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)
     if given is None:
         scenario = with_law(loads_scenario(PAPER_TRACKING_TOML, run_dir), opts.law)
@@ -256,7 +252,6 @@ def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float
 
 def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
     """The control rate (Hz) and the name of what set it ("" for the scenario's own Ts)."""
-
     rt = scenario.realtime
     if opts.rate is not None:
         return opts.rate, "--rate"
@@ -273,7 +268,6 @@ def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
 
 def _run_can_table(opts: RunOptions, scenario: Any) -> dict[str, Any]:
     """The run's [can] table with the command line's interface and channel, checked."""
-
     can_table = effective_can_table(scenario, opts.can_interface)
     if opts.can_channel:
         can_table["channel"] = opts.can_channel
@@ -288,7 +282,6 @@ def _run_settings(
     opts: RunOptions, scenario: Any, context: Any, scenario_path: Path, run_dir: Path, rate: float
 ) -> RunSettings:
     """The settings both services read (:class:`protocol.settings.RunSettings`)."""
-
     rt = scenario.realtime
     ts_s = scenario.timing.ts  # already 1 / rate when a rate overrode it (prepare)
     sensor_rate = rate if opts.lockstep else (rt.sensor_rate or rate)
@@ -327,7 +320,6 @@ def _run_settings(
 
 def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     """Resolve the scenario and the run's settings; write the folder's first files."""
-
     check_options(opts)  # every option before the scenario: no folder, no process yet
     if opts.secure and opts.cmd_path == "can":
         raise BadInputError("--secure guards the Zenoh command path; the CAN bus has no login")
@@ -360,22 +352,8 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     }
     resolved = resolved_dict(scenario, controller, context, run_facts)
     (run_dir / layout.SCENARIO_RESOLVED).write_text(dumps_toml(resolved))
-    info = {
-        "reference": reference,
-        "context": context,
-        "scenario": scenario,
-        "rate_hz": float(rate),
-    }
+    info = {"reference": reference, "context": context, "rate_hz": float(rate)}
     return scenario, settings, run_dir, info
-
-
-@dataclass
-class _Live:
-    """What ``hil run`` opened for one run, closed by :func:`_close_live` whatever happened."""
-
-    session: Any = None
-    subs: list[Any] = field(default_factory=list)
-    can_rec: tuple[Any, Any] | None = None
 
 
 def _open_recorder_session(
@@ -383,7 +361,6 @@ def _open_recorder_session(
 ) -> Any:
     """The recorder's Zenoh session: on the run's endpoint, or a router's client (started
     here) in router mode, or the client of the lab host's own router."""
-
     if lab:
         return open_session(settings.zenoh_endpoint, mode="client", credentials=None)
     if settings.zenoh_mode == "router":
@@ -397,28 +374,30 @@ def _open_recorder_session(
     return open_session(settings.zenoh_endpoint, listen_endpoint=True, credentials=None)
 
 
-def robot_keys(robot_id: str) -> tuple[str, ...]:
-    """What a run's recorder subscribes to: the robot's status and its services' taps
-    (:func:`protocol.keys.observed_keys`), never the loop's own keys."""
-    return observed_keys(robot_id)
-
-
 def _start_services(
-    sup: Supervisor, run_dir: Path, ids: Any, logs: _Logs, host: HostSampler, placed: Any = None
+    sup: Supervisor,
+    run_dirs: list[Path],
+    ids: Any,
+    logs: _Logs,
+    host: HostSampler,
+    placed: Any = None,
+    log_prefix: str = "",
 ) -> None:
-    """The plant and the controller from the run's settings file (each on its lab host when
-    ``placed``); their PIDs in processes.json, for whoever needs to signal one (tests inject
-    stalls), and watched by the host sampler."""
-    settings_path = str(run_dir / layout.RUN_SETTINGS)
+    """One plant and one controller process for the run folders' robots, from their settings
+    files (each on its lab host when ``placed``); their PIDs in each folder's processes.json,
+    for whoever needs to signal one (tests inject stalls), and watched by the host sampler."""
+    paths = [str(d / layout.RUN_SETTINGS) for d in run_dirs]
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
         sup.start(
             name,
-            child_argv(placed, name, [sys.executable, "-m", module, settings_path]),
+            child_argv(placed, name, [sys.executable, "-m", module, *paths]),
             env=ids.child_env(name),
-            stdout=logs.open(name),
+            stdout=logs.open(log_prefix + name),
             stderr=STDOUT,
         )
-    (run_dir / layout.PROCESSES).write_text(json.dumps({c.name: c.pid for c in sup.children}))
+    pids = json.dumps({c.name: c.pid for c in sup.children})
+    for d in run_dirs:
+        (d / layout.PROCESSES).write_text(pids)
     for c in sup.children:
         if c.name in ("plant", "controller"):
             host.watch(c.name, c.pid)
@@ -434,7 +413,6 @@ def _start_and_follow(
 ) -> str | None:
     """Wait for both services to be ready, announce the epoch, follow the run to its end;
     returns an error, or None."""
-
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
     # that dies is noticed at once anyway.
     ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
@@ -449,23 +427,24 @@ def _start_and_follow(
     return None
 
 
-def _close_live(live: _Live, recorder: Recorder, run_dir: Path) -> None:
-    """Close the subscription, the CAN recorder and the session, then the recording (with
-    the hop logs attached)."""
-    for sub in live.subs:
+def _close_live(
+    session: Any, subs: list[Any], can_rec: Any, recorder: Recorder, run_dir: Path
+) -> None:
+    """Close what ``hil run`` opened, whatever happened: the subscriptions, the CAN recorder
+    and the session, then the recording (with the hop logs attached)."""
+    for sub in subs:
         sub.undeclare()
-    if live.can_rec is not None:
-        live.can_rec[1].stop()
+    if can_rec is not None:
+        can_rec[1].stop()
         with contextlib.suppress(Exception):  # a bus already gone is fine here
-            live.can_rec[0].shutdown()
-    if live.session is not None:
-        live.session.close()
+            can_rec[0].shutdown()
+    if session is not None:
+        session.close()
     recorder.close(attachment_files(run_dir))
 
 
 def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
-
     # --lab: the recorder's lab host; [impair]: the run's own network namespace (either way
     # this command is executed again there).
     impaired = bool(opts.lab) and impair.plan_of(opts, check_options) is not None
@@ -473,31 +452,28 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     impairment = None if placed else impair.enter(opts, check_options)
     scenario, settings, run_dir, info = prepare(opts)
     sup = Supervisor()
-    error: str | None = None
-    interrupted = False
     metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
     writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer, same_clock=not placed)
-    live = _Live()
+    session, subs, can_rec = None, [], None
     logs = _Logs(run_dir)
-    codes: dict[str, int | None] = {}
     t_start = time.monotonic()
     ids = RunIdentities(opts.secure, (settings.robot_id,))  # fresh passwords, or none
     host = HostSampler(run_dir)
     with stop_on_signals() as stop:
         try:
-            live.session = _open_recorder_session(settings, ids, sup, logs, stop, bool(placed))
-            announcer = ids.announcer(live.session, settings.zenoh_endpoint)
+            session = _open_recorder_session(settings, ids, sup, logs, stop, bool(placed))
+            announcer = ids.announcer(session, settings.zenoh_endpoint)
             # The run's own robot only: a fleet's robots may share the routers.
-            live.subs = [
-                live.session.declare_subscriber(key, recorder.on_zenoh)
-                for key in robot_keys(settings.robot_id)
+            subs = [
+                session.declare_subscriber(key, recorder.on_zenoh)
+                for key in observed_keys(settings.robot_id)
             ]
-            live.can_rec = _can_recorder(settings, recorder)
+            can_rec = _can_recorder(settings, recorder)
             if opts.live_port is not None:  # its own process: no cycle of the recorder's
                 start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs, bool(placed))
-            _start_services(sup, run_dir, ids, logs, host, placed)
+            _start_services(sup, [run_dir], ids, logs, host, placed)
             error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
             interrupted = bool(stop)
         finally:
@@ -508,21 +484,28 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             ids.close()
             logs.close()
             placement.write_topology(placed, run_dir)  # before the recording takes it along
-            _close_live(live, recorder, run_dir)
-    extra = {
-        "interrupted": interrupted,
-        "error": error,
-        "wall_time_s": time.monotonic() - t_start,
-        "exit_codes": codes,
-        "recording": layout.RECORDING,
-        "recorded_messages": writer.count,
-        "recorder": recorder.taps.counts(),
-        "secure": opts.secure,
-    }
+            _close_live(session, subs, can_rec, recorder, run_dir)
+    extra = run_extra(interrupted, error, time.monotonic() - t_start, codes, recorder, opts.secure)
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
     summary = _write_results(run_dir, scenario, settings, info, extra)
     summary["run_dir"] = str(run_dir)
     return summary
+
+
+def run_extra(
+    interrupted: bool, error: str | None, wall: float, codes: Any, recorder: Recorder, secure: bool
+) -> dict[str, Any]:
+    """What ``hil run`` adds to summary.json about the run itself (in this key order)."""
+    return {
+        "interrupted": interrupted,
+        "error": error,
+        "wall_time_s": wall,
+        "exit_codes": codes,
+        "recording": layout.RECORDING,
+        "recorded_messages": recorder.writer.count,
+        "recorder": recorder.taps.counts(),
+        "secure": secure,
+    }
 
 
 def _write_results(
@@ -530,16 +513,8 @@ def _write_results(
 ) -> dict[str, Any]:
     """trace.csv, summary.json and trajectory.png from the hop logs; a second Ctrl-C while
     the folder is written is recorded, not raised (hil.interrupts)."""
-
     with interrupts.shielded():
-        summary = analyze(
-            run_dir,
-            scenario,
-            settings,
-            info["reference"],
-            info["context"],
-            extra,
-        )
+        summary = analyze(run_dir, scenario, settings, info["reference"], info["context"], extra)
         try:
             plot(run_dir)
         except Exception as exc:
@@ -553,34 +528,20 @@ ATTACHED += (CLOCK_FILE, TOPOLOGY_FILE)
 
 
 def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:
-    """The files a recording carries (as :func:`attachments_of`), by path, to be streamed."""
+    """The files a recording carries so that it alone reproduces the run's figures, by path
+    (streamed when attached)."""
     return {name: run_dir / name for name in ATTACHED if (run_dir / name).is_file()}
 
 
-def attachments_of(run_dir: Path) -> dict[str, bytes]:
-    """The files a recording carries so that it alone reproduces the run's figures."""
-    out: dict[str, bytes] = {}
-    for name in ATTACHED:
-        with contextlib.suppress(OSError):
-            out[name] = (run_dir / name).read_bytes()
-    return out
-
-
-class _Logs:
+class _Logs(contextlib.ExitStack):
     """The children's console logs (``<name>.log`` in the run folder), closed at the end."""
 
     def __init__(self, run_dir: Path) -> None:
+        super().__init__()
         self.run_dir = run_dir
-        self.files: list[Any] = []
 
     def open(self, name: str) -> Any:
-        f = (self.run_dir / f"{name}.log").open("wb")
-        self.files.append(f)
-        return f
-
-    def close(self) -> None:
-        for f in self.files:
-            f.close()
+        return self.enter_context((self.run_dir / f"{name}.log").open("wb"))
 
 
 def _wait_port(endpoint: str, stop: Any, timeout: float) -> bool:
@@ -600,8 +561,7 @@ def _wait_ready(recorder: Recorder, sup: Supervisor, stop: Any, timeout: float) 
         roles = {r for r, m in recorder.statuses.items() if m.state == "ready"}
         if {"plant", "controller"} <= roles:
             return True
-        dead = sup.any_exited()
-        if dead is not None:
+        if sup.any_exited() is not None:
             return False
         time.sleep(0.02)
     return False
@@ -615,12 +575,6 @@ def _progress(
     plant = next(c for c in sup.children if c.name == "plant")
     t0 = time.monotonic()
     limit = t0 + (settings.duration + 30.0 if not settings.lockstep else 1e9)
-
-    def fraction() -> float:
-        if total:
-            return min(1.0, recorder.states / total)
-        return min(1.0, (time.monotonic() - t0) / settings.duration)
-
     if quiet or not sys.stderr.isatty():
         while not stop and plant.alive() and time.monotonic() < limit:
             time.sleep(0.05)
@@ -641,7 +595,8 @@ def _progress(
             if st is not None:
                 c = st.counters
                 info = f"cycles {c.get('cycles', 0)} misses {c.get('deadline_misses', 0)}"
-            prog.update(task, completed=fraction(), info=info)
+            done = recorder.states / total if total else (time.monotonic() - t0) / settings.duration
+            prog.update(task, completed=min(1.0, done), info=info)
             time.sleep(0.1)
 
 

@@ -1,14 +1,12 @@
 """``hil recover DIR``: a run folder made whole after ``hil run`` died (SIGKILL, power loss).
 
-What a killed ``hil run`` leaves: the services' hop logs (streamed, and usually complete: the
-children get SIGTERM from the kernel when their parent dies and exit cleanly), the resolved
-scenario and settings, and a recording cut inside a chunk, without what the recorder's queue
-still held (on a loaded host, many States). Recovery rewrites the recording as a complete,
-indexed MCAP (every whole chunk, plus the hop logs and the resolved scenario as attachments),
-restores into it every State the plant sent that it lacks, from the plant's hop log (the same
-message the recorder writes, marked ``"restored_from": "plant.hoplog"``), and rebuilds
-trace.csv and summary.json from the hop logs with the same code a finished run uses
-(:func:`hil.run.results.analyze`, :mod:`hil.measure`).
+A killed ``hil run`` leaves the services' hop logs (usually complete: the kernel SIGTERMs the
+children with their parent), the resolved scenario and settings, and a recording cut inside a
+chunk, without what the recorder's queue still held. Recovery rewrites the recording as a
+complete, indexed MCAP (whole chunks, plus the run's attachments), restores every State the
+plant sent that it lacks from the plant's hop log (marked ``"restored_from": "plant.hoplog"``),
+and rebuilds trace.csv and summary.json with the code a finished run uses
+(:func:`hil.run.results.analyze`). docs/reliability.md, "Crash-safe runs".
 """
 
 from __future__ import annotations
@@ -23,14 +21,8 @@ from hil.errors import BadInputError
 from hil.folder import layout
 from hil.folder.jsonio import write_json
 from hil.measure.logs import read_columns
-from hil.recording import (
-    RecordedMessage,
-    is_complete,
-    rewrite_complete,
-    to_jsonable,
-    topic_values,
-)
-from hil.run.orchestrate import attachments_of
+from hil.recording import RecordedMessage, is_complete, rewrite_complete, to_jsonable, topic_values
+from hil.run.orchestrate import attachment_files
 from hil.run.results import analyze, plot
 from hil.scenario import build_loop, loads_scenario
 from plant_emulator.from_settings import sensor_of
@@ -41,17 +33,13 @@ from protocol.messages import State
 from protocol.robot import RobotState
 from protocol.settings import RunSettings
 
-RECORDING = layout.RECORDING
-RESTORED_FROM = layout.PLANT_LOG
-
 
 def needs_recovery(run_dir: Path) -> list[str]:
     """What is missing or broken in a run folder (empty: nothing to do)."""
-
     missing = [n for n in (layout.TRACE, layout.SUMMARY) if not (run_dir / n).is_file()]
-    rec = run_dir / RECORDING
+    rec = run_dir / layout.RECORDING
     if rec.is_file() and not is_complete(rec):
-        missing.append(RECORDING)
+        missing.append(layout.RECORDING)
     return missing
 
 
@@ -68,7 +56,6 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
     message, the measured state recomputed with the run's seeded sensor model, as the plant
     did) plus ``restored_from``; logged and published at its send time (when the recorder
     received it is not known)."""
-
     cols = ("seq", "sample_ns", "send_ns", "x", "y", "theta", "v", "omega", "flags")
     if not (run_dir / layout.PLANT_LOG).is_file():
         return []
@@ -93,7 +80,7 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
                     float(m.v), float(m.omega))  # fmt: skip
         data = to_jsonable(msg)
         data["type"] = "State"
-        data["restored_from"] = RESTORED_FROM
+        data["restored_from"] = layout.PLANT_LOG
         out.append(RecordedMessage(topic, send, send, 0, data))
     out.sort(key=lambda m: m.log_time_ns)
     return out
@@ -102,7 +89,6 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
 def recover(run_dir: str | Path) -> dict[str, Any]:
     """Make a killed run's folder whole; returns what was done. BadInputError when the folder
     is not a run folder (no settings, no hop logs) or holds no sample to rebuild from."""
-
     run_dir = Path(run_dir)
     if not is_run_folder(run_dir):
         raise BadInputError(f"{run_dir}: not a hil run folder (no run_settings.json or hop logs)")
@@ -110,15 +96,15 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
     done: dict[str, Any] = {"folder": str(run_dir), "repaired": todo}
     if not todo:
         return done
-    rec = run_dir / RECORDING
-    if RECORDING in todo:
-        tmp = run_dir / (RECORDING + ".recovering")
+    rec = run_dir / layout.RECORDING
+    if layout.RECORDING in todo:
+        tmp = run_dir / (layout.RECORDING + ".recovering")
         try:
             lost = missing_states(run_dir, rec)
         except (OSError, ValueError) as exc:  # an unreadable plant log: recover the rest
             lost = []
             done["restore_error"] = str(exc)
-        counts = rewrite_complete(rec, tmp, attachments_of(run_dir), lost)
+        counts = rewrite_complete(rec, tmp, attachment_files(run_dir), lost)
         os.replace(tmp, rec)
         done["recording"] = counts
     if layout.SUMMARY in todo or layout.TRACE in todo:
@@ -133,7 +119,7 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
             "interrupted": True,
             "error": None,
             "recovered": True,
-            "recording": RECORDING,
+            "recording": layout.RECORDING,
             "note": "hil run did not finish; rebuilt by hil recover from the services' hop logs",
         }
         summary = analyze(run_dir, scenario, settings, reference, context, extra)

@@ -38,8 +38,7 @@ def _commanded_by_sample(logs: RunLogs, seqs: np.ndarray) -> tuple[np.ndarray, n
     used = (t["state_seq"] >= 0) & ((t["flags"] & TICK_NO_SEND) == 0) & (t["state_sample_ns"] > 0)
     known, first = np.unique(t["state_seq"][used], return_index=True)
     tau1, tau2 = t["tau1"][used][first], t["tau2"][used][first]
-    c1 = np.full(seqs.size, np.nan)
-    c2 = np.full(seqs.size, np.nan)
+    c1, c2 = np.full((2, seqs.size), np.nan)
     if known.size:
         at = np.minimum(np.searchsorted(known, seqs), known.size - 1)
         hit = known[at] == seqs
@@ -95,12 +94,7 @@ def write_trace(
 
 
 def analyze(
-    run_dir: Path,
-    scenario: Any,
-    settings: Any,
-    reference: Any,
-    context: Any,
-    extra: dict[str, Any],
+    run_dir: Path, scenario: Any, settings: Any, reference: Any, context: Any, extra: dict[str, Any]
 ) -> Summary:
     """Write trace.csv and summary.json from the two hop logs; returns the summary."""
     logs = load_folder_logs(run_dir) or RunLogs.read(None, None)

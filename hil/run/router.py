@@ -2,18 +2,18 @@
 [--robots=R1,R2,...] [--allow-non-loopback]`` (what ``hil run`` starts in router mode; tests
 restart it with the same command).
 
-With ``--secure`` (or whenever ``HIL_ZENOH_DICTIONARY`` names a user dictionary) the router
-authenticates every session against that dictionary (``user:password`` lines, a private file:
-:mod:`runtime.credentials`) and applies the bench's access control, default deny
-(:mod:`protocol.zenoh_acl`) for the robots named (default ``robot1``). Only such a router may
-listen off the host (``--allow-non-loopback``): an open router on a network is what the access
-control is for.
+With ``--secure`` (or whenever ``HIL_ZENOH_DICTIONARY`` names a user dictionary,
+:mod:`runtime.credentials`) the router authenticates every session and applies the bench's
+access control, default deny (:mod:`protocol.zenoh_acl`), for the robots named (default
+``robot1``). Only such a router may listen off the host (``--allow-non-loopback``): an open
+router on a network is what the access control is for.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 import zenoh
 
@@ -29,8 +29,23 @@ FLAGS = ("--secure", "--allow-non-loopback")
 ROBOTS = "--robots="
 
 
-def main(argv: list[str] | None = None) -> int:
+def _config(endpoint: str, flags: set[str], robots: list[str]) -> tuple[Any, str]:
+    """The router's Zenoh config and the line it prints once up; CredentialsError or
+    ValueError (a robot id that cannot be a key chunk, a flag it may not take) says why not."""
+    dictionary = dictionary_from_environment()
+    if "--secure" in flags and dictionary is None:
+        raise ValueError(f"--secure needs {ENV_DICTIONARY}=/path/to/users (0600)")
+    if dictionary is None:
+        if "--allow-non-loopback" in flags:
+            raise ValueError("only a --secure router may listen off the host")
+        conf = session_config(endpoint, listen_endpoint=True, mode="router", credentials=None)
+        return conf, "router up"
+    off_host, robots = "--allow-non-loopback" in flags, robots or ["robot1"]
+    conf = router_config([endpoint], str(dictionary), allow_non_loopback=off_host, robots=robots)
+    return conf, "router up (usrpwd authentication, access control default deny)"
 
+
+def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     robots = [r for a in args if a.startswith(ROBOTS) for r in a[len(ROBOTS) :].split(",")]
     args = [a for a in args if not a.startswith(ROBOTS)]
@@ -40,31 +55,10 @@ def main(argv: list[str] | None = None) -> int:
         print(USAGE, file=sys.stderr)
         return 2
     try:
-        dictionary = dictionary_from_environment()
-    except CredentialsError as exc:
+        conf, up = _config(rest[0], flags, robots)
+    except (CredentialsError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    if "--secure" in flags and dictionary is None:
-        print(f"error: --secure needs {ENV_DICTIONARY}=/path/to/users (0600)", file=sys.stderr)
-        return 2
-    if dictionary is not None:
-        try:
-            conf = router_config(
-                [rest[0]],
-                str(dictionary),
-                allow_non_loopback="--allow-non-loopback" in flags,
-                robots=robots or ["robot1"],
-            )
-        except ValueError as exc:  # a robot id that cannot be a key chunk
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        up = "router up (usrpwd authentication, access control default deny)"
-    elif "--allow-non-loopback" in flags:
-        print("error: only a --secure router may listen off the host", file=sys.stderr)
-        return 2
-    else:
-        conf = session_config(rest[0], listen_endpoint=True, mode="router", credentials=None)
-        up = "router up"
     session = zenoh.open(conf)
     print(up, flush=True)
     try:

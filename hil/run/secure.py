@@ -1,25 +1,21 @@
-"""``hil run --secure``: the whole bench through an authenticating router with access control.
+"""``hil run --secure``: the whole bench through an authenticating router with access control
+(docs/realtime.md, "Secure mode").
 
-Per run, :class:`RunIdentities` makes one fresh random password per login of
-:mod:`protocol.zenoh_acl` (a role, or a role for one robot: ``controller.robot1``) and writes
-them to a new private folder OUTSIDE the run folder (``tempfile.mkdtemp``: mode 0700 under
-``$TMPDIR``, named ``hil-secure-*``): one credentials
-file per login (mode 0600, ``HIL_ZENOH_USER=``/``HIL_ZENOH_PASSWORD=`` lines) and the router's
-user dictionary (mode 0600). Each child gets, in its environment, only the path of its own
+Per run, :class:`RunIdentities` makes a fresh random password for each login of
+:mod:`protocol.zenoh_acl` (``controller.robot1``, ...) in a new private folder OUTSIDE the run
+folder (``tempfile.mkdtemp``: 0700, ``hil-secure-*``): one credentials file per login and the
+router's user dictionary, each 0600. A child gets in its environment only the path of its own
 file (``HIL_ZENOH_CREDENTIALS``; the router ``HIL_ZENOH_DICTIONARY``), never a password, so
-``ps e`` and ``/proc/PID/environ`` show none. The recorder in ``hil run`` reads everything as
-``recorder`` (no right to publish), and the start announcement is published by a second
-session as ``run`` (may publish Status only). The folder is deleted when the run ends; if
-``hil run`` is SIGKILLed it stays behind, but its passwords die with the router, which the
-kernel stops with its parent (PR_SET_PDEATHSIG).
-
-Without ``--secure`` the same object clears any ``HIL_ZENOH_*`` variable inherited by the
-children: ``hil run``'s own router is open, and Zenoh refuses a client that presents
-credentials to a router that asks for none.
+``ps e`` and ``/proc/PID/environ`` show none. The recorder logs in as ``recorder`` (no right to
+publish), so the start announcement goes through a second session as ``run``. The folder is
+deleted at the run's end; a SIGKILLed ``hil run`` leaves it, but its passwords die with the
+router, which the kernel stops with its parent (PR_SET_PDEATHSIG). Without ``--secure`` every
+inherited ``HIL_ZENOH_*`` variable is cleared: Zenoh refuses a client that presents credentials
+to a router that asks for none.
 
 ``python -m hil.run.secure init DIR [ROBOT ...]`` writes the same files for a deployment
-(deploy/README.md): ``DIR/zenoh-users.txt`` for the router and ``DIR/credentials/<login>.env``
-per login (robots: ``robot1`` unless named), all 0600.
+(deploy/README.md): ``DIR/zenoh-users.txt`` and ``DIR/credentials/<login>.env`` (robots:
+``robot1`` unless named), all 0600.
 """
 
 from __future__ import annotations
@@ -81,10 +77,8 @@ class RunIdentities:
         self.folder: Path | None = None
         self._creds: dict[str, Credentials] = {}
         self._sessions: list[Any] = []
-        if self.secure:
-            self._create()
-
-    def _create(self) -> None:
+        if not self.secure:
+            return
         self.folder = Path(tempfile.mkdtemp(prefix="hil-secure-"))
         try:
             self._creds = new_credentials("hil run", self.robots)
@@ -120,7 +114,6 @@ class RunIdentities:
         else a second client session as ``run`` (the recorder may not publish)."""
         if not self.secure:
             return session
-
         own = open_session(endpoint, mode="client", credentials=self._creds["run"])
         self._sessions.append(own)
         return own

@@ -36,7 +36,6 @@ def effective_can_table(scenario: Any, interface: str | None = None) -> dict[str
 def check_can_interface(name: str, where: str) -> None:
     """``name`` must be an interface python-can knows (its own and plug-ins such as zenoh_can);
     checked before a run starts its services, which would fail opening the bus."""
-
     known = sorted(can.interfaces.VALID_INTERFACES)
     if name not in known:
         raise BadInputError(
@@ -52,7 +51,6 @@ def robot_id_of(scenario: Any) -> str:
 def replay_latencies(scenario: Any) -> list[float] | None:
     """The latencies of ``[timing] replay`` (read once, here: a bad file fails before any
     service starts), or None for a seeded jitter."""
-
     t = scenario.timing
     if t.jitter_kind != "replay":
         return None
@@ -117,7 +115,6 @@ def rate_hz(run_dir: Any, settings: RunSettings) -> float:
     """The control rate of a run as the user asked for it (``--rate``, ``[realtime] rate`` or
     1 / ``[timing] ts``), for summary.json: the folder's ``[provenance] rate_hz``, exactly as
     ``hil run`` wrote it; 1 / ts when the folder has none."""
-
     resolved = resolved_scenario(run_dir) or {}
     value = resolved.get("provenance", {}).get("rate_hz")
     if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
