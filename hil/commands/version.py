@@ -2,17 +2,9 @@
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError
-from importlib.metadata import version as _dist_version
-
 import typer
 
-
-def package_version() -> str:
-    try:
-        return _dist_version("hil-smc-bench")
-    except PackageNotFoundError:
-        return "0+unknown"
+from hil.provenance import package_version
 
 
 def register(app: typer.Typer) -> None:
