@@ -1,7 +1,7 @@
-"""The ``hil`` front door: one typer app, one module per command under ``hil/commands``.
+"""The ``hil`` front door: one typer app, its commands in the modules of ``hil/commands``.
 
-Each module in :mod:`hil.commands` defines ``register(app: typer.Typer) -> None``; modules are
-discovered, so adding a command never edits this file. Exit codes follow the contract:
+A module of :mod:`hil.commands` with ``register(app: typer.Typer) -> None`` adds its commands;
+modules are discovered, so adding a command never edits this file. Exit codes follow the contract:
 0 success, 1 negative verdict (a limit broken, a certificate not held), 2 bad usage or input,
 3 the tool itself failed (an unexpected exception: its traceback is printed; a script must not
 read it as a verdict), 130 interrupted (Ctrl-C; what was done is kept). The interrupt is
@@ -35,19 +35,15 @@ app = typer.Typer(
 )
 
 
-@app.callback()
-def _root() -> None:
-    """Keeps ``hil`` a command group even while only one command is registered."""
-
-
 def _register_commands() -> None:
+    """Every command of :mod:`hil.commands`, listed by ``hil --help`` in alphabetical order."""
     import hil.commands as commands
 
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        module = importlib.import_module(f"hil.commands.{info.name}")
-        register = getattr(module, "register", None)
+    for info in pkgutil.iter_modules(commands.__path__):
+        register = getattr(importlib.import_module(f"hil.commands.{info.name}"), "register", None)
         if register is not None:
             register(app)
+    app.registered_commands.sort(key=lambda command: command.name or "")
 
 
 _register_commands()

@@ -1,5 +1,4 @@
-"""One ``hil`` command per service (``hil controller``, ``hil emulator``): the service alone, as
-``hil run`` starts it as a child.
+"""``hil controller`` and ``hil emulator``: one service alone, as ``hil run`` starts it as a child.
 
 With ``--settings run_settings.json`` it runs exactly as under ``hil run``; with a scenario it
 resolves those settings itself (``--write-settings FILE`` writes them and stops there, for
@@ -127,3 +126,8 @@ def register_service_command(app: typer.Typer, name: str, module: str, what: str
 
     command.__doc__ = f"Run the {what} alone (as hil run starts it; see docs/realtime.md)."
     app.command(name)(command)
+
+
+def register(app: typer.Typer) -> None:
+    register_service_command(app, "controller", "controller_service.service", "controller service")
+    register_service_command(app, "emulator", "plant_emulator.service", "plant emulator service")

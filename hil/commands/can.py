@@ -1,0 +1,123 @@
+"""The CAN tools: ``hil can-dbc`` (the CANSimple DBC for the node ids in use) and ``hil can-load``
+(worst-case bus load of the CAN drive profile at a control rate)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from hil.errors import BadInputError, NegativeVerdictError
+from hil.options import integer, number, optional_number, out_dir
+
+RATE_MAX = 1e6  # Hz: frames per second of one kind
+BITRATE_MAX = 1e9  # bit/s
+DRIVES_MAX = 64  # CANSimple node ids are 0..63
+
+
+def can_dbc(
+    nodes: Annotated[
+        str,
+        typer.Option(help="Node ids: a range and/or a list, e.g. 0-7 or 0,1,12 (0..63)."),
+    ] = "0-7",
+    out: Annotated[
+        Path | None,
+        typer.Option(help="Write odrive_cansimple.dbc in this folder (else: stdout)."),
+    ] = None,
+) -> None:
+    """Write the ODrive CANSimple (firmware 0.6) DBC with one message set per node id, so
+    that `cantools decode` names every frame of those nodes. The file shipped in the
+    package (protocol/can/odrive_cansimple.dbc) is the one for 0-7, as ODrive's own."""
+    from protocol.can.dbc import parse_nodes, render
+
+    out_dir("--out", out)
+    try:
+        text = render(parse_nodes(nodes))
+    except ValueError as exc:
+        raise BadInputError(str(exc)) from exc
+    if out is None:
+        typer.echo(text, nl=False)
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "odrive_cansimple.dbc").write_text(text, encoding="utf-8")
+    typer.echo(f"wrote {out / 'odrive_cansimple.dbc'} for nodes {nodes}")
+
+
+def can_load(
+    rate: Annotated[float, typer.Option("--rate", help="Control rate in Hz.")],
+    bitrate: Annotated[float, typer.Option("--bitrate", help="CAN bitrate in bit/s.")],
+    drives: Annotated[int, typer.Option("--drives", help="Drives on the bus.")] = 2,
+    heartbeat_rate: Annotated[
+        float,
+        typer.Option("--heartbeat-rate", help="Heartbeats/s per drive (firmware: 10)."),
+    ] = 10.0,
+    encoder_rate: Annotated[
+        float | None,
+        typer.Option(
+            "--encoder-rate",
+            help="Encoder estimates per second per drive (default: the control rate).",
+        ),
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON, not a table.")] = False,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Also write can_load.json in this folder.")
+    ] = None,
+) -> None:
+    """Bit length of every periodic frame (classical CAN, 11-bit id, worst-case stuffing:
+    47 + 8 DLC + floor((34 + 8 DLC - 1)/4) bits, 3-bit interframe space included; Davis
+    et al. 2007) and the bus load in percent. Exit code 1 (with a warning) when the load
+    exceeds 100%, 2 on bad input."""
+    from protocol.can.bus_load import bus_load_percent, profile_frames
+
+    rate = number("--rate", rate, 0.0, RATE_MAX, positive=True)
+    bitrate = number("--bitrate", bitrate, 0.0, BITRATE_MAX, positive=True)
+    drives = integer("--drives", drives, 1, DRIVES_MAX)
+    heartbeat_rate = number("--heartbeat-rate", heartbeat_rate, 0.0, RATE_MAX)
+    encoder_rate = optional_number("--encoder-rate", encoder_rate, 0.0, RATE_MAX)
+    out_dir("--out", out)
+    try:
+        frames = profile_frames(rate, drives, heartbeat_rate, encoder_rate)
+        load = bus_load_percent(frames, bitrate)
+    except ValueError as exc:
+        raise BadInputError(str(exc)) from exc
+    report = {
+        "rate_hz": rate,
+        "bitrate_bps": bitrate,
+        "drives": drives,
+        "frames": [
+            {
+                "name": f.name,
+                "dlc": f.dlc,
+                "bits": f.bits,
+                "frames_per_second": f.per_second,
+                "bits_per_second": f.bits_per_second,
+            }
+            for f in frames
+        ],
+        "bits_per_second": sum(f.bits_per_second for f in frames),
+        "load_percent": load,
+    }
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "can_load.json").write_text(json.dumps(report, indent=2) + "\n")
+    if as_json:
+        typer.echo(json.dumps(report, indent=2))
+    else:
+        typer.echo(f"{'frame':<24}{'DLC':>4}{'bits':>6}{'frames/s':>11}{'bit/s':>12}")
+        for f in frames:
+            typer.echo(
+                f"{f.name:<24}{f.dlc:>4}{f.bits:>6}{f.per_second:>11.1f}{f.bits_per_second:>12.0f}"
+            )
+        typer.echo(
+            f"total {report['bits_per_second']:.0f} bit/s of {bitrate:.0f}: bus load {load:.2f}%"
+        )
+    if load > 100.0:
+        typer.echo(f"warning: bus load {load:.1f}% > 100%: frames queue without bound", err=True)
+        raise NegativeVerdictError(f"CAN bus overloaded ({load:.1f}%)")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("can-dbc")(can_dbc)
+    app.command("can-load")(can_load)
