@@ -23,15 +23,13 @@ from pathlib import Path
 
 from hil.errors import BadInputError
 
-PACKAGE = "hil"
-FOLDER = "scenarios"
 SUFFIX = ".toml"
 
 
 @functools.cache
 def bundled_dir() -> Path:
     """The real folder holding the bundled scenarios and the files they refer to."""
-    root = resources.files(PACKAGE).joinpath(FOLDER)
+    root = resources.files("hil").joinpath("scenarios")
     if isinstance(root, Path):
         return root
     # Not on a file system (a zip): copy the folder out once; relative paths keep working.

@@ -31,19 +31,12 @@ def git_commit(start: Path | None = None) -> str:
     Asked once per process: the code running does not change under it, and a sweep resolves
     its scenario for every batch."""
     cwd = start or Path(__file__).resolve().parent
+    git = functools.partial(subprocess.run, cwd=cwd, capture_output=True, text=True, timeout=5)
     try:
-        head = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True, timeout=5
-        )
+        head = git(["git", "rev-parse", "HEAD"])
         if head.returncode != 0:
             return ""
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=cwd,
-            capture_output=True,
-            text=True,
-            timeout=5,
-        )
+        dirty = git(["git", "status", "--porcelain", "--untracked-files=no"])
         return head.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return ""

@@ -11,31 +11,24 @@ from hil.commands.live_options import LiveHostOpt, live_opt
 from hil.errors import BadInputError
 from hil.options import out_dir
 
-_RATE_NAMES = {
-    "heartbeat": 0x01,
-    "encoder": 0x09,
-    "error": 0x03,
-    "iq": 0x14,
-    "temperature": 0x15,
-    "bus_voltage": 0x17,
-    "torques": 0x1C,
-    "powers": 0x1D,
-}
-
 
 def _msg_rates(heartbeat_ms: float, encoder_ms: float, extra: list[str]) -> dict[int, float]:
+    """The periods (ms) of the drives' cyclic messages by command id."""
+    from plant_emulator.odrive import CYCLIC
+
+    names = {name: int(cmd) for cmd, name in CYCLIC.items()}
     rates = {0x01: heartbeat_ms, 0x09: encoder_ms}
     for item in extra:
         name, sep, value = item.partition("=")
-        if not sep or name not in _RATE_NAMES:
+        if not sep or name not in names:
             raise BadInputError(
-                f"--msg-rate {item!r}: use NAME=MS with NAME one of {', '.join(_RATE_NAMES)}"
+                f"--msg-rate {item!r}: use NAME=MS with NAME one of {', '.join(names)}"
             )
         try:
             ms = float(value)
         except ValueError:
             raise BadInputError(f"--msg-rate {item!r}: MS must be a number") from None
-        rates[_RATE_NAMES[name]] = ms
+        rates[names[name]] = ms
     for cmd, ms in rates.items():
         if not (ms >= 0.0 and ms < float("inf")):
             raise BadInputError(f"message rate of cmd 0x{cmd:02x} must be >= 0 ms, got {ms}")
