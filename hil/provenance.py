@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import functools
-import math
 import platform
 import re
 import subprocess
@@ -55,18 +54,14 @@ def provenance(seeds: Mapping[str, Any], start_time: _dt.datetime | None = None)
     }
 
 
+# A TOML basic string escapes backslash, quote and every control character (a string read from
+# TOML may hold any of them as an escape, and must be written back as one).
+_ESCAPES = str.maketrans({"\\": "\\\\", '"': '\\"', "\n": "\\n", "\t": "\\t", "\r": "\\r"})
+_ESCAPES.update({c: f"\\u{c:04x}" for c in [*range(32), 127] if c not in _ESCAPES})
+
+
 def _string(text: str) -> str:
-    """A TOML basic string: backslash, quote and every control character escaped (a string
-    read from TOML may hold any of them as an escape, and must be written back as one)."""
-    out = []
-    for c in text:
-        if c in ('"', "\\"):
-            out.append("\\" + c)
-        elif ord(c) < 32 or ord(c) == 127:
-            out.append({"\n": "\\n", "\t": "\\t", "\r": "\\r"}.get(c, f"\\u{ord(c):04x}"))
-        else:
-            out.append(c)
-    return '"' + "".join(out) + '"'
+    return '"' + text.translate(_ESCAPES) + '"'
 
 
 def _key(k: str) -> str:
@@ -78,11 +73,7 @@ def _value(v: Any) -> str:
         return "true" if v else "false"
     if isinstance(v, int):
         return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
+    if isinstance(v, float):  # repr writes nan, inf and -inf as TOML does
         return repr(v)
     if isinstance(v, str):
         return _string(v)
