@@ -61,10 +61,11 @@ def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool,
     return SimpleNamespace(**resolved.params), boundary, list(resolved.notes)
 
 
-def _table(cert: Any, title: str) -> Any:
+def _table(cert: Any, law: str) -> Any:
     from rich.table import Table
 
-    table = Table(title=title)
+    age = f"delay = {cert.delay:g} s (age D = {cert.age:g} s)"
+    table = Table(title=f"{law}: certificate at ts = {cert.ts:g} s, {age}")
     for column in ("condition", "value", "bound", "margin", "held"):
         table.add_column(column, justify="left" if column == "condition" else "right")
     for c in cert.conditions:
@@ -159,44 +160,6 @@ def certify_scenario(
     return cert, proposal, facts
 
 
-SourceArg = Annotated[
-    str,
-    typer.Argument(
-        help="A folder of hil run (its measured timing) or hil sim (its scenario's timing), "
-        "a scenario TOML or a bundled scenario's name."
-    ),
-]
-SeedsOpt = Annotated[int, typer.Option(help="Loops per scale (timing draws, initial states).")]
-WorstOpt = Annotated[
-    bool,
-    typer.Option(
-        "--worst-disturbance",
-        help="Search the worst disturbance within s1, s2 at each scale (hil.adversary).",
-    ),
-]
-ErrorOpt = Annotated[
-    float | None,
-    typer.Option(
-        help="Also break when the position error over the run's second half exceeds "
-        "this many metres."
-    ),
-]
-DurationOpt = Annotated[
-    float | None, typer.Option(help="Simulated seconds per loop (default: the run's, <= 20 s).")
-]
-KMaxOpt = Annotated[
-    float | None,
-    typer.Option(
-        "--k-max",
-        help="The largest scale tried (default 64); when the limits still hold there, no k* "
-        "is found below it (a loop at Ts = 1 ms that breaks near 100 ms of age needs ~100).",
-    ),
-]
-OutOpt = Annotated[
-    Path | None, typer.Option(help="Folder for margin.json when the source is a scenario.")
-]
-
-
 def _source(text: str, seeds: int):
     """(scenario, base timing, folder for margin.json or None)."""
     from hil.folder import has_hop_logs, load_folder
@@ -222,13 +185,11 @@ def certify_command(
     ),
     ts: float = typer.Option(
         None,
-        "--ts",
         help="Longest gap between sample times of "
         "successive applied commands, s (default: [timing] ts).",
     ),
     delay: float = typer.Option(
         None,
-        "--delay",
         help="Worst sample-to-apply latency, s (default: [timing] delay + jitter bound).",
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the certificate as JSON."),
@@ -254,14 +215,7 @@ def certify_command(
         from rich.console import Console
 
         console = Console()
-        law = facts["law"]
-        console.print(
-            _table(
-                cert,
-                f"{law}: certificate at ts = {cert.ts:g} s, "
-                f"delay = {cert.delay:g} s (age D = {cert.age:g} s)",
-            )
-        )
+        console.print(_table(cert, facts["law"]))
         console.print(
             f"|v| <= {cert.v_bound:.6g} (phi1 = {cert.phi1:g}), "
             f"|w| <= {cert.w_bound:.6g} (phi2 = {cert.phi2:g})"
@@ -287,13 +241,43 @@ def certify_command(
 
 
 def margin(
-    source: SourceArg,
-    seeds: SeedsOpt = 32,
-    worst_disturbance: WorstOpt = False,
-    error_bound: ErrorOpt = None,
-    duration: DurationOpt = None,
-    k_max: KMaxOpt = None,
-    out: OutOpt = None,
+    source: Annotated[
+        str,
+        typer.Argument(
+            help="A folder of hil run (its measured timing) or hil sim (its scenario's timing), "
+            "a scenario TOML or a bundled scenario's name."
+        ),
+    ],
+    seeds: Annotated[
+        int, typer.Option(help="Loops per scale (timing draws, initial states).")
+    ] = 32,
+    worst_disturbance: Annotated[
+        bool,
+        typer.Option(
+            "--worst-disturbance",
+            help="Search the worst disturbance within s1, s2 at each scale (hil.adversary).",
+        ),
+    ] = False,
+    error_bound: Annotated[
+        float | None,
+        typer.Option(
+            help="Also break when the position error over the run's second half exceeds "
+            "this many metres."
+        ),
+    ] = None,
+    duration: Annotated[
+        float | None, typer.Option(help="Simulated seconds per loop (default: the run's, <= 20 s).")
+    ] = None,
+    k_max: Annotated[
+        float | None,
+        typer.Option(
+            help="The largest scale tried (default 64); when the limits still hold there, no k* "
+            "is found below it (a loop at Ts = 1 ms that breaks near 100 ms of age needs ~100).",
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option(help="Folder for margin.json when the source is a scenario.")
+    ] = None,
 ) -> None:
     """How much worse may the timing get before a limit of (2) breaks? (k*)"""
     from hil.margin import record
