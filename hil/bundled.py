@@ -43,10 +43,7 @@ def bundled_dir() -> Path:
 
 def bundled_names() -> list[str]:
     """Names of the bundled scenarios (file names without ``.toml``), sorted."""
-    folder = bundled_dir()
-    if not folder.is_dir():
-        return []
-    return sorted(p.stem for p in folder.glob(f"*{SUFFIX}") if p.is_file())
+    return sorted(p.stem for p in bundled_dir().glob(f"*{SUFFIX}") if p.is_file())
 
 
 def bundled_path(name: str) -> Path:

@@ -13,7 +13,7 @@ from hil.errors import BadInputError
 LAB_NAME = "lab"
 
 
-def _pairs(values: list[str], option: str, parse: type = float) -> dict[str, float]:
+def _pairs(values: list[str], option: str) -> dict[str, float]:
     """``HOST=VALUE`` options as a dict; a malformed one is a BadInputError naming it."""
     out: dict[str, float] = {}
     for item in values:
@@ -21,7 +21,7 @@ def _pairs(values: list[str], option: str, parse: type = float) -> dict[str, flo
         try:
             if not sep:
                 raise ValueError
-            out[host] = parse(value)
+            out[host] = float(value)
         except ValueError:
             raise BadInputError(f"{option} {item!r}: expected HOST=NUMBER, e.g. h2=0.02") from None
     return out
@@ -56,19 +56,19 @@ def register(app: typer.Typer) -> None:
 
     @lab.command("up")
     def up_cmd(
-        hosts: Annotated[int, typer.Option("--hosts", help="Number of hosts (h1..hN).")] = 2,
+        hosts: Annotated[int, typer.Option(help="Number of hosts (h1..hN).")] = 2,
         name: NameOpt = LAB_NAME,
         offset: Annotated[
             list[str],
-            typer.Option("--offset", help="HOST=SECONDS: the host's CLOCK_MONOTONIC offset."),
+            typer.Option(help="HOST=SECONDS: the host's CLOCK_MONOTONIC offset."),
         ] = [],  # noqa: B006 (typer reads the default, never mutates it)
         loss: Annotated[
             list[str],
-            typer.Option("--loss", help="HOST=FRACTION of the packets the host receives dropped."),
+            typer.Option(help="HOST=FRACTION of the packets the host receives dropped."),
         ] = [],  # noqa: B006
         rate_bps: Annotated[
             list[str],
-            typer.Option("--rate-bps", help="HOST=BITS_PER_SECOND: the host's sending rate cap."),
+            typer.Option(help="HOST=BITS_PER_SECOND: the host's sending rate cap."),
         ] = [],  # noqa: B006
     ) -> None:
         """Build the lab: h1..hN, a router on each (tcp/127.0.0.1:7447 from inside the host,
@@ -89,7 +89,7 @@ def register(app: typer.Typer) -> None:
 
     @lab.command("status")
     def status_cmd(
-        name: Annotated[str | None, typer.Option("--name", help="One lab (default: all).")] = None,
+        name: Annotated[str | None, typer.Option(help="One lab (default: all).")] = None,
     ) -> None:
         """Each lab's hosts: offset, address, router, impairment and its kernel counters."""
         from hil.lab.lab import status

@@ -219,15 +219,8 @@ def _checked_sweep(
     except ValueError as exc:
         raise BadInputError(str(exc)) from exc
     loop_s = duration if duration is not None else min(scenario.run.duration, DEFAULT_MAX_DURATION)
-    check_loop_sizes(
-        scenario,
-        grid.ts,
-        loop_s,
-        (
-            "--duration" if duration is not None else "[run] duration",
-            "--ts" if ts_grid else "[sweep] ts",
-        ),
-    )
+    dur_name = "--duration" if duration is not None else "[run] duration"
+    check_loop_sizes(scenario, grid.ts, loop_s, (dur_name, "--ts" if ts_grid else "[sweep] ts"))
     # A bad reference or design fails before any folder is written; a law that takes only
     # floats is found here too, and the user told it runs one robot at a time.
     controller, reference, _ = build_loop(scenario)
