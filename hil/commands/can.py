@@ -46,23 +46,22 @@ def can_dbc(
 
 
 def can_load(
-    rate: Annotated[float, typer.Option("--rate", help="Control rate in Hz.")],
-    bitrate: Annotated[float, typer.Option("--bitrate", help="CAN bitrate in bit/s.")],
-    drives: Annotated[int, typer.Option("--drives", help="Drives on the bus.")] = 2,
+    rate: Annotated[float, typer.Option(help="Control rate in Hz.")],
+    bitrate: Annotated[float, typer.Option(help="CAN bitrate in bit/s.")],
+    drives: Annotated[int, typer.Option(help="Drives on the bus.")] = 2,
     heartbeat_rate: Annotated[
         float,
-        typer.Option("--heartbeat-rate", help="Heartbeats/s per drive (firmware: 10)."),
+        typer.Option(help="Heartbeats/s per drive (firmware: 10)."),
     ] = 10.0,
     encoder_rate: Annotated[
         float | None,
         typer.Option(
-            "--encoder-rate",
             help="Encoder estimates per second per drive (default: the control rate).",
         ),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON, not a table.")] = False,
     out: Annotated[
-        Path | None, typer.Option("--out", help="Also write can_load.json in this folder.")
+        Path | None, typer.Option(help="Also write can_load.json in this folder.")
     ] = None,
 ) -> None:
     """Bit length of every periodic frame (classical CAN, 11-bit id, worst-case stuffing:

@@ -20,7 +20,7 @@ def report(
     folder: Annotated[Path, typer.Argument(help="A run (hil run) or simulation (hil sim) folder.")],
     out: Annotated[
         Path | None,
-        typer.Option("--out", help="Where to write the report (default: the folder itself)."),
+        typer.Option(help="Where to write the report (default: the folder itself)."),
     ] = None,
     ideal: Annotated[
         bool | None,
@@ -94,7 +94,7 @@ def compare(
     dir_b: Annotated[Path, typer.Argument(help="Second folder (B).")],
     out: Annotated[
         Path | None,
-        typer.Option("--out", help="Where to write (default: a new folder under runs/)."),
+        typer.Option(help="Where to write (default: a new folder under runs/)."),
     ] = None,
 ) -> None:
     """Overlaid trajectories, v, ω, τ1, τ2, position error and (runs) latency CDFs of two

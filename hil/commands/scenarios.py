@@ -24,7 +24,7 @@ SCENARIOS_HELP = (
 def scenarios(
     path: Annotated[
         str | None,
-        typer.Option("--path", metavar="NAME", help="Print the file of the bundled scenario NAME."),
+        typer.Option(metavar="NAME", help="Print the file of the bundled scenario NAME."),
     ] = None,
 ) -> None:
     """List the bundled scenarios (help: SCENARIOS_HELP)."""

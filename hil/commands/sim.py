@@ -53,13 +53,11 @@ def sim(
         ),
     ],
     out: Annotated[
-        Path | None, typer.Option("--out", help="Folder to write (default: runs/sim-<time>).")
+        Path | None, typer.Option(help="Folder to write (default: runs/sim-<time>).")
     ] = None,
-    duration: Annotated[
-        float | None, typer.Option("--duration", help="Override [run] duration (s).")
-    ] = None,
+    duration: Annotated[float | None, typer.Option(help="Override [run] duration (s).")] = None,
     ts: Annotated[
-        float | None, typer.Option("--ts", help="Override [timing] ts, the control period (s).")
+        float | None, typer.Option(help="Override [timing] ts, the control period (s).")
     ] = None,
     law: LawOpt = None,
 ) -> None:
@@ -102,14 +100,12 @@ def sim(
 
 def paper(
     out: Annotated[
-        Path | None, typer.Option("--out", help="Folder to write (default: runs/paper-<time>).")
+        Path | None, typer.Option(help="Folder to write (default: runs/paper-<time>).")
     ] = None,
     quick: Annotated[
         bool, typer.Option("--quick", help="Durations / 5 (smoke test; checks not judged).")
     ] = False,
-    jobs: Annotated[
-        int, typer.Option("--jobs", min=1, help="Processes to run the simulations in.")
-    ] = 2,
+    jobs: Annotated[int, typer.Option(min=1, help="Processes to run the simulations in.")] = 2,
     traces: Annotated[
         bool, typer.Option("--traces", help="Also write each run's full trace.csv.")
     ] = False,
