@@ -19,12 +19,10 @@ DRIVES_MAX = 64  # CANSimple node ids are 0..63
 
 def can_dbc(
     nodes: Annotated[
-        str,
-        typer.Option(help="Node ids: a range and/or a list, e.g. 0-7 or 0,1,12 (0..63)."),
+        str, typer.Option(help="Node ids: a range and/or a list, e.g. 0-7 or 0,1,12 (0..63).")
     ] = "0-7",
     out: Annotated[
-        Path | None,
-        typer.Option(help="Write odrive_cansimple.dbc in this folder (else: stdout)."),
+        Path | None, typer.Option(help="Write odrive_cansimple.dbc in this folder (else: stdout).")
     ] = None,
 ) -> None:
     """Write the ODrive CANSimple (firmware 0.6) DBC with one message set per node id, so
@@ -50,14 +48,11 @@ def can_load(
     bitrate: Annotated[float, typer.Option(help="CAN bitrate in bit/s.")],
     drives: Annotated[int, typer.Option(help="Drives on the bus.")] = 2,
     heartbeat_rate: Annotated[
-        float,
-        typer.Option(help="Heartbeats/s per drive (firmware: 10)."),
+        float, typer.Option(help="Heartbeats/s per drive (firmware: 10).")
     ] = 10.0,
     encoder_rate: Annotated[
         float | None,
-        typer.Option(
-            help="Encoder estimates per second per drive (default: the control rate).",
-        ),
+        typer.Option(help="Encoder estimates per second per drive (default: the control rate)."),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON, not a table.")] = False,
     out: Annotated[

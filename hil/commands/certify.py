@@ -189,8 +189,7 @@ def certify_command(
         "successive applied commands, s (default: [timing] ts).",
     ),
     delay: float = typer.Option(
-        None,
-        help="Worst sample-to-apply latency, s (default: [timing] delay + jitter bound).",
+        None, help="Worst sample-to-apply latency, s (default: [timing] delay + jitter bound)."
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the certificate as JSON."),
     empirical: bool = typer.Option(
@@ -272,7 +271,7 @@ def margin(
         float | None,
         typer.Option(
             help="The largest scale tried (default 64); when the limits still hold there, no k* "
-            "is found below it (a loop at Ts = 1 ms that breaks near 100 ms of age needs ~100).",
+            "is found below it (a loop at Ts = 1 ms that breaks near 100 ms of age needs ~100)."
         ),
     ] = None,
     out: Annotated[

@@ -7,7 +7,7 @@ from typing import Annotated, Any
 
 import typer
 
-from hil.commands.live_options import LiveHostOpt, live_opt
+from hil.commands.run import LiveHostOpt, live_opt
 from hil.errors import BadInputError
 from hil.options import out_dir
 

@@ -41,7 +41,7 @@ def _impairments(loss: list[str], rate: list[str]) -> dict[str, object]:
     return {h: LinkImpairment(losses.get(h, 0.0), rates.get(h, 0.0)) for h in {*losses, *rates}}
 
 
-NameOpt = Annotated[str, typer.Option("--name", help="The lab's name (1-12 of [a-z0-9]).")]
+NameOpt = Annotated[str, typer.Option(help="The lab's name (1-12 of [a-z0-9]).")]
 
 
 def register(app: typer.Typer) -> None:
@@ -59,16 +59,13 @@ def register(app: typer.Typer) -> None:
         hosts: Annotated[int, typer.Option(help="Number of hosts (h1..hN).")] = 2,
         name: NameOpt = LAB_NAME,
         offset: Annotated[
-            list[str],
-            typer.Option(help="HOST=SECONDS: the host's CLOCK_MONOTONIC offset."),
+            list[str], typer.Option(help="HOST=SECONDS: the host's CLOCK_MONOTONIC offset.")
         ] = [],  # noqa: B006 (typer reads the default, never mutates it)
         loss: Annotated[
-            list[str],
-            typer.Option(help="HOST=FRACTION of the packets the host receives dropped."),
+            list[str], typer.Option(help="HOST=FRACTION of the packets the host receives dropped.")
         ] = [],  # noqa: B006
         rate_bps: Annotated[
-            list[str],
-            typer.Option(help="HOST=BITS_PER_SECOND: the host's sending rate cap."),
+            list[str], typer.Option(help="HOST=BITS_PER_SECOND: the host's sending rate cap.")
         ] = [],  # noqa: B006
     ) -> None:
         """Build the lab: h1..hN, a router on each (tcp/127.0.0.1:7447 from inside the host,

@@ -15,7 +15,7 @@ LAW_HELP = (
     "found without PYTHONPATH; hil new-law writes one). The scenario's [controller] "
     "parameters are kept only when they name the same law; otherwise the law's defaults."
 )
-LawOpt = Annotated[str | None, typer.Option("--law", help=LAW_HELP)]
+LawOpt = Annotated[str | None, typer.Option(help=LAW_HELP)]
 
 
 def new_law(

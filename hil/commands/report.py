@@ -19,8 +19,7 @@ from hil.options import number, out_dir
 def report(
     folder: Annotated[Path, typer.Argument(help="A run (hil run) or simulation (hil sim) folder.")],
     out: Annotated[
-        Path | None,
-        typer.Option(help="Where to write the report (default: the folder itself)."),
+        Path | None, typer.Option(help="Where to write the report (default: the folder itself).")
     ] = None,
     ideal: Annotated[
         bool | None,
@@ -33,8 +32,7 @@ def report(
         ),
     ] = None,
     max_deadline_miss_ratio: Annotated[
-        float,
-        typer.Option(help="Deadline misses above this fraction of cycles: negative verdict."),
+        float, typer.Option(help="Deadline misses above this fraction of cycles: negative verdict.")
     ] = 0.01,
     max_lost_ratio: Annotated[
         float,
@@ -93,8 +91,7 @@ def compare(
     dir_a: Annotated[Path, typer.Argument(help="First run or simulation folder (A).")],
     dir_b: Annotated[Path, typer.Argument(help="Second folder (B).")],
     out: Annotated[
-        Path | None,
-        typer.Option(help="Where to write (default: a new folder under runs/)."),
+        Path | None, typer.Option(help="Where to write (default: a new folder under runs/).")
     ] = None,
 ) -> None:
     """Overlaid trajectories, v, ω, τ1, τ2, position error and (runs) latency CDFs of two

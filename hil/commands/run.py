@@ -12,9 +12,31 @@ import typer
 
 from hil import interrupts
 from hil.commands.law_option import LawOpt
-from hil.commands.live_options import LiveHostOpt, live_opt
 from hil.errors import NegativeVerdictError
 from hil.options import out_dir
+
+# ``--live [PORT]`` and ``--live-host``, one spelling for every command that serves a live view
+# (run, drives, fleet; docs/live.md).
+LiveHostOpt = Annotated[
+    str,
+    typer.Option(
+        help="Address the live view binds to. Anything but loopback exposes the run's data "
+        "to whoever reaches it (no login, no TLS): a warning says so."
+    ),
+]
+
+
+def live_opt(serves: str) -> Any:
+    """``--live [PORT]``: ``serves`` says what is served, the rest is the same everywhere."""
+    return Annotated[
+        int | None,
+        typer.Option(
+            metavar="[PORT]",
+            help=f"Serve {serves} live over the Foxglove WebSocket protocol on this port "
+            "(bare --live: 8765; 0: any free port), from a process of its own (docs/live.md).",
+        ),
+    ]
+
 
 # The options of ``hil run``, one alias each, so that the command's signature stays short.
 ScenarioArg = Annotated[
@@ -28,10 +50,7 @@ DurationOpt = Annotated[float | None, typer.Option(help="Run length in s.")]
 RateOpt = Annotated[float | None, typer.Option(help="Control rate in Hz.")]
 CmdPathOpt = Annotated[str, typer.Option(help="Applied command path: zenoh or can.")]
 LockstepOpt = Annotated[bool, typer.Option(help="Advance the plant one period per command.")]
-TriggerOpt = Annotated[
-    str | None,
-    typer.Option(help="periodic (absolute deadlines) or on_state."),
-]
+TriggerOpt = Annotated[str | None, typer.Option(help="periodic (absolute deadlines) or on_state.")]
 CanOpt = Annotated[bool, typer.Option(help="Keep the CAN path live (as shadow).")]
 CanInterfaceOpt = Annotated[
     str | None, typer.Option(help="python-can interface (default zenoh_can).")
@@ -45,7 +64,7 @@ SecureOpt = Annotated[
     typer.Option(
         help="Run every session through a router with user/password authentication and "
         "per-role access control (fresh passwords per run, outside the run folder; "
-        "deploy/README.md).",
+        "deploy/README.md)."
     ),
 ]
 LabOpt = Annotated[
@@ -53,7 +72,7 @@ LabOpt = Annotated[
     typer.Option(
         help="Run on the hosts of this lab (hil lab up; root): the plant and the recorder on "
         "--plant-host, the controller on --controller-host, each through its host's router "
-        "(docs/lab.md). Needs --no-can.",
+        "(docs/lab.md). Needs --no-can."
     ),
 ]
 PlantHostOpt = Annotated[str | None, typer.Option(help="The plant's lab host (default h1).")]
@@ -69,7 +88,7 @@ StrictOpt = Annotated[
     typer.Option(
         help="Exit 1 on any verdict but PASS (FAIL, or INCONCLUSIVE: the bench stalled or the "
         "logs cannot relate a figure), for CI. Without it, exit 1 only when a limit of (2) "
-        "broke or the certificate is not held through the system's own timing.",
+        "broke or the certificate is not held through the system's own timing."
     ),
 ]
 ReportOpt = Annotated[
@@ -259,8 +278,7 @@ def fleet_cmd(
     duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
     rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,
     lab: Annotated[
-        str | None,
-        typer.Option(help="Run on this lab's hosts, all robots through its routers."),
+        str | None, typer.Option(help="Run on this lab's hosts, all robots through its routers.")
     ] = None,
     plant_host: Annotated[str | None, typer.Option(help="The plants' lab host.")] = None,
     controller_host: Annotated[str | None, typer.Option(help="The controllers' lab host.")] = None,

@@ -79,13 +79,11 @@ def service(
         str, typer.Option(help="zenoh_can endpoint (the CAN bus over Zenoh).")
     ] = "tcp/127.0.0.1:7449",
     epoch_ns: Annotated[
-        int,
-        typer.Option(help="t = 0 as time.monotonic_ns(); 0 waits for the run's start message."),
+        int, typer.Option(help="t = 0 as time.monotonic_ns(); 0 waits for the run's start message.")
     ] = 0,
     out: Annotated[Path, typer.Option(help="Where the hop log goes.")] = Path("."),
     start_timeout: Annotated[
-        float,
-        typer.Option(help="Seconds to wait for the run's start message (then exit 1)."),
+        float, typer.Option(help="Seconds to wait for the run's start message (then exit 1).")
     ] = 60.0,
     write_settings: Annotated[
         Path | None,

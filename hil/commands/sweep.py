@@ -63,16 +63,14 @@ ScenarioFileArg = Annotated[
     ),
 ]
 OutOpt = Annotated[
-    Path | None,
-    typer.Option("--out", help="Where to write (default: a new folder under runs/)."),
+    Path | None, typer.Option(help="Where to write (default: a new folder under runs/).")
 ]
 TsOpt = Annotated[str | None, typer.Option(help="Ts grid, e.g. 0.001,0.01.")]
 DelayOpt = Annotated[str | None, typer.Option(help="Delay grid in seconds.")]
 JitterOpt = Annotated[str | None, typer.Option(help="Jitter grid in seconds.")]
 SeedsOpt = Annotated[int | None, typer.Option(help="Seeds per point.")]
 DurationOpt = Annotated[
-    float | None,
-    typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s)."),
+    float | None, typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s).")
 ]
 StrictOpt = Annotated[bool, typer.Option(help="Exit 1 when any loop of the grid broke a limit.")]
 WorstOpt = Annotated[
@@ -280,11 +278,8 @@ def _run_with_progress(
             if ts_value not in base:
                 base[ts_value] = acc
                 acc += counts[ts_value] * per_group
-            bar.update(
-                task,
-                completed=base[ts_value] + done * per_group,
-                description=f"Ts={ts_value:g} s",
-            )
+            completed = base[ts_value] + done * per_group
+            bar.update(task, completed=completed, description=f"Ts={ts_value:g} s")
 
         # sweep.csv grows group by group, so even a killed sweep leaves what it finished.
         return run_sweep(

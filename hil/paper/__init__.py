@@ -390,7 +390,3 @@ def _write_table(
     write_json(out / "table.json", table)
     (out / "table.md").write_text(_markdown(rows, check_rows, note))
     return table
-
-
-def failed_checks(table: dict[str, Any]) -> list[str]:
-    return [c["check"] for c in table["checks"] if c["passed"] is False]
