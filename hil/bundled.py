@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import atexit
 import functools
+import itertools
 import shutil
 import tempfile
 from importlib import resources
@@ -76,12 +77,8 @@ def _unknown(text: str) -> str:
 
 def description(path: Path) -> str:
     """One line about a scenario: the first sentence of the comment that opens the file."""
-    lines: list[str] = []
-    for raw in path.read_text(encoding="utf-8").splitlines():
-        line = raw.strip()
-        if not line.startswith("#"):
-            break
-        lines.append(line.lstrip("#").strip())
-    text = " ".join(part for part in lines if part)
+    lines = (line.strip() for line in path.read_text(encoding="utf-8").splitlines())
+    comment = itertools.takewhile(lambda line: line.startswith("#"), lines)
+    text = " ".join(part for part in (line.lstrip("#").strip() for line in comment) if part)
     end = text.find(". ")
     return text if end < 0 else text[: end + 1]

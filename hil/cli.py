@@ -122,13 +122,10 @@ def _usage_line(exc: Exception) -> str | None:
     ``format_message`` and ``ctx``) as one line saying where the options are; None for
     anything else."""
     fmt = getattr(exc, "format_message", None)
-    if not callable(fmt):
+    message = one_line(fmt()) if callable(fmt) else ""
+    if not message:  # also "no arguments: show the help", which carries no message of its own
         return None
-    ctx = getattr(exc, "ctx", None)
-    path = getattr(ctx, "command_path", None)
-    message = one_line(fmt())
-    if not message:  # "no arguments: show the help" carries no message of its own
-        return None
+    path = getattr(getattr(exc, "ctx", None), "command_path", None)
     return message + (f" (see {path} --help)" if path else "")
 
 

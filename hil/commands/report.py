@@ -24,7 +24,6 @@ def report(
     ideal: Annotated[
         bool | None,
         typer.Option(
-            "--ideal/--no-ideal",
             help="Simulate the same scenario at a fine period (Ts/10) for the deviation "
             "from the ideal trajectory. Default: for the built-in laws only; a law of your "
             "own (module:Class) is run again, from its module, only with --ideal.",

@@ -11,6 +11,7 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
+from hil.bundled import resolve_scenario
 from hil.commands.law_option import LawOpt
 from hil.errors import NegativeVerdictError
 from hil.options import out_dir
@@ -94,7 +95,6 @@ StrictOpt = Annotated[
 ReportOpt = Annotated[
     bool,
     typer.Option(
-        "--report/--no-report",
         help="Write the sampling-effect report (report.html/.md/.json, as hil report "
         "does) into the run folder. Its verdict is printed; the exit code stays the "
         "run's own (1 only when a limit of (2) was broken).",
@@ -305,23 +305,14 @@ def fleet_cmd(
     --live serves every robot of the fleet on one Foxglove WebSocket server (docs/live.md).
 
     Exit 1 when a robot's verdict is negative."""
-    from hil.bundled import resolve_scenario
-    from hil.errors import NegativeVerdictError
     from hil.fleet import report
     from hil.fleet.run import FleetOptions, execute, robot_ids
     from runtime.signals import stop_on_signals
 
     out_dir("--out", out)
+    path = resolve_scenario(scenario)
     opts = FleetOptions(
-        resolve_scenario(scenario),
-        robots,
-        out,
-        duration,
-        rate,
-        lab,
-        plant_host,
-        controller_host,
-        per_process,
+        path, robots, out, duration, rate, lab, plant_host, controller_host, per_process
     )
     watcher = _live_watcher(out, robot_ids(robots), live, live_host, lab)
     with stop_on_signals() as stop:

@@ -20,8 +20,7 @@ import contextlib
 import multiprocessing
 import os
 import signal
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -44,20 +43,14 @@ JOLT_SPAN = 5.0
 JOLT_RATIO = 1.5
 
 
-@dataclass(frozen=True)
-class PaperRun:
-    name: str
-    scenario: str
-    label: str
-
-
+# The paper's runs in table order; the run NAME is the bundled scenario paper_NAME.toml.
 RUNS = (
-    PaperRun("tracking", "paper_tracking.toml", "unified"),
-    PaperRun("stabilization", "paper_stabilization.toml", "unified"),
-    PaperRun("chattering", "paper_chattering.toml", "unified (19)"),
-    PaperRun("compare_jiang1997", "paper_compare_jiang1997.toml", "[7]"),
-    PaperRun("compare_jiang2001", "paper_compare_jiang2001.toml", "[19]"),
-    PaperRun("circle_then_stop_unified", "paper_circle_then_stop_unified.toml", "unified"),
+    "tracking",
+    "stabilization",
+    "chattering",
+    "compare_jiang1997",
+    "compare_jiang2001",
+    "circle_then_stop_unified",
 )
 
 
@@ -94,12 +87,12 @@ def _error_at(result: SimResult, t_check: float) -> float:
     return float(e[min(i, len(e) - 1)])
 
 
-def _row(run: PaperRun, result: SimResult) -> dict[str, Any]:
+def _row(run: str, result: SimResult) -> dict[str, Any]:
     s = result.summary
     return {
-        "run": run.name,
+        "run": run,
         "law": s["law"],
-        "scenario": run.scenario,
+        "scenario": f"paper_{run}.toml",
         "duration": s["duration"],
         "ts": s["ts"],
         "plant_step": s["plant_step"],
@@ -184,7 +177,6 @@ def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note
     return "\n".join(lines) + "\n"
 
 
-Runs = Sequence[tuple[str, SimResult]]
 # The unit of each signal drawn against its limit of (2), and the name of that limit.
 _SIGNALS = {
     "v": ("m/s", "phi1"),
@@ -194,7 +186,7 @@ _SIGNALS = {
 }
 
 
-def _signals(out: Path, first: int, stem: str, title: str, runs: Runs, cols: str) -> list[Path]:
+def _signals(out: Path, first: int, stem: str, title: str, runs: fg.Runs, cols: str) -> list[Path]:
     """Figures ``first``, ``first + 1``, ...: each signal of ``cols`` (space-separated) over time
     against its limit of (2) (the last run's), titled ``title.format(signal)``."""
     limits = runs[-1][1].scenario.limits
@@ -212,7 +204,7 @@ def _signals(out: Path, first: int, stem: str, title: str, runs: Runs, cols: str
 
 
 def _xy_and_signals(
-    out: Path, first: int, stem: str, titles: tuple[str, str], runs: Runs, cols: str
+    out: Path, first: int, stem: str, titles: tuple[str, str], runs: fg.Runs, cols: str
 ) -> list[Path]:
     """Figure ``first``, the trajectories against the last run's reference, then the signals
     of ``cols`` (:func:`_signals`); ``titles``: the trajectory's, the signals' template."""
@@ -334,13 +326,13 @@ def run_paper(
     scale = QUICK_FACTOR if quick else 1.0
     jobs = jobs or min(2, os.cpu_count() or 1)
     folder = bundled_dir() if scenario_dir is None else scenario_dir
-    paths = [str(folder / r.scenario) for r in RUNS]
+    paths = [str(folder / f"paper_{r}.toml") for r in RUNS]
     for p in paths:
         load_scenario(p)  # bad files fail before any work starts
     results: dict[str, SimResult] = {}
     pending = list(FIGURE_GROUPS)
     interrupted = False
-    tasks = [(r.name, p, scale) for r, p in zip(RUNS, paths, strict=True)]
+    tasks = [(r, p, scale) for r, p in zip(RUNS, paths, strict=True)]
     try:
         with _simulations(tasks, jobs) as done:
             for name, res in done:
@@ -368,17 +360,17 @@ def run_paper(
 def _write_table(
     out: Path, results: dict[str, SimResult], quick: bool, interrupted: bool
 ) -> dict[str, Any]:
-    done = [r for r in RUNS if r.name in results]
-    rows = [_row(r, results[r.name]) for r in done]
+    done = [r for r in RUNS if r in results]
+    rows = [_row(r, results[r]) for r in done]
     check_rows = [] if interrupted else checks(results, quick)
     note = "Single-run float simulator"
     if done:
-        sc = results[done[0].name].scenario
+        sc = results[done[0]].scenario
         note += f", Ts = {sc.timing.ts * 1e3:g} ms, RK4 plant step h = {sc.plant_step * 1e3:g} ms"
     note += f"; durations divided by {QUICK_FACTOR:g} (--quick)." if quick else "."
     note += " Initial conditions: see the scenario files."
     if interrupted:
-        missing = ", ".join(r.name for r in RUNS if r.name not in results) or "none"
+        missing = ", ".join(r for r in RUNS if r not in results) or "none"
         note += f" INTERRUPTED: partial results, checks not judged; runs not done: {missing}."
     table = {
         "note": note,

@@ -18,6 +18,7 @@ from hil.folder.trace_csv import write_trace_csv
 from hil.sim.core import SimResult
 
 MAX_POINTS = 30000
+Runs = Sequence[tuple[str, SimResult]]  # (legend label, run) of the runs drawn together
 
 
 def _stride(n: int) -> int:
@@ -34,9 +35,7 @@ def _save(fig: plt.Figure, path: Path, cols: list[str], data: list[np.ndarray]) 
     return path
 
 
-def trajectory(
-    path: Path, title: str, runs: Sequence[tuple[str, SimResult]], reference: SimResult
-) -> Path:
+def trajectory(path: Path, title: str, runs: Runs, reference: SimResult) -> Path:
     """Robot position in the (X, Y) plane against the virtual robot (Figures 2, 7, 15, 18)."""
     fig, ax = plt.subplots(figsize=(6, 5))
     step = _stride(len(reference.trace))
@@ -59,12 +58,7 @@ def trajectory(
 
 
 def over_time(
-    path: Path,
-    title: str,
-    ylabel: str,
-    columns: Sequence[str],
-    runs: Sequence[tuple[str, SimResult]],
-    limit: float | None = None,
+    path: Path, title: str, ylabel: str, columns: list[str], runs: Runs, limit: float | None = None
 ) -> Path:
     """Signals over time with the constraint of (2) as red dashed lines (Figures 3-6, 8-14,
     16, 17, 19, 20)."""
