@@ -76,29 +76,6 @@ def _table(cert: Any, law: str) -> Any:
     return table
 
 
-def _conservatism(scenario: Any, params: Any, context: Any, boundary: bool, age: Any) -> dict:
-    """D* and, when ``age`` = (ts, delay) is given, the empirical break under the worst
-    disturbance found (hil.margin.conservatism) and their ratio."""
-    from controller_service.certificate import critical_age
-
-    init = scenario.initial
-    d_star = critical_age(params, context, boundary, v0=init.v, w0=init.omega)
-    out: dict[str, Any] = {"d_star_s": d_star}
-    if age is not None:
-        from hil.margin.conservatism import empirical_break
-
-        rec = empirical_break(scenario, *age)
-        out["empirical"] = {
-            "age_at_break_s": rec.age_at_break_s,
-            "k_star": rec.k_star,
-            "first_broken": rec.first_broken,
-            "disturbance": rec.disturbance_at_break,
-            "loops": rec.loops,
-            "ratio_to_d_star": rec.conservatism,
-        }
-    return out
-
-
 def _conservatism_lines(facts: dict[str, Any]) -> list[str]:
     lines = [f"D* = {1e3 * facts['d_star_s']:.3f} ms: the largest command age the bound allows."]
     emp = facts.get("empirical")
@@ -123,8 +100,10 @@ def _conservatism_lines(facts: dict[str, Any]) -> list[str]:
 def certify_scenario(
     path: str, ts: float | None, delay: float | None, empirical: bool = False
 ) -> tuple[Any, Any, dict[str, Any]]:
-    """(certificate, proposal or None, facts) for a scenario file; BadInputError on bad input."""
-    from controller_service.certificate import CertificateError, certify, propose
+    """(certificate, proposal or None, facts) for a scenario file; BadInputError on bad input.
+    The facts hold D* and, ``empirical``, the break under the worst disturbance found and its
+    ratio to D*."""
+    from controller_service.certificate import CertificateError, certify, critical_age, propose
     from hil.scenario import (
         DELAY_MAX,
         TS_MAX,
@@ -148,15 +127,25 @@ def certify_scenario(
         proposal = None if cert.held else propose(*loop, **start)
     except CertificateError as exc:
         raise BadInputError(str(exc)) from exc
-    facts = {
+    facts: dict[str, Any] = {
         "scenario": str(path),
         "law": "unified_boundary" if boundary else "unified",
         "params": dict(vars(params)),
         "auto_notes": notes,
-        **_conservatism(
-            scenario, params, context, boundary, (ts_used, delay_used) if empirical else None
-        ),
+        "d_star_s": critical_age(params, context, boundary, **start),
     }
+    if empirical:  # the break under the worst disturbance found (hil.margin.conservatism)
+        from hil.margin.conservatism import empirical_break
+
+        rec = empirical_break(scenario, ts_used, delay_used)
+        facts["empirical"] = {
+            "age_at_break_s": rec.age_at_break_s,
+            "k_star": rec.k_star,
+            "first_broken": rec.first_broken,
+            "disturbance": rec.disturbance_at_break,
+            "loops": rec.loops,
+            "ratio_to_d_star": rec.conservatism,
+        }
     return cert, proposal, facts
 
 
@@ -283,12 +272,9 @@ def margin(
     from hil.margin.search import MarginOptions, find_margin
 
     options.integer("--seeds", seeds, 1, 100_000)
-    if k_max is not None:
-        options.number("--k-max", k_max, 1.0, 1e6)
-    if error_bound is not None:
-        options.number("--error-bound", error_bound, 0.0, 1e6, positive=True)
-    if duration is not None:
-        options.number("--duration", duration, 0.0, 3600.0, positive=True)
+    options.optional_number("--k-max", k_max, 1.0, 1e6)
+    options.optional_number("--error-bound", error_bound, 0.0, 1e6, positive=True)
+    options.optional_number("--duration", duration, 0.0, 3600.0, positive=True)
     options.out_dir("--out", out)
     scenario, base, folder = _source(source, seeds)
     loop_s = duration if duration is not None else min(scenario.run.duration, 20.0)

@@ -202,8 +202,7 @@ def _checked_sweep(
     jitter_grid = options.grid("--jitter", jitter, 0.0, DELAY_MAX)
     if seeds is not None:
         options.integer("--seeds", seeds, 1, SWEEP_SEEDS_MAX)
-    if duration is not None:
-        options.number("--duration", duration, 0.0, DURATION_MAX, positive=True)
+    options.optional_number("--duration", duration, 0.0, DURATION_MAX, positive=True)
     options.out_dir("--out", out, default="runs")
     scenario = with_law(load_scenario(resolve_scenario(scenario_file)), law)
     sw = scenario.sweep
