@@ -23,11 +23,9 @@ from hil.errors import BadInputError, NegativeVerdictError, one_line
 
 app = typer.Typer(
     name="hil",
-    help=(
-        "Test bench for the unified tracking-and-stabilization sliding-mode controller of "
-        "Li et al. 2024: run it against an emulated robot over Zenoh and CAN, simulate it "
-        "offline, sweep sampling period, delay and jitter, and report what timing did to it."
-    ),
+    help="Test bench for the unified tracking-and-stabilization sliding-mode controller of "
+    "Li et al. 2024: run it against an emulated robot over Zenoh and CAN, simulate it "
+    "offline, sweep sampling period, delay and jitter, and report what timing did to it.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,

@@ -17,10 +17,8 @@ def _pairs(values: list[str], option: str) -> dict[str, float]:
     """``HOST=VALUE`` options as a dict; a malformed one is a BadInputError naming it."""
     out: dict[str, float] = {}
     for item in values:
-        host, sep, value = item.partition("=")
         try:
-            if not sep:
-                raise ValueError
+            host, value = item.split("=", 1)  # ValueError without "="
             out[host] = float(value)
         except ValueError:
             raise BadInputError(f"{option} {item!r}: expected HOST=NUMBER, e.g. h2=0.02") from None
@@ -46,10 +44,8 @@ NameOpt = Annotated[str, typer.Option(help="The lab's name (1-12 of [a-z0-9]).")
 
 def register(app: typer.Typer) -> None:
     lab = typer.Typer(
-        help=(
-            "A lab of hosts on this machine: network namespaces joined by veth links through "
-            "a bridge, each with its own CLOCK_MONOTONIC offset and Zenoh router. Needs root."
-        ),
+        help="A lab of hosts on this machine: network namespaces joined by veth links through "
+        "a bridge, each with its own CLOCK_MONOTONIC offset and Zenoh router. Needs root.",
         no_args_is_help=True,
     )
     app.add_typer(lab, name="lab")
