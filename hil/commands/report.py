@@ -70,14 +70,9 @@ def report(
         # A killed hil run: make the folder whole first (hil recover), then report.
         typer.echo(f"recovering {folder} first: {', '.join(needs_recovery(folder))}", err=True)
         recover(folder)
-    loaded = load_folder(folder, lazy=True)
-    rep = build_report(
-        loaded,
-        ideal=None if ideal is False else partial(ideal_from_simulator, user_law=bool(ideal)),
-        thresholds=Thresholds(
-            max_deadline_miss_ratio, max_lost_ratio, max_samples_without_command_ratio
-        ),
-    )
+    simulate = None if ideal is False else partial(ideal_from_simulator, user_law=bool(ideal))
+    limits = Thresholds(max_deadline_miss_ratio, max_lost_ratio, max_samples_without_command_ratio)
+    rep = build_report(load_folder(folder, lazy=True), ideal=simulate, thresholds=limits)
     paths = write_report(rep, out or folder)
     typer.echo(f"report: {paths['html']}")
     v = rep.data["verdict"]

@@ -171,14 +171,12 @@ def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
 def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
     """The report of the finished run, as ``hil report RUN_DIR`` writes it."""
     from hil.folder import load_folder
-    from hil.report.build import Thresholds, build_report, write_report
+    from hil.report.build import build_report, write_report
     from hil.report.ideal import ideal_from_simulator
 
     if not quiet:
         typer.echo("writing the report (and the ideal-trajectory simulation) ...", err=True)
-    rep = build_report(
-        load_folder(run_dir, lazy=True), ideal=ideal_from_simulator, thresholds=Thresholds()
-    )
+    rep = build_report(load_folder(run_dir, lazy=True), ideal=ideal_from_simulator)
     paths = write_report(rep, run_dir)
     verdict = rep.data["verdict"]
     return {"html": str(paths["html"]), "ok": verdict["ok"], "reasons": verdict["reasons"]}
