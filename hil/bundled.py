@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import atexit
 import functools
+import itertools
 import shutil
 import tempfile
 from importlib import resources
@@ -23,15 +24,13 @@ from pathlib import Path
 
 from hil.errors import BadInputError
 
-PACKAGE = "hil"
-FOLDER = "scenarios"
 SUFFIX = ".toml"
 
 
 @functools.cache
 def bundled_dir() -> Path:
     """The real folder holding the bundled scenarios and the files they refer to."""
-    root = resources.files(PACKAGE).joinpath(FOLDER)
+    root = resources.files("hil").joinpath("scenarios")
     if isinstance(root, Path):
         return root
     # Not on a file system (a zip): copy the folder out once; relative paths keep working.
@@ -45,10 +44,7 @@ def bundled_dir() -> Path:
 
 def bundled_names() -> list[str]:
     """Names of the bundled scenarios (file names without ``.toml``), sorted."""
-    folder = bundled_dir()
-    if not folder.is_dir():
-        return []
-    return sorted(p.stem for p in folder.glob(f"*{SUFFIX}") if p.is_file())
+    return sorted(p.stem for p in bundled_dir().glob(f"*{SUFFIX}") if p.is_file())
 
 
 def bundled_path(name: str) -> Path:
@@ -81,12 +77,8 @@ def _unknown(text: str) -> str:
 
 def description(path: Path) -> str:
     """One line about a scenario: the first sentence of the comment that opens the file."""
-    lines: list[str] = []
-    for raw in path.read_text(encoding="utf-8").splitlines():
-        line = raw.strip()
-        if not line.startswith("#"):
-            break
-        lines.append(line.lstrip("#").strip())
-    text = " ".join(part for part in lines if part)
+    lines = (line.strip() for line in path.read_text(encoding="utf-8").splitlines())
+    comment = itertools.takewhile(lambda line: line.startswith("#"), lines)
+    text = " ".join(part for part in (line.lstrip("#").strip() for line in comment) if part)
     end = text.find(". ")
     return text if end < 0 else text[: end + 1]

@@ -1,7 +1,7 @@
-"""The ``hil`` front door: one typer app, one module per command under ``hil/commands``.
+"""The ``hil`` front door: one typer app, its commands in the modules of ``hil/commands``.
 
-Each module in :mod:`hil.commands` defines ``register(app: typer.Typer) -> None``; modules are
-discovered, so adding a command never edits this file. Exit codes follow the contract:
+A module of :mod:`hil.commands` with ``register(app: typer.Typer) -> None`` adds its commands;
+modules are discovered, so adding a command never edits this file. Exit codes follow the contract:
 0 success, 1 negative verdict (a limit broken, a certificate not held), 2 bad usage or input,
 3 the tool itself failed (an unexpected exception: its traceback is printed; a script must not
 read it as a verdict), 130 interrupted (Ctrl-C; what was done is kept). The interrupt is
@@ -23,11 +23,9 @@ from hil.errors import BadInputError, NegativeVerdictError, one_line
 
 app = typer.Typer(
     name="hil",
-    help=(
-        "Test bench for the unified tracking-and-stabilization sliding-mode controller of "
-        "Li et al. 2024: run it against an emulated robot over Zenoh and CAN, simulate it "
-        "offline, sweep sampling period, delay and jitter, and report what timing did to it."
-    ),
+    help="Test bench for the unified tracking-and-stabilization sliding-mode controller of "
+    "Li et al. 2024: run it against an emulated robot over Zenoh and CAN, simulate it "
+    "offline, sweep sampling period, delay and jitter, and report what timing did to it.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -35,19 +33,15 @@ app = typer.Typer(
 )
 
 
-@app.callback()
-def _root() -> None:
-    """Keeps ``hil`` a command group even while only one command is registered."""
-
-
 def _register_commands() -> None:
+    """Every command of :mod:`hil.commands`, listed by ``hil --help`` in alphabetical order."""
     import hil.commands as commands
 
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        module = importlib.import_module(f"hil.commands.{info.name}")
-        register = getattr(module, "register", None)
+    for info in pkgutil.iter_modules(commands.__path__):
+        register = getattr(importlib.import_module(f"hil.commands.{info.name}"), "register", None)
         if register is not None:
             register(app)
+    app.registered_commands.sort(key=lambda command: command.name or "")
 
 
 _register_commands()
@@ -126,13 +120,10 @@ def _usage_line(exc: Exception) -> str | None:
     ``format_message`` and ``ctx``) as one line saying where the options are; None for
     anything else."""
     fmt = getattr(exc, "format_message", None)
-    if not callable(fmt):
+    message = one_line(fmt()) if callable(fmt) else ""
+    if not message:  # also "no arguments: show the help", which carries no message of its own
         return None
-    ctx = getattr(exc, "ctx", None)
-    path = getattr(ctx, "command_path", None)
-    message = one_line(fmt())
-    if not message:  # "no arguments: show the help" carries no message of its own
-        return None
+    path = getattr(getattr(exc, "ctx", None), "command_path", None)
     return message + (f" (see {path} --help)" if path else "")
 
 

@@ -114,9 +114,8 @@ def out_dir(where: str, path: Path | str | None, default: Path | str | None = No
     existing parent is a writable folder. Without ``path`` the command's ``default`` folder
     (e.g. ``runs``) is checked instead, named as the default in the message."""
     if path is None:
-        if default is None:
-            return None
-        out_dir(f"{where} not given, so its default", default)
+        if default is not None:
+            out_dir(f"{where} not given, so its default", default)
         return None
     p = Path(path)
     plain_string(where, str(p), empty=False)

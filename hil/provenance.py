@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import functools
-import math
 import platform
 import re
 import subprocess
@@ -31,19 +30,12 @@ def git_commit(start: Path | None = None) -> str:
     Asked once per process: the code running does not change under it, and a sweep resolves
     its scenario for every batch."""
     cwd = start or Path(__file__).resolve().parent
+    git = functools.partial(subprocess.run, cwd=cwd, capture_output=True, text=True, timeout=5)
     try:
-        head = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True, timeout=5
-        )
+        head = git(["git", "rev-parse", "HEAD"])
         if head.returncode != 0:
             return ""
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=cwd,
-            capture_output=True,
-            text=True,
-            timeout=5,
-        )
+        dirty = git(["git", "status", "--porcelain", "--untracked-files=no"])
         return head.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return ""
@@ -62,18 +54,14 @@ def provenance(seeds: Mapping[str, Any], start_time: _dt.datetime | None = None)
     }
 
 
+# A TOML basic string escapes backslash, quote and every control character (a string read from
+# TOML may hold any of them as an escape, and must be written back as one).
+_ESCAPES = str.maketrans({"\\": "\\\\", '"': '\\"', "\n": "\\n", "\t": "\\t", "\r": "\\r"})
+_ESCAPES.update({c: f"\\u{c:04x}" for c in [*range(32), 127] if c not in _ESCAPES})
+
+
 def _string(text: str) -> str:
-    """A TOML basic string: backslash, quote and every control character escaped (a string
-    read from TOML may hold any of them as an escape, and must be written back as one)."""
-    out = []
-    for c in text:
-        if c in ('"', "\\"):
-            out.append("\\" + c)
-        elif ord(c) < 32 or ord(c) == 127:
-            out.append({"\n": "\\n", "\t": "\\t", "\r": "\\r"}.get(c, f"\\u{ord(c):04x}"))
-        else:
-            out.append(c)
-    return '"' + "".join(out) + '"'
+    return '"' + text.translate(_ESCAPES) + '"'
 
 
 def _key(k: str) -> str:
@@ -85,11 +73,7 @@ def _value(v: Any) -> str:
         return "true" if v else "false"
     if isinstance(v, int):
         return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
+    if isinstance(v, float):  # repr writes nan, inf and -inf as TOML does
         return repr(v)
     if isinstance(v, str):
         return _string(v)

@@ -1,1 +1,1 @@
-"""``hil`` subcommands, one module each, each with ``register(app)`` (see :mod:`hil.cli`)."""
+"""``hil`` subcommands: a module with ``register(app)`` adds its commands (see :mod:`hil.cli`)."""

@@ -1,29 +1,36 @@
-"""``hil certify SCENARIO.toml --ts S --delay S [--json]``: the sampled-data certificate.
+"""How much timing a design can take: the certificate and the margin.
 
-Checks Assumption 2, (9), (11), (12) and the bound of docs/sampled_data_bound.md for the
-scenario's unified law, says whether (2) is guaranteed at that period and worst delay and, if
-not, proposes the nearest admissible parameters. Exit 0 held, 1 not held, 2 bad input.
-Defaults: --ts = [timing] ts, --delay = [timing] delay + the jitter's bound (uniform: jitter;
-normal: 4 standard deviations, as the report does).
+``hil certify SCENARIO.toml --ts S --delay S [--json]``: the sampled-data certificate. Checks
+Assumption 2, (9), (11), (12) and the bound of docs/sampled_data_bound.md for the scenario's
+unified law, says whether (2) is guaranteed at that period and worst delay and, if not,
+proposes the nearest admissible parameters. Exit 0 held, 1 not held, 2 bad input. Defaults:
+--ts = [timing] ts, --delay = [timing] delay + the jitter's bound (uniform: jitter; normal: 4
+standard deviations, as the report does).
+
+``hil margin RUN_OR_SCENARIO``: the timing margin k* of a run or a scenario. Replays a run
+folder's measured timing (the applied path's landings, hil.measure) or a scenario's [timing] (a
+bundled or TOML scenario, or the folder of a hil sim) in the batch simulator with every command
+age scaled by k, over many seeds, and bisects for the smallest k at which a limit of (2) (or
+``--error-bound``) breaks. Writes margin.json into the run or simulation folder (a scenario:
+into --out). Exit 0 when the margin is at least 1 (the limits hold at the measured timing), 1
+when k* < 1, 2 on bad input.
 """
 
 from __future__ import annotations
 
 import json
-import math
+import time
+from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Annotated, Any
 
 import typer
 
+from hil import options
+from hil.bundled import resolve_scenario
 from hil.errors import BadInputError, NegativeVerdictError
 
 _UNIFIED = ("unified", "unified_boundary")
-_GAINS = ("m1", "m2", "l1", "l2", "lam", "rho")
-# The eta re-arm keeps eta in [0, 1] and z1, z2 in [-m, m], all the bound uses (docs/laws.md):
-# the same certificate.
-_REARM = ("eta_rearm", "eta_rearm_dwell", "eta_rearm_below", "eta_rearm_tol")
-_IGNORED = ("law", "jiang1997", "jiang2001", *_REARM)
 
 
 def _worst_delay(timing: Any) -> float:
@@ -32,6 +39,10 @@ def _worst_delay(timing: Any) -> float:
 
 
 def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
+    """The unified law's gains (Table 1 where not given, 'auto' resolved), whether it has the
+    boundary layer, and the resolution's notes. The scenario's reader has checked every key
+    and number of the table (controller_service.registry.check_table). The eta re-arm keeps eta
+    in [0, 1] and z1, z2 in [-m, m], all the bound uses (docs/laws.md): the same certificate."""
     from controller_service.design import DesignError, resolve_auto
     from controller_service.registry import EPS_DEFAULT, TABLE1
 
@@ -41,19 +52,8 @@ def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool,
             f"[controller] law = {law!r}: the certificate covers the unified laws only"
         )
     boundary = law == "unified_boundary"
-    allowed = set(_GAINS) | set(_IGNORED) | (set(EPS_DEFAULT) if boundary else set())
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise BadInputError(f"[controller] unknown key(s) for {law}: {', '.join(unknown)}")
-    values: dict[str, Any] = {**TABLE1, **({**EPS_DEFAULT} if boundary else {})}
+    values: dict[str, Any] = {**TABLE1, **(EPS_DEFAULT if boundary else {})}
     values.update({k: v for k, v in table.items() if k in values})
-    for key, value in values.items():
-        if value == "auto" and key in ("lam", "rho"):
-            continue
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise BadInputError(f"[controller] {key} must be a number, got {value!r}")
-        if not math.isfinite(float(value)):
-            raise BadInputError(f"[controller] {key} must be finite, got {value!r}")
     try:
         resolved = resolve_auto(values, context)
     except DesignError as exc:
@@ -61,10 +61,11 @@ def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool,
     return SimpleNamespace(**resolved.params), boundary, list(resolved.notes)
 
 
-def _table(cert: Any, title: str) -> Any:
+def _table(cert: Any, law: str) -> Any:
     from rich.table import Table
 
-    table = Table(title=title)
+    age = f"delay = {cert.delay:g} s (age D = {cert.age:g} s)"
+    table = Table(title=f"{law}: certificate at ts = {cert.ts:g} s, {age}")
     for column in ("condition", "value", "bound", "margin", "held"):
         table.add_column(column, justify="left" if column == "condition" else "right")
     for c in cert.conditions:
@@ -73,29 +74,6 @@ def _table(cert: Any, title: str) -> Any:
             mark = "info: no"
         table.add_row(c.name, f"{c.value:.6g}", f"{c.bound:.6g}", f"{c.margin:.4g}", mark)
     return table
-
-
-def _conservatism(scenario: Any, params: Any, context: Any, boundary: bool, age: Any) -> dict:
-    """D* and, when ``age`` = (ts, delay) is given, the empirical break under the worst
-    disturbance found (hil.margin.conservatism) and their ratio."""
-    from controller_service.certificate import critical_age
-
-    init = scenario.initial
-    d_star = critical_age(params, context, boundary, v0=init.v, w0=init.omega)
-    out: dict[str, Any] = {"d_star_s": d_star}
-    if age is not None:
-        from hil.margin.conservatism import empirical_break
-
-        rec = empirical_break(scenario, *age)
-        out["empirical"] = {
-            "age_at_break_s": rec.age_at_break_s,
-            "k_star": rec.k_star,
-            "first_broken": rec.first_broken,
-            "disturbance": rec.disturbance_at_break,
-            "loops": rec.loops,
-            "ratio_to_d_star": rec.conservatism,
-        }
-    return out
 
 
 def _conservatism_lines(facts: dict[str, Any]) -> list[str]:
@@ -122,10 +100,10 @@ def _conservatism_lines(facts: dict[str, Any]) -> list[str]:
 def certify_scenario(
     path: str, ts: float | None, delay: float | None, empirical: bool = False
 ) -> tuple[Any, Any, dict[str, Any]]:
-    """(certificate, proposal or None, facts) for a scenario file; BadInputError on bad input."""
-    from controller_service.certificate import CertificateError, certify, propose
-    from hil.bundled import resolve_scenario
-    from hil.options import optional_number
+    """(certificate, proposal or None, facts) for a scenario file; BadInputError on bad input.
+    The facts hold D* and, ``empirical``, the break under the worst disturbance found and its
+    ratio to D*."""
+    from controller_service.certificate import CertificateError, certify, critical_age, propose
     from hil.scenario import (
         DELAY_MAX,
         TS_MAX,
@@ -135,111 +113,197 @@ def certify_scenario(
         load_scenario,
     )
 
-    ts = optional_number("--ts", ts, TS_MIN, TS_MAX)
-    delay = optional_number("--delay", delay, 0.0, DELAY_MAX)
+    ts = options.optional_number("--ts", ts, TS_MIN, TS_MAX)
+    delay = options.optional_number("--delay", delay, 0.0, DELAY_MAX)
     scenario = load_scenario(resolve_scenario(path))
     context = design_context(scenario, build_reference(scenario))
     params, boundary, notes = _params(dict(scenario.controller), context)
     ts_used = scenario.timing.ts if ts is None else ts
     delay_used = _worst_delay(scenario.timing) if delay is None else delay
-    init = scenario.initial
+    loop = (params, context, ts_used, delay_used, boundary)
+    start = {"v0": scenario.initial.v, "w0": scenario.initial.omega}
     try:
-        cert = certify(
-            params,
-            context,
-            ts_used,
-            delay_used,
-            boundary,
-            v0=init.v,
-            w0=init.omega,
-            watchdog_timeout=scenario.realtime.command_timeout,
-        )
-        proposal = None
-        if not cert.held:
-            proposal = propose(
-                params, context, ts_used, delay_used, boundary, v0=init.v, w0=init.omega
-            )
+        cert = certify(*loop, **start, watchdog_timeout=scenario.realtime.command_timeout)
+        proposal = None if cert.held else propose(*loop, **start)
     except CertificateError as exc:
         raise BadInputError(str(exc)) from exc
-    facts = {
+    facts: dict[str, Any] = {
         "scenario": str(path),
         "law": "unified_boundary" if boundary else "unified",
         "params": dict(vars(params)),
         "auto_notes": notes,
-        **_conservatism(
-            scenario, params, context, boundary, (ts_used, delay_used) if empirical else None
-        ),
+        "d_star_s": critical_age(params, context, boundary, **start),
     }
+    if empirical:  # the break under the worst disturbance found (hil.margin.conservatism)
+        from hil.margin.conservatism import empirical_break
+
+        rec = empirical_break(scenario, ts_used, delay_used)
+        facts["empirical"] = {
+            "age_at_break_s": rec.age_at_break_s,
+            "k_star": rec.k_star,
+            "first_broken": rec.first_broken,
+            "disturbance": rec.disturbance_at_break,
+            "loops": rec.loops,
+            "ratio_to_d_star": rec.conservatism,
+        }
     return cert, proposal, facts
 
 
-def register(app: typer.Typer) -> None:
-    @app.command("certify")
-    def certify_command(
-        scenario: str = typer.Argument(
-            ..., help="Scenario TOML file or a bundled scenario's name (hil scenarios)."
-        ),
-        ts: float = typer.Option(
-            None,
-            "--ts",
-            help="Longest gap between sample times of "
-            "successive applied commands, s (default: [timing] ts).",
-        ),
-        delay: float = typer.Option(
-            None,
-            "--delay",
-            help="Worst sample-to-apply latency, s (default: [timing] delay + jitter bound).",
-        ),
-        as_json: bool = typer.Option(False, "--json", help="Print the certificate as JSON."),
-        empirical: bool = typer.Option(
-            False,
-            "--empirical",
-            help="Also search where (2) really breaks under the worst disturbance (batch "
-            "simulation, hil.margin; seconds to minutes) and print its ratio to D*.",
-        ),
-    ) -> None:
-        """Is (2) guaranteed for the sampled, delayed loop? (docs/sampled_data_bound.md)"""
-        cert, proposal, facts = certify_scenario(scenario, ts, delay, empirical)
-        if as_json:
-            out = {**facts, "certificate": cert.to_dict()}
-            if proposal is not None:
-                out["proposal"] = {
-                    "params": None if proposal.params is None else dict(vars(proposal.params)),
-                    "reason": proposal.reason,
-                    "changes": {k: list(v) for k, v in proposal.changes.items()},
-                }
-            typer.echo(json.dumps(out, indent=2))
-        else:
-            from rich.console import Console
+def _source(text: str, seeds: int):
+    """(scenario, base timing, folder for margin.json or None)."""
+    from hil.folder import has_hop_logs, load_folder
+    from hil.margin.timing import from_run, from_scenario, run_scenario
+    from hil.scenario import load_scenario
 
-            console = Console()
-            law = facts["law"]
-            console.print(
-                _table(
-                    cert,
-                    f"{law}: certificate at ts = {cert.ts:g} s, "
-                    f"delay = {cert.delay:g} s (age D = {cert.age:g} s)",
+    path = Path(text)
+    if path.is_dir():
+        scenario = run_scenario(path)
+        if has_hop_logs(path):
+            return scenario, from_run(path, scenario), path
+        # A simulation's folder: nothing was measured, so its scenario's [timing] is replayed
+        # and margin.json goes beside the simulation's report.
+        load_folder(path, lazy=True)  # BadInputError when it is no folder of hil sim either
+        return scenario, from_scenario(scenario, seeds), path
+    scenario = load_scenario(resolve_scenario(text))
+    return scenario, from_scenario(scenario, seeds), None
+
+
+def certify_command(
+    scenario: str = typer.Argument(
+        ..., help="Scenario TOML file or a bundled scenario's name (hil scenarios)."
+    ),
+    ts: float = typer.Option(
+        None,
+        help="Longest gap between sample times of "
+        "successive applied commands, s (default: [timing] ts).",
+    ),
+    delay: float = typer.Option(
+        None, help="Worst sample-to-apply latency, s (default: [timing] delay + jitter bound)."
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print the certificate as JSON."),
+    empirical: bool = typer.Option(
+        False,
+        "--empirical",
+        help="Also search where (2) really breaks under the worst disturbance (batch "
+        "simulation, hil.margin; seconds to minutes) and print its ratio to D*.",
+    ),
+) -> None:
+    """Is (2) guaranteed for the sampled, delayed loop? (docs/sampled_data_bound.md)"""
+    cert, proposal, facts = certify_scenario(scenario, ts, delay, empirical)
+    if as_json:
+        out = {**facts, "certificate": cert.to_dict()}
+        if proposal is not None:
+            out["proposal"] = {
+                "params": None if proposal.params is None else dict(vars(proposal.params)),
+                "reason": proposal.reason,
+                "changes": {k: list(v) for k, v in proposal.changes.items()},
+            }
+        typer.echo(json.dumps(out, indent=2))
+    else:
+        from rich.console import Console
+
+        console = Console()
+        console.print(_table(cert, facts["law"]))
+        console.print(
+            f"|v| <= {cert.v_bound:.6g} (phi1 = {cert.phi1:g}), "
+            f"|w| <= {cert.w_bound:.6g} (phi2 = {cert.phi2:g})"
+        )
+        for note in [*facts["auto_notes"], *cert.notes]:
+            console.print(f"- {note}")
+        verdict = "GUARANTEED" if cert.held else "NOT guaranteed"
+        console.print(f"(2) is {verdict} at this period and worst delay.")
+        for line in _conservatism_lines(facts):
+            console.print(line)
+        if proposal is not None:
+            if proposal.params is None:
+                console.print(f"No admissible design: {proposal.reason}")
+            else:
+                changes = ", ".join(
+                    f"{k} {a:.6g} -> {b:.6g}" for k, (a, b) in proposal.changes.items()
                 )
-            )
-            console.print(
-                f"|v| <= {cert.v_bound:.6g} (phi1 = {cert.phi1:g}), "
-                f"|w| <= {cert.w_bound:.6g} (phi2 = {cert.phi2:g})"
-            )
-            for note in [*facts["auto_notes"], *cert.notes]:
-                console.print(f"- {note}")
-            verdict = "GUARANTEED" if cert.held else "NOT guaranteed"
-            console.print(f"(2) is {verdict} at this period and worst delay.")
-            for line in _conservatism_lines(facts):
-                console.print(line)
-            if proposal is not None:
-                if proposal.params is None:
-                    console.print(f"No admissible design: {proposal.reason}")
-                else:
-                    changes = ", ".join(
-                        f"{k} {a:.6g} -> {b:.6g}" for k, (a, b) in proposal.changes.items()
-                    )
-                    console.print(f"Nearest admissible design: {changes}")
-        if not cert.held:
-            raise NegativeVerdictError(
-                "certificate not held: " + ", ".join(c.name for c in cert.failed())
-            )
+                console.print(f"Nearest admissible design: {changes}")
+    if not cert.held:
+        raise NegativeVerdictError(
+            "certificate not held: " + ", ".join(c.name for c in cert.failed())
+        )
+
+
+def margin(
+    source: Annotated[
+        str,
+        typer.Argument(
+            help="A folder of hil run (its measured timing) or hil sim (its scenario's timing), "
+            "a scenario TOML or a bundled scenario's name."
+        ),
+    ],
+    seeds: Annotated[
+        int, typer.Option(help="Loops per scale (timing draws, initial states).")
+    ] = 32,
+    worst_disturbance: Annotated[
+        bool,
+        typer.Option(
+            "--worst-disturbance",
+            help="Search the worst disturbance within s1, s2 at each scale (hil.adversary).",
+        ),
+    ] = False,
+    error_bound: Annotated[
+        float | None,
+        typer.Option(
+            help="Also break when the position error over the run's second half exceeds "
+            "this many metres."
+        ),
+    ] = None,
+    duration: Annotated[
+        float | None, typer.Option(help="Simulated seconds per loop (default: the run's, <= 20 s).")
+    ] = None,
+    k_max: Annotated[
+        float | None,
+        typer.Option(
+            help="The largest scale tried (default 64); when the limits still hold there, no k* "
+            "is found below it (a loop at Ts = 1 ms that breaks near 100 ms of age needs ~100)."
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option(help="Folder for margin.json when the source is a scenario.")
+    ] = None,
+) -> None:
+    """How much worse may the timing get before a limit of (2) breaks? (k*)"""
+    from hil.margin import record
+    from hil.margin.search import MarginOptions, find_margin
+
+    options.integer("--seeds", seeds, 1, 100_000)
+    options.optional_number("--k-max", k_max, 1.0, 1e6)
+    options.optional_number("--error-bound", error_bound, 0.0, 1e6, positive=True)
+    options.optional_number("--duration", duration, 0.0, 3600.0, positive=True)
+    options.out_dir("--out", out)
+    scenario, base, folder = _source(source, seeds)
+    loop_s = duration if duration is not None else min(scenario.run.duration, 20.0)
+    opts = MarginOptions(
+        seeds=seeds,
+        duration=loop_s,
+        worst=worst_disturbance,
+        error_bound=error_bound,
+        k_max=MarginOptions.k_max if k_max is None else k_max,
+    )
+
+    def show(p) -> None:
+        state = "BREAKS" if p.broke else "holds"
+        typer.echo(
+            f"k = {p.k:.4g}: age {1e3 * p.age_s:.1f} ms, worst {p.limit} "
+            f"{p.score:.3f} of its limit: {state}"
+        )
+
+    result = find_margin(scenario, base, opts, show)
+    target = folder or out or Path("runs") / time.strftime("margin-%Y%m%d-%H%M%S")
+    target.mkdir(parents=True, exist_ok=True)
+    written = record.write(target, result)
+    for line in record.summary_lines(result):
+        typer.echo(line)
+    typer.echo(f"margin: {written}")
+    if result.k_star is not None and result.k_star <= 1.0:
+        raise NegativeVerdictError("a limit breaks at the measured timing (k* <= 1)")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("certify")(certify_command)
+    app.command("margin")(margin)

@@ -13,15 +13,13 @@ from hil.errors import BadInputError
 LAB_NAME = "lab"
 
 
-def _pairs(values: list[str], option: str, parse: type = float) -> dict[str, float]:
+def _pairs(values: list[str], option: str) -> dict[str, float]:
     """``HOST=VALUE`` options as a dict; a malformed one is a BadInputError naming it."""
     out: dict[str, float] = {}
     for item in values:
-        host, sep, value = item.partition("=")
         try:
-            if not sep:
-                raise ValueError
-            out[host] = parse(value)
+            host, value = item.split("=", 1)  # ValueError without "="
+            out[host] = float(value)
         except ValueError:
             raise BadInputError(f"{option} {item!r}: expected HOST=NUMBER, e.g. h2=0.02") from None
     return out
@@ -41,34 +39,29 @@ def _impairments(loss: list[str], rate: list[str]) -> dict[str, object]:
     return {h: LinkImpairment(losses.get(h, 0.0), rates.get(h, 0.0)) for h in {*losses, *rates}}
 
 
-NameOpt = Annotated[str, typer.Option("--name", help="The lab's name (1-12 of [a-z0-9]).")]
+NameOpt = Annotated[str, typer.Option(help="The lab's name (1-12 of [a-z0-9]).")]
 
 
 def register(app: typer.Typer) -> None:
     lab = typer.Typer(
-        help=(
-            "A lab of hosts on this machine: network namespaces joined by veth links through "
-            "a bridge, each with its own CLOCK_MONOTONIC offset and Zenoh router. Needs root."
-        ),
+        help="A lab of hosts on this machine: network namespaces joined by veth links through "
+        "a bridge, each with its own CLOCK_MONOTONIC offset and Zenoh router. Needs root.",
         no_args_is_help=True,
     )
     app.add_typer(lab, name="lab")
 
     @lab.command("up")
     def up_cmd(
-        hosts: Annotated[int, typer.Option("--hosts", help="Number of hosts (h1..hN).")] = 2,
+        hosts: Annotated[int, typer.Option(help="Number of hosts (h1..hN).")] = 2,
         name: NameOpt = LAB_NAME,
         offset: Annotated[
-            list[str],
-            typer.Option("--offset", help="HOST=SECONDS: the host's CLOCK_MONOTONIC offset."),
+            list[str], typer.Option(help="HOST=SECONDS: the host's CLOCK_MONOTONIC offset.")
         ] = [],  # noqa: B006 (typer reads the default, never mutates it)
         loss: Annotated[
-            list[str],
-            typer.Option("--loss", help="HOST=FRACTION of the packets the host receives dropped."),
+            list[str], typer.Option(help="HOST=FRACTION of the packets the host receives dropped.")
         ] = [],  # noqa: B006
         rate_bps: Annotated[
-            list[str],
-            typer.Option("--rate-bps", help="HOST=BITS_PER_SECOND: the host's sending rate cap."),
+            list[str], typer.Option(help="HOST=BITS_PER_SECOND: the host's sending rate cap.")
         ] = [],  # noqa: B006
     ) -> None:
         """Build the lab: h1..hN, a router on each (tcp/127.0.0.1:7447 from inside the host,
@@ -89,7 +82,7 @@ def register(app: typer.Typer) -> None:
 
     @lab.command("status")
     def status_cmd(
-        name: Annotated[str | None, typer.Option("--name", help="One lab (default: all).")] = None,
+        name: Annotated[str | None, typer.Option(help="One lab (default: all).")] = None,
     ) -> None:
         """Each lab's hosts: offset, address, router, impairment and its kernel counters."""
         from hil.lab.lab import status

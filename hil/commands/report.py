@@ -1,90 +1,126 @@
-"""``hil report DIR``: report.html / report.md / report.json of a run or simulation folder."""
+"""The commands on a finished folder: ``hil report DIR`` (report.html / report.md / report.json
+of a run or simulation folder), ``hil compare DIR_A DIR_B`` (two folders side by side) and
+``hil recover DIR`` (make a killed run's folder whole, see hil.run.recover)."""
 
 from __future__ import annotations
 
+import json
+import time
+from functools import partial
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from hil.errors import NegativeVerdictError
+from hil.options import number, out_dir
+
+
+def report(
+    folder: Annotated[Path, typer.Argument(help="A run (hil run) or simulation (hil sim) folder.")],
+    out: Annotated[
+        Path | None, typer.Option(help="Where to write the report (default: the folder itself).")
+    ] = None,
+    ideal: Annotated[
+        bool | None,
+        typer.Option(
+            help="Simulate the same scenario at a fine period (Ts/10) for the deviation "
+            "from the ideal trajectory. Default: for the built-in laws only; a law of your "
+            "own (module:Class) is run again, from its module, only with --ideal.",
+            show_default=False,
+        ),
+    ] = None,
+    max_deadline_miss_ratio: Annotated[
+        float, typer.Option(help="Deadline misses above this fraction of cycles: negative verdict.")
+    ] = 0.01,
+    max_lost_ratio: Annotated[
+        float,
+        typer.Option(
+            help="Lost messages (State and the applied command path) above this fraction "
+            "of those sent: negative verdict."
+        ),
+    ] = 0.01,
+    max_samples_without_command_ratio: Annotated[
+        float,
+        typer.Option(
+            help="Plant samples whose command never landed above this fraction of the "
+            "samples: negative verdict."
+        ),
+    ] = 0.01,
+) -> None:
+    """Sampling-effect report. First the answers: limits of (2) held and by what margin,
+    the command age D against D* (the certificate), the stalls closest to D*, the share
+    of samples without a command, the verdict. Then the details: trajectory (with the
+    ideal one), v, ω, τ1, τ2 against (2), motor torques and drive states, tracking error,
+    quasi-sliding bands, switching and saturation; for a run, latency histograms/CDFs,
+    wake-up lateness, command age over time and every timing figure (summary.json, from
+    hil.measure). Exit 0 all good, 1 negative verdict (limit broken, certificate not held
+    or exceeded, too many deadline misses, samples without a command or lost messages),
+    2 not a run folder."""
+    from hil.folder import load_folder
+    from hil.report.build import Thresholds, build_report, write_report
+    from hil.report.ideal import ideal_from_simulator
+    from hil.run.recover import is_run_folder, needs_recovery, recover
+
+    number("--max-deadline-miss-ratio", max_deadline_miss_ratio, 0.0, 1.0)
+    number("--max-lost-ratio", max_lost_ratio, 0.0, 1.0)
+    number("--max-samples-without-command-ratio", max_samples_without_command_ratio, 0.0, 1.0)
+    out_dir("--out", out)
+    if is_run_folder(folder) and needs_recovery(folder):
+        # A killed hil run: make the folder whole first (hil recover), then report.
+        typer.echo(f"recovering {folder} first: {', '.join(needs_recovery(folder))}", err=True)
+        recover(folder)
+    simulate = None if ideal is False else partial(ideal_from_simulator, user_law=bool(ideal))
+    limits = Thresholds(max_deadline_miss_ratio, max_lost_ratio, max_samples_without_command_ratio)
+    rep = build_report(load_folder(folder, lazy=True), ideal=simulate, thresholds=limits)
+    paths = write_report(rep, out or folder)
+    typer.echo(f"report: {paths['html']}")
+    v = rep.data["verdict"]
+    if not v["ok"]:
+        raise NegativeVerdictError("; ".join(v["reasons"]))
+    typer.echo("verdict: PASS")
+
+
+def compare(
+    dir_a: Annotated[Path, typer.Argument(help="First run or simulation folder (A).")],
+    dir_b: Annotated[Path, typer.Argument(help="Second folder (B).")],
+    out: Annotated[
+        Path | None, typer.Option(help="Where to write (default: a new folder under runs/).")
+    ] = None,
+) -> None:
+    """Overlaid trajectories, v, ω, τ1, τ2, position error and (runs) latency CDFs of two
+    folders (the Zenoh path against the CAN path, two rates, a run against its
+    simulation) and a table of summary, sampling-effect and measured timing figures
+    (hil.measure: timing, messages, certificate) with their differences (B - A):
+    compare.html, compare.md, compare.json, PNG + CSV per figure. Exit 0, or 2 when a
+    folder is not a run."""
+    from hil.folder import load_folder
+    from hil.report.compare import build_compare
+
+    out_dir("--out", out, default="runs")
+    fa, fb = load_folder(dir_a), load_folder(dir_b)
+    target = out or Path("runs") / time.strftime("compare-%Y%m%d-%H%M%S")
+    build_compare(fa, fb, target)
+    typer.echo(f"compare: {target / 'compare.html'}")
+
+
+def recover_cmd(
+    run_dir: Annotated[Path, typer.Argument(help="A run folder whose hil run was killed.")],
+) -> None:
+    """Rewrite a truncated recording as a complete, indexed MCAP (the services' hop logs
+    and the resolved scenario attached), restore into it every State the plant sent that
+    the recorder had not written yet (from the plant's hop log, marked restored_from), and
+    rebuild trace.csv and summary.json from the hop logs. Nothing to do for a whole folder.
+    `hil report` runs this by itself.
+
+    Exit 2 when DIR is not a run folder or the run was killed before its first sample."""
+    from hil.run.recover import recover
+
+    done = recover(run_dir)
+    typer.echo(json.dumps(done, indent=2))
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("report")
-    def report(
-        folder: Annotated[
-            Path, typer.Argument(help="A run (hil run) or simulation (hil sim) folder.")
-        ],
-        out: Annotated[
-            Path | None,
-            typer.Option("--out", help="Where to write the report (default: the folder itself)."),
-        ] = None,
-        ideal: Annotated[
-            bool | None,
-            typer.Option(
-                "--ideal/--no-ideal",
-                help="Simulate the same scenario at a fine period (Ts/10) for the deviation "
-                "from the ideal trajectory. Default: for the built-in laws only; a law of your "
-                "own (module:Class) is run again, from its module, only with --ideal.",
-                show_default=False,
-            ),
-        ] = None,
-        max_deadline_miss_ratio: Annotated[
-            float,
-            typer.Option(help="Deadline misses above this fraction of cycles: negative verdict."),
-        ] = 0.01,
-        max_lost_ratio: Annotated[
-            float,
-            typer.Option(
-                help="Lost messages (State and the applied command path) above this fraction "
-                "of those sent: negative verdict."
-            ),
-        ] = 0.01,
-        max_samples_without_command_ratio: Annotated[
-            float,
-            typer.Option(
-                help="Plant samples whose command never landed above this fraction of the "
-                "samples: negative verdict."
-            ),
-        ] = 0.01,
-    ) -> None:
-        """Sampling-effect report. First the answers: limits of (2) held and by what margin,
-        the command age D against D* (the certificate), the stalls closest to D*, the share
-        of samples without a command, the verdict. Then the details: trajectory (with the
-        ideal one), v, ω, τ1, τ2 against (2), motor torques and drive states, tracking error,
-        quasi-sliding bands, switching and saturation; for a run, latency histograms/CDFs,
-        wake-up lateness, command age over time and every timing figure (summary.json, from
-        hil.measure). Exit 0 all good, 1 negative verdict (limit broken, certificate not held
-        or exceeded, too many deadline misses, samples without a command or lost messages),
-        2 not a run folder."""
-        from functools import partial
-
-        from hil.folder import load_folder
-        from hil.options import number, out_dir
-        from hil.report.build import Thresholds, build_report, write_report
-        from hil.report.ideal import ideal_from_simulator
-        from hil.run.recover import is_run_folder, needs_recovery, recover
-
-        number("--max-deadline-miss-ratio", max_deadline_miss_ratio, 0.0, 1.0)
-        number("--max-lost-ratio", max_lost_ratio, 0.0, 1.0)
-        number("--max-samples-without-command-ratio", max_samples_without_command_ratio, 0.0, 1.0)
-        out_dir("--out", out)
-        if is_run_folder(folder) and needs_recovery(folder):
-            # A killed hil run: make the folder whole first (hil recover), then report.
-            typer.echo(f"recovering {folder} first: {', '.join(needs_recovery(folder))}", err=True)
-            recover(folder)
-        loaded = load_folder(folder, lazy=True)
-        rep = build_report(
-            loaded,
-            ideal=None if ideal is False else partial(ideal_from_simulator, user_law=bool(ideal)),
-            thresholds=Thresholds(
-                max_deadline_miss_ratio, max_lost_ratio, max_samples_without_command_ratio
-            ),
-        )
-        paths = write_report(rep, out or folder)
-        typer.echo(f"report: {paths['html']}")
-        v = rep.data["verdict"]
-        if not v["ok"]:
-            raise NegativeVerdictError("; ".join(v["reasons"]))
-        typer.echo("verdict: PASS")
+    app.command("report")(report)
+    app.command("compare")(compare)
+    app.command("recover")(recover_cmd)

@@ -1,4 +1,6 @@
-"""``hil run``: the controller and the emulated robot as two real processes (see hil.run)."""
+"""Closed loops of real processes: ``hil run`` (the controller and the emulated robot, see
+hil.run) and ``hil fleet SCENARIO --robots N`` (N closed loops at once, hil.fleet,
+docs/fleet.md)."""
 
 from __future__ import annotations
 
@@ -9,9 +11,33 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
+from hil.bundled import resolve_scenario
 from hil.commands.law_option import LawOpt
-from hil.commands.live_options import LiveHostOpt, live_opt
 from hil.errors import NegativeVerdictError
+from hil.options import out_dir
+
+# ``--live [PORT]`` and ``--live-host``, one spelling for every command that serves a live view
+# (run, drives, fleet; docs/live.md).
+LiveHostOpt = Annotated[
+    str,
+    typer.Option(
+        help="Address the live view binds to. Anything but loopback exposes the run's data "
+        "to whoever reaches it (no login, no TLS): a warning says so."
+    ),
+]
+
+
+def live_opt(serves: str) -> Any:
+    """``--live [PORT]``: ``serves`` says what is served, the rest is the same everywhere."""
+    return Annotated[
+        int | None,
+        typer.Option(
+            metavar="[PORT]",
+            help=f"Serve {serves} live over the Foxglove WebSocket protocol on this port "
+            "(bare --live: 8765; 0: any free port), from a process of its own (docs/live.md).",
+        ),
+    ]
+
 
 # The options of ``hil run``, one alias each, so that the command's signature stays short.
 ScenarioArg = Annotated[
@@ -25,10 +51,7 @@ DurationOpt = Annotated[float | None, typer.Option(help="Run length in s.")]
 RateOpt = Annotated[float | None, typer.Option(help="Control rate in Hz.")]
 CmdPathOpt = Annotated[str, typer.Option(help="Applied command path: zenoh or can.")]
 LockstepOpt = Annotated[bool, typer.Option(help="Advance the plant one period per command.")]
-TriggerOpt = Annotated[
-    str | None,
-    typer.Option(help="periodic (absolute deadlines) or on_state."),
-]
+TriggerOpt = Annotated[str | None, typer.Option(help="periodic (absolute deadlines) or on_state.")]
 CanOpt = Annotated[bool, typer.Option(help="Keep the CAN path live (as shadow).")]
 CanInterfaceOpt = Annotated[
     str | None, typer.Option(help="python-can interface (default zenoh_can).")
@@ -42,7 +65,7 @@ SecureOpt = Annotated[
     typer.Option(
         help="Run every session through a router with user/password authentication and "
         "per-role access control (fresh passwords per run, outside the run folder; "
-        "deploy/README.md).",
+        "deploy/README.md)."
     ),
 ]
 LabOpt = Annotated[
@@ -50,7 +73,7 @@ LabOpt = Annotated[
     typer.Option(
         help="Run on the hosts of this lab (hil lab up; root): the plant and the recorder on "
         "--plant-host, the controller on --controller-host, each through its host's router "
-        "(docs/lab.md). Needs --no-can.",
+        "(docs/lab.md). Needs --no-can."
     ),
 ]
 PlantHostOpt = Annotated[str | None, typer.Option(help="The plant's lab host (default h1).")]
@@ -66,13 +89,12 @@ StrictOpt = Annotated[
     typer.Option(
         help="Exit 1 on any verdict but PASS (FAIL, or INCONCLUSIVE: the bench stalled or the "
         "logs cannot relate a figure), for CI. Without it, exit 1 only when a limit of (2) "
-        "broke or the certificate is not held through the system's own timing.",
+        "broke or the certificate is not held through the system's own timing."
     ),
 ]
 ReportOpt = Annotated[
     bool,
     typer.Option(
-        "--report/--no-report",
         help="Write the sampling-effect report (report.html/.md/.json, as hil report "
         "does) into the run folder. Its verdict is printed; the exit code stays the "
         "run's own (1 only when a limit of (2) was broken).",
@@ -88,79 +110,6 @@ JsonOpt = Annotated[
         "scripts; the plain result line then goes to stderr.",
     ),
 ]
-
-
-def register(app: typer.Typer) -> None:
-    @app.command("run")
-    def run(
-        scenario: ScenarioArg = None,
-        duration: DurationOpt = None,
-        rate: RateOpt = None,
-        cmd_path: CmdPathOpt = "zenoh",
-        lockstep: LockstepOpt = False,
-        trigger: TriggerOpt = None,
-        can: CanOpt = True,
-        can_interface: CanInterfaceOpt = None,
-        can_channel: CanChannelOpt = None,
-        spin_us: SpinOpt = 0.0,
-        out: OutOpt = None,
-        quiet: QuietOpt = False,
-        secure: SecureOpt = False,
-        report: ReportOpt = True,
-        strict: StrictOpt = False,
-        law: LawOpt = None,
-        as_json: JsonOpt = False,
-        lab: LabOpt = None,
-        plant_host: PlantHostOpt = None,
-        controller_host: ControllerHostOpt = None,
-        robot_id: RobotIdOpt = None,
-        live: LiveOpt = None,
-        live_host: LiveHostOpt = "127.0.0.1",
-    ) -> None:
-        """Run the controller against the emulated robot over Zenoh and CAN and record it."""
-        from hil.run.orchestrate import RunOptions, execute
-
-        summary = execute(
-            RunOptions(
-                scenario=scenario,
-                duration=duration,
-                rate=rate,
-                cmd_path=cmd_path,
-                lockstep=lockstep,
-                out=out,
-                trigger=trigger,
-                can_live=can,
-                can_interface=can_interface,
-                can_channel=can_channel,
-                spin_us=spin_us,
-                quiet=quiet,
-                secure=secure,
-                law=law,
-                lab=lab,
-                plant_host=plant_host,
-                controller_host=controller_host,
-                robot_id=robot_id,
-                live_port=live,
-                live_host=live_host,
-            )
-        )
-        brief = _brief(summary, cmd_path)
-        run_dir = summary.get("run_dir")
-        stopped = summary.get("interrupted") or interrupts.happened()
-        if report and run_dir and not stopped and not summary.get("error"):
-            brief["report"] = _write_report(Path(run_dir), quiet)
-        report_html = (brief.get("report") or {}).get("html")
-        line = f"result: {verdict_line(summary, report_html)}"
-        # One plain line ends the run (a negative exit prints its own reason, hil.cli, after
-        # it); --json puts the brief on stdout for scripts and the line on stderr.
-        if as_json:
-            typer.echo(json.dumps(brief, indent=2))
-        typer.echo(line, err=as_json)
-        if stopped:
-            # hil.cli exits 130: hil.run.orchestrate recorded the signal in hil.interrupts.
-            interrupts.note(f"run folder written to {run_dir}")
-            return
-        _raise_on_negative(summary, strict)
 
 
 def _brief(summary: dict[str, Any], cmd_path: str) -> dict[str, Any]:
@@ -222,14 +171,165 @@ def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
 def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
     """The report of the finished run, as ``hil report RUN_DIR`` writes it."""
     from hil.folder import load_folder
-    from hil.report.build import Thresholds, build_report, write_report
+    from hil.report.build import build_report, write_report
     from hil.report.ideal import ideal_from_simulator
 
     if not quiet:
         typer.echo("writing the report (and the ideal-trajectory simulation) ...", err=True)
-    rep = build_report(
-        load_folder(run_dir, lazy=True), ideal=ideal_from_simulator, thresholds=Thresholds()
-    )
+    rep = build_report(load_folder(run_dir, lazy=True), ideal=ideal_from_simulator)
     paths = write_report(rep, run_dir)
     verdict = rep.data["verdict"]
     return {"html": str(paths["html"]), "ok": verdict["ok"], "reasons": verdict["reasons"]}
+
+
+FleetLiveOpt = live_opt("every robot of the fleet, each on its own topics hil/robotI/...,")
+
+
+def _live_watcher(
+    out: Path, robots: list[str], live: int | None, live_host: str, lab: str | None
+) -> Any:
+    """The fleet's live view (None without --live), its port checked first."""
+    from hil.live.launch import FleetLive
+    from hil.live.launch import check as live_check
+
+    live_check(live, live_host)
+    return None if live is None else FleetLive(out, robots, live, live_host, lab is not None)
+
+
+def run(
+    scenario: ScenarioArg = None,
+    duration: DurationOpt = None,
+    rate: RateOpt = None,
+    cmd_path: CmdPathOpt = "zenoh",
+    lockstep: LockstepOpt = False,
+    trigger: TriggerOpt = None,
+    can: CanOpt = True,
+    can_interface: CanInterfaceOpt = None,
+    can_channel: CanChannelOpt = None,
+    spin_us: SpinOpt = 0.0,
+    out: OutOpt = None,
+    quiet: QuietOpt = False,
+    secure: SecureOpt = False,
+    report: ReportOpt = True,
+    strict: StrictOpt = False,
+    law: LawOpt = None,
+    as_json: JsonOpt = False,
+    lab: LabOpt = None,
+    plant_host: PlantHostOpt = None,
+    controller_host: ControllerHostOpt = None,
+    robot_id: RobotIdOpt = None,
+    live: LiveOpt = None,
+    live_host: LiveHostOpt = "127.0.0.1",
+) -> None:
+    """Run the controller against the emulated robot over Zenoh and CAN and record it."""
+    from hil.run.orchestrate import RunOptions, execute
+
+    summary = execute(
+        RunOptions(
+            scenario=scenario,
+            duration=duration,
+            rate=rate,
+            cmd_path=cmd_path,
+            lockstep=lockstep,
+            out=out,
+            trigger=trigger,
+            can_live=can,
+            can_interface=can_interface,
+            can_channel=can_channel,
+            spin_us=spin_us,
+            quiet=quiet,
+            secure=secure,
+            law=law,
+            lab=lab,
+            plant_host=plant_host,
+            controller_host=controller_host,
+            robot_id=robot_id,
+            live_port=live,
+            live_host=live_host,
+        )
+    )
+    brief = _brief(summary, cmd_path)
+    run_dir = summary.get("run_dir")
+    stopped = summary.get("interrupted") or interrupts.happened()
+    if report and run_dir and not stopped and not summary.get("error"):
+        brief["report"] = _write_report(Path(run_dir), quiet)
+    report_html = (brief.get("report") or {}).get("html")
+    line = f"result: {verdict_line(summary, report_html)}"
+    # One plain line ends the run (a negative exit prints its own reason, hil.cli, after
+    # it); --json puts the brief on stdout for scripts and the line on stderr.
+    if as_json:
+        typer.echo(json.dumps(brief, indent=2))
+    typer.echo(line, err=as_json)
+    if stopped:
+        # hil.cli exits 130: hil.run.orchestrate recorded the signal in hil.interrupts.
+        interrupts.note(f"run folder written to {run_dir}")
+        return
+    _raise_on_negative(summary, strict)
+
+
+def fleet_cmd(
+    scenario: Annotated[Path, typer.Argument(help="Scenario TOML or a bundled name.")],
+    robots: Annotated[int, typer.Option(help="Number of robots (robot1..robotN).")] = 4,
+    out: Annotated[
+        Path, typer.Option(help="The fleet's folder (one run folder per robot).")
+    ] = Path("runs/fleet"),
+    duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
+    rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,
+    lab: Annotated[
+        str | None, typer.Option(help="Run on this lab's hosts, all robots through its routers.")
+    ] = None,
+    plant_host: Annotated[str | None, typer.Option(help="The plants' lab host.")] = None,
+    controller_host: Annotated[str | None, typer.Option(help="The controllers' lab host.")] = None,
+    per_process: Annotated[
+        int,
+        typer.Option(
+            help="Robots per process: K robots' plants in one plant process and their "
+            "controllers in one controller process (each robot its own keys, state, "
+            "deadlines and run folder); 1: one `hil run` per robot."
+        ),
+    ] = 1,
+    live: FleetLiveOpt = None,
+    live_host: LiveHostOpt = "127.0.0.1",
+) -> None:
+    """Run N robots' closed loops at once, each its own `hil run` with its own robot id
+    (robotI: keys hil/robotI/...), controller, plant and run folder OUT/robotI (a complete
+    run folder: `hil report OUT/robotI`), then write the fleet report OUT/fleet.json,
+    fleet.md and fleet.png: per robot the verdict and D against D*; for the fleet the
+    command age p99, the samples without a command and the deadline miss rate. Each robot
+    is two processes (its plant, its controller) and a recorder, unless --per-process K
+    groups K robots into one plant process, one controller process and one recorder
+    (threads sharing a Zenoh session, each robot on its own keys hil/robotI/...): a
+    2-core machine then fits about 32 robots at 100 Hz and 8 at 500 Hz (docs/fleet.md).
+    --live serves every robot of the fleet on one Foxglove WebSocket server (docs/live.md).
+
+    Exit 1 when a robot's verdict is negative."""
+    from hil.fleet import report
+    from hil.fleet.run import FleetOptions, execute, robot_ids
+    from runtime.signals import stop_on_signals
+
+    out_dir("--out", out)
+    path = resolve_scenario(scenario)
+    opts = FleetOptions(
+        path, robots, out, duration, rate, lab, plant_host, controller_host, per_process
+    )
+    watcher = _live_watcher(out, robot_ids(robots), live, live_host, lab)
+    with stop_on_signals() as stop:
+        codes = execute(opts, stop, watcher)
+        if stop:
+            interrupts.record(stop.signal)
+    facts = {"scenario": str(opts.scenario), "rate_hz": rate, "duration_s": duration}
+    facts["lab"] = lab
+    facts["per_process"] = per_process
+    summary = report.write(out, codes, facts)
+    typer.echo(json.dumps(summary["fleet"], indent=2))
+    if stop:
+        interrupts.note(f"fleet folder written to {out}")
+        return
+    bad = [r["robot"] for r in summary["per_robot"] if r.get("exit_code") not in (0,)]
+    if bad:
+        raise NegativeVerdictError(f"robots with a negative verdict or an error: {', '.join(bad)}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("run")(run)
+    app.command("fleet")(fleet_cmd)

@@ -1,10 +1,14 @@
-"""``hil scenarios``: the scenarios bundled with the package, one line each."""
+"""What ships with the package: ``hil scenarios`` (the bundled scenarios, one line each) and
+``hil version`` (the package version, also stamped into every run's provenance)."""
 
 from __future__ import annotations
 
 from typing import Annotated
 
 import typer
+
+from hil.bundled import bundled_dir, bundled_names, bundled_path, description
+from hil.provenance import package_version
 
 SCENARIOS_HELP = (
     "List the scenarios bundled with the package (the paper's Section 4 set-ups), one line "
@@ -17,23 +21,27 @@ SCENARIOS_HELP = (
 )
 
 
-def register(app: typer.Typer) -> None:
-    @app.command("scenarios", help=SCENARIOS_HELP)
-    def scenarios(
-        path: Annotated[
-            str | None,
-            typer.Option(
-                "--path", metavar="NAME", help="Print the file of the bundled scenario NAME."
-            ),
-        ] = None,
-    ) -> None:
-        """List the bundled scenarios (help: SCENARIOS_HELP)."""
-        from hil.bundled import bundled_dir, bundled_names, bundled_path, description
+def scenarios(
+    path: Annotated[
+        str | None,
+        typer.Option(metavar="NAME", help="Print the file of the bundled scenario NAME."),
+    ] = None,
+) -> None:
+    """List the bundled scenarios (help: SCENARIOS_HELP)."""
+    if path is not None:
+        typer.echo(str(bundled_path(path)))
+        return
+    names = bundled_names()
+    width = max((len(n) for n in names), default=0)
+    for name in names:
+        typer.echo(f"{name:<{width}}  {description(bundled_dir() / f'{name}.toml')}")
 
-        if path is not None:
-            typer.echo(str(bundled_path(path)))
-            return
-        names = bundled_names()
-        width = max((len(n) for n in names), default=0)
-        for name in names:
-            typer.echo(f"{name:<{width}}  {description(bundled_dir() / f'{name}.toml')}")
+
+def version() -> None:
+    """Print the package version."""
+    typer.echo(package_version())
+
+
+def register(app: typer.Typer) -> None:
+    app.command("scenarios", help=SCENARIOS_HELP)(scenarios)
+    app.command("version")(version)

@@ -1,5 +1,4 @@
-"""One ``hil`` command per service (``hil controller``, ``hil emulator``): the service alone, as
-``hil run`` starts it as a child.
+"""``hil controller`` and ``hil emulator``: one service alone, as ``hil run`` starts it as a child.
 
 With ``--settings run_settings.json`` it runs exactly as under ``hil run``; with a scenario it
 resolves those settings itself (``--write-settings FILE`` writes them and stops there, for
@@ -17,14 +16,19 @@ from typing import Annotated, Any
 
 import typer
 
+from hil import options
 from hil.errors import BadInputError
+
+# ``hil NAME``: the module whose ``main_from_settings`` runs the service, and the service's name.
+SERVICES = {
+    "controller": ("controller_service.service", "controller service"),
+    "emulator": ("plant_emulator.service", "plant emulator service"),
+}
 
 
 def check_settings_file(path: Path) -> None:
     """--settings must be a run_settings.json whose values hold (protocol.settings): the service
     would fail after starting otherwise."""
-
-    from hil import options
     from protocol.settings import RunSettings
 
     options.existing_file("--settings", path)
@@ -59,71 +63,66 @@ def _settings_from_scenario(
     return settings
 
 
-def register_service_command(app: typer.Typer, name: str, module: str, what: str) -> None:
-    """Add ``hil NAME`` running ``module.main_from_settings`` (``what`` names it in --help)."""
+def service(
+    ctx: typer.Context,
+    scenario: Annotated[
+        Path | None,
+        typer.Argument(help="Scenario TOML or a bundled scenario's name (hil scenarios)."),
+    ] = None,
+    settings: Annotated[Path | None, typer.Option(help="run_settings.json from hil run.")] = None,
+    endpoint: Annotated[str, typer.Option(help="Zenoh endpoint to join.")] = "tcp/127.0.0.1:7447",
+    duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
+    rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,
+    cmd_path: Annotated[str, typer.Option(help="zenoh or can.")] = "zenoh",
+    lockstep: Annotated[bool, typer.Option()] = False,
+    can_endpoint: Annotated[
+        str, typer.Option(help="zenoh_can endpoint (the CAN bus over Zenoh).")
+    ] = "tcp/127.0.0.1:7449",
+    epoch_ns: Annotated[
+        int, typer.Option(help="t = 0 as time.monotonic_ns(); 0 waits for the run's start message.")
+    ] = 0,
+    out: Annotated[Path, typer.Option(help="Where the hop log goes.")] = Path("."),
+    start_timeout: Annotated[
+        float, typer.Option(help="Seconds to wait for the run's start message (then exit 1).")
+    ] = 60.0,
+    write_settings: Annotated[
+        Path | None,
+        typer.Option(
+            help="Only write the resolved settings to this file and exit: `python -m "
+            "controller_service FILE` or `python -m plant_emulator FILE` then runs the "
+            "service without hil."
+        ),
+    ] = None,
+) -> None:
+    options.locator("--endpoint", endpoint)
+    options.locator("--can-endpoint", can_endpoint)
+    options.integer("--epoch-ns", epoch_ns, 0, 2**63 - 1)
+    if write_settings is not None:
+        options.out_file("--write-settings", write_settings)
+    if settings is not None:
+        check_settings_file(settings)
+    name = ctx.info_name or ""
+    main_from_settings = importlib.import_module(SERVICES[name][0]).main_from_settings
+    if settings is None:
+        if scenario is None:
+            raise BadInputError("give a scenario file or --settings")
+        run = {"duration": duration, "rate": rate, "cmd_path": cmd_path, "lockstep": lockstep}
+        links = {"endpoint": endpoint, "can_endpoint": can_endpoint, "epoch_ns": epoch_ns}
+        settings = _settings_from_scenario(
+            name, scenario, out, run, links, start_timeout, write_settings
+        )
+    elif write_settings is not None:
+        raise BadInputError("--write-settings needs a scenario, not --settings")
+    if write_settings is not None:
+        print(f"settings written to {settings}")
+        return
+    code = main_from_settings(str(settings))
+    if code:
+        raise typer.Exit(code)
 
-    def command(
-        scenario: Annotated[
-            Path | None,
-            typer.Argument(help="Scenario TOML or a bundled scenario's name (hil scenarios)."),
-        ] = None,
-        settings: Annotated[
-            Path | None, typer.Option(help="run_settings.json from hil run.")
-        ] = None,
-        endpoint: Annotated[
-            str, typer.Option(help="Zenoh endpoint to join.")
-        ] = "tcp/127.0.0.1:7447",
-        duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
-        rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,
-        cmd_path: Annotated[str, typer.Option(help="zenoh or can.")] = "zenoh",
-        lockstep: Annotated[bool, typer.Option()] = False,
-        can_endpoint: Annotated[
-            str, typer.Option(help="zenoh_can endpoint (the CAN bus over Zenoh).")
-        ] = "tcp/127.0.0.1:7449",
-        epoch_ns: Annotated[
-            int,
-            typer.Option(help="t = 0 as time.monotonic_ns(); 0 waits for the run's start message."),
-        ] = 0,
-        out: Annotated[Path, typer.Option(help="Where the hop log goes.")] = Path("."),
-        start_timeout: Annotated[
-            float,
-            typer.Option(help="Seconds to wait for the run's start message (then exit 1)."),
-        ] = 60.0,
-        write_settings: Annotated[
-            Path | None,
-            typer.Option(
-                help="Only write the resolved settings to this file and exit: `python -m "
-                "controller_service FILE` or `python -m plant_emulator FILE` then runs the "
-                "service without hil."
-            ),
-        ] = None,
-    ) -> None:
-        from hil import options
 
-        options.locator("--endpoint", endpoint)
-        options.locator("--can-endpoint", can_endpoint)
-        options.integer("--epoch-ns", epoch_ns, 0, 2**63 - 1)
-        if write_settings is not None:
-            options.out_file("--write-settings", write_settings)
-        if settings is not None:
-            check_settings_file(settings)
-        main_from_settings = importlib.import_module(module).main_from_settings
-        if settings is None:
-            if scenario is None:
-                raise BadInputError("give a scenario file or --settings")
-            run = {"duration": duration, "rate": rate, "cmd_path": cmd_path, "lockstep": lockstep}
-            links = {"endpoint": endpoint, "can_endpoint": can_endpoint, "epoch_ns": epoch_ns}
-            settings = _settings_from_scenario(
-                name, scenario, out, run, links, start_timeout, write_settings
-            )
-        elif write_settings is not None:
-            raise BadInputError("--write-settings needs a scenario, not --settings")
-        if write_settings is not None:
-            print(f"settings written to {settings}")
-            return
-        code = main_from_settings(str(settings))
-        if code:
-            raise typer.Exit(code)
-
-    command.__doc__ = f"Run the {what} alone (as hil run starts it; see docs/realtime.md)."
-    app.command(name)(command)
+def register(app: typer.Typer) -> None:
+    for name, (_, what) in SERVICES.items():
+        app.command(
+            name, help=f"Run the {what} alone (as hil run starts it; see docs/realtime.md)."
+        )(service)

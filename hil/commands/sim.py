@@ -1,4 +1,6 @@
-"""``hil sim SCENARIO.toml --out DIR``: one offline closed loop, written as a run folder."""
+"""Offline closed loops: ``hil sim SCENARIO.toml --out DIR`` (one loop, written as a run
+folder) and ``hil paper --out DIR`` (the paper's Section 4: Figures 2-20 and a table of measured
+figures)."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import typer
 from hil import interrupts
 from hil.commands.law_option import LawOpt
 from hil.errors import NegativeVerdictError
+from hil.options import out_dir
 
 
 def run_with_progress(fn, description: str, started: str = ""):  # type: ignore[no-untyped-def]
@@ -41,60 +44,99 @@ def run_with_progress(fn, description: str, started: str = ""):  # type: ignore[
         return fn(progress)
 
 
+def sim(
+    scenario: Annotated[
+        Path,
+        typer.Argument(
+            help="Scenario TOML file (docs/scenario.md) or a bundled scenario's name "
+            "(hil scenarios)."
+        ),
+    ],
+    out: Annotated[
+        Path | None, typer.Option(help="Folder to write (default: runs/sim-<time>).")
+    ] = None,
+    duration: Annotated[float | None, typer.Option(help="Override [run] duration (s).")] = None,
+    ts: Annotated[
+        float | None, typer.Option(help="Override [timing] ts, the control period (s).")
+    ] = None,
+    law: LawOpt = None,
+) -> None:
+    """Simulate one closed loop offline (law at Ts with zero-order hold, RK4 plant, delay and
+    jitter as the scenario says) and write scenario.resolved.toml, trace.csv, summary.json.
+
+    SCENARIO is a TOML file or the name of a bundled scenario (hil scenarios lists them).
+    Ctrl-C writes the folder with what was computed and exits 130. Exit 1 when a limit of
+    (2) was broken at some plant step."""
+    from hil.bundled import resolve_scenario
+    from hil.folder import new_run_dir
+    from hil.law.option import with_law
+    from hil.scenario import load_scenario
+    from hil.sim import simulate, write_run_folder
+
+    out_dir("--out", out, default="runs")
+    path = resolve_scenario(scenario)
+    sc = with_law(load_scenario(path), law).with_overrides(duration=duration, ts=ts)
+    target = out or new_run_dir("runs", "sim")
+    result = run_with_progress(
+        lambda p: simulate(sc, progress=p),
+        f"sim {path.name}",
+        started=f"sim {path.name}: {sc.run.duration:g} s at Ts = {sc.timing.ts:g} s into "
+        f"{target} (Ctrl-C writes what was computed)",
+    )
+    with interrupts.shielded():  # a second Ctrl-C must not leave the folder half-written
+        folder = write_run_folder(result, target)
+    s = result.summary
+    if result.interrupted:
+        interrupts.note(f"at t = {s['duration']:.3f} s; wrote what was computed to {folder}")
+    typer.echo(
+        f"{folder}: final position error {s['final_position_error']:.4g} m, heading "
+        f"{s['final_heading_error']:.4g} rad; max |v| {s['max_abs_v']:.4g}, |omega| "
+        f"{s['max_abs_omega']:.4g}, |tau1| {s['max_abs_tau1']:.4g}, |tau2| "
+        f"{s['max_abs_tau2']:.4g}; violations {s['violations']}"
+    )
+    if not s["limits_held"]:
+        raise NegativeVerdictError(f"a limit of (2) was broken: violations {s['violations']}")
+
+
+def paper(
+    out: Annotated[
+        Path | None, typer.Option(help="Folder to write (default: runs/paper-<time>).")
+    ] = None,
+    quick: Annotated[
+        bool, typer.Option("--quick", help="Durations / 5 (smoke test; checks not judged).")
+    ] = False,
+    jobs: Annotated[int, typer.Option(min=1, help="Processes to run the simulations in.")] = 2,
+    traces: Annotated[
+        bool, typer.Option("--traces", help="Also write each run's full trace.csv.")
+    ] = False,
+) -> None:
+    """Reproduce the paper's tracking, stabilization, chattering reduction (19) and both
+    comparisons ([7] on the tracking run, [19] on circle_then_stop) offline, at Ts = 1 ms
+    with an RK4 plant at 0.1 ms. Writes PNG figures (data as CSV beside each), table.md and
+    table.json. The scenarios are the bundled paper_* ones (hil scenarios). Each group of
+    figures is written as soon as its runs are done; Ctrl-C keeps what was written (and a
+    table of the runs done) and exits 130. Exit 1 when a check of the paper's claims
+    fails. Takes about 2-4 minutes on 2 cores (--quick: under a minute)."""
+    from hil.folder import new_run_dir
+    from hil.paper import run_paper
+
+    out_dir("--out", out, default="runs")
+    folder = out or new_run_dir("runs", "paper")
+    table = run_paper(
+        folder, quick=quick, jobs=jobs, traces=traces, log=lambda m: typer.echo(m, err=True)
+    )
+    typer.echo((folder / "table.md").read_text())
+    typer.echo(f"wrote {folder}")
+    if table.get("interrupted"):
+        # hil.cli exits 130: the interrupt was recorded by hil.interrupts.
+        done = len(list(folder.glob("fig*.png")))
+        interrupts.note(f"kept {done} figures and the table of the runs done in {folder}")
+        return
+    failed = [c["check"] for c in table["checks"] if c["passed"] is False]
+    if failed:
+        raise NegativeVerdictError("; ".join(failed))
+
+
 def register(app: typer.Typer) -> None:
-    @app.command("sim")
-    def sim(
-        scenario: Annotated[
-            Path,
-            typer.Argument(
-                help="Scenario TOML file (docs/scenario.md) or a bundled scenario's name "
-                "(hil scenarios)."
-            ),
-        ],
-        out: Annotated[
-            Path | None, typer.Option("--out", help="Folder to write (default: runs/sim-<time>).")
-        ] = None,
-        duration: Annotated[
-            float | None, typer.Option("--duration", help="Override [run] duration (s).")
-        ] = None,
-        ts: Annotated[
-            float | None, typer.Option("--ts", help="Override [timing] ts, the control period (s).")
-        ] = None,
-        law: LawOpt = None,
-    ) -> None:
-        """Simulate one closed loop offline (law at Ts with zero-order hold, RK4 plant, delay and
-        jitter as the scenario says) and write scenario.resolved.toml, trace.csv, summary.json.
-
-        SCENARIO is a TOML file or the name of a bundled scenario (hil scenarios lists them).
-        Ctrl-C writes the folder with what was computed and exits 130. Exit 1 when a limit of
-        (2) was broken at some plant step."""
-        from hil.bundled import resolve_scenario
-        from hil.folder import new_run_dir
-        from hil.law.option import with_law
-        from hil.options import out_dir
-        from hil.scenario import load_scenario
-        from hil.sim import simulate, write_run_folder
-
-        out_dir("--out", out, default="runs")
-        path = resolve_scenario(scenario)
-        sc = with_law(load_scenario(path), law).with_overrides(duration=duration, ts=ts)
-        target = out or new_run_dir("runs", "sim")
-        result = run_with_progress(
-            lambda p: simulate(sc, progress=p),
-            f"sim {path.name}",
-            started=f"sim {path.name}: {sc.run.duration:g} s at Ts = {sc.timing.ts:g} s into "
-            f"{target} (Ctrl-C writes what was computed)",
-        )
-        with interrupts.shielded():  # a second Ctrl-C must not leave the folder half-written
-            folder = write_run_folder(result, target)
-        s = result.summary
-        if result.interrupted:
-            interrupts.note(f"at t = {s['duration']:.3f} s; wrote what was computed to {folder}")
-        typer.echo(
-            f"{folder}: final position error {s['final_position_error']:.4g} m, heading "
-            f"{s['final_heading_error']:.4g} rad; max |v| {s['max_abs_v']:.4g}, |omega| "
-            f"{s['max_abs_omega']:.4g}, |tau1| {s['max_abs_tau1']:.4g}, |tau2| "
-            f"{s['max_abs_tau2']:.4g}; violations {s['violations']}"
-        )
-        if not s["limits_held"]:
-            raise NegativeVerdictError(f"a limit of (2) was broken: violations {s['violations']}")
+    app.command("sim")(sim)
+    app.command("paper")(paper)

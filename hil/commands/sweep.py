@@ -63,16 +63,14 @@ ScenarioFileArg = Annotated[
     ),
 ]
 OutOpt = Annotated[
-    Path | None,
-    typer.Option("--out", help="Where to write (default: a new folder under runs/)."),
+    Path | None, typer.Option(help="Where to write (default: a new folder under runs/).")
 ]
 TsOpt = Annotated[str | None, typer.Option(help="Ts grid, e.g. 0.001,0.01.")]
 DelayOpt = Annotated[str | None, typer.Option(help="Delay grid in seconds.")]
 JitterOpt = Annotated[str | None, typer.Option(help="Jitter grid in seconds.")]
 SeedsOpt = Annotated[int | None, typer.Option(help="Seeds per point.")]
 DurationOpt = Annotated[
-    float | None,
-    typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s)."),
+    float | None, typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s).")
 ]
 StrictOpt = Annotated[bool, typer.Option(help="Exit 1 when any loop of the grid broke a limit.")]
 WorstOpt = Annotated[
@@ -204,8 +202,7 @@ def _checked_sweep(
     jitter_grid = options.grid("--jitter", jitter, 0.0, DELAY_MAX)
     if seeds is not None:
         options.integer("--seeds", seeds, 1, SWEEP_SEEDS_MAX)
-    if duration is not None:
-        options.number("--duration", duration, 0.0, DURATION_MAX, positive=True)
+    options.optional_number("--duration", duration, 0.0, DURATION_MAX, positive=True)
     options.out_dir("--out", out, default="runs")
     scenario = with_law(load_scenario(resolve_scenario(scenario_file)), law)
     sw = scenario.sweep
@@ -219,15 +216,8 @@ def _checked_sweep(
     except ValueError as exc:
         raise BadInputError(str(exc)) from exc
     loop_s = duration if duration is not None else min(scenario.run.duration, DEFAULT_MAX_DURATION)
-    check_loop_sizes(
-        scenario,
-        grid.ts,
-        loop_s,
-        (
-            "--duration" if duration is not None else "[run] duration",
-            "--ts" if ts_grid else "[sweep] ts",
-        ),
-    )
+    dur_name = "--duration" if duration is not None else "[run] duration"
+    check_loop_sizes(scenario, grid.ts, loop_s, (dur_name, "--ts" if ts_grid else "[sweep] ts"))
     # A bad reference or design fails before any folder is written; a law that takes only
     # floats is found here too, and the user told it runs one robot at a time.
     controller, reference, _ = build_loop(scenario)
@@ -287,11 +277,8 @@ def _run_with_progress(
             if ts_value not in base:
                 base[ts_value] = acc
                 acc += counts[ts_value] * per_group
-            bar.update(
-                task,
-                completed=base[ts_value] + done * per_group,
-                description=f"Ts={ts_value:g} s",
-            )
+            completed = base[ts_value] + done * per_group
+            bar.update(task, completed=completed, description=f"Ts={ts_value:g} s")
 
         # sweep.csv grows group by group, so even a killed sweep leaves what it finished.
         return run_sweep(

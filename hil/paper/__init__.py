@@ -21,7 +21,6 @@ import multiprocessing
 import os
 import signal
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -44,20 +43,14 @@ JOLT_SPAN = 5.0
 JOLT_RATIO = 1.5
 
 
-@dataclass(frozen=True)
-class PaperRun:
-    name: str
-    scenario: str
-    label: str
-
-
+# The paper's runs in table order; the run NAME is the bundled scenario paper_NAME.toml.
 RUNS = (
-    PaperRun("tracking", "paper_tracking.toml", "unified"),
-    PaperRun("stabilization", "paper_stabilization.toml", "unified"),
-    PaperRun("chattering", "paper_chattering.toml", "unified (19)"),
-    PaperRun("compare_jiang1997", "paper_compare_jiang1997.toml", "[7]"),
-    PaperRun("compare_jiang2001", "paper_compare_jiang2001.toml", "[19]"),
-    PaperRun("circle_then_stop_unified", "paper_circle_then_stop_unified.toml", "unified"),
+    "tracking",
+    "stabilization",
+    "chattering",
+    "compare_jiang1997",
+    "compare_jiang2001",
+    "circle_then_stop_unified",
 )
 
 
@@ -87,13 +80,6 @@ def velocity_jolt(
     return float(np.max(change[mask])) if mask.any() else float("nan")
 
 
-def _run_one(path: str, scale: float) -> SimResult:
-    sc = load_scenario(path)
-    if scale != 1.0:
-        sc = sc.with_overrides(duration=sc.run.duration / scale)
-    return simulate(sc)
-
-
 def _error_at(result: SimResult, t_check: float) -> float:
     t = result.column("t")
     e = result.column("position_error")
@@ -101,12 +87,12 @@ def _error_at(result: SimResult, t_check: float) -> float:
     return float(e[min(i, len(e) - 1)])
 
 
-def _row(run: PaperRun, result: SimResult) -> dict[str, Any]:
+def _row(run: str, result: SimResult) -> dict[str, Any]:
     s = result.summary
     return {
-        "run": run.name,
+        "run": run,
         "law": s["law"],
-        "scenario": run.scenario,
+        "scenario": f"paper_{run}.toml",
         "duration": s["duration"],
         "ts": s["ts"],
         "plant_step": s["plant_step"],
@@ -191,124 +177,79 @@ def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note
     return "\n".join(lines) + "\n"
 
 
+# The unit of each signal drawn against its limit of (2), and the name of that limit.
+_SIGNALS = {
+    "v": ("m/s", "phi1"),
+    "omega": ("rad/s", "phi2"),
+    "tau1": ("N m", "varpi1"),
+    "tau2": ("N m", "varpi2"),
+}
+
+
+def _signals(out: Path, first: int, stem: str, title: str, runs: fg.Runs, cols: str) -> list[Path]:
+    """Figures ``first``, ``first + 1``, ...: each signal of ``cols`` (space-separated) over time
+    against its limit of (2) (the last run's), titled ``title.format(signal)``."""
+    limits = runs[-1][1].scenario.limits
+    return [
+        fg.over_time(
+            out / f"fig{first + i:02d}_{stem}_{col}.png",
+            title.format(col),
+            f"{col} ({_SIGNALS[col][0]})",
+            [col],
+            runs,
+            getattr(limits, _SIGNALS[col][1]),
+        )
+        for i, col in enumerate(cols.split())
+    ]
+
+
+def _xy_and_signals(
+    out: Path, first: int, stem: str, titles: tuple[str, str], runs: fg.Runs, cols: str
+) -> list[Path]:
+    """Figure ``first``, the trajectories against the last run's reference, then the signals
+    of ``cols`` (:func:`_signals`); ``titles``: the trajectory's, the signals' template."""
+    xy = fg.trajectory(out / f"fig{first:02d}_{stem}_xy.png", titles[0], runs, runs[-1][1])
+    return [xy, *_signals(out, first + 1, stem, titles[1], runs, cols)]
+
+
 def _task_figures(results: dict[str, SimResult], out: Path, name: str) -> list[Path]:
     """Figures 2-6 (tracking) or 7-11 (stabilization): trajectory, v, omega, tau1, tau2."""
-
     first, task = {"tracking": (2, "Tracking"), "stabilization": (7, "Stabilization")}[name]
-    r = results[name]
-    lim = r.scenario.limits
-    figs = [
-        fg.trajectory(
-            out / f"fig{first:02d}_{name}_xy.png", f"{task} task: robot position", [("robot", r)], r
-        )
-    ]
-    for i, (col, label, limit) in enumerate(
-        (
-            ("v", "v (m/s)", lim.phi1),
-            ("omega", "omega (rad/s)", lim.phi2),
-            ("tau1", "tau1 (N m)", lim.varpi1),
-            ("tau2", "tau2 (N m)", lim.varpi2),
-        ),
-        start=1,
-    ):
-        figs.append(
-            fg.over_time(
-                out / f"fig{first + i:02d}_{name}_{col}.png",
-                f"{task} task: {col} and its constraints",
-                label,
-                [col],
-                [("robot", r)],
-                limit,
-            )
-        )
-    return figs
+    titles = (f"{task} task: robot position", f"{task} task: {{}} and its constraints")
+    return _xy_and_signals(
+        out, first, name, titles, [("robot", results[name])], "v omega tau1 tau2"
+    )
 
 
 def _chattering_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
     """Figures 12-14: errors, tau1 and tau2 of the chattering reduction (19)."""
-
-    ch = results["chattering"]
-    lim = ch.scenario.limits
-    return [
-        fg.over_time(
-            out / "fig12_chattering_errors.png",
-            "Chattering reduction (19): position and heading errors",
-            "error (m, rad)",
-            ["position_error", "heading_error"],
-            [("robot", ch)],
-        ),
-        fg.over_time(
-            out / "fig13_chattering_tau1.png",
-            "Chattering reduction: tau1",
-            "tau1 (N m)",
-            ["tau1"],
-            [("robot", ch)],
-            lim.varpi1,
-        ),
-        fg.over_time(
-            out / "fig14_chattering_tau2.png",
-            "Chattering reduction: tau2",
-            "tau2 (N m)",
-            ["tau2"],
-            [("robot", ch)],
-            lim.varpi2,
-        ),
-    ]
+    runs = [("robot", results["chattering"])]
+    errors = fg.over_time(
+        out / "fig12_chattering_errors.png",
+        "Chattering reduction (19): position and heading errors",
+        "error (m, rad)",
+        ["position_error", "heading_error"],
+        runs,
+    )
+    return [errors, *_signals(out, 13, "chattering", "Chattering reduction: {}", runs, "tau1 tau2")]
 
 
 def _jiang1997_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
     """Figures 15-17: [7] on the tracking task."""
-
-    j7 = results["compare_jiang1997"]
-    lim = j7.scenario.limits
-    return [
-        fg.trajectory(out / "fig15_jiang1997_xy.png", "Tracking with [7]", [("[7]", j7)], j7),
-        fg.over_time(
-            out / "fig16_jiang1997_v.png",
-            "Tracking with [7]: v",
-            "v (m/s)",
-            ["v"],
-            [("[7]", j7)],
-            lim.phi1,
-        ),
-        fg.over_time(
-            out / "fig17_jiang1997_omega.png",
-            "Tracking with [7]: omega",
-            "omega (rad/s)",
-            ["omega"],
-            [("[7]", j7)],
-            lim.phi2,
-        ),
-    ]
+    titles = ("Tracking with [7]", "Tracking with [7]: {}")
+    return _xy_and_signals(
+        out, 15, "jiang1997", titles, [("[7]", results["compare_jiang1997"])], "v omega"
+    )
 
 
 def _compare_figures(results: dict[str, SimResult], out: Path) -> list[Path]:
     """Figures 18-20: [19] and the unified law on circle_then_stop."""
-
-    pair = [
+    runs = [
         ("[19]", results["compare_jiang2001"]),
         ("unified", results["circle_then_stop_unified"]),
     ]
-    lim = pair[1][1].scenario.limits
-    return [
-        fg.trajectory(
-            out / "fig18_compare_xy.png",
-            "Circle then stop: [19] and the unified law",
-            pair,
-            pair[1][1],
-        ),
-        fg.over_time(
-            out / "fig19_compare_v.png", "Circle then stop: v", "v (m/s)", ["v"], pair, lim.phi1
-        ),
-        fg.over_time(
-            out / "fig20_compare_omega.png",
-            "Circle then stop: omega",
-            "omega (rad/s)",
-            ["omega"],
-            pair,
-            lim.phi2,
-        ),
-    ]
+    titles = ("Circle then stop: [19] and the unified law", "Circle then stop: {}")
+    return _xy_and_signals(out, 18, "compare", titles, runs, "v omega")
 
 
 FigureWriter = Callable[[dict[str, SimResult], Path], list[Path]]
@@ -331,8 +272,12 @@ def _ignore_sigint() -> None:
 
 
 def _run_task(task: tuple[str, str, float]) -> tuple[str, SimResult]:
+    """(name, result) of the run of ``task`` = (name, scenario file, divisor of its duration)."""
     name, path, scale = task
-    return name, _run_one(path, scale)
+    sc = load_scenario(path)
+    if scale != 1.0:
+        sc = sc.with_overrides(duration=sc.run.duration / scale)
+    return name, simulate(sc)
 
 
 @contextlib.contextmanager
@@ -381,13 +326,13 @@ def run_paper(
     scale = QUICK_FACTOR if quick else 1.0
     jobs = jobs or min(2, os.cpu_count() or 1)
     folder = bundled_dir() if scenario_dir is None else scenario_dir
-    paths = [str(folder / r.scenario) for r in RUNS]
+    paths = [str(folder / f"paper_{r}.toml") for r in RUNS]
     for p in paths:
         load_scenario(p)  # bad files fail before any work starts
     results: dict[str, SimResult] = {}
     pending = list(FIGURE_GROUPS)
     interrupted = False
-    tasks = [(r.name, p, scale) for r, p in zip(RUNS, paths, strict=True)]
+    tasks = [(r, p, scale) for r, p in zip(RUNS, paths, strict=True)]
     try:
         with _simulations(tasks, jobs) as done:
             for name, res in done:
@@ -415,22 +360,17 @@ def run_paper(
 def _write_table(
     out: Path, results: dict[str, SimResult], quick: bool, interrupted: bool
 ) -> dict[str, Any]:
-    done = [r for r in RUNS if r.name in results]
-    rows = [_row(r, results[r.name]) for r in done]
+    done = [r for r in RUNS if r in results]
+    rows = [_row(r, results[r]) for r in done]
     check_rows = [] if interrupted else checks(results, quick)
-    first = results[done[0].name] if done else None
-    note = (
-        (
-            f"Single-run float simulator, Ts = {first.scenario.timing.ts * 1e3:g} ms, "
-            f"RK4 plant step h = {first.scenario.plant_step * 1e3:g} ms"
-            if first is not None
-            else "Single-run float simulator"
-        )
-        + (f"; durations divided by {QUICK_FACTOR:g} (--quick)." if quick else ".")
-        + " Initial conditions: see the scenario files."
-    )
+    note = "Single-run float simulator"
+    if done:
+        sc = results[done[0]].scenario
+        note += f", Ts = {sc.timing.ts * 1e3:g} ms, RK4 plant step h = {sc.plant_step * 1e3:g} ms"
+    note += f"; durations divided by {QUICK_FACTOR:g} (--quick)." if quick else "."
+    note += " Initial conditions: see the scenario files."
     if interrupted:
-        missing = ", ".join(r.name for r in RUNS if r.name not in results) or "none"
+        missing = ", ".join(r for r in RUNS if r not in results) or "none"
         note += f" INTERRUPTED: partial results, checks not judged; runs not done: {missing}."
     table = {
         "note": note,
@@ -442,7 +382,3 @@ def _write_table(
     write_json(out / "table.json", table)
     (out / "table.md").write_text(_markdown(rows, check_rows, note))
     return table
-
-
-def failed_checks(table: dict[str, Any]) -> list[str]:
-    return [c["check"] for c in table["checks"] if c["passed"] is False]

@@ -9,6 +9,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
+
+matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
@@ -16,24 +18,25 @@ from hil.folder.trace_csv import write_trace_csv
 from hil.sim.core import SimResult
 
 MAX_POINTS = 30000
+Runs = Sequence[tuple[str, SimResult]]  # (legend label, run) of the runs drawn together
 
 
 def _stride(n: int) -> int:
     return max(1, n // MAX_POINTS)
 
 
-def _pyplot():  # type: ignore[no-untyped-def]
+def _save(fig: plt.Figure, path: Path, cols: list[str], data: list[np.ndarray]) -> Path:
+    """Write the figure to ``path`` (PNG) and its data, cut to the shortest column, beside it."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    n = min(len(d) for d in data)
+    write_trace_csv(path.with_suffix(".csv"), cols, np.column_stack([d[:n] for d in data]))
+    return path
 
-    matplotlib.use("Agg")
 
-    return plt
-
-
-def trajectory(
-    path: Path, title: str, runs: Sequence[tuple[str, SimResult]], reference: SimResult
-) -> Path:
+def trajectory(path: Path, title: str, runs: Runs, reference: SimResult) -> Path:
     """Robot position in the (X, Y) plane against the virtual robot (Figures 2, 7, 15, 18)."""
-    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6, 5))
     step = _stride(len(reference.trace))
     cols: list[str] = ["xd", "yd"]
@@ -51,25 +54,14 @@ def trajectory(
     ax.axis("equal")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    n = min(len(d) for d in data)
-    write_trace_csv(path.with_suffix(".csv"), cols, np.column_stack([d[:n] for d in data]))
-    return path
+    return _save(fig, path, cols, data)
 
 
 def over_time(
-    path: Path,
-    title: str,
-    ylabel: str,
-    columns: Sequence[str],
-    runs: Sequence[tuple[str, SimResult]],
-    limit: float | None = None,
+    path: Path, title: str, ylabel: str, columns: list[str], runs: Runs, limit: float | None = None
 ) -> Path:
     """Signals over time with the constraint of (2) as red dashed lines (Figures 3-6, 8-14,
     16, 17, 19, 20)."""
-    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 3.6))
     first = runs[0][1]
     step = _stride(len(first.trace))
@@ -94,9 +86,4 @@ def over_time(
     ax.grid(True, alpha=0.3)
     if len(cols) > 2 or limit is not None:
         ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    n = min(len(d) for d in data)
-    write_trace_csv(path.with_suffix(".csv"), cols, np.column_stack([d[:n] for d in data]))
-    return path
+    return _save(fig, path, cols, data)
