@@ -21,7 +21,7 @@ from hil.folder.scenario_view import view
 from hil.measure.certificate import certificate
 from hil.scenario import Scenario, build_loop, resolved_dict
 from hil.sweep.grid import SweepGrid
-from hil.sweep.runner import SweepOutcome, point_row, scenario_at
+from hil.sweep.runner import SweepOutcome, point_row, scenario_at, worst_age
 
 POPULATION = 64
 ROUNDS = 3
@@ -61,8 +61,7 @@ def run_worst_sweep(
                 schedule = scenario_schedule(sc, POPULATION)
                 init = initial_states(sc, POPULATION, SPREAD, p.seed)
                 best = worst_disturbance(sc, schedule, init, rounds=ROUNDS, seed=p.seed, loop=loop)
-                worst = p.delay + (4.0 * p.jitter if sv.jitter_kind == "normal" else p.jitter)
-                cert = certificate(sv, ts, worst).as_dict()
+                cert = certificate(sv, ts, worst_age(p, sv.jitter_kind)).as_dict()
                 row = point_row(p, _summary(best), cert, sv.limits, None, None, True)
                 row["violation"] = best.broke
                 row["disturbance"] = f"{best.describe()} (worst of {best.loops} loops)"
