@@ -72,9 +72,6 @@ def jitter_samples_from(path: str | Path) -> np.ndarray:
     return arr
 
 
-US = 1e-6
-
-
 def split_path(spec: str | Path) -> tuple[Path, str | None]:
     text = str(spec)
     if "::" in text:
@@ -128,7 +125,7 @@ def latencies_from_run(spec: str | Path) -> np.ndarray:
     values = [v for v in per_path.values() if v.size]
     if not values:
         raise BadInputError(f"[timing] replay: no latency samples found in {p}")
-    seconds = np.concatenate(values) * US
+    seconds = np.concatenate(values) * 1e-6  # µs to s
     seconds = seconds[np.isfinite(seconds) & (seconds >= 0)]
     if seconds.size == 0:
         raise BadInputError(f"[timing] replay: {p} holds no finite latency >= 0")
