@@ -499,11 +499,7 @@ def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") ->
             raise BadInputError(
                 f"[{name}] must be a table, got {type_name(data[name])} {data[name]!r}"
             )
-    kwargs: dict[str, Any] = {
-        name: _parse_table(name, data[name]) for name in _TABLES if name in data
-    }
-    if "initial" not in kwargs:
-        kwargs["initial"] = Initial()
+    parsed = {name: _parse_table(name, data[name]) for name in _TABLES if name in data}
     controller = dict(data.get("controller", {}))
     controller.setdefault("law", "unified")
     try:
@@ -516,7 +512,7 @@ def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") ->
         controller=controller,
         base_dir=base_dir,
         source=source,
-        **kwargs,
+        **parsed,
     )
     _check_across(scenario)
     return scenario
@@ -723,11 +719,8 @@ def resolved_dict(
 
     out = scenario_dict(scenario)
     out["controller"] = {**dict(scenario.controller), **resolved_controller_table(controller)}
-    if context is not None:
-        ref = dict(out["reference"])
-        for key in ("mu1", "mu2", "k1", "k2"):
-            ref[key] = getattr(context, key)
-        out["reference"] = ref
+    if context is not None:  # out["reference"] is scenario_dict's own copy
+        out["reference"].update({k: getattr(context, k) for k in ("mu1", "mu2", "k1", "k2")})
     seeds = {
         "timing": scenario.timing.seed,
         "disturbance": scenario.disturbance.seed,

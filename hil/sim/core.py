@@ -344,13 +344,8 @@ def _batch_offsets(
     timing = scenario.timing
     replay = _replay(scenario)
     keys: dict[tuple[float, float, int], int] = {}
-    group = np.array(
-        [
-            keys.setdefault(key, len(keys))
-            for key in zip(delays.tolist(), jitters.tolist(), jseeds.tolist(), strict=True)
-        ],
-        dtype=np.intp,
-    )
+    draws = zip(delays.tolist(), jitters.tolist(), jseeds.tolist(), strict=True)
+    group = np.array([keys.setdefault(key, len(keys)) for key in draws], dtype=np.intp)
     offsets = np.empty((len(keys), n_samples), dtype=np.int64)
     for (delay, jitter, seed), row in keys.items():
         extra = extra_delays(timing.jitter_kind, jitter, seed, n_samples, replay)
@@ -382,15 +377,11 @@ def _batch_setup(
 
     def per_robot(name: str, default: Any, dtype: Any) -> np.ndarray:
         if shared:
-            value = getattr(first, name)
-            return np.full(n, default if value is None else value, dtype=dtype)
+            return np.full(n, _or(getattr(first, name), default), dtype=dtype)
         return np.array([_or(getattr(v, name), default) for v in variations], dtype=dtype)
 
-    state = PlantState(
-        *(per_robot(q, getattr(ini, q), float) for q in _POSE),
-        np.zeros(n),
-        np.zeros(n),
-    )
+    pose = (per_robot(q, getattr(ini, q), float) for q in _POSE)
+    state = PlantState(*pose, np.zeros(n), np.zeros(n))
     delays = per_robot("delay", timing.delay, float)
     jitters = per_robot("jitter", timing.jitter, float)
     jseeds = per_robot("jitter_seed", timing.seed, np.int64)
@@ -553,7 +544,8 @@ def simulate_batch(
     if not variations:
         raise ValueError("simulate_batch needs at least one robot")
     run = _batch_setup(scenario, variations, record, loop, t0, memory)
-    if compiled.applies(run, scenario):  # the same loops, one numba kernel
+    # the same loops in one numba kernel, unless traces are recorded
+    if not run.record and compiled.chosen(run.controller, scenario, len(run.group) * run.n_samples):
         compiled.run(run, scenario, progress, on_sample)
     else:
         _batch_loop(run, scenario, progress, on_sample)

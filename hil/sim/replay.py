@@ -53,12 +53,10 @@ def jitter_samples_from(path: str | Path) -> np.ndarray:
             values = [float(v) for v in data]
         else:
             rows = [r for r in csv.reader(text.splitlines()) if r and r[0].strip()]
+            col = 0
             if rows and rows[0][0].strip().lower().startswith(("latency", "t", "#")):
-                header = [c.strip().lower() for c in rows[0]]
+                header = [c.strip().lower() for c in rows.pop(0)]
                 col = header.index("latency") if "latency" in header else 0
-                rows = rows[1:]
-            else:
-                col = 0
             values = [float(r[col]) for r in rows]
     except (ValueError, TypeError, IndexError, json.JSONDecodeError, csv.Error) as exc:
         raise BadInputError(f"[timing] replay: {p} is not a latency list: {exc}") from exc

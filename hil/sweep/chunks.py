@@ -2,8 +2,8 @@
 
 Chunks: each Ts group of the grid (:meth:`SweepGrid.by_ts`, the longest Ts first) cut into
 slices of at most ``chunk_size`` points, numbered in that order. A chunk is one
-:func:`hil.sim.simulate_batch` of its points and their rows, as :func:`hil.sweep.runner.run_sweep`
-computes them for a whole group.
+:func:`hil.sweep.runner.simulate_points` (a batch and its rows), as ``run_sweep`` runs it for
+a whole group.
 
 Same results whatever the executor and the chunking, bit for bit: each point carries its own
 seeds (the grid point's jitter seed: the scenario's seed plus the seed's index), never one drawn
@@ -106,9 +106,7 @@ def run_chunked(
         outcome.interrupted = True
     done.sort(key=lambda r: r.index)
     outcome.rows = [row for r in done for row in r.rows]
-    finished = {c.index for c in chunks} & {r.index for r in done if not r.interrupted}
-    by_ts: dict[float, list[int]] = {}
-    for c in chunks:
-        by_ts.setdefault(c.ts, []).append(c.index)
-    outcome.groups_done = sum(1 for idx in by_ts.values() if set(idx) <= finished)
+    finished = {r.index for r in done if not r.interrupted}
+    unfinished = {c.ts for c in chunks if c.index not in finished}
+    outcome.groups_done = len({c.ts for c in chunks} - unfinished)
     return outcome, (done[0].resolved if done else {})

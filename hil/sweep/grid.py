@@ -39,12 +39,8 @@ class SweepGrid:
     defaulted: tuple[str, ...] = ()
 
     def points(self, base_seed: int = 0) -> list[SweepPoint]:
-        return [
-            SweepPoint(ts, d, j, base_seed + s)
-            for ts, d, j, s in itertools.product(
-                self.ts, self.delay, self.jitter, range(self.seeds)
-            )
-        ]
+        axes = itertools.product(self.ts, self.delay, self.jitter, range(self.seeds))
+        return [SweepPoint(ts, d, j, base_seed + s) for ts, d, j, s in axes]
 
     def by_ts(self, base_seed: int = 0) -> list[tuple[float, list[SweepPoint]]]:
         """Groups of one Ts each, the longest Ts first: coarse periods are cheap (few samples),

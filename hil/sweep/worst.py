@@ -29,11 +29,10 @@ SPREAD = 0.05  # m, rad, m/s, rad/s around the scenario's initial state
 
 
 def _summary(best: Any) -> dict[str, Any]:
-    p = best.peaks
-    over = {k: p[f"max_abs_{k}"] for k in ("v", "omega", "tau1", "tau2")}
+    peaks = ("max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2")
     return {
-        **{f"max_abs_{k}": v for k, v in over.items()},
-        "final_position_error": p["max_late_error"],
+        **{k: best.peaks[k] for k in peaks},
+        "final_position_error": best.peaks["max_late_error"],
         "rms_position_error": float("nan"),
         "violations": {"worst": int(best.broke)},
         "commands_dropped": 0,
