@@ -122,15 +122,8 @@ def _build() -> Any:
     # (~7 % of the kernel); the law's bad-input rule then rejects it, as the float path does.
     njit = functools.partial(numba.njit, error_model="numpy")
     # the float path's scalar functions, as numba compiles them
-    ns = SimpleNamespace(
-        sin=math.sin,
-        cos=math.cos,
-        tanh=math.tanh,
-        sqrt=math.sqrt,
-        exp=math.exp,
-        sign=njit(FLOAT_MATH.sign),
-        clip=njit(FLOAT_MATH.clip),
-    )
+    ns = SimpleNamespace(sin=math.sin, cos=math.cos, tanh=math.tanh, sqrt=math.sqrt, exp=math.exp)
+    ns.sign, ns.clip = njit(FLOAT_MATH.sign), njit(FLOAT_MATH.clip)
     law = njit(make_step(ns))
     advance, land = _plant_parts(njit)
 
