@@ -281,7 +281,11 @@ class Scenario:
         return out
 
 
-# table name -> (dataclass, constraints)
+def _keys(table: str, *keys: str) -> set[tuple[str, str]]:
+    return {(table, key) for key in keys}
+
+
+# table name -> its dataclass
 _TABLES: dict[str, type] = {
     "limits": Limits,
     "disturbance": Disturbance,
@@ -366,54 +370,26 @@ _RANGES: dict[tuple[str, str], tuple[float, float]] = {
     ("impair", "loss_every"): (0, 2**31 - 1),
     ("impair", "rate_bps"): (0.0, RATE_BPS_MAX),
 }
-_POSITIVE = {("limits", k) for k in ("phi1", "phi2", "varpi1", "varpi2")} | {
-    ("timing", "ts"),
-    ("run", "duration"),
-    ("plant", "step"),
-    ("plant", "max_speed"),
-    ("disturbance", "period"),
-    ("realtime", "rate"),
-    ("realtime", "sensor_rate"),
-    ("realtime", "state_timeout"),
-    ("realtime", "command_timeout"),
-    ("robot", "mass"),
-    ("robot", "yaw_inertia"),
-    ("robot", "wheel_radius"),
-    ("robot", "half_track"),
-    ("robot", "gear_ratio"),
-    ("can", "bitrate"),
-    ("can", "heartbeat_timeout"),
-    ("sweep", "seeds"),
-}
-_NON_NEGATIVE = {
-    ("timing", "delay"),
-    ("timing", "jitter"),
-    ("plant", "lag"),
-    ("disturbance", "s1"),
-    ("disturbance", "s2"),
-    ("disturbance", "freq"),
-    ("plant", "noise_std"),
-    ("plant", "quantization"),
-    ("sweep", "ts"),
-    ("sweep", "delay"),
-    ("sweep", "jitter"),
-    ("faults", "state_drop_every"),
-    ("faults", "command_drop_every"),
-    ("faults", "state_duplicate_every"),
-    ("faults", "command_duplicate_every"),
-    ("faults", "command_reorder_every"),
-    ("faults", "delay_burst_every"),
-    ("faults", "delay_burst_length"),
-    ("faults", "delay_burst_extra"),
-    ("faults", "can_frame_loss"),
-    ("faults", "can_bus_off_every"),
-    ("faults", "can_bus_off_length"),
-    ("faults", "seed"),
-    ("can", "watchdog_timeout"),
-    ("impair", "loss"),
-    ("impair", "loss_every"),
-    ("impair", "rate_bps"),
-}
+_POSITIVE = (
+    _keys("limits", "phi1", "phi2", "varpi1", "varpi2")
+    | _keys("timing", "ts")
+    | _keys("run", "duration")
+    | _keys("plant", "step", "max_speed")
+    | _keys("disturbance", "period")
+    | _keys("realtime", "rate", "sensor_rate", "state_timeout", "command_timeout")
+    | _keys("robot", "mass", "yaw_inertia", "wheel_radius", "half_track", "gear_ratio")
+    | _keys("can", "bitrate", "heartbeat_timeout")
+    | _keys("sweep", "seeds")
+)
+_NON_NEGATIVE = (
+    _keys("timing", "delay", "jitter")
+    | _keys("plant", "lag", "noise_std", "quantization")
+    | _keys("disturbance", "s1", "s2", "freq")
+    | _keys("sweep", "ts", "delay", "jitter")
+    | _keys("faults", *(f.name for f in dataclasses.fields(FaultsConfig)))  # every [faults] key
+    | _keys("can", "watchdog_timeout")
+    | _keys("impair", "loss", "loss_every", "rate_bps")
+)
 _FIVE = {("plant", "noise_std"), ("plant", "quantization")}
 # (table, key) -> the numbers of values a list may have
 _LENGTHS = {("plant", "friction"): (2,), ("plant", "max_speed"): (0, 2)}
@@ -427,31 +403,32 @@ _DISTURBANCE_KEYS = {
 }
 
 
+# a field's annotation -> the TOML values it takes, as its errors name them
+_TYPES: dict[str, tuple[Any, str]] = {
+    "float": (int | float, "a number"),
+    "int": (int, "an integer"),
+    "str": (str, "a string"),
+    "list": (list, "a list"),
+}
+
+
 def _coerce(table: str, key: str, annotation: str, value: Any) -> Any:
     where = f"[{table}] {key}"
     base = annotation.replace(" | None", "")
-    if base == "float":
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise BadInputError(f"{where} must be a number, got {type_name(value)} {value!r}")
+    kind = "list" if base.startswith("tuple[") else base
+    types, name = _TYPES[kind]
+    if isinstance(value, bool) or not isinstance(value, types):
+        raise BadInputError(f"{where} must be {name}, got {type_name(value)} {value!r}")
+    if kind == "float":
         value = float(value)
         if not math.isfinite(value):
             raise BadInputError(f"{where} must be finite, got {value!r}")
-        return value
-    if base == "int":
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise BadInputError(f"{where} must be an integer, got {type_name(value)} {value!r}")
-        return value
-    if base == "str":
-        if not isinstance(value, str):
-            raise BadInputError(f"{where} must be a string, got {type_name(value)} {value!r}")
+    elif kind == "str":
         plain_string(where, value)
-        return value
-    if base.startswith("tuple["):
-        if not isinstance(value, list):
-            raise BadInputError(f"{where} must be a list, got {type_name(value)} {value!r}")
+    elif kind == "list":
         item = "str" if "str" in base else "float"
         return tuple(_coerce(table, f"{key}[{i}]", item, v) for i, v in enumerate(value))
-    raise AssertionError(annotation)  # pragma: no cover - the dataclasses above are closed
+    return value
 
 
 def _check(table: str, key: str, value: Any) -> None:
@@ -522,11 +499,7 @@ def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") ->
             raise BadInputError(
                 f"[{name}] must be a table, got {type_name(data[name])} {data[name]!r}"
             )
-    kwargs: dict[str, Any] = {
-        name: _parse_table(name, data[name]) for name in _TABLES if name in data
-    }
-    if "initial" not in kwargs:
-        kwargs["initial"] = Initial()
+    parsed = {name: _parse_table(name, data[name]) for name in _TABLES if name in data}
     controller = dict(data.get("controller", {}))
     controller.setdefault("law", "unified")
     try:
@@ -539,7 +512,7 @@ def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") ->
         controller=controller,
         base_dir=base_dir,
         source=source,
-        **kwargs,
+        **parsed,
     )
     _check_across(scenario)
     return scenario
@@ -715,11 +688,8 @@ def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
 
 
 def _table_dict(value: Any) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for f in dataclasses.fields(value):
-        v = getattr(value, f.name)
-        out[f.name] = list(v) if isinstance(v, tuple) else v
-    return out
+    pairs = ((f.name, getattr(value, f.name)) for f in dataclasses.fields(value))
+    return {name: list(v) if isinstance(v, tuple) else v for name, v in pairs}
 
 
 def scenario_dict(scenario: Scenario) -> dict[str, Any]:
@@ -731,17 +701,7 @@ def scenario_dict(scenario: Scenario) -> dict[str, Any]:
         "initial": _table_dict(scenario.initial),
         "controller": dict(scenario.controller),
     }
-    for name in (
-        "plant",
-        "timing",
-        "run",
-        "robot",
-        "realtime",
-        "can",
-        "zenoh",
-        "sweep",
-        "faults",
-    ):
+    for name in ("plant", "timing", "run", "robot", "realtime", "can", "zenoh", "sweep", "faults"):
         out[name] = _table_dict(getattr(scenario, name))
     if scenario.impair is not None:  # written only when given: it moves a run into a namespace
         out["impair"] = _table_dict(scenario.impair)
@@ -759,11 +719,8 @@ def resolved_dict(
 
     out = scenario_dict(scenario)
     out["controller"] = {**dict(scenario.controller), **resolved_controller_table(controller)}
-    if context is not None:
-        ref = dict(out["reference"])
-        for key in ("mu1", "mu2", "k1", "k2"):
-            ref[key] = getattr(context, key)
-        out["reference"] = ref
+    if context is not None:  # out["reference"] is scenario_dict's own copy
+        out["reference"].update({k: getattr(context, k) for k in ("mu1", "mu2", "k1", "k2")})
     seeds = {
         "timing": scenario.timing.seed,
         "disturbance": scenario.disturbance.seed,

@@ -5,19 +5,11 @@
 - :func:`jitter_samples_from` (latency files for ``jitter_kind = "replay"``).
 """
 
-from hil.sim.core import (
-    BASE_COLUMNS,
-    BatchResult,
-    RobotVariation,
-    SimResult,
-    simulate,
-    simulate_batch,
-)
+from hil.sim.core import BatchResult, RobotVariation, SimResult, simulate, simulate_batch
 from hil.sim.folder import write_run_folder
 from hil.sim.replay import jitter_samples_from
 
 __all__ = [
-    "BASE_COLUMNS",
     "BatchResult",
     "RobotVariation",
     "SimResult",

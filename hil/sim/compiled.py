@@ -34,6 +34,7 @@ import math
 import os
 import threading
 from collections.abc import Callable
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -58,20 +59,6 @@ _KERNEL: list[Any] = []
 # numba's default threading layer (workqueue) aborts the process when two threads launch
 # parallel kernels at once (e.g. a threaded sweep executor): one kernel call at a time.
 _LAUNCH = threading.Lock()
-
-
-class _ScalarMath:
-    """The float path's scalar functions, as numba compiles them."""
-
-    sin = math.sin
-    cos = math.cos
-    tanh = math.tanh
-    sqrt = math.sqrt
-    exp = math.exp
-
-    def __init__(self, sign: Any, clip: Any) -> None:
-        self.sign = sign
-        self.clip = clip
 
 
 def _plant_parts(njit: Any) -> tuple[Any, Any]:
@@ -134,7 +121,9 @@ def _build() -> Any:
     # Division by zero gives inf/NaN, as on numpy, instead of a test before every division
     # (~7 % of the kernel); the law's bad-input rule then rejects it, as the float path does.
     njit = functools.partial(numba.njit, error_model="numpy")
-    ns = _ScalarMath(njit(FLOAT_MATH.sign), njit(FLOAT_MATH.clip))
+    # the float path's scalar functions, as numba compiles them
+    ns = SimpleNamespace(sin=math.sin, cos=math.cos, tanh=math.tanh, sqrt=math.sqrt, exp=math.exp)
+    ns.sign, ns.clip = njit(FLOAT_MATH.sign), njit(FLOAT_MATH.clip)
     law = njit(make_step(ns))
     advance, land = _plant_parts(njit)
 
@@ -212,32 +201,22 @@ def kernel() -> Any:
     return _KERNEL[0]
 
 
-def compiles(controller: Any, scenario: Any) -> bool:
-    """Whether the kernel computes this law and plant (module doc), numba present and allowed
-    (whatever the amount of work)."""
+def chosen(controller: Any, scenario: Any, work: int) -> bool:
+    """Whether a batch of ``work`` robot-steps of this law and plant runs on the kernel: numba
+    present and allowed, a law and plant it computes (module doc), and the work repays the
+    compilation (unless already compiled)."""
     if numba is None or os.environ.get("HIL_NO_COMPILED") == "1":
         return False
     # Friction and a top speed (a plant's optional drag) are integrated stage by stage, which
     # only the numpy path does.
-    drag = scenario.plant.drag
     return (
-        type(controller) is UnifiedController
-        and not (drag is not None and drag.active)
+        (bool(_KERNEL) or work >= MIN_WORK)
+        and type(controller) is UnifiedController
+        and not scenario.plant.drag.active
         and scenario.sensor.is_ideal
         and scenario.plant.lag <= 0.0
         and scenario.disturbance.is_constant
     )
-
-
-def chosen(controller: Any, scenario: Any, work: int) -> bool:
-    """Whether a batch of ``work`` robot-steps of this law and plant runs on the kernel: it
-    :func:`compiles` them, and the work repays the compilation (unless already compiled)."""
-    return (bool(_KERNEL) or work >= MIN_WORK) and compiles(controller, scenario)
-
-
-def applies(run: Any, scenario: Any) -> bool:
-    """Whether the compiled path runs this batch: :func:`chosen`, and no trace recorded."""
-    return not run.record and chosen(run.controller, scenario, len(run.group) * run.n_samples)
 
 
 def _references(batch: Any, ts: float, k0: int, k1: int, shared: Any) -> np.ndarray:
@@ -284,18 +263,10 @@ def run(
         np.zeros(n),
         np.zeros((3, n)),
     )
-    consts = np.array(
-        [
-            ts,
-            m,
-            scenario.plant_step,
-            rms_from,
-            *disturbance_at(batch.plant.disturbance, 0.0),
-            *(q * lim_r for q in (limits.phi1, limits.phi2, limits.varpi1, limits.varpi2)),
-            *batch.controller.constants(),
-        ],
-        dtype=float,
-    )
+    # the kernel's c: loop sizes, the constant disturbance, the limits of (2), the law's p
+    loop = (ts, m, scenario.plant_step, rms_from, *disturbance_at(batch.plant.disturbance, 0.0))
+    bounds = (q * lim_r for q in (limits.phi1, limits.phi2, limits.varpi1, limits.varpi2))
+    consts = np.array([*loop, *bounds, *batch.controller.constants()], dtype=float)
     compiled = kernel()
     every = max(1, n_samples // 200)
     last_ref = None

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -39,13 +39,9 @@ from plant_emulator.sampled import Hold, Plant, advance_period
 from plant_emulator.sensors import measure
 from protocol.angles import wrap_angle
 
-BASE_COLUMNS = (
-    *TRACE_COLUMNS,
-    *COMMAND_COLUMNS,
-    "position_error",
-    "heading_error",
-)
+BASE_COLUMNS = (*TRACE_COLUMNS, *COMMAND_COLUMNS, "position_error", "heading_error")
 Progress = Callable[[int, int], None]
+_POSE = ("x", "y", "theta", "v", "omega")  # the RobotVariation fields of the initial state
 
 
 @dataclass(frozen=True)
@@ -91,68 +87,76 @@ class BatchResult:
     traces: dict[int, np.ndarray] = field(default_factory=dict)
     interrupted: bool = False
 
-    def result(self, i: int) -> SimResult:
-        """Robot ``i`` as a :class:`SimResult` (its trace must have been recorded)."""
-        return SimResult(
-            self.scenario,
-            self.resolved,
-            self.columns,
-            self.traces[i],
-            self.summaries[i],
-            self.interrupted,
-        )
-
 
 def _initial_memory(controller: Any, n: int | None, scenario: Scenario) -> Any:
     # The controller service's own rule (lockstep must equal the simulation bit for bit).
     return initial_memory(controller, n, scenario.initial.z1, scenario.initial.z2)
 
 
+def _or(value: Any, default: Any) -> Any:
+    """A RobotVariation's ``value``, or the scenario's ``default`` where it is None."""
+    return default if value is None else value
+
+
 def _replay(scenario: Scenario) -> np.ndarray | None:
     t = scenario.timing
     if t.jitter_kind != "replay":
         return None
-    path = scenario.base_dir / t.replay
-    return jitter_samples_from(path)
+    return jitter_samples_from(scenario.base_dir / t.replay)
 
 
-def _summary(
+def _summaries(
     scenario: Scenario,
-    ext_vals: dict[str, float],
-    violations: dict[str, int],
-    last: tuple[float, float, float, float, float, float],
-    rms: float,
-    samples: int,
-    steps: int,
-    dropped: int,
-    interrupted: bool,
     law: str,
-) -> dict[str, Any]:
-    x, y, th, xd, yd, thd = last
-    limits = scenario.limits
-    return {
-        "schema_version": SCHEMA_VERSION,
-        "final_position_error": math.hypot(x - xd, y - yd),
-        "final_heading_error": wrap_angle(th - thd),
-        "rms_position_error": rms,
-        **ext_vals,
-        "violations": violations,
-        "limits_held": not any(violations.values()),
-        "limits": {
-            "phi1": limits.phi1,
-            "phi2": limits.phi2,
-            "varpi1": limits.varpi1,
-            "varpi2": limits.varpi2,
-        },
-        "law": law,
-        "ts": scenario.timing.ts,
-        "plant_step": scenario.plant_step,
-        "duration": samples * scenario.timing.ts,
-        "samples": samples,
-        "plant_steps": steps,
-        "commands_dropped": dropped,
-        "interrupted": interrupted,
-    }
+    samples: int,
+    interrupted: bool,
+    ext: Extremes,
+    per_robot: tuple[Any, ...],
+) -> list[dict[str, Any]]:
+    """Each robot's summary.json: ``ext`` (the peaks and violation counts of (2)) and
+    ``per_robot`` (final position error, final heading error, RMS position error, commands
+    dropped, timing, disturbance and sensor seeds) hold a float each for one robot, an array
+    each for a batch.
+
+    Why columns: for short runs of many robots, building 10,000 summaries one robot at a time
+    (numpy scalar reads, scenario properties) cost more than a hundred control periods; here
+    each column is read back as a Python list once, and what all robots share is computed once.
+    """
+    peaks = [getattr(ext, f.name) for f in fields(ext)[:8]]  # in Extremes' order
+    columns = np.broadcast_arrays(*per_robot[:3], *peaks, *per_robot[3:])
+    limit_table = asdict(scenario.limits)
+    ts = scenario.timing.ts
+    plant_step = scenario.plant_step
+    duration = samples * ts
+    out = []
+    for pe, he, rm, mv, mw, mt1, mt2, nv, nw, nt1, nt2, dr, js, ds, ss in zip(
+        *(np.atleast_1d(q).tolist() for q in columns), strict=True
+    ):
+        out.append(
+            {
+                "schema_version": SCHEMA_VERSION,
+                "final_position_error": pe,
+                "final_heading_error": he,
+                "rms_position_error": rm,
+                "max_abs_v": mv,
+                "max_abs_omega": mw,
+                "max_abs_tau1": mt1,
+                "max_abs_tau2": mt2,
+                "violations": {"v": nv, "omega": nw, "tau1": nt1, "tau2": nt2},
+                "limits_held": not (nv or nw or nt1 or nt2),
+                "limits": dict(limit_table),
+                "law": law,
+                "ts": ts,
+                "plant_step": plant_step,
+                "duration": duration,
+                "samples": samples,
+                "plant_steps": ext.steps,
+                "commands_dropped": dr,
+                "interrupted": interrupted,
+                "seeds": {"timing": js, "disturbance": ds, "sensor": ss},
+            }
+        )
+    return out
 
 
 @dataclass
@@ -194,22 +198,12 @@ def _single_setup(
     """The loop's objects, initial state, landing offsets and seeds for one robot."""
     controller, reference, context = loop or build_loop(scenario)
     n_samples = max(1, round(scenario.run.duration / scenario.timing.ts))
-    ini = scenario.initial
-    state = PlantState(
-        float(ini.x if var.x is None else var.x),
-        float(ini.y if var.y is None else var.y),
-        float(ini.theta if var.theta is None else var.theta),
-        float(ini.v if var.v is None else var.v),
-        float(ini.omega if var.omega is None else var.omega),
-        0.0,
-        0.0,
-    )
-    timing = scenario.timing
-    delay = timing.delay if var.delay is None else var.delay
-    jitter = timing.jitter if var.jitter is None else var.jitter
-    jseed = timing.seed if var.jitter_seed is None else var.jitter_seed
-    dseed = scenario.disturbance.seed if var.disturbance_seed is None else var.disturbance_seed
-    sseed = scenario.plant.noise_seed if var.sensor_seed is None else var.sensor_seed
+    ini, timing = scenario.initial, scenario.timing
+    state = PlantState(*(float(_or(getattr(var, q), getattr(ini, q))) for q in _POSE))
+    delay, jitter = _or(var.delay, timing.delay), _or(var.jitter, timing.jitter)
+    jseed = _or(var.jitter_seed, timing.seed)
+    dseed = _or(var.disturbance_seed, scenario.disturbance.seed)
+    sseed = _or(var.sensor_seed, scenario.plant.noise_seed)
     extra = extra_delays(timing.jitter_kind, jitter, jseed, n_samples, _replay(scenario))
     offsets = landing_offsets(extra, delay, scenario.plant_step).tolist()
     if memory is None:
@@ -232,13 +226,8 @@ def _single_setup(
 
 def _single_loop(run: _Single, scenario: Scenario, t0: float, progress: Progress | None) -> None:
     """The sampled-data loop on floats: sample, law, send, land at t_k, record, advance."""
-    controller, reference, hold, plant, ext = (
-        run.controller,
-        run.reference,
-        run.hold,
-        run.plant,
-        run.ext,
-    )
+    controller, reference, hold = run.controller, run.reference, run.hold
+    plant, ext = run.plant, run.ext
     state, memory, offsets, rows = run.state, run.memory, run.offsets, run.rows
     ts, m, n_samples = scenario.timing.ts, scenario.substeps, run.n_samples
     sensor, sseed = scenario.sensor, run.seeds[2]
@@ -263,22 +252,10 @@ def _single_loop(run: _Single, scenario: Scenario, t0: float, progress: Progress
             hold.send(k, j0 + offsets[k], tau1, tau2)
             hold.land(j0)
             e_pos = math.hypot(state.x - ref.xd, state.y - ref.yd)
-            rows.append(
-                (
-                    t_k,
-                    *state[:5],
-                    ref.xd,
-                    ref.yd,
-                    ref.thetad,
-                    hold.cmd1 if lag <= 0.0 else state.tau1,
-                    hold.cmd2 if lag <= 0.0 else state.tau2,
-                    tau1,
-                    tau2,
-                    e_pos,
-                    wrap_angle(state.theta - ref.thetad),
-                    *map(float, map(out.telemetry.__getitem__, tel_keys)),
-                )
-            )
+            applied = (hold.cmd1, hold.cmd2) if lag <= 0.0 else (state.tau1, state.tau2)
+            row = (t_k, *state[:5], ref.xd, ref.yd, ref.thetad, *applied, tau1, tau2, e_pos)
+            head = wrap_angle(state.theta - ref.thetad)
+            rows.append((*row, head, *map(float, map(out.telemetry.__getitem__, tel_keys))))
             last = (state.x, state.y, state.theta, ref.xd, ref.yd, ref.thetad)
             if k >= rms_from:
                 sq_sum += e_pos * e_pos
@@ -297,34 +274,12 @@ def _single_result(run: _Single, scenario: Scenario) -> SimResult:
     rows = run.rows
     columns = [*BASE_COLUMNS, *(run.tel_keys or [])]
     trace = np.array(rows, dtype=float).reshape(len(rows), len(columns))
-    ext = run.ext
-    ext_vals = {
-        "max_abs_v": ext.max_abs_v,
-        "max_abs_omega": ext.max_abs_omega,
-        "max_abs_tau1": ext.max_abs_tau1,
-        "max_abs_tau2": ext.max_abs_tau2,
-    }
-    violations = {
-        "v": ext.violations_v,
-        "omega": ext.violations_omega,
-        "tau1": ext.violations_tau1,
-        "tau2": ext.violations_tau2,
-    }
+    x, y, th, xd, yd, thd = run.last
+    errors = (math.hypot(x - xd, y - yd), wrap_angle(th - thd), run.rms)
     controller = run.controller
-    summary = _summary(
-        scenario,
-        ext_vals,
-        violations,
-        run.last,
-        run.rms,
-        len(rows),
-        ext.steps,
-        run.hold.dropped,
-        run.interrupted,
-        getattr(controller, "name", type(controller).__name__),
-    )
-    jseed, dseed, sseed = run.seeds
-    summary["seeds"] = {"timing": jseed, "disturbance": dseed, "sensor": sseed}
+    law = getattr(controller, "name", type(controller).__name__)
+    per_robot = (*errors, run.hold.dropped, *run.seeds)
+    summary = _summaries(scenario, law, len(rows), run.interrupted, run.ext, per_robot)[0]
     resolved = resolved_dict(scenario, controller, run.context)
     # The bound at the scenario's timing, once, here: the report reads it, as it reads a run's.
     summary["certificate"] = scenario_certificate(view(resolved))
@@ -353,105 +308,6 @@ def simulate(
     if progress is not None and not run.interrupted:
         progress(len(run.rows), run.n_samples)
     return _single_result(run, scenario)
-
-
-def _per_robot(values: Sequence[Any], default: Any, dtype: Any) -> np.ndarray:
-    return np.array([default if v is None else v for v in values], dtype=dtype)
-
-
-def _final_errors(last: tuple[Any, ...], n: int) -> tuple[list[float], list[float]]:
-    """Each robot's final position and heading errors from its last (x, y, theta, xd, yd,
-    thetad), as Python lists."""
-    x, y, th, xd, yd, thd = (np.broadcast_to(np.asarray(q, dtype=float), (n,)) for q in last)
-    pos_err = [math.hypot(a, b) for a, b in zip((x - xd).tolist(), (y - yd).tolist(), strict=True)]
-    head_err = np.asarray(wrap_angle(np.asarray(th - thd)), dtype=float).tolist()
-    return pos_err, head_err
-
-
-def _extreme_columns(ext: Extremes) -> list[list[Any]]:
-    """The peaks and violation counts of (2) per robot, as Python lists (summary order)."""
-    return [
-        np.asarray(q).tolist()
-        for q in (
-            ext.max_abs_v,
-            ext.max_abs_omega,
-            ext.max_abs_tau1,
-            ext.max_abs_tau2,
-            ext.violations_v,
-            ext.violations_omega,
-            ext.violations_tau1,
-            ext.violations_tau2,
-        )
-    ]
-
-
-def _batch_summaries(
-    scenario: Scenario,
-    ext: Extremes,
-    last: tuple[Any, ...],
-    rms: np.ndarray,
-    samples: int,
-    dropped: np.ndarray,
-    interrupted: bool,
-    law: str,
-    seeds: tuple[np.ndarray, np.ndarray, np.ndarray],
-) -> list[dict[str, Any]]:
-    """:func:`_summary` for every robot of a batch, with the same keys in the same order.
-
-    Why: for short runs of many robots, building 10,000 summaries one ``_summary`` call at a
-    time (numpy scalar reads, scenario properties, per-robot ``wrap_angle``) cost more than a
-    hundred control periods; here the per-robot columns are computed on arrays and read back as
-    Python lists once, and what all robots share is computed once.
-    """
-    pos_err, head_err = _final_errors(last, len(rms))
-    cols = _extreme_columns(ext)
-    limits = scenario.limits
-    limit_table = {
-        "phi1": limits.phi1,
-        "phi2": limits.phi2,
-        "varpi1": limits.varpi1,
-        "varpi2": limits.varpi2,
-    }
-    ts = scenario.timing.ts
-    plant_step = scenario.plant_step
-    duration = samples * ts
-    steps = ext.steps
-    rows = zip(
-        pos_err,
-        head_err,
-        rms.tolist(),
-        *cols,
-        dropped.tolist(),
-        *(q.tolist() for q in seeds),
-        strict=True,
-    )
-    out = []
-    for pe, he, rm, mv, mw, mt1, mt2, nv, nw, nt1, nt2, dr, js, ds, ss in rows:
-        out.append(
-            {
-                "schema_version": SCHEMA_VERSION,
-                "final_position_error": pe,
-                "final_heading_error": he,
-                "rms_position_error": rm,
-                "max_abs_v": mv,
-                "max_abs_omega": mw,
-                "max_abs_tau1": mt1,
-                "max_abs_tau2": mt2,
-                "violations": {"v": nv, "omega": nw, "tau1": nt1, "tau2": nt2},
-                "limits_held": not (nv or nw or nt1 or nt2),
-                "limits": dict(limit_table),
-                "law": law,
-                "ts": ts,
-                "plant_step": plant_step,
-                "duration": duration,
-                "samples": samples,
-                "plant_steps": steps,
-                "commands_dropped": dr,
-                "interrupted": interrupted,
-                "seeds": {"timing": js, "disturbance": ds, "sensor": ss},
-            }
-        )
-    return out
 
 
 @dataclass
@@ -488,13 +344,8 @@ def _batch_offsets(
     timing = scenario.timing
     replay = _replay(scenario)
     keys: dict[tuple[float, float, int], int] = {}
-    group = np.array(
-        [
-            keys.setdefault(key, len(keys))
-            for key in zip(delays.tolist(), jitters.tolist(), jseeds.tolist(), strict=True)
-        ],
-        dtype=np.intp,
-    )
+    draws = zip(delays.tolist(), jitters.tolist(), jseeds.tolist(), strict=True)
+    group = np.array([keys.setdefault(key, len(keys)) for key in draws], dtype=np.intp)
     offsets = np.empty((len(keys), n_samples), dtype=np.int64)
     for (delay, jitter, seed), row in keys.items():
         extra = extra_delays(timing.jitter_kind, jitter, seed, n_samples, replay)
@@ -526,15 +377,11 @@ def _batch_setup(
 
     def per_robot(name: str, default: Any, dtype: Any) -> np.ndarray:
         if shared:
-            value = getattr(first, name)
-            return np.full(n, default if value is None else value, dtype=dtype)
-        return _per_robot([getattr(v, name) for v in variations], default, dtype)
+            return np.full(n, _or(getattr(first, name), default), dtype=dtype)
+        return np.array([_or(getattr(v, name), default) for v in variations], dtype=dtype)
 
-    state = PlantState(
-        *(per_robot(q, getattr(ini, q), float) for q in ("x", "y", "theta", "v", "omega")),
-        np.zeros(n),
-        np.zeros(n),
-    )
+    pose = (per_robot(q, getattr(ini, q), float) for q in _POSE)
+    state = PlantState(*pose, np.zeros(n), np.zeros(n))
     delays = per_robot("delay", timing.delay, float)
     jitters = per_robot("jitter", timing.jitter, float)
     jseeds = per_robot("jitter_seed", timing.seed, np.int64)
@@ -571,13 +418,8 @@ def _batch_loop(
     on_sample: Callable[[int, PlantState], None] | None,
 ) -> None:
     """The sampled-data loop on arrays: sample, law, send, land at t_k, record, advance."""
-    controller, reference, hold, plant, ext = (
-        run.controller,
-        run.reference,
-        run.hold,
-        run.plant,
-        run.ext,
-    )
+    controller, reference, hold = run.controller, run.reference, run.hold
+    plant, ext = run.plant, run.ext
     state, memory, starts, land, group = run.state, run.memory, run.starts, run.land, run.group
     ts, m, n_samples = scenario.timing.ts, scenario.substeps, run.n_samples
     sensor, sseeds = scenario.sensor, run.seeds[2]
@@ -641,36 +483,16 @@ def _record_rows(
     e_pos: np.ndarray,
 ) -> None:
     """Append sample k's trace row of every recorded robot (the single path's row)."""
-    n = len(run.group)
     lag = run.plant.lag
-    a1 = run.hold.cmd1 if lag <= 0.0 else state.tau1
-    a2 = run.hold.cmd2 if lag <= 0.0 else state.tau2
+    applied = (run.hold.cmd1, run.hold.cmd2) if lag <= 0.0 else (state.tau1, state.tau2)
     head = wrap_angle(state.theta - ref.thetad)
-    tel = [np.broadcast_to(out.telemetry[key], (n,)) for key in run.tel_keys or []]
-    shared = run.starts is None  # time and reference are then one float for all robots
-    for i in run.record:
-        run.rec_rows[i].append(
-            np.array(
-                [
-                    t_k if shared else t_k[i],
-                    state.x[i],
-                    state.y[i],
-                    state.theta[i],
-                    state.v[i],
-                    state.omega[i],
-                    ref.xd if shared else ref.xd[i],
-                    ref.yd if shared else ref.yd[i],
-                    ref.thetad if shared else ref.thetad[i],
-                    a1[i],
-                    a2[i],
-                    tau1[i],
-                    tau2[i],
-                    e_pos[i],
-                    head[i],
-                    *(float(col[i]) for col in tel),
-                ]
-            )
-        )
+    tel = [out.telemetry[key] for key in run.tel_keys or []]
+    row = (t_k, *state[:5], ref.xd, ref.yd, ref.thetad, *applied, tau1, tau2, e_pos, head, *tel)
+    n, rec = len(run.group), run.record
+    # time and reference are one float for all robots unless they start at their own times
+    table = np.stack([np.broadcast_to(np.asarray(q, dtype=float), (n,))[rec] for q in row], axis=1)
+    for i, values in zip(rec, table, strict=True):
+        run.rec_rows[i].append(values)
 
 
 def _batch_result(run: _Batch, scenario: Scenario, variations: list[RobotVariation]) -> BatchResult:
@@ -680,10 +502,11 @@ def _batch_result(run: _Batch, scenario: Scenario, variations: list[RobotVariati
     law = getattr(controller, "name", type(controller).__name__)
     last = run.last or (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
     n = len(run.group)
-    dropped = np.array(np.broadcast_to(run.hold.dropped, (n,)), dtype=np.int64)
-    summaries = _batch_summaries(
-        scenario, run.ext, last, run.rms, run.done, dropped, run.interrupted, law, run.seeds
-    )
+    x, y, th, xd, yd, thd = (np.broadcast_to(np.asarray(q, dtype=float), (n,)) for q in last)
+    pos_err = [math.hypot(a, b) for a, b in zip((x - xd).tolist(), (y - yd).tolist(), strict=True)]
+    dropped = np.asarray(run.hold.dropped, dtype=np.int64)
+    per_robot = (pos_err, wrap_angle(th - thd), run.rms, dropped, *run.seeds)
+    summaries = _summaries(scenario, law, run.done, run.interrupted, run.ext, per_robot)
     traces = {
         i: np.array(rows, dtype=float).reshape(len(rows), len(columns))
         for i, rows in run.rec_rows.items()
@@ -721,7 +544,8 @@ def simulate_batch(
     if not variations:
         raise ValueError("simulate_batch needs at least one robot")
     run = _batch_setup(scenario, variations, record, loop, t0, memory)
-    if compiled.applies(run, scenario):  # the same loops, one numba kernel
+    # the same loops in one numba kernel, unless traces are recorded
+    if not run.record and compiled.chosen(run.controller, scenario, len(run.group) * run.n_samples):
         compiled.run(run, scenario, progress, on_sample)
     else:
         _batch_loop(run, scenario, progress, on_sample)

@@ -53,12 +53,10 @@ def jitter_samples_from(path: str | Path) -> np.ndarray:
             values = [float(v) for v in data]
         else:
             rows = [r for r in csv.reader(text.splitlines()) if r and r[0].strip()]
+            col = 0
             if rows and rows[0][0].strip().lower().startswith(("latency", "t", "#")):
-                header = [c.strip().lower() for c in rows[0]]
+                header = [c.strip().lower() for c in rows.pop(0)]
                 col = header.index("latency") if "latency" in header else 0
-                rows = rows[1:]
-            else:
-                col = 0
             values = [float(r[col]) for r in rows]
     except (ValueError, TypeError, IndexError, json.JSONDecodeError, csv.Error) as exc:
         raise BadInputError(f"[timing] replay: {p} is not a latency list: {exc}") from exc
@@ -70,9 +68,6 @@ def jitter_samples_from(path: str | Path) -> np.ndarray:
             f"[timing] replay: {p} holds a latency above {REPLAY_MAX:g} s ({arr.max():g})"
         )
     return arr
-
-
-US = 1e-6
 
 
 def split_path(spec: str | Path) -> tuple[Path, str | None]:
@@ -128,7 +123,7 @@ def latencies_from_run(spec: str | Path) -> np.ndarray:
     values = [v for v in per_path.values() if v.size]
     if not values:
         raise BadInputError(f"[timing] replay: no latency samples found in {p}")
-    seconds = np.concatenate(values) * US
+    seconds = np.concatenate(values) * 1e-6  # µs to s
     seconds = seconds[np.isfinite(seconds) & (seconds >= 0)]
     if seconds.size == 0:
         raise BadInputError(f"[timing] replay: {p} holds no finite latency >= 0")

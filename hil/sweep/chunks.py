@@ -2,8 +2,8 @@
 
 Chunks: each Ts group of the grid (:meth:`SweepGrid.by_ts`, the longest Ts first) cut into
 slices of at most ``chunk_size`` points, numbered in that order. A chunk is one
-:func:`hil.sim.simulate_batch` of its points and their rows, as :func:`hil.sweep.runner.run_sweep`
-computes them for a whole group.
+:func:`hil.sweep.runner.simulate_points` (a batch and its rows), as ``run_sweep`` runs it for
+a whole group.
 
 Same results whatever the executor and the chunking, bit for bit: each point carries its own
 seeds (the grid point's jitter seed: the scenario's seed plus the seed's index), never one drawn
@@ -18,13 +18,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from hil.folder.scenario_view import view
-from hil.measure.certificate import certificate
 from hil.scenario import Scenario
-from hil.sim import RobotVariation, simulate_batch
 from hil.sweep.executors import InProcess
 from hil.sweep.grid import SweepGrid, SweepPoint
-from hil.sweep.runner import RECORD_LIMIT, SweepOutcome, _band, point_row, scenario_at
+from hil.sweep.runner import RECORD_LIMIT, SweepOutcome, scenario_at, simulate_points
 
 # Points per chunk: the batch path's cost per robot falls with the batch's size (numpy's
 # per-step overhead is shared), 128 points in chunks of 8 took 6x as long as in one chunk;
@@ -39,7 +36,6 @@ class Chunk:
     index: int
     scenario: Scenario
     ts: float
-    duration: float
     points: tuple[SweepPoint, ...]
     record: bool  # keep traces: the whole group has at most RECORD_LIMIT points
 
@@ -65,34 +61,15 @@ def chunks_of(
         record = len(points) <= RECORD_LIMIT
         for at in range(0, len(points), chunk_size):
             part = tuple(points[at : at + chunk_size])
-            out.append(Chunk(len(out), sc, ts, duration, part, record))
+            out.append(Chunk(len(out), sc, ts, part, record))
     return out
 
 
 def run_chunk(chunk: Chunk) -> ChunkResult:
     """Simulate one chunk and build its rows (a top-level function: pickled to workers)."""
-    variations = [
-        RobotVariation(delay=p.delay, jitter=p.jitter, jitter_seed=p.seed) for p in chunk.points
-    ]
-    record = range(len(chunk.points)) if chunk.record else ()
-    result = simulate_batch(chunk.scenario, variations, record=record)
-    sv = view(result.resolved)
-    out = ChunkResult(chunk.index, interrupted=bool(result.interrupted), resolved=result.resolved)
-    certs: dict[float, dict[str, Any]] = {}
-    for i, p in enumerate(chunk.points):
-        worst = p.delay + (4.0 * p.jitter if sv.jitter_kind == "normal" else p.jitter)
-        cert = certs.get(worst)
-        if cert is None:
-            cert = certs[worst] = certificate(sv, chunk.ts, worst).as_dict()
-        trace = result.traces.get(i)
-        bv = bw = None
-        if trace is not None and len(trace) > 1:
-            bv = _band(trace, result.columns, "v_tilde", sv.eps1)
-            bw = _band(trace, result.columns, "w_tilde", sv.eps2)
-        row = point_row(p, result.summaries[i], cert, sv.limits, bv, bw, not result.interrupted)
-        out.rows.append(row)
-    out.robot_steps = len(chunk.points) * int(result.summaries[0]["samples"])
-    return out
+    rows, result = simulate_points(chunk.scenario, chunk.points, chunk.record)
+    steps = len(chunk.points) * int(result.summaries[0]["samples"])
+    return ChunkResult(chunk.index, rows, steps, bool(result.interrupted), result.resolved)
 
 
 ChunkProgress = Callable[[int, int], None]  # (chunks done, chunks in all)
@@ -129,9 +106,7 @@ def run_chunked(
         outcome.interrupted = True
     done.sort(key=lambda r: r.index)
     outcome.rows = [row for r in done for row in r.rows]
-    finished = {c.index for c in chunks} & {r.index for r in done if not r.interrupted}
-    by_ts: dict[float, list[int]] = {}
-    for c in chunks:
-        by_ts.setdefault(c.ts, []).append(c.index)
-    outcome.groups_done = sum(1 for idx in by_ts.values() if set(idx) <= finished)
+    finished = {r.index for r in done if not r.interrupted}
+    unfinished = {c.ts for c in chunks if c.index not in finished}
+    outcome.groups_done = len({c.ts for c in chunks} - unfinished)
     return outcome, (done[0].resolved if done else {})

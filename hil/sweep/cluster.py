@@ -10,7 +10,6 @@ from typing import Any
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from hil import options
-from hil.errors import BadInputError
 from hil.sweep.chunks import DEFAULT_CHUNK, chunks_of, run_chunked
 from hil.sweep.executors import executor_for
 from hil.sweep.outputs import write_csv
@@ -27,8 +26,6 @@ def open_executor(workers: int | None, scheduler: str | None, chunk_size: int | 
     """The executor, every option checked first (BadInputError: exit 2, before any folder)."""
     if chunk_size is not None:
         options.integer("--chunk-size", chunk_size, 1, CHUNK_MAX)
-    if scheduler is not None and workers is not None:
-        raise BadInputError("--workers and --scheduler exclude each other")
     return executor_for(workers, scheduler)
 
 

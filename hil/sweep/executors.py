@@ -72,6 +72,7 @@ class DaskCluster:
     """A Dask distributed cluster: the scheduler at ``address``, or a given ``client``."""
 
     def __init__(self, address: str | None = None, client: Any = None) -> None:
+        self._owned = client is None
         if client is None:
             if Client is None:
                 raise BadInputError(
@@ -81,9 +82,6 @@ class DaskCluster:
                 client = Client(address, timeout=30)
             except OSError as exc:
                 raise BadInputError(f"--scheduler {address}: {exc}") from exc
-            self._owned = True
-        else:
-            self._owned = False
         self._client = client
         self.name = f"Dask cluster at {client.scheduler.address}"
         self._futures: list[Any] = []

@@ -39,12 +39,8 @@ class SweepGrid:
     defaulted: tuple[str, ...] = ()
 
     def points(self, base_seed: int = 0) -> list[SweepPoint]:
-        return [
-            SweepPoint(ts, d, j, base_seed + s)
-            for ts, d, j, s in itertools.product(
-                self.ts, self.delay, self.jitter, range(self.seeds)
-            )
-        ]
+        axes = itertools.product(self.ts, self.delay, self.jitter, range(self.seeds))
+        return [SweepPoint(ts, d, j, base_seed + s) for ts, d, j, s in axes]
 
     def by_ts(self, base_seed: int = 0) -> list[tuple[float, list[SweepPoint]]]:
         """Groups of one Ts each, the longest Ts first: coarse periods are cheap (few samples),
@@ -75,28 +71,16 @@ def make_grid(
 ) -> SweepGrid:
     """The grid with defaults for empty axes (listed in ``defaulted``); ValueError on a bad
     value (negative, zero period, not a number)."""
-    defaulted = []
-    if not ts:
-        ts, _ = DEFAULT_TS, defaulted.append("ts")
-    if not delay:
-        delay, _ = DEFAULT_DELAY, defaulted.append("delay")
-    if not jitter:
-        jitter, _ = DEFAULT_JITTER, defaulted.append("jitter")
     if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 0:
         raise ValueError(f"[sweep] seeds: {seeds!r} must be a whole number >= 1")
-    if seeds == 0:
-        seeds, _ = DEFAULT_SEEDS, defaulted.append("seeds")
+    given = {"ts": ts, "delay": delay, "jitter": jitter, "seeds": seeds}
     return SweepGrid(
-        _values("ts", ts, True),
-        _values("delay", delay, False),
-        _values("jitter", jitter, False),
-        int(seeds),
-        tuple(defaulted),
+        _values("ts", ts or DEFAULT_TS, True),
+        _values("delay", delay or DEFAULT_DELAY, False),
+        _values("jitter", jitter or DEFAULT_JITTER, False),
+        int(seeds or DEFAULT_SEEDS),
+        tuple(name for name, value in given.items() if not value),
     )
-
-
-def violated(row: Mapping[str, Any]) -> bool:
-    return bool(row.get("violation"))
 
 
 def break_points(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -110,7 +94,7 @@ def break_points(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """
     ts_values = sorted({r["ts"] for r in rows})
     delay_values = sorted({r["delay"] for r in rows})
-    bad = [r for r in rows if violated(r)]
+    bad = [r for r in rows if r.get("violation")]
     ts_by_delay = {
         d: min((r["ts"] for r in bad if r["delay"] == d), default=None) for d in delay_values
     }

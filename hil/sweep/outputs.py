@@ -75,18 +75,11 @@ def sweep_figures(rows: Sequence[dict[str, Any]], grid: SweepGrid, bp: dict[str,
             if not series:
                 continue
             mark = None if first is None else first[along]
+            title = f"{ylabel} against {xlabel.split()[0]}"
             name = f"{metric}_vs_{along}"
-            f = fg.against_parameter(
-                name,
-                f"{ylabel} against {xlabel.split()[0]}",
-                xlabel,
-                ylabel,
-                x,
-                series,
-                hline,
-                mark if mark else None,
+            figs.append(
+                fg.against_parameter(name, title, xlabel, ylabel, x, series, hline, mark or None)
             )
-            figs.append(f)
     return figs
 
 

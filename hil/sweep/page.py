@@ -182,13 +182,12 @@ def _results_table(rows: Sequence[Mapping[str, Any]]) -> str:
 
 
 def _figures(doc: Mapping[str, Any]) -> str:
-    out = []
-    for f in doc.get("figures") or []:
-        out.append(
-            f'<figure><img src="{_e(f["png"])}" alt="{_e(f["title"])}"><figcaption>'
-            f'{_e(f["title"])} (data: <a href="{_e(f["data"])}">{_e(f["data"])}</a>)'
-            "</figcaption></figure>"
-        )
+    out = [
+        f'<figure><img src="{_e(f["png"])}" alt="{_e(f["title"])}"><figcaption>'
+        f'{_e(f["title"])} (data: <a href="{_e(f["data"])}">{_e(f["data"])}</a>)'
+        "</figcaption></figure>"
+        for f in doc.get("figures") or []
+    ]
     if not out:
         return "<p>No figures (no loop finished).</p>"
     return '<div class="figs">' + "".join(out) + "</div>"

@@ -9,7 +9,7 @@ band (v~, w~ telemetry of the unified laws). Ctrl-C keeps the groups already don
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,7 +19,8 @@ from hil import trace_metrics
 from hil.folder.scenario_view import view
 from hil.measure.certificate import certificate
 from hil.scenario import Scenario, build_loop, resolved_dict, scenario_dict
-from hil.sim import RobotVariation, simulate_batch
+from hil.sim import BatchResult, RobotVariation, simulate_batch
+from hil.sim.core import Progress
 from hil.sweep.grid import SweepGrid, SweepPoint
 
 RECORD_LIMIT = 64
@@ -61,6 +62,9 @@ def point_row(
     max_w = float(summary["max_abs_omega"])
     violations = summary.get("violations", {})
     n_viol = int(sum(int(v) for v in violations.values()))
+    tol = 1 + trace_metrics.LIMIT_REL_TOL
+    v_bound, w_bound = cert["v_bound"], cert["w_bound"]
+    within = None if v_bound is None else bool(max_v <= v_bound * tol and max_w <= w_bound * tol)
     return {
         "ts": point.ts,
         "delay": point.delay,
@@ -79,20 +83,48 @@ def point_row(
         "band_w": band_w,
         "violations": n_viol,
         "violation": n_viol > 0,
-        "v_bound": cert["v_bound"],
-        "w_bound": cert["w_bound"],
+        "v_bound": v_bound,
+        "w_bound": w_bound,
         "certified": cert["held"],
-        "within_bound": (
-            None
-            if cert["v_bound"] is None
-            else bool(
-                max_v <= cert["v_bound"] * (1 + trace_metrics.LIMIT_REL_TOL)
-                and max_w <= cert["w_bound"] * (1 + trace_metrics.LIMIT_REL_TOL)
-            )
-        ),
+        "within_bound": within,
         "commands_dropped": int(summary.get("commands_dropped", 0)),
         "complete": complete,
     }
+
+
+def worst_age(point: SweepPoint, jitter_kind: str) -> float:
+    """The point's worst command age beyond Ts: its delay plus the jitter's bound (uniform; four
+    standard deviations of a normal jitter)."""
+    return point.delay + (4.0 * point.jitter if jitter_kind == "normal" else point.jitter)
+
+
+def simulate_points(
+    sc: Scenario, points: Sequence[SweepPoint], record: bool, progress: Progress | None = None
+) -> tuple[list[dict[str, Any]], BatchResult]:
+    """One batch of ``points`` (one Ts, the scenario ``sc`` at it) and their rows, each with the
+    certificate of the design at the point's worst age (the resolved controller table has auto
+    lam/rho filled in) and, where ``record`` kept the traces, the quasi-sliding band."""
+    variations = [
+        RobotVariation(delay=p.delay, jitter=p.jitter, jitter_seed=p.seed) for p in points
+    ]
+    record_at = range(len(points)) if record else ()
+    result = simulate_batch(sc, variations, record=record_at, progress=progress)
+    sv = view(result.resolved)
+    # Points of a group share few (delay, jitter) pairs: certify each pair once.
+    certs: dict[float, dict[str, Any]] = {}
+    rows = []
+    for i, p in enumerate(points):
+        worst = worst_age(p, sv.jitter_kind)
+        if worst not in certs:
+            certs[worst] = certificate(sv, sc.timing.ts, worst).as_dict()
+        trace = result.traces.get(i)
+        bv = bw = None
+        if trace is not None and len(trace) > 1:
+            bv = _band(trace, result.columns, "v_tilde", sv.eps1)
+            bw = _band(trace, result.columns, "w_tilde", sv.eps2)
+        complete = not result.interrupted
+        rows.append(point_row(p, result.summaries[i], certs[worst], sv.limits, bv, bw, complete))
+    return rows, result
 
 
 def run_sweep(
@@ -106,41 +138,17 @@ def run_sweep(
 
     outcome = SweepOutcome()
     resolved: dict[str, Any] = {}
-    base_seed = scenario.timing.seed
     try:
-        for ts, points in grid.by_ts(base_seed):
-            sc = scenario_at(scenario, ts, duration)
-            variations = [
-                RobotVariation(delay=p.delay, jitter=p.jitter, jitter_seed=p.seed) for p in points
-            ]
-            record = range(len(points)) if len(points) <= RECORD_LIMIT else ()
+        for ts, points in grid.by_ts(scenario.timing.seed):
 
             def report(done: int, total: int, _ts: float = ts) -> None:
                 if progress is not None:
                     progress(_ts, done, total)
 
-            result = simulate_batch(sc, variations, record=record, progress=report)
-            if not resolved:
-                resolved = result.resolved
-            # The certificate of the design at each point's worst age: delay plus the jitter's
-            # bound (uniform); the resolved controller table has auto lam/rho filled in.
-            sv = view(result.resolved)
-            # Points of a group share few (delay, jitter) pairs: certify each pair once.
-            certs: dict[float, dict[str, Any]] = {}
-            for i, p in enumerate(points):
-                summary = result.summaries[i]
-                worst = p.delay + (4.0 * p.jitter if sv.jitter_kind == "normal" else p.jitter)
-                cert = certs.get(worst)
-                if cert is None:
-                    cert = certs[worst] = certificate(sv, ts, worst).as_dict()
-                trace = result.traces.get(i)
-                bv = bw = None
-                if trace is not None and len(trace) > 1:
-                    bv = _band(trace, result.columns, "v_tilde", sv.eps1)
-                    bw = _band(trace, result.columns, "w_tilde", sv.eps2)
-                outcome.rows.append(
-                    point_row(p, summary, cert, sv.limits, bv, bw, not result.interrupted)
-                )
+            sc = scenario_at(scenario, ts, duration)
+            rows, result = simulate_points(sc, points, len(points) <= RECORD_LIMIT, report)
+            resolved = resolved or result.resolved
+            outcome.rows += rows
             outcome.robot_steps += len(points) * int(result.summaries[0]["samples"])
             if on_group is not None:
                 on_group(outcome.rows)
@@ -151,11 +159,6 @@ def run_sweep(
     except KeyboardInterrupt:
         outcome.interrupted = True
     return outcome, resolved
-
-
-def _tables(sc: Scenario) -> dict[str, Any]:
-
-    return scenario_dict(sc)
 
 
 def certified_break(scenario: Scenario, grid: SweepGrid) -> dict[str, Any]:
@@ -177,4 +180,4 @@ def _resolved_or_dict(scenario: Scenario) -> dict[str, Any]:
         controller, _ref, context = build_loop(scenario)
         return resolved_dict(scenario, controller, context)
     except Exception:
-        return _tables(scenario)
+        return scenario_dict(scenario)

@@ -21,7 +21,7 @@ from hil.folder.scenario_view import view
 from hil.measure.certificate import certificate
 from hil.scenario import Scenario, build_loop, resolved_dict
 from hil.sweep.grid import SweepGrid
-from hil.sweep.runner import SweepOutcome, point_row, scenario_at
+from hil.sweep.runner import SweepOutcome, point_row, scenario_at, worst_age
 
 POPULATION = 64
 ROUNDS = 3
@@ -29,11 +29,10 @@ SPREAD = 0.05  # m, rad, m/s, rad/s around the scenario's initial state
 
 
 def _summary(best: Any) -> dict[str, Any]:
-    p = best.peaks
-    over = {k: p[f"max_abs_{k}"] for k in ("v", "omega", "tau1", "tau2")}
+    peaks = ("max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2")
     return {
-        **{f"max_abs_{k}": v for k, v in over.items()},
-        "final_position_error": p["max_late_error"],
+        **{k: best.peaks[k] for k in peaks},
+        "final_position_error": best.peaks["max_late_error"],
         "rms_position_error": float("nan"),
         "violations": {"worst": int(best.broke)},
         "commands_dropped": 0,
@@ -61,8 +60,7 @@ def run_worst_sweep(
                 schedule = scenario_schedule(sc, POPULATION)
                 init = initial_states(sc, POPULATION, SPREAD, p.seed)
                 best = worst_disturbance(sc, schedule, init, rounds=ROUNDS, seed=p.seed, loop=loop)
-                worst = p.delay + (4.0 * p.jitter if sv.jitter_kind == "normal" else p.jitter)
-                cert = certificate(sv, ts, worst).as_dict()
+                cert = certificate(sv, ts, worst_age(p, sv.jitter_kind)).as_dict()
                 row = point_row(p, _summary(best), cert, sv.limits, None, None, True)
                 row["violation"] = best.broke
                 row["disturbance"] = f"{best.describe()} (worst of {best.loops} loops)"
