@@ -2,15 +2,7 @@
 :mod:`hil.adversary.loop`, the search: :mod:`hil.adversary.search`) by ``hil sweep`` and
 ``hil margin`` with ``--worst-disturbance``."""
 
-from hil.adversary.loop import MODES, LoopPeaks, Schedule, run_loops, scenario_schedule
-from hil.adversary.search import WorstDisturbance, worst_disturbance
+from hil.adversary.loop import MODES, Schedule, run_loops, scenario_schedule
+from hil.adversary.search import worst_disturbance
 
-__all__ = [
-    "MODES",
-    "LoopPeaks",
-    "Schedule",
-    "WorstDisturbance",
-    "run_loops",
-    "scenario_schedule",
-    "worst_disturbance",
-]
+__all__ = ["MODES", "Schedule", "run_loops", "scenario_schedule", "worst_disturbance"]
