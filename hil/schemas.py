@@ -1,15 +1,12 @@
-"""JSON Schemas of everything ``hil`` records or serves live, derived from the definitions.
+"""JSON Schemas of everything ``hil`` records (:mod:`hil.recording`) or serves live
+(:mod:`hil.live`), derived from the definitions.
 
-One place for both the MCAP recording (:mod:`hil.recording`) and the live view
-(:mod:`hil.live`): each protocol message's schema is built from ``protocol.messages.SPECS``
-(field order, kind and range), each CAN frame's from the CANSimple dataclasses of
-``protocol.can.codec``, so a field added to the protocol is typed here without an edit. The
-robot's pose uses Foxglove's well-known ``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``
-(JSON profile of the published schemas), which Foxglove's 3D panel draws.
-
-A record is the recorder's JSON mirror of a decoded message: the dataclass's fields, the
-class's ``TAG`` and ``type`` (the class name). Every property is typed and required, no other
-property is allowed.
+A protocol message's schema comes from ``protocol.messages.SPECS`` (field order, kind and range),
+a CAN frame's from the CANSimple dataclasses of ``protocol.can.codec``, so a field added to the
+protocol is typed here without an edit. The robot's pose uses Foxglove's well-known
+``foxglove.PoseInFrame`` and ``foxglove.FrameTransform`` (JSON profile), which its 3D panel draws.
+A record is the recorder's JSON mirror of a decoded message: the dataclass's fields, the class's
+``TAG`` and ``type`` (the class name), every property typed and required, no other allowed.
 """
 
 from __future__ import annotations
@@ -212,29 +209,13 @@ POSE = "pose"  # hil/<robot_id>/pose: foxglove.PoseInFrame of each State
 TF = "tf"  # hil/<robot_id>/tf: foxglove.FrameTransform world -> <robot_id>
 CAN_FRAME = can_frame_schema()
 
-_SUFFIX_SCHEMA = {
-    "state": MESSAGE_SCHEMAS["State"],
-    "cmd/torque": MESSAGE_SCHEMAS["TorqueCommand"],
-    "status": MESSAGE_SCHEMAS["Status"],
-    "telemetry": MESSAGE_SCHEMAS["Telemetry"],
-    POSE: POSE_IN_FRAME,
-    TF: FRAME_TRANSFORM,
-}
-_HIL_TOPIC = re.compile(rf"hil/{ROBOT_ID_RE.pattern}/(.+)")
-_FIXED = {"recorder/errors": RECORDER_ERROR, "recorder/rejected": REJECTED}
-
 
 def schema_for_topic(topic: str) -> dict[str, Any]:
     """The schema of a recorded topic (:data:`GENERIC` for a topic nobody defined)."""
-    fixed = _FIXED.get(topic)
-    if fixed is not None:
-        return fixed
     if topic.startswith("can/"):
         return CAN_FRAME
     m = _HIL_TOPIC.fullmatch(topic)
-    if m is not None:
-        return _SUFFIX_SCHEMA.get(m.group(1), GENERIC)
-    return GENERIC
+    return _SUFFIX_SCHEMA.get(m.group(1), GENERIC) if m else _FIXED.get(topic, GENERIC)
 
 
 def schema_name(topic: str, schema: dict[str, Any]) -> str:
@@ -272,11 +253,12 @@ def frame_transform(t_ns: int, child: str, x: float, y: float, theta: float) -> 
     }
 
 
-def _num(description: str, minimum: float | None = None) -> dict[str, Any]:
-    out: dict[str, Any] = {"type": "number", "description": description}
-    if minimum is not None:
-        out["minimum"] = minimum
-    return out
+def _num(description: str) -> dict[str, Any]:
+    return {"type": "number", "description": description, "minimum": 0}
+
+
+def _count(description: str) -> dict[str, Any]:
+    return {"type": "integer", "minimum": 0, "description": description}
 
 
 def _unknown_at_first(description: str) -> dict[str, Any]:
@@ -296,9 +278,9 @@ TIMING = "live/timing"  # hil/<robot_id>/live/timing: the live view's once-a-sec
 LIVE_TIMING = _object(
     "hil.LiveTiming",
     {
-        "t_s": _num("seconds since the live view saw the first State", 0),
-        "states": {"type": "integer", "minimum": 0, "description": "States seen"},
-        "commands": {"type": "integer", "minimum": 0, "description": "TorqueCommands seen"},
+        "t_s": _num("seconds since the live view saw the first State"),
+        "states": _count("States seen"),
+        "commands": _count("TorqueCommands seen"),
         "command_age_now_ms": _unknown_at_first(
             "at the newest State: its sample time - the sample time of the newest command "
             "seen before it (the command in force, as the live view saw it)"
@@ -315,24 +297,18 @@ LIVE_TIMING = _object(
             "late the controller's tick ran after its predecessor"
         ),
         "lateness_max_us": _unknown_at_first("the largest lateness_now_us so far"),
-        "deadline_misses": {
-            "type": "integer",
-            "minimum": 0,
-            "description": "the controller's own count (its Status; absent until one arrived)",
-        },
-        "states_without_command": {
-            "type": "integer",
-            "minimum": 0,
-            "description": "States no command was computed from within 0.1 s of their arrival",
-        },
-        "max_abs_v": _num("largest |v| so far, m/s", 0),
-        "max_abs_omega": _num("largest |omega| so far, rad/s", 0),
-        "view_backlog": {
-            "type": "integer",
-            "minimum": 0,
-            "description": "messages the live view had received and not yet served (grows "
-            "when the view falls behind the run)",
-        },
+        "deadline_misses": _count(
+            "the controller's own count (its Status; absent until one arrived)"
+        ),
+        "states_without_command": _count(
+            "States no command was computed from within 0.1 s of their arrival"
+        ),
+        "max_abs_v": _num("largest |v| so far, m/s"),
+        "max_abs_omega": _num("largest |omega| so far, rad/s"),
+        "view_backlog": _count(
+            "messages the live view had received and not yet served (grows when the view "
+            "falls behind the run)"
+        ),
         "verdict": {"type": "string", "enum": ["PASS", "FAIL", "INCONCLUSIVE", "WAITING"]},
         "reasons": {"type": "string", "description": "why, in one line ('' for PASS)"},
     },
@@ -341,5 +317,15 @@ LIVE_TIMING = _object(
 )
 LIVE_TIMING["required"] = [k for k in LIVE_TIMING["required"] if k not in _OPTIONAL_TIMING]
 REFERENCE = "reference"  # hil/<robot_id>/reference: foxglove.PoseInFrame of the reference
-_SUFFIX_SCHEMA[TIMING] = LIVE_TIMING
-_SUFFIX_SCHEMA[REFERENCE] = POSE_IN_FRAME
+_SUFFIX_SCHEMA = {
+    "state": MESSAGE_SCHEMAS["State"],
+    "cmd/torque": MESSAGE_SCHEMAS["TorqueCommand"],
+    "status": MESSAGE_SCHEMAS["Status"],
+    "telemetry": MESSAGE_SCHEMAS["Telemetry"],
+    POSE: POSE_IN_FRAME,
+    TF: FRAME_TRANSFORM,
+    TIMING: LIVE_TIMING,
+    REFERENCE: POSE_IN_FRAME,
+}
+_HIL_TOPIC = re.compile(rf"hil/{ROBOT_ID_RE.pattern}/(.+)")
+_FIXED = {"recorder/errors": RECORDER_ERROR, "recorder/rejected": REJECTED}

@@ -125,25 +125,6 @@ class LoopPeaks:
     max_abs_tau2: np.ndarray
     max_late_error: np.ndarray
 
-    def overshoot(self, limits: Any) -> np.ndarray:
-        """max(|v|/phi1, |omega|/phi2, |tau1|/varpi1, |tau2|/varpi2): above 1 breaks (2)."""
-        return np.maximum.reduce(
-            [
-                self.max_abs_v / limits.phi1,
-                self.max_abs_omega / limits.phi2,
-                self.max_abs_tau1 / limits.varpi1,
-                self.max_abs_tau2 / limits.varpi2,
-            ]
-        )
-
-
-def _coefficients(modes: np.ndarray, s: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """(a, b) of shape (N, 2, B) with d = a sign(held torque) + b sign(velocity)."""
-    scale = np.array(s, dtype=float)[None, :, None]
-    a = scale * ((modes == 2).astype(float) - (modes == 1).astype(float))
-    b = scale * (modes == 3).astype(float)
-    return a, b
-
 
 def _advance(
     state: PlantState,
@@ -199,7 +180,10 @@ def run_loops(
     steps = absolute_landings(schedule.land, m)
     land = steps[0].tolist() if together else steps
     own = (NO_DISTURBANCE, None) if own_seeds is None else (scenario.disturbance, own_seeds)
-    a, b = _coefficients(modes, (scenario.disturbance.s1, scenario.disturbance.s2))
+    # d = a sign(held torque) + b sign(velocity), a and b of shape (N, 2, B) (the modes above).
+    scale = np.array([scenario.disturbance.s1, scenario.disturbance.s2], dtype=float)[None, :, None]
+    a = scale * ((modes == 2).astype(float) - (modes == 1).astype(float))
+    b = scale * (modes == 3).astype(float)
     blocks = modes.shape[2]
     limits = scenario.limits
     hold = Hold(n, apart=not together)
@@ -232,13 +216,8 @@ def run_loops(
         blk = k * blocks // k_all
         coef = (a[:, 0, blk], a[:, 1, blk], b[:, 0, blk], b[:, 1, blk])
         state = _advance(state, hold, h, (j0, j0 + m), coef, own, limits, ext)
-    return LoopPeaks(
-        np.asarray(ext.max_abs_v, dtype=float),
-        np.asarray(ext.max_abs_omega, dtype=float),
-        peaks[0],
-        peaks[1],
-        peaks[2],
-    )
+    v, omega = (np.asarray(x, dtype=float) for x in (ext.max_abs_v, ext.max_abs_omega))
+    return LoopPeaks(v, omega, *peaks)
 
 
 def initial_states(scenario: Scenario, n: int, spread: float, seed: int) -> PlantState:

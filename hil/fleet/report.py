@@ -19,20 +19,12 @@ def _robot(folder: Path, code: int | None) -> dict[str, Any]:
     except (OSError, ValueError):
         return {**row, "verdict": "NO RUN", "error": "no summary.json"}
     t, cert = s.get("timing") or {}, s.get("certificate") or {}
-    age = t.get("command_age_zenoh") or {}
-    row.update(
-        verdict=(s.get("verdict") or {}).get("outcome"),
-        d_max_s=cert.get("d_max_s"),
-        d_star_s=cert.get("d_star_s"),
-        held=cert.get("held"),
-        command_age_p99_us=age.get("p99_us"),
-        samples_without_command=t.get("samples_without_command"),
-        samples_judged=t.get("samples_judged"),
-        deadline_misses=t.get("deadline_misses"),
-        ticks=t.get("ticks"),
-        error=s.get("error"),
-    )
-    return row
+    row["verdict"] = (s.get("verdict") or {}).get("outcome")
+    row.update({k: cert.get(k) for k in ("d_max_s", "d_star_s", "held")})
+    row["command_age_p99_us"] = (t.get("command_age_zenoh") or {}).get("p99_us")
+    keys = ("samples_without_command", "samples_judged", "deadline_misses", "ticks")
+    row.update({k: t.get(k) for k in keys})
+    return {**row, "error": s.get("error")}
 
 
 def _ratio(rows: list[dict[str, Any]], num: str, den: str) -> float | None:

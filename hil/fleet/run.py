@@ -48,18 +48,13 @@ def run_argv(opts: FleetOptions, robot: str) -> list[str]:
     """``hil run`` of one robot of the fleet."""
     argv = [sys.executable, "-m", "hil", "run", str(opts.scenario), "--robot-id", robot]
     argv += ["--out", str(opts.out / robot), "--quiet", "--no-report", "--no-can"]
-    if opts.duration is not None:
-        argv += ["--duration", repr(opts.duration)]
-    if opts.rate is not None:
-        argv += ["--rate", repr(opts.rate)]
+    for flag, value in (("--duration", opts.duration), ("--rate", opts.rate)):
+        if value is not None:
+            argv += [flag, repr(value)]
     if opts.lab:
         argv += ["--lab", opts.lab]
-        for flag, host in (
-            ("--plant-host", opts.plant_host),
-            ("--controller-host", opts.controller_host),
-        ):
-            if host:
-                argv += [flag, host]
+        argv += ["--plant-host", opts.plant_host] if opts.plant_host else []
+        argv += ["--controller-host", opts.controller_host] if opts.controller_host else []
     return argv
 
 

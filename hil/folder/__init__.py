@@ -58,15 +58,8 @@ class RunFolder:
     def name(self) -> str:
         return self.path.name
 
-    def file(self, name: str) -> Path:
-        return self.path / name
-
     def has_hop_logs(self) -> bool:
         return has_hop_logs(self.path)
-
-    def series(self) -> dict[str, np.ndarray] | None:
-        """The measurement's saved per-sample series (None: not measured yet, or a sim)."""
-        return read_series(self.path)
 
 
 def has_hop_logs(path: Path) -> bool:
@@ -96,6 +89,7 @@ def write_series(path: Path, arrays: dict[str, np.ndarray]) -> Path:
 
 
 def read_series(path: Path) -> dict[str, np.ndarray] | None:
+    """The measurement's saved per-sample series (None: not measured yet, or a sim)."""
     f = path / layout.SERIES
     if not f.is_file():
         return None
@@ -132,10 +126,5 @@ def load_folder(path: str | Path, lazy: bool = False) -> RunFolder:
     scenario = read_scenario(p)
     if lazy:
         trace_header(p / layout.TRACE)
-    return RunFolder(
-        path=p,
-        trace_data=None if lazy else read_trace(p / layout.TRACE),
-        summary=summary,
-        scenario=scenario,
-        recordings=sorted(p.glob("*.mcap")),
-    )
+    data = None if lazy else read_trace(p / layout.TRACE)
+    return RunFolder(p, data, summary, scenario, recordings=sorted(p.glob("*.mcap")))

@@ -67,7 +67,6 @@ def _without_none(table: Mapping[str, Any]) -> dict[str, Any]:
 def view(scenario: Mapping[str, Any], base_dir: Path | None = None) -> ScenarioView:
     """The view of a scenario's tables (``scenario.resolved.toml`` parsed, or a scenario dict);
     ``base_dir`` resolves a reference's file when its bounds mu1..k2 must be computed."""
-
     # The period every figure of a report scales with: a resolved scenario always states it,
     # so its absence is a broken folder, not the default's 1 ms.
     timing = scenario.get("timing")

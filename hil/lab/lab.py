@@ -127,18 +127,6 @@ def _start_router(state: LabState, index: int) -> None:
         time.sleep(0.05)
 
 
-def _build(
-    state: LabState, offsets: list[float], impairments: dict[str, net.LinkImpairment]
-) -> None:
-    switch = state.intend(Made("netns", netns_name(state.name, "sw"))).name
-    net.add_netns(switch)
-    net.make_switch(switch)
-    for i, offset in enumerate(offsets, start=1):
-        _make_host(state, i, offset, impairments.get(host_name(i), net.LinkImpairment()))
-    for i in range(1, len(offsets) + 1):
-        _start_router(state, i)
-
-
 def up(
     name: str,
     hosts: int,
@@ -150,23 +138,28 @@ def up(
     check_name(name)
     if not 1 <= hosts <= HOSTS_MAX:
         raise net.LabError(f"--hosts {hosts}: 1 to {HOSTS_MAX}")
-    given = {**(offsets or {}), **dict.fromkeys(impairments or {}, 0.0)}
-    for host in given:
-        if host not in {host_name(i) for i in range(1, hosts + 1)}:
+    offsets, impairments = offsets or {}, impairments or {}
+    hostnames = [host_name(i) for i in range(1, hosts + 1)]
+    for host in {**offsets, **impairments}:
+        if host not in hostnames:
             raise net.LabError(f"lab: no host {host!r} among h1..h{hosts}")
-    lossy = any(i.loss > 0 for i in (impairments or {}).values())
-    if lossy and shutil.which("nft") is None:
+    if any(i.loss > 0 for i in impairments.values()) and shutil.which("nft") is None:
         raise net.LabError("a link's loss needs nft (Debian package nftables): not found")
     clean_leftovers(name)
-    wanted = [netns_name(name, host_name(i)) for i in range(1, hosts + 1)]
-    for ns in [netns_name(name, "sw"), *wanted]:
+    for ns in [netns_name(name, host) for host in ("sw", *hostnames)]:
         if net.netns_exists(ns):
             raise net.LabError(f"lab: a network namespace {ns} exists that is not this lab's")
     state = LabState(name, owner_start=proc_start(os.getpid()) or 0)
     state.save()
-    offs = [(offsets or {}).get(host_name(i), default_offset(i)) for i in range(1, hosts + 1)]
     try:
-        _build(state, offs, impairments or {})
+        switch = state.intend(Made("netns", netns_name(name, "sw"))).name
+        net.add_netns(switch)
+        net.make_switch(switch)
+        for i, host in enumerate(hostnames, start=1):
+            imp = impairments.get(host, net.LinkImpairment())
+            _make_host(state, i, offsets.get(host, default_offset(i)), imp)
+        for i in range(1, hosts + 1):
+            _start_router(state, i)
     except BaseException:
         with interrupts.shielded():
             teardown(state)
@@ -184,15 +177,11 @@ def clean_leftovers(name: str) -> bool:
         return False
     if state.phase == "building" and state.owner_alive():
         raise net.LabError(f"lab {name} is being built by PID {state.owner_pid}")
-    if state.phase == "up" and routers_alive(state):
+    procs = [m for m in state.made if m.kind == "proc"]
+    if state.phase == "up" and procs and all(state.owns_process(m) for m in procs):
         raise net.LabError(f"lab {name} is up (hil lab down --name {name} first)")
     teardown(state)
     return True
-
-
-def routers_alive(state: LabState) -> bool:
-    procs = [m for m in state.made if m.kind == "proc"]
-    return bool(procs) and all(state.owns_process(m) for m in procs)
 
 
 def _mounted(path: str) -> bool:

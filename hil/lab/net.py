@@ -52,12 +52,6 @@ def add_netns(name: str) -> None:
     run(["ip", "-n", name, "link", "set", "lo", "up"])
 
 
-def netns_pids(name: str) -> list[int]:
-    """The processes in the namespace (all of them the lab's: it made the namespace)."""
-    proc = subprocess.run(["ip", "netns", "pids", name], capture_output=True, text=True)
-    return [int(p) for p in proc.stdout.split() if p.isdigit()]
-
-
 def kill_pids(pids: list[int], grace: float = 3.0) -> None:
     """SIGTERM, then SIGKILL after ``grace`` seconds, to each PID still there."""
     for sig, wait in ((signal.SIGTERM, grace), (signal.SIGKILL, 1.0)):
@@ -67,21 +61,18 @@ def kill_pids(pids: list[int], grace: float = 3.0) -> None:
         deadline = time.monotonic() + wait
         while time.monotonic() < deadline and any(Path(f"/proc/{p}").exists() for p in pids):
             time.sleep(0.02)
-            _reap(pids)
-
-
-def _reap(pids: list[int]) -> None:
-    """Collect children of this process among ``pids`` (else they stay as zombies)."""
-    for pid in pids:
-        with contextlib.suppress(ChildProcessError, OSError):
-            os.waitpid(pid, os.WNOHANG)
+            for pid in pids:  # collect this process's children among them (else zombies stay)
+                with contextlib.suppress(ChildProcessError, OSError):
+                    os.waitpid(pid, os.WNOHANG)
 
 
 def del_netns(name: str) -> None:
-    """Stop every process left in the namespace, then delete it (its links go with it)."""
+    """Stop every process left in the namespace (all of them the lab's: it made the
+    namespace), then delete it (its links go with it)."""
     if not netns_exists(name):
         return
-    kill_pids(netns_pids(name))
+    proc = subprocess.run(["ip", "netns", "pids", name], capture_output=True, text=True)
+    kill_pids([int(p) for p in proc.stdout.split() if p.isdigit()])
     run(["ip", "netns", "del", name])
 
 
@@ -114,19 +105,14 @@ class LinkImpairment:
 
     def ruleset(self) -> str:
         k = round(self.loss * LOSS_SCALE)
-        return "\n".join(
-            [
-                f"table inet {TABLE} {{",
-                "  chain input {",
-                "    type filter hook input priority 0; policy accept;",
-                f'    iifname "{HOST_LINK}" counter comment "received"',
-                f'    iifname "{HOST_LINK}" numgen random mod {LOSS_SCALE} < {k} counter drop '
-                'comment "dropped"',
-                "  }",
-                "}",
-                "",
-            ]
-        )
+        return f"""table inet {TABLE} {{
+  chain input {{
+    type filter hook input priority 0; policy accept;
+    iifname "{HOST_LINK}" counter comment "received"
+    iifname "{HOST_LINK}" numgen random mod {LOSS_SCALE} < {k} counter drop comment "dropped"
+  }}
+}}
+"""
 
 
 def impair(host_ns: str, imp: LinkImpairment) -> None:

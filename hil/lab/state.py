@@ -43,15 +43,6 @@ def proc_start(pid: int) -> int | None:
     return int(text.rsplit(")", 1)[1].split()[19])
 
 
-def proc_environ(pid: int) -> dict[str, str]:
-    try:
-        raw = Path(f"/proc/{pid}/environ").read_bytes()
-    except OSError:
-        return {}
-    pairs = (item.split(b"=", 1) for item in raw.split(b"\0") if b"=" in item)
-    return {k.decode(errors="replace"): v.decode(errors="replace") for k, v in pairs}
-
-
 @dataclass
 class Made:
     """One object of the lab: ``kind`` netns, timens or proc."""
@@ -97,7 +88,11 @@ class LabState:
         """The recorded process is still the one the lab started (see the module docstring)."""
         if item.pid <= 0 or proc_start(item.pid) != item.start:
             return False
-        return proc_environ(item.pid).get(MARK_ENV) == self.mark
+        try:
+            environ = Path(f"/proc/{item.pid}/environ").read_bytes().split(b"\0")
+        except OSError:
+            return False
+        return f"{MARK_ENV}={self.mark}".encode() in environ
 
     def owner_alive(self) -> bool:
         return self.owner_start != 0 and proc_start(self.owner_pid) == self.owner_start

@@ -21,18 +21,12 @@ CLONE_NEWTIME = 0x00000080
 NS = 1_000_000_000
 
 
-def offset_fields(offset_s: float) -> tuple[int, int]:
-    """(seconds, nanoseconds) as the kernel takes them: nanoseconds in [0, 1e9)."""
-    total = round(offset_s * NS)
-    return total // NS, total % NS
-
-
 def make(file: str, offset_s: float) -> None:
     libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
     if libc.unshare(CLONE_NEWTIME) != 0:
         err = ctypes.get_errno()
         raise OSError(err, f"unshare(CLONE_NEWTIME): {os.strerror(err)}")
-    secs, nsecs = offset_fields(offset_s)
+    secs, nsecs = divmod(round(offset_s * NS), NS)  # as the kernel takes them: nsecs in [0, 1e9)
     with open("/proc/self/timens_offsets", "w") as f:
         f.write(f"monotonic {secs} {nsecs}\nboottime {secs} {nsecs}\n")
     source = f"/proc/{os.getpid()}/ns/time_for_children"

@@ -33,7 +33,6 @@ class PerRobot:
         self.name = str(getattr(law, "name", type(law).__name__))
 
     def resolved_table(self) -> dict[str, Any]:
-
         return resolved_controller_table(self.law)
 
     def initial_memory(self, n: int | None = None, z1: Any = 0.0, z2: Any = 0.0) -> Any:
@@ -75,22 +74,17 @@ def _what(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def _probe(scenario: Any, reference: Any) -> tuple[list[RobotState], ReferenceSample, float]:
-    ini = scenario.initial
+def array_problem(controller: Any, scenario: Any, reference: Any) -> str | None:
+    """Why ``controller`` cannot run on arrays (None: it can). Raises BadInputError when it
+    fails even on one robot: then no path can run it."""
+    law = str(scenario.controller.get("law", "unified"))
+    ini, ts = scenario.initial, float(scenario.timing.ts)
     robots = [
         RobotState(ini.x + d, ini.y - d, ini.theta + d, ini.v + d, ini.omega - d)
         for d in _PROBE_OFFSETS
     ]
     ref = ReferenceSample(*(float(v) for v in reference.sample(0.0)))
-    return robots, ref, float(scenario.timing.ts)
-
-
-def array_problem(controller: Any, scenario: Any, reference: Any) -> str | None:
-    """Why ``controller`` cannot run on arrays (None: it can). Raises BadInputError when it
-    fails even on one robot: then no path can run it."""
-    law = str(scenario.controller.get("law", "unified"))
-    robots, ref, ts = _probe(scenario, reference)
-    z1, z2 = scenario.initial.z1, scenario.initial.z2
+    z1, z2 = ini.z1, ini.z2
     singles = []
     try:
         for robot in robots:
@@ -122,9 +116,8 @@ def for_batch(controller: Any, scenario: Any, reference: Any) -> Any:
     """The law ready for the batch path: a built-in law as it is (they are written for arrays,
     tests/test_law_unified.py), a user's law as it is when the probe agrees, else wrapped in
     :class:`PerRobot`."""
-    if scenario.controller.get("law", "unified") in BUILTIN_LAWS or isinstance(
-        controller, PerRobot
-    ):
+    builtin = scenario.controller.get("law", "unified") in BUILTIN_LAWS
+    if builtin or isinstance(controller, PerRobot):
         return controller
     problem = array_problem(controller, scenario, reference)
     return controller if problem is None else PerRobot(controller, problem)

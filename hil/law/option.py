@@ -17,7 +17,6 @@ def with_law(scenario: Any, law: str | None) -> Any:
     folder or the working directory."""
     if law is None:
         return scenario
-
     plain_string("--law", law, empty=False)
     if law == scenario.controller.get("law", "unified"):
         return scenario

@@ -45,7 +45,18 @@ def check(port: int | None, host: str) -> None:
         return
     options.integer("--live", port, 0, 65535)
     options.plain_string("--live-host", host, empty=False)
-    _check_free(host, port)
+    # Bound now, before any folder or process, if at all: the view's own bind would fail later
+    # (the port in use, or the host not an address of this machine).
+    try:
+        family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    except OSError as exc:
+        raise BadInputError(f"--live-host {host}: {exc}") from exc
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(addr)
+        except OSError as exc:
+            raise BadInputError(f"--live {port} on {host}: {exc.strerror or exc}") from exc
     if host not in LOOPBACK:
         print(
             f"warning: --live-host {host}: the live view serves the run's data (pose, "
@@ -53,22 +64,6 @@ def check(port: int | None, host: str) -> None:
             "login and no TLS",
             file=sys.stderr,
         )
-
-
-def _check_free(host: str, port: int) -> None:
-    """BadInputError now if ``host:port`` cannot be bound (in use, not an address of this
-    machine), before any folder or process: the view's own bind would fail later."""
-    try:
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-    except OSError as exc:
-        raise BadInputError(f"--live-host {host}: {exc}") from exc
-    family, _, _, _, addr = infos[0]
-    with socket.socket(family, socket.SOCK_STREAM) as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind(addr)
-        except OSError as exc:
-            raise BadInputError(f"--live {port} on {host}: {exc.strerror or exc}") from exc
 
 
 def argv_for(settings_path: Path | Sequence[Path], port: int, host: str, resolved: Path | None,
@@ -98,12 +93,17 @@ def wait_url(log: Path, alive: Any, timeout: float = START_TIMEOUT_S) -> str:
     raise BadInputError(f"the live view did not start within {timeout:g} s ({log})")
 
 
-def announce(url: str) -> None:
+def _start(sup: Supervisor, argv: list[str], log: Any, log_path: Path) -> str:
+    """Start the live process under ``sup``, its output to ``log`` (at ``log_path``); its
+    address once it listens, announced on stderr."""
+    child = sup.start_python("live", argv, stdout=log, stderr=subprocess.STDOUT)
+    url = wait_url(log_path, child.alive)
     print(
         f"live view: {url} (Foxglove or Lichtblick: Open connection > Foxglove WebSocket; "
         "layout docs/live-layout.json)",
         file=sys.stderr,
     )
+    return url
 
 
 def start_for_run(
@@ -112,10 +112,7 @@ def start_for_run(
     """The live process of ``hil run`` (a supervised child, stopped with the others)."""
     argv = argv_for(run_dir / "run_settings.json", port, host,
                     run_dir / "scenario.resolved.toml", "client", other_clocks)  # fmt: skip
-    child = sup.start_python("live", argv, stdout=logs.open("live"), stderr=subprocess.STDOUT)
-    url = wait_url(run_dir / "live.log", child.alive)
-    announce(url)
-    return url
+    return _start(sup, argv, logs.open("live"), run_dir / "live.log")
 
 
 class DrivesLive:
@@ -126,11 +123,10 @@ class DrivesLive:
         folder = Path(self._dir.name)
         settings.save(folder / "run_settings.json")
         self._sup = Supervisor()
-        argv = argv_for(folder / "run_settings.json", port, host, None, "client")
         self._log = (folder / "live.log").open("wb")
-        child = self._sup.start_python("live", argv, stdout=self._log, stderr=subprocess.STDOUT)
+        argv = argv_for(folder / "run_settings.json", port, host, None, "client")
         try:
-            announce(wait_url(folder / "live.log", child.alive))
+            _start(self._sup, argv, self._log, folder / "live.log")
         except BaseException:
             self.close()
             raise
@@ -164,9 +160,7 @@ class FleetLive:
         resolved = self.resolved if self.resolved.is_file() else None
         argv = argv_for(self.settings, self.port, self.host, resolved, "client", self.lab)
         self._log = self.log_path.open("wb")
-        child = self._sup.start_python("live", argv, stdout=self._log, stderr=subprocess.STDOUT)
-        self.url = wait_url(self.log_path, child.alive)
-        announce(self.url)
+        self.url = _start(self._sup, argv, self._log, self.log_path)
 
     def close(self) -> None:
         self._sup.stop_all(grace=5.0)

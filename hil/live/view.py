@@ -48,40 +48,29 @@ class LiveView:
         self.timings = {r: LiveTiming(bounds) for r in self.robot_ids}
         self.reference = reference
         self.epochs: dict[str, int] = {}
-        self._foxglove = foxglove
         self.context = foxglove.Context()
         self._channels: dict[str, Any] = {}
         self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
         self.port = int(self.server.port)
-        self.host = host
-        self.published = 0
         for robot in self.robot_ids:
             for suffix in ("state", "cmd/torque", "telemetry", "status", schemas.POSE,
                            schemas.TF, schemas.REFERENCE, schemas.TIMING):  # fmt: skip
                 self.channel(f"hil/{robot}/{suffix}")  # advertised from the start
 
     def channel(self, topic: str) -> Any:
-        ch = self._channels.get(topic)
-        if ch is None:
-            ch = self._foxglove.Channel(
-                topic, schema=self._schema(topic), message_encoding="json", context=self.context
+        if topic not in self._channels:
+            doc = schemas.schema_for_topic(topic)
+            name, data = schemas.schema_name(topic, doc), json.dumps(doc).encode()
+            schema = foxglove.Schema(name=name, encoding="jsonschema", data=data)
+            self._channels[topic] = foxglove.Channel(
+                topic, schema=schema, message_encoding="json", context=self.context
             )
-            self._channels[topic] = ch
-        return ch
-
-    def _schema(self, topic: str) -> Any:
-        doc = schemas.schema_for_topic(topic)
-        return self._foxglove.Schema(
-            name=schemas.schema_name(topic, doc),
-            encoding="jsonschema",
-            data=json.dumps(doc).encode(),
-        )
+        return self._channels[topic]
 
     def _log(self, topic: str, data: dict[str, Any], log_time: int) -> None:
         ch = self.channel(topic)
         if ch.has_sinks():  # nobody subscribed: no JSON to build
             ch.log(data, log_time=int(log_time))
-            self.published += 1
 
     def on_message(self, topic: str, msg: Any, recv_ns: int) -> None:
         """One decoded protocol message received on ``topic`` (its robot's timing counts it

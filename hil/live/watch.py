@@ -105,7 +105,7 @@ def _open_inputs(runs: list[RunSettings], zenoh_mode: str, q: collections.deque)
         bus = settings.open_can_bus()
     except Exception as exc:  # the view still shows the Zenoh side
         print(f"live: CAN frames not shown: {exc}", file=sys.stderr)
-        bus = None
+        return opened
     if bus is not None:
         channel = str(settings.can.get("channel", "can"))
         notifier = can.Notifier(

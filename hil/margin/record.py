@@ -86,10 +86,8 @@ def write(folder: Path, record: MarginRecord) -> Path:
 
 def read(folder: Path | str | None) -> MarginRecord | None:
     """The folder's margin record, None when there is none or it cannot be read."""
-    if folder is None:
-        return None
-    path = Path(folder) / FILE
-    if not path.is_file():
+    path = None if folder is None else Path(folder) / FILE
+    if path is None or not path.is_file():
         return None
     try:
         return MarginRecord.from_dict(read_json_object(path))

@@ -54,8 +54,20 @@ def probe(
 ) -> tuple[MarginProbe, int]:
     """One scale: the worst score over the loops, and how many loops ran; a law that cannot
     run on arrays (the batch path) is bad input, named."""
+    sc, schedule = scaled(scenario, base, k, opts.seeds, opts.duration)
+    init = initial_states(sc, opts.seeds, SPREAD, 0)
+    age = schedule.max_age()
     try:
-        return _probe(scenario, base, k, opts, loop)
+        if opts.worst:
+            bound, rounds = opts.error_bound, opts.rounds
+            best = worst_disturbance(
+                sc, schedule, init, rounds=rounds, error_bound=bound, stop_on_break=True, loop=loop
+            )
+            found = MarginProbe(k, best.score, best.limit, best.broke, age, best.describe())
+            return found, best.loops
+        modes = np.zeros((opts.seeds, 2, 1), dtype=np.int8)
+        seeds = scenario.disturbance.seed + np.arange(opts.seeds, dtype=np.int64)
+        peaks = run_loops(sc, schedule, modes, init, loop=loop, own_seeds=seeds)
     except BadInputError:
         raise
     except Exception as exc:  # the law may be the user's: whatever it raises on arrays
@@ -64,28 +76,6 @@ def probe(
             f"[controller] law {law!r} failed on the batch path (numpy arrays of "
             f"{opts.seeds} robots): {type(exc).__name__}: {exc}"
         ) from exc
-
-
-def _probe(
-    scenario: Scenario, base: BaseTiming, k: float, opts: MarginOptions, loop: Any
-) -> tuple[MarginProbe, int]:
-    sc, schedule = scaled(scenario, base, k, opts.seeds, opts.duration)
-    init = initial_states(sc, opts.seeds, SPREAD, 0)
-    age = schedule.max_age()
-    if opts.worst:
-        best = worst_disturbance(
-            sc,
-            schedule,
-            init,
-            rounds=opts.rounds,
-            error_bound=opts.error_bound,
-            stop_on_break=True,
-            loop=loop,
-        )
-        return MarginProbe(k, best.score, best.limit, best.broke, age, best.describe()), best.loops
-    modes = np.zeros((opts.seeds, 2, 1), dtype=np.int8)
-    seeds = scenario.disturbance.seed + np.arange(opts.seeds, dtype=np.int64)
-    peaks = run_loops(sc, schedule, modes, init, loop=loop, own_seeds=seeds)
     score, which = scores(peaks, sc.limits, opts.error_bound)
     i = int(np.argmax(score))
     broke = bool(score[i] > 1.0 + VIOLATION_RTOL)
