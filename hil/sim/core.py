@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -122,7 +122,8 @@ def _summaries(
     (numpy scalar reads, scenario properties) cost more than a hundred control periods; here
     each column is read back as a Python list once, and what all robots share is computed once.
     """
-    peaks = [getattr(ext, f.name) for f in fields(ext)[:8]]  # in Extremes' order
+    peaks = (ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2)
+    peaks += (ext.violations_v, ext.violations_omega, ext.violations_tau1, ext.violations_tau2)
     columns = np.broadcast_arrays(*per_robot[:3], *peaks, *per_robot[3:])
     limit_table = asdict(scenario.limits)
     ts = scenario.timing.ts
@@ -483,16 +484,19 @@ def _record_rows(
     e_pos: np.ndarray,
 ) -> None:
     """Append sample k's trace row of every recorded robot (the single path's row)."""
+    # Robot by robot, scalar reads: a few robots are recorded out of a batch of any size.
     lag = run.plant.lag
     applied = (run.hold.cmd1, run.hold.cmd2) if lag <= 0.0 else (state.tau1, state.tau2)
     head = wrap_angle(state.theta - ref.thetad)
-    tel = [out.telemetry[key] for key in run.tel_keys or []]
-    row = (t_k, *state[:5], ref.xd, ref.yd, ref.thetad, *applied, tau1, tau2, e_pos, head, *tel)
-    n, rec = len(run.group), run.record
-    # time and reference are one float for all robots unless they start at their own times
-    table = np.stack([np.broadcast_to(np.asarray(q, dtype=float), (n,))[rec] for q in row], axis=1)
-    for i, values in zip(rec, table, strict=True):
-        run.rec_rows[i].append(values)
+    n = len(run.group)
+    tel = [np.broadcast_to(out.telemetry[key], (n,)) for key in run.tel_keys or []]
+    timed = (t_k, ref.xd, ref.yd, ref.thetad)
+    shared = run.starts is None  # time and reference are then one float for all robots
+    robot = (*state[:5], *applied, tau1, tau2, e_pos, head, *tel)
+    for i in run.record:
+        t, xd, yd, thd = timed if shared else (q[i] for q in timed)
+        x, y, th, v, w, *rest = (q[i] for q in robot)
+        run.rec_rows[i].append(np.array([t, x, y, th, v, w, xd, yd, thd, *rest], dtype=float))
 
 
 def _batch_result(run: _Batch, scenario: Scenario, variations: list[RobotVariation]) -> BatchResult:
