@@ -235,6 +235,22 @@ def test_cli_bad_input(tmp_path):
     assert main(["certify", _write(tmp_path, law="jiang1997")]) == 2
 
 
+@pytest.mark.parametrize("m1", ["nan", "inf", "-inf", '"x"', "true"])
+def test_cli_refuses_a_bad_controller_value_with_a_clear_message(tmp_path, capsys, m1):
+    """Certify must never certify a design it could not read: the [controller] value is refused."""
+    assert main(["certify", _write(tmp_path, m1=m1), "--ts", "0.001", "--delay", "0"]) == 2
+    captured = capsys.readouterr()
+    assert "GUARANTEED" not in captured.out
+    assert "m1" in captured.err, captured.err
+
+
+def test_cli_refuses_an_unknown_controller_key(tmp_path, capsys):
+    path = tmp_path / "s.toml"
+    path.write_text(SCENARIO.format(law="unified", m1=0.5).replace("m1 = 0.5", "m1 = 0.5\nmx = 1"))
+    assert main(["certify", str(path), "--ts", "0.001", "--delay", "0"]) == 2
+    assert "mx" in capsys.readouterr().err
+
+
 def test_positive_gains_are_shown_as_given_not_negated(tmp_path, capsys):
     """ "m1 > 0" reads value m1 (0.7 here), bound 0, margin 0.7: the table and the JSON both."""
     cert = certify(SimpleNamespace(**{**vars(TABLE1), "m1": 0.7}), PAPER, 0.001, 0.0, False)
