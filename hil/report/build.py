@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +46,7 @@ from protocol.versions import REPORT_SCHEMA_VERSION
 FIGURE_PREFIX = "report_"
 SOURCE = "summary.json and series.npz (hil.measure, measured once when the run ended)"
 IdealProvider = Callable[[Folder], dict[str, np.ndarray] | None]
+_GEOMETRY = [f.name for f in fields(RobotGeometry)]
 
 
 @dataclass
@@ -61,16 +62,14 @@ def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.n
     out: dict[str, Any] = {"geometry": None, "note": ""}
     q = None
     try:
-        g = RobotGeometry(
-            **{k: float(robot[k]) for k in RobotGeometry.__dataclass_fields__ if k in robot}
-        )
+        g = RobotGeometry(**{k: float(robot[k]) for k in _GEOMETRY if k in robot})
     except (TypeError, ValueError) as exc:
         out["note"] = f"no wheel mapping: [robot] is not a geometry ({exc})"
     else:
         tr = folder.trace
         qr, ql = motor_torques(g, tr["tau1"], tr["tau2"])
         q = np.vstack([qr, ql])
-        out["geometry"] = {k: getattr(g, k) for k in RobotGeometry.__dataclass_fields__}
+        out["geometry"] = asdict(g)
         out["motor_torque_limit_nm"] = motor_torque_limit(g, sv.limits.varpi1, sv.limits.varpi2)
         out["max_abs_q_right_nm"] = float(np.nanmax(np.abs(qr)))
         out["max_abs_q_left_nm"] = float(np.nanmax(np.abs(ql)))
@@ -154,9 +153,8 @@ def _add_topology(folder: Path, data: dict[str, Any], figs: list[fg.Figure]) -> 
         return
     if not isinstance(topo, dict) or not isinstance(topo.get("processes"), dict):
         return
-    hosts = topo.get("hosts") or {}
+    hosts, procs = topo.get("hosts") or {}, topo["processes"]
     injected = [h.get("offset_s") for h in hosts.values()]
-    procs = topo["processes"]
     plant, ctrl = ((hosts.get(procs.get(p)) or {}).get("offset_s") for p in ("plant", "controller"))
     numbers = isinstance(plant, int | float) and isinstance(ctrl, int | float)
     difference = float(plant) - float(ctrl) if numbers else None
@@ -371,12 +369,9 @@ def _run_figures(m: Measurement, cert: dict[str, Any]) -> list[fg.Figure]:
     if late:
         figs.append(fg.over_time("lateness", "Wake-up lateness over time", "µs", late))
     env = {}
-    paths = sorted(
-        (p for p in ("zenoh", "can") if f"command_age_{p}" in m.series), key=lambda p: p != applied
-    )
-    for p in paths:
-        seg = m.series[f"command_age_{p}"]
-        if len(seg) and m.epoch_ns is not None:
+    for p in sorted(("zenoh", "can"), key=lambda p: p != applied):  # the applied path first
+        seg = m.series.get(f"command_age_{p}")
+        if seg is not None and len(seg) and m.epoch_ns is not None:
             label = f"{p} (applied)" if p == applied else f"{p} (shadow)"
             env[label] = envelope(seg, m.epoch_ns)
     if env:

@@ -21,13 +21,12 @@ from hil.folder.scenario_view import view
 from hil.measure.figures import Measurement
 from hil.measure.folder import measured
 from hil.report import figures as fg
-from hil.report.content import NORMALIZED, SLIDING, _md_table, label_of, unit_of
+from hil.report.content import LIMITS, NORMALIZED, SLIDING, SYMBOL, _md_table, label_of, unit_of
 from hil.report.html import CSS, esc, figure, table
 from hil.verdict import short_reason
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
 PREFIX = "compare_"
-LIMIT_RATIOS = (("v", "|v|/φ1"), ("omega", "|ω|/φ2"), ("tau1", "|τ1|/ϖ1"), ("tau2", "|τ2|/ϖ2"))
 #: How many of the most-moved figures the headline lists.
 MOST_MOVED = 8
 #: How much of a verdict's first reason the headline quotes (the reports have all of it).
@@ -52,9 +51,9 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
         if isinstance(v, int | float) and not isinstance(v, bool):
             out[f"summary.{k}"] = float(v)
         elif isinstance(v, dict) and k == "violations":
-            for kk, vv in v.items():
-                if isinstance(vv, int | float):
-                    out[f"violations.{kk}"] = float(vv)
+            out.update(
+                {f"violations.{n}": float(c) for n, c in v.items() if isinstance(c, int | float)}
+            )
     out.update({f"tracking.{k}": v for k, v in eff["tracking"].items()})
     out.update({f"max_over_limit.{k}": c["ratio"] for k, c in eff["constraints"].items()})
     for name, b in eff["bands"].items():
@@ -135,13 +134,10 @@ def most_moved(rows: list[list[Any]], n: int = MOST_MOVED) -> list[list[Any]]:
         base = abs(a) if a else 1.0
         scored.append((abs(diff) / base, [key, a, b, diff, unit_of(key), label_of(key)]))
     scored.sort(key=lambda s: -s[0])
-    out: list[list[Any]] = []
-    seen = set()
+    once: dict[tuple[Any, ...], list[Any]] = {}
     for _, row in scored:  # one figure under two keys (summary and tracking) is listed once
-        if (row[5], row[1], row[2]) not in seen and len(out) < n:
-            seen.add((row[5], row[1], row[2]))
-            out.append(row)
-    return out
+        once.setdefault((row[5], row[1], row[2]), row)
+    return list(once.values())[:n]
 
 
 def compare_headline(
@@ -158,10 +154,10 @@ def compare_headline(
         "while still guaranteeing the limits (2))."
     )
     limits = []
-    for name, sym in LIMIT_RATIOS:
+    for name, sym in SYMBOL.items():
         ra, rb = a.get(f"max_over_limit.{name}"), b.get(f"max_over_limit.{name}")
         if ra is not None and rb is not None:
-            limits.append(f"max {sym} {ra:.3f} → {rb:.3f}")
+            limits.append(f"max |{sym}|/{LIMITS[name]} {ra:.3f} → {rb:.3f}")
     if limits:
         lines.append(
             "Limits of (2), the bounds φ1, φ2 on the velocities and ϖ1, ϖ2 on the inputs the "

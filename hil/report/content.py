@@ -131,6 +131,13 @@ def _pct_rows(
     return rows
 
 
+def _per_path(prefix: str, applied: str | None, shadow: str) -> list[tuple[str, str]]:
+    """The figure ``prefix + path`` of each path, labelled applied or ``shadow``."""
+    return [
+        (prefix + p, f"{p} ({'applied' if p == applied else shadow})") for p in ("zenoh", "can")
+    ]
+
+
 def sections(data: dict[str, Any]) -> Iterator[Section]:
     for sid in data["sections"]:
         title, build = SECTIONS[sid]
@@ -143,14 +150,6 @@ def _headline(s: Section, data: dict[str, Any]) -> None:
     s.items([line["text"] for line in data["headline"]["lines"]])
 
 
-# The report's first lines, in words and numbers: (1) were the limits of (2) held, and by what
-# margin (each peak as a share of its limit)? (2) The command age D against D* (the certificate)
-# and the margin. (3) The stalls closest to D*: when, how long, why (top 3). (4) The share of
-# plant samples that never got a command. Every number is one already in the report: the peaks of
-# summary.json (every plant step) and the trace, the certificate (for a run: hil.measure's), the
-# timing object.
-
-
 def ms(seconds: float) -> str:
     return f"{seconds * 1e3:.3f} ms"
 
@@ -159,16 +158,13 @@ def _limits(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, An
     cons = data["metrics"]["constraints"]
     violations = summary.get("violations") or {}
     out: dict[str, Any] = {"held": data["verdict"]["limits"] == "held"}
-    parts = []
-    broken = []
+    parts, broken = [], []
     for key, name in LIMITS.items():
-        unit = UNITS[key]
-        c = cons[key]
+        unit, c, sym = UNITS[key], cons[key], SYMBOL[key]
         n = violations.get(key)
         n = int(n) if isinstance(n, int | float) and not isinstance(n, bool) else None
         pct = 100.0 * c["ratio"]
         out[key] = {"max": c["peak"], "limit": c["limit"], "percent_of_limit": pct, "violations": n}
-        sym = SYMBOL[key]
         limit = f"{name} = {c['limit']:.4g} {unit}"
         parts.append(f"max |{sym}| = {c['peak']:.4g} {unit} is {pct:.1f} % of {limit}")
         if (n or 0) > 0:
@@ -254,7 +250,11 @@ def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, A
 
 
 def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
-    """The four answers and the verdict, as data and as the report's first lines."""
+    """The four answers and the verdict, as data and as the report's first lines: were the
+    limits of (2) held, and by what margin (each peak as a share of its limit)? The command age
+    D against D* and the margin; the stalls closest to D* (when, how long, why); the plant
+    samples that never got a command. Every number is one already in the report: summary.json's
+    peaks (every plant step) and the trace's, the certificate (a run's: hil.measure's), timing."""
     answers = {
         "limits": _limits(data, summary),
         "command_age": _command_age(data),
@@ -263,9 +263,8 @@ def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
     }
     v = data["verdict"]
     verdict = v.get("outcome", "PASS" if v["ok"] else "FAIL")
-    v_text = (
-        f"Verdict: {verdict}." if v["ok"] else f"Verdict: {verdict}: {'; '.join(v['reasons'])}."
-    )
+    why = "" if v["ok"] else f": {'; '.join(v['reasons'])}"
+    v_text = f"Verdict: {verdict}{why}."
     if v.get("notes"):
         v_text += " " + " ".join(v["notes"])
     lines = [{"key": k, "text": text} for k, (_, text) in answers.items()]
@@ -339,12 +338,7 @@ def _certificate(s: Section, data: dict[str, Any]) -> None:
         for line in summary_lines(MarginRecord.from_dict(data["margin"])):
             s.p(line)
     timing = (data.get("timing") or {}).get("summary") or {}
-    path = c.get("path")
-    names = [
-        (f"command_age_{p}", f"{p} ({'applied' if p == path else 'shadow'})")
-        for p in ("zenoh", "can")
-    ]
-    rows = _pct_rows(timing, names)
+    rows = _pct_rows(timing, _per_path("command_age_", c.get("path"), "shadow"))
     if rows:
         s.p(
             "Command age at every plant step (age of information, per path); the applied "
@@ -434,7 +428,7 @@ def _drives(s: Section, data: dict[str, Any]) -> None:
         for side in ("controller", "plant"):
             st = can.get(side)
             if isinstance(st, dict):
-                rows += [[side, k.replace("_", " "), st[k], _count_unit(st[k])] for k in st]
+                rows += [[side, k.replace("_", " "), v, _count_unit(v)] for k, v in st.items()]
         s.table(["side", "drive/bus state", "value", "unit"], rows)
     else:
         s.p("No CAN bus in this folder (a simulation, or a run without CAN).")
@@ -496,11 +490,8 @@ def _bands(s: Section, data: dict[str, Any]) -> None:
 
 def _latency(s: Section, data: dict[str, Any]) -> None:
     timing = data["timing"]["summary"] or {}
-    path = data["timing"].get("applied_path")
-    names = [
-        (f"sample_to_apply_{p}", f"{p} ({'applied' if p == path else 'shadow: receive'})")
-        for p in ("zenoh", "can")
-    ] + [("hop_cmd_zenoh", "command hop zenoh"), ("hop_cmd_can", "command hop can")]
+    names = _per_path("sample_to_apply_", data["timing"].get("applied_path"), "shadow: receive")
+    names += [("hop_cmd_zenoh", "command hop zenoh"), ("hop_cmd_can", "command hop can")]
     s.p(
         "Sample-to-apply: from the moment the plant sampled the state to the moment the "
         "command computed from it took effect at the plant (a shadow path: arrived). Command "
@@ -684,8 +675,7 @@ def _topology(s: Section, data: dict[str, Any]) -> None:
     )
     s.p(_clock_text(f))
     s.figure("clock_offset")
-    clock = f.get("clock") or {}
-    unc = clock.get("uncertainty_ns_max")
+    unc = (f.get("clock") or {}).get("uncertainty_ns_max")
     unc_us = None if unc is None else float(np.round(unc / 1e3, 3))
     timing = (data.get("timing") or {}).get("summary") or {}
     s.table(
@@ -741,19 +731,17 @@ NAMES = {
     "certificate.stalls": "stalls (commands in force above the stall threshold)",
     "certificate.v_bound": "largest |v| the bound allows",
     "certificate.omega_bound": "largest |ω| the bound allows",
-    "max_over_limit.v": "max |v| / φ1 (the limit of (2) on v)",
-    "max_over_limit.omega": "max |ω| / φ2 (the limit of (2) on ω)",
-    "max_over_limit.tau1": "max |τ1| / ϖ1 (the limit of (2) on τ1)",
-    "max_over_limit.tau2": "max |τ2| / ϖ2 (the limit of (2) on τ2)",
     "timing.startup_hold_s": "start-up hold: first command landed after the first sample",
     "timing.late_commands": "late commands (applied more than Ts after their sample)",
     "timing.late_commands_rate": "late commands, share of the samples",
-    "timing.compute.p50_us": "controller compute time, p50",
-    "timing.compute.p99_us": "controller compute time, p99",
-    "timing.compute.max_us": "controller compute time, max",
     "band_p99.v_tilde": "band of v~ = v − α_v (p99 of |v~| once reached)",
     "band_p99.w_tilde": "band of w~ = ω − α_ω (p99 of |w~| once reached)",
 }
+NAMES |= {
+    f"max_over_limit.{k}": f"max |{sym}| / {LIMITS[k]} (the limit of (2) on {sym})"
+    for k, sym in SYMBOL.items()
+}
+NAMES |= {f"timing.compute.{q}_us": f"controller compute time, {q}" for q in ("p50", "p99", "max")}
 #: Where a figure comes from, as its key's first part names it (else that part in words).
 GROUPS = {
     "summary": "",

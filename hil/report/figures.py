@@ -177,15 +177,13 @@ def _data(full: np.ndarray, idx: np.ndarray | None) -> np.ndarray:
 def _envelope_caption(n: int, idx: np.ndarray | None) -> str:
     if idx is None:
         return ""
-    where = (
-        "the data file holds every sample"
-        if n <= MAX_DATA_ROWS
-        else f"the data file holds the {idx.size} drawn samples (the complete series is in "
-        "the folder's trace.csv or hop logs)"
-    )
+    where = "every sample"
+    if n > MAX_DATA_ROWS:
+        where = f"the {idx.size} drawn samples (the complete series is in the folder's trace.csv "
+        where += "or hop logs)"
     return (
         f"{n} samples drawn as {idx.size}: the minimum and maximum of each time bin, so every "
-        f"peak and limit crossing shows; {where}."
+        f"peak and limit crossing shows; the data file holds {where}."
     )
 
 
@@ -321,13 +319,14 @@ CLIP_QUANTILE = 0.999
 CLIP_FACTOR = 3.0
 
 
-def _clip(samples: Mapping[str, np.ndarray]) -> float | None:
+def _clip(samples: Mapping[str, np.ndarray]) -> tuple[float | None, float]:
+    """Where the axis ends (None: nothing clipped), and the smallest sample."""
     pooled = np.concatenate([np.asarray(v, dtype=float).ravel() for v in samples.values()])
     pooled = pooled[np.isfinite(pooled)]
     if pooled.size < 10:
-        return None
+        return None, 0.0
     q = float(np.quantile(pooled, CLIP_QUANTILE))
-    return q * 1.05 if q > 0 and pooled.max() > CLIP_FACTOR * q else None
+    return q * 1.05 if q > 0 and pooled.max() > CLIP_FACTOR * q else None, float(pooled.min())
 
 
 def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) -> Figure:
@@ -335,7 +334,7 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
     fig, (ax_h, ax_c) = plt.subplots(1, 2, figsize=(9, 3.4))
     cols: dict[str, np.ndarray] = {}
     captions: list[str] = []
-    clip = _clip(samples) if samples else None
+    clip, low = _clip(samples) if samples else (None, 0.0)
     for label, values in samples.items():
         v = np.sort(np.asarray(values, dtype=float))
         if v.size == 0:
@@ -353,11 +352,10 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
         cdf = np.arange(1, v.size + 1) / v.size
         idx = cdf_indices(v.size)
         ax_c.plot(v[idx], cdf[idx], label=label, linewidth=1.0)
-        cols[f"{label}_bin_left_us"] = edges[:-1]
-        cols[f"{label}_bin_right_us"] = edges[1:]
+        cols |= {f"{label}_bin_left_us": edges[:-1], f"{label}_bin_right_us": edges[1:]}
         cols[f"{label}_count"] = counts
-        cols[f"{label}_sorted_us"] = v if v.size <= MAX_DATA_ROWS else v[idx]
-        cols[f"{label}_cdf"] = cdf if v.size <= MAX_DATA_ROWS else cdf[idx]
+        kept = slice(None) if v.size <= MAX_DATA_ROWS else idx
+        cols |= {f"{label}_sorted_us": v[kept], f"{label}_cdf": cdf[kept]}
         if idx.size < v.size:
             data = "every sample" if v.size <= MAX_DATA_ROWS else "the drawn points"
             captions.append(
@@ -369,8 +367,6 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
     ax_h.set_yscale("log")
     if clip is not None:
         # both ends: left to itself the axis keeps the clipped outliers' margin on the left
-        pooled = np.concatenate([np.asarray(v, dtype=float).ravel() for v in samples.values()])
-        low = float(np.min(pooled[np.isfinite(pooled)]))
         ax_c.set_xlim(low - 0.05 * (clip - low), clip)
     fig.suptitle(title)
     fig.tight_layout()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 from array import array
 from collections.abc import Iterable
+from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
@@ -34,16 +35,15 @@ def _decode(payloads: list[bytes]) -> list[Any]:
     try:
         return orjson.loads(b"[" + b",".join(payloads) + b"]")
     except ValueError:  # decode one by one, keeping the others in place
-        out: list[Any] = []
-        for p in payloads:
-            try:
-                out.append(orjson.loads(p))
-            except ValueError:
-                try:
-                    out.append(json.loads(p))
-                except ValueError:
-                    out.append(None)
-        return out
+        return [_one(p) for p in payloads]
+
+
+def _one(payload: bytes) -> Any:
+    with suppress(ValueError):
+        return orjson.loads(payload)
+    with suppress(ValueError):
+        return json.loads(payload)
+    return None
 
 
 _PLAIN = frozenset((int, float))  # JSON's numbers (bool is its own type: not one of them)
@@ -127,6 +127,5 @@ def forget_memory(folder: Any) -> None:
 
 
 def sliding_from_recordings(paths: Iterable[Path]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """v~ and w~ of (10) from the controller's telemetry messages: name -> (time_ns, values).
-    Telemetry may be decimated; the band is then computed over the recorded samples."""
+    """:func:`recorded_telemetry`'s v~ and w~ of (10) alone."""
     return recorded_telemetry(paths, (SLIDING,))
