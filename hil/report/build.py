@@ -34,8 +34,7 @@ from hil.measure.clocks import read_track
 from hil.measure.figures import Measurement
 from hil.measure.folder import measured
 from hil.report import figures as fg
-from hil.report.content import headline, render_markdown
-from hil.report.html import render_html
+from hil.report.content import headline, render_html, render_markdown
 from hil.report.ideal import IdealUnavailableError
 from hil.report.ideal_sim import WINDOW_S
 from hil.report.telemetry import SLIDING, folder_telemetry, forget_memory
@@ -45,7 +44,10 @@ from protocol.versions import REPORT_SCHEMA_VERSION
 
 FIGURE_PREFIX = "report_"
 SOURCE = "summary.json and series.npz (hil.measure, measured once when the run ended)"
-IdealProvider = Callable[[Folder], dict[str, np.ndarray] | None]
+#: Named columns (a trace, the ideal trajectory); the sliding variables: name -> (t s, values).
+Columns = dict[str, np.ndarray]
+Sliding = dict[str, tuple[np.ndarray, np.ndarray]]
+IdealProvider = Callable[[Folder], Columns | None]
 _GEOMETRY = [f.name for f in fields(RobotGeometry)]
 
 
@@ -200,9 +202,7 @@ def _folder_certificate(
     return cert
 
 
-def _recorded_sliding(
-    folder: Folder, tr: dict[str, np.ndarray], m: Measurement | None
-) -> dict[str, tuple[np.ndarray, np.ndarray]] | None:
+def _recorded_sliding(folder: Folder, tr: Columns, m: Measurement | None) -> Sliding | None:
     """v~, w~ from the recorded telemetry (time in s from the run's epoch) when the trace
     lacks them, else None."""
     if {"v_tilde", "w_tilde"} <= set(tr) or not folder.recordings:
@@ -218,8 +218,8 @@ def _metrics(
     folder: Folder,
     sv: ScenarioView,
     cert: dict[str, Any],
-    ideal: tuple[dict[str, np.ndarray] | None, str],
-    sliding: dict[str, tuple[np.ndarray, np.ndarray]] | None,
+    ideal: tuple[Columns | None, str],
+    sliding: Sliding | None,
 ) -> dict[str, Any]:
     """The sampling-effect metrics of the trace (against the ideal simulation and its note),
     with summary.json's peaks folded in."""
@@ -234,12 +234,10 @@ def _metrics(
     )
     # summary.json's peaks cover every plant step, the trace only control samples: take both.
     for key, skey in PEAK_KEYS.items():
-        peak = folder.summary.get(skey)
-        if isinstance(peak, int | float) and math.isfinite(peak):
-            c = metrics["constraints"][key]
-            if peak > c["peak"]:
-                fig = trace_metrics.ConstraintFigure(key, float(peak), c["limit"], c["bound"])
-                metrics["constraints"][key] = fig.as_dict()
+        peak, c = folder.summary.get(skey), metrics["constraints"][key]
+        if isinstance(peak, int | float) and math.isfinite(peak) and peak > c["peak"]:
+            fig = trace_metrics.ConstraintFigure(key, float(peak), c["limit"], c["bound"])
+            metrics["constraints"][key] = fig.as_dict()
     return metrics
 
 
@@ -248,7 +246,7 @@ def _scenario_block(sv: ScenarioView) -> dict[str, Any]:
     return {**out, "limits": asdict(sv.limits), "eps1": sv.eps1, "eps2": sv.eps2}
 
 
-def _ideal_note(ideal_traj: dict[str, np.ndarray] | None, tr: dict[str, np.ndarray]) -> str:
+def _ideal_note(ideal_traj: Columns | None, tr: Columns) -> str:
     if ideal_traj is None:
         return "no simulator"
     starts = ideal_traj.get("window_start_t")
@@ -267,7 +265,7 @@ def _figures(
     sv: ScenarioView,
     cert: dict[str, Any],
     m: Measurement | None,
-    extra: tuple[dict[str, np.ndarray] | None, dict[str, tuple[np.ndarray, np.ndarray]] | None],
+    extra: tuple[Columns | None, Sliding | None],
     q: np.ndarray | None,
     drives: dict[str, Any],
     metrics: dict[str, Any],
@@ -310,10 +308,7 @@ def _figures(
 
 
 def _state_figures(
-    tr: dict[str, np.ndarray],
-    sv: ScenarioView,
-    cert: dict[str, Any],
-    ideal_traj: dict[str, np.ndarray] | None,
+    tr: Columns, sv: ScenarioView, cert: dict[str, Any], ideal_traj: Columns | None
 ) -> list[fg.Figure]:
     """The trajectory and the velocities against (2) and their bounds."""
     traj = [("reference", tr["xd"], tr["yd"]), ("robot", tr["x"], tr["y"])]
@@ -330,9 +325,7 @@ def _state_figures(
     return figs
 
 
-def _tracking_error_figure(
-    tr: dict[str, np.ndarray], ideal_traj: dict[str, np.ndarray] | None
-) -> fg.Figure:
+def _tracking_error_figure(tr: Columns, ideal_traj: Columns | None) -> fg.Figure:
     """Position and heading errors (4), and the deviation from the ideal simulation."""
     t = tr["t"]
     pos = trace_metrics.position_error(tr["x"], tr["y"], tr["xd"], tr["yd"])

@@ -20,9 +20,8 @@ from hil.folder.jsonio import write_json
 from hil.folder.scenario_view import view
 from hil.measure.figures import Measurement
 from hil.measure.folder import measured
+from hil.report import content as ct
 from hil.report import figures as fg
-from hil.report.content import LIMITS, NORMALIZED, SLIDING, SYMBOL, _md_table, label_of, unit_of
-from hil.report.html import CSS, esc, figure, table
 from hil.verdict import short_reason
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
@@ -132,7 +131,7 @@ def most_moved(rows: list[list[Any]], n: int = MOST_MOVED) -> list[list[Any]]:
         if diff is None or not math.isfinite(diff) or diff == 0 or key in ("ts", "delay"):
             continue
         base = abs(a) if a else 1.0
-        scored.append((abs(diff) / base, [key, a, b, diff, unit_of(key), label_of(key)]))
+        scored.append((abs(diff) / base, [key, a, b, diff, ct.unit_of(key), ct.label_of(key)]))
     scored.sort(key=lambda s: -s[0])
     once: dict[tuple[Any, ...], list[Any]] = {}
     for _, row in scored:  # one figure under two keys (summary and tracking) is listed once
@@ -154,10 +153,10 @@ def compare_headline(
         "while still guaranteeing the limits (2))."
     )
     limits = []
-    for name, sym in SYMBOL.items():
+    for name, sym in ct.SYMBOL.items():
         ra, rb = a.get(f"max_over_limit.{name}"), b.get(f"max_over_limit.{name}")
         if ra is not None and rb is not None:
-            limits.append(f"max |{sym}|/{LIMITS[name]} {ra:.3f} → {rb:.3f}")
+            limits.append(f"max |{sym}|/{ct.LIMITS[name]} {ra:.3f} → {rb:.3f}")
     if limits:
         lines.append(
             "Limits of (2), the bounds φ1, φ2 on the velocities and ϖ1, ϖ2 on the inputs the "
@@ -227,37 +226,37 @@ def _write_pages(
     head, files = data["headline"], data["figures"]
     fa, fb = data["a"], data["b"]
     header = ["figure", "key (compare.json)", la, lb, "B − A", "unit"]
-    every = [[label_of(k), k, a, b, d, unit_of(k)] for k, a, b, d in rows]
+    every = [[ct.label_of(k), k, a, b, d, ct.unit_of(k)] for k, a, b, d in rows]
     moved_header = ["figure", la, lb, "B − A", "unit"]
     moved = [[r[5], *r[1:5]] for r in head["most_moved"]]
     md = [f"# Comparison: {fa} vs {fb}", "", *(f"- {t}" for t in head["lines"]), ""]
-    md += ["## The figures that moved most", "", MOVED_NOTE, "", _md_table(moved_header, moved)]
-    md += ["", "## Every figure", "", SLIDING, "", _md_table(header, every), ""]
-    md += ["## Overlays", "", NORMALIZED, ""]
+    md += ["## The figures that moved most", "", MOVED_NOTE, "", ct._md_table(moved_header, moved)]
+    md += ["", "## Every figure", "", ct.SLIDING, "", ct._md_table(header, every), ""]
+    md += ["## Overlays", "", ct.NORMALIZED, ""]
     for f in files:
         md += [f"![{f['title']}]({f['png']})", "", f"Data: [{f['data']}]({f['data']})", ""]
     (out / "compare.md").write_text("\n".join(md) + "\n")
     html = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
-        f"<title>{esc('Comparison')}</title><style>{CSS}</style></head><body>",
-        f"<h1>Comparison: {esc(fa)} vs {esc(fb)}</h1>",
+        f"<title>{ct.esc('Comparison')}</title><style>{ct.CSS}</style></head><body>",
+        f"<h1>Comparison: {ct.esc(fa)} vs {ct.esc(fb)}</h1>",
         '<section id="headline"><div class="verdict unsure"><ul>',
-        *(f"<li>{esc(t)}</li>" for t in head["lines"]),
+        *(f"<li>{ct.esc(t)}</li>" for t in head["lines"]),
         "</ul></div>",
         "<h2>The figures that moved most</h2>",
-        f"<p>{esc(MOVED_NOTE)}</p>",
-        table(moved_header, moved),
+        f"<p>{ct.esc(MOVED_NOTE)}</p>",
+        ct.table(moved_header, moved),
         "</section>",
         '<section id="figures_table"><h2>Every figure</h2>',
-        f"<p>{esc(SLIDING)}</p>",
+        f"<p>{ct.esc(ct.SLIDING)}</p>",
         f"<details><summary>{len(rows)} figures of A and B, each with its unit</summary>",
-        table(header, every),
+        ct.table(header, every),
         "</details></section>",
         '<section id="overlays"><h2>Overlays</h2>',
-        f"<p>{esc(NORMALIZED)}</p>",
+        f"<p>{ct.esc(ct.NORMALIZED)}</p>",
         '<div class="figs">',
-        *(figure(f, PREFIX) for f in figs),
+        *(ct.figure(f, PREFIX) for f in figs),
         "</div></section></body></html>",
     ]
     (out / "compare.html").write_text("\n".join(html))

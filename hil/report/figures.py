@@ -61,9 +61,7 @@ def write_columns(path: Path, columns: Mapping[str, np.ndarray]) -> None:
             for a in arrays:
                 part = a[r0:r1].astype(float, copy=False).tolist() if r0 < a.size else []
                 text = list(map(repr, part))
-                if len(text) < r1 - r0:
-                    text += [""] * (r1 - r0 - len(text))
-                cells.append(text)
+                cells.append(text + [""] * (r1 - r0 - len(text)))
             f.write("\r\n".join(map(",".join, zip(*cells, strict=True))))
             f.write("\r\n")
 
@@ -110,12 +108,7 @@ def envelope_indices(
 
 def _first_per_bin(hits: np.ndarray, bin_of: np.ndarray) -> np.ndarray:
     """Of sorted sample indices ``hits``, the first in each bin."""
-    if hits.size == 0:
-        return hits
-    b = bin_of[hits]
-    keep = np.ones(hits.size, dtype=bool)
-    keep[1:] = b[1:] != b[:-1]
-    return hits[keep]
+    return hits[np.diff(bin_of[hits], prepend=-1) != 0]
 
 
 def _labels(ax: plt.Axes, xlabel: str, ylabel: str, title: str, **legend: Any) -> None:
@@ -467,7 +460,8 @@ def against_parameter(
 ) -> Figure:
     """Sweep figures: a metric against Ts or delay, one curve per value of the other axis."""
     fig, ax = plt.subplots(figsize=(6.5, 3.6))
-    cols: dict[str, np.ndarray] = {"x": np.asarray(x, float)}
+    xs = np.asarray(x, float)
+    cols: dict[str, np.ndarray] = {"x": xs}
     for label, y in series.items():
         ax.plot(x, y, "o-", markersize=3, linewidth=1.0, label=label)
         cols[label] = np.asarray(y, float)
@@ -475,7 +469,6 @@ def against_parameter(
         ax.axhline(hline, label=f"limit {hline:g}", **LIMIT_STYLE)
     if mark_x is not None:
         ax.axvline(mark_x, color="black", linestyle="-.", linewidth=1.0, label="break point")
-    xs = np.asarray(x, float)
     positive = xs[np.isfinite(xs) & (xs > 0)]
     if positive.size == xs.size and xs.size:
         ax.set_xscale("log")

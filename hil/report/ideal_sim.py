@@ -1,21 +1,18 @@
 """The ideal trajectory by the offline simulator (hil.sim): the folder's own scenario at Ts/10,
 no delay, no jitter (the law acts almost continuously), from the trace's first state and time (a
-run's first sample may come late: the reference and the law's clock then start there, as in the
-run).
+run's first sample may come late: the reference and the law's clock then start there).
 
-A trace longer than :data:`WINDOW_S` gets a *windowed* ideal: each window of WINDOW_S seconds
-starts from the robot's state at its first sample, at that sample's time, with the law's memory
-there where the folder has it (a simulation's trace columns, a run's recorded telemetry; else
-the initial memory), and runs to the next window's start. All windows run at once on the batch
-path (:func:`hil.sim.simulate_batch`, one robot per window), so an hour's run costs one window's
-steps on a few hundred robots instead of 36 M single steps: on the compiled kernel where it
-computes the law and plant and repays its compilation (:func:`hil.sim.compiled.chosen`), on every
-CPU in one process of its own (the compiler's memory leaves with it); else on the numpy batch
-path, spread over one process per CPU. Below :data:`BATCH_MIN_WINDOWS` windows the single path
-takes them one by one (the batch's per-step overhead pays off only across many windows; both do
-the same arithmetic, to rounding). The ideal is returned at the trace's sample times (linear
-interpolation between its window's fine samples), so the deviation is measured within each
-window: how far sampling and delay took the robot from the continuous loop in WINDOW_S seconds.
+A trace longer than :data:`WINDOW_S` gets a *windowed* ideal: each window starts from the
+robot's state at its first sample, at that sample's time, with the law's memory there where the
+folder has it (else the initial memory), and runs to the next window's start. The windows run at
+once on the batch path (one robot per window: an hour's run costs one window's steps on a few
+hundred robots, not 36 M single steps): on the compiled kernel where
+:func:`hil.sim.compiled.chosen` takes it, on every CPU in one process of its own (the compiler's
+memory leaves with it); else on the numpy batch path, one process per CPU. Below
+:data:`BATCH_MIN_WINDOWS` windows the single path takes them one by one (the batch's per-step
+overhead pays off only across many; the same arithmetic, to rounding). The ideal is returned at
+the trace's sample times (linear interpolation between fine samples), so the deviation measures
+how far sampling and delay took the robot from the continuous loop within each window.
 """
 
 from __future__ import annotations
@@ -53,9 +50,8 @@ MemorySource = Callable[[tuple[str, ...], np.ndarray], dict[str, np.ndarray]]
 def ideal_scenario(
     resolved: Mapping[str, Any], base_dir: Path, start: Mapping[str, float] | None = None
 ) -> Any:
-    """The resolved scenario at Ts/FINE_FACTOR with delay and jitter removed; the plant step
-    is kept at most the fine period (RK4 with one step per fine period at the default).
-    ``start``: the initial state (x, y, theta, v, omega) and ``duration`` to simulate."""
+    """The resolved scenario at Ts/FINE_FACTOR without delay and jitter, its plant step at most
+    the fine period; ``start``: the initial state (:data:`START_STATE`) and ``duration``."""
     data = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in resolved.items()}
     if start is not None:
         data["initial"] = {**data.get("initial", {}), **{k: start[k] for k in START_STATE}}
@@ -73,10 +69,8 @@ def ideal_scenario(
 
 def trace_start(trace: Mapping[str, np.ndarray]) -> dict[str, float]:
     """The trace's first time and state, and how long it runs."""
-    out = {k: float(trace[k][0]) for k in START_STATE}
-    out["t0"] = float(trace["t"][0])
-    out["duration"] = float(trace["t"][-1] - trace["t"][0])
-    return out
+    t0, duration = float(trace["t"][0]), float(trace["t"][-1] - trace["t"][0])
+    return {**{k: float(trace[k][0]) for k in START_STATE}, "t0": t0, "duration": duration}
 
 
 def window_starts(t: np.ndarray, window: float = WINDOW_S) -> np.ndarray:
@@ -210,10 +204,8 @@ class _Windows:
         return parts
 
     def variations(self) -> list[RobotVariation]:
-        n = self.starts.size
-        return [
-            RobotVariation(**{s: float(self.states[s][i]) for s in START_STATE}) for i in range(n)
-        ]
+        rows = zip(*(self.states[s] for s in START_STATE), strict=True)
+        return [RobotVariation(**dict(zip(START_STATE, map(float, r), strict=True))) for r in rows]
 
     def scenario(self, steps: int) -> Any:
         """The ideal's scenario, run for ``steps`` fine periods."""

@@ -84,15 +84,13 @@ def recorded_telemetry(
 
     for path in paths:
         batch: list[tuple[int, bytes]] = []
-        try:
+        with suppress(Exception):  # a truncated or damaged recording: keep what was read
             topics = [name for name in list_topics(path) if name.endswith("telemetry")]
             for _topic, log_time, payload in read_topic_payloads(path, topics):
                 batch.append((log_time, payload))
                 if len(batch) >= _BATCH:
                     take(batch)
                     batch = []
-        except Exception:  # a truncated or damaged recording: keep what was read
-            pass
         take(batch)
     out = {}
     for g, names in enumerate(groups):
