@@ -34,11 +34,11 @@ from hil.measure.clocks import read_track
 from hil.measure.figures import Measurement
 from hil.measure.folder import measured
 from hil.report import figures as fg
-from hil.report.content import headline, render_html, render_markdown
+from hil.report.content import SIGNALS, TITLES, headline, render_html, render_markdown
 from hil.report.ideal import IdealUnavailableError
 from hil.report.ideal_sim import WINDOW_S
 from hil.report.telemetry import SLIDING, folder_telemetry, forget_memory
-from hil.verdict import DEFAULT_THRESHOLDS, PEAK_KEYS, RunFacts, Thresholds, judge
+from hil.verdict import DEFAULT_THRESHOLDS, LIMIT_NAMES, PEAK_KEYS, RunFacts, Thresholds, judge
 from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
 from protocol.versions import REPORT_SCHEMA_VERSION
 
@@ -275,16 +275,15 @@ def _figures(
     tr = folder.trace
     ideal_traj, sliding = extra
     figs = _state_figures(tr, sv, cert, ideal_traj)
-    for name, sym, unit, limit in (
-        ("tau1", "τ1", "τ1 [m/s²]", sv.limits.varpi1),
-        ("tau2", "τ2", "τ2 [rad/s²]", sv.limits.varpi2),
-    ):  # switching bands (envelope and duty), with the metrics' switching rate and saturation
+    for name in ("tau1", "tau2"):  # switching bands, with the metrics' rate and saturation
         rate, share = metrics["switching_rate"].get(name), metrics["saturation_share"].get(name)
         note = ""
         if rate is not None and share is not None:
             note = f"It switches {rate:.0f} times a second, at its limit {share:.1%} of the time."
-        title = f"{sym} of model (1) (normalized)"
-        figs.append(fg.switching_band(name, title, unit, tr["t"], [(name, tr[name])], limit, note))
+        limit, series = getattr(sv.limits, LIMIT_NAMES[name]), [(name, tr[name])]
+        figs.append(
+            fg.switching_band(name, TITLES[name], SIGNALS[name], tr["t"], series, limit, note)
+        )
     figs.append(_tracking_error_figure(tr, ideal_traj))
     panels = []
     for name, eps, unit in (("v_tilde", sv.eps1, "v~ [m/s]"), ("w_tilde", sv.eps2, "w~ [rad/s]")):
@@ -316,12 +315,11 @@ def _state_figures(
         again = ", restarted every window" if "window_start_t" in ideal_traj else ""
         traj.append((f"ideal (Ts/10, no delay{again})", ideal_traj["x"], ideal_traj["y"]))
     figs = [fg.trajectory(traj)]
-    for key, title, unit, limit, bound in (
-        ("v", "Linear velocity v", "v [m/s]", sv.limits.phi1, cert.get("v_bound")),
-        ("omega", "Angular velocity ω", "ω [rad/s]", sv.limits.phi2, cert.get("omega_bound")),
-    ):
-        series = [(key, tr[key])]
-        figs.append(fg.signal_with_limits(key, title, unit, tr["t"], series, limit, bound))
+    for key, bound in (("v", cert.get("v_bound")), ("omega", cert.get("omega_bound"))):
+        limit, series = getattr(sv.limits, LIMIT_NAMES[key]), [(key, tr[key])]
+        figs.append(
+            fg.signal_with_limits(key, TITLES[key], SIGNALS[key], tr["t"], series, limit, bound)
+        )
     return figs
 
 

@@ -22,7 +22,7 @@ from hil.measure.figures import Measurement
 from hil.measure.folder import measured
 from hil.report import content as ct
 from hil.report import figures as fg
-from hil.verdict import short_reason
+from hil.verdict import LIMIT_NAMES, short_reason
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
 PREFIX = "compare_"
@@ -142,9 +142,8 @@ def most_moved(rows: list[list[Any]], n: int = MOST_MOVED) -> list[list[Any]]:
 def compare_headline(
     fa: Folder, fb: Folder, a: dict[str, float], b: dict[str, float], rows: list[list[Any]]
 ) -> dict[str, Any]:
-    """What compare says first, with units: the verdicts, the command age D against D* and
-    the limits of (2) of both folders, then the figures that moved most (relative change,
-    largest first). Every number is one the two folders already hold."""
+    """What compare says first, with units: both folders' verdicts, D against D* and limits of
+    (2), then the figures that moved most. Every number is one the two folders already hold."""
     lines = [f"Verdict: A {_outcome(fa)}, B {_outcome(fb)}."]
     lines += [f"Why {n}: {why.rstrip('.')}." for n, f in (("A", fa), ("B", fb)) if (why := _why(f))]
     lines.append(
@@ -174,18 +173,14 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
     ta, tb = fa.trace, fb.trace
     paths = [(la, ta["x"], ta["y"]), (lb, tb["x"], tb["y"]), ("reference", ta["xd"], ta["yd"])]
     figs = [fg.trajectory(paths, "Trajectories overlaid")]
-    for key, title, unit, limit in (
-        ("v", "Linear velocity v", "v [m/s]", sva.limits.phi1),
-        ("omega", "Angular velocity ω", "ω [rad/s]", sva.limits.phi2),
-        ("tau1", "τ1 of model (1) (normalized)", "τ1 [m/s²]", sva.limits.varpi1),
-        ("tau2", "τ2 of model (1) (normalized)", "τ2 [rad/s²]", sva.limits.varpi2),
-    ):
+    for key, title in ct.TITLES.items():
         # Different rates have different sample times: put B on A's time axis for the data file.
         tb_on_a = np.interp(ta["t"], tb["t"], tb[key])
         # Switching torques as their envelope and duty per bin (a solid block otherwise).
         draw = fg.switching_band if key.startswith("tau") else fg.signal_with_limits
         series = [(la, ta[key]), (lb + " (on A's times)", tb_on_a)]
-        figs.append(draw(key, title, unit, ta["t"], series, limit))
+        limit = getattr(sva.limits, LIMIT_NAMES[key])
+        figs.append(draw(key, title, ct.SIGNALS[key], ta["t"], series, limit))
     pa = trace_metrics.position_error(ta["x"], ta["y"], ta["xd"], ta["yd"])
     pb = trace_metrics.position_error(tb["x"], tb["y"], tb["xd"], tb["yd"])
     series = [(la, pa), (lb + " (on A's times)", np.interp(ta["t"], tb["t"], pb))]

@@ -110,9 +110,9 @@ def _ms(x: Any) -> Any:
     return x * 1e3 if isinstance(x, int | float) and not isinstance(x, bool) else None
 
 
-PCT_KEYS = ("p50_us", "p90_us", "p99_us", "p999_us", "max_us", "count")
-#: The percentile columns as a table heads them.
-PCT_HEADER = ["p50 [µs]", "p90 [µs]", "p99 [µs]", "p99.9 [µs]", "max [µs]", "count"]
+#: The percentile figures, and how a table heads them.
+PCT = {"p50_us": "p50 [µs]", "p90_us": "p90 [µs]", "p99_us": "p99 [µs]", "p999_us": "p99.9 [µs]"}
+PCT |= {"max_us": "max [µs]", "count": "count"}
 
 
 NOT_MEASURED = "n/a"
@@ -129,9 +129,9 @@ def _pct_rows(
     for key, label in names:
         f = timing.get(key)
         if isinstance(f, dict):
-            rows.append([label, *(f.get(q) for q in PCT_KEYS)])
+            rows.append([label, *(f.get(q) for q in PCT)])
         elif key in always:
-            rows.append([label, *(NOT_MEASURED for _ in PCT_KEYS)])
+            rows.append([label, *(NOT_MEASURED for _ in PCT)])
     return rows
 
 
@@ -254,11 +254,10 @@ def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, A
 
 
 def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
-    """The four answers and the verdict, as data and as the report's first lines: were the
-    limits of (2) held, and by what margin (each peak as a share of its limit)? The command age
-    D against D* and the margin; the stalls closest to D* (when, how long, why); the plant
-    samples that never got a command. Every number is one already in the report: summary.json's
-    peaks (every plant step) and the trace's, the certificate (a run's: hil.measure's), timing."""
+    """The four answers and the verdict, as data and as the report's first lines: the limits of
+    (2) and each peak's share of its limit; D against D* and the margin; the stalls closest to
+    D* (when, how long, why); the plant samples that never got a command. Every number is one
+    already in the report: the peaks (summary.json's and the trace's), certificate and timing."""
     answers = {
         "limits": _limits(data, summary),
         "command_age": _command_age(data),
@@ -348,7 +347,7 @@ def _certificate(s: Section, data: dict[str, Any]) -> None:
             "Command age at every plant step (age of information, per path); the applied "
             f"path's max is D. Start-up hold: {fmt(timing.get('startup_hold_s'))} s."
         )
-        s.table(["path", *PCT_HEADER], rows)
+        s.table(["path", *PCT.values()], rows)
     stalls = c.get("stalls") or []
     if stalls:
         s.p(
@@ -377,10 +376,14 @@ def _trajectory(s: Section, data: dict[str, Any]) -> None:
 
 #: Each signal of (2) as a table names it, with its unit.
 SIGNALS = {k: f"{sym} [{UNITS[k]}]" for k, sym in SYMBOL.items()}
+#: Each signal's plot title (report and compare).
+TITLES = {"v": "Linear velocity v", "omega": "Angular velocity ω"}
+TITLES |= {k: f"{SYMBOL[k]} of model (1) (normalized)" for k in ("tau1", "tau2")}
 
 
-def _constraints(s: Section, data: dict[str, Any], names: tuple[str, ...]) -> None:
-    """The signals' figures against (2) and their bounds, as a table and as plots."""
+def _constraints(s: Section, data: dict[str, Any], text: str, names: tuple[str, ...]) -> None:
+    """``text``, then the signals' figures against (2) and their bounds, as a table and plots."""
+    s.p(text)
     cons = data["metrics"]["constraints"]
     keys = ("peak", "limit", "ratio", "held", "bound", "within_bound")
     s.table(CONSTRAINT_HEADER, [[SIGNALS[n], *(cons[n][k] for k in keys)] for n in names])
@@ -399,13 +402,12 @@ BOUND_GLOSS = (
 
 
 def _velocities(s: Section, data: dict[str, Any]) -> None:
-    s.p(BOUND_GLOSS)
-    _constraints(s, data, ("v", "omega"))
+    _constraints(s, data, BOUND_GLOSS, ("v", "omega"))
 
 
 def _torques(s: Section, data: dict[str, Any]) -> None:
-    s.p("τ1 in m/s², τ2 in rad/s²: the normalized inputs of model (1) (see above).")
-    _constraints(s, data, ("tau1", "tau2"))
+    text = "τ1 in m/s², τ2 in rad/s²: the normalized inputs of model (1) (see above)."
+    _constraints(s, data, text, ("tau1", "tau2"))
 
 
 def _drives(s: Section, data: dict[str, Any]) -> None:
@@ -439,9 +441,8 @@ def _drives(s: Section, data: dict[str, Any]) -> None:
     counts = d.get("rejection_counts")
     if isinstance(counts, dict):
         rej = d.get("rejections") or {}
-        s.table(
-            ["where", "rejections", "by reason"], [[k, n, rej.get(k)] for k, n in counts.items()]
-        )
+        rows = [[k, n, rej.get(k)] for k, n in counts.items()]
+        s.table(["where", "rejections", "by reason"], rows)
     s.figure("motor_torques")
 
 
@@ -502,7 +503,7 @@ def _latency(s: Section, data: dict[str, Any]) -> None:
         "hop: from the controller's send to the plant's receipt. Percentiles over every command "
         "(p99: 99 % took at most this long); definitions in docs/realtime.md."
     )
-    s.table(["figure", *PCT_HEADER], _pct_rows(timing, names))
+    s.table(["figure", *PCT.values()], _pct_rows(timing, names))
     s.figure("latency")
 
 
@@ -520,7 +521,7 @@ def _lateness(s: Section, data: dict[str, Any]) -> None:
         "missed slot (a deadline miss)."
     )
     measured_here = ("wakeup_lateness", "period_jitter") if timing else ()
-    s.table(["figure", *PCT_HEADER], _pct_rows(timing, names, measured_here))
+    s.table(["figure", *PCT.values()], _pct_rows(timing, names, measured_here))
     # Missed slots: a stall of N periods misses N slots (late wake-ups + slots never run).
     keys = ("ticks", "slots", "deadline_misses", "late_ticks", "skipped_slots")
     keys += ("deadline_miss_rate", "plant_slots", "plant_deadline_misses", "plant_skipped_slots")
@@ -593,7 +594,7 @@ def _timing_summary(s: Section, data: dict[str, Any]) -> None:
     if isinstance(phase, dict):
         s.p(_tick_phase_line(phase))
     names = [(k, k) for k, f in timing.items() if isinstance(f, dict) and "p50_us" in f]
-    s.table(["figure", *PCT_HEADER], _pct_rows(timing, names))
+    s.table(["figure", *PCT.values()], _pct_rows(timing, names))
     s.table(
         ["figure", "value", "unit"],
         [[k, f, unit_of(k)] for k, f in timing.items() if not isinstance(f, dict | str)],

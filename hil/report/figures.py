@@ -47,9 +47,9 @@ WRITE_CHUNK_ROWS = 16_384
 
 
 def write_columns(path: Path, columns: Mapping[str, np.ndarray]) -> None:
-    """Columns as CSV, unequal ones padded with empty cells (histograms beside CDFs); each cell
-    ``repr(float(value))``, the shortest text that reads back the same. A chunk at a time by
-    ``map`` and ``str.join``, not a ``csv`` call per row: millions of rows in seconds."""
+    """Columns as CSV, unequal ones padded with empty cells; each cell ``repr(float(value))``,
+    the shortest text that reads back the same. A chunk at a time by ``map`` and ``str.join``,
+    not a ``csv`` call per row: millions of rows in seconds."""
     names = list(columns)
     arrays = [np.asarray(columns[n]).ravel() for n in names]
     rows = max((a.size for a in arrays), default=0)
@@ -76,13 +76,12 @@ def _png(fig: plt.Figure) -> bytes:
 def envelope_indices(
     t: np.ndarray, ys: Sequence[np.ndarray], bins: int | None = None
 ) -> np.ndarray:
-    """The samples to draw of series ``ys`` over a non-decreasing axis ``t`` (time, or the
-    sample index): in each of ``bins`` equal bins of ``t``, the first sample at each series'
-    minimum and at its maximum, and the first missing (NaN) sample, so that every bin's true
-    extremes (a limit crossing, a single-sample spike) and every gap are drawn; plus the first
-    and the last sample. Sorted, unique; all samples up to :data:`MAX_DRAWN_POINTS`. ``bins``
-    defaults to as many as keep within that (at most :data:`ENVELOPE_BINS`). Linear in the
-    number of samples, with a few temporary arrays of its size."""
+    """The samples to draw of series ``ys`` over a non-decreasing axis ``t`` (time, or sample
+    index): the first and last, and in each of ``bins`` equal bins of ``t`` the first sample at
+    each series' minimum, at its maximum and the first NaN, so that every bin's extremes (a limit
+    crossing, a one-sample spike) and every gap are drawn. Sorted, unique; all samples up to
+    :data:`MAX_DRAWN_POINTS`, ``bins`` by default as many as keep within it (at most
+    :data:`ENVELOPE_BINS`). Linear in the number of samples."""
     t = np.asarray(t, dtype=float)
     n = t.size
     if n <= MAX_DRAWN_POINTS:
@@ -421,9 +420,8 @@ def age_envelope(
     threshold: float | None,
     stalls: Sequence[tuple[float, float]] = (),
 ) -> Figure:
-    """Command age over time per path, from :func:`hil.measure.age.envelope` (t s, min s,
-    max s per bin), in ms; D* as a red dashed line, the stall threshold dotted, stalls marked.
-    The first path is drawn as a filled band, the others (shadow paths) as thin lines."""
+    """Command age (ms) per path from :func:`hil.measure.age.envelope`: the first path a filled
+    band, the others (shadow paths) thin lines; D* red dashed, the stall threshold dotted."""
     fig, ax = plt.subplots(figsize=(7, 3.2))
     cols: dict[str, np.ndarray] = {}
     for i, (label, (t, lo, hi)) in enumerate(envelopes.items()):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib.machinery
 import importlib.util
 from collections.abc import Iterable
+from contextlib import suppress
 
 import numpy as np
 
@@ -58,11 +59,9 @@ def law_findable(law: str, folders: Iterable[str] = ()) -> bool:
     module = law.partition(":")[0] if ":" in law else ""
     if not module:
         return True
-    try:
+    with suppress(ImportError, ValueError):
         if importlib.util.find_spec(module) is not None:
             return True
-    except (ImportError, ValueError):
-        pass
     top = module.split(".")[0]  # a package in one of the folders: its submodule is checked
     return importlib.machinery.PathFinder.find_spec(top, [str(f) for f in folders]) is not None
 

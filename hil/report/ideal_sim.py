@@ -98,9 +98,8 @@ def simulate_ideal(
     memory_source: MemorySource | None = None,
     window: float = WINDOW_S,
 ) -> dict[str, np.ndarray] | None:
-    """The ideal trajectory (t, x, y, theta): one simulation from the trace's first state when
-    the trace spans at most ``window`` seconds (at the fine period's times), else the windowed
-    ideal at the trace's sample times, with ``window_start_t`` (module docstring)."""
+    """The ideal trajectory (t, x, y, theta): at the fine period's times for a trace of at most
+    ``window`` seconds, else windowed, at the trace's times, with ``window_start_t``."""
     base = base_dir_of(resolved, folder)
     if trace is not None and float(trace["t"][-1] - trace["t"][0]) > window * (1.0 + 1e-9):
         return _windowed(resolved, base, trace, memory_source, window)
@@ -119,10 +118,8 @@ def _window_memories(
     mem = _initial_memory(controller, n, sc)
     fields = getattr(mem, "_fields", None)
     known = np.zeros(n, dtype=bool)
-    if memory_source is None or not fields:
-        return mem, known
-    got = memory_source(tuple(fields), starts)
-    if not all(f in got for f in fields):
+    got = memory_source(tuple(fields), starts) if memory_source is not None and fields else {}
+    if not fields or not all(f in got for f in fields):
         return mem, known
     known = np.all([np.isfinite(got[f]) for f in fields], axis=0)
     known[0] = False  # the first window starts as the single ideal does
@@ -170,9 +167,8 @@ def _groups(windows: int) -> int:
 
 @dataclass(frozen=True)
 class _Windows:
-    """Consecutive windows of a trace, all a process needs to simulate them (picklable): the
-    trace's times from the first window's first row to the last window's last, the windows'
-    first rows in them, and each window's law memory and starting state."""
+    """Consecutive windows of a trace, all a process needs to simulate them (picklable): their
+    rows' times, each window's first row in them, law memory and starting state."""
 
     resolved: dict[str, Any]
     base: Path

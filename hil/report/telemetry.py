@@ -29,9 +29,8 @@ _BATCH = 4096
 
 
 def _decode(payloads: list[bytes]) -> list[Any]:
-    """The payloads decoded, one value each (None for a payload that is not JSON). orjson
-    first (an hour's telemetry is millions of messages); what it refuses and the standard
-    library reads (NaN, integers beyond 64 bits) is read as the recording's writer wrote it."""
+    """The payloads decoded, one value each (None: not JSON): by orjson (an hour's telemetry is
+    millions of messages), else the standard library (NaN, integers beyond 64 bits)."""
     try:
         return orjson.loads(b"[" + b",".join(payloads) + b"]")
     except ValueError:  # decode one by one, keeping the others in place
@@ -117,9 +116,8 @@ def folder_telemetry(folder: Any) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 
 def forget_memory(folder: Any) -> None:
-    """Drop the law's memory from a folder's cached telemetry: the windowed ideal is its only
-    reader, and an hour's three columns and their times (~115 MB) would otherwise stay until
-    the report is written."""
+    """Drop the law's memory from a folder's cached telemetry: the windowed ideal, its only
+    reader, is done, and an hour's three columns and times (~115 MB) would stay otherwise."""
     for name in MEMORY:
         folder.cache.get("telemetry", {}).pop(name, None)
 
