@@ -75,12 +75,11 @@ def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.n
         out["motor_torque_limit_nm"] = motor_torque_limit(g, sv.limits.varpi1, sv.limits.varpi2)
         out["max_abs_q_right_nm"] = float(np.nanmax(np.abs(qr)))
         out["max_abs_q_left_nm"] = float(np.nanmax(np.abs(ql)))
-    can, rej = folder.summary.get("can"), folder.summary.get("rejections")
-    out["can"] = can if isinstance(can, dict) else None
-    out["rejections"] = rej if isinstance(rej, dict) else None
-    out["rejection_counts"] = (
-        {k: _count(v) for k, v in rej.items()} if isinstance(rej, dict) else None
-    )
+    for key in ("can", "rejections"):
+        got = folder.summary.get(key)
+        out[key] = got if isinstance(got, dict) else None
+    rej = out["rejections"]
+    out["rejection_counts"] = None if rej is None else {k: _count(v) for k, v in rej.items()}
     return out, q
 
 

@@ -45,9 +45,7 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
     )
     out: dict[str, float] = {"ts": sv.ts, "delay": sv.delay, "jitter": sv.jitter}
     for k, v in folder.summary.items():
-        if k == "schema_version":
-            continue  # the file's format, not a figure of the run
-        if isinstance(v, int | float) and not isinstance(v, bool):
+        if _number(v) and k != "schema_version":  # the file's format, not a figure of the run
             out[f"summary.{k}"] = float(v)
         elif isinstance(v, dict) and k == "violations":
             out.update(

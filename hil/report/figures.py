@@ -344,10 +344,9 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
         cdf = np.arange(1, v.size + 1) / v.size
         idx = cdf_indices(v.size)
         ax_c.plot(v[idx], cdf[idx], label=label, linewidth=1.0)
-        cols |= {f"{label}_bin_left_us": edges[:-1], f"{label}_bin_right_us": edges[1:]}
-        cols[f"{label}_count"] = counts
         kept = slice(None) if v.size <= MAX_DATA_ROWS else idx
-        cols |= {f"{label}_sorted_us": v[kept], f"{label}_cdf": cdf[kept]}
+        cols |= {f"{label}_bin_left_us": edges[:-1], f"{label}_bin_right_us": edges[1:]}
+        cols |= {f"{label}_count": counts, f"{label}_sorted_us": v[kept], f"{label}_cdf": cdf[kept]}
         if idx.size < v.size:
             data = "every sample" if v.size <= MAX_DATA_ROWS else "the drawn points"
             captions.append(

@@ -31,9 +31,7 @@ def memory_source(folder: Folder):
         tr = folder.trace
         if all(f in tr for f in fields):
             return {f: np.asarray(tr[f], dtype=float)[rows] for f in fields}
-        if "sample_ns" not in tr or not folder.recordings:
-            return {}
-        tel = folder_telemetry(folder)
+        tel = folder_telemetry(folder) if "sample_ns" in tr and folder.recordings else {}
         if not all(f in tel for f in fields):
             return {}
         when = np.asarray(tr["sample_ns"], dtype=float)[rows].astype(np.int64)
