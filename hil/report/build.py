@@ -14,9 +14,9 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -51,10 +51,9 @@ IdealProvider = Callable[[Folder], Columns | None]
 _GEOMETRY = [f.name for f in fields(RobotGeometry)]
 
 
-@dataclass
-class Report:
+class Report(NamedTuple):
     data: dict[str, Any]
-    figures: list[fg.Figure] = field(default_factory=list)
+    figures: list[fg.Figure]
 
 
 def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.ndarray | None]:
@@ -379,9 +378,7 @@ def write_report(report: Report, out: Path) -> dict[str, Path]:
     for f in report.figures:
         png, csv_path = f.write(out, FIGURE_PREFIX)
         entry = {"name": f.name, "title": f.title, "png": png.name, "data": csv_path.name}
-        if f.caption:
-            entry["caption"] = f.caption
-        files.append(entry)
+        files.append(entry | ({"caption": f.caption} if f.caption else {}))
     data = {**report.data, "figures": files}
     paths = {"json": out / REPORT_JSON, "md": out / REPORT_MD, "html": out / REPORT_HTML}
     write_json(paths["json"], data)

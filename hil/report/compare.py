@@ -179,8 +179,7 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         series = [(la, ta[key]), (lb + " (on A's times)", tb_on_a)]
         limit = getattr(sva.limits, LIMIT_NAMES[key])
         figs.append(draw(key, title, ct.SIGNALS[key], ta["t"], series, limit))
-    pa = trace_metrics.position_error(ta["x"], ta["y"], ta["xd"], ta["yd"])
-    pb = trace_metrics.position_error(tb["x"], tb["y"], tb["xd"], tb["yd"])
+    pa, pb = (trace_metrics.position_error(t["x"], t["y"], t["xd"], t["yd"]) for t in (ta, tb))
     series = [(la, pa), (lb + " (on A's times)", np.interp(ta["t"], tb["t"], pb))]
     figs.append(fg.signal_with_limits("position_error", "Position error", "m", ta["t"], series))
     ma, mb = measured(fa), measured(fb)

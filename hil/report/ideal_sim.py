@@ -138,10 +138,9 @@ def _windowed(
     starts = window_starts(t, window)
     start0 = trace_start(trace)
     sc0 = ideal_scenario(resolved, base, start0)
-    fine = sc0.timing.ts
     t_stop = np.append(t[starts[1:]], t[-1])
     # fine samples 0 .. steps of every window reach its last row (the next window's start)
-    steps = max(1, math.ceil(float(np.max(t_stop - t[starts])) / fine - 1e-9) + 1)
+    steps = max(1, math.ceil(float(np.max(t_stop - t[starts])) / sc0.timing.ts - 1e-9) + 1)
     loop = build_loop(sc0)
     memory, known = _window_memories(loop[0], sc0, starts, memory_source)
     states = {s: np.asarray(trace[s], dtype=float)[starts] for s in START_STATE}
@@ -247,10 +246,9 @@ def _batch(w: _Windows, loop: Any = None) -> dict[str, np.ndarray]:
     """All windows of ``w`` at once on the batch path (one robot per window)."""
     sc = w.scenario(w.steps)
     ends, out = w.rows()
-    t_start = w.t[w.starts]
     hook = _Interpolator(w, ends, sc.timing.ts, out)
     loop = loop if loop is not None else build_loop(sc)
-    simulate_batch(sc, w.variations(), loop=loop, t0=t_start, memory=w.memory, on_sample=hook)
+    simulate_batch(sc, w.variations(), loop=loop, t0=w.t[w.starts], memory=w.memory, on_sample=hook)
     return out
 
 

@@ -45,11 +45,8 @@ def _one(payload: bytes) -> Any:
     return None
 
 
-_PLAIN = frozenset((int, float))  # JSON's numbers (bool is its own type: not one of them)
-
-
-def _number(v: Any) -> bool:
-    return type(v) in _PLAIN  # decoded JSON holds these exact types, never subclasses
+#: JSON's numbers, by exact type: decoded JSON holds no subclasses, and bool is not one of them.
+_PLAIN = frozenset((int, float))
 
 
 def recorded_telemetry(
@@ -76,7 +73,7 @@ def recorded_telemetry(
                 continue
             for i, tw in enumerate(when):  # some do not: message by message
                 row = [col[i] for col in cols]
-                if _number(tw) and all(_number(v) for v in row):
+                if type(tw) in _PLAIN and all(type(v) in _PLAIN for v in row):
                     times[g].append(int(tw))
                     for out, v in zip(vals[g], row, strict=True):
                         out.append(v)
