@@ -237,20 +237,17 @@ def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, A
     timing = (data.get("timing") or {}).get("summary") or {}
     n, judged = timing.get("samples_without_command"), timing.get("samples_judged")
     rate = timing.get("samples_without_command_rate")
+    what = "Samples without a command:"
     if data["kind"] == "run" and isinstance(n, int) and isinstance(rate, int | float):
-        return (
-            {"count": n, "judged": judged, "rate": rate},
-            f"Samples without a command: {n} of {judged} ({100.0 * rate:.3f} %).",
-        )
+        text = f"{what} {n} of {judged} ({100.0 * rate:.3f} %)."
+        return {"count": n, "judged": judged, "rate": rate}, text
     if data["kind"] == "run":
-        return {"count": None, "judged": None, "rate": None}, (
-            "Samples without a command: not measured (the run has no such figure)."
-        )
+        text = f"{what} not measured (the run has no such figure)."
+        return {"count": None, "judged": None, "rate": None}, text
     dropped = summary.get("commands_dropped")
     extra = f"; {dropped} commands overtaken by a newer one and dropped" if dropped else ""
-    return {"count": 0, "judged": None, "rate": 0.0}, (
-        f"Samples without a command: none in a simulation (every sample's command lands{extra})."
-    )
+    text = f"{what} none in a simulation (every sample's command lands{extra})."
+    return {"count": 0, "judged": None, "rate": 0.0}, text
 
 
 def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
@@ -433,8 +430,10 @@ def _drives(s: Section, data: dict[str, Any]) -> None:
         rows = []
         for side in ("controller", "plant"):
             st = can.get(side)
-            if isinstance(st, dict):
-                rows += [[side, k.replace("_", " "), v, _count_unit(v)] for k, v in st.items()]
+            for k, v in st.items() if isinstance(st, dict) else ():
+                # the drives' and the bus's counters are counts; their other states are words
+                count = isinstance(v, int) and not isinstance(v, bool)
+                rows.append([side, k.replace("_", " "), v, "count" if count else ""])
         s.table(["side", "drive/bus state", "value", "unit"], rows)
     else:
         s.p("No CAN bus in this folder (a simulation, or a run without CAN).")
@@ -459,11 +458,6 @@ def _tracking_error(s: Section, data: dict[str, Any]) -> None:
     rows.append(["deviation from ideal", m.get("deviation_from_ideal_note", ""), ""])
     s.table(["figure", "value", "unit"], rows)
     s.figure("tracking_error")
-
-
-def _count_unit(value: Any) -> str:
-    """The drives' and the bus's counters are counts; their other states are words."""
-    return "count" if isinstance(value, int) and not isinstance(value, bool) else ""
 
 
 #: The tracking figures of hil.trace_metrics in words.

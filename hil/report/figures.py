@@ -138,8 +138,7 @@ def _plot_drawn(
     a series drawn from its envelope, say so in ``captions``."""
     x, y = xy
     ax.plot(x if idx is None else x[idx], y if idx is None else y[idx], label=label, **style)
-    cols[keys[0]] = _data(x, idx)
-    cols[keys[1]] = _data(y, idx)
+    cols.update(zip(keys, (_data(x, idx), _data(y, idx)), strict=True))
     if idx is not None:
         captions.append(f"{label}: {_envelope_caption(np.size(x), idx)}")
 
@@ -161,9 +160,7 @@ def _data(full: np.ndarray, idx: np.ndarray | None) -> np.ndarray:
     """A column of a figure's data file: complete up to :data:`MAX_DATA_ROWS` samples, else the
     drawn samples (every bin's extremes; the whole series is in trace.csv or the hop logs)."""
     full = np.asarray(full)
-    if idx is None or full.size <= MAX_DATA_ROWS:
-        return full
-    return full[idx]
+    return full if idx is None or full.size <= MAX_DATA_ROWS else full[idx]
 
 
 def _envelope_caption(n: int, idx: np.ndarray | None) -> str:
@@ -195,13 +192,6 @@ OTHER_STYLES = (
 )
 
 
-def _trajectory_style(label: str, i: int) -> dict:
-    for key, style in TRAJECTORY_STYLES:
-        if label.startswith(key):
-            return style
-    return OTHER_STYLES[i % len(OTHER_STYLES)]
-
-
 def trajectory(
     series: Sequence[tuple[str, np.ndarray, np.ndarray]], title: str = "Trajectory in the plane"
 ) -> Figure:
@@ -213,8 +203,10 @@ def trajectory(
     for i, (label, x, y) in enumerate(series):
         # long paths: in each bin of samples, those at the smallest and largest X and Y
         idx = _drawn(np.arange(np.size(x)), [x, y])
+        style = next((st for key, st in TRAJECTORY_STYLES if label.startswith(key)), None)
+        style = style or OTHER_STYLES[i % len(OTHER_STYLES)]
         keys = (f"{label}_x", f"{label}_y")
-        _plot_drawn(ax, label, (x, y), idx, keys, cols, captions, **_trajectory_style(label, i))
+        _plot_drawn(ax, label, (x, y), idx, keys, cols, captions, **style)
     if series:
         first = next((s for s in series if s[0].startswith("robot")), series[0])
         ax.plot(first[1][0], first[2][0], "ko", markersize=4, label=f"{first[0]} start")
