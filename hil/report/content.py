@@ -826,12 +826,10 @@ def render_markdown(data: dict[str, Any], files: Sequence[dict[str, str]]) -> st
                 out += [f"- {text}" for text in block[1]] + [""]
             elif kind == "table":
                 out += [_md_table(block[1], block[2]), ""]
-            elif kind == "figure":
-                f = by_name.get(block[1])
-                if f:
-                    caption = f". {f['caption']}" if f.get("caption") else ""
-                    data_line = f"Data: [{f['data']}]({f['data']}){caption}"
-                    out += [f"![{f['title']}]({f['png']})", "", data_line, ""]
+            elif kind == "figure" and (f := by_name.get(block[1])):
+                caption = f". {f['caption']}" if f.get("caption") else ""
+                data_line = f"Data: [{f['data']}]({f['data']}){caption}"
+                out += [f"![{f['title']}]({f['png']})", "", data_line, ""]
         if section.id == "headline":
             out += [
                 f"{data['kind']} · law `{s['law']}` · Ts {fmt(s['ts'])} s · delay "
