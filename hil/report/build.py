@@ -285,10 +285,9 @@ def _figures(
     figs.append(_tracking_error_figure(tr, ideal_traj))
     panels = []
     for name, eps, unit in (("v_tilde", sv.eps1, "v~ [m/s]"), ("w_tilde", sv.eps2, "w~ [rad/s]")):
-        if name in tr:
-            panels.append((name, unit, tr["t"], tr[name], eps))
-        elif sliding and name in sliding:
-            panels.append((name, unit, sliding[name][0], sliding[name][1], eps))
+        t_y = (tr["t"], tr[name]) if name in tr else (sliding or {}).get(name)
+        if t_y is not None:
+            panels.append((name, unit, *t_y, eps))
     if panels:
         src = "trace" if "v_tilde" in tr else "recorded telemetry"
         figs.append(fg.stacked("bands", f"Sliding variables v~ and w~ of (10) ({src})", panels))

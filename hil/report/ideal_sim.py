@@ -186,16 +186,15 @@ class _Windows:
         parts = []
         for a, b in itertools.pairwise(cuts):
             lo, hi = int(rows[a]), int(rows[b])
-            parts.append(
-                dataclasses.replace(
-                    self,
-                    t=self.t[lo:hi],
-                    starts=self.starts[a:b] - lo,
-                    memory=type(self.memory)(*(np.asarray(f)[a:b] for f in self.memory)),
-                    known=self.known[a:b],
-                    states={k: v[a:b] for k, v in self.states.items()},
-                )
+            part = dataclasses.replace(
+                self,
+                t=self.t[lo:hi],
+                starts=self.starts[a:b] - lo,
+                memory=type(self.memory)(*(np.asarray(f)[a:b] for f in self.memory)),
+                known=self.known[a:b],
+                states={k: v[a:b] for k, v in self.states.items()},
             )
+            parts.append(part)
         return parts
 
     def variations(self) -> list[RobotVariation]:
