@@ -339,8 +339,7 @@ def _run_figures(m: Measurement, cert: dict[str, Any]) -> list[fg.Figure]:
     measurement's per-sample series."""
     figs = []
     applied = cert.get("path")
-    lat = m.latency_us()
-    if lat:
+    if lat := m.latency_us():
         title = "Sample-to-apply latency per path"
         if applied:
             title += f" (applied: {applied}; the other path is a shadow)"
@@ -360,8 +359,7 @@ def _run_figures(m: Measurement, cert: dict[str, Any]) -> list[fg.Figure]:
     for p in sorted(("zenoh", "can"), key=lambda p: p != applied):  # the applied path first
         seg = m.series.get(f"command_age_{p}")
         if seg is not None and len(seg) and m.epoch_ns is not None:
-            label = f"{p} (applied)" if p == applied else f"{p} (shadow)"
-            env[label] = envelope(seg, m.epoch_ns)
+            env[f"{p} ({'applied' if p == applied else 'shadow'})"] = envelope(seg, m.epoch_ns)
     if env:
         stalls = [(s["t_s"], s["age_s"]) for s in cert.get("stalls") or []]
         title = "Command age over time (age of the command in force at each plant step)"
