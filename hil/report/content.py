@@ -177,8 +177,7 @@ def _limits(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, An
             broken.append(f"|{sym}| beyond {name}")
     every = "over every plant step" if violations else "over the trace's samples"
     state = "held" if not broken else "BROKEN (" + "; ".join(broken) + ")"
-    text = f"Limits of (2) {state}, {every}: " + "; ".join(parts) + "."
-    return out, text
+    return out, f"Limits of (2) {state}, {every}: " + "; ".join(parts) + "."
 
 
 def _command_age(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
@@ -209,8 +208,7 @@ def _stalls(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
     stalls = list(cert.get("stalls") or [])
     thr = cert.get("stall_threshold_s")
     top = [{k: s.get(k) for k in ("t_s", "age_s", "cause", "owner")} for s in stalls[:TOP_STALLS]]
-    total = cert.get("stall_count", len(stalls))
-    stalled = cert.get("stalled_time_s")
+    total, stalled = cert.get("stall_count", len(stalls)), cert.get("stalled_time_s")
     out = {"threshold_s": thr, "listed": len(stalls), "count": total, "top": top}
     out["stalled_time_s"] = stalled
     if data["kind"] != "run" or cert.get("path") is None:
