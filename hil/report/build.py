@@ -14,9 +14,9 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -34,24 +34,26 @@ from hil.measure.clocks import read_track
 from hil.measure.figures import Measurement
 from hil.measure.folder import measured
 from hil.report import figures as fg
-from hil.report.content import headline, render_markdown
-from hil.report.html import render_html
+from hil.report.content import SIGNALS, TITLES, headline, render_html, render_markdown
 from hil.report.ideal import IdealUnavailableError
 from hil.report.ideal_sim import WINDOW_S
 from hil.report.telemetry import SLIDING, folder_telemetry, forget_memory
-from hil.verdict import DEFAULT_THRESHOLDS, PEAK_KEYS, RunFacts, Thresholds, judge
+from hil.verdict import DEFAULT_THRESHOLDS, LIMIT_NAMES, PEAK_KEYS, RunFacts, Thresholds, judge
 from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
 from protocol.versions import REPORT_SCHEMA_VERSION
 
 FIGURE_PREFIX = "report_"
 SOURCE = "summary.json and series.npz (hil.measure, measured once when the run ended)"
-IdealProvider = Callable[[Folder], dict[str, np.ndarray] | None]
+#: Named columns (a trace, the ideal trajectory); the sliding variables: name -> (t s, values).
+Columns = dict[str, np.ndarray]
+Sliding = dict[str, tuple[np.ndarray, np.ndarray]]
+IdealProvider = Callable[[Folder], Columns | None]
+_GEOMETRY = [f.name for f in fields(RobotGeometry)]
 
 
-@dataclass
-class Report:
+class Report(NamedTuple):
     data: dict[str, Any]
-    figures: list[fg.Figure] = field(default_factory=list)
+    figures: list[fg.Figure]
 
 
 def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.ndarray | None]:
@@ -61,25 +63,22 @@ def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.n
     out: dict[str, Any] = {"geometry": None, "note": ""}
     q = None
     try:
-        g = RobotGeometry(
-            **{k: float(robot[k]) for k in RobotGeometry.__dataclass_fields__ if k in robot}
-        )
+        g = RobotGeometry(**{k: float(robot[k]) for k in _GEOMETRY if k in robot})
     except (TypeError, ValueError) as exc:
         out["note"] = f"no wheel mapping: [robot] is not a geometry ({exc})"
     else:
         tr = folder.trace
         qr, ql = motor_torques(g, tr["tau1"], tr["tau2"])
         q = np.vstack([qr, ql])
-        out["geometry"] = {k: getattr(g, k) for k in RobotGeometry.__dataclass_fields__}
+        out["geometry"] = asdict(g)
         out["motor_torque_limit_nm"] = motor_torque_limit(g, sv.limits.varpi1, sv.limits.varpi2)
         out["max_abs_q_right_nm"] = float(np.nanmax(np.abs(qr)))
         out["max_abs_q_left_nm"] = float(np.nanmax(np.abs(ql)))
-    can, rej = folder.summary.get("can"), folder.summary.get("rejections")
-    out["can"] = can if isinstance(can, dict) else None
-    out["rejections"] = rej if isinstance(rej, dict) else None
-    out["rejection_counts"] = (
-        {k: _count(v) for k, v in rej.items()} if isinstance(rej, dict) else None
-    )
+    for key in ("can", "rejections"):
+        got = folder.summary.get(key)
+        out[key] = got if isinstance(got, dict) else None
+    rej = out["rejections"]
+    out["rejection_counts"] = None if rej is None else {k: _count(v) for k, v in rej.items()}
     return out, q
 
 
@@ -154,9 +153,8 @@ def _add_topology(folder: Path, data: dict[str, Any], figs: list[fg.Figure]) -> 
         return
     if not isinstance(topo, dict) or not isinstance(topo.get("processes"), dict):
         return
-    hosts = topo.get("hosts") or {}
+    hosts, procs = topo.get("hosts") or {}, topo["processes"]
     injected = [h.get("offset_s") for h in hosts.values()]
-    procs = topo["processes"]
     plant, ctrl = ((hosts.get(procs.get(p)) or {}).get("offset_s") for p in ("plant", "controller"))
     numbers = isinstance(plant, int | float) and isinstance(ctrl, int | float)
     difference = float(plant) - float(ctrl) if numbers else None
@@ -202,9 +200,7 @@ def _folder_certificate(
     return cert
 
 
-def _recorded_sliding(
-    folder: Folder, tr: dict[str, np.ndarray], m: Measurement | None
-) -> dict[str, tuple[np.ndarray, np.ndarray]] | None:
+def _recorded_sliding(folder: Folder, tr: Columns, m: Measurement | None) -> Sliding | None:
     """v~, w~ from the recorded telemetry (time in s from the run's epoch) when the trace
     lacks them, else None."""
     if {"v_tilde", "w_tilde"} <= set(tr) or not folder.recordings:
@@ -220,8 +216,8 @@ def _metrics(
     folder: Folder,
     sv: ScenarioView,
     cert: dict[str, Any],
-    ideal: tuple[dict[str, np.ndarray] | None, str],
-    sliding: dict[str, tuple[np.ndarray, np.ndarray]] | None,
+    ideal: tuple[Columns | None, str],
+    sliding: Sliding | None,
 ) -> dict[str, Any]:
     """The sampling-effect metrics of the trace (against the ideal simulation and its note),
     with summary.json's peaks folded in."""
@@ -236,12 +232,10 @@ def _metrics(
     )
     # summary.json's peaks cover every plant step, the trace only control samples: take both.
     for key, skey in PEAK_KEYS.items():
-        peak = folder.summary.get(skey)
-        if isinstance(peak, int | float) and math.isfinite(peak):
-            c = metrics["constraints"][key]
-            if peak > c["peak"]:
-                fig = trace_metrics.ConstraintFigure(key, float(peak), c["limit"], c["bound"])
-                metrics["constraints"][key] = fig.as_dict()
+        peak, c = folder.summary.get(skey), metrics["constraints"][key]
+        if isinstance(peak, int | float) and math.isfinite(peak) and peak > c["peak"]:
+            fig = trace_metrics.ConstraintFigure(key, float(peak), c["limit"], c["bound"])
+            metrics["constraints"][key] = fig.as_dict()
     return metrics
 
 
@@ -250,7 +244,7 @@ def _scenario_block(sv: ScenarioView) -> dict[str, Any]:
     return {**out, "limits": asdict(sv.limits), "eps1": sv.eps1, "eps2": sv.eps2}
 
 
-def _ideal_note(ideal_traj: dict[str, np.ndarray] | None, tr: dict[str, np.ndarray]) -> str:
+def _ideal_note(ideal_traj: Columns | None, tr: Columns) -> str:
     if ideal_traj is None:
         return "no simulator"
     starts = ideal_traj.get("window_start_t")
@@ -269,7 +263,7 @@ def _figures(
     sv: ScenarioView,
     cert: dict[str, Any],
     m: Measurement | None,
-    extra: tuple[dict[str, np.ndarray] | None, dict[str, tuple[np.ndarray, np.ndarray]] | None],
+    extra: tuple[Columns | None, Sliding | None],
     q: np.ndarray | None,
     drives: dict[str, Any],
     metrics: dict[str, Any],
@@ -279,23 +273,21 @@ def _figures(
     tr = folder.trace
     ideal_traj, sliding = extra
     figs = _state_figures(tr, sv, cert, ideal_traj)
-    for name, sym, unit, limit in (
-        ("tau1", "τ1", "τ1 [m/s²]", sv.limits.varpi1),
-        ("tau2", "τ2", "τ2 [rad/s²]", sv.limits.varpi2),
-    ):  # switching bands (envelope and duty), with the metrics' switching rate and saturation
+    for name in ("tau1", "tau2"):  # switching bands, with the metrics' rate and saturation
         rate, share = metrics["switching_rate"].get(name), metrics["saturation_share"].get(name)
         note = ""
         if rate is not None and share is not None:
             note = f"It switches {rate:.0f} times a second, at its limit {share:.1%} of the time."
-        title = f"{sym} of model (1) (normalized)"
-        figs.append(fg.switching_band(name, title, unit, tr["t"], [(name, tr[name])], limit, note))
+        limit, series = getattr(sv.limits, LIMIT_NAMES[name]), [(name, tr[name])]
+        figs.append(
+            fg.switching_band(name, TITLES[name], SIGNALS[name], tr["t"], series, limit, note)
+        )
     figs.append(_tracking_error_figure(tr, ideal_traj))
     panels = []
     for name, eps, unit in (("v_tilde", sv.eps1, "v~ [m/s]"), ("w_tilde", sv.eps2, "w~ [rad/s]")):
-        if name in tr:
-            panels.append((name, unit, tr["t"], tr[name], eps))
-        elif sliding and name in sliding:
-            panels.append((name, unit, sliding[name][0], sliding[name][1], eps))
+        t_y = (tr["t"], tr[name]) if name in tr else (sliding or {}).get(name)
+        if t_y is not None:
+            panels.append((name, unit, *t_y, eps))
     if panels:
         src = "trace" if "v_tilde" in tr else "recorded telemetry"
         figs.append(fg.stacked("bands", f"Sliding variables v~ and w~ of (10) ({src})", panels))
@@ -312,10 +304,7 @@ def _figures(
 
 
 def _state_figures(
-    tr: dict[str, np.ndarray],
-    sv: ScenarioView,
-    cert: dict[str, Any],
-    ideal_traj: dict[str, np.ndarray] | None,
+    tr: Columns, sv: ScenarioView, cert: dict[str, Any], ideal_traj: Columns | None
 ) -> list[fg.Figure]:
     """The trajectory and the velocities against (2) and their bounds."""
     traj = [("reference", tr["xd"], tr["yd"]), ("robot", tr["x"], tr["y"])]
@@ -323,18 +312,15 @@ def _state_figures(
         again = ", restarted every window" if "window_start_t" in ideal_traj else ""
         traj.append((f"ideal (Ts/10, no delay{again})", ideal_traj["x"], ideal_traj["y"]))
     figs = [fg.trajectory(traj)]
-    for key, title, unit, limit, bound in (
-        ("v", "Linear velocity v", "v [m/s]", sv.limits.phi1, cert.get("v_bound")),
-        ("omega", "Angular velocity ω", "ω [rad/s]", sv.limits.phi2, cert.get("omega_bound")),
-    ):
-        series = [(key, tr[key])]
-        figs.append(fg.signal_with_limits(key, title, unit, tr["t"], series, limit, bound))
+    for key, bound in (("v", cert.get("v_bound")), ("omega", cert.get("omega_bound"))):
+        limit, series = getattr(sv.limits, LIMIT_NAMES[key]), [(key, tr[key])]
+        figs.append(
+            fg.signal_with_limits(key, TITLES[key], SIGNALS[key], tr["t"], series, limit, bound)
+        )
     return figs
 
 
-def _tracking_error_figure(
-    tr: dict[str, np.ndarray], ideal_traj: dict[str, np.ndarray] | None
-) -> fg.Figure:
+def _tracking_error_figure(tr: Columns, ideal_traj: Columns | None) -> fg.Figure:
     """Position and heading errors (4), and the deviation from the ideal simulation."""
     t = tr["t"]
     pos = trace_metrics.position_error(tr["x"], tr["y"], tr["xd"], tr["yd"])
@@ -353,8 +339,7 @@ def _run_figures(m: Measurement, cert: dict[str, Any]) -> list[fg.Figure]:
     measurement's per-sample series."""
     figs = []
     applied = cert.get("path")
-    lat = m.latency_us()
-    if lat:
+    if lat := m.latency_us():
         title = "Sample-to-apply latency per path"
         if applied:
             title += f" (applied: {applied}; the other path is a shadow)"
@@ -371,14 +356,10 @@ def _run_figures(m: Measurement, cert: dict[str, Any]) -> list[fg.Figure]:
     if late:
         figs.append(fg.over_time("lateness", "Wake-up lateness over time", "µs", late))
     env = {}
-    paths = sorted(
-        (p for p in ("zenoh", "can") if f"command_age_{p}" in m.series), key=lambda p: p != applied
-    )
-    for p in paths:
-        seg = m.series[f"command_age_{p}"]
-        if len(seg) and m.epoch_ns is not None:
-            label = f"{p} (applied)" if p == applied else f"{p} (shadow)"
-            env[label] = envelope(seg, m.epoch_ns)
+    for p in sorted(("zenoh", "can"), key=lambda p: p != applied):  # the applied path first
+        seg = m.series.get(f"command_age_{p}")
+        if seg is not None and len(seg) and m.epoch_ns is not None:
+            env[f"{p} ({'applied' if p == applied else 'shadow'})"] = envelope(seg, m.epoch_ns)
     if env:
         stalls = [(s["t_s"], s["age_s"]) for s in cert.get("stalls") or []]
         title = "Command age over time (age of the command in force at each plant step)"
@@ -394,9 +375,7 @@ def write_report(report: Report, out: Path) -> dict[str, Path]:
     for f in report.figures:
         png, csv_path = f.write(out, FIGURE_PREFIX)
         entry = {"name": f.name, "title": f.title, "png": png.name, "data": csv_path.name}
-        if f.caption:
-            entry["caption"] = f.caption
-        files.append(entry)
+        files.append(entry | ({"caption": f.caption} if f.caption else {}))
     data = {**report.data, "figures": files}
     paths = {"json": out / REPORT_JSON, "md": out / REPORT_MD, "html": out / REPORT_HTML}
     write_json(paths["json"], data)

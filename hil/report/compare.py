@@ -20,14 +20,12 @@ from hil.folder.jsonio import write_json
 from hil.folder.scenario_view import view
 from hil.measure.figures import Measurement
 from hil.measure.folder import measured
+from hil.report import content as ct
 from hil.report import figures as fg
-from hil.report.content import NORMALIZED, SLIDING, _md_table, label_of, unit_of
-from hil.report.html import CSS, esc, figure, table
-from hil.verdict import short_reason
+from hil.verdict import LIMIT_NAMES, short_reason
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
 PREFIX = "compare_"
-LIMIT_RATIOS = (("v", "|v|/φ1"), ("omega", "|ω|/φ2"), ("tau1", "|τ1|/ϖ1"), ("tau2", "|τ2|/ϖ2"))
 #: How many of the most-moved figures the headline lists.
 MOST_MOVED = 8
 #: How much of a verdict's first reason the headline quotes (the reports have all of it).
@@ -47,14 +45,12 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
     )
     out: dict[str, float] = {"ts": sv.ts, "delay": sv.delay, "jitter": sv.jitter}
     for k, v in folder.summary.items():
-        if k == "schema_version":
-            continue  # the file's format, not a figure of the run
-        if isinstance(v, int | float) and not isinstance(v, bool):
+        if _number(v) and k != "schema_version":  # the file's format, not a figure of the run
             out[f"summary.{k}"] = float(v)
         elif isinstance(v, dict) and k == "violations":
-            for kk, vv in v.items():
-                if isinstance(vv, int | float):
-                    out[f"violations.{kk}"] = float(vv)
+            out.update(
+                {f"violations.{n}": float(c) for n, c in v.items() if isinstance(c, int | float)}
+            )
     out.update({f"tracking.{k}": v for k, v in eff["tracking"].items()})
     out.update({f"max_over_limit.{k}": c["ratio"] for k, c in eff["constraints"].items()})
     for name, b in eff["bands"].items():
@@ -133,23 +129,19 @@ def most_moved(rows: list[list[Any]], n: int = MOST_MOVED) -> list[list[Any]]:
         if diff is None or not math.isfinite(diff) or diff == 0 or key in ("ts", "delay"):
             continue
         base = abs(a) if a else 1.0
-        scored.append((abs(diff) / base, [key, a, b, diff, unit_of(key), label_of(key)]))
+        scored.append((abs(diff) / base, [key, a, b, diff, ct.unit_of(key), ct.label_of(key)]))
     scored.sort(key=lambda s: -s[0])
-    out: list[list[Any]] = []
-    seen = set()
+    once: dict[tuple[Any, ...], list[Any]] = {}
     for _, row in scored:  # one figure under two keys (summary and tracking) is listed once
-        if (row[5], row[1], row[2]) not in seen and len(out) < n:
-            seen.add((row[5], row[1], row[2]))
-            out.append(row)
-    return out
+        once.setdefault((row[5], row[1], row[2]), row)
+    return list(once.values())[:n]
 
 
 def compare_headline(
     fa: Folder, fb: Folder, a: dict[str, float], b: dict[str, float], rows: list[list[Any]]
 ) -> dict[str, Any]:
-    """What compare says first, with units: the verdicts, the command age D against D* and
-    the limits of (2) of both folders, then the figures that moved most (relative change,
-    largest first). Every number is one the two folders already hold."""
+    """What compare says first, with units: both folders' verdicts, D against D* and limits of
+    (2), then the figures that moved most. Every number is one the two folders already hold."""
     lines = [f"Verdict: A {_outcome(fa)}, B {_outcome(fb)}."]
     lines += [f"Why {n}: {why.rstrip('.')}." for n, f in (("A", fa), ("B", fb)) if (why := _why(f))]
     lines.append(
@@ -158,10 +150,10 @@ def compare_headline(
         "while still guaranteeing the limits (2))."
     )
     limits = []
-    for name, sym in LIMIT_RATIOS:
+    for name, sym in ct.SYMBOL.items():
         ra, rb = a.get(f"max_over_limit.{name}"), b.get(f"max_over_limit.{name}")
         if ra is not None and rb is not None:
-            limits.append(f"max {sym} {ra:.3f} → {rb:.3f}")
+            limits.append(f"max |{sym}|/{ct.LIMITS[name]} {ra:.3f} → {rb:.3f}")
     if limits:
         lines.append(
             "Limits of (2), the bounds φ1, φ2 on the velocities and ϖ1, ϖ2 on the inputs the "
@@ -179,20 +171,15 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
     ta, tb = fa.trace, fb.trace
     paths = [(la, ta["x"], ta["y"]), (lb, tb["x"], tb["y"]), ("reference", ta["xd"], ta["yd"])]
     figs = [fg.trajectory(paths, "Trajectories overlaid")]
-    for key, title, unit, limit in (
-        ("v", "Linear velocity v", "v [m/s]", sva.limits.phi1),
-        ("omega", "Angular velocity ω", "ω [rad/s]", sva.limits.phi2),
-        ("tau1", "τ1 of model (1) (normalized)", "τ1 [m/s²]", sva.limits.varpi1),
-        ("tau2", "τ2 of model (1) (normalized)", "τ2 [rad/s²]", sva.limits.varpi2),
-    ):
+    for key, title in ct.TITLES.items():
         # Different rates have different sample times: put B on A's time axis for the data file.
         tb_on_a = np.interp(ta["t"], tb["t"], tb[key])
         # Switching torques as their envelope and duty per bin (a solid block otherwise).
         draw = fg.switching_band if key.startswith("tau") else fg.signal_with_limits
         series = [(la, ta[key]), (lb + " (on A's times)", tb_on_a)]
-        figs.append(draw(key, title, unit, ta["t"], series, limit))
-    pa = trace_metrics.position_error(ta["x"], ta["y"], ta["xd"], ta["yd"])
-    pb = trace_metrics.position_error(tb["x"], tb["y"], tb["xd"], tb["yd"])
+        limit = getattr(sva.limits, LIMIT_NAMES[key])
+        figs.append(draw(key, title, ct.SIGNALS[key], ta["t"], series, limit))
+    pa, pb = (trace_metrics.position_error(t["x"], t["y"], t["xd"], t["yd"]) for t in (ta, tb))
     series = [(la, pa), (lb + " (on A's times)", np.interp(ta["t"], tb["t"], pb))]
     figs.append(fg.signal_with_limits("position_error", "Position error", "m", ta["t"], series))
     ma, mb = measured(fa), measured(fb)
@@ -231,37 +218,37 @@ def _write_pages(
     head, files = data["headline"], data["figures"]
     fa, fb = data["a"], data["b"]
     header = ["figure", "key (compare.json)", la, lb, "B − A", "unit"]
-    every = [[label_of(k), k, a, b, d, unit_of(k)] for k, a, b, d in rows]
+    every = [[ct.label_of(k), k, a, b, d, ct.unit_of(k)] for k, a, b, d in rows]
     moved_header = ["figure", la, lb, "B − A", "unit"]
     moved = [[r[5], *r[1:5]] for r in head["most_moved"]]
     md = [f"# Comparison: {fa} vs {fb}", "", *(f"- {t}" for t in head["lines"]), ""]
-    md += ["## The figures that moved most", "", MOVED_NOTE, "", _md_table(moved_header, moved)]
-    md += ["", "## Every figure", "", SLIDING, "", _md_table(header, every), ""]
-    md += ["## Overlays", "", NORMALIZED, ""]
+    md += ["## The figures that moved most", "", MOVED_NOTE, "", ct._md_table(moved_header, moved)]
+    md += ["", "## Every figure", "", ct.SLIDING, "", ct._md_table(header, every), ""]
+    md += ["## Overlays", "", ct.NORMALIZED, ""]
     for f in files:
         md += [f"![{f['title']}]({f['png']})", "", f"Data: [{f['data']}]({f['data']})", ""]
     (out / "compare.md").write_text("\n".join(md) + "\n")
     html = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
-        f"<title>{esc('Comparison')}</title><style>{CSS}</style></head><body>",
-        f"<h1>Comparison: {esc(fa)} vs {esc(fb)}</h1>",
+        f"<title>{ct.esc('Comparison')}</title><style>{ct.CSS}</style></head><body>",
+        f"<h1>Comparison: {ct.esc(fa)} vs {ct.esc(fb)}</h1>",
         '<section id="headline"><div class="verdict unsure"><ul>',
-        *(f"<li>{esc(t)}</li>" for t in head["lines"]),
+        *(f"<li>{ct.esc(t)}</li>" for t in head["lines"]),
         "</ul></div>",
         "<h2>The figures that moved most</h2>",
-        f"<p>{esc(MOVED_NOTE)}</p>",
-        table(moved_header, moved),
+        f"<p>{ct.esc(MOVED_NOTE)}</p>",
+        ct.table(moved_header, moved),
         "</section>",
         '<section id="figures_table"><h2>Every figure</h2>',
-        f"<p>{esc(SLIDING)}</p>",
+        f"<p>{ct.esc(ct.SLIDING)}</p>",
         f"<details><summary>{len(rows)} figures of A and B, each with its unit</summary>",
-        table(header, every),
+        ct.table(header, every),
         "</details></section>",
         '<section id="overlays"><h2>Overlays</h2>',
-        f"<p>{esc(NORMALIZED)}</p>",
+        f"<p>{ct.esc(ct.NORMALIZED)}</p>",
         '<div class="figs">',
-        *(figure(f, PREFIX) for f in figs),
+        *(ct.figure(f, PREFIX) for f in figs),
         "</div></section></body></html>",
     ]
     (out / "compare.html").write_text("\n".join(html))

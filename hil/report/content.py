@@ -1,18 +1,22 @@
 """What the report says: its first lines (:func:`headline`), then section by section, as blocks
-that report.md (:func:`render_markdown`) and report.html (:mod:`hil.report.html`) both render
+that report.md (:func:`render_markdown`) and report.html (:func:`render_html`) both render
 (paragraphs, lists, tables, figures): one text, two formats; and the words and unit of each
-figure ``hil compare`` shows."""
+figure ``hil compare`` shows. The HTML opens offline: inline CSS, figures as base64 PNG data URIs,
+no script, no link."""
 
 from __future__ import annotations
 
+import base64
+import html
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from hil.margin.record import MarginRecord, summary_lines
+from hil.report.figures import Figure
 from hil.verdict import UNITS
 
 #: Each signal of (2) and its limit's symbol (its unit is hil.verdict's).
@@ -106,9 +110,9 @@ def _ms(x: Any) -> Any:
     return x * 1e3 if isinstance(x, int | float) and not isinstance(x, bool) else None
 
 
-PCT_KEYS = ("p50_us", "p90_us", "p99_us", "p999_us", "max_us", "count")
-#: The percentile columns as a table heads them.
-PCT_HEADER = ["p50 [µs]", "p90 [µs]", "p99 [µs]", "p99.9 [µs]", "max [µs]", "count"]
+#: The percentile figures, and how a table heads them.
+PCT = {"p50_us": "p50 [µs]", "p90_us": "p90 [µs]", "p99_us": "p99 [µs]", "p999_us": "p99.9 [µs]"}
+PCT |= {"max_us": "max [µs]", "count": "count"}
 
 
 NOT_MEASURED = "n/a"
@@ -125,10 +129,17 @@ def _pct_rows(
     for key, label in names:
         f = timing.get(key)
         if isinstance(f, dict):
-            rows.append([label, *(f.get(q) for q in PCT_KEYS)])
+            rows.append([label, *(f.get(q) for q in PCT)])
         elif key in always:
-            rows.append([label, *(NOT_MEASURED for _ in PCT_KEYS)])
+            rows.append([label, *(NOT_MEASURED for _ in PCT)])
     return rows
+
+
+def _per_path(prefix: str, applied: str | None, shadow: str) -> list[tuple[str, str]]:
+    """The figure ``prefix + path`` of each path, labelled applied or ``shadow``."""
+    return [
+        (prefix + p, f"{p} ({'applied' if p == applied else shadow})") for p in ("zenoh", "can")
+    ]
 
 
 def sections(data: dict[str, Any]) -> Iterator[Section]:
@@ -143,14 +154,6 @@ def _headline(s: Section, data: dict[str, Any]) -> None:
     s.items([line["text"] for line in data["headline"]["lines"]])
 
 
-# The report's first lines, in words and numbers: (1) were the limits of (2) held, and by what
-# margin (each peak as a share of its limit)? (2) The command age D against D* (the certificate)
-# and the margin. (3) The stalls closest to D*: when, how long, why (top 3). (4) The share of
-# plant samples that never got a command. Every number is one already in the report: the peaks of
-# summary.json (every plant step) and the trace, the certificate (for a run: hil.measure's), the
-# timing object.
-
-
 def ms(seconds: float) -> str:
     return f"{seconds * 1e3:.3f} ms"
 
@@ -159,16 +162,13 @@ def _limits(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, An
     cons = data["metrics"]["constraints"]
     violations = summary.get("violations") or {}
     out: dict[str, Any] = {"held": data["verdict"]["limits"] == "held"}
-    parts = []
-    broken = []
+    parts, broken = [], []
     for key, name in LIMITS.items():
-        unit = UNITS[key]
-        c = cons[key]
+        unit, c, sym = UNITS[key], cons[key], SYMBOL[key]
         n = violations.get(key)
         n = int(n) if isinstance(n, int | float) and not isinstance(n, bool) else None
         pct = 100.0 * c["ratio"]
         out[key] = {"max": c["peak"], "limit": c["limit"], "percent_of_limit": pct, "violations": n}
-        sym = SYMBOL[key]
         limit = f"{name} = {c['limit']:.4g} {unit}"
         parts.append(f"max |{sym}| = {c['peak']:.4g} {unit} is {pct:.1f} % of {limit}")
         if (n or 0) > 0:
@@ -177,8 +177,7 @@ def _limits(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, An
             broken.append(f"|{sym}| beyond {name}")
     every = "over every plant step" if violations else "over the trace's samples"
     state = "held" if not broken else "BROKEN (" + "; ".join(broken) + ")"
-    text = f"Limits of (2) {state}, {every}: " + "; ".join(parts) + "."
-    return out, text
+    return out, f"Limits of (2) {state}, {every}: " + "; ".join(parts) + "."
 
 
 def _command_age(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
@@ -209,8 +208,7 @@ def _stalls(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
     stalls = list(cert.get("stalls") or [])
     thr = cert.get("stall_threshold_s")
     top = [{k: s.get(k) for k in ("t_s", "age_s", "cause", "owner")} for s in stalls[:TOP_STALLS]]
-    total = cert.get("stall_count", len(stalls))
-    stalled = cert.get("stalled_time_s")
+    total, stalled = cert.get("stall_count", len(stalls)), cert.get("stalled_time_s")
     out = {"threshold_s": thr, "listed": len(stalls), "count": total, "top": top}
     out["stalled_time_s"] = stalled
     if data["kind"] != "run" or cert.get("path") is None:
@@ -237,24 +235,24 @@ def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, A
     timing = (data.get("timing") or {}).get("summary") or {}
     n, judged = timing.get("samples_without_command"), timing.get("samples_judged")
     rate = timing.get("samples_without_command_rate")
+    what = "Samples without a command:"
     if data["kind"] == "run" and isinstance(n, int) and isinstance(rate, int | float):
-        return (
-            {"count": n, "judged": judged, "rate": rate},
-            f"Samples without a command: {n} of {judged} ({100.0 * rate:.3f} %).",
-        )
+        text = f"{what} {n} of {judged} ({100.0 * rate:.3f} %)."
+        return {"count": n, "judged": judged, "rate": rate}, text
     if data["kind"] == "run":
-        return {"count": None, "judged": None, "rate": None}, (
-            "Samples without a command: not measured (the run has no such figure)."
-        )
+        text = f"{what} not measured (the run has no such figure)."
+        return {"count": None, "judged": None, "rate": None}, text
     dropped = summary.get("commands_dropped")
     extra = f"; {dropped} commands overtaken by a newer one and dropped" if dropped else ""
-    return {"count": 0, "judged": None, "rate": 0.0}, (
-        f"Samples without a command: none in a simulation (every sample's command lands{extra})."
-    )
+    text = f"{what} none in a simulation (every sample's command lands{extra})."
+    return {"count": 0, "judged": None, "rate": 0.0}, text
 
 
 def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
-    """The four answers and the verdict, as data and as the report's first lines."""
+    """The four answers and the verdict, as data and as the report's first lines: the limits of
+    (2) and each peak's share of its limit; D against D* and the margin; the stalls closest to
+    D* (when, how long, why); the plant samples that never got a command. Every number is one
+    already in the report: the peaks (summary.json's and the trace's), certificate and timing."""
     answers = {
         "limits": _limits(data, summary),
         "command_age": _command_age(data),
@@ -263,9 +261,8 @@ def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
     }
     v = data["verdict"]
     verdict = v.get("outcome", "PASS" if v["ok"] else "FAIL")
-    v_text = (
-        f"Verdict: {verdict}." if v["ok"] else f"Verdict: {verdict}: {'; '.join(v['reasons'])}."
-    )
+    why = "" if v["ok"] else f": {'; '.join(v['reasons'])}"
+    v_text = f"Verdict: {verdict}{why}."
     if v.get("notes"):
         v_text += " " + " ".join(v["notes"])
     lines = [{"key": k, "text": text} for k, (_, text) in answers.items()]
@@ -339,18 +336,13 @@ def _certificate(s: Section, data: dict[str, Any]) -> None:
         for line in summary_lines(MarginRecord.from_dict(data["margin"])):
             s.p(line)
     timing = (data.get("timing") or {}).get("summary") or {}
-    path = c.get("path")
-    names = [
-        (f"command_age_{p}", f"{p} ({'applied' if p == path else 'shadow'})")
-        for p in ("zenoh", "can")
-    ]
-    rows = _pct_rows(timing, names)
+    rows = _pct_rows(timing, _per_path("command_age_", c.get("path"), "shadow"))
     if rows:
         s.p(
             "Command age at every plant step (age of information, per path); the applied "
             f"path's max is D. Start-up hold: {fmt(timing.get('startup_hold_s'))} s."
         )
-        s.table(["path", *PCT_HEADER], rows)
+        s.table(["path", *PCT.values()], rows)
     stalls = c.get("stalls") or []
     if stalls:
         s.p(
@@ -379,10 +371,14 @@ def _trajectory(s: Section, data: dict[str, Any]) -> None:
 
 #: Each signal of (2) as a table names it, with its unit.
 SIGNALS = {k: f"{sym} [{UNITS[k]}]" for k, sym in SYMBOL.items()}
+#: Each signal's plot title (report and compare).
+TITLES = {"v": "Linear velocity v", "omega": "Angular velocity ω"}
+TITLES |= {k: f"{SYMBOL[k]} of model (1) (normalized)" for k in ("tau1", "tau2")}
 
 
-def _constraints(s: Section, data: dict[str, Any], names: tuple[str, ...]) -> None:
-    """The signals' figures against (2) and their bounds, as a table and as plots."""
+def _constraints(s: Section, data: dict[str, Any], text: str, names: tuple[str, ...]) -> None:
+    """``text``, then the signals' figures against (2) and their bounds, as a table and plots."""
+    s.p(text)
     cons = data["metrics"]["constraints"]
     keys = ("peak", "limit", "ratio", "held", "bound", "within_bound")
     s.table(CONSTRAINT_HEADER, [[SIGNALS[n], *(cons[n][k] for k in keys)] for n in names])
@@ -401,13 +397,12 @@ BOUND_GLOSS = (
 
 
 def _velocities(s: Section, data: dict[str, Any]) -> None:
-    s.p(BOUND_GLOSS)
-    _constraints(s, data, ("v", "omega"))
+    _constraints(s, data, BOUND_GLOSS, ("v", "omega"))
 
 
 def _torques(s: Section, data: dict[str, Any]) -> None:
-    s.p("τ1 in m/s², τ2 in rad/s²: the normalized inputs of model (1) (see above).")
-    _constraints(s, data, ("tau1", "tau2"))
+    text = "τ1 in m/s², τ2 in rad/s²: the normalized inputs of model (1) (see above)."
+    _constraints(s, data, text, ("tau1", "tau2"))
 
 
 def _drives(s: Section, data: dict[str, Any]) -> None:
@@ -433,17 +428,18 @@ def _drives(s: Section, data: dict[str, Any]) -> None:
         rows = []
         for side in ("controller", "plant"):
             st = can.get(side)
-            if isinstance(st, dict):
-                rows += [[side, k.replace("_", " "), st[k], _count_unit(st[k])] for k in st]
+            for k, v in st.items() if isinstance(st, dict) else ():
+                # the drives' and the bus's counters are counts; their other states are words
+                count = isinstance(v, int) and not isinstance(v, bool)
+                rows.append([side, k.replace("_", " "), v, "count" if count else ""])
         s.table(["side", "drive/bus state", "value", "unit"], rows)
     else:
         s.p("No CAN bus in this folder (a simulation, or a run without CAN).")
     counts = d.get("rejection_counts")
     if isinstance(counts, dict):
         rej = d.get("rejections") or {}
-        s.table(
-            ["where", "rejections", "by reason"], [[k, n, rej.get(k)] for k, n in counts.items()]
-        )
+        rows = [[k, n, rej.get(k)] for k, n in counts.items()]
+        s.table(["where", "rejections", "by reason"], rows)
     s.figure("motor_torques")
 
 
@@ -460,11 +456,6 @@ def _tracking_error(s: Section, data: dict[str, Any]) -> None:
     rows.append(["deviation from ideal", m.get("deviation_from_ideal_note", ""), ""])
     s.table(["figure", "value", "unit"], rows)
     s.figure("tracking_error")
-
-
-def _count_unit(value: Any) -> str:
-    """The drives' and the bus's counters are counts; their other states are words."""
-    return "count" if isinstance(value, int) and not isinstance(value, bool) else ""
 
 
 #: The tracking figures of hil.trace_metrics in words.
@@ -496,18 +487,15 @@ def _bands(s: Section, data: dict[str, Any]) -> None:
 
 def _latency(s: Section, data: dict[str, Any]) -> None:
     timing = data["timing"]["summary"] or {}
-    path = data["timing"].get("applied_path")
-    names = [
-        (f"sample_to_apply_{p}", f"{p} ({'applied' if p == path else 'shadow: receive'})")
-        for p in ("zenoh", "can")
-    ] + [("hop_cmd_zenoh", "command hop zenoh"), ("hop_cmd_can", "command hop can")]
+    names = _per_path("sample_to_apply_", data["timing"].get("applied_path"), "shadow: receive")
+    names += [("hop_cmd_zenoh", "command hop zenoh"), ("hop_cmd_can", "command hop can")]
     s.p(
         "Sample-to-apply: from the moment the plant sampled the state to the moment the "
         "command computed from it took effect at the plant (a shadow path: arrived). Command "
         "hop: from the controller's send to the plant's receipt. Percentiles over every command "
         "(p99: 99 % took at most this long); definitions in docs/realtime.md."
     )
-    s.table(["figure", *PCT_HEADER], _pct_rows(timing, names))
+    s.table(["figure", *PCT.values()], _pct_rows(timing, names))
     s.figure("latency")
 
 
@@ -525,7 +513,7 @@ def _lateness(s: Section, data: dict[str, Any]) -> None:
         "missed slot (a deadline miss)."
     )
     measured_here = ("wakeup_lateness", "period_jitter") if timing else ()
-    s.table(["figure", *PCT_HEADER], _pct_rows(timing, names, measured_here))
+    s.table(["figure", *PCT.values()], _pct_rows(timing, names, measured_here))
     # Missed slots: a stall of N periods misses N slots (late wake-ups + slots never run).
     keys = ("ticks", "slots", "deadline_misses", "late_ticks", "skipped_slots")
     keys += ("deadline_miss_rate", "plant_slots", "plant_deadline_misses", "plant_skipped_slots")
@@ -598,7 +586,7 @@ def _timing_summary(s: Section, data: dict[str, Any]) -> None:
     if isinstance(phase, dict):
         s.p(_tick_phase_line(phase))
     names = [(k, k) for k, f in timing.items() if isinstance(f, dict) and "p50_us" in f]
-    s.table(["figure", *PCT_HEADER], _pct_rows(timing, names))
+    s.table(["figure", *PCT.values()], _pct_rows(timing, names))
     s.table(
         ["figure", "value", "unit"],
         [[k, f, unit_of(k)] for k, f in timing.items() if not isinstance(f, dict | str)],
@@ -684,8 +672,7 @@ def _topology(s: Section, data: dict[str, Any]) -> None:
     )
     s.p(_clock_text(f))
     s.figure("clock_offset")
-    clock = f.get("clock") or {}
-    unc = clock.get("uncertainty_ns_max")
+    unc = (f.get("clock") or {}).get("uncertainty_ns_max")
     unc_us = None if unc is None else float(np.round(unc / 1e3, 3))
     timing = (data.get("timing") or {}).get("summary") or {}
     s.table(
@@ -741,19 +728,17 @@ NAMES = {
     "certificate.stalls": "stalls (commands in force above the stall threshold)",
     "certificate.v_bound": "largest |v| the bound allows",
     "certificate.omega_bound": "largest |ω| the bound allows",
-    "max_over_limit.v": "max |v| / φ1 (the limit of (2) on v)",
-    "max_over_limit.omega": "max |ω| / φ2 (the limit of (2) on ω)",
-    "max_over_limit.tau1": "max |τ1| / ϖ1 (the limit of (2) on τ1)",
-    "max_over_limit.tau2": "max |τ2| / ϖ2 (the limit of (2) on τ2)",
     "timing.startup_hold_s": "start-up hold: first command landed after the first sample",
     "timing.late_commands": "late commands (applied more than Ts after their sample)",
     "timing.late_commands_rate": "late commands, share of the samples",
-    "timing.compute.p50_us": "controller compute time, p50",
-    "timing.compute.p99_us": "controller compute time, p99",
-    "timing.compute.max_us": "controller compute time, max",
     "band_p99.v_tilde": "band of v~ = v − α_v (p99 of |v~| once reached)",
     "band_p99.w_tilde": "band of w~ = ω − α_ω (p99 of |w~| once reached)",
 }
+NAMES |= {
+    f"max_over_limit.{k}": f"max |{sym}| / {LIMITS[k]} (the limit of (2) on {sym})"
+    for k, sym in SYMBOL.items()
+}
+NAMES |= {f"timing.compute.{q}_us": f"controller compute time, {q}" for q in ("p50", "p99", "max")}
 #: Where a figure comes from, as its key's first part names it (else that part in words).
 GROUPS = {
     "summary": "",
@@ -839,12 +824,10 @@ def render_markdown(data: dict[str, Any], files: Sequence[dict[str, str]]) -> st
                 out += [f"- {text}" for text in block[1]] + [""]
             elif kind == "table":
                 out += [_md_table(block[1], block[2]), ""]
-            elif kind == "figure":
-                f = by_name.get(block[1])
-                if f:
-                    caption = f". {f['caption']}" if f.get("caption") else ""
-                    data_line = f"Data: [{f['data']}]({f['data']}){caption}"
-                    out += [f"![{f['title']}]({f['png']})", "", data_line, ""]
+            elif kind == "figure" and (f := by_name.get(block[1])):
+                caption = f". {f['caption']}" if f.get("caption") else ""
+                data_line = f"Data: [{f['data']}]({f['data']}){caption}"
+                out += [f"![{f['title']}]({f['png']})", "", data_line, ""]
         if section.id == "headline":
             out += [
                 f"{data['kind']} · law `{s['law']}` · Ts {fmt(s['ts'])} s · delay "
@@ -854,3 +837,105 @@ def render_markdown(data: dict[str, Any], files: Sequence[dict[str, str]]) -> st
                 "",
             ]
     return "\n".join(out) + "\n"
+
+
+CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
+max-width:1200px;padding:0 1em;color:#222;line-height:1.4}
+.figs{display:grid;grid-template-columns:repeat(auto-fit,minmax(520px,1fr));gap:0 1.2em}
+nav.toc{columns:2;font-size:.95em;margin:.5em 0 1em}nav.toc a{text-decoration:none}
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
+table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:.25em .6em;
+text-align:left;font-variant-numeric:tabular-nums}th{background:#f4f4f4}
+.ok{background:#e6f4e6;border:2px solid #3a3}.bad{background:#fbe9e9;border:2px solid #c33}
+.unsure{background:#fff6dd;border:2px solid #c90}
+.verdict{padding:.8em 1.2em;margin:1em 0}figure{margin:1em 0}img{max-width:100%}
+figcaption{font-size:.9em;color:#555}code{background:#f4f4f4;padding:0 .2em}
+"""
+
+
+def esc(value: Any) -> str:
+    return html.escape(str(value), quote=True)
+
+
+def table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    head = "".join(f"<th>{esc(h)}</th>" for h in header)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{esc(fmt(c))}</td>" for c in row) + "</tr>" for row in rows
+    )
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def figure(f: Figure, prefix: str = "report_") -> str:
+    b64 = base64.b64encode(f.png).decode("ascii")
+    caption = f" {esc(f.caption)}" if f.caption else ""
+    return (
+        f'<figure><img alt="{esc(f.title)}" src="data:image/png;base64,{b64}">'
+        f"<figcaption>{esc(f.title)} (data: <code>{esc(prefix + f.name)}.csv</code>)"
+        f"{caption}</figcaption></figure>"
+    )
+
+
+#: Tables longer than this are folded (a <details> the reader opens): the page answers first.
+FOLD_ROWS = 12
+
+
+def _folded(header: Sequence[str], rows: Sequence[Sequence[Any]], fold: str | None = None) -> str:
+    if fold is None and len(rows) <= FOLD_ROWS:
+        return table(header, rows)
+    summary = fold or f"{len(rows)} rows: {', '.join(header)}"
+    return f"<details><summary>{esc(summary)}</summary>{table(header, rows)}</details>"
+
+
+def _grid(figures: list[str]) -> list[str]:
+    return ['<div class="figs">', *figures, "</div>"] if len(figures) > 1 else figures
+
+
+def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
+    by_name = {f.name: f for f in figs}
+    s = data["scenario"]
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>{esc('Report: ' + data['folder'])}</title>",
+        f"<style>{CSS}</style></head><body>",
+        f"<h1>What timing did to the law: {esc(data['folder'])}</h1>",
+    ]
+    listed = list(sections(data))
+    # the table of contents: a link to each section after the headline
+    links = "".join(f'<li><a href="#{esc(x.id)}">{esc(x.title)}</a></li>' for x in listed[1:])
+    for section in listed:
+        parts.append(f'<section id="{esc(section.id)}">')
+        if section.id == "headline":
+            outcome = data["headline"]["verdict"]
+            cls = {"PASS": "ok", "INCONCLUSIVE": "unsure"}.get(outcome, "bad")
+            parts.append(f'<div class="verdict {cls}"><strong>{outcome}</strong>')
+        else:
+            parts.append(f"<h2>{esc(section.title)}</h2>")
+        pending: list[str] = []  # figures in a row share a two-column grid
+        for block in section.blocks:
+            kind = block[0]
+            if kind == "figure":
+                if block[1] in by_name:
+                    pending.append(figure(by_name[block[1]]))
+                continue
+            parts.extend(_grid(pending))
+            pending = []
+            if kind == "p":
+                parts.append(f"<p>{esc(block[1])}</p>")
+            elif kind == "list":
+                parts.append("<ul>" + "".join(f"<li>{esc(t)}</li>" for t in block[1]) + "</ul>")
+            elif kind == "table":
+                parts.append(_folded(block[1], block[2], block[3]))
+        parts.extend(_grid(pending))
+        if section.id == "headline":
+            parts += [
+                "</div>",
+                f"<p>{esc(data['kind'])} · law <code>{esc(s['law'])}</code> · "
+                f"Ts {esc(fmt(s['ts']))} s · delay {esc(fmt(s['delay']))} s"
+                f" · jitter {esc(fmt(s['jitter']))} s ({esc(s['jitter_kind'])})</p>",
+                f'<nav class="toc"><strong>Contents</strong><ol>{links}</ol></nav>',
+            ]
+        parts.append("</section>")
+    parts.append("</body></html>")
+    return "\n".join(parts)

@@ -47,9 +47,9 @@ WRITE_CHUNK_ROWS = 16_384
 
 
 def write_columns(path: Path, columns: Mapping[str, np.ndarray]) -> None:
-    """Columns as CSV, unequal ones padded with empty cells (histograms beside CDFs); each cell
-    ``repr(float(value))``, the shortest text that reads back the same. A chunk at a time by
-    ``map`` and ``str.join``, not a ``csv`` call per row: millions of rows in seconds."""
+    """Columns as CSV, unequal ones padded with empty cells; each cell ``repr(float(value))``,
+    the shortest text that reads back the same. A chunk at a time by ``map`` and ``str.join``,
+    not a ``csv`` call per row: millions of rows in seconds."""
     names = list(columns)
     arrays = [np.asarray(columns[n]).ravel() for n in names]
     rows = max((a.size for a in arrays), default=0)
@@ -61,9 +61,7 @@ def write_columns(path: Path, columns: Mapping[str, np.ndarray]) -> None:
             for a in arrays:
                 part = a[r0:r1].astype(float, copy=False).tolist() if r0 < a.size else []
                 text = list(map(repr, part))
-                if len(text) < r1 - r0:
-                    text += [""] * (r1 - r0 - len(text))
-                cells.append(text)
+                cells.append(text + [""] * (r1 - r0 - len(text)))
             f.write("\r\n".join(map(",".join, zip(*cells, strict=True))))
             f.write("\r\n")
 
@@ -78,13 +76,12 @@ def _png(fig: plt.Figure) -> bytes:
 def envelope_indices(
     t: np.ndarray, ys: Sequence[np.ndarray], bins: int | None = None
 ) -> np.ndarray:
-    """The samples to draw of series ``ys`` over a non-decreasing axis ``t`` (time, or the
-    sample index): in each of ``bins`` equal bins of ``t``, the first sample at each series'
-    minimum and at its maximum, and the first missing (NaN) sample, so that every bin's true
-    extremes (a limit crossing, a single-sample spike) and every gap are drawn; plus the first
-    and the last sample. Sorted, unique; all samples up to :data:`MAX_DRAWN_POINTS`. ``bins``
-    defaults to as many as keep within that (at most :data:`ENVELOPE_BINS`). Linear in the
-    number of samples, with a few temporary arrays of its size."""
+    """The samples to draw of series ``ys`` over a non-decreasing axis ``t`` (time, or sample
+    index): the first and last, and in each of ``bins`` equal bins of ``t`` the first sample at
+    each series' minimum, at its maximum and the first NaN, so that every bin's extremes (a limit
+    crossing, a one-sample spike) and every gap are drawn. Sorted, unique; all samples up to
+    :data:`MAX_DRAWN_POINTS`, ``bins`` by default as many as keep within it (at most
+    :data:`ENVELOPE_BINS`). Linear in the number of samples."""
     t = np.asarray(t, dtype=float)
     n = t.size
     if n <= MAX_DRAWN_POINTS:
@@ -110,12 +107,7 @@ def envelope_indices(
 
 def _first_per_bin(hits: np.ndarray, bin_of: np.ndarray) -> np.ndarray:
     """Of sorted sample indices ``hits``, the first in each bin."""
-    if hits.size == 0:
-        return hits
-    b = bin_of[hits]
-    keep = np.ones(hits.size, dtype=bool)
-    keep[1:] = b[1:] != b[:-1]
-    return hits[keep]
+    return hits[np.diff(bin_of[hits], prepend=-1) != 0]
 
 
 def _labels(ax: plt.Axes, xlabel: str, ylabel: str, title: str, **legend: Any) -> None:
@@ -146,8 +138,7 @@ def _plot_drawn(
     a series drawn from its envelope, say so in ``captions``."""
     x, y = xy
     ax.plot(x if idx is None else x[idx], y if idx is None else y[idx], label=label, **style)
-    cols[keys[0]] = _data(x, idx)
-    cols[keys[1]] = _data(y, idx)
+    cols.update(zip(keys, (_data(x, idx), _data(y, idx)), strict=True))
     if idx is not None:
         captions.append(f"{label}: {_envelope_caption(np.size(x), idx)}")
 
@@ -169,23 +160,19 @@ def _data(full: np.ndarray, idx: np.ndarray | None) -> np.ndarray:
     """A column of a figure's data file: complete up to :data:`MAX_DATA_ROWS` samples, else the
     drawn samples (every bin's extremes; the whole series is in trace.csv or the hop logs)."""
     full = np.asarray(full)
-    if idx is None or full.size <= MAX_DATA_ROWS:
-        return full
-    return full[idx]
+    return full if idx is None or full.size <= MAX_DATA_ROWS else full[idx]
 
 
 def _envelope_caption(n: int, idx: np.ndarray | None) -> str:
     if idx is None:
         return ""
-    where = (
-        "the data file holds every sample"
-        if n <= MAX_DATA_ROWS
-        else f"the data file holds the {idx.size} drawn samples (the complete series is in "
-        "the folder's trace.csv or hop logs)"
-    )
+    where = "every sample"
+    if n > MAX_DATA_ROWS:
+        where = f"the {idx.size} drawn samples (the complete series is in the folder's trace.csv "
+        where += "or hop logs)"
     return (
         f"{n} samples drawn as {idx.size}: the minimum and maximum of each time bin, so every "
-        f"peak and limit crossing shows; {where}."
+        f"peak and limit crossing shows; the data file holds {where}."
     )
 
 
@@ -205,13 +192,6 @@ OTHER_STYLES = (
 )
 
 
-def _trajectory_style(label: str, i: int) -> dict:
-    for key, style in TRAJECTORY_STYLES:
-        if label.startswith(key):
-            return style
-    return OTHER_STYLES[i % len(OTHER_STYLES)]
-
-
 def trajectory(
     series: Sequence[tuple[str, np.ndarray, np.ndarray]], title: str = "Trajectory in the plane"
 ) -> Figure:
@@ -223,8 +203,10 @@ def trajectory(
     for i, (label, x, y) in enumerate(series):
         # long paths: in each bin of samples, those at the smallest and largest X and Y
         idx = _drawn(np.arange(np.size(x)), [x, y])
+        style = next((st for key, st in TRAJECTORY_STYLES if label.startswith(key)), None)
+        style = style or OTHER_STYLES[i % len(OTHER_STYLES)]
         keys = (f"{label}_x", f"{label}_y")
-        _plot_drawn(ax, label, (x, y), idx, keys, cols, captions, **_trajectory_style(label, i))
+        _plot_drawn(ax, label, (x, y), idx, keys, cols, captions, **style)
     if series:
         first = next((s for s in series if s[0].startswith("robot")), series[0])
         ax.plot(first[1][0], first[2][0], "ko", markersize=4, label=f"{first[0]} start")
@@ -321,13 +303,14 @@ CLIP_QUANTILE = 0.999
 CLIP_FACTOR = 3.0
 
 
-def _clip(samples: Mapping[str, np.ndarray]) -> float | None:
+def _clip(samples: Mapping[str, np.ndarray]) -> tuple[float | None, float]:
+    """Where the axis ends (None: nothing clipped), and the smallest sample."""
     pooled = np.concatenate([np.asarray(v, dtype=float).ravel() for v in samples.values()])
     pooled = pooled[np.isfinite(pooled)]
     if pooled.size < 10:
-        return None
+        return None, 0.0
     q = float(np.quantile(pooled, CLIP_QUANTILE))
-    return q * 1.05 if q > 0 and pooled.max() > CLIP_FACTOR * q else None
+    return q * 1.05 if q > 0 and pooled.max() > CLIP_FACTOR * q else None, float(pooled.min())
 
 
 def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) -> Figure:
@@ -335,7 +318,7 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
     fig, (ax_h, ax_c) = plt.subplots(1, 2, figsize=(9, 3.4))
     cols: dict[str, np.ndarray] = {}
     captions: list[str] = []
-    clip = _clip(samples) if samples else None
+    clip, low = _clip(samples) if samples else (None, 0.0)
     for label, values in samples.items():
         v = np.sort(np.asarray(values, dtype=float))
         if v.size == 0:
@@ -353,11 +336,9 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
         cdf = np.arange(1, v.size + 1) / v.size
         idx = cdf_indices(v.size)
         ax_c.plot(v[idx], cdf[idx], label=label, linewidth=1.0)
-        cols[f"{label}_bin_left_us"] = edges[:-1]
-        cols[f"{label}_bin_right_us"] = edges[1:]
-        cols[f"{label}_count"] = counts
-        cols[f"{label}_sorted_us"] = v if v.size <= MAX_DATA_ROWS else v[idx]
-        cols[f"{label}_cdf"] = cdf if v.size <= MAX_DATA_ROWS else cdf[idx]
+        kept = slice(None) if v.size <= MAX_DATA_ROWS else idx
+        cols |= {f"{label}_bin_left_us": edges[:-1], f"{label}_bin_right_us": edges[1:]}
+        cols |= {f"{label}_count": counts, f"{label}_sorted_us": v[kept], f"{label}_cdf": cdf[kept]}
         if idx.size < v.size:
             data = "every sample" if v.size <= MAX_DATA_ROWS else "the drawn points"
             captions.append(
@@ -369,8 +350,6 @@ def histogram_and_cdf(name: str, title: str, samples: Mapping[str, np.ndarray]) 
     ax_h.set_yscale("log")
     if clip is not None:
         # both ends: left to itself the axis keeps the clipped outliers' margin on the left
-        pooled = np.concatenate([np.asarray(v, dtype=float).ravel() for v in samples.values()])
-        low = float(np.min(pooled[np.isfinite(pooled)]))
         ax_c.set_xlim(low - 0.05 * (clip - low), clip)
     fig.suptitle(title)
     fig.tight_layout()
@@ -432,9 +411,8 @@ def age_envelope(
     threshold: float | None,
     stalls: Sequence[tuple[float, float]] = (),
 ) -> Figure:
-    """Command age over time per path, from :func:`hil.measure.age.envelope` (t s, min s,
-    max s per bin), in ms; D* as a red dashed line, the stall threshold dotted, stalls marked.
-    The first path is drawn as a filled band, the others (shadow paths) as thin lines."""
+    """Command age (ms) per path from :func:`hil.measure.age.envelope`: the first path a filled
+    band, the others (shadow paths) thin lines; D* red dashed, the stall threshold dotted."""
     fig, ax = plt.subplots(figsize=(7, 3.2))
     cols: dict[str, np.ndarray] = {}
     for i, (label, (t, lo, hi)) in enumerate(envelopes.items()):
@@ -471,7 +449,8 @@ def against_parameter(
 ) -> Figure:
     """Sweep figures: a metric against Ts or delay, one curve per value of the other axis."""
     fig, ax = plt.subplots(figsize=(6.5, 3.6))
-    cols: dict[str, np.ndarray] = {"x": np.asarray(x, float)}
+    xs = np.asarray(x, float)
+    cols: dict[str, np.ndarray] = {"x": xs}
     for label, y in series.items():
         ax.plot(x, y, "o-", markersize=3, linewidth=1.0, label=label)
         cols[label] = np.asarray(y, float)
@@ -479,7 +458,6 @@ def against_parameter(
         ax.axhline(hline, label=f"limit {hline:g}", **LIMIT_STYLE)
     if mark_x is not None:
         ax.axvline(mark_x, color="black", linestyle="-.", linewidth=1.0, label="break point")
-    xs = np.asarray(x, float)
     positive = xs[np.isfinite(xs) & (xs > 0)]
     if positive.size == xs.size and xs.size:
         ax.set_xscale("log")

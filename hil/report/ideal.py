@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib.machinery
 import importlib.util
 from collections.abc import Iterable
+from contextlib import suppress
 
 import numpy as np
 
@@ -30,9 +31,7 @@ def memory_source(folder: Folder):
         tr = folder.trace
         if all(f in tr for f in fields):
             return {f: np.asarray(tr[f], dtype=float)[rows] for f in fields}
-        if "sample_ns" not in tr or not folder.recordings:
-            return {}
-        tel = folder_telemetry(folder)
+        tel = folder_telemetry(folder) if "sample_ns" in tr and folder.recordings else {}
         if not all(f in tel for f in fields):
             return {}
         when = np.asarray(tr["sample_ns"], dtype=float)[rows].astype(np.int64)
@@ -58,11 +57,9 @@ def law_findable(law: str, folders: Iterable[str] = ()) -> bool:
     module = law.partition(":")[0] if ":" in law else ""
     if not module:
         return True
-    try:
+    with suppress(ImportError, ValueError):
         if importlib.util.find_spec(module) is not None:
             return True
-    except (ImportError, ValueError):
-        pass
     top = module.split(".")[0]  # a package in one of the folders: its submodule is checked
     return importlib.machinery.PathFinder.find_spec(top, [str(f) for f in folders]) is not None
 

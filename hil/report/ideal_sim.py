@@ -1,21 +1,18 @@
 """The ideal trajectory by the offline simulator (hil.sim): the folder's own scenario at Ts/10,
 no delay, no jitter (the law acts almost continuously), from the trace's first state and time (a
-run's first sample may come late: the reference and the law's clock then start there, as in the
-run).
+run's first sample may come late: the reference and the law's clock then start there).
 
-A trace longer than :data:`WINDOW_S` gets a *windowed* ideal: each window of WINDOW_S seconds
-starts from the robot's state at its first sample, at that sample's time, with the law's memory
-there where the folder has it (a simulation's trace columns, a run's recorded telemetry; else
-the initial memory), and runs to the next window's start. All windows run at once on the batch
-path (:func:`hil.sim.simulate_batch`, one robot per window), so an hour's run costs one window's
-steps on a few hundred robots instead of 36 M single steps: on the compiled kernel where it
-computes the law and plant and repays its compilation (:func:`hil.sim.compiled.chosen`), on every
-CPU in one process of its own (the compiler's memory leaves with it); else on the numpy batch
-path, spread over one process per CPU. Below :data:`BATCH_MIN_WINDOWS` windows the single path
-takes them one by one (the batch's per-step overhead pays off only across many windows; both do
-the same arithmetic, to rounding). The ideal is returned at the trace's sample times (linear
-interpolation between its window's fine samples), so the deviation is measured within each
-window: how far sampling and delay took the robot from the continuous loop in WINDOW_S seconds.
+A trace longer than :data:`WINDOW_S` gets a *windowed* ideal: each window starts from the
+robot's state at its first sample, at that sample's time, with the law's memory there where the
+folder has it (else the initial memory), and runs to the next window's start. The windows run at
+once on the batch path (one robot per window: an hour's run costs one window's steps on a few
+hundred robots, not 36 M single steps): on the compiled kernel where
+:func:`hil.sim.compiled.chosen` takes it, on every CPU in one process of its own (the compiler's
+memory leaves with it); else on the numpy batch path, one process per CPU. Below
+:data:`BATCH_MIN_WINDOWS` windows the single path takes them one by one (the batch's per-step
+overhead pays off only across many; the same arithmetic, to rounding). The ideal is returned at
+the trace's sample times (linear interpolation between fine samples), so the deviation measures
+how far sampling and delay took the robot from the continuous loop within each window.
 """
 
 from __future__ import annotations
@@ -53,9 +50,8 @@ MemorySource = Callable[[tuple[str, ...], np.ndarray], dict[str, np.ndarray]]
 def ideal_scenario(
     resolved: Mapping[str, Any], base_dir: Path, start: Mapping[str, float] | None = None
 ) -> Any:
-    """The resolved scenario at Ts/FINE_FACTOR with delay and jitter removed; the plant step
-    is kept at most the fine period (RK4 with one step per fine period at the default).
-    ``start``: the initial state (x, y, theta, v, omega) and ``duration`` to simulate."""
+    """The resolved scenario at Ts/FINE_FACTOR without delay and jitter, its plant step at most
+    the fine period; ``start``: the initial state (:data:`START_STATE`) and ``duration``."""
     data = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in resolved.items()}
     if start is not None:
         data["initial"] = {**data.get("initial", {}), **{k: start[k] for k in START_STATE}}
@@ -73,10 +69,8 @@ def ideal_scenario(
 
 def trace_start(trace: Mapping[str, np.ndarray]) -> dict[str, float]:
     """The trace's first time and state, and how long it runs."""
-    out = {k: float(trace[k][0]) for k in START_STATE}
-    out["t0"] = float(trace["t"][0])
-    out["duration"] = float(trace["t"][-1] - trace["t"][0])
-    return out
+    t0, duration = float(trace["t"][0]), float(trace["t"][-1] - trace["t"][0])
+    return {**{k: float(trace[k][0]) for k in START_STATE}, "t0": t0, "duration": duration}
 
 
 def window_starts(t: np.ndarray, window: float = WINDOW_S) -> np.ndarray:
@@ -104,9 +98,8 @@ def simulate_ideal(
     memory_source: MemorySource | None = None,
     window: float = WINDOW_S,
 ) -> dict[str, np.ndarray] | None:
-    """The ideal trajectory (t, x, y, theta): one simulation from the trace's first state when
-    the trace spans at most ``window`` seconds (at the fine period's times), else the windowed
-    ideal at the trace's sample times, with ``window_start_t`` (module docstring)."""
+    """The ideal trajectory (t, x, y, theta): at the fine period's times for a trace of at most
+    ``window`` seconds, else windowed, at the trace's times, with ``window_start_t``."""
     base = base_dir_of(resolved, folder)
     if trace is not None and float(trace["t"][-1] - trace["t"][0]) > window * (1.0 + 1e-9):
         return _windowed(resolved, base, trace, memory_source, window)
@@ -125,10 +118,8 @@ def _window_memories(
     mem = _initial_memory(controller, n, sc)
     fields = getattr(mem, "_fields", None)
     known = np.zeros(n, dtype=bool)
-    if memory_source is None or not fields:
-        return mem, known
-    got = memory_source(tuple(fields), starts)
-    if not all(f in got for f in fields):
+    got = memory_source(tuple(fields), starts) if memory_source is not None and fields else {}
+    if not fields or not all(f in got for f in fields):
         return mem, known
     known = np.all([np.isfinite(got[f]) for f in fields], axis=0)
     known[0] = False  # the first window starts as the single ideal does
@@ -147,10 +138,9 @@ def _windowed(
     starts = window_starts(t, window)
     start0 = trace_start(trace)
     sc0 = ideal_scenario(resolved, base, start0)
-    fine = sc0.timing.ts
     t_stop = np.append(t[starts[1:]], t[-1])
     # fine samples 0 .. steps of every window reach its last row (the next window's start)
-    steps = max(1, math.ceil(float(np.max(t_stop - t[starts])) / fine - 1e-9) + 1)
+    steps = max(1, math.ceil(float(np.max(t_stop - t[starts])) / sc0.timing.ts - 1e-9) + 1)
     loop = build_loop(sc0)
     memory, known = _window_memories(loop[0], sc0, starts, memory_source)
     states = {s: np.asarray(trace[s], dtype=float)[starts] for s in START_STATE}
@@ -176,9 +166,8 @@ def _groups(windows: int) -> int:
 
 @dataclass(frozen=True)
 class _Windows:
-    """Consecutive windows of a trace, all a process needs to simulate them (picklable): the
-    trace's times from the first window's first row to the last window's last, the windows'
-    first rows in them, and each window's law memory and starting state."""
+    """Consecutive windows of a trace, all a process needs to simulate them (picklable): their
+    rows' times, each window's first row in them, law memory and starting state."""
 
     resolved: dict[str, Any]
     base: Path
@@ -197,23 +186,20 @@ class _Windows:
         parts = []
         for a, b in itertools.pairwise(cuts):
             lo, hi = int(rows[a]), int(rows[b])
-            parts.append(
-                dataclasses.replace(
-                    self,
-                    t=self.t[lo:hi],
-                    starts=self.starts[a:b] - lo,
-                    memory=type(self.memory)(*(np.asarray(f)[a:b] for f in self.memory)),
-                    known=self.known[a:b],
-                    states={k: v[a:b] for k, v in self.states.items()},
-                )
+            part = dataclasses.replace(
+                self,
+                t=self.t[lo:hi],
+                starts=self.starts[a:b] - lo,
+                memory=type(self.memory)(*(np.asarray(f)[a:b] for f in self.memory)),
+                known=self.known[a:b],
+                states={k: v[a:b] for k, v in self.states.items()},
             )
+            parts.append(part)
         return parts
 
     def variations(self) -> list[RobotVariation]:
-        n = self.starts.size
-        return [
-            RobotVariation(**{s: float(self.states[s][i]) for s in START_STATE}) for i in range(n)
-        ]
+        rows = zip(*(self.states[s] for s in START_STATE), strict=True)
+        return [RobotVariation(**dict(zip(START_STATE, map(float, r), strict=True))) for r in rows]
 
     def scenario(self, steps: int) -> Any:
         """The ideal's scenario, run for ``steps`` fine periods."""
@@ -259,10 +245,9 @@ def _batch(w: _Windows, loop: Any = None) -> dict[str, np.ndarray]:
     """All windows of ``w`` at once on the batch path (one robot per window)."""
     sc = w.scenario(w.steps)
     ends, out = w.rows()
-    t_start = w.t[w.starts]
     hook = _Interpolator(w, ends, sc.timing.ts, out)
     loop = loop if loop is not None else build_loop(sc)
-    simulate_batch(sc, w.variations(), loop=loop, t0=t_start, memory=w.memory, on_sample=hook)
+    simulate_batch(sc, w.variations(), loop=loop, t0=w.t[w.starts], memory=w.memory, on_sample=hook)
     return out
 
 

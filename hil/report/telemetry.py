@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 from array import array
 from collections.abc import Iterable
+from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
@@ -28,29 +29,24 @@ _BATCH = 4096
 
 
 def _decode(payloads: list[bytes]) -> list[Any]:
-    """The payloads decoded, one value each (None for a payload that is not JSON). orjson
-    first (an hour's telemetry is millions of messages); what it refuses and the standard
-    library reads (NaN, integers beyond 64 bits) is read as the recording's writer wrote it."""
+    """The payloads decoded, one value each (None: not JSON): by orjson (an hour's telemetry is
+    millions of messages), else the standard library (NaN, integers beyond 64 bits)."""
     try:
         return orjson.loads(b"[" + b",".join(payloads) + b"]")
     except ValueError:  # decode one by one, keeping the others in place
-        out: list[Any] = []
-        for p in payloads:
-            try:
-                out.append(orjson.loads(p))
-            except ValueError:
-                try:
-                    out.append(json.loads(p))
-                except ValueError:
-                    out.append(None)
-        return out
+        return [_one(p) for p in payloads]
 
 
-_PLAIN = frozenset((int, float))  # JSON's numbers (bool is its own type: not one of them)
+def _one(payload: bytes) -> Any:
+    with suppress(ValueError):
+        return orjson.loads(payload)
+    with suppress(ValueError):
+        return json.loads(payload)
+    return None
 
 
-def _number(v: Any) -> bool:
-    return type(v) in _PLAIN  # decoded JSON holds these exact types, never subclasses
+#: JSON's numbers, by exact type: decoded JSON holds no subclasses, and bool is not one of them.
+_PLAIN = frozenset((int, float))
 
 
 def recorded_telemetry(
@@ -77,22 +73,20 @@ def recorded_telemetry(
                 continue
             for i, tw in enumerate(when):  # some do not: message by message
                 row = [col[i] for col in cols]
-                if _number(tw) and all(_number(v) for v in row):
+                if type(tw) in _PLAIN and all(type(v) in _PLAIN for v in row):
                     times[g].append(int(tw))
                     for out, v in zip(vals[g], row, strict=True):
                         out.append(v)
 
     for path in paths:
         batch: list[tuple[int, bytes]] = []
-        try:
+        with suppress(Exception):  # a truncated or damaged recording: keep what was read
             topics = [name for name in list_topics(path) if name.endswith("telemetry")]
             for _topic, log_time, payload in read_topic_payloads(path, topics):
                 batch.append((log_time, payload))
                 if len(batch) >= _BATCH:
                     take(batch)
                     batch = []
-        except Exception:  # a truncated or damaged recording: keep what was read
-            pass
         take(batch)
     out = {}
     for g, names in enumerate(groups):
@@ -119,14 +113,12 @@ def folder_telemetry(folder: Any) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 
 def forget_memory(folder: Any) -> None:
-    """Drop the law's memory from a folder's cached telemetry: the windowed ideal is its only
-    reader, and an hour's three columns and their times (~115 MB) would otherwise stay until
-    the report is written."""
+    """Drop the law's memory from a folder's cached telemetry: the windowed ideal, its only
+    reader, is done, and an hour's three columns and times (~115 MB) would stay otherwise."""
     for name in MEMORY:
         folder.cache.get("telemetry", {}).pop(name, None)
 
 
 def sliding_from_recordings(paths: Iterable[Path]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """v~ and w~ of (10) from the controller's telemetry messages: name -> (time_ns, values).
-    Telemetry may be decimated; the band is then computed over the recorded samples."""
+    """:func:`recorded_telemetry`'s v~ and w~ of (10) alone."""
     return recorded_telemetry(paths, (SLIDING,))
