@@ -137,7 +137,7 @@ def _msg_rates(heartbeat_ms: float, encoder_ms: float, extra: list[str]) -> dict
     return rates
 
 
-# The options of ``hil drives``, one alias each, so that the command's signature stays short.
+# The options of ``hil drives`` longer than a line of its signature, one alias each.
 ScenarioArg = Annotated[
     str | None,
     typer.Argument(
@@ -161,10 +161,7 @@ ChannelOpt = Annotated[
         help="Bus channel: hil0 (zenoh_can), vcan0, can0, ... (--can-channel, as in hil run).",
     ),
 ]
-BitrateOpt = Annotated[int | None, typer.Option(help="Bit/s (hardware, zenoh_can).")]
 CanEndpointOpt = Annotated[str | None, typer.Option(help="zenoh_can's Zenoh endpoint (loopback).")]
-NodeLeftOpt = Annotated[int | None, typer.Option(help="Left wheel's node id.")]
-NodeRightOpt = Annotated[int | None, typer.Option(help="Right wheel's node id.")]
 ControlRateOpt = Annotated[float, typer.Option(help="Hz of the plant and drive controller steps.")]
 HeartbeatOpt = Annotated[float, typer.Option(help="Heartbeat period, ms (0: off; firmware 100).")]
 EncoderOpt = Annotated[
@@ -218,10 +215,10 @@ def drives_cmd(
     scenario: ScenarioArg = None,
     can_interface: CanInterfaceOpt = None,
     channel: ChannelOpt = None,
-    bitrate: BitrateOpt = None,
+    bitrate: Annotated[int | None, typer.Option(help="Bit/s (hardware, zenoh_can).")] = None,
     can_endpoint: CanEndpointOpt = None,
-    node_left: NodeLeftOpt = None,
-    node_right: NodeRightOpt = None,
+    node_left: Annotated[int | None, typer.Option(help="Left wheel's node id.")] = None,
+    node_right: Annotated[int | None, typer.Option(help="Right wheel's node id.")] = None,
     control_rate: ControlRateOpt = 1000.0,
     heartbeat_ms: HeartbeatOpt = 100.0,
     encoder_ms: EncoderOpt = 10.0,

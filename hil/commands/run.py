@@ -39,7 +39,7 @@ def live_opt(serves: str) -> Any:
     ]
 
 
-# The options of ``hil run``, one alias each, so that the command's signature stays short.
+# The options of ``hil run`` longer than a line of its signature, one alias each.
 ScenarioArg = Annotated[
     Path | None,
     typer.Argument(
@@ -47,19 +47,11 @@ ScenarioArg = Annotated[
         "paper's tracking circle, 10 s."
     ),
 ]
-DurationOpt = Annotated[float | None, typer.Option(help="Run length in s.")]
-RateOpt = Annotated[float | None, typer.Option(help="Control rate in Hz.")]
-CmdPathOpt = Annotated[str, typer.Option(help="Applied command path: zenoh or can.")]
 LockstepOpt = Annotated[bool, typer.Option(help="Advance the plant one period per command.")]
 TriggerOpt = Annotated[str | None, typer.Option(help="periodic (absolute deadlines) or on_state.")]
-CanOpt = Annotated[bool, typer.Option(help="Keep the CAN path live (as shadow).")]
 CanInterfaceOpt = Annotated[
     str | None, typer.Option(help="python-can interface (default zenoh_can).")
 ]
-CanChannelOpt = Annotated[str | None, typer.Option(help="python-can channel.")]
-SpinOpt = Annotated[float, typer.Option(help="Spin this long before each deadline.")]
-OutOpt = Annotated[Path | None, typer.Option(help="Run folder (default runs/run-*).")]
-QuietOpt = Annotated[bool, typer.Option(help="No progress bar.")]
 SecureOpt = Annotated[
     bool,
     typer.Option(
@@ -198,17 +190,17 @@ def _live_watcher(
 
 def run(
     scenario: ScenarioArg = None,
-    duration: DurationOpt = None,
-    rate: RateOpt = None,
-    cmd_path: CmdPathOpt = "zenoh",
+    duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
+    rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,
+    cmd_path: Annotated[str, typer.Option(help="Applied command path: zenoh or can.")] = "zenoh",
     lockstep: LockstepOpt = False,
     trigger: TriggerOpt = None,
-    can: CanOpt = True,
+    can: Annotated[bool, typer.Option(help="Keep the CAN path live (as shadow).")] = True,
     can_interface: CanInterfaceOpt = None,
-    can_channel: CanChannelOpt = None,
-    spin_us: SpinOpt = 0.0,
-    out: OutOpt = None,
-    quiet: QuietOpt = False,
+    can_channel: Annotated[str | None, typer.Option(help="python-can channel.")] = None,
+    spin_us: Annotated[float, typer.Option(help="Spin this long before each deadline.")] = 0.0,
+    out: Annotated[Path | None, typer.Option(help="Run folder (default runs/run-*).")] = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
     secure: SecureOpt = False,
     report: ReportOpt = True,
     strict: StrictOpt = False,
