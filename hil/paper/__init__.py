@@ -87,24 +87,18 @@ def _error_at(result: SimResult, t_check: float) -> float:
     return float(e[min(i, len(e) - 1)])
 
 
+# The summary's figures in each row of the table, after the run, its law and its scenario.
+_ROW_KEYS = (
+    *("duration", "ts", "plant_step", "final_position_error", "final_heading_error"),
+    *("rms_position_error", "max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2"),
+    "violations",
+)
+
+
 def _row(run: str, result: SimResult) -> dict[str, Any]:
     s = result.summary
-    return {
-        "run": run,
-        "law": s["law"],
-        "scenario": f"paper_{run}.toml",
-        "duration": s["duration"],
-        "ts": s["ts"],
-        "plant_step": s["plant_step"],
-        "final_position_error": s["final_position_error"],
-        "final_heading_error": s["final_heading_error"],
-        "rms_position_error": s["rms_position_error"],
-        "max_abs_v": s["max_abs_v"],
-        "max_abs_omega": s["max_abs_omega"],
-        "max_abs_tau1": s["max_abs_tau1"],
-        "max_abs_tau2": s["max_abs_tau2"],
-        "violations": s["violations"],
-    }
+    head = {"run": run, "law": s["law"], "scenario": f"paper_{run}.toml"}
+    return head | {k: s[k] for k in _ROW_KEYS}
 
 
 def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
