@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
-import os
 import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -304,13 +303,11 @@ def _write_run(out: Path, res: SimResult, name: str, traces: bool) -> None:
 def run_paper(
     out: Path,
     quick: bool = False,
-    jobs: int | None = None,
+    jobs: int = 2,
     traces: bool = False,
-    scenario_dir: Path | None = None,
     log: Callable[[str], None] = lambda _msg: None,
 ) -> dict[str, Any]:
-    """Run every paper scenario (``scenario_dir``: default the bundled ones), write figures,
-    table.md, table.json; return the table.
+    """Run every bundled paper scenario, write figures, table.md, table.json; return the table.
 
     Each run's folder and each group of figures is written as soon as its runs are done.
     Ctrl-C stops the runs still going and keeps what was written; the table then holds the
@@ -318,9 +315,7 @@ def run_paper(
     """
     out.mkdir(parents=True, exist_ok=True)
     scale = QUICK_FACTOR if quick else 1.0
-    jobs = jobs or min(2, os.cpu_count() or 1)
-    folder = bundled_dir() if scenario_dir is None else scenario_dir
-    paths = [str(folder / f"paper_{r}.toml") for r in RUNS]
+    paths = [str(bundled_dir() / f"paper_{r}.toml") for r in RUNS]
     for p in paths:
         load_scenario(p)  # bad files fail before any work starts
     results: dict[str, SimResult] = {}
