@@ -107,18 +107,15 @@ JsonOpt = Annotated[
 def _brief(summary: dict[str, Any], cmd_path: str) -> dict[str, Any]:
     """The lines of summary.json that ``hil run`` prints."""
     t = summary.get("timing", {})
-    return {
-        "run_dir": summary.get("run_dir"),
-        "final_position_error": summary.get("final_position_error"),
-        "max_abs_v": summary.get("max_abs_v"),
-        "max_abs_omega": summary.get("max_abs_omega"),
-        "violations": summary.get("violations"),
+    v = summary.get("verdict") or {}
+    keys = ("run_dir", "final_position_error", "max_abs_v", "max_abs_omega", "violations")
+    return {k: summary.get(k) for k in keys} | {
         "wakeup_lateness_p99_us": (t.get("wakeup_lateness") or {}).get("p99_us"),
         "sample_to_apply_p50_us": (t.get(f"sample_to_apply_{cmd_path}") or {}).get("p50_us"),
         "deadline_misses": t.get("deadline_misses"),
         "interrupted": summary.get("interrupted"),
-        "verdict": (summary.get("verdict") or {}).get("outcome"),
-        "reasons": (summary.get("verdict") or {}).get("reasons"),
+        "verdict": v.get("outcome"),
+        "reasons": v.get("reasons"),
     }
 
 
@@ -175,17 +172,6 @@ def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
 
 
 FleetLiveOpt = live_opt("every robot of the fleet, each on its own topics hil/robotI/...,")
-
-
-def _live_watcher(
-    out: Path, robots: list[str], live: int | None, live_host: str, lab: str | None
-) -> Any:
-    """The fleet's live view (None without --live), its port checked first."""
-    from hil.live.launch import FleetLive
-    from hil.live.launch import check as live_check
-
-    live_check(live, live_host)
-    return None if live is None else FleetLive(out, robots, live, live_host, lab is not None)
 
 
 def run(
@@ -297,6 +283,7 @@ def fleet_cmd(
     Exit 1 when a robot's verdict is negative."""
     from hil.fleet import report
     from hil.fleet.run import FleetOptions, execute, robot_ids
+    from hil.live import launch
     from runtime.signals import stop_on_signals
 
     out_dir("--out", out)
@@ -304,13 +291,14 @@ def fleet_cmd(
     opts = FleetOptions(
         path, robots, out, duration, rate, lab, plant_host, controller_host, per_process
     )
-    watcher = _live_watcher(out, robot_ids(robots), live, live_host, lab)
+    launch.check(live, live_host)  # the port, before any robot starts
+    ids = robot_ids(robots)
+    watcher = None if live is None else launch.FleetLive(out, ids, live, live_host, lab is not None)
     with stop_on_signals() as stop:
         codes = execute(opts, stop, watcher)
         if stop:
             interrupts.record(stop.signal)
-    facts = {"scenario": str(opts.scenario), "rate_hz": rate, "duration_s": duration}
-    facts["lab"] = lab
+    facts = {"scenario": str(opts.scenario), "rate_hz": rate, "duration_s": duration, "lab": lab}
     facts["per_process"] = per_process
     summary = report.write(out, codes, facts)
     typer.echo(json.dumps(summary["fleet"], indent=2))
