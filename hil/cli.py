@@ -77,14 +77,11 @@ def _dispatch(argv: list[str] | None) -> int:
     except KeyboardInterrupt:  # not through hil.interrupts' handler: the same meaning
         interrupts.record()
         return 130
-    except BadInputError as exc:
+    except (BadInputError, NegativeVerdictError) as exc:
+        bad = isinstance(exc, BadInputError)
         if not interrupts.happened():
-            typer.echo(f"error: {exc}", err=True)
-        return 2
-    except NegativeVerdictError as exc:
-        if not interrupts.happened():
-            typer.echo(f"verdict: {exc}", err=True)
-        return 1
+            typer.echo(f"{'error' if bad else 'verdict'}: {exc}", err=True)
+        return 2 if bad else 1
     except SystemExit as exc:  # exits of the CLI library (e.g. --help) keep their code
         if isinstance(exc.code, str):
             typer.echo(exc.code, err=True)

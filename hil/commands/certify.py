@@ -33,11 +33,6 @@ from hil.errors import BadInputError, NegativeVerdictError
 _UNIFIED = ("unified", "unified_boundary")
 
 
-def _worst_delay(timing: Any) -> float:
-    spread = 4.0 * timing.jitter if timing.jitter_kind == "normal" else timing.jitter
-    return float(timing.delay + spread)
-
-
 def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
     """The unified law's gains (Table 1 where not given, 'auto' resolved), whether it has the
     boundary layer, and the resolution's notes. The scenario's reader has checked every key
@@ -119,7 +114,9 @@ def certify_scenario(
     context = design_context(scenario, build_reference(scenario))
     params, boundary, notes = _params(dict(scenario.controller), context)
     ts_used = scenario.timing.ts if ts is None else ts
-    delay_used = _worst_delay(scenario.timing) if delay is None else delay
+    t = scenario.timing  # the worst delay: the jitter's bound is 4 sigma when it is normal
+    spread = 4.0 * t.jitter if t.jitter_kind == "normal" else t.jitter
+    delay_used = float(t.delay + spread) if delay is None else delay
     loop = (params, context, ts_used, delay_used, boundary)
     start = {"v0": scenario.initial.v, "w0": scenario.initial.omega}
     try:
@@ -278,12 +275,9 @@ def margin(
     options.out_dir("--out", out)
     scenario, base, folder = _source(source, seeds)
     loop_s = duration if duration is not None else min(scenario.run.duration, 20.0)
+    k_max = MarginOptions.k_max if k_max is None else k_max
     opts = MarginOptions(
-        seeds=seeds,
-        duration=loop_s,
-        worst=worst_disturbance,
-        error_bound=error_bound,
-        k_max=MarginOptions.k_max if k_max is None else k_max,
+        seeds=seeds, duration=loop_s, worst=worst_disturbance, error_bound=error_bound, k_max=k_max
     )
 
     def show(p) -> None:
