@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
@@ -194,23 +194,6 @@ OutOpt = Annotated[Path | None, typer.Option(help="Also write summary.json in th
 LiveOpt = live_opt("the drives' frames (and State, with --state-rate)")
 
 
-def _run_watched(opts: Any, live: int | None, live_host: str) -> int:
-    """:func:`hil.run.drives.run_drives`, with the live view's process around it if asked."""
-    from hil.run.drives import drives_settings, run_drives
-
-    if live is None:
-        return run_drives(opts)
-    from hil.live.launch import DrivesLive
-
-    settings = drives_settings(opts)
-    settings.zenoh_endpoint = opts.zenoh_endpoint  # where the drives publish State, Status
-    watcher = DrivesLive(settings, live, live_host)
-    try:
-        return run_drives(opts)
-    finally:
-        watcher.close()
-
-
 def drives_cmd(
     scenario: ScenarioArg = None,
     can_interface: CanInterfaceOpt = None,
@@ -236,7 +219,8 @@ def drives_cmd(
     """Run the robot with its two virtual ODrives (CANSimple 0.6) on a CAN bus for any
     ODrive client, free running (no start gate), until Ctrl-C or SIGTERM: one status line
     a second, a JSON summary at the end (docs/can.md)."""
-    from hil.run.drives import DrivesOptions
+    from hil.live.launch import DrivesLive, check
+    from hil.run.drives import DrivesOptions, drives_settings, run_drives
 
     if scheduling not in (None, "fifo", "other"):
         raise BadInputError("--scheduling must be fifo or other")
@@ -263,13 +247,19 @@ def drives_cmd(
     )
     import can
 
-    from hil.live.launch import check
-
     check(live, live_host)
+    watcher = None
     try:
-        code = _run_watched(opts, live, live_host)
+        if live is not None:  # the live view's process around the drives
+            settings = drives_settings(opts)
+            settings.zenoh_endpoint = opts.zenoh_endpoint  # where the drives publish State, Status
+            watcher = DrivesLive(settings, live, live_host)
+        code = run_drives(opts)
     except (ValueError, OSError, can.CanError) as exc:  # a refused bus or configuration
         raise BadInputError(str(exc)) from exc
+    finally:
+        if watcher is not None:
+            watcher.close()
     if code:
         raise typer.Exit(code)
 
