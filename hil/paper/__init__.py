@@ -171,12 +171,9 @@ def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note
 
 
 # The unit of each signal drawn against its limit of (2), and the name of that limit.
-_SIGNALS = {
-    "v": ("m/s", "phi1"),
-    "omega": ("rad/s", "phi2"),
-    "tau1": ("N m", "varpi1"),
-    "tau2": ("N m", "varpi2"),
-}
+_SIGNALS = dict(
+    v=("m/s", "phi1"), omega=("rad/s", "phi2"), tau1=("N m", "varpi1"), tau2=("N m", "varpi2")
+)
 
 
 def _signals(out: Path, first: int, stem: str, title: str, runs: fg.Runs, cols: str) -> list[Path]:
@@ -361,13 +358,7 @@ def _write_table(
     if interrupted:
         missing = ", ".join(r for r in RUNS if r not in results) or "none"
         note += f" INTERRUPTED: partial results, checks not judged; runs not done: {missing}."
-    table = {
-        "note": note,
-        "runs": rows,
-        "checks": check_rows,
-        "quick": quick,
-        "interrupted": interrupted,
-    }
+    table = dict(note=note, runs=rows, checks=check_rows, quick=quick, interrupted=interrupted)
     write_json(out / "table.json", table)
     (out / "table.md").write_text(_markdown(rows, check_rows, note))
     return table
