@@ -10,6 +10,7 @@ from typing import Annotated
 
 import typer
 
+from hil.commands import app
 from hil.commands.run import LiveHostOpt, live_opt
 from hil.errors import BadInputError, NegativeVerdictError
 from hil.options import integer, number, optional_number, out_dir
@@ -19,6 +20,7 @@ BITRATE_MAX = 1e9  # bit/s
 DRIVES_MAX = 64  # CANSimple node ids are 0..63
 
 
+@app.command("can-dbc")
 def can_dbc(
     nodes: Annotated[
         str, typer.Option(help="Node ids: a range and/or a list, e.g. 0-7 or 0,1,12 (0..63).")
@@ -45,6 +47,7 @@ def can_dbc(
     typer.echo(f"wrote {out / 'odrive_cansimple.dbc'} for nodes {nodes}")
 
 
+@app.command("can-load")
 def can_load(
     rate: Annotated[float, typer.Option(help="Control rate in Hz.")],
     bitrate: Annotated[float, typer.Option(help="CAN bitrate in bit/s.")],
@@ -194,6 +197,7 @@ OutOpt = Annotated[Path | None, typer.Option(help="Also write summary.json in th
 LiveOpt = live_opt("the drives' frames (and State, with --state-rate)")
 
 
+@app.command("drives")
 def drives_cmd(
     scenario: ScenarioArg = None,
     can_interface: CanInterfaceOpt = None,
@@ -262,9 +266,3 @@ def drives_cmd(
             watcher.close()
     if code:
         raise typer.Exit(code)
-
-
-def register(app: typer.Typer) -> None:
-    app.command("can-dbc")(can_dbc)
-    app.command("can-load")(can_load)
-    app.command("drives")(drives_cmd)

@@ -28,6 +28,7 @@ import typer
 
 from hil import options
 from hil.bundled import resolve_scenario
+from hil.commands import app
 from hil.errors import BadInputError, NegativeVerdictError
 
 _UNIFIED = ("unified", "unified_boundary")
@@ -165,6 +166,7 @@ def _source(text: str, seeds: int):
     return scenario, from_scenario(scenario, seeds), None
 
 
+@app.command("certify")
 def certify_command(
     scenario: str = typer.Argument(
         ..., help="Scenario TOML file or a bundled scenario's name (hil scenarios)."
@@ -225,6 +227,7 @@ def certify_command(
         )
 
 
+@app.command("margin")
 def margin(
     source: Annotated[
         str,
@@ -296,8 +299,3 @@ def margin(
     typer.echo(f"margin: {written}")
     if result.k_star is not None and result.k_star <= 1.0:
         raise NegativeVerdictError("a limit breaks at the measured timing (k* <= 1)")
-
-
-def register(app: typer.Typer) -> None:
-    app.command("certify")(certify_command)
-    app.command("margin")(margin)

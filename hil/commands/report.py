@@ -12,10 +12,12 @@ from typing import Annotated
 
 import typer
 
+from hil.commands import app
 from hil.errors import NegativeVerdictError
 from hil.options import number, out_dir
 
 
+@app.command("report")
 def report(
     folder: Annotated[Path, typer.Argument(help="A run (hil run) or simulation (hil sim) folder.")],
     out: Annotated[
@@ -81,6 +83,7 @@ def report(
     typer.echo("verdict: PASS")
 
 
+@app.command("compare")
 def compare(
     dir_a: Annotated[Path, typer.Argument(help="First run or simulation folder (A).")],
     dir_b: Annotated[Path, typer.Argument(help="Second folder (B).")],
@@ -104,6 +107,7 @@ def compare(
     typer.echo(f"compare: {target / 'compare.html'}")
 
 
+@app.command("recover")
 def recover_cmd(
     run_dir: Annotated[Path, typer.Argument(help="A run folder whose hil run was killed.")],
 ) -> None:
@@ -118,9 +122,3 @@ def recover_cmd(
 
     done = recover(run_dir)
     typer.echo(json.dumps(done, indent=2))
-
-
-def register(app: typer.Typer) -> None:
-    app.command("report")(report)
-    app.command("compare")(compare)
-    app.command("recover")(recover_cmd)

@@ -12,6 +12,7 @@ import typer
 
 from hil import interrupts
 from hil.bundled import resolve_scenario
+from hil.commands import app
 from hil.commands.law_option import LawOpt
 from hil.errors import NegativeVerdictError
 from hil.options import out_dir
@@ -174,6 +175,7 @@ def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
 FleetLiveOpt = live_opt("every robot of the fleet, each on its own topics hil/robotI/...,")
 
 
+@app.command("run")
 def run(
     scenario: ScenarioArg = None,
     duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
@@ -245,6 +247,7 @@ def run(
     _raise_on_negative(summary, strict)
 
 
+@app.command("fleet")
 def fleet_cmd(
     scenario: Annotated[Path, typer.Argument(help="Scenario TOML or a bundled name.")],
     robots: Annotated[int, typer.Option(help="Number of robots (robot1..robotN).")] = 4,
@@ -308,8 +311,3 @@ def fleet_cmd(
     bad = [r["robot"] for r in summary["per_robot"] if r.get("exit_code") not in (0,)]
     if bad:
         raise NegativeVerdictError(f"robots with a negative verdict or an error: {', '.join(bad)}")
-
-
-def register(app: typer.Typer) -> None:
-    app.command("run")(run)
-    app.command("fleet")(fleet_cmd)

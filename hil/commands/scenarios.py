@@ -8,9 +8,11 @@ from typing import Annotated
 import typer
 
 from hil.bundled import bundled_dir, bundled_names, bundled_path, description
+from hil.commands import app
 from hil.provenance import package_version
 
 
+@app.command("scenarios")
 def scenarios(
     path: Annotated[
         str | None,
@@ -34,11 +36,7 @@ def scenarios(
         typer.echo(f"{name:<{width}}  {description(bundled_dir() / f'{name}.toml')}")
 
 
+@app.command("version")
 def version() -> None:
     """Print the package version."""
     typer.echo(package_version())
-
-
-def register(app: typer.Typer) -> None:
-    app.command("scenarios")(scenarios)
-    app.command("version")(version)

@@ -17,6 +17,7 @@ from typing import Annotated
 import typer
 
 from hil import options
+from hil.commands import app
 from hil.errors import BadInputError
 
 # ``hil NAME``: the module whose ``main_from_settings`` runs the service, and the service's name.
@@ -103,8 +104,6 @@ def service(
         raise typer.Exit(code)
 
 
-def register(app: typer.Typer) -> None:
-    for name, (_, what) in SERVICES.items():
-        app.command(
-            name, help=f"Run the {what} alone (as hil run starts it; see docs/realtime.md)."
-        )(service)
+for _name, (_, _what) in SERVICES.items():
+    _help = f"Run the {_what} alone (as hil run starts it; see docs/realtime.md)."
+    app.command(_name, help=_help)(service)

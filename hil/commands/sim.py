@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 
 from hil import interrupts
+from hil.commands import app
 from hil.commands.law_option import LawOpt
 from hil.errors import NegativeVerdictError
 from hil.options import out_dir
@@ -44,6 +45,7 @@ def run_with_progress(fn, description: str, started: str = ""):  # type: ignore[
         return fn(progress)
 
 
+@app.command("sim")
 def sim(
     scenario: Annotated[
         Path,
@@ -98,6 +100,7 @@ def sim(
         raise NegativeVerdictError(f"a limit of (2) was broken: violations {s['violations']}")
 
 
+@app.command("paper")
 def paper(
     out: Annotated[
         Path | None, typer.Option(help="Folder to write (default: runs/paper-<time>).")
@@ -135,8 +138,3 @@ def paper(
     failed = [c["check"] for c in table["checks"] if c["passed"] is False]
     if failed:
         raise NegativeVerdictError("; ".join(failed))
-
-
-def register(app: typer.Typer) -> None:
-    app.command("sim")(sim)
-    app.command("paper")(paper)

@@ -11,6 +11,7 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
+from hil.commands import app
 from hil.commands.law_option import LawOpt
 from hil.errors import BadInputError, NegativeVerdictError
 
@@ -90,6 +91,7 @@ ChunkSizeOpt = Annotated[
 ]
 
 
+@app.command("sweep", help=SWEEP_HELP)
 def sweep(
     scenario_file: ScenarioFileArg,
     out: OutOpt = None,
@@ -157,10 +159,6 @@ def sweep(
         return
     if strict and first is not None:
         raise NegativeVerdictError("a limit of (2) broke inside the grid")
-
-
-def register(app: typer.Typer) -> None:
-    app.command("sweep", help=SWEEP_HELP)(sweep)
 
 
 def _checked_sweep(
