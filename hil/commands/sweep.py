@@ -119,7 +119,13 @@ def sweep(
     executor = cluster.open_executor(workers, scheduler, chunk_size) if chunked else None
     target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
     target.mkdir(parents=True, exist_ok=True)
-    scenario = _with_replay_file(scenario, latencies, target)
+    if latencies is not None:  # the run's latencies, replayed from replay.json in the folder
+        from hil.sim.replay import write_latency_file
+
+        t = scenario.timing
+        lat = write_latency_file(latencies, target / "replay.json", scenario.base_dir / t.replay)
+        replay = str(lat.resolve())
+        scenario = dataclasses.replace(scenario, timing=dataclasses.replace(t, replay=replay))
     started = time.perf_counter()
     if executor is None:
         outcome, resolved = _run_with_progress(scenario, grid, loop_s, target, worst_disturbance)
@@ -225,18 +231,6 @@ def _checked_sweep(
     elif t.jitter_kind == "replay":
         jitter_samples_from(scenario.base_dir / t.replay)  # a bad file fails here, named
     return scenario, grid, loop_s, latencies
-
-
-def _with_replay_file(scenario: Any, latencies: Any, target: Path) -> Any:
-    """The scenario replaying ``latencies`` (a run's, read by :func:`_checked_sweep`) from
-    replay.json in the sweep folder; unchanged when it replays no run."""
-    if latencies is None:
-        return scenario
-    from hil.sim.replay import write_latency_file
-
-    t = scenario.timing
-    lat = write_latency_file(latencies, target / "replay.json", scenario.base_dir / t.replay)
-    return dataclasses.replace(scenario, timing=dataclasses.replace(t, replay=str(lat.resolve())))
 
 
 def _run_with_progress(
