@@ -101,9 +101,8 @@ def compare(
     from hil.report.compare import build_compare
 
     out_dir("--out", out, default="runs")
-    fa, fb = load_folder(dir_a), load_folder(dir_b)
     target = out or Path("runs") / time.strftime("compare-%Y%m%d-%H%M%S")
-    build_compare(fa, fb, target)
+    build_compare(load_folder(dir_a), load_folder(dir_b), target)
     typer.echo(f"compare: {target / 'compare.html'}")
 
 
@@ -120,5 +119,4 @@ def recover_cmd(
     Exit 2 when DIR is not a run folder or the run was killed before its first sample."""
     from hil.run.recover import recover
 
-    done = recover(run_dir)
-    typer.echo(json.dumps(done, indent=2))
+    typer.echo(json.dumps(recover(run_dir), indent=2))
