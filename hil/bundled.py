@@ -1,9 +1,6 @@
 """The scenarios that ship inside the package (``hil/scenarios/*.toml``) and the one function
-that turns a command's SCENARIO argument into a file: :func:`resolve_scenario`.
-
-A SCENARIO argument is a path to a TOML file or the name of a bundled scenario, with or
-without ``.toml`` (``hil sim paper_tracking``). A path that exists wins; anything else that is
-not a bundled name is bad input (exit 2) with the bundled names in the message.
+that turns a command's SCENARIO argument (a path, or a bundled name with or without ``.toml``:
+``hil sim paper_tracking``) into a file: :func:`resolve_scenario`.
 
 The files are found with :mod:`importlib.resources`, so they are there after a non-editable
 ``pip install`` from any working directory. A scenario's relative paths (a ``csv`` reference,
@@ -33,7 +30,6 @@ def bundled_dir() -> Path:
     root = resources.files("hil").joinpath("scenarios")
     if isinstance(root, Path):
         return root
-    # Not on a file system (a zip): copy the folder out once; relative paths keep working.
     copy = Path(tempfile.mkdtemp(prefix="hil-scenarios-"))
     atexit.register(shutil.rmtree, copy, True)
     for entry in root.iterdir():

@@ -1,6 +1,6 @@
 """The ``hil`` front door: one typer app, its commands in the modules of ``hil/commands``.
 
-A module of :mod:`hil.commands` with ``register(app: typer.Typer) -> None`` adds its commands;
+A module of :mod:`hil.commands` adds its commands to ``hil.commands.app`` when imported;
 modules are discovered, so adding a command never edits this file. Exit codes follow the contract:
 0 success, 1 negative verdict (a limit broken, a certificate not held), 2 bad usage or input,
 3 the tool itself failed (an unexpected exception: its traceback is printed; a script must not
@@ -18,33 +18,14 @@ import traceback
 
 import typer
 
-from hil import interrupts
+from hil import commands, interrupts
+from hil.commands import app
 from hil.errors import BadInputError, NegativeVerdictError, one_line
 
-app = typer.Typer(
-    name="hil",
-    help="Test bench for the unified tracking-and-stabilization sliding-mode controller of "
-    "Li et al. 2024: run it against an emulated robot over Zenoh and CAN, simulate it "
-    "offline, sweep sampling period, delay and jitter, and report what timing did to it.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-    rich_markup_mode="markdown",
-)
-
-
-def _register_commands() -> None:
-    """Every command of :mod:`hil.commands`, listed by ``hil --help`` in alphabetical order."""
-    import hil.commands as commands
-
-    for info in pkgutil.iter_modules(commands.__path__):
-        register = getattr(importlib.import_module(f"hil.commands.{info.name}"), "register", None)
-        if register is not None:
-            register(app)
-    app.registered_commands.sort(key=lambda command: command.name or "")
-
-
-_register_commands()
+# Every command of hil.commands, listed by ``hil --help`` in alphabetical order.
+for _info in pkgutil.iter_modules(commands.__path__):
+    importlib.import_module(f"hil.commands.{_info.name}")
+app.registered_commands.sort(key=lambda command: command.name or "")
 
 # Python's own exit code for an uncaught exception is 1, the code of a negative verdict: a
 # script running ``hil report`` would read a crash as FAIL.
@@ -77,14 +58,11 @@ def _dispatch(argv: list[str] | None) -> int:
     except KeyboardInterrupt:  # not through hil.interrupts' handler: the same meaning
         interrupts.record()
         return 130
-    except BadInputError as exc:
+    except (BadInputError, NegativeVerdictError) as exc:
+        bad = isinstance(exc, BadInputError)
         if not interrupts.happened():
-            typer.echo(f"error: {exc}", err=True)
-        return 2
-    except NegativeVerdictError as exc:
-        if not interrupts.happened():
-            typer.echo(f"verdict: {exc}", err=True)
-        return 1
+            typer.echo(f"{'error' if bad else 'verdict'}: {exc}", err=True)
+        return 2 if bad else 1
     except SystemExit as exc:  # exits of the CLI library (e.g. --help) keep their code
         if isinstance(exc.code, str):
             typer.echo(exc.code, err=True)

@@ -1,1 +1,14 @@
-"""``hil`` subcommands: a module with ``register(app)`` adds its commands (see :mod:`hil.cli`)."""
+"""``hil`` subcommands: each module adds its commands to :data:`app` (see :mod:`hil.cli`)."""
+
+import typer
+
+app = typer.Typer(
+    name="hil",
+    help="Test bench for the unified tracking-and-stabilization sliding-mode controller of "
+    "Li et al. 2024: run it against an emulated robot over Zenoh and CAN, simulate it "
+    "offline, sweep sampling period, delay and jitter, and report what timing did to it.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode="markdown",
+)

@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
+from hil.commands import app
 from hil.commands.run import LiveHostOpt, live_opt
 from hil.errors import BadInputError, NegativeVerdictError
 from hil.options import integer, number, optional_number, out_dir
@@ -19,6 +20,7 @@ BITRATE_MAX = 1e9  # bit/s
 DRIVES_MAX = 64  # CANSimple node ids are 0..63
 
 
+@app.command("can-dbc")
 def can_dbc(
     nodes: Annotated[
         str, typer.Option(help="Node ids: a range and/or a list, e.g. 0-7 or 0,1,12 (0..63).")
@@ -45,6 +47,7 @@ def can_dbc(
     typer.echo(f"wrote {out / 'odrive_cansimple.dbc'} for nodes {nodes}")
 
 
+@app.command("can-load")
 def can_load(
     rate: Annotated[float, typer.Option(help="Control rate in Hz.")],
     bitrate: Annotated[float, typer.Option(help="CAN bitrate in bit/s.")],
@@ -137,7 +140,7 @@ def _msg_rates(heartbeat_ms: float, encoder_ms: float, extra: list[str]) -> dict
     return rates
 
 
-# The options of ``hil drives``, one alias each, so that the command's signature stays short.
+# The options of ``hil drives`` longer than a line of its signature, one alias each.
 ScenarioArg = Annotated[
     str | None,
     typer.Argument(
@@ -161,10 +164,7 @@ ChannelOpt = Annotated[
         help="Bus channel: hil0 (zenoh_can), vcan0, can0, ... (--can-channel, as in hil run).",
     ),
 ]
-BitrateOpt = Annotated[int | None, typer.Option(help="Bit/s (hardware, zenoh_can).")]
 CanEndpointOpt = Annotated[str | None, typer.Option(help="zenoh_can's Zenoh endpoint (loopback).")]
-NodeLeftOpt = Annotated[int | None, typer.Option(help="Left wheel's node id.")]
-NodeRightOpt = Annotated[int | None, typer.Option(help="Right wheel's node id.")]
 ControlRateOpt = Annotated[float, typer.Option(help="Hz of the plant and drive controller steps.")]
 HeartbeatOpt = Annotated[float, typer.Option(help="Heartbeat period, ms (0: off; firmware 100).")]
 EncoderOpt = Annotated[
@@ -197,31 +197,15 @@ OutOpt = Annotated[Path | None, typer.Option(help="Also write summary.json in th
 LiveOpt = live_opt("the drives' frames (and State, with --state-rate)")
 
 
-def _run_watched(opts: Any, live: int | None, live_host: str) -> int:
-    """:func:`hil.run.drives.run_drives`, with the live view's process around it if asked."""
-    from hil.run.drives import drives_settings, run_drives
-
-    if live is None:
-        return run_drives(opts)
-    from hil.live.launch import DrivesLive
-
-    settings = drives_settings(opts)
-    settings.zenoh_endpoint = opts.zenoh_endpoint  # where the drives publish State, Status
-    watcher = DrivesLive(settings, live, live_host)
-    try:
-        return run_drives(opts)
-    finally:
-        watcher.close()
-
-
+@app.command("drives")
 def drives_cmd(
     scenario: ScenarioArg = None,
     can_interface: CanInterfaceOpt = None,
     channel: ChannelOpt = None,
-    bitrate: BitrateOpt = None,
+    bitrate: Annotated[int | None, typer.Option(help="Bit/s (hardware, zenoh_can).")] = None,
     can_endpoint: CanEndpointOpt = None,
-    node_left: NodeLeftOpt = None,
-    node_right: NodeRightOpt = None,
+    node_left: Annotated[int | None, typer.Option(help="Left wheel's node id.")] = None,
+    node_right: Annotated[int | None, typer.Option(help="Right wheel's node id.")] = None,
     control_rate: ControlRateOpt = 1000.0,
     heartbeat_ms: HeartbeatOpt = 100.0,
     encoder_ms: EncoderOpt = 10.0,
@@ -239,7 +223,8 @@ def drives_cmd(
     """Run the robot with its two virtual ODrives (CANSimple 0.6) on a CAN bus for any
     ODrive client, free running (no start gate), until Ctrl-C or SIGTERM: one status line
     a second, a JSON summary at the end (docs/can.md)."""
-    from hil.run.drives import DrivesOptions
+    from hil.live.launch import DrivesLive, check
+    from hil.run.drives import DrivesOptions, drives_settings, run_drives
 
     if scheduling not in (None, "fifo", "other"):
         raise BadInputError("--scheduling must be fifo or other")
@@ -266,18 +251,18 @@ def drives_cmd(
     )
     import can
 
-    from hil.live.launch import check
-
     check(live, live_host)
+    watcher = None
     try:
-        code = _run_watched(opts, live, live_host)
+        if live is not None:  # the live view's process around the drives
+            settings = drives_settings(opts)
+            settings.zenoh_endpoint = opts.zenoh_endpoint  # where the drives publish State, Status
+            watcher = DrivesLive(settings, live, live_host)
+        code = run_drives(opts)
     except (ValueError, OSError, can.CanError) as exc:  # a refused bus or configuration
         raise BadInputError(str(exc)) from exc
+    finally:
+        if watcher is not None:
+            watcher.close()
     if code:
         raise typer.Exit(code)
-
-
-def register(app: typer.Typer) -> None:
-    app.command("can-dbc")(can_dbc)
-    app.command("can-load")(can_load)
-    app.command("drives")(drives_cmd)

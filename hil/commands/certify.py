@@ -28,14 +28,10 @@ import typer
 
 from hil import options
 from hil.bundled import resolve_scenario
+from hil.commands import app
 from hil.errors import BadInputError, NegativeVerdictError
 
 _UNIFIED = ("unified", "unified_boundary")
-
-
-def _worst_delay(timing: Any) -> float:
-    spread = 4.0 * timing.jitter if timing.jitter_kind == "normal" else timing.jitter
-    return float(timing.delay + spread)
 
 
 def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
@@ -119,7 +115,9 @@ def certify_scenario(
     context = design_context(scenario, build_reference(scenario))
     params, boundary, notes = _params(dict(scenario.controller), context)
     ts_used = scenario.timing.ts if ts is None else ts
-    delay_used = _worst_delay(scenario.timing) if delay is None else delay
+    t = scenario.timing  # the worst delay: the jitter's bound is 4 sigma when it is normal
+    spread = 4.0 * t.jitter if t.jitter_kind == "normal" else t.jitter
+    delay_used = float(t.delay + spread) if delay is None else delay
     loop = (params, context, ts_used, delay_used, boundary)
     start = {"v0": scenario.initial.v, "w0": scenario.initial.omega}
     try:
@@ -168,6 +166,7 @@ def _source(text: str, seeds: int):
     return scenario, from_scenario(scenario, seeds), None
 
 
+@app.command("certify")
 def certify_command(
     scenario: str = typer.Argument(
         ..., help="Scenario TOML file or a bundled scenario's name (hil scenarios)."
@@ -228,6 +227,7 @@ def certify_command(
         )
 
 
+@app.command("margin")
 def margin(
     source: Annotated[
         str,
@@ -278,12 +278,9 @@ def margin(
     options.out_dir("--out", out)
     scenario, base, folder = _source(source, seeds)
     loop_s = duration if duration is not None else min(scenario.run.duration, 20.0)
+    k_max = MarginOptions.k_max if k_max is None else k_max
     opts = MarginOptions(
-        seeds=seeds,
-        duration=loop_s,
-        worst=worst_disturbance,
-        error_bound=error_bound,
-        k_max=MarginOptions.k_max if k_max is None else k_max,
+        seeds=seeds, duration=loop_s, worst=worst_disturbance, error_bound=error_bound, k_max=k_max
     )
 
     def show(p) -> None:
@@ -302,8 +299,3 @@ def margin(
     typer.echo(f"margin: {written}")
     if result.k_star is not None and result.k_star <= 1.0:
         raise NegativeVerdictError("a limit breaks at the measured timing (k* <= 1)")
-
-
-def register(app: typer.Typer) -> None:
-    app.command("certify")(certify_command)
-    app.command("margin")(margin)

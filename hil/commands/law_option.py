@@ -9,6 +9,8 @@ from typing import Annotated
 
 import typer
 
+from hil.commands import app
+
 LAW_HELP = (
     "Control law instead of the scenario's: unified, unified_boundary, jiang1997, jiang2001 or "
     "your own 'module:Class' (a module next to the scenario or in the working directory is "
@@ -18,6 +20,7 @@ LAW_HELP = (
 LawOpt = Annotated[str | None, typer.Option(help=LAW_HELP)]
 
 
+@app.command("new-law")
 def new_law(
     name: Annotated[str, typer.Argument(help="Module name of the law, e.g. my_law.")],
     folder: Annotated[
@@ -41,7 +44,3 @@ def new_law(
     typer.echo(f"test it:  python -m pytest {written[1]}")
     typer.echo(f"run it:   hil sim paper_tracking --law {law} --out runs/{name}")
     typer.echo(f"sweep it: hil sweep paper_tracking --law {law} --out runs/{name}-sweep")
-
-
-def register(app: typer.Typer) -> None:
-    app.command("new-law")(new_law)

@@ -12,10 +12,12 @@ from typing import Annotated
 
 import typer
 
+from hil.commands import app
 from hil.errors import NegativeVerdictError
 from hil.options import number, out_dir
 
 
+@app.command("report")
 def report(
     folder: Annotated[Path, typer.Argument(help="A run (hil run) or simulation (hil sim) folder.")],
     out: Annotated[
@@ -81,6 +83,7 @@ def report(
     typer.echo("verdict: PASS")
 
 
+@app.command("compare")
 def compare(
     dir_a: Annotated[Path, typer.Argument(help="First run or simulation folder (A).")],
     dir_b: Annotated[Path, typer.Argument(help="Second folder (B).")],
@@ -98,12 +101,12 @@ def compare(
     from hil.report.compare import build_compare
 
     out_dir("--out", out, default="runs")
-    fa, fb = load_folder(dir_a), load_folder(dir_b)
     target = out or Path("runs") / time.strftime("compare-%Y%m%d-%H%M%S")
-    build_compare(fa, fb, target)
+    build_compare(load_folder(dir_a), load_folder(dir_b), target)
     typer.echo(f"compare: {target / 'compare.html'}")
 
 
+@app.command("recover")
 def recover_cmd(
     run_dir: Annotated[Path, typer.Argument(help="A run folder whose hil run was killed.")],
 ) -> None:
@@ -116,11 +119,4 @@ def recover_cmd(
     Exit 2 when DIR is not a run folder or the run was killed before its first sample."""
     from hil.run.recover import recover
 
-    done = recover(run_dir)
-    typer.echo(json.dumps(done, indent=2))
-
-
-def register(app: typer.Typer) -> None:
-    app.command("report")(report)
-    app.command("compare")(compare)
-    app.command("recover")(recover_cmd)
+    typer.echo(json.dumps(recover(run_dir), indent=2))

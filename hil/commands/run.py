@@ -12,6 +12,7 @@ import typer
 
 from hil import interrupts
 from hil.bundled import resolve_scenario
+from hil.commands import app
 from hil.commands.law_option import LawOpt
 from hil.errors import NegativeVerdictError
 from hil.options import out_dir
@@ -39,7 +40,7 @@ def live_opt(serves: str) -> Any:
     ]
 
 
-# The options of ``hil run``, one alias each, so that the command's signature stays short.
+# The options of ``hil run`` longer than a line of its signature, one alias each.
 ScenarioArg = Annotated[
     Path | None,
     typer.Argument(
@@ -47,19 +48,11 @@ ScenarioArg = Annotated[
         "paper's tracking circle, 10 s."
     ),
 ]
-DurationOpt = Annotated[float | None, typer.Option(help="Run length in s.")]
-RateOpt = Annotated[float | None, typer.Option(help="Control rate in Hz.")]
-CmdPathOpt = Annotated[str, typer.Option(help="Applied command path: zenoh or can.")]
 LockstepOpt = Annotated[bool, typer.Option(help="Advance the plant one period per command.")]
 TriggerOpt = Annotated[str | None, typer.Option(help="periodic (absolute deadlines) or on_state.")]
-CanOpt = Annotated[bool, typer.Option(help="Keep the CAN path live (as shadow).")]
 CanInterfaceOpt = Annotated[
     str | None, typer.Option(help="python-can interface (default zenoh_can).")
 ]
-CanChannelOpt = Annotated[str | None, typer.Option(help="python-can channel.")]
-SpinOpt = Annotated[float, typer.Option(help="Spin this long before each deadline.")]
-OutOpt = Annotated[Path | None, typer.Option(help="Run folder (default runs/run-*).")]
-QuietOpt = Annotated[bool, typer.Option(help="No progress bar.")]
 SecureOpt = Annotated[
     bool,
     typer.Option(
@@ -115,18 +108,15 @@ JsonOpt = Annotated[
 def _brief(summary: dict[str, Any], cmd_path: str) -> dict[str, Any]:
     """The lines of summary.json that ``hil run`` prints."""
     t = summary.get("timing", {})
-    return {
-        "run_dir": summary.get("run_dir"),
-        "final_position_error": summary.get("final_position_error"),
-        "max_abs_v": summary.get("max_abs_v"),
-        "max_abs_omega": summary.get("max_abs_omega"),
-        "violations": summary.get("violations"),
+    v = summary.get("verdict") or {}
+    keys = ("run_dir", "final_position_error", "max_abs_v", "max_abs_omega", "violations")
+    return {k: summary.get(k) for k in keys} | {
         "wakeup_lateness_p99_us": (t.get("wakeup_lateness") or {}).get("p99_us"),
         "sample_to_apply_p50_us": (t.get(f"sample_to_apply_{cmd_path}") or {}).get("p50_us"),
         "deadline_misses": t.get("deadline_misses"),
         "interrupted": summary.get("interrupted"),
-        "verdict": (summary.get("verdict") or {}).get("outcome"),
-        "reasons": (summary.get("verdict") or {}).get("reasons"),
+        "verdict": v.get("outcome"),
+        "reasons": v.get("reasons"),
     }
 
 
@@ -185,30 +175,20 @@ def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
 FleetLiveOpt = live_opt("every robot of the fleet, each on its own topics hil/robotI/...,")
 
 
-def _live_watcher(
-    out: Path, robots: list[str], live: int | None, live_host: str, lab: str | None
-) -> Any:
-    """The fleet's live view (None without --live), its port checked first."""
-    from hil.live.launch import FleetLive
-    from hil.live.launch import check as live_check
-
-    live_check(live, live_host)
-    return None if live is None else FleetLive(out, robots, live, live_host, lab is not None)
-
-
+@app.command("run")
 def run(
     scenario: ScenarioArg = None,
-    duration: DurationOpt = None,
-    rate: RateOpt = None,
-    cmd_path: CmdPathOpt = "zenoh",
+    duration: Annotated[float | None, typer.Option(help="Run length in s.")] = None,
+    rate: Annotated[float | None, typer.Option(help="Control rate in Hz.")] = None,
+    cmd_path: Annotated[str, typer.Option(help="Applied command path: zenoh or can.")] = "zenoh",
     lockstep: LockstepOpt = False,
     trigger: TriggerOpt = None,
-    can: CanOpt = True,
+    can: Annotated[bool, typer.Option(help="Keep the CAN path live (as shadow).")] = True,
     can_interface: CanInterfaceOpt = None,
-    can_channel: CanChannelOpt = None,
-    spin_us: SpinOpt = 0.0,
-    out: OutOpt = None,
-    quiet: QuietOpt = False,
+    can_channel: Annotated[str | None, typer.Option(help="python-can channel.")] = None,
+    spin_us: Annotated[float, typer.Option(help="Spin this long before each deadline.")] = 0.0,
+    out: Annotated[Path | None, typer.Option(help="Run folder (default runs/run-*).")] = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
     secure: SecureOpt = False,
     report: ReportOpt = True,
     strict: StrictOpt = False,
@@ -267,6 +247,7 @@ def run(
     _raise_on_negative(summary, strict)
 
 
+@app.command("fleet")
 def fleet_cmd(
     scenario: Annotated[Path, typer.Argument(help="Scenario TOML or a bundled name.")],
     robots: Annotated[int, typer.Option(help="Number of robots (robot1..robotN).")] = 4,
@@ -305,6 +286,7 @@ def fleet_cmd(
     Exit 1 when a robot's verdict is negative."""
     from hil.fleet import report
     from hil.fleet.run import FleetOptions, execute, robot_ids
+    from hil.live import launch
     from runtime.signals import stop_on_signals
 
     out_dir("--out", out)
@@ -312,13 +294,14 @@ def fleet_cmd(
     opts = FleetOptions(
         path, robots, out, duration, rate, lab, plant_host, controller_host, per_process
     )
-    watcher = _live_watcher(out, robot_ids(robots), live, live_host, lab)
+    launch.check(live, live_host)  # the port, before any robot starts
+    ids = robot_ids(robots)
+    watcher = None if live is None else launch.FleetLive(out, ids, live, live_host, lab is not None)
     with stop_on_signals() as stop:
         codes = execute(opts, stop, watcher)
         if stop:
             interrupts.record(stop.signal)
-    facts = {"scenario": str(opts.scenario), "rate_hz": rate, "duration_s": duration}
-    facts["lab"] = lab
+    facts = {"scenario": str(opts.scenario), "rate_hz": rate, "duration_s": duration, "lab": lab}
     facts["per_process"] = per_process
     summary = report.write(out, codes, facts)
     typer.echo(json.dumps(summary["fleet"], indent=2))
@@ -328,8 +311,3 @@ def fleet_cmd(
     bad = [r["robot"] for r in summary["per_robot"] if r.get("exit_code") not in (0,)]
     if bad:
         raise NegativeVerdictError(f"robots with a negative verdict or an error: {', '.join(bad)}")
-
-
-def register(app: typer.Typer) -> None:
-    app.command("run")(run)
-    app.command("fleet")(fleet_cmd)

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
 from hil import options
+from hil.commands import app
 from hil.errors import BadInputError
 
 # ``hil NAME``: the module whose ``main_from_settings`` runs the service, and the service's name.
@@ -36,31 +37,6 @@ def check_settings_file(path: Path) -> None:
         RunSettings.load(path).validate()
     except BadInputError as exc:
         raise BadInputError(f"--settings {path}: not a valid run_settings.json ({exc})") from exc
-
-
-def _settings_from_scenario(
-    name: str,
-    scenario: Path,
-    out: Path,
-    run: dict[str, Any],
-    links: dict[str, Any],
-    start_timeout: float,
-    write_settings: Path | None,
-) -> Path:
-    """Resolve ``scenario`` as ``hil run`` does (``run``: its duration, rate, cmd_path and
-    lockstep options) with the service's own endpoints and epoch (``links``), and save the
-    settings (to ``write_settings`` when given); returns the file."""
-    from hil.run.orchestrate import RunOptions, prepare
-
-    _, s, run_dir, _ = prepare(RunOptions(scenario=scenario, out=out, **run))
-    s.zenoh_endpoint = links["endpoint"]
-    s.can_endpoint = links["can_endpoint"]
-    s.epoch_ns = links["epoch_ns"]
-    s.start_timeout = start_timeout
-    settings = write_settings if write_settings is not None else run_dir / f"{name}_settings.json"
-    settings.parent.mkdir(parents=True, exist_ok=True)  # checked writable before any work
-    s.save(settings)
-    return settings
 
 
 def service(
@@ -106,11 +82,18 @@ def service(
     if settings is None:
         if scenario is None:
             raise BadInputError("give a scenario file or --settings")
+        from hil.run.orchestrate import RunOptions, prepare
+
+        # Resolved as hil run resolves it, with this service's own endpoints and epoch.
         run = {"duration": duration, "rate": rate, "cmd_path": cmd_path, "lockstep": lockstep}
-        links = {"endpoint": endpoint, "can_endpoint": can_endpoint, "epoch_ns": epoch_ns}
-        settings = _settings_from_scenario(
-            name, scenario, out, run, links, start_timeout, write_settings
-        )
+        _, s, run_dir, _ = prepare(RunOptions(scenario=scenario, out=out, **run))
+        s.zenoh_endpoint = endpoint
+        s.can_endpoint = can_endpoint
+        s.epoch_ns = epoch_ns
+        s.start_timeout = start_timeout
+        settings = write_settings or run_dir / f"{name}_settings.json"
+        settings.parent.mkdir(parents=True, exist_ok=True)  # checked writable before any work
+        s.save(settings)
     elif write_settings is not None:
         raise BadInputError("--write-settings needs a scenario, not --settings")
     if write_settings is not None:
@@ -121,8 +104,6 @@ def service(
         raise typer.Exit(code)
 
 
-def register(app: typer.Typer) -> None:
-    for name, (_, what) in SERVICES.items():
-        app.command(
-            name, help=f"Run the {what} alone (as hil run starts it; see docs/realtime.md)."
-        )(service)
+for _name, (_, _what) in SERVICES.items():
+    _help = f"Run the {_what} alone (as hil run starts it; see docs/realtime.md)."
+    app.command(_name, help=_help)(service)

@@ -10,40 +10,13 @@ from typing import Annotated
 import typer
 
 from hil import interrupts
+from hil.commands import app
 from hil.commands.law_option import LawOpt
 from hil.errors import NegativeVerdictError
 from hil.options import out_dir
 
 
-def run_with_progress(fn, description: str, started: str = ""):  # type: ignore[no-untyped-def]
-    """Call ``fn(progress)`` under a rich progress bar on stderr. When stderr is not a terminal
-    there is no bar; ``started`` is printed there instead, once, from inside the loop (at its
-    first progress call), so a script can tell the work has begun."""
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-    console = Console(stderr=True)
-    quiet = not console.is_terminal
-    with Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        TextColumn("{task.percentage:>3.0f}%"),
-        TimeRemainingColumn(),
-        console=console,
-        transient=True,
-        disable=quiet,
-    ) as bar:
-        task = bar.add_task(description, total=1)
-        pending = [started] if quiet and started else []
-
-        def progress(k: int, total: int) -> None:
-            if pending:
-                typer.echo(pending.pop(), err=True)
-            bar.update(task, completed=k, total=total)
-
-        return fn(progress)
-
-
+@app.command("sim")
 def sim(
     scenario: Annotated[
         Path,
@@ -67,6 +40,9 @@ def sim(
     SCENARIO is a TOML file or the name of a bundled scenario (hil scenarios lists them).
     Ctrl-C writes the folder with what was computed and exits 130. Exit 1 when a limit of
     (2) was broken at some plant step."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
     from hil.bundled import resolve_scenario
     from hil.folder import new_run_dir
     from hil.law.option import with_law
@@ -77,12 +53,29 @@ def sim(
     path = resolve_scenario(scenario)
     sc = with_law(load_scenario(path), law).with_overrides(duration=duration, ts=ts)
     target = out or new_run_dir("runs", "sim")
-    result = run_with_progress(
-        lambda p: simulate(sc, progress=p),
-        f"sim {path.name}",
-        started=f"sim {path.name}: {sc.run.duration:g} s at Ts = {sc.timing.ts:g} s into "
-        f"{target} (Ctrl-C writes what was computed)",
-    )
+    # A progress bar on stderr; when that is no terminal, this line instead, once, from inside
+    # the loop (at its first progress call), so a script can tell the work has begun.
+    console = Console(stderr=True)
+    quiet = not console.is_terminal
+    started = f"sim {path.name}: {sc.run.duration:g} s at Ts = {sc.timing.ts:g} s into {target}"
+    pending = [f"{started} (Ctrl-C writes what was computed)"] if quiet else []
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.percentage:>3.0f}%"),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+        disable=quiet,
+    ) as bar:
+        task = bar.add_task(f"sim {path.name}", total=1)
+
+        def progress(k: int, total: int) -> None:
+            if pending:
+                typer.echo(pending.pop(), err=True)
+            bar.update(task, completed=k, total=total)
+
+        result = simulate(sc, progress=progress)
     with interrupts.shielded():  # a second Ctrl-C must not leave the folder half-written
         folder = write_run_folder(result, target)
     s = result.summary
@@ -98,6 +91,7 @@ def sim(
         raise NegativeVerdictError(f"a limit of (2) was broken: violations {s['violations']}")
 
 
+@app.command("paper")
 def paper(
     out: Annotated[
         Path | None, typer.Option(help="Folder to write (default: runs/paper-<time>).")
@@ -135,8 +129,3 @@ def paper(
     failed = [c["check"] for c in table["checks"] if c["passed"] is False]
     if failed:
         raise NegativeVerdictError("; ".join(failed))
-
-
-def register(app: typer.Typer) -> None:
-    app.command("sim")(sim)
-    app.command("paper")(paper)

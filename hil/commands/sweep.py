@@ -11,6 +11,7 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
+from hil.commands import app
 from hil.commands.law_option import LawOpt
 from hil.errors import BadInputError, NegativeVerdictError
 
@@ -54,7 +55,7 @@ def check_loop_sizes(
         )
 
 
-# The options of ``hil sweep``, one alias each, so that the command's signature stays short.
+# The options of ``hil sweep`` longer than a line of its signature, one alias each.
 ScenarioFileArg = Annotated[
     Path,
     typer.Argument(
@@ -65,10 +66,6 @@ ScenarioFileArg = Annotated[
 OutOpt = Annotated[
     Path | None, typer.Option(help="Where to write (default: a new folder under runs/).")
 ]
-TsOpt = Annotated[str | None, typer.Option(help="Ts grid, e.g. 0.001,0.01.")]
-DelayOpt = Annotated[str | None, typer.Option(help="Delay grid in seconds.")]
-JitterOpt = Annotated[str | None, typer.Option(help="Jitter grid in seconds.")]
-SeedsOpt = Annotated[int | None, typer.Option(help="Seeds per point.")]
 DurationOpt = Annotated[
     float | None, typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s).")
 ]
@@ -94,77 +91,80 @@ ChunkSizeOpt = Annotated[
 ]
 
 
-def register(app: typer.Typer) -> None:
-    @app.command("sweep", help=SWEEP_HELP)
-    def sweep(
-        scenario_file: ScenarioFileArg,
-        out: OutOpt = None,
-        ts: TsOpt = None,
-        delay: DelayOpt = None,
-        jitter: JitterOpt = None,
-        seeds: SeedsOpt = None,
-        duration: DurationOpt = None,
-        strict: StrictOpt = False,
-        law: LawOpt = None,
-        worst_disturbance: WorstOpt = False,
-        workers: WorkersOpt = None,
-        scheduler: SchedulerOpt = None,
-        chunk_size: ChunkSizeOpt = None,
-    ) -> None:
-        """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
-        from hil.sweep import cluster
+@app.command("sweep", help=SWEEP_HELP)
+def sweep(
+    scenario_file: ScenarioFileArg,
+    out: OutOpt = None,
+    ts: Annotated[str | None, typer.Option(help="Ts grid, e.g. 0.001,0.01.")] = None,
+    delay: Annotated[str | None, typer.Option(help="Delay grid in seconds.")] = None,
+    jitter: Annotated[str | None, typer.Option(help="Jitter grid in seconds.")] = None,
+    seeds: Annotated[int | None, typer.Option(help="Seeds per point.")] = None,
+    duration: DurationOpt = None,
+    strict: StrictOpt = False,
+    law: LawOpt = None,
+    worst_disturbance: WorstOpt = False,
+    workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
+    chunk_size: ChunkSizeOpt = None,
+) -> None:
+    """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
+    from hil.sweep import cluster
 
-        scenario, grid, loop_s, latencies = _checked_sweep(
-            scenario_file, out, ts, delay, jitter, seeds, duration, law
-        )
-        chunked = cluster.wanted(workers, scheduler, chunk_size)
-        if chunked and worst_disturbance:
-            raise BadInputError("--worst-disturbance runs in this process only (no chunks yet)")
-        executor = cluster.open_executor(workers, scheduler, chunk_size) if chunked else None
-        target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
-        target.mkdir(parents=True, exist_ok=True)
-        scenario = _with_replay_file(scenario, latencies, target)
-        started = time.perf_counter()
-        if executor is None:
-            outcome, resolved = _run_with_progress(
-                scenario, grid, loop_s, target, worst_disturbance
-            )
-            where: dict[str, Any] = {}
-        else:
-            outcome, resolved, where = cluster.run_with_executor(
-                scenario, grid, loop_s, target, executor, chunk_size
-            )
-        elapsed = time.perf_counter() - started
-        from hil.sweep.outputs import write_outputs
-        from hil.sweep.page import write_sweep_page
+    scenario, grid, loop_s, latencies = _checked_sweep(
+        scenario_file, out, ts, delay, jitter, seeds, duration, law
+    )
+    chunked = cluster.wanted(workers, scheduler, chunk_size)
+    if chunked and worst_disturbance:
+        raise BadInputError("--worst-disturbance runs in this process only (no chunks yet)")
+    executor = cluster.open_executor(workers, scheduler, chunk_size) if chunked else None
+    target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
+    target.mkdir(parents=True, exist_ok=True)
+    if latencies is not None:  # the run's latencies, replayed from replay.json in the folder
+        from hil.sim.replay import write_latency_file
 
-        meta = _meta(scenario, scenario_file, grid, loop_s, outcome, elapsed)
-        meta.update(
-            disturbance="worst searched" if worst_disturbance else "the scenario's",
-            provenance=resolved.get("provenance", {}),
-            **where,
+        t = scenario.timing
+        lat = write_latency_file(latencies, target / "replay.json", scenario.base_dir / t.replay)
+        replay = str(lat.resolve())
+        scenario = dataclasses.replace(scenario, timing=dataclasses.replace(t, replay=replay))
+    started = time.perf_counter()
+    if executor is None:
+        outcome, resolved = _run_with_progress(scenario, grid, loop_s, target, worst_disturbance)
+        where: dict[str, Any] = {}
+    else:
+        outcome, resolved, where = cluster.run_with_executor(
+            scenario, grid, loop_s, target, executor, chunk_size
         )
-        # A second Ctrl-C while the results are written would leave them half-written.
-        with interrupts.shielded():
-            doc = write_outputs(target, outcome.rows, grid, meta)
-            page = write_sweep_page(target, doc)
-        first = doc["break_point"].get("first")
-        typer.echo(f"sweep: {page} (also sweep.md, sweep.csv, sweep.json)")
-        typer.echo(
-            "break point: none, the limits held everywhere"
-            if first is None
-            else f"break point: Ts={first['ts']:g} s, delay={first['delay']:g} s"
-        )
-        if worst_disturbance and first is not None:
-            from hil.sweep.worst import worst_at_break
+    elapsed = time.perf_counter() - started
+    from hil.sweep.outputs import write_outputs
+    from hil.sweep.page import write_sweep_page
 
-            typer.echo(f"broken by: {worst_at_break(outcome.rows, first)}")
-        if outcome.interrupted:
-            # hil.cli exits 130: the interrupt was recorded by hil.interrupts.
-            interrupts.note(f"partial results kept in {target}")
-            return
-        if strict and first is not None:
-            raise NegativeVerdictError("a limit of (2) broke inside the grid")
+    meta = _meta(scenario, scenario_file, grid, loop_s, outcome, elapsed)
+    meta.update(
+        disturbance="worst searched" if worst_disturbance else "the scenario's",
+        provenance=resolved.get("provenance", {}),
+        **where,
+    )
+    # A second Ctrl-C while the results are written would leave them half-written.
+    with interrupts.shielded():
+        doc = write_outputs(target, outcome.rows, grid, meta)
+        page = write_sweep_page(target, doc)
+    first = doc["break_point"].get("first")
+    typer.echo(f"sweep: {page} (also sweep.md, sweep.csv, sweep.json)")
+    typer.echo(
+        "break point: none, the limits held everywhere"
+        if first is None
+        else f"break point: Ts={first['ts']:g} s, delay={first['delay']:g} s"
+    )
+    if worst_disturbance and first is not None:
+        from hil.sweep.worst import worst_at_break
+
+        typer.echo(f"broken by: {worst_at_break(outcome.rows, first)}")
+    if outcome.interrupted:
+        # hil.cli exits 130: the interrupt was recorded by hil.interrupts.
+        interrupts.note(f"partial results kept in {target}")
+        return
+    if strict and first is not None:
+        raise NegativeVerdictError("a limit of (2) broke inside the grid")
 
 
 def _checked_sweep(
@@ -231,18 +231,6 @@ def _checked_sweep(
     elif t.jitter_kind == "replay":
         jitter_samples_from(scenario.base_dir / t.replay)  # a bad file fails here, named
     return scenario, grid, loop_s, latencies
-
-
-def _with_replay_file(scenario: Any, latencies: Any, target: Path) -> Any:
-    """The scenario replaying ``latencies`` (a run's, read by :func:`_checked_sweep`) from
-    replay.json in the sweep folder; unchanged when it replays no run."""
-    if latencies is None:
-        return scenario
-    from hil.sim.replay import write_latency_file
-
-    t = scenario.timing
-    lat = write_latency_file(latencies, target / "replay.json", scenario.base_dir / t.replay)
-    return dataclasses.replace(scenario, timing=dataclasses.replace(t, replay=str(lat.resolve())))
 
 
 def _run_with_progress(

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
-import os
 import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -87,24 +86,18 @@ def _error_at(result: SimResult, t_check: float) -> float:
     return float(e[min(i, len(e) - 1)])
 
 
+# The summary's figures in each row of the table, after the run, its law and its scenario.
+_ROW_KEYS = (
+    *("duration", "ts", "plant_step", "final_position_error", "final_heading_error"),
+    *("rms_position_error", "max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2"),
+    "violations",
+)
+
+
 def _row(run: str, result: SimResult) -> dict[str, Any]:
     s = result.summary
-    return {
-        "run": run,
-        "law": s["law"],
-        "scenario": f"paper_{run}.toml",
-        "duration": s["duration"],
-        "ts": s["ts"],
-        "plant_step": s["plant_step"],
-        "final_position_error": s["final_position_error"],
-        "final_heading_error": s["final_heading_error"],
-        "rms_position_error": s["rms_position_error"],
-        "max_abs_v": s["max_abs_v"],
-        "max_abs_omega": s["max_abs_omega"],
-        "max_abs_tau1": s["max_abs_tau1"],
-        "max_abs_tau2": s["max_abs_tau2"],
-        "violations": s["violations"],
-    }
+    head = {"run": run, "law": s["law"], "scenario": f"paper_{run}.toml"}
+    return head | {k: s[k] for k in _ROW_KEYS}
 
 
 def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
@@ -178,12 +171,9 @@ def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note
 
 
 # The unit of each signal drawn against its limit of (2), and the name of that limit.
-_SIGNALS = {
-    "v": ("m/s", "phi1"),
-    "omega": ("rad/s", "phi2"),
-    "tau1": ("N m", "varpi1"),
-    "tau2": ("N m", "varpi2"),
-}
+_SIGNALS = dict(
+    v=("m/s", "phi1"), omega=("rad/s", "phi2"), tau1=("N m", "varpi1"), tau2=("N m", "varpi2")
+)
 
 
 def _signals(out: Path, first: int, stem: str, title: str, runs: fg.Runs, cols: str) -> list[Path]:
@@ -310,13 +300,11 @@ def _write_run(out: Path, res: SimResult, name: str, traces: bool) -> None:
 def run_paper(
     out: Path,
     quick: bool = False,
-    jobs: int | None = None,
+    jobs: int = 2,
     traces: bool = False,
-    scenario_dir: Path | None = None,
     log: Callable[[str], None] = lambda _msg: None,
 ) -> dict[str, Any]:
-    """Run every paper scenario (``scenario_dir``: default the bundled ones), write figures,
-    table.md, table.json; return the table.
+    """Run every bundled paper scenario, write figures, table.md, table.json; return the table.
 
     Each run's folder and each group of figures is written as soon as its runs are done.
     Ctrl-C stops the runs still going and keeps what was written; the table then holds the
@@ -324,9 +312,7 @@ def run_paper(
     """
     out.mkdir(parents=True, exist_ok=True)
     scale = QUICK_FACTOR if quick else 1.0
-    jobs = jobs or min(2, os.cpu_count() or 1)
-    folder = bundled_dir() if scenario_dir is None else scenario_dir
-    paths = [str(folder / f"paper_{r}.toml") for r in RUNS]
+    paths = [str(bundled_dir() / f"paper_{r}.toml") for r in RUNS]
     for p in paths:
         load_scenario(p)  # bad files fail before any work starts
     results: dict[str, SimResult] = {}
@@ -372,13 +358,7 @@ def _write_table(
     if interrupted:
         missing = ", ".join(r for r in RUNS if r not in results) or "none"
         note += f" INTERRUPTED: partial results, checks not judged; runs not done: {missing}."
-    table = {
-        "note": note,
-        "runs": rows,
-        "checks": check_rows,
-        "quick": quick,
-        "interrupted": interrupted,
-    }
+    table = dict(note=note, runs=rows, checks=check_rows, quick=quick, interrupted=interrupted)
     write_json(out / "table.json", table)
     (out / "table.md").write_text(_markdown(rows, check_rows, note))
     return table

@@ -17,12 +17,8 @@ import numpy as np
 from hil.folder.trace_csv import write_trace_csv
 from hil.sim.core import SimResult
 
-MAX_POINTS = 30000
+MAX_POINTS = 30000  # drawn per run at most: every step-th sample of a longer trace
 Runs = Sequence[tuple[str, SimResult]]  # (legend label, run) of the runs drawn together
-
-
-def _stride(n: int) -> int:
-    return max(1, n // MAX_POINTS)
 
 
 def _save(fig: plt.Figure, path: Path, cols: list[str], data: list[np.ndarray]) -> Path:
@@ -38,7 +34,7 @@ def _save(fig: plt.Figure, path: Path, cols: list[str], data: list[np.ndarray]) 
 def trajectory(path: Path, title: str, runs: Runs, reference: SimResult) -> Path:
     """Robot position in the (X, Y) plane against the virtual robot (Figures 2, 7, 15, 18)."""
     fig, ax = plt.subplots(figsize=(6, 5))
-    step = _stride(len(reference.trace))
+    step = max(1, len(reference.trace) // MAX_POINTS)
     cols: list[str] = ["xd", "yd"]
     data = [reference.column("xd")[::step], reference.column("yd")[::step]]
     ax.plot(data[0], data[1], "k--", lw=1.2, label="reference")
@@ -64,7 +60,7 @@ def over_time(
     16, 17, 19, 20)."""
     fig, ax = plt.subplots(figsize=(7, 3.6))
     first = runs[0][1]
-    step = _stride(len(first.trace))
+    step = max(1, len(first.trace) // MAX_POINTS)
     t = first.column("t")[::step]
     cols = ["t"]
     data = [t]
