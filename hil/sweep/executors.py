@@ -42,8 +42,6 @@ class Executor(Protocol):
 
 
 class InProcess:
-    """One chunk after another in this process."""
-
     name = "in-process"
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
@@ -54,8 +52,6 @@ class InProcess:
 
 
 class ProcessPool:
-    """``workers`` local processes."""
-
     def __init__(self, workers: int) -> None:
         self.name = f"{workers} local processes"
         ctx = multiprocessing.get_context("spawn")

@@ -14,31 +14,13 @@ from hil.report import figures as fg
 from hil.sweep.grid import SweepGrid, aggregate, break_points
 from protocol.versions import SWEEP_SCHEMA_VERSION
 
+# sweep.csv: the columns of hil.sweep.runner.point_row, in its order
 CSV_COLUMNS = (
-    "ts",
-    "delay",
-    "jitter",
-    "seed",
-    "age",
-    "final_position_error",
-    "rms_position_error",
-    "max_abs_v",
-    "max_abs_omega",
-    "max_abs_tau1",
-    "max_abs_tau2",
-    "overshoot_v",
-    "overshoot_omega",
-    "band_v",
-    "band_w",
-    "violations",
-    "violation",
-    "v_bound",
-    "w_bound",
-    "certified",
-    "within_bound",
-    "commands_dropped",
-    "complete",
-)
+    "ts", "delay", "jitter", "seed", "age", "final_position_error", "rms_position_error",
+    "max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2", "overshoot_v",
+    "overshoot_omega", "band_v", "band_w", "violations", "violation", "v_bound", "w_bound",
+    "certified", "within_bound", "commands_dropped", "complete",
+)  # fmt: skip
 # (metric, y label, how to aggregate over jitter and seeds, reference line)
 FIGURES: tuple[tuple[str, str, str, float | None], ...] = (
     ("rms_position_error", "tracking error: RMS position error, last 10% [m]", "mean", None),
