@@ -11,20 +11,16 @@ What is compiled, and from where (no equation is written a second time):
 
 What the kernel writes itself is bookkeeping, not equations: the zero-order hold and the
 landings of :mod:`plant_emulator.sampled` as index arithmetic over the landing-offset table
-(the numpy path keeps a queue of command objects, which numba cannot compile): command k lands
-at plant step k m + offset, the newest by sequence number wins, an older one landing later is
-dropped (counted); the law's bad-input rule (zero torque, memory unchanged); the extremes of
-(2) over the step ends.
+(numba cannot compile the numpy path's queue of command objects): command k lands at plant
+step k m + offset, the newest by sequence number wins, an older one landing later is dropped
+(counted); the law's bad-input rule (zero torque, memory unchanged); the extremes of (2).
 
-It applies to the common sweep and to a long run's windowed ideal (robots with their own
-start time, law memory and per-sample callback): the unified law (either variant, no eta
-re-arm), an ideal sensor, no actuator lag, no friction or top speed, a constant (or no)
-disturbance, no traces recorded. Robots that start at their own times get the reference
-sampled per robot a chunk at a time (:func:`controller_service.references.sample_array`, as
-the numpy path samples it); a per-sample callback gets the robots' state at each sample, which
-the kernel leaves in a table a chunk long. Anything else, numba missing, or
-``HIL_NO_COMPILED=1`` leaves the run to the numpy path, the reference:
-tests/test_batch_compiled.py checks that the two agree to 1e-12.
+It runs the common sweep and a long run's windowed ideal (robots with their own start time,
+law memory and per-sample callback) when :func:`chosen` says so: the unified law (either
+variant, no eta re-arm), an ideal sensor, no actuator lag, friction or top speed, a constant
+(or no) disturbance, no traces recorded. Anything else, numba missing, or ``HIL_NO_COMPILED=1``
+leaves the run to the numpy path, the reference: tests/test_batch_compiled.py checks that the
+two agree to 1e-12.
 """
 
 from __future__ import annotations
@@ -248,6 +244,7 @@ def run(
     group = np.zeros(n, dtype=np.intp) if off.shape[0] == 1 else batch.group
     state, ext, lim_r = batch.state, batch.ext, 1.0 + VIOLATION_RTOL
     limits = scenario.limits
+    peaks = (ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2)
     rms_from = math.floor(0.9 * n_samples)
     t0 = np.zeros(n) if batch.starts is None else np.asarray(batch.starts, dtype=float)
     head = (
@@ -255,11 +252,7 @@ def run(
         np.array(batch.memory[:3], dtype=float),
         np.array([np.zeros(n), np.zeros(n), np.full(n, -1.0), np.zeros(n), np.zeros(n)]),
         np.zeros((2, n, int(off.max()) // m + 3)),
-        np.array(
-            [ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2]
-            + [np.zeros(n)] * 4,
-            dtype=float,
-        ),
+        np.array([*peaks, *[np.zeros(n)] * 4], dtype=float),
         np.zeros(n),
         np.zeros((3, n)),
     )

@@ -100,32 +100,30 @@ def _or(value: Any, default: Any) -> Any:
 
 def _replay(scenario: Scenario) -> np.ndarray | None:
     t = scenario.timing
-    if t.jitter_kind != "replay":
-        return None
-    return jitter_samples_from(scenario.base_dir / t.replay)
+    return jitter_samples_from(scenario.base_dir / t.replay) if t.jitter_kind == "replay" else None
 
 
 def _summaries(
     scenario: Scenario,
-    law: str,
+    controller: Any,
     samples: int,
     interrupted: bool,
     ext: Extremes,
     per_robot: tuple[Any, ...],
 ) -> list[dict[str, Any]]:
-    """Each robot's summary.json: ``ext`` (the peaks and violation counts of (2)) and
-    ``per_robot`` (final position error, final heading error, RMS position error, commands
-    dropped, timing, disturbance and sensor seeds) hold a float each for one robot, an array
-    each for a batch.
+    """Each robot's summary.json: ``ext`` (peaks and violation counts of (2)) and ``per_robot``
+    (final position and heading errors, RMS position error, commands dropped, timing,
+    disturbance and sensor seeds) hold a float each for one robot, an array each for a batch.
 
-    Why columns: for short runs of many robots, building 10,000 summaries one robot at a time
-    (numpy scalar reads, scenario properties) cost more than a hundred control periods; here
-    each column is read back as a Python list once, and what all robots share is computed once.
+    Why columns: 10,000 summaries of a short run built one robot at a time (numpy scalar reads,
+    scenario properties) cost more than a hundred control periods; here each column is read
+    back as a Python list once, and what all robots share is computed once.
     """
     peaks = (ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2)
     peaks += (ext.violations_v, ext.violations_omega, ext.violations_tau1, ext.violations_tau2)
     columns = np.broadcast_arrays(*per_robot[:3], *peaks, *per_robot[3:])
     limit_table = asdict(scenario.limits)
+    law = getattr(controller, "name", type(controller).__name__)
     ts = scenario.timing.ts
     plant_step = scenario.plant_step
     duration = samples * ts
@@ -161,41 +159,41 @@ def _summaries(
 
 
 @dataclass
-class _Single:
-    """One loop's set-up and, once run, what the summary needs."""
+class _Loops:
+    """One loop on floats or N loops on arrays: the set-up and, once run, what the summaries
+    need (the batch's own fields last)."""
 
     controller: Any
     reference: Any
     context: Any
     plant: Plant
     state: PlantState
-    offsets: list[int]
-    seeds: tuple[int, int, int]  # timing, disturbance, sensor
+    land: Any  # landing offsets: a list (one draw for all robots) or (groups, samples) rows
+    hold: Hold
+    seeds: tuple[Any, Any, Any]  # timing, disturbance, sensor: ints, or arrays for a batch
     memory: Any
     n_samples: int
-    ext: Extremes = field(default_factory=Extremes.zeros)
-    hold: Hold = field(default_factory=Hold)
-    rows: list[tuple[float, ...]] = field(default_factory=list)
+    ext: Extremes
+    rows: list[tuple[float, ...]] = field(default_factory=list)  # the single path's trace
     tel_keys: list[str] | None = None
-    last: tuple[float, ...] = (0.0,) * 6
-    rms: float = float("nan")
+    last: tuple[Any, ...] | None = None
+    rms: Any = None
     interrupted: bool = False
+    group: np.ndarray | None = None  # robot i lands by row group[i] of ``land``
+    starts: np.ndarray | None = None  # per-robot first-sample times, when any is not 0
+    record: list[int] = field(default_factory=list)
+    rec_rows: dict[int, list[np.ndarray]] = field(default_factory=dict)
+    done: int = 0
 
 
 def _plant(scenario: Scenario, seed: Any) -> Plant:
-    return Plant(
-        scenario.plant_step,
-        scenario.disturbance,
-        scenario.plant.lag,
-        seed,
-        scenario.limits,
-        scenario.plant.drag,
-    )
+    p = scenario.plant
+    return Plant(scenario.plant_step, scenario.disturbance, p.lag, seed, scenario.limits, p.drag)
 
 
 def _single_setup(
     scenario: Scenario, var: RobotVariation, loop: tuple[Any, Any, Any] | None, memory: Any
-) -> _Single:
+) -> _Loops:
     """The loop's objects, initial state, landing offsets and seeds for one robot."""
     controller, reference, context = loop or build_loop(scenario)
     n_samples = max(1, round(scenario.run.duration / scenario.timing.ts))
@@ -207,29 +205,29 @@ def _single_setup(
     sseed = _or(var.sensor_seed, scenario.plant.noise_seed)
     extra = extra_delays(timing.jitter_kind, jitter, jseed, n_samples, _replay(scenario))
     offsets = landing_offsets(extra, delay, scenario.plant_step).tolist()
-    if memory is None:
-        memory = _initial_memory(controller, None, scenario)
-    run = _Single(
+    run = _Loops(
         controller,
         reference,
         context,
         _plant(scenario, dseed),
         state,
         offsets,
+        Hold(),
         (jseed, dseed, sseed),
-        memory,
+        _initial_memory(controller, None, scenario) if memory is None else memory,
         n_samples,
+        Extremes.zeros(),
+        last=(state.x, state.y, state.theta, 0.0, 0.0, 0.0),
     )
     track_initial(run.ext, state, scenario.limits)
-    run.last = (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
     return run
 
 
-def _single_loop(run: _Single, scenario: Scenario, t0: float, progress: Progress | None) -> None:
+def _single_loop(run: _Loops, scenario: Scenario, t0: float, progress: Progress | None) -> None:
     """The sampled-data loop on floats: sample, law, send, land at t_k, record, advance."""
     controller, reference, hold = run.controller, run.reference, run.hold
     plant, ext = run.plant, run.ext
-    state, memory, offsets, rows = run.state, run.memory, run.offsets, run.rows
+    state, memory, offsets, rows = run.state, run.memory, run.land, run.rows
     ts, m, n_samples = scenario.timing.ts, scenario.substeps, run.n_samples
     sensor, sseed = scenario.sensor, run.seeds[2]
     ideal_sensor = sensor.is_ideal
@@ -270,17 +268,16 @@ def _single_loop(run: _Single, scenario: Scenario, t0: float, progress: Progress
     run.state, run.memory, run.last = state, memory, last
 
 
-def _single_result(run: _Single, scenario: Scenario) -> SimResult:
+def _single_result(run: _Loops, scenario: Scenario) -> SimResult:
     """The trace and summary of a finished (or interrupted) loop."""
     rows = run.rows
     columns = [*BASE_COLUMNS, *(run.tel_keys or [])]
     trace = np.array(rows, dtype=float).reshape(len(rows), len(columns))
     x, y, th, xd, yd, thd = run.last
     errors = (math.hypot(x - xd, y - yd), wrap_angle(th - thd), run.rms)
-    controller = run.controller
-    law = getattr(controller, "name", type(controller).__name__)
     per_robot = (*errors, run.hold.dropped, *run.seeds)
-    summary = _summaries(scenario, law, len(rows), run.interrupted, run.ext, per_robot)[0]
+    controller = run.controller
+    summary = _summaries(scenario, controller, len(rows), run.interrupted, run.ext, per_robot)[0]
     resolved = resolved_dict(scenario, controller, run.context)
     # The bound at the scenario's timing, once, here: the report reads it, as it reads a run's.
     summary["certificate"] = scenario_certificate(view(resolved))
@@ -311,32 +308,6 @@ def simulate(
     return _single_result(run, scenario)
 
 
-@dataclass
-class _Batch:
-    """N loops' set-up and, once run, what the summaries need."""
-
-    controller: Any
-    reference: Any
-    context: Any
-    plant: Plant
-    state: PlantState
-    land: Any  # landing offsets: a list (one draw for all robots) or (groups, samples) rows
-    group: np.ndarray  # robot i lands by row group[i] of ``land``
-    hold: Hold
-    seeds: tuple[np.ndarray, np.ndarray, np.ndarray]  # timing, disturbance, sensor
-    memory: Any
-    n_samples: int
-    starts: np.ndarray | None  # per-robot first-sample times, when any is not 0
-    ext: Extremes
-    record: list[int]
-    rec_rows: dict[int, list[np.ndarray]]
-    tel_keys: list[str] | None = None
-    last: tuple[Any, ...] | None = None
-    rms: Any = None
-    done: int = 0
-    interrupted: bool = False
-
-
 def _batch_offsets(
     scenario: Scenario, delays: np.ndarray, jitters: np.ndarray, jseeds: np.ndarray, n_samples: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -361,7 +332,7 @@ def _batch_setup(
     loop: tuple[Any, Any, Any] | None,
     t0: float | Sequence[float] | np.ndarray,
     memory: Any,
-) -> _Batch:
+) -> _Loops:
     """The loops' objects, initial states, landing offsets and seeds for N robots."""
     n = len(variations)
     controller, reference, context = loop or build_loop(scenario)
@@ -393,27 +364,27 @@ def _batch_setup(
     ext = Extremes.zeros(n)
     track_initial(ext, state, scenario.limits)
     record = [int(i) for i in record]
-    return _Batch(
+    return _Loops(
         controller,
         reference,
         context,
         _plant(scenario, dseeds if scenario.disturbance.kind == "random" else None),
         state,
         offsets[0].tolist() if together else offsets,
-        group,
         Hold(n, apart=not together),
         (jseeds, dseeds, sseeds),
         _initial_memory(controller, n, scenario) if memory is None else memory,
         n_samples,
-        starts,
         ext,
-        record,
-        {i: [] for i in record},
+        group=group,
+        starts=starts,
+        record=record,
+        rec_rows={i: [] for i in record},
     )
 
 
 def _batch_loop(
-    run: _Batch,
+    run: _Loops,
     scenario: Scenario,
     progress: Progress | None,
     on_sample: Callable[[int, PlantState], None] | None,
@@ -474,7 +445,7 @@ def _batch_loop(
 
 
 def _record_rows(
-    run: _Batch,
+    run: _Loops,
     t_k: Any,
     state: PlantState,
     ref: Any,
@@ -499,23 +470,22 @@ def _record_rows(
         run.rec_rows[i].append(np.array([t, x, y, th, v, w, xd, yd, thd, *rest], dtype=float))
 
 
-def _batch_result(run: _Batch, scenario: Scenario, variations: list[RobotVariation]) -> BatchResult:
+def _batch_result(run: _Loops, scenario: Scenario, variations: list[RobotVariation]) -> BatchResult:
     """The per-robot summaries and the recorded traces of finished (or interrupted) loops."""
-    controller, state = run.controller, run.state
+    state = run.state
     columns = [*BASE_COLUMNS, *(run.tel_keys or [])]
-    law = getattr(controller, "name", type(controller).__name__)
     last = run.last or (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
     n = len(run.group)
     x, y, th, xd, yd, thd = (np.broadcast_to(np.asarray(q, dtype=float), (n,)) for q in last)
     pos_err = [math.hypot(a, b) for a, b in zip((x - xd).tolist(), (y - yd).tolist(), strict=True)]
     dropped = np.asarray(run.hold.dropped, dtype=np.int64)
     per_robot = (pos_err, wrap_angle(th - thd), run.rms, dropped, *run.seeds)
-    summaries = _summaries(scenario, law, run.done, run.interrupted, run.ext, per_robot)
+    summaries = _summaries(scenario, run.controller, run.done, run.interrupted, run.ext, per_robot)
     traces = {
         i: np.array(rows, dtype=float).reshape(len(rows), len(columns))
         for i, rows in run.rec_rows.items()
     }
-    resolved = resolved_dict(scenario, controller, run.context)
+    resolved = resolved_dict(scenario, run.controller, run.context)
     return BatchResult(scenario, resolved, variations, summaries, columns, traces, run.interrupted)
 
 

@@ -71,11 +71,8 @@ def jitter_samples_from(path: str | Path) -> np.ndarray:
 
 
 def split_path(spec: str | Path) -> tuple[Path, str | None]:
-    text = str(spec)
-    if "::" in text:
-        head, _, which = text.rpartition("::")
-        return Path(head), which or None
-    return Path(text), None
+    head, sep, which = str(spec).rpartition("::")
+    return (Path(head), which or None) if sep else (Path(which), None)
 
 
 def is_run_source(spec: str | Path) -> bool:
