@@ -30,7 +30,7 @@ from controller_service.references import check_table as check_reference
 from controller_service.registry import build_controller, law_path_for, resolved_controller_table
 from controller_service.registry import check_table as check_controller
 from hil.errors import BadInputError
-from hil.options import LOCATOR, describe, number, plain_string, type_name
+from hil.options import choice, describe, locator, number, plain_string, type_name
 from hil.provenance import provenance
 from plant_emulator.disturbances import KINDS as DISTURBANCE_KINDS
 from plant_emulator.disturbances import Disturbance, max_abs
@@ -257,19 +257,16 @@ class Scenario:
     ) -> Scenario:
         """The same scenario with a new run duration and/or control period (command line);
         a bad value raises BadInputError naming the option (``names``)."""
-        out = self
-        dur_name, ts_name = names
+        out, dur_name, ts_name = self, "[run] duration", "[timing] ts"
         if duration is not None:
+            dur_name = names[0]
             duration = number(dur_name, duration, 0.0, DURATION_MAX, positive=True)
             out = dataclasses.replace(out, run=RunConfig(duration))
         if ts is not None:
+            ts_name = names[1]
             ts = number(ts_name, ts, TS_MIN, TS_MAX)
             out = dataclasses.replace(out, timing=dataclasses.replace(out.timing, ts=ts))
-        _check_loop_size(
-            out,
-            dur_name if duration is not None else "[run] duration",
-            ts_name if ts is not None else "[timing] ts",
-        )
+        _check_loop_size(out, dur_name, ts_name)
         return out
 
 
@@ -412,10 +409,8 @@ def _coerce(table: str, key: str, annotation: str, value: Any) -> Any:
 
 def _check(table: str, key: str, value: Any) -> None:
     where = f"[{table}] {key}"
-    choices = _CHOICES.get((table, key))
-    if choices is not None and value not in choices:
-        allowed = ", ".join(map(repr, choices))
-        raise BadInputError(f"{where} must be one of {allowed}, got {value!r}")
+    if (table, key) in _CHOICES:
+        choice(where, value, _CHOICES[table, key])
     many = isinstance(value, tuple)
     values = value if many else (value,)
     if (table, key) in _FIVE and len(values) != 5:
@@ -529,11 +524,7 @@ def _check_across(scenario: Scenario) -> None:
     if can.node_left == can.node_right:
         raise BadInputError(f"[can] node_left, node_right must differ, both are {can.node_left}")
     for i, endpoint in enumerate(scenario.zenoh.endpoints):
-        if not LOCATOR.fullmatch(endpoint):
-            raise BadInputError(
-                f"[zenoh] endpoints[{i}] must be a Zenoh locator such as "
-                f"'tcp/127.0.0.1:7447', got {endpoint!r}"
-            )
+        locator(f"[zenoh] endpoints[{i}]", endpoint)
     _check_loop_size(scenario, "[run] duration", "[timing] ts")
 
 

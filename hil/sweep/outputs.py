@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 from collections.abc import Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -89,13 +90,7 @@ def write_outputs(
         files.append({"name": fig.name, "title": fig.title, "png": png.name, "data": data.name})
     doc = {
         "schema_version": SWEEP_SCHEMA_VERSION,
-        "grid": {
-            "ts": list(grid.ts),
-            "delay": list(grid.delay),
-            "jitter": list(grid.jitter),
-            "seeds": grid.seeds,
-            "defaulted": list(grid.defaulted),
-        },
+        "grid": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(grid).items()},
         **meta,
         "break_point": jsonable(
             {
