@@ -80,12 +80,11 @@ def run_chunked(
     the rows in the grid's order (Ts groups longest first); ``groups_done`` counts the Ts
     groups whose every chunk finished; ``progress(chunks done, chunks in all)``. Ctrl-C keeps
     the chunks done."""
-    ex = executor if executor is not None else InProcess()
     chunks = chunks_of(scenario, grid, duration, chunk_size)
     done: list[ChunkResult] = []
     outcome = SweepOutcome()
     try:
-        for res in ex.map(run_chunk, chunks):
+        for res in (executor or InProcess()).map(run_chunk, chunks):
             done.append(res)
             outcome.robot_steps += res.robot_steps
             if progress is not None:

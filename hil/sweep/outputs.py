@@ -140,19 +140,13 @@ def _markdown(doc: dict[str, Any], bp: dict[str, Any], files: list[dict[str, str
         for d, ts in bp["ts_by_delay"].items():
             lines.append(f"| {d:g} | {'held' if ts is None else f'{ts:g}'} |")
     cb = (doc.get("certificate") or {}).get("first_uncertified")
-    lines += [
-        "",
-        "Certificate: "
-        + (
-            "every point certified."
-            if cb is None
-            else f"(2) no longer guaranteed from Ts = {cb['ts']:g} s, delay = {cb['delay']:g} s"
+    cert = "every point certified."
+    if cb is not None:
+        cert = (
+            f"(2) no longer guaranteed from Ts = {cb['ts']:g} s, delay = {cb['delay']:g} s"
             f" (age {cb['age']:g} s)."
-        ),
-        "",
-        "## Figures",
-        "",
-    ]
+        )
+    lines += ["", f"Certificate: {cert}", "", "## Figures", ""]
     for f in files:
         lines += [f"![{f['title']}]({f['png']}) (data: [{f['data']}]({f['data']}))", ""]
     return "\n".join(lines) + "\n"

@@ -46,9 +46,8 @@ def scenario_at(scenario: Scenario, ts: float, duration: float) -> Scenario:
 def _band(trace: np.ndarray, columns: list[str], name: str, eps: float) -> float | None:
     if name not in columns:
         return None
-    t = trace[:, columns.index("t")]
-    band = trace_metrics.quasi_sliding_band(t, trace[:, columns.index(name)], eps)
-    return band.band_p99
+    t, x = trace[:, columns.index("t")], trace[:, columns.index(name)]
+    return trace_metrics.quasi_sliding_band(t, x, eps).band_p99
 
 
 def point_row(
@@ -62,8 +61,7 @@ def point_row(
 ) -> dict[str, Any]:
     max_v = float(summary["max_abs_v"])
     max_w = float(summary["max_abs_omega"])
-    violations = summary.get("violations", {})
-    n_viol = int(sum(int(v) for v in violations.values()))
+    n_viol = sum(int(v) for v in summary.get("violations", {}).values())
     tol = 1 + trace_metrics.LIMIT_REL_TOL
     v_bound, w_bound = cert["v_bound"], cert["w_bound"]
     within = None if v_bound is None else bool(max_v <= v_bound * tol and max_w <= w_bound * tol)
