@@ -43,7 +43,6 @@ from protocol.messages import ANGLE_MAX, POSITION_MAX, SPEED_MAX, TORQUE_MAX, TU
 from protocol.settings import IDLE_POLICIES, TICK_PHASES, TRIGGERS
 from protocol.versions import SIM_SCHEMA_VERSION as SCHEMA_VERSION  # hil.sim.core's name
 
-JITTER_KINDS = ("uniform", "normal", "replay")
 _REL_TOL = 1e-12
 
 # Declared ranges (docs/scenario.md, "Errors"). The state, the limits and the torques stay
@@ -177,8 +176,6 @@ class FaultsConfig(Faults):
                 )
 
 
-IMPAIR_ON = ("all", "can", "zenoh")
-IMPAIR_CAN_FRAMES = ("all", "torque")
 RATE_BPS_MIN, RATE_BPS_MAX = 1000.0, 1e11  # bit/s, [impair] rate_bps (0 = no limit)
 
 
@@ -292,14 +289,14 @@ _TABLES: dict[str, type] = {
 }
 _CHOICES: dict[tuple[str, str], tuple[str, ...]] = {
     ("disturbance", "kind"): DISTURBANCE_KINDS,
-    ("timing", "jitter_kind"): JITTER_KINDS,
+    ("timing", "jitter_kind"): ("uniform", "normal", "replay"),
     ("realtime", "trigger"): TRIGGERS,
     ("realtime", "tick_phase"): TICK_PHASES,
     ("realtime", "scheduling"): ("fifo", "other"),
     ("realtime", "idle"): IDLE_POLICIES,
     ("zenoh", "mode"): ("peer", "client", "router"),
-    ("impair", "on"): IMPAIR_ON,
-    ("impair", "can_frames"): IMPAIR_CAN_FRAMES,
+    ("impair", "on"): ("all", "can", "zenoh"),
+    ("impair", "can_frames"): ("all", "torque"),
 }
 # (table, key) -> (low, high): low <= value <= high (and > 0 where _POSITIVE says so); every
 # other number |value| <= MAX_MAGNITUDE. Items of a list are checked one by one.
@@ -444,11 +441,9 @@ def _parse_table(name: str, raw: Any) -> Any:
             f"[{name}]: unknown key(s) {', '.join(unknown)} (allowed: {', '.join(fields)})"
         )
     values: dict[str, Any] = {}
-    for key, value in raw.items():
-        annotation = fields[key].type if isinstance(fields[key].type, str) else "float"
-        coerced = _coerce(name, key, str(annotation), value)
-        _check(name, key, coerced)
-        values[key] = coerced
+    for key, value in raw.items():  # every table's annotations are strings (__future__)
+        values[key] = _coerce(name, key, fields[key].type, value)
+        _check(name, key, values[key])
     return cls(**values)
 
 
@@ -607,11 +602,8 @@ def design_message(exc: Any) -> str:
 
 
 def design_context(scenario: Scenario, reference: Any) -> DesignContext:
-    """The DesignContext: limits (2), s1, s2 of Assumption 1 and mu1..k2 of Assumption 2.
-
-    mu1, mu2, k1, k2 default to the reference's own maxima; given ones must not be exceeded by
-    the reference (checked here, naming the key).
-    """
+    """The DesignContext: limits (2), s1, s2 of Assumption 1 and mu1..k2 of Assumption 2 (by
+    default the reference's own maxima; given ones must not be exceeded by the reference)."""
     bounds: dict[str, float] = {}
     table = scenario.reference
     kind = table.get("kind", "?")
@@ -678,12 +670,8 @@ def resolved_dict(
     out["controller"] = {**dict(scenario.controller), **resolved_controller_table(controller)}
     if context is not None:  # out["reference"] is scenario_dict's own copy
         out["reference"].update({k: getattr(context, k) for k in ("mu1", "mu2", "k1", "k2")})
-    seeds = {
-        "timing": scenario.timing.seed,
-        "disturbance": scenario.disturbance.seed,
-        "sensor": scenario.plant.noise_seed,
-    }
-    prov = provenance(seeds)
+    t, d, p = scenario.timing, scenario.disturbance, scenario.plant
+    prov = provenance({"timing": t.seed, "disturbance": d.seed, "sensor": p.noise_seed})
     prov["schema_version"] = SCHEMA_VERSION
     if scenario.source:
         prov["scenario_file"] = scenario.source
