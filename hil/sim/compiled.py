@@ -135,8 +135,7 @@ def _build() -> Any:
         col = np.int64(i) if refs.shape[1] > 1 else np.int64(0)
         keep = trail.shape[0] > 0
         ts, m, h, rms_from = c[0], int(c[1]), c[2], int(c[3])
-        d = (c[4], c[5])
-        lims = (c[6], c[7], c[8], c[9])
+        d, lims = (c[4], c[5]), (c[6], c[7], c[8], c[9])
         p = (c[10], c[11], c[12], c[13], c[14], c[15], c[16], c[17], c[18], c[19])
         s = (st[0, i], st[1, i], st[2, i], st[3, i], st[4, i])
         memory = (mem[0, i], mem[1, i], mem[2, i])
@@ -279,16 +278,8 @@ def run(
                 progress(k0 - k0 % every, n_samples)
     except KeyboardInterrupt:
         batch.interrupted = True
-    _write_back(batch, head, m, rms_from, last_ref)
-    if on_sample is not None and not batch.interrupted:
-        on_sample(n_samples, batch.state)
-
-
-def _write_back(batch: Any, args: tuple, m: int, rms_from: int, ref: Any) -> None:
-    """The kernel's arrays back into the batch; ``ref``: the last sample's reference (one row
-    for all robots, or one per robot)."""
-    st, mem, hold, _, e, sq, last = args[:7]
-    ext = batch.ext
+    # the kernel's arrays back into the batch
+    st, mem, hold, _, e, sq, last = head
     ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2 = (e[q] for q in range(4))
     counts = e[4:].astype(np.int64)
     ext.violations_v, ext.violations_omega, ext.violations_tau1, ext.violations_tau2 = counts
@@ -301,7 +292,9 @@ def _write_back(batch: Any, args: tuple, m: int, rms_from: int, ref: Any) -> Non
     batch.rms = np.sqrt(sq / sq_n) if sq_n > 0 else np.full(len(sq), np.nan)
     if batch.done:
         # the last sample's reference: a float each for robots that share it, else arrays
-        shared = batch.starts is None
-        pose = (float(ref[0, q]) if shared else ref[:, q].copy() for q in range(3))
+        ref = last_ref
+        pose = (float(ref[0, q]) if batch.starts is None else ref[:, q].copy() for q in range(3))
         batch.last = (last[0], last[1], last[2], *pose)
     batch.tel_keys = list(TELEMETRY_KEYS)
+    if on_sample is not None and not batch.interrupted:
+        on_sample(n_samples, batch.state)
