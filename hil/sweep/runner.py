@@ -135,7 +135,6 @@ def run_sweep(
     on_group: Callable[[list[dict[str, Any]]], None] | None = None,
 ) -> tuple[SweepOutcome, dict[str, Any]]:
     """All groups of the grid; returns the outcome and the resolved scenario (provenance)."""
-
     outcome = SweepOutcome()
     resolved: dict[str, Any] = {}
     try:
