@@ -30,7 +30,7 @@ from controller_service.references import check_table as check_reference
 from controller_service.registry import build_controller, law_path_for, resolved_controller_table
 from controller_service.registry import check_table as check_controller
 from hil.errors import BadInputError
-from hil.options import LOCATOR, describe, number, plain_string, type_name
+from hil.options import choice, describe, locator, number, plain_string, type_name
 from hil.provenance import provenance
 from plant_emulator.disturbances import KINDS as DISTURBANCE_KINDS
 from plant_emulator.disturbances import Disturbance, max_abs
@@ -43,7 +43,6 @@ from protocol.messages import ANGLE_MAX, POSITION_MAX, SPEED_MAX, TORQUE_MAX, TU
 from protocol.settings import IDLE_POLICIES, TICK_PHASES, TRIGGERS
 from protocol.versions import SIM_SCHEMA_VERSION as SCHEMA_VERSION  # hil.sim.core's name
 
-JITTER_KINDS = ("uniform", "normal", "replay")
 _REL_TOL = 1e-12
 
 # Declared ranges (docs/scenario.md, "Errors"). The state, the limits and the torques stay
@@ -113,15 +112,9 @@ class RunConfig:
 
 
 @dataclass(frozen=True)
-class RobotConfig:
-    """[robot]: the physical robot behind the unit-mass model (1), for the CAN wheel mapping."""
-
-    # Defaults are protocol.can.wheel_mapping.RobotGeometry's.
-    mass: float = RobotGeometry.mass
-    yaw_inertia: float = RobotGeometry.yaw_inertia
-    wheel_radius: float = RobotGeometry.wheel_radius
-    half_track: float = RobotGeometry.half_track
-    gear_ratio: float = RobotGeometry.gear_ratio
+class RobotConfig(RobotGeometry):
+    """[robot]: the physical robot behind the unit-mass model (1), for the CAN wheel mapping
+    (:class:`protocol.can.wheel_mapping.RobotGeometry`'s keys and defaults)."""
 
 
 @dataclass(frozen=True)
@@ -166,9 +159,8 @@ class SweepConfig:
 
 @dataclass(frozen=True)
 class FaultsConfig(Faults):
-    """[faults]: fault injection on the wire (0 = off): the keys of :class:`protocol.faults.Faults`,
-    which the services read (protocol.faults decides, seeded; the services log every fault
-    they inject), checked here where the scenario is read."""
+    """[faults]: fault injection on the wire (0 = off), the keys of :class:`protocol.faults.Faults`
+    (seeded; the services log every fault they inject), checked where the scenario is read."""
 
     def __post_init__(self) -> None:
         if not self.can_frame_loss <= 1.0:
@@ -184,8 +176,6 @@ class FaultsConfig(Faults):
                 )
 
 
-IMPAIR_ON = ("all", "can", "zenoh")
-IMPAIR_CAN_FRAMES = ("all", "torque")
 RATE_BPS_MIN, RATE_BPS_MAX = 1000.0, 1e11  # bit/s, [impair] rate_bps (0 = no limit)
 
 
@@ -253,9 +243,8 @@ class Scenario:
 
     @property
     def sensor(self) -> Sensor:
-        return Sensor(
-            tuple(self.plant.noise_std), tuple(self.plant.quantization), self.plant.noise_seed
-        )  # type: ignore[arg-type]
+        p = self.plant
+        return Sensor(p.noise_std, p.quantization, p.noise_seed)  # type: ignore[arg-type]
 
     def with_overrides(
         self,
@@ -265,19 +254,16 @@ class Scenario:
     ) -> Scenario:
         """The same scenario with a new run duration and/or control period (command line);
         a bad value raises BadInputError naming the option (``names``)."""
-        out = self
-        dur_name, ts_name = names
+        out, dur_name, ts_name = self, "[run] duration", "[timing] ts"
         if duration is not None:
+            dur_name = names[0]
             duration = number(dur_name, duration, 0.0, DURATION_MAX, positive=True)
             out = dataclasses.replace(out, run=RunConfig(duration))
         if ts is not None:
+            ts_name = names[1]
             ts = number(ts_name, ts, TS_MIN, TS_MAX)
             out = dataclasses.replace(out, timing=dataclasses.replace(out.timing, ts=ts))
-        _check_loop_size(
-            out,
-            dur_name if duration is not None else "[run] duration",
-            ts_name if ts is not None else "[timing] ts",
-        )
+        _check_loop_size(out, dur_name, ts_name)
         return out
 
 
@@ -303,68 +289,55 @@ _TABLES: dict[str, type] = {
 }
 _CHOICES: dict[tuple[str, str], tuple[str, ...]] = {
     ("disturbance", "kind"): DISTURBANCE_KINDS,
-    ("timing", "jitter_kind"): JITTER_KINDS,
+    ("timing", "jitter_kind"): ("uniform", "normal", "replay"),
     ("realtime", "trigger"): TRIGGERS,
     ("realtime", "tick_phase"): TICK_PHASES,
     ("realtime", "scheduling"): ("fifo", "other"),
     ("realtime", "idle"): IDLE_POLICIES,
     ("zenoh", "mode"): ("peer", "client", "router"),
-    ("impair", "on"): IMPAIR_ON,
-    ("impair", "can_frames"): IMPAIR_CAN_FRAMES,
+    ("impair", "on"): ("all", "can", "zenoh"),
+    ("impair", "can_frames"): ("all", "torque"),
 }
 # (table, key) -> (low, high): low <= value <= high (and > 0 where _POSITIVE says so); every
 # other number |value| <= MAX_MAGNITUDE. Items of a list are checked one by one.
 _RANGES: dict[tuple[str, str], tuple[float, float]] = {
     ("limits", "phi1"): (0.0, SPEED_MAX),
     ("limits", "phi2"): (0.0, TURN_RATE_MAX),
-    ("limits", "varpi1"): (0.0, TORQUE_MAX),
-    ("limits", "varpi2"): (0.0, TORQUE_MAX),
-    ("initial", "x"): (-POSITION_MAX, POSITION_MAX),
-    ("initial", "y"): (-POSITION_MAX, POSITION_MAX),
+    **dict.fromkeys(_keys("limits", "varpi1", "varpi2"), (0.0, TORQUE_MAX)),
+    **dict.fromkeys(_keys("initial", "x", "y"), (-POSITION_MAX, POSITION_MAX)),
     ("initial", "theta"): (-ANGLE_MAX, ANGLE_MAX),
     ("initial", "v"): (-SPEED_MAX, SPEED_MAX),
     ("initial", "omega"): (-TURN_RATE_MAX, TURN_RATE_MAX),
-    ("disturbance", "s1"): (0.0, TORQUE_MAX),
-    ("disturbance", "s2"): (0.0, TORQUE_MAX),
-    ("disturbance", "value1"): (-TORQUE_MAX, TORQUE_MAX),
-    ("disturbance", "value2"): (-TORQUE_MAX, TORQUE_MAX),
-    ("disturbance", "amplitude1"): (-TORQUE_MAX, TORQUE_MAX),
-    ("disturbance", "amplitude2"): (-TORQUE_MAX, TORQUE_MAX),
+    **dict.fromkeys(_keys("disturbance", "s1", "s2"), (0.0, TORQUE_MAX)),
+    **dict.fromkeys(
+        _keys("disturbance", "value1", "value2", "amplitude1", "amplitude2"),
+        (-TORQUE_MAX, TORQUE_MAX),
+    ),
     ("disturbance", "freq"): (0.0, 1e6),
     ("disturbance", "period"): (1e-6, DURATION_MAX),
     ("disturbance", "seed"): (0, SEED_MAX),
     ("plant", "step"): (0.0, TS_MAX),
-    ("plant", "noise_std"): (0.0, 1e6),
+    **dict.fromkeys(
+        _keys("plant", "noise_std", "quantization", "lag", "friction", "max_speed"), (0.0, 1e6)
+    ),
     ("plant", "noise_seed"): (0, SEED_MAX),
-    ("plant", "quantization"): (0.0, 1e6),
-    ("plant", "lag"): (0.0, 1e6),
-    ("plant", "friction"): (0.0, 1e6),
-    ("plant", "max_speed"): (0.0, 1e6),
     ("timing", "ts"): (TS_MIN, TS_MAX),
-    ("timing", "delay"): (0.0, DELAY_MAX),
-    ("timing", "jitter"): (0.0, DELAY_MAX),
+    **dict.fromkeys(_keys("timing", "delay", "jitter"), (0.0, DELAY_MAX)),
     ("timing", "seed"): (0, SEED_MAX),
     ("run", "duration"): (0.0, DURATION_MAX),
-    ("robot", "mass"): (0.0, 1e6),
-    ("robot", "yaw_inertia"): (0.0, 1e6),
-    ("robot", "wheel_radius"): (1e-4, 100.0),
-    ("robot", "half_track"): (1e-4, 100.0),
+    **dict.fromkeys(_keys("robot", "mass", "yaw_inertia"), (0.0, 1e6)),
+    **dict.fromkeys(_keys("robot", "wheel_radius", "half_track"), (1e-4, 100.0)),
     ("robot", "gear_ratio"): (1e-3, 1e6),
-    ("realtime", "rate"): (0.1, RATE_MAX),
-    ("realtime", "sensor_rate"): (0.1, RATE_MAX),
-    ("realtime", "state_timeout"): (0.0, TIMEOUT_MAX),
-    ("realtime", "command_timeout"): (0.0, TIMEOUT_MAX),
+    **dict.fromkeys(_keys("realtime", "rate", "sensor_rate"), (0.1, RATE_MAX)),
+    **dict.fromkeys(_keys("realtime", "state_timeout", "command_timeout"), (0.0, TIMEOUT_MAX)),
     ("can", "bitrate"): (10_000, 1_000_000),  # classical CAN (CanSettings)
-    ("can", "node_left"): (0, 63),
-    ("can", "node_right"): (0, 63),
+    **dict.fromkeys(_keys("can", "node_left", "node_right"), (0, 63)),
     ("can", "heartbeat_timeout"): (0.0, TIMEOUT_MAX),
     ("zenoh", "robot_id"): (0, 2**31 - 1),
     ("sweep", "ts"): (TS_MIN, TS_MAX),
-    ("sweep", "delay"): (0.0, DELAY_MAX),
-    ("sweep", "jitter"): (0.0, DELAY_MAX),
+    **dict.fromkeys(_keys("sweep", "delay", "jitter"), (0.0, DELAY_MAX)),
     ("sweep", "seeds"): (1, SWEEP_SEEDS_MAX),
-    ("faults", "state_drop_every"): (0, 2**31 - 1),
-    ("faults", "command_drop_every"): (0, 2**31 - 1),
+    **dict.fromkeys(_keys("faults", "state_drop_every", "command_drop_every"), (0, 2**31 - 1)),
     ("faults", "seed"): (0, SEED_MAX),
     ("impair", "loss"): (0.0, 1.0),
     ("impair", "loss_every"): (0, 2**31 - 1),
@@ -433,10 +406,8 @@ def _coerce(table: str, key: str, annotation: str, value: Any) -> Any:
 
 def _check(table: str, key: str, value: Any) -> None:
     where = f"[{table}] {key}"
-    choices = _CHOICES.get((table, key))
-    if choices is not None and value not in choices:
-        allowed = ", ".join(map(repr, choices))
-        raise BadInputError(f"{where} must be one of {allowed}, got {value!r}")
+    if (table, key) in _CHOICES:
+        choice(where, value, _CHOICES[table, key])
     many = isinstance(value, tuple)
     values = value if many else (value,)
     if (table, key) in _FIVE and len(values) != 5:
@@ -470,23 +441,19 @@ def _parse_table(name: str, raw: Any) -> Any:
             f"[{name}]: unknown key(s) {', '.join(unknown)} (allowed: {', '.join(fields)})"
         )
     values: dict[str, Any] = {}
-    for key, value in raw.items():
-        annotation = fields[key].type if isinstance(fields[key].type, str) else "float"
-        coerced = _coerce(name, key, str(annotation), value)
-        _check(name, key, coerced)
-        values[key] = coerced
+    for key, value in raw.items():  # every table's annotations are strings (__future__)
+        values[key] = _coerce(name, key, fields[key].type, value)
+        _check(name, key, values[key])
     return cls(**values)
 
 
 def parse_scenario(data: Mapping[str, Any], base_dir: Path, source: str = "") -> Scenario:
     """A :class:`Scenario` from the parsed TOML ``data`` (BadInputError names any bad key)."""
-
     allowed = {*_TABLES, "reference", "controller", "provenance"}
     unknown = sorted(map(str, set(data) - allowed))
     if unknown:
-        tables = all(isinstance(data[k], Mapping) for k in unknown)
         names = ", ".join(f"[{k}]" if isinstance(data[k], Mapping) else k for k in unknown)
-        what = "table" if tables else "top-level key"
+        what = "table" if all(isinstance(data[k], Mapping) for k in unknown) else "top-level key"
         raise BadInputError(
             f"{names}: unknown {what}{'s' if len(unknown) > 1 else ''} "
             f"(allowed tables: {', '.join(sorted(allowed - {'provenance'}))})"
@@ -552,11 +519,7 @@ def _check_across(scenario: Scenario) -> None:
     if can.node_left == can.node_right:
         raise BadInputError(f"[can] node_left, node_right must differ, both are {can.node_left}")
     for i, endpoint in enumerate(scenario.zenoh.endpoints):
-        if not LOCATOR.fullmatch(endpoint):
-            raise BadInputError(
-                f"[zenoh] endpoints[{i}] must be a Zenoh locator such as "
-                f"'tcp/127.0.0.1:7447', got {endpoint!r}"
-            )
+        locator(f"[zenoh] endpoints[{i}]", endpoint)
     _check_loop_size(scenario, "[run] duration", "[timing] ts")
 
 
@@ -602,7 +565,6 @@ def loads_scenario(text: str, base_dir: Path | None = None) -> Scenario:
 
 def build_reference(scenario: Scenario) -> Any:
     """The scenario's virtual robot (3); its errors become BadInputError."""
-
     try:
         return _build(scenario.reference, scenario.base_dir)
     except (ValueError, OSError) as exc:
@@ -631,50 +593,37 @@ def design_message(exc: Any) -> str:
     if condition.endswith("> 0") or ">= 0" in condition:
         value = -value  # "x > 0" is checked as -x < 0
     where = f"[{_SYMBOL_KEYS[subject]}] {subject}"
-    also = ", ".join(f"[{_SYMBOL_KEYS[k]}] {k}" for k in others)
-    default = (
-        f" ({subject} defaults to the reference's own maximum)"
-        if _SYMBOL_KEYS[subject] == "reference"
-        else ""
-    )
-    return (
-        f"{where} = {value:.6g} breaks design condition {condition} (bound {bound:.6g})"
-        + (f"; it also involves {also}" if also else "")
-        + default
-    )
+    text = f"{where} = {value:.6g} breaks design condition {condition} (bound {bound:.6g})"
+    if others:
+        text += "; it also involves " + ", ".join(f"[{_SYMBOL_KEYS[k]}] {k}" for k in others)
+    if _SYMBOL_KEYS[subject] == "reference":
+        text += f" ({subject} defaults to the reference's own maximum)"
+    return text
 
 
 def design_context(scenario: Scenario, reference: Any) -> DesignContext:
-    """The DesignContext: limits (2), s1, s2 of Assumption 1 and mu1..k2 of Assumption 2.
-
-    mu1, mu2, k1, k2 default to the reference's own maxima; given ones must not be exceeded by
-    the reference (checked here, naming the key).
-    """
+    """The DesignContext: limits (2), s1, s2 of Assumption 1 and mu1..k2 of Assumption 2 (by
+    default the reference's own maxima; given ones must not be exceeded by the reference)."""
     bounds: dict[str, float] = {}
     table = scenario.reference
     kind = table.get("kind", "?")
     for key in ("mu1", "mu2", "k1", "k2"):
         own = float(getattr(reference, key))
-        if key in table:
-            given = table[key]
-            if isinstance(given, bool) or not isinstance(given, int | float):
-                raise BadInputError(f"[reference] {key} must be a number, got {given!r}")
-            given = float(given)
-            if own > given * (1 + _REL_TOL) + 1e-15:
-                raise BadInputError(
-                    f"[reference] {key} = {given:g} is below the {kind} reference's own "
-                    f"maximum {own:g} (Assumption 2 needs the bound to hold)"
-                )
-            bounds[key] = given
-        else:
-            bounds[key] = own
+        given = table.get(key, own)
+        if isinstance(given, bool) or not isinstance(given, int | float):
+            raise BadInputError(f"[reference] {key} must be a number, got {given!r}")
+        bounds[key] = given = float(given)
+        if key in table and own > given * (1 + _REL_TOL) + 1e-15:
+            raise BadInputError(
+                f"[reference] {key} = {given:g} is below the {kind} reference's own "
+                f"maximum {own:g} (Assumption 2 needs the bound to hold)"
+            )
     d = scenario.disturbance
     return DesignContext(limits=scenario.limits, s1=d.s1, s2=d.s2, **bounds)
 
 
 def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
     """(controller, reference, context) for the scenario; design errors become BadInputError."""
-
     reference = build_reference(scenario)
     context = design_context(scenario, reference)
     try:
@@ -688,23 +637,24 @@ def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
 
 
 def _table_dict(value: Any) -> dict[str, Any]:
+    if isinstance(value, Mapping):  # [reference] and [controller], as given
+        return dict(value)
     pairs = ((f.name, getattr(value, f.name)) for f in dataclasses.fields(value))
     return {name: list(v) if isinstance(v, tuple) else v for name, v in pairs}
 
 
+# scenario.resolved.toml's tables, in order ([impair] only when given: it moves a run into a
+# network namespace)
+_WRITTEN = (
+    "limits", "disturbance", "reference", "initial", "controller", "plant", "timing", "run",
+    "robot", "realtime", "can", "zenoh", "sweep", "faults", "impair",
+)  # fmt: skip
+
+
 def scenario_dict(scenario: Scenario) -> dict[str, Any]:
     """Every table of the scenario with every default filled in (a TOML-ready dict)."""
-    out: dict[str, Any] = {
-        "limits": _table_dict(scenario.limits),
-        "disturbance": _table_dict(scenario.disturbance),
-        "reference": dict(scenario.reference),
-        "initial": _table_dict(scenario.initial),
-        "controller": dict(scenario.controller),
-    }
-    for name in ("plant", "timing", "run", "robot", "realtime", "can", "zenoh", "sweep", "faults"):
-        out[name] = _table_dict(getattr(scenario, name))
-    if scenario.impair is not None:  # written only when given: it moves a run into a namespace
-        out["impair"] = _table_dict(scenario.impair)
+    tables = ((name, getattr(scenario, name)) for name in _WRITTEN)
+    out = {name: _table_dict(table) for name, table in tables if table is not None}
     out["plant"]["step"] = scenario.plant_step
     return out
 
@@ -716,17 +666,12 @@ def resolved_dict(
     extra_provenance: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """scenario.resolved.toml: every default filled (auto lam/rho resolved) plus [provenance]."""
-
     out = scenario_dict(scenario)
     out["controller"] = {**dict(scenario.controller), **resolved_controller_table(controller)}
     if context is not None:  # out["reference"] is scenario_dict's own copy
         out["reference"].update({k: getattr(context, k) for k in ("mu1", "mu2", "k1", "k2")})
-    seeds = {
-        "timing": scenario.timing.seed,
-        "disturbance": scenario.disturbance.seed,
-        "sensor": scenario.plant.noise_seed,
-    }
-    prov = provenance(seeds)
+    t, d, p = scenario.timing, scenario.disturbance, scenario.plant
+    prov = provenance({"timing": t.seed, "disturbance": d.seed, "sensor": p.noise_seed})
     prov["schema_version"] = SCHEMA_VERSION
     if scenario.source:
         prov["scenario_file"] = scenario.source

@@ -1,20 +1,12 @@
-"""The offline simulator's Python API (used by ``hil sim``, ``hil paper``, sweeps, reports).
-
-- :func:`simulate` (one loop on floats) and :func:`simulate_batch` (N loops on numpy arrays);
-- :func:`write_run_folder` (scenario.resolved.toml, trace.csv, summary.json);
-- :func:`jitter_samples_from` (latency files for ``jitter_kind = "replay"``).
-"""
+"""The offline simulator's Python API (used by ``hil sim``, ``hil paper``, sweeps, reports):
+:func:`simulate` (one loop on floats), :func:`simulate_batch` (N loops on numpy arrays),
+:func:`write_run_folder` and :func:`jitter_samples_from` (``jitter_kind = "replay"``)."""
 
 from hil.sim.core import BatchResult, RobotVariation, SimResult, simulate, simulate_batch
 from hil.sim.folder import write_run_folder
 from hil.sim.replay import jitter_samples_from
 
 __all__ = [
-    "BatchResult",
-    "RobotVariation",
-    "SimResult",
-    "jitter_samples_from",
-    "simulate",
-    "simulate_batch",
-    "write_run_folder",
-]
+    "BatchResult", "RobotVariation", "SimResult", "jitter_samples_from", "simulate",
+    "simulate_batch", "write_run_folder",
+]  # fmt: skip

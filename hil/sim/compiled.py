@@ -11,20 +11,16 @@ What is compiled, and from where (no equation is written a second time):
 
 What the kernel writes itself is bookkeeping, not equations: the zero-order hold and the
 landings of :mod:`plant_emulator.sampled` as index arithmetic over the landing-offset table
-(the numpy path keeps a queue of command objects, which numba cannot compile): command k lands
-at plant step k m + offset, the newest by sequence number wins, an older one landing later is
-dropped (counted); the law's bad-input rule (zero torque, memory unchanged); the extremes of
-(2) over the step ends.
+(numba cannot compile the numpy path's queue of command objects): command k lands at plant
+step k m + offset, the newest by sequence number wins, an older one landing later is dropped
+(counted); the law's bad-input rule (zero torque, memory unchanged); the extremes of (2).
 
-It applies to the common sweep and to a long run's windowed ideal (robots with their own
-start time, law memory and per-sample callback): the unified law (either variant, no eta
-re-arm), an ideal sensor, no actuator lag, no friction or top speed, a constant (or no)
-disturbance, no traces recorded. Robots that start at their own times get the reference
-sampled per robot a chunk at a time (:func:`controller_service.references.sample_array`, as
-the numpy path samples it); a per-sample callback gets the robots' state at each sample, which
-the kernel leaves in a table a chunk long. Anything else, numba missing, or
-``HIL_NO_COMPILED=1`` leaves the run to the numpy path, the reference:
-tests/test_batch_compiled.py checks that the two agree to 1e-12.
+It runs the common sweep and a long run's windowed ideal (robots with their own start time,
+law memory and per-sample callback) when :func:`chosen` says so: the unified law (either
+variant, no eta re-arm), an ideal sensor, no actuator lag, friction or top speed, a constant
+(or no) disturbance, no traces recorded. Anything else, numba missing, or ``HIL_NO_COMPILED=1``
+leaves the run to the numpy path, the reference: tests/test_batch_compiled.py checks that the
+two agree to 1e-12.
 """
 
 from __future__ import annotations
@@ -139,8 +135,7 @@ def _build() -> Any:
         col = np.int64(i) if refs.shape[1] > 1 else np.int64(0)
         keep = trail.shape[0] > 0
         ts, m, h, rms_from = c[0], int(c[1]), c[2], int(c[3])
-        d = (c[4], c[5])
-        lims = (c[6], c[7], c[8], c[9])
+        d, lims = (c[4], c[5]), (c[6], c[7], c[8], c[9])
         p = (c[10], c[11], c[12], c[13], c[14], c[15], c[16], c[17], c[18], c[19])
         s = (st[0, i], st[1, i], st[2, i], st[3, i], st[4, i])
         memory = (mem[0, i], mem[1, i], mem[2, i])
@@ -248,6 +243,7 @@ def run(
     group = np.zeros(n, dtype=np.intp) if off.shape[0] == 1 else batch.group
     state, ext, lim_r = batch.state, batch.ext, 1.0 + VIOLATION_RTOL
     limits = scenario.limits
+    peaks = (ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2)
     rms_from = math.floor(0.9 * n_samples)
     t0 = np.zeros(n) if batch.starts is None else np.asarray(batch.starts, dtype=float)
     head = (
@@ -255,11 +251,7 @@ def run(
         np.array(batch.memory[:3], dtype=float),
         np.array([np.zeros(n), np.zeros(n), np.full(n, -1.0), np.zeros(n), np.zeros(n)]),
         np.zeros((2, n, int(off.max()) // m + 3)),
-        np.array(
-            [ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2]
-            + [np.zeros(n)] * 4,
-            dtype=float,
-        ),
+        np.array([*peaks, *[np.zeros(n)] * 4], dtype=float),
         np.zeros(n),
         np.zeros((3, n)),
     )
@@ -286,16 +278,8 @@ def run(
                 progress(k0 - k0 % every, n_samples)
     except KeyboardInterrupt:
         batch.interrupted = True
-    _write_back(batch, head, m, rms_from, last_ref)
-    if on_sample is not None and not batch.interrupted:
-        on_sample(n_samples, batch.state)
-
-
-def _write_back(batch: Any, args: tuple, m: int, rms_from: int, ref: Any) -> None:
-    """The kernel's arrays back into the batch; ``ref``: the last sample's reference (one row
-    for all robots, or one per robot)."""
-    st, mem, hold, _, e, sq, last = args[:7]
-    ext = batch.ext
+    # the kernel's arrays back into the batch
+    st, mem, hold, _, e, sq, last = head
     ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2 = (e[q] for q in range(4))
     counts = e[4:].astype(np.int64)
     ext.violations_v, ext.violations_omega, ext.violations_tau1, ext.violations_tau2 = counts
@@ -308,7 +292,9 @@ def _write_back(batch: Any, args: tuple, m: int, rms_from: int, ref: Any) -> Non
     batch.rms = np.sqrt(sq / sq_n) if sq_n > 0 else np.full(len(sq), np.nan)
     if batch.done:
         # the last sample's reference: a float each for robots that share it, else arrays
-        shared = batch.starts is None
-        pose = (float(ref[0, q]) if shared else ref[:, q].copy() for q in range(3))
+        ref = last_ref
+        pose = (float(ref[0, q]) if batch.starts is None else ref[:, q].copy() for q in range(3))
         batch.last = (last[0], last[1], last[2], *pose)
     batch.tel_keys = list(TELEMETRY_KEYS)
+    if on_sample is not None and not batch.interrupted:
+        on_sample(n_samples, batch.state)

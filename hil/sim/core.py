@@ -100,136 +100,93 @@ def _or(value: Any, default: Any) -> Any:
 
 def _replay(scenario: Scenario) -> np.ndarray | None:
     t = scenario.timing
-    if t.jitter_kind != "replay":
-        return None
-    return jitter_samples_from(scenario.base_dir / t.replay)
+    return jitter_samples_from(scenario.base_dir / t.replay) if t.jitter_kind == "replay" else None
 
 
 def _summaries(
-    scenario: Scenario,
-    law: str,
-    samples: int,
-    interrupted: bool,
-    ext: Extremes,
-    per_robot: tuple[Any, ...],
+    scenario: Scenario, run: _Loops, samples: int, per_robot: tuple[Any, ...]
 ) -> list[dict[str, Any]]:
-    """Each robot's summary.json: ``ext`` (the peaks and violation counts of (2)) and
-    ``per_robot`` (final position error, final heading error, RMS position error, commands
-    dropped, timing, disturbance and sensor seeds) hold a float each for one robot, an array
-    each for a batch.
+    """Each robot's summary.json. ``run.ext`` (peaks and violation counts of (2)) and
+    ``per_robot`` (final position and heading errors, RMS position error, commands dropped,
+    timing, disturbance and sensor seeds) hold a float each for one robot, arrays for a batch.
 
-    Why columns: for short runs of many robots, building 10,000 summaries one robot at a time
-    (numpy scalar reads, scenario properties) cost more than a hundred control periods; here
-    each column is read back as a Python list once, and what all robots share is computed once.
+    Why columns: 10,000 summaries of a short run built one robot at a time (numpy scalar reads,
+    scenario properties) cost more than a hundred control periods; here each column is read
+    back as a Python list once, and what all robots share is computed once.
     """
+    ext, controller = run.ext, run.controller
     peaks = (ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2)
     peaks += (ext.violations_v, ext.violations_omega, ext.violations_tau1, ext.violations_tau2)
     columns = np.broadcast_arrays(*per_robot[:3], *peaks, *per_robot[3:])
     limit_table = asdict(scenario.limits)
-    ts = scenario.timing.ts
-    plant_step = scenario.plant_step
+    law = getattr(controller, "name", type(controller).__name__)
+    ts, plant_step = scenario.timing.ts, scenario.plant_step
     duration = samples * ts
-    out = []
-    for pe, he, rm, mv, mw, mt1, mt2, nv, nw, nt1, nt2, dr, js, ds, ss in zip(
-        *(np.atleast_1d(q).tolist() for q in columns), strict=True
-    ):
-        out.append(
-            {
-                "schema_version": SCHEMA_VERSION,
-                "final_position_error": pe,
-                "final_heading_error": he,
-                "rms_position_error": rm,
-                "max_abs_v": mv,
-                "max_abs_omega": mw,
-                "max_abs_tau1": mt1,
-                "max_abs_tau2": mt2,
-                "violations": {"v": nv, "omega": nw, "tau1": nt1, "tau2": nt2},
-                "limits_held": not (nv or nw or nt1 or nt2),
-                "limits": dict(limit_table),
-                "law": law,
-                "ts": ts,
-                "plant_step": plant_step,
-                "duration": duration,
-                "samples": samples,
-                "plant_steps": ext.steps,
-                "commands_dropped": dr,
-                "interrupted": interrupted,
-                "seeds": {"timing": js, "disturbance": ds, "sensor": ss},
-            }
-        )
-    return out
+    robots = zip(*(np.atleast_1d(q).tolist() for q in columns), strict=True)
+    return [
+        {
+            "schema_version": SCHEMA_VERSION,
+            "final_position_error": pe,
+            "final_heading_error": he,
+            "rms_position_error": rm,
+            "max_abs_v": mv,
+            "max_abs_omega": mw,
+            "max_abs_tau1": mt1,
+            "max_abs_tau2": mt2,
+            "violations": {"v": nv, "omega": nw, "tau1": nt1, "tau2": nt2},
+            "limits_held": not (nv or nw or nt1 or nt2),
+            "limits": dict(limit_table),
+            "law": law,
+            "ts": ts,
+            "plant_step": plant_step,
+            "duration": duration,
+            "samples": samples,
+            "plant_steps": ext.steps,
+            "commands_dropped": dr,
+            "interrupted": run.interrupted,
+            "seeds": {"timing": js, "disturbance": ds, "sensor": ss},
+        }
+        for pe, he, rm, mv, mw, mt1, mt2, nv, nw, nt1, nt2, dr, js, ds, ss in robots
+    ]
 
 
 @dataclass
-class _Single:
-    """One loop's set-up and, once run, what the summary needs."""
+class _Loops:
+    """One loop on floats or N on arrays: the set-up and, once run, what the summaries need."""
 
     controller: Any
     reference: Any
     context: Any
     plant: Plant
     state: PlantState
-    offsets: list[int]
-    seeds: tuple[int, int, int]  # timing, disturbance, sensor
+    land: Any  # landing offsets: a list (one draw for all robots) or (groups, samples) rows
+    hold: Hold
+    seeds: tuple[Any, Any, Any]  # timing, disturbance, sensor: ints, or arrays for a batch
     memory: Any
     n_samples: int
-    ext: Extremes = field(default_factory=Extremes.zeros)
-    hold: Hold = field(default_factory=Hold)
-    rows: list[tuple[float, ...]] = field(default_factory=list)
+    ext: Extremes
+    rows: list[tuple[float, ...]] = field(default_factory=list)  # the single path's trace
     tel_keys: list[str] | None = None
-    last: tuple[float, ...] = (0.0,) * 6
-    rms: float = float("nan")
+    last: tuple[Any, ...] | None = None
+    rms: Any = None
     interrupted: bool = False
+    group: np.ndarray | None = None  # robot i lands by row group[i] of ``land``
+    starts: np.ndarray | None = None  # per-robot first-sample times, when any is not 0
+    record: list[int] = field(default_factory=list)
+    rec_rows: dict[int, list[np.ndarray]] = field(default_factory=dict)
+    done: int = 0
 
 
 def _plant(scenario: Scenario, seed: Any) -> Plant:
-    return Plant(
-        scenario.plant_step,
-        scenario.disturbance,
-        scenario.plant.lag,
-        seed,
-        scenario.limits,
-        scenario.plant.drag,
-    )
+    p = scenario.plant
+    return Plant(scenario.plant_step, scenario.disturbance, p.lag, seed, scenario.limits, p.drag)
 
 
-def _single_setup(
-    scenario: Scenario, var: RobotVariation, loop: tuple[Any, Any, Any] | None, memory: Any
-) -> _Single:
-    """The loop's objects, initial state, landing offsets and seeds for one robot."""
-    controller, reference, context = loop or build_loop(scenario)
-    n_samples = max(1, round(scenario.run.duration / scenario.timing.ts))
-    ini, timing = scenario.initial, scenario.timing
-    state = PlantState(*(float(_or(getattr(var, q), getattr(ini, q))) for q in _POSE))
-    delay, jitter = _or(var.delay, timing.delay), _or(var.jitter, timing.jitter)
-    jseed = _or(var.jitter_seed, timing.seed)
-    dseed = _or(var.disturbance_seed, scenario.disturbance.seed)
-    sseed = _or(var.sensor_seed, scenario.plant.noise_seed)
-    extra = extra_delays(timing.jitter_kind, jitter, jseed, n_samples, _replay(scenario))
-    offsets = landing_offsets(extra, delay, scenario.plant_step).tolist()
-    if memory is None:
-        memory = _initial_memory(controller, None, scenario)
-    run = _Single(
-        controller,
-        reference,
-        context,
-        _plant(scenario, dseed),
-        state,
-        offsets,
-        (jseed, dseed, sseed),
-        memory,
-        n_samples,
-    )
-    track_initial(run.ext, state, scenario.limits)
-    run.last = (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
-    return run
-
-
-def _single_loop(run: _Single, scenario: Scenario, t0: float, progress: Progress | None) -> None:
+def _single_loop(run: _Loops, scenario: Scenario, t0: float, progress: Progress | None) -> None:
     """The sampled-data loop on floats: sample, law, send, land at t_k, record, advance."""
     controller, reference, hold = run.controller, run.reference, run.hold
     plant, ext = run.plant, run.ext
-    state, memory, offsets, rows = run.state, run.memory, run.offsets, run.rows
+    state, memory, offsets, rows = run.state, run.memory, run.land, run.rows
     ts, m, n_samples = scenario.timing.ts, scenario.substeps, run.n_samples
     sensor, sseed = scenario.sensor, run.seeds[2]
     ideal_sensor = sensor.is_ideal
@@ -270,23 +227,6 @@ def _single_loop(run: _Single, scenario: Scenario, t0: float, progress: Progress
     run.state, run.memory, run.last = state, memory, last
 
 
-def _single_result(run: _Single, scenario: Scenario) -> SimResult:
-    """The trace and summary of a finished (or interrupted) loop."""
-    rows = run.rows
-    columns = [*BASE_COLUMNS, *(run.tel_keys or [])]
-    trace = np.array(rows, dtype=float).reshape(len(rows), len(columns))
-    x, y, th, xd, yd, thd = run.last
-    errors = (math.hypot(x - xd, y - yd), wrap_angle(th - thd), run.rms)
-    controller = run.controller
-    law = getattr(controller, "name", type(controller).__name__)
-    per_robot = (*errors, run.hold.dropped, *run.seeds)
-    summary = _summaries(scenario, law, len(rows), run.interrupted, run.ext, per_robot)[0]
-    resolved = resolved_dict(scenario, controller, run.context)
-    # The bound at the scenario's timing, once, here: the report reads it, as it reads a run's.
-    summary["certificate"] = scenario_certificate(view(resolved))
-    return SimResult(scenario, resolved, columns, trace, summary, run.interrupted)
-
-
 def simulate(
     scenario: Scenario,
     variation: RobotVariation | None = None,
@@ -295,63 +235,51 @@ def simulate(
     t0: float = 0.0,
     memory: Any = None,
 ) -> SimResult:
-    """One closed loop on plain floats (the single-run path).
-
-    ``progress(k, K)`` is called now and then; Ctrl-C stops the loop and returns what was
-    computed with ``interrupted = True``. ``loop`` = (controller, reference, context) reuses
-    built objects. ``t0``: the time of the first sample (default 0): the law's clock, the
-    reference and the disturbance run from there, as in a run whose first sample came at t0
-    (the initial state is then the state at t0, the law's memory its initial memory unless
-    ``memory`` gives the law's memory at t0).
+    """One closed loop on plain floats (the single-run path). ``progress(k, K)`` is called now
+    and then; Ctrl-C stops the loop and returns what was computed with ``interrupted = True``.
+    ``loop`` = (controller, reference, context) reuses built objects. ``t0``: the time of the
+    first sample (default 0): the law's clock, the reference and the disturbance run from there,
+    as in a run whose first sample came at t0 (the initial state is then the state at t0, the
+    law's memory its initial memory unless ``memory`` gives the law's memory at t0).
     """
-    run = _single_setup(scenario, variation or RobotVariation(), loop, memory)
+    var = variation or RobotVariation()
+    controller, reference, context = loop or build_loop(scenario)
+    n_samples = max(1, round(scenario.run.duration / scenario.timing.ts))
+    ini, timing = scenario.initial, scenario.timing
+    state = PlantState(*(float(_or(getattr(var, q), getattr(ini, q))) for q in _POSE))
+    delay, jitter = _or(var.delay, timing.delay), _or(var.jitter, timing.jitter)
+    jseed = _or(var.jitter_seed, timing.seed)
+    dseed = _or(var.disturbance_seed, scenario.disturbance.seed)
+    sseed = _or(var.sensor_seed, scenario.plant.noise_seed)
+    extra = extra_delays(timing.jitter_kind, jitter, jseed, n_samples, _replay(scenario))
+    run = _Loops(
+        controller,
+        reference,
+        context,
+        _plant(scenario, dseed),
+        state,
+        landing_offsets(extra, delay, scenario.plant_step).tolist(),
+        Hold(),
+        (jseed, dseed, sseed),
+        _initial_memory(controller, None, scenario) if memory is None else memory,
+        n_samples,
+        Extremes.zeros(),
+        last=(state.x, state.y, state.theta, 0.0, 0.0, 0.0),
+    )
+    track_initial(run.ext, state, scenario.limits)
     _single_loop(run, scenario, t0, progress)
     if progress is not None and not run.interrupted:
         progress(len(run.rows), run.n_samples)
-    return _single_result(run, scenario)
-
-
-@dataclass
-class _Batch:
-    """N loops' set-up and, once run, what the summaries need."""
-
-    controller: Any
-    reference: Any
-    context: Any
-    plant: Plant
-    state: PlantState
-    land: Any  # landing offsets: a list (one draw for all robots) or (groups, samples) rows
-    group: np.ndarray  # robot i lands by row group[i] of ``land``
-    hold: Hold
-    seeds: tuple[np.ndarray, np.ndarray, np.ndarray]  # timing, disturbance, sensor
-    memory: Any
-    n_samples: int
-    starts: np.ndarray | None  # per-robot first-sample times, when any is not 0
-    ext: Extremes
-    record: list[int]
-    rec_rows: dict[int, list[np.ndarray]]
-    tel_keys: list[str] | None = None
-    last: tuple[Any, ...] | None = None
-    rms: Any = None
-    done: int = 0
-    interrupted: bool = False
-
-
-def _batch_offsets(
-    scenario: Scenario, delays: np.ndarray, jitters: np.ndarray, jseeds: np.ndarray, n_samples: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Landing offsets per distinct (delay, jitter, seed), drawn exactly as the single path
-    draws them (same seed, same n); robot i uses row group[i]."""
-    timing = scenario.timing
-    replay = _replay(scenario)
-    keys: dict[tuple[float, float, int], int] = {}
-    draws = zip(delays.tolist(), jitters.tolist(), jseeds.tolist(), strict=True)
-    group = np.array([keys.setdefault(key, len(keys)) for key in draws], dtype=np.intp)
-    offsets = np.empty((len(keys), n_samples), dtype=np.int64)
-    for (delay, jitter, seed), row in keys.items():
-        extra = extra_delays(timing.jitter_kind, jitter, seed, n_samples, replay)
-        offsets[row] = landing_offsets(extra, delay, scenario.plant_step)
-    return offsets, group
+    rows, columns = run.rows, [*BASE_COLUMNS, *(run.tel_keys or [])]
+    trace = np.array(rows, dtype=float).reshape(len(rows), len(columns))
+    x, y, th, xd, yd, thd = run.last
+    errors = (math.hypot(x - xd, y - yd), wrap_angle(th - thd), run.rms)
+    per_robot = (*errors, run.hold.dropped, *run.seeds)
+    summary = _summaries(scenario, run, len(rows), per_robot)[0]
+    resolved = resolved_dict(scenario, controller, context)
+    # The bound at the scenario's timing, once, here: the report reads it, as it reads a run's.
+    summary["certificate"] = scenario_certificate(view(resolved))
+    return SimResult(scenario, resolved, columns, trace, summary, run.interrupted)
 
 
 def _batch_setup(
@@ -361,7 +289,7 @@ def _batch_setup(
     loop: tuple[Any, Any, Any] | None,
     t0: float | Sequence[float] | np.ndarray,
     memory: Any,
-) -> _Batch:
+) -> _Loops:
     """The loops' objects, initial states, landing offsets and seeds for N robots."""
     n = len(variations)
     controller, reference, context = loop or build_loop(scenario)
@@ -388,32 +316,41 @@ def _batch_setup(
     jseeds = per_robot("jitter_seed", timing.seed, np.int64)
     dseeds = per_robot("disturbance_seed", scenario.disturbance.seed, np.int64)
     sseeds = per_robot("sensor_seed", scenario.plant.noise_seed, np.int64)
-    offsets, group = _batch_offsets(scenario, delays, jitters, jseeds, n_samples)
+    # Landing offsets per distinct (delay, jitter, seed), drawn exactly as the single path draws
+    # them (same seed, same n); robot i lands by row group[i].
+    keys: dict[tuple[float, float, int], int] = {}
+    draws = zip(delays.tolist(), jitters.tolist(), jseeds.tolist(), strict=True)
+    group = np.array([keys.setdefault(key, len(keys)) for key in draws], dtype=np.intp)
+    offsets = np.empty((len(keys), n_samples), dtype=np.int64)
+    replay = _replay(scenario)
+    for (delay, jitter, seed), row in keys.items():
+        extra = extra_delays(timing.jitter_kind, jitter, seed, n_samples, replay)
+        offsets[row] = landing_offsets(extra, delay, scenario.plant_step)
     together = len(offsets) == 1  # one draw: every robot lands each command at the same step
     ext = Extremes.zeros(n)
     track_initial(ext, state, scenario.limits)
     record = [int(i) for i in record]
-    return _Batch(
+    return _Loops(
         controller,
         reference,
         context,
         _plant(scenario, dseeds if scenario.disturbance.kind == "random" else None),
         state,
         offsets[0].tolist() if together else offsets,
-        group,
         Hold(n, apart=not together),
         (jseeds, dseeds, sseeds),
         _initial_memory(controller, n, scenario) if memory is None else memory,
         n_samples,
-        starts,
         ext,
-        record,
-        {i: [] for i in record},
+        group=group,
+        starts=starts,
+        record=record,
+        rec_rows={i: [] for i in record},
     )
 
 
 def _batch_loop(
-    run: _Batch,
+    run: _Loops,
     scenario: Scenario,
     progress: Progress | None,
     on_sample: Callable[[int, PlantState], None] | None,
@@ -428,8 +365,7 @@ def _batch_loop(
     n = len(group)
     together = isinstance(land, list)
     rms_from = math.floor(0.9 * n_samples)
-    sq_sum = np.zeros(n)
-    sq_n = 0
+    sq_sum, sq_n = np.zeros(n), 0
     every = max(1, n_samples // 200)
     ones = np.ones(n)
     try:
@@ -459,8 +395,18 @@ def _batch_loop(
                 sq_sum += e_pos * e_pos
                 sq_n += 1
             run.last = (state.x, state.y, state.theta, ref.xd, ref.yd, ref.thetad)
-            if run.record:
-                _record_rows(run, t_k, state, ref, out, tau1, tau2, e_pos)
+            if run.record:  # the single path's row of each recorded robot, robot by robot
+                # (scalar reads: a few robots are recorded out of a batch of any size)
+                applied = (hold.cmd1, hold.cmd2) if plant.lag <= 0.0 else (state.tau1, state.tau2)
+                head = wrap_angle(state.theta - ref.thetad)
+                tel = [np.broadcast_to(out.telemetry[key], (n,)) for key in run.tel_keys]
+                timed = (t_k, ref.xd, ref.yd, ref.thetad)  # floats when the robots share t_k
+                robot = (*state[:5], *applied, tau1, tau2, e_pos, head, *tel)
+                for i in run.record:
+                    t, xd, yd, thd = timed if starts is None else (q[i] for q in timed)
+                    x, y, th, v, w, *rest = (q[i] for q in robot)
+                    row = np.array([t, x, y, th, v, w, xd, yd, thd, *rest], dtype=float)
+                    run.rec_rows[i].append(row)
             state = advance_period(state, hold, plant, j0, j0 + m, ext, starts)
             run.done = k + 1
             if progress is not None and k % every == 0:
@@ -473,52 +419,6 @@ def _batch_loop(
     run.state, run.memory = state, memory
 
 
-def _record_rows(
-    run: _Batch,
-    t_k: Any,
-    state: PlantState,
-    ref: Any,
-    out: Any,
-    tau1: np.ndarray,
-    tau2: np.ndarray,
-    e_pos: np.ndarray,
-) -> None:
-    """Append sample k's trace row of every recorded robot (the single path's row)."""
-    # Robot by robot, scalar reads: a few robots are recorded out of a batch of any size.
-    lag = run.plant.lag
-    applied = (run.hold.cmd1, run.hold.cmd2) if lag <= 0.0 else (state.tau1, state.tau2)
-    head = wrap_angle(state.theta - ref.thetad)
-    n = len(run.group)
-    tel = [np.broadcast_to(out.telemetry[key], (n,)) for key in run.tel_keys or []]
-    timed = (t_k, ref.xd, ref.yd, ref.thetad)
-    shared = run.starts is None  # time and reference are then one float for all robots
-    robot = (*state[:5], *applied, tau1, tau2, e_pos, head, *tel)
-    for i in run.record:
-        t, xd, yd, thd = timed if shared else (q[i] for q in timed)
-        x, y, th, v, w, *rest = (q[i] for q in robot)
-        run.rec_rows[i].append(np.array([t, x, y, th, v, w, xd, yd, thd, *rest], dtype=float))
-
-
-def _batch_result(run: _Batch, scenario: Scenario, variations: list[RobotVariation]) -> BatchResult:
-    """The per-robot summaries and the recorded traces of finished (or interrupted) loops."""
-    controller, state = run.controller, run.state
-    columns = [*BASE_COLUMNS, *(run.tel_keys or [])]
-    law = getattr(controller, "name", type(controller).__name__)
-    last = run.last or (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
-    n = len(run.group)
-    x, y, th, xd, yd, thd = (np.broadcast_to(np.asarray(q, dtype=float), (n,)) for q in last)
-    pos_err = [math.hypot(a, b) for a, b in zip((x - xd).tolist(), (y - yd).tolist(), strict=True)]
-    dropped = np.asarray(run.hold.dropped, dtype=np.int64)
-    per_robot = (pos_err, wrap_angle(th - thd), run.rms, dropped, *run.seeds)
-    summaries = _summaries(scenario, law, run.done, run.interrupted, run.ext, per_robot)
-    traces = {
-        i: np.array(rows, dtype=float).reshape(len(rows), len(columns))
-        for i, rows in run.rec_rows.items()
-    }
-    resolved = resolved_dict(scenario, controller, run.context)
-    return BatchResult(scenario, resolved, variations, summaries, columns, traces, run.interrupted)
-
-
 def simulate_batch(
     scenario: Scenario,
     variations: Sequence[RobotVariation] | int,
@@ -529,10 +429,8 @@ def simulate_batch(
     memory: Any = None,
     on_sample: Callable[[int, PlantState], None] | None = None,
 ) -> BatchResult:
-    """N closed loops at once on numpy arrays (the batch path), one per variation.
-
-    ``variations`` may be an int N (N identical robots). ``record`` lists the robots whose full
-    trace is kept (every robot gets a summary).
+    """N closed loops at once on numpy arrays (the batch path), one per variation (an int N: N
+    identical robots); every robot gets a summary, the robots ``record`` lists their full trace.
 
     ``t0``: the time of each robot's first sample (one value or one per robot; default 0), as
     in :func:`simulate`: each robot's law clock, reference and disturbance run from its own
@@ -540,7 +438,6 @@ def simulate_batch(
     sample_array`). ``memory``: the law's memory at the first sample, arrays of shape (N,) per
     field (default: its initial memory). ``on_sample(k, state)`` is called with the robots'
     state (arrays) at each sample time t0 + k Ts, k = 0 .. K (K: after the last period).
-    With the defaults the results are those of the batch path without these arguments.
     """
     if isinstance(variations, int):
         variations = [RobotVariation()] * variations
@@ -555,4 +452,17 @@ def simulate_batch(
         _batch_loop(run, scenario, progress, on_sample)
     if progress is not None and not run.interrupted:
         progress(run.done, run.n_samples)
-    return _batch_result(run, scenario, variations)
+    state, columns = run.state, [*BASE_COLUMNS, *(run.tel_keys or [])]
+    last = run.last or (state.x, state.y, state.theta, 0.0, 0.0, 0.0)
+    n = len(run.group)
+    x, y, th, xd, yd, thd = (np.broadcast_to(np.asarray(q, dtype=float), (n,)) for q in last)
+    pos_err = [math.hypot(a, b) for a, b in zip((x - xd).tolist(), (y - yd).tolist(), strict=True)]
+    dropped = np.asarray(run.hold.dropped, dtype=np.int64)
+    per_robot = (pos_err, wrap_angle(th - thd), run.rms, dropped, *run.seeds)
+    summaries = _summaries(scenario, run, run.done, per_robot)
+    traces = {
+        i: np.array(rows, dtype=float).reshape(len(rows), len(columns))
+        for i, rows in run.rec_rows.items()
+    }
+    resolved = resolved_dict(scenario, run.controller, run.context)
+    return BatchResult(scenario, resolved, variations, summaries, columns, traces, run.interrupted)

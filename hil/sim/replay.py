@@ -71,11 +71,8 @@ def jitter_samples_from(path: str | Path) -> np.ndarray:
 
 
 def split_path(spec: str | Path) -> tuple[Path, str | None]:
-    text = str(spec)
-    if "::" in text:
-        head, _, which = text.rpartition("::")
-        return Path(head), which or None
-    return Path(text), None
+    head, sep, which = str(spec).rpartition("::")
+    return (Path(head), which or None) if sep else (Path(which), None)
 
 
 def is_run_source(spec: str | Path) -> bool:
@@ -83,27 +80,22 @@ def is_run_source(spec: str | Path) -> bool:
     return p.is_dir() or p.suffix == ".mcap"
 
 
-def measured_latencies_us(p: Path) -> dict[str, np.ndarray]:
-    """Per path, the sample-to-apply latencies (µs) of a run folder or recording."""
-    if p.is_dir():
-        m = measured(load_folder(p, lazy=True)) if (p / SUMMARY).is_file() else None
-        m = m if m is not None else measure_folder(p)
-        where = "hop logs (controller.hoplog, plant.hoplog)"
-    elif p.suffix == ".mcap" and p.is_file():
-        m = measure_recording(p)
-        where = "attached hop logs"
-    else:
-        raise BadInputError(f"[timing] replay: {p} is neither a run folder nor a .mcap recording")
-    if m is None:
-        raise BadInputError(f"[timing] replay: {p} has no {where}: not a run of hil run")
-    return m.latency_us()
-
-
 def latencies_from_run(spec: str | Path) -> np.ndarray:
-    """Measured sample-to-apply latencies (seconds) of a run folder or recording."""
+    """Measured sample-to-apply latencies (seconds) of a run folder (its saved measurement, else
+    its hop logs measured) or recording."""
     p, which = split_path(spec)
     try:
-        per_path = measured_latencies_us(p)
+        if p.is_dir():
+            m = measured(load_folder(p, lazy=True)) if (p / SUMMARY).is_file() else None
+            m = m if m is not None else measure_folder(p)
+            where = "hop logs (controller.hoplog, plant.hoplog)"
+        elif p.suffix == ".mcap" and p.is_file():
+            m, where = measure_recording(p), "attached hop logs"
+        else:
+            raise BadInputError(f"{p} is neither a run folder nor a .mcap recording")
+        if m is None:
+            raise BadInputError(f"{p} has no {where}: not a run of hil run")
+        per_path = m.latency_us()  # µs per path
     except BadInputError as exc:
         text = str(exc)
         raise BadInputError(

@@ -1,15 +1,11 @@
-"""A sweep split into chunks that run on any executor (:mod:`hil.sweep.executors`).
-
-Chunks: each Ts group of the grid (:meth:`SweepGrid.by_ts`, the longest Ts first) cut into
-slices of at most ``chunk_size`` points, numbered in that order. A chunk is one
-:func:`hil.sweep.runner.simulate_points` (a batch and its rows), as ``run_sweep`` runs it for
-a whole group.
+"""A sweep split into chunks that run on any executor (:mod:`hil.sweep.executors`): each Ts
+group of the grid (:meth:`SweepGrid.by_ts`, longest Ts first) cut into slices of at most
+``chunk_size`` points, numbered in that order, each one :func:`hil.sweep.runner.simulate_points`.
 
 Same results whatever the executor and the chunking, bit for bit: each point carries its own
-seeds (the grid point's jitter seed: the scenario's seed plus the seed's index), never one drawn
-from a chunk's or a worker's state, the batch path computes each robot on its own, and a group
-keeps its traces (for the quasi-sliding band) by the group's size, not the chunk's. The chunk
-index only orders the results: they are put back in the grid's order whatever order they came.
+seed (the scenario's plus the seed's index), never one drawn from a chunk's or a worker's state;
+the batch path computes each robot on its own; a group keeps its traces (for the quasi-sliding
+band) by the group's size, not the chunk's; the results are put back in the grid's order.
 """
 
 from __future__ import annotations
@@ -60,8 +56,7 @@ def chunks_of(
         sc = scenario_at(scenario, ts, duration)
         record = len(points) <= RECORD_LIMIT
         for at in range(0, len(points), chunk_size):
-            part = tuple(points[at : at + chunk_size])
-            out.append(Chunk(len(out), sc, ts, part, record))
+            out.append(Chunk(len(out), sc, ts, tuple(points[at : at + chunk_size]), record))
     return out
 
 
@@ -72,27 +67,24 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
     return ChunkResult(chunk.index, rows, steps, bool(result.interrupted), result.resolved)
 
 
-ChunkProgress = Callable[[int, int], None]  # (chunks done, chunks in all)
-
-
 def run_chunked(
     scenario: Scenario,
     grid: SweepGrid,
     duration: float,
     executor: Any = None,
     chunk_size: int = DEFAULT_CHUNK,
-    progress: ChunkProgress | None = None,
+    progress: Callable[[int, int], None] | None = None,
     on_chunk: Callable[[list[dict[str, Any]]], None] | None = None,
 ) -> tuple[SweepOutcome, dict[str, Any]]:
     """The sweep on ``executor`` (default: in this process), as :func:`run_sweep` returns it:
     the rows in the grid's order (Ts groups longest first); ``groups_done`` counts the Ts
-    groups whose every chunk finished. Ctrl-C keeps the chunks done."""
-    ex = executor if executor is not None else InProcess()
+    groups whose every chunk finished; ``progress(chunks done, chunks in all)``. Ctrl-C keeps
+    the chunks done."""
     chunks = chunks_of(scenario, grid, duration, chunk_size)
     done: list[ChunkResult] = []
     outcome = SweepOutcome()
     try:
-        for res in ex.map(run_chunk, chunks):
+        for res in (executor or InProcess()).map(run_chunk, chunks):
             done.append(res)
             outcome.robot_steps += res.robot_steps
             if progress is not None:

@@ -1,5 +1,4 @@
-"""Where the chunks of a sweep run: anything with ``map(fn, items)`` yielding ``fn(item)`` in
-the items' order.
+"""Where the chunks of a sweep run: anything with ``map(fn, items)`` yielding ``fn(item)`` in order.
 
 - :class:`InProcess`: this process, one chunk after another (the default);
 - :class:`ProcessPool`: ``--workers N`` local processes (``concurrent.futures``, spawned, so
@@ -19,7 +18,7 @@ import multiprocessing
 import re
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any, Protocol
+from typing import Any
 
 from hil import options
 from hil.errors import BadInputError
@@ -33,17 +32,7 @@ WORKERS_MAX = 1024
 _SCHEDULER_RE = re.compile(r"tcp://[A-Za-z0-9.\-\[\]:]+:[0-9]{1,5}")
 
 
-class Executor(Protocol):
-    name: str
-
-    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]: ...
-
-    def close(self) -> None: ...
-
-
 class InProcess:
-    """One chunk after another in this process."""
-
     name = "in-process"
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
@@ -54,8 +43,6 @@ class InProcess:
 
 
 class ProcessPool:
-    """``workers`` local processes."""
-
     def __init__(self, workers: int) -> None:
         self.name = f"{workers} local processes"
         ctx = multiprocessing.get_context("spawn")
@@ -99,7 +86,9 @@ class DaskCluster:
             self._client.close()
 
 
-def executor_for(workers: int | None, scheduler: str | None) -> Executor:
+def executor_for(
+    workers: int | None, scheduler: str | None
+) -> InProcess | ProcessPool | DaskCluster:
     """The executor the command line asks for (BadInputError for a bad or double choice)."""
     if workers is not None and scheduler is not None:
         raise BadInputError("--workers and --scheduler exclude each other")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 from collections.abc import Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -14,31 +15,13 @@ from hil.report import figures as fg
 from hil.sweep.grid import SweepGrid, aggregate, break_points
 from protocol.versions import SWEEP_SCHEMA_VERSION
 
+# sweep.csv: the columns of hil.sweep.runner.point_row, in its order
 CSV_COLUMNS = (
-    "ts",
-    "delay",
-    "jitter",
-    "seed",
-    "age",
-    "final_position_error",
-    "rms_position_error",
-    "max_abs_v",
-    "max_abs_omega",
-    "max_abs_tau1",
-    "max_abs_tau2",
-    "overshoot_v",
-    "overshoot_omega",
-    "band_v",
-    "band_w",
-    "violations",
-    "violation",
-    "v_bound",
-    "w_bound",
-    "certified",
-    "within_bound",
-    "commands_dropped",
-    "complete",
-)
+    "ts", "delay", "jitter", "seed", "age", "final_position_error", "rms_position_error",
+    "max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2", "overshoot_v",
+    "overshoot_omega", "band_v", "band_w", "violations", "violation", "v_bound", "w_bound",
+    "certified", "within_bound", "commands_dropped", "complete",
+)  # fmt: skip
 # (metric, y label, how to aggregate over jitter and seeds, reference line)
 FIGURES: tuple[tuple[str, str, str, float | None], ...] = (
     ("rms_position_error", "tracking error: RMS position error, last 10% [m]", "mean", None),
@@ -107,13 +90,7 @@ def write_outputs(
         files.append({"name": fig.name, "title": fig.title, "png": png.name, "data": data.name})
     doc = {
         "schema_version": SWEEP_SCHEMA_VERSION,
-        "grid": {
-            "ts": list(grid.ts),
-            "delay": list(grid.delay),
-            "jitter": list(grid.jitter),
-            "seeds": grid.seeds,
-            "defaulted": list(grid.defaulted),
-        },
+        "grid": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(grid).items()},
         **meta,
         "break_point": jsonable(
             {
@@ -163,19 +140,13 @@ def _markdown(doc: dict[str, Any], bp: dict[str, Any], files: list[dict[str, str
         for d, ts in bp["ts_by_delay"].items():
             lines.append(f"| {d:g} | {'held' if ts is None else f'{ts:g}'} |")
     cb = (doc.get("certificate") or {}).get("first_uncertified")
-    lines += [
-        "",
-        "Certificate: "
-        + (
-            "every point certified."
-            if cb is None
-            else f"(2) no longer guaranteed from Ts = {cb['ts']:g} s, delay = {cb['delay']:g} s"
+    cert = "every point certified."
+    if cb is not None:
+        cert = (
+            f"(2) no longer guaranteed from Ts = {cb['ts']:g} s, delay = {cb['delay']:g} s"
             f" (age {cb['age']:g} s)."
-        ),
-        "",
-        "## Figures",
-        "",
-    ]
+        )
+    lines += ["", f"Certificate: {cert}", "", "## Figures", ""]
     for f in files:
         lines += [f"![{f['title']}]({f['png']}) (data: [{f['data']}]({f['data']}))", ""]
     return "\n".join(lines) + "\n"

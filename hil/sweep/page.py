@@ -123,11 +123,10 @@ def heat_cells(rows: Sequence[Mapping[str, Any]]) -> dict[tuple[float, float], t
     over_v = aggregate(rows, "overshoot_v", "max")
     over_w = aggregate(rows, "overshoot_omega", "max")
     broke = aggregate(rows, "violations", "max")
-    out = {}
-    for key in set(over_v) | set(over_w):
-        worst = max(over_v.get(key, -math.inf), over_w.get(key, -math.inf))
-        out[key] = (worst, broke.get(key, 0) > 0)
-    return out
+    return {
+        key: (max(over_v.get(key, -math.inf), over_w.get(key, -math.inf)), broke.get(key, 0) > 0)
+        for key in set(over_v) | set(over_w)
+    }
 
 
 def _heat_map(doc: Mapping[str, Any]) -> str:

@@ -9,6 +9,8 @@ band (v~, w~ telemetry of the unified laws). Ctrl-C keeps the groups already don
 from __future__ import annotations
 
 import dataclasses
+import functools
+import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -44,9 +46,8 @@ def scenario_at(scenario: Scenario, ts: float, duration: float) -> Scenario:
 def _band(trace: np.ndarray, columns: list[str], name: str, eps: float) -> float | None:
     if name not in columns:
         return None
-    t = trace[:, columns.index("t")]
-    band = trace_metrics.quasi_sliding_band(t, trace[:, columns.index(name)], eps)
-    return band.band_p99
+    t, x = trace[:, columns.index("t")], trace[:, columns.index(name)]
+    return trace_metrics.quasi_sliding_band(t, x, eps).band_p99
 
 
 def point_row(
@@ -60,8 +61,7 @@ def point_row(
 ) -> dict[str, Any]:
     max_v = float(summary["max_abs_v"])
     max_w = float(summary["max_abs_omega"])
-    violations = summary.get("violations", {})
-    n_viol = int(sum(int(v) for v in violations.values()))
+    n_viol = sum(int(v) for v in summary.get("violations", {}).values())
     tol = 1 + trace_metrics.LIMIT_REL_TOL
     v_bound, w_bound = cert["v_bound"], cert["w_bound"]
     within = None if v_bound is None else bool(max_v <= v_bound * tol and max_w <= w_bound * tol)
@@ -113,6 +113,7 @@ def simulate_points(
     # Points of a group share few (delay, jitter) pairs: certify each pair once.
     certs: dict[float, dict[str, Any]] = {}
     rows = []
+    complete = not result.interrupted
     for i, p in enumerate(points):
         worst = worst_age(p, sv.jitter_kind)
         if worst not in certs:
@@ -122,7 +123,6 @@ def simulate_points(
         if trace is not None and len(trace) > 1:
             bv = _band(trace, result.columns, "v_tilde", sv.eps1)
             bw = _band(trace, result.columns, "w_tilde", sv.eps2)
-        complete = not result.interrupted
         rows.append(point_row(p, result.summaries[i], certs[worst], sv.limits, bv, bw, complete))
     return rows, result
 
@@ -135,16 +135,11 @@ def run_sweep(
     on_group: Callable[[list[dict[str, Any]]], None] | None = None,
 ) -> tuple[SweepOutcome, dict[str, Any]]:
     """All groups of the grid; returns the outcome and the resolved scenario (provenance)."""
-
     outcome = SweepOutcome()
     resolved: dict[str, Any] = {}
     try:
         for ts, points in grid.by_ts(scenario.timing.seed):
-
-            def report(done: int, total: int, _ts: float = ts) -> None:
-                if progress is not None:
-                    progress(_ts, done, total)
-
+            report = None if progress is None else functools.partial(progress, ts)
             sc = scenario_at(scenario, ts, duration)
             rows, result = simulate_points(sc, points, len(points) <= RECORD_LIMIT, report)
             resolved = resolved or result.resolved
@@ -164,20 +159,15 @@ def run_sweep(
 def certified_break(scenario: Scenario, grid: SweepGrid) -> dict[str, Any]:
     """The certificate's own prediction over the grid: the smallest age Ts + delay at which
     (2) is no longer guaranteed (None when every point is certified)."""
-    sv = view(_resolved_or_dict(scenario))
-    first = None
-    for ts in grid.ts:
-        for d in grid.delay:
-            for j in grid.jitter:
-                c = certificate(sv, ts, d + j)
-                if c.held is False and (first is None or ts + d + j < first["age"]):
-                    first = {"ts": ts, "delay": d, "jitter": j, "age": ts + d + j}
-    return {"first_uncertified": first}
-
-
-def _resolved_or_dict(scenario: Scenario) -> dict[str, Any]:
     try:
         controller, _ref, context = build_loop(scenario)
-        return resolved_dict(scenario, controller, context)
+        resolved = resolved_dict(scenario, controller, context)
     except Exception:
-        return scenario_dict(scenario)
+        resolved = scenario_dict(scenario)
+    sv = view(resolved)
+    first = None
+    for ts, d, j in itertools.product(grid.ts, grid.delay, grid.jitter):
+        c = certificate(sv, ts, d + j)
+        if c.held is False and (first is None or ts + d + j < first["age"]):
+            first = {"ts": ts, "delay": d, "jitter": j, "age": ts + d + j}
+    return {"first_uncertified": first}
