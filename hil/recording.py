@@ -54,23 +54,19 @@ _PLAIN = frozenset((int, str, bool, type(None)))
 def to_jsonable(value: Any) -> Any:
     """A JSON-safe copy of a decoded msgpack value (bytes as hex, non-finite floats as str)."""
     # Exact types first: the recorder calls this for every message (thousands a second), and
-    # the isinstance chain below (an ABC check for Mapping) was half of its cost.
+    # the ABC check for Mapping below was half of its cost.
     kind = type(value)
     if kind in _PLAIN:
         return value
-    if kind is float:
+    if isinstance(value, float):
         return value if math.isfinite(value) else repr(value)
-    if kind is dict:
+    if kind is dict or isinstance(value, Mapping):
         return {str(k): to_jsonable(v) for k, v in value.items()}
     if isinstance(value, bytes | bytearray | memoryview):
         return bytes(value).hex()
-    if isinstance(value, float):
-        return value if math.isfinite(value) else repr(value)
-    if isinstance(value, Mapping):
-        return {str(k): to_jsonable(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
         return [to_jsonable(v) for v in value]
-    if value is None or isinstance(value, bool | int | str):
+    if isinstance(value, int | str):
         return value
     if hasattr(value, "_asdict"):
         return to_jsonable(value._asdict())
@@ -101,21 +97,15 @@ class _SpilledIndexes:
     def __init__(self) -> None:
         self._file = tempfile.TemporaryFile(prefix="hil-chunk-index-")  # noqa: SIM115
         self._builder = RecordBuilder()
-        self._count = 0
 
     def append(self, index: Any) -> None:
         index.write(self._builder)
         self._file.write(self._builder.end())
-        self._count += 1
-
-    def __len__(self) -> int:
-        return self._count
 
     def __iter__(self) -> Iterator[_RawRecord]:
         self._file.flush()
         self._file.seek(0)
-        for _ in range(self._count):
-            head = self._file.read(9)
+        for head in iter(lambda: self._file.read(9), b""):  # opcode and length of each record
             (length,) = struct.unpack("<Q", head[1:])
             yield _RawRecord(head + self._file.read(length))
         self._file.seek(0, 2)
@@ -468,25 +458,18 @@ def list_topics(path: str | Path) -> dict[str, int]:
 def read_attachments(path: str | Path, names: Iterable[str] | None = None) -> dict[str, bytes]:
     """Name -> data of the recording's attachments (optionally only ``names``)."""
     wanted = set(names) if names is not None else None
-    out: dict[str, bytes] = {}
     if is_complete(path):
         with open(path, "rb") as f:
             atts = list(make_reader(f).iter_attachments())
     else:
         atts = [r for r in _stream_records(path) if isinstance(r, Attachment)]
-    for att in atts:
-        if wanted is None or att.name in wanted:
-            out[att.name] = bytes(att.data)
-    return out
+    return {a.name: bytes(a.data) for a in atts if wanted is None or a.name in wanted}
 
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     """Name -> metadata record of the recording."""
-    out: dict[str, dict[str, str]] = {}
     with open(path, "rb") as f:
-        for record in make_reader(f).iter_metadata():
-            out[record.name] = dict(record.metadata)
-    return out
+        return {record.name: dict(record.metadata) for record in make_reader(f).iter_metadata()}
 
 
 def read_topic_payloads(

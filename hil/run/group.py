@@ -16,7 +16,7 @@ import re
 import shutil
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -71,15 +71,9 @@ class GroupSpec:
         opts = RunOptions(scenario=Path(self.scenario), duration=self.duration, rate=self.rate)
         opts.quiet, opts.can_live, opts.robot_id = True, False, robot
         opts.out = None if robot is None else Path(self.out) / robot
-        opts.lab, opts.plant_host, opts.controller_host = (
-            self.lab,
-            self.plant_host,
-            self.controller_host,
-        )
+        for key in ("lab", "plant_host", "controller_host"):
+            setattr(opts, key, getattr(self, key))
         return opts
-
-    def save(self, path: Path) -> None:
-        path.write_text(json.dumps(asdict(self), indent=2) + "\n")
 
 
 @dataclass

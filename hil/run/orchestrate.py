@@ -183,17 +183,13 @@ class Recorder:
             except Exception as exc:  # a recorder must never take the run down
                 self.writer.write("recorder/errors", t, {"topic": topic, "error": repr(exc)})
 
-    def close(self, attachments: dict[str, bytes | Path] | None = None) -> None:
+    def close(self, attachments: dict[str, Path] | None = None) -> None:
         """Drain, attach files (the hop logs: the recording alone then reproduces every
-        figure), finish the MCAP. A Path is streamed from disk (an hour's hop logs never sit
-        in memory)."""
+        figure), streamed from disk (an hour's hop logs never sit in memory), finish the MCAP."""
         self._stop.set()
         self._thread.join(timeout=30)
-        for name, data in (attachments or {}).items():
-            if isinstance(data, Path):
-                self.writer.add_attachment_file(name, data)
-            else:
-                self.writer.add_attachment(name, data)
+        for name, path in (attachments or {}).items():
+            self.writer.add_attachment_file(name, path)
         self.writer.close()
 
 
@@ -388,19 +384,17 @@ def _start_services(
     for whoever needs to signal one (tests inject stalls), and watched by the host sampler."""
     paths = [str(d / layout.RUN_SETTINGS) for d in run_dirs]
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
-        sup.start(
+        child = sup.start(
             name,
             child_argv(placed, name, [sys.executable, "-m", module, *paths]),
             env=ids.child_env(name),
             stdout=logs.open(log_prefix + name),
             stderr=STDOUT,
         )
+        host.watch(name, child.pid)
     pids = json.dumps({c.name: c.pid for c in sup.children})
     for d in run_dirs:
         (d / layout.PROCESSES).write_text(pids)
-    for c in sup.children:
-        if c.name in ("plant", "controller"):
-            host.watch(c.name, c.pid)
 
 
 def _start_and_follow(
@@ -527,7 +521,7 @@ ATTACHED = (layout.CONTROLLER_LOG, layout.PLANT_LOG, HOST_FILE, layout.SCENARIO_
 ATTACHED += (CLOCK_FILE, TOPOLOGY_FILE)
 
 
-def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:
+def attachment_files(run_dir: Path) -> dict[str, Path]:
     """The files a recording carries so that it alone reproduces the run's figures, by path
     (streamed when attached)."""
     return {name: run_dir / name for name in ATTACHED if (run_dir / name).is_file()}
@@ -604,9 +598,7 @@ def _stop_children(sup: Supervisor, settings: RunSettings) -> dict[str, int | No
     codes: dict[str, int | None] = {}
     # The plant ends by itself at the run's end; the controller is stopped next, then the rest.
     for name in ("plant", "controller", "router", "live"):
-        for c in sup.children:
-            if c.name != name:
-                continue
+        for c in [c for c in sup.children if c.name == name]:
             if name == "controller" and codes.get("plant") not in (0, None):
                 # The plant died: give the controller's stale-state watchdog time to act (and
                 # to be logged) before it is stopped.
