@@ -1,24 +1,21 @@
 """MCAP recordings of a run: a writer for the recorder and a reader for reports.
 
-Every message is stored as a JSON mirror of its msgpack payload (message encoding ``json``, a
-``jsonschema`` schema per topic typed from the protocol by :mod:`hil.schemas`; the robot's pose
-also as Foxglove's ``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``); recordings of
-untyped schemas (``{"type": "object"}``) read the same. Why JSON and not the msgpack bytes:
-``json`` + ``jsonschema`` is a well-known MCAP profile that ``mcap cat --json`` and Foxglove
-decode with no plug-in; msgpack is not a Foxglove encoding. CAN frames are stored the same way
-(arbitration id, data as hex, decoded signals when the codec knows them). The decoding (a few
-tens of microseconds a message) is paid by the recorder, never by the controller or the plant.
+Every message is stored as a JSON mirror of its msgpack payload (encoding ``json``, one
+``jsonschema`` per topic from :mod:`hil.schemas`; the robot's pose also as Foxglove's
+``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``); untyped schemas read the same. JSON,
+not msgpack: ``json`` + ``jsonschema`` is a well-known MCAP profile that ``mcap cat --json`` and
+Foxglove decode with no plug-in. CAN frames likewise (id, data as hex, decoded signals). The
+decoding (tens of microseconds a message) is paid by the recorder, never by the loop.
 
-Reader: :func:`read_messages` gives :class:`RecordedMessage` (``data``: a dict);
-``log_time_ns`` is when the recorder received the message (``time.monotonic_ns()``), and
-``publish_time_ns`` the sender's own stamp when the message carries one (else the log time).
+``log_time_ns`` of a :class:`RecordedMessage` is when the recorder received it
+(``time.monotonic_ns()``); ``publish_time_ns`` the sender's own stamp if it has one, else the
+log time.
 
-Crash safety: the writer closes its chunk and flushes the file at least every
-``flush_interval`` (0.05 s: half the 0.1 s promised, the other half is slack for a recorder
-thread that falls behind on a loaded host), so a killed recorder loses what it received in the
-last 0.1 s and what its queue still held; the readers here also read such a truncated file (up
-to its last whole chunk), and :func:`rewrite_complete` turns it into a complete, indexed MCAP,
-with messages restored from elsewhere merged in (``hil recover``: the plant's hop log's States).
+Crash safety: the writer closes its chunk and flushes at least every ``flush_interval`` (0.05 s:
+half the 0.1 s promised, the rest is slack for a recorder that falls behind on a loaded host), so
+a killed recorder loses its last 0.1 s and its queue; the readers here read such a truncated file
+up to its last whole chunk, and :func:`rewrite_complete` makes it a complete, indexed MCAP with
+restored messages merged in (``hil recover``).
 """
 
 from __future__ import annotations
@@ -87,12 +84,10 @@ class RecordedMessage:
 
 
 class _SpilledIndexes:
-    """The writer's chunk indexes, serialized to a temporary file as each chunk closes.
-
-    The ``mcap`` writer keeps one ChunkIndex object per chunk until ``finish`` writes the summary;
-    flushing every 0.05 s makes that 20 a second, about 1 MB a minute of objects in ``hil run``'s
-    memory. Spilled here, the summary is the same bytes and the recorder's memory stays flat.
-    The writer only appends to and iterates over its list, which this class provides."""
+    """The writer's chunk indexes, spilled to a temporary file as each chunk closes: the
+    ``mcap`` writer keeps one object per chunk until ``finish`` (20 a second at a 0.05 s flush,
+    ~1 MB a minute); here the summary is the same bytes and memory stays flat. The writer only
+    appends to and iterates over its list."""
 
     def __init__(self) -> None:
         self._file = tempfile.TemporaryFile(prefix="hil-chunk-index-")  # noqa: SIM115
@@ -124,11 +119,16 @@ class _RawRecord:
         builder.write(self.data)
 
 
-class RecordingWriter:
-    """Writes messages (dicts) to one MCAP file, one channel per topic.
+def _register_topic(writer: Writer, topic: str) -> int:
+    """A new channel for ``topic``, JSON with its own jsonschema (:func:`schema_for_topic`)."""
+    typed = schema_for_topic(topic)
+    schema = writer.register_schema(schema_name(topic, typed), "jsonschema",
+                                    json.dumps(typed).encode())  # fmt: skip
+    return writer.register_channel(topic, "json", schema)
 
-    Not thread-safe: callers that receive on several threads hold their own lock.
-    """
+
+class RecordingWriter:
+    """Writes messages (dicts) to one MCAP file, one channel per topic. Not thread-safe."""
 
     def __init__(
         self,
@@ -145,10 +145,8 @@ class RecordingWriter:
         if spill_indexes and isinstance(chunk_indices, list):
             self._spilled = _SpilledIndexes()
             self._writer._Writer__chunk_indices = self._spilled  # type: ignore[attr-defined]
-        self._clock = time.monotonic
         self._flush_interval = float(flush_interval)
-        self._next_flush = self._clock() + self._flush_interval
-        self.flushes = 0
+        self._next_flush = time.monotonic() + self._flush_interval
         self._writer.start(profile=PROFILE, library="hil-smc-bench")
         self._channels: dict[str, int] = {}
         self._seq: dict[str, int] = {}
@@ -157,21 +155,12 @@ class RecordingWriter:
         if metadata:
             self._writer.add_metadata("run", {str(k): str(v) for k, v in metadata.items()})
 
-    def channel(self, topic: str, schema: Mapping[str, Any] | None = None) -> int:
-        """The channel of ``topic``, registered on first use with ``schema`` (default: the
-        topic's own, :func:`hil.schemas.schema_for_topic`)."""
+    def channel(self, topic: str) -> int:
+        """The channel of ``topic``, registered on first use with the topic's schema
+        (:func:`hil.schemas.schema_for_topic`)."""
         ch = self._channels.get(topic)
         if ch is None:
-            typed = dict(schema or schema_for_topic(topic))
-            schema_id = self._writer.register_schema(
-                name=schema_name(topic, typed),
-                encoding="jsonschema",
-                data=json.dumps(typed).encode(),
-            )
-            ch = self._writer.register_channel(
-                topic=topic, message_encoding="json", schema_id=schema_id
-            )
-            self._channels[topic] = ch
+            ch = self._channels[topic] = _register_topic(self._writer, topic)
             self._seq[topic] = 0
         return ch
 
@@ -209,19 +198,10 @@ class RecordingWriter:
     def maybe_flush(self) -> None:
         """Close the chunk and flush the file when ``flush_interval`` has passed (call it also
         when idle: a quiet stretch must not keep the last messages in memory)."""
-        now = self._clock()
+        now = time.monotonic()
         if now >= self._next_flush and not self._closed:
             self._writer.flush()
-            self.flushes += 1
             self._next_flush = now + self._flush_interval
-
-    def add_attachment(
-        self, name: str, data: bytes, media_type: str = "application/msgpack"
-    ) -> None:
-        """A file carried inside the recording (the services' hop logs: a recording alone then
-        reproduces every timing figure of the run)."""
-        now = time.time_ns()
-        self._writer.add_attachment(now, now, name, media_type, bytes(data))
 
     def add_attachment_file(
         self,
@@ -230,15 +210,13 @@ class RecordingWriter:
         media_type: str = "application/msgpack",
         time_ns: int | None = None,
     ) -> None:
-        """:meth:`add_attachment` of a file's content, streamed from disk a block at a time.
+        """A file carried inside the recording (the hop logs: the recording alone then
+        reproduces every timing figure), streamed from disk a block at a time.
 
-        Why not ``mcap``'s public ``Writer.add_attachment``: it takes one bytes object and
-        builds the whole record in a BytesIO (the data held three times), so an hour's hop logs
-        (~1 GB) would need GBs, and ``mcap`` has no public call that streams an attachment.
-        The record written here is byte for byte the one ``add_attachment`` writes (fields,
-        CRCs, attachment index, statistics; tests/test_long_run_parts.py compares the files)
-        through the Writer's private (name-mangled) state, and the public ``add_attachment``
-        is used whenever that state is not there (another ``mcap`` version).
+        ``mcap``'s ``Writer.add_attachment`` holds the data three times (an hour's ~1 GB of hop
+        logs would need GBs) and nothing public streams. The record here is byte for byte the
+        one it writes (CRCs, index, statistics; tests/test_long_run_parts.py compares), through
+        the Writer's private state; without that state (another ``mcap``) the public call.
         """
         now = time.time_ns() if time_ns is None else int(time_ns)
         w = self._writer
@@ -405,10 +383,7 @@ def rewrite_complete(
             while pending and pending[0].log_time_ns <= until:
                 m = pending.popleft()
                 if m.topic not in by_topic:
-                    typed = schema_for_topic(m.topic)
-                    schema = w.register_schema(schema_name(m.topic, typed), "jsonschema",
-                                               json.dumps(typed).encode())  # fmt: skip
-                    by_topic[m.topic] = w.register_channel(m.topic, "json", schema)
+                    by_topic[m.topic] = _register_topic(w, m.topic)
                 data = json.dumps(to_jsonable(m.data), separators=(",", ":")).encode()
                 w.add_message(by_topic[m.topic], m.log_time_ns, data, m.publish_time_ns,
                               m.sequence)  # fmt: skip

@@ -77,14 +77,12 @@ class Supervisor:
         env: Mapping[str, str] | None = None,
         stdout: Any = None,
         stderr: Any = None,
-        cwd: str | None = None,
     ) -> Child:
         proc = subprocess.Popen(
             list(argv),
             env={**os.environ, **(env or {})},
             stdout=stdout,
             stderr=stderr,
-            cwd=cwd,
             # A new session: a Ctrl-C in the terminal reaches only ``hil run``, which then
             # stops the children in order (controller first) instead of all at once.
             start_new_session=True,
