@@ -156,8 +156,7 @@ class RecordingWriter:
             self._writer.add_metadata("run", {str(k): str(v) for k, v in metadata.items()})
 
     def channel(self, topic: str) -> int:
-        """The channel of ``topic``, registered on first use with the topic's schema
-        (:func:`hil.schemas.schema_for_topic`)."""
+        """The channel of ``topic``, registered on first use (:func:`_register_topic`)."""
         ch = self._channels.get(topic)
         if ch is None:
             ch = self._channels[topic] = _register_topic(self._writer, topic)
@@ -211,13 +210,11 @@ class RecordingWriter:
         time_ns: int | None = None,
     ) -> None:
         """A file carried inside the recording (the hop logs: the recording alone then
-        reproduces every timing figure), streamed from disk a block at a time.
-
-        ``mcap``'s ``Writer.add_attachment`` holds the data three times (an hour's ~1 GB of hop
-        logs would need GBs) and nothing public streams. The record here is byte for byte the
-        one it writes (CRCs, index, statistics; tests/test_long_run_parts.py compares), through
-        the Writer's private state; without that state (another ``mcap``) the public call.
-        """
+        reproduces every timing figure), streamed from disk a block at a time: ``mcap``'s
+        ``Writer.add_attachment`` holds the data three times (an hour's ~1 GB of hop logs would
+        need GBs) and nothing public streams. The record is byte for byte the one it writes
+        (CRCs, index, statistics; tests/test_long_run_parts.py compares), through the Writer's
+        private state; without that state (another ``mcap``) the public call."""
         now = time.time_ns() if time_ns is None else int(time_ns)
         w = self._writer
         private = ("_Writer__stream", "_Writer__flush", "_Writer__statistics",
@@ -314,8 +311,7 @@ def _stream_records(path: str | Path) -> Iterator[Any]:
 
 
 def _streamed_messages(path: str | Path) -> Iterator[tuple[str, Message]]:
-    """(topic, Message record) of every whole message of a possibly truncated recording, in
-    file order."""
+    """(topic, Message) of every whole message of a possibly truncated recording, in file order."""
     channels: dict[int, str] = {}
     for rec in _stream_records(path):
         if isinstance(rec, Channel):
@@ -365,11 +361,10 @@ def rewrite_complete(
     attachments: Mapping[str, bytes | Path] | None = None,
     extra: Iterable[RecordedMessage] = (),
 ) -> dict[str, int]:
-    """A complete, indexed MCAP at ``dst`` from a possibly truncated ``src``: every whole
-    schema, channel, message, metadata and attachment, plus ``attachments`` (data, or a file
-    to read), plus the messages ``extra`` (sorted by log time; each merged before the first
-    message of ``src`` logged after it, on its topic's channel, registered as the writer does
-    when ``src`` has none). Returns counts (``restored``: the messages of ``extra`` written)."""
+    """A complete, indexed MCAP at ``dst`` from a possibly truncated ``src``: its every whole
+    record, plus ``attachments`` (data or a file), plus the messages ``extra`` (sorted by log
+    time; each before the first message of ``src`` logged after it, on its topic's channel,
+    registered if ``src`` has none). Counts (``restored``: the messages of ``extra`` written)."""
     counts = {"messages": 0, "attachments": 0, "restored": 0}
     pending = collections.deque(extra)
     with open(dst, "wb") as out:
@@ -453,12 +448,10 @@ def read_topic_payloads(
     """(topic, log_time_ns, JSON payload bytes) of every message on ``topics``, chunk by chunk
     in file order (not sorted by log time), without decoding the payloads.
 
-    Why: the ``mcap`` reader parses every record of every chunk in Python (~20 µs a message
-    of any topic); here each chunk is decompressed once and only the wanted messages are
-    sliced out, found through the chunk's message-index records, so an hour's recording is
-    read in seconds per topic. A recording without a summary (a killed writer) is read by
-    :func:`read_messages` instead.
-    """
+    Why: the ``mcap`` reader parses every record in Python (~20 µs a message of any topic);
+    here each chunk is decompressed once and the wanted messages sliced out through its
+    message-index records: an hour's recording in seconds per topic. Without a summary (a
+    killed writer), :func:`read_messages` reads it."""
     wanted = set(topics)
     summary = _summary(path)
     if summary is None or not summary.chunk_indexes:
@@ -500,13 +493,11 @@ def _chunk_records(raw: bytes) -> bytes:
 
 
 def write_pose(writer: RecordingWriter, state_topic: str, log_time_ns: int, state: Any) -> None:
-    """The State's pose beside it, as Foxglove's well-known schemas: ``hil/<id>/pose``
-    (foxglove.PoseInFrame) and ``hil/<id>/tf`` (foxglove.FrameTransform world -> <id>), so
-    Foxglove's 3D panel shows the robot from the recording alone.
+    """The State's pose beside it as Foxglove's ``hil/<id>/pose`` (foxglove.PoseInFrame) and
+    ``hil/<id>/tf`` (foxglove.FrameTransform world -> <id>): its 3D panel shows the robot.
 
-    The JSON is formatted here rather than built as dicts and dumped: the recorder writes these
-    two for every State (a decoded State's floats are finite, so ``repr`` is valid JSON), and
-    json.dumps of two nested dicts tripled the recorder's cost of a State."""
+    Formatted here, not dumped from dicts: the recorder writes both for every State, and
+    json.dumps of nested dicts tripled its cost (a State's floats are finite: ``repr`` is JSON)."""
     base = state_topic.rsplit("/", 1)[0]
     t = state.sample_time_ns
     sec, nsec = divmod(t, 1_000_000_000)

@@ -87,9 +87,8 @@ class _Robot:
 
 
 def _prepare(spec: GroupSpec, endpoint: str | None) -> list[_Robot]:
-    """Each robot's run folder, as ``hil run --robot-id R --no-can`` prepares it, every robot
-    on the group's one endpoint (None: a lab host's router, as ``hil run --lab`` sets: the
-    services' clocks are then not the recorder's)."""
+    """Each robot's run folder as ``hil run --robot-id R --no-can`` prepares it, on the group's
+    one endpoint (None: a lab host's router, whose services' clocks are not the recorder's)."""
     robots = []
     for r in spec.robots:
         scenario, settings, run_dir, info = prepare(spec.options(r))

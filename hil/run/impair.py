@@ -154,8 +154,7 @@ def plan_of(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
 
 
 def inside() -> bool:
-    """True in the namespace this very ``hil run`` made (a child inherits the variable, not
-    the PID)."""
+    """True in the namespace this ``hil run`` made (a child inherits the variable, not the PID)."""
     return os.environ.get(NETNS_ENV) == str(os.getpid())
 
 
@@ -214,9 +213,8 @@ def _install(plan: Plan) -> None:
 
 def enter(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
     """Before ``hil run`` prepares anything: None without [impair]; else, the first time,
-    execute this same command again in a fresh network namespace (never returns), and inside
-    it install the impairment and return its plan. BadInputError (exit 2) when that cannot be
-    done."""
+    re-execute this command in a fresh network namespace (never returns), and inside it install
+    the impairment and return its plan. BadInputError (exit 2) when that cannot be done."""
     plan = plan_of(opts, check_options)
     if plan is None:
         return None

@@ -116,10 +116,9 @@ class RunOptions:
 
 
 class Recorder:
-    """Receives the robot's status and its services' taps (:func:`protocol.keys.observed_keys`:
-    every message they sent and every payload they refused, :mod:`hil.observe`) and every CAN
-    frame; writes them off-thread. ``same_clock``: the services share this process's clock (not
-    a lab run)."""
+    """Receives the robot's status, its services' taps (every message they sent and every
+    payload they refused, :mod:`hil.observe`) and every CAN frame; writes them off-thread.
+    ``same_clock``: the services share this process's clock (not a lab run)."""
 
     def __init__(self, writer: RecordingWriter, same_clock: bool = True) -> None:
         self.writer = writer
@@ -379,9 +378,8 @@ def _start_services(
     placed: Any = None,
     log_prefix: str = "",
 ) -> None:
-    """One plant and one controller process for the run folders' robots, from their settings
-    files (each on its lab host when ``placed``); their PIDs in each folder's processes.json,
-    for whoever needs to signal one (tests inject stalls), and watched by the host sampler."""
+    """The plant and controller processes of the run folders' robots (on their lab hosts when
+    ``placed``), watched by the host sampler; their PIDs in processes.json (tests signal them)."""
     paths = [str(d / layout.RUN_SETTINGS) for d in run_dirs]
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
         child = sup.start(
@@ -405,8 +403,7 @@ def _start_and_follow(
     announcer: Any,
     quiet: bool,
 ) -> str | None:
-    """Wait for both services to be ready, announce the epoch, follow the run to its end;
-    returns an error, or None."""
+    """Wait for both services, announce the epoch, follow the run; an error, or None."""
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
     # that dies is noticed at once anyway.
     ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
@@ -522,8 +519,7 @@ ATTACHED += (CLOCK_FILE, TOPOLOGY_FILE)
 
 
 def attachment_files(run_dir: Path) -> dict[str, Path]:
-    """The files a recording carries so that it alone reproduces the run's figures, by path
-    (streamed when attached)."""
+    """The files a recording carries (so that it alone reproduces the figures), by path."""
     return {name: run_dir / name for name in ATTACHED if (run_dir / name).is_file()}
 
 

@@ -32,8 +32,7 @@ from protocol.versions import RUN_SCHEMA_VERSION as SCHEMA_VERSION
 
 
 def _commanded_by_sample(logs: RunLogs, seqs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The torques the controller computed from each state seq of ``seqs`` (its first such
-    tick; NaN where none)."""
+    """Torques the controller computed from each state seq of ``seqs`` (first tick; NaN: none)."""
     t = logs["ticks"]
     used = (t["state_seq"] >= 0) & ((t["flags"] & TICK_NO_SEND) == 0) & (t["state_sample_ns"] > 0)
     known, first = np.unique(t["state_seq"][used], return_index=True)
@@ -54,10 +53,9 @@ def write_trace(
 ) -> tuple[np.ndarray, float]:
     """trace.csv: one row per plant sample; returns (position errors, last heading error).
 
-    Column by column a chunk of rows at a time (the same text as one ``csv`` row per sample:
-    ``repr`` of each float, then sample_ns and state_seq as integers): linear in the run's
-    length, with memory for the columns and one chunk. The reference is sampled per row with
-    its own ``sample`` (exactly the values the controller used)."""
+    Column by column, a chunk of rows at a time (the text of one ``csv`` row per sample), so
+    linear in the run's length; the reference sampled per row with its own ``sample`` (exactly
+    the controller's values)."""
     s = logs["samples"]
     epoch = logs.epoch_ns
     seq_all = s["seq"]

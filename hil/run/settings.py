@@ -54,8 +54,7 @@ def robot_id_of(scenario: Any) -> str:
 
 
 def replay_latencies(scenario: Any) -> list[float] | None:
-    """The latencies of ``[timing] replay`` (read once, here: a bad file fails before any
-    service starts), or None for a seeded jitter."""
+    """``[timing] replay``'s latencies, read here so a bad file fails early; None: seeded jitter."""
     t = scenario.timing
     if t.jitter_kind != "replay":
         return None
@@ -63,10 +62,8 @@ def replay_latencies(scenario: Any) -> list[float] | None:
 
 
 def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSettings:
-    """The settings of ``scenario`` (already overridden from the command line): the law, the
-    reference, the design ``context`` (None: the defaults, for a plant without a controller),
-    the initial state, the plant, the sensor, the timing, the faults, the robot and [can];
-    ``run`` sets the run's own fields (endpoints, paths, epoch, ...)."""
+    """The settings of ``scenario`` (with its command-line overrides) and of the design
+    ``context`` (None: the defaults, for a plant alone); ``run`` sets the run's own fields."""
     plant = scenario.plant
     timing = scenario.timing
     values: dict[str, Any] = {
@@ -103,9 +100,8 @@ def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSett
 
 
 def rate_hz(run_dir: Any, settings: RunSettings) -> float:
-    """The control rate of a run as the user asked for it (``--rate``, ``[realtime] rate`` or
-    1 / ``[timing] ts``), for summary.json: the folder's ``[provenance] rate_hz``, exactly as
-    ``hil run`` wrote it; 1 / ts when the folder has none."""
+    """The control rate as the user asked for it (``--rate``, ``[realtime] rate`` or 1 / ts),
+    for summary.json: the folder's ``[provenance] rate_hz`` as ``hil run`` wrote it, else 1 / ts."""
     resolved = resolved_scenario(run_dir) or {}
     value = resolved.get("provenance", {}).get("rate_hz")
     if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
