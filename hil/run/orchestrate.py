@@ -64,7 +64,7 @@ from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
 from runtime.clocksync import CLOCK_FILE
 from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
-from runtime.zsession import open_session
+from runtime.zsession import open_session, payload_bytes
 
 LAB_ROUTER = "tcp/127.0.0.1:7447"  # a lab host's own router, from inside the host (hil.lab)
 
@@ -131,9 +131,7 @@ class Recorder:
         self._thread.start()
 
     def on_zenoh(self, sample: Any) -> None:
-        self.queue.append(
-            (str(sample.key_expr), time.monotonic_ns(), bytes(sample.payload.to_bytes()))
-        )
+        self.queue.append((str(sample.key_expr), time.monotonic_ns(), payload_bytes(sample)))
 
     def on_can(self, channel: str, msg: Any) -> None:
         self.queue.append((f"can/{channel}", time.monotonic_ns(), msg))
@@ -199,8 +197,7 @@ def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any] 
         if bus is None:
             return None
         channel = str(settings.can.get("channel", "can"))
-        notifier = can.Notifier(bus, [lambda m: recorder.on_can(channel, m)], timeout=0.1)
-        return bus, notifier
+        return bus, can.Notifier(bus, [lambda m: recorder.on_can(channel, m)], timeout=0.1)
     except Exception as exc:
         print(f"warning: CAN recording off: {exc}", file=sys.stderr)
         return None
@@ -220,12 +217,10 @@ def check_options(opts: RunOptions) -> None:
     options.optional_number("--rate", opts.rate, 0.1, RATE_MAX)
     options.optional_number("--duration", opts.duration, 0.0, DURATION_MAX, positive=True)
     options.number("--spin-us", opts.spin_us, 0.0, SPIN_US_MAX)
-    for name, value in (
-        ("--can-interface", opts.can_interface),
-        ("--can-channel", opts.can_channel),
-    ):
-        if value is not None:
-            options.plain_string(name, value, empty=False)
+    if opts.can_interface is not None:
+        options.plain_string("--can-interface", opts.can_interface, empty=False)
+    if opts.can_channel is not None:
+        options.plain_string("--can-channel", opts.can_channel, empty=False)
     options.out_dir("--out", opts.out, default="runs")
     if opts.robot_id is not None and not is_valid_robot_id(opts.robot_id):
         raise BadInputError(f"--robot-id {opts.robot_id!r}: 1-64 characters of [A-Za-z0-9_.-]")
@@ -261,18 +256,6 @@ def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
     return rate, ""
 
 
-def _run_can_table(opts: RunOptions, scenario: Any) -> dict[str, Any]:
-    """The run's [can] table with the command line's interface and channel, checked."""
-    can_table = effective_can_table(scenario, opts.can_interface)
-    if opts.can_channel:
-        can_table["channel"] = opts.can_channel
-    if opts.can_live or opts.cmd_path == "can":
-        check_can_interface(
-            can_table["interface"], "--can-interface" if opts.can_interface else "[can] interface"
-        )
-    return can_table
-
-
 def _run_settings(
     opts: RunOptions, scenario: Any, context: Any, scenario_path: Path, run_dir: Path, rate: float
 ) -> RunSettings:
@@ -280,6 +263,12 @@ def _run_settings(
     rt = scenario.realtime
     ts_s = scenario.timing.ts  # already 1 / rate when a rate overrode it (prepare)
     sensor_rate = rate if opts.lockstep else (rt.sensor_rate or rate)
+    can_table = effective_can_table(scenario, opts.can_interface)  # with the command line's
+    if opts.can_channel:
+        can_table["channel"] = opts.can_channel
+    if opts.can_live or opts.cmd_path == "can":
+        where = "--can-interface" if opts.can_interface else "[can] interface"
+        check_can_interface(can_table["interface"], where)
     settings = scenario_settings(
         scenario,
         context,
@@ -296,7 +285,7 @@ def _run_settings(
         scheduling="other" if opts.lockstep else (opts.scheduling or rt.scheduling),
         cmd_path=opts.cmd_path,
         can_live=opts.can_live,
-        can=_run_can_table(opts, scenario),
+        can=can_table,
         # On a lab, each process is a client of its own host's router (hil.lab.placement).
         zenoh_mode="router" if opts.secure or opts.lab else scenario.zenoh.mode,
         zenoh_endpoint=LAB_ROUTER if opts.lab else f"tcp/127.0.0.1:{free_port()}",
@@ -565,11 +554,6 @@ def _progress(
     plant = next(c for c in sup.children if c.name == "plant")
     t0 = time.monotonic()
     limit = t0 + (settings.duration + 30.0 if not settings.lockstep else 1e9)
-    if quiet or not sys.stderr.isatty():
-        while not stop and plant.alive() and time.monotonic() < limit:
-            time.sleep(0.05)
-        return
-
     with Progress(
         TextColumn("hil run"),
         BarColumn(),
@@ -577,6 +561,7 @@ def _progress(
         TextColumn("{task.fields[info]}"),
         TimeElapsedColumn(),
         transient=True,
+        disable=quiet or not sys.stderr.isatty(),  # then only the wait
     ) as prog:
         task = prog.add_task("run", total=1.0, info="")
         while not stop and plant.alive() and time.monotonic() < limit:
@@ -587,7 +572,7 @@ def _progress(
                 info = f"cycles {c.get('cycles', 0)} misses {c.get('deadline_misses', 0)}"
             done = recorder.states / total if total else (time.monotonic() - t0) / settings.duration
             prog.update(task, completed=min(1.0, done), info=info)
-            time.sleep(0.1)
+            time.sleep(0.05)
 
 
 def _stop_children(sup: Supervisor, settings: RunSettings) -> dict[str, int | None]:
