@@ -109,14 +109,11 @@ class _SpilledIndexes:
         self._file.close()
 
 
-@dataclass(frozen=True)
-class _RawRecord:
+class _RawRecord(bytes):
     """One serialized record, written as is into the writer's summary."""
 
-    data: bytes
-
     def write(self, builder: Any) -> None:
-        builder.write(self.data)
+        builder.write(self)
 
 
 def _register_topic(writer: Writer, topic: str) -> int:
@@ -328,8 +325,7 @@ def read_messages(
     wanted = list(topics) if topics is not None else None
     if is_complete(path):
         with open(path, "rb") as f:
-            reader = make_reader(f)
-            for _s, ch, m in reader.iter_messages(topics=wanted, log_time_order=True):
+            for _s, ch, m in make_reader(f).iter_messages(topics=wanted, log_time_order=True):
                 yield RecordedMessage(
                     ch.topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data)
                 )
@@ -467,9 +463,12 @@ def read_topic_payloads(
             present = [(cid, off) for cid, off in ci.message_index_offsets.items() if cid in ids]
             if not present:
                 continue
-            f.seek(ci.chunk_start_offset)
-            chunk = f.read(ci.chunk_length)
-            records = _chunk_records(chunk)
+            f.seek(ci.chunk_start_offset + 1 + 8)  # the Chunk record's fields
+            chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(ci.chunk_length - 1 - 8))))
+            if chunk.compression not in ("", "zstd", "lz4"):
+                raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
+            stream, size = get_chunk_data_stream(chunk)
+            records = stream.read(size)
             for cid, index_offset in present:
                 f.seek(index_offset)
                 head = f.read(1 + 8 + 2 + 4)
@@ -481,15 +480,6 @@ def read_topic_payloads(
                     length = q.unpack_from(records, at + 1)[0]
                     # message: opcode, length, channel u16, sequence u32, log and publish time
                     yield topic, pairs[i], records[at + 31 : at + 9 + length]
-
-
-def _chunk_records(raw: bytes) -> bytes:
-    """The uncompressed records of one Chunk record (opcode, length, then the fields)."""
-    chunk = Chunk.read(ReadDataStream(io.BytesIO(raw[1 + 8 :])))
-    if chunk.compression not in ("", "zstd", "lz4"):
-        raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
-    records, size = get_chunk_data_stream(chunk)
-    return records.read(size)
 
 
 def write_pose(writer: RecordingWriter, state_topic: str, log_time_ns: int, state: Any) -> None:

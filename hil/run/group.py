@@ -203,9 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     placed = placement.enter(spec.options(), False, True)
     with stop_on_signals() as stop:
         codes = execute(spec, stop, placed)
-    if stop:
-        return 130
-    return max(codes.values(), default=0)
+    return 130 if stop else max(codes.values(), default=0)
 
 
 if __name__ == "__main__":
