@@ -44,7 +44,7 @@ from hil.observe import TapReader, can_frame_record
 from hil.provenance import dumps_toml
 from hil.recording import RecordingWriter, to_jsonable, write_pose
 from hil.run import impair
-from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
+from hil.run.defaults import PAPER_TRACKING_TOML
 from hil.run.host_load import HostSampler
 from hil.run.results import analyze, plot
 from hil.run.secure import RunIdentities
@@ -229,17 +229,6 @@ def check_options(opts: RunOptions) -> None:
         raise BadInputError("--live does not log in to a --secure run's router")
 
 
-def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
-    """(scenario, its path, whether the user gave one, its default duration): the user's
-    scenario (a file or a bundled name) or the paper's tracking circle."""
-    given = None if opts.scenario is None else resolve_scenario(opts.scenario)
-    if given is None:
-        scenario = with_law(loads_scenario(PAPER_TRACKING_TOML, run_dir), opts.law)
-        return scenario, run_dir / layout.SCENARIO, False, DEFAULT_DURATION
-    scenario = with_law(load_scenario(given), opts.law)
-    return scenario, given.resolve(), True, scenario.run.duration
-
-
 def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
     """The control rate (Hz) and the name of what set it ("" for the scenario's own Ts)."""
     rt = scenario.realtime
@@ -308,9 +297,15 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     if opts.secure and opts.cmd_path == "can":
         raise BadInputError("--secure guards the Zenoh command path; the CAN bus has no login")
     run_dir = Path(opts.out) if opts.out else new_run_dir()
-    scenario, scenario_path, given, default_duration = _load_given(opts, run_dir)
+    given = None if opts.scenario is None else resolve_scenario(opts.scenario)  # file or name
+    if given is None:  # the paper's tracking circle, written into the folder
+        scenario = with_law(loads_scenario(PAPER_TRACKING_TOML, run_dir), opts.law)
+        scenario_path = run_dir / layout.SCENARIO
+    else:
+        scenario = with_law(load_scenario(given), opts.law)
+        scenario_path = given.resolve()
     rate, rate_name = _control_rate(opts, scenario)
-    duration = opts.duration if opts.duration is not None else default_duration
+    duration = opts.duration if opts.duration is not None else scenario.run.duration
     scenario = scenario.with_overrides(
         duration=duration,
         ts=scenario.timing.ts if not rate_name else period_s(rate),
@@ -322,7 +317,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     controller, reference, context = build_loop(scenario)
     settings = _run_settings(opts, scenario, context, scenario_path, run_dir, rate)
     run_dir.mkdir(parents=True, exist_ok=True)
-    if not given:
+    if given is None:
         scenario_path.write_text(PAPER_TRACKING_TOML)
     settings.save(run_dir / layout.RUN_SETTINGS)
     run_facts = {
@@ -407,22 +402,6 @@ def _start_and_follow(
     return None
 
 
-def _close_live(
-    session: Any, subs: list[Any], can_rec: Any, recorder: Recorder, run_dir: Path
-) -> None:
-    """Close what ``hil run`` opened, whatever happened: the subscriptions, the CAN recorder
-    and the session, then the recording (with the hop logs attached)."""
-    for sub in subs:
-        sub.undeclare()
-    if can_rec is not None:
-        can_rec[1].stop()
-        with contextlib.suppress(Exception):  # a bus already gone is fine here
-            can_rec[0].shutdown()
-    if session is not None:
-        session.close()
-    recorder.close(attachment_files(run_dir))
-
-
 def execute(opts: RunOptions) -> dict[str, Any]:
     """Run the pair; returns the summary (also written to the run folder)."""
     # --lab: the recorder's lab host; [impair]: the run's own network namespace (either way
@@ -464,7 +443,15 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             ids.close()
             logs.close()
             placement.write_topology(placed, run_dir)  # before the recording takes it along
-            _close_live(session, subs, can_rec, recorder, run_dir)
+            for sub in subs:
+                sub.undeclare()
+            if can_rec is not None:
+                can_rec[1].stop()
+                with contextlib.suppress(Exception):  # a bus already gone is fine here
+                    can_rec[0].shutdown()
+            if session is not None:
+                session.close()
+            recorder.close(attachment_files(run_dir))  # the hop logs attached
     extra = run_extra(interrupted, error, time.monotonic() - t_start, codes, recorder, opts.secure)
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
     summary = _write_results(run_dir, scenario, settings, info, extra)

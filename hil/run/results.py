@@ -25,7 +25,7 @@ from hil.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
 from hil.report.figures import envelope_indices, plt
 from hil.run.settings import rate_hz
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
-from hil.verdict import RunFacts, Verdict, constraints_from_peaks, judge
+from hil.verdict import RunFacts, constraints_from_peaks, judge
 from protocol.angles import wrap_angle as wrap
 from protocol.hoplog import TICK_NO_SEND
 from protocol.versions import RUN_SCHEMA_VERSION as SCHEMA_VERSION
@@ -154,24 +154,18 @@ def analyze(
     summary["duration_planned_s"] = summary["duration"]
     if summary.get("interrupted") and summary["duration_run_s"] is not None:
         summary["duration"] = summary["duration_run_s"]
-    summary["verdict"] = run_verdict(summary, scenario).as_dict()
-    # Whole or absent, never half: a kill while it is written leaves the folder to recover.
-    write_summary(run_dir, summary)
-    return summary
-
-
-def run_verdict(summary: Summary, scenario: Any) -> Verdict:
-    """The run's verdict (:func:`hil.verdict.judge`) at the default thresholds."""
-    lim = scenario.limits
-    limits = {k: float(getattr(lim, k)) for k in ("phi1", "phi2", "varpi1", "varpi2")}
-    return judge(
+    limits = {k: float(getattr(scenario.limits, k)) for k in ("phi1", "phi2", "varpi1", "varpi2")}
+    summary["verdict"] = judge(  # at the default thresholds
         constraints_from_peaks(summary, limits),
         summary.get("violations") or {},
         summary.get("certificate"),
         summary.get("timing") or {},
         summary.get("messages") or {},
         RunFacts.of(summary),
-    )
+    ).as_dict()
+    # Whole or absent, never half: a kill while it is written leaves the folder to recover.
+    write_summary(run_dir, summary)
+    return summary
 
 
 def plot(run_dir: Path) -> Path | None:
