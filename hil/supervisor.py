@@ -56,11 +56,9 @@ class Child:
                 break
             with contextlib.suppress(ProcessLookupError):
                 os.kill(self.proc.pid, sig)
-            try:
+            with contextlib.suppress(subprocess.TimeoutExpired):
                 self.proc.wait(timeout=wait)
                 break
-            except subprocess.TimeoutExpired:
-                continue
         return self.proc.poll()
 
 

@@ -34,9 +34,7 @@ def _runnable() -> int:
 
 def _process_cpu(pid: int | None, wait: bool = False) -> int:
     """utime + stime of a process (clock ticks), or with ``wait`` the ns its main thread has
-    waited runnable for a CPU; -1 when it is gone or unknown."""
-    if pid is None:
-        return -1
+    waited runnable for a CPU; -1 when it is gone or not known yet (None)."""
     try:
         with open(f"/proc/{pid}/{'schedstat' if wait else 'stat'}") as f:
             text = f.read()

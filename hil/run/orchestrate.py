@@ -231,11 +231,10 @@ def check_options(opts: RunOptions) -> None:
 
 def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
     """The control rate (Hz) and the name of what set it ("" for the scenario's own Ts)."""
-    rt = scenario.realtime
     if opts.rate is not None:
         return opts.rate, "--rate"
-    if rt.rate:
-        return rt.rate, "[realtime] rate"
+    if scenario.realtime.rate:
+        return scenario.realtime.rate, "[realtime] rate"
     rate = 1.0 / scenario.timing.ts
     if rate > RATE_MAX:
         raise BadInputError(

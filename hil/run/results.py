@@ -73,9 +73,7 @@ def write_trace(
             sample_ns = s["sample_ns"][r0:r1]
             t = seq * ts if lockstep else (sample_ns - epoch) / 1e9
             refs = [sample(tk) for tk in t.tolist()]
-            xd = [r.xd for r in refs]
-            yd = [r.yd for r in refs]
-            thd = [r.thetad for r in refs]
+            xd, yd, thd = ([getattr(r, k) for r in refs] for k in ("xd", "yd", "thetad"))
             x, y, th = (s[k][r0:r1].tolist() for k in ("x", "y", "theta"))
             pos_err[r0:r1] = list(map(math.hypot, map(operator.sub, x, xd),
                                       map(operator.sub, y, yd)))  # fmt: skip
