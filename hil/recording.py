@@ -320,8 +320,7 @@ def _streamed_messages(path: str | Path) -> Iterator[tuple[str, Message]]:
 def read_messages(
     path: str | Path, topics: Iterable[str] | None = None
 ) -> Iterator[RecordedMessage]:
-    """Every message of the recording (optionally only ``topics``), in log-time order; a
-    truncated recording is read up to its last whole chunk."""
+    """Every message (of ``topics`` if given), by log time; a truncated file to its last chunk."""
     wanted = list(topics) if topics is not None else None
     if is_complete(path):
         with open(path, "rb") as f:

@@ -103,8 +103,7 @@ def _prepare(spec: GroupSpec, endpoint: str | None) -> list[_Robot]:
 
 
 def phase_ns(robot: str, position: int, n: int, period: int) -> int:
-    """Robot I's epoch shift: (I - 1) / N of a period (I: the number in ``robotI``, else its
-    position in the group)."""
+    """Robot I's epoch shift, (I - 1) / N of a period (I: from ``robotI``, else its position)."""
     m = re.fullmatch(r"robot(\d+)", robot)
     index = int(m.group(1)) - 1 if m else position
     return period * (index % n) // n if n > 0 else 0

@@ -181,8 +181,7 @@ class Recorder:
                 self.writer.write("recorder/errors", t, {"topic": topic, "error": repr(exc)})
 
     def close(self, attachments: dict[str, Path] | None = None) -> None:
-        """Drain, attach files (the hop logs: the recording alone then reproduces every
-        figure), streamed from disk (an hour's hop logs never sit in memory), finish the MCAP."""
+        """Drain, attach the files streamed from disk (never whole in memory), finish the MCAP."""
         self._stop.set()
         self._thread.join(timeout=30)
         for name, path in (attachments or {}).items():
@@ -207,8 +206,7 @@ SPIN_US_MAX = 1e6
 
 
 def check_options(opts: RunOptions) -> None:
-    """The command-line options of ``hil run`` (and of the services run alone), each named in
-    a BadInputError; the scenario's own keys are checked when it is loaded."""
+    """``hil run``'s options (also a service's alone), each named in a BadInputError."""
     options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
     if opts.trigger is not None:
         options.choice("--trigger", opts.trigger, TRIGGERS)

@@ -102,9 +102,8 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
         except (OSError, ValueError) as exc:  # an unreadable plant log: recover the rest
             lost = []
             done["restore_error"] = str(exc)
-        counts = rewrite_complete(rec, tmp, attachment_files(run_dir), lost)
+        done["recording"] = rewrite_complete(rec, tmp, attachment_files(run_dir), lost)
         os.replace(tmp, rec)
-        done["recording"] = counts
     if layout.SUMMARY in todo or layout.TRACE in todo:
         settings = RunSettings.load(run_dir / layout.RUN_SETTINGS)
         resolved = run_dir / layout.SCENARIO_RESOLVED

@@ -102,8 +102,7 @@ def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSett
 def rate_hz(run_dir: Any, settings: RunSettings) -> float:
     """The control rate as the user asked for it (``--rate``, ``[realtime] rate`` or 1 / ts),
     for summary.json: the folder's ``[provenance] rate_hz`` as ``hil run`` wrote it, else 1 / ts."""
-    resolved = resolved_scenario(run_dir) or {}
-    value = resolved.get("provenance", {}).get("rate_hz")
+    value = (resolved_scenario(run_dir) or {}).get("provenance", {}).get("rate_hz")
     if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
         return float(value)
     return 1.0 / settings.ts
