@@ -76,12 +76,9 @@ def shielded() -> Iterator[None]:
 
 @contextlib.contextmanager
 def installed() -> Iterator[None]:
-    """Install :func:`handler` for SIGINT with a clear record; restore both on leaving.
-
-    A SIGINT that is ignored (a job started with ``nohup`` or ``&`` by a non-interactive
-    shell) stays ignored; off the main thread (where signals cannot be handled) nothing is
-    installed and a KeyboardInterrupt is still mapped by ``main``.
-    """
+    """Install :func:`handler` for SIGINT with a clear record; restore both on leaving. An
+    ignored SIGINT (``nohup``, or ``&`` in a non-interactive shell) stays ignored; off the main
+    thread (no signals there) nothing is installed and ``main`` still maps a KeyboardInterrupt."""
     reset()
     main = threading.current_thread() is threading.main_thread()
     previous = signal.getsignal(signal.SIGINT) if main else None

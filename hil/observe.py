@@ -59,7 +59,13 @@ class TapReader:
         if (batch.robot_id, batch.role) != (robot, role):
             self.refused.count("wrong_key")
             return []
-        self._count(robot, role, batch.seq)
+        self.batches += 1
+        expected = self._next.get((robot, role), batch.seq)  # the first batch: no gap
+        if batch.seq > expected:
+            self.lost_batches += batch.seq - expected
+        elif batch.seq < expected:  # the service restarted and numbers from 0 again
+            self.restarts += 1
+        self._next[(robot, role)] = batch.seq + 1
         shift = 0 if self.same_clock else recv_ns - batch.send_time_ns
         base = f"{key.split('/', 1)[0]}/{robot}/"
         self.entries += len(batch.entries)
@@ -67,16 +73,6 @@ class TapReader:
             Observed(base + e.stream, e.stamp_ns + shift, e.payload, e.rejected, role)
             for e in batch.entries
         ]
-
-    def _count(self, robot: str, role: str, seq: int) -> None:
-        self.batches += 1
-        expected = self._next.get((robot, role))
-        if expected is not None:
-            if seq > expected:
-                self.lost_batches += seq - expected
-            elif seq < expected:  # the service restarted and numbers from 0 again
-                self.restarts += 1
-        self._next[(robot, role)] = seq + 1
 
     def counts(self) -> dict[str, object]:
         """For the run's summary: what the taps delivered and what was lost on the way."""
@@ -90,13 +86,10 @@ class TapReader:
 
 
 class InTimeOrder:
-    """Observed messages given back in log-time order once ``hold_ns`` old.
-
-    A tap hands on a service's messages every 50 ms, each service's at its own moments, so
-    messages arrive grouped by sender; a consumer that needs their order across services (the
-    live view's command age at each State) reads them through this. The hold covers a batch's
-    interval and its transit; a message older than what was already given back still comes
-    out (late, counted), never dropped."""
+    """Observed messages given back in log-time order once ``hold_ns`` old: taps hand on each
+    service's messages every 50 ms, so they arrive grouped by sender; the live view's command
+    age at each State needs their order across services. The hold covers a batch's interval and
+    transit; a message older than what was given back still comes out (late, counted)."""
 
     def __init__(self, hold_ns: int = 3 * TAP_INTERVAL_NS) -> None:
         self.hold_ns = hold_ns

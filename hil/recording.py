@@ -1,24 +1,21 @@
 """MCAP recordings of a run: a writer for the recorder and a reader for reports.
 
-Every message is stored as a JSON mirror of its msgpack payload (message encoding ``json``, a
-``jsonschema`` schema per topic typed from the protocol by :mod:`hil.schemas`; the robot's pose
-also as Foxglove's ``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``); recordings of
-untyped schemas (``{"type": "object"}``) read the same. Why JSON and not the msgpack bytes:
-``json`` + ``jsonschema`` is a well-known MCAP profile that ``mcap cat --json`` and Foxglove
-decode with no plug-in; msgpack is not a Foxglove encoding. CAN frames are stored the same way
-(arbitration id, data as hex, decoded signals when the codec knows them). The decoding (a few
-tens of microseconds a message) is paid by the recorder, never by the controller or the plant.
+Every message is stored as a JSON mirror of its msgpack payload (encoding ``json``, one
+``jsonschema`` per topic from :mod:`hil.schemas`; the robot's pose also as Foxglove's
+``foxglove.PoseInFrame`` and ``foxglove.FrameTransform``); untyped schemas read the same. JSON,
+not msgpack: ``json`` + ``jsonschema`` is a well-known MCAP profile that ``mcap cat --json`` and
+Foxglove decode with no plug-in. CAN frames likewise (id, data as hex, decoded signals). The
+decoding (tens of microseconds a message) is paid by the recorder, never by the loop.
 
-Reader: :func:`read_messages` gives :class:`RecordedMessage` (``data``: a dict);
-``log_time_ns`` is when the recorder received the message (``time.monotonic_ns()``), and
-``publish_time_ns`` the sender's own stamp when the message carries one (else the log time).
+``log_time_ns`` of a :class:`RecordedMessage` is when the recorder received it
+(``time.monotonic_ns()``); ``publish_time_ns`` the sender's own stamp if it has one, else the
+log time.
 
-Crash safety: the writer closes its chunk and flushes the file at least every
-``flush_interval`` (0.05 s: half the 0.1 s promised, the other half is slack for a recorder
-thread that falls behind on a loaded host), so a killed recorder loses what it received in the
-last 0.1 s and what its queue still held; the readers here also read such a truncated file (up
-to its last whole chunk), and :func:`rewrite_complete` turns it into a complete, indexed MCAP,
-with messages restored from elsewhere merged in (``hil recover``: the plant's hop log's States).
+Crash safety: the writer closes its chunk and flushes at least every ``flush_interval`` (0.05 s:
+half the 0.1 s promised, the rest is slack for a recorder that falls behind on a loaded host), so
+a killed recorder loses its last 0.1 s and its queue; the readers here read such a truncated file
+up to its last whole chunk, and :func:`rewrite_complete` makes it a complete, indexed MCAP with
+restored messages merged in (``hil recover``).
 """
 
 from __future__ import annotations
@@ -54,23 +51,19 @@ _PLAIN = frozenset((int, str, bool, type(None)))
 def to_jsonable(value: Any) -> Any:
     """A JSON-safe copy of a decoded msgpack value (bytes as hex, non-finite floats as str)."""
     # Exact types first: the recorder calls this for every message (thousands a second), and
-    # the isinstance chain below (an ABC check for Mapping) was half of its cost.
+    # the ABC check for Mapping below was half of its cost.
     kind = type(value)
     if kind in _PLAIN:
         return value
-    if kind is float:
+    if isinstance(value, float):
         return value if math.isfinite(value) else repr(value)
-    if kind is dict:
+    if kind is dict or isinstance(value, Mapping):
         return {str(k): to_jsonable(v) for k, v in value.items()}
     if isinstance(value, bytes | bytearray | memoryview):
         return bytes(value).hex()
-    if isinstance(value, float):
-        return value if math.isfinite(value) else repr(value)
-    if isinstance(value, Mapping):
-        return {str(k): to_jsonable(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
         return [to_jsonable(v) for v in value]
-    if value is None or isinstance(value, bool | int | str):
+    if isinstance(value, int | str):
         return value
     if hasattr(value, "_asdict"):
         return to_jsonable(value._asdict())
@@ -91,31 +84,23 @@ class RecordedMessage:
 
 
 class _SpilledIndexes:
-    """The writer's chunk indexes, serialized to a temporary file as each chunk closes.
-
-    The ``mcap`` writer keeps one ChunkIndex object per chunk until ``finish`` writes the summary;
-    flushing every 0.05 s makes that 20 a second, about 1 MB a minute of objects in ``hil run``'s
-    memory. Spilled here, the summary is the same bytes and the recorder's memory stays flat.
-    The writer only appends to and iterates over its list, which this class provides."""
+    """The writer's chunk indexes, spilled to a temporary file as each chunk closes: the
+    ``mcap`` writer keeps one object per chunk until ``finish`` (20 a second at a 0.05 s flush,
+    ~1 MB a minute); here the summary is the same bytes and memory stays flat. The writer only
+    appends to and iterates over its list."""
 
     def __init__(self) -> None:
         self._file = tempfile.TemporaryFile(prefix="hil-chunk-index-")  # noqa: SIM115
         self._builder = RecordBuilder()
-        self._count = 0
 
     def append(self, index: Any) -> None:
         index.write(self._builder)
         self._file.write(self._builder.end())
-        self._count += 1
-
-    def __len__(self) -> int:
-        return self._count
 
     def __iter__(self) -> Iterator[_RawRecord]:
         self._file.flush()
         self._file.seek(0)
-        for _ in range(self._count):
-            head = self._file.read(9)
+        for head in iter(lambda: self._file.read(9), b""):  # opcode and length of each record
             (length,) = struct.unpack("<Q", head[1:])
             yield _RawRecord(head + self._file.read(length))
         self._file.seek(0, 2)
@@ -124,21 +109,23 @@ class _SpilledIndexes:
         self._file.close()
 
 
-@dataclass(frozen=True)
-class _RawRecord:
+class _RawRecord(bytes):
     """One serialized record, written as is into the writer's summary."""
 
-    data: bytes
-
     def write(self, builder: Any) -> None:
-        builder.write(self.data)
+        builder.write(self)
+
+
+def _register_topic(writer: Writer, topic: str) -> int:
+    """A new channel for ``topic``, JSON with its own jsonschema (:func:`schema_for_topic`)."""
+    typed = schema_for_topic(topic)
+    schema = writer.register_schema(schema_name(topic, typed), "jsonschema",
+                                    json.dumps(typed).encode())  # fmt: skip
+    return writer.register_channel(topic, "json", schema)
 
 
 class RecordingWriter:
-    """Writes messages (dicts) to one MCAP file, one channel per topic.
-
-    Not thread-safe: callers that receive on several threads hold their own lock.
-    """
+    """Writes messages (dicts) to one MCAP file, one channel per topic. Not thread-safe."""
 
     def __init__(
         self,
@@ -155,10 +142,8 @@ class RecordingWriter:
         if spill_indexes and isinstance(chunk_indices, list):
             self._spilled = _SpilledIndexes()
             self._writer._Writer__chunk_indices = self._spilled  # type: ignore[attr-defined]
-        self._clock = time.monotonic
         self._flush_interval = float(flush_interval)
-        self._next_flush = self._clock() + self._flush_interval
-        self.flushes = 0
+        self._next_flush = time.monotonic() + self._flush_interval
         self._writer.start(profile=PROFILE, library="hil-smc-bench")
         self._channels: dict[str, int] = {}
         self._seq: dict[str, int] = {}
@@ -167,21 +152,11 @@ class RecordingWriter:
         if metadata:
             self._writer.add_metadata("run", {str(k): str(v) for k, v in metadata.items()})
 
-    def channel(self, topic: str, schema: Mapping[str, Any] | None = None) -> int:
-        """The channel of ``topic``, registered on first use with ``schema`` (default: the
-        topic's own, :func:`hil.schemas.schema_for_topic`)."""
+    def channel(self, topic: str) -> int:
+        """The channel of ``topic``, registered on first use (:func:`_register_topic`)."""
         ch = self._channels.get(topic)
         if ch is None:
-            typed = dict(schema or schema_for_topic(topic))
-            schema_id = self._writer.register_schema(
-                name=schema_name(topic, typed),
-                encoding="jsonschema",
-                data=json.dumps(typed).encode(),
-            )
-            ch = self._writer.register_channel(
-                topic=topic, message_encoding="json", schema_id=schema_id
-            )
-            self._channels[topic] = ch
+            ch = self._channels[topic] = _register_topic(self._writer, topic)
             self._seq[topic] = 0
         return ch
 
@@ -219,19 +194,10 @@ class RecordingWriter:
     def maybe_flush(self) -> None:
         """Close the chunk and flush the file when ``flush_interval`` has passed (call it also
         when idle: a quiet stretch must not keep the last messages in memory)."""
-        now = self._clock()
+        now = time.monotonic()
         if now >= self._next_flush and not self._closed:
             self._writer.flush()
-            self.flushes += 1
             self._next_flush = now + self._flush_interval
-
-    def add_attachment(
-        self, name: str, data: bytes, media_type: str = "application/msgpack"
-    ) -> None:
-        """A file carried inside the recording (the services' hop logs: a recording alone then
-        reproduces every timing figure of the run)."""
-        now = time.time_ns()
-        self._writer.add_attachment(now, now, name, media_type, bytes(data))
 
     def add_attachment_file(
         self,
@@ -240,16 +206,12 @@ class RecordingWriter:
         media_type: str = "application/msgpack",
         time_ns: int | None = None,
     ) -> None:
-        """:meth:`add_attachment` of a file's content, streamed from disk a block at a time.
-
-        Why not ``mcap``'s public ``Writer.add_attachment``: it takes one bytes object and
-        builds the whole record in a BytesIO (the data held three times), so an hour's hop logs
-        (~1 GB) would need GBs, and ``mcap`` has no public call that streams an attachment.
-        The record written here is byte for byte the one ``add_attachment`` writes (fields,
-        CRCs, attachment index, statistics; tests/test_long_run_parts.py compares the files)
-        through the Writer's private (name-mangled) state, and the public ``add_attachment``
-        is used whenever that state is not there (another ``mcap`` version).
-        """
+        """A file carried inside the recording (the hop logs: the recording alone then
+        reproduces every timing figure), streamed from disk a block at a time: ``mcap``'s
+        ``Writer.add_attachment`` holds the data three times (an hour's ~1 GB of hop logs would
+        need GBs) and nothing public streams. The record is byte for byte the one it writes
+        (CRCs, index, statistics; tests/test_long_run_parts.py compares), through the Writer's
+        private state; without that state (another ``mcap``) the public call."""
         now = time.time_ns() if time_ns is None else int(time_ns)
         w = self._writer
         private = ("_Writer__stream", "_Writer__flush", "_Writer__statistics",
@@ -346,8 +308,7 @@ def _stream_records(path: str | Path) -> Iterator[Any]:
 
 
 def _streamed_messages(path: str | Path) -> Iterator[tuple[str, Message]]:
-    """(topic, Message record) of every whole message of a possibly truncated recording, in
-    file order."""
+    """(topic, Message) of every whole message of a possibly truncated recording, in file order."""
     channels: dict[int, str] = {}
     for rec in _stream_records(path):
         if isinstance(rec, Channel):
@@ -359,13 +320,11 @@ def _streamed_messages(path: str | Path) -> Iterator[tuple[str, Message]]:
 def read_messages(
     path: str | Path, topics: Iterable[str] | None = None
 ) -> Iterator[RecordedMessage]:
-    """Every message of the recording (optionally only ``topics``), in log-time order; a
-    truncated recording is read up to its last whole chunk."""
+    """Every message (of ``topics`` if given), by log time; a truncated file to its last chunk."""
     wanted = list(topics) if topics is not None else None
     if is_complete(path):
         with open(path, "rb") as f:
-            reader = make_reader(f)
-            for _s, ch, m in reader.iter_messages(topics=wanted, log_time_order=True):
+            for _s, ch, m in make_reader(f).iter_messages(topics=wanted, log_time_order=True):
                 yield RecordedMessage(
                     ch.topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data)
                 )
@@ -397,11 +356,10 @@ def rewrite_complete(
     attachments: Mapping[str, bytes | Path] | None = None,
     extra: Iterable[RecordedMessage] = (),
 ) -> dict[str, int]:
-    """A complete, indexed MCAP at ``dst`` from a possibly truncated ``src``: every whole
-    schema, channel, message, metadata and attachment, plus ``attachments`` (data, or a file
-    to read), plus the messages ``extra`` (sorted by log time; each merged before the first
-    message of ``src`` logged after it, on its topic's channel, registered as the writer does
-    when ``src`` has none). Returns counts (``restored``: the messages of ``extra`` written)."""
+    """A complete, indexed MCAP at ``dst`` from a possibly truncated ``src``: its every whole
+    record, plus ``attachments`` (data or a file), plus the messages ``extra`` (sorted by log
+    time; each before the first message of ``src`` logged after it, on its topic's channel,
+    registered if ``src`` has none). Counts (``restored``: the messages of ``extra`` written)."""
     counts = {"messages": 0, "attachments": 0, "restored": 0}
     pending = collections.deque(extra)
     with open(dst, "wb") as out:
@@ -415,10 +373,7 @@ def rewrite_complete(
             while pending and pending[0].log_time_ns <= until:
                 m = pending.popleft()
                 if m.topic not in by_topic:
-                    typed = schema_for_topic(m.topic)
-                    schema = w.register_schema(schema_name(m.topic, typed), "jsonschema",
-                                               json.dumps(typed).encode())  # fmt: skip
-                    by_topic[m.topic] = w.register_channel(m.topic, "json", schema)
+                    by_topic[m.topic] = _register_topic(w, m.topic)
                 data = json.dumps(to_jsonable(m.data), separators=(",", ":")).encode()
                 w.add_message(by_topic[m.topic], m.log_time_ns, data, m.publish_time_ns,
                               m.sequence)  # fmt: skip
@@ -468,25 +423,18 @@ def list_topics(path: str | Path) -> dict[str, int]:
 def read_attachments(path: str | Path, names: Iterable[str] | None = None) -> dict[str, bytes]:
     """Name -> data of the recording's attachments (optionally only ``names``)."""
     wanted = set(names) if names is not None else None
-    out: dict[str, bytes] = {}
     if is_complete(path):
         with open(path, "rb") as f:
             atts = list(make_reader(f).iter_attachments())
     else:
         atts = [r for r in _stream_records(path) if isinstance(r, Attachment)]
-    for att in atts:
-        if wanted is None or att.name in wanted:
-            out[att.name] = bytes(att.data)
-    return out
+    return {a.name: bytes(a.data) for a in atts if wanted is None or a.name in wanted}
 
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     """Name -> metadata record of the recording."""
-    out: dict[str, dict[str, str]] = {}
     with open(path, "rb") as f:
-        for record in make_reader(f).iter_metadata():
-            out[record.name] = dict(record.metadata)
-    return out
+        return {record.name: dict(record.metadata) for record in make_reader(f).iter_metadata()}
 
 
 def read_topic_payloads(
@@ -495,12 +443,10 @@ def read_topic_payloads(
     """(topic, log_time_ns, JSON payload bytes) of every message on ``topics``, chunk by chunk
     in file order (not sorted by log time), without decoding the payloads.
 
-    Why: the ``mcap`` reader parses every record of every chunk in Python (~20 µs a message
-    of any topic); here each chunk is decompressed once and only the wanted messages are
-    sliced out, found through the chunk's message-index records, so an hour's recording is
-    read in seconds per topic. A recording without a summary (a killed writer) is read by
-    :func:`read_messages` instead.
-    """
+    Why: the ``mcap`` reader parses every record in Python (~20 µs a message of any topic);
+    here each chunk is decompressed once and the wanted messages sliced out through its
+    message-index records: an hour's recording in seconds per topic. Without a summary (a
+    killed writer), :func:`read_messages` reads it."""
     wanted = set(topics)
     summary = _summary(path)
     if summary is None or not summary.chunk_indexes:
@@ -516,9 +462,12 @@ def read_topic_payloads(
             present = [(cid, off) for cid, off in ci.message_index_offsets.items() if cid in ids]
             if not present:
                 continue
-            f.seek(ci.chunk_start_offset)
-            chunk = f.read(ci.chunk_length)
-            records = _chunk_records(chunk)
+            f.seek(ci.chunk_start_offset + 1 + 8)  # the Chunk record's fields
+            chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(ci.chunk_length - 1 - 8))))
+            if chunk.compression not in ("", "zstd", "lz4"):
+                raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
+            stream, size = get_chunk_data_stream(chunk)
+            records = stream.read(size)
             for cid, index_offset in present:
                 f.seek(index_offset)
                 head = f.read(1 + 8 + 2 + 4)
@@ -532,23 +481,12 @@ def read_topic_payloads(
                     yield topic, pairs[i], records[at + 31 : at + 9 + length]
 
 
-def _chunk_records(raw: bytes) -> bytes:
-    """The uncompressed records of one Chunk record (opcode, length, then the fields)."""
-    chunk = Chunk.read(ReadDataStream(io.BytesIO(raw[1 + 8 :])))
-    if chunk.compression not in ("", "zstd", "lz4"):
-        raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
-    records, size = get_chunk_data_stream(chunk)
-    return records.read(size)
-
-
 def write_pose(writer: RecordingWriter, state_topic: str, log_time_ns: int, state: Any) -> None:
-    """The State's pose beside it, as Foxglove's well-known schemas: ``hil/<id>/pose``
-    (foxglove.PoseInFrame) and ``hil/<id>/tf`` (foxglove.FrameTransform world -> <id>), so
-    Foxglove's 3D panel shows the robot from the recording alone.
+    """The State's pose beside it as Foxglove's ``hil/<id>/pose`` (foxglove.PoseInFrame) and
+    ``hil/<id>/tf`` (foxglove.FrameTransform world -> <id>): its 3D panel shows the robot.
 
-    The JSON is formatted here rather than built as dicts and dumped: the recorder writes these
-    two for every State (a decoded State's floats are finite, so ``repr`` is valid JSON), and
-    json.dumps of two nested dicts tripled the recorder's cost of a State."""
+    Formatted here, not dumped from dicts: the recorder writes both for every State, and
+    json.dumps of nested dicts tripled its cost (a State's floats are finite: ``repr`` is JSON)."""
     base = state_topic.rsplit("/", 1)[0]
     t = state.sample_time_ns
     sec, nsec = divmod(t, 1_000_000_000)

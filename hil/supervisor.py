@@ -56,11 +56,9 @@ class Child:
                 break
             with contextlib.suppress(ProcessLookupError):
                 os.kill(self.proc.pid, sig)
-            try:
+            with contextlib.suppress(subprocess.TimeoutExpired):
                 self.proc.wait(timeout=wait)
                 break
-            except subprocess.TimeoutExpired:
-                continue
         return self.proc.poll()
 
 
@@ -77,14 +75,12 @@ class Supervisor:
         env: Mapping[str, str] | None = None,
         stdout: Any = None,
         stderr: Any = None,
-        cwd: str | None = None,
     ) -> Child:
         proc = subprocess.Popen(
             list(argv),
             env={**os.environ, **(env or {})},
             stdout=stdout,
             stderr=stderr,
-            cwd=cwd,
             # A new session: a Ctrl-C in the terminal reaches only ``hil run``, which then
             # stops the children in order (controller first) instead of all at once.
             start_new_session=True,

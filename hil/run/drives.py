@@ -18,9 +18,8 @@ DEFAULT_WATCHDOG_S = 1.0  # the drives' watchdog unless the scenario or --watchd
 
 @dataclass
 class DrivesOptions(drives.DrivesOptions):
-    """What ``hil drives`` runs (see ``hil drives --help``): how the drives run (the fields of
-    :class:`plant_emulator.drives.DrivesOptions`) and, here, the scenario and the command
-    line's overrides of it."""
+    """What ``hil drives`` runs: the fields of :class:`plant_emulator.drives.DrivesOptions`,
+    and here the scenario and the command line's overrides of it."""
 
     scenario: str | None = None  # a file or bundled name; None: hil run's default scenario
     interface: str | None = None  # python-can interface; None: the scenario's [can]

@@ -16,7 +16,7 @@ import re
 import shutil
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -71,15 +71,9 @@ class GroupSpec:
         opts = RunOptions(scenario=Path(self.scenario), duration=self.duration, rate=self.rate)
         opts.quiet, opts.can_live, opts.robot_id = True, False, robot
         opts.out = None if robot is None else Path(self.out) / robot
-        opts.lab, opts.plant_host, opts.controller_host = (
-            self.lab,
-            self.plant_host,
-            self.controller_host,
-        )
+        for key in ("lab", "plant_host", "controller_host"):
+            setattr(opts, key, getattr(self, key))
         return opts
-
-    def save(self, path: Path) -> None:
-        path.write_text(json.dumps(asdict(self), indent=2) + "\n")
 
 
 @dataclass
@@ -93,9 +87,8 @@ class _Robot:
 
 
 def _prepare(spec: GroupSpec, endpoint: str | None) -> list[_Robot]:
-    """Each robot's run folder, as ``hil run --robot-id R --no-can`` prepares it, every robot
-    on the group's one endpoint (None: a lab host's router, as ``hil run --lab`` sets: the
-    services' clocks are then not the recorder's)."""
+    """Each robot's run folder as ``hil run --robot-id R --no-can`` prepares it, on the group's
+    one endpoint (None: a lab host's router, whose services' clocks are not the recorder's)."""
     robots = []
     for r in spec.robots:
         scenario, settings, run_dir, info = prepare(spec.options(r))
@@ -110,8 +103,7 @@ def _prepare(spec: GroupSpec, endpoint: str | None) -> list[_Robot]:
 
 
 def phase_ns(robot: str, position: int, n: int, period: int) -> int:
-    """Robot I's epoch shift: (I - 1) / N of a period (I: the number in ``robotI``, else its
-    position in the group)."""
+    """Robot I's epoch shift, (I - 1) / N of a period (I: from ``robotI``, else its position)."""
     m = re.fullmatch(r"robot(\d+)", robot)
     index = int(m.group(1)) - 1 if m else position
     return period * (index % n) // n if n > 0 else 0
@@ -210,9 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     placed = placement.enter(spec.options(), False, True)
     with stop_on_signals() as stop:
         codes = execute(spec, stop, placed)
-    if stop:
-        return 130
-    return max(codes.values(), default=0)
+    return 130 if stop else max(codes.values(), default=0)
 
 
 if __name__ == "__main__":

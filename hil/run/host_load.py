@@ -27,16 +27,9 @@ def _cpu_line() -> tuple[int, int, int]:
     return sum(fields[:8]), fields[3] + fields[4], fields[7]
 
 
-def _runnable() -> int:
-    with open("/proc/loadavg") as f:
-        return int(f.read().split()[3].split("/")[0])
-
-
 def _process_cpu(pid: int | None, wait: bool = False) -> int:
     """utime + stime of a process (clock ticks), or with ``wait`` the ns its main thread has
-    waited runnable for a CPU; -1 when it is gone or unknown."""
-    if pid is None:
-        return -1
+    waited runnable for a CPU; -1 when it is gone or not known yet (None)."""
     try:
         with open(f"/proc/{pid}/{'schedstat' if wait else 'stat'}") as f:
             text = f.read()
@@ -69,7 +62,7 @@ class HostSampler:
             cpu_total=total,
             cpu_idle=idle,
             cpu_steal=steal,
-            runnable=_runnable(),
+            runnable=int(Path("/proc/loadavg").read_text().split()[3].split("/")[0]),
             plant_cpu=_process_cpu(self.pids["plant"]),
             controller_cpu=_process_cpu(self.pids["controller"]),
             recorder_cpu=_process_cpu(os.getpid()),

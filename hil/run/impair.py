@@ -153,12 +153,6 @@ def plan_of(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
     return selectors(scenario.impair, can["interface"] if bus else None, nodes)
 
 
-def inside() -> bool:
-    """True in the namespace this very ``hil run`` made (a child inherits the variable, not
-    the PID)."""
-    return os.environ.get(NETNS_ENV) == str(os.getpid())
-
-
 def started_as_hil_run() -> bool:
     """True when this process is ``hil run`` from its own command line (``hil run ...`` or
     ``python -m hil run ...``): only then can it be executed again as it was started."""
@@ -168,8 +162,7 @@ def started_as_hil_run() -> bool:
 
 
 def _check_can_isolate(plan: Plan) -> str:
-    """The path of ``unshare`` once root, the tools and a namespace are known to work; else a
-    BadInputError saying what is missing."""
+    """``unshare``'s path once root, the tools and a namespace work; else a BadInputError why."""
     if os.geteuid() != 0:
         raise BadInputError(
             "[impair] needs root: hil run makes the run's own network namespace (unshare "
@@ -214,13 +207,13 @@ def _install(plan: Plan) -> None:
 
 def enter(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
     """Before ``hil run`` prepares anything: None without [impair]; else, the first time,
-    execute this same command again in a fresh network namespace (never returns), and inside
-    it install the impairment and return its plan. BadInputError (exit 2) when that cannot be
-    done."""
+    re-execute this command in a fresh network namespace (never returns), and inside it install
+    the impairment and return its plan. BadInputError (exit 2) when that cannot be done."""
     plan = plan_of(opts, check_options)
     if plan is None:
         return None
-    if not inside():
+    # Not yet in the namespace this very hil run made (a child inherits the variable, not the PID).
+    if os.environ.get(NETNS_ENV) != str(os.getpid()):
         if not started_as_hil_run():
             raise BadInputError(
                 "[impair] runs in hil run's own network namespace: start it as `hil run` "
@@ -266,8 +259,7 @@ def _tc_counters() -> dict[str, Any]:
 
 
 def finish(plan: Plan | None, run_dir: Path) -> dict[str, Any]:
-    """summary.json's ``impair`` (the kernel's counters, read after the run) and
-    ``impair.nft`` in the run folder; {} for a run without [impair]."""
+    """summary.json's ``impair`` (the kernel's counters) and ``impair.nft``; {} without [impair]."""
     if plan is None:
         return {}
     (run_dir / "impair.nft").write_text(ruleset(plan))

@@ -44,7 +44,7 @@ from hil.observe import TapReader, can_frame_record
 from hil.provenance import dumps_toml
 from hil.recording import RecordingWriter, to_jsonable, write_pose
 from hil.run import impair
-from hil.run.defaults import DEFAULT_DURATION, PAPER_TRACKING_TOML
+from hil.run.defaults import PAPER_TRACKING_TOML
 from hil.run.host_load import HostSampler
 from hil.run.results import analyze, plot
 from hil.run.secure import RunIdentities
@@ -64,7 +64,7 @@ from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
 from runtime.clocksync import CLOCK_FILE
 from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
-from runtime.zsession import open_session
+from runtime.zsession import open_session, payload_bytes
 
 LAB_ROUTER = "tcp/127.0.0.1:7447"  # a lab host's own router, from inside the host (hil.lab)
 
@@ -116,10 +116,9 @@ class RunOptions:
 
 
 class Recorder:
-    """Receives the robot's status and its services' taps (:func:`protocol.keys.observed_keys`:
-    every message they sent and every payload they refused, :mod:`hil.observe`) and every CAN
-    frame; writes them off-thread. ``same_clock``: the services share this process's clock (not
-    a lab run)."""
+    """Receives the robot's status, its services' taps (every message they sent and every
+    payload they refused, :mod:`hil.observe`) and every CAN frame; writes them off-thread.
+    ``same_clock``: the services share this process's clock (not a lab run)."""
 
     def __init__(self, writer: RecordingWriter, same_clock: bool = True) -> None:
         self.writer = writer
@@ -132,9 +131,7 @@ class Recorder:
         self._thread.start()
 
     def on_zenoh(self, sample: Any) -> None:
-        self.queue.append(
-            (str(sample.key_expr), time.monotonic_ns(), bytes(sample.payload.to_bytes()))
-        )
+        self.queue.append((str(sample.key_expr), time.monotonic_ns(), payload_bytes(sample)))
 
     def on_can(self, channel: str, msg: Any) -> None:
         self.queue.append((f"can/{channel}", time.monotonic_ns(), msg))
@@ -183,17 +180,12 @@ class Recorder:
             except Exception as exc:  # a recorder must never take the run down
                 self.writer.write("recorder/errors", t, {"topic": topic, "error": repr(exc)})
 
-    def close(self, attachments: dict[str, bytes | Path] | None = None) -> None:
-        """Drain, attach files (the hop logs: the recording alone then reproduces every
-        figure), finish the MCAP. A Path is streamed from disk (an hour's hop logs never sit
-        in memory)."""
+    def close(self, attachments: dict[str, Path] | None = None) -> None:
+        """Drain, attach the files streamed from disk (never whole in memory), finish the MCAP."""
         self._stop.set()
         self._thread.join(timeout=30)
-        for name, data in (attachments or {}).items():
-            if isinstance(data, Path):
-                self.writer.add_attachment_file(name, data)
-            else:
-                self.writer.add_attachment(name, data)
+        for name, path in (attachments or {}).items():
+            self.writer.add_attachment_file(name, path)
         self.writer.close()
 
 
@@ -204,8 +196,7 @@ def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any] 
         if bus is None:
             return None
         channel = str(settings.can.get("channel", "can"))
-        notifier = can.Notifier(bus, [lambda m: recorder.on_can(channel, m)], timeout=0.1)
-        return bus, notifier
+        return bus, can.Notifier(bus, [lambda m: recorder.on_can(channel, m)], timeout=0.1)
     except Exception as exc:
         print(f"warning: CAN recording off: {exc}", file=sys.stderr)
         return None
@@ -215,8 +206,7 @@ SPIN_US_MAX = 1e6
 
 
 def check_options(opts: RunOptions) -> None:
-    """The command-line options of ``hil run`` (and of the services run alone), each named in
-    a BadInputError; the scenario's own keys are checked when it is loaded."""
+    """``hil run``'s options (also a service's alone), each named in a BadInputError."""
     options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
     if opts.trigger is not None:
         options.choice("--trigger", opts.trigger, TRIGGERS)
@@ -225,12 +215,10 @@ def check_options(opts: RunOptions) -> None:
     options.optional_number("--rate", opts.rate, 0.1, RATE_MAX)
     options.optional_number("--duration", opts.duration, 0.0, DURATION_MAX, positive=True)
     options.number("--spin-us", opts.spin_us, 0.0, SPIN_US_MAX)
-    for name, value in (
-        ("--can-interface", opts.can_interface),
-        ("--can-channel", opts.can_channel),
-    ):
-        if value is not None:
-            options.plain_string(name, value, empty=False)
+    if opts.can_interface is not None:
+        options.plain_string("--can-interface", opts.can_interface, empty=False)
+    if opts.can_channel is not None:
+        options.plain_string("--can-channel", opts.can_channel, empty=False)
     options.out_dir("--out", opts.out, default="runs")
     if opts.robot_id is not None and not is_valid_robot_id(opts.robot_id):
         raise BadInputError(f"--robot-id {opts.robot_id!r}: 1-64 characters of [A-Za-z0-9_.-]")
@@ -239,24 +227,12 @@ def check_options(opts: RunOptions) -> None:
         raise BadInputError("--live does not log in to a --secure run's router")
 
 
-def _load_given(opts: RunOptions, run_dir: Path) -> tuple[Any, Path, bool, float]:
-    """(scenario, its path, whether the user gave one, its default duration): the user's
-    scenario (a file or a bundled name) or the paper's tracking circle."""
-    given = None if opts.scenario is None else resolve_scenario(opts.scenario)
-    if given is None:
-        scenario = with_law(loads_scenario(PAPER_TRACKING_TOML, run_dir), opts.law)
-        return scenario, run_dir / layout.SCENARIO, False, DEFAULT_DURATION
-    scenario = with_law(load_scenario(given), opts.law)
-    return scenario, given.resolve(), True, scenario.run.duration
-
-
 def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
     """The control rate (Hz) and the name of what set it ("" for the scenario's own Ts)."""
-    rt = scenario.realtime
     if opts.rate is not None:
         return opts.rate, "--rate"
-    if rt.rate:
-        return rt.rate, "[realtime] rate"
+    if scenario.realtime.rate:
+        return scenario.realtime.rate, "[realtime] rate"
     rate = 1.0 / scenario.timing.ts
     if rate > RATE_MAX:
         raise BadInputError(
@@ -266,18 +242,6 @@ def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
     return rate, ""
 
 
-def _run_can_table(opts: RunOptions, scenario: Any) -> dict[str, Any]:
-    """The run's [can] table with the command line's interface and channel, checked."""
-    can_table = effective_can_table(scenario, opts.can_interface)
-    if opts.can_channel:
-        can_table["channel"] = opts.can_channel
-    if opts.can_live or opts.cmd_path == "can":
-        check_can_interface(
-            can_table["interface"], "--can-interface" if opts.can_interface else "[can] interface"
-        )
-    return can_table
-
-
 def _run_settings(
     opts: RunOptions, scenario: Any, context: Any, scenario_path: Path, run_dir: Path, rate: float
 ) -> RunSettings:
@@ -285,6 +249,12 @@ def _run_settings(
     rt = scenario.realtime
     ts_s = scenario.timing.ts  # already 1 / rate when a rate overrode it (prepare)
     sensor_rate = rate if opts.lockstep else (rt.sensor_rate or rate)
+    can_table = effective_can_table(scenario, opts.can_interface)  # with the command line's
+    if opts.can_channel:
+        can_table["channel"] = opts.can_channel
+    if opts.can_live or opts.cmd_path == "can":
+        where = "--can-interface" if opts.can_interface else "[can] interface"
+        check_can_interface(can_table["interface"], where)
     settings = scenario_settings(
         scenario,
         context,
@@ -301,7 +271,7 @@ def _run_settings(
         scheduling="other" if opts.lockstep else (opts.scheduling or rt.scheduling),
         cmd_path=opts.cmd_path,
         can_live=opts.can_live,
-        can=_run_can_table(opts, scenario),
+        can=can_table,
         # On a lab, each process is a client of its own host's router (hil.lab.placement).
         zenoh_mode="router" if opts.secure or opts.lab else scenario.zenoh.mode,
         zenoh_endpoint=LAB_ROUTER if opts.lab else f"tcp/127.0.0.1:{free_port()}",
@@ -324,9 +294,15 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     if opts.secure and opts.cmd_path == "can":
         raise BadInputError("--secure guards the Zenoh command path; the CAN bus has no login")
     run_dir = Path(opts.out) if opts.out else new_run_dir()
-    scenario, scenario_path, given, default_duration = _load_given(opts, run_dir)
+    given = None if opts.scenario is None else resolve_scenario(opts.scenario)  # file or name
+    if given is None:  # the paper's tracking circle, written into the folder
+        scenario = with_law(loads_scenario(PAPER_TRACKING_TOML, run_dir), opts.law)
+        scenario_path = run_dir / layout.SCENARIO
+    else:
+        scenario = with_law(load_scenario(given), opts.law)
+        scenario_path = given.resolve()
     rate, rate_name = _control_rate(opts, scenario)
-    duration = opts.duration if opts.duration is not None else default_duration
+    duration = opts.duration if opts.duration is not None else scenario.run.duration
     scenario = scenario.with_overrides(
         duration=duration,
         ts=scenario.timing.ts if not rate_name else period_s(rate),
@@ -338,7 +314,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     controller, reference, context = build_loop(scenario)
     settings = _run_settings(opts, scenario, context, scenario_path, run_dir, rate)
     run_dir.mkdir(parents=True, exist_ok=True)
-    if not given:
+    if given is None:
         scenario_path.write_text(PAPER_TRACKING_TOML)
     settings.save(run_dir / layout.RUN_SETTINGS)
     run_facts = {
@@ -383,24 +359,21 @@ def _start_services(
     placed: Any = None,
     log_prefix: str = "",
 ) -> None:
-    """One plant and one controller process for the run folders' robots, from their settings
-    files (each on its lab host when ``placed``); their PIDs in each folder's processes.json,
-    for whoever needs to signal one (tests inject stalls), and watched by the host sampler."""
+    """The plant and controller processes of the run folders' robots (on their lab hosts when
+    ``placed``), watched by the host sampler; their PIDs in processes.json (tests signal them)."""
     paths = [str(d / layout.RUN_SETTINGS) for d in run_dirs]
     for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
-        sup.start(
+        child = sup.start(
             name,
             child_argv(placed, name, [sys.executable, "-m", module, *paths]),
             env=ids.child_env(name),
             stdout=logs.open(log_prefix + name),
             stderr=STDOUT,
         )
+        host.watch(name, child.pid)
     pids = json.dumps({c.name: c.pid for c in sup.children})
     for d in run_dirs:
         (d / layout.PROCESSES).write_text(pids)
-    for c in sup.children:
-        if c.name in ("plant", "controller"):
-            host.watch(c.name, c.pid)
 
 
 def _start_and_follow(
@@ -411,8 +384,7 @@ def _start_and_follow(
     announcer: Any,
     quiet: bool,
 ) -> str | None:
-    """Wait for both services to be ready, announce the epoch, follow the run to its end;
-    returns an error, or None."""
+    """Wait for both services, announce the epoch, follow the run; an error, or None."""
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
     # that dies is noticed at once anyway.
     ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
@@ -425,22 +397,6 @@ def _start_and_follow(
         time.sleep(0.02)
     _progress(settings, recorder, sup, stop, quiet)
     return None
-
-
-def _close_live(
-    session: Any, subs: list[Any], can_rec: Any, recorder: Recorder, run_dir: Path
-) -> None:
-    """Close what ``hil run`` opened, whatever happened: the subscriptions, the CAN recorder
-    and the session, then the recording (with the hop logs attached)."""
-    for sub in subs:
-        sub.undeclare()
-    if can_rec is not None:
-        can_rec[1].stop()
-        with contextlib.suppress(Exception):  # a bus already gone is fine here
-            can_rec[0].shutdown()
-    if session is not None:
-        session.close()
-    recorder.close(attachment_files(run_dir))
 
 
 def execute(opts: RunOptions) -> dict[str, Any]:
@@ -484,7 +440,15 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             ids.close()
             logs.close()
             placement.write_topology(placed, run_dir)  # before the recording takes it along
-            _close_live(session, subs, can_rec, recorder, run_dir)
+            for sub in subs:
+                sub.undeclare()
+            if can_rec is not None:
+                can_rec[1].stop()
+                with contextlib.suppress(Exception):  # a bus already gone is fine here
+                    can_rec[0].shutdown()
+            if session is not None:
+                session.close()
+            recorder.close(attachment_files(run_dir))  # the hop logs attached
     extra = run_extra(interrupted, error, time.monotonic() - t_start, codes, recorder, opts.secure)
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
     summary = _write_results(run_dir, scenario, settings, info, extra)
@@ -527,9 +491,8 @@ ATTACHED = (layout.CONTROLLER_LOG, layout.PLANT_LOG, HOST_FILE, layout.SCENARIO_
 ATTACHED += (CLOCK_FILE, TOPOLOGY_FILE)
 
 
-def attachment_files(run_dir: Path) -> dict[str, bytes | Path]:
-    """The files a recording carries so that it alone reproduces the run's figures, by path
-    (streamed when attached)."""
+def attachment_files(run_dir: Path) -> dict[str, Path]:
+    """The files a recording carries (so that it alone reproduces the figures), by path."""
     return {name: run_dir / name for name in ATTACHED if (run_dir / name).is_file()}
 
 
@@ -575,11 +538,6 @@ def _progress(
     plant = next(c for c in sup.children if c.name == "plant")
     t0 = time.monotonic()
     limit = t0 + (settings.duration + 30.0 if not settings.lockstep else 1e9)
-    if quiet or not sys.stderr.isatty():
-        while not stop and plant.alive() and time.monotonic() < limit:
-            time.sleep(0.05)
-        return
-
     with Progress(
         TextColumn("hil run"),
         BarColumn(),
@@ -587,6 +545,7 @@ def _progress(
         TextColumn("{task.fields[info]}"),
         TimeElapsedColumn(),
         transient=True,
+        disable=quiet or not sys.stderr.isatty(),  # then only the wait
     ) as prog:
         task = prog.add_task("run", total=1.0, info="")
         while not stop and plant.alive() and time.monotonic() < limit:
@@ -597,16 +556,14 @@ def _progress(
                 info = f"cycles {c.get('cycles', 0)} misses {c.get('deadline_misses', 0)}"
             done = recorder.states / total if total else (time.monotonic() - t0) / settings.duration
             prog.update(task, completed=min(1.0, done), info=info)
-            time.sleep(0.1)
+            time.sleep(0.05)
 
 
 def _stop_children(sup: Supervisor, settings: RunSettings) -> dict[str, int | None]:
     codes: dict[str, int | None] = {}
     # The plant ends by itself at the run's end; the controller is stopped next, then the rest.
     for name in ("plant", "controller", "router", "live"):
-        for c in sup.children:
-            if c.name != name:
-                continue
+        for c in [c for c in sup.children if c.name == name]:
             if name == "controller" and codes.get("plant") not in (0, None):
                 # The plant died: give the controller's stale-state watchdog time to act (and
                 # to be logged) before it is stopped.

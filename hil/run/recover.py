@@ -50,12 +50,10 @@ def is_run_folder(run_dir: Path) -> bool:
 
 
 def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
-    """The States the plant sent (its hop log's samples, less those a ``[faults]`` drop kept
-    off the wire) that ``recording`` lacks, as :class:`hil.recording.RecordedMessage` in send
-    order: each the recorder's own JSON of the State (:func:`hil.recording.to_jsonable` of the
-    message, the measured state recomputed with the run's seeded sensor model, as the plant
-    did) plus ``restored_from``; logged and published at its send time (when the recorder
-    received it is not known)."""
+    """The States the plant sent (its hop log's samples less ``[faults]`` drops) that
+    ``recording`` lacks, in send order: the recorder's own JSON of each (the measured state
+    recomputed with the run's seeded sensor model, as the plant did) plus ``restored_from``,
+    logged and published at its send time (when the recorder received it is not known)."""
     cols = ("seq", "sample_ns", "send_ns", "x", "y", "theta", "v", "omega", "flags")
     if not (run_dir / layout.PLANT_LOG).is_file():
         return []
@@ -104,9 +102,8 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
         except (OSError, ValueError) as exc:  # an unreadable plant log: recover the rest
             lost = []
             done["restore_error"] = str(exc)
-        counts = rewrite_complete(rec, tmp, attachment_files(run_dir), lost)
+        done["recording"] = rewrite_complete(rec, tmp, attachment_files(run_dir), lost)
         os.replace(tmp, rec)
-        done["recording"] = counts
     if layout.SUMMARY in todo or layout.TRACE in todo:
         settings = RunSettings.load(run_dir / layout.RUN_SETTINGS)
         resolved = run_dir / layout.SCENARIO_RESOLVED

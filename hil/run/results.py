@@ -25,15 +25,14 @@ from hil.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
 from hil.report.figures import envelope_indices, plt
 from hil.run.settings import rate_hz
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
-from hil.verdict import RunFacts, Verdict, constraints_from_peaks, judge
+from hil.verdict import RunFacts, constraints_from_peaks, judge
 from protocol.angles import wrap_angle as wrap
 from protocol.hoplog import TICK_NO_SEND
 from protocol.versions import RUN_SCHEMA_VERSION as SCHEMA_VERSION
 
 
 def _commanded_by_sample(logs: RunLogs, seqs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The torques the controller computed from each state seq of ``seqs`` (its first such
-    tick; NaN where none)."""
+    """Torques the controller computed from each state seq of ``seqs`` (first tick; NaN: none)."""
     t = logs["ticks"]
     used = (t["state_seq"] >= 0) & ((t["flags"] & TICK_NO_SEND) == 0) & (t["state_sample_ns"] > 0)
     known, first = np.unique(t["state_seq"][used], return_index=True)
@@ -54,10 +53,9 @@ def write_trace(
 ) -> tuple[np.ndarray, float]:
     """trace.csv: one row per plant sample; returns (position errors, last heading error).
 
-    Column by column a chunk of rows at a time (the same text as one ``csv`` row per sample:
-    ``repr`` of each float, then sample_ns and state_seq as integers): linear in the run's
-    length, with memory for the columns and one chunk. The reference is sampled per row with
-    its own ``sample`` (exactly the values the controller used)."""
+    Column by column, a chunk of rows at a time (the text of one ``csv`` row per sample), so
+    linear in the run's length; the reference sampled per row with its own ``sample`` (exactly
+    the controller's values)."""
     s = logs["samples"]
     epoch = logs.epoch_ns
     seq_all = s["seq"]
@@ -75,9 +73,7 @@ def write_trace(
             sample_ns = s["sample_ns"][r0:r1]
             t = seq * ts if lockstep else (sample_ns - epoch) / 1e9
             refs = [sample(tk) for tk in t.tolist()]
-            xd = [r.xd for r in refs]
-            yd = [r.yd for r in refs]
-            thd = [r.thetad for r in refs]
+            xd, yd, thd = ([getattr(r, k) for r in refs] for k in ("xd", "yd", "thetad"))
             x, y, th = (s[k][r0:r1].tolist() for k in ("x", "y", "theta"))
             pos_err[r0:r1] = list(map(math.hypot, map(operator.sub, x, xd),
                                       map(operator.sub, y, yd)))  # fmt: skip
@@ -118,10 +114,7 @@ def analyze(
         "final_heading_error": head_err if n else None,
         "rms_position_error": math.sqrt(sum(e * e for e in tail) / len(tail)) if tail else None,
         "initial_position_error": float(pos_err[0]) if n else None,
-        "max_abs_v": ext.get("max_abs_v"),
-        "max_abs_omega": ext.get("max_abs_omega"),
-        "max_abs_tau1": ext.get("max_abs_tau1"),
-        "max_abs_tau2": ext.get("max_abs_tau2"),
+        **{k: ext.get(k) for k in ("max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2")},
         "violations": ext.get("violations", {}),
         "samples": n,
         "duration": (n * settings.ts) if lockstep else settings.duration,
@@ -159,24 +152,18 @@ def analyze(
     summary["duration_planned_s"] = summary["duration"]
     if summary.get("interrupted") and summary["duration_run_s"] is not None:
         summary["duration"] = summary["duration_run_s"]
-    summary["verdict"] = run_verdict(summary, scenario).as_dict()
-    # Whole or absent, never half: a kill while it is written leaves the folder to recover.
-    write_summary(run_dir, summary)
-    return summary
-
-
-def run_verdict(summary: Summary, scenario: Any) -> Verdict:
-    """The run's verdict (:func:`hil.verdict.judge`) at the default thresholds."""
-    lim = scenario.limits
-    limits = {k: float(getattr(lim, k)) for k in ("phi1", "phi2", "varpi1", "varpi2")}
-    return judge(
+    limits = {k: float(getattr(scenario.limits, k)) for k in ("phi1", "phi2", "varpi1", "varpi2")}
+    summary["verdict"] = judge(  # at the default thresholds
         constraints_from_peaks(summary, limits),
         summary.get("violations") or {},
         summary.get("certificate"),
         summary.get("timing") or {},
         summary.get("messages") or {},
         RunFacts.of(summary),
-    )
+    ).as_dict()
+    # Whole or absent, never half: a kill while it is written leaves the folder to recover.
+    write_summary(run_dir, summary)
+    return summary
 
 
 def plot(run_dir: Path) -> Path | None:

@@ -2,16 +2,15 @@
 (docs/realtime.md, "Secure mode").
 
 Per run, :class:`RunIdentities` makes a fresh random password for each login of
-:mod:`protocol.zenoh_acl` (``controller.robot1``, ...) in a new private folder OUTSIDE the run
-folder (``tempfile.mkdtemp``: 0700, ``hil-secure-*``): one credentials file per login and the
-router's user dictionary, each 0600. A child gets in its environment only the path of its own
-file (``HIL_ZENOH_CREDENTIALS``; the router ``HIL_ZENOH_DICTIONARY``), never a password, so
-``ps e`` and ``/proc/PID/environ`` show none. The recorder logs in as ``recorder`` (no right to
-publish), so the start announcement goes through a second session as ``run``. The folder is
-deleted at the run's end; a SIGKILLed ``hil run`` leaves it, but its passwords die with the
-router, which the kernel stops with its parent (PR_SET_PDEATHSIG). Without ``--secure`` every
-inherited ``HIL_ZENOH_*`` variable is cleared: Zenoh refuses a client that presents credentials
-to a router that asks for none.
+:mod:`protocol.zenoh_acl` (``controller.robot1``, ...) in a private folder OUTSIDE the run folder
+(``tempfile.mkdtemp``: 0700, ``hil-secure-*``): a credentials file per login and the router's
+user dictionary, each 0600. A child's environment holds only the path of its own file
+(``HIL_ZENOH_CREDENTIALS``; the router's ``HIL_ZENOH_DICTIONARY``), so ``ps e`` and
+``/proc/PID/environ`` show no password. The recorder logs in as ``recorder`` (no right to
+publish); the start announcement goes through a second session as ``run``. The folder is deleted
+at the run's end (after a SIGKILL its passwords die with the router, PR_SET_PDEATHSIG). Without
+``--secure`` every inherited ``HIL_ZENOH_*`` is cleared: Zenoh refuses a client that presents
+credentials to a router that asks for none.
 
 ``python -m hil.run.secure init DIR [ROBOT ...]`` writes the same files for a deployment
 (deploy/README.md): ``DIR/zenoh-users.txt`` and ``DIR/credentials/<login>.env`` (robots:
@@ -51,21 +50,18 @@ def credentials_file_name(role: str) -> str:
     return f"{role}.credentials"
 
 
-def new_credentials(source: str, robots: Sequence[str] = DEPLOY_ROBOTS) -> dict[str, Credentials]:
-    """A fresh random password for every login of :mod:`protocol.zenoh_acl` for ``robots``."""
-    return {
-        user: Credentials(user, secrets.token_urlsafe(PASSWORD_BYTES), source)
-        for user in logins(robots)
-    }
-
-
 def write_identities(
-    creds: dict[str, Credentials], credentials_dir: Path, dictionary: Path, suffix: str
-) -> None:
-    """One private credentials file per login, then the router's private dictionary."""
+    source: str, robots: Sequence[str], credentials_dir: Path, dictionary: Path, suffix: str
+) -> dict[str, Credentials]:
+    """A fresh random password for every login of :mod:`protocol.zenoh_acl` for ``robots``:
+    one private credentials file per login, then the router's private dictionary."""
+    creds = {
+        u: Credentials(u, secrets.token_urlsafe(PASSWORD_BYTES), source) for u in logins(robots)
+    }
     for user, c in creds.items():
         write_private(credentials_dir / f"{user}{suffix}", credentials_text(c))
     write_private(dictionary, dictionary_text(creds.values()))
+    return creds
 
 
 class RunIdentities:
@@ -81,22 +77,19 @@ class RunIdentities:
             return
         self.folder = Path(tempfile.mkdtemp(prefix="hil-secure-"))
         try:
-            self._creds = new_credentials("hil run", self.robots)
-            suffix = credentials_file_name("")
-            write_identities(self._creds, self.folder, self.folder / DICTIONARY_NAME, suffix)
+            dictionary, suffix = self.folder / DICTIONARY_NAME, credentials_file_name("")
+            self._creds = write_identities("hil run", self.robots, self.folder, dictionary, suffix)
         except BaseException:
             self.close()
             raise
 
     def credentials(self, role: str, robot: str | None = None) -> Credentials | None:
-        """The login's credentials: ``role``, for ``robot`` (the first) if the role acts for
-        one robot (None when not secure)."""
+        """The login of ``role`` (for ``robot``, default the first); None when not secure."""
         return self._creds[login(role, robot or self.robots[0])] if self.secure else None
 
     def child_env(self, child: str, robot: str | None = None) -> dict[str, str]:
         """Environment entries for ``child`` ("router", "controller", "plant"; of ``robot``,
-        the first by default): its own credentials file or dictionary, every other
-        ``HIL_ZENOH_*`` variable cleared."""
+        default the first): its own credentials file or dictionary, any other cleared."""
         env = dict.fromkeys(ENV_VARS, "")
         if self.folder is not None:
             if child == "router":
@@ -130,8 +123,7 @@ class RunIdentities:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m hil.run.secure init DIR [ROBOT ...]``: a deployment's credentials (never
-    overwritten)."""
+    """``init DIR [ROBOT ...]``: a deployment's credentials, never overwriting a file."""
     args = sys.argv[1:] if argv is None else argv
     if len(args) < 2 or args[0] != "init":
         print("usage: python -m hil.run.secure init DIR [ROBOT ...]", file=sys.stderr)
@@ -141,8 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     (root / "credentials").mkdir(mode=0o700, parents=True, exist_ok=True)
     dictionary = root / "zenoh-users.txt"
     try:
-        creds = new_credentials("init", robots)
-        write_identities(creds, root / "credentials", dictionary, ".env")
+        write_identities("init", robots, root / "credentials", dictionary, ".env")
     except FileExistsError as exc:
         print(f"error: {exc.filename} exists; not overwritten", file=sys.stderr)
         return 2

@@ -19,6 +19,11 @@ from hil.sim.replay import jitter_samples_from
 from protocol.settings import RunSettings
 
 GEOMETRY_KEYS = ("mass", "yaw_inertia", "wheel_radius", "half_track", "gear_ratio")
+# Copied as they are from the scenario's [realtime] and [timing] tables, and its tables of values.
+REALTIME_KEYS = ("trigger", "tick_phase", "state_timeout", "command_timeout", "scheduling", "idle")
+TIMING_KEYS = ("delay", "jitter", "jitter_kind", "seed")
+TABLES = ("limits", "initial", "disturbance", "faults")
+DESIGN_KEYS = ("s1", "s2", "mu1", "mu2", "k1", "k2")  # of the design context
 
 
 def effective_can_table(scenario: Any, interface: str | None = None) -> dict[str, Any]:
@@ -49,8 +54,7 @@ def robot_id_of(scenario: Any) -> str:
 
 
 def replay_latencies(scenario: Any) -> list[float] | None:
-    """The latencies of ``[timing] replay`` (read once, here: a bad file fails before any
-    service starts), or None for a seeded jitter."""
+    """``[timing] replay``'s latencies, read here so a bad file fails early; None: seeded jitter."""
     t = scenario.timing
     if t.jitter_kind != "replay":
         return None
@@ -58,13 +62,8 @@ def replay_latencies(scenario: Any) -> list[float] | None:
 
 
 def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSettings:
-    """The settings of ``scenario`` (already overridden from the command line): the law, the
-    reference, the design ``context`` (None: the defaults, for a plant without a controller),
-    the initial state, the plant, the sensor, the timing, the faults, the robot and [can];
-    ``run`` sets the run's own fields (endpoints, paths, epoch, ...)."""
-    design: dict[str, float] = {}
-    if context is not None:
-        design = {k: float(getattr(context, k)) for k in ("s1", "s2", "mu1", "mu2", "k1", "k2")}
+    """The settings of ``scenario`` (with its command-line overrides) and of the design
+    ``context`` (None: the defaults, for a plant alone); ``run`` sets the run's own fields."""
     plant = scenario.plant
     timing = scenario.timing
     values: dict[str, Any] = {
@@ -73,12 +72,7 @@ def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSett
         "duration": float(scenario.run.duration),
         "ts": float(timing.ts),
         "sensor_ts": float(timing.ts),
-        "trigger": scenario.realtime.trigger,
-        "tick_phase": scenario.realtime.tick_phase,
-        "state_timeout": scenario.realtime.state_timeout,
-        "command_timeout": scenario.realtime.command_timeout,
-        "scheduling": scenario.realtime.scheduling,
-        "idle": scenario.realtime.idle,
+        **{k: getattr(scenario.realtime, k) for k in REALTIME_KEYS},
         "can": effective_can_table(scenario),
         "robot": {k: getattr(scenario.robot, k) for k in GEOMETRY_KEYS},
         "zenoh_mode": scenario.zenoh.mode,
@@ -86,37 +80,29 @@ def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSett
         "reference": dict(scenario.reference),
         "base_dir": str(scenario.base_dir.resolve()),
         "law_path": list(law_path_for(scenario.base_dir)),
-        "limits": dataclasses.asdict(scenario.limits),
-        "initial": dataclasses.asdict(scenario.initial),
+        **{k: dataclasses.asdict(getattr(scenario, k)) for k in TABLES},
         "plant_step": scenario.plant_step,
         "lag": plant.lag,
         "friction": list(plant.friction),
         "max_speed": list(plant.max_speed),
-        "disturbance": dataclasses.asdict(scenario.disturbance),
         "sensor": {
             "noise_std": list(plant.noise_std),
             "quantization": list(plant.quantization),
             "seed": plant.noise_seed,
         },
-        "delay": timing.delay,
-        "jitter": timing.jitter,
-        "jitter_kind": timing.jitter_kind,
-        "seed": timing.seed,
+        **{k: getattr(timing, k) for k in TIMING_KEYS},
         "replay": run.pop("replay") if "replay" in run else replay_latencies(scenario),
-        "faults": dataclasses.asdict(scenario.faults),
     }
-    if design:
-        values["design"] = design
+    if context is not None:
+        values["design"] = {k: float(getattr(context, k)) for k in DESIGN_KEYS}
     values.update(run)
     return RunSettings(**values)
 
 
 def rate_hz(run_dir: Any, settings: RunSettings) -> float:
-    """The control rate of a run as the user asked for it (``--rate``, ``[realtime] rate`` or
-    1 / ``[timing] ts``), for summary.json: the folder's ``[provenance] rate_hz``, exactly as
-    ``hil run`` wrote it; 1 / ts when the folder has none."""
-    resolved = resolved_scenario(run_dir) or {}
-    value = resolved.get("provenance", {}).get("rate_hz")
+    """The control rate as the user asked for it (``--rate``, ``[realtime] rate`` or 1 / ts),
+    for summary.json: the folder's ``[provenance] rate_hz`` as ``hil run`` wrote it, else 1 / ts."""
+    value = (resolved_scenario(run_dir) or {}).get("provenance", {}).get("rate_hz")
     if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
         return float(value)
     return 1.0 / settings.ts
