@@ -42,8 +42,7 @@ LIMIT_REL_TOL = 1e-9
 
 
 def percentile(values: Iterable[float] | np.ndarray, q: float) -> float:
-    """The q-th percentile (0 <= q <= 100), exact: numpy's ``inverted_cdf``, the smallest
-    sample with at least q % of the samples at or below it (q = 0: the minimum)."""
+    """The q-th percentile (0 <= q <= 100), exact (module docstring; q = 0: the minimum)."""
     data = np.asarray(values, dtype=float).ravel()
     if data.size == 0:
         raise ValueError("percentile of an empty sample")
@@ -239,21 +238,20 @@ def sampling_effects(
         else:
             bands[name] = None
     out["bands"] = bands
-    out["switching_rate"] = {
-        "tau1": switching_rate(t, trace["tau1"]),
-        "tau2": switching_rate(t, trace["tau2"]),
+    torques = {"tau1": varpi1, "tau2": varpi2}
+    out["switching_rate"] = {k: switching_rate(t, trace[k]) for k in torques}
+    out["saturation_share"] = {k: saturation_share(trace[k], w) for k, w in torques.items()}
+    limits = {
+        "v": (phi1, v_bound),
+        "omega": (phi2, w_bound),
+        "tau1": (varpi1, None),
+        "tau2": (varpi2, None),
     }
-    out["saturation_share"] = {
-        "tau1": saturation_share(trace["tau1"], varpi1),
-        "tau2": saturation_share(trace["tau2"], varpi2),
+    out["constraints"] = {
+        k: ConstraintFigure(k, _peak(trace[k]), lim, bound).as_dict()
+        for k, (lim, bound) in limits.items()
     }
-    cons = [
-        ConstraintFigure("v", _peak(trace["v"]), phi1, v_bound),
-        ConstraintFigure("omega", _peak(trace["omega"]), phi2, w_bound),
-        ConstraintFigure("tau1", _peak(trace["tau1"]), varpi1, None),
-        ConstraintFigure("tau2", _peak(trace["tau2"]), varpi2, None),
-    ]
-    out["constraints"] = {c.name: c.as_dict() for c in cons}
+    out["deviation_from_ideal"] = None
     if ideal is not None:
         dev = deviation_from_ideal(t, trace["x"], trace["y"], ideal["t"], ideal["x"], ideal["y"])
         out["deviation_from_ideal"] = {
@@ -261,6 +259,4 @@ def sampling_effects(
             "rms": float(np.sqrt(np.mean(dev**2))),
             "final": float(dev[-1]),
         }
-    else:
-        out["deviation_from_ideal"] = None
     return out

@@ -23,19 +23,12 @@ from runtime.clocksync import CLOCK_FILE
 # The columns stamped on the controller's clock (a stamp of 0 means none and stays 0); the
 # other columns of these tables are the plant's stamps, carried back in the State.
 CONTROLLER_CLOCK: dict[str, tuple[str, ...]] = {
-    "ticks": (
-        "deadline_ns",
-        "wake_ns",
-        "state_recv_ns",
-        "compute_start_ns",
-        "compute_end_ns",
-        "zenoh_send_ns",
-        "can_send_ns",
-    ),
+    "ticks": ("deadline_ns", "wake_ns", "state_recv_ns", "compute_start_ns", "compute_end_ns",
+              "zenoh_send_ns", "can_send_ns"),
     "state_rx": ("recv_ns",),
     "can_tx": ("send_ns", "bus_end_ns"),
     "cmd_rx": ("compute_start_ns", "send_ns"),
-}
+}  # fmt: skip
 
 
 @dataclass(frozen=True)

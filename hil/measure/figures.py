@@ -145,22 +145,16 @@ def _stream_counts(sent_ids: np.ndarray, rx_ids: np.ndarray) -> dict[str, int]:
     """sent, received (distinct ids that were sent), lost, duplicated, reordered: one definition
     for every stream. Reordered: an arrival older than one that arrived before it."""
     sent = np.unique(sent_ids)
-    mine = np.isin(rx_ids, sent)
-    rx = rx_ids[mine]
-    distinct = np.unique(rx)
-    reordered = 0
-    if rx.size > 1:
-        run_max = np.maximum.accumulate(rx)
-        first = np.zeros(rx.size, bool)
-        _, idx = np.unique(rx, return_index=True)
-        first[idx] = True
-        reordered = int(((rx[1:] < run_max[:-1]) & first[1:]).sum())
+    rx = rx_ids[np.isin(rx_ids, sent)]
+    distinct, idx = np.unique(rx, return_index=True)
+    first = np.zeros(rx.size, bool)
+    first[idx] = True
     return {
         "sent": int(sent.size),
         "received": int(distinct.size),
         "lost": int(sent.size - distinct.size),
         "duplicated": int(rx.size - distinct.size),
-        "reordered": reordered,
+        "reordered": int(((rx[1:] < np.maximum.accumulate(rx)[:-1]) & first[1:]).sum()),
     }
 
 
@@ -438,27 +432,32 @@ def measure(logs: RunLogs, bound: BoundInputs | None = None) -> Measurement:
     return out
 
 
-def _missed_slots(late: np.ndarray, skipped: np.ndarray, period: int) -> dict[str, Any]:
+# summary.json's keys of _missed_slots' figures: misses, late, skipped, wake-ups (None: not
+# reported), slots, rate.
+_TICK_SLOTS = ("deadline_misses", "late_ticks", "skipped_slots", "ticks", "slots",
+               "deadline_miss_rate")  # fmt: skip
+_PLANT_SLOTS = ("plant_deadline_misses", "plant_late_samples", "plant_skipped_slots", None,
+                "plant_slots", "plant_deadline_miss_rate")  # fmt: skip
+
+
+def _missed_slots(
+    keys: tuple[str | None, ...], late: np.ndarray, skipped: np.ndarray, period: int
+) -> dict[str, Any]:
     """Missed slots: every slot whose deadline passed without its wake-up within one period
     (the late wake-ups) plus the slots never run (skipped), over every slot of the window."""
     late_n = int((late >= period).sum())
     skipped_n = int(skipped.sum())
     slots = int(late.size) + skipped_n
-    return {
-        "misses": late_n + skipped_n,
-        "late": late_n,
-        "skipped": skipped_n,
-        "slots": slots,
-        "rate": (late_n + skipped_n) / slots if slots else None,
-    }
+    rate = (late_n + skipped_n) / slots if slots else None
+    figures = (late_n + skipped_n, late_n, skipped_n, int(late.size), slots, rate)
+    return {k: v for k, v in zip(keys, figures, strict=True) if k is not None}
 
 
 def _tick_phase(r: _Run) -> dict[str, Any]:
     """Where the periodic ticks fell after the sample: the rule, and for "auto" the phase
     learnt and what it was learnt from (controller_service.tick_phase), in µs."""
     cm = r.logs.cmeta
-    out: dict[str, Any] = {"rule": str(cm.get("tick_phase") or "half")}
-    out["phase_us"] = r.period / 2e3
+    out: dict[str, Any] = {"rule": str(cm.get("tick_phase") or "half"), "phase_us": r.period / 2e3}
     if cm.get("tick_phase_phase_ns") is not None:
         us = {"phase_ns": "phase_us", "arrival_q_ns": "arrival_p99_us", "path_q_ns": "path_p99_us"}
         out.update({v: int(cm[f"tick_phase_{k}"]) / 1e3 for k, v in us.items()})
@@ -475,13 +474,7 @@ def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
     if r.trigger == "periodic" and not r.lockstep and win.any():
         late = t["wake_ns"][win] - t["deadline_ns"][win]
         timing["wakeup_lateness"] = summarize_ns(late)
-        miss = _missed_slots(late, t["skipped"][win], r.period)
-        timing["deadline_misses"] = miss["misses"]
-        timing["late_ticks"] = miss["late"]
-        timing["skipped_slots"] = miss["skipped"]
-        timing["ticks"] = int(win.sum())
-        timing["slots"] = miss["slots"]
-        timing["deadline_miss_rate"] = miss["rate"]
+        timing.update(_missed_slots(_TICK_SLOTS, late, t["skipped"][win], r.period))
         k, wake = t["k"][win], t["wake_ns"][win]
         expected = np.diff(k) * r.period
         at = r.logs.cmeta.get("tick_phase_from_k")
@@ -498,12 +491,7 @@ def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
         plate = s["wake_ns"] - s["sample_ns"]
         timing["plant_wakeup_lateness"] = summarize_ns(plate)
         gaps = np.diff(s["sample_ns"]) // max(1, r.sensor_period) - 1
-        miss = _missed_slots(plate, np.clip(gaps, 0, None), r.sensor_period)
-        timing["plant_deadline_misses"] = miss["misses"]
-        timing["plant_late_samples"] = miss["late"]
-        timing["plant_skipped_slots"] = miss["skipped"]
-        timing["plant_slots"] = miss["slots"]
-        timing["plant_deadline_miss_rate"] = miss["rate"]
+        timing.update(_missed_slots(_PLANT_SLOTS, plate, np.clip(gaps, 0, None), r.sensor_period))
         series["plant_wakeup_lateness"] = ((s["sample_ns"] - r.epoch) / 1e9, plate)
     timing["plant_sample_to_send"] = summarize_ns(s["send_ns"] - s["sample_ns"])
 
@@ -606,8 +594,7 @@ def _messages(r: _Run) -> dict[str, Any]:
     z["injected_reorders"] = int(((t["flags"][inwin] & TICK_REORDERED) != 0).sum())
     z["sent_after_window"] = int((zsent & (t["zenoh_send_ns"] > end)).sum())
     out["torque_zenoh"] = z
-    tx = r.logs["can_tx"]
-    if tx["node"].size or (rx["path"] == CmdPath.CAN).any():
+    if r.logs["can_tx"]["node"].size or (rx["path"] == CmdPath.CAN).any():
         out["torque_can"] = _can_messages(r)
     return out
 
