@@ -52,7 +52,6 @@ class NodeMatch:
     earliest: np.ndarray
     duplicated: np.ndarray  # bool per arrival: a copy of a frame already received
     reordered: int  # arrivals older than one received before them (named buses only)
-    named: bool
     ambiguous: np.ndarray  # bool per arrival: the logs cannot tell which of two sends it is
     realigned: int = 0  # arrivals the two embeddings disagree on, settled by the smoother one
 
@@ -77,7 +76,7 @@ def match_node(
                 seen[i] = True
         first = at[(at >= 0) & ~dup]
         reordered = int((first[1:] < np.maximum.accumulate(first)[:-1]).sum()) if first.size else 0
-        return NodeMatch(at, at, dup, reordered, True, np.zeros(m, bool))
+        return NodeMatch(at, at, dup, reordered, np.zeros(m, bool))
     sv = np.asarray(send_value, np.float32).view(np.int32)  # compare the frame's bytes exactly
     rv = np.asarray(recv_value, np.float32).view(np.int32)
     early = _embed_earliest(sv, send_ns, rv, recv_ns)
@@ -94,7 +93,7 @@ def match_node(
         early[f], late[f], recv_ns[f] - send_ns[early[f]], recv_ns[f] - send_ns[late[f]]
     )
     bound = np.where(tied, early, chosen)  # the oldest sends the logs leave open
-    return NodeMatch(chosen, bound, dup, 0, False, tied, int(((early != late) & f).sum()))
+    return NodeMatch(chosen, bound, dup, 0, tied, int(((early != late) & f).sum()))
 
 
 def _smoothest(

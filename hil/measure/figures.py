@@ -178,8 +178,7 @@ class _Run:
         self.samples = logs["samples"]
         self.ticks = logs["ticks"]
         sn = self.samples["sample_ns"]
-        self.w0 = int(sn[0]) if sn.size else 0
-        self.w1 = int(sn[-1]) if sn.size else 0
+        self.w0, self.w1 = (int(sn[0]), int(sn[-1])) if sn.size else (0, 0)
         # cmd_seq -> its tick row (the controller's own record, not what the message claims),
         # sorted by cmd_seq once: every join by command (tick_of) is then a search, not a sort.
         t = self.ticks
@@ -297,8 +296,7 @@ class _Run:
     @cached_property
     def wake_sorted(self) -> Stamped:
         t = self.ticks
-        order = np.argsort(t["wake_ns"], kind="stable")
-        return Stamped(t["wake_ns"][order], late=(t["wake_ns"] - t["deadline_ns"])[order])
+        return Stamped.by_time(t["wake_ns"], late=t["wake_ns"] - t["deadline_ns"])
 
     @cached_property
     def state_received(self) -> np.ndarray:
@@ -316,9 +314,7 @@ class _Run:
         tick uses it, and only its arrival row shows the hold."""
         rx = self.logs["state_rx"]
         ok = (rx["recv_ns"] > 0) & (rx["send_ns"] > 0)
-        order = np.argsort(rx["sample_ns"][ok], kind="stable")
-        hop = (rx["recv_ns"] - rx["send_ns"])[ok][order]
-        return Stamped(rx["sample_ns"][ok][order], hop=hop)
+        return Stamped.by_time(rx["sample_ns"][ok], hop=(rx["recv_ns"] - rx["send_ns"])[ok])
 
     @cached_property
     def commands_sorted(self) -> Stamped:
@@ -348,22 +344,14 @@ class _Run:
             off_bus = put <= 0
         arr, found = _lookup(seq, recv, cmd)
         hop = np.where(found, arr - stamps, -1)
-        order = np.argsort(stamps, kind="stable")
-        return Stamped(
-            stamps[order],
-            arrived=found[order],
-            injected=injected[order],
-            hop=hop[order],
-            off_bus=off_bus[order],
-        )
+        return Stamped.by_time(stamps, arrived=found, injected=injected, hop=hop, off_bus=off_bus)
 
     @cached_property
     def burst_sorted(self) -> Stamped:
         """Landings a [faults] burst delayed, by landing time, with the delay."""
         ap = self.logs["apply"]
         b = ap["outcome"] == ApplyOutcome.BURST
-        order = np.argsort(ap["apply_ns"][b], kind="stable")
-        return Stamped(ap["apply_ns"][b][order], hop=(ap["apply_ns"] - ap["recv_ns"])[b][order])
+        return Stamped.by_time(ap["apply_ns"][b], hop=(ap["apply_ns"] - ap["recv_ns"])[b])
 
     def tick_of(self, cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(tick row, found) of each command sequence number."""

@@ -84,8 +84,5 @@ def measure_recording(path: str | Path) -> Measurement | None:
     logs = load_recording_logs(path)
     if logs is None:
         return None
-    resolved = None
     toml = read_attachments(path, names=(layout.SCENARIO_RESOLVED,)).get(layout.SCENARIO_RESOLVED)
-    if toml is not None:
-        resolved = tomllib.loads(toml.decode())
-    return measure_logs(logs, resolved)
+    return measure_logs(logs, tomllib.loads(toml.decode()) if toml is not None else None)

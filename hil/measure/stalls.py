@@ -53,6 +53,12 @@ class Stamped:
     hop: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     off_bus: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # CAN: never sent
 
+    @classmethod
+    def by_time(cls, stamps: np.ndarray, **columns: np.ndarray) -> Stamped:
+        """The rows (``stamps`` and the ``columns`` beside them) sorted by ``stamps``."""
+        order = np.argsort(stamps, kind="stable")
+        return cls(stamps[order], **{k: v[order] for k, v in columns.items()})
+
 
 STALL_LIMIT = 20  # stalls listed, worst first
 HOST_BUSY_PCT = 90.0  # host_overloaded: the CPUs this busy over the stall ...

@@ -48,9 +48,8 @@ def age_windows(
         part = AgeSegments(seg.start[mine], seg.end[mine], seg.sample[mine])
         summary = age_summary(part, grid0_ns, step_ns)
         if len(part):
-            peaks = part.peak
-            j = int(np.argmax(peaks))
-            summary["max_us"] = int(peaks[j]) / 1000.0
+            j = int(np.argmax(part.peak))
+            summary["max_us"] = int(part.peak[j]) / 1000.0
             summary["max_at_ns"] = int(part.end[j])
         else:
             summary["max_at_ns"] = None
