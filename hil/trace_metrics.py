@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -75,8 +75,7 @@ def heading_error(theta: np.ndarray, thetad: np.ndarray) -> np.ndarray:
     return wrap_angle(np.asarray(theta) - np.asarray(thetad))
 
 
-@dataclass(frozen=True)
-class Band:
+class Band(NamedTuple):
     """The quasi-sliding band of one sliding variable (v~ or w~ of (10))."""
 
     reaching_time: float | None  # s from the trace's start; None: never reached the manifold
@@ -84,9 +83,6 @@ class Band:
     band_max: float | None
     band_spread: float | None
     samples_after: int
-
-    def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def quasi_sliding_band(t: np.ndarray, s: np.ndarray, threshold: float = 0.0) -> Band:
@@ -231,10 +227,10 @@ def sampling_effects(
     for name, eps in (("v_tilde", eps1), ("w_tilde", eps2)):
         col = trace.get(name)
         if col is not None:
-            bands[name] = quasi_sliding_band(t, col, eps).as_dict()
+            bands[name] = quasi_sliding_band(t, col, eps)._asdict()
         elif sliding and name in sliding and len(sliding[name][0]) > 1:
             ts_, s_ = sliding[name]
-            bands[name] = quasi_sliding_band(ts_, s_, eps).as_dict()
+            bands[name] = quasi_sliding_band(ts_, s_, eps)._asdict()
         else:
             bands[name] = None
     out["bands"] = bands

@@ -68,12 +68,8 @@ def match_node(
     m = recv_ns.size
     if m and (recv_name > 0).all() and send_name.size and (send_name > 0).all():
         at = _nearest(send_name, recv_name, NAME_TOLERANCE_NS)
-        seen = np.zeros(send_ns.size, bool)
-        dup = np.zeros(m, bool)
-        for j, i in enumerate(at.tolist()):  # duplicates: a name seen before
-            if i >= 0:
-                dup[j] = seen[i]
-                seen[i] = True
+        dup = at >= 0  # duplicates: a name seen before
+        dup[np.unique(at, return_index=True)[1]] = False
         first = at[(at >= 0) & ~dup]
         reordered = int((first[1:] < np.maximum.accumulate(first)[:-1]).sum()) if first.size else 0
         return NodeMatch(at, at, dup, reordered, np.zeros(m, bool))
@@ -187,9 +183,8 @@ def _embed_latest(sv: np.ndarray, ss: np.ndarray, rv: np.ndarray, rr: np.ndarray
 
 
 def _nearest(keys: np.ndarray, query: np.ndarray, tolerance_ns: int) -> np.ndarray:
-    """For each query, the index of the key nearest to it within the tolerance (-1: none)."""
-    if keys.size == 0:
-        return np.full(query.size, -1, np.int64)
+    """For each query, the index of the key nearest to it within the tolerance (-1: none);
+    ``keys`` not empty."""
     order = np.argsort(keys, kind="stable")
     ks = keys[order]
     pos = np.clip(np.searchsorted(ks, query), 1, max(1, ks.size - 1))

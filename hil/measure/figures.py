@@ -503,16 +503,12 @@ def _hops(r: _Run, timing: dict[str, Any]) -> None:
     seq, recv = _first_per_key(rx["seq"][z], rx["recv_ns"][z])
     i, found = r.tick_of(seq)
     recv, i = recv[found], i[found]
-    send = t["zenoh_send_ns"][i]
-    ok = (send > 0) & _in(t["state_sample_ns"][i], r.w0, r.w1)
-    recv, i, send = recv[ok], i[ok], send[ok]
-    hop = recv - send
+    ok = (t["zenoh_send_ns"][i] > 0) & _in(t["state_sample_ns"][i], r.w0, r.w1)
+    recv, i = recv[ok], i[ok]
+    hop = recv - t["zenoh_send_ns"][i]
     timing["hop_cmd_zenoh"] = summarize_ns(hop)
-    f = fresh[i]
-    loop = (t["state_recv_ns"][i] - t["state_send_ns"][i]) + (
-        t["compute_end_ns"][i] - t["compute_start_ns"][i]
-    )
-    timing["loop_transport_compute"] = summarize_ns((loop + hop)[f])
+    loop = t["state_recv_ns"] - t["state_send_ns"] + t["compute_end_ns"] - t["compute_start_ns"]
+    timing["loop_transport_compute"] = summarize_ns((loop[i] + hop)[fresh[i]])
     ss, has = _lookup(r.samples["seq"], r.samples["send_ns"], t["state_seq"][i])
     timing["state_send_to_cmd_recv"] = summarize_ns((recv - ss)[has])
     c = r._can
@@ -565,8 +561,7 @@ def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
 
 def _messages(r: _Run) -> dict[str, Any]:
     s, t = r.samples, r.ticks
-    srx = r.logs["state_rx"]
-    state = _stream_counts(s["seq"], srx["seq"])
+    state = _stream_counts(s["seq"], r.logs["state_rx"]["seq"])
     state["injected_drops"] = int(((s["flags"] & SAMPLE_DROPPED) != 0).sum())
     state["injected_duplicates"] = int(((s["flags"] & SAMPLE_DUPLICATED) != 0).sum())
     out: dict[str, Any] = {"state": state}

@@ -246,12 +246,11 @@ def _message_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None
         scores["command_lost"] = int(lost_c.sum()) * r.period
     # A message held up while its receiver was stalled is the receiver's stall, not the wire's:
     # hops that the receiver's own lateness explains (within a period) do not count.
-    hop = c.hop[sl]
-    hop = hop[hop >= 0]
     # ... and one held up by a stalled sender (stamped, then stopped before it left) the
     # sender's: a hop either end's lateness covers is no evidence against the wire.
     ends = max(scores.get("plant_late", 0), scores.get("controller_late", 0))
-    hop = hop[hop > ends + r.period]
+    hop = c.hop[sl]
+    hop = hop[hop > ends + r.period]  # never negative: -1 is a command that never arrived
     hs = r.state_hops_sorted
     shop = hs.hop[_between(hs.stamps, lo, hi)]
     shop = shop[shop > ends + r.period]
