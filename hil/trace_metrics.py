@@ -36,8 +36,7 @@ import numpy as np
 from protocol.angles import wrap_angle
 
 PERCENTILES: tuple[float, ...] = (50.0, 90.0, 99.0, 99.9)
-# summary.json counts a violation beyond 1e-9 relative (docs/design.md, section 3); use the
-# same tolerance.
+# summary.json's tolerance: a violation is beyond 1e-9 relative (docs/design.md, section 3).
 LIMIT_REL_TOL = 1e-9
 
 

@@ -102,8 +102,6 @@ def _smoothest(
     hops, is used and the stretch is marked)."""
     differ = early != late
     out, tied = early.copy(), np.zeros(early.size, bool)
-    if not differ.any():
-        return out, tied
     m = early.size
     edges = np.diff(np.concatenate([[0], differ.astype(np.int8), [0]]))
     for a, b in zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(),

@@ -244,10 +244,9 @@ def _message_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None
         if c.off_bus.any():  # CAN: frames that never reached the bus (bus-off)
             ev["frames_not_on_bus"] = int(c.off_bus[sl][lost_c].sum())
         scores["command_lost"] = int(lost_c.sum()) * r.period
-    # A message held up while its receiver was stalled is the receiver's stall, not the wire's:
-    # hops that the receiver's own lateness explains (within a period) do not count.
-    # ... and one held up by a stalled sender (stamped, then stopped before it left) the
-    # sender's: a hop either end's lateness covers is no evidence against the wire.
+    # A message held up by a stalled receiver, or by a stalled sender (stamped, then stopped
+    # before it left), is that end's stall, not the wire's: a hop either end's lateness covers
+    # (within a period) is no evidence against the wire.
     ends = max(scores.get("plant_late", 0), scores.get("controller_late", 0))
     hop = c.hop[sl]
     hop = hop[hop > ends + r.period]  # never negative: -1 is a command that never arrived
