@@ -175,8 +175,7 @@ class _Run:
         self.settle = 2 * self.ts + int(
             1e9 * (float(pm.get("delay_s") or 0.0) + float(pm.get("jitter_s") or 0.0))
         )
-        self.samples = logs["samples"]
-        self.ticks = logs["ticks"]
+        self.samples, self.ticks = logs["samples"], logs["ticks"]
         sn = self.samples["sample_ns"]
         self.w0, self.w1 = (int(sn[0]), int(sn[-1])) if sn.size else (0, 0)
         # cmd_seq -> its tick row (the controller's own record, not what the message claims),
@@ -409,14 +408,13 @@ def measure(logs: RunLogs, bound: BoundInputs | None = None) -> Measurement:
     if r.samples["sample_ns"].size == 0:
         out.timing = {"units": "us", "note": "no plant samples: the plant never ran"}
         return out
-    timing: dict[str, Any] = {"units": "us", "window_s": (r.w1 - r.w0) / 1e9}
+    out.timing = timing = {"units": "us", "window_s": (r.w1 - r.w0) / 1e9}
     _wakeups(r, timing, out.series)
     _hops(r, timing)
     _paths(r, timing, out.series)
     out.messages = _messages(r)
     out.host = r.host_over(r.w0, r.w1)
     out.certificate = _certificate(r, bound, out.series, timing)
-    out.timing = timing
     return out
 
 

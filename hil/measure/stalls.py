@@ -123,9 +123,6 @@ def find_stalls(
     bench's stalls (module docstring)."""
     ex = excursions(seg, threshold_ns)
     rep = StallReport(count=len(ex), stalled_time_ns=int(ex.above.sum()))
-    rep.d_system_ns = int(seg.peak.max()) if len(seg) else None
-    if not len(ex):
-        return rep
     order = np.argsort(-ex.peak, kind="stable")
     must = int((ex.peak > d_star_ns).sum()) if d_star_ns is not None else 0
     looked = order[: max(STALL_LIMIT, min(must, CAUSE_LIMIT))]
