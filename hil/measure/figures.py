@@ -260,7 +260,7 @@ class _Run:
             a = self.can_applies
             m = np.isin(a["outcome"], LANDINGS)
             cmd = a["cmd_early"] if early else a["cmd"]
-            return self._can_commands(a["node"][m], a["land"][m], cmd[m])
+            return self._in_force(a["node"][m], a["land"][m], cmd[m])
         elif path == "zenoh":
             rx = self.logs["cmd_rx"]
             m = rx["path"] == CmdPath.ZENOH
@@ -269,8 +269,8 @@ class _Run:
             c = self._can
             got = ~c["lost"]
             cmd = c["cmd_early"] if early else c["cmd"]
-            return self._can_commands(c["node"][got], c["recv"][got], cmd[got])
-        return self._newest_wins(land, cmd)
+            return self._in_force(c["node"][got], c["recv"][got], cmd[got])
+        return self._in_force(np.zeros(cmd.size, np.int64), land, cmd)  # one 'wheel'
 
     @cached_property
     def can_applies(self) -> dict[str, np.ndarray]:
@@ -370,20 +370,10 @@ class _Run:
             out[~found] = np.where(has, got, 0)
         return out
 
-    def _newest_wins(self, land: np.ndarray, cmd: np.ndarray):
-        order = np.argsort(land, kind="stable")
-        land, cmd = land[order], cmd[order]
-        samp = self._sample_of(cmd)
-        keep = samp > 0
-        land, cmd, samp = land[keep], cmd[keep], samp[keep]
-        if cmd.size:
-            newer = np.concatenate([[True], cmd[1:] > np.maximum.accumulate(cmd)[:-1]])
-            land, cmd, samp = land[newer], cmd[newer], samp[newer]
-        return land, samp, cmd
-
-    def _can_commands(self, node: np.ndarray, land: np.ndarray, cmd: np.ndarray):
-        """A CAN command is in force once both wheels' frames of it (or newer) have landed: the
-        sample in force is the older of the two wheels' (a conservative age)."""
+    def _in_force(self, node: np.ndarray, land: np.ndarray, cmd: np.ndarray):
+        """(land_ns, sample_ns, cmd_seq) of each change of the command in force, newest wins.
+        On CAN a command is in force once every wheel's frame of it (or newer) has landed: the
+        sample in force is the oldest of the wheels' (a conservative age)."""
         # Lifecycle zeros (-1) and unmatched frames (-2) are not commands; nor is a watchdog's
         # zero torque, computed from no sample: it does not renew the age (as on Zenoh).
         keep = cmd >= 0
