@@ -408,8 +408,7 @@ def measure(logs: RunLogs, bound: BoundInputs | None = None) -> Measurement:
     return out
 
 
-# summary.json's keys of _missed_slots' figures: misses, late, skipped, wake-ups (None: not
-# reported), slots, rate.
+# summary.json's names of _missed_slots' six figures (None: not reported).
 _TICK_SLOTS = ("deadline_misses", "late_ticks", "skipped_slots", "ticks", "slots",
                "deadline_miss_rate")  # fmt: skip
 _PLANT_SLOTS = ("plant_deadline_misses", "plant_late_samples", "plant_skipped_slots", None,

@@ -68,8 +68,6 @@ def measured(folder: RunFolder) -> Measurement | None:
     by the same :func:`measure_and_save`; summary.json is never rewritten."""
     arrays = read_series(folder.path)
     if arrays is None:
-        if not folder.has_hop_logs():
-            return None
         m = measure_and_save(folder.path)
         if m is None:
             return None

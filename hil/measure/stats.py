@@ -1,9 +1,6 @@
-"""Exact percentile summaries of durations (nanoseconds in, microseconds out).
-
-Every percentile is one of the measured values (numpy's ``inverted_cdf``: the smallest value
-with at least q of the samples at or below it), so no percentile can exceed the maximum and
-nothing is rounded to a histogram bucket.
-"""
+"""Exact percentile summaries of durations (nanoseconds in, microseconds out): every
+percentile is one of the measured values (:func:`hil.trace_metrics.percentile`'s definition),
+so none can exceed the maximum and nothing is rounded to a histogram bucket."""
 
 from __future__ import annotations
 
