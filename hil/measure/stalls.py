@@ -31,15 +31,12 @@ plant emulator standing in for a robot that never stalls, the recorder and the b
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from hil.measure.age import AgeSegments
 from hil.measure.host import PROCESSES
-
-if TYPE_CHECKING:  # what a stall's cause joins: the run's logs sorted by time once
-    from hil.measure.figures import _Run
 
 
 @dataclass(frozen=True)
@@ -58,6 +55,26 @@ class Stamped:
         """The rows (``stamps`` and the ``columns`` beside them) sorted by ``stamps``."""
         order = np.argsort(stamps, kind="stable")
         return cls(stamps[order], **{k: v[order] for k, v in columns.items()})
+
+
+class _Run(Protocol):
+    """What a stall's cause joins: the run's logs sorted by time once (hil.measure.figures)."""
+
+    epoch: int
+    w0: int
+    period: int
+    sensor_period: int
+    trigger: str
+    lockstep: bool
+    samples: dict[str, np.ndarray]
+    wake_sorted: Stamped
+    state_received: np.ndarray
+    state_injected_drop: np.ndarray
+    commands_sorted: Stamped
+    state_hops_sorted: Stamped
+    burst_sorted: Stamped
+
+    def host_over(self, lo: int, hi: int) -> dict[str, Any] | None: ...
 
 
 STALL_LIMIT = 20  # stalls listed, worst first
