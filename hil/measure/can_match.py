@@ -121,8 +121,7 @@ def _by_value(values: np.ndarray) -> dict[int, np.ndarray]:
     """value -> the sorted indices where it occurs."""
     order = np.argsort(values, kind="stable")
     keys, starts = np.unique(values[order], return_index=True)
-    bounds = [*starts.tolist(), order.size]
-    return {int(k): order[bounds[n] : bounds[n + 1]] for n, k in enumerate(keys.tolist())}
+    return dict(zip(keys.tolist(), np.split(order, starts[1:]), strict=True))
 
 
 def _embed_earliest(sv: np.ndarray, ss: np.ndarray, rv: np.ndarray, rr: np.ndarray) -> np.ndarray:
