@@ -86,8 +86,7 @@ class Band(NamedTuple):
 
 def quasi_sliding_band(t: np.ndarray, s: np.ndarray, threshold: float = 0.0) -> Band:
     """Reaching time and band of s after it (p99 |s|, max |s|, max(s) - min(s))."""
-    t = np.asarray(t, dtype=float)
-    s = np.asarray(s, dtype=float)
+    t, s = np.asarray(t, dtype=float), np.asarray(s, dtype=float)
     # The reaching time: the first sample on or across the manifold (module docstring).
     crossed = np.zeros(s.size, dtype=bool)
     crossed[1:] = np.sign(s[1:]) * np.sign(s[:-1]) < 0

@@ -13,22 +13,21 @@ subsequence of the sends with the same bytes, each received after it was sent. T
   in the sends (same node, same bytes, order kept, received after sent). Two embeddings bound
   every other: the **earliest** (:func:`_embed_earliest`: nothing lost unless the bytes force
   it) and the **latest** (:func:`_embed_latest`: each arrival the newest unmatched send of its
-  bytes before it, the smallest hops). A frame lost on the wire is a send no arrival takes; it
-  can shift no match outside the stretch where the two embeddings differ, since an arrival can
-  only take a send of its own bytes. Such a stretch exists only where identical payloads repeat
-  within the transport's delay or a loss keeps the pattern of payloads (two frames of an
-  alternating torque). There the two disagree by whole spacings of identical payloads, and the
-  one whose hops jump least across the stretch, the agreed matches on either side included, is
-  taken (:func:`_smoothest`): a transport's delay drifts, it does not jump by such spacings.
-  Losses make the earliest embedding jump (every later hop a spacing longer); a slow transport
-  that lost nothing makes the latest jump (hops a spacing shorter where a newer send of the same
-  bytes stood). Where both jump alike the logs cannot decide: those arrivals are counted
-  ``ambiguous``, every CAN figure they feed carries that count (``not_relatable``), and the
-  command age is also computed with the earliest embedding there, an upper bound on it, so the
-  certificate is held only if it holds for both (hil.measure.figures). ``realigned`` counts the
-  arrivals the two embeddings disagreed on and the smoother one settled. An arrival that no
-  send can explain is ``unmatched``; if its bytes are the previous arrival's, it is counted a
-  duplicate.
+  bytes before it, the smallest hops). A lost frame is a send no arrival takes; as an arrival
+  only takes a send of its own bytes, it shifts no match outside a stretch where the two
+  embeddings differ, which exists only where identical payloads repeat within the transport's
+  delay or a loss keeps the pattern of payloads (two frames of an alternating torque). There
+  they disagree by whole spacings of identical payloads, and the one whose hops jump least
+  across the stretch, the agreed matches on either side included, is taken
+  (:func:`_smoothest`): a transport's delay drifts, it does not jump by such spacings. Losses
+  make the earliest jump (every later hop a spacing longer); a slow transport that lost nothing
+  makes the latest jump (hops a spacing shorter where a newer send of the same bytes stood).
+  Where both jump alike the logs cannot decide: those arrivals are ``ambiguous``, every CAN
+  figure they feed carries that count (``not_relatable``), and the command age is also computed
+  with the earliest embedding there, an upper bound on it, so the certificate is held only if
+  it holds for both (hil.measure.figures). ``realigned`` counts the arrivals the two embeddings
+  disagreed on and the smoother one settled. An arrival no send explains is ``unmatched``, and
+  a duplicate if its bytes are the previous arrival's.
 """
 
 from __future__ import annotations

@@ -74,8 +74,7 @@ def read_track(folder: Path) -> ClockTrack:
     fields = [line.split(",") for line in lines]
     ok = [f for f in fields if len(f) == 8 and all(x.lstrip("-").isdigit() for x in f)]
     rows = [(int(f[3]), int(f[6]), int(f[7])) for f in ok]
-    a = np.asarray(rows, dtype=np.int64).reshape(-1, 3)
-    return ClockTrack(a[:, 0], a[:, 1], a[:, 2])
+    return ClockTrack(*np.asarray(rows, dtype=np.int64).reshape(-1, 3).T)
 
 
 def to_plant_clock(tables: dict[str, dict[str, np.ndarray]], folder: Path | None) -> None:

@@ -180,11 +180,10 @@ class _Run:
         self.w0, self.w1 = (int(sn[0]), int(sn[-1])) if sn.size else (0, 0)
         # cmd_seq -> its tick row (the controller's own record, not what the message claims),
         # sorted by cmd_seq once: every join by command (tick_of) is then a search, not a sort.
-        t = self.ticks
-        rows = np.nonzero(t["cmd_seq"] >= 0)[0]
-        order = np.argsort(t["cmd_seq"][rows], kind="stable")
-        self.cmd_rows = rows[order]
-        self.cmd_keys = t["cmd_seq"][self.cmd_rows]
+        seq = self.ticks["cmd_seq"]
+        rows = np.nonzero(seq >= 0)[0]
+        self.cmd_rows = rows[np.argsort(seq[rows], kind="stable")]
+        self.cmd_keys = seq[self.cmd_rows]
         self._can = self._match_can()
         self.series_without: np.ndarray | None = None  # sample times left without a command
 
