@@ -28,22 +28,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from protocol.angles import wrap_angle
 
 PERCENTILES: tuple[float, ...] = (50.0, 90.0, 99.0, 99.9)
-# summary.json counts a violation beyond 1e-9 relative (docs/design.md, section 3); use the
-# same tolerance.
+# summary.json's tolerance: a violation is beyond 1e-9 relative (docs/design.md, section 3).
 LIMIT_REL_TOL = 1e-9
 
 
 def percentile(values: Iterable[float] | np.ndarray, q: float) -> float:
-    """The q-th percentile (0 <= q <= 100), exact: numpy's ``inverted_cdf``, the smallest
-    sample with at least q % of the samples at or below it (q = 0: the minimum)."""
+    """The q-th percentile (0 <= q <= 100), exact (module docstring; q = 0: the minimum)."""
     data = np.asarray(values, dtype=float).ravel()
     if data.size == 0:
         raise ValueError("percentile of an empty sample")
@@ -76,8 +74,7 @@ def heading_error(theta: np.ndarray, thetad: np.ndarray) -> np.ndarray:
     return wrap_angle(np.asarray(theta) - np.asarray(thetad))
 
 
-@dataclass(frozen=True)
-class Band:
+class Band(NamedTuple):
     """The quasi-sliding band of one sliding variable (v~ or w~ of (10))."""
 
     reaching_time: float | None  # s from the trace's start; None: never reached the manifold
@@ -86,14 +83,10 @@ class Band:
     band_spread: float | None
     samples_after: int
 
-    def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
 
 def quasi_sliding_band(t: np.ndarray, s: np.ndarray, threshold: float = 0.0) -> Band:
     """Reaching time and band of s after it (p99 |s|, max |s|, max(s) - min(s))."""
-    t = np.asarray(t, dtype=float)
-    s = np.asarray(s, dtype=float)
+    t, s = np.asarray(t, dtype=float), np.asarray(s, dtype=float)
     # The reaching time: the first sample on or across the manifold (module docstring).
     crossed = np.zeros(s.size, dtype=bool)
     crossed[1:] = np.sign(s[1:]) * np.sign(s[:-1]) < 0
@@ -232,28 +225,27 @@ def sampling_effects(
     for name, eps in (("v_tilde", eps1), ("w_tilde", eps2)):
         col = trace.get(name)
         if col is not None:
-            bands[name] = quasi_sliding_band(t, col, eps).as_dict()
+            bands[name] = quasi_sliding_band(t, col, eps)._asdict()
         elif sliding and name in sliding and len(sliding[name][0]) > 1:
             ts_, s_ = sliding[name]
-            bands[name] = quasi_sliding_band(ts_, s_, eps).as_dict()
+            bands[name] = quasi_sliding_band(ts_, s_, eps)._asdict()
         else:
             bands[name] = None
     out["bands"] = bands
-    out["switching_rate"] = {
-        "tau1": switching_rate(t, trace["tau1"]),
-        "tau2": switching_rate(t, trace["tau2"]),
+    torques = {"tau1": varpi1, "tau2": varpi2}
+    out["switching_rate"] = {k: switching_rate(t, trace[k]) for k in torques}
+    out["saturation_share"] = {k: saturation_share(trace[k], w) for k, w in torques.items()}
+    limits = {
+        "v": (phi1, v_bound),
+        "omega": (phi2, w_bound),
+        "tau1": (varpi1, None),
+        "tau2": (varpi2, None),
     }
-    out["saturation_share"] = {
-        "tau1": saturation_share(trace["tau1"], varpi1),
-        "tau2": saturation_share(trace["tau2"], varpi2),
+    out["constraints"] = {
+        k: ConstraintFigure(k, _peak(trace[k]), lim, bound).as_dict()
+        for k, (lim, bound) in limits.items()
     }
-    cons = [
-        ConstraintFigure("v", _peak(trace["v"]), phi1, v_bound),
-        ConstraintFigure("omega", _peak(trace["omega"]), phi2, w_bound),
-        ConstraintFigure("tau1", _peak(trace["tau1"]), varpi1, None),
-        ConstraintFigure("tau2", _peak(trace["tau2"]), varpi2, None),
-    ]
-    out["constraints"] = {c.name: c.as_dict() for c in cons}
+    out["deviation_from_ideal"] = None
     if ideal is not None:
         dev = deviation_from_ideal(t, trace["x"], trace["y"], ideal["t"], ideal["x"], ideal["y"])
         out["deviation_from_ideal"] = {
@@ -261,6 +253,4 @@ def sampling_effects(
             "rms": float(np.sqrt(np.mean(dev**2))),
             "final": float(dev[-1]),
         }
-    else:
-        out["deviation_from_ideal"] = None
     return out

@@ -286,10 +286,20 @@ def _thresholds(
         if not isinstance(n, int) or not isinstance(rate, int | float):
             continue  # not measured in this run: absent, never 0
         v.timing[key] = {"count": n, over_name: over, "rate": rate}
+        if rate <= limit:
+            continue
+        # Over its threshold: the system's failure, unless only the share that fell inside the
+        # bench's stalls put it over.
         bench = int(timing.get(f"{key}_in_bench_stalls") or 0)
         system_rate = (n - bench) / over if over else 0.0
-        words = text.format(n=n, over=over) + f" ({_pct(rate)})"
-        _over(v, words, rate, system_rate, bench, limit)
+        words = text.format(n=n, over=over) + f" ({_pct(rate)}) > {_pct(limit)}"
+        if system_rate > limit:
+            v.fail_reasons.append(words)
+        else:
+            v.inconclusive_reasons.append(
+                f"{words}, but {bench} of them fell inside the bench's stalls; "
+                f"without them {_pct(system_rate)}"
+            )
     streams = [s for s in ("state", f"torque_{path}" if path else "") if s in messages]
     if streams:
         lost = sum(int(messages[s].get("lost", 0)) for s in streams)
@@ -304,20 +314,6 @@ def _thresholds(
                 f"lost messages: {lost} of {sent} ({_pct(ratio)}) > {_pct(th.max_lost_ratio)} "
                 f"({per})"
             )
-
-
-def _over(v: Verdict, text: str, rate: float, system_rate: float, bench: int, limit: float) -> None:
-    """A count over its threshold fails the system, unless only the share that fell inside
-    the bench's stalls put it over."""
-    if rate <= limit:
-        return
-    if system_rate > limit:
-        v.fail_reasons.append(f"{text} > {_pct(limit)}")
-    else:
-        v.inconclusive_reasons.append(
-            f"{text} > {_pct(limit)}, but {bench} of them fell inside the bench's stalls; "
-            f"without them {_pct(system_rate)}"
-        )
 
 
 def _relatable(v: Verdict, messages: dict[str, Any]) -> None:

@@ -55,13 +55,6 @@ def segments(
     return AgeSegments(land, end, samp)
 
 
-def _count_le(seg: AgeSegments, lo: np.ndarray, hi: np.ndarray, g0: int, h: int, v: int) -> int:
-    """Number of plant steps whose age is at most ``v``."""
-    top = (seg.sample + v - g0) // h  # the last grid index with age <= v, per segment
-    n = np.clip(top - lo + 1, 0, hi - lo)
-    return int(n.sum())
-
-
 def age_summary(seg: AgeSegments, g0: int, h: int) -> dict[str, Any]:
     """count, p50/p90/p99/p999, max, mean (µs) of the age at every plant step g0 + i h."""
     if len(seg) == 0 or h <= 0:
@@ -85,10 +78,11 @@ def age_summary(seg: AgeSegments, g0: int, h: int) -> dict[str, Any]:
     quantiles: dict[str, int] = {}
     for name, q in PERCENTILES:
         need = max(1, int(np.ceil(q / 100.0 * total)))
-        a, b = amin, amax  # the answer lies in [a, b]: count(b) >= need
+        a, b = amin, amax  # the answer lies in [a, b]: at least need steps <= b
         while a < b:
             mid = (a + b) // 2
-            if _count_le(seg, lo, hi, g0, h, mid) >= need:
+            top = (seg.sample + mid - g0) // h  # per segment, the last step with age <= mid
+            if int(np.clip(top - lo + 1, 0, n).sum()) >= need:  # steps with age <= mid
                 b = mid
             else:
                 a = mid + 1

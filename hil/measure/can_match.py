@@ -13,22 +13,21 @@ subsequence of the sends with the same bytes, each received after it was sent. T
   in the sends (same node, same bytes, order kept, received after sent). Two embeddings bound
   every other: the **earliest** (:func:`_embed_earliest`: nothing lost unless the bytes force
   it) and the **latest** (:func:`_embed_latest`: each arrival the newest unmatched send of its
-  bytes before it, the smallest hops). A frame lost on the wire is a send no arrival takes; it
-  can shift no match outside the stretch where the two embeddings differ, since an arrival can
-  only take a send of its own bytes. Such a stretch exists only where identical payloads repeat
-  within the transport's delay or a loss keeps the pattern of payloads (two frames of an
-  alternating torque). There the two disagree by whole spacings of identical payloads, and the
-  one whose hops jump least across the stretch, the agreed matches on either side included, is
-  taken (:func:`_smoothest`): a transport's delay drifts, it does not jump by such spacings.
-  Losses make the earliest embedding jump (every later hop a spacing longer); a slow transport
-  that lost nothing makes the latest jump (hops a spacing shorter where a newer send of the same
-  bytes stood). Where both jump alike the logs cannot decide: those arrivals are counted
-  ``ambiguous``, every CAN figure they feed carries that count (``not_relatable``), and the
-  command age is also computed with the earliest embedding there, an upper bound on it, so the
-  certificate is held only if it holds for both (hil.measure.figures). ``realigned`` counts the
-  arrivals the two embeddings disagreed on and the smoother one settled. An arrival that no
-  send can explain is ``unmatched``; if its bytes are the previous arrival's, it is counted a
-  duplicate.
+  bytes before it, the smallest hops). A lost frame is a send no arrival takes; as an arrival
+  only takes a send of its own bytes, it shifts no match outside a stretch where the two
+  embeddings differ, which exists only where identical payloads repeat within the transport's
+  delay or a loss keeps the pattern of payloads (two frames of an alternating torque). There
+  they disagree by whole spacings of identical payloads, and the one whose hops jump least
+  across the stretch, the agreed matches on either side included, is taken
+  (:func:`_smoothest`): a transport's delay drifts, it does not jump by such spacings. Losses
+  make the earliest jump (every later hop a spacing longer); a slow transport that lost nothing
+  makes the latest jump (hops a spacing shorter where a newer send of the same bytes stood).
+  Where both jump alike the logs cannot decide: those arrivals are ``ambiguous``, every CAN
+  figure they feed carries that count (``not_relatable``), and the command age is also computed
+  with the earliest embedding there, an upper bound on it, so the certificate is held only if
+  it holds for both (hil.measure.figures). ``realigned`` counts the arrivals the two embeddings
+  disagreed on and the smoother one settled. An arrival no send explains is ``unmatched``, and
+  a duplicate if its bytes are the previous arrival's.
 """
 
 from __future__ import annotations
@@ -52,7 +51,6 @@ class NodeMatch:
     earliest: np.ndarray
     duplicated: np.ndarray  # bool per arrival: a copy of a frame already received
     reordered: int  # arrivals older than one received before them (named buses only)
-    named: bool
     ambiguous: np.ndarray  # bool per arrival: the logs cannot tell which of two sends it is
     realigned: int = 0  # arrivals the two embeddings disagree on, settled by the smoother one
 
@@ -69,15 +67,11 @@ def match_node(
     m = recv_ns.size
     if m and (recv_name > 0).all() and send_name.size and (send_name > 0).all():
         at = _nearest(send_name, recv_name, NAME_TOLERANCE_NS)
-        seen = np.zeros(send_ns.size, bool)
-        dup = np.zeros(m, bool)
-        for j, i in enumerate(at.tolist()):  # duplicates: a name seen before
-            if i >= 0:
-                dup[j] = seen[i]
-                seen[i] = True
+        dup = at >= 0  # duplicates: a name seen before
+        dup[np.unique(at, return_index=True)[1]] = False
         first = at[(at >= 0) & ~dup]
         reordered = int((first[1:] < np.maximum.accumulate(first)[:-1]).sum()) if first.size else 0
-        return NodeMatch(at, at, dup, reordered, True, np.zeros(m, bool))
+        return NodeMatch(at, at, dup, reordered, np.zeros(m, bool))
     sv = np.asarray(send_value, np.float32).view(np.int32)  # compare the frame's bytes exactly
     rv = np.asarray(recv_value, np.float32).view(np.int32)
     early = _embed_earliest(sv, send_ns, rv, recv_ns)
@@ -94,7 +88,7 @@ def match_node(
         early[f], late[f], recv_ns[f] - send_ns[early[f]], recv_ns[f] - send_ns[late[f]]
     )
     bound = np.where(tied, early, chosen)  # the oldest sends the logs leave open
-    return NodeMatch(chosen, bound, dup, 0, False, tied, int(((early != late) & f).sum()))
+    return NodeMatch(chosen, bound, dup, 0, tied, int(((early != late) & f).sum()))
 
 
 def _smoothest(
@@ -107,8 +101,6 @@ def _smoothest(
     hops, is used and the stretch is marked)."""
     differ = early != late
     out, tied = early.copy(), np.zeros(early.size, bool)
-    if not differ.any():
-        return out, tied
     m = early.size
     edges = np.diff(np.concatenate([[0], differ.astype(np.int8), [0]]))
     for a, b in zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(),
@@ -128,8 +120,7 @@ def _by_value(values: np.ndarray) -> dict[int, np.ndarray]:
     """value -> the sorted indices where it occurs."""
     order = np.argsort(values, kind="stable")
     keys, starts = np.unique(values[order], return_index=True)
-    bounds = [*starts.tolist(), order.size]
-    return {int(k): order[bounds[n] : bounds[n + 1]] for n, k in enumerate(keys.tolist())}
+    return dict(zip(keys.tolist(), np.split(order, starts[1:]), strict=True))
 
 
 def _embed_earliest(sv: np.ndarray, ss: np.ndarray, rv: np.ndarray, rr: np.ndarray) -> np.ndarray:
@@ -188,9 +179,8 @@ def _embed_latest(sv: np.ndarray, ss: np.ndarray, rv: np.ndarray, rr: np.ndarray
 
 
 def _nearest(keys: np.ndarray, query: np.ndarray, tolerance_ns: int) -> np.ndarray:
-    """For each query, the index of the key nearest to it within the tolerance (-1: none)."""
-    if keys.size == 0:
-        return np.full(query.size, -1, np.int64)
+    """For each query, the index of the key nearest to it within the tolerance (-1: none);
+    ``keys`` not empty."""
     order = np.argsort(keys, kind="stable")
     ks = keys[order]
     pos = np.clip(np.searchsorted(ks, query), 1, max(1, ks.size - 1))

@@ -40,10 +40,8 @@ def certificate(sv: ScenarioView, ts: float, delay: float) -> CertificateFigures
     except Exception as exc:  # a design the certificate rejects is a figure, not a crash
         return CertificateFigures(ts, delay, None, None, False, source, {"error": str(exc)})
     detail = {**cert.to_dict(), "failed": [c.name for c in cert.failed()]}
-    held = bool(cert.held)
-    return CertificateFigures(
-        ts, delay, float(cert.v_bound), float(cert.w_bound), held, source, detail
-    )
+    v, w = float(cert.v_bound), float(cert.w_bound)
+    return CertificateFigures(ts, delay, v, w, bool(cert.held), source, detail)
 
 
 #: The keys of a certificate object (docs/run-folder.md, "certificate").
@@ -82,8 +80,7 @@ def scenario_certificate(sv: ScenarioView) -> Certificate:
     try:
         d_star = critical_age(params, sv.context, sv.boundary_layer, v0=sv.v0, w0=sv.w0)
     except Exception as exc:  # a design the certificate rejects is a figure, not a crash
-        out["held"] = False
-        out["error"] = str(exc)
+        out.update(held=False, error=str(exc))
         return out
     c = certificate(sv, d, 0.0)
     out["failed_conditions"] = list(c.detail.get("failed", []))

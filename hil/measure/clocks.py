@@ -23,19 +23,12 @@ from runtime.clocksync import CLOCK_FILE
 # The columns stamped on the controller's clock (a stamp of 0 means none and stays 0); the
 # other columns of these tables are the plant's stamps, carried back in the State.
 CONTROLLER_CLOCK: dict[str, tuple[str, ...]] = {
-    "ticks": (
-        "deadline_ns",
-        "wake_ns",
-        "state_recv_ns",
-        "compute_start_ns",
-        "compute_end_ns",
-        "zenoh_send_ns",
-        "can_send_ns",
-    ),
+    "ticks": ("deadline_ns", "wake_ns", "state_recv_ns", "compute_start_ns", "compute_end_ns",
+              "zenoh_send_ns", "can_send_ns"),
     "state_rx": ("recv_ns",),
     "can_tx": ("send_ns", "bus_end_ns"),
     "cmd_rx": ("compute_start_ns", "send_ns"),
-}
+}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -81,8 +74,7 @@ def read_track(folder: Path) -> ClockTrack:
     fields = [line.split(",") for line in lines]
     ok = [f for f in fields if len(f) == 8 and all(x.lstrip("-").isdigit() for x in f)]
     rows = [(int(f[3]), int(f[6]), int(f[7])) for f in ok]
-    a = np.asarray(rows, dtype=np.int64).reshape(-1, 3)
-    return ClockTrack(a[:, 0], a[:, 1], a[:, 2])
+    return ClockTrack(*np.asarray(rows, dtype=np.int64).reshape(-1, 3).T)
 
 
 def to_plant_clock(tables: dict[str, dict[str, np.ndarray]], folder: Path | None) -> None:

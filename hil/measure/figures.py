@@ -145,22 +145,16 @@ def _stream_counts(sent_ids: np.ndarray, rx_ids: np.ndarray) -> dict[str, int]:
     """sent, received (distinct ids that were sent), lost, duplicated, reordered: one definition
     for every stream. Reordered: an arrival older than one that arrived before it."""
     sent = np.unique(sent_ids)
-    mine = np.isin(rx_ids, sent)
-    rx = rx_ids[mine]
-    distinct = np.unique(rx)
-    reordered = 0
-    if rx.size > 1:
-        run_max = np.maximum.accumulate(rx)
-        first = np.zeros(rx.size, bool)
-        _, idx = np.unique(rx, return_index=True)
-        first[idx] = True
-        reordered = int(((rx[1:] < run_max[:-1]) & first[1:]).sum())
+    rx = rx_ids[np.isin(rx_ids, sent)]
+    distinct, idx = np.unique(rx, return_index=True)
+    first = np.zeros(rx.size, bool)
+    first[idx] = True
     return {
         "sent": int(sent.size),
         "received": int(distinct.size),
         "lost": int(sent.size - distinct.size),
         "duplicated": int(rx.size - distinct.size),
-        "reordered": reordered,
+        "reordered": int(((rx[1:] < np.maximum.accumulate(rx)[:-1]) & first[1:]).sum()),
     }
 
 
@@ -181,18 +175,15 @@ class _Run:
         self.settle = 2 * self.ts + int(
             1e9 * (float(pm.get("delay_s") or 0.0) + float(pm.get("jitter_s") or 0.0))
         )
-        self.samples = logs["samples"]
-        self.ticks = logs["ticks"]
+        self.samples, self.ticks = logs["samples"], logs["ticks"]
         sn = self.samples["sample_ns"]
-        self.w0 = int(sn[0]) if sn.size else 0
-        self.w1 = int(sn[-1]) if sn.size else 0
+        self.w0, self.w1 = (int(sn[0]), int(sn[-1])) if sn.size else (0, 0)
         # cmd_seq -> its tick row (the controller's own record, not what the message claims),
         # sorted by cmd_seq once: every join by command (tick_of) is then a search, not a sort.
-        t = self.ticks
-        rows = np.nonzero(t["cmd_seq"] >= 0)[0]
-        order = np.argsort(t["cmd_seq"][rows], kind="stable")
-        self.cmd_rows = rows[order]
-        self.cmd_keys = t["cmd_seq"][self.cmd_rows]
+        seq = self.ticks["cmd_seq"]
+        rows = np.nonzero(seq >= 0)[0]
+        self.cmd_rows = rows[np.argsort(seq[rows], kind="stable")]
+        self.cmd_keys = seq[self.cmd_rows]
         self._can = self._match_can()
         self.series_without: np.ndarray | None = None  # sample times left without a command
 
@@ -268,7 +259,7 @@ class _Run:
             a = self.can_applies
             m = np.isin(a["outcome"], LANDINGS)
             cmd = a["cmd_early"] if early else a["cmd"]
-            return self._can_commands(a["node"][m], a["land"][m], cmd[m])
+            return self._in_force(a["node"][m], a["land"][m], cmd[m])
         elif path == "zenoh":
             rx = self.logs["cmd_rx"]
             m = rx["path"] == CmdPath.ZENOH
@@ -277,8 +268,8 @@ class _Run:
             c = self._can
             got = ~c["lost"]
             cmd = c["cmd_early"] if early else c["cmd"]
-            return self._can_commands(c["node"][got], c["recv"][got], cmd[got])
-        return self._newest_wins(land, cmd)
+            return self._in_force(c["node"][got], c["recv"][got], cmd[got])
+        return self._in_force(np.zeros(cmd.size, np.int64), land, cmd)  # one 'wheel'
 
     @cached_property
     def can_applies(self) -> dict[str, np.ndarray]:
@@ -303,8 +294,7 @@ class _Run:
     @cached_property
     def wake_sorted(self) -> Stamped:
         t = self.ticks
-        order = np.argsort(t["wake_ns"], kind="stable")
-        return Stamped(t["wake_ns"][order], late=(t["wake_ns"] - t["deadline_ns"])[order])
+        return Stamped.by_time(t["wake_ns"], late=t["wake_ns"] - t["deadline_ns"])
 
     @cached_property
     def state_received(self) -> np.ndarray:
@@ -322,9 +312,7 @@ class _Run:
         tick uses it, and only its arrival row shows the hold."""
         rx = self.logs["state_rx"]
         ok = (rx["recv_ns"] > 0) & (rx["send_ns"] > 0)
-        order = np.argsort(rx["sample_ns"][ok], kind="stable")
-        hop = (rx["recv_ns"] - rx["send_ns"])[ok][order]
-        return Stamped(rx["sample_ns"][ok][order], hop=hop)
+        return Stamped.by_time(rx["sample_ns"][ok], hop=(rx["recv_ns"] - rx["send_ns"])[ok])
 
     @cached_property
     def commands_sorted(self) -> Stamped:
@@ -354,22 +342,14 @@ class _Run:
             off_bus = put <= 0
         arr, found = _lookup(seq, recv, cmd)
         hop = np.where(found, arr - stamps, -1)
-        order = np.argsort(stamps, kind="stable")
-        return Stamped(
-            stamps[order],
-            arrived=found[order],
-            injected=injected[order],
-            hop=hop[order],
-            off_bus=off_bus[order],
-        )
+        return Stamped.by_time(stamps, arrived=found, injected=injected, hop=hop, off_bus=off_bus)
 
     @cached_property
     def burst_sorted(self) -> Stamped:
         """Landings a [faults] burst delayed, by landing time, with the delay."""
         ap = self.logs["apply"]
         b = ap["outcome"] == ApplyOutcome.BURST
-        order = np.argsort(ap["apply_ns"][b], kind="stable")
-        return Stamped(ap["apply_ns"][b][order], hop=(ap["apply_ns"] - ap["recv_ns"])[b][order])
+        return Stamped.by_time(ap["apply_ns"][b], hop=(ap["apply_ns"] - ap["recv_ns"])[b])
 
     def tick_of(self, cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(tick row, found) of each command sequence number."""
@@ -389,20 +369,10 @@ class _Run:
             out[~found] = np.where(has, got, 0)
         return out
 
-    def _newest_wins(self, land: np.ndarray, cmd: np.ndarray):
-        order = np.argsort(land, kind="stable")
-        land, cmd = land[order], cmd[order]
-        samp = self._sample_of(cmd)
-        keep = samp > 0
-        land, cmd, samp = land[keep], cmd[keep], samp[keep]
-        if cmd.size:
-            newer = np.concatenate([[True], cmd[1:] > np.maximum.accumulate(cmd)[:-1]])
-            land, cmd, samp = land[newer], cmd[newer], samp[newer]
-        return land, samp, cmd
-
-    def _can_commands(self, node: np.ndarray, land: np.ndarray, cmd: np.ndarray):
-        """A CAN command is in force once both wheels' frames of it (or newer) have landed: the
-        sample in force is the older of the two wheels' (a conservative age)."""
+    def _in_force(self, node: np.ndarray, land: np.ndarray, cmd: np.ndarray):
+        """(land_ns, sample_ns, cmd_seq) of each change of the command in force, newest wins.
+        On CAN a command is in force once every wheel's frame of it (or newer) has landed: the
+        sample in force is the oldest of the wheels' (a conservative age)."""
         # Lifecycle zeros (-1) and unmatched frames (-2) are not commands; nor is a watchdog's
         # zero torque, computed from no sample: it does not renew the age (as on Zenoh).
         keep = cmd >= 0
@@ -427,38 +397,41 @@ def measure(logs: RunLogs, bound: BoundInputs | None = None) -> Measurement:
     if r.samples["sample_ns"].size == 0:
         out.timing = {"units": "us", "note": "no plant samples: the plant never ran"}
         return out
-    timing: dict[str, Any] = {"units": "us", "window_s": (r.w1 - r.w0) / 1e9}
+    out.timing = timing = {"units": "us", "window_s": (r.w1 - r.w0) / 1e9}
     _wakeups(r, timing, out.series)
     _hops(r, timing)
     _paths(r, timing, out.series)
     out.messages = _messages(r)
     out.host = r.host_over(r.w0, r.w1)
     out.certificate = _certificate(r, bound, out.series, timing)
-    out.timing = timing
     return out
 
 
-def _missed_slots(late: np.ndarray, skipped: np.ndarray, period: int) -> dict[str, Any]:
+# summary.json's names of _missed_slots' six figures (None: not reported).
+_TICK_SLOTS = ("deadline_misses", "late_ticks", "skipped_slots", "ticks", "slots",
+               "deadline_miss_rate")  # fmt: skip
+_PLANT_SLOTS = ("plant_deadline_misses", "plant_late_samples", "plant_skipped_slots", None,
+                "plant_slots", "plant_deadline_miss_rate")  # fmt: skip
+
+
+def _missed_slots(
+    keys: tuple[str | None, ...], late: np.ndarray, skipped: np.ndarray, period: int
+) -> dict[str, Any]:
     """Missed slots: every slot whose deadline passed without its wake-up within one period
     (the late wake-ups) plus the slots never run (skipped), over every slot of the window."""
     late_n = int((late >= period).sum())
     skipped_n = int(skipped.sum())
     slots = int(late.size) + skipped_n
-    return {
-        "misses": late_n + skipped_n,
-        "late": late_n,
-        "skipped": skipped_n,
-        "slots": slots,
-        "rate": (late_n + skipped_n) / slots if slots else None,
-    }
+    rate = (late_n + skipped_n) / slots if slots else None
+    figures = (late_n + skipped_n, late_n, skipped_n, int(late.size), slots, rate)
+    return {k: v for k, v in zip(keys, figures, strict=True) if k is not None}
 
 
 def _tick_phase(r: _Run) -> dict[str, Any]:
     """Where the periodic ticks fell after the sample: the rule, and for "auto" the phase
     learnt and what it was learnt from (controller_service.tick_phase), in µs."""
     cm = r.logs.cmeta
-    out: dict[str, Any] = {"rule": str(cm.get("tick_phase") or "half")}
-    out["phase_us"] = r.period / 2e3
+    out: dict[str, Any] = {"rule": str(cm.get("tick_phase") or "half"), "phase_us": r.period / 2e3}
     if cm.get("tick_phase_phase_ns") is not None:
         us = {"phase_ns": "phase_us", "arrival_q_ns": "arrival_p99_us", "path_q_ns": "path_p99_us"}
         out.update({v: int(cm[f"tick_phase_{k}"]) / 1e3 for k, v in us.items()})
@@ -475,13 +448,7 @@ def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
     if r.trigger == "periodic" and not r.lockstep and win.any():
         late = t["wake_ns"][win] - t["deadline_ns"][win]
         timing["wakeup_lateness"] = summarize_ns(late)
-        miss = _missed_slots(late, t["skipped"][win], r.period)
-        timing["deadline_misses"] = miss["misses"]
-        timing["late_ticks"] = miss["late"]
-        timing["skipped_slots"] = miss["skipped"]
-        timing["ticks"] = int(win.sum())
-        timing["slots"] = miss["slots"]
-        timing["deadline_miss_rate"] = miss["rate"]
+        timing.update(_missed_slots(_TICK_SLOTS, late, t["skipped"][win], r.period))
         k, wake = t["k"][win], t["wake_ns"][win]
         expected = np.diff(k) * r.period
         at = r.logs.cmeta.get("tick_phase_from_k")
@@ -498,12 +465,7 @@ def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
         plate = s["wake_ns"] - s["sample_ns"]
         timing["plant_wakeup_lateness"] = summarize_ns(plate)
         gaps = np.diff(s["sample_ns"]) // max(1, r.sensor_period) - 1
-        miss = _missed_slots(plate, np.clip(gaps, 0, None), r.sensor_period)
-        timing["plant_deadline_misses"] = miss["misses"]
-        timing["plant_late_samples"] = miss["late"]
-        timing["plant_skipped_slots"] = miss["skipped"]
-        timing["plant_slots"] = miss["slots"]
-        timing["plant_deadline_miss_rate"] = miss["rate"]
+        timing.update(_missed_slots(_PLANT_SLOTS, plate, np.clip(gaps, 0, None), r.sensor_period))
         series["plant_wakeup_lateness"] = ((s["sample_ns"] - r.epoch) / 1e9, plate)
     timing["plant_sample_to_send"] = summarize_ns(s["send_ns"] - s["sample_ns"])
 
@@ -527,16 +489,12 @@ def _hops(r: _Run, timing: dict[str, Any]) -> None:
     seq, recv = _first_per_key(rx["seq"][z], rx["recv_ns"][z])
     i, found = r.tick_of(seq)
     recv, i = recv[found], i[found]
-    send = t["zenoh_send_ns"][i]
-    ok = (send > 0) & _in(t["state_sample_ns"][i], r.w0, r.w1)
-    recv, i, send = recv[ok], i[ok], send[ok]
-    hop = recv - send
+    ok = (t["zenoh_send_ns"][i] > 0) & _in(t["state_sample_ns"][i], r.w0, r.w1)
+    recv, i = recv[ok], i[ok]
+    hop = recv - t["zenoh_send_ns"][i]
     timing["hop_cmd_zenoh"] = summarize_ns(hop)
-    f = fresh[i]
-    loop = (t["state_recv_ns"][i] - t["state_send_ns"][i]) + (
-        t["compute_end_ns"][i] - t["compute_start_ns"][i]
-    )
-    timing["loop_transport_compute"] = summarize_ns((loop + hop)[f])
+    loop = t["state_recv_ns"] - t["state_send_ns"] + t["compute_end_ns"] - t["compute_start_ns"]
+    timing["loop_transport_compute"] = summarize_ns((loop[i] + hop)[fresh[i]])
     ss, has = _lookup(r.samples["seq"], r.samples["send_ns"], t["state_seq"][i])
     timing["state_send_to_cmd_recv"] = summarize_ns((recv - ss)[has])
     c = r._can
@@ -589,8 +547,7 @@ def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
 
 def _messages(r: _Run) -> dict[str, Any]:
     s, t = r.samples, r.ticks
-    srx = r.logs["state_rx"]
-    state = _stream_counts(s["seq"], srx["seq"])
+    state = _stream_counts(s["seq"], r.logs["state_rx"]["seq"])
     state["injected_drops"] = int(((s["flags"] & SAMPLE_DROPPED) != 0).sum())
     state["injected_duplicates"] = int(((s["flags"] & SAMPLE_DUPLICATED) != 0).sum())
     out: dict[str, Any] = {"state": state}
@@ -606,8 +563,7 @@ def _messages(r: _Run) -> dict[str, Any]:
     z["injected_reorders"] = int(((t["flags"][inwin] & TICK_REORDERED) != 0).sum())
     z["sent_after_window"] = int((zsent & (t["zenoh_send_ns"] > end)).sum())
     out["torque_zenoh"] = z
-    tx = r.logs["can_tx"]
-    if tx["node"].size or (rx["path"] == CmdPath.CAN).any():
+    if r.logs["can_tx"]["node"].size or (rx["path"] == CmdPath.CAN).any():
         out["torque_can"] = _can_messages(r)
     return out
 

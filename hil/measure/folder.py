@@ -68,8 +68,6 @@ def measured(folder: RunFolder) -> Measurement | None:
     by the same :func:`measure_and_save`; summary.json is never rewritten."""
     arrays = read_series(folder.path)
     if arrays is None:
-        if not folder.has_hop_logs():
-            return None
         m = measure_and_save(folder.path)
         if m is None:
             return None
@@ -84,8 +82,5 @@ def measure_recording(path: str | Path) -> Measurement | None:
     logs = load_recording_logs(path)
     if logs is None:
         return None
-    resolved = None
     toml = read_attachments(path, names=(layout.SCENARIO_RESOLVED,)).get(layout.SCENARIO_RESOLVED)
-    if toml is not None:
-        resolved = tomllib.loads(toml.decode())
-    return measure_logs(logs, resolved)
+    return measure_logs(logs, tomllib.loads(toml.decode()) if toml is not None else None)

@@ -169,11 +169,10 @@ def read_columns(
     if fields is None:
         raise HopLogError(f"{path}: no hop-log header")
     head.truncated = end < size
-    out: dict[str, dict[str, np.ndarray]] = {name: {} for name in tables}
-    for name, wanted in tables.items():
-        for c in wanted:
-            out[name][c] = _column(parts.get(name, {}).pop(c, None), c, COLUMNS[name][c])
-    return head, out
+    return head, {
+        name: {c: _column(parts.get(name, {}).pop(c, None), c, COLUMNS[name][c]) for c in wanted}
+        for name, wanted in tables.items()
+    }
 
 
 @dataclass
@@ -265,9 +264,8 @@ def load_recording_logs(path: str | Path) -> RunLogs | None:
     if not found:
         return None
     with tempfile.TemporaryDirectory(prefix="hil-hoplogs-") as tmp:
-        paths: dict[str, Path] = {}
+        paths = {name: Path(tmp) / name for name in found}
         for name, data in found.items():
-            paths[name] = Path(tmp) / name
             paths[name].write_bytes(data)
         return RunLogs.read(
             paths.get(layout.CONTROLLER_LOG), paths.get(layout.PLANT_LOG), host=paths.get(HOST_FILE)

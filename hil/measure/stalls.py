@@ -50,6 +50,12 @@ class Stamped:
     hop: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     off_bus: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # CAN: never sent
 
+    @classmethod
+    def by_time(cls, stamps: np.ndarray, **columns: np.ndarray) -> Stamped:
+        """The rows (``stamps`` and the ``columns`` beside them) sorted by ``stamps``."""
+        order = np.argsort(stamps, kind="stable")
+        return cls(stamps[order], **{k: v[order] for k, v in columns.items()})
+
 
 class _Run(Protocol):
     """What a stall's cause joins: the run's logs sorted by time once (hil.measure.figures)."""
@@ -134,9 +140,6 @@ def find_stalls(
     bench's stalls (module docstring)."""
     ex = excursions(seg, threshold_ns)
     rep = StallReport(count=len(ex), stalled_time_ns=int(ex.above.sum()))
-    rep.d_system_ns = int(seg.peak.max()) if len(seg) else None
-    if not len(ex):
-        return rep
     order = np.argsort(-ex.peak, kind="stable")
     must = int((ex.peak > d_star_ns).sum()) if d_star_ns is not None else 0
     looked = order[: max(STALL_LIMIT, min(must, CAUSE_LIMIT))]
@@ -255,14 +258,12 @@ def _message_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None
         if c.off_bus.any():  # CAN: frames that never reached the bus (bus-off)
             ev["frames_not_on_bus"] = int(c.off_bus[sl][lost_c].sum())
         scores["command_lost"] = int(lost_c.sum()) * r.period
-    # A message held up while its receiver was stalled is the receiver's stall, not the wire's:
-    # hops that the receiver's own lateness explains (within a period) do not count.
-    hop = c.hop[sl]
-    hop = hop[hop >= 0]
-    # ... and one held up by a stalled sender (stamped, then stopped before it left) the
-    # sender's: a hop either end's lateness covers is no evidence against the wire.
+    # A message held up by a stalled receiver, or by a stalled sender (stamped, then stopped
+    # before it left), is that end's stall, not the wire's: a hop either end's lateness covers
+    # (within a period) is no evidence against the wire.
     ends = max(scores.get("plant_late", 0), scores.get("controller_late", 0))
-    hop = hop[hop > ends + r.period]
+    hop = c.hop[sl]
+    hop = hop[hop > ends + r.period]  # never negative: -1 is a command that never arrived
     hs = r.state_hops_sorted
     shop = hs.hop[_between(hs.stamps, lo, hi)]
     shop = shop[shop > ends + r.period]

@@ -1,9 +1,6 @@
-"""Exact percentile summaries of durations (nanoseconds in, microseconds out).
-
-Every percentile is one of the measured values (numpy's ``inverted_cdf``: the smallest value
-with at least q of the samples at or below it), so no percentile can exceed the maximum and
-nothing is rounded to a histogram bucket.
-"""
+"""Exact percentile summaries of durations (nanoseconds in, microseconds out): every
+percentile is one of the measured values (:func:`hil.trace_metrics.percentile`'s definition),
+so none can exceed the maximum and nothing is rounded to a histogram bucket."""
 
 from __future__ import annotations
 
@@ -35,9 +32,7 @@ def summarize_ns(values_ns: Any) -> dict[str, Any]:
 def summary_from_quantiles(
     count: int, quantile_ns: dict[str, Any], max_ns: int, mean_ns: float
 ) -> dict[str, Any]:
-    """The same object from percentiles computed elsewhere (the command age's exact counts)."""
-    if count == 0:
-        return empty_summary()
+    """The same object from percentiles computed elsewhere (the command age's; ``count`` > 0)."""
     out: dict[str, Any] = {"count": int(count)}
     for name, _ in PERCENTILES:
         out[name] = int(quantile_ns[name]) / 1000.0

@@ -47,13 +47,11 @@ def age_windows(
         mine = k == i
         part = AgeSegments(seg.start[mine], seg.end[mine], seg.sample[mine])
         summary = age_summary(part, grid0_ns, step_ns)
+        summary["max_at_ns"] = None
         if len(part):
-            peaks = part.peak
-            j = int(np.argmax(peaks))
-            summary["max_us"] = int(peaks[j]) / 1000.0
+            j = int(np.argmax(part.peak))
+            summary["max_us"] = int(part.peak[j]) / 1000.0
             summary["max_at_ns"] = int(part.end[j])
-        else:
-            summary["max_at_ns"] = None
         summary["segments"] = len(part)
         out.append(summary)
     return out
@@ -73,12 +71,11 @@ def per_window(
     w0, w1 = int(window_ns[0]), int(window_ns[1])
     n = max(1, -(-(w1 - int(epoch_ns)) // int(width_ns)))  # windows up to w1, at least 1
     late = series.get("wakeup_lateness")
-    lat = [None] * n if late is None else lateness_windows(*late, 0.0, width_ns / 1e9, n)
+    lat = [{}] * n if late is None else lateness_windows(*late, 0.0, width_ns / 1e9, n)
     seg = series.get(f"command_age_{series.get('applied_path', 'zenoh')}")
-    age = age_windows(seg, w0, step_ns, epoch_ns, width_ns, n) if seg is not None else [None] * n
+    age = [{}] * n if seg is None else age_windows(seg, w0, step_ns, epoch_ns, width_ns, n)
     out = []
-    for i in range(n):
-        w, a = lat[i] or {}, age[i] or {}
+    for i, (w, a) in enumerate(zip(lat, age, strict=True)):
         at = a.get("max_at_ns")
         out.append(
             {
