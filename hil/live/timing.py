@@ -129,21 +129,21 @@ class LiveTiming:
         self._expire(now_ns)
         b = self.bounds
         d_star_ms = None if b.d_star_s is None else b.d_star_s * 1e3
-        age_max_ms = _ms(self.age_max_ns)
+        age_max_ms = _per(self.age_max_ns, 1e6)
         outcome, reasons = self.verdict()
         first = self.first_recv_ns if self.first_recv_ns is not None else now_ns
         figures = {
             "t_s": max(0.0, (now_ns - first) / 1e9),
             "states": self.states,
             "commands": self.commands,
-            "command_age_now_ms": _ms(self.age_now_ns),
+            "command_age_now_ms": _per(self.age_now_ns, 1e6),
             "command_age_max_ms": age_max_ms,
             "d_star_ms": d_star_ms,
             "age_margin_ms": (
                 None if d_star_ms is None or age_max_ms is None else d_star_ms - age_max_ms
             ),
-            "lateness_now_us": _us(self.lateness_now_ns),
-            "lateness_max_us": _us(self.lateness_max_ns),
+            "lateness_now_us": _per(self.lateness_now_ns, 1e3),
+            "lateness_max_us": _per(self.lateness_max_ns, 1e3),
             "deadline_misses": self.deadline_misses,
             "states_without_command": self.unanswered,
             "max_abs_v": self.max_v,
@@ -155,9 +155,6 @@ class LiveTiming:
         return {k: v for k, v in figures.items() if v is not None}
 
 
-def _ms(ns: int | None) -> float | None:
-    return None if ns is None else max(0.0, ns / 1e6)
-
-
-def _us(ns: int | None) -> float | None:
-    return None if ns is None else max(0.0, ns / 1e3)
+def _per(ns: int | None, unit_ns: float) -> float | None:
+    """``ns`` in units of ``unit_ns`` (at least 0), None while unknown."""
+    return None if ns is None else max(0.0, ns / unit_ns)

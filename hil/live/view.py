@@ -123,6 +123,4 @@ class LiveView:
 
 
 def _mirror(msg: Any) -> dict[str, Any]:
-    d = to_jsonable(msg)
-    d["type"] = type(msg).__name__
-    return d
+    return {**to_jsonable(msg), "type": type(msg).__name__}
