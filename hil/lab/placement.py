@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from hil.errors import BadInputError
-from hil.lab.clockplot import plot_clock
+from hil.lab.clockplot import CLOCK_PLOT, clock_png
 from hil.lab.lab import LOCAL_ROUTER, host_command, host_env, host_of, require_root
 from hil.lab.state import load
 from hil.measure.clocks import read_track
@@ -141,17 +141,20 @@ def write_topology(p: Placement | None, run_dir: Path) -> None:
         return
     facts = topology(p)
     track = read_track(run_dir)
-    facts["clock"] = track.facts()
-    facts["clock"]["cross_host_figures"] = list(CROSS_HOST) if p.plant != p.controller else []
+    clock = facts["clock"] = track.facts()
+    clock["cross_host_figures"] = list(CROSS_HOST) if p.plant != p.controller else []
     if p.plant != p.controller and track.at_ns.size == 0:
-        facts["clock"]["warning"] = "clocks not related: the cross-host figures are not valid"
+        clock["warning"] = "clocks not related: the cross-host figures are not valid"
         print(
             f"warning: the controller's clock was not related to the plant's: "
             f"{', '.join(CROSS_HOST)} mix two clocks and are not valid",
             file=sys.stderr,
         )
     try:
-        facts["clock"]["plot"] = getattr(plot_clock(run_dir), "name", None)
+        png = clock_png(track)
+        if png is not None:
+            (run_dir / CLOCK_PLOT).write_bytes(png)
+        clock["plot"] = None if png is None else CLOCK_PLOT
     except Exception as exc:  # a plot must never cost the run its folder
         print(f"warning: clock plot not written: {exc}", file=sys.stderr)
     (run_dir / TOPOLOGY_FILE).write_text(json.dumps(facts, indent=2) + "\n")
