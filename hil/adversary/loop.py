@@ -184,16 +184,13 @@ def run_loops(
     scale = np.array([scenario.disturbance.s1, scenario.disturbance.s2], dtype=float)[None, :, None]
     a = scale * ((modes == 2).astype(float) - (modes == 1).astype(float))
     b = scale * (modes == 3).astype(float)
-    blocks = modes.shape[2]
-    limits = scenario.limits
     hold = Hold(n, apart=not together)
     ext = Extremes.zeros(n)
     if memory is None:
         memory = controller.initial_memory(n, z1=scenario.initial.z1, z2=scenario.initial.z2)
     state = initial
     peaks = np.zeros((3, n))  # |tau1|, |tau2|, late position error
-    sensor = scenario.sensor
-    ideal = sensor.is_ideal
+    ideal = scenario.sensor.is_ideal
     sensor_seeds = np.full(n, scenario.plant.noise_seed, dtype=np.int64)
     ones = np.ones(n)
     for k in range(k_all):
@@ -201,21 +198,19 @@ def run_loops(
         ref = reference.sample(t_k)
         ref_arr = ReferenceSample(*(ones * float(value) for value in ref))
         rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
-        meas = rs if ideal else measure(sensor, rs, k, sensor_seeds)
+        meas = rs if ideal else measure(scenario.sensor, rs, k, sensor_seeds)
         out, memory = controller.update(t_k, ts, meas, ref_arr, memory)
         tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
         tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
-        np.maximum(peaks[0], np.abs(tau1), out=peaks[0])
-        np.maximum(peaks[1], np.abs(tau2), out=peaks[1])
+        np.maximum(peaks[:2], np.abs([tau1, tau2]), out=peaks[:2])
         j0 = k * m
         hold.send(k, land[k] if together else land[schedule.group, k], tau1, tau2)
         hold.land(j0)
         if 2 * k >= k_all:
-            err = np.hypot(state.x - ref.xd, state.y - ref.yd)
-            np.maximum(peaks[2], err, out=peaks[2])
-        blk = k * blocks // k_all
+            np.maximum(peaks[2], np.hypot(state.x - ref.xd, state.y - ref.yd), out=peaks[2])
+        blk = k * modes.shape[2] // k_all
         coef = (a[:, 0, blk], a[:, 1, blk], b[:, 0, blk], b[:, 1, blk])
-        state = _advance(state, hold, h, (j0, j0 + m), coef, own, limits, ext)
+        state = _advance(state, hold, h, (j0, j0 + m), coef, own, scenario.limits, ext)
     v, omega = (np.asarray(x, dtype=float) for x in (ext.max_abs_v, ext.max_abs_omega))
     return LoopPeaks(v, omega, *peaks)
 

@@ -77,18 +77,12 @@ def scores(peaks: LoopPeaks, limits: Any, error_bound: float | None) -> tuple[np
     """Per loop: the largest ratio to a limit and the index of that limit (``LIMIT_NAMES``).
     The torques count only when beyond their limit: the laws clamp them, so a torque at its
     limit (ratio 1 all along for the sign law) says nothing about how close (2) came."""
-    zero = np.zeros_like(peaks.max_abs_v)
-    over = 1.0 + VIOLATION_RTOL
-
-    def beyond(ratio: np.ndarray) -> np.ndarray:
-        return np.where(ratio > over, ratio, zero)
-
+    tau = np.array([peaks.max_abs_tau1 / limits.varpi1, peaks.max_abs_tau2 / limits.varpi2])
     ratios = [
         peaks.max_abs_v / limits.phi1,
         peaks.max_abs_omega / limits.phi2,
-        beyond(peaks.max_abs_tau1 / limits.varpi1),
-        beyond(peaks.max_abs_tau2 / limits.varpi2),
-        peaks.max_late_error / error_bound if error_bound else zero,
+        np.where(tau > 1.0 + VIOLATION_RTOL, tau, 0.0),  # two rows: |tau1|, |tau2|
+        peaks.max_late_error / error_bound if error_bound else np.zeros_like(peaks.max_abs_v),
     ]
     stacked = np.vstack(ratios)
     return stacked.max(axis=0), stacked.argmax(axis=0)
