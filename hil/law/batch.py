@@ -50,23 +50,22 @@ class PerRobot:
         times = np.broadcast_to(np.asarray(t, dtype=float), (n,))
         states = [np.broadcast_to(np.asarray(f, dtype=float), (n,)) for f in state]
         refs = [np.broadcast_to(np.asarray(f, dtype=float), (n,)) for f in ref]
-        outs = []
-        new_memory = []
-        for i in range(n):
-            out, mem = self.law.update(
+        robots = [
+            self.law.update(
                 float(times[i]),
                 dt,
                 RobotState(*(float(f[i]) for f in states)),
                 ReferenceSample(*(float(f[i]) for f in refs)),
                 memory[i],
             )
-            outs.append(out)
-            new_memory.append(mem)
+            for i in range(n)
+        ]
+        outs = [out for out, _ in robots]
         keys = list(outs[0].telemetry)
         telemetry = {k: np.array([float(o.telemetry.get(k, np.nan)) for o in outs]) for k in keys}
         tau1 = np.array([float(o.tau1) for o in outs])
         tau2 = np.array([float(o.tau2) for o in outs])
-        return ControlOutput(tau1, tau2, telemetry), new_memory
+        return ControlOutput(tau1, tau2, telemetry), [mem for _, mem in robots]
 
 
 def _what(exc: BaseException) -> str:
@@ -105,9 +104,8 @@ def array_problem(controller: Any, scenario: Any, reference: Any) -> str | None:
         tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
     except Exception as exc:  # the user's code may raise anything on arrays
         return _what(exc)
-    want = np.array(singles)
     got = np.stack([tau1, tau2], axis=1)
-    if not np.allclose(got, want, rtol=1e-9, atol=1e-12, equal_nan=True):
+    if not np.allclose(got, np.array(singles), rtol=1e-9, atol=1e-12, equal_nan=True):
         return "on arrays it returned other torques than robot by robot"
     return None
 
