@@ -5,9 +5,22 @@ Why a process of its own: ``hil drives`` runs its real-time loop in its own proc
 cycle (only the Zenoh router side of the run forwards the messages to one more client). It
 subscribes to each robot's keys ``hil/<id>/**`` on that robot's Zenoh endpoint (one session
 per endpoint: a fleet's robots, each with its own settings file) and, for one robot, listens to
-its CAN bus (both read-only), and serves :class:`hil.live.view.LiveView` until SIGINT or
+its CAN bus (both read-only), and serves :class:`LiveView` until SIGINT or
 SIGTERM, then closes the server (every client sees the close). It prints one line
 ``live: ws://HOST:PORT`` on stdout once the server listens.
+
+Channels (JSON, each with its schema from :mod:`hil.schemas`, the recording's own):
+
+- ``hil/<id>/state``, ``.../cmd/torque``, ``.../telemetry``, ``.../status``: the protocol's
+  messages as the recording mirrors them;
+- ``hil/<id>/pose`` (``foxglove.PoseInFrame``), ``hil/<id>/tf`` (``foxglove.FrameTransform``
+  world -> <id>) and ``hil/<id>/reference`` (``foxglove.PoseInFrame`` of the reference at the
+  State's sample time, once the run's epoch is known) for the 3D panel;
+- ``can/<channel>``: the drives' frames, decoded as the recording decodes them;
+- ``hil/<id>/live/timing`` (``hil.LiveTiming``): :mod:`hil.live.timing`'s figures once a second.
+
+Log time of every message: the sender's stamp where it has one (State sample time, command send
+time), so Foxglove's plots share one clock (the host's ``CLOCK_MONOTONIC``).
 """
 
 from __future__ import annotations
@@ -15,29 +28,129 @@ from __future__ import annotations
 import argparse
 import collections
 import contextlib
+import json
 import os
 import sys
 import time
 import tomllib
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import can
+import foxglove
 
 from controller_service.certificate import critical_age
 from controller_service.references import build_reference
-from hil.live.timing import Bounds
-from hil.live.view import LiveView
+from hil import schemas
+from hil.live.timing import Bounds, LiveTiming
 from hil.measure.folder import bound_inputs
 from hil.observe import InTimeOrder, TapReader, can_frame_record
+from hil.recording import to_jsonable
 from protocol.keys import observed_keys
-from protocol.messages import DecodeError, decode
+from protocol.messages import DecodeError, State, Status, Telemetry, TorqueCommand, decode
 from protocol.settings import RunSettings
 from runtime.signals import stop_on_signals
 from runtime.zsession import open_session, payload_bytes
 
 QUEUE_MAX = 200_000  # messages; past it the oldest are dropped (a live view may skip)
 NICENESS = 10
+ReferenceFn = Callable[[float], tuple[float, float, float]]  # t (s) -> (x, y, theta)
+
+
+class LiveView:
+    """Publishes decoded messages on a Foxglove WebSocket server (started here)."""
+
+    def __init__(
+        self,
+        robot_ids: Sequence[str],
+        bounds: Bounds,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        reference: ReferenceFn | None = None,
+        name: str = "hil-smc-bench",
+    ) -> None:
+        self.robot_ids = list(robot_ids)
+        # One timing per robot (a fleet's robots each have their own deadlines and epoch).
+        self.timings = {r: LiveTiming(bounds) for r in self.robot_ids}
+        self.reference = reference
+        self.epochs: dict[str, int] = {}
+        self.context = foxglove.Context()
+        self._channels: dict[str, Any] = {}
+        self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
+        self.port = int(self.server.port)
+        for robot in self.robot_ids:
+            for suffix in ("state", "cmd/torque", "telemetry", "status", schemas.POSE,
+                           schemas.TF, schemas.REFERENCE, schemas.TIMING):  # fmt: skip
+                self.channel(f"hil/{robot}/{suffix}")  # advertised from the start
+
+    def channel(self, topic: str) -> Any:
+        if topic not in self._channels:
+            doc = schemas.schema_for_topic(topic)
+            name, data = schemas.schema_name(topic, doc), json.dumps(doc).encode()
+            schema = foxglove.Schema(name=name, encoding="jsonschema", data=data)
+            self._channels[topic] = foxglove.Channel(
+                topic, schema=schema, message_encoding="json", context=self.context
+            )
+        return self._channels[topic]
+
+    def _log(self, topic: str, data: dict[str, Any], log_time: int) -> None:
+        ch = self.channel(topic)
+        if ch.has_sinks():  # nobody subscribed: no JSON to build
+            ch.log(data, log_time=int(log_time))
+
+    def on_message(self, topic: str, msg: Any, recv_ns: int) -> None:
+        """One decoded protocol message received on ``topic`` (its robot's timing counts it
+        when the robot is one of this view's)."""
+        robot = getattr(msg, "robot_id", "")
+        timing = self.timings.get(robot)
+        if isinstance(msg, State):
+            if timing is not None:
+                timing.on_state(msg, recv_ns)
+            self._log(topic, _mirror(msg), msg.sample_time_ns)
+            self._pose(topic.rsplit("/", 1)[0], msg)
+        elif isinstance(msg, TorqueCommand):
+            if timing is not None:
+                timing.on_command(msg, recv_ns)
+            self._log(topic, _mirror(msg), msg.send_time_ns)
+        elif isinstance(msg, Status):
+            if timing is not None:
+                timing.on_status(msg)
+            if robot not in self.epochs and int(msg.counters.get("epoch_ns", 0)) > 0:
+                self.epochs[robot] = int(msg.counters["epoch_ns"])
+            self._log(topic, _mirror(msg), msg.time_ns)
+        elif isinstance(msg, Telemetry):
+            self._log(topic, _mirror(msg), msg.time_ns)
+
+    def _pose(self, base: str, st: State) -> None:
+        t = st.sample_time_ns
+        self._log(f"{base}/{schemas.POSE}", schemas.pose_in_frame(t, st.x, st.y, st.theta), t)
+        tf = schemas.frame_transform(t, st.robot_id, st.x, st.y, st.theta)
+        self._log(f"{base}/{schemas.TF}", tf, t)
+        epoch = self.epochs.get(st.robot_id)
+        if self.reference is not None and epoch is not None:
+            x, y, th = self.reference((t - epoch) / 1e9)
+            self._log(f"{base}/{schemas.REFERENCE}", schemas.pose_in_frame(t, x, y, th), t)
+
+    def on_can(self, channel: str, frame: dict[str, Any], recv_ns: int) -> None:
+        """One CAN frame as the recorder's JSON (:func:`can_frame_record`)."""
+        self._log(f"can/{channel}", frame, recv_ns)
+
+    def tick(self, now_ns: int | None = None, backlog: int = 0) -> dict[str, dict[str, Any]]:
+        """Publish each robot's timing figures (call once a second); returns them by robot."""
+        now = time.monotonic_ns() if now_ns is None else now_ns
+        snaps = {r: t.snapshot(now, backlog) for r, t in self.timings.items()}
+        for robot, snap in snaps.items():
+            self._log(f"hil/{robot}/{schemas.TIMING}", snap, now)
+        return snaps
+
+    def close(self) -> None:
+        """Stop the server: every client sees its connection closed."""
+        self.server.stop()
+
+
+def _mirror(msg: Any) -> dict[str, Any]:
+    return {**to_jsonable(msg), "type": type(msg).__name__}
 
 
 def bounds_of(settings: RunSettings, resolved: Path | None) -> Bounds:
@@ -71,21 +184,19 @@ def reference_of(settings: RunSettings) -> Any:
 
 def _subscribe(endpoint: str, robots: list[str], mode: str, q: collections.deque) -> list[Any]:
     """One session on ``endpoint`` subscribed to each of ``robots``' keys; what to close."""
-    opened: list[Any] = []
     try:
         session = open_session(endpoint, mode=mode, credentials=None)
     except Exception as exc:  # hil drives without a Zenoh peer: the view shows the CAN side
         print(f"live: Zenoh messages of {', '.join(robots)} not shown: {exc}", file=sys.stderr)
-        return opened
-    opened.append(session)
-    for robot in robots:
-        for key in observed_keys(robot):  # the taps, never the loop's own keys
-            sub = session.declare_subscriber(
-                key,
-                lambda s: q.append((str(s.key_expr), time.monotonic_ns(), payload_bytes(s))),
-            )
-            opened.insert(0, sub)
-    return opened
+        return []
+    subs = [
+        session.declare_subscriber(
+            key, lambda s: q.append((str(s.key_expr), time.monotonic_ns(), payload_bytes(s)))
+        )
+        for robot in robots
+        for key in observed_keys(robot)  # the taps, never the loop's own keys
+    ]
+    return [*reversed(subs), session]
 
 
 def _open_inputs(runs: list[RunSettings], zenoh_mode: str, q: collections.deque) -> list[Any]:
