@@ -79,16 +79,12 @@ def _state(p: Placement) -> Any:
     return state
 
 
-def inside() -> bool:
-    return os.environ.get(PLACED_ENV) == str(os.getpid())
-
-
 def enter(opts: Any, impaired: bool, started_as_hil_run: bool) -> Placement | None:
     """Before ``hil run`` prepares anything: None without ``--lab``; else, the first time,
     execute this same command again on the recorder's host (never returns). ``impaired``: the
     scenario has [impair]; ``started_as_hil_run``: this process can be executed again as is."""
     p = placement_of(opts, impaired)
-    if p is None or inside():
+    if p is None or os.environ.get(PLACED_ENV) == str(os.getpid()):  # placed already
         return p
     if not started_as_hil_run:
         raise BadInputError(
@@ -111,8 +107,16 @@ def child_argv(p: Placement | None, process: str, argv: list[str]) -> list[str]:
     return host_command(_state(p), p.host_of(process), argv)
 
 
-def topology(p: Placement) -> dict[str, Any]:
-    """Which host ran what, each host's injected offset, and the routers a message crosses."""
+# The figures that subtract a controller stamp from a plant stamp (hil.measure.figures).
+CROSS_HOST = ("hop_state", "hop_cmd_zenoh", "loop_transport_compute")
+
+
+def write_topology(p: Placement | None, run_dir: Path) -> None:
+    """``topology.json``: which host ran what, each host's injected offset, the routers a
+    message crosses and the clocks; a warning when the controller's clock could not be related
+    to the plant's across hosts (its cross-host figures then compare nothing)."""
+    if p is None:
+        return
     state = load(p.lab)
     hosts = {}
     for name in dict.fromkeys((p.plant, p.controller)):
@@ -120,7 +124,7 @@ def topology(p: Placement) -> dict[str, Any]:
         hosts[name] = {k: h.get(k) for k in ("address", "offset_s", "router", "impair")}
     same = p.plant == p.controller
     path = [f"router@{p.controller}"] + ([] if same else [f"router@{p.plant}"])
-    return {
+    facts = {
         "lab": p.lab,
         "processes": {"plant": p.plant, "controller": p.controller, "recorder": p.recorder},
         "hosts": hosts,
@@ -128,22 +132,10 @@ def topology(p: Placement) -> dict[str, Any]:
         "router_hops": {"command": path, "state": path[::-1]},
         "clock_source": "the plant's host; the controller's estimate: clock-controller.csv",
     }
-
-
-# The figures that subtract a controller stamp from a plant stamp (hil.measure.figures).
-CROSS_HOST = ("hop_state", "hop_cmd_zenoh", "loop_transport_compute")
-
-
-def write_topology(p: Placement | None, run_dir: Path) -> None:
-    """``topology.json``; a warning when the controller's clock could not be related to the
-    plant's across hosts (its cross-host figures then compare nothing)."""
-    if p is None:
-        return
-    facts = topology(p)
     track = read_track(run_dir)
     clock = facts["clock"] = track.facts()
-    clock["cross_host_figures"] = list(CROSS_HOST) if p.plant != p.controller else []
-    if p.plant != p.controller and track.at_ns.size == 0:
+    clock["cross_host_figures"] = [] if same else list(CROSS_HOST)
+    if not same and track.at_ns.size == 0:
         clock["warning"] = "clocks not related: the cross-host figures are not valid"
         print(
             f"warning: the controller's clock was not related to the plant's: "

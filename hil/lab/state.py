@@ -111,6 +111,4 @@ def load(name: str) -> LabState | None:
 
 def names() -> list[str]:
     """The labs that have a folder under :data:`ROOT`."""
-    if not ROOT.is_dir():
-        return []
-    return sorted(p.name for p in ROOT.iterdir() if (p / "state.json").is_file())
+    return sorted(p.parent.name for p in ROOT.glob("*/state.json") if p.is_file())
