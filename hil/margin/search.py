@@ -128,8 +128,7 @@ def find_margin(
             hi = mid
         else:
             lo = mid
-    at = {p.k: p for p in probes}
-    broke = at.get(hi)
+    broke = {p.k: p for p in probes}.get(hi)
     _, replay = scaled(scenario, base, 1.0, opts.seeds, opts.duration)
     return MarginRecord(
         source=base.source,
