@@ -81,11 +81,9 @@ def write_summary(path: Path, summary: Summary) -> Path:
 
 def write_series(path: Path, arrays: dict[str, np.ndarray]) -> Path:
     """The measurement's series, written whole (a temporary file renamed)."""
-    out = path / layout.SERIES
     tmp = path / (layout.SERIES + ".writing.npz")
     np.savez(tmp, **arrays)
-    tmp.replace(out)
-    return out
+    return tmp.replace(path / layout.SERIES)
 
 
 def read_series(path: Path) -> dict[str, np.ndarray] | None:

@@ -38,14 +38,10 @@ def jsonable(obj: Any) -> Any:
     return obj
 
 
-def dumps(obj: Any, indent: int | None = 2) -> str:
-    return json.dumps(jsonable(obj), indent=indent, allow_nan=False)
-
-
 def write_json(path: Path, obj: Any) -> Path:
     """Write ``obj`` to ``path`` atomically under the policy above."""
     tmp = path.with_name(path.name + ".writing")
-    tmp.write_text(dumps(obj) + "\n")
+    tmp.write_text(json.dumps(jsonable(obj), indent=2, allow_nan=False) + "\n")
     os.replace(tmp, path)
     return path
 
