@@ -75,11 +75,9 @@ class LiveTiming:
         self.commands += 1
         # A watchdog zero or the final stop names no State (sample time NO_STAMP): taken as the
         # command in force, it made every State's age its sample time, the clock's own age.
-        named = cmd.state_sample_time_ns != NO_STAMP
-        if named and (
-            self.in_force_sample_ns is None or cmd.state_sample_time_ns > self.in_force_sample_ns
-        ):
-            self.in_force_sample_ns = cmd.state_sample_time_ns
+        sample, newest = cmd.state_sample_time_ns, self.in_force_sample_ns
+        if sample != NO_STAMP and (newest is None or sample > newest):
+            self.in_force_sample_ns = sample
         if self.last_compute_ns is not None:
             gap = cmd.compute_start_ns - self.last_compute_ns
             late = max(0, gap - round(self.bounds.ts_s * 1e9))
@@ -127,8 +125,7 @@ class LiveTiming:
         """The figures now (the ``hil.LiveTiming`` message); ``backlog``: the view's queue.
         A figure not known yet (or D* without a certificate) is left out, not null."""
         self._expire(now_ns)
-        b = self.bounds
-        d_star_ms = None if b.d_star_s is None else b.d_star_s * 1e3
+        d_star_ms = None if self.bounds.d_star_s is None else self.bounds.d_star_s * 1e3
         age_max_ms = _per(self.age_max_ns, 1e6)
         outcome, reasons = self.verdict()
         first = self.first_recv_ns if self.first_recv_ns is not None else now_ns

@@ -86,11 +86,10 @@ def write(folder: Path, record: MarginRecord) -> Path:
 
 def read(folder: Path | str | None) -> MarginRecord | None:
     """The folder's margin record, None when there is none or it cannot be read."""
-    path = None if folder is None else Path(folder) / FILE
-    if path is None or not path.is_file():
+    if folder is None or not (Path(folder) / FILE).is_file():
         return None
     try:
-        return MarginRecord.from_dict(read_json_object(path))
+        return MarginRecord.from_dict(read_json_object(Path(folder) / FILE))
     except (BadInputError, TypeError, ValueError):
         return None
 
