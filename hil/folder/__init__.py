@@ -1,11 +1,8 @@
 """The run or simulation folder: its one owner (layout, reading, writing; docs/run-folder.md).
 
-A folder is ``trace.csv`` (one row per control sample), ``summary.json`` (the result),
-``scenario.resolved.toml`` and, for a real run, the services' hop logs, the measurement's
-per-sample series (``series.npz``) and the recording (``*.mcap``). Every file name is in
-:mod:`hil.folder.layout`, every JSON file follows :mod:`hil.folder.jsonio`. Anything else is
-not a run: :func:`load_folder` raises :class:`hil.errors.BadInputError` (exit code 2) with
-the reason.
+Every file name is in :mod:`hil.folder.layout`, every JSON file follows :mod:`hil.folder.jsonio`.
+A folder without trace.csv, summary.json and scenario.resolved.toml is not a run:
+:func:`load_folder` raises :class:`hil.errors.BadInputError` (exit code 2) with the reason.
 """
 
 from __future__ import annotations
@@ -28,9 +25,7 @@ from hil.folder.trace_csv import TraceColumns, read_trace, trace_header
 
 @dataclass
 class RunFolder:
-    """One run or simulation folder, loaded. ``trace`` is read on first use when the folder
-    was loaded lazily (:func:`load_folder`), so a long run's trace and its series never sit in
-    memory together."""
+    """One run or simulation folder, loaded (:func:`load_folder`)."""
 
     path: Path
     trace_data: Mapping[str, np.ndarray] | None
@@ -43,8 +38,8 @@ class RunFolder:
     @property
     def trace(self) -> Mapping[str, np.ndarray]:
         """trace.csv's columns (BadInputError when it is not a trace); a lazily loaded
-        folder's read on first use, the rarely read ones only if asked for
-        (:class:`hil.folder.trace_csv.TraceColumns`)."""
+        folder's read on first use, so that a long run's trace and its series never sit in
+        memory together (:class:`hil.folder.trace_csv.TraceColumns`)."""
         if self.trace_data is None:
             self.trace_data = TraceColumns(self.path / layout.TRACE)
         return self.trace_data
@@ -110,10 +105,8 @@ def new_run_dir(root: str | Path = "runs", prefix: str = "run") -> Path:
 
 
 def load_folder(path: str | Path, lazy: bool = False) -> RunFolder:
-    """Load and check a run or simulation folder; BadInputError when it is not one.
-
-    ``lazy``: check only the trace's header now and read its rows on first use (a bad row
-    then raises BadInputError there)."""
+    """Load and check a run or simulation folder; BadInputError when it is not one. ``lazy``:
+    check only the trace's header now, read its rows on first use (a bad row raises there)."""
     p = Path(path)
     if not p.is_dir():
         raise BadInputError(f"{p}: not a folder")

@@ -1,9 +1,6 @@
-"""What a report needs from ``scenario.resolved.toml``: limits, design, timing.
-
-Read by the scenario's own reader (:func:`hil.scenario.parse_scenario`): a key that is missing
-takes the scenario's documented default, and a bad or unreadable one is a
-:class:`hil.errors.BadInputError` naming it, never a silent fallback.
-"""
+"""What a report needs from ``scenario.resolved.toml`` (limits, design, timing), read by
+:func:`hil.scenario.parse_scenario`: a missing key takes the scenario's documented default, a bad
+or unreadable one is a :class:`hil.errors.BadInputError` naming it, never a silent fallback."""
 
 from __future__ import annotations
 

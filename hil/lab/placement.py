@@ -8,8 +8,6 @@ through ``nsenter``, and every session (recorder, plant, controller) is a client
 host's router (``tcp/127.0.0.1:7447`` inside the host), so all traffic between hosts crosses
 the routers, as between computers. The start epoch is announced on the plant's clock; the
 controller converts it to its own with its clock-offset estimate (runtime.clocksync).
-``topology.json`` in the run folder says which host ran what, each host's injected offset and
-the router hops between them.
 """
 
 from __future__ import annotations
