@@ -77,33 +77,28 @@ def argv_for(settings_path: Path | Sequence[Path], port: int, host: str, resolve
     return argv
 
 
-def wait_url(log: Path, alive: Any, timeout: float = START_TIMEOUT_S) -> str:
-    """The ``ws://`` address the live process printed in ``log`` once it listens;
-    BadInputError if it exits first (a port in use) or stays silent ``timeout`` s."""
-    deadline = time.monotonic() + timeout
+def _start(sup: Supervisor, argv: list[str], log: Any, log_path: Path) -> str:
+    """Start the live process under ``sup``, its output to ``log`` (at ``log_path``); the
+    ``ws://`` address it prints once it listens, announced on stderr. BadInputError if it exits
+    first (a port in use) or stays silent :data:`START_TIMEOUT_S` s."""
+    child = sup.start_python("live", argv, stdout=log, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + START_TIMEOUT_S
     while time.monotonic() < deadline:
-        text = log.read_text(errors="replace") if log.exists() else ""
+        text = log_path.read_text(errors="replace") if log_path.exists() else ""
         for line in text.splitlines():
             if line.startswith("live: ws://"):
-                return line.split(" ", 1)[1]
-        if not alive():
+                url = line.split(" ", 1)[1]
+                print(
+                    f"live view: {url} (Foxglove or Lichtblick: Open connection > Foxglove "
+                    "WebSocket; layout docs/live-layout.json)",
+                    file=sys.stderr,
+                )
+                return url
+        if not child.alive():
             tail = text.strip().splitlines()[-3:]
             raise BadInputError("the live view did not start: " + " / ".join(tail))
         time.sleep(0.05)
-    raise BadInputError(f"the live view did not start within {timeout:g} s ({log})")
-
-
-def _start(sup: Supervisor, argv: list[str], log: Any, log_path: Path) -> str:
-    """Start the live process under ``sup``, its output to ``log`` (at ``log_path``); its
-    address once it listens, announced on stderr."""
-    child = sup.start_python("live", argv, stdout=log, stderr=subprocess.STDOUT)
-    url = wait_url(log_path, child.alive)
-    print(
-        f"live view: {url} (Foxglove or Lichtblick: Open connection > Foxglove WebSocket; "
-        "layout docs/live-layout.json)",
-        file=sys.stderr,
-    )
-    return url
+    raise BadInputError(f"the live view did not start within {START_TIMEOUT_S:g} s ({log_path})")
 
 
 def start_for_run(
@@ -113,28 +108,6 @@ def start_for_run(
     argv = argv_for(run_dir / "run_settings.json", port, host,
                     run_dir / "scenario.resolved.toml", "client", other_clocks)  # fmt: skip
     return _start(sup, argv, logs.open("live"), run_dir / "live.log")
-
-
-class DrivesLive:
-    """The live process of ``hil drives`` (settings in a temporary folder), stopped by PID."""
-
-    def __init__(self, settings: Any, port: int, host: str) -> None:
-        self._dir = tempfile.TemporaryDirectory(prefix="hil-live-")
-        folder = Path(self._dir.name)
-        settings.save(folder / "run_settings.json")
-        self._sup = Supervisor()
-        self._log = (folder / "live.log").open("wb")
-        argv = argv_for(folder / "run_settings.json", port, host, None, "client")
-        try:
-            _start(self._sup, argv, self._log, folder / "live.log")
-        except BaseException:
-            self.close()
-            raise
-
-    def close(self) -> None:
-        self._sup.stop_all(grace=5.0)
-        self._log.close()
-        self._dir.cleanup()
 
 
 class FleetLive:
@@ -166,3 +139,23 @@ class FleetLive:
         self._sup.stop_all(grace=5.0)
         if self._log is not None:
             self._log.close()
+
+
+class DrivesLive(FleetLive):
+    """The live process of ``hil drives``: a fleet of one, its settings in a temporary folder,
+    started at once."""
+
+    def __init__(self, settings: Any, port: int, host: str) -> None:
+        self._dir = tempfile.TemporaryDirectory(prefix="hil-live-")
+        super().__init__(Path(self._dir.name), ["drives"], port, host)
+        self.settings[0].parent.mkdir()
+        settings.save(self.settings[0])
+        try:
+            self.poll()
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        super().close()
+        self._dir.cleanup()
