@@ -58,13 +58,6 @@ def run_argv(opts: FleetOptions, robot: str) -> list[str]:
     return argv
 
 
-def groups(opts: FleetOptions) -> list[list[str]]:
-    """The robots of each process group (one robot each without ``--per-process``)."""
-    ids = robot_ids(opts.robots)
-    k = max(1, opts.per_process)
-    return [ids[i : i + k] for i in range(0, len(ids), k)]
-
-
 def group_argv(opts: FleetOptions, robots: list[str]) -> list[str]:
     """``python -m hil.run.group`` of one group, its spec written into the fleet's folder."""
     spec = {
@@ -110,7 +103,8 @@ def execute(opts: FleetOptions, stop: Any, live: Any = None) -> dict[str, int | 
     opts.out.mkdir(parents=True, exist_ok=True)
     sup = Supervisor()
     logs = []
-    members = {g[0]: g for g in groups(opts)}
+    ids, k = robot_ids(opts.robots), opts.per_process  # k robots a process (check: 1..64)
+    members = {ids[i]: ids[i : i + k] for i in range(0, len(ids), k)}  # by each group's first
     grouped = opts.per_process > 1
     try:
         for first, robots in members.items():

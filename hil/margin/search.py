@@ -153,11 +153,9 @@ def find_margin(
 
 def _d_star(scenario: Scenario, loop: Any) -> float | None:
     """The certificate's D* for a unified law (None for any other)."""
-    if str(scenario.controller.get("law", "unified")) not in UNIFIED:
-        return None
     controller, _ref, context = loop
     params = getattr(controller, "params", None)
-    if params is None:
+    if params is None or str(scenario.controller.get("law", "unified")) not in UNIFIED:
         return None
     ini = scenario.initial
     return critical_age(params, context, params.eps1 is not None, v0=ini.v, w0=ini.omega)
