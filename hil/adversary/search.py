@@ -48,15 +48,12 @@ class WorstDisturbance:
         if self.bounds == (0.0, 0.0):
             return "none (s1 = s2 = 0)"
         parts = []
-        for ch, name in enumerate(("d1", "d2")):
-            row = self.pattern[ch]
+        for name, row in zip(("d1", "d2"), self.pattern, strict=True):
             if (row == row[0]).all():
                 parts.append(f"{name} {MODES[int(row[0])]}")
             else:
                 shares = ", ".join(
-                    f"{MODES[i]} {np.mean(row == i):.0%}"
-                    for i in range(len(MODES))
-                    if (row == i).any()
+                    f"{m} {np.mean(row == i):.0%}" for i, m in enumerate(MODES) if (row == i).any()
                 )
                 parts.append(f"{name} switching ({shares} of {row.size} blocks)")
         return "; ".join(parts)
