@@ -193,8 +193,7 @@ def teardown(state: LabState) -> list[str]:
     problems: list[str] = []
     own_prefix = f"{PREFIX}{state.name}-"
     folder = lab_dir(state.name)
-    procs = [m for m in state.made if m.kind == "proc" and state.owns_process(m)]
-    net.kill_pids([m.pid for m in procs])
+    net.kill_pids([m.pid for m in state.made if m.kind == "proc" and state.owns_process(m)])
     for item in reversed(state.made):
         try:
             if item.kind == "netns" and item.name.startswith(own_prefix):

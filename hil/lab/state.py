@@ -100,9 +100,8 @@ class LabState:
 
 def load(name: str) -> LabState | None:
     """The lab's state, or None when there is none (or it cannot be read as one)."""
-    path = lab_dir(name) / "state.json"
     try:
-        data = json.loads(path.read_text())
+        data = json.loads((lab_dir(name) / "state.json").read_text())
         made = [Made(**m) for m in data.pop("made")]
         return LabState(**data, made=made)
     except (OSError, ValueError, TypeError, KeyError):

@@ -128,8 +128,7 @@ def scaled(
     timing = dataclasses.replace(scenario.timing, ts=ts, delay=0.0, jitter=0.0)
     run = dataclasses.replace(scenario.run, duration=duration)
     sc = dataclasses.replace(scenario, timing=timing, run=run)
-    k_samples = max(1, round(duration / ts))
-    lat = base.draws(n, k_samples)
+    lat = base.draws(n, max(1, round(duration / ts)))
     h = sc.plant_step
     land = np.where(np.isnan(lat), LOST, np.rint(k * np.nan_to_num(lat) / h)).astype(np.int64)
     return sc, Schedule(ts, h, land, np.arange(n, dtype=np.intp))
