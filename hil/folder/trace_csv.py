@@ -15,10 +15,7 @@ from hil.trace import TRACE_COLUMNS
 
 def write_trace_csv(path: Path, columns: list[str], trace: np.ndarray) -> None:
     """A simulation's trace: ``trace`` rows under the ``columns`` header."""
-    with path.open("w") as f:
-        f.write(",".join(columns) + "\n")
-        if len(trace):
-            np.savetxt(f, trace, delimiter=",", fmt="%.10g")
+    np.savetxt(path, trace, delimiter=",", fmt="%.10g", header=",".join(columns), comments="")
 
 
 #: Rows parsed per call of the C reader (np.loadtxt): ~4 MB of floats at 15 columns.
