@@ -136,13 +136,11 @@ class LiveView:
         """One CAN frame as the recorder's JSON (:func:`can_frame_record`)."""
         self._log(f"can/{channel}", frame, recv_ns)
 
-    def tick(self, now_ns: int | None = None, backlog: int = 0) -> dict[str, dict[str, Any]]:
-        """Publish each robot's timing figures (call once a second); returns them by robot."""
-        now = time.monotonic_ns() if now_ns is None else now_ns
-        snaps = {r: t.snapshot(now, backlog) for r, t in self.timings.items()}
-        for robot, snap in snaps.items():
-            self._log(f"hil/{robot}/{schemas.TIMING}", snap, now)
-        return snaps
+    def tick(self, backlog: int) -> None:
+        """Publish each robot's timing figures (call once a second)."""
+        now = time.monotonic_ns()
+        for robot, timing in self.timings.items():
+            self._log(f"hil/{robot}/{schemas.TIMING}", timing.snapshot(now, backlog), now)
 
     def close(self) -> None:
         """Stop the server: every client sees its connection closed."""
