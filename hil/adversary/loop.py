@@ -43,11 +43,10 @@ LOST = -1  # a sample whose command never lands
 
 @dataclass(frozen=True)
 class Schedule:
-    """When each sample's command lands, shared by the loops of a group.
-
-    ``ts``: the sample period; ``land``: (G, K) plant steps from sample k to its landing for G
-    landing draws over K samples (``LOST``: never lands); ``group``: (N,) the draw each loop
-    uses; ``h``: the plant step (``ts`` / a whole number)."""
+    """When each sample's command lands, shared by the loops of a group. ``ts``: the sample
+    period; ``land``: (G, K) plant steps from sample k to its landing for G landing draws over
+    K samples (``LOST``: never lands); ``group``: (N,) the draw each loop uses; ``h``: the
+    plant step (``ts`` / a whole number)."""
 
     ts: float
     h: float

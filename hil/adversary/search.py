@@ -120,9 +120,8 @@ def worst_disturbance(
     loop: tuple[Any, Any, Any] | None = None,
 ) -> WorstDisturbance:
     """Search the patterns over ``rounds`` batches of N loops (N = the schedule's loops, each
-    from its ``initial`` state and the law's ``memory``, default its initial memory); with
-    ``stop_on_break`` it stops at the first round that broke a limit (enough for a
-    bisection)."""
+    from its ``initial`` state and the law's ``memory``, default its initial memory);
+    ``stop_on_break``: stop at the first round that broke a limit (enough for a bisection)."""
     loop = loop or build_loop(scenario)
     n = len(schedule.group)
     rng = np.random.default_rng(seed)

@@ -84,9 +84,8 @@ def run_scenario(folder: Path) -> Scenario:
 
 
 def from_run(folder: Path, scenario: Scenario) -> BaseTiming:
-    """The applied path's measured landings of a run folder (module doc), from the folder's
-    measurement (:func:`hil.measure.folder.measured`: the saved series, or the hop logs
-    measured once)."""
+    """The applied path's measured landings of a run folder (module doc), from its measurement
+    (:func:`hil.measure.folder.measured`: the saved series, or the hop logs measured once)."""
     m = measured(load_folder(folder, lazy=True))
     if m is None:
         raise BadInputError(f"{folder} has no hop logs: not a run of hil run")
