@@ -1,25 +1,18 @@
-"""N closed loops whose disturbance is chosen by the loop: the batch path of the worst-case search.
+"""N closed loops whose disturbance is chosen by the loop: the batch path of the worst-case search
+(docs/margin.md, "The worst disturbance").
 
 The loop is the offline simulator's (:mod:`hil.sim.core`): at sample k the law gets the state,
 its command lands ``land[k]`` plant steps later (newest wins, :class:`plant_emulator.sampled.
-Hold`), the plant (1) is integrated by RK4 with the command held. What differs is the
-disturbance: between two landings (the *command boundaries*) each loop holds a bang-bang
-disturbance chosen per channel by its mode (``MODES``):
-
-- ``aligned``: d = s sign(v~) of the command in force, i.e. against it (the law's tau1 is
-  -varpi1 sign(v - alpha_v) at its sample), the sign of v - alpha_v, omega - alpha_omega that
-  the law saw;
-- ``with_command``: d = -s sign(v~), along the command: a wrong-way command, the one of the
-  proof's worst case, made stronger;
-- ``outward``: d = s sign(v) (sign(omega)) at the start of the stretch: pushes |v| up;
-- ``none``: d = 0.
-
-A *pattern* gives each loop one mode per channel and block of samples (``modes`` of shape
-(N, 2, B): the run is cut into B equal blocks of samples). The disturbance is added to the held
-torque (v' = tau1 + d1 is linear in both), so the actuator must have no lag (A4 of
-docs/sampled_data_bound.md); the torque limits are checked on the commands. The scenario's own
-disturbance acts only when asked for (``own_seeds``: ``hil margin`` without the search), and
-its sensor (noise, quantization) as in the simulator, one noise seed for all loops.
+Hold`), the plant (1) is integrated by RK4 with the command held. Between two landings (the
+*command boundaries*) each loop holds a bang-bang disturbance per channel, chosen by its mode
+(``MODES``): ``aligned`` d = s sign(v~) of the command in force (against it: the sign of
+v - alpha_v the law saw), ``with_command`` d = -s sign(v~) (along it: the proof's worst case
+made stronger), ``outward`` d = s sign(v) at the stretch's start (pushes |v| up), ``none`` d = 0.
+A *pattern* gives each loop one mode per channel and block of samples (``modes`` (N, 2, B): the
+run cut into B equal blocks). The disturbance is added to the held torque, so the actuator must
+have no lag (A4 of docs/sampled_data_bound.md); the torque limits are checked on the commands.
+The scenario's own disturbance acts only when asked for (``own_seeds``), and its sensor as in
+the simulator, one noise seed for all loops.
 """
 
 from __future__ import annotations

@@ -1,13 +1,11 @@
-"""The search for the disturbance that breaks (2) first: fixed bang-bang patterns, then
-cross-entropy over switching patterns, all on the batch path (:mod:`hil.adversary.loop`).
+"""The search for the disturbance that breaks (2) first, on the batch path
+(:mod:`hil.adversary.loop`; docs/margin.md, "The worst disturbance").
 
-Round 0 runs the 16 constant patterns (every pair of ``MODES`` for v and omega: among them
-d = s sign(v - alpha_v), s sign(omega - alpha_omega) all along) and fills the batch with random
-patterns (a mode per channel and block). Each later round draws its patterns from per-block,
-per-channel mode probabilities refitted to the best tenth of all loops so far (cross-entropy,
-smoothed). The score of a loop is its largest ratio to a limit (max |v|/phi1, |omega|/phi2,
-|tau|/varpi, and the late position error over ``error_bound`` when one is given): above 1 a
-limit broke.
+Round 0 runs the 16 constant patterns (every pair of ``MODES`` for v and omega) and fills the
+batch with random ones; each later round draws its patterns from per-block, per-channel mode
+probabilities refitted to the best tenth of all loops so far (cross-entropy, smoothed). A loop's
+score is its largest ratio to a limit (|v|/phi1, |omega|/phi2, |tau|/varpi, and the late
+position error over ``error_bound`` when one is given): above 1 a limit broke.
 """
 
 from __future__ import annotations

@@ -1,17 +1,13 @@
-"""The timing margin k*: the smallest scale of the replayed timing at which a limit breaks.
+"""The timing margin k*: the smallest scale of the replayed timing at which a limit breaks
+(docs/margin.md, "k*").
 
 At each scale k (:func:`hil.margin.timing.scaled`) ``seeds`` loops run on the batch path
-(:mod:`hil.adversary.loop`), each over its own draw of the timing (a run: its own starting
-sample; a scenario: its own jitter seed), the first from the scenario's initial state and the
-others from states moved by up to ``SPREAD``; under the scenario's own disturbance (one seed
-per loop) or, ``worst``, under the worst disturbance searched (:func:`hil.adversary.
-worst_disturbance`, stopping at the first round that breaks). A probe *breaks* when any loop
-exceeds a limit of (2) (or the late position error exceeds ``error_bound``).
-
-From k = 1 the scale doubles (or halves, when k = 1 already breaks) until the outcome changes,
-then geometric bisection narrows [held, broke] to ``rel_tol``; k* is the broken end. This
-assumes that breaking is monotone in k, which nothing guarantees for a nonlinear loop: the
-probes are all in the record.
+(:mod:`hil.adversary.loop`), each over its own draw of the timing and from its own initial state
+(moved by up to ``SPREAD``), under the scenario's own disturbance or, ``worst``, the worst one
+searched; a probe *breaks* when any loop exceeds a limit of (2) (or the late position error
+exceeds ``error_bound``). From k = 1 the scale doubles (or halves) until the outcome changes,
+then geometric bisection narrows [held, broke] to ``rel_tol``; k* is the broken end. Breaking
+need not be monotone in k for a nonlinear loop: the probes are all in the record.
 """
 
 from __future__ import annotations
