@@ -1,14 +1,9 @@
-"""N robots' closed loops at once: one ``hil run`` per robot, each with its own robot id
-(``robot1`` .. ``robotN``: its own keys ``hil/robotI/...``), its own controller and plant
-processes and its own run folder, all started together and stopped together.
-
-Over loopback each robot's sessions form their own peer mesh (one Zenoh session per process,
-as separate robots would have); with ``--lab`` every process is a client of its lab host's
-router, so all robots' traffic crosses the same routers (hil.lab.placement).
-
-``--per-process K`` (K > 1): robots in groups of K, each group one ``python -m hil.run.group``
-with one plant process and one controller process for its K robots (hil.run.group); each robot
-still has its own keys, state, deadlines and run folder.
+"""N robots' closed loops at once (docs/fleet.md): one ``hil run`` per robot, each with its own
+robot id (``robot1`` .. ``robotN``: its keys ``hil/robotI/...``), controller and plant processes
+and run folder, all started together and stopped together; with ``--per-process K`` (K > 1),
+robots in groups of K, each group one ``python -m hil.run.group`` with one plant process and
+one controller process for its K robots, each robot still with its own keys, state, deadlines
+and run folder.
 """
 
 from __future__ import annotations

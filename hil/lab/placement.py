@@ -4,10 +4,8 @@
 The recorder (``hil run`` itself) runs on the plant's host: ``hil run`` executes itself again
 there (``nsenter`` into the host's network and time namespaces; nsenter execs, so the PID
 stays) with :data:`PLACED_ENV` set to its PID. Each service then starts on its own host
-through ``nsenter``, and every session (recorder, plant, controller) is a client of its own
-host's router (``tcp/127.0.0.1:7447`` inside the host), so all traffic between hosts crosses
-the routers, as between computers. The start epoch is announced on the plant's clock; the
-controller converts it to its own with its clock-offset estimate (runtime.clocksync).
+through ``nsenter``, and every session is a client of its own host's router, so all traffic
+between hosts crosses the routers, as between computers.
 """
 
 from __future__ import annotations

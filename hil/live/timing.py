@@ -1,17 +1,12 @@
-"""The live view's timing figures (schema ``hil.LiveTiming`` in :mod:`hil.schemas`).
+"""The live view's timing figures (schema ``hil.LiveTiming`` in :mod:`hil.schemas`; docs/live.md).
 
-Live estimates from the messages as the live view receives them, for a person watching: the run's
-own figures (docs/realtime.md) are measured afterwards from the hop logs, where every process
-logged its own times. What each figure is:
-
-- command age at a State: its sample time - the sample time of the newest TorqueCommand the
-  live view had seen when the State arrived (before the first command, - the first State's);
-- lateness: a command's compute start - the previous command's - Ts (>= 0), which is the
-  controller's wake-up lateness whenever the previous tick was on time;
-- states without command: States no command named (``state_seq``) within 0.1 s of their
-  arrival (a sensor faster than the controller leaves some unanswered by design);
-- the verdict so far: FAIL once a limit of (2) broke, INCONCLUSIVE while D > D* or more than
-  1 % of the States went unanswered, else PASS.
+Live estimates from the messages as the view receives them, for a person watching; the run's own
+figures (docs/realtime.md) are measured afterwards from the hop logs. Command age at a State: its
+sample time - the sample time of the newest TorqueCommand the view had seen when the State
+arrived (before the first command, - the first State's); lateness: a command's compute start -
+the previous command's - Ts (>= 0); states without command: States no command named
+(``state_seq``) within 0.1 s of their arrival; the verdict so far: FAIL once a limit of (2)
+broke, INCONCLUSIVE while D > D* or more than 1 % of the States went unanswered, else PASS.
 """
 
 from __future__ import annotations

@@ -1,26 +1,16 @@
-"""The live view's own process: ``python -m hil.live SETTINGS.json... --port P [--host H] ...``.
+"""The live view's own process: ``python -m hil.live SETTINGS.json... --port P [--host H] ...``
+(docs/live.md: its channels, and where it runs).
 
 Why a process of its own: ``hil drives`` runs its real-time loop in its own process, and
 ``hil run``'s recorder must keep its pace; here decoding and serving cost neither of them a
 cycle (only the Zenoh router side of the run forwards the messages to one more client). It
-subscribes to each robot's keys ``hil/<id>/**`` on that robot's Zenoh endpoint (one session
-per endpoint: a fleet's robots, each with its own settings file) and, for one robot, listens to
-its CAN bus (both read-only), and serves :class:`LiveView` until SIGINT or
-SIGTERM, then closes the server (every client sees the close). It prints one line
-``live: ws://HOST:PORT`` on stdout once the server listens.
-
-Channels (JSON, each with its schema from :mod:`hil.schemas`, the recording's own):
-
-- ``hil/<id>/state``, ``.../cmd/torque``, ``.../telemetry``, ``.../status``: the protocol's
-  messages as the recording mirrors them;
-- ``hil/<id>/pose`` (``foxglove.PoseInFrame``), ``hil/<id>/tf`` (``foxglove.FrameTransform``
-  world -> <id>) and ``hil/<id>/reference`` (``foxglove.PoseInFrame`` of the reference at the
-  State's sample time, once the run's epoch is known) for the 3D panel;
-- ``can/<channel>``: the drives' frames, decoded as the recording decodes them;
-- ``hil/<id>/live/timing`` (``hil.LiveTiming``): :mod:`hil.live.timing`'s figures once a second.
-
-Log time of every message: the sender's stamp where it has one (State sample time, command send
-time), so Foxglove's plots share one clock (the host's ``CLOCK_MONOTONIC``).
+subscribes to each robot's keys ``hil/<id>/**`` on that robot's Zenoh endpoint (one session per
+endpoint) and, for one robot, listens to its CAN bus (both read-only), and serves
+:class:`LiveView` (a Foxglove WebSocket server, every channel JSON with its schema from
+:mod:`hil.schemas`) until SIGINT or SIGTERM, then closes it (every client sees the close). It
+prints ``live: ws://HOST:PORT`` on stdout once the server listens. A message's log time is the
+sender's stamp where it has one (State sample time, command send time), so Foxglove's plots
+share one clock (the host's ``CLOCK_MONOTONIC``).
 """
 
 from __future__ import annotations
