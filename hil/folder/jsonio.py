@@ -1,9 +1,7 @@
-"""The one JSON policy of every file the bench writes (docs/run-folder.md, "JSON").
-
-numpy scalars and arrays become plain numbers and lists, tuples lists, keys strings, and a
-non-finite number (NaN, ±inf) becomes ``null``: JSON has no NaN, and every reader already
-takes ``null`` as "not measured". Files are written whole or not at all (a temporary file
-renamed over the old one), so a kill mid-write never leaves half a JSON.
+"""The one JSON policy of every file the bench writes (docs/run-folder.md, "JSON"): numpy values
+become plain numbers and lists, tuples lists, keys strings, a non-finite number ``null`` (JSON
+has no NaN; every reader takes ``null`` as "not measured"); files are written whole or not at
+all (a temporary file renamed over the old one), so a kill mid-write never leaves half a JSON.
 """
 
 from __future__ import annotations

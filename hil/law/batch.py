@@ -1,12 +1,11 @@
-"""A user's law on the batch path (``hil sweep``, many robots on numpy arrays).
+"""A user's law on the batch path (``hil sweep``: every robot at once, the state and reference as
+arrays of shape (N,); docs/own-controller.md, "Floats and arrays: one source").
 
-The batch path calls ``update`` once per sample for every robot at once, with the state and
-the reference as arrays of shape (N,). A law written for one robot on floats (``math.isfinite``,
-``max(...)``, ``float(...)``) fails there or, worse, returns one robot's torque for all. Before
-the loop starts, :func:`for_batch` calls the law on a probe of two different robots, once as two
-single robots and once as arrays: a law whose torques agree runs as it is; any other runs one
-robot at a time (:class:`PerRobot`: the same results, slower), and :func:`batch_note` says so in
-one line. A law that fails on a single robot is refused with one line naming the error.
+A law written for one robot on floats fails there or, worse, returns one robot's torque for all.
+:func:`for_batch` calls it on a probe of two different robots, once as two single robots and
+once as arrays: a law whose torques agree runs as it is, any other one robot at a time
+(:class:`PerRobot`: the same results, slower; :func:`batch_note` says so in one line). A law
+that fails on a single robot is refused with one line naming the error.
 """
 
 from __future__ import annotations

@@ -1,9 +1,6 @@
 """Starting the live view's process for ``hil run --live``, ``hil drives --live`` and
-``hil fleet --live``.
-
-``--live [PORT]``: the port is optional on the command line (default :data:`DEFAULT_PORT`,
-Foxglove's own); :func:`expand_live_flag` gives a bare ``--live`` its default before the
-command line is parsed. ``--live-host`` binds elsewhere than loopback, with a warning: the
+``hil fleet --live``. A bare ``--live`` takes :data:`DEFAULT_PORT` (Foxglove's own; see
+:func:`expand_live_flag`); ``--live-host`` binds elsewhere than loopback, with a warning: the
 server has no login and no TLS, so anyone who reaches the port sees the run.
 """
 
