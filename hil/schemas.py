@@ -93,20 +93,14 @@ _CAN_TYPES: dict[str, dict[str, Any]] = {
 }
 
 
-def _can_classes() -> list[type]:
-    out: list[type] = codec.Message.__subclasses__()
-    for cls in out:  # the list grows while it is walked: breadth first
-        out.extend(cls.__subclasses__())
-    return out
-
-
 def can_frame_schema() -> dict[str, Any]:
     """A CAN frame as the recorder writes it: the raw frame, and either the CANSimple message
     it decodes to (``message``: the class name, ``fields``: its signals, each typed from the
     class) or ``decode_error``."""
     signals: dict[str, dict[str, Any]] = {}
-    classes = _can_classes()
-    for cls in classes:
+    classes: list[type] = codec.Message.__subclasses__()
+    for cls in classes:  # every message class: the list grows while it is walked
+        classes.extend(cls.__subclasses__())
         for f in fields(cls):
             typed = _CAN_TYPES.get(str(f.type))
             if typed is None:

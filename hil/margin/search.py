@@ -126,6 +126,12 @@ def find_margin(
             lo = mid
     broke = {p.k: p for p in probes}.get(hi)
     _, replay = scaled(scenario, base, 1.0, opts.seeds, opts.duration)
+    controller, _ref, context = loop
+    params = getattr(controller, "params", None)  # D*: the certificate's, for a unified law
+    d_star = None
+    if params is not None and str(scenario.controller.get("law", "unified")) in UNIFIED:
+        ini = scenario.initial
+        d_star = critical_age(params, context, params.eps1 is not None, v0=ini.v, w0=ini.omega)
     return MarginRecord(
         source=base.source,
         law=str(scenario.controller.get("law", "unified")),
@@ -139,19 +145,9 @@ def find_margin(
         d_measured_s=base.measured_d_s,
         d_replay_s=replay.max_age(),
         age_at_break_s=None if broke is None else broke.age_s,
-        d_star_s=_d_star(scenario, loop),
+        d_star_s=d_star,
         error_bound_m=opts.error_bound,
         loops=loops,
         elapsed_s=time.perf_counter() - started,
         probes=tuple(probes),
     )
-
-
-def _d_star(scenario: Scenario, loop: Any) -> float | None:
-    """The certificate's D* for a unified law (None for any other)."""
-    controller, _ref, context = loop
-    params = getattr(controller, "params", None)
-    if params is None or str(scenario.controller.get("law", "unified")) not in UNIFIED:
-        return None
-    ini = scenario.initial
-    return critical_age(params, context, params.eps1 is not None, v0=ini.v, w0=ini.omega)
