@@ -128,14 +128,12 @@ def _advance(
     limits: Any,
     ext: Extremes,
 ) -> PlantState:
-    """Integrate from plant step j to j_end, the disturbance re-chosen at every landing;
-    ``own`` = (the scenario's disturbance, its per-loop seeds) added on top (none when
-    searching)."""
+    """Integrate from plant step j to j_end, the disturbance re-chosen at every landing; ``own``
+    = (the scenario's disturbance, its per-loop seeds) added on top (none when searching)."""
     j, j_end = span
     a1, a2, b1, b2 = coef
     dist, seeds = own
-    marks = [*(hold.landings(j, j_end) if hold.pending else ()), j_end]
-    for e in marks:
+    for e in [*(hold.landings(j, j_end) if hold.pending else ()), j_end]:
         c1, c2 = hold.cmd1, hold.cmd2
         d1 = a1 * np.sign(c1) + b1 * np.sign(state.v)
         d2 = a2 * np.sign(c2) + b2 * np.sign(state.omega)
