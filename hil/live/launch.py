@@ -63,21 +63,20 @@ def check(port: int | None, host: str) -> None:
         )
 
 
-def argv_for(settings_path: Path | Sequence[Path], port: int, host: str, resolved: Path | None,
+def argv_for(settings: Sequence[Path], port: int, host: str, resolved: Path | None,
              zenoh_mode: str, other_clocks: bool = False) -> list[str]:  # fmt: skip
-    """The live process's arguments after the interpreter (a fleet: each robot's settings;
+    """The live process's arguments after the interpreter (``settings``: each robot's;
     ``other_clocks``: the services run on a lab's hosts, whose clocks are not the view's)."""
-    paths = [settings_path] if isinstance(settings_path, Path) else list(settings_path)
-    argv = ["-m", "hil.live", *map(str, paths), "--host", host, "--port", str(port)]
+    argv = ["-m", "hil.live", *map(str, settings), "--host", host, "--port", str(port)]
     argv += ["--zenoh-mode", zenoh_mode] + (["--other-clocks"] if other_clocks else [])
     argv += ["--resolved", str(resolved)] if resolved is not None else ["--no-reference"]
     return argv
 
 
-def _start(sup: Supervisor, argv: list[str], log: Any, log_path: Path) -> str:
-    """Start the live process under ``sup``, its output to ``log`` (at ``log_path``); the
-    ``ws://`` address it prints once it listens, announced on stderr. BadInputError if it exits
-    first (a port in use) or stays silent :data:`START_TIMEOUT_S` s."""
+def _start(sup: Supervisor, argv: list[str], log: Any, log_path: Path) -> None:
+    """Start the live process under ``sup``, its output to ``log`` (at ``log_path``); announce
+    on stderr the ``ws://`` address it prints once it listens. BadInputError if it exits first
+    (a port in use) or stays silent :data:`START_TIMEOUT_S` s."""
     child = sup.start_python("live", argv, stdout=log, stderr=subprocess.STDOUT)
     deadline = time.monotonic() + START_TIMEOUT_S
     while time.monotonic() < deadline:
@@ -90,7 +89,7 @@ def _start(sup: Supervisor, argv: list[str], log: Any, log_path: Path) -> str:
                     "WebSocket; layout docs/live-layout.json)",
                     file=sys.stderr,
                 )
-                return url
+                return
         if not child.alive():
             tail = text.strip().splitlines()[-3:]
             raise BadInputError("the live view did not start: " + " / ".join(tail))
@@ -100,11 +99,11 @@ def _start(sup: Supervisor, argv: list[str], log: Any, log_path: Path) -> str:
 
 def start_for_run(
     sup: Any, run_dir: Path, port: int, host: str, logs: Any, other_clocks: bool = False
-) -> str:
+) -> None:
     """The live process of ``hil run`` (a supervised child, stopped with the others)."""
-    argv = argv_for(run_dir / "run_settings.json", port, host,
+    argv = argv_for([run_dir / "run_settings.json"], port, host,
                     run_dir / "scenario.resolved.toml", "client", other_clocks)  # fmt: skip
-    return _start(sup, argv, logs.open("live"), run_dir / "live.log")
+    _start(sup, argv, logs.open("live"), run_dir / "live.log")
 
 
 class FleetLive:
@@ -121,7 +120,6 @@ class FleetLive:
         self.log_path = out / "live.log"
         self._sup = Supervisor()
         self._log: Any = None
-        self.url: str | None = None
 
     def poll(self) -> None:
         """Start the view once every robot's settings exist (a no-op before and after)."""
@@ -130,7 +128,7 @@ class FleetLive:
         resolved = self.resolved if self.resolved.is_file() else None
         argv = argv_for(self.settings, self.port, self.host, resolved, "client", self.lab)
         self._log = self.log_path.open("wb")
-        self.url = _start(self._sup, argv, self._log, self.log_path)
+        _start(self._sup, argv, self._log, self.log_path)
 
     def close(self) -> None:
         self._sup.stop_all(grace=5.0)
