@@ -20,7 +20,7 @@ from hil.errors import BadInputError
 from hil.folder import layout
 from hil.folder.jsonio import read_json_object, write_json
 from hil.folder.records import Summary
-from hil.folder.trace_csv import TraceColumns, read_trace, trace_header
+from hil.folder.trace_csv import TraceColumns, read_trace
 
 
 @dataclass
@@ -28,21 +28,14 @@ class RunFolder:
     """One run or simulation folder, loaded (:func:`load_folder`)."""
 
     path: Path
-    trace_data: Mapping[str, np.ndarray] | None
+    #: trace.csv's columns, a lazy folder's read on first use, so that a long run's trace and
+    #: its series never sit in memory together (:class:`hil.folder.trace_csv.TraceColumns`).
+    trace: Mapping[str, np.ndarray]
     summary: Summary
     scenario: dict[str, Any]
     recordings: list[Path] = field(default_factory=list)
     #: What more than one part of the report reads (the recorded telemetry), read once.
     cache: dict[str, Any] = field(default_factory=dict, repr=False)
-
-    @property
-    def trace(self) -> Mapping[str, np.ndarray]:
-        """trace.csv's columns (BadInputError when it is not a trace); a lazily loaded
-        folder's read on first use, so that a long run's trace and its series never sit in
-        memory together (:class:`hil.folder.trace_csv.TraceColumns`)."""
-        if self.trace_data is None:
-            self.trace_data = TraceColumns(self.path / layout.TRACE)
-        return self.trace_data
 
     @property
     def kind(self) -> str:
@@ -115,7 +108,5 @@ def load_folder(path: str | Path, lazy: bool = False) -> RunFolder:
             raise BadInputError(f"{p}: not a run or simulation folder (no {required})")
     summary = cast(Summary, read_json_object(p / layout.SUMMARY))
     scenario = read_scenario(p)
-    if lazy:
-        trace_header(p / layout.TRACE)
-    data = None if lazy else read_trace(p / layout.TRACE)
-    return RunFolder(p, data, summary, scenario, recordings=sorted(p.glob("*.mcap")))
+    trace = TraceColumns(p / layout.TRACE) if lazy else read_trace(p / layout.TRACE)
+    return RunFolder(p, trace, summary, scenario, recordings=sorted(p.glob("*.mcap")))
