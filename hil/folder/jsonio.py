@@ -25,10 +25,8 @@ def jsonable(obj: Any) -> Any:
         return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return [jsonable(v) for v in obj.tolist()]
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
+    if isinstance(obj, np.bool_ | np.integer):
+        return obj.item()
     if isinstance(obj, np.floating):
         obj = float(obj)
     if isinstance(obj, float) and not math.isfinite(obj):

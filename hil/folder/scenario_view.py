@@ -46,9 +46,7 @@ class ScenarioView:
     def worst_delay(self) -> float:
         """The scenario's worst sample-to-apply delay: delay plus the jitter's bound (uniform
         jitter is bounded by ``jitter``; normal jitter is taken at 4 standard deviations)."""
-        if self.jitter_kind == "normal":
-            return self.delay + 4.0 * self.jitter
-        return self.delay + self.jitter
+        return self.delay + (4.0 if self.jitter_kind == "normal" else 1.0) * self.jitter
 
 
 def _without_none(table: Mapping[str, Any]) -> dict[str, Any]:
