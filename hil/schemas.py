@@ -70,11 +70,8 @@ def _struct(title: str, props: dict[str, Any]) -> dict[str, Any]:
 
 def _object(title: str, props: dict[str, Any], doc: str | None = None) -> dict[str, Any]:
     """A channel's schema: :func:`_struct` under the draft's ``$schema``, the title first."""
-    out: dict[str, Any] = {
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": title,
-    }
-    out.update(_struct(title, props))
+    draft = "https://json-schema.org/draft/2020-12/schema"
+    out: dict[str, Any] = {"$schema": draft, "title": title, **_struct(title, props)}
     if doc:
         out["description"] = " ".join(doc.split())
     return out

@@ -1,18 +1,14 @@
 """N closed loops whose disturbance is chosen by the loop: the batch path of the worst-case search
-(docs/margin.md, "The worst disturbance").
+(docs/margin.md, "The worst disturbance": the ``MODES`` and the patterns).
 
 The loop is the offline simulator's (:mod:`hil.sim.core`): at sample k the law gets the state,
 its command lands ``land[k]`` plant steps later (newest wins, :class:`plant_emulator.sampled.
-Hold`), the plant (1) is integrated by RK4 with the command held. Between two landings (the
-*command boundaries*) each loop holds a bang-bang disturbance per channel, chosen by its mode
-(``MODES``): ``aligned`` d = s sign(v~) of the command in force (against it: the sign of
-v - alpha_v the law saw), ``with_command`` d = -s sign(v~) (along it: the proof's worst case
-made stronger), ``outward`` d = s sign(v) at the stretch's start (pushes |v| up), ``none`` d = 0.
-A *pattern* gives each loop one mode per channel and block of samples (``modes`` (N, 2, B): the
-run cut into B equal blocks). The disturbance is added to the held torque, so the actuator must
-have no lag (A4 of docs/sampled_data_bound.md); the torque limits are checked on the commands.
-The scenario's own disturbance acts only when asked for (``own_seeds``), and its sensor as in
-the simulator, one noise seed for all loops.
+Hold`), the plant (1) is integrated by RK4 with the command held and, per channel, a bang-bang
+disturbance re-chosen at every landing by the loop's pattern ``modes`` (N, 2, B: a mode per
+channel and block of the run's B equal blocks). The disturbance is added to the held torque, so
+the actuator must have no lag (A4 of docs/sampled_data_bound.md); the torque limits are checked
+on the commands. The scenario's own disturbance acts only when asked for (``own_seeds``), and
+its sensor as in the simulator, one noise seed for all loops.
 """
 
 from __future__ import annotations
@@ -170,7 +166,8 @@ def run_loops(
     steps = absolute_landings(schedule.land, m)
     land = steps[0].tolist() if together else steps
     own = (NO_DISTURBANCE, None) if own_seeds is None else (scenario.disturbance, own_seeds)
-    # d = a sign(held torque) + b sign(velocity), a and b of shape (N, 2, B) (the modes above).
+    # d = a sign(held torque) + b sign(velocity), a and b of shape (N, 2, B): aligned a = -s
+    # (against the command in force), with_command a = s, outward b = s, none 0.
     scale = np.array([scenario.disturbance.s1, scenario.disturbance.s2], dtype=float)[None, :, None]
     a = scale * ((modes == 2).astype(float) - (modes == 1).astype(float))
     b = scale * (modes == 3).astype(float)
@@ -190,11 +187,10 @@ def run_loops(
         rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
         meas = rs if ideal else measure(scenario.sensor, rs, k, sensor_seeds)
         out, memory = controller.update(t_k, ts, meas, ref_arr, memory)
-        tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
-        tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
-        np.maximum(peaks[:2], np.abs([tau1, tau2]), out=peaks[:2])
+        tau = [np.broadcast_to(np.asarray(t, dtype=float), (n,)) for t in (out.tau1, out.tau2)]
+        np.maximum(peaks[:2], np.abs(tau), out=peaks[:2])
         j0 = k * m
-        hold.send(k, land[k] if together else land[schedule.group, k], tau1, tau2)
+        hold.send(k, land[k] if together else land[schedule.group, k], *tau)
         hold.land(j0)
         if 2 * k >= k_all:
             np.maximum(peaks[2], np.hypot(state.x - ref.xd, state.y - ref.yd), out=peaks[2])

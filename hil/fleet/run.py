@@ -1,9 +1,7 @@
-"""N robots' closed loops at once (docs/fleet.md): one ``hil run`` per robot, each with its own
-robot id (``robot1`` .. ``robotN``: its keys ``hil/robotI/...``), controller and plant processes
-and run folder, all started together and stopped together; with ``--per-process K`` (K > 1),
-robots in groups of K, each group one ``python -m hil.run.group`` with one plant process and
-one controller process for its K robots, each robot still with its own keys, state, deadlines
-and run folder.
+"""N robots' closed loops at once (docs/fleet.md): one ``hil run`` per robot (``robot1`` ..
+``robotN``: its keys ``hil/robotI/...``, its processes and run folder), all started together and
+stopped together; with ``--per-process K`` (K > 1), one ``python -m hil.run.group`` per group of
+K robots, each robot still with its own keys, state, deadlines and run folder.
 """
 
 from __future__ import annotations
@@ -82,10 +80,9 @@ def group_codes(opts: FleetOptions, robots: list[str], code: int | None) -> dict
 
 
 def check(opts: FleetOptions) -> None:
-    if not 1 <= opts.robots <= ROBOTS_MAX:
-        raise BadInputError(f"--robots {opts.robots}: 1 to {ROBOTS_MAX}")
-    if not 1 <= opts.per_process <= ROBOTS_MAX:
-        raise BadInputError(f"--per-process {opts.per_process}: 1 to {ROBOTS_MAX}")
+    for flag, n in (("--robots", opts.robots), ("--per-process", opts.per_process)):
+        if not 1 <= n <= ROBOTS_MAX:
+            raise BadInputError(f"{flag} {n}: 1 to {ROBOTS_MAX}")
     if opts.out.exists() and any(opts.out.iterdir()):
         raise BadInputError(f"--out {opts.out}: exists and is not empty")
 

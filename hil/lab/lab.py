@@ -102,8 +102,7 @@ def _start_router(state: LabState, index: int) -> None:
     item = state.intend(Made("proc", f"router-{name}"))
     argv = [sys.executable, "-m", "hil.lab.router", "--listen", LOCAL_ROUTER]
     argv += ["--listen", router_endpoint(index)]
-    for j in range(1, index):
-        argv += ["--connect", router_endpoint(j)]
+    argv += [arg for j in range(1, index) for arg in ("--connect", router_endpoint(j))]
     log_path = lab_dir(state.name) / f"{name}.router.log"
     with log_path.open("wb") as log:
         proc = subprocess.Popen(

@@ -1,11 +1,7 @@
 """A user's law on the batch path (``hil sweep``: every robot at once, the state and reference as
-arrays of shape (N,); docs/own-controller.md, "Floats and arrays: one source").
-
-A law written for one robot on floats fails there or, worse, returns one robot's torque for all.
-:func:`for_batch` calls it on a probe of two different robots, once as two single robots and
-once as arrays: a law whose torques agree runs as it is, any other one robot at a time
-(:class:`PerRobot`: the same results, slower; :func:`batch_note` says so in one line). A law
-that fails on a single robot is refused with one line naming the error.
+arrays of shape (N,); docs/own-controller.md, "Floats and arrays: one source", says what the
+probe of :func:`for_batch` does). A law written for one robot on floats fails there or, worse,
+returns one robot's torque for all: then :class:`PerRobot` runs it one robot at a time.
 """
 
 from __future__ import annotations
@@ -99,11 +95,10 @@ def array_problem(controller: Any, scenario: Any, reference: Any) -> str | None:
         state = RobotState(*(np.array(f, dtype=float) for f in zip(*robots, strict=True)))
         refs = ReferenceSample(*(np.full(n, v) for v in ref))
         out, _ = controller.update(0.0, ts, state, refs, memory)
-        tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
-        tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
+        tau = [np.broadcast_to(np.asarray(t, dtype=float), (n,)) for t in (out.tau1, out.tau2)]
     except Exception as exc:  # the user's code may raise anything on arrays
         return _what(exc)
-    got = np.stack([tau1, tau2], axis=1)
+    got = np.stack(tau, axis=1)
     if not np.allclose(got, np.array(singles), rtol=1e-9, atol=1e-12, equal_nan=True):
         return "on arrays it returned other torques than robot by robot"
     return None
