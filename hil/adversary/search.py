@@ -1,11 +1,5 @@
 """The search for the disturbance that breaks (2) first, on the batch path
-(:mod:`hil.adversary.loop`; docs/margin.md, "The worst disturbance").
-
-Round 0 runs the 16 constant patterns (every pair of ``MODES`` for v and omega) and fills the
-batch with random ones; each later round draws its patterns from per-block, per-channel mode
-probabilities refitted to the best tenth of all loops so far (cross-entropy, smoothed). A loop's
-score is its largest ratio to a limit (|v|/phi1, |omega|/phi2, |tau|/varpi, and the late
-position error over ``error_bound`` when one is given): above 1 a limit broke.
+(:mod:`hil.adversary.loop`; docs/margin.md, "The worst disturbance": its rounds and scores).
 """
 
 from __future__ import annotations

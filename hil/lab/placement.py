@@ -1,11 +1,7 @@
 """``hil run --lab NAME --plant-host H --controller-host H``: the run's processes on lab hosts
-(docs/lab.md, "A run across hosts").
-
-The recorder (``hil run`` itself) runs on the plant's host: ``hil run`` executes itself again
-there (``nsenter`` into the host's network and time namespaces; nsenter execs, so the PID
-stays) with :data:`PLACED_ENV` set to its PID. Each service then starts on its own host
-through ``nsenter``, and every session is a client of its own host's router, so all traffic
-between hosts crosses the routers, as between computers.
+(docs/lab.md, "A run across hosts": the recorder on the plant's host, each service on its own,
+every session a client of its own host's router). ``hil run`` executes itself again on the
+plant's host with :data:`PLACED_ENV` set to its PID (``nsenter`` execs: the PID stays).
 """
 
 from __future__ import annotations

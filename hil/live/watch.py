@@ -1,16 +1,12 @@
 """The live view's own process: ``python -m hil.live SETTINGS.json... --port P [--host H] ...``
-(docs/live.md: its channels, and where it runs).
+(docs/live.md: its channels, and why it runs apart from the loop's processes).
 
-Why a process of its own: ``hil drives`` runs its real-time loop in its own process, and
-``hil run``'s recorder must keep its pace; here decoding and serving cost neither of them a
-cycle (only the Zenoh router side of the run forwards the messages to one more client). It
-subscribes to each robot's keys ``hil/<id>/**`` on that robot's Zenoh endpoint (one session per
-endpoint) and, for one robot, listens to its CAN bus (both read-only), and serves
-:class:`LiveView` (a Foxglove WebSocket server, every channel JSON with its schema from
-:mod:`hil.schemas`) until SIGINT or SIGTERM, then closes it (every client sees the close). It
-prints ``live: ws://HOST:PORT`` on stdout once the server listens. A message's log time is the
-sender's stamp where it has one (State sample time, command send time), so Foxglove's plots
-share one clock (the host's ``CLOCK_MONOTONIC``).
+It subscribes to each robot's keys ``hil/<id>/**`` on that robot's Zenoh endpoint (one session
+per endpoint) and, for one robot, listens to its CAN bus (both read-only), and serves
+:class:`LiveView` (every channel JSON with its schema from :mod:`hil.schemas`) until SIGINT or
+SIGTERM, then closes it (every client sees the close). It prints ``live: ws://HOST:PORT`` on
+stdout once the server listens. A message's log time is the sender's stamp where it has one
+(State sample time, command send time): one clock, the host's ``CLOCK_MONOTONIC``.
 """
 
 from __future__ import annotations

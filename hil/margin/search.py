@@ -1,13 +1,11 @@
 """The timing margin k*: the smallest scale of the replayed timing at which a limit breaks
-(docs/margin.md, "k*").
+(docs/margin.md, "k*": the loops of a probe, the bracket, the bisection).
 
-At each scale k (:func:`hil.margin.timing.scaled`) ``seeds`` loops run on the batch path
-(:mod:`hil.adversary.loop`), each over its own draw of the timing and from its own initial state
-(moved by up to ``SPREAD``), under the scenario's own disturbance or, ``worst``, the worst one
-searched; a probe *breaks* when any loop exceeds a limit of (2) (or the late position error
-exceeds ``error_bound``). From k = 1 the scale doubles (or halves) until the outcome changes,
-then geometric bisection narrows [held, broke] to ``rel_tol``; k* is the broken end. Breaking
-need not be monotone in k for a nonlinear loop: the probes are all in the record.
+A probe at scale k (:func:`hil.margin.timing.scaled`) runs ``seeds`` loops on the batch path
+(:mod:`hil.adversary.loop`), under the scenario's own disturbance or, ``worst``, the worst one
+searched; it *breaks* when any loop exceeds a limit of (2) (or the late position error exceeds
+``error_bound``). k* is the broken end of the bracket narrowed to ``rel_tol``. Breaking need
+not be monotone in k for a nonlinear loop: the probes are all in the record.
 """
 
 from __future__ import annotations

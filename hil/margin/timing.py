@@ -1,14 +1,13 @@
 """The timing ``hil margin`` replays, and the same timing with every age scaled by k
-(docs/margin.md, "The timing replayed").
+(docs/margin.md, "The timing replayed": the cyclic replay, the start-up hold left out).
 
 The *base timing* is a sample period ``ts`` and, per sample, the latency from the sample to the
 landing of its command (NaN: never landed). From a run folder: the applied path's landings in
 force measured by :mod:`hil.measure` (``Measurement.series["command_age_<path>"]``: landing a_j
 and sample s_j of every command that took over the plant, on the plant's clock), sample index
-round((s_j - t0) / ts) and latency a_j - s_j, replayed cyclically from the first landed sample
-to the last (the start-up hold is not replayed, so the replay's D can be below the run's). From
-a scenario: its [timing] delay plus the jitter's draw per seed. *Scaled by k*, the loop samples
-every k ts and every latency is k times the base one: every command age is k times the base.
+round((s_j - t0) / ts) and latency a_j - s_j. From a scenario: its [timing] delay plus the
+jitter's draw per seed. *Scaled by k*, the loop samples every k ts and every latency is k times
+the base one: every command age is k times the base.
 """
 
 from __future__ import annotations
