@@ -235,10 +235,8 @@ def _drain(
             if not m.rejected:  # the recording keeps refused payloads; the view shows messages
                 order.push(m)
     for m in order.ready(now_ns):
-        try:
+        with contextlib.suppress(DecodeError):
             view.on_message(m.topic, decode(m.payload), m.log_time_ns)
-        except DecodeError:
-            continue
     return n
 
 
