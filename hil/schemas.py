@@ -52,21 +52,26 @@ def message_schema(cls: type) -> dict[str, Any]:
     props: dict[str, Any] = {
         "TAG": {"type": "integer", "const": cls.TAG},  # type: ignore[attr-defined]
         "type": {"type": "string", "const": cls.__name__},
+        **{name: _field_schema(kind, lo, hi) for name, kind, lo, hi in pm.SPECS[cls]},
     }
-    for name, kind, lo, hi in pm.SPECS[cls]:
-        props[name] = _field_schema(kind, lo, hi)
     return _object(f"hil.{cls.__name__}", props, cls.__doc__)
 
 
-def _object(title: str, props: dict[str, Any], doc: str | None = None) -> dict[str, Any]:
-    out: dict[str, Any] = {
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": title,
+def _struct(title: str, props: dict[str, Any]) -> dict[str, Any]:
+    """An object with exactly these properties, every one required."""
+    return {
         "type": "object",
+        "title": title,
         "properties": props,
         "required": list(props),
         "additionalProperties": False,
     }
+
+
+def _object(title: str, props: dict[str, Any], doc: str | None = None) -> dict[str, Any]:
+    """A channel's schema: :func:`_struct` under the draft's ``$schema``, the title first."""
+    draft = "https://json-schema.org/draft/2020-12/schema"
+    out: dict[str, Any] = {"$schema": draft, "title": title, **_struct(title, props)}
     if doc:
         out["description"] = " ".join(doc.split())
     return out
@@ -85,24 +90,14 @@ _CAN_TYPES: dict[str, dict[str, Any]] = {
 }
 
 
-def _can_classes() -> list[type]:
-    out: list[type] = []
-    todo = list(codec.Message.__subclasses__())
-    while todo:
-        cls = todo.pop(0)
-        out.append(cls)
-        todo.extend(cls.__subclasses__())
-    return out
-
-
 def can_frame_schema() -> dict[str, Any]:
     """A CAN frame as the recorder writes it: the raw frame, and either the CANSimple message
     it decodes to (``message``: the class name, ``fields``: its signals, each typed from the
     class) or ``decode_error``."""
     signals: dict[str, dict[str, Any]] = {}
-    names = []
-    for cls in _can_classes():
-        names.append(cls.__name__)
+    classes: list[type] = codec.Message.__subclasses__()
+    for cls in classes:  # every message class: the list grows while it is walked
+        classes.extend(cls.__subclasses__())
         for f in fields(cls):
             typed = _CAN_TYPES.get(str(f.type))
             if typed is None:
@@ -116,7 +111,7 @@ def can_frame_schema() -> dict[str, Any]:
             "data": {"type": "string", "pattern": "^([0-9a-f]{2}){0,64}$"},
             "dlc": {"type": "integer", "minimum": 0, "maximum": 64},
             "is_remote_frame": {"type": "boolean"},
-            "message": {"type": "string", "enum": sorted(names)},
+            "message": {"type": "string", "enum": sorted(c.__name__ for c in classes)},
             "fields": {
                 "type": "object",
                 "properties": signals,
@@ -153,42 +148,21 @@ REJECTED = _object(
 # Foxglove's well-known schemas (foxglove-sdk schemas/jsonschema), by their names: the 3D panel
 # recognises a channel by the schema name.
 _NUMBER = {"type": "number"}
-_TIME = {
-    "type": "object",
-    "title": "time",
-    "properties": {
+_TIME = _struct(
+    "time",
+    {
         "sec": {"type": "integer", "minimum": 0},
         "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
     },
-    "required": ["sec", "nsec"],
-    "additionalProperties": False,
-}
-
-
-def _xyz(title: str, keys: str) -> dict[str, Any]:
-    return {
-        "type": "object",
-        "title": title,
-        "properties": {k: _NUMBER for k in keys},
-        "required": list(keys),
-        "additionalProperties": False,
-    }
-
-
-_VECTOR3 = _xyz("foxglove.Vector3", "xyz")
-_QUATERNION = _xyz("foxglove.Quaternion", "xyzw")
+)
+_VECTOR3 = _struct("foxglove.Vector3", dict.fromkeys("xyz", _NUMBER))
+_QUATERNION = _struct("foxglove.Quaternion", dict.fromkeys("xyzw", _NUMBER))
 POSE_IN_FRAME = _object(
     "foxglove.PoseInFrame",
     {
         "timestamp": _TIME,
         "frame_id": {"type": "string"},
-        "pose": {
-            "type": "object",
-            "title": "foxglove.Pose",
-            "properties": {"position": _VECTOR3, "orientation": _QUATERNION},
-            "required": ["position", "orientation"],
-            "additionalProperties": False,
-        },
+        "pose": _struct("foxglove.Pose", {"position": _VECTOR3, "orientation": _QUATERNION}),
     },
     "A timestamped pose for an object or reference frame in 3D space",
 )

@@ -1,25 +1,14 @@
-"""N closed loops whose disturbance is chosen by the loop: the batch path of the worst-case search.
+"""N closed loops whose disturbance is chosen by the loop: the batch path of the worst-case search
+(docs/margin.md, "The worst disturbance": the ``MODES`` and the patterns).
 
 The loop is the offline simulator's (:mod:`hil.sim.core`): at sample k the law gets the state,
 its command lands ``land[k]`` plant steps later (newest wins, :class:`plant_emulator.sampled.
-Hold`), the plant (1) is integrated by RK4 with the command held. What differs is the
-disturbance: between two landings (the *command boundaries*) each loop holds a bang-bang
-disturbance chosen per channel by its mode (``MODES``):
-
-- ``aligned``: d = s sign(v~) of the command in force, i.e. against it (the law's tau1 is
-  -varpi1 sign(v - alpha_v) at its sample), the sign of v - alpha_v, omega - alpha_omega that
-  the law saw;
-- ``with_command``: d = -s sign(v~), along the command: a wrong-way command, the one of the
-  proof's worst case, made stronger;
-- ``outward``: d = s sign(v) (sign(omega)) at the start of the stretch: pushes |v| up;
-- ``none``: d = 0.
-
-A *pattern* gives each loop one mode per channel and block of samples (``modes`` of shape
-(N, 2, B): the run is cut into B equal blocks of samples). The disturbance is added to the held
-torque (v' = tau1 + d1 is linear in both), so the actuator must have no lag (A4 of
-docs/sampled_data_bound.md); the torque limits are checked on the commands. The scenario's own
-disturbance acts only when asked for (``own_seeds``: ``hil margin`` without the search), and
-its sensor (noise, quantization) as in the simulator, one noise seed for all loops.
+Hold`), the plant (1) is integrated by RK4 with the command held and, per channel, a bang-bang
+disturbance re-chosen at every landing by the loop's pattern ``modes`` (N, 2, B: a mode per
+channel and block of the run's B equal blocks). The disturbance is added to the held torque, so
+the actuator must have no lag (A4 of docs/sampled_data_bound.md); the torque limits are checked
+on the commands. The scenario's own disturbance acts only when asked for (``own_seeds``), and
+its sensor as in the simulator, one noise seed for all loops.
 """
 
 from __future__ import annotations
@@ -43,11 +32,10 @@ LOST = -1  # a sample whose command never lands
 
 @dataclass(frozen=True)
 class Schedule:
-    """When each sample's command lands, shared by the loops of a group.
-
-    ``ts``: the sample period; ``land``: (G, K) plant steps from sample k to its landing for G
-    landing draws over K samples (``LOST``: never lands); ``group``: (N,) the draw each loop
-    uses; ``h``: the plant step (``ts`` / a whole number)."""
+    """When each sample's command lands, shared by the loops of a group. ``ts``: the sample
+    period; ``land``: (G, K) plant steps from sample k to its landing for G landing draws over
+    K samples (``LOST``: never lands); ``group``: (N,) the draw each loop uses; ``h``: the
+    plant step (``ts`` / a whole number)."""
 
     ts: float
     h: float
@@ -136,14 +124,12 @@ def _advance(
     limits: Any,
     ext: Extremes,
 ) -> PlantState:
-    """Integrate from plant step j to j_end, the disturbance re-chosen at every landing;
-    ``own`` = (the scenario's disturbance, its per-loop seeds) added on top (none when
-    searching)."""
+    """Integrate from plant step j to j_end, the disturbance re-chosen at every landing; ``own``
+    = (the scenario's disturbance, its per-loop seeds) added on top (none when searching)."""
     j, j_end = span
     a1, a2, b1, b2 = coef
     dist, seeds = own
-    marks = [*(hold.landings(j, j_end) if hold.pending else ()), j_end]
-    for e in marks:
+    for e in [*(hold.landings(j, j_end) if hold.pending else ()), j_end]:
         c1, c2 = hold.cmd1, hold.cmd2
         d1 = a1 * np.sign(c1) + b1 * np.sign(state.v)
         d2 = a2 * np.sign(c2) + b2 * np.sign(state.omega)
@@ -180,20 +166,18 @@ def run_loops(
     steps = absolute_landings(schedule.land, m)
     land = steps[0].tolist() if together else steps
     own = (NO_DISTURBANCE, None) if own_seeds is None else (scenario.disturbance, own_seeds)
-    # d = a sign(held torque) + b sign(velocity), a and b of shape (N, 2, B) (the modes above).
+    # d = a sign(held torque) + b sign(velocity), a and b of shape (N, 2, B): aligned a = -s
+    # (against the command in force), with_command a = s, outward b = s, none 0.
     scale = np.array([scenario.disturbance.s1, scenario.disturbance.s2], dtype=float)[None, :, None]
     a = scale * ((modes == 2).astype(float) - (modes == 1).astype(float))
     b = scale * (modes == 3).astype(float)
-    blocks = modes.shape[2]
-    limits = scenario.limits
     hold = Hold(n, apart=not together)
     ext = Extremes.zeros(n)
     if memory is None:
         memory = controller.initial_memory(n, z1=scenario.initial.z1, z2=scenario.initial.z2)
     state = initial
     peaks = np.zeros((3, n))  # |tau1|, |tau2|, late position error
-    sensor = scenario.sensor
-    ideal = sensor.is_ideal
+    ideal = scenario.sensor.is_ideal
     sensor_seeds = np.full(n, scenario.plant.noise_seed, dtype=np.int64)
     ones = np.ones(n)
     for k in range(k_all):
@@ -201,21 +185,18 @@ def run_loops(
         ref = reference.sample(t_k)
         ref_arr = ReferenceSample(*(ones * float(value) for value in ref))
         rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
-        meas = rs if ideal else measure(sensor, rs, k, sensor_seeds)
+        meas = rs if ideal else measure(scenario.sensor, rs, k, sensor_seeds)
         out, memory = controller.update(t_k, ts, meas, ref_arr, memory)
-        tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
-        tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
-        np.maximum(peaks[0], np.abs(tau1), out=peaks[0])
-        np.maximum(peaks[1], np.abs(tau2), out=peaks[1])
+        tau = [np.broadcast_to(np.asarray(t, dtype=float), (n,)) for t in (out.tau1, out.tau2)]
+        np.maximum(peaks[:2], np.abs(tau), out=peaks[:2])
         j0 = k * m
-        hold.send(k, land[k] if together else land[schedule.group, k], tau1, tau2)
+        hold.send(k, land[k] if together else land[schedule.group, k], *tau)
         hold.land(j0)
         if 2 * k >= k_all:
-            err = np.hypot(state.x - ref.xd, state.y - ref.yd)
-            np.maximum(peaks[2], err, out=peaks[2])
-        blk = k * blocks // k_all
+            np.maximum(peaks[2], np.hypot(state.x - ref.xd, state.y - ref.yd), out=peaks[2])
+        blk = k * modes.shape[2] // k_all
         coef = (a[:, 0, blk], a[:, 1, blk], b[:, 0, blk], b[:, 1, blk])
-        state = _advance(state, hold, h, (j0, j0 + m), coef, own, limits, ext)
+        state = _advance(state, hold, h, (j0, j0 + m), coef, own, scenario.limits, ext)
     v, omega = (np.asarray(x, dtype=float) for x in (ext.max_abs_v, ext.max_abs_omega))
     return LoopPeaks(v, omega, *peaks)
 

@@ -1,13 +1,5 @@
-"""The search for the disturbance that breaks (2) first: fixed bang-bang patterns, then
-cross-entropy over switching patterns, all on the batch path (:mod:`hil.adversary.loop`).
-
-Round 0 runs the 16 constant patterns (every pair of ``MODES`` for v and omega: among them
-d = s sign(v - alpha_v), s sign(omega - alpha_omega) all along) and fills the batch with random
-patterns (a mode per channel and block). Each later round draws its patterns from per-block,
-per-channel mode probabilities refitted to the best tenth of all loops so far (cross-entropy,
-smoothed). The score of a loop is its largest ratio to a limit (max |v|/phi1, |omega|/phi2,
-|tau|/varpi, and the late position error over ``error_bound`` when one is given): above 1 a
-limit broke.
+"""The search for the disturbance that breaks (2) first, on the batch path
+(:mod:`hil.adversary.loop`; docs/margin.md, "The worst disturbance": its rounds and scores).
 """
 
 from __future__ import annotations
@@ -48,15 +40,12 @@ class WorstDisturbance:
         if self.bounds == (0.0, 0.0):
             return "none (s1 = s2 = 0)"
         parts = []
-        for ch, name in enumerate(("d1", "d2")):
-            row = self.pattern[ch]
+        for name, row in zip(("d1", "d2"), self.pattern, strict=True):
             if (row == row[0]).all():
                 parts.append(f"{name} {MODES[int(row[0])]}")
             else:
                 shares = ", ".join(
-                    f"{MODES[i]} {np.mean(row == i):.0%}"
-                    for i in range(len(MODES))
-                    if (row == i).any()
+                    f"{m} {np.mean(row == i):.0%}" for i, m in enumerate(MODES) if (row == i).any()
                 )
                 parts.append(f"{name} switching ({shares} of {row.size} blocks)")
         return "; ".join(parts)
@@ -77,18 +66,12 @@ def scores(peaks: LoopPeaks, limits: Any, error_bound: float | None) -> tuple[np
     """Per loop: the largest ratio to a limit and the index of that limit (``LIMIT_NAMES``).
     The torques count only when beyond their limit: the laws clamp them, so a torque at its
     limit (ratio 1 all along for the sign law) says nothing about how close (2) came."""
-    zero = np.zeros_like(peaks.max_abs_v)
-    over = 1.0 + VIOLATION_RTOL
-
-    def beyond(ratio: np.ndarray) -> np.ndarray:
-        return np.where(ratio > over, ratio, zero)
-
+    tau = np.array([peaks.max_abs_tau1 / limits.varpi1, peaks.max_abs_tau2 / limits.varpi2])
     ratios = [
         peaks.max_abs_v / limits.phi1,
         peaks.max_abs_omega / limits.phi2,
-        beyond(peaks.max_abs_tau1 / limits.varpi1),
-        beyond(peaks.max_abs_tau2 / limits.varpi2),
-        peaks.max_late_error / error_bound if error_bound else zero,
+        np.where(tau > 1.0 + VIOLATION_RTOL, tau, 0.0),  # two rows: |tau1|, |tau2|
+        peaks.max_late_error / error_bound if error_bound else np.zeros_like(peaks.max_abs_v),
     ]
     stacked = np.vstack(ratios)
     return stacked.max(axis=0), stacked.argmax(axis=0)
@@ -129,9 +112,8 @@ def worst_disturbance(
     loop: tuple[Any, Any, Any] | None = None,
 ) -> WorstDisturbance:
     """Search the patterns over ``rounds`` batches of N loops (N = the schedule's loops, each
-    from its ``initial`` state and the law's ``memory``, default its initial memory); with
-    ``stop_on_break`` it stops at the first round that broke a limit (enough for a
-    bisection)."""
+    from its ``initial`` state and the law's ``memory``, default its initial memory);
+    ``stop_on_break``: stop at the first round that broke a limit (enough for a bisection)."""
     loop = loop or build_loop(scenario)
     n = len(schedule.group)
     rng = np.random.default_rng(seed)

@@ -1,7 +1,6 @@
-"""A fleet's robots start together: each ``hil run`` of a fleet, once its own services are
-ready, marks itself ready in the fleet's folder and waits until every robot is (bounded), then
-announces its start. Without it the first robots' runs would start while the last ones still
-import their libraries on the same cores: start-up stalls that are not the fleet's.
+"""A fleet's robots start together (docs/fleet.md): each ``hil run`` of a fleet, once its own
+services are ready, marks itself ready in the fleet's folder and waits (bounded) until every
+robot is, so that no run starts while the others still import their libraries on the same cores.
 """
 
 from __future__ import annotations

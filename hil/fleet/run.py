@@ -1,14 +1,7 @@
-"""N robots' closed loops at once: one ``hil run`` per robot, each with its own robot id
-(``robot1`` .. ``robotN``: its own keys ``hil/robotI/...``), its own controller and plant
-processes and its own run folder, all started together and stopped together.
-
-Over loopback each robot's sessions form their own peer mesh (one Zenoh session per process,
-as separate robots would have); with ``--lab`` every process is a client of its lab host's
-router, so all robots' traffic crosses the same routers (hil.lab.placement).
-
-``--per-process K`` (K > 1): robots in groups of K, each group one ``python -m hil.run.group``
-with one plant process and one controller process for its K robots (hil.run.group); each robot
-still has its own keys, state, deadlines and run folder.
+"""N robots' closed loops at once (docs/fleet.md): one ``hil run`` per robot (``robot1`` ..
+``robotN``: its keys ``hil/robotI/...``, its processes and run folder), all started together and
+stopped together; with ``--per-process K`` (K > 1), one ``python -m hil.run.group`` per group of
+K robots, each robot still with its own keys, state, deadlines and run folder.
 """
 
 from __future__ import annotations
@@ -58,13 +51,6 @@ def run_argv(opts: FleetOptions, robot: str) -> list[str]:
     return argv
 
 
-def groups(opts: FleetOptions) -> list[list[str]]:
-    """The robots of each process group (one robot each without ``--per-process``)."""
-    ids = robot_ids(opts.robots)
-    k = max(1, opts.per_process)
-    return [ids[i : i + k] for i in range(0, len(ids), k)]
-
-
 def group_argv(opts: FleetOptions, robots: list[str]) -> list[str]:
     """``python -m hil.run.group`` of one group, its spec written into the fleet's folder."""
     spec = {
@@ -94,10 +80,9 @@ def group_codes(opts: FleetOptions, robots: list[str], code: int | None) -> dict
 
 
 def check(opts: FleetOptions) -> None:
-    if not 1 <= opts.robots <= ROBOTS_MAX:
-        raise BadInputError(f"--robots {opts.robots}: 1 to {ROBOTS_MAX}")
-    if not 1 <= opts.per_process <= ROBOTS_MAX:
-        raise BadInputError(f"--per-process {opts.per_process}: 1 to {ROBOTS_MAX}")
+    for flag, n in (("--robots", opts.robots), ("--per-process", opts.per_process)):
+        if not 1 <= n <= ROBOTS_MAX:
+            raise BadInputError(f"{flag} {n}: 1 to {ROBOTS_MAX}")
     if opts.out.exists() and any(opts.out.iterdir()):
         raise BadInputError(f"--out {opts.out}: exists and is not empty")
 
@@ -110,7 +95,8 @@ def execute(opts: FleetOptions, stop: Any, live: Any = None) -> dict[str, int | 
     opts.out.mkdir(parents=True, exist_ok=True)
     sup = Supervisor()
     logs = []
-    members = {g[0]: g for g in groups(opts)}
+    ids, k = robot_ids(opts.robots), opts.per_process  # k robots a process (check: 1..64)
+    members = {ids[i]: ids[i : i + k] for i in range(0, len(ids), k)}  # by each group's first
     grouped = opts.per_process > 1
     try:
         for first, robots in members.items():

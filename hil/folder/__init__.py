@@ -1,11 +1,8 @@
 """The run or simulation folder: its one owner (layout, reading, writing; docs/run-folder.md).
 
-A folder is ``trace.csv`` (one row per control sample), ``summary.json`` (the result),
-``scenario.resolved.toml`` and, for a real run, the services' hop logs, the measurement's
-per-sample series (``series.npz``) and the recording (``*.mcap``). Every file name is in
-:mod:`hil.folder.layout`, every JSON file follows :mod:`hil.folder.jsonio`. Anything else is
-not a run: :func:`load_folder` raises :class:`hil.errors.BadInputError` (exit code 2) with
-the reason.
+Every file name is in :mod:`hil.folder.layout`, every JSON file follows :mod:`hil.folder.jsonio`.
+A folder without trace.csv, summary.json and scenario.resolved.toml is not a run:
+:func:`load_folder` raises :class:`hil.errors.BadInputError` (exit code 2) with the reason.
 """
 
 from __future__ import annotations
@@ -23,31 +20,22 @@ from hil.errors import BadInputError
 from hil.folder import layout
 from hil.folder.jsonio import read_json_object, write_json
 from hil.folder.records import Summary
-from hil.folder.trace_csv import TraceColumns, read_trace, trace_header
+from hil.folder.trace_csv import TraceColumns, read_trace
 
 
 @dataclass
 class RunFolder:
-    """One run or simulation folder, loaded. ``trace`` is read on first use when the folder
-    was loaded lazily (:func:`load_folder`), so a long run's trace and its series never sit in
-    memory together."""
+    """One run or simulation folder, loaded (:func:`load_folder`)."""
 
     path: Path
-    trace_data: Mapping[str, np.ndarray] | None
+    #: trace.csv's columns, a lazy folder's read on first use, so that a long run's trace and
+    #: its series never sit in memory together (:class:`hil.folder.trace_csv.TraceColumns`).
+    trace: Mapping[str, np.ndarray]
     summary: Summary
     scenario: dict[str, Any]
     recordings: list[Path] = field(default_factory=list)
     #: What more than one part of the report reads (the recorded telemetry), read once.
     cache: dict[str, Any] = field(default_factory=dict, repr=False)
-
-    @property
-    def trace(self) -> Mapping[str, np.ndarray]:
-        """trace.csv's columns (BadInputError when it is not a trace); a lazily loaded
-        folder's read on first use, the rarely read ones only if asked for
-        (:class:`hil.folder.trace_csv.TraceColumns`)."""
-        if self.trace_data is None:
-            self.trace_data = TraceColumns(self.path / layout.TRACE)
-        return self.trace_data
 
     @property
     def kind(self) -> str:
@@ -81,11 +69,9 @@ def write_summary(path: Path, summary: Summary) -> Path:
 
 def write_series(path: Path, arrays: dict[str, np.ndarray]) -> Path:
     """The measurement's series, written whole (a temporary file renamed)."""
-    out = path / layout.SERIES
     tmp = path / (layout.SERIES + ".writing.npz")
     np.savez(tmp, **arrays)
-    tmp.replace(out)
-    return out
+    return tmp.replace(path / layout.SERIES)
 
 
 def read_series(path: Path) -> dict[str, np.ndarray] | None:
@@ -112,10 +98,8 @@ def new_run_dir(root: str | Path = "runs", prefix: str = "run") -> Path:
 
 
 def load_folder(path: str | Path, lazy: bool = False) -> RunFolder:
-    """Load and check a run or simulation folder; BadInputError when it is not one.
-
-    ``lazy``: check only the trace's header now and read its rows on first use (a bad row
-    then raises BadInputError there)."""
+    """Load and check a run or simulation folder; BadInputError when it is not one. ``lazy``:
+    check only the trace's header now, read its rows on first use (a bad row raises there)."""
     p = Path(path)
     if not p.is_dir():
         raise BadInputError(f"{p}: not a folder")
@@ -124,7 +108,5 @@ def load_folder(path: str | Path, lazy: bool = False) -> RunFolder:
             raise BadInputError(f"{p}: not a run or simulation folder (no {required})")
     summary = cast(Summary, read_json_object(p / layout.SUMMARY))
     scenario = read_scenario(p)
-    if lazy:
-        trace_header(p / layout.TRACE)
-    data = None if lazy else read_trace(p / layout.TRACE)
-    return RunFolder(p, data, summary, scenario, recordings=sorted(p.glob("*.mcap")))
+    trace = TraceColumns(p / layout.TRACE) if lazy else read_trace(p / layout.TRACE)
+    return RunFolder(p, trace, summary, scenario, recordings=sorted(p.glob("*.mcap")))

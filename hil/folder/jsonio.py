@@ -1,9 +1,7 @@
-"""The one JSON policy of every file the bench writes (docs/run-folder.md, "JSON").
-
-numpy scalars and arrays become plain numbers and lists, tuples lists, keys strings, and a
-non-finite number (NaN, ±inf) becomes ``null``: JSON has no NaN, and every reader already
-takes ``null`` as "not measured". Files are written whole or not at all (a temporary file
-renamed over the old one), so a kill mid-write never leaves half a JSON.
+"""The one JSON policy of every file the bench writes (docs/run-folder.md, "JSON"): numpy values
+become plain numbers and lists, tuples lists, keys strings, a non-finite number ``null`` (JSON
+has no NaN; every reader takes ``null`` as "not measured"); files are written whole or not at
+all (a temporary file renamed over the old one), so a kill mid-write never leaves half a JSON.
 """
 
 from __future__ import annotations
@@ -27,10 +25,8 @@ def jsonable(obj: Any) -> Any:
         return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return [jsonable(v) for v in obj.tolist()]
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
+    if isinstance(obj, np.bool_ | np.integer):
+        return obj.item()
     if isinstance(obj, np.floating):
         obj = float(obj)
     if isinstance(obj, float) and not math.isfinite(obj):
@@ -38,14 +34,10 @@ def jsonable(obj: Any) -> Any:
     return obj
 
 
-def dumps(obj: Any, indent: int | None = 2) -> str:
-    return json.dumps(jsonable(obj), indent=indent, allow_nan=False)
-
-
 def write_json(path: Path, obj: Any) -> Path:
     """Write ``obj`` to ``path`` atomically under the policy above."""
     tmp = path.with_name(path.name + ".writing")
-    tmp.write_text(dumps(obj) + "\n")
+    tmp.write_text(json.dumps(jsonable(obj), indent=2, allow_nan=False) + "\n")
     os.replace(tmp, path)
     return path
 

@@ -1,9 +1,7 @@
 """The typed records a run folder holds (docs/run-folder.md): summary.json and its certificate.
 
-They stay JSON objects on disk and dicts in memory (scripts read them as such); these
-TypedDicts say which keys exist and what each holds, so a reader and a type checker agree with
-the writer. The measurement is :class:`hil.measure.figures.Measurement`, the scenario's view
-:class:`hil.folder.scenario_view.ScenarioView`.
+JSON objects on disk and dicts in memory (scripts read them as such); these TypedDicts say which
+keys exist and what each holds, so that a reader and a type checker agree with the writer.
 """
 
 from __future__ import annotations

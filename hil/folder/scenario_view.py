@@ -1,9 +1,6 @@
-"""What a report needs from ``scenario.resolved.toml``: limits, design, timing.
-
-Read by the scenario's own reader (:func:`hil.scenario.parse_scenario`): a key that is missing
-takes the scenario's documented default, and a bad or unreadable one is a
-:class:`hil.errors.BadInputError` naming it, never a silent fallback.
-"""
+"""What a report needs from ``scenario.resolved.toml`` (limits, design, timing), read by
+:func:`hil.scenario.parse_scenario`: a missing key takes the scenario's documented default, a bad
+or unreadable one is a :class:`hil.errors.BadInputError` naming it, never a silent fallback."""
 
 from __future__ import annotations
 
@@ -49,9 +46,7 @@ class ScenarioView:
     def worst_delay(self) -> float:
         """The scenario's worst sample-to-apply delay: delay plus the jitter's bound (uniform
         jitter is bounded by ``jitter``; normal jitter is taken at 4 standard deviations)."""
-        if self.jitter_kind == "normal":
-            return self.delay + 4.0 * self.jitter
-        return self.delay + self.jitter
+        return self.delay + (4.0 if self.jitter_kind == "normal" else 1.0) * self.jitter
 
 
 def _without_none(table: Mapping[str, Any]) -> dict[str, Any]:

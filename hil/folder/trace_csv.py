@@ -15,10 +15,7 @@ from hil.trace import TRACE_COLUMNS
 
 def write_trace_csv(path: Path, columns: list[str], trace: np.ndarray) -> None:
     """A simulation's trace: ``trace`` rows under the ``columns`` header."""
-    with path.open("w") as f:
-        f.write(",".join(columns) + "\n")
-        if len(trace):
-            np.savetxt(f, trace, delimiter=",", fmt="%.10g")
+    np.savetxt(path, trace, delimiter=",", fmt="%.10g", header=",".join(columns), comments="")
 
 
 #: Rows parsed per call of the C reader (np.loadtxt): ~4 MB of floats at 15 columns.
@@ -50,13 +47,10 @@ def trace_header(path: Path) -> list[str]:
 
 
 def read_trace(path: Path, columns: Sequence[str] | None = None) -> dict[str, np.ndarray]:
-    """trace.csv as column name -> float array (every column, or ``columns`` and ``t``);
-    every required column present and finite where it must be.
-
-    Read in chunks of :data:`CHUNK_ROWS` lines by numpy's C parser straight into one
-    preallocated (columns, rows) array, so an hour's trace (millions of rows) costs its
-    columns and one chunk of memory, in linear time; each column is a contiguous row of it.
-    """
+    """trace.csv as column name -> float array (every column, or ``columns`` and ``t``), its
+    required columns present and ``t`` finite and non-decreasing. Read in chunks of
+    :data:`CHUNK_ROWS` lines by numpy's C parser straight into one preallocated (columns, rows)
+    array: an hour's trace (millions of rows) costs its columns and one chunk, in linear time."""
     header = trace_header(path)
     names = header if columns is None else [c for c in header if c in {"t", *columns}]
     usecols = [header.index(c) for c in names]

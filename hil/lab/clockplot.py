@@ -5,13 +5,12 @@ their median, so that a drift, a step or a widening bound shows."""
 from __future__ import annotations
 
 import io
-from pathlib import Path
 
 import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 
-from hil.measure.clocks import ClockTrack, read_track
+from hil.measure.clocks import ClockTrack
 
 CLOCK_PLOT = "clock.png"
 
@@ -38,13 +37,3 @@ def clock_png(track: ClockTrack) -> bytes | None:
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
     return buf.getvalue()
-
-
-def plot_clock(run_dir: Path) -> Path | None:
-    """The plot, or None when the run has no estimates."""
-    png = clock_png(read_track(run_dir))
-    if png is None:
-        return None
-    path = run_dir / CLOCK_PLOT
-    path.write_bytes(png)
-    return path

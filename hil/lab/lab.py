@@ -73,8 +73,7 @@ def host_of(state: LabState, host: str) -> dict[str, Any]:
 def host_command(state: LabState, host: str, argv: list[str]) -> list[str]:
     """``argv`` run in the host's network and time namespaces."""
     h = host_of(state, host)
-    ns = f"--net={net.netns_path(h['netns'])}"
-    return ["nsenter", ns, f"--time={h['timens']}", "--", *argv]
+    return ["nsenter", f"--net={net.netns_path(h['netns'])}", f"--time={h['timens']}", "--", *argv]
 
 
 def host_env(state: LabState, base: dict[str, str] | None = None) -> dict[str, str]:
@@ -91,8 +90,7 @@ def _make_host(state: LabState, index: int, offset: float, imp: net.LinkImpairme
     tfile.touch()
     state.intend(Made("timens", str(tfile)))
     net.run([sys.executable, "-m", "hil.lab.timens", str(tfile), repr(offset)])
-    if imp.loss > 0 or imp.rate_bps > 0:
-        net.impair(ns, imp)
+    net.impair(ns, imp)  # nothing without loss or rate
     host = {"name": name, "netns": ns, "timens": str(tfile), "address": net.host_address(index)}
     host.update({"offset_s": offset, "router": router_endpoint(index), "impair": asdict(imp)})
     state.hosts.append(host)
@@ -104,8 +102,7 @@ def _start_router(state: LabState, index: int) -> None:
     item = state.intend(Made("proc", f"router-{name}"))
     argv = [sys.executable, "-m", "hil.lab.router", "--listen", LOCAL_ROUTER]
     argv += ["--listen", router_endpoint(index)]
-    for j in range(1, index):
-        argv += ["--connect", router_endpoint(j)]
+    argv += [arg for j in range(1, index) for arg in ("--connect", router_endpoint(j))]
     log_path = lab_dir(state.name) / f"{name}.router.log"
     with log_path.open("wb") as log:
         proc = subprocess.Popen(
@@ -195,8 +192,7 @@ def teardown(state: LabState) -> list[str]:
     problems: list[str] = []
     own_prefix = f"{PREFIX}{state.name}-"
     folder = lab_dir(state.name)
-    procs = [m for m in state.made if m.kind == "proc" and state.owns_process(m)]
-    net.kill_pids([m.pid for m in procs])
+    net.kill_pids([m.pid for m in state.made if m.kind == "proc" and state.owns_process(m)])
     for item in reversed(state.made):
         try:
             if item.kind == "netns" and item.name.startswith(own_prefix):

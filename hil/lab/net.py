@@ -127,11 +127,8 @@ def impair(host_ns: str, imp: LinkImpairment) -> None:
 
 def impair_counters(host_ns: str) -> dict[str, int]:
     """Packets received on the host's link and dropped there ({} without a loss rule)."""
-    proc = subprocess.run(
-        ["nsenter", f"--net={netns_path(host_ns)}", "nft", "-j", "list", "table", "inet", TABLE],
-        capture_output=True,
-        text=True,
-    )
+    argv = ["nsenter", f"--net={netns_path(host_ns)}", "nft", "-j", "list", "table", "inet", TABLE]
+    proc = subprocess.run(argv, capture_output=True, text=True)
     if proc.returncode != 0:
         return {}
     out: dict[str, int] = {}

@@ -1,15 +1,7 @@
 """``hil run --lab NAME --plant-host H --controller-host H``: the run's processes on lab hosts
-(docs/lab.md, "A run across hosts").
-
-The recorder (``hil run`` itself) runs on the plant's host: ``hil run`` executes itself again
-there (``nsenter`` into the host's network and time namespaces; nsenter execs, so the PID
-stays) with :data:`PLACED_ENV` set to its PID. Each service then starts on its own host
-through ``nsenter``, and every session (recorder, plant, controller) is a client of its own
-host's router (``tcp/127.0.0.1:7447`` inside the host), so all traffic between hosts crosses
-the routers, as between computers. The start epoch is announced on the plant's clock; the
-controller converts it to its own with its clock-offset estimate (runtime.clocksync).
-``topology.json`` in the run folder says which host ran what, each host's injected offset and
-the router hops between them.
+(docs/lab.md, "A run across hosts": the recorder on the plant's host, each service on its own,
+every session a client of its own host's router). ``hil run`` executes itself again on the
+plant's host with :data:`PLACED_ENV` set to its PID (``nsenter`` execs: the PID stays).
 """
 
 from __future__ import annotations
@@ -22,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from hil.errors import BadInputError
-from hil.lab.clockplot import plot_clock
+from hil.lab.clockplot import CLOCK_PLOT, clock_png
 from hil.lab.lab import LOCAL_ROUTER, host_command, host_env, host_of, require_root
 from hil.lab.state import load
 from hil.measure.clocks import read_track
@@ -79,16 +71,12 @@ def _state(p: Placement) -> Any:
     return state
 
 
-def inside() -> bool:
-    return os.environ.get(PLACED_ENV) == str(os.getpid())
-
-
 def enter(opts: Any, impaired: bool, started_as_hil_run: bool) -> Placement | None:
     """Before ``hil run`` prepares anything: None without ``--lab``; else, the first time,
     execute this same command again on the recorder's host (never returns). ``impaired``: the
     scenario has [impair]; ``started_as_hil_run``: this process can be executed again as is."""
     p = placement_of(opts, impaired)
-    if p is None or inside():
+    if p is None or os.environ.get(PLACED_ENV) == str(os.getpid()):  # placed already
         return p
     if not started_as_hil_run:
         raise BadInputError(
@@ -111,8 +99,16 @@ def child_argv(p: Placement | None, process: str, argv: list[str]) -> list[str]:
     return host_command(_state(p), p.host_of(process), argv)
 
 
-def topology(p: Placement) -> dict[str, Any]:
-    """Which host ran what, each host's injected offset, and the routers a message crosses."""
+# The figures that subtract a controller stamp from a plant stamp (hil.measure.figures).
+CROSS_HOST = ("hop_state", "hop_cmd_zenoh", "loop_transport_compute")
+
+
+def write_topology(p: Placement | None, run_dir: Path) -> None:
+    """``topology.json``: which host ran what, each host's injected offset, the routers a
+    message crosses and the clocks; a warning when the controller's clock could not be related
+    to the plant's across hosts (its cross-host figures then compare nothing)."""
+    if p is None:
+        return
     state = load(p.lab)
     hosts = {}
     for name in dict.fromkeys((p.plant, p.controller)):
@@ -120,7 +116,7 @@ def topology(p: Placement) -> dict[str, Any]:
         hosts[name] = {k: h.get(k) for k in ("address", "offset_s", "router", "impair")}
     same = p.plant == p.controller
     path = [f"router@{p.controller}"] + ([] if same else [f"router@{p.plant}"])
-    return {
+    facts = {
         "lab": p.lab,
         "processes": {"plant": p.plant, "controller": p.controller, "recorder": p.recorder},
         "hosts": hosts,
@@ -128,30 +124,21 @@ def topology(p: Placement) -> dict[str, Any]:
         "router_hops": {"command": path, "state": path[::-1]},
         "clock_source": "the plant's host; the controller's estimate: clock-controller.csv",
     }
-
-
-# The figures that subtract a controller stamp from a plant stamp (hil.measure.figures).
-CROSS_HOST = ("hop_state", "hop_cmd_zenoh", "loop_transport_compute")
-
-
-def write_topology(p: Placement | None, run_dir: Path) -> None:
-    """``topology.json``; a warning when the controller's clock could not be related to the
-    plant's across hosts (its cross-host figures then compare nothing)."""
-    if p is None:
-        return
-    facts = topology(p)
     track = read_track(run_dir)
-    facts["clock"] = track.facts()
-    facts["clock"]["cross_host_figures"] = list(CROSS_HOST) if p.plant != p.controller else []
-    if p.plant != p.controller and track.at_ns.size == 0:
-        facts["clock"]["warning"] = "clocks not related: the cross-host figures are not valid"
+    clock = facts["clock"] = track.facts()
+    clock["cross_host_figures"] = [] if same else list(CROSS_HOST)
+    if not same and track.at_ns.size == 0:
+        clock["warning"] = "clocks not related: the cross-host figures are not valid"
         print(
             f"warning: the controller's clock was not related to the plant's: "
             f"{', '.join(CROSS_HOST)} mix two clocks and are not valid",
             file=sys.stderr,
         )
     try:
-        facts["clock"]["plot"] = getattr(plot_clock(run_dir), "name", None)
+        png = clock_png(track)
+        if png is not None:
+            (run_dir / CLOCK_PLOT).write_bytes(png)
+        clock["plot"] = None if png is None else CLOCK_PLOT
     except Exception as exc:  # a plot must never cost the run its folder
         print(f"warning: clock plot not written: {exc}", file=sys.stderr)
     (run_dir / TOPOLOGY_FILE).write_text(json.dumps(facts, indent=2) + "\n")

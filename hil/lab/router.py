@@ -1,9 +1,6 @@
-"""A lab host's Zenoh router: ``python -m hil.lab.router --listen EP ... [--connect EP ...]``.
-
-It listens on the host's loopback (where the host's services connect, as they would to the
-router of their own computer) and on the host's lab address (where the other hosts' routers
-connect); it connects to the routers of the hosts made before it, so the routers form a full
-mesh. The lab's addresses exist only inside the lab's namespaces: nothing binds outside.
+"""A lab host's Zenoh router: ``python -m hil.lab.router --listen EP ... [--connect EP ...]``
+(docs/lab.md, "What up makes"): on the host's loopback and its lab address, connected to the
+routers of the hosts made before it (a full mesh), never bound outside the lab's namespaces.
 """
 
 from __future__ import annotations

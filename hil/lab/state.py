@@ -1,17 +1,13 @@
 """What a lab made, written down before it is made, so that anything a killed ``hil lab up``
-left behind can be removed later, and nothing else.
+left behind can be removed later, and nothing else (docs/lab.md, "Removal").
 
-The state file ``/run/hillab/<name>/state.json`` (``/run`` is a tmpfs: a reboot, which removes
-every namespace, removes it too) lists each object in the order it was made, each recorded
-*before* the command that makes it runs (an intent: an object that was never made is skipped
-at removal). The owner marks:
-
-- a network namespace is the lab's when its name (``hillab-<name>-...``) is in the file;
-  ``up`` refuses to start when such a name already exists without being listed;
-- a time namespace is a bind mount on a file inside the lab's own folder;
-- a process is the lab's only while its PID still has the start time recorded for it (a PID
-  reused by another program has another start time) and its environment carries the lab's
-  random token (``HIL_LAB=<name>:<token>``), which the lab gives every process it starts.
+``/run/hillab/<name>/state.json`` (``/run`` is a tmpfs: a reboot removes it with the namespaces)
+lists each object in the order it was made, each recorded *before* the command that makes it
+runs (an object never made is skipped at removal). A network namespace is the lab's when its
+name (``hillab-<name>-...``) is listed (``up`` refuses a name that exists unlisted); a time
+namespace is a bind mount on a file in the lab's own folder; a process is the lab's only while
+its PID has its recorded start time (a reused PID has another) and its environment carries the
+lab's random token (``HIL_LAB=<name>:<token>``), which the lab gives every process it starts.
 """
 
 from __future__ import annotations
@@ -100,9 +96,8 @@ class LabState:
 
 def load(name: str) -> LabState | None:
     """The lab's state, or None when there is none (or it cannot be read as one)."""
-    path = lab_dir(name) / "state.json"
     try:
-        data = json.loads(path.read_text())
+        data = json.loads((lab_dir(name) / "state.json").read_text())
         made = [Made(**m) for m in data.pop("made")]
         return LabState(**data, made=made)
     except (OSError, ValueError, TypeError, KeyError):
@@ -111,6 +106,4 @@ def load(name: str) -> LabState | None:
 
 def names() -> list[str]:
     """The labs that have a folder under :data:`ROOT`."""
-    if not ROOT.is_dir():
-        return []
-    return sorted(p.name for p in ROOT.iterdir() if (p / "state.json").is_file())
+    return sorted(p.parent.name for p in ROOT.glob("*/state.json") if p.is_file())

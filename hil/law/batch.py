@@ -1,12 +1,7 @@
-"""A user's law on the batch path (``hil sweep``, many robots on numpy arrays).
-
-The batch path calls ``update`` once per sample for every robot at once, with the state and
-the reference as arrays of shape (N,). A law written for one robot on floats (``math.isfinite``,
-``max(...)``, ``float(...)``) fails there or, worse, returns one robot's torque for all. Before
-the loop starts, :func:`for_batch` calls the law on a probe of two different robots, once as two
-single robots and once as arrays: a law whose torques agree runs as it is; any other runs one
-robot at a time (:class:`PerRobot`: the same results, slower), and :func:`batch_note` says so in
-one line. A law that fails on a single robot is refused with one line naming the error.
+"""A user's law on the batch path (``hil sweep``: every robot at once, the state and reference as
+arrays of shape (N,); docs/own-controller.md, "Floats and arrays: one source", says what the
+probe of :func:`for_batch` does). A law written for one robot on floats fails there or, worse,
+returns one robot's torque for all: then :class:`PerRobot` runs it one robot at a time.
 """
 
 from __future__ import annotations
@@ -50,23 +45,22 @@ class PerRobot:
         times = np.broadcast_to(np.asarray(t, dtype=float), (n,))
         states = [np.broadcast_to(np.asarray(f, dtype=float), (n,)) for f in state]
         refs = [np.broadcast_to(np.asarray(f, dtype=float), (n,)) for f in ref]
-        outs = []
-        new_memory = []
-        for i in range(n):
-            out, mem = self.law.update(
+        robots = [
+            self.law.update(
                 float(times[i]),
                 dt,
                 RobotState(*(float(f[i]) for f in states)),
                 ReferenceSample(*(float(f[i]) for f in refs)),
                 memory[i],
             )
-            outs.append(out)
-            new_memory.append(mem)
+            for i in range(n)
+        ]
+        outs = [out for out, _ in robots]
         keys = list(outs[0].telemetry)
         telemetry = {k: np.array([float(o.telemetry.get(k, np.nan)) for o in outs]) for k in keys}
         tau1 = np.array([float(o.tau1) for o in outs])
         tau2 = np.array([float(o.tau2) for o in outs])
-        return ControlOutput(tau1, tau2, telemetry), new_memory
+        return ControlOutput(tau1, tau2, telemetry), [mem for _, mem in robots]
 
 
 def _what(exc: BaseException) -> str:
@@ -101,13 +95,11 @@ def array_problem(controller: Any, scenario: Any, reference: Any) -> str | None:
         state = RobotState(*(np.array(f, dtype=float) for f in zip(*robots, strict=True)))
         refs = ReferenceSample(*(np.full(n, v) for v in ref))
         out, _ = controller.update(0.0, ts, state, refs, memory)
-        tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
-        tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
+        tau = [np.broadcast_to(np.asarray(t, dtype=float), (n,)) for t in (out.tau1, out.tau2)]
     except Exception as exc:  # the user's code may raise anything on arrays
         return _what(exc)
-    want = np.array(singles)
-    got = np.stack([tau1, tau2], axis=1)
-    if not np.allclose(got, want, rtol=1e-9, atol=1e-12, equal_nan=True):
+    got = np.stack(tau, axis=1)
+    if not np.allclose(got, np.array(singles), rtol=1e-9, atol=1e-12, equal_nan=True):
         return "on arrays it returned other torques than robot by robot"
     return None
 

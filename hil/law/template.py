@@ -231,12 +231,11 @@ def check_name(name: str, folder: Path = Path(".")) -> str:
 
 def write_law(name: str, folder: Path, force: bool = False) -> list[Path]:
     """Write NAME.py and test_NAME.py into ``folder``; the paths written."""
-    cls = class_name(name)
     files = {folder / f"{name}.py": LAW, folder / f"test_{name}.py": TEST}
     existing = [str(p) for p in files if p.exists()]
     if existing and not force:
         raise BadInputError(f"{', '.join(existing)} already exist(s); --force overwrites")
     folder.mkdir(parents=True, exist_ok=True)
     for path, text in files.items():
-        path.write_text(text.substitute(name=name, cls=cls))
+        path.write_text(text.substitute(name=name, cls=class_name(name)))
     return list(files)

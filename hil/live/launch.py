@@ -1,9 +1,6 @@
 """Starting the live view's process for ``hil run --live``, ``hil drives --live`` and
-``hil fleet --live``.
-
-``--live [PORT]``: the port is optional on the command line (default :data:`DEFAULT_PORT`,
-Foxglove's own); :func:`expand_live_flag` gives a bare ``--live`` its default before the
-command line is parsed. ``--live-host`` binds elsewhere than loopback, with a warning: the
+``hil fleet --live``. A bare ``--live`` takes :data:`DEFAULT_PORT` (Foxglove's own; see
+:func:`expand_live_flag`); ``--live-host`` binds elsewhere than loopback, with a warning: the
 server has no login and no TLS, so anyone who reaches the port sees the run.
 """
 
@@ -66,75 +63,47 @@ def check(port: int | None, host: str) -> None:
         )
 
 
-def argv_for(settings_path: Path | Sequence[Path], port: int, host: str, resolved: Path | None,
+def argv_for(settings: Sequence[Path], port: int, host: str, resolved: Path | None,
              zenoh_mode: str, other_clocks: bool = False) -> list[str]:  # fmt: skip
-    """The live process's arguments after the interpreter (a fleet: each robot's settings;
+    """The live process's arguments after the interpreter (``settings``: each robot's;
     ``other_clocks``: the services run on a lab's hosts, whose clocks are not the view's)."""
-    paths = [settings_path] if isinstance(settings_path, Path) else list(settings_path)
-    argv = ["-m", "hil.live", *map(str, paths), "--host", host, "--port", str(port)]
+    argv = ["-m", "hil.live", *map(str, settings), "--host", host, "--port", str(port)]
     argv += ["--zenoh-mode", zenoh_mode] + (["--other-clocks"] if other_clocks else [])
     argv += ["--resolved", str(resolved)] if resolved is not None else ["--no-reference"]
     return argv
 
 
-def wait_url(log: Path, alive: Any, timeout: float = START_TIMEOUT_S) -> str:
-    """The ``ws://`` address the live process printed in ``log`` once it listens;
-    BadInputError if it exits first (a port in use) or stays silent ``timeout`` s."""
-    deadline = time.monotonic() + timeout
+def _start(sup: Supervisor, argv: list[str], log: Any, log_path: Path) -> None:
+    """Start the live process under ``sup``, its output to ``log`` (at ``log_path``); announce
+    on stderr the ``ws://`` address it prints once it listens. BadInputError if it exits first
+    (a port in use) or stays silent :data:`START_TIMEOUT_S` s."""
+    child = sup.start_python("live", argv, stdout=log, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + START_TIMEOUT_S
     while time.monotonic() < deadline:
-        text = log.read_text(errors="replace") if log.exists() else ""
+        text = log_path.read_text(errors="replace") if log_path.exists() else ""
         for line in text.splitlines():
             if line.startswith("live: ws://"):
-                return line.split(" ", 1)[1]
-        if not alive():
+                url = line.split(" ", 1)[1]
+                print(
+                    f"live view: {url} (Foxglove or Lichtblick: Open connection > Foxglove "
+                    "WebSocket; layout docs/live-layout.json)",
+                    file=sys.stderr,
+                )
+                return
+        if not child.alive():
             tail = text.strip().splitlines()[-3:]
             raise BadInputError("the live view did not start: " + " / ".join(tail))
         time.sleep(0.05)
-    raise BadInputError(f"the live view did not start within {timeout:g} s ({log})")
-
-
-def _start(sup: Supervisor, argv: list[str], log: Any, log_path: Path) -> str:
-    """Start the live process under ``sup``, its output to ``log`` (at ``log_path``); its
-    address once it listens, announced on stderr."""
-    child = sup.start_python("live", argv, stdout=log, stderr=subprocess.STDOUT)
-    url = wait_url(log_path, child.alive)
-    print(
-        f"live view: {url} (Foxglove or Lichtblick: Open connection > Foxglove WebSocket; "
-        "layout docs/live-layout.json)",
-        file=sys.stderr,
-    )
-    return url
+    raise BadInputError(f"the live view did not start within {START_TIMEOUT_S:g} s ({log_path})")
 
 
 def start_for_run(
     sup: Any, run_dir: Path, port: int, host: str, logs: Any, other_clocks: bool = False
-) -> str:
+) -> None:
     """The live process of ``hil run`` (a supervised child, stopped with the others)."""
-    argv = argv_for(run_dir / "run_settings.json", port, host,
+    argv = argv_for([run_dir / "run_settings.json"], port, host,
                     run_dir / "scenario.resolved.toml", "client", other_clocks)  # fmt: skip
-    return _start(sup, argv, logs.open("live"), run_dir / "live.log")
-
-
-class DrivesLive:
-    """The live process of ``hil drives`` (settings in a temporary folder), stopped by PID."""
-
-    def __init__(self, settings: Any, port: int, host: str) -> None:
-        self._dir = tempfile.TemporaryDirectory(prefix="hil-live-")
-        folder = Path(self._dir.name)
-        settings.save(folder / "run_settings.json")
-        self._sup = Supervisor()
-        self._log = (folder / "live.log").open("wb")
-        argv = argv_for(folder / "run_settings.json", port, host, None, "client")
-        try:
-            _start(self._sup, argv, self._log, folder / "live.log")
-        except BaseException:
-            self.close()
-            raise
-
-    def close(self) -> None:
-        self._sup.stop_all(grace=5.0)
-        self._log.close()
-        self._dir.cleanup()
+    _start(sup, argv, logs.open("live"), run_dir / "live.log")
 
 
 class FleetLive:
@@ -151,7 +120,6 @@ class FleetLive:
         self.log_path = out / "live.log"
         self._sup = Supervisor()
         self._log: Any = None
-        self.url: str | None = None
 
     def poll(self) -> None:
         """Start the view once every robot's settings exist (a no-op before and after)."""
@@ -160,9 +128,29 @@ class FleetLive:
         resolved = self.resolved if self.resolved.is_file() else None
         argv = argv_for(self.settings, self.port, self.host, resolved, "client", self.lab)
         self._log = self.log_path.open("wb")
-        self.url = _start(self._sup, argv, self._log, self.log_path)
+        _start(self._sup, argv, self._log, self.log_path)
 
     def close(self) -> None:
         self._sup.stop_all(grace=5.0)
         if self._log is not None:
             self._log.close()
+
+
+class DrivesLive(FleetLive):
+    """The live process of ``hil drives``: a fleet of one, its settings in a temporary folder,
+    started at once."""
+
+    def __init__(self, settings: Any, port: int, host: str) -> None:
+        self._dir = tempfile.TemporaryDirectory(prefix="hil-live-")
+        super().__init__(Path(self._dir.name), ["drives"], port, host)
+        self.settings[0].parent.mkdir()
+        settings.save(self.settings[0])
+        try:
+            self.poll()
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        super().close()
+        self._dir.cleanup()

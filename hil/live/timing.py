@@ -1,17 +1,12 @@
-"""The live view's timing figures (schema ``hil.LiveTiming`` in :mod:`hil.schemas`).
+"""The live view's timing figures (schema ``hil.LiveTiming`` in :mod:`hil.schemas`; docs/live.md).
 
-Live estimates from the messages as the live view receives them, for a person watching: the run's
-own figures (docs/realtime.md) are measured afterwards from the hop logs, where every process
-logged its own times. What each figure is:
-
-- command age at a State: its sample time - the sample time of the newest TorqueCommand the
-  live view had seen when the State arrived (before the first command, - the first State's);
-- lateness: a command's compute start - the previous command's - Ts (>= 0), which is the
-  controller's wake-up lateness whenever the previous tick was on time;
-- states without command: States no command named (``state_seq``) within 0.1 s of their
-  arrival (a sensor faster than the controller leaves some unanswered by design);
-- the verdict so far: FAIL once a limit of (2) broke, INCONCLUSIVE while D > D* or more than
-  1 % of the States went unanswered, else PASS.
+Live estimates from the messages as the view receives them, for a person watching; the run's own
+figures (docs/realtime.md) are measured afterwards from the hop logs. Command age at a State: its
+sample time - the sample time of the newest TorqueCommand the view had seen when the State
+arrived (before the first command, - the first State's); lateness: a command's compute start -
+the previous command's - Ts (>= 0); states without command: States no command named
+(``state_seq``) within 0.1 s of their arrival; the verdict so far: FAIL once a limit of (2)
+broke, INCONCLUSIVE while D > D* or more than 1 % of the States went unanswered, else PASS.
 """
 
 from __future__ import annotations
@@ -75,11 +70,9 @@ class LiveTiming:
         self.commands += 1
         # A watchdog zero or the final stop names no State (sample time NO_STAMP): taken as the
         # command in force, it made every State's age its sample time, the clock's own age.
-        named = cmd.state_sample_time_ns != NO_STAMP
-        if named and (
-            self.in_force_sample_ns is None or cmd.state_sample_time_ns > self.in_force_sample_ns
-        ):
-            self.in_force_sample_ns = cmd.state_sample_time_ns
+        sample, newest = cmd.state_sample_time_ns, self.in_force_sample_ns
+        if sample != NO_STAMP and (newest is None or sample > newest):
+            self.in_force_sample_ns = sample
         if self.last_compute_ns is not None:
             gap = cmd.compute_start_ns - self.last_compute_ns
             late = max(0, gap - round(self.bounds.ts_s * 1e9))
@@ -127,23 +120,22 @@ class LiveTiming:
         """The figures now (the ``hil.LiveTiming`` message); ``backlog``: the view's queue.
         A figure not known yet (or D* without a certificate) is left out, not null."""
         self._expire(now_ns)
-        b = self.bounds
-        d_star_ms = None if b.d_star_s is None else b.d_star_s * 1e3
-        age_max_ms = _ms(self.age_max_ns)
+        d_star_ms = None if self.bounds.d_star_s is None else self.bounds.d_star_s * 1e3
+        age_max_ms = _per(self.age_max_ns, 1e6)
         outcome, reasons = self.verdict()
         first = self.first_recv_ns if self.first_recv_ns is not None else now_ns
         figures = {
             "t_s": max(0.0, (now_ns - first) / 1e9),
             "states": self.states,
             "commands": self.commands,
-            "command_age_now_ms": _ms(self.age_now_ns),
+            "command_age_now_ms": _per(self.age_now_ns, 1e6),
             "command_age_max_ms": age_max_ms,
             "d_star_ms": d_star_ms,
             "age_margin_ms": (
                 None if d_star_ms is None or age_max_ms is None else d_star_ms - age_max_ms
             ),
-            "lateness_now_us": _us(self.lateness_now_ns),
-            "lateness_max_us": _us(self.lateness_max_ns),
+            "lateness_now_us": _per(self.lateness_now_ns, 1e3),
+            "lateness_max_us": _per(self.lateness_max_ns, 1e3),
             "deadline_misses": self.deadline_misses,
             "states_without_command": self.unanswered,
             "max_abs_v": self.max_v,
@@ -155,9 +147,6 @@ class LiveTiming:
         return {k: v for k, v in figures.items() if v is not None}
 
 
-def _ms(ns: int | None) -> float | None:
-    return None if ns is None else max(0.0, ns / 1e6)
-
-
-def _us(ns: int | None) -> float | None:
-    return None if ns is None else max(0.0, ns / 1e3)
+def _per(ns: int | None, unit_ns: float) -> float | None:
+    """``ns`` in units of ``unit_ns`` (at least 0), None while unknown."""
+    return None if ns is None else max(0.0, ns / unit_ns)

@@ -1,13 +1,12 @@
-"""The live view's own process: ``python -m hil.live SETTINGS.json... --port P [--host H] ...``.
+"""The live view's own process: ``python -m hil.live SETTINGS.json... --port P [--host H] ...``
+(docs/live.md: its channels, and why it runs apart from the loop's processes).
 
-Why a process of its own: ``hil drives`` runs its real-time loop in its own process, and
-``hil run``'s recorder must keep its pace; here decoding and serving cost neither of them a
-cycle (only the Zenoh router side of the run forwards the messages to one more client). It
-subscribes to each robot's keys ``hil/<id>/**`` on that robot's Zenoh endpoint (one session
-per endpoint: a fleet's robots, each with its own settings file) and, for one robot, listens to
-its CAN bus (both read-only), and serves :class:`hil.live.view.LiveView` until SIGINT or
-SIGTERM, then closes the server (every client sees the close). It prints one line
-``live: ws://HOST:PORT`` on stdout once the server listens.
+It subscribes to each robot's keys ``hil/<id>/**`` on that robot's Zenoh endpoint (one session
+per endpoint) and, for one robot, listens to its CAN bus (both read-only), and serves
+:class:`LiveView` (every channel JSON with its schema from :mod:`hil.schemas`) until SIGINT or
+SIGTERM, then closes it (every client sees the close). It prints ``live: ws://HOST:PORT`` on
+stdout once the server listens. A message's log time is the sender's stamp where it has one
+(State sample time, command send time): one clock, the host's ``CLOCK_MONOTONIC``.
 """
 
 from __future__ import annotations
@@ -15,29 +14,127 @@ from __future__ import annotations
 import argparse
 import collections
 import contextlib
+import json
 import os
 import sys
 import time
 import tomllib
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import can
+import foxglove
 
 from controller_service.certificate import critical_age
 from controller_service.references import build_reference
-from hil.live.timing import Bounds
-from hil.live.view import LiveView
+from hil import schemas
+from hil.live.timing import Bounds, LiveTiming
 from hil.measure.folder import bound_inputs
 from hil.observe import InTimeOrder, TapReader, can_frame_record
+from hil.recording import to_jsonable
 from protocol.keys import observed_keys
-from protocol.messages import DecodeError, decode
+from protocol.messages import DecodeError, State, Status, Telemetry, TorqueCommand, decode
 from protocol.settings import RunSettings
 from runtime.signals import stop_on_signals
 from runtime.zsession import open_session, payload_bytes
 
 QUEUE_MAX = 200_000  # messages; past it the oldest are dropped (a live view may skip)
 NICENESS = 10
+ReferenceFn = Callable[[float], tuple[float, float, float]]  # t (s) -> (x, y, theta)
+
+
+class LiveView:
+    """Publishes decoded messages on a Foxglove WebSocket server (started here)."""
+
+    def __init__(
+        self,
+        robot_ids: Sequence[str],
+        bounds: Bounds,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        reference: ReferenceFn | None = None,
+        name: str = "hil-smc-bench",
+    ) -> None:
+        self.robot_ids = list(robot_ids)
+        # One timing per robot (a fleet's robots each have their own deadlines and epoch).
+        self.timings = {r: LiveTiming(bounds) for r in self.robot_ids}
+        self.reference = reference
+        self.epochs: dict[str, int] = {}
+        self.context = foxglove.Context()
+        self._channels: dict[str, Any] = {}
+        self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
+        self.port = int(self.server.port)
+        for robot in self.robot_ids:
+            for suffix in ("state", "cmd/torque", "telemetry", "status", schemas.POSE,
+                           schemas.TF, schemas.REFERENCE, schemas.TIMING):  # fmt: skip
+                self.channel(f"hil/{robot}/{suffix}")  # advertised from the start
+
+    def channel(self, topic: str) -> Any:
+        if topic not in self._channels:
+            doc = schemas.schema_for_topic(topic)
+            name, data = schemas.schema_name(topic, doc), json.dumps(doc).encode()
+            schema = foxglove.Schema(name=name, encoding="jsonschema", data=data)
+            self._channels[topic] = foxglove.Channel(
+                topic, schema=schema, message_encoding="json", context=self.context
+            )
+        return self._channels[topic]
+
+    def _log(self, topic: str, data: dict[str, Any], log_time: int) -> None:
+        ch = self.channel(topic)
+        if ch.has_sinks():  # nobody subscribed: no JSON to build
+            ch.log(data, log_time=int(log_time))
+
+    def on_message(self, topic: str, msg: Any, recv_ns: int) -> None:
+        """One decoded protocol message received on ``topic`` (its robot's timing counts it
+        when the robot is one of this view's)."""
+        robot = getattr(msg, "robot_id", "")
+        timing = self.timings.get(robot)
+        if isinstance(msg, State):
+            if timing is not None:
+                timing.on_state(msg, recv_ns)
+            self._log(topic, _mirror(msg), msg.sample_time_ns)
+            self._pose(topic.rsplit("/", 1)[0], msg)
+        elif isinstance(msg, TorqueCommand):
+            if timing is not None:
+                timing.on_command(msg, recv_ns)
+            self._log(topic, _mirror(msg), msg.send_time_ns)
+        elif isinstance(msg, Status):
+            if timing is not None:
+                timing.on_status(msg)
+            if robot not in self.epochs and int(msg.counters.get("epoch_ns", 0)) > 0:
+                self.epochs[robot] = int(msg.counters["epoch_ns"])
+            self._log(topic, _mirror(msg), msg.time_ns)
+        elif isinstance(msg, Telemetry):
+            self._log(topic, _mirror(msg), msg.time_ns)
+
+    def _pose(self, base: str, st: State) -> None:
+        t = st.sample_time_ns
+        self._log(f"{base}/{schemas.POSE}", schemas.pose_in_frame(t, st.x, st.y, st.theta), t)
+        tf = schemas.frame_transform(t, st.robot_id, st.x, st.y, st.theta)
+        self._log(f"{base}/{schemas.TF}", tf, t)
+        epoch = self.epochs.get(st.robot_id)
+        if self.reference is not None and epoch is not None:
+            x, y, th = self.reference((t - epoch) / 1e9)
+            self._log(f"{base}/{schemas.REFERENCE}", schemas.pose_in_frame(t, x, y, th), t)
+
+    def on_can(self, channel: str, frame: dict[str, Any], recv_ns: int) -> None:
+        """One CAN frame as the recorder's JSON (:func:`can_frame_record`)."""
+        self._log(f"can/{channel}", frame, recv_ns)
+
+    def tick(self, backlog: int) -> None:
+        """Publish each robot's timing figures (call once a second)."""
+        now = time.monotonic_ns()
+        for robot, timing in self.timings.items():
+            self._log(f"hil/{robot}/{schemas.TIMING}", timing.snapshot(now, backlog), now)
+
+    def close(self) -> None:
+        """Stop the server: every client sees its connection closed."""
+        self.server.stop()
+
+
+def _mirror(msg: Any) -> dict[str, Any]:
+    return {**to_jsonable(msg), "type": type(msg).__name__}
 
 
 def bounds_of(settings: RunSettings, resolved: Path | None) -> Bounds:
@@ -71,21 +168,19 @@ def reference_of(settings: RunSettings) -> Any:
 
 def _subscribe(endpoint: str, robots: list[str], mode: str, q: collections.deque) -> list[Any]:
     """One session on ``endpoint`` subscribed to each of ``robots``' keys; what to close."""
-    opened: list[Any] = []
     try:
         session = open_session(endpoint, mode=mode, credentials=None)
     except Exception as exc:  # hil drives without a Zenoh peer: the view shows the CAN side
         print(f"live: Zenoh messages of {', '.join(robots)} not shown: {exc}", file=sys.stderr)
-        return opened
-    opened.append(session)
-    for robot in robots:
-        for key in observed_keys(robot):  # the taps, never the loop's own keys
-            sub = session.declare_subscriber(
-                key,
-                lambda s: q.append((str(s.key_expr), time.monotonic_ns(), payload_bytes(s))),
-            )
-            opened.insert(0, sub)
-    return opened
+        return []
+    subs = [
+        session.declare_subscriber(
+            key, lambda s: q.append((str(s.key_expr), time.monotonic_ns(), payload_bytes(s)))
+        )
+        for robot in robots
+        for key in observed_keys(robot)  # the taps, never the loop's own keys
+    ]
+    return [*reversed(subs), session]
 
 
 def _open_inputs(runs: list[RunSettings], zenoh_mode: str, q: collections.deque) -> list[Any]:
@@ -140,10 +235,8 @@ def _drain(
             if not m.rejected:  # the recording keeps refused payloads; the view shows messages
                 order.push(m)
     for m in order.ready(now_ns):
-        try:
+        with contextlib.suppress(DecodeError):
             view.on_message(m.topic, decode(m.payload), m.log_time_ns)
-        except DecodeError:
-            continue
     return n
 
 

@@ -15,8 +15,6 @@ from hil.folder import layout
 from hil.folder.jsonio import read_json_object, write_json
 from protocol.versions import MARGIN_SCHEMA_VERSION
 
-FILE = layout.MARGIN
-
 
 @dataclass(frozen=True)
 class MarginProbe:
@@ -63,9 +61,7 @@ class MarginRecord:
         return self.age_at_break_s / self.d_star_s
 
     def to_dict(self) -> dict[str, Any]:
-        out = dataclasses.asdict(self)
-        out["conservatism"] = self.conservatism
-        return out
+        return {**dataclasses.asdict(self), "conservatism": self.conservatism}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> MarginRecord:
@@ -81,16 +77,15 @@ class MarginRecord:
 
 def write(folder: Path, record: MarginRecord) -> Path:
     """margin.json in ``folder``, whole or not at all (:mod:`hil.folder.jsonio`)."""
-    return write_json(folder / FILE, record.to_dict())
+    return write_json(folder / layout.MARGIN, record.to_dict())
 
 
 def read(folder: Path | str | None) -> MarginRecord | None:
     """The folder's margin record, None when there is none or it cannot be read."""
-    path = None if folder is None else Path(folder) / FILE
-    if path is None or not path.is_file():
+    if folder is None or not (Path(folder) / layout.MARGIN).is_file():
         return None
     try:
-        return MarginRecord.from_dict(read_json_object(path))
+        return MarginRecord.from_dict(read_json_object(Path(folder) / layout.MARGIN))
     except (BadInputError, TypeError, ValueError):
         return None
 

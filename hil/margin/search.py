@@ -1,17 +1,11 @@
-"""The timing margin k*: the smallest scale of the replayed timing at which a limit breaks.
+"""The timing margin k*: the smallest scale of the replayed timing at which a limit breaks
+(docs/margin.md, "k*": the loops of a probe, the bracket, the bisection).
 
-At each scale k (:func:`hil.margin.timing.scaled`) ``seeds`` loops run on the batch path
-(:mod:`hil.adversary.loop`), each over its own draw of the timing (a run: its own starting
-sample; a scenario: its own jitter seed), the first from the scenario's initial state and the
-others from states moved by up to ``SPREAD``; under the scenario's own disturbance (one seed
-per loop) or, ``worst``, under the worst disturbance searched (:func:`hil.adversary.
-worst_disturbance`, stopping at the first round that breaks). A probe *breaks* when any loop
-exceeds a limit of (2) (or the late position error exceeds ``error_bound``).
-
-From k = 1 the scale doubles (or halves, when k = 1 already breaks) until the outcome changes,
-then geometric bisection narrows [held, broke] to ``rel_tol``; k* is the broken end. This
-assumes that breaking is monotone in k, which nothing guarantees for a nonlinear loop: the
-probes are all in the record.
+A probe at scale k (:func:`hil.margin.timing.scaled`) runs ``seeds`` loops on the batch path
+(:mod:`hil.adversary.loop`), under the scenario's own disturbance or, ``worst``, the worst one
+searched; it *breaks* when any loop exceeds a limit of (2) (or the late position error exceeds
+``error_bound``). k* is the broken end of the bracket narrowed to ``rel_tol``. Breaking need
+not be monotone in k for a nonlinear loop: the probes are all in the record.
 """
 
 from __future__ import annotations
@@ -128,9 +122,14 @@ def find_margin(
             hi = mid
         else:
             lo = mid
-    at = {p.k: p for p in probes}
-    broke = at.get(hi)
+    broke = {p.k: p for p in probes}.get(hi)
     _, replay = scaled(scenario, base, 1.0, opts.seeds, opts.duration)
+    controller, _ref, context = loop
+    params = getattr(controller, "params", None)  # D*: the certificate's, for a unified law
+    d_star = None
+    if params is not None and str(scenario.controller.get("law", "unified")) in UNIFIED:
+        ini = scenario.initial
+        d_star = critical_age(params, context, params.eps1 is not None, v0=ini.v, w0=ini.omega)
     return MarginRecord(
         source=base.source,
         law=str(scenario.controller.get("law", "unified")),
@@ -144,21 +143,9 @@ def find_margin(
         d_measured_s=base.measured_d_s,
         d_replay_s=replay.max_age(),
         age_at_break_s=None if broke is None else broke.age_s,
-        d_star_s=_d_star(scenario, loop),
+        d_star_s=d_star,
         error_bound_m=opts.error_bound,
         loops=loops,
         elapsed_s=time.perf_counter() - started,
         probes=tuple(probes),
     )
-
-
-def _d_star(scenario: Scenario, loop: Any) -> float | None:
-    """The certificate's D* for a unified law (None for any other)."""
-    if str(scenario.controller.get("law", "unified")) not in UNIFIED:
-        return None
-    controller, _ref, context = loop
-    params = getattr(controller, "params", None)
-    if params is None:
-        return None
-    ini = scenario.initial
-    return critical_age(params, context, params.eps1 is not None, v0=ini.v, w0=ini.omega)

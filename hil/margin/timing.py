@@ -1,20 +1,13 @@
-"""The timing ``hil margin`` replays, and the same timing with every age scaled by k.
+"""The timing ``hil margin`` replays, and the same timing with every age scaled by k
+(docs/margin.md, "The timing replayed": the cyclic replay, the start-up hold left out).
 
 The *base timing* is a sample period ``ts`` and, per sample, the latency from the sample to the
-landing of its command (NaN: the command never landed). From a run folder it is the applied
-path's landings in force measured by :mod:`hil.measure` (``Measurement.series
-["command_age_<path>"]``: landing a_j and sample s_j of every command that took over the plant,
-on the plant's clock): sample index round((s_j - t0) / ts), latency a_j - s_j; samples with no
-landing in force were lost, dropped, skipped or overtaken. From a scenario it is its [timing]:
-delay plus the jitter's draw per seed.
-
-*Scaled by k*, the loop samples every k ts and every latency is k times the base one, so every
-command age t - s_j of the replay is k times the base age (to the plant step): gaps (late or
-missing samples) and delays grow alike. The simulated duration stays the scenario's (capped);
-a run's base timing is replayed cyclically, each seed from its own starting sample, the first
-seed with the run's longest age in the middle of its window. The cycle runs from the run's
-first landed sample to its last: the start-up hold (zero torque until the first command lands)
-is not replayed, so the replay's D can be below the run's when that hold was its longest age.
+landing of its command (NaN: never landed). From a run folder: the applied path's landings in
+force measured by :mod:`hil.measure` (``Measurement.series["command_age_<path>"]``: landing a_j
+and sample s_j of every command that took over the plant, on the plant's clock), sample index
+round((s_j - t0) / ts) and latency a_j - s_j. From a scenario: its [timing] delay plus the
+jitter's draw per seed. *Scaled by k*, the loop samples every k ts and every latency is k times
+the base one: every command age is k times the base.
 """
 
 from __future__ import annotations
@@ -84,9 +77,8 @@ def run_scenario(folder: Path) -> Scenario:
 
 
 def from_run(folder: Path, scenario: Scenario) -> BaseTiming:
-    """The applied path's measured landings of a run folder (module doc), from the folder's
-    measurement (:func:`hil.measure.folder.measured`: the saved series, or the hop logs
-    measured once)."""
+    """The applied path's measured landings of a run folder (module doc), from its measurement
+    (:func:`hil.measure.folder.measured`: the saved series, or the hop logs measured once)."""
     m = measured(load_folder(folder, lazy=True))
     if m is None:
         raise BadInputError(f"{folder} has no hop logs: not a run of hil run")
@@ -128,8 +120,7 @@ def scaled(
     timing = dataclasses.replace(scenario.timing, ts=ts, delay=0.0, jitter=0.0)
     run = dataclasses.replace(scenario.run, duration=duration)
     sc = dataclasses.replace(scenario, timing=timing, run=run)
-    k_samples = max(1, round(duration / ts))
-    lat = base.draws(n, k_samples)
+    lat = base.draws(n, max(1, round(duration / ts)))
     h = sc.plant_step
     land = np.where(np.isnan(lat), LOST, np.rint(k * np.nan_to_num(lat) / h)).astype(np.int64)
     return sc, Schedule(ts, h, land, np.arange(n, dtype=np.intp))
