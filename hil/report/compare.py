@@ -71,9 +71,7 @@ def measured_figures(m: Measurement) -> dict[str, float]:
         values = {f"{name}.{q}": f.get(q) for q in quantiles} if isinstance(f, dict) else {name: f}
         out.update({f"timing.{k}": float(v) for k, v in values.items() if _number(v)})
     for stream, counts in m.messages.items():
-        out.update(
-            {f"messages.{stream}.{k}": float(counts[k]) for k in kept if _number(counts.get(k))}
-        )
+        out |= {f"messages.{stream}.{k}": float(counts[k]) for k in kept if _number(counts.get(k))}
     cert = m.certificate or {}
     keys = ("d_max_s", "d_star_s", "margin_s", "v_bound", "omega_bound")
     out.update({f"certificate.{k}": float(cert[k]) for k in keys if _number(cert.get(k))})
