@@ -48,9 +48,7 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
         if _number(v) and k != "schema_version":  # the file's format, not a figure of the run
             out[f"summary.{k}"] = float(v)
         elif isinstance(v, dict) and k == "violations":
-            out.update(
-                {f"violations.{n}": float(c) for n, c in v.items() if isinstance(c, int | float)}
-            )
+            out |= {f"violations.{n}": float(c) for n, c in v.items() if isinstance(c, int | float)}
     out.update({f"tracking.{k}": v for k, v in eff["tracking"].items()})
     out.update({f"max_over_limit.{k}": c["ratio"] for k, c in eff["constraints"].items()})
     for name, b in eff["bands"].items():
