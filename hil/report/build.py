@@ -163,8 +163,7 @@ def _add_topology(folder: Path, data: dict[str, Any], figs: list[fg.Figure]) -> 
     at = sections.index("latency") if "latency" in sections else len(sections)
     sections.insert(at, "topology")
     track = read_track(folder)
-    png = clock_png(track)
-    if png is not None:
+    if (png := clock_png(track)) is not None:
         columns = {
             "t_s": (track.at_ns - track.at_ns[0]) / 1e9,
             "offset_ns": track.offset_ns.astype(float),

@@ -48,9 +48,7 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
         if _number(v) and k != "schema_version":  # the file's format, not a figure of the run
             out[f"summary.{k}"] = float(v)
         elif isinstance(v, dict) and k == "violations":
-            out.update(
-                {f"violations.{n}": float(c) for n, c in v.items() if isinstance(c, int | float)}
-            )
+            out |= {f"violations.{n}": float(c) for n, c in v.items() if isinstance(c, int | float)}
     out.update({f"tracking.{k}": v for k, v in eff["tracking"].items()})
     out.update({f"max_over_limit.{k}": c["ratio"] for k, c in eff["constraints"].items()})
     for name, b in eff["bands"].items():
@@ -71,9 +69,7 @@ def measured_figures(m: Measurement) -> dict[str, float]:
         values = {f"{name}.{q}": f.get(q) for q in quantiles} if isinstance(f, dict) else {name: f}
         out.update({f"timing.{k}": float(v) for k, v in values.items() if _number(v)})
     for stream, counts in m.messages.items():
-        out.update(
-            {f"messages.{stream}.{k}": float(counts[k]) for k in kept if _number(counts.get(k))}
-        )
+        out |= {f"messages.{stream}.{k}": float(counts[k]) for k in kept if _number(counts.get(k))}
     cert = m.certificate or {}
     keys = ("d_max_s", "d_star_s", "margin_s", "v_bound", "omega_bound")
     out.update({f"certificate.{k}": float(cert[k]) for k in keys if _number(cert.get(k))})

@@ -262,9 +262,7 @@ def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
     v = data["verdict"]
     verdict = v.get("outcome", "PASS" if v["ok"] else "FAIL")
     why = "" if v["ok"] else f": {'; '.join(v['reasons'])}"
-    v_text = f"Verdict: {verdict}{why}."
-    if v.get("notes"):
-        v_text += " " + " ".join(v["notes"])
+    v_text = " ".join([f"Verdict: {verdict}{why}.", *(v.get("notes") or ())])
     lines = [{"key": k, "text": text} for k, (_, text) in answers.items()]
     return {
         "verdict": verdict,
@@ -715,7 +713,6 @@ SECTIONS: dict[str, tuple[str, Callable[[Section, dict[str, Any]], None]]] = {
 
 # What a compared figure is called on the page and in which unit, from its key (the keys,
 # ``timing.hop_cmd_can.p99_us``, stay what compare.json and scripts use).
-
 #: Figures a reader looks for by name, in words (the paper's symbols glossed).
 NAMES = {
     "ts": "Ts, the control period",

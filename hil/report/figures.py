@@ -147,8 +147,7 @@ def _time_series(
     ax: plt.Axes, label: str, t: np.ndarray, y: np.ndarray, cols: dict, captions: list[str]
 ) -> None:
     """One series with its own time axis (sorted by time first), as a thin line."""
-    t = np.asarray(t, dtype=float)
-    y = np.asarray(y, dtype=float)
+    t, y = np.asarray(t, dtype=float), np.asarray(y, dtype=float)
     if t.size > 1 and np.any(t[1:] < t[:-1]):
         order = np.argsort(t, kind="stable")
         t, y = t[order], y[order]

@@ -6,13 +6,10 @@ A trace longer than :data:`WINDOW_S` gets a *windowed* ideal: each window starts
 robot's state at its first sample, at that sample's time, with the law's memory there where the
 folder has it (else the initial memory), and runs to the next window's start. The windows run at
 once on the batch path (one robot per window: an hour's run costs one window's steps on a few
-hundred robots, not 36 M single steps): on the compiled kernel where
-:func:`hil.sim.compiled.chosen` takes it, on every CPU in one process of its own (the compiler's
-memory leaves with it); else on the numpy batch path, one process per CPU. Below
-:data:`BATCH_MIN_WINDOWS` windows the single path takes them one by one (the batch's per-step
-overhead pays off only across many; the same arithmetic, to rounding). The ideal is returned at
-the trace's sample times (linear interpolation between fine samples), so the deviation measures
-how far sampling and delay took the robot from the continuous loop within each window.
+hundred robots, not 36 M single steps), compiled or numpy (:func:`_windowed`). The ideal is
+returned at the trace's sample times (linear interpolation between fine samples), so the
+deviation measures how far sampling and delay took the robot from the continuous loop within
+each window.
 """
 
 from __future__ import annotations
@@ -39,7 +36,8 @@ FINE_FACTOR = 10
 START_STATE = ("x", "y", "theta", "v", "omega")
 #: Length of the windows of a long trace's ideal (s); a trace no longer gets one simulation.
 WINDOW_S = 10.0
-#: From this many windows on, the batch path simulates them all at once.
+#: From this many windows on, the batch path simulates them all at once (its per-step overhead
+#: pays off only across many; below, the single path, the same arithmetic to rounding).
 BATCH_MIN_WINDOWS = 8
 #: ... and from this many per process on, it spreads them over the CPUs (one process each).
 PARALLEL_MIN_WINDOWS = 32

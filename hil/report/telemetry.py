@@ -106,10 +106,9 @@ def recorded_telemetry(
 def folder_telemetry(folder: Any) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """:func:`recorded_telemetry` of a loaded folder's recordings, read once per folder (the
     bands and the windowed ideal both use it)."""
-    cache = folder.cache
-    if "telemetry" not in cache:
-        cache["telemetry"] = recorded_telemetry(folder.recordings)
-    return cache["telemetry"]
+    if "telemetry" not in folder.cache:
+        folder.cache["telemetry"] = recorded_telemetry(folder.recordings)
+    return folder.cache["telemetry"]
 
 
 def forget_memory(folder: Any) -> None:
