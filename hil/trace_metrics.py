@@ -223,14 +223,10 @@ def sampling_effects(
     }
     bands: dict[str, Any] = {}
     for name, eps in (("v_tilde", eps1), ("w_tilde", eps2)):
-        col = trace.get(name)
-        if col is not None:
-            bands[name] = quasi_sliding_band(t, col, eps)._asdict()
-        elif sliding and name in sliding and len(sliding[name][0]) > 1:
-            ts_, s_ = sliding[name]
-            bands[name] = quasi_sliding_band(ts_, s_, eps)._asdict()
-        else:
-            bands[name] = None
+        t_s, col = t, trace.get(name)
+        if col is None and sliding and name in sliding and len(sliding[name][0]) > 1:
+            t_s, col = sliding[name]
+        bands[name] = None if col is None else quasi_sliding_band(t_s, col, eps)._asdict()
     out["bands"] = bands
     torques = {"tau1": varpi1, "tau2": varpi2}
     out["switching_rate"] = {k: switching_rate(t, trace[k]) for k in torques}

@@ -239,10 +239,8 @@ class RunLogs:
 
     @property
     def complete(self) -> dict[str, bool]:
-        return {
-            "controller": bool(self.controller and self.controller.complete),
-            "plant": bool(self.plant and self.plant.complete),
-        }
+        heads = {"controller": self.controller, "plant": self.plant}
+        return {role: bool(head and head.complete) for role, head in heads.items()}
 
 
 def load_folder_logs(
