@@ -55,9 +55,7 @@ def percentiles(
 ) -> dict[str, float]:
     """p50, p90, p99, p999 and max (keys as in summary.json's timing object, without _us)."""
     data = np.asarray(values, dtype=float).ravel()
-    out = {_pkey(q): percentile(data, q) for q in qs}
-    out["max"] = float(np.max(data))
-    return out
+    return {**{_pkey(q): percentile(data, q) for q in qs}, "max": float(np.max(data))}
 
 
 def _pkey(q: float) -> str:
@@ -153,15 +151,8 @@ class ConstraintFigure:
         return None if self.bound is None else self.peak <= self.bound * (1.0 + LIMIT_REL_TOL)
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "peak": self.peak,
-            "limit": self.limit,
-            "ratio": self.ratio,
-            "held": self.held,
-            "bound": self.bound,
-            "within_bound": self.within_bound,
-        }
+        keys = ("name", "peak", "limit", "ratio", "held", "bound", "within_bound")
+        return {k: getattr(self, k) for k in keys}
 
 
 def deviation_from_ideal(
