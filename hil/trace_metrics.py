@@ -191,11 +191,9 @@ def sampling_effects(
     ideal: Mapping[str, np.ndarray] | None = None,
     sliding: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> dict[str, Any]:
-    """Every sampling-effect figure of one trace (columns of trace.csv as arrays).
-
-    Needs t, x, y, theta, v, omega, xd, yd, thetad, tau1, tau2; the bands use the trace's
-    v_tilde / w_tilde columns, else ``sliding`` (name -> (t, values), e.g. a run's recorded
-    telemetry), else are marked unavailable (None)."""
+    """Every sampling-effect figure of one trace (trace.csv's columns as arrays: t, x, y, theta,
+    v, omega, xd, yd, thetad, tau1, tau2). The bands use its v_tilde / w_tilde columns, else
+    ``sliding`` (name -> (t, values), e.g. a run's recorded telemetry), else are None."""
     t = np.asarray(trace["t"], dtype=float)
     pos = position_error(trace["x"], trace["y"], trace["xd"], trace["yd"])
     head = heading_error(trace["theta"], trace["thetad"])
@@ -222,12 +220,8 @@ def sampling_effects(
     torques = {"tau1": varpi1, "tau2": varpi2}
     out["switching_rate"] = {k: switching_rate(t, trace[k]) for k in torques}
     out["saturation_share"] = {k: saturation_share(trace[k], w) for k, w in torques.items()}
-    limits = {
-        "v": (phi1, v_bound),
-        "omega": (phi2, w_bound),
-        "tau1": (varpi1, None),
-        "tau2": (varpi2, None),
-    }
+    limits = {"v": (phi1, v_bound), "omega": (phi2, w_bound),
+              "tau1": (varpi1, None), "tau2": (varpi2, None)}  # fmt: skip
     out["constraints"] = {
         k: ConstraintFigure(k, _peak(trace[k]), lim, bound).as_dict()
         for k, (lim, bound) in limits.items()
