@@ -439,7 +439,7 @@ def _tick_phase(r: _Run) -> dict[str, Any]:
 def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
     """Wake-up figures where the trigger mode measures them; absent (never 0) elsewhere."""
     t = r.ticks
-    win = _in(t["deadline_ns"], r.w0, r.w1) if t["deadline_ns"].size else np.zeros(0, bool)
+    win = _in(t["deadline_ns"], r.w0, r.w1)
     if r.trigger == "periodic" and not r.lockstep and win.any():
         late = t["wake_ns"][win] - t["deadline_ns"][win]
         timing["wakeup_lateness"] = summarize_ns(late)
@@ -504,8 +504,7 @@ def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
     s = r.samples
     judged = s["sample_ns"] <= judged_until
     n_judged = int(judged.sum())
-    c = r._can
-    can_ambiguous = int((c["ambiguous"] & _in(c["recv"], r.w0, r.w1)).sum())
+    can_ambiguous = int((r._can["ambiguous"] & _in(r._can["recv"], r.w0, r.w1)).sum())
     for path in PATHS:
         applied = path == r.applied
         land, samp, _cmd = r.landings(path, applied)
