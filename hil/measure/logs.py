@@ -200,6 +200,8 @@ class RunLogs:
             (host, HOST_TABLES, "host"),
         ):
             wanted = {name: columns[name] for name in dict(tables) if name in columns}
+            for name, cs in wanted.items():  # empty columns where the log is absent or unreadable
+                logs.tables[name] = {c: _column(None, c, COLUMNS[name][c]) for c in cs}
             head = None
             if path is not None:
                 try:
@@ -207,9 +209,6 @@ class RunLogs:
                     logs.tables.update(cols)
                 except (OSError, ValueError):
                     head = None
-            if head is None:
-                for name, cs in wanted.items():
-                    logs.tables[name] = {c: _column(None, c, COLUMNS[name][c]) for c in cs}
             setattr(logs, role, head)
         to_plant_clock(logs.tables, controller.parent if controller is not None else None)
         return logs
