@@ -246,13 +246,11 @@ def load_folder_logs(
     folder: str | Path, columns: dict[str, tuple[str, ...]] | None = None
 ) -> RunLogs | None:
     """The hop logs of a run folder (None when it has neither); ``columns`` as RunLogs.read."""
-    folder = Path(folder)
-    c, p, h = folder / layout.CONTROLLER_LOG, folder / layout.PLANT_LOG, folder / HOST_FILE
-    if not c.is_file() and not p.is_file():
+    names = (layout.CONTROLLER_LOG, layout.PLANT_LOG, HOST_FILE)
+    c, p, h = (Path(folder) / n if (Path(folder) / n).is_file() else None for n in names)
+    if c is None and p is None:
         return None
-    return RunLogs.read(
-        c if c.is_file() else None, p if p.is_file() else None, columns, h if h.is_file() else None
-    )
+    return RunLogs.read(c, p, columns, h)
 
 
 def load_recording_logs(path: str | Path) -> RunLogs | None:
