@@ -55,9 +55,7 @@ def percentiles(
 ) -> dict[str, float]:
     """p50, p90, p99, p999 and max (keys as in summary.json's timing object, without _us)."""
     data = np.asarray(values, dtype=float).ravel()
-    out = {_pkey(q): percentile(data, q) for q in qs}
-    out["max"] = float(np.max(data))
-    return out
+    return {**{_pkey(q): percentile(data, q) for q in qs}, "max": float(np.max(data))}
 
 
 def _pkey(q: float) -> str:
@@ -153,15 +151,8 @@ class ConstraintFigure:
         return None if self.bound is None else self.peak <= self.bound * (1.0 + LIMIT_REL_TOL)
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "peak": self.peak,
-            "limit": self.limit,
-            "ratio": self.ratio,
-            "held": self.held,
-            "bound": self.bound,
-            "within_bound": self.within_bound,
-        }
+        keys = ("name", "peak", "limit", "ratio", "held", "bound", "within_bound")
+        return {k: getattr(self, k) for k in keys}
 
 
 def deviation_from_ideal(
@@ -200,11 +191,9 @@ def sampling_effects(
     ideal: Mapping[str, np.ndarray] | None = None,
     sliding: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> dict[str, Any]:
-    """Every sampling-effect figure of one trace (columns of trace.csv as arrays).
-
-    Needs t, x, y, theta, v, omega, xd, yd, thetad, tau1, tau2; the bands use the trace's
-    v_tilde / w_tilde columns, else ``sliding`` (name -> (t, values), e.g. a run's recorded
-    telemetry), else are marked unavailable (None)."""
+    """Every sampling-effect figure of one trace (trace.csv's columns as arrays: t, x, y, theta,
+    v, omega, xd, yd, thetad, tau1, tau2). The bands use its v_tilde / w_tilde columns, else
+    ``sliding`` (name -> (t, values), e.g. a run's recorded telemetry), else are None."""
     t = np.asarray(trace["t"], dtype=float)
     pos = position_error(trace["x"], trace["y"], trace["xd"], trace["yd"])
     head = heading_error(trace["theta"], trace["thetad"])
@@ -223,24 +212,16 @@ def sampling_effects(
     }
     bands: dict[str, Any] = {}
     for name, eps in (("v_tilde", eps1), ("w_tilde", eps2)):
-        col = trace.get(name)
-        if col is not None:
-            bands[name] = quasi_sliding_band(t, col, eps)._asdict()
-        elif sliding and name in sliding and len(sliding[name][0]) > 1:
-            ts_, s_ = sliding[name]
-            bands[name] = quasi_sliding_band(ts_, s_, eps)._asdict()
-        else:
-            bands[name] = None
+        t_s, col = t, trace.get(name)
+        if col is None and sliding and name in sliding and len(sliding[name][0]) > 1:
+            t_s, col = sliding[name]
+        bands[name] = None if col is None else quasi_sliding_band(t_s, col, eps)._asdict()
     out["bands"] = bands
     torques = {"tau1": varpi1, "tau2": varpi2}
     out["switching_rate"] = {k: switching_rate(t, trace[k]) for k in torques}
     out["saturation_share"] = {k: saturation_share(trace[k], w) for k, w in torques.items()}
-    limits = {
-        "v": (phi1, v_bound),
-        "omega": (phi2, w_bound),
-        "tau1": (varpi1, None),
-        "tau2": (varpi2, None),
-    }
+    limits = {"v": (phi1, v_bound), "omega": (phi2, w_bound),
+              "tau1": (varpi1, None), "tau2": (varpi2, None)}  # fmt: skip
     out["constraints"] = {
         k: ConstraintFigure(k, _peak(trace[k]), lim, bound).as_dict()
         for k, (lim, bound) in limits.items()

@@ -79,9 +79,8 @@ def match_node(
     late = np.full(m, -1, np.int64)
     late[feasible] = _embed_latest(sv, send_ns, rv[feasible], recv_ns[feasible])
     dup = np.zeros(m, bool)
-    if m > 1:
-        # An arrival no send explains, with the bytes of the arrival before it: a copy.
-        dup[1:] = ~feasible[1:] & (rv[1:] == rv[:-1])
+    # An arrival no send explains, with the bytes of the arrival before it: a copy.
+    dup[1:] = ~feasible[1:] & (rv[1:] == rv[:-1])
     chosen, tied = early.copy(), np.zeros(m, bool)
     f = feasible
     chosen[f], tied[f] = _smoothest(
@@ -101,11 +100,10 @@ def _smoothest(
     hops, is used and the stretch is marked)."""
     differ = early != late
     out, tied = early.copy(), np.zeros(early.size, bool)
-    m = early.size
     edges = np.diff(np.concatenate([[0], differ.astype(np.int8), [0]]))
     for a, b in zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(),
                     strict=True):  # fmt: skip
-        lo, hi = max(a - 1, 0), min(b + 1, m)  # with the agreed matches on either side
+        lo, hi = max(a - 1, 0), min(b + 1, early.size)  # with the agreed matches on either side
         jump = 0.5 * float(np.abs(h_early[a:b] - h_late[a:b]).min())
         steps_e, steps_l = np.abs(np.diff(h_early[lo:hi])), np.abs(np.diff(h_late[lo:hi]))
         key_e = (int((steps_e >= jump).sum()), float(steps_e.sum()))

@@ -45,17 +45,8 @@ def certificate(sv: ScenarioView, ts: float, delay: float) -> CertificateFigures
 
 
 #: The keys of a certificate object (docs/run-folder.md, "certificate").
-CONTRACT_KEYS = (
-    "path",
-    "d_max_s",
-    "d_star_s",
-    "margin_s",
-    "held",
-    "v_bound",
-    "omega_bound",
-    "stall_threshold_s",
-    "stalls",
-)
+CONTRACT_KEYS = ("path", "d_max_s", "d_star_s", "margin_s", "held", "v_bound", "omega_bound",
+                 "stall_threshold_s", "stalls")  # fmt: skip
 
 
 def no_certificate(path: str | None, d_max: float | None, source: str) -> Certificate:

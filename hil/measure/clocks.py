@@ -79,10 +79,8 @@ def read_track(folder: Path) -> ClockTrack:
 
 def to_plant_clock(tables: dict[str, dict[str, np.ndarray]], folder: Path | None) -> None:
     """Convert the controller-clock columns of ``tables`` in place (see the module docstring)."""
-    if folder is None:
-        return
-    track = read_track(folder)
-    if not track.differ:
+    track = read_track(folder) if folder is not None else None
+    if track is None or not track.differ:
         return
     for table, columns in CONTROLLER_CLOCK.items():
         for c in columns:

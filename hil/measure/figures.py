@@ -251,24 +251,19 @@ class _Run:
         """(land_ns, sample_ns, cmd_seq) per command put in force, newest wins; for a shadow
         path the arrival stands for the landing (what would have been applied). ``early``: CAN
         frames matched to the earliest sends the logs allow (the age's upper bound)."""
-        if applied and path == "zenoh":
+        if path == "can":
+            c, at = (self.can_applies, "land") if applied else (self._can, "recv")
+            m = np.isin(c["outcome"], LANDINGS) if applied else ~c["lost"]
+            cmd = c["cmd_early" if early else "cmd"]
+            return self._in_force(c["node"][m], c[at][m], cmd[m])
+        if applied:
             ap = self.logs["apply"]
             m = np.isin(ap["outcome"], LANDINGS) & (ap["path"] == CmdPath.ZENOH)
             cmd, land = ap["seq"][m], ap["apply_ns"][m]
-        elif applied:
-            a = self.can_applies
-            m = np.isin(a["outcome"], LANDINGS)
-            cmd = a["cmd_early"] if early else a["cmd"]
-            return self._in_force(a["node"][m], a["land"][m], cmd[m])
-        elif path == "zenoh":
+        else:
             rx = self.logs["cmd_rx"]
             m = rx["path"] == CmdPath.ZENOH
             cmd, land = rx["seq"][m], rx["recv_ns"][m]
-        else:
-            c = self._can
-            got = ~c["lost"]
-            cmd = c["cmd_early"] if early else c["cmd"]
-            return self._in_force(c["node"][got], c["recv"][got], cmd[got])
         return self._in_force(np.zeros(cmd.size, np.int64), land, cmd)  # one 'wheel'
 
     @cached_property
@@ -444,7 +439,7 @@ def _tick_phase(r: _Run) -> dict[str, Any]:
 def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
     """Wake-up figures where the trigger mode measures them; absent (never 0) elsewhere."""
     t = r.ticks
-    win = _in(t["deadline_ns"], r.w0, r.w1) if t["deadline_ns"].size else np.zeros(0, bool)
+    win = _in(t["deadline_ns"], r.w0, r.w1)
     if r.trigger == "periodic" and not r.lockstep and win.any():
         late = t["wake_ns"][win] - t["deadline_ns"][win]
         timing["wakeup_lateness"] = summarize_ns(late)
@@ -509,8 +504,7 @@ def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
     s = r.samples
     judged = s["sample_ns"] <= judged_until
     n_judged = int(judged.sum())
-    c = r._can
-    can_ambiguous = int((c["ambiguous"] & _in(c["recv"], r.w0, r.w1)).sum())
+    can_ambiguous = int((r._can["ambiguous"] & _in(r._can["recv"], r.w0, r.w1)).sum())
     for path in PATHS:
         applied = path == r.applied
         land, samp, _cmd = r.landings(path, applied)

@@ -200,6 +200,8 @@ class RunLogs:
             (host, HOST_TABLES, "host"),
         ):
             wanted = {name: columns[name] for name in dict(tables) if name in columns}
+            for name, cs in wanted.items():  # empty columns where the log is absent or unreadable
+                logs.tables[name] = {c: _column(None, c, COLUMNS[name][c]) for c in cs}
             head = None
             if path is not None:
                 try:
@@ -207,9 +209,6 @@ class RunLogs:
                     logs.tables.update(cols)
                 except (OSError, ValueError):
                     head = None
-            if head is None:
-                for name, cs in wanted.items():
-                    logs.tables[name] = {c: _column(None, c, COLUMNS[name][c]) for c in cs}
             setattr(logs, role, head)
         to_plant_clock(logs.tables, controller.parent if controller is not None else None)
         return logs
@@ -239,23 +238,19 @@ class RunLogs:
 
     @property
     def complete(self) -> dict[str, bool]:
-        return {
-            "controller": bool(self.controller and self.controller.complete),
-            "plant": bool(self.plant and self.plant.complete),
-        }
+        heads = {"controller": self.controller, "plant": self.plant}
+        return {role: bool(head and head.complete) for role, head in heads.items()}
 
 
 def load_folder_logs(
     folder: str | Path, columns: dict[str, tuple[str, ...]] | None = None
 ) -> RunLogs | None:
     """The hop logs of a run folder (None when it has neither); ``columns`` as RunLogs.read."""
-    folder = Path(folder)
-    c, p, h = folder / layout.CONTROLLER_LOG, folder / layout.PLANT_LOG, folder / HOST_FILE
-    if not c.is_file() and not p.is_file():
+    names = (layout.CONTROLLER_LOG, layout.PLANT_LOG, HOST_FILE)
+    c, p, h = (Path(folder) / n if (Path(folder) / n).is_file() else None for n in names)
+    if c is None and p is None:
         return None
-    return RunLogs.read(
-        c if c.is_file() else None, p if p.is_file() else None, columns, h if h.is_file() else None
-    )
+    return RunLogs.read(c, p, columns, h)
 
 
 def load_recording_logs(path: str | Path) -> RunLogs | None:

@@ -96,9 +96,6 @@ class Excursions:
     enter: np.ndarray  # ns, when the age crossed the threshold
     above: np.ndarray  # ns, time spent above the threshold
 
-    def __len__(self) -> int:
-        return int(self.first.size)
-
 
 def excursions(seg: AgeSegments, threshold_ns: int) -> Excursions:
     """The excursions of the saw-tooth age above ``threshold_ns``."""
@@ -139,7 +136,7 @@ def find_stalls(
     """Every excursion counted, the worst listed with cause and owner, and D outside the
     bench's stalls (module docstring)."""
     ex = excursions(seg, threshold_ns)
-    rep = StallReport(count=len(ex), stalled_time_ns=int(ex.above.sum()))
+    rep = StallReport(count=int(ex.first.size), stalled_time_ns=int(ex.above.sum()))
     order = np.argsort(-ex.peak, kind="stable")
     must = int((ex.peak > d_star_ns).sum()) if d_star_ns is not None else 0
     looked = order[: max(STALL_LIMIT, min(must, CAUSE_LIMIT))]
@@ -158,14 +155,10 @@ def find_stalls(
         t["count"] += 1
         t["time_s"] += int(ex.above[e]) / 1e9
         if len(rep.listed) < STALL_LIMIT:
+            t_s = 0.0 if startup else (int(ex.enter[e]) - r.epoch) / 1e9
+            age_s = int(ex.peak[e]) / 1e9
             rep.listed.append(
-                {
-                    "t_s": 0.0 if startup else (int(ex.enter[e]) - r.epoch) / 1e9,
-                    "age_s": int(ex.peak[e]) / 1e9,
-                    "cause": cause,
-                    "owner": owner,
-                    "evidence": evidence,
-                }
+                dict(t_s=t_s, age_s=age_s, cause=cause, owner=owner, evidence=evidence)
             )
     rest = seg.peak[~bench]
     rep.d_system_ns = int(rest.max()) if rest.size else None
@@ -262,12 +255,10 @@ def _message_evidence(r: _Run, lo: int, hi: int, scores: dict, ev: dict) -> None
     # before it left), is that end's stall, not the wire's: a hop either end's lateness covers
     # (within a period) is no evidence against the wire.
     ends = max(scores.get("plant_late", 0), scores.get("controller_late", 0))
-    hop = c.hop[sl]
-    hop = hop[hop > ends + r.period]  # never negative: -1 is a command that never arrived
     hs = r.state_hops_sorted
-    shop = hs.hop[_between(hs.stamps, lo, hi)]
-    shop = shop[shop > ends + r.period]
-    worst = int(max(hop.max() if hop.size else 0, shop.max() if shop.size else 0))
+    hops = np.concatenate([c.hop[sl], hs.hop[_between(hs.stamps, lo, hi)]])
+    hops = hops[hops > ends + r.period]  # never negative: -1 is a command that never arrived
+    worst = int(hops.max()) if hops.size else 0
     if worst >= r.period:
         ev["transport_worst_s"] = worst / 1e9
         scores["transport_late"] = worst

@@ -34,8 +34,7 @@ def summary_from_quantiles(
 ) -> dict[str, Any]:
     """The same object from percentiles computed elsewhere (the command age's; ``count`` > 0)."""
     out: dict[str, Any] = {"count": int(count)}
-    for name, _ in PERCENTILES:
-        out[name] = int(quantile_ns[name]) / 1000.0
+    out.update({name: int(quantile_ns[name]) / 1000.0 for name, _ in PERCENTILES})
     out["max_us"] = int(max_ns) / 1000.0
     out["mean_us"] = float(mean_ns) / 1000.0
     return out

@@ -44,8 +44,7 @@ def age_windows(
     k = np.clip((np.asarray(seg.end, np.int64) - origin_ns) // np.int64(width_ns), 0, n - 1)
     out = []
     for i in range(n):
-        mine = k == i
-        part = AgeSegments(seg.start[mine], seg.end[mine], seg.sample[mine])
+        part = AgeSegments(*(a[k == i] for a in (seg.start, seg.end, seg.sample)))
         summary = age_summary(part, grid0_ns, step_ns)
         summary["max_at_ns"] = None
         if len(part):
