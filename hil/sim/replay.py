@@ -29,10 +29,8 @@ REPLAY_MAX = 1e6  # s, the largest latency a replay file may hold (as [timing] d
 
 
 def jitter_samples_from(path: str | Path) -> np.ndarray:
-    """Latencies in seconds from a file: a JSON list (or an object with a ``latencies`` list),
-    a CSV with a ``latency`` column or one number per line; or, from a real run, its folder or
-    ``.mcap`` recording, optionally ``PATH::zenoh`` or ``PATH::can`` for one path's latencies
-    (:func:`latencies_from_run`)."""
+    """Latencies in seconds from a JSON list (or an object with a ``latencies`` list), a CSV
+    with a ``latency`` column, one number per line, or a real run (:func:`latencies_from_run`)."""
     if is_run_source(path):
         return latencies_from_run(path)
     p = Path(path)
