@@ -427,11 +427,8 @@ def simulate_batch(
 ) -> BatchResult:
     """N closed loops at once on numpy arrays (the batch path), one per variation (an int N: N
     identical robots); every robot gets a summary, the robots ``record`` lists their full trace.
-
-    ``t0``: the time of each robot's first sample (one value or one per robot; default 0), as
-    in :func:`simulate`: each robot's law clock, reference and disturbance run from its own
-    t0 (the reference is then sampled on arrays, :func:`controller_service.references.
-    sample_array`). ``memory``: the law's memory at the first sample, arrays of shape (N,) per
+    ``t0``: each robot's first-sample time (one value or one per robot; default 0), as in
+    :func:`simulate`. ``memory``: the law's memory at the first sample, arrays of shape (N,) per
     field (default: its initial memory). ``on_sample(k, state)`` is called with the robots'
     state (arrays) at each sample time t0 + k Ts, k = 0 .. K (K: after the last period).
     """

@@ -94,11 +94,9 @@ def latencies_from_run(spec: str | Path) -> np.ndarray:
         if m is None:
             raise BadInputError(f"{p} has no {where}: not a run of hil run")
         per_path = m.latency_us()  # µs per path
-    except BadInputError as exc:
-        text = str(exc)
-        raise BadInputError(
-            text if text.startswith("[timing] replay") else f"[timing] replay: {text}"
-        ) from exc
+    except BadInputError as exc:  # named once as the key it comes from
+        text = str(exc).removeprefix("[timing] replay: ")
+        raise BadInputError(f"[timing] replay: {text}") from exc
     except Exception as exc:  # a damaged folder or recording: whatever its reader raised
         raise BadInputError(
             f"[timing] replay: cannot read latencies from {p}: {type(exc).__name__}: {exc}"
