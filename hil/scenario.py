@@ -1,15 +1,12 @@
 """Scenario files (documented key by key in docs/scenario.md).
 
 One TOML file describes one closed loop. Every table is optional except [reference] and
-[initial]; defaults are the paper's Section 4 set-up. Everything is checked here, on load,
-before any command builds or runs anything: unknown tables or keys, wrong types, NaN and
-infinities, numbers outside their declared ranges (:data:`_RANGES`; docs/scenario.md
-"Errors") and the few checks across keys (control samples, plant steps per period, replay,
-CAN node ids). A bad file raises :class:`hil.errors.BadInputError` with one line naming the key
-as ``[table] key`` (exit 2). The [reference] and [controller] tables are kept as plain dicts,
-checked here by their owners' static checks (:func:`controller_service.references.check_table`,
-:func:`controller_service.registry.check_table`: no file read, nothing imported) and built by
-:func:`build_loop`, which also names the keys of a broken design condition.
+[initial]; defaults are the paper's Section 4 set-up. Everything is checked on load, before any
+command builds or runs anything (docs/scenario.md "Errors"): a bad file raises
+:class:`hil.errors.BadInputError` with one line naming the key as ``[table] key`` (exit 2).
+[reference] and [controller] stay plain dicts, checked by their owners' static checks (no file
+read, nothing imported) and built by :func:`build_loop`, which also names the keys of a broken
+design condition.
 """
 
 from __future__ import annotations

@@ -261,7 +261,7 @@ def run(
     consts = np.array([*loop, *bounds, *batch.controller.constants()], dtype=float)
     compiled = kernel()
     every = max(1, n_samples // 200)
-    last_ref = None
+    ref = None
     try:
         for k0 in range(0, n_samples, CHUNK):
             k1 = min(n_samples, k0 + CHUNK)
@@ -270,7 +270,7 @@ def run(
             trail = np.empty((k1 - k0 if on_sample else 0, 7, n))
             with _LAUNCH:
                 compiled((*head, refs, t0, trail), off, group, consts, k0, k1)
-            batch.done, last_ref = k1, refs[-1]
+            batch.done, ref = k1, refs[-1]
             if on_sample is not None:
                 for k in range(k0, k1):
                     on_sample(k, PlantState(*trail[k - k0]))
@@ -292,7 +292,6 @@ def run(
     batch.rms = np.sqrt(sq / sq_n) if sq_n > 0 else np.full(len(sq), np.nan)
     if batch.done:
         # the last sample's reference: a float each for robots that share it, else arrays
-        ref = last_ref
         pose = (float(ref[0, q]) if batch.starts is None else ref[:, q].copy() for q in range(3))
         batch.last = (last[0], last[1], last[2], *pose)
     batch.tel_keys = list(TELEMETRY_KEYS)

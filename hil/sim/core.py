@@ -106,22 +106,18 @@ def _replay(scenario: Scenario) -> np.ndarray | None:
 def _summaries(
     scenario: Scenario, run: _Loops, samples: int, per_robot: tuple[Any, ...]
 ) -> list[dict[str, Any]]:
-    """Each robot's summary.json. ``run.ext`` (peaks and violation counts of (2)) and
+    """Each robot's summary.json from ``run.ext`` (peaks and violation counts of (2)) and
     ``per_robot`` (final position and heading errors, RMS position error, commands dropped,
-    timing, disturbance and sensor seeds) hold a float each for one robot, arrays for a batch.
-
-    Why columns: 10,000 summaries of a short run built one robot at a time (numpy scalar reads,
-    scenario properties) cost more than a hundred control periods; here each column is read
-    back as a Python list once, and what all robots share is computed once.
-    """
-    ext, controller = run.ext, run.controller
+    timing, disturbance and sensor seeds): floats for one robot, arrays for a batch. Built by
+    columns, each read back as a Python list once, and what all robots share computed once:
+    10,000 summaries built robot by robot cost more than a hundred control periods."""
+    ext = run.ext
     peaks = (ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2)
     peaks += (ext.violations_v, ext.violations_omega, ext.violations_tau1, ext.violations_tau2)
     columns = np.broadcast_arrays(*per_robot[:3], *peaks, *per_robot[3:])
     limit_table = asdict(scenario.limits)
-    law = getattr(controller, "name", type(controller).__name__)
+    law = getattr(run.controller, "name", type(run.controller).__name__)
     ts, plant_step = scenario.timing.ts, scenario.plant_step
-    duration = samples * ts
     robots = zip(*(np.atleast_1d(q).tolist() for q in columns), strict=True)
     return [
         {
@@ -139,7 +135,7 @@ def _summaries(
             "law": law,
             "ts": ts,
             "plant_step": plant_step,
-            "duration": duration,
+            "duration": samples * ts,
             "samples": samples,
             "plant_steps": ext.steps,
             "commands_dropped": dr,
@@ -431,11 +427,8 @@ def simulate_batch(
 ) -> BatchResult:
     """N closed loops at once on numpy arrays (the batch path), one per variation (an int N: N
     identical robots); every robot gets a summary, the robots ``record`` lists their full trace.
-
-    ``t0``: the time of each robot's first sample (one value or one per robot; default 0), as
-    in :func:`simulate`: each robot's law clock, reference and disturbance run from its own
-    t0 (the reference is then sampled on arrays, :func:`controller_service.references.
-    sample_array`). ``memory``: the law's memory at the first sample, arrays of shape (N,) per
+    ``t0``: each robot's first-sample time (one value or one per robot; default 0), as in
+    :func:`simulate`. ``memory``: the law's memory at the first sample, arrays of shape (N,) per
     field (default: its initial memory). ``on_sample(k, state)`` is called with the robots'
     state (arrays) at each sample time t0 + k Ts, k = 0 .. K (K: after the last period).
     """

@@ -29,10 +29,8 @@ REPLAY_MAX = 1e6  # s, the largest latency a replay file may hold (as [timing] d
 
 
 def jitter_samples_from(path: str | Path) -> np.ndarray:
-    """Latencies in seconds from a file: a JSON list (or an object with a ``latencies`` list),
-    a CSV with a ``latency`` column or one number per line; or, from a real run, its folder or
-    ``.mcap`` recording, optionally ``PATH::zenoh`` or ``PATH::can`` for one path's latencies
-    (:func:`latencies_from_run`)."""
+    """Latencies in seconds from a JSON list (or an object with a ``latencies`` list), a CSV
+    with a ``latency`` column, one number per line, or a real run (:func:`latencies_from_run`)."""
     if is_run_source(path):
         return latencies_from_run(path)
     p = Path(path)
@@ -96,11 +94,9 @@ def latencies_from_run(spec: str | Path) -> np.ndarray:
         if m is None:
             raise BadInputError(f"{p} has no {where}: not a run of hil run")
         per_path = m.latency_us()  # µs per path
-    except BadInputError as exc:
-        text = str(exc)
-        raise BadInputError(
-            text if text.startswith("[timing] replay") else f"[timing] replay: {text}"
-        ) from exc
+    except BadInputError as exc:  # named once as the key it comes from
+        text = str(exc).removeprefix("[timing] replay: ")
+        raise BadInputError(f"[timing] replay: {text}") from exc
     except Exception as exc:  # a damaged folder or recording: whatever its reader raised
         raise BadInputError(
             f"[timing] replay: cannot read latencies from {p}: {type(exc).__name__}: {exc}"

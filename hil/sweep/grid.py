@@ -38,15 +38,14 @@ class SweepGrid:
     seeds: int
     defaulted: tuple[str, ...] = ()
 
-    def points(self, base_seed: int = 0) -> list[SweepPoint]:
-        axes = itertools.product(self.ts, self.delay, self.jitter, range(self.seeds))
-        return [SweepPoint(ts, d, j, base_seed + s) for ts, d, j, s in axes]
-
     def by_ts(self, base_seed: int = 0) -> list[tuple[float, list[SweepPoint]]]:
         """Groups of one Ts each, the longest Ts first: coarse periods are cheap (few samples),
         so an interrupted sweep has already covered the whole range of Ts it could."""
-        pts = self.points(base_seed)
-        return [(ts, [p for p in pts if p.ts == ts]) for ts in sorted(self.ts, reverse=True)]
+        axes = list(itertools.product(self.delay, self.jitter, range(self.seeds)))
+        return [
+            (ts, [SweepPoint(ts, d, j, base_seed + s) for d, j, s in axes])
+            for ts in sorted(self.ts, reverse=True)
+        ]
 
     def __len__(self) -> int:
         return len(self.ts) * len(self.delay) * len(self.jitter) * self.seeds

@@ -88,21 +88,13 @@ def write_outputs(
     for fig in figs:
         png, data = fig.write(out, "sweep_")
         files.append({"name": fig.name, "title": fig.title, "png": png.name, "data": data.name})
+    by_delay = [{"delay": k, "ts": v} for k, v in bp.get("ts_by_delay", {}).items()]
+    by_ts = [{"ts": k, "delay": v} for k, v in bp.get("delay_by_ts", {}).items()]
     doc = {
         "schema_version": SWEEP_SCHEMA_VERSION,
         "grid": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(grid).items()},
         **meta,
-        "break_point": jsonable(
-            {
-                **bp,
-                "ts_by_delay": [
-                    {"delay": k, "ts": v} for k, v in bp.get("ts_by_delay", {}).items()
-                ],
-                "delay_by_ts": [
-                    {"ts": k, "delay": v} for k, v in bp.get("delay_by_ts", {}).items()
-                ],
-            }
-        ),
+        "break_point": jsonable({**bp, "ts_by_delay": by_delay, "delay_by_ts": by_ts}),
         "rows": rows,
         "figures": files,
     }

@@ -104,11 +104,9 @@ def simulate_points(
     """One batch of ``points`` (one Ts, the scenario ``sc`` at it) and their rows, each with the
     certificate of the design at the point's worst age (the resolved controller table has auto
     lam/rho filled in) and, where ``record`` kept the traces, the quasi-sliding band."""
-    variations = [
-        RobotVariation(delay=p.delay, jitter=p.jitter, jitter_seed=p.seed) for p in points
-    ]
+    robots = [RobotVariation(delay=p.delay, jitter=p.jitter, jitter_seed=p.seed) for p in points]
     record_at = range(len(points)) if record else ()
-    result = simulate_batch(sc, variations, record=record_at, progress=progress)
+    result = simulate_batch(sc, robots, record=record_at, progress=progress)
     sv = view(result.resolved)
     # Points of a group share few (delay, jitter) pairs: certify each pair once.
     certs: dict[float, dict[str, Any]] = {}
