@@ -1,7 +1,6 @@
-"""N robots' closed loops at once (docs/fleet.md): one ``hil run`` per robot (``robot1`` ..
-``robotN``: its keys ``hil/robotI/...``, its processes and run folder), all started together and
-stopped together; with ``--per-process K`` (K > 1), one ``python -m hil.run.group`` per group of
-K robots, each robot still with its own keys, state, deadlines and run folder.
+"""N robots' closed loops at once (docs/fleet.md): one ``hil run`` per robot ``robot1`` ..
+``robotN`` or, with ``--per-process K`` (K > 1), one ``python -m hil.run.group`` per group of K
+robots; all started together and stopped together.
 """
 
 from __future__ import annotations

@@ -23,8 +23,7 @@ CHUNK_ROWS = 32_768
 
 
 def _count_lines(path: Path) -> int:
-    n = 0
-    last = b"\n"
+    n, last = 0, b"\n"
     with open(path, "rb") as f:
         while block := f.read(1 << 24):
             n += block.count(b"\n")

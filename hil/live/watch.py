@@ -129,7 +129,6 @@ class LiveView:
             self._log(f"hil/{robot}/{schemas.TIMING}", timing.snapshot(now, backlog), now)
 
     def close(self) -> None:
-        """Stop the server: every client sees its connection closed."""
         self.server.stop()
 
 
