@@ -88,8 +88,7 @@ def check(opts: FleetOptions) -> None:
 
 def execute(opts: FleetOptions, stop: Any, live: Any = None) -> dict[str, int | None]:
     """Start every robot's ``hil run`` at once and wait for all (or for ``stop``: then each
-    gets SIGINT and writes its folder); the exit code of each. ``live``: a watcher polled
-    while the fleet runs and closed after it (``hil fleet --live``: hil.live.launch.FleetLive)."""
+    gets SIGINT and writes its folder); the exit code of each. ``live``: polled, then closed."""
     check(opts)
     opts.out.mkdir(parents=True, exist_ok=True)
     sup = Supervisor()

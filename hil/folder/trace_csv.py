@@ -99,9 +99,8 @@ RARELY_READ = ("tau1_cmd", "tau2_cmd", "state_seq")
 
 
 class TraceColumns(Mapping[str, np.ndarray]):
-    """trace.csv's columns read on first use: every column but ``deferred`` in one pass, and
-    the deferred ones, if one is ever asked for, in a pass of their own. Keys and ``in``
-    answer from the header without reading."""
+    """trace.csv's columns read on first use, ``deferred`` ones in a pass of their own; keys
+    and ``in`` answer from the header without reading."""
 
     def __init__(self, path: Path, deferred: Sequence[str] = RARELY_READ) -> None:
         self.path = path

@@ -136,8 +136,7 @@ class FleetLive:
 
 
 class DrivesLive(FleetLive):
-    """The live process of ``hil drives``: a fleet of one, its settings in a temporary folder,
-    started at once."""
+    """``hil drives``' live process: a fleet of one, its settings in a temporary folder."""
 
     def __init__(self, settings: Any, port: int, host: str) -> None:
         self._dir = tempfile.TemporaryDirectory(prefix="hil-live-")

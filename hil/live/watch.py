@@ -86,8 +86,7 @@ class LiveView:
             ch.log(data, log_time=int(log_time))
 
     def on_message(self, topic: str, msg: Any, recv_ns: int) -> None:
-        """One decoded protocol message received on ``topic`` (its robot's timing counts it
-        when the robot is one of this view's)."""
+        """One decoded message received on ``topic`` (counted if its robot is the view's)."""
         robot = getattr(msg, "robot_id", "")
         timing = self.timings.get(robot)
         if isinstance(msg, State):
