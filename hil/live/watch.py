@@ -56,16 +56,15 @@ class LiveView:
         reference: ReferenceFn | None = None,
         name: str = "hil-smc-bench",
     ) -> None:
-        self.robot_ids = list(robot_ids)
         # One timing per robot (a fleet's robots each have their own deadlines and epoch).
-        self.timings = {r: LiveTiming(bounds) for r in self.robot_ids}
+        self.timings = {r: LiveTiming(bounds) for r in robot_ids}
         self.reference = reference
         self.epochs: dict[str, int] = {}
         self.context = foxglove.Context()
         self._channels: dict[str, Any] = {}
         self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
         self.port = int(self.server.port)
-        for robot in self.robot_ids:
+        for robot in self.timings:
             for suffix in ("state", "cmd/torque", "telemetry", "status", schemas.POSE,
                            schemas.TF, schemas.REFERENCE, schemas.TIMING):  # fmt: skip
                 self.channel(f"hil/{robot}/{suffix}")  # advertised from the start
