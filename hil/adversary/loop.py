@@ -3,12 +3,11 @@
 
 The loop is the offline simulator's (:mod:`hil.sim.core`): at sample k the law gets the state,
 its command lands ``land[k]`` plant steps later (newest wins, :class:`plant_emulator.sampled.
-Hold`), the plant (1) is integrated by RK4 with the command held and, per channel, a bang-bang
-disturbance re-chosen at every landing by the loop's pattern ``modes`` (N, 2, B: a mode per
-channel and block of the run's B equal blocks). The disturbance is added to the held torque, so
-the actuator must have no lag (A4 of docs/sampled_data_bound.md); the torque limits are checked
-on the commands. The scenario's own disturbance acts only when asked for (``own_seeds``), and
-its sensor as in the simulator, one noise seed for all loops.
+Hold`), the plant (1) is integrated by RK4 with the command held plus the disturbance of the
+loop's pattern ``modes`` (N, 2, B: a mode per channel and block of the run's B equal blocks),
+re-chosen at every landing; the torque limits are checked on the commands. The scenario's own
+disturbance acts only when asked for (``own_seeds``), its sensor as in the simulator, one noise
+seed for all loops.
 """
 
 from __future__ import annotations

@@ -1,7 +1,6 @@
-"""N robots' closed loops at once (docs/fleet.md): one ``hil run`` per robot (``robot1`` ..
-``robotN``: its keys ``hil/robotI/...``, its processes and run folder), all started together and
-stopped together; with ``--per-process K`` (K > 1), one ``python -m hil.run.group`` per group of
-K robots, each robot still with its own keys, state, deadlines and run folder.
+"""N robots' closed loops at once (docs/fleet.md): one ``hil run`` per robot ``robot1`` ..
+``robotN`` or, with ``--per-process K`` (K > 1), one ``python -m hil.run.group`` per group of K
+robots; all started together and stopped together.
 """
 
 from __future__ import annotations
@@ -89,8 +88,7 @@ def check(opts: FleetOptions) -> None:
 
 def execute(opts: FleetOptions, stop: Any, live: Any = None) -> dict[str, int | None]:
     """Start every robot's ``hil run`` at once and wait for all (or for ``stop``: then each
-    gets SIGINT and writes its folder); the exit code of each. ``live``: a watcher polled
-    while the fleet runs and closed after it (``hil fleet --live``: hil.live.launch.FleetLive)."""
+    gets SIGINT and writes its folder); the exit code of each. ``live``: polled, then closed."""
     check(opts)
     opts.out.mkdir(parents=True, exist_ok=True)
     sup = Supervisor()

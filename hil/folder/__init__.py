@@ -46,9 +46,6 @@ class RunFolder:
     def name(self) -> str:
         return self.path.name
 
-    def has_hop_logs(self) -> bool:
-        return has_hop_logs(self.path)
-
 
 def has_hop_logs(path: Path) -> bool:
     return (path / layout.PLANT_LOG).is_file() or (path / layout.CONTROLLER_LOG).is_file()

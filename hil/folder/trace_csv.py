@@ -23,8 +23,7 @@ CHUNK_ROWS = 32_768
 
 
 def _count_lines(path: Path) -> int:
-    n = 0
-    last = b"\n"
+    n, last = 0, b"\n"
     with open(path, "rb") as f:
         while block := f.read(1 << 24):
             n += block.count(b"\n")
@@ -100,9 +99,8 @@ RARELY_READ = ("tau1_cmd", "tau2_cmd", "state_seq")
 
 
 class TraceColumns(Mapping[str, np.ndarray]):
-    """trace.csv's columns read on first use: every column but ``deferred`` in one pass, and
-    the deferred ones, if one is ever asked for, in a pass of their own. Keys and ``in``
-    answer from the header without reading."""
+    """trace.csv's columns read on first use, ``deferred`` ones in a pass of their own; keys
+    and ``in`` answer from the header without reading."""
 
     def __init__(self, path: Path, deferred: Sequence[str] = RARELY_READ) -> None:
         self.path = path

@@ -16,8 +16,7 @@ CLOCK_PLOT = "clock.png"
 
 
 def clock_png(track: ClockTrack) -> bytes | None:
-    """The plot as PNG bytes, or None when there are no estimates (the run's clock.png and
-    the report's figure are the same picture)."""
+    """The plot as PNG bytes (clock.png and the report's figure), None without estimates."""
     matplotlib.use("Agg")
     if track.at_ns.size == 0:
         return None

@@ -1,8 +1,6 @@
-"""The kernel's objects of a lab: named network namespaces (``ip netns``), a bridge in a
-namespace of its own, one veth link per host, and the impairment of a host's link (nftables
-drops at the host's input, ``tc tbf`` limits its output rate). Every command names a
-namespace: nothing here creates or changes anything in the namespace it is run from.
-"""
+"""The kernel's objects of a lab (docs/lab.md, "What up makes", "Impaired links"). Every
+command names a namespace: nothing here creates or changes anything in the namespace it is run
+from."""
 
 from __future__ import annotations
 

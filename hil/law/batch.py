@@ -78,11 +78,10 @@ def array_problem(controller: Any, scenario: Any, reference: Any) -> str | None:
         for d in _PROBE_OFFSETS
     ]
     ref = ReferenceSample(*(float(v) for v in reference.sample(0.0)))
-    z1, z2 = ini.z1, ini.z2
     singles = []
     try:
         for robot in robots:
-            memory = controller.initial_memory(None, z1=z1, z2=z2)
+            memory = controller.initial_memory(None, z1=ini.z1, z2=ini.z2)
             out, _ = controller.update(0.0, ts, robot, ref, memory)
             singles.append((float(out.tau1), float(out.tau2)))
     except Exception as exc:  # the user's code may raise anything
@@ -91,7 +90,7 @@ def array_problem(controller: Any, scenario: Any, reference: Any) -> str | None:
         ) from exc
     n = len(robots)
     try:
-        memory = controller.initial_memory(n, z1=z1, z2=z2)
+        memory = controller.initial_memory(n, z1=ini.z1, z2=ini.z2)
         state = RobotState(*(np.array(f, dtype=float) for f in zip(*robots, strict=True)))
         refs = ReferenceSample(*(np.full(n, v) for v in ref))
         out, _ = controller.update(0.0, ts, state, refs, memory)

@@ -25,8 +25,7 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
 def expand_live_flag(argv: Sequence[str]) -> list[str]:
-    """``argv`` with each bare ``--live`` (not followed by a port number) as
-    ``--live=DEFAULT_PORT``."""
+    """``argv`` with each bare ``--live`` (no port number after it) as ``--live=DEFAULT_PORT``."""
     out = list(argv)
     for i, arg in enumerate(out):
         if arg == "--":
@@ -137,8 +136,7 @@ class FleetLive:
 
 
 class DrivesLive(FleetLive):
-    """The live process of ``hil drives``: a fleet of one, its settings in a temporary folder,
-    started at once."""
+    """``hil drives``' live process: a fleet of one, its settings in a temporary folder."""
 
     def __init__(self, settings: Any, port: int, host: str) -> None:
         self._dir = tempfile.TemporaryDirectory(prefix="hil-live-")

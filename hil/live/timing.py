@@ -34,8 +34,7 @@ class Bounds:
 
 
 class LiveTiming:
-    """Feeds on States, commands and Statuses in arrival order; :meth:`snapshot` gives the
-    figures. Not thread-safe: one thread feeds and snapshots."""
+    """Fed States, commands and Statuses in arrival order (by one thread); :meth:`snapshot`."""
 
     def __init__(self, bounds: Bounds) -> None:
         self.bounds = bounds

@@ -56,16 +56,15 @@ class LiveView:
         reference: ReferenceFn | None = None,
         name: str = "hil-smc-bench",
     ) -> None:
-        self.robot_ids = list(robot_ids)
         # One timing per robot (a fleet's robots each have their own deadlines and epoch).
-        self.timings = {r: LiveTiming(bounds) for r in self.robot_ids}
+        self.timings = {r: LiveTiming(bounds) for r in robot_ids}
         self.reference = reference
         self.epochs: dict[str, int] = {}
         self.context = foxglove.Context()
         self._channels: dict[str, Any] = {}
         self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
         self.port = int(self.server.port)
-        for robot in self.robot_ids:
+        for robot in self.timings:
             for suffix in ("state", "cmd/torque", "telemetry", "status", schemas.POSE,
                            schemas.TF, schemas.REFERENCE, schemas.TIMING):  # fmt: skip
                 self.channel(f"hil/{robot}/{suffix}")  # advertised from the start
@@ -86,8 +85,7 @@ class LiveView:
             ch.log(data, log_time=int(log_time))
 
     def on_message(self, topic: str, msg: Any, recv_ns: int) -> None:
-        """One decoded protocol message received on ``topic`` (its robot's timing counts it
-        when the robot is one of this view's)."""
+        """One decoded message received on ``topic`` (counted if its robot is the view's)."""
         robot = getattr(msg, "robot_id", "")
         timing = self.timings.get(robot)
         if isinstance(msg, State):
@@ -129,7 +127,6 @@ class LiveView:
             self._log(f"hil/{robot}/{schemas.TIMING}", timing.snapshot(now, backlog), now)
 
     def close(self) -> None:
-        """Stop the server: every client sees its connection closed."""
         self.server.stop()
 
 

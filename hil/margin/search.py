@@ -22,13 +22,13 @@ from controller_service.certificate import critical_age
 from hil.adversary.loop import initial_states, run_loops
 from hil.adversary.search import LIMIT_NAMES, scores, worst_disturbance
 from hil.errors import BadInputError
+from hil.folder.scenario_view import UNIFIED_LAWS
 from hil.margin.record import MarginProbe, MarginRecord
 from hil.margin.timing import BaseTiming, scaled
 from hil.scenario import Scenario, build_loop
 from plant_emulator.dynamics import VIOLATION_RTOL
 
 SPREAD = 0.01  # m, rad, m/s, rad/s: how far the other seeds' initial states are moved
-UNIFIED = ("unified", "unified_boundary")
 
 
 @dataclass(frozen=True)
@@ -127,7 +127,7 @@ def find_margin(
     controller, _ref, context = loop
     params = getattr(controller, "params", None)  # D*: the certificate's, for a unified law
     d_star = None
-    if params is not None and str(scenario.controller.get("law", "unified")) in UNIFIED:
+    if params is not None and str(scenario.controller.get("law", "unified")) in UNIFIED_LAWS:
         ini = scenario.initial
         d_star = critical_age(params, context, params.eps1 is not None, v0=ini.v, w0=ini.omega)
     return MarginRecord(

@@ -87,8 +87,7 @@ def from_run(folder: Path, scenario: Scenario) -> BaseTiming:
     if seg is None or len(seg) == 0:
         raise BadInputError(f"{folder}: no command landed on the applied path")
     ts = scenario.timing.ts
-    sample = np.asarray(seg.sample, dtype=np.int64)
-    land = np.asarray(seg.start, dtype=np.int64)
+    sample, land = (np.asarray(x, dtype=np.int64) for x in (seg.sample, seg.start))
     # The segments cover the measured window: the first starts at its start (a start-up hold
     # is a segment whose sample is that start, zero torque), the last ends at its end.
     t0 = int(min(sample[0], land[0]))
