@@ -152,14 +152,6 @@ class RecordingWriter:
         if metadata:
             self._writer.add_metadata("run", {str(k): str(v) for k, v in metadata.items()})
 
-    def channel(self, topic: str) -> int:
-        """The channel of ``topic``, registered on first use (:func:`_register_topic`)."""
-        ch = self._channels.get(topic)
-        if ch is None:
-            ch = self._channels[topic] = _register_topic(self._writer, topic)
-            self._seq[topic] = 0
-        return ch
-
     def write(
         self,
         topic: str,
@@ -177,9 +169,12 @@ class RecordingWriter:
     def write_payload(
         self, topic: str, log_time_ns: int, payload: bytes, publish_time_ns: int | None = None
     ) -> None:
-        """Append one message already serialized as JSON (``payload``: UTF-8 bytes)."""
-        ch = self.channel(topic)
-        seq = self._seq[topic]
+        """Append one message already serialized as JSON (``payload``: UTF-8 bytes); its
+        topic's channel registered on first use (:func:`_register_topic`)."""
+        ch = self._channels.get(topic)
+        if ch is None:
+            ch = self._channels[topic] = _register_topic(self._writer, topic)
+        seq = self._seq.get(topic, 0)
         self._seq[topic] = seq + 1
         self._writer.add_message(
             channel_id=ch,

@@ -93,8 +93,5 @@ class Supervisor:
     def start_python(self, name: str, module_args: Sequence[str], **kw: Any) -> Child:
         return self.start(name, [sys.executable, *module_args], **kw)
 
-    def any_exited(self) -> Child | None:
-        return next((c for c in self.children if not c.alive()), None)
-
     def stop_all(self, grace: float = 5.0) -> dict[str, int | None]:
         return {c.name: c.stop(grace) for c in reversed(self.children)}

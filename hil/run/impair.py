@@ -233,15 +233,14 @@ def enter(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
 def _nft_counters() -> dict[str, int]:
     """Packets counted by the rules named ``matched`` and ``dropped``."""
     data = json.loads(_run(["nft", "-j", "list", "table", "inet", TABLE]))
-    out: dict[str, int] = {}
-    for item in data.get("nftables", []):
-        rule = item.get("rule")
-        if not rule or rule.get("comment") not in ("matched", "dropped"):
-            continue
-        for expr in rule.get("expr", []):
-            if "counter" in expr:
-                out[rule["comment"]] = int(expr["counter"]["packets"])
-    return out
+    rules = [item["rule"] for item in data.get("nftables", []) if item.get("rule")]
+    return {
+        rule["comment"]: int(expr["counter"]["packets"])
+        for rule in rules
+        if rule.get("comment") in ("matched", "dropped")
+        for expr in rule.get("expr", [])
+        if "counter" in expr
+    }
 
 
 def _tc_counters() -> dict[str, Any]:

@@ -370,7 +370,7 @@ def _start_services(
             stdout=logs.open(log_prefix + name),
             stderr=STDOUT,
         )
-        host.watch(name, child.pid)
+        host.pids[name] = child.pid
     pids = json.dumps({c.name: c.pid for c in sup.children})
     for d in run_dirs:
         (d / layout.PROCESSES).write_text(pids)
@@ -524,7 +524,7 @@ def _wait_ready(recorder: Recorder, sup: Supervisor, stop: Any, timeout: float) 
         roles = {r for r, m in recorder.statuses.items() if m.state == "ready"}
         if {"plant", "controller"} <= roles:
             return True
-        if sup.any_exited() is not None:
+        if not all(c.alive() for c in sup.children):
             return False
         time.sleep(0.02)
     return False

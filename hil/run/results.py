@@ -74,14 +74,12 @@ def write_trace(
             t = seq * ts if lockstep else (sample_ns - epoch) / 1e9
             refs = [sample(tk) for tk in t.tolist()]
             xd, yd, thd = ([getattr(r, k) for r in refs] for k in ("xd", "yd", "thetad"))
-            x, y, th = (s[k][r0:r1].tolist() for k in ("x", "y", "theta"))
+            x, y, th, v, om = (s[k][r0:r1].tolist() for k in ("x", "y", "theta", "v", "omega"))
             pos_err[r0:r1] = list(map(math.hypot, map(operator.sub, x, xd),
                                       map(operator.sub, y, yd)))  # fmt: skip
             head_err = wrap(th[-1] - thd[-1])
-            floats = [t.tolist(), x, y, th, s["v"][r0:r1].tolist(), s["omega"][r0:r1].tolist()]
-            floats += [xd, yd, thd]
-            floats += [s[k][r0:r1].tolist() for k in ("tau1", "tau2")]
-            floats += [c1_all[r0:r1].tolist(), c2_all[r0:r1].tolist()]
+            floats = [t.tolist(), x, y, th, v, om, xd, yd, thd]
+            floats += [col[r0:r1].tolist() for col in (s["tau1"], s["tau2"], c1_all, c2_all)]
             cells = [list(map(repr, map(float, col))) for col in floats]
             cells += [list(map(str, sample_ns.tolist())), list(map(str, seq.tolist()))]
             f.write("\r\n".join(map(",".join, zip(*cells, strict=True))))
