@@ -11,11 +11,9 @@ decoding (tens of microseconds a message) is paid by the recorder, never by the 
 (``time.monotonic_ns()``); ``publish_time_ns`` the sender's own stamp if it has one, else the
 log time.
 
-Crash safety: the writer closes its chunk and flushes at least every ``flush_interval`` (0.05 s:
-half the 0.1 s promised, the rest is slack for a recorder that falls behind on a loaded host), so
-a killed recorder loses its last 0.1 s and its queue; the readers here read such a truncated file
-up to its last whole chunk, and :func:`rewrite_complete` makes it a complete, indexed MCAP with
-restored messages merged in (``hil recover``).
+Crash safety (docs/reliability.md, "Crash-safe runs": why 0.05 s): the writer closes its chunk
+and flushes at least every ``flush_interval``; the readers here read a truncated file up to its
+last whole chunk, and :func:`rewrite_complete` makes it a complete, indexed MCAP (``hil recover``).
 """
 
 from __future__ import annotations

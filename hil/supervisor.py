@@ -2,8 +2,7 @@
 
 Linux's ``PR_SET_PDEATHSIG`` (set with ``prctl`` through ctypes in the child between fork and
 exec) makes the kernel send the child a signal when the parent thread that forked it dies, even
-if that parent is SIGKILLed and has no chance to clean up. Children are stopped one by one by
-their PID: SIGINT first (they flush their logs), then SIGTERM, then SIGKILL.
+if that parent is SIGKILLed. SIGINT stops a child first: the services then flush their logs.
 """
 
 from __future__ import annotations

@@ -1,13 +1,10 @@
 """``[impair]``: packets of a run's real links dropped and counted by the kernel, in the run's
-own network namespace (docs/impair.md: which packets ``on`` selects, and how).
+own network namespace (docs/impair.md: which packets ``on`` selects, how, and why at the input
+hook).
 
 ``hil run`` with an ``[impair]`` table re-executes itself under ``unshare --net`` (unshare execs,
-so the PID stays) with :data:`NETNS_ENV` set to that PID. There :func:`enter` brings the
-loopback up (multicast on, with the route python-can's ``udp_multicast`` needs) and installs
-the nftables rules that select, count and drop packets at the input hook (each packet passes it
-once, before any socket receives it), and a ``tc`` token bucket when ``rate_bps`` is set. The
-whole run lives inside: nothing touches the host's network. :func:`finish` reads the kernel's
-counters into summary.json ``impair`` and writes the rules to ``impair.nft``.
+so the PID stays) with :data:`NETNS_ENV` set to that PID; there :func:`enter` installs the
+rules, and :func:`finish` reads the kernel's counters into summary.json ``impair``.
 """
 
 from __future__ import annotations
