@@ -318,17 +318,14 @@ def read_messages(
     if is_complete(path):
         with open(path, "rb") as f:
             for _s, ch, m in make_reader(f).iter_messages(topics=wanted, log_time_order=True):
-                yield RecordedMessage(
-                    ch.topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data)
-                )
+                yield _recorded(ch.topic, m)
         return
-
-    found = [
-        RecordedMessage(topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data))
-        for topic, m in _streamed_messages(path)
-        if wanted is None or topic in wanted
-    ]
+    found = [_recorded(t, m) for t, m in _streamed_messages(path) if wanted is None or t in wanted]
     yield from sorted(found, key=lambda m: m.log_time_ns)
+
+
+def _recorded(topic: str, m: Message) -> RecordedMessage:
+    return RecordedMessage(topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data))
 
 
 def topic_values(path: str | Path, topic: str, key: str) -> Iterator[Any]:

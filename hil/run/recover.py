@@ -73,9 +73,7 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
         m = measure(sensor, true, (sample - epoch + period // 2) // period)
         msg = State(robot, int(s["seq"][i]), sample, send, float(m.x), float(m.y), float(m.theta),
                     float(m.v), float(m.omega))  # fmt: skip
-        data = to_jsonable(msg)
-        data["type"] = "State"
-        data["restored_from"] = layout.PLANT_LOG
+        data = {**to_jsonable(msg), "type": "State", "restored_from": layout.PLANT_LOG}
         out.append(RecordedMessage(topic, send, send, 0, data))
     out.sort(key=lambda m: m.log_time_ns)
     return out
