@@ -82,10 +82,8 @@ class RecordedMessage:
 
 
 class _SpilledIndexes:
-    """The writer's chunk indexes, spilled to a temporary file as each chunk closes: the
-    ``mcap`` writer keeps one object per chunk until ``finish`` (20 a second at a 0.05 s flush,
-    ~1 MB a minute); here the summary is the same bytes and memory stays flat. The writer only
-    appends to and iterates over its list."""
+    """The writer's chunk indexes, spilled to a temporary file as each chunk closes (why:
+    docs/reliability.md, "Crash-safe runs"); the writer only appends to and iterates over it."""
 
     def __init__(self) -> None:
         self._file = tempfile.TemporaryFile(prefix="hil-chunk-index-")  # noqa: SIM115

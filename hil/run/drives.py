@@ -50,10 +50,9 @@ def drives_settings(opts: DrivesOptions) -> RunSettings:
     settings = scenario_settings(
         sc, can=can_table, can_endpoint=opts.can_endpoint or "", replay=None, jitter_kind="uniform"
     )
-    if opts.robot_id:
-        settings.robot_id = opts.robot_id
-    if opts.scheduling:
-        settings.scheduling = opts.scheduling
+    for key in ("robot_id", "scheduling"):  # the command line's, over the scenario's
+        if getattr(opts, key):
+            setattr(settings, key, getattr(opts, key))
     return settings
 
 

@@ -171,9 +171,8 @@ def plot(run_dir: Path) -> None:
         return
     t = data["t"]
     err = np.hypot(data["x"] - data["xd"], data["y"] - data["yd"])
-    n = t.size
-    path = envelope_indices(np.arange(n), [data["x"], data["y"]])
-    ref = envelope_indices(np.arange(n), [data["xd"], data["yd"]])
+    path = envelope_indices(np.arange(t.size), [data["x"], data["y"]])
+    ref = envelope_indices(np.arange(t.size), [data["xd"], data["yd"]])
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
     ax[0].plot(data["xd"][ref], data["yd"][ref], "--", label="reference")
     ax[0].plot(data["x"][path], data["y"][path], label="robot")
