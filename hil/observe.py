@@ -2,9 +2,7 @@
 
 Observers subscribe to :func:`protocol.keys.observed_keys`: each robot's status key and its
 services' taps (:mod:`protocol.tap`), never the loop's own keys. :class:`TapReader` turns what
-arrives into :class:`Observed` messages, each on the topic it travelled on, and counts what
-did not arrive whole: batches lost (a gap in a sender's batch numbers) and batches refused by
-the decoder.
+arrives into :class:`Observed` messages, each on the topic it travelled on.
 
 The log time of a tapped message (when the observer "saw" it): on one host, the sender's own
 stamp of its put, exact (one clock); across hosts (a lab run), that stamp carried onto the

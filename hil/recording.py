@@ -11,11 +11,9 @@ decoding (tens of microseconds a message) is paid by the recorder, never by the 
 (``time.monotonic_ns()``); ``publish_time_ns`` the sender's own stamp if it has one, else the
 log time.
 
-Crash safety: the writer closes its chunk and flushes at least every ``flush_interval`` (0.05 s:
-half the 0.1 s promised, the rest is slack for a recorder that falls behind on a loaded host), so
-a killed recorder loses its last 0.1 s and its queue; the readers here read such a truncated file
-up to its last whole chunk, and :func:`rewrite_complete` makes it a complete, indexed MCAP with
-restored messages merged in (``hil recover``).
+Crash safety (docs/reliability.md, "Crash-safe runs": why 0.05 s): the writer closes its chunk
+and flushes at least every ``flush_interval``; the readers here read a truncated file up to its
+last whole chunk, and :func:`rewrite_complete` makes it a complete, indexed MCAP (``hil recover``).
 """
 
 from __future__ import annotations
@@ -84,10 +82,8 @@ class RecordedMessage:
 
 
 class _SpilledIndexes:
-    """The writer's chunk indexes, spilled to a temporary file as each chunk closes: the
-    ``mcap`` writer keeps one object per chunk until ``finish`` (20 a second at a 0.05 s flush,
-    ~1 MB a minute); here the summary is the same bytes and memory stays flat. The writer only
-    appends to and iterates over its list."""
+    """The writer's chunk indexes, spilled to a temporary file as each chunk closes (why:
+    docs/reliability.md, "Crash-safe runs"); the writer only appends to and iterates over it."""
 
     def __init__(self) -> None:
         self._file = tempfile.TemporaryFile(prefix="hil-chunk-index-")  # noqa: SIM115
@@ -152,14 +148,6 @@ class RecordingWriter:
         if metadata:
             self._writer.add_metadata("run", {str(k): str(v) for k, v in metadata.items()})
 
-    def channel(self, topic: str) -> int:
-        """The channel of ``topic``, registered on first use (:func:`_register_topic`)."""
-        ch = self._channels.get(topic)
-        if ch is None:
-            ch = self._channels[topic] = _register_topic(self._writer, topic)
-            self._seq[topic] = 0
-        return ch
-
     def write(
         self,
         topic: str,
@@ -177,9 +165,12 @@ class RecordingWriter:
     def write_payload(
         self, topic: str, log_time_ns: int, payload: bytes, publish_time_ns: int | None = None
     ) -> None:
-        """Append one message already serialized as JSON (``payload``: UTF-8 bytes)."""
-        ch = self.channel(topic)
-        seq = self._seq[topic]
+        """Append one message already serialized as JSON (``payload``: UTF-8 bytes); its
+        topic's channel registered on first use (:func:`_register_topic`)."""
+        ch = self._channels.get(topic)
+        if ch is None:
+            ch = self._channels[topic] = _register_topic(self._writer, topic)
+        seq = self._seq.get(topic, 0)
         self._seq[topic] = seq + 1
         self._writer.add_message(
             channel_id=ch,
@@ -325,17 +316,14 @@ def read_messages(
     if is_complete(path):
         with open(path, "rb") as f:
             for _s, ch, m in make_reader(f).iter_messages(topics=wanted, log_time_order=True):
-                yield RecordedMessage(
-                    ch.topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data)
-                )
+                yield _recorded(ch.topic, m)
         return
-
-    found = [
-        RecordedMessage(topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data))
-        for topic, m in _streamed_messages(path)
-        if wanted is None or topic in wanted
-    ]
+    found = [_recorded(t, m) for t, m in _streamed_messages(path) if wanted is None or t in wanted]
     yield from sorted(found, key=lambda m: m.log_time_ns)
+
+
+def _recorded(topic: str, m: Message) -> RecordedMessage:
+    return RecordedMessage(topic, m.log_time, m.publish_time, m.sequence, json.loads(m.data))
 
 
 def topic_values(path: str | Path, topic: str, key: str) -> Iterator[Any]:

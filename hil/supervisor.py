@@ -2,8 +2,7 @@
 
 Linux's ``PR_SET_PDEATHSIG`` (set with ``prctl`` through ctypes in the child between fork and
 exec) makes the kernel send the child a signal when the parent thread that forked it dies, even
-if that parent is SIGKILLed and has no chance to clean up. Children are stopped one by one by
-their PID: SIGINT first (they flush their logs), then SIGTERM, then SIGKILL.
+if that parent is SIGKILLed. SIGINT stops a child first: the services then flush their logs.
 """
 
 from __future__ import annotations
@@ -92,9 +91,6 @@ class Supervisor:
 
     def start_python(self, name: str, module_args: Sequence[str], **kw: Any) -> Child:
         return self.start(name, [sys.executable, *module_args], **kw)
-
-    def any_exited(self) -> Child | None:
-        return next((c for c in self.children if not c.alive()), None)
 
     def stop_all(self, grace: float = 5.0) -> dict[str, int | None]:
         return {c.name: c.stop(grace) for c in reversed(self.children)}

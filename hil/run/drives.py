@@ -44,18 +44,15 @@ def drives_settings(opts: DrivesOptions) -> RunSettings:
         # A client that dies or forgets its torque must not leave the robot driven: on here,
         # where nothing else watches the bus (in a run, the plant's command timeout does).
         can_table["watchdog_timeout"] = DEFAULT_WATCHDOG_S
-    for key in ("interface", "channel", "bitrate", "node_left", "node_right", "watchdog_timeout"):
-        value = getattr(opts, key)
-        if value is not None:
-            can_table[key] = value
+    keys = ("interface", "channel", "bitrate", "node_left", "node_right", "watchdog_timeout")
+    can_table.update((k, getattr(opts, k)) for k in keys if getattr(opts, k) is not None)
     # The drives land commands as they come: no replay file to read.
     settings = scenario_settings(
         sc, can=can_table, can_endpoint=opts.can_endpoint or "", replay=None, jitter_kind="uniform"
     )
-    if opts.robot_id:
-        settings.robot_id = opts.robot_id
-    if opts.scheduling:
-        settings.scheduling = opts.scheduling
+    for key in ("robot_id", "scheduling"):  # the command line's, over the scenario's
+        if getattr(opts, key):
+            setattr(settings, key, getattr(opts, key))
     return settings
 
 

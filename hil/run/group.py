@@ -3,9 +3,8 @@ fleet on a 2-core machine (``hil fleet --per-process K``).
 
 Each robot keeps its own run folder (``OUT/robotI``, its keys' recording included), so
 ``hil report`` reads it unchanged and every figure keeps its definition; the K robots share one
-plant process, one controller process (runtime.group) and this recorder (docs/fleet.md). Robot
-I's epoch is shifted by (I - 1) / N of a period (N: the fleet's size), so the robots' deadlines
-interleave instead of all falling on the same instant.
+plant process, one controller process (runtime.group) and this recorder (docs/fleet.md). Their
+epochs are interleaved (:func:`phase_ns`) so their deadlines do not all fall on the same instant.
 """
 
 from __future__ import annotations

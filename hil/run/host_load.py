@@ -52,9 +52,6 @@ class HostSampler:
         self._thread = threading.Thread(target=self._run, name="host-sampler", daemon=True)
         self._thread.start()
 
-    def watch(self, name: str, pid: int) -> None:
-        self.pids[name] = pid
-
     def sample(self) -> None:
         total, idle, steal = _cpu_line()
         row = HostRow(

@@ -1,13 +1,10 @@
 """``[impair]``: packets of a run's real links dropped and counted by the kernel, in the run's
-own network namespace (docs/impair.md: which packets ``on`` selects, and how).
+own network namespace (docs/impair.md: which packets ``on`` selects, how, and why at the input
+hook).
 
 ``hil run`` with an ``[impair]`` table re-executes itself under ``unshare --net`` (unshare execs,
-so the PID stays) with :data:`NETNS_ENV` set to that PID. There :func:`enter` brings the
-loopback up (multicast on, with the route python-can's ``udp_multicast`` needs) and installs
-the nftables rules that select, count and drop packets at the input hook (each packet passes it
-once, before any socket receives it), and a ``tc`` token bucket when ``rate_bps`` is set. The
-whole run lives inside: nothing touches the host's network. :func:`finish` reads the kernel's
-counters into summary.json ``impair`` and writes the rules to ``impair.nft``.
+so the PID stays) with :data:`NETNS_ENV` set to that PID; there :func:`enter` installs the
+rules, and :func:`finish` reads the kernel's counters into summary.json ``impair``.
 """
 
 from __future__ import annotations
@@ -233,15 +230,14 @@ def enter(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
 def _nft_counters() -> dict[str, int]:
     """Packets counted by the rules named ``matched`` and ``dropped``."""
     data = json.loads(_run(["nft", "-j", "list", "table", "inet", TABLE]))
-    out: dict[str, int] = {}
-    for item in data.get("nftables", []):
-        rule = item.get("rule")
-        if not rule or rule.get("comment") not in ("matched", "dropped"):
-            continue
-        for expr in rule.get("expr", []):
-            if "counter" in expr:
-                out[rule["comment"]] = int(expr["counter"]["packets"])
-    return out
+    rules = [item["rule"] for item in data.get("nftables", []) if item.get("rule")]
+    return {
+        rule["comment"]: int(expr["counter"]["packets"])
+        for rule in rules
+        if rule.get("comment") in ("matched", "dropped")
+        for expr in rule.get("expr", [])
+        if "counter" in expr
+    }
 
 
 def _tc_counters() -> dict[str, Any]:

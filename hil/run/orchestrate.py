@@ -1,12 +1,8 @@
 """``hil run``: start the pair (and a router if asked), record everything, write the folder.
 
-Sequence: resolve the scenario -> write ``scenario.resolved.toml`` and ``run_settings.json`` ->
-open the recorder's Zenoh session on the run's well-known loopback endpoint (or start a router
-child and connect to it) -> start plant and controller as children that die with this process
-(PR_SET_PDEATHSIG) -> wait for both to say "ready" -> announce the epoch -> record every Zenoh
-message and CAN frame into ``recording.mcap`` while showing progress -> stop the children by PID
-(controller first, SIGINT so they flush their logs) -> ``trace.csv``, ``summary.json``, plots.
-Ctrl-C or SIGTERM at any point still stops everything and writes the summary.
+The children die with this process (PR_SET_PDEATHSIG) and are stopped by PID, the controller
+first, with SIGINT so they flush their logs. Ctrl-C or SIGTERM at any point still stops
+everything and writes the summary.
 """
 
 from __future__ import annotations
@@ -340,10 +336,9 @@ def _open_recorder_session(
     if lab:
         return open_session(settings.zenoh_endpoint, mode="client", credentials=None)
     if settings.zenoh_mode == "router":
-        router_cmd = [sys.executable, "-m", "hil.run.router", settings.zenoh_endpoint]
-        router_cmd += ids.router_args()
+        router_args = ["-m", "hil.run.router", settings.zenoh_endpoint, *ids.router_args()]
         env = ids.child_env("router")
-        sup.start("router", router_cmd, env=env, stdout=logs.open("router"), stderr=STDOUT)
+        sup.start_python("router", router_args, env=env, stdout=logs.open("router"), stderr=STDOUT)
         _wait_port(settings.zenoh_endpoint, stop, 30.0)
         creds = ids.credentials("recorder")
         return open_session(settings.zenoh_endpoint, mode="client", credentials=creds)
@@ -370,7 +365,7 @@ def _start_services(
             stdout=logs.open(log_prefix + name),
             stderr=STDOUT,
         )
-        host.watch(name, child.pid)
+        host.pids[name] = child.pid
     pids = json.dumps({c.name: c.pid for c in sup.children})
     for d in run_dirs:
         (d / layout.PROCESSES).write_text(pids)
@@ -524,7 +519,7 @@ def _wait_ready(recorder: Recorder, sup: Supervisor, stop: Any, timeout: float) 
         roles = {r for r, m in recorder.statuses.items() if m.state == "ready"}
         if {"plant", "controller"} <= roles:
             return True
-        if sup.any_exited() is not None:
+        if not all(c.alive() for c in sup.children):
             return False
         time.sleep(0.02)
     return False

@@ -1,12 +1,9 @@
-"""``hil recover DIR``: a run folder made whole after ``hil run`` died (SIGKILL, power loss).
+"""``hil recover DIR``: a run folder made whole after ``hil run`` died (SIGKILL, power loss;
+docs/reliability.md, "Crash-safe runs").
 
-A killed ``hil run`` leaves the services' hop logs (usually complete: the kernel SIGTERMs the
-children with their parent), the resolved scenario and settings, and a recording cut inside a
-chunk, without what the recorder's queue still held. Recovery rewrites the recording as a
-complete, indexed MCAP (whole chunks, plus the run's attachments), restores every State the
-plant sent that it lacks from the plant's hop log (marked ``"restored_from": "plant.hoplog"``),
-and rebuilds trace.csv and summary.json with the code a finished run uses
-(:func:`hil.run.results.analyze`). docs/reliability.md, "Crash-safe runs".
+The recording, cut inside a chunk, is rewritten as a complete, indexed MCAP with the run's
+attachments and the States it lacks (:func:`missing_states`); trace.csv and summary.json are
+rebuilt from the hop logs by the code a finished run uses (:func:`hil.run.results.analyze`).
 """
 
 from __future__ import annotations
@@ -76,9 +73,7 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
         m = measure(sensor, true, (sample - epoch + period // 2) // period)
         msg = State(robot, int(s["seq"][i]), sample, send, float(m.x), float(m.y), float(m.theta),
                     float(m.v), float(m.omega))  # fmt: skip
-        data = to_jsonable(msg)
-        data["type"] = "State"
-        data["restored_from"] = layout.PLANT_LOG
+        data = {**to_jsonable(msg), "type": "State", "restored_from": layout.PLANT_LOG}
         out.append(RecordedMessage(topic, send, send, 0, data))
     out.sort(key=lambda m: m.log_time_ns)
     return out

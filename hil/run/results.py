@@ -57,13 +57,11 @@ def write_trace(
     linear in the run's length; the reference sampled per row with its own ``sample`` (exactly
     the controller's values)."""
     s = logs["samples"]
-    epoch = logs.epoch_ns
     seq_all = s["seq"]
     c1_all, c2_all = _commanded_by_sample(logs, seq_all)
     n = seq_all.size
     pos_err = np.empty(n)
     head_err = 0.0
-    sample = reference.sample
     with (run_dir / layout.TRACE).open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow([*TRACE_COLUMNS, *COMMAND_COLUMNS, "sample_ns", "state_seq"])
@@ -71,17 +69,15 @@ def write_trace(
             r1 = min(n, r0 + TRACE_CHUNK_ROWS)
             seq = seq_all[r0:r1]
             sample_ns = s["sample_ns"][r0:r1]
-            t = seq * ts if lockstep else (sample_ns - epoch) / 1e9
-            refs = [sample(tk) for tk in t.tolist()]
+            t = seq * ts if lockstep else (sample_ns - logs.epoch_ns) / 1e9
+            refs = [reference.sample(tk) for tk in t.tolist()]
             xd, yd, thd = ([getattr(r, k) for r in refs] for k in ("xd", "yd", "thetad"))
-            x, y, th = (s[k][r0:r1].tolist() for k in ("x", "y", "theta"))
+            x, y, th, v, om = (s[k][r0:r1].tolist() for k in ("x", "y", "theta", "v", "omega"))
             pos_err[r0:r1] = list(map(math.hypot, map(operator.sub, x, xd),
                                       map(operator.sub, y, yd)))  # fmt: skip
             head_err = wrap(th[-1] - thd[-1])
-            floats = [t.tolist(), x, y, th, s["v"][r0:r1].tolist(), s["omega"][r0:r1].tolist()]
-            floats += [xd, yd, thd]
-            floats += [s[k][r0:r1].tolist() for k in ("tau1", "tau2")]
-            floats += [c1_all[r0:r1].tolist(), c2_all[r0:r1].tolist()]
+            floats = [t.tolist(), x, y, th, v, om, xd, yd, thd]
+            floats += [col[r0:r1].tolist() for col in (s["tau1"], s["tau2"], c1_all, c2_all)]
             cells = [list(map(repr, map(float, col))) for col in floats]
             cells += [list(map(str, sample_ns.tolist())), list(map(str, seq.tolist()))]
             f.write("\r\n".join(map(",".join, zip(*cells, strict=True))))
@@ -166,18 +162,17 @@ def analyze(
     return summary
 
 
-def plot(run_dir: Path) -> Path | None:
+def plot(run_dir: Path) -> None:
     """trajectory.png: path vs reference, position error and torques over time (long runs
     drawn from per-bin min/max envelopes, :func:`hil.report.figures.envelope_indices`)."""
     try:
         data = read_trace(run_dir / layout.TRACE)
     except BadInputError:
-        return None
+        return
     t = data["t"]
     err = np.hypot(data["x"] - data["xd"], data["y"] - data["yd"])
-    n = t.size
-    path = envelope_indices(np.arange(n), [data["x"], data["y"]])
-    ref = envelope_indices(np.arange(n), [data["xd"], data["yd"]])
+    path = envelope_indices(np.arange(t.size), [data["x"], data["y"]])
+    ref = envelope_indices(np.arange(t.size), [data["xd"], data["yd"]])
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
     ax[0].plot(data["xd"][ref], data["yd"][ref], "--", label="reference")
     ax[0].plot(data["x"][path], data["y"][path], label="robot")
@@ -194,7 +189,5 @@ def plot(run_dir: Path) -> Path | None:
     ax[2].legend()
     ax[2].set_xlabel("t (s)")
     fig.tight_layout()
-    out = run_dir / layout.TRAJECTORY_PNG
-    fig.savefig(out, dpi=90)
+    fig.savefig(run_dir / layout.TRAJECTORY_PNG, dpi=90)
     plt.close(fig)
-    return out

@@ -1,6 +1,5 @@
-"""A Zenoh router on the run's endpoint: ``python -m hil.run.router ENDPOINT [--secure]
-[--robots=R1,R2,...] [--allow-non-loopback]`` (what ``hil run`` starts in router mode; tests
-restart it with the same command).
+"""A Zenoh router on the run's endpoint (:data:`USAGE`): what ``hil run`` starts in router mode;
+tests restart it with the same command.
 
 With ``--secure`` (or whenever ``HIL_ZENOH_DICTIONARY`` names a user dictionary,
 :mod:`runtime.credentials`) the router authenticates every session and applies the bench's

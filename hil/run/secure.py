@@ -2,15 +2,12 @@
 (docs/realtime.md, "Secure mode").
 
 Per run, :class:`RunIdentities` makes a fresh random password for each login of
-:mod:`protocol.zenoh_acl` (``controller.robot1``, ...) in a private folder OUTSIDE the run folder
-(``tempfile.mkdtemp``: 0700, ``hil-secure-*``): a credentials file per login and the router's
-user dictionary, each 0600. A child's environment holds only the path of its own file
-(``HIL_ZENOH_CREDENTIALS``; the router's ``HIL_ZENOH_DICTIONARY``), so ``ps e`` and
-``/proc/PID/environ`` show no password. The recorder logs in as ``recorder`` (no right to
-publish); the start announcement goes through a second session as ``run``. The folder is deleted
-at the run's end (after a SIGKILL its passwords die with the router, PR_SET_PDEATHSIG). Without
-``--secure`` every inherited ``HIL_ZENOH_*`` is cleared: Zenoh refuses a client that presents
-credentials to a router that asks for none.
+:mod:`protocol.zenoh_acl` (``controller.robot1``, ...) in a private folder outside the run folder
+(``tempfile.mkdtemp``, ``hil-secure-*``), deleted at the run's end (after a SIGKILL its passwords
+die with the router, PR_SET_PDEATHSIG). A child's environment holds only the path of its own
+file, so ``ps e`` and ``/proc/PID/environ`` show no password. Without ``--secure`` every
+inherited ``HIL_ZENOH_*`` is cleared: Zenoh refuses a client that presents credentials to a
+router that asks for none.
 
 ``python -m hil.run.secure init DIR [ROBOT ...]`` writes the same files for a deployment
 (deploy/README.md): ``DIR/zenoh-users.txt`` and ``DIR/credentials/<login>.env`` (robots:
