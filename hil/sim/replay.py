@@ -118,14 +118,8 @@ def latencies_from_run(spec: str | Path) -> np.ndarray:
     return seconds
 
 
-def write_latency_file(
-    spec: str | Path | np.ndarray, out: Path, source: str | Path | None = None
-) -> Path:
-    """The run's latencies (``spec``: its folder or recording, or latencies already read from
-    it, then ``source`` names it) as a JSON latency list the simulator's replay hook reads."""
-    if isinstance(spec, np.ndarray):
-        seconds, source = spec, source if source is not None else ""
-    else:
-        seconds, source = latencies_from_run(spec), spec
+def write_latency_file(seconds: np.ndarray, out: Path, source: str | Path) -> Path:
+    """Latencies read from a run (``source`` names it) as a JSON latency list the simulator's
+    replay hook reads."""
     out.write_text(json.dumps({"latencies": seconds.tolist(), "source": str(source)}))
     return out
