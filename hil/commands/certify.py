@@ -7,13 +7,9 @@ proposes the nearest admissible parameters. Exit 0 held, 1 not held, 2 bad input
 --ts = [timing] ts, --delay = [timing] delay + the jitter's bound (uniform: jitter; normal: 4
 standard deviations, as the report does).
 
-``hil margin RUN_OR_SCENARIO``: the timing margin k* of a run or a scenario. Replays a run
-folder's measured timing (the applied path's landings, hil.measure) or a scenario's [timing] (a
-bundled or TOML scenario, or the folder of a hil sim) in the batch simulator with every command
-age scaled by k, over many seeds, and bisects for the smallest k at which a limit of (2) (or
-``--error-bound``) breaks. Writes margin.json into the run or simulation folder (a scenario:
-into --out). Exit 0 when the margin is at least 1 (the limits hold at the measured timing), 1
-when k* < 1, 2 on bad input.
+``hil margin RUN_OR_SCENARIO``: the timing margin k* of a run or a scenario (docs/margin.md),
+written to margin.json. Exit 1 when k* <= 1 (a limit breaks at the measured timing), 2 on bad
+input.
 """
 
 from __future__ import annotations
