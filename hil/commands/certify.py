@@ -280,10 +280,9 @@ def margin(
     )
 
     def show(p) -> None:
-        state = "BREAKS" if p.broke else "holds"
         typer.echo(
             f"k = {p.k:.4g}: age {1e3 * p.age_s:.1f} ms, worst {p.limit} "
-            f"{p.score:.3f} of its limit: {state}"
+            f"{p.score:.3f} of its limit: {'BREAKS' if p.broke else 'holds'}"
         )
 
     result = find_margin(scenario, base, opts, show)

@@ -312,13 +312,12 @@ def run_paper(
     """
     out.mkdir(parents=True, exist_ok=True)
     scale = QUICK_FACTOR if quick else 1.0
-    paths = [str(bundled_dir() / f"paper_{r}.toml") for r in RUNS]
-    for p in paths:
-        load_scenario(p)  # bad files fail before any work starts
+    tasks = [(r, str(bundled_dir() / f"paper_{r}.toml"), scale) for r in RUNS]
+    for _, path, _ in tasks:
+        load_scenario(path)  # bad files fail before any work starts
     results: dict[str, SimResult] = {}
     pending = list(FIGURE_GROUPS)
     interrupted = False
-    tasks = [(r, p, scale) for r, p in zip(RUNS, paths, strict=True)]
     try:
         with _simulations(tasks, jobs) as done:
             for name, res in done:
