@@ -27,18 +27,6 @@ SERVICES = {
 }
 
 
-def check_settings_file(path: Path) -> None:
-    """--settings must be a run_settings.json whose values hold (protocol.settings): the service
-    would fail after starting otherwise."""
-    from protocol.settings import RunSettings
-
-    options.existing_file("--settings", path)
-    try:
-        RunSettings.load(path).validate()
-    except BadInputError as exc:
-        raise BadInputError(f"--settings {path}: not a valid run_settings.json ({exc})") from exc
-
-
 def service(
     ctx: typer.Context,
     scenario: Annotated[
@@ -70,13 +58,21 @@ def service(
         ),
     ] = None,
 ) -> None:
+    from protocol.settings import RunSettings
+
     options.locator("--endpoint", endpoint)
     options.locator("--can-endpoint", can_endpoint)
     options.integer("--epoch-ns", epoch_ns, 0, 2**63 - 1)
     if write_settings is not None:
         options.out_file("--write-settings", write_settings)
-    if settings is not None:
-        check_settings_file(settings)
+    if settings is not None:  # its values checked now: the service would fail after starting
+        options.existing_file("--settings", settings)
+        try:
+            RunSettings.load(settings).validate()
+        except BadInputError as exc:
+            raise BadInputError(
+                f"--settings {settings}: not a valid run_settings.json ({exc})"
+            ) from exc
     name = ctx.info_name or ""
     main_from_settings = importlib.import_module(SERVICES[name][0]).main_from_settings
     if settings is None:

@@ -1,17 +1,11 @@
 """``hil paper``: the paper's Section 4 reproduced offline (Figures 2-20 and a table).
 
-Runs (the bundled scenarios ``hil/scenarios/paper_*.toml``, see ``hil scenarios``; initial
-conditions stated there):
-
-- tracking (Figures 2-6), stabilization (7-11), chattering reduction (19) (12-14);
-- the comparison with [7] on the tracking run (15-17);
-- the comparison with [19] on circle_then_stop, both laws on the same reference (18-20).
-
-Every run uses the single-run float simulator at Ts = 1 ms, h = 0.1 ms and the durations of
-the scenario files (150 s, 300 s, 100 s), spread over ``jobs`` processes (default 2: the
-machine's cores); ``quick`` divides every duration by 5 for smoke tests (then the convergence
-checks are not judged). Each figure's data is a CSV beside its PNG; ``table.md`` and
-``table.json`` hold the measured figures and the checks of the paper's claims.
+The runs are the bundled scenarios ``hil/scenarios/paper_NAME.toml`` (NAME in :data:`RUNS`;
+initial conditions stated there), each on the single-run float simulator at Ts = 1 ms,
+h = 0.1 ms for its file's duration (150 s, 300 s, 100 s), spread over ``jobs`` processes
+(default 2: the machine's cores); ``quick`` divides every duration by 5 for smoke tests (then
+the convergence checks are not judged). ``table.md`` and ``table.json`` hold the measured
+figures and the checks of the paper's claims; each figure group's docstring names its figures.
 """
 
 from __future__ import annotations
