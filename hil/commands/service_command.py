@@ -1,11 +1,10 @@
 """``hil controller`` and ``hil emulator``: one service alone, as ``hil run`` starts it as a child.
 
 With ``--settings run_settings.json`` it runs exactly as under ``hil run``; with a scenario it
-resolves those settings itself (``--write-settings FILE`` writes them and stops there, for
-``python -m controller_service FILE`` without ``hil``, as deploy/ does), joins the Zenoh
-endpoint given and waits for the run's start message (``Status(role="run", state="start")``)
-unless ``--epoch-ns`` gives t = 0. Both services must reach each other: start a router
-(deploy/zenoh-router.json5) on ``--endpoint``.
+resolves those settings itself (``--write-settings FILE`` only writes them, for deploy/) and
+waits for the run's start message (``Status(role="run", state="start")``) unless ``--epoch-ns``
+gives t = 0. Both services must reach each other: start a router (deploy/zenoh-router.json5)
+on ``--endpoint``.
 """
 
 from __future__ import annotations

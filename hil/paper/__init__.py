@@ -73,25 +73,12 @@ def velocity_jolt(
     return float(np.max(change[mask])) if mask.any() else float("nan")
 
 
-def _error_at(result: SimResult, t_check: float) -> float:
-    t = result.column("t")
-    e = result.column("position_error")
-    i = int(np.searchsorted(t, t_check - 1e-9))
-    return float(e[min(i, len(e) - 1)])
-
-
 # The summary's figures in each row of the table, after the run, its law and its scenario.
 _ROW_KEYS = (
     *("duration", "ts", "plant_step", "final_position_error", "final_heading_error"),
     *("rms_position_error", "max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2"),
     "violations",
 )
-
-
-def _row(run: str, result: SimResult) -> dict[str, Any]:
-    s = result.summary
-    head = {"run": run, "law": s["law"], "scenario": f"paper_{run}.toml"}
-    return head | {k: s[k] for k in _ROW_KEYS}
 
 
 def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
@@ -105,7 +92,9 @@ def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
     if quick:
         add("tracking: position error < 0.02 m by t = 150 s", None, "not judged (--quick)")
     else:
-        e = _error_at(tr, 150.0 - tr.scenario.timing.ts)
+        t, err = tr.column("t"), tr.column("position_error")  # at the sample t = 150 s - Ts
+        i = int(np.searchsorted(t, 150.0 - tr.scenario.timing.ts - 1e-9))
+        e = float(err[min(i, len(err) - 1)])
         add("tracking: position error < 0.02 m by t = 150 s", e < 0.02, f"{e:.4g} m")
     for name in ("tracking", "stabilization", "chattering", "circle_then_stop_unified"):
         v = results[name].summary["violations"]
@@ -340,7 +329,11 @@ def _write_table(
     out: Path, results: dict[str, SimResult], quick: bool, interrupted: bool
 ) -> dict[str, Any]:
     done = [r for r in RUNS if r in results]
-    rows = [_row(r, results[r]) for r in done]
+    rows = [
+        {"run": r, "law": results[r].summary["law"], "scenario": f"paper_{r}.toml"}
+        | {k: results[r].summary[k] for k in _ROW_KEYS}
+        for r in done
+    ]
     check_rows = [] if interrupted else checks(results, quick)
     note = "Single-run float simulator"
     if done:
