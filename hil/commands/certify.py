@@ -27,8 +27,6 @@ from hil.bundled import resolve_scenario
 from hil.commands import app
 from hil.errors import BadInputError, NegativeVerdictError
 
-_UNIFIED = ("unified", "unified_boundary")
-
 
 def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
     """The unified law's gains (Table 1 where not given, 'auto' resolved), whether it has the
@@ -39,7 +37,7 @@ def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool,
     from controller_service.registry import EPS_DEFAULT, TABLE1
 
     law = table.get("law", "unified")
-    if law not in _UNIFIED:
+    if law not in ("unified", "unified_boundary"):
         raise BadInputError(
             f"[controller] law = {law!r}: the certificate covers the unified laws only"
         )

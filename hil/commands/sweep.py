@@ -240,7 +240,6 @@ def _run_with_progress(
 
     counts = {float(v): max(1, round(loop_s / v)) for v in grid.ts}
     per_group = len(grid) // len(grid.ts)
-    total = sum(counts.values()) * per_group
     with Progress(
         TextColumn("[bold]sweep[/bold] {task.description}"),
         BarColumn(),
@@ -248,7 +247,7 @@ def _run_with_progress(
         TimeRemainingColumn(),
         transient=False,
     ) as bar:
-        task = bar.add_task(f"{len(grid)} loops", total=total)
+        task = bar.add_task(f"{len(grid)} loops", total=sum(counts.values()) * per_group)
         base: dict[float, int] = {}
         acc = 0
 
