@@ -143,8 +143,7 @@ def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
     reasons = v.get("reasons") or []
     why = short_reason(reasons[0]) if reasons else f"limits {v.get('limits', '?')}"
     if len(reasons) > 1:
-        more = len(reasons) - 1
-        why += f" (and {more} more reason{'s' if more > 1 else ''})"
+        why += f" (and {len(reasons) - 1} more reason{'s' if len(reasons) > 2 else ''})"
     if "D* =" in why:
         age = ""  # the reason already says D against D*
     notes = "; ".join(v.get("notes") or [])
