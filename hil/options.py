@@ -93,10 +93,8 @@ def locator(where: str, value: str) -> str:
 
 def grid(where: str, text: str | None, low: float, high: float) -> tuple[float, ...]:
     """A comma-separated list of numbers in [low, high] (empty: no values)."""
-    if not text:
-        return ()
     values = []
-    for part in text.split(","):
+    for part in (text or "").split(","):
         if not part.strip():
             continue
         try:

@@ -93,12 +93,10 @@ def dumps_toml(data: Mapping[str, Any]) -> str:
     def table(prefix: str, body: Mapping[str, Any]) -> None:
         scalars = [(k, v) for k, v in body.items() if v is not None and not isinstance(v, Mapping)]
         subs = [(k, v) for k, v in body.items() if isinstance(v, Mapping)]
+        body = [f"{_key(k)} = {_value(v)}" for k, v in scalars]
         if prefix and (scalars or not subs):
-            lines.append(f"[{prefix}]")
-        for k, v in scalars:
-            lines.append(f"{_key(k)} = {_value(v)}")
-        if prefix and (scalars or not subs):
-            lines.append("")
+            body = [f"[{prefix}]", *body, ""]
+        lines.extend(body)
         for k, v in subs:
             table(f"{prefix}.{_key(k)}" if prefix else _key(k), v)
 

@@ -130,10 +130,9 @@ def _msg_rates(heartbeat_ms: float, encoder_ms: float, extra: list[str]) -> dict
                 f"--msg-rate {item!r}: use NAME=MS with NAME one of {', '.join(names)}"
             )
         try:
-            ms = float(value)
+            rates[names[name]] = float(value)
         except ValueError:
             raise BadInputError(f"--msg-rate {item!r}: MS must be a number") from None
-        rates[names[name]] = ms
     for cmd, ms in rates.items():
         if not (ms >= 0.0 and ms < float("inf")):
             raise BadInputError(f"message rate of cmd 0x{cmd:02x} must be >= 0 ms, got {ms}")

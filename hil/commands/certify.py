@@ -7,13 +7,9 @@ proposes the nearest admissible parameters. Exit 0 held, 1 not held, 2 bad input
 --ts = [timing] ts, --delay = [timing] delay + the jitter's bound (uniform: jitter; normal: 4
 standard deviations, as the report does).
 
-``hil margin RUN_OR_SCENARIO``: the timing margin k* of a run or a scenario. Replays a run
-folder's measured timing (the applied path's landings, hil.measure) or a scenario's [timing] (a
-bundled or TOML scenario, or the folder of a hil sim) in the batch simulator with every command
-age scaled by k, over many seeds, and bisects for the smallest k at which a limit of (2) (or
-``--error-bound``) breaks. Writes margin.json into the run or simulation folder (a scenario:
-into --out). Exit 0 when the margin is at least 1 (the limits hold at the measured timing), 1
-when k* < 1, 2 on bad input.
+``hil margin RUN_OR_SCENARIO``: the timing margin k* of a run or a scenario (docs/margin.md),
+written to margin.json. Exit 1 when k* <= 1 (a limit breaks at the measured timing), 2 on bad
+input.
 """
 
 from __future__ import annotations
@@ -31,8 +27,6 @@ from hil.bundled import resolve_scenario
 from hil.commands import app
 from hil.errors import BadInputError, NegativeVerdictError
 
-_UNIFIED = ("unified", "unified_boundary")
-
 
 def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
     """The unified law's gains (Table 1 where not given, 'auto' resolved), whether it has the
@@ -43,7 +37,7 @@ def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool,
     from controller_service.registry import EPS_DEFAULT, TABLE1
 
     law = table.get("law", "unified")
-    if law not in _UNIFIED:
+    if law not in ("unified", "unified_boundary"):
         raise BadInputError(
             f"[controller] law = {law!r}: the certificate covers the unified laws only"
         )
@@ -284,10 +278,9 @@ def margin(
     )
 
     def show(p) -> None:
-        state = "BREAKS" if p.broke else "holds"
         typer.echo(
             f"k = {p.k:.4g}: age {1e3 * p.age_s:.1f} ms, worst {p.limit} "
-            f"{p.score:.3f} of its limit: {state}"
+            f"{p.score:.3f} of its limit: {'BREAKS' if p.broke else 'holds'}"
         )
 
     result = find_margin(scenario, base, opts, show)

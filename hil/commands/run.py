@@ -77,6 +77,7 @@ RobotIdOpt = Annotated[
     str | None, typer.Option(help="The robot's id (its keys hil/ID/...) instead of the scenario's.")
 ]
 LiveOpt = live_opt("the run")
+FleetLiveOpt = live_opt("every robot of the fleet, each on its own topics hil/robotI/...,")
 StrictOpt = Annotated[
     bool,
     typer.Option(
@@ -93,8 +94,6 @@ ReportOpt = Annotated[
         "run's own (1 only when a limit of (2) was broken).",
     ),
 ]
-
-
 JsonOpt = Annotated[
     bool,
     typer.Option(
@@ -144,8 +143,7 @@ def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
     reasons = v.get("reasons") or []
     why = short_reason(reasons[0]) if reasons else f"limits {v.get('limits', '?')}"
     if len(reasons) > 1:
-        more = len(reasons) - 1
-        why += f" (and {more} more reason{'s' if more > 1 else ''})"
+        why += f" (and {len(reasons) - 1} more reason{'s' if len(reasons) > 2 else ''})"
     if "D* =" in why:
         age = ""  # the reason already says D against D*
     notes = "; ".join(v.get("notes") or [])
@@ -170,9 +168,6 @@ def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
     paths = write_report(rep, run_dir)
     verdict = rep.data["verdict"]
     return {"html": str(paths["html"]), "ok": verdict["ok"], "reasons": verdict["reasons"]}
-
-
-FleetLiveOpt = live_opt("every robot of the fleet, each on its own topics hil/robotI/...,")
 
 
 @app.command("run")

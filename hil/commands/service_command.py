@@ -1,11 +1,10 @@
 """``hil controller`` and ``hil emulator``: one service alone, as ``hil run`` starts it as a child.
 
 With ``--settings run_settings.json`` it runs exactly as under ``hil run``; with a scenario it
-resolves those settings itself (``--write-settings FILE`` writes them and stops there, for
-``python -m controller_service FILE`` without ``hil``, as deploy/ does), joins the Zenoh
-endpoint given and waits for the run's start message (``Status(role="run", state="start")``)
-unless ``--epoch-ns`` gives t = 0. Both services must reach each other: start a router
-(deploy/zenoh-router.json5) on ``--endpoint``.
+resolves those settings itself (``--write-settings FILE`` only writes them, for deploy/) and
+waits for the run's start message (``Status(role="run", state="start")``) unless ``--epoch-ns``
+gives t = 0. Both services must reach each other: start a router (deploy/zenoh-router.json5)
+on ``--endpoint``.
 """
 
 from __future__ import annotations
@@ -25,18 +24,6 @@ SERVICES = {
     "controller": ("controller_service.service", "controller service"),
     "emulator": ("plant_emulator.service", "plant emulator service"),
 }
-
-
-def check_settings_file(path: Path) -> None:
-    """--settings must be a run_settings.json whose values hold (protocol.settings): the service
-    would fail after starting otherwise."""
-    from protocol.settings import RunSettings
-
-    options.existing_file("--settings", path)
-    try:
-        RunSettings.load(path).validate()
-    except BadInputError as exc:
-        raise BadInputError(f"--settings {path}: not a valid run_settings.json ({exc})") from exc
 
 
 def service(
@@ -70,13 +57,21 @@ def service(
         ),
     ] = None,
 ) -> None:
+    from protocol.settings import RunSettings
+
     options.locator("--endpoint", endpoint)
     options.locator("--can-endpoint", can_endpoint)
     options.integer("--epoch-ns", epoch_ns, 0, 2**63 - 1)
     if write_settings is not None:
         options.out_file("--write-settings", write_settings)
-    if settings is not None:
-        check_settings_file(settings)
+    if settings is not None:  # its values checked now: the service would fail after starting
+        options.existing_file("--settings", settings)
+        try:
+            RunSettings.load(settings).validate()
+        except BadInputError as exc:
+            raise BadInputError(
+                f"--settings {settings}: not a valid run_settings.json ({exc})"
+            ) from exc
     name = ctx.info_name or ""
     main_from_settings = importlib.import_module(SERVICES[name][0]).main_from_settings
     if settings is None:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -31,28 +30,6 @@ SWEEP_HELP = (
     "Ctrl-C keeps the Ts groups already done (exit 130). Exit 0 (also when a break point is "
     "found, unless --strict), 1 with --strict when a limit broke, 2 on bad input."
 )
-
-
-def check_loop_sizes(
-    scenario: Any, ts_values: Sequence[float], loop_s: float, names: tuple[str, str]
-) -> None:
-    """Every loop of the grid within the simulator's sizes (hil.scenario.MAX_SAMPLES control
-    samples, MAX_SUBSTEPS plant steps per period); ``names`` = (duration's, grid's) name."""
-    from hil.scenario import MAX_SAMPLES, MAX_SUBSTEPS
-
-    dur_name, ts_name = names
-    ts_min, ts_max = min(ts_values), max(ts_values)
-    if loop_s / ts_min > MAX_SAMPLES:
-        raise BadInputError(
-            f"{dur_name} = {loop_s:g} s at {ts_name} = {ts_min:g} s is {loop_s / ts_min:.3g} "
-            f"control samples, more than {MAX_SAMPLES:,}"
-        )
-    step = scenario.plant.step
-    if step is not None and ts_max / step > MAX_SUBSTEPS:
-        raise BadInputError(
-            f"[plant] step = {step:g} s is {ts_max / step:.3g} plant steps per {ts_name} = "
-            f"{ts_max:g} s, more than {MAX_SUBSTEPS:,}"
-        )
 
 
 # The options of ``hil sweep`` longer than a line of its signature, one alias each.
@@ -187,6 +164,8 @@ def _checked_sweep(
     from hil.scenario import (
         DELAY_MAX,
         DURATION_MAX,
+        MAX_SAMPLES,
+        MAX_SUBSTEPS,
         SWEEP_SEEDS_MAX,
         TS_MAX,
         TS_MIN,
@@ -216,8 +195,21 @@ def _checked_sweep(
     except ValueError as exc:
         raise BadInputError(str(exc)) from exc
     loop_s = duration if duration is not None else min(scenario.run.duration, DEFAULT_MAX_DURATION)
+    # Every loop of the grid within the simulator's sizes (control samples, plant steps per period).
     dur_name = "--duration" if duration is not None else "[run] duration"
-    check_loop_sizes(scenario, grid.ts, loop_s, (dur_name, "--ts" if ts_grid else "[sweep] ts"))
+    ts_name = "--ts" if ts_grid else "[sweep] ts"
+    ts_min, ts_max = min(grid.ts), max(grid.ts)
+    if loop_s / ts_min > MAX_SAMPLES:
+        raise BadInputError(
+            f"{dur_name} = {loop_s:g} s at {ts_name} = {ts_min:g} s is {loop_s / ts_min:.3g} "
+            f"control samples, more than {MAX_SAMPLES:,}"
+        )
+    step = scenario.plant.step
+    if step is not None and ts_max / step > MAX_SUBSTEPS:
+        raise BadInputError(
+            f"[plant] step = {step:g} s is {ts_max / step:.3g} plant steps per {ts_name} = "
+            f"{ts_max:g} s, more than {MAX_SUBSTEPS:,}"
+        )
     # A bad reference or design fails before any folder is written; a law that takes only
     # floats is found here too, and the user told it runs one robot at a time.
     controller, reference, _ = build_loop(scenario)
@@ -248,7 +240,6 @@ def _run_with_progress(
 
     counts = {float(v): max(1, round(loop_s / v)) for v in grid.ts}
     per_group = len(grid) // len(grid.ts)
-    total = sum(counts.values()) * per_group
     with Progress(
         TextColumn("[bold]sweep[/bold] {task.description}"),
         BarColumn(),
@@ -256,7 +247,7 @@ def _run_with_progress(
         TimeRemainingColumn(),
         transient=False,
     ) as bar:
-        task = bar.add_task(f"{len(grid)} loops", total=total)
+        task = bar.add_task(f"{len(grid)} loops", total=sum(counts.values()) * per_group)
         base: dict[float, int] = {}
         acc = 0
 

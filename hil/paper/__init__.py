@@ -1,17 +1,11 @@
 """``hil paper``: the paper's Section 4 reproduced offline (Figures 2-20 and a table).
 
-Runs (the bundled scenarios ``hil/scenarios/paper_*.toml``, see ``hil scenarios``; initial
-conditions stated there):
-
-- tracking (Figures 2-6), stabilization (7-11), chattering reduction (19) (12-14);
-- the comparison with [7] on the tracking run (15-17);
-- the comparison with [19] on circle_then_stop, both laws on the same reference (18-20).
-
-Every run uses the single-run float simulator at Ts = 1 ms, h = 0.1 ms and the durations of
-the scenario files (150 s, 300 s, 100 s), spread over ``jobs`` processes (default 2: the
-machine's cores); ``quick`` divides every duration by 5 for smoke tests (then the convergence
-checks are not judged). Each figure's data is a CSV beside its PNG; ``table.md`` and
-``table.json`` hold the measured figures and the checks of the paper's claims.
+The runs are the bundled scenarios ``hil/scenarios/paper_NAME.toml`` (NAME in :data:`RUNS`;
+initial conditions stated there), each on the single-run float simulator at Ts = 1 ms,
+h = 0.1 ms for its file's duration (150 s, 300 s, 100 s), spread over ``jobs`` processes
+(default 2: the machine's cores); ``quick`` divides every duration by 5 for smoke tests (then
+the convergence checks are not judged). ``table.md`` and ``table.json`` hold the measured
+figures and the checks of the paper's claims; each figure group's docstring names its figures.
 """
 
 from __future__ import annotations
@@ -79,25 +73,12 @@ def velocity_jolt(
     return float(np.max(change[mask])) if mask.any() else float("nan")
 
 
-def _error_at(result: SimResult, t_check: float) -> float:
-    t = result.column("t")
-    e = result.column("position_error")
-    i = int(np.searchsorted(t, t_check - 1e-9))
-    return float(e[min(i, len(e) - 1)])
-
-
 # The summary's figures in each row of the table, after the run, its law and its scenario.
 _ROW_KEYS = (
     *("duration", "ts", "plant_step", "final_position_error", "final_heading_error"),
     *("rms_position_error", "max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2"),
     "violations",
 )
-
-
-def _row(run: str, result: SimResult) -> dict[str, Any]:
-    s = result.summary
-    head = {"run": run, "law": s["law"], "scenario": f"paper_{run}.toml"}
-    return head | {k: s[k] for k in _ROW_KEYS}
 
 
 def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
@@ -111,7 +92,9 @@ def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
     if quick:
         add("tracking: position error < 0.02 m by t = 150 s", None, "not judged (--quick)")
     else:
-        e = _error_at(tr, 150.0 - tr.scenario.timing.ts)
+        t, err = tr.column("t"), tr.column("position_error")  # at the sample t = 150 s - Ts
+        i = int(np.searchsorted(t, 150.0 - tr.scenario.timing.ts - 1e-9))
+        e = float(err[min(i, len(err) - 1)])
         add("tracking: position error < 0.02 m by t = 150 s", e < 0.02, f"{e:.4g} m")
     for name in ("tracking", "stabilization", "chattering", "circle_then_stop_unified"):
         v = results[name].summary["violations"]
@@ -312,13 +295,12 @@ def run_paper(
     """
     out.mkdir(parents=True, exist_ok=True)
     scale = QUICK_FACTOR if quick else 1.0
-    paths = [str(bundled_dir() / f"paper_{r}.toml") for r in RUNS]
-    for p in paths:
-        load_scenario(p)  # bad files fail before any work starts
+    tasks = [(r, str(bundled_dir() / f"paper_{r}.toml"), scale) for r in RUNS]
+    for _, path, _ in tasks:
+        load_scenario(path)  # bad files fail before any work starts
     results: dict[str, SimResult] = {}
     pending = list(FIGURE_GROUPS)
     interrupted = False
-    tasks = [(r, p, scale) for r, p in zip(RUNS, paths, strict=True)]
     try:
         with _simulations(tasks, jobs) as done:
             for name, res in done:
@@ -347,7 +329,11 @@ def _write_table(
     out: Path, results: dict[str, SimResult], quick: bool, interrupted: bool
 ) -> dict[str, Any]:
     done = [r for r in RUNS if r in results]
-    rows = [_row(r, results[r]) for r in done]
+    rows = [
+        {"run": r, "law": results[r].summary["law"], "scenario": f"paper_{r}.toml"}
+        | {k: results[r].summary[k] for k in _ROW_KEYS}
+        for r in done
+    ]
     check_rows = [] if interrupted else checks(results, quick)
     note = "Single-run float simulator"
     if done:

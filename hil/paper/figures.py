@@ -44,9 +44,7 @@ def trajectory(path: Path, title: str, runs: Runs, reference: SimResult) -> Path
         ax.plot(x[:1], y[:1], "o", ms=4)
         cols += [f"x_{label}", f"y_{label}"]
         data += [x, y]
-    ax.set_xlabel("X (m)")
-    ax.set_ylabel("Y (m)")
-    ax.set_title(title)
+    ax.set(xlabel="X (m)", ylabel="Y (m)", title=title)
     ax.axis("equal")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
@@ -62,8 +60,7 @@ def over_time(
     first = runs[0][1]
     step = max(1, len(first.trace) // MAX_POINTS)
     t = first.column("t")[::step]
-    cols = ["t"]
-    data = [t]
+    cols, data = ["t"], [t]
     for label, run in runs:
         for c in columns:
             y = run.column(c)[::step][: len(t)]
@@ -76,9 +73,7 @@ def over_time(
     if limit is not None:
         ax.axhline(limit, color="red", ls="--", lw=1.2, label="limit")
         ax.axhline(-limit, color="red", ls="--", lw=1.2)
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel(ylabel)
-    ax.set_title(title)
+    ax.set(xlabel="t (s)", ylabel=ylabel, title=title)
     ax.grid(True, alpha=0.3)
     if len(cols) > 2 or limit is not None:
         ax.legend(loc="best", fontsize=8)
