@@ -260,7 +260,7 @@ class Scenario:
             ts_name = names[1]
             ts = number(ts_name, ts, TS_MIN, TS_MAX)
             out = dataclasses.replace(out, timing=dataclasses.replace(out.timing, ts=ts))
-        _check_loop_size(out, dur_name, ts_name)
+        check_loop_size(out, dur_name, ts_name)
         return out
 
 
@@ -517,24 +517,33 @@ def _check_across(scenario: Scenario) -> None:
         raise BadInputError(f"[can] node_left, node_right must differ, both are {can.node_left}")
     for i, endpoint in enumerate(scenario.zenoh.endpoints):
         locator(f"[zenoh] endpoints[{i}]", endpoint)
-    _check_loop_size(scenario, "[run] duration", "[timing] ts")
+    check_loop_size(scenario)
 
 
-def _check_loop_size(scenario: Scenario, dur_name: str, ts_name: str) -> None:
-    """Control samples of the run and plant steps per period within MAX_SAMPLES and
+def check_loop_size(
+    scenario: Scenario,
+    dur_name: str = "[run] duration",
+    ts_name: str = "[timing] ts",
+    duration: float | None = None,
+    ts: float | None = None,
+    ts_max: float | None = None,
+) -> None:
+    """Control samples of a ``duration`` s loop at ``ts`` (default: the scenario's) and plant
+    steps per period (the longest, ``ts_max``, default ``ts``) within MAX_SAMPLES and
     MAX_SUBSTEPS (the simulator keeps one row per sample)."""
-    ts, duration = scenario.timing.ts, scenario.run.duration
-    samples = duration / ts
+    duration = scenario.run.duration if duration is None else duration
+    ts = scenario.timing.ts if ts is None else ts
+    ts_max = ts if ts_max is None else ts_max
+    samples, step = duration / ts, scenario.plant.step
     if samples > MAX_SAMPLES:
         raise BadInputError(
             f"{dur_name} = {duration:g} s at {ts_name} = {ts:g} s is {samples:.3g} control "
             f"samples, more than {MAX_SAMPLES:,}"
         )
-    step = scenario.plant.step
-    if step is not None and ts / step > MAX_SUBSTEPS:
+    if step is not None and ts_max / step > MAX_SUBSTEPS:
         raise BadInputError(
-            f"[plant] step = {step:g} s is {ts / step:.3g} plant steps per {ts_name} = {ts:g} s, "
-            f"more than {MAX_SUBSTEPS:,}"
+            f"[plant] step = {step:g} s is {ts_max / step:.3g} plant steps per {ts_name} = "
+            f"{ts_max:g} s, more than {MAX_SUBSTEPS:,}"
         )
 
 

@@ -164,12 +164,11 @@ def _checked_sweep(
     from hil.scenario import (
         DELAY_MAX,
         DURATION_MAX,
-        MAX_SAMPLES,
-        MAX_SUBSTEPS,
         SWEEP_SEEDS_MAX,
         TS_MAX,
         TS_MIN,
         build_loop,
+        check_loop_size,
         load_scenario,
     )
     from hil.sim.replay import is_run_source, jitter_samples_from, latencies_from_run
@@ -198,18 +197,7 @@ def _checked_sweep(
     # Every loop of the grid within the simulator's sizes (control samples, plant steps per period).
     dur_name = "--duration" if duration is not None else "[run] duration"
     ts_name = "--ts" if ts_grid else "[sweep] ts"
-    ts_min, ts_max = min(grid.ts), max(grid.ts)
-    if loop_s / ts_min > MAX_SAMPLES:
-        raise BadInputError(
-            f"{dur_name} = {loop_s:g} s at {ts_name} = {ts_min:g} s is {loop_s / ts_min:.3g} "
-            f"control samples, more than {MAX_SAMPLES:,}"
-        )
-    step = scenario.plant.step
-    if step is not None and ts_max / step > MAX_SUBSTEPS:
-        raise BadInputError(
-            f"[plant] step = {step:g} s is {ts_max / step:.3g} plant steps per {ts_name} = "
-            f"{ts_max:g} s, more than {MAX_SUBSTEPS:,}"
-        )
+    check_loop_size(scenario, dur_name, ts_name, loop_s, min(grid.ts), max(grid.ts))
     # A bad reference or design fails before any folder is written; a law that takes only
     # floats is found here too, and the user told it runs one robot at a time.
     controller, reference, _ = build_loop(scenario)
