@@ -8,7 +8,7 @@ import math
 import pytest
 
 from plant_emulator.can_drives import EchoFilter
-from plant_emulator.drive_plant import DrivePlant, bench_drive_config
+from plant_emulator.drive_plant import DrivePlant, bench_drive_config, bench_drive_settings
 from plant_emulator.dynamics import Extremes, PlantState
 from plant_emulator.odrive import DriveConfig, ODriveAxis, VirtualDrivePair
 from plant_emulator.service import PlantCore
@@ -23,7 +23,7 @@ from protocol.can.codec import (
     ProcedureResult,
     Request,
 )
-from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit
+from protocol.can.wheel_mapping import RobotGeometry
 
 J = 1e-3  # Nm per rev/s^2: a toy rotor for one axis
 
@@ -64,8 +64,8 @@ def robot_drives(watchdog: float = 0.0):
 
     limits = Limits()
     geom = RobotGeometry()
-    limit = motor_torque_limit(geom, limits.varpi1, limits.varpi2)
-    pair = VirtualDrivePair(1, 0, config=bench_drive_config(geom, limits, limit, watchdog))
+    config = bench_drive_config(bench_drive_settings(geom, limits), watchdog)
+    pair = VirtualDrivePair(1, 0, config=config)
     core = PlantCore(PlantState(0.0, 0.0, 0.0, 0.0, 0.0), 1e-4, limits, extremes=Extremes())
     return pair, core, DrivePlant(pair, geom, limits, 0.0, core.state, 0.0), geom
 
@@ -156,13 +156,13 @@ def test_can_requests_carry_the_current_values():
 def test_can_set_limits_clamp_the_torque_and_negative_ones_are_refused():
     rotor = Rotor()
     rotor.arm(ControlMode.TORQUE_CONTROL)
-    rotor.send(codec.SetInputTorque(3, 0.4))
-    assert rotor.axis.torque == pytest.approx(0.4)
-    rotor.send(codec.SetLimits(3, 100.0, 2.0))  # 2 A x 0.05 Nm/A
-    assert rotor.axis.torque == pytest.approx(0.1)
-    assert rotor.ask(Cmd.GET_TORQUES).torque_target == pytest.approx(0.1)
+    rotor.send(codec.SetInputTorque(3, 0.3))
+    assert rotor.axis.torque == pytest.approx(0.3)
+    rotor.send(codec.SetLimits(3, 100.0, 2.0))  # 2 A x 0.04 Nm/A (the firmware's constant)
+    assert rotor.axis.torque == pytest.approx(0.08)
+    assert rotor.ask(Cmd.GET_TORQUES).torque_target == pytest.approx(0.08)
     rotor.send(codec.SetInputTorque(3, 5.0))  # beyond the drive's own limit: clamped too
-    assert rotor.axis.torque == pytest.approx(0.1)
+    assert rotor.axis.torque == pytest.approx(0.08)
     assert rotor.axis.events["torque_clamped"] == 1
     rotor.send(codec.SetLimits(3, -1.0, 2.0))
     assert rotor.axis.rejections.snapshot() == {"negative_limit": 1}
