@@ -571,7 +571,7 @@ class BenchDrives:
 
 
 def test_can_a_held_torque_cannot_drive_the_bench_s_robot_past_vel_limit():
-    """The coasting case of issue 38: a clamped torque held on both drives of ``hil drives``'
+    """The coasting case: a clamped torque held on both drives of ``hil drives``'
     robot. The drives' torque-mode velocity limit (the firmware's, with the bench's vel_limit:
     the corner of (2) plus the ramp, 85.80 rev/s) holds each wheel at vel_limit, 2.70 m/s
     straight ahead: before, the limiter was off and the robot ran on to 3.3 m/s."""
