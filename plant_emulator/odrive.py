@@ -119,13 +119,12 @@ CATCH_UP = 5  # cyclic frames missed by a stall of up to 5 periods are still sen
 # odriverobotics/ODrive; 0.6's source is closed, its API reference keeps these names):
 # C = Firmware/MotorControl/controller.hpp, M = motor.hpp, A = axis.hpp, T = trapTraj.hpp, with
 # the line. docs/can.md has the same table, with what the bench sets and why.
-FIRMWARE = "fw-v0.5.6 (a308314e)"
 
 
 @dataclass
 class DriveConfig:
     """One axis' configuration, as an ODrive ships (docs/can.md, "Defaults"); the bench sets a
-    few to suit its robot, as a user does with odrivetool (drive_plant.bench_drive_config)."""
+    few to suit its robot, as a user does with odrivetool (drive_plant.bench_drive_settings)."""
 
     torque_limit: float = math.inf  # Nm, motor.config.torque_lim (M:30; 0.6: torque_soft_max)
     torque_constant: float = 0.04  # Nm/A (M:24): Iq = torque / torque_constant
@@ -252,6 +251,9 @@ class ODriveAxis:
     ) -> None:
         codec.frame_id(node, 0)  # validates the node id
         self.node = node
+        # What erase_configuration restores: the configuration the axis was built with (the
+        # bench's), not the firmware's defaults as on a real ODrive, so that no client can lift
+        # the bench's torque limit (docs/can.md, Reboot); saved, and in force at every boot.
         self.factory = copy.deepcopy(config or DriveConfig())
         self.saved = copy.deepcopy(self.factory)
         self.config = copy.deepcopy(self.factory)
@@ -731,7 +733,7 @@ class VirtualDrivePair:
     ``vel_limit`` 2 rev/s, its overspeed error and its torque-mode velocity limiter, as an
     ODrive ships) with ``torque_limit`` (Nm, torque_soft_max) and ``heartbeat_period`` /
     ``encoder_period`` as cyclic rates (firmware defaults 100 ms, 10 ms; 0 turns a message
-    off). The bench's configuration is :func:`plant_emulator.drive_plant.bench_drive_config`.
+    off). The bench's configuration is :func:`plant_emulator.drive_plant.run_drive_config`.
     """
 
     node_right: int
