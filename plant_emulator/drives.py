@@ -28,13 +28,25 @@ from pathlib import Path
 from typing import Any
 
 from plant_emulator.can_drives import CanDrives
-from plant_emulator.drive_plant import DrivePlant, bench_drive_config
+from plant_emulator.drive_plant import DrivePlant, run_drive_config
 from plant_emulator.odrive import VirtualDrivePair
 from plant_emulator.service import build_plant
 from protocol import keys
 from protocol.can.codec import AxisState, Cmd, Frame
 from protocol.settings import RunSettings, period_ns, period_s
 
+# The drives' settings a summary records (docs/can.md, "Defaults").
+SUMMARY_CONFIG = (
+    "vel_limit",
+    "vel_limit_tolerance",
+    "enable_torque_mode_vel_limit",
+    "enable_overspeed_error",
+    "torque_limit",
+    "current_limit",
+    "torque_constant",
+    "vel_gain",
+    "watchdog_timeout",
+)
 STATE_NAMES = {
     AxisState.IDLE: "IDLE",
     AxisState.CLOSED_LOOP_CONTROL: "CLOSED_LOOP",
@@ -63,7 +75,7 @@ class DrivesRunner:
 
     def __init__(self, opts: DrivesOptions, settings: RunSettings, bus: Any = None) -> None:
         from protocol.can.bus_factory import CanSettings, open_bus
-        from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit
+        from protocol.can.wheel_mapping import RobotGeometry
 
         self.opts = opts
         self.settings = settings
@@ -80,11 +92,9 @@ class DrivesRunner:
         # At rest at the initial pose: the robot moves when torque arrives.
         self.core, _ = build_plant(settings, at_rest=True)
         limits = self.core.limits
-        legal = motor_torque_limit(self.geometry, limits.varpi1, limits.varpi2)
-        config = bench_drive_config(
-            self.geometry, limits, legal * (1.0 + 1e-6), watchdog, opts.msg_rates_ms
-        )
-        self.pair = VirtualDrivePair(cs.node_right, cs.node_left, config=config)
+        # The firmware's defaults with what the bench sets from the scenario (docs/can.md)
+        self.drive_config = run_drive_config(settings, opts.msg_rates_ms)
+        self.pair = VirtualDrivePair(cs.node_right, cs.node_left, config=self.drive_config)
         self.t0_ns = time.monotonic_ns()
         self.drive_plant = DrivePlant(
             self.pair, self.geometry, limits, 0.0, self.core.state, self.t0_ns / 1e9
@@ -199,6 +209,17 @@ class DrivesRunner:
         timeout = self.can_settings.watchdog_timeout
         return f"watchdog {timeout:g}s" if timeout > 0 else "watchdog off"
 
+    def config_words(self) -> str:
+        """What the bench set on the drives, as the start line says it."""
+        c = self.drive_config
+        return (
+            f"hil drives: the firmware's defaults (docs/can.md) but vel_limit {c.vel_limit:.2f} "
+            f"rev/s (the corner of (2), |v| = phi1 with |omega| = phi2, plus the torque ramp; "
+            f"in torque control no wheel is driven past it, beyond {c.vel_limit_tolerance:g}x "
+            f"it a drive trips its overspeed error), torque limit {c.max_torque:.4f} Nm "
+            f"(varpi1, varpi2 of (2)), current limit {c.current_limit:.2f} A"
+        )
+
     def summary(self, elapsed: float, stopped_by: str) -> dict[str, Any]:
         e = self.core.extremes
         with self.can.lock:
@@ -210,6 +231,8 @@ class DrivesRunner:
             "interface": self.can_settings.interface,
             "channel": self.can_settings.channel,
             "nodes": {"right": self.pair.node_right, "left": self.pair.node_left},
+            # the configuration the drives started with (the firmware's with the bench's)
+            "drive_config": {k: getattr(self.drive_config, k) for k in SUMMARY_CONFIG},
             "can": self.can.counters(),
             "robot": {
                 "final": {"x": s.x, "y": s.y, "theta": s.theta, "v": s.v, "omega": s.omega},
@@ -251,6 +274,7 @@ class DrivesRunner:
             "disarms: Clear_Errors, then Set_Axis_State re-arms it); Ctrl-C to stop",
             flush=True,
         )
+        print(self.config_words(), flush=True)
         start_ns = time.monotonic_ns()
         clock = DeadlineClock(period, start_ns)
         next_status = start_ns + status_ns

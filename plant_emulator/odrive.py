@@ -7,13 +7,18 @@ firmware's controller (:meth:`ODriveAxis._control`) and the plant applies
 :attr:`ODriveAxis.torque`. docs/can.md lists every message's effect, the firmware pages and
 sources each behaviour follows, and what was chosen where the firmware is not documented.
 
-Controller (as in the firmware's ``Controller::update``): input mode -> setpoints (passthrough,
-velocity ramp, torque ramp, 2nd-order position filter, trapezoidal trajectory); position loop
-``vel_des = vel_setpoint + pos_gain (pos_setpoint - pos)``; velocity loop ``torque =
-torque_setpoint + vel_gain (vel_des - vel) + integrator``; limits: velocity setpoints to
-``vel_limit``, torque to ``min(torque_limit, current_limit * torque_constant)``; the integrator
-decays while the torque is limited. Gains default to the firmware's (pos_gain 20 (rev/s)/rev,
-vel_gain 1/6 Nm/(rev/s), vel_integrator_gain 1/3 Nm/rev).
+Controller (as in the firmware's ``Controller::update``, controller.cpp:143-451 at fw-v0.5.6):
+input mode -> setpoints (passthrough, velocity ramp, torque ramp, 2nd-order position filter,
+trapezoidal trajectory); position loop ``vel_des = vel_setpoint + pos_gain (pos_setpoint - pos)``;
+velocity loop ``torque = torque_setpoint + vel_gain (vel_des - vel) + integrator``; limits:
+velocity setpoints to ``vel_limit``, torque to ``min(torque_limit, current_limit *
+torque_constant)``; in torque control the torque is kept within ``[(-vel_limit - vel),
+(vel_limit - vel)] x vel_gain`` (``limitVel``, controller.cpp:137-141, 387-394: it tapers to 0 at
+vel_limit and brakes beyond it); ``|vel| > vel_limit_tolerance x vel_limit`` in any mode is the
+overspeed error (controller.cpp:331-341), which disarms the axis (main.cpp:413-420, 443-444;
+axis.cpp:343-350, 594-596) with VELOCITY_LIMIT_VIOLATION until Clear_Errors and a new state
+request; the integrator decays while the torque is limited. Every default is the firmware's
+(:class:`DriveConfig`, cited line by line).
 
 Every frame is either applied, answered, or counted: ``rejections`` (frames or commands refused,
 by reason), ``ignored`` (frames for other nodes), ``events`` (what happened: watchdog expiries,
@@ -110,35 +115,43 @@ _SLACK = 1e-9  # a tick that lands a rounding error early is on time
 CATCH_UP = 5  # cyclic frames missed by a stall of up to 5 periods are still sent
 
 
+# Where each default comes from: the last open firmware source, tag fw-v0.5.6 (commit a308314e of
+# odriverobotics/ODrive; 0.6's source is closed, its API reference keeps these names):
+# C = Firmware/MotorControl/controller.hpp, M = motor.hpp, A = axis.hpp, T = trapTraj.hpp, with
+# the line. docs/can.md has the same table, with what the bench sets and why.
+
+
 @dataclass
 class DriveConfig:
-    """One axis' configuration. Defaults are the firmware's unless stated (docs/can.md)."""
+    """One axis' configuration, as an ODrive ships (docs/can.md, "Defaults"); the bench sets a
+    few to suit its robot, as a user does with odrivetool (drive_plant.bench_drive_settings)."""
 
-    torque_limit: float = 1.0  # Nm, motor side: |torque| never exceeds it (bench's limit)
-    torque_constant: float = 0.05  # Nm/A (bench's motor): Iq = torque / torque_constant
-    current_limit: float = math.inf  # A, Set_Limits' Current_Limit (current_soft_max)
-    vel_limit: float = 2.0  # rev/s (controller.config.vel_limit)
-    vel_limit_tolerance: float = 1.2
-    enable_vel_limit: bool = True
-    enable_overspeed_error: bool = True
-    enable_torque_mode_vel_limit: bool = True
-    pos_gain: float = 20.0  # (rev/s)/rev
-    vel_gain: float = 1.0 / 6.0  # Nm/(rev/s)
-    vel_integrator_gain: float = 2.0 / 6.0  # Nm/rev
-    vel_integrator_limit: float = math.inf
-    vel_ramp_rate: float = 1.0  # (rev/s)/s
-    torque_ramp_rate: float = 0.01  # Nm/s
-    inertia: float = 0.0  # Nm/(rev/s^2)
-    input_filter_bandwidth: float = 2.0  # 1/s
-    traj_vel_limit: float = 2.0  # rev/s
-    traj_accel_limit: float = 0.5  # rev/s^2
-    traj_decel_limit: float = 0.5  # rev/s^2
-    watchdog_timeout: float = 0.0  # s; 0: off (axis.config.enable_watchdog = False)
-    msg_rates_ms: dict[int, float] = field(
+    torque_limit: float = math.inf  # Nm, motor.config.torque_lim (M:30; 0.6: torque_soft_max)
+    torque_constant: float = 0.04  # Nm/A (M:24): Iq = torque / torque_constant
+    current_limit: float = 10.0  # A, motor.config.current_lim (M:28; 0.6: current_soft_max)
+    vel_limit: float = 2.0  # rev/s (C:31)
+    vel_limit_tolerance: float = 1.2  # overspeed error beyond this x vel_limit (C:32)
+    enable_vel_limit: bool = True  # (C:45)
+    enable_overspeed_error: bool = True  # (C:46)
+    enable_torque_mode_vel_limit: bool = True  # (C:47)
+    pos_gain: float = 20.0  # (rev/s)/rev (C:27)
+    vel_gain: float = 1.0 / 6.0  # Nm/(rev/s) (C:28)
+    vel_integrator_gain: float = 2.0 / 6.0  # Nm/rev (C:30)
+    vel_integrator_limit: float = math.inf  # Nm (C:33)
+    vel_ramp_rate: float = 1.0  # (rev/s)/s (C:34)
+    torque_ramp_rate: float = 0.01  # Nm/s (C:35)
+    inertia: float = 0.0  # Nm/(rev/s^2) (C:39)
+    input_filter_bandwidth: float = 2.0  # 1/s (C:40)
+    traj_vel_limit: float = 2.0  # rev/s (T:7)
+    traj_accel_limit: float = 0.5  # rev/s^2 (T:8)
+    traj_decel_limit: float = 0.5  # rev/s^2 (T:9)
+    watchdog_timeout: float = 0.0  # s; 0: off (A:86-87, enable_watchdog = False)
+    msg_rates_ms: dict[int, float] = field(  # heartbeat_rate_ms, encoder_rate_ms (A:57-58)
         default_factory=lambda: {Cmd.HEARTBEAT: 100.0, Cmd.GET_ENCODER_ESTIMATES: 10.0}
     )
+    # The bench's own (a virtual motor and supply; no firmware default applies):
     vbus_voltage: float = 24.0  # V, an ideal supply
-    phase_resistance: float = 0.05  # ohm (copper losses 1.5 R Iq^2)
+    phase_resistance: float = 0.05  # ohm (copper losses 1.5 R Iq^2; firmware: measured)
     fet_temperature: float = 25.0  # deg C: no thermal model, ambient
     motor_temperature: float = 25.0
     hw_version: tuple[int, int, int] = (4, 4, 58)  # major, minor, variant
@@ -238,6 +251,9 @@ class ODriveAxis:
     ) -> None:
         codec.frame_id(node, 0)  # validates the node id
         self.node = node
+        # What erase_configuration restores: the configuration the axis was built with (the
+        # bench's), not the firmware's defaults as on a real ODrive, so that no client can lift
+        # the bench's torque limit (docs/can.md, Reboot); saved, and in force at every boot.
         self.factory = copy.deepcopy(config or DriveConfig())
         self.saved = copy.deepcopy(self.factory)
         self.config = copy.deepcopy(self.factory)
@@ -432,6 +448,8 @@ class ODriveAxis:
             vel_des += cfg.pos_gain * (self.pos_setpoint - self.pos_estimate_at(now))
         if cfg.enable_vel_limit:
             vel_des = _clamp(vel_des, -vlim, vlim)
+        # the overspeed error, in every control mode (controller.cpp:331-341); the firmware's
+        # controller fails and its axis disarms to IDLE (main.cpp:413-420, 443-444; axis.cpp:594)
         if cfg.enable_overspeed_error and abs(self.vel) > cfg.vel_limit_tolerance * vlim:
             self.disarm(ODriveError.VELOCITY_LIMIT_VIOLATION, "overspeed")
             return
@@ -441,6 +459,8 @@ class ODriveAxis:
             v_err = vel_des - self.vel
             torque += cfg.vel_gain * v_err + self.vel_integrator
         elif cfg.enable_torque_mode_vel_limit:
+            # limitVel (controller.cpp:137-141, 387-394): a ramp of slope vel_gain that reaches
+            # 0 at +-vel_limit and brakes beyond it, before the torque limit
             torque = _clamp(
                 torque, (-vlim - self.vel) * cfg.vel_gain, (vlim - self.vel) * cfg.vel_gain
             )
@@ -709,16 +729,16 @@ class ODriveAxis:
 class VirtualDrivePair:
     """The robot's two drives (right and left wheel) behind one CAN bus.
 
-    ``config`` sets both axes' configuration. Without it: firmware defaults but a torque limit
-    of ``torque_limit`` (Nm) and no velocity limit (nor the torque-mode velocity limiter), with
-    ``heartbeat_period``/``encoder_period`` as cyclic rates (firmware defaults 100 ms, 10 ms;
-    0 turns a message off). The bench's configuration is
-    :func:`plant_emulator.drive_plant.bench_drive_config`.
+    ``config`` sets both axes' configuration. Without it: the firmware's defaults (so
+    ``vel_limit`` 2 rev/s, its overspeed error and its torque-mode velocity limiter, as an
+    ODrive ships) with ``torque_limit`` (Nm, torque_soft_max) and ``heartbeat_period`` /
+    ``encoder_period`` as cyclic rates (firmware defaults 100 ms, 10 ms; 0 turns a message
+    off). The bench's configuration is :func:`plant_emulator.drive_plant.run_drive_config`.
     """
 
     node_right: int
     node_left: int
-    torque_limit: float = 1.0
+    torque_limit: float = math.inf
     heartbeat_period: float = 0.1
     encoder_period: float = 0.01
     config: DriveConfig | None = None
@@ -733,11 +753,7 @@ class VirtualDrivePair:
         if self.node_left == self.node_right:
             raise ValueError("node_left and node_right must differ")
         if self.config is None:
-            self.config = DriveConfig(
-                torque_limit=self.torque_limit,
-                vel_limit=math.inf,
-                enable_torque_mode_vel_limit=False,
-            )
+            self.config = DriveConfig(torque_limit=self.torque_limit)
             self.config.msg_rates_ms = {
                 Cmd.HEARTBEAT: 1000.0 * self.heartbeat_period,
                 Cmd.GET_ENCODER_ESTIMATES: 1000.0 * self.encoder_period,
@@ -843,6 +859,9 @@ class VirtualDrivePair:
                     "torque_nm": d.torque,
                     "pos_rev": d.pos_estimate_at(d.t_fb),
                     "vel_rev_s": d.vel,
+                    # the limits in force (the bench's, or what a client set with Set_Limits)
+                    "vel_limit_rev_s": d.config.vel_limit,
+                    "torque_limit_nm": d.config.max_torque,
                 }
                 for n, d in self.drives.items()
             },

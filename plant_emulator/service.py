@@ -617,17 +617,15 @@ def _open_drives(
     bus = s.open_can_bus()
     if bus is None:
         return None
-    from plant_emulator.drive_plant import bench_drive_config
+    from plant_emulator.drive_plant import run_drive_config
     from plant_emulator.odrive import VirtualDrivePair
+    from protocol.can.wheel_mapping import RobotGeometry
 
     cs = s.can_settings()
-    geom, legal = s.motor_limit()
-    # A hair above the largest legal motor torque: float32 rounding of a legal command
-    # must not be clamped; the applied (tau1, tau2) is clamped to (2) after decoding.
-    config = bench_drive_config(
-        geom, core.limits, legal * (1.0 + 1e-6), watchdog_timeout=cs.watchdog_timeout
-    )
-    pair = VirtualDrivePair(cs.node_right, cs.node_left, config=config)
+    geom = RobotGeometry(**s.robot)
+    # The firmware's defaults with what the run's settings set (the applied (tau1, tau2) is
+    # clamped to (2) after decoding, whatever the drives let through).
+    pair = VirtualDrivePair(cs.node_right, cs.node_left, config=run_drive_config(s))
     drive_plant = DrivePlant(pair, geom, core.limits, core.t, core.state, time.monotonic())
     can = CanDrives(bus, pair, hoplog, immediate=True, faults=faults)
     stack.callback(can.close)  # closes the bus: registered before anything can fail

@@ -73,6 +73,11 @@ class RunSettings:
     can_live: bool = True
     can: dict[str, Any] = field(default_factory=dict)
     robot: dict[str, Any] = field(default_factory=dict)
+    # What the bench sets on its virtual ODrives beyond the firmware's defaults (names of
+    # plant_emulator.odrive.DriveConfig: torque_limit, current_limit, vel_limit), resolved by
+    # hil from [robot] and [limits] (docs/can.md, "Defaults"); empty in a file written before
+    # it existed: the plant derives the same values.
+    drives: dict[str, Any] = field(default_factory=dict)
     zenoh_mode: str = "peer"
     zenoh_endpoint: str = "tcp/127.0.0.1:7447"
     can_endpoint: str = "tcp/127.0.0.1:7449"
@@ -136,6 +141,8 @@ class RunSettings:
             raise BadInputError("[realtime] scheduling must be 'fifo' or 'other'")
         if self.idle not in IDLE_POLICIES:
             raise BadInputError(f"[realtime] idle must be one of {IDLE_POLICIES}")
+        if not isinstance(self.drives, dict):
+            raise BadInputError(f"drives must be a table, got {self.drives!r}")
         if not isinstance(self.faults, dict):
             raise BadInputError(f"faults must be a table, got {self.faults!r}")
         for key, v in self.faults.items():

@@ -185,7 +185,7 @@ async def session(a: argparse.Namespace) -> dict[str, Any]:
         say(f"turn (+0.02, -0.02 Nm) -> {res['turn']}")
 
         # --- limits clamp the torque ----------------------------------------------------------
-        right.set_limits(200.0, 1.0)  # 1 A x 0.05 Nm/A = 0.05 Nm
+        right.set_limits(200.0, 1.0)  # 1 A x 0.04 Nm/A = 0.04 Nm
         right.set_input_torque(0.3)
         await asyncio.sleep(0.05)
         res["limited_torques"] = plain(await request(right, "Get_Torques"))

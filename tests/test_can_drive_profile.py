@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import struct
 
-from plant_emulator.odrive import VirtualDrivePair
+from plant_emulator.odrive import DriveConfig, VirtualDrivePair
 from protocol.can import codec
 from protocol.can.codec import (
     AxisError,
@@ -115,7 +115,10 @@ def test_can_heartbeat_timeout_is_a_fault():
 
 
 def test_can_torque_beyond_limit_is_clamped_and_non_finite_never_applies():
-    host, pair = HostLifecycle(node_right=1, node_left=0), VirtualDrivePair(1, 0, LIMIT)
+    # a vel_limit set for the motor, as a user does: with the firmware's 2 rev/s, torque
+    # control at rest is capped at 2 rev/s x vel_gain = 0.33 Nm (the torque-mode limiter)
+    config = DriveConfig(torque_limit=LIMIT, vel_limit=50.0)
+    host, pair = HostLifecycle(node_right=1, node_left=0), VirtualDrivePair(1, 0, config=config)
     _exchange(host, pair, host.start(0.0), 0.0)
     for f in host.torque_frames(0.1, 0.1):
         pair.receive(0.0, f)

@@ -5,7 +5,9 @@ start gate's timeout, SIGINT mid-run."""
 
 from __future__ import annotations
 
+import asyncio
 import json
+import math
 import signal
 import time
 import tomllib
@@ -13,12 +15,16 @@ import uuid
 
 import can
 import pytest
+from odrive_can import ODriveCAN
 
 from hil.run.defaults import PAPER_TRACKING_TOML
 from protocol import keys
 from protocol.can import codec
+from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, wheel_rates
 from protocol.messages import State, Status, decode_as
+from protocol.robot import Limits
 from runtime.zsession import open_session, payload_bytes
+from tests.odrive_client_session import EncoderWatch, hold_torque, plain, request, wait_state
 from tests.procs import Lines, free_tcp_port, wait_until
 
 pytestmark = pytest.mark.realtime
@@ -301,3 +307,92 @@ def test_hil_drives_robot_with_friction_settles_and_stops_when_the_watchdog_disa
     assert summary["can"]["events"]["watchdog_expired"] == 2  # both drives, after the silence
     assert 0.5 < robot["max_abs_v"] <= 2.0 / 2.0 + 1e-6  # below tau1 / c
     assert abs(robot["final"]["v"]) < 0.05 * robot["max_abs_v"]  # stopped by friction
+
+
+def test_hil_drives_hold_an_odrive_can_client_s_torque_at_vel_limit_and_report_overspeed(spawn):
+    """Through the bus, with the PyPI odrive-can client: a clamped torque held on both drives
+    of ``hil drives``' robot takes each wheel to the bench's vel_limit (the corner of (2) plus
+    the firmware's ramp width, 85.80 rev/s) and no further, as the firmware's torque-mode
+    velocity limit does; a wheel beyond 1.2 vel_limit (here: a client's Set_Limits lowering
+    vel_limit under the spinning wheel; tests/test_can_odrive_model.py pushes it with a
+    disturbance) disarms with VELOCITY_LIMIT_VIOLATION in the heartbeat and Get_Error, cleared
+    by Clear_Errors; re-arming trips again until the cause has gone."""
+    geom, lim = RobotGeometry(), Limits()  # hil drives' default: the default robot, the paper
+    torque_limit = motor_torque_limit(geom, lim.varpi1, lim.varpi2) * (1 + 1e-6)
+    corner = max(abs(w) for w in wheel_rates(geom, lim.phi1, lim.phi2))
+    vel_limit = corner + torque_limit * 6.0  # / vel_gain, the firmware's 1/6 Nm/(rev/s)
+    bus_args, channel, can_endpoint = _zenoh_can()
+    drives = spawn.python(
+        [
+            *("-m", "hil", "drives", *bus_args, "--watchdog-timeout", "0.5"),
+            *("--status-period", "0", "--scheduling", "other"),
+        ],
+        text=True,
+    )
+    out = Lines(drives.stdout)
+    assert wait_until(lambda: out.seen("hil drives:"), 60), drives.stderr.read()
+    assert f"vel_limit {vel_limit:.2f} rev/s" in out.text(1.0)
+
+    def bus() -> can.BusABC:
+        return can.Bus(interface="zenoh_can", channel=channel, endpoint=can_endpoint)
+
+    async def session() -> dict:
+        res: dict = {}
+        right, left, raw = ODriveCAN(1, bus()), ODriveCAN(0, bus()), bus()
+        watch = EncoderWatch(1)
+        notifier = can.Notifier(raw, [watch])
+        pair = {"right": right, "left": left}
+        try:
+            for d in pair.values():
+                await asyncio.wait_for(d.start(), 10.0)
+                d.clear_errors()
+                d.set_controller_mode("TORQUE_CONTROL", "PASSTHROUGH")
+                d.set_input_torque(0.0)
+                await d.set_axis_state("CLOSED_LOOP_CONTROL")
+            # 1 Nm on both, clamped to 0.401 Nm: the robot needs about 0.85 s to vel_limit
+            await hold_torque(pair, {"right": 1.0, "left": 1.0}, 2.0)
+            res["held"] = [vel for _, _, vel in watch.frames]
+            right.set_limits(vel_limit / 1.5, 20.0)  # the wheel is now beyond 1.2 x vel_limit
+            res["tripped"] = await wait_state(right, "IDLE")
+            await right.wait_for_heartbeat()
+            res["heartbeat"] = plain(right._last_heartbeat.data)
+            res["error"] = plain(await request(right, "Get_Error"))
+            right.clear_errors()
+            res["cleared"] = plain(await request(right, "Get_Error"))
+            right.set_axis_state_no_wait("CLOSED_LOOP_CONTROL")  # still too fast: again
+            await asyncio.sleep(0.3)
+            res["again"] = plain(await request(right, "Get_Error"))
+            right.set_limits(vel_limit, 20.0)  # the cause gone: it re-arms
+            right.clear_errors()
+            right.set_axis_state_no_wait("CLOSED_LOOP_CONTROL")
+            res["rearmed"] = await wait_state(right, "CLOSED_LOOP_CONTROL")
+            right.set_axis_state_no_wait("IDLE")
+        finally:
+            notifier.stop()
+            for d in pair.values():
+                d._running = False
+            for d in pair.values():
+                if d._recieve_thread is not None:
+                    d._recieve_thread.join(timeout=2.0)
+                d._bus.shutdown()
+            raw.shutdown()
+        return res
+
+    res = asyncio.run(session())
+    drives.send_signal(signal.SIGINT)
+    assert drives.wait(timeout=10) == 0
+    summary = json.loads(out.text(5.0).strip().splitlines()[-1])["summary"]
+    held = res["held"]
+    assert len(held) > 100  # the cyclic estimates of 2 s, at 100 Hz
+    # float32 on the wire rounds by at most 6e-8 of the value
+    assert max(held) <= vel_limit * (1 + 1e-7) and held[-1] > 0.99 * vel_limit, held[-5:]
+    violation = {"Active_Errors": "VELOCITY_LIMIT_VIOLATION"}
+    assert res["tripped"] and res["heartbeat"]["Axis_Error"] == "VELOCITY_LIMIT_VIOLATION"
+    assert res["error"] == {**violation, "Disarm_Reason": "VELOCITY_LIMIT_VIOLATION"}
+    assert res["cleared"] == {"Active_Errors": "NONE", "Disarm_Reason": "NONE"}
+    assert res["again"]["Disarm_Reason"] == "VELOCITY_LIMIT_VIOLATION"
+    assert res["rearmed"]
+    assert summary["can"]["events"]["overspeed"] == 2
+    assert summary["drive_config"]["vel_limit"] == pytest.approx(vel_limit, rel=1e-12)
+    m_per_rev = 2 * math.pi * geom.wheel_radius / geom.gear_ratio
+    assert summary["robot"]["max_abs_v"] <= vel_limit * m_per_rev * (1 + 1e-6)  # 2.70 m/s

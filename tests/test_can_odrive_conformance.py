@@ -56,8 +56,9 @@ def _check_session(res: dict) -> None:
     # Get_Torques, Get_Iq, Get_Powers, Get_Bus_Voltage_Current, Get_Error: the model's values
     assert res["torques"]["Torque_Target"] == pytest.approx(0.02, rel=1e-6)
     assert res["torques"]["Torque_Estimate"] == pytest.approx(0.02, rel=1e-6)
-    assert res["iq"]["Iq_Setpoint"] == pytest.approx(0.4, rel=1e-6)  # 0.02 Nm / 0.05 Nm/A
-    assert res["iq"]["Iq_Measured"] == pytest.approx(0.4, rel=1e-6)
+    # 0.02 Nm / 0.04 Nm/A (the firmware's torque_constant)
+    assert res["iq"]["Iq_Setpoint"] == pytest.approx(0.5, rel=1e-6)
+    assert res["iq"]["Iq_Measured"] == pytest.approx(0.5, rel=1e-6)
     mech = res["powers"]["Mechanical_Power"]
     vel = res["forward"]["right"]["Vel_Estimate"]
     assert mech == pytest.approx(0.02 * vel * 2 * math.pi, rel=0.05)
@@ -82,8 +83,8 @@ def _check_session(res: dict) -> None:
     # right forward, left back: the right wheel speeds up, the left slows down (a left turn)
     assert res["turn"]["right"]["Vel_Estimate"] > vel + 2.0
     assert res["turn"]["left"]["Vel_Estimate"] < res["forward"]["left"]["Vel_Estimate"] - 2.0
-    # Set_Limits: 1 A x 0.05 Nm/A clamps a 0.3 Nm set point
-    assert res["limited_torques"]["Torque_Target"] == pytest.approx(0.05, rel=1e-6)
+    # Set_Limits: 1 A x 0.04 Nm/A clamps a 0.3 Nm set point
+    assert res["limited_torques"]["Torque_Target"] == pytest.approx(0.04, rel=1e-6)
     # Set_Input_Vel in VELOCITY_CONTROL through the drive's velocity loop
     for side in ("right", "left"):
         assert res["velocity"][side]["Vel_Estimate"] == pytest.approx(5.0, rel=0.02)

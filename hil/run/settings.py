@@ -16,6 +16,7 @@ from controller_service.registry import law_path_for
 from hil.errors import BadInputError
 from hil.measure.folder import resolved_scenario
 from hil.sim.replay import jitter_samples_from
+from plant_emulator.drive_plant import bench_drive_settings
 from protocol.settings import RunSettings
 
 GEOMETRY_KEYS = ("mass", "yaw_inertia", "wheel_radius", "half_track", "gear_ratio")
@@ -48,6 +49,12 @@ def check_can_interface(name: str, where: str) -> None:
         )
 
 
+def drive_settings_of(scenario: Any) -> dict[str, float]:
+    """What the bench sets on its virtual ODrives for this scenario's robot and limits (the
+    rest is the firmware's): written into the run's settings, read by the plant."""
+    return bench_drive_settings(scenario.robot, scenario.limits)
+
+
 def robot_id_of(scenario: Any) -> str:
     rid = scenario.zenoh.robot_id
     return rid if isinstance(rid, str) else f"robot{rid}"
@@ -75,6 +82,7 @@ def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSett
         **{k: getattr(scenario.realtime, k) for k in REALTIME_KEYS},
         "can": effective_can_table(scenario),
         "robot": {k: getattr(scenario.robot, k) for k in GEOMETRY_KEYS},
+        "drives": drive_settings_of(scenario),
         "zenoh_mode": scenario.zenoh.mode,
         "controller": dict(scenario.controller),
         "reference": dict(scenario.reference),
