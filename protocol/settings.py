@@ -123,6 +123,8 @@ class RunSettings:
         """Every value a service relies on; a bad one raises :class:`BadInputError`."""
         if self.cmd_path not in CMD_PATHS:
             raise BadInputError(f"cmd path must be one of {CMD_PATHS}, got {self.cmd_path!r}")
+        if self.lockstep and self.cmd_path == "can":
+            raise BadInputError("lockstep exchanges its commands on Zenoh: cmd path can refused")
         if self.trigger not in TRIGGERS:
             raise BadInputError(f"[realtime] trigger must be one of {TRIGGERS}")
         if self.tick_phase not in TICK_PHASES:

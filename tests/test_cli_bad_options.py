@@ -49,6 +49,7 @@ CASES: list[tuple[list[str], str]] = [
     (["run", "--duration", "inf", "--out", "OUT"], "--duration"),
     (["run", "--duration", "0", "--out", "OUT"], "--duration"),
     (["run", "--cmd-path", "udp", "--out", "OUT"], "--cmd-path"),
+    (["run", "--lockstep", "--cmd-path", "can", "--out", "OUT"], "--lockstep"),
     (["run", "--trigger", "sometimes", "--out", "OUT"], "--trigger"),
     (["run", "--can-interface", "nope", "--out", "OUT"], "--can-interface"),
     (["run", "--can-interface", "", "--out", "OUT"], "--can-interface"),

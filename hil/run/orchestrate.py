@@ -289,6 +289,13 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     check_options(opts)  # every option before the scenario: no folder, no process yet
     if opts.secure and opts.cmd_path == "can":
         raise BadInputError("--secure guards the Zenoh command path; the CAN bus has no login")
+    if opts.lockstep and opts.cmd_path == "can":
+        # The lockstep plant waits for the Zenoh command computed from each State (docs/
+        # realtime.md, "Lockstep"): a CAN applied path would never land a command.
+        raise BadInputError(
+            "--lockstep exchanges each State and its command on Zenoh: --cmd-path can is not "
+            "supported with it (the CAN path still runs beside it as a shadow)"
+        )
     run_dir = Path(opts.out) if opts.out else new_run_dir()
     given = None if opts.scenario is None else resolve_scenario(opts.scenario)  # file or name
     if given is None:  # the paper's tracking circle, written into the folder
