@@ -30,6 +30,7 @@ from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
 from hil.fleet import barrier as fleet_barrier
 from hil.folder import layout, new_run_dir
+from hil.folder.records import ControllerExit
 from hil.lab import placement
 from hil.lab.placement import TOPOLOGY_FILE, child_argv
 from hil.law.option import with_law
@@ -54,6 +55,7 @@ from hil.scenario import (
     resolved_dict,
 )
 from hil.supervisor import Supervisor
+from protocol.hoplog import LAW_FAULT_EXIT
 from protocol.keys import is_valid_robot_id, observed_keys
 from protocol.messages import DecodeError, Status, decode
 from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
@@ -378,20 +380,20 @@ def _start_and_follow(
     stop: Any,
     announcer: Any,
     quiet: bool,
-) -> str | None:
-    """Wait for both services, announce the epoch, follow the run; an error, or None."""
+) -> tuple[str | None, ControllerExit | None]:
+    """Wait for both services, announce the epoch, follow the run; an error (or None) and how
+    the controller ended when it ended before the plant (or None)."""
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
     # that dies is noticed at once anyway.
     ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
     if not _wait_ready(recorder, sup, stop, timeout=ready_timeout):
-        return "services did not become ready"
+        return "services did not become ready", None
     fleet_barrier.wait(stop)  # a fleet's robots start together (no-op for one run)
     epoch = time.monotonic_ns() + 300_000_000
     for i in range(3):  # a start message lost to a racing link must not hang
         announce_start(announcer, settings.robot_id, epoch, seq=i)
         time.sleep(0.02)
-    _progress(settings, recorder, sup, stop, quiet)
-    return None
+    return None, _progress(settings, recorder, sup, stop, quiet, epoch)
 
 
 def execute(opts: RunOptions) -> dict[str, Any]:
@@ -407,7 +409,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
     writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer, same_clock=not placed)
-    session, subs, can_rec = None, [], None
+    session, subs, can_rec, ended = None, [], None, None
     logs = _Logs(run_dir)
     t_start = time.monotonic()
     ids = RunIdentities(opts.secure, (settings.robot_id,))  # fresh passwords, or none
@@ -425,7 +427,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             if opts.live_port is not None:  # its own process: no cycle of the recorder's
                 start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs, bool(placed))
             _start_services(sup, [run_dir], ids, logs, host, placed)
-            error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
+            error, ended = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
             interrupted = bool(stop)
         finally:
             if stop:  # hil.cli then exits 130 once the folder is written
@@ -445,6 +447,8 @@ def execute(opts: RunOptions) -> dict[str, Any]:
                 session.close()
             recorder.close(attachment_files(run_dir))  # the hop logs attached
     extra = run_extra(interrupted, error, time.monotonic() - t_start, codes, recorder, opts.secure)
+    if ended is not None:
+        extra["controller_exit"] = ended
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
     summary = _write_results(run_dir, scenario, settings, info, extra)
     summary["run_dir"] = str(run_dir)
@@ -526,11 +530,22 @@ def _wait_ready(recorder: Recorder, sup: Supervisor, stop: Any, timeout: float) 
 
 
 def _progress(
-    settings: RunSettings, recorder: Recorder, sup: Supervisor, stop: Any, quiet: bool
-) -> None:
-    """Until the plant finishes its duration (it exits by itself) or a stop is asked."""
+    settings: RunSettings,
+    recorder: Recorder,
+    sup: Supervisor,
+    stop: Any,
+    quiet: bool,
+    epoch_ns: int,
+    output: str = layout.CONTROLLER_OUTPUT,
+) -> ControllerExit | None:
+    """Until the plant finishes its duration (it exits by itself), a stop is asked, or the
+    controller process ends first (its law failed, it crashed or was killed): then at once,
+    since no command will come any more (the plant is stopped next, by _stop_children), and
+    that end is returned (its code or signal, and when: from ``epoch_ns``, within the 50 ms
+    of a poll; ``output``: its console log, relative to the run folder)."""
     total = max(1, round(settings.duration / settings.ts)) if settings.lockstep else None
     plant = next(c for c in sup.children if c.name == "plant")
+    controller = next((c for c in sup.children if c.name == "controller"), None)
     t0 = time.monotonic()
     limit = t0 + (settings.duration + 30.0 if not settings.lockstep else 1e9)
     with Progress(
@@ -544,6 +559,8 @@ def _progress(
     ) as prog:
         task = prog.add_task("run", total=1.0, info="")
         while not stop and plant.alive() and time.monotonic() < limit:
+            if controller is not None and not controller.alive():
+                break
             st = recorder.statuses.get("controller")
             info = ""
             if st is not None:
@@ -552,6 +569,29 @@ def _progress(
             done = recorder.states / total if total else (time.monotonic() - t0) / settings.duration
             prog.update(task, completed=min(1.0, done), info=info)
             time.sleep(0.05)
+    # The controller outlives the plant (its end is 2 s past the plant's) until it is stopped:
+    # found ended here, it ended on its own, before the run's end.
+    if controller is None or controller.alive():
+        return None
+    return controller_exit(controller.proc.poll(), (time.monotonic_ns() - epoch_ns) / 1e9, output)
+
+
+def controller_exit(code: int | None, t_s: float, output: str) -> ControllerExit:
+    """summary.json's ``controller_exit`` from the process's return code (negative: the
+    signal that killed it; hil.folder.records.ControllerExit)."""
+    sig = None
+    if code is not None and code < 0:
+        try:
+            sig = signal.Signals(-code).name
+        except ValueError:
+            sig = f"signal {-code}"
+    return {
+        "code": None if sig else code,
+        "signal": sig,
+        "t_s": t_s,
+        "law_fault": code == LAW_FAULT_EXIT,
+        "output": output,
+    }
 
 
 def _stop_children(sup: Supervisor, settings: RunSettings) -> dict[str, int | None]:
@@ -559,7 +599,7 @@ def _stop_children(sup: Supervisor, settings: RunSettings) -> dict[str, int | No
     # The plant ends by itself at the run's end; the controller is stopped next, then the rest.
     for name in ("plant", "controller", "router", "live"):
         for c in [c for c in sup.children if c.name == name]:
-            if name == "controller" and codes.get("plant") not in (0, None):
+            if name == "controller" and codes.get("plant") not in (0, None) and c.alive():
                 # The plant died: give the controller's stale-state watchdog time to act (and
                 # to be logged) before it is stopped.
                 time.sleep(max(0.2, 4 * settings.state_timeout))
