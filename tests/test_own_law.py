@@ -271,7 +271,7 @@ class _Broken(_FirstRobotOnly):
 
 
 def test_a_law_that_mixes_robots_up_or_fails_is_caught_before_the_loop() -> None:
-    """A law that fails even on one robot is a fault of the law (issue 35), not bad input: the
+    """A law that fails even on one robot is a fault of the law, not bad input: the
     batch path runs it robot by robot, so each robot meets its own fault with its own input."""
     sc = _short(SCALAR_LAW)
     _, reference, _ = build_loop(sc)

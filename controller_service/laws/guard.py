@@ -213,6 +213,8 @@ def bad_torques(tau1: Any, tau2: Any, robot: int | None = None) -> str | None:
             flat = np.ravel(value)
             value = flat[robot] if flat.size > robot else flat[-1]
         try:
+            if isinstance(value, str | bytes):  # float() would read "1" as a number
+                raise TypeError(name)
             x = float(value)
         except (TypeError, ValueError):
             return f"{name} of type {type(value).__name__}"
