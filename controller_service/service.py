@@ -402,6 +402,8 @@ class ControllerService:
             "sched_fifo": int(self.scheduling.policy == "SCHED_FIFO"),
             "mlockall": int(self.scheduling.mlockall),
             "gc_frozen": int(self.scheduling.gc_frozen),
+            # a controller started again into a running run (hil run then follows it on)
+            "restarted": int(getattr(self, "restarted", False)),
         }
         if self.can_path is not None:
             counters["can_active"] = int(self.can_path.active)

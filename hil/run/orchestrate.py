@@ -124,6 +124,7 @@ class Recorder:
         self.queue: collections.deque[tuple[str, int, Any]] = collections.deque()
         self.states = 0
         self.statuses: dict[str, Any] = {}
+        self.status_ns: dict[str, int] = {}  # when each role's newest status arrived
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._drain, name="recorder", daemon=True)
         self._thread.start()
@@ -165,6 +166,7 @@ class Recorder:
             write_pose(self.writer, topic, t, m)
         if isinstance(m, Status):
             self.statuses[m.role] = m
+            self.status_ns[m.role] = t
 
     def _drain(self) -> None:
         while not (self._stop.is_set() and not self.queue):
@@ -539,13 +541,16 @@ def _progress(
     output: str = layout.CONTROLLER_OUTPUT,
 ) -> ControllerExit | None:
     """Until the plant finishes its duration (it exits by itself), a stop is asked, or the
-    controller process ends first (its law failed, it crashed or was killed): then at once,
-    since no command will come any more (the plant is stopped next, by _stop_children), and
-    that end is returned (its code or signal, and when: from ``epoch_ns``, within the 50 ms
-    of a poll; ``output``: its console log, relative to the run folder)."""
+    controller process ended first: at once when its law failed (it exits with
+    LAW_FAULT_EXIT: no command will come any more), else (a crash, a signal) after
+    GONE_GRACE_S unless a restarted controller rejoins meanwhile (its Status says
+    ``restarted``: then the run goes on to its end). The plant is stopped next, by
+    _stop_children. That end is returned (its code or signal, and when: from ``epoch_ns``,
+    within the 50 ms of a poll; ``output``: its console log, relative to the run folder)."""
     total = max(1, round(settings.duration / settings.ts)) if settings.lockstep else None
     plant = next(c for c in sup.children if c.name == "plant")
     controller = next((c for c in sup.children if c.name == "controller"), None)
+    gone_ns: int | None = None  # when the controller process was found ended
     t0 = time.monotonic()
     limit = t0 + (settings.duration + 30.0 if not settings.lockstep else 1e9)
     with Progress(
@@ -559,7 +564,9 @@ def _progress(
     ) as prog:
         task = prog.add_task("run", total=1.0, info="")
         while not stop and plant.alive() and time.monotonic() < limit:
-            if controller is not None and not controller.alive():
+            if controller is not None and gone_ns is None and not controller.alive():
+                gone_ns = time.monotonic_ns()
+            if gone_ns is not None and _stop_now(controller, recorder, gone_ns):
                 break
             st = recorder.statuses.get("controller")
             info = ""
@@ -573,7 +580,27 @@ def _progress(
     # found ended here, it ended on its own, before the run's end.
     if controller is None or controller.alive():
         return None
-    return controller_exit(controller.proc.poll(), (time.monotonic_ns() - epoch_ns) / 1e9, output)
+    gone_ns = gone_ns or time.monotonic_ns()
+    return controller_exit(controller.proc.poll(), (gone_ns - epoch_ns) / 1e9, output)
+
+
+# After the controller process died of something else than its law (a crash, a signal), the
+# plant runs on this long: its own safe state shows (the command timeout's zero torque, the
+# drives' watchdog: about a second), and a controller restarted into the run by hand or by a
+# supervisor rejoins (a Python process with numpy and Zenoh starts in 1-3 s on a loaded 2-core
+# host; bench/kill_matrix.py's controller_restart). Then the run stops: it does not wait out
+# its duration.
+GONE_GRACE_S = 3.0
+
+
+def _stop_now(controller: Any, recorder: Recorder, gone_ns: int) -> bool:
+    """Whether to end the run now that the controller process ended at ``gone_ns``."""
+    if controller.proc.poll() == LAW_FAULT_EXIT:
+        return True  # its law failed: it will not come back
+    status, seen = recorder.statuses.get("controller"), recorder.status_ns.get("controller", 0)
+    if status is not None and seen > gone_ns and status.counters.get("restarted"):
+        return False  # a restarted controller rejoined the run: follow it to the end
+    return time.monotonic_ns() - gone_ns > GONE_GRACE_S * 1e9
 
 
 def controller_exit(code: int | None, t_s: float, output: str) -> ControllerExit:
