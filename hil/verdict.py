@@ -254,9 +254,10 @@ def _after_the_controller_ended(v: Verdict, ended: LawEnd | None) -> None:
     """Once the controller stopped commanding, the command age grows until the run is stopped:
     a stall then is the controller's end, never the bench's. What would blame the bench is kept
     as a note, and the bench's advice is not given."""
-    if ended is None or not ended.controller_ended:
+    if ended is None or not ended.controller_ended or not v.inconclusive_reasons:
         return
-    v.notes += [f"after the controller ended, not a reason: {r}" for r in v.inconclusive_reasons]
+    moved = "; ".join(short_reason(r, 100) for r in v.inconclusive_reasons)
+    v.notes.append(f"not judged, the controller had ended: {moved}")
     v.inconclusive_reasons.clear()
 
 
