@@ -5,7 +5,9 @@ settings file alone.
 ``hil controller SCENARIO --write-settings FILE``); this entry needs nothing but the service's own
 packages below ``hil`` (docs/architecture.md). ``--settings FILE`` is the same. Several
 files (one per robot, ``hil fleet --per-process``): one process serves each of those robots.
-Exit codes: 0 done, 1 no start, 2 a bad settings file.
+Exit codes: 0 done, 1 no start, 2 a bad settings file, 5 the law failed
+(protocol.hoplog.LAW_FAULT_EXIT: law_fault.json written into the run folder, no command sent
+after the failing sample).
 """
 
 from __future__ import annotations

@@ -4,8 +4,13 @@ Functional core, thin shell:
 
 - :class:`ControlCore` (pure, no I/O, explicit time): one sample in, torques out. It evaluates
   the reference (3) at the law clock ``t``, calls ``Controller.update`` (memory passed
-  explicitly), and guards the output: a non-finite torque becomes 0 and is counted, a finite one
-  is clamped to |tau1| <= varpi1, |tau2| <= varpi2 (2).
+  explicitly) through :func:`controller_service.laws.guard.checked_update`, so a law that
+  raises, returns the wrong type or a non-finite torque raises ``LawFaultError``; a finite
+  torque is clamped to |tau1| <= varpi1, |tau2| <= varpi2 (2).
+- On a law fault the service stops commanding (no command is sent for that sample or after
+  it), writes ``law_fault.json`` (:data:`protocol.hoplog.LAW_FAULT_FILE`) into the run folder,
+  publishes its Status as a fault (``state = "law_fault_<kind>"``, ``STATUS_FAULT``) and the
+  process exits with :data:`protocol.hoplog.LAW_FAULT_EXIT`.
 - :class:`ControllerService` (the shell): receives State on Zenoh, wakes on absolute deadlines
   (``trigger = "periodic"``) or on each fresh state (``"on_state"``, and lockstep), publishes
   each command on every command path it has (:mod:`controller_service.command_paths`: a
@@ -22,7 +27,9 @@ simulator's sample times.
 from __future__ import annotations
 
 import contextlib
+import json
 import math
+import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -36,11 +43,14 @@ from controller_service.command_paths import (
     ZenohCommandPath,
 )
 from controller_service.laws.base import Controller, Limits, RobotState
+from controller_service.laws.guard import LawFault, LawFaultError, checked_update
 from controller_service.tick_phase import PhaseLearner
 from protocol import keys
 from protocol.faults import Faults
 from protocol.hoplog import (
     CONTROLLER_TABLES,
+    LAW_FAULT_EXIT,
+    LAW_FAULT_FILE,
     NO_SEQ,
     NO_STAMP,
     TICK_NO_SEND,
@@ -88,12 +98,13 @@ class ControlCore:
 
     def step(self, t: float, state: RobotState) -> tuple[float, float, dict[str, float]]:
         ref = self.reference.sample(t)
-        out, self.memory = self.controller.update(t, self.ts, state, ref, self.memory)
+        out, self.memory = checked_update(self.controller, t, self.ts, state, ref, self.memory)
         tau1, tau2 = self.guard(out.tau1, out.tau2)
         return tau1, tau2, dict(out.telemetry)
 
     def guard(self, tau1: Any, tau2: Any) -> tuple[float, float]:
-        """Non-finite -> 0 (counted); finite -> clamped to the limits (2) (counted)."""
+        """Non-finite -> 0 (counted; :meth:`step` raises before, this is the last line);
+        finite -> clamped to the limits (2) (counted)."""
         a = float(tau1)
         b = float(tau2)
         lim = self.limits
@@ -177,6 +188,7 @@ class ControllerService:
         self.clock: DeadlineClock | None = None
         self.cycles = 0
         self.states_seen = 0
+        self.law_fault: LawFault | None = None  # set once: no command is sent after it
         learn = tick_phase == "auto" and self.trigger == "periodic"
         self.phase_learner = PhaseLearner(self.period_ns) if learn else None
         self._sub = session.declare_subscriber(keys.state_key(robot_id), self._on_state)
@@ -240,6 +252,8 @@ class ControllerService:
         self, k: int, deadline_ns: int, wake_ns: int, rec: Received | None, skipped: int = 0
     ) -> None:
         flags = 0
+        if self.law_fault is not None:  # the law failed: nothing is commanded any more
+            return
         if rec is not None and rec.state.seq > self._last_used_seq:
             st = rec.state
             self._last_used_seq = st.seq
@@ -247,9 +261,14 @@ class ControllerService:
             if self._stale:
                 self._stale = False
             c0 = time.monotonic_ns()
-            tau1, tau2, tel = self.core.step(
-                self._law_time(st), RobotState(st.x, st.y, st.theta, st.v, st.omega)
-            )
+            try:
+                tau1, tau2, tel = self.core.step(
+                    self._law_time(st), RobotState(st.x, st.y, st.theta, st.v, st.omega)
+                )
+            except LawFaultError as exc:
+                self.law_fault = exc.fault
+                self.hoplog.append("ticks", self._idle_tick(k, deadline_ns, wake_ns, skipped))
+                return
             c1 = time.monotonic_ns()
             if self.phase_learner is not None:
                 self.phase_learner.compute(c1 - c0)
@@ -370,6 +389,9 @@ class ControllerService:
         flags = STATUS_WATCHDOG_TRIPPED if self._stale else 0
         if self.can_path is not None and self.can_path.lifecycle.fault_reason:
             flags |= STATUS_FAULT
+        if self.law_fault is not None:
+            flags |= STATUS_FAULT
+            state = f"law_fault_{self.law_fault.kind}"
         counters = {
             "epoch_ns": self.epoch_ns,  # a restarted peer joins the run with it
             "cycles": self.cycles,
@@ -380,6 +402,8 @@ class ControllerService:
             "sched_fifo": int(self.scheduling.policy == "SCHED_FIFO"),
             "mlockall": int(self.scheduling.mlockall),
             "gc_frozen": int(self.scheduling.gc_frozen),
+            # a controller started again into a running run (hil run then follows it on)
+            "restarted": int(getattr(self, "restarted", False)),
         }
         if self.can_path is not None:
             counters["can_active"] = int(self.can_path.active)
@@ -413,7 +437,7 @@ class ControllerService:
             origin = self.epoch_ns + self.period_ns // 2
             first = max(0, -(-(now - origin) // self.period_ns))
             self.clock = DeadlineClock(self.period_ns, origin, self.spin_ns, first_k=first)
-            while not stop and (end_ns is None or time.monotonic_ns() < end_ns):
+            while self._going(stop, end_ns):
                 tick = self.clock.next()
                 self._cycle(tick.k, tick.deadline_ns, tick.wake_ns, self._newest, tick.skipped)
                 self.tap.flush_if_due(tick.wake_ns)  # the command has left
@@ -423,7 +447,7 @@ class ControllerService:
                     next_status = tick.wake_ns + status_every_ns
                     self.publish_status()
         else:
-            while not stop and (end_ns is None or time.monotonic_ns() < end_ns):
+            while self._going(stop, end_ns):
                 time.sleep(0.01)
                 now = time.monotonic_ns()
                 if not self.lockstep and now - self._last_fresh_ns > self.state_timeout_ns:
@@ -434,6 +458,12 @@ class ControllerService:
                     next_status = now + status_every_ns
                     self.publish_status()
         self.publish_status("stopped")
+
+    def _going(self, stop: Any, end_ns: int | None) -> bool:
+        """The loop goes on: no stop asked, the end not reached, the law has not failed."""
+        if stop or self.law_fault is not None:
+            return False
+        return end_ns is None or time.monotonic_ns() < end_ns
 
     def _rephase(self, k: int) -> None:
         """Move the ticks to the learnt phase (controller_service.tick_phase), once: from slot
@@ -530,6 +560,15 @@ def _open_can_path(s: RunSettings, hoplog: HopLogWriter, faults: Faults) -> CanC
         torque_limit=limit,
     )
     return CanCommandPath(bus, lifecycle, geom, hoplog, faults)
+
+
+def write_law_fault(folder: Path, fault: LawFault) -> Path:
+    """law_fault.json in the run folder, whole or not at all (written, then renamed)."""
+    path = folder / LAW_FAULT_FILE
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(fault.to_dict(), indent=2, allow_nan=False) + "\n")
+    os.replace(tmp, path)
+    return path
 
 
 def _first_free_cmd_seq(previous: Any, ts: float) -> int:
@@ -682,6 +721,12 @@ def _run_service(s: RunSettings, parts: Parts, stop: Any, sched: SchedulingRepor
         end_ns = None if s.lockstep else epoch_ns + int((s.duration + 2.0) * 1e9)
         print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
         svc.run(stop, end_ns, sched)
+        if svc.law_fault is not None:
+            write_law_fault(Path(s.out_dir), svc.law_fault)
+            print(f"law fault: {svc.law_fault.sentence()}", flush=True)
+            if svc.law_fault.traceback:
+                print(svc.law_fault.traceback, end="", flush=True)
+            return LAW_FAULT_EXIT
     finally:
         with contextlib.suppress(Exception):  # the session may be gone on the way out
             svc.send_stop()

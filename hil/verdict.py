@@ -15,6 +15,12 @@ with its reasons (docs/reports.md, "The verdict"):
   the user's fault; the advice says what to change.
 - **PASS**: neither, with the margin D* - D.
 
+Before all of these (:class:`LawEnd`, the first reasons of a FAIL): the law failed (raised,
+returned the wrong type or a non-finite torque: its sentence, from ``law_fault``), the
+controller process ended before the plant (its exit code or signal), or the robot's state
+became non-finite (``nonfinite_steps``: the limits of (2) cannot hold). Each is the user's
+system's, never the bench's: after the controller ended, no stall of the bench is a reason.
+
 A run cut short is judged over what ran, and says so. A figure that was not measured is absent
 from the evidence, never 0.
 """
@@ -24,7 +30,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from hil.folder.records import Summary
+from controller_service.laws.guard import LawFault
+from hil.folder import layout
+from hil.folder.records import ControllerExit, Summary
 from hil.trace_metrics import LIMIT_REL_TOL, ConstraintFigure
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
@@ -70,6 +78,71 @@ class RunFacts:
             duration_run_s=summary.get("duration_run_s"),
             scheduling=sched if isinstance(sched, dict) else None,
         )
+
+
+@dataclass(frozen=True)
+class LawEnd:
+    """How the law's loop ended before its time, from a summary (each part absent when it did
+    not happen): the law's fault, the controller process's early exit, the plant steps whose
+    state was not finite."""
+
+    law_fault: LawFault | None = None
+    controller_exit: ControllerExit | None = None
+    nonfinite_steps: int = 0
+    nonfinite_first_t_s: float | None = None
+
+    @classmethod
+    def of(cls, summary: Summary) -> LawEnd:
+        fault = summary.get("law_fault")
+        stop = summary.get("controller_exit")
+        steps = summary.get("nonfinite_steps")
+        first = summary.get("nonfinite_first_t_s")
+        return cls(
+            law_fault=LawFault.from_dict(fault) if isinstance(fault, dict) else None,
+            controller_exit=stop if isinstance(stop, dict) else None,
+            nonfinite_steps=steps if isinstance(steps, int) and not isinstance(steps, bool) else 0,
+            nonfinite_first_t_s=float(first) if isinstance(first, int | float) else None,
+        )
+
+    @property
+    def controller_ended(self) -> bool:
+        """The law stopped commanding before the run's end (its fault or its process's end)."""
+        return self.law_fault is not None or self.controller_exit is not None
+
+    def reasons(self) -> list[str]:
+        """The sentences, the law's own first."""
+        out = []
+        if self.law_fault is not None:
+            out.append(self.law_fault.sentence())
+        elif self.controller_exit is not None:
+            out.append(_exit_words(self.controller_exit))
+        if self.nonfinite_steps > 0:
+            at = self.nonfinite_first_t_s
+            when = f"at t = {at:.6g} s" if at is not None else "during the run"
+            out.append(
+                f"the robot's state became non-finite {when} ({self.nonfinite_steps} plant "
+                "steps): the limits of (2) cannot hold"
+            )
+        return out
+
+
+def _exit_words(stop: ControllerExit) -> str:
+    """ "the controller process exited with code N (was killed by signal S) at t = X s; ..."."""
+    how = (
+        f"was killed by signal {stop['signal']}"
+        if stop.get("signal")
+        else f"exited with code {stop.get('code')}"
+    )
+    at = stop.get("t_s")
+    when = f"at t = {at:.3f} s" if isinstance(at, int | float) else "before the run's end"
+    output = stop.get("output") or layout.CONTROLLER_OUTPUT
+    return f"the controller process {how} {when}; its output: {output}"
+
+
+def law_ended(summary: Summary) -> str | None:
+    """The first reason of :class:`LawEnd` for a summary (None: the law ran to the end)."""
+    reasons = LawEnd.of(summary).reasons()
+    return reasons[0] if reasons else None
 
 
 @dataclass
@@ -145,25 +218,47 @@ def judge(
     messages: dict[str, Any] | None,
     facts: RunFacts | None = None,
     thresholds: Thresholds = DEFAULT_THRESHOLDS,
+    ended: LawEnd | None = None,
 ) -> Verdict:
     """The verdict (module docstring). ``cons``: per limit of (2) its peak, limit and whether
     it held; ``violations``: plant steps beyond each limit; ``cert``: the certificate object
     (summary.json's, or a simulation's); ``timing``/``messages``: the run's (None for a
-    simulation)."""
+    simulation); ``ended``: how the law's loop ended early (:meth:`LawEnd.of` the summary)."""
     v = Verdict(thresholds=asdict(thresholds))
+    _law_ended(v, ended)
     _limits(v, cons, violations, cert)
     _certificate(v, cons, cert)
     if timing is not None:
         _thresholds(v, timing, messages or {}, (cert or {}).get("path"), thresholds)
     _relatable(v, messages or {})
     _facts(v, facts)
+    _after_the_controller_ended(v, ended)
     if v.fail_reasons:
         v.outcome = FAIL
     elif v.inconclusive_reasons:
         v.outcome = INCONCLUSIVE
-    if _bench_stalls(cert) and v.outcome != PASS:
+    if _bench_stalls(cert) and v.outcome != PASS and not (ended and ended.controller_ended):
         v.advice.append(BENCH_ADVICE)
     return v
+
+
+def _law_ended(v: Verdict, ended: LawEnd | None) -> None:
+    """The law's fault, the controller's early end, a non-finite state: the first reasons."""
+    for text in ended.reasons() if ended is not None else []:
+        _blocking(v, text)
+    if ended is not None and ended.nonfinite_steps > 0:
+        v.limits = "broken"
+
+
+def _after_the_controller_ended(v: Verdict, ended: LawEnd | None) -> None:
+    """Once the controller stopped commanding, the command age grows until the run is stopped:
+    a stall then is the controller's end, never the bench's. What would blame the bench is kept
+    as a note, and the bench's advice is not given."""
+    if ended is None or not ended.controller_ended or not v.inconclusive_reasons:
+        return
+    moved = "; ".join(short_reason(r, 100) for r in v.inconclusive_reasons)
+    v.notes.append(f"not judged, the controller had ended: {moved}")
+    v.inconclusive_reasons.clear()
 
 
 def _blocking(v: Verdict, text: str) -> None:

@@ -80,7 +80,14 @@ def _decays(h: float, lag: float) -> tuple[float, float]:
 class Extremes:
     """Largest |v|, |omega|, |tau1|, |tau2| (applied) over plant steps, and the number of steps
     beyond each limit of (2) by more than ``VIOLATION_RTOL`` relative. Floats for one robot,
-    arrays of shape (N,) for a batch."""
+    arrays of shape (N,) for a batch.
+
+    A plant step whose end state or applied torque is not finite (NaN, inf) is counted in
+    ``nonfinite_steps``; ``nonfinite_first_t`` is the end time of the first such step (NaN:
+    none). Its peaks are then NaN or inf, never the last finite value: a comparison with NaN
+    is false, so no limit counts it as a violation, and the count is what says (2) cannot
+    hold (hil.verdict). Once a state is not finite it stays so (every update of model (1)
+    adds to the state), so the steps of a call that ends non-finite are a tail of the call."""
 
     max_abs_v: Any = 0.0
     max_abs_omega: Any = 0.0
@@ -91,6 +98,8 @@ class Extremes:
     violations_tau1: Any = 0
     violations_tau2: Any = 0
     steps: int = 0
+    nonfinite_steps: Any = 0
+    nonfinite_first_t: Any = math.nan
     _n: int | None = field(default=None, repr=False)
 
     @classmethod
@@ -100,8 +109,111 @@ class Extremes:
         z = np.zeros(n)
         zi = np.zeros(n, dtype=np.int64)
         return cls(
-            z.copy(), z.copy(), z.copy(), z.copy(), zi.copy(), zi.copy(), zi.copy(), zi, 0, n
+            *(z.copy() for _ in range(4)),
+            *(zi.copy() for _ in range(4)),
+            steps=0,
+            nonfinite_steps=zi.copy(),
+            nonfinite_first_t=np.full(n, math.nan),
+            _n=n,
         )
+
+    def nonfinite_first_t_s(self) -> Any:
+        """``nonfinite_first_t`` as summaries give it: None (one robot) where no step was
+        non-finite; arrays keep NaN there."""
+        if isinstance(self.nonfinite_first_t, np.ndarray):
+            return self.nonfinite_first_t
+        return None if math.isnan(self.nonfinite_first_t) else float(self.nonfinite_first_t)
+
+
+def _finite(values: Any) -> bool:
+    return all(map(math.isfinite, values))
+
+
+def _poisoned(peak: float, value: float) -> float:
+    """A float peak that keeps a non-finite ``value`` (max() would drop a NaN)."""
+    return abs(value) if not math.isfinite(value) and math.isfinite(peak) else peak
+
+
+def _first_nonfinite_step(
+    s: PlantState, cmd: tuple[Any, Any], t0: Any, h: float, n: int, rest: tuple[Any, ...],
+    step0: int | None,
+) -> int:  # fmt: skip
+    """The index (0 .. n-1) of the first of ``n`` float steps from the finite ``s`` whose end
+    is not finite, replayed one step at a time (the same arithmetic as the n steps);
+    ``rest``: (disturbance, lag, seed, limits, drag)."""
+    disturbance, lag, seed, limits, drag = rest
+    scratch = Extremes()
+    for i in range(n - 1):  # n == 1, or none of the first n - 1: the last one
+        start = t0 + i * h if step0 is None else t0
+        at = None if step0 is None else step0 + i
+        s = rk4_float(s, *cmd, start, h, 1, disturbance, lag, seed, limits, scratch, at, drag)
+        if not _finite(s):
+            return i
+    return n - 1
+
+
+def _count_nonfinite_float(
+    ext: Extremes, start: PlantState, end: PlantState, cmd: tuple[Any, Any], t0: Any, h: float,
+    n: int, rest: tuple[Any, ...], step0: int | None,
+) -> None:  # fmt: skip
+    """After ``n`` float steps from ``start`` ended in ``end``: count the non-finite ones
+    (Extremes' docstring) and keep the non-finite values in the peaks."""
+    if _finite(end) or n <= 0:
+        return
+    lag = rest[1]
+    head = start[:5] if lag <= 0.0 else start  # without lag the held command is the torque
+    first = 0 if not _finite(head) else _first_nonfinite_step(start, cmd, t0, h, n, rest, step0)
+    ext.nonfinite_steps += n - first
+    if math.isnan(ext.nonfinite_first_t):
+        ext.nonfinite_first_t = (t0 + (first + 1) * h) if step0 is None else (step0 + first + 1) * h
+    ext.max_abs_v = _poisoned(ext.max_abs_v, end.v)
+    ext.max_abs_omega = _poisoned(ext.max_abs_omega, end.omega)
+    ext.max_abs_tau1 = _poisoned(ext.max_abs_tau1, end.tau1)
+    ext.max_abs_tau2 = _poisoned(ext.max_abs_tau2, end.tau2)
+
+
+def _count_nonfinite_array(
+    ext: Extremes, start: PlantState, end: PlantState, cmd: tuple[Any, Any], t0: Any, h: float,
+    n: int, rest: tuple[Any, ...], step0: int | None,
+) -> None:  # fmt: skip
+    """:func:`_count_nonfinite_float` for arrays of N robots: a cheap test of the sums first
+    (a NaN or inf anywhere makes one); then robot by robot, each replayed on floats (the
+    peaks on arrays keep a NaN already: numpy's maximum propagates it)."""
+    if n <= 0:
+        return
+    # theta, tau1 and tau2 reach x, y, v or omega in the same step: these four tell.
+    total = float(np.sum(end.x)) + float(np.sum(end.y))
+    total += float(np.sum(end.v)) + float(np.sum(end.omega))
+    if math.isfinite(total):
+        return
+    shape = np.shape(end.x)
+    bad = np.zeros(shape, dtype=bool)
+    for q in end:
+        bad |= ~np.isfinite(np.broadcast_to(q, shape))
+    disturbance, lag, seed, limits, drag = rest
+    # Robots whose state was not finite at the start (every step counts: the common case once
+    # a robot went bad), on arrays; the others replayed on floats, once in their life.
+    head_bad = np.zeros(shape, dtype=bool)
+    for q in start[:5] if lag <= 0.0 else start:
+        head_bad |= ~np.isfinite(np.broadcast_to(q, shape))
+    first = np.zeros(shape, dtype=np.int64)
+
+    def one(values: Any, i: int) -> float:
+        return float(np.broadcast_to(values, shape)[i]) if np.ndim(values) else float(values)
+
+    for i in np.flatnonzero(bad & ~head_bad).tolist():
+        s_i = PlantState(*(one(q, i) for q in start))
+        c_i = (one(cmd[0], i), one(cmd[1], i))
+        seed_i = int(np.ravel(seed)[i]) if np.ndim(seed) else seed
+        rest_i = (disturbance, lag, seed_i, limits, drag)
+        first[i] = _first_nonfinite_step(s_i, c_i, one(t0, i), h, n, rest_i, step0)
+    ext.nonfinite_steps += np.where(bad, n - first, 0)
+    if step0 is None:
+        end_t = np.broadcast_to(np.asarray(t0, dtype=float), shape) + (first + 1) * h
+    else:
+        end_t = (step0 + first + 1) * h
+    new = bad & np.isnan(ext.nonfinite_first_t)
+    ext.nonfinite_first_t[new] = np.broadcast_to(end_t, shape)[new]
 
 
 def _thresholds(limits: Limits) -> tuple[float, float, float, float]:
@@ -183,7 +295,12 @@ def rk4_float(
     ext.violations_v, ext.violations_omega = nv, nw
     ext.violations_tau1, ext.violations_tau2 = nt1, nt2
     ext.steps += n
-    return PlantState(x, y, th, v, w, a1, a2)
+    end = PlantState(x, y, th, v, w, a1, a2)
+    q = x + y + v + w  # theta and the torques reach these four in the same step
+    if q - q != 0.0:  # NaN or inf somewhere (or a sum that overflowed: checked exactly)
+        rest = (disturbance, lag, seed, limits, NO_DRAG)
+        _count_nonfinite_float(ext, s, end, (cmd1, cmd2), t0, h, n, rest, step0)
+    return end
 
 
 def rk4_drag(
@@ -236,13 +353,18 @@ def rk4_drag(
         )
         if arrays:
             v, w = np.clip(v, -drag.v_max, drag.v_max), np.clip(w, -drag.omega_max, drag.omega_max)
-        else:
-            v = max(-drag.v_max, min(drag.v_max, v))
-            w = max(-drag.omega_max, min(drag.omega_max, w))
+        else:  # comparisons, not min/max: a NaN stays NaN (min(v_max, nan) is v_max)
+            vm, wm = drag.v_max, drag.omega_max
+            v = vm if v > vm else (-vm if v < -vm else v)
+            w = wm if w > wm else (-wm if w < -wm else w)
         a1, a2 = a1e, a2e
         _track_step(ext, v, w, a1, a2, limits)
     ext.steps += n
-    return PlantState(x, y, th, v, w, a1, a2)
+    end = PlantState(x, y, th, v, w, a1, a2)
+    rest = (disturbance, lag, seed, limits, drag)
+    count = _count_nonfinite_array if arrays else _count_nonfinite_float
+    count(ext, s, end, (cmd1, cmd2), t0, h, n, rest, step0)
+    return end
 
 
 def _track_step(ext: Extremes, v: Any, w: Any, a1: Any, a2: Any, limits: Limits) -> None:
@@ -316,6 +438,27 @@ def rk4_array(
     """
     if drag.active:
         return rk4_drag(s, cmd1, cmd2, t0, h, n, disturbance, lag, seed, limits, ext, step0, drag)
+    end = _rk4_array(s, cmd1, cmd2, t0, h, n, disturbance, lag, seed, limits, ext, step0)
+    rest = (disturbance, lag, seed, limits, NO_DRAG)
+    _count_nonfinite_array(ext, s, end, (cmd1, cmd2), t0, h, n, rest, step0)
+    return end
+
+
+def _rk4_array(
+    s: PlantState,
+    cmd1: np.ndarray,
+    cmd2: np.ndarray,
+    t0: Any,
+    h: float,
+    n: int,
+    disturbance: Disturbance,
+    lag: float,
+    seed: Any,
+    limits: Limits,
+    ext: Extremes,
+    step0: int | None,
+) -> PlantState:
+    """:func:`rk4_array` without drag and before the non-finite steps are counted."""
     d2bound = max(abs(disturbance.value2), abs(disturbance.amplitude2), disturbance.s2)
     if disturbance.kind == "none":
         d2bound = 0.0
@@ -582,11 +725,12 @@ def held_displacement(s_sum: Any, q_sum: Any, z: Any, v: Any, hu1: Any, h6: floa
 
 
 def track_initial(ext: Extremes, s: PlantState, limits: Limits) -> None:
-    """Count the initial state as a plant step's end point (the paper assumes it admissible)."""
+    """Count the initial state as a plant step's end point (the paper assumes it admissible;
+    a NaN there stays in the peaks)."""
     if isinstance(s.v, np.ndarray):
         ext.max_abs_v = np.maximum(ext.max_abs_v, np.abs(s.v))
         ext.max_abs_omega = np.maximum(ext.max_abs_omega, np.abs(s.omega))
     else:
-        ext.max_abs_v = max(ext.max_abs_v, abs(s.v))
-        ext.max_abs_omega = max(ext.max_abs_omega, abs(s.omega))
+        ext.max_abs_v = _poisoned(max(ext.max_abs_v, abs(s.v)), s.v)
+        ext.max_abs_omega = _poisoned(max(ext.max_abs_omega, abs(s.omega)), s.omega)
     del limits

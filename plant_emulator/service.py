@@ -565,6 +565,8 @@ class PlantService:
                     "tau2": int(e.violations_tau2),
                 },
                 "steps": e.steps,
+                "nonfinite_steps": int(e.nonfinite_steps),
+                "nonfinite_first_t_s": e.nonfinite_first_t_s(),
             },
             "final": list(self.core.state),
             "final_t": self.core.t,

@@ -44,6 +44,11 @@ import msgpack
 FORMAT = "hil-hoplog"
 VERSION = 1
 SUFFIX = ".hoplog"
+# Beside the hop logs in the run folder: the controller service writes this file when the law
+# fails (one controller_service.laws.guard.LawFault record as JSON, traceback included) and
+# then exits with LAW_FAULT_EXIT; hil reads the file into summary.json's ``law_fault``.
+LAW_FAULT_FILE = "law_fault.json"
+LAW_FAULT_EXIT = 5
 
 # The tables each service writes (docs/realtime.md defines every stamp; one host, one
 # CLOCK_MONOTONIC, nanoseconds): one NamedTuple per table, whose fields name the columns (the

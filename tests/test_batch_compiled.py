@@ -152,3 +152,18 @@ def _spy(calls: list):
         return real(*args, **kwargs)
 
     return spy
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")  # inf - inf
+def test_a_state_that_is_not_finite_is_counted_alike(monkeypatch):
+    """Robots started with v = inf (the unified law's bad-input rule then holds zero torque):
+    both paths count every plant step as non-finite from the first, with the same first time,
+    and neither calls the limits held; the finite robots are untouched."""
+    variations = [RobotVariation(v=np.inf if i % 2 else None, delay=0.0003 * i) for i in range(4)]
+    reference, fast = _both(_scenario(), variations, monkeypatch)
+    steps = reference[0]["plant_steps"]
+    for i, (a, b) in enumerate(zip(reference, fast, strict=True)):
+        assert a["nonfinite_steps"] == b["nonfinite_steps"] == (steps if i % 2 else 0), i
+        assert a["nonfinite_first_t_s"] == b["nonfinite_first_t_s"], i
+        assert a["limits_held"] is b["limits_held"] is (i % 2 == 0), i
+        assert (a["nonfinite_first_t_s"] is None) == (i % 2 == 0), i

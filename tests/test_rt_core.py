@@ -7,6 +7,7 @@ import math
 import pytest
 
 from controller_service.laws.base import ControlOutput, Limits, ReferenceSample, RobotState
+from controller_service.laws.guard import LawFaultError
 from controller_service.service import ControlCore
 from plant_emulator.disturbances import Disturbance
 from plant_emulator.dynamics import Extremes, PlantState, rk4_float
@@ -35,20 +36,31 @@ class _Ref:
 S0 = RobotState(0.0, 0.0, 0.0, 0.0, 0.0)
 
 
-@pytest.mark.parametrize(
-    ("tau", "expect", "reason"),
-    [
-        ((float("nan"), 1.0), (0.0, 1.0), "non_finite_tau1"),
-        ((1.0, float("inf")), (1.0, 0.0), "non_finite_tau2"),
-        ((99.0, -999.0), (3.3, -51.0), "clamped_tau1"),
-    ],
-)
-def test_control_core_never_emits_a_torque_outside_the_limits(tau, expect, reason):
-    core = ControlCore(_Fixed(*tau), _Ref(), 0.001, Limits())
+def test_control_core_never_emits_a_torque_outside_the_limits():
+    core = ControlCore(_Fixed(99.0, -999.0), _Ref(), 0.001, Limits())
     t1, t2, _ = core.step(0.0, S0)
-    assert (t1, t2) == expect
-    assert core.rejections.get(reason) == 1
+    assert (t1, t2) == (3.3, -51.0)
+    assert core.rejections.get("clamped_tau1") == 1
     assert core.memory == 1  # memory advanced once per sample
+
+
+@pytest.mark.parametrize(
+    ("tau", "detail"),
+    [((float("nan"), 1.0), "tau1 = nan"), ((1.0, float("inf")), "tau2 = inf")],
+)
+def test_control_core_stops_at_a_non_finite_torque_as_a_fault_of_the_law(tau, detail):
+    """A non-finite torque is the law's fault (controller_service.laws.guard), raised with its
+    time and input, never a zero torque sent on as if nothing happened; the memory keeps."""
+    core = ControlCore(_Fixed(*tau), _Ref(), 0.001, Limits())
+    state = RobotState(0.5, -0.25, 0.125, 1.0, 0.0625)
+    with pytest.raises(LawFaultError) as err:
+        core.step(1.5, state)
+    f = err.value.fault
+    assert (f.kind, f.detail, f.t_s, f.law) == ("non_finite", detail, 1.5, "fixed")
+    assert f.state == {"x": 0.5, "y": -0.25, "theta": 0.125, "v": 1.0, "omega": 0.0625}
+    assert core.memory == 0
+    # The last line stays: a non-finite value reaching the guard still never leaves it.
+    assert core.guard(*tau) in ((0.0, 1.0), (1.0, 0.0))
 
 
 def test_deadline_clock_has_no_drift_and_counts_skipped_slots(monkeypatch):

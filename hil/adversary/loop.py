@@ -7,7 +7,8 @@ Hold`), the plant (1) is integrated by RK4 with the command held plus the distur
 loop's pattern ``modes`` (N, 2, B: a mode per channel and block of the run's B equal blocks),
 re-chosen at every landing; the torque limits are checked on the commands. The scenario's own
 disturbance acts only when asked for (``own_seeds``), its sensor as in the simulator, one noise
-seed for all loops.
+seed for all loops. The law is called through its guard: a fault of any loop raises
+``LawFaultError`` (:mod:`controller_service.laws.guard`), which ends the search.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from controller_service.laws.base import ReferenceSample, RobotState
+from controller_service.laws.guard import LawFaultError, checked_update
 from hil.errors import BadInputError
 from hil.scenario import Scenario, build_loop
 from plant_emulator.dynamics import NO_DISTURBANCE, Extremes, PlantState, rk4_array
@@ -185,7 +187,15 @@ def run_loops(
         ref_arr = ReferenceSample(*(ones * float(value) for value in ref))
         rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
         meas = rs if ideal else measure(scenario.sensor, rs, k, sensor_seeds)
-        out, memory = controller.update(t_k, ts, meas, ref_arr, memory)
+        # Any robot's fault ends the whole search: the law is broken (hil.margin says so).
+        try:
+            out, memory = checked_update(controller, t_k, ts, meas, ref_arr, memory)
+        except LawFaultError as exc:
+            if exc.fault.robot is not None:
+                raise
+            # The call on arrays failed as a whole: named with loop 0's input (the scenario's
+            # own initial state, unmoved), one input that call had.
+            raise LawFaultError(exc.fault.for_robot(0, t_k, meas, ref_arr)) from exc
         tau = [np.broadcast_to(np.asarray(t, dtype=float), (n,)) for t in (out.tau1, out.tau2)]
         np.maximum(peaks[:2], np.abs(tau), out=peaks[:2])
         j0 = k * m

@@ -8,8 +8,9 @@ proposes the nearest admissible parameters. Exit 0 held, 1 not held, 2 bad input
 standard deviations, as the report does).
 
 ``hil margin RUN_OR_SCENARIO``: the timing margin k* of a run or a scenario (docs/margin.md),
-written to margin.json. Exit 1 when k* <= 1 (a limit breaks at the measured timing), 2 on bad
-input.
+written to margin.json. Exit 1 when k* <= 1 (a limit breaks at the measured timing) or the law
+failed in a loop (raised, returned the wrong type or a non-finite torque: margin.json holds the
+record, no k*), 2 on bad input.
 """
 
 from __future__ import annotations
@@ -127,9 +128,13 @@ def certify_scenario(
         "d_star_s": critical_age(params, context, boundary, **start),
     }
     if empirical:  # the break under the worst disturbance found (hil.margin.conservatism)
+        from hil.margin import record as margin_record
         from hil.margin.conservatism import empirical_break
 
         rec = empirical_break(scenario, ts_used, delay_used)
+        fault = margin_record.law_fault_sentence(rec)
+        if fault is not None:  # the law failed in the search: no empirical break to give
+            raise NegativeVerdictError(f"FAIL: {fault}")
         facts["empirical"] = {
             "age_at_break_s": rec.age_at_break_s,
             "k_star": rec.k_star,
@@ -290,5 +295,8 @@ def margin(
     for line in record.summary_lines(result):
         typer.echo(line)
     typer.echo(f"margin: {written}")
+    fault = record.law_fault_sentence(result)
+    if fault is not None:  # the law failed in a loop: a FAIL of the law, whatever k
+        raise NegativeVerdictError(f"FAIL: {fault}")
     if result.k_star is not None and result.k_star <= 1.0:
         raise NegativeVerdictError("a limit breaks at the measured timing (k* <= 1)")

@@ -72,6 +72,7 @@ def report(
         # A killed hil run: make the folder whole first (hil recover), then report.
         typer.echo(f"recovering {folder} first: {', '.join(needs_recovery(folder))}", err=True)
         recover(folder)
+    _law_failed_at_once(folder)
     simulate = None if ideal is False else partial(ideal_from_simulator, user_law=bool(ideal))
     limits = Thresholds(max_deadline_miss_ratio, max_lost_ratio, max_samples_without_command_ratio)
     rep = build_report(load_folder(folder, lazy=True), ideal=simulate, thresholds=limits)
@@ -81,6 +82,25 @@ def report(
     if not v["ok"]:
         raise NegativeVerdictError("; ".join(v["reasons"]))
     typer.echo("verdict: PASS")
+
+
+def _law_failed_at_once(folder: Path) -> None:
+    """A law that failed before its second sample leaves no trace to draw: its verdict is the
+    fault (exit 1), said without a report."""
+    from hil.folder import layout
+    from hil.folder.jsonio import read_json_object
+    from hil.verdict import law_ended
+
+    path = folder / layout.SUMMARY
+    if not path.is_file():
+        return  # not a folder: load_folder says so
+    summary = read_json_object(path)
+    first = law_ended(summary)  # type: ignore[arg-type]
+    samples = summary.get("samples")
+    if first is not None and isinstance(samples, int) and samples < 2:
+        raise NegativeVerdictError(
+            f"FAIL: {first} (no report: the trace ends at the fault, before its second sample)"
+        )
 
 
 @app.command("compare")

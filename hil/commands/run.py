@@ -141,7 +141,9 @@ def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
     d, ds = cert.get("d_max_s"), cert.get("d_star_s")
     age = f"D {d * 1e3:.2f} ms of D* {ds * 1e3:.2f} ms" if d is not None and ds else ""
     reasons = v.get("reasons") or []
-    why = short_reason(reasons[0]) if reasons else f"limits {v.get('limits', '?')}"
+    # 320: a law's fault (hil.verdict.LawEnd) names the law, the time, the state and the
+    # exception in one sentence, which must not lose its end
+    why = short_reason(reasons[0], 320) if reasons else f"limits {v.get('limits', '?')}"
     if len(reasons) > 1:
         why += f" (and {len(reasons) - 1} more reason{'s' if len(reasons) > 2 else ''})"
     if "D* =" in why:
@@ -303,6 +305,10 @@ def fleet_cmd(
     if stop:
         interrupts.note(f"fleet folder written to {out}")
         return
-    bad = [r["robot"] for r in summary["per_robot"] if r.get("exit_code") not in (0,)]
+    bad = [r for r in summary["per_robot"] if r.get("exit_code") not in (0,)]
     if bad:
-        raise NegativeVerdictError(f"robots with a negative verdict or an error: {', '.join(bad)}")
+        why = "; ".join(f"{r['robot']}: {r['reason']}" for r in bad if r.get("reason"))
+        raise NegativeVerdictError(
+            f"robots with a negative verdict or an error: {', '.join(r['robot'] for r in bad)}"
+            + (f" ({why})" if why else "")
+        )

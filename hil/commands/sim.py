@@ -39,7 +39,9 @@ def sim(
 
     SCENARIO is a TOML file or the name of a bundled scenario (hil scenarios lists them).
     Ctrl-C writes the folder with what was computed and exits 130. Exit 1 when a limit of
-    (2) was broken at some plant step."""
+    (2) was broken at some plant step, the robot's state became non-finite, or the law failed
+    (raised, returned the wrong type or a non-finite torque: the folder then ends at that
+    sample and law_fault.json says what happened; docs/own-controller.md)."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -48,6 +50,7 @@ def sim(
     from hil.law.option import with_law
     from hil.scenario import load_scenario
     from hil.sim import simulate, write_run_folder
+    from hil.verdict import law_ended
 
     out_dir("--out", out, default="runs")
     path = resolve_scenario(scenario)
@@ -87,6 +90,9 @@ def sim(
         f"{s['max_abs_omega']:.4g}, |tau1| {s['max_abs_tau1']:.4g}, |tau2| "
         f"{s['max_abs_tau2']:.4g}; violations {s['violations']}"
     )
+    first = law_ended(s)  # the law's own failure, or a state that became non-finite
+    if first is not None:
+        raise NegativeVerdictError(f"FAIL: {first}")
     if not s["limits_held"]:
         raise NegativeVerdictError(f"a limit of (2) was broken: violations {s['violations']}")
 

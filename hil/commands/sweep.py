@@ -28,7 +28,9 @@ SWEEP_HELP = (
     'jitter_kind = "replay" with \\[timing] replay naming a run folder or .mcap (PATH::zenoh '
     "or PATH::can for one path) replays that run's measured latencies.\n\n"
     "Ctrl-C keeps the Ts groups already done (exit 130). Exit 0 (also when a break point is "
-    "found, unless --strict), 1 with --strict when a limit broke, 2 on bad input."
+    "found, unless --strict), 1 when the law failed at a point (raised, returned the wrong "
+    "type or a non-finite torque: that point is a FAIL, never held) or with --strict when a "
+    "limit broke, 2 on bad input."
 )
 
 
@@ -125,13 +127,8 @@ def sweep(
     with interrupts.shielded():
         doc = write_outputs(target, outcome.rows, grid, meta)
         page = write_sweep_page(target, doc)
-    first = doc["break_point"].get("first")
     typer.echo(f"sweep: {page} (also sweep.md, sweep.csv, sweep.json)")
-    typer.echo(
-        "break point: none, the limits held everywhere"
-        if first is None
-        else f"break point: Ts={first['ts']:g} s, delay={first['delay']:g} s"
-    )
+    first, fault = _say_break_point(doc)
     if worst_disturbance and first is not None:
         from hil.sweep.worst import worst_at_break
 
@@ -140,8 +137,29 @@ def sweep(
         # hil.cli exits 130: the interrupt was recorded by hil.interrupts.
         interrupts.note(f"partial results kept in {target}")
         return
+    if fault is not None:  # a broken law is a FAIL of the law, --strict or not
+        raise NegativeVerdictError(f"FAIL: {fault['law_fault']}")
     if strict and first is not None:
         raise NegativeVerdictError("a limit of (2) broke inside the grid")
+
+
+def _say_break_point(doc: dict[str, Any]) -> tuple[Any, Any]:
+    """The lines of the result: where the law failed (never "held everywhere" then), the break
+    point; returns the break point and the first law fault (None each when there is none)."""
+    bp = doc["break_point"]
+    first, fault = bp.get("first"), bp.get("first_law_fault")
+    if fault is not None:  # never "held everywhere": those points did not run to the end
+        typer.echo(
+            f"law fault at {bp['law_faults']} of {len(doc['rows'])} points (first at "
+            f"Ts={fault['ts']:g} s, delay={fault['delay']:g} s): {fault['law_fault']}"
+        )
+    if first is not None:
+        typer.echo(f"break point: Ts={first['ts']:g} s, delay={first['delay']:g} s")
+    elif fault is not None:
+        typer.echo("break point: none where the law ran to the end")
+    else:
+        typer.echo("break point: none, the limits held everywhere")
+    return first, fault
 
 
 def _checked_sweep(

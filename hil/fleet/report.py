@@ -19,7 +19,9 @@ def _robot(folder: Path, code: int | None) -> dict[str, Any]:
     except (OSError, ValueError):
         return {**row, "verdict": "NO RUN", "error": "no summary.json"}
     t, cert = s.get("timing") or {}, s.get("certificate") or {}
-    row["verdict"] = (s.get("verdict") or {}).get("outcome")
+    verdict = s.get("verdict") or {}
+    row["verdict"] = verdict.get("outcome")
+    row["reason"] = next(iter(verdict.get("reasons") or []), None)  # the first: a law's fault
     row.update({k: cert.get(k) for k in ("d_max_s", "d_star_s", "held")})
     row["command_age_p99_us"] = (t.get("command_age_zenoh") or {}).get("p99_us")
     keys = ("samples_without_command", "samples_judged", "deadline_misses", "ticks")
@@ -70,6 +72,10 @@ def markdown(summary: dict[str, Any]) -> str:
             f"| {r['robot']} | {r.get('verdict')} | {_ms(r.get('d_max_s'))} | "
             f"{_ms(r.get('d_star_s'))} | {r.get('held')} | {r.get('command_age_p99_us')} |"
         )
+    why = [r for r in summary["per_robot"] if r.get("verdict") != "PASS" and r.get("reason")]
+    if why:
+        lines += ["", "Why (each robot's first reason):", ""]
+        lines += [f"- {r['robot']}: {r['reason']}" for r in why]
     return "\n".join(lines) + "\n"
 
 

@@ -39,6 +39,18 @@ class Certificate(TypedDict, total=False):
     error: str  # the design the certificate rejected, and why
 
 
+class ControllerExit(TypedDict, total=False):
+    """The controller process ended before the plant did (``hil run`` then stops the run at
+    once): its exit code, or the signal that killed it, and when, in seconds from the run's
+    epoch (as ``hil run`` saw it, within its 50 ms poll)."""
+
+    code: int | None  # None: killed by a signal
+    signal: str | None  # e.g. "SIGKILL"
+    t_s: float | None
+    law_fault: bool  # it exited because its law failed (law_fault.json)
+    output: str  # its console output, relative to the run folder (controller.log)
+
+
 class Summary(TypedDict, total=False):
     """summary.json of a run (``hil.run.results.analyze``) or a simulation (``hil.sim``)."""
 
@@ -53,6 +65,11 @@ class Summary(TypedDict, total=False):
     max_abs_tau1: float | None
     max_abs_tau2: float | None
     violations: dict[str, int]
+    # plant steps whose state or applied torque was not finite, and the end time of the first
+    # (None: none); never "limits held" (hil.verdict)
+    nonfinite_steps: int
+    nonfinite_first_t_s: float | None
+    law_fault: dict[str, Any]  # controller_service.laws.guard.LawFault.to_dict(); absent: none
     samples: int
     duration: float
     # a run
@@ -75,6 +92,7 @@ class Summary(TypedDict, total=False):
     error: str | None
     duration_run_s: float | None
     duration_planned_s: float
+    controller_exit: ControllerExit  # absent: the controller outlived the plant
     verdict: dict[str, Any]  # hil.verdict.Verdict.as_dict()
     # a simulation
     limits: dict[str, float]

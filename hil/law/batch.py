@@ -2,15 +2,34 @@
 arrays of shape (N,); docs/own-controller.md, "Floats and arrays: one source", says what the
 probe of :func:`for_batch` does). A law written for one robot on floats fails there or, worse,
 returns one robot's torque for all: then :class:`PerRobot` runs it one robot at a time.
+
+:func:`batch_update` is the batch path's call of the law, through the law guard
+(:mod:`controller_service.laws.guard`): a robot whose torque is not finite is that robot's law
+fault alone; a call on arrays that raises or returns the wrong type is a fault of every robot
+of the batch (one call computed them all: no robot's result can be told apart), while
+:class:`PerRobot` calls the law robot by robot, so there each robot's fault is its own. A
+faulted robot gets zero torque from its fault on (its law is no longer called robot by robot;
+on arrays its memory goes on with the others' but never acts again).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from controller_service.laws.base import ControlOutput, ReferenceSample, RobotState
+from controller_service.laws.guard import (
+    NON_FINITE,
+    WRONG_TYPE,
+    LawFault,
+    LawFaultError,
+    bad_torques,
+    call_update,
+    checked_update,
+    fault,
+)
 from controller_service.registry import BUILTIN_LAWS, resolved_controller_table
 from hil.errors import BadInputError
 
@@ -22,9 +41,10 @@ class PerRobot:
     """The batch path's face of a law that takes one robot on floats: ``update`` on arrays
     calls the law once per robot; the memory is a list of the robots' own memories."""
 
-    def __init__(self, law: Any, reason: str) -> None:
+    def __init__(self, law: Any, reason: str, probe_fault: LawFault | None = None) -> None:
         self.law = law
         self.reason = reason
+        self.probe_fault = probe_fault  # the law failed on one robot before the loop
         self.name = str(getattr(law, "name", type(law).__name__))
 
     def resolved_table(self) -> dict[str, Any]:
@@ -41,26 +61,91 @@ class PerRobot:
     ) -> tuple[ControlOutput, Any]:
         if not isinstance(memory, list):  # one robot on floats: the law itself
             return self.law.update(t, dt, state, ref, memory)
+        step = self.update_robots(t, dt, state, ref, memory, np.zeros(len(memory), dtype=bool))
+        if step.faults:
+            raise LawFaultError(next(iter(step.faults.values())))
+        return ControlOutput(step.tau1, step.tau2, step.telemetry), step.memory
+
+    def update_robots(
+        self, t: Any, dt: float, state: Any, ref: Any, memory: list[Any], skip: np.ndarray
+    ) -> BatchStep:
+        """Each robot but those ``skip`` marks (faulted before) through the law guard, one
+        call each: a robot whose call fails is faulted alone (zero torque, memory kept)."""
         n = len(memory)
         times = np.broadcast_to(np.asarray(t, dtype=float), (n,))
         states = [np.broadcast_to(np.asarray(f, dtype=float), (n,)) for f in state]
         refs = [np.broadcast_to(np.asarray(f, dtype=float), (n,)) for f in ref]
-        robots = [
-            self.law.update(
-                float(times[i]),
-                dt,
-                RobotState(*(float(f[i]) for f in states)),
-                ReferenceSample(*(float(f[i]) for f in refs)),
-                memory[i],
-            )
-            for i in range(n)
-        ]
-        outs = [out for out, _ in robots]
-        keys = list(outs[0].telemetry)
-        telemetry = {k: np.array([float(o.telemetry.get(k, np.nan)) for o in outs]) for k in keys}
-        tau1 = np.array([float(o.tau1) for o in outs])
-        tau2 = np.array([float(o.tau2) for o in outs])
-        return ControlOutput(tau1, tau2, telemetry), [mem for _, mem in robots]
+        tau1, tau2 = np.zeros(n), np.zeros(n)
+        memory = list(memory)
+        outs: dict[int, Any] = {}
+        faults: dict[int, LawFault] = {}
+        for i in np.flatnonzero(~skip).tolist():
+            t_i = float(times[i])
+            s_i = RobotState(*(float(f[i]) for f in states))
+            r_i = ReferenceSample(*(float(f[i]) for f in refs))
+            try:
+                out, mem = call_update(self.law, t_i, dt, s_i, r_i, memory[i])
+            except LawFaultError as exc:
+                faults[i] = exc.fault.for_robot(i, t_i, s_i, r_i)
+                continue
+            bad = bad_torques(out.tau1, out.tau2)
+            if bad is not None:
+                kind = WRONG_TYPE if " of type " in bad else NON_FINITE
+                faults[i] = fault(self.law, kind, t_i, s_i, r_i, bad).for_robot(i, t_i, s_i, r_i)
+                continue
+            tau1[i], tau2[i] = float(out.tau1), float(out.tau2)
+            memory[i] = mem
+            outs[i] = out
+        keys = list(next(iter(outs.values())).telemetry) if outs else []
+        telemetry = {
+            k: np.array([float(outs[i].telemetry.get(k, np.nan)) if i in outs else np.nan
+                         for i in range(n)])
+            for k in keys
+        }  # fmt: skip
+        return BatchStep(tau1, tau2, telemetry, memory, faults)
+
+
+@dataclass
+class BatchStep:
+    """One sample of the batch path: the torques (arrays (N,), zero for a robot that has
+    faulted), the telemetry, the memory at t + dt and the robots that faulted at this sample."""
+
+    tau1: np.ndarray
+    tau2: np.ndarray
+    telemetry: dict[str, Any]
+    memory: Any
+    faults: dict[int, LawFault] = field(default_factory=dict)
+
+
+def batch_update(
+    controller: Any, t: Any, dt: float, state: Any, ref: Any, memory: Any, faulted: np.ndarray
+) -> BatchStep:
+    """One sample of N robots through the law guard (module docstring); ``faulted``: (N,) the
+    robots that faulted before (their torque stays zero, they are not faulted again)."""
+    n = len(faulted)
+    if isinstance(controller, PerRobot) and isinstance(memory, list):
+        return controller.update_robots(t, dt, state, ref, memory, faulted)
+    try:
+        out, memory_next = call_update(controller, t, dt, state, ref, memory)
+        tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
+        tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
+    except (LawFaultError, TypeError, ValueError) as exc:
+        if isinstance(exc, LawFaultError):
+            record = exc.fault
+        else:  # torques that are no numbers, or not one per robot
+            detail = f"torques of types {type(out.tau1).__name__}, {type(out.tau2).__name__}"
+            record = fault(controller, WRONG_TYPE, t, state, ref, detail)
+        faults = {i: record.for_robot(i, t, state, ref) for i in np.flatnonzero(~faulted).tolist()}
+        return BatchStep(np.zeros(n), np.zeros(n), {}, memory, faults)
+    bad = ~(np.isfinite(tau1) & np.isfinite(tau2))
+    faults = {
+        i: fault(controller, NON_FINITE, t, state, ref, bad_torques(tau1, tau2, i) or "?", robot=i)
+        for i in np.flatnonzero(bad & ~faulted).tolist()
+    }
+    off = bad | faulted
+    if off.any():
+        tau1, tau2 = np.where(off, 0.0, tau1), np.where(off, 0.0, tau2)
+    return BatchStep(tau1, tau2, dict(out.telemetry), memory_next, faults)
 
 
 def _what(exc: BaseException) -> str:
@@ -69,8 +154,9 @@ def _what(exc: BaseException) -> str:
 
 
 def array_problem(controller: Any, scenario: Any, reference: Any) -> str | None:
-    """Why ``controller`` cannot run on arrays (None: it can). Raises BadInputError when it
-    fails even on one robot: then no path can run it."""
+    """Why ``controller`` cannot run on arrays (None: it can). Raises LawFaultError when its
+    update fails even on one robot (a fault of the law, at t = 0), BadInputError when its
+    initial memory does."""
     law = str(scenario.controller.get("law", "unified"))
     ini, ts = scenario.initial, float(scenario.timing.ts)
     robots = [
@@ -82,11 +168,13 @@ def array_problem(controller: Any, scenario: Any, reference: Any) -> str | None:
     try:
         for robot in robots:
             memory = controller.initial_memory(None, z1=ini.z1, z2=ini.z2)
-            out, _ = controller.update(0.0, ts, robot, ref, memory)
+            out, _ = checked_update(controller, 0.0, ts, robot, ref, memory)
             singles.append((float(out.tau1), float(out.tau2)))
-    except Exception as exc:  # the user's code may raise anything
+    except LawFaultError:
+        raise  # the law itself failed: a fault of the law (hil.law.batch's callers say so)
+    except Exception as exc:  # the user's initial_memory may raise anything
         raise BadInputError(
-            f"[controller] law {law!r}: its first update on one robot failed: {_what(exc)}"
+            f"[controller] law {law!r}: its initial memory on one robot failed: {_what(exc)}"
         ) from exc
     n = len(robots)
     try:
@@ -110,14 +198,19 @@ def for_batch(controller: Any, scenario: Any, reference: Any) -> Any:
     builtin = scenario.controller.get("law", "unified") in BUILTIN_LAWS
     if builtin or isinstance(controller, PerRobot):
         return controller
-    problem = array_problem(controller, scenario, reference)
+    try:
+        problem = array_problem(controller, scenario, reference)
+    except LawFaultError as exc:
+        # Robot by robot, so that the loop finds each robot's own fault with its own input.
+        return PerRobot(controller, f"it failed on one robot: {exc.fault.detail}", exc.fault)
     return controller if problem is None else PerRobot(controller, problem)
 
 
 def batch_note(controller: Any, scenario: Any, reference: Any) -> str | None:
-    """One line for the user when the batch path runs the law one robot at a time."""
+    """One line for the user when the batch path runs the law one robot at a time (none when
+    the law failed even on one robot: the run reports that fault)."""
     ready = for_batch(controller, scenario, reference)
-    if not isinstance(ready, PerRobot):
+    if not isinstance(ready, PerRobot) or ready.probe_fault is not None:
         return None
     return (
         f"note: law {scenario.controller.get('law')!r} does not take numpy arrays "

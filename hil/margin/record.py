@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from controller_service.laws.guard import LawFault
 from hil.errors import BadInputError
 from hil.folder import layout
 from hil.folder.jsonio import read_json_object, write_json
@@ -51,6 +52,8 @@ class MarginRecord:
     loops: int = 0
     elapsed_s: float = 0.0
     probes: tuple[MarginProbe, ...] = field(default_factory=tuple)
+    # the law failed in a loop (controller_service.laws.guard.LawFault.to_dict()): no k*
+    law_fault: dict[str, Any] | None = None
     schema_version: int = MARGIN_SCHEMA_VERSION
 
     @property
@@ -90,9 +93,18 @@ def read(folder: Path | str | None) -> MarginRecord | None:
         return None
 
 
+def law_fault_sentence(record: MarginRecord) -> str | None:
+    """The sentence of the law's fault in the record's loops (None: the law never failed)."""
+    if record.law_fault is None:
+        return None
+    return LawFault.from_dict(record.law_fault).sentence(layout.MARGIN)
+
+
 def summary_lines(record: MarginRecord) -> list[str]:
     """What a report says about the margin, in a few lines."""
     what = "the worst disturbance found" if record.disturbance == "worst" else "its disturbance"
+    if record.law_fault is not None:
+        return [f"FAIL: no timing margin, {law_fault_sentence(record)}."]
     if record.k_held is None:
         head = (
             f"Timing margin (hil margin, {what}): {record.first_broken} breaks even at "

@@ -19,10 +19,13 @@ from typing import Any
 import numpy as np
 
 from controller_service.certificate import critical_age
+from controller_service.laws.guard import LawFaultError
+from controller_service.registry import BUILTIN_LAWS
 from hil.adversary.loop import initial_states, run_loops
 from hil.adversary.search import LIMIT_NAMES, scores, worst_disturbance
 from hil.errors import BadInputError
 from hil.folder.scenario_view import UNIFIED_LAWS
+from hil.law.batch import array_problem
 from hil.margin.record import MarginProbe, MarginRecord
 from hil.margin.timing import BaseTiming, scaled
 from hil.scenario import Scenario, build_loop
@@ -62,7 +65,7 @@ def probe(
         modes = np.zeros((opts.seeds, 2, 1), dtype=np.int8)
         seeds = scenario.disturbance.seed + np.arange(opts.seeds, dtype=np.int64)
         peaks = run_loops(sc, schedule, modes, init, loop=loop, own_seeds=seeds)
-    except BadInputError:
+    except (BadInputError, LawFaultError):
         raise
     except Exception as exc:  # the law may be the user's: whatever it raises on arrays
         law = scenario.controller.get("law", "unified")
@@ -100,7 +103,9 @@ def find_margin(
     opts: MarginOptions,
     progress: Callable[[MarginProbe], None] | None = None,
 ) -> MarginRecord:
-    """k* for the scenario's law over the base timing (module doc)."""
+    """k* for the scenario's law over the base timing (module doc); a law that fails (its
+    guard: raises, returns the wrong type or a non-finite torque) ends the search, and the
+    record says so (``law_fault``) instead of a k*."""
     started = time.perf_counter()
     loop = build_loop(scenario)
     probes: list[MarginProbe] = []
@@ -115,13 +120,18 @@ def find_margin(
             progress(p)
         return p.broke
 
-    lo, hi = _bracket(test, opts)
-    while lo is not None and math.isfinite(hi) and hi / lo > 1.0 + opts.rel_tol:
-        mid = math.sqrt(lo * hi)
-        if test(mid):
-            hi = mid
-        else:
-            lo = mid
+    fault = None
+    try:
+        _takes_arrays(scenario, loop, opts.seeds)
+        lo, hi = _bracket(test, opts)
+        while lo is not None and math.isfinite(hi) and hi / lo > 1.0 + opts.rel_tol:
+            mid = math.sqrt(lo * hi)
+            if test(mid):
+                hi = mid
+            else:
+                lo = mid
+    except LawFaultError as exc:
+        fault, lo, hi = exc.fault, None, math.inf
     broke = {p.k: p for p in probes}.get(hi)
     _, replay = scaled(scenario, base, 1.0, opts.seeds, opts.duration)
     controller, _ref, context = loop
@@ -148,4 +158,21 @@ def find_margin(
         loops=loops,
         elapsed_s=time.perf_counter() - started,
         probes=tuple(probes),
+        law_fault=None if fault is None else fault.to_dict(),
     )
+
+
+def _takes_arrays(scenario: Scenario, loop: tuple[Any, Any, Any], seeds: int) -> None:
+    """The batch path runs the law on arrays: a law written for floats only is refused by name
+    (BadInputError) before any probe; a law that fails even on one robot raises its
+    LawFaultError here (a fault of the law, at t = 0)."""
+    law = str(scenario.controller.get("law", "unified"))
+    if law in BUILTIN_LAWS:
+        return
+    controller, reference, _ = loop
+    problem = array_problem(controller, scenario, reference)
+    if problem is not None:
+        raise BadInputError(
+            f"[controller] law {law!r} failed on the batch path (numpy arrays of {seeds} "
+            f"robots): {problem}"
+        )

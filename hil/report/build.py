@@ -38,7 +38,15 @@ from hil.report.content import SIGNALS, TITLES, headline, render_html, render_ma
 from hil.report.ideal import IdealUnavailableError
 from hil.report.ideal_sim import WINDOW_S
 from hil.report.telemetry import SLIDING, folder_telemetry, forget_memory
-from hil.verdict import DEFAULT_THRESHOLDS, LIMIT_NAMES, PEAK_KEYS, RunFacts, Thresholds, judge
+from hil.verdict import (
+    DEFAULT_THRESHOLDS,
+    LIMIT_NAMES,
+    PEAK_KEYS,
+    LawEnd,
+    RunFacts,
+    Thresholds,
+    judge,
+)
 from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
 from protocol.versions import REPORT_SCHEMA_VERSION
 
@@ -114,7 +122,10 @@ def build_report(
     # hil.verdict.judge: the one implementation hil run also uses, with the report's thresholds
     timing, messages = (m.timing, m.messages or {}) if m is not None else (None, None)
     violations, facts = folder.summary.get("violations") or {}, RunFacts.of(folder.summary)
-    verdict = judge(metrics["constraints"], violations, cert, timing, messages, facts, thresholds)
+    ended = LawEnd.of(folder.summary)  # the law's fault, the controller's end, a NaN state
+    verdict = judge(
+        metrics["constraints"], violations, cert, timing, messages, facts, thresholds, ended
+    )
     margin = margin_record.read(folder.path)  # hil margin's record, None if it never ran
     drives, q = drives_block(folder, sv)
     figs, sections = _figures(folder, sv, cert, m, (ideal_traj, sliding), q, drives, metrics)

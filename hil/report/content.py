@@ -17,7 +17,7 @@ import numpy as np
 
 from hil.margin.record import MarginRecord, summary_lines
 from hil.report.figures import Figure
-from hil.verdict import UNITS
+from hil.verdict import UNITS, LawEnd
 
 #: Each signal of (2) and its limit's symbol (its unit is hil.verdict's).
 LIMITS = {"v": "φ1", "omega": "φ2", "tau1": "ϖ1", "tau2": "ϖ2"}
@@ -176,7 +176,15 @@ def _limits(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, An
         elif not c["held"]:
             broken.append(f"|{sym}| beyond {name}")
     every = "over every plant step" if violations else "over the trace's samples"
+    ended = LawEnd.of(summary)  # type: ignore[arg-type]
+    if ended.nonfinite_steps > 0:  # NaN compares false with every limit: said here instead
+        broken.insert(0, f"the state became non-finite at {ended.nonfinite_steps} plant steps")
+        out["held"] = False
     state = "held" if not broken else "BROKEN (" + "; ".join(broken) + ")"
+    if not broken and ended.controller_ended:  # what ran, not a run that held to its end
+        stop = ended.law_fault.t_s if ended.law_fault else (ended.controller_exit or {}).get("t_s")
+        when = f" at t = {stop:.3f} s" if isinstance(stop, int | float) else ""
+        state = f"held until the law stopped{when} (the verdict says why)"
     return out, f"Limits of (2) {state}, {every}: " + "; ".join(parts) + "."
 
 
@@ -305,7 +313,9 @@ def _verdict(s: Section, data: dict[str, Any]) -> None:
         s.p(line)
     th = v["thresholds"]
     s.p(
-        "Negative when a limit of (2) is broken, the certificate is not held, or deadline "
+        "Negative when the law failed (raised, returned the wrong type or a non-finite "
+        "torque), the controller process ended before the run, the state became non-finite, "
+        "a limit of (2) is broken, the certificate is not held, or deadline "
         f"misses exceed {th['max_deadline_miss_ratio']:.2%} of ticks, samples without a "
         f"command {th['max_samples_without_command_ratio']:.2%} of samples, lost messages "
         f"{th['max_lost_ratio']:.2%} of those sent (State and the applied path; a shadow path "

@@ -21,6 +21,7 @@ from typing import Any
 
 from hil.fleet import barrier as fleet_barrier
 from hil.folder import layout
+from hil.folder.records import ControllerExit
 from hil.lab import placement
 from hil.measure.logs import HOST_FILE
 from hil.recording import RecordingWriter
@@ -109,13 +110,14 @@ def phase_ns(robot: str, position: int, n: int, period: int) -> int:
 
 
 def _start_and_follow(spec: GroupSpec, robots: list[_Robot], sup: Supervisor, session: Any,
-                      stop: Any) -> str | None:  # fmt: skip
+                      stop: Any) -> tuple[str | None, ControllerExit | None]:  # fmt: skip
     """Wait until every robot's plant and controller are ready, start them together (with
-    the rest of the fleet), follow the run to its end; returns an error, or None."""
+    the rest of the fleet), follow the run to its end; returns an error (or None) and how the
+    group's controller process ended when it ended first (or None)."""
     deadline = time.monotonic() + float(os.environ.get("HIL_READY_TIMEOUT", "300"))
     for r in robots:
         if not _wait_ready(r.recorder, sup, stop, max(0.0, deadline - time.monotonic())):
-            return f"services of {r.id} did not become ready"
+            return f"services of {r.id} did not become ready", None
     barrier = os.environ.get(fleet_barrier.ENV)
     if barrier:  # every robot of this group is ready
         for r in robots:
@@ -130,8 +132,9 @@ def _start_and_follow(spec: GroupSpec, robots: list[_Robot], sup: Supervisor, se
         for r, epoch in zip(robots, epochs, strict=True):
             announce_start(session, r.id, epoch, seq=seq)
         time.sleep(0.02)
-    _progress(robots[0].settings, robots[0].recorder, sup, stop, True)
-    return None
+    # The process's console log is the group's, in the fleet's folder.
+    output = f"../{robots[0].id}-group-{layout.CONTROLLER_OUTPUT}"
+    return None, _progress(robots[0].settings, robots[0].recorder, sup, stop, True, base, output)
 
 
 def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
@@ -143,7 +146,7 @@ def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
     robots = _prepare(spec, endpoint)
     sup, logs = Supervisor(), _Logs(out)
     host = HostSampler(robots[0].run_dir)
-    session, subs, error = None, [], None
+    session, subs, error, ended = None, [], None, None
     t0 = time.monotonic()
     try:
         if placed:  # the client of the lab host's own router, as hil run --lab
@@ -157,7 +160,7 @@ def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
         ids = RunIdentities(False, [r.id for r in robots])
         run_dirs = [r.run_dir for r in robots]
         _start_services(sup, run_dirs, ids, logs, host, placed, f"{robots[0].id}-group-")
-        error = _start_and_follow(spec, robots, sup, session, stop)
+        error, ended = _start_and_follow(spec, robots, sup, session, stop)
     finally:
         codes = _stop_children(sup, robots[0].settings)
         host.close()
@@ -171,17 +174,20 @@ def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
                 shutil.copyfile(robots[0].run_dir / HOST_FILE, r.run_dir / HOST_FILE)
             placement.write_topology(placed, r.run_dir)  # before the recording takes it along
             r.recorder.close(attachment_files(r.run_dir))
-    return _results(spec, robots, codes, error, bool(stop), time.monotonic() - t0)
+    return _results(spec, robots, codes, error, bool(stop), time.monotonic() - t0, ended)
 
 
 def _results(spec: GroupSpec, robots: list[_Robot], codes: dict[str, int | None],
-             error: str | None, interrupted: bool, wall: float) -> dict[str, int]:  # fmt: skip
+             error: str | None, interrupted: bool, wall: float,
+             ended: ControllerExit | None = None) -> dict[str, int]:  # fmt: skip
     """Each robot's trace.csv, summary.json and plots, as ``hil run`` writes them."""
     out: dict[str, int] = {}
     shared = {"robots": list(spec.robots), "processes": ["plant", "controller"]}
     for r in robots:
         extra = run_extra(interrupted, error, wall, codes, r.recorder, False)
         extra["shared_processes"] = shared
+        if ended is not None:  # the process ended: every robot it served lost its controller
+            extra["controller_exit"] = ended
         summary = _write_results(r.run_dir, r.scenario, r.settings, r.info, extra)
         # The exit code hil run gives this summary (hil.commands.run, not strict).
         blocking = (summary.get("verdict") or {}).get("blocking")

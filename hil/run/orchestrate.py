@@ -30,6 +30,7 @@ from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
 from hil.fleet import barrier as fleet_barrier
 from hil.folder import layout, new_run_dir
+from hil.folder.records import ControllerExit
 from hil.lab import placement
 from hil.lab.placement import TOPOLOGY_FILE, child_argv
 from hil.law.option import with_law
@@ -54,6 +55,7 @@ from hil.scenario import (
     resolved_dict,
 )
 from hil.supervisor import Supervisor
+from protocol.hoplog import LAW_FAULT_EXIT
 from protocol.keys import is_valid_robot_id, observed_keys
 from protocol.messages import DecodeError, Status, decode
 from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
@@ -122,6 +124,7 @@ class Recorder:
         self.queue: collections.deque[tuple[str, int, Any]] = collections.deque()
         self.states = 0
         self.statuses: dict[str, Any] = {}
+        self.status_ns: dict[str, int] = {}  # when each role's newest status arrived
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._drain, name="recorder", daemon=True)
         self._thread.start()
@@ -163,6 +166,7 @@ class Recorder:
             write_pose(self.writer, topic, t, m)
         if isinstance(m, Status):
             self.statuses[m.role] = m
+            self.status_ns[m.role] = t
 
     def _drain(self) -> None:
         while not (self._stop.is_set() and not self.queue):
@@ -385,20 +389,20 @@ def _start_and_follow(
     stop: Any,
     announcer: Any,
     quiet: bool,
-) -> str | None:
-    """Wait for both services, announce the epoch, follow the run; an error, or None."""
+) -> tuple[str | None, ControllerExit | None]:
+    """Wait for both services, announce the epoch, follow the run; an error (or None) and how
+    the controller ended when it ended before the plant (or None)."""
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
     # that dies is noticed at once anyway.
     ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
     if not _wait_ready(recorder, sup, stop, timeout=ready_timeout):
-        return "services did not become ready"
+        return "services did not become ready", None
     fleet_barrier.wait(stop)  # a fleet's robots start together (no-op for one run)
     epoch = time.monotonic_ns() + 300_000_000
     for i in range(3):  # a start message lost to a racing link must not hang
         announce_start(announcer, settings.robot_id, epoch, seq=i)
         time.sleep(0.02)
-    _progress(settings, recorder, sup, stop, quiet)
-    return None
+    return None, _progress(settings, recorder, sup, stop, quiet, epoch)
 
 
 def execute(opts: RunOptions) -> dict[str, Any]:
@@ -414,7 +418,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
     writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer, same_clock=not placed)
-    session, subs, can_rec = None, [], None
+    session, subs, can_rec, ended = None, [], None, None
     logs = _Logs(run_dir)
     t_start = time.monotonic()
     ids = RunIdentities(opts.secure, (settings.robot_id,))  # fresh passwords, or none
@@ -432,7 +436,7 @@ def execute(opts: RunOptions) -> dict[str, Any]:
             if opts.live_port is not None:  # its own process: no cycle of the recorder's
                 start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs, bool(placed))
             _start_services(sup, [run_dir], ids, logs, host, placed)
-            error = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
+            error, ended = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
             interrupted = bool(stop)
         finally:
             if stop:  # hil.cli then exits 130 once the folder is written
@@ -452,6 +456,8 @@ def execute(opts: RunOptions) -> dict[str, Any]:
                 session.close()
             recorder.close(attachment_files(run_dir))  # the hop logs attached
     extra = run_extra(interrupted, error, time.monotonic() - t_start, codes, recorder, opts.secure)
+    if ended is not None:
+        extra["controller_exit"] = ended
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
     summary = _write_results(run_dir, scenario, settings, info, extra)
     summary["run_dir"] = str(run_dir)
@@ -533,11 +539,25 @@ def _wait_ready(recorder: Recorder, sup: Supervisor, stop: Any, timeout: float) 
 
 
 def _progress(
-    settings: RunSettings, recorder: Recorder, sup: Supervisor, stop: Any, quiet: bool
-) -> None:
-    """Until the plant finishes its duration (it exits by itself) or a stop is asked."""
+    settings: RunSettings,
+    recorder: Recorder,
+    sup: Supervisor,
+    stop: Any,
+    quiet: bool,
+    epoch_ns: int,
+    output: str = layout.CONTROLLER_OUTPUT,
+) -> ControllerExit | None:
+    """Until the plant finishes its duration (it exits by itself), a stop is asked, or the
+    controller process ended first: at once when its law failed (it exits with
+    LAW_FAULT_EXIT: no command will come any more), else (a crash, a signal) after
+    GONE_GRACE_S unless a restarted controller rejoins meanwhile (its Status says
+    ``restarted``: then the run goes on to its end). The plant is stopped next, by
+    _stop_children. That end is returned (its code or signal, and when: from ``epoch_ns``,
+    within the 50 ms of a poll; ``output``: its console log, relative to the run folder)."""
     total = max(1, round(settings.duration / settings.ts)) if settings.lockstep else None
     plant = next(c for c in sup.children if c.name == "plant")
+    controller = next((c for c in sup.children if c.name == "controller"), None)
+    gone_ns: int | None = None  # when the controller process was found ended
     t0 = time.monotonic()
     limit = t0 + (settings.duration + 30.0 if not settings.lockstep else 1e9)
     with Progress(
@@ -551,6 +571,10 @@ def _progress(
     ) as prog:
         task = prog.add_task("run", total=1.0, info="")
         while not stop and plant.alive() and time.monotonic() < limit:
+            if controller is not None and gone_ns is None and not controller.alive():
+                gone_ns = time.monotonic_ns()
+            if gone_ns is not None and _stop_now(controller, recorder, gone_ns):
+                break
             st = recorder.statuses.get("controller")
             info = ""
             if st is not None:
@@ -559,6 +583,49 @@ def _progress(
             done = recorder.states / total if total else (time.monotonic() - t0) / settings.duration
             prog.update(task, completed=min(1.0, done), info=info)
             time.sleep(0.05)
+    # The controller outlives the plant (its end is 2 s past the plant's) until it is stopped:
+    # found ended here, it ended on its own, before the run's end.
+    if controller is None or controller.alive():
+        return None
+    gone_ns = gone_ns or time.monotonic_ns()
+    return controller_exit(controller.proc.poll(), (gone_ns - epoch_ns) / 1e9, output)
+
+
+# After the controller process died of something else than its law (a crash, a signal), the
+# plant runs on this long: its own safe state shows (the command timeout's zero torque, the
+# drives' watchdog: about a second), and a controller restarted into the run by hand or by a
+# supervisor rejoins (a Python process with numpy and Zenoh starts in 1-3 s on a loaded 2-core
+# host; bench/kill_matrix.py's controller_restart). Then the run stops: it does not wait out
+# its duration.
+GONE_GRACE_S = 3.0
+
+
+def _stop_now(controller: Any, recorder: Recorder, gone_ns: int) -> bool:
+    """Whether to end the run now that the controller process ended at ``gone_ns``."""
+    if controller.proc.poll() == LAW_FAULT_EXIT:
+        return True  # its law failed: it will not come back
+    status, seen = recorder.statuses.get("controller"), recorder.status_ns.get("controller", 0)
+    if status is not None and seen > gone_ns and status.counters.get("restarted"):
+        return False  # a restarted controller rejoined the run: follow it to the end
+    return time.monotonic_ns() - gone_ns > GONE_GRACE_S * 1e9
+
+
+def controller_exit(code: int | None, t_s: float, output: str) -> ControllerExit:
+    """summary.json's ``controller_exit`` from the process's return code (negative: the
+    signal that killed it; hil.folder.records.ControllerExit)."""
+    sig = None
+    if code is not None and code < 0:
+        try:
+            sig = signal.Signals(-code).name
+        except ValueError:
+            sig = f"signal {-code}"
+    return {
+        "code": None if sig else code,
+        "signal": sig,
+        "t_s": t_s,
+        "law_fault": code == LAW_FAULT_EXIT,
+        "output": output,
+    }
 
 
 def _stop_children(sup: Supervisor, settings: RunSettings) -> dict[str, int | None]:
@@ -566,7 +633,7 @@ def _stop_children(sup: Supervisor, settings: RunSettings) -> dict[str, int | No
     # The plant ends by itself at the run's end; the controller is stopped next, then the rest.
     for name in ("plant", "controller", "router", "live"):
         for c in [c for c in sup.children if c.name == name]:
-            if name == "controller" and codes.get("plant") not in (0, None):
+            if name == "controller" and codes.get("plant") not in (0, None) and c.alive():
                 # The plant died: give the controller's stale-state watchdog time to act (and
                 # to be logged) before it is stopped.
                 time.sleep(max(0.2, 4 * settings.state_timeout))

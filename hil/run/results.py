@@ -15,8 +15,10 @@ from typing import Any
 
 import numpy as np
 
+from controller_service.laws.guard import LawFault
 from hil.errors import BadInputError
 from hil.folder import layout, write_summary
+from hil.folder.jsonio import read_json_object
 from hil.folder.records import Summary
 from hil.folder.trace_csv import read_trace
 from hil.measure.figures import Measurement
@@ -25,7 +27,7 @@ from hil.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
 from hil.report.figures import envelope_indices, plt
 from hil.run.settings import rate_hz
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
-from hil.verdict import RunFacts, constraints_from_peaks, judge
+from hil.verdict import LawEnd, RunFacts, constraints_from_peaks, judge
 from protocol.angles import wrap_angle as wrap
 from protocol.hoplog import TICK_NO_SEND
 from protocol.versions import RUN_SCHEMA_VERSION as SCHEMA_VERSION
@@ -112,6 +114,8 @@ def analyze(
         "initial_position_error": float(pos_err[0]) if n else None,
         **{k: ext.get(k) for k in ("max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2")},
         "violations": ext.get("violations", {}),
+        "nonfinite_steps": int(ext.get("nonfinite_steps") or 0),
+        "nonfinite_first_t_s": ext.get("nonfinite_first_t_s"),
         "samples": n,
         "duration": (n * settings.ts) if lockstep else settings.duration,
         "lockstep": lockstep,
@@ -143,23 +147,44 @@ def analyze(
         "plant": logs.pmeta.get("scheduling"),
     }
     summary.update(extra)
+    fault = law_fault_of(run_dir)
+    if fault is not None:
+        summary["law_fault"] = fault
     # What ran (the plant's window): a run cut short says so here and in its verdict.
     summary["duration_run_s"] = m.timing.get("window_s")
     summary["duration_planned_s"] = summary["duration"]
     if summary.get("interrupted") and summary["duration_run_s"] is not None:
         summary["duration"] = summary["duration_run_s"]
+    summary["verdict"] = run_verdict(summary, scenario)
+    # Whole or absent, never half: a kill while it is written leaves the folder to recover.
+    write_summary(run_dir, summary)
+    return summary
+
+
+def run_verdict(summary: Summary, scenario: Any) -> dict[str, Any]:
+    """The run's verdict (hil.verdict.judge at the default thresholds) from its summary."""
     limits = {k: float(getattr(scenario.limits, k)) for k in ("phi1", "phi2", "varpi1", "varpi2")}
-    summary["verdict"] = judge(  # at the default thresholds
+    return judge(
         constraints_from_peaks(summary, limits),
         summary.get("violations") or {},
         summary.get("certificate"),
         summary.get("timing") or {},
         summary.get("messages") or {},
         RunFacts.of(summary),
+        ended=LawEnd.of(summary),
     ).as_dict()
-    # Whole or absent, never half: a kill while it is written leaves the folder to recover.
-    write_summary(run_dir, summary)
-    return summary
+
+
+def law_fault_of(run_dir: Path) -> dict[str, Any] | None:
+    """The controller's law_fault.json (the record of its law's failure), None when there is
+    none; a file that cannot be read is said in the record rather than lost."""
+    path = run_dir / layout.LAW_FAULT
+    if not path.is_file():
+        return None
+    try:
+        return LawFault.from_dict(read_json_object(path)).to_dict()
+    except BadInputError as exc:
+        return {"law": "?", "where": "?", "kind": "unreadable", "detail": str(exc)}
 
 
 def plot(run_dir: Path) -> None:

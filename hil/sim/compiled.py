@@ -95,6 +95,32 @@ def _plant_parts(njit: Any) -> tuple[Any, Any]:
         linear(e, 1, lims[1], w, hu2, ends[1], n)
         return (x + disp.real, y + disp.imag, ends[0], ends[2], ends[1])
 
+    @njit
+    def first_nonfinite(s: Any, c: Any, d: Any, h: float, n: int, lims: Any) -> int:
+        """The first of n steps from s whose end is not finite (0 when s is not), replayed
+        one step at a time on scratch extremes."""
+        if (s[0] + s[1] + s[2] + s[3] + s[4]) - (s[0] + s[1] + s[2] + s[3] + s[4]) != 0.0:
+            return 0
+        scratch = np.zeros(8)
+        for i in range(n - 1):
+            s = advance(s, c[0], c[1], d, h, 1, scratch, lims)
+            q = s[0] + s[1] + s[3] + s[4]
+            if q - q != 0.0:
+                return i
+        return n - 1
+
+    @njit(inline="always")
+    def nonfinite(e: Any, start: Any, s: Any, c: Any, d: Any, h: float, n: int, lims: Any,
+                  t_start: float) -> None:  # fmt: skip
+        """The non-finite steps of plant_emulator.dynamics.Extremes among the n steps from
+        ``start`` (at ``t_start``) to ``s``: their count (e[8]), the first one's end (e[9])."""
+        q = s[0] + s[1] + s[3] + s[4]  # theta and the torque reach these in a step
+        if q - q != 0.0:
+            first = first_nonfinite(start, c, d, h, n, lims)
+            if e[8] == 0.0:
+                e[9] = t_start + (first + 1) * h
+            e[8] += n - first
+
     @njit(inline="always")
     def land(j: int, k: int, off: Any, m: int, ring: Any, hd: Any) -> None:
         """Land the commands due at plant step j, oldest first (hd: cmd1, cmd2, applied,
@@ -109,7 +135,7 @@ def _plant_parts(njit: Any) -> tuple[Any, Any]:
         while hd[3] <= k and int(hd[3]) * m + off[int(hd[3])] <= j:
             hd[3] += 1.0
 
-    return advance, land
+    return advance, land, nonfinite
 
 
 def _build() -> Any:
@@ -121,7 +147,7 @@ def _build() -> Any:
     ns = SimpleNamespace(sin=math.sin, cos=math.cos, tanh=math.tanh, sqrt=math.sqrt, exp=math.exp)
     ns.sign, ns.clip = njit(FLOAT_MATH.sign), njit(FLOAT_MATH.clip)
     law = njit(make_step(ns))
-    advance, land = _plant_parts(njit)
+    advance, land, nonfinite = _plant_parts(njit)
 
     @njit
     def robot(i: int, a: Any, off: Any, c: Any, k0: int, k1: int) -> None:
@@ -169,7 +195,9 @@ def _build() -> Any:
                     lc = c * m + off[c]
                     if j < lc < nxt:
                         nxt = lc
+                start = s
                 s = advance(s, hd[0], hd[1], d, h, nxt - j, e, lims)
+                nonfinite(e, start, s, (hd[0], hd[1]), d, h, nxt - j, lims, t0[i] + j * h)
                 if nxt == j_end:
                     break
                 land(nxt, k, off, m, rg, hd)
@@ -251,7 +279,7 @@ def run(
         np.array(batch.memory[:3], dtype=float),
         np.array([np.zeros(n), np.zeros(n), np.full(n, -1.0), np.zeros(n), np.zeros(n)]),
         np.zeros((2, n, int(off.max()) // m + 3)),
-        np.array([*peaks, *[np.zeros(n)] * 4], dtype=float),
+        np.array([*peaks, *[np.zeros(n)] * 4, ext.nonfinite_steps, ext.nonfinite_first_t]),
         np.zeros(n),
         np.zeros((3, n)),
     )
@@ -281,8 +309,12 @@ def run(
     # the kernel's arrays back into the batch
     st, mem, hold, _, e, sq, last = head
     ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2 = (e[q] for q in range(4))
-    counts = e[4:].astype(np.int64)
+    counts = e[4:8].astype(np.int64)
     ext.violations_v, ext.violations_omega, ext.violations_tau1, ext.violations_tau2 = counts
+    ext.nonfinite_steps, ext.nonfinite_first_t = e[8].astype(np.int64), e[9].copy()
+    # The kernel's peaks compare (a NaN drops out): a state that ended non-finite keeps it.
+    ext.max_abs_v = np.maximum(ext.max_abs_v, np.abs(st[3]))
+    ext.max_abs_omega = np.maximum(ext.max_abs_omega, np.abs(st[4]))
     ext.steps += batch.done * m
     batch.state = PlantState(*st, hold[0], hold[1])
     batch.memory = type(batch.memory)(*mem)

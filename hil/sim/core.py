@@ -12,6 +12,13 @@ Both paths run the same law object and the same sampled-data step (hold, landing
 floats, :func:`simulate_batch` on arrays of N robots that share Ts, h, the law and the
 reference but may differ in initial state, delay, jitter seed, disturbance seed and sensor
 seed (:class:`RobotVariation`).
+
+The law is called through its guard (:mod:`controller_service.laws.guard`): when it raises,
+returns the wrong type or a non-finite torque, :func:`simulate` stops at that sample (the
+trace ends with the sample before it; the plant is not advanced past it) and the summary
+holds the fault (``law_fault``); on the batch path that robot alone is faulted
+(:func:`hil.law.batch.batch_update`: zero torque from then on, ``law_fault`` in its summary)
+and the batch stops early when every robot has faulted. Either way ``limits_held`` is false.
 """
 
 from __future__ import annotations
@@ -25,9 +32,10 @@ import numpy as np
 
 from controller_service.from_settings import initial_memory
 from controller_service.laws.base import ReferenceSample, RobotState
+from controller_service.laws.guard import LawFault, LawFaultError, checked_update
 from controller_service.references import sample_array
 from hil.folder.scenario_view import view
-from hil.law.batch import for_batch
+from hil.law.batch import batch_update, for_batch
 from hil.measure.certificate import scenario_certificate
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
 from hil.sim import compiled
@@ -114,11 +122,13 @@ def _summaries(
     ext = run.ext
     peaks = (ext.max_abs_v, ext.max_abs_omega, ext.max_abs_tau1, ext.max_abs_tau2)
     peaks += (ext.violations_v, ext.violations_omega, ext.violations_tau1, ext.violations_tau2)
+    peaks += (ext.nonfinite_steps, ext.nonfinite_first_t)
     columns = np.broadcast_arrays(*per_robot[:3], *peaks, *per_robot[3:])
     limit_table = asdict(scenario.limits)
     law = getattr(run.controller, "name", type(run.controller).__name__)
     ts, plant_step = scenario.timing.ts, scenario.plant_step
     robots = zip(*(np.atleast_1d(q).tolist() for q in columns), strict=True)
+    faults = {i: f.to_dict() for i, f in run.faults.items()}
     return [
         {
             "schema_version": SCHEMA_VERSION,
@@ -130,7 +140,10 @@ def _summaries(
             "max_abs_tau1": mt1,
             "max_abs_tau2": mt2,
             "violations": {"v": nv, "omega": nw, "tau1": nt1, "tau2": nt2},
-            "limits_held": not (nv or nw or nt1 or nt2),
+            "nonfinite_steps": int(nf),
+            "nonfinite_first_t_s": None if not nf or math.isnan(nft) else nft,
+            **({"law_fault": faults[i]} if i in faults else {}),
+            "limits_held": not (nv or nw or nt1 or nt2 or nf or i in faults),
             "limits": dict(limit_table),
             "law": law,
             "ts": ts,
@@ -142,7 +155,9 @@ def _summaries(
             "interrupted": run.interrupted,
             "seeds": {"timing": js, "disturbance": ds, "sensor": ss},
         }
-        for pe, he, rm, mv, mw, mt1, mt2, nv, nw, nt1, nt2, dr, js, ds, ss in robots
+        for i, (pe, he, rm, mv, mw, mt1, mt2, nv, nw, nt1, nt2, nf, nft, dr, js, ds, ss) in (
+            enumerate(robots)
+        )
     ]
 
 
@@ -171,6 +186,7 @@ class _Loops:
     record: list[int] = field(default_factory=list)
     rec_rows: dict[int, list[np.ndarray]] = field(default_factory=dict)
     done: int = 0
+    faults: dict[int, LawFault] = field(default_factory=dict)  # robot -> its law's fault
 
 
 def _plant(scenario: Scenario, seed: Any) -> Plant:
@@ -198,7 +214,11 @@ def _single_loop(run: _Loops, scenario: Scenario, t0: float, progress: Progress 
             rs = RobotState(state.x, state.y, state.theta, state.v, state.omega)
             meas = rs if ideal_sensor else measure(sensor, rs, k, sseed)
             ref = reference.sample(t_k)
-            out, memory = controller.update(t_k, ts, meas, ref, memory)
+            try:
+                out, memory = checked_update(controller, t_k, ts, meas, ref, memory)
+            except LawFaultError as exc:  # the law failed: the loop ends before this sample
+                run.faults[0] = exc.fault
+                break
             if tel_keys is None:
                 tel_keys = run.tel_keys = list(out.telemetry)
             tau1, tau2 = float(out.tau1), float(out.tau2)
@@ -364,6 +384,7 @@ def _batch_loop(
     sq_sum, sq_n = np.zeros(n), 0
     every = max(1, n_samples // 200)
     ones = np.ones(n)
+    faulted = np.zeros(n, dtype=bool)
     try:
         for k in range(n_samples):
             if on_sample is not None:
@@ -377,9 +398,11 @@ def _batch_loop(
             else:
                 t_k = starts + k * ts
                 ref = ref_arr = sample_array(reference, t_k)
-            out, memory = controller.update(t_k, ts, meas, ref_arr, memory)
-            tau1 = np.broadcast_to(np.asarray(out.tau1, dtype=float), (n,))
-            tau2 = np.broadcast_to(np.asarray(out.tau2, dtype=float), (n,))
+            out = batch_update(controller, t_k, ts, meas, ref_arr, memory, faulted)
+            memory, tau1, tau2 = out.memory, out.tau1, out.tau2
+            if out.faults:
+                run.faults.update(out.faults)
+                faulted[list(out.faults)] = True
             if run.tel_keys is None:
                 run.tel_keys = list(out.telemetry)
             j0 = k * m
@@ -394,8 +417,9 @@ def _batch_loop(
             if run.record:  # the single path's row of each recorded robot, robot by robot
                 # (scalar reads: a few robots are recorded out of a batch of any size)
                 applied = (hold.cmd1, hold.cmd2) if plant.lag <= 0.0 else (state.tau1, state.tau2)
+                tel_keys = run.tel_keys or []
                 head = wrap_angle(state.theta - ref.thetad)
-                tel = [np.broadcast_to(out.telemetry[key], (n,)) for key in run.tel_keys]
+                tel = [np.broadcast_to(out.telemetry.get(key, np.nan), (n,)) for key in tel_keys]
                 timed = (t_k, ref.xd, ref.yd, ref.thetad)  # floats when the robots share t_k
                 robot = (*state[:5], *applied, tau1, tau2, e_pos, head, *tel)
                 for i in run.record:
@@ -407,10 +431,12 @@ def _batch_loop(
             run.done = k + 1
             if progress is not None and k % every == 0:
                 progress(k, n_samples)
+            if out.faults and faulted.all():  # every robot's law has failed: nothing to run
+                break
     except KeyboardInterrupt:
         run.interrupted = True
     if on_sample is not None and not run.interrupted:
-        on_sample(n_samples, state)
+        on_sample(run.done, state)  # n_samples, unless every robot's law failed before
     run.rms = np.sqrt(sq_sum / sq_n) if sq_n else np.full(n, np.nan)
     run.state, run.memory = state, memory
 

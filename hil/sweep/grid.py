@@ -89,11 +89,15 @@ def break_points(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
       broke a constraint of (2); None if none did.
     - ``delay_by_ts``: for each Ts, the smallest delay at which one did.
     - ``first``: the violating point with the smallest Ts + delay (the age of the command that
-      the sampled-data bound grows with), or None when the limits held everywhere.
+      the sampled-data bound grows with), or None when no limit broke.
+    - ``law_faults``: the points where the law failed (raised, returned the wrong type or a
+      non-finite torque), and ``first_law_fault`` the first of them with its sentence: a
+      faulted point never counts as held, so ``held_everywhere`` is false when there is one.
     """
     ts_values = sorted({r["ts"] for r in rows})
     delay_values = sorted({r["delay"] for r in rows})
     bad = [r for r in rows if r.get("violation")]
+    faulted = [r for r in rows if r.get("law_fault")]
     ts_by_delay = {
         d: min((r["ts"] for r in bad if r["delay"] == d), default=None) for d in delay_values
     }
@@ -101,9 +105,14 @@ def break_points(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         ts: min((r["delay"] for r in bad if r["ts"] == ts), default=None) for ts in ts_values
     }
     first = min(bad, key=lambda r: (r["ts"] + r["delay"], r["ts"]), default=None)
+    first_fault = min(faulted, key=lambda r: (r["ts"] + r["delay"], r["ts"]), default=None)
     return {
-        "held_everywhere": not bad,
+        "held_everywhere": not bad and not faulted,
         "violating_points": len(bad),
+        "law_faults": len(faulted),
+        "first_law_fault": None
+        if first_fault is None
+        else {k: first_fault[k] for k in ("ts", "delay", "jitter", "seed", "law_fault")},
         "ts_by_delay": ts_by_delay,
         "delay_by_ts": delay_by_ts,
         "first": None
@@ -115,9 +124,12 @@ def break_points(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 def aggregate(
     rows: Sequence[Mapping[str, Any]], metric: str, how: str = "max"
 ) -> dict[tuple[float, float], float]:
-    """metric over jitter and seeds for each (ts, delay): the worst case ("max") or "mean"."""
+    """metric over jitter and seeds for each (ts, delay): the worst case ("max") or "mean"
+    (points where the law failed left out)."""
     groups: dict[tuple[float, float], list[float]] = {}
     for r in rows:
+        if r.get("law_fault"):  # what ran until the law failed says nothing of held limits
+            continue
         v = r.get(metric)
         if isinstance(v, int | float) and math.isfinite(v):
             groups.setdefault((r["ts"], r["delay"]), []).append(float(v))

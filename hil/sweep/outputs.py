@@ -13,6 +13,7 @@ import numpy as np
 from hil.folder.jsonio import jsonable, write_json
 from hil.report import figures as fg
 from hil.sweep.grid import SweepGrid, aggregate, break_points
+from hil.sweep.runner import LAW_FAULT_RECORD
 from protocol.versions import SWEEP_SCHEMA_VERSION
 
 # sweep.csv: the columns of hil.sweep.runner.point_row, in its order
@@ -20,7 +21,7 @@ CSV_COLUMNS = (
     "ts", "delay", "jitter", "seed", "age", "final_position_error", "rms_position_error",
     "max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2", "overshoot_v",
     "overshoot_omega", "band_v", "band_w", "violations", "violation", "v_bound", "w_bound",
-    "certified", "within_bound", "commands_dropped", "complete",
+    "certified", "within_bound", "commands_dropped", "complete", "nonfinite_steps", "law_fault",
 )  # fmt: skip
 # (metric, y label, how to aggregate over jitter and seeds, reference line)
 FIGURES: tuple[tuple[str, str, str, float | None], ...] = (
@@ -81,6 +82,9 @@ def write_outputs(
     meta: dict[str, Any],
 ) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
+    # The first faulted point's whole record (traceback) once, not one per row.
+    records = [r for r in rows if r.get(LAW_FAULT_RECORD) is not None]
+    rows = [{k: v for k, v in r.items() if k != LAW_FAULT_RECORD} for r in rows]
     bp = break_points(rows) if rows else {"held_everywhere": None, "first": None}
     write_csv(out / "sweep.csv", rows)
     figs = sweep_figures(rows, grid, bp) if rows else []
@@ -95,12 +99,25 @@ def write_outputs(
         "grid": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(grid).items()},
         **meta,
         "break_point": jsonable({**bp, "ts_by_delay": by_delay, "delay_by_ts": by_ts}),
+        "law_fault": _first_record(records, bp.get("first_law_fault")),
         "rows": rows,
         "figures": files,
     }
     write_json(out / "sweep.json", doc)
     (out / "sweep.md").write_text(_markdown(doc, bp, files))
     return doc
+
+
+def _first_record(
+    records: Sequence[dict[str, Any]], first: dict[str, Any] | None
+) -> dict[str, Any] | None:
+    """The law fault record (controller_service.laws.guard.LawFault) of the first faulted
+    point, None when the law never failed."""
+    keys = ("ts", "delay", "jitter", "seed")
+    for r in records:
+        if first is not None and all(r[k] == first[k] for k in keys):
+            return r[LAW_FAULT_RECORD]
+    return records[0][LAW_FAULT_RECORD] if records else None
 
 
 def _markdown(doc: dict[str, Any], bp: dict[str, Any], files: list[dict[str, str]]) -> str:
@@ -116,11 +133,22 @@ def _markdown(doc: dict[str, Any], bp: dict[str, Any], files: list[dict[str, str
         + (f" (defaults used for: {', '.join(g['defaulted'])})" if g["defaulted"] else "")
         + ".",
         "",
-        "## Break point",
-        "",
     ]
+    fault = bp.get("first_law_fault")
+    if fault is not None:
+        lines += [
+            "## Law fault",
+            "",
+            f"The law failed at {bp['law_faults']} of {len(doc['rows'])} loops (a FAIL of the "
+            f"law: those points never count as held); first at Ts = {fault['ts']:g} s, delay = "
+            f"{fault['delay']:g} s: {fault['law_fault']}.",
+            "",
+        ]
+    lines += ["## Break point", ""]
     first = bp.get("first")
-    if first is None:
+    if first is None and fault is not None:
+        lines.append("No limit of (2) broke where the law ran to the end.")
+    elif first is None:
         lines.append("The limits (2) held at every point of the grid.")
     else:
         lines.append(

@@ -35,6 +35,7 @@ COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("overshoot_omega", "max |ω| / φ2 (1: the limit)", ".3f"),
     ("violations", "plant steps beyond a limit [count]", "d"),
     ("certified", "certificate holds (age ≤ D*)", ""),
+    ("law_fault", "law fault (the law failed here)", ""),
 )
 
 STYLE = """
@@ -76,6 +77,19 @@ def _answer(doc: Mapping[str, Any]) -> str:
     partial = " (interrupted: partial results)" if doc.get("interrupted") else ""
     if not n:
         return '<p class="answer broke">No loop finished: nothing to show.</p>'
+    fault = bp.get("first_law_fault")
+    if fault is not None:
+        text = (
+            f"FAIL: the law failed at {bp.get('law_faults', '?')} of {n} loops{partial} (those "
+            f"points never count as held); first at Ts = {fault['ts']:g} s, delay = "
+            f"{fault['delay']:g} s: {fault['law_fault']}."
+        )
+        if first is not None:
+            text += (
+                f" Where it ran to the end, the limits (2) first break at Ts = {first['ts']:g} s "
+                f"with a delay of {first['delay']:g} s."
+            )
+        return f'<p class="answer broke">{_e(text)}</p>'
     if first is None:
         text = f"The limits (2) held in all {n} loops of the grid{partial}."
         return f'<p class="answer held">{_e(text)}</p>'
@@ -119,14 +133,24 @@ def _certificate_line(doc: Mapping[str, Any]) -> str:
 
 
 def heat_cells(rows: Sequence[Mapping[str, Any]]) -> dict[tuple[float, float], tuple[float, bool]]:
-    """(Ts, delay) -> (worst overshoot over jitter and seeds, whether any loop broke a limit)."""
+    """(Ts, delay) -> (worst overshoot over jitter and seeds, whether any loop broke a limit);
+    the cells where the law failed are :func:`fault_cells`'."""
     over_v = aggregate(rows, "overshoot_v", "max")
     over_w = aggregate(rows, "overshoot_omega", "max")
     broke = aggregate(rows, "violations", "max")
+    gone = aggregate(rows, "nonfinite_steps", "max")  # a non-finite state: (2) broke
     return {
-        key: (max(over_v.get(key, -math.inf), over_w.get(key, -math.inf)), broke.get(key, 0) > 0)
+        key: (
+            max(over_v.get(key, -math.inf), over_w.get(key, -math.inf)),
+            broke.get(key, 0) > 0 or gone.get(key, 0) > 0,
+        )
         for key in set(over_v) | set(over_w)
     }
+
+
+def fault_cells(rows: Sequence[Mapping[str, Any]]) -> set[tuple[float, float]]:
+    """The (Ts, delay) cells where the law failed at some jitter or seed."""
+    return {(r["ts"], r["delay"]) for r in rows if r.get("law_fault")}
 
 
 def _heat_map(doc: Mapping[str, Any]) -> str:
@@ -134,12 +158,16 @@ def _heat_map(doc: Mapping[str, Any]) -> str:
     ts_values = sorted(grid.get("ts") or [])
     delays = sorted(grid.get("delay") or [])
     cells = heat_cells(doc.get("rows") or [])
+    faulted = fault_cells(doc.get("rows") or [])
     head = "".join(f"<th>Ts = {ts:g} s</th>" for ts in ts_values)
     body = []
     for d in delays:
         tds = []
         for ts in ts_values:
             cell = cells.get((ts, d))
+            if (ts, d) in faulted:
+                tds.append(f'<td style="background:{COLOURS["broke"]}">law fault ✗</td>')
+                continue
             if cell is None:
                 tds.append(f'<td style="background:{COLOURS["none"]}">not run</td>')
                 continue
@@ -152,7 +180,7 @@ def _heat_map(doc: Mapping[str, Any]) -> str:
         '<p class="legend">'
         f'<span style="background:{COLOURS["inside"]}">below {NEAR:.0%} of the limit</span>'
         f'<span style="background:{COLOURS["near"]}">{NEAR:.0%} of the limit or more</span>'
-        f'<span style="background:{COLOURS["broke"]}">✗ a limit broke</span>'
+        f'<span style="background:{COLOURS["broke"]}">✗ a limit broke (or the law failed)</span>'
         f'<span style="background:{COLOURS["none"]}">not run</span></p>'
     )
     return (
@@ -168,7 +196,8 @@ def _results_table(rows: Sequence[Mapping[str, Any]]) -> str:
     lines = []
     order = sorted(rows, key=lambda r: (r["ts"], r["delay"], r["jitter"], r["seed"]))
     for r in order[:TABLE_ROWS_MAX]:
-        style = ' style="background:#f4b4b4"' if r.get("violations") else ""
+        bad = r.get("violations") or r.get("law_fault") or r.get("nonfinite_steps")
+        style = ' style="background:#f4b4b4"' if bad else ""
         tds = "".join(f"<td>{_e(_fmt(r.get(k), spec))}</td>" for k, _, spec in COLUMNS)
         lines.append(f"<tr{style}>{tds}</tr>")
     note = ""

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from controller_service.laws.guard import LawFault
 from hil import trace_metrics
 from hil.folder.scenario_view import view
 from hil.measure.certificate import certificate
@@ -26,6 +27,8 @@ from hil.sim.core import Progress
 from hil.sweep.grid import SweepGrid, SweepPoint
 
 RECORD_LIMIT = 64
+SWEEP_JSON = "sweep.json"  # holds the first law fault's whole record (hil.sweep.outputs)
+LAW_FAULT_RECORD = "law_fault_record"  # a row's key for it, taken out when the rows are written
 ProgressFn = Callable[[float, int, int], None]  # (ts, samples done, samples in this group)
 
 
@@ -62,6 +65,8 @@ def point_row(
     max_v = float(summary["max_abs_v"])
     max_w = float(summary["max_abs_omega"])
     n_viol = sum(int(v) for v in summary.get("violations", {}).values())
+    nonfinite = int(summary.get("nonfinite_steps") or 0)
+    fault = summary.get("law_fault")
     tol = 1 + trace_metrics.LIMIT_REL_TOL
     v_bound, w_bound = cert["v_bound"], cert["w_bound"]
     within = None if v_bound is None else bool(max_v <= v_bound * tol and max_w <= w_bound * tol)
@@ -82,7 +87,11 @@ def point_row(
         "band_v": band_v,
         "band_w": band_w,
         "violations": n_viol,
-        "violation": n_viol > 0,
+        # a state that became non-finite breaks (2) as surely as a limit (hil.verdict)
+        "violation": n_viol > 0 or nonfinite > 0,
+        "nonfinite_steps": nonfinite,
+        # the law failed at this point: never "held" (hil.sweep.grid.break_points)
+        "law_fault": None if fault is None else LawFault.from_dict(fault).sentence(SWEEP_JSON),
         "v_bound": v_bound,
         "w_bound": w_bound,
         "certified": cert["held"],
@@ -114,6 +123,7 @@ def simulate_points(
     complete = not result.interrupted
     for i, p in enumerate(points):
         worst = worst_age(p, sv.jitter_kind)
+        fault = result.summaries[i].get("law_fault")
         if worst not in certs:
             certs[worst] = certificate(sv, sc.timing.ts, worst).as_dict()
         trace = result.traces.get(i)
@@ -121,7 +131,10 @@ def simulate_points(
         if trace is not None and len(trace) > 1:
             bv = _band(trace, result.columns, "v_tilde", sv.eps1)
             bw = _band(trace, result.columns, "w_tilde", sv.eps2)
-        rows.append(point_row(p, result.summaries[i], certs[worst], sv.limits, bv, bw, complete))
+        row = point_row(p, result.summaries[i], certs[worst], sv.limits, bv, bw, complete)
+        if fault is not None:  # the whole record (its traceback) goes to sweep.json, not the CSV
+            row[LAW_FAULT_RECORD] = fault
+        rows.append(row)
     return rows, result
 
 

@@ -15,13 +15,14 @@ from typing import Any
 
 import numpy as np
 
+from controller_service.laws.guard import LawFault, LawFaultError
 from hil.adversary.loop import initial_states, scenario_schedule
 from hil.adversary.search import worst_disturbance
 from hil.folder.scenario_view import view
 from hil.measure.certificate import certificate
 from hil.scenario import Scenario, build_loop, resolved_dict
 from hil.sweep.grid import SweepGrid
-from hil.sweep.runner import SweepOutcome, point_row, scenario_at, worst_age
+from hil.sweep.runner import LAW_FAULT_RECORD, SweepOutcome, point_row, scenario_at, worst_age
 
 POPULATION = 64
 ROUNDS = 3
@@ -37,6 +38,19 @@ def _summary(best: Any) -> dict[str, Any]:
         "violations": {"worst": int(best.broke)},
         "commands_dropped": 0,
     }
+
+
+def _faulted_row(p: Any, fault: LawFault, cert: dict[str, Any], limits: Any) -> dict[str, Any]:
+    """The row of a point whose search stopped at a law fault: no peaks, the fault."""
+    nan = float("nan")
+    peaks = ("max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2")
+    summary = {**dict.fromkeys(peaks, nan), "final_position_error": nan}
+    summary |= {"rms_position_error": nan, "violations": {}, "commands_dropped": 0}
+    summary["law_fault"] = fault.to_dict()
+    row = point_row(p, summary, cert, limits, None, None, True)
+    row[LAW_FAULT_RECORD] = fault.to_dict()
+    row["disturbance"] = None
+    return row
 
 
 def run_worst_sweep(
@@ -59,8 +73,14 @@ def run_worst_sweep(
                 sc = dataclasses.replace(sc, timing=timing)
                 schedule = scenario_schedule(sc, POPULATION)
                 init = initial_states(sc, POPULATION, SPREAD, p.seed)
-                best = worst_disturbance(sc, schedule, init, rounds=ROUNDS, seed=p.seed, loop=loop)
                 cert = certificate(sv, ts, worst_age(p, sv.jitter_kind)).as_dict()
+                try:
+                    best = worst_disturbance(
+                        sc, schedule, init, rounds=ROUNDS, seed=p.seed, loop=loop
+                    )
+                except LawFaultError as exc:  # the law failed in a loop: the point is a FAIL
+                    outcome.rows.append(_faulted_row(p, exc.fault, cert, sv.limits))
+                    continue
                 row = point_row(p, _summary(best), cert, sv.limits, None, None, True)
                 row["violation"] = best.broke
                 row["disturbance"] = f"{best.describe()} (worst of {best.loops} loops)"
