@@ -27,8 +27,10 @@ SWEEP_HELP = (
     "--duration says otherwise.\n\n"
     'jitter_kind = "replay" with \\[timing] replay naming a run folder or .mcap (PATH::zenoh '
     "or PATH::can for one path) replays that run's measured latencies.\n\n"
-    "Ctrl-C keeps the Ts groups already done (exit 130). Exit 0 (also when a break point is "
-    "found, unless --strict), 1 with --strict when a limit broke, 2 on bad input."
+    "Ctrl-C keeps the Ts groups already done and says which loops it did not cover (exit "
+    "130). The break point is the sweep's answer, not a failure: exit 0 (PASS) also when a "
+    "limit broke somewhere; 1 (FAIL) when the law faulted in a loop, or with --strict when "
+    "any loop broke a limit; 2 on bad input (docs/reports.md)."
 )
 
 
@@ -46,7 +48,9 @@ OutOpt = Annotated[
 DurationOpt = Annotated[
     float | None, typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s).")
 ]
-StrictOpt = Annotated[bool, typer.Option(help="Exit 1 when any loop of the grid broke a limit.")]
+StrictOpt = Annotated[
+    bool, typer.Option(help="FAIL (exit 1) when any loop of the grid broke a limit.")
+]
 WorstOpt = Annotated[
     bool,
     typer.Option(
@@ -125,13 +129,21 @@ def sweep(
     with interrupts.shielded():
         doc = write_outputs(target, outcome.rows, grid, meta)
         page = write_sweep_page(target, doc)
+    from hil.sweep.grid import coverage_sentence, sweep_outcome
+
     first = doc["break_point"].get("first")
     typer.echo(f"sweep: {page} (also sweep.md, sweep.csv, sweep.json)")
+    missing = coverage_sentence(doc["coverage"])
+    if missing:  # a cut-short sweep never claims what it did not run
+        typer.echo(missing)
+    among = " among the loops run" if missing else ""
     typer.echo(
-        "break point: none, the limits held everywhere"
+        f"break point: none{among}, "
+        + (f"no limit broke in the {len(doc['rows'])} loops run" if missing else
+           "the limits held everywhere")
         if first is None
-        else f"break point: Ts={first['ts']:g} s, delay={first['delay']:g} s"
-    )
+        else f"break point{among}: Ts={first['ts']:g} s, delay={first['delay']:g} s"
+    )  # fmt: skip
     if worst_disturbance and first is not None:
         from hil.sweep.worst import worst_at_break
 
@@ -140,8 +152,9 @@ def sweep(
         # hil.cli exits 130: the interrupt was recorded by hil.interrupts.
         interrupts.note(f"partial results kept in {target}")
         return
-    if strict and first is not None:
-        raise NegativeVerdictError("a limit of (2) broke inside the grid")
+    verdict, why = sweep_outcome(outcome.rows, strict)
+    if verdict != "PASS":
+        raise NegativeVerdictError(why, verdict)
 
 
 def _checked_sweep(
