@@ -399,7 +399,14 @@ def _facts(v: Verdict, facts: RunFacts | None) -> None:
     if facts.interrupted:
         ran = f"{facts.duration_run_s:.3f} s" if facts.duration_run_s is not None else "?"
         planned = f"{facts.duration_s:g} s" if facts.duration_s is not None else "?"
-        v.notes.append(f"interrupted after {ran} of {planned}: the verdict covers only that")
+        text = f"interrupted after {ran} of {planned}: the verdict covers only that"
+        if facts.duration_run_s is not None and facts.duration_s is not None:
+            rest = max(0.0, facts.duration_s - facts.duration_run_s)
+            text = (
+                f"interrupted after {ran} of {planned}: the verdict covers only those {ran} "
+                f"and makes no claim about the {rest:.3f} s not run"
+            )
+        v.notes.append(text)
     for role, sched in (facts.scheduling or {}).items():
         if not isinstance(sched, dict):
             continue

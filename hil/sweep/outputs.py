@@ -176,7 +176,7 @@ def _markdown(doc: dict[str, Any], bp: dict[str, Any], files: list[dict[str, str
         for d, ts in bp["ts_by_delay"].items():
             lines.append(f"| {d:g} | {'none' if ts is None else f'{ts:g}'} |")
     missing = coverage_sentence(cov)
-    if missing:
+    if missing and bp.get("first") is not None:  # without a break the sentence above says it
         lines += ["", missing[0].upper() + missing[1:] + "."]
     cert = certificate_sentence(doc["rows"], doc.get("law"))
     lines += ["", f"Certificate: {cert}", "", "## Figures", ""]
