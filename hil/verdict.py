@@ -71,9 +71,15 @@ class RunFacts:
 
     @classmethod
     def of(cls, summary: Summary) -> RunFacts | None:
-        """How a run went, from its summary (None for a simulation)."""
+        """How a run went, from its summary (None for a simulation, unless it was cut short:
+        then what it covered)."""
         if summary.get("kind") != "run":
-            return None
+            if not summary.get("interrupted"):
+                return None
+            ran = summary.get("duration")
+            return cls(
+                interrupted=True, duration_run_s=ran if isinstance(ran, int | float) else None
+            )
         sched = summary.get("scheduling")
         return cls(
             interrupted=bool(summary.get("interrupted")),
@@ -398,12 +404,12 @@ def _facts(v: Verdict, facts: RunFacts | None) -> None:
         return
     if facts.interrupted:
         ran = f"{facts.duration_run_s:.3f} s" if facts.duration_run_s is not None else "?"
-        planned = f"{facts.duration_s:g} s" if facts.duration_s is not None else "?"
-        text = f"interrupted after {ran} of {planned}: the verdict covers only that"
+        planned = f" of {facts.duration_s:g} s" if facts.duration_s is not None else ""
+        text = f"interrupted after {ran}{planned}: the verdict covers only that"
         if facts.duration_run_s is not None and facts.duration_s is not None:
             rest = max(0.0, facts.duration_s - facts.duration_run_s)
             text = (
-                f"interrupted after {ran} of {planned}: the verdict covers only those {ran} "
+                f"interrupted after {ran}{planned}: the verdict covers only those {ran} "
                 f"and makes no claim about the {rest:.3f} s not run"
             )
         v.notes.append(text)

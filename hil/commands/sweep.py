@@ -129,12 +129,21 @@ def sweep(
     with interrupts.shielded():
         doc = write_outputs(target, outcome.rows, grid, meta)
         page = write_sweep_page(target, doc)
+    typer.echo(f"sweep: {page} (also sweep.md, sweep.csv, sweep.json)")
+    _say_and_judge(doc, outcome, target, strict, worst_disturbance)
+
+
+def _say_and_judge(
+    doc: dict[str, Any], outcome: Any, target: Path, strict: bool, worst: bool
+) -> None:
+    """The sweep's lines (what it did not cover first, never "held everywhere" for a grid it
+    did not cover), then its verdict's exit (hil.sweep.grid.sweep_outcome) or, interrupted,
+    130 through hil.cli."""
     from hil.sweep.grid import coverage_sentence, sweep_outcome
 
     first = doc["break_point"].get("first")
-    typer.echo(f"sweep: {page} (also sweep.md, sweep.csv, sweep.json)")
     missing = coverage_sentence(doc["coverage"])
-    if missing:  # a cut-short sweep never claims what it did not run
+    if missing:
         typer.echo(missing)
     among = " among the loops run" if missing else ""
     typer.echo(
@@ -144,7 +153,7 @@ def sweep(
         if first is None
         else f"break point{among}: Ts={first['ts']:g} s, delay={first['delay']:g} s"
     )  # fmt: skip
-    if worst_disturbance and first is not None:
+    if worst and first is not None:
         from hil.sweep.worst import worst_at_break
 
         typer.echo(f"broken by: {worst_at_break(outcome.rows, first)}")
