@@ -175,3 +175,17 @@ def test_the_sweeps_verdict_is_not_its_break_point():
     faulted = [*rows, {"violation": False, "law_fault": {"law": "nan_law"}}]
     outcome, why = sweep_outcome(faulted, strict=False)
     assert outcome == FAIL and why == "the law faulted in 1 of 3 loops"
+
+
+def test_a_run_stopped_by_its_own_error_says_fail_and_exits_1(monkeypatch, tmp_path, capsys):
+    """The result line is the exit's outcome: a run whose services never became ready is a
+    FAIL (exit 1), said first, whatever its figures' verdict."""
+    import hil.run.orchestrate as orchestrate
+
+    summary = _summary(PASS, error="services did not become ready")
+    monkeypatch.setattr(orchestrate, "execute", lambda opts: summary)
+    argv = ["run", "--no-report", "--quiet", "--out", str(tmp_path / "run")]
+    assert main(argv) == 1
+    said = capsys.readouterr()
+    assert "result: FAIL: services did not become ready" in said.out
+    assert "verdict: FAIL: services did not become ready" in said.err

@@ -136,20 +136,22 @@ def _raise_on_negative(summary: dict[str, Any]) -> None:
 def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
     """One plain line: the outcome, why, D against D* where there is a certificate, notes,
     and where to read more (the report, else the run folder)."""
-    from hil.verdict import short_reason
+    from hil.verdict import run_outcome, short_reason
 
     v = summary.get("verdict") or {}
     cert = summary.get("certificate") or {}
     d, ds = cert.get("d_max_s"), cert.get("d_star_s")
     age = f"D {d * 1e3:.2f} ms of D* {ds * 1e3:.2f} ms" if d is not None and ds else ""
-    reasons = v.get("reasons") or []
+    # The outcome the run exits with: a run stopped by its own error is a FAIL, said first.
+    reasons = [str(summary["error"])] if summary.get("error") else []
+    reasons += v.get("reasons") or []
     why = short_reason(reasons[0]) if reasons else f"limits {v.get('limits', '?')}"
     if len(reasons) > 1:
         why += f" (and {len(reasons) - 1} more reason{'s' if len(reasons) > 2 else ''})"
     if "D* =" in why:
         age = ""  # the reason already says D against D*
     notes = "; ".join(v.get("notes") or [])
-    line = f"{v.get('outcome', '?')}: " + ", ".join(x for x in (why, age) if x)
+    line = f"{run_outcome(summary)}: " + ", ".join(x for x in (why, age) if x)
     if notes:
         line += f" ({notes})"
     if report:
