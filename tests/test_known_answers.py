@@ -323,6 +323,17 @@ def test_commands_dropped_below_the_plants_rate_are_exactly_the_slots_without(tm
     assert t["sample_gap"]["max_us"] == 2 * SLOW_P / US  # across each dropped command
 
 
+def test_a_sensor_slower_than_the_controller_has_every_sample_judged(tmp_path):
+    """[realtime] sensor_rate below the control rate (100 Hz samples, 500 Hz ticks): each
+    sample is one the controller was meant to answer, and answered once (the ticks between
+    samples find no fresh State and send nothing). 100 samples (0 .. 990 ms), judged up to
+    990 - 2 x 2 ms: 0 .. 980 ms, 99 of them."""
+    t = _measure(tmp_path, "run", period=P, sensor_period=5 * P, n=100).timing
+    assert (t["samples_without_command"], t["samples_judged"]) == (0, 99)
+    m = _measure(tmp_path, "lossy", period=P, sensor_period=5 * P, n=100, drop_state_every=7)
+    assert m.timing["samples_without_command"] == len(range(6, 99, 7)) == 14
+
+
 def test_a_controller_on_state_answers_every_sample_whatever_its_period(tmp_path):
     """on_state computes on every fresh State: each sample is one it was meant to answer."""
     t = _measure(tmp_path, "run", period=SLOW_P, sensor_period=FAST_S, trigger="on_state").timing

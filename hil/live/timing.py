@@ -57,6 +57,7 @@ class LiveTiming:
         self.first_state_ns: int | None = None
         self.first_recv_ns: int | None = None
         self.epoch_ns: int | None = None  # the run's t = 0 (the controller's Status)
+        self.origin_ns: int | None = None  # the control slots' grid, once known
         self.in_force_sample_ns: int | None = None  # of the newest command seen
         self.age_now_ns: int | None = None
         self.age_max_ns: int | None = None
@@ -75,8 +76,10 @@ class LiveTiming:
         half a period after the epoch)."""
         if not self.bounds.one_per_period:
             return seq
-        epoch = self.epoch_ns if self.epoch_ns is not None else self.first_state_ns or 0
-        return int(control_slot(sample_ns, epoch + self.ts_ns // 2, self.ts_ns))
+        if self.origin_ns is None:  # fixed at first use: keys never move under a pending slot
+            epoch = self.epoch_ns if self.epoch_ns is not None else self.first_state_ns or 0
+            self.origin_ns = epoch + self.ts_ns // 2
+        return int(control_slot(sample_ns, self.origin_ns, self.ts_ns))
 
     def on_state(self, st: State, recv_ns: int) -> None:
         self.states += 1
