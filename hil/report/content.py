@@ -560,14 +560,20 @@ def _messages(s: Section, data: dict[str, Any]) -> None:
             "counts below include them, and the certificate's stalls name them in their evidence."
         )
     impair = data["timing"].get("impair")
+    msgs = data["timing"].get("messages") or {}
     if isinstance(impair, dict):
+        # Said as counted, side by side: a dropped packet is not always one lost message (a CAN
+        # command is two frames), and whether the two agree is for the reader to see.
+        streams = [st for st in msgs.values() if isinstance(st, dict)]
+        lost = sum(int(st.get("lost") or 0) for st in streams)
+        injected = sum(int(st.get("injected_drops") or 0) for st in streams)
+        of_faults = f" ({injected} of them dropped by [faults] on purpose)" if injected else ""
         s.p(
             f"The link was impaired on purpose ([impair], docs/impair.md): {impair.get('packets')}"
             f" in a {impair.get('namespace')}; nftables matched {impair.get('matched_packets')} "
-            f"packets and dropped {impair.get('dropped_packets')}. The lost counts below can only "
-            "be those (and any the faults above injected)."
+            f"packets and dropped {impair.get('dropped_packets')}. The streams below lost {lost} "
+            f"messages in all{of_faults}."
         )
-    msgs = data["timing"].get("messages") or {}
     keys = ("sent", "received", "lost", "duplicated", "reordered")
     rows = []
     for name, st in msgs.items():
