@@ -29,6 +29,7 @@ from typing import Any
 import _here  # noqa: F401 - this checkout first on sys.path
 
 from bench.bench_rt_loop import combine, figures_of
+from hil.verdict import EXIT_CODE  # the codes of a verdict: the command worked
 from tests.procs import free_tcp_port
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -94,7 +95,7 @@ def run_once(rate: float, duration: float, live: bool, out: Path) -> dict[str, A
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    if proc.returncode not in (0, 1):
+    if proc.returncode not in EXIT_CODE.values():
         raise RuntimeError(err.decode(errors="replace")[-2000:])
     summary = json.loads((out / "summary.json").read_text())
     figs = figures_of(summary, rate, "periodic", out)

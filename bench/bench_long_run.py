@@ -38,6 +38,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from longrun import ROOT, growth_kb, growth_verdict, run_sampled
 
+from hil.verdict import EXIT_CODE  # the codes of a verdict: the command worked
+
 FILES = ("controller.hoplog", "plant.hoplog", "recording.mcap", "trace.csv")
 RUN_RECORD = "bench_run.json"
 
@@ -52,7 +54,7 @@ def report_sampled(run_dir: Path, *args: str) -> dict[str, Any]:
     _, status, usage = os.wait4(proc.pid, 0)
     seconds = time.monotonic() - t0
     proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode not in (0, 1):
+    if proc.returncode not in EXIT_CODE.values():
         raise RuntimeError(err.decode(errors="replace")[-3000:])
     return {
         "wall_s": round(seconds, 2),

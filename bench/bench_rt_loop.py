@@ -39,6 +39,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from hil.verdict import EXIT_CODE  # noqa: E402 (a verdict's codes: the command worked)
 from protocol.settings import IDLE_POLICIES  # noqa: E402 (after the path is set)
 
 FIFO_SCENARIO = """
@@ -87,7 +88,7 @@ def run_loop(
         cwd=ROOT,
         timeout=duration + 180,
     )
-    if proc.returncode not in (0, 1):
+    if proc.returncode not in EXIT_CODE.values():
         raise RuntimeError(proc.stderr[-2000:])
     return figures_of(json.loads((out / "summary.json").read_text()), rate, trigger, out)
 

@@ -58,6 +58,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from hil.verdict import EXIT_CODE  # noqa: E402  (a verdict's codes: the command worked)
 from protocol.can.codec import AxisState, ODriveError  # noqa: E402
 from protocol.hoplog import read_hoplog  # noqa: E402
 from protocol.messages import FLAG_WATCHDOG_ZERO  # noqa: E402
@@ -455,7 +456,7 @@ def _report_recovers(out: Path, t: Trial) -> bool:
         cwd=ROOT, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     t.detail["report_exit"] = rep.returncode
-    if rep.returncode not in (0, 1):
+    if rep.returncode not in EXIT_CODE.values():
         t.detail["error"] = rep.stderr[-2000:]
         return False
     summary = json.loads((out / "summary.json").read_text())

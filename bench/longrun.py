@@ -21,6 +21,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from hil.verdict import EXIT_CODE  # noqa: E402 (a verdict's codes: the command worked)
+
 
 def rss_kb(pid: int, field_name: str = "VmRSS") -> int | None:
     try:
@@ -88,7 +90,7 @@ def run_sampled(out: Path, duration_s: float, *args: str, rate: float = 1000.0) 
         if proc.poll() is None:
             proc.kill()
         proc.wait()
-    if proc.returncode not in (0, 1):
+    if proc.returncode not in EXIT_CODE.values():
         raise RuntimeError(proc.stderr.read().decode(errors="replace")[-3000:])
     return got
 

@@ -33,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from hil.verdict import EXIT_CODE  # noqa: E402  (a verdict's codes: the command worked)
 from protocol.hoplog import read_hoplog  # noqa: E402
 
 GROUP = "239.74.163.2"  # python-can's IPv4 group for udp_multicast (UdpMulticastBus)
@@ -150,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
     scenario.write_text(scenario_text(args.every, args.torque_only))
     cmd = [sys.executable, "-m", "hil", *hil_run_args(scenario, out, args.duration, args.rate)]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
-    if proc.returncode not in (0, 1) or not (out / "summary.json").is_file():
+    if proc.returncode not in EXIT_CODE.values() or not (out / "summary.json").is_file():
         sys.stderr.write(proc.stderr[-3000:])
         return proc.returncode or 1
     summary = json.loads((out / "summary.json").read_text())

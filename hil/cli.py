@@ -1,12 +1,13 @@
 """The ``hil`` front door: one typer app, its commands in the modules of ``hil/commands``.
 
 A module of :mod:`hil.commands` adds its commands to ``hil.commands.app`` when imported;
-modules are discovered, so adding a command never edits this file. Exit codes follow the contract:
-0 success, 1 negative verdict (a limit broken, a certificate not held), 2 bad usage or input,
-3 the tool itself failed (an unexpected exception: its traceback is printed; a script must not
-read it as a verdict), 130 interrupted (Ctrl-C; what was done is kept). The interrupt is
-recorded by the project's own SIGINT handler (:mod:`hil.interrupts`), so the exit code does
-not depend on what the CLI library does with a KeyboardInterrupt.
+modules are discovered, so adding a command never edits this file. Exit codes are the table of
+:mod:`hil.verdict` (docs/reports.md, "Verdict and exit code"): 0 PASS or success, 1 FAIL, 4
+INCONCLUSIVE, 2 bad usage or input, 3 the tool itself failed (an unexpected exception: its
+traceback is printed; a script must not read it as a verdict), 130 interrupted (Ctrl-C; what
+was done is kept). The interrupt is recorded by the project's own SIGINT handler
+(:mod:`hil.interrupts`), so the exit code does not depend on what the CLI library does with a
+KeyboardInterrupt.
 """
 
 from __future__ import annotations
@@ -21,15 +22,12 @@ import typer
 from hil import commands, interrupts
 from hil.commands import app
 from hil.errors import BadInputError, NegativeVerdictError, one_line
+from hil.verdict import BAD_INPUT, INTERNAL_ERROR, INTERRUPTED, exit_code
 
 # Every command of hil.commands, listed by ``hil --help`` in alphabetical order.
 for _info in pkgutil.iter_modules(commands.__path__):
     importlib.import_module(f"hil.commands.{_info.name}")
 app.registered_commands.sort(key=lambda command: command.name or "")
-
-# Python's own exit code for an uncaught exception is 1, the code of a negative verdict: a
-# script running ``hil report`` would read a crash as FAIL.
-INTERNAL_ERROR = 3
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -40,10 +38,10 @@ def main(argv: list[str] | None = None) -> int:
         except BaseException:
             if not interrupts.happened():
                 raise
-            code = 130
+            code = INTERRUPTED
         if interrupts.happened():
             typer.echo(interrupts.message(), err=True)
-            return 130
+            return INTERRUPTED
         return code
 
 
@@ -57,12 +55,15 @@ def _dispatch(argv: list[str] | None) -> int:
         returned = app(args=argv, standalone_mode=False)
     except KeyboardInterrupt:  # not through hil.interrupts' handler: the same meaning
         interrupts.record()
-        return 130
-    except (BadInputError, NegativeVerdictError) as exc:
-        bad = isinstance(exc, BadInputError)
+        return INTERRUPTED
+    except BadInputError as exc:
         if not interrupts.happened():
-            typer.echo(f"{'error' if bad else 'verdict'}: {exc}", err=True)
-        return 2 if bad else 1
+            typer.echo(f"error: {exc}", err=True)
+        return BAD_INPUT
+    except NegativeVerdictError as exc:
+        if not interrupts.happened():
+            typer.echo(f"verdict: {exc.outcome}: {exc}", err=True)
+        return exit_code(exc.outcome)
     except SystemExit as exc:  # exits of the CLI library (e.g. --help) keep their code
         if isinstance(exc.code, str):
             typer.echo(exc.code, err=True)
@@ -70,12 +71,12 @@ def _dispatch(argv: list[str] | None) -> int:
         return int(exc.code or 0)
     except Exception as exc:  # usage errors of the CLI library carry exit_code 2
         if interrupts.happened():  # whatever the library wrapped the KeyboardInterrupt in
-            return 130
+            return INTERRUPTED
         code = getattr(exc, "exit_code", None)
         line = _usage_line(exc)
-        if code == 2 and line is not None:  # a bad option or argument: one line naming it
+        if code == BAD_INPUT and line is not None:  # a bad option or argument: one line naming it
             typer.echo(f"error: {line}", err=True)
-            return 2
+            return BAD_INPUT
         if code is not None:
             show = getattr(exc, "show", None)
             if callable(show):

@@ -8,4 +8,10 @@ __all__ = ["BadInputError", "NegativeVerdictError", "one_line"]
 
 
 class NegativeVerdictError(Exception):
-    """The command worked and its verdict is negative (a limit broken): exit code 1."""
+    """The command worked and its verdict is not PASS: ``outcome`` is "FAIL" (the default) or
+    "INCONCLUSIVE", and :func:`hil.cli.main` exits with that outcome's code
+    (:data:`hil.verdict.EXIT_CODE`: 1 or 4)."""
+
+    def __init__(self, message: str, outcome: str = "FAIL") -> None:
+        super().__init__(message)
+        self.outcome = outcome

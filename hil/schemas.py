@@ -275,7 +275,9 @@ LIVE_TIMING = _object(
             "the controller's own count (its Status; absent until one arrived)"
         ),
         "states_without_command": _count(
-            "States no command was computed from within 0.1 s of their arrival"
+            "States the controller was meant to answer (one per control period below the "
+            "plant's sample rate) that no command was computed from within 0.1 s + Ts of "
+            "their arrival"
         ),
         "max_abs_v": _num("largest |v| so far, m/s"),
         "max_abs_omega": _num("largest |omega| so far, rad/s"),

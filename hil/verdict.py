@@ -23,6 +23,11 @@ system's, never the bench's: after the controller ended, no stall of the bench i
 
 A run cut short is judged over what ran, and says so. A figure that was not measured is absent
 from the evidence, never 0.
+
+Every command that gives a verdict exits with that verdict's code (:data:`EXIT_CODE`,
+:func:`exit_code`; the whole table, docs/reports.md "Verdict and exit code"): every FAIL exits
+1, whatever made it, and INCONCLUSIVE exits 4, so a script can tell the two apart. The live view
+judges with the same :func:`judge` (:func:`judge_evidence`), from the figures it has.
 """
 
 from __future__ import annotations
@@ -36,6 +41,12 @@ from hil.folder.records import ControllerExit, Summary
 from hil.trace_metrics import LIMIT_REL_TOL, ConstraintFigure
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
+#: The exit code of each outcome, for every command that has a verdict (docs/reports.md).
+EXIT_CODE = {PASS: 0, FAIL: 1, INCONCLUSIVE: 4}
+#: The rest of the table: bad usage or input, a fault of hil itself (its traceback printed,
+#: never a verdict; Python's own code for an uncaught exception would be 1, FAIL's), and an
+#: interrupt (Ctrl-C or SIGTERM, after what ran was written).
+BAD_INPUT, INTERNAL_ERROR, INTERRUPTED = 2, 3, 130
 LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
 UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "m/s²", "tau2": "rad/s²"}
 BENCH_ADVICE = (
@@ -68,9 +79,15 @@ class RunFacts:
 
     @classmethod
     def of(cls, summary: Summary) -> RunFacts | None:
-        """How a run went, from its summary (None for a simulation)."""
+        """How a run went, from its summary (None for a simulation, unless it was cut short:
+        then what it covered)."""
         if summary.get("kind") != "run":
-            return None
+            if not summary.get("interrupted"):
+                return None
+            ran = summary.get("duration")
+            return cls(
+                interrupted=True, duration_run_s=ran if isinstance(ran, int | float) else None
+            )
         sched = summary.get("scheduling")
         return cls(
             interrupted=bool(summary.get("interrupted")),
@@ -152,8 +169,6 @@ class Verdict:
     inconclusive_reasons: list[str] = field(default_factory=list)
     advice: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
-    #: reasons that make ``hil run`` exit 1 by default (limits, certificate: the run's own)
-    blocking: list[str] = field(default_factory=list)
     limits: str = "held"
     limits_broken: list[str] = field(default_factory=list)
     certificate: str = "not applicable"
@@ -237,15 +252,16 @@ def judge(
         v.outcome = FAIL
     elif v.inconclusive_reasons:
         v.outcome = INCONCLUSIVE
-    if _bench_stalls(cert) and v.outcome != PASS and not (ended and ended.controller_ended):
-        v.advice.append(BENCH_ADVICE)
+    if v.outcome != INCONCLUSIVE:
+        # "The bench stalled, not your system" never stands beside a FAIL of the system.
+        v.advice = [a for a in v.advice if a != BENCH_ADVICE]
     return v
 
 
 def _law_ended(v: Verdict, ended: LawEnd | None) -> None:
     """The law's fault, the controller's early end, a non-finite state: the first reasons."""
     for text in ended.reasons() if ended is not None else []:
-        _blocking(v, text)
+        v.fail_reasons.append(text)
     if ended is not None and ended.nonfinite_steps > 0:
         v.limits = "broken"
 
@@ -261,10 +277,64 @@ def _after_the_controller_ended(v: Verdict, ended: LawEnd | None) -> None:
     v.inconclusive_reasons.clear()
 
 
-def _blocking(v: Verdict, text: str) -> None:
-    """A failure that is the run's own (a limit, the certificate): ``hil run`` exits 1."""
-    v.fail_reasons.append(text)
-    v.blocking.append(text)
+def exit_code(outcome: str) -> int:
+    """The exit code of a verdict's outcome (:data:`EXIT_CODE`); KeyError for anything else."""
+    return EXIT_CODE[outcome]
+
+
+def run_outcome(summary: Summary) -> str:
+    """The outcome ``hil run`` (and each robot of ``hil fleet``) exits with for its summary:
+    its verdict's; a run that stopped on an error of its own (``error``: the services never
+    became ready) is a FAIL whatever its figures say."""
+    if summary.get("error"):
+        return FAIL
+    return str((summary.get("verdict") or {}).get("outcome") or FAIL)
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """What a verdict is judged from, as far as it is known: what the live view has while the
+    run goes (hil.live.timing), the same figures the final verdict reads from summary.json.
+    Each figure not known is None: absent from the verdict, never 0."""
+
+    #: max |x| of each signal of (2) seen ("v", "omega", "tau1", "tau2"), and the limits
+    #: ("phi1", "phi2", "varpi1", "varpi2")
+    peaks: dict[str, float]
+    limits: dict[str, float]
+    d_max_s: float | None = None  # the longest command age D
+    d_star_s: float | None = None  # the certificate's D* (None: the law has none)
+    path: str | None = None  # the applied command path
+    samples_without_command: int | None = None
+    samples_judged: int | None = None  # the samples the controller was meant to answer
+    deadline_misses: int | None = None
+    slots: int | None = None
+
+
+def judge_evidence(ev: Evidence, thresholds: Thresholds = DEFAULT_THRESHOLDS) -> Verdict:
+    """:func:`judge` on an :class:`Evidence` record. Without the stalls' owners (the live
+    view has none) all of D is the system's, as for a simulation: D > D* is a FAIL."""
+    cons = constraints_from_peaks({PEAK_KEYS[k]: p for k, p in ev.peaks.items()}, ev.limits)
+    cert = None
+    if ev.d_star_s is not None:
+        held = ev.d_max_s is not None and ev.d_max_s <= ev.d_star_s
+        cert = {"path": ev.path, "d_max_s": ev.d_max_s, "d_star_s": ev.d_star_s, "held": held}
+    timing: dict[str, Any] = {}
+    for n, over, names in (
+        (ev.samples_without_command, ev.samples_judged,
+         ("samples_without_command", "samples_judged", "samples_without_command_rate")),
+        (ev.deadline_misses, ev.slots, ("deadline_misses", "slots", "deadline_miss_rate")),
+    ):  # fmt: skip
+        if n is not None and over:
+            timing.update(zip(names, (n, over, n / over), strict=True))
+    return judge(cons, {}, cert, timing, {}, None, thresholds)
+
+
+def _bench_stalled(v: Verdict, text: str) -> None:
+    """An INCONCLUSIVE reason that is a stall of the bench: with it comes the advice (given
+    only when the verdict is INCONCLUSIVE, :func:`judge`)."""
+    v.inconclusive_reasons.append(text)
+    if BENCH_ADVICE not in v.advice:
+        v.advice.append(BENCH_ADVICE)
 
 
 def _limits(
@@ -287,9 +357,9 @@ def _limits(
         d_sys, d_star = (cert or {}).get("d_system_s"), (cert or {}).get("d_star_s")
         if bench and d_sys is not None and d_star is not None and d_sys <= d_star:
             # The bound guarantees (2) at the system's own D: the bench's stall broke it.
-            v.inconclusive_reasons.append(f"{text}, while {_stall_words(bench[0])}")
+            _bench_stalled(v, f"{text}, while {_stall_words(bench[0])}")
         else:
-            _blocking(v, text)
+            v.fail_reasons.append(text)
     v.limits_broken = sorted(broken)
     v.limits = "broken" if broken else "held"
 
@@ -306,8 +376,7 @@ def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) 
         if b is not None and k in cons and cons[k]["peak"] > b * (1.0 + LIMIT_REL_TOL)
     ]
     for k, b in beyond:
-        _blocking(
-            v,
+        v.fail_reasons.append(
             f"measured beyond the sampled-data bound: max |{k}| = {cons[k]['peak']:.4g} "
             f"{UNITS[k]} > {b:.4g} {UNITS[k]}",
         )
@@ -322,12 +391,14 @@ def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) 
     if held:
         return
     if d is None:
-        _blocking(v, f"certificate not held: no command ever landed{where} (D unknown)")
+        v.fail_reasons.append(f"certificate not held: no command ever landed{where} (D unknown)")
     elif d > ds:
         _age_beyond(v, cert, where)
     else:
         failed = ", ".join(cert.get("failed_conditions") or []) or "see the certificate"
-        _blocking(v, f"certificate not held: design conditions broken ({failed}) at D = {_ms(d)}")
+        v.fail_reasons.append(
+            f"certificate not held: design conditions broken ({failed}) at D = {_ms(d)}"
+        )
 
 
 def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
@@ -352,14 +423,15 @@ def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
         if mine:
             w = mine[0]
             text += f"; worst: t = {w['t_s']:.3f} s, {_ms(w['age_s'])}, {w['cause']}"
-        _blocking(v, text)
+        v.fail_reasons.append(text)
         return
     bench = [st for st in _bench_stalls(cert) if st["age_s"] > ds] or _bench_stalls(cert)
     what = "; ".join(_stall_words(st) for st in bench[:3]) or "the bench stalled"
     more = f" (and {len(bench) - 3} more)" if len(bench) > 3 else ""
-    v.inconclusive_reasons.append(
+    _bench_stalled(
+        v,
         f"inconclusive, the bench stalled: {head} only because {what}{more}; without the "
-        f"bench's stalls D = {_ms(d_sys)} <= D*"
+        f"bench's stalls D = {_ms(d_sys)} <= D*",
     )
 
 
@@ -391,9 +463,10 @@ def _thresholds(
         if system_rate > limit:
             v.fail_reasons.append(words)
         else:
-            v.inconclusive_reasons.append(
+            _bench_stalled(
+                v,
                 f"{words}, but {bench} of them fell inside the bench's stalls; "
-                f"without them {_pct(system_rate)}"
+                f"without them {_pct(system_rate)}",
             )
     streams = [s for s in ("state", f"torque_{path}" if path else "") if s in messages]
     if streams:
@@ -426,8 +499,15 @@ def _facts(v: Verdict, facts: RunFacts | None) -> None:
         return
     if facts.interrupted:
         ran = f"{facts.duration_run_s:.3f} s" if facts.duration_run_s is not None else "?"
-        planned = f"{facts.duration_s:g} s" if facts.duration_s is not None else "?"
-        v.notes.append(f"interrupted after {ran} of {planned}: the verdict covers only that")
+        planned = f" of {facts.duration_s:g} s" if facts.duration_s is not None else ""
+        text = f"interrupted after {ran}{planned}: the verdict covers only that"
+        if facts.duration_run_s is not None and facts.duration_s is not None:
+            rest = max(0.0, facts.duration_s - facts.duration_run_s)
+            text = (
+                f"interrupted after {ran}{planned}: the verdict covers only those {ran} "
+                f"and makes no claim about the {rest:.3f} s not run"
+            )
+        v.notes.append(text)
     for role, sched in (facts.scheduling or {}).items():
         if not isinstance(sched, dict):
             continue

@@ -77,6 +77,9 @@ class Loop:
     # (from ns after epoch, length ns): States sent in it are held on the wire and all arrive
     # at its end, in order (TCP's head-of-line blocking behind a retransmission)
     hold_states: tuple[int, int] | None = None
+    # The plant's sample period (0: the control period); a shorter one gives a controller
+    # below the plant's sample rate, answering one sample per control period.
+    sensor_period: int = 0
 
 
 def _cyclic(pattern: tuple[int, ...], k: int) -> int:
@@ -87,6 +90,7 @@ def _cyclic(pattern: tuple[int, ...], k: int) -> int:
 def write(folder: Path, loop: Loop) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     P, E = loop.period, loop.epoch
+    S = loop.sensor_period or P
     c = HopLogWriter(
         folder / "controller.hoplog",
         "controller",
@@ -98,7 +102,7 @@ def write(folder: Path, loop: Loop) -> None:
         folder / "plant.hoplog",
         "plant",
         PLANT_TABLES,
-        {"sensor_period_ns": P, "control_period_ns": P, "plant_step_ns": loop.plant_step,
+        {"sensor_period_ns": S, "control_period_ns": P, "plant_step_ns": loop.plant_step,
          "lockstep": False, "cmd_path": loop.cmd_path, "command_timeout_s": 0.05,
          "delay_s": loop.delay / 1e9, "jitter_s": 0.0, "epoch_ns": E},
     )  # fmt: skip
@@ -107,13 +111,13 @@ def write(folder: Path, loop: Loop) -> None:
     seq = 0
     k = 0
     while k < loop.n:
-        d = E + k * P
+        d = E + k * S
         wake = d + 20 * US + _cyclic(loop.sample_late, k)
         if loop.plant_stall and d >= E + loop.plant_stall[0] and d < E + sum(loop.plant_stall):
             wake = E + sum(loop.plant_stall) + 20 * US
             samples.append((seq, d, wake))
             seq += 1
-            k += max(1, (wake - d) // P + 1)
+            k += max(1, (wake - d) // S + 1)
             continue
         samples.append((seq, d, wake))
         seq += 1

@@ -35,6 +35,7 @@ from hil.bundled import bundled_path
 from protocol.hoplog import read_hoplog
 from tests.procs import Spawner, spawned, wait_until
 from tests.run_helpers import assert_negative_verdict_explained
+from tests.verdict_codes import run_code
 
 pytestmark = [pytest.mark.realtime, pytest.mark.slow]
 
@@ -155,12 +156,13 @@ def _stall(proc: subprocess.Popen, out: Path, who: str, at_s: float, length_s: f
     return Stop(*((t - epoch) / 1e9 for t in (t0, t0b, t1, t1b)))
 
 
-def _finish(proc: subprocess.Popen, out: Path, codes=(0, 1)) -> dict:
-    """The run's summary (with ``_exit_code`` and ``_stderr``); exit 1 only with its reason (a
-    limit broken, or the certificate not held at the measured D), checked against the summary."""
+def _finish(proc: subprocess.Popen, out: Path, codes=(0, 1, 4)) -> dict:
+    """The run's summary (with ``_exit_code`` and ``_stderr``); the exit code is its verdict's
+    (hil.verdict.EXIT_CODE), exit 1 only with its reason (a limit broken, or the certificate
+    not held at the measured D), checked against the summary."""
     code = proc.wait(timeout=240)
     err = proc.stderr.read().decode(errors="replace")
-    assert code in codes, (code, err[-3000:])
+    assert code in codes and code == run_code(out), (code, err[-3000:])
     summary = json.loads((out / "summary.json").read_text())
     if code == 1:
         assert_negative_verdict_explained(summary, err)
@@ -372,7 +374,7 @@ def test_a_can_rearm_mid_run_changes_no_can_figure(spawn, tmp_path):
     scenario = _scenario(tmp_path, "[can]\nheartbeat_timeout = 0.1\n")
     proc = _start(spawn, out, scenario, "--cmd-path", "can")
     _stall(proc, out, "plant", 2.0, 0.3)
-    s = _finish(proc, out, codes=(0, 1))
+    s = _finish(proc, out)
     assert s["can"]["controller"]["rearms"] >= 1, s["can"]
     can = s["messages"]["torque_can"]
     assert can["lifecycle_frames_sent"] > 4  # the re-arm's zeros were sent ...
@@ -431,7 +433,7 @@ def test_replay_from_the_recording_equals_replay_from_the_folder(tmp_path):
          "--out", str(out)],
         capture_output=True, text=True, timeout=240,
     )  # fmt: skip
-    assert proc.returncode in (0, 1), proc.stderr[-3000:]
+    assert proc.returncode == run_code(out), proc.stderr[-3000:]
     if proc.returncode == 1:
         assert_negative_verdict_explained(json.loads((out / "summary.json").read_text()),
                                           proc.stderr)  # fmt: skip
@@ -483,7 +485,7 @@ def test_new_a_plant_sigstop_is_inconclusive_the_bench_stalled(plant_stop):
     verdict = s["verdict"]
     assert verdict["outcome"] == "INCONCLUSIVE", verdict
     assert any("plant" in reason for reason in verdict["reasons"]), verdict
-    assert s["_exit_code"] == 0  # INCONCLUSIVE alone exits 0 unless --strict
+    assert s["_exit_code"] == 4  # INCONCLUSIVE exits 4 (hil.verdict.EXIT_CODE)
 
 
 def test_new_the_command_age_covers_every_plant_step_from_the_first_sample(base):

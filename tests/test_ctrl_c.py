@@ -39,10 +39,12 @@ def test_ctrl_c_of_hil_sim_writes_what_was_computed(spawn, tmp_path: Path) -> No
     assert wait_until(lambda: err.seen("sim paper_tracking.toml: 600 s"), 60), err.text()
     code = _stop(proc, err)
     assert code == 130, err.text(5)
-    assert "interrupted: at t = " in err.text(5)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["interrupted"] is True
     assert 0 < summary["duration"] < 600
+    # what it did not cover, said (issue 35: a cut-short command says so)
+    said = f"interrupted: at t = {summary['duration']:.3f} s of 600 s; wrote what was computed"
+    assert said in err.text(5) and "(no claim about the rest)" in err.text(5), err.text(5)
     with (out / "trace.csv").open() as f:
         rows = list(csv.reader(f))
     assert rows[0][:2] == ["t", "x"] and len(rows) - 1 == summary["samples"] > 0
@@ -64,6 +66,10 @@ def test_ctrl_c_of_hil_paper_keeps_the_figures_written(spawn, tmp_path: Path, jo
     code = _stop(proc, err)
     assert code == 130, err.text(5)
     assert "interrupted: kept " in err.text(5)
+    table = json.loads((out / "table.json").read_text())
+    missing = table["runs_not_done"]
+    assert missing and "tracking" not in missing  # stabilization was still going
+    assert f"runs not done: {', '.join(missing)} (no claim about them" in err.text(5)
     # The first group of figures is whole (PNG and its CSV), the last was never drawn.
     assert first.stat().st_size > 0 and first.with_suffix(".csv").is_file()
     assert (out / "fig06_tracking_tau2.png").is_file()
@@ -148,7 +154,14 @@ def test_main_keeps_usage_and_project_codes_without_an_interrupt(monkeypatch) ->
 
     assert main(["--help"]) == 0
     assert main(["sim", "--no-such-option"]) == 2
-    for exc, code in ((UsageError(), 2), (BadInputError("x"), 2), (NegativeVerdictError("x"), 1)):
+    for exc, code in (
+        (UsageError(), 2),
+        (BadInputError("x"), 2),
+        (NegativeVerdictError("x"), 1),  # FAIL, the default
+        (NegativeVerdictError("x", "FAIL"), 1),
+        (NegativeVerdictError("x", "INCONCLUSIVE"), 4),
+        (RuntimeError("a bug"), 3),
+    ):
         monkeypatch.setattr(
             hil.cli, "app", lambda args=None, standalone_mode=True, e=exc: _raise(e)
         )

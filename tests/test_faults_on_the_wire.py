@@ -16,6 +16,7 @@ import pytest
 
 from hil.bundled import bundled_path
 from tests.run_helpers import assert_negative_verdict_explained
+from tests.verdict_codes import run_code
 
 pytestmark = [pytest.mark.realtime, pytest.mark.slow]
 
@@ -29,7 +30,7 @@ def _run(tmp_path: Path, faults: str, *args: str) -> dict:
          "--quiet", "--no-report", "--out", str(out), *args],
         capture_output=True, text=True, timeout=240,
     )  # fmt: skip
-    assert proc.returncode in (0, 1), proc.stderr[-3000:]
+    assert proc.returncode == run_code(out), proc.stderr[-3000:]
     summary = json.loads((out / "summary.json").read_text())
     if proc.returncode == 1:
         assert_negative_verdict_explained(summary, proc.stderr)

@@ -12,6 +12,7 @@ import pytest
 
 from hil.recording import read_messages
 from tests.lab_helpers import ROOT, lab, lab_name, lab_skip_reason
+from tests.verdict_codes import fleet_code, report_code
 
 
 def _fleet(out: Path, robots: int, *extra: str) -> subprocess.CompletedProcess:
@@ -47,7 +48,7 @@ def _check_robot_folders(out: Path, robots: int) -> dict:
 def test_a_fleet_over_loopback_gives_each_robot_its_own_loop_and_folder(tmp_path):
     out = tmp_path / "fleet"
     done = _fleet(out, 2)
-    assert done.returncode in (0, 1), done.stderr[-3000:]
+    assert done.returncode == fleet_code(out), done.stderr[-3000:]
     fleet = _check_robot_folders(out, 2)
     assert fleet["fleet"]["robots"] == 2
     # Each robot's folder is a complete run folder: hil report reads it.
@@ -58,7 +59,7 @@ def test_a_fleet_over_loopback_gives_each_robot_its_own_loop_and_folder(tmp_path
         cwd=ROOT,
         timeout=300,
     )
-    assert report.returncode in (0, 1), report.stderr[-2000:]
+    assert report.returncode == report_code(out / "robot2"), report.stderr[-2000:]
     assert (out / "robot2" / "report.html").is_file()
 
 
@@ -67,7 +68,7 @@ def test_a_four_robot_fleet_across_two_lab_hosts(tmp_path):
     out = tmp_path / "fleet"
     with lab(lab_name("f"), "--hosts", "2") as name:
         done = _fleet(out, 4, "--lab", name, "--plant-host", "h1", "--controller-host", "h2")
-    assert done.returncode in (0, 1), done.stderr[-3000:]
+    assert done.returncode == fleet_code(out), done.stderr[-3000:]
     _check_robot_folders(out, 4)
     for i in range(1, 5):
         topo = json.loads((out / f"robot{i}" / "topology.json").read_text())

@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from bench.kill_matrix import FAULT_WINDOW_S, KINDS, ROOT, cpu_hog, fault_at_s, run_trial
+from tests.verdict_codes import run_code
 
 TRIALS = 20
 HIL_RUN_KILL_TRIALS = 10
@@ -73,7 +74,7 @@ def _hil_run(out: Path, scenario: Path) -> None:
     argv = [sys.executable, "-m", "hil", "run", str(scenario), "--duration", "1.0",
             "--rate", "200", "--quiet", "--no-report", "--out", str(out)]  # fmt: skip
     proc = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=240)
-    assert proc.returncode in (0, 1), proc.stderr[-3000:]
+    assert proc.returncode == run_code(out), proc.stderr[-3000:]
 
 
 def _cut(src: Path, dst: Path, drop: set[int]) -> int:

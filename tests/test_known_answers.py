@@ -296,6 +296,52 @@ def test_dropped_states_every_7th_are_exactly_the_samples_without_command(tmp_pa
     assert m.messages["state"]["lost"] == m.messages["state"]["injected_drops"] == 500 // 7
 
 
+# A 100 Hz controller on a 500 Hz plant (hil run --rate 100): slot k is due at 10 k + 5 ms and
+# takes the newest State of the samples since the last deadline (10 k - 4 .. 10 k + 4 ms; slot
+# 0: 0, 2, 4 ms). 500 samples (0 .. 998 ms) are judged up to 998 - 2 x 10 = 978 ms: the slots
+# whose every sample is judged are 0 .. 97 (slot 97's newest is 974 ms, slot 98's 984 ms).
+SLOW_P, FAST_S, SLOW_JUDGED = 10 * MS, 2 * MS, 98
+
+
+def test_a_controller_below_the_plants_rate_is_judged_on_one_sample_per_period(tmp_path):
+    """Nothing lost: no sample without a command, whatever the 4 of 5 samples no slot takes
+    (on c20de4f: 392 of 490, 80 %, a FAIL by construction)."""
+    t = _measure(tmp_path, "run", period=SLOW_P, sensor_period=FAST_S).timing
+    assert (t["samples_without_command"], t["samples_judged"]) == (0, SLOW_JUDGED)
+    assert t["samples_without_command_rate"] == 0.0
+    assert (t["late_commands"], t["late_commands_rate"]) == (0, 0.0)
+    _constant(t["sample_gap"], SLOW_P / US)
+
+
+def test_commands_dropped_below_the_plants_rate_are_exactly_the_slots_without(tmp_path):
+    """Every 7th command (cmd_seq = slot k = 6, 13, ..., 97) dropped: 14 of the 98 slots."""
+    m = _measure(tmp_path, "run", period=SLOW_P, sensor_period=FAST_S, drop_command_every=7)
+    t = m.timing
+    dropped = len(range(6, SLOW_JUDGED, 7))
+    assert (t["samples_without_command"], t["samples_judged"]) == (dropped, SLOW_JUDGED) == (14, 98)
+    assert t["samples_without_command_rate"] == 14 / 98
+    assert t["sample_gap"]["max_us"] == 2 * SLOW_P / US  # across each dropped command
+
+
+def test_a_sensor_slower_than_the_controller_has_every_sample_judged(tmp_path):
+    """[realtime] sensor_rate below the control rate (100 Hz samples, 500 Hz ticks): each
+    sample is one the controller was meant to answer, and answered once (the ticks between
+    samples find no fresh State and send nothing). 100 samples (0 .. 990 ms), judged up to
+    990 - 2 x 2 ms: 0 .. 980 ms, 99 of them."""
+    t = _measure(tmp_path, "run", period=P, sensor_period=5 * P, n=100).timing
+    assert (t["samples_without_command"], t["samples_judged"]) == (0, 99)
+    m = _measure(tmp_path, "lossy", period=P, sensor_period=5 * P, n=100, drop_state_every=7)
+    assert m.timing["samples_without_command"] == len(range(6, 99, 7)) == 14
+
+
+def test_a_controller_on_state_answers_every_sample_whatever_its_period(tmp_path):
+    """on_state computes on every fresh State: each sample is one it was meant to answer."""
+    t = _measure(tmp_path, "run", period=SLOW_P, sensor_period=FAST_S, trigger="on_state").timing
+    assert t["samples_judged"] == 490  # samples 0 .. 978 ms, every one
+    # The scripted controller still ticks every 10 ms: 4 of 5 samples unanswered, and counted.
+    assert t["samples_without_command"] == 490 - 98
+
+
 # =================================================================================================
 # Figures whose definitions change (docs/realtime.md after the slot-based misses, the age from
 # t = 0 and the stall totals): these are written to the new definitions.

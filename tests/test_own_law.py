@@ -23,6 +23,7 @@ from hil.law.batch import PerRobot, batch_note, for_batch
 from hil.law.option import with_law
 from hil.scenario import build_loop, load_scenario
 from hil.sim import RobotVariation, simulate, simulate_batch
+from tests.verdict_codes import report_code, run_code
 
 HIL = str(Path(sys.executable).with_name("hil"))  # the console script a user runs
 SCALAR_LAW = "tests.example_user_controller:SaturatedPD"  # math on floats only
@@ -115,7 +116,7 @@ def test_a_law_in_the_working_directory_runs_in_hil_run(tmp_path: Path) -> None:
     out = tmp_path / "run"
     proc = _hil("run", "--law", "cwd_law:CwdLaw", "--duration", "1", "--no-report", "--quiet",
                 "--out", str(out), cwd=tmp_path, timeout=180)  # fmt: skip
-    assert proc.returncode in (0, 1), proc.stderr[-3000:]
+    assert proc.returncode == run_code(out), proc.stderr[-3000:]
     settings = json.loads((out / "run_settings.json").read_text())
     assert settings["controller"] == {"law": "cwd_law:CwdLaw"}
     assert str(tmp_path.resolve()) in settings["law_path"]
@@ -139,7 +140,7 @@ def _report_and_compare_without_the_law(cwd: Path, folder: Path, law: str) -> No
     when it ran and is not found now, even asked to run it again (--ideal): the ideal
     trajectory, the one fresh simulation, left out with why."""
     report = _hil("report", str(folder), "--ideal", cwd=cwd)
-    assert report.returncode in (0, 1), report.stderr[-3000:]  # the verdict's exit, never 2
+    assert report.returncode == report_code(folder), report.stderr[-3000:]  # never 2
     assert "Traceback" not in report.stderr, report.stderr[-3000:]
     data = json.loads((folder / "report.json").read_text())
     assert data["scenario"]["law"] == law
@@ -176,11 +177,11 @@ def test_report_and_compare_of_a_users_law_need_no_module_after_the_run(tmp_path
         return json.loads((out / "report.json").read_text())["metrics"]["deviation_from_ideal_note"]
 
     report = _hil("report", str(out), cwd=tmp_path)
-    assert report.returncode in (0, 1), report.stderr[-3000:]
+    assert report.returncode == report_code(out), report.stderr[-3000:]
     assert not marker.exists(), "the report imported the user's module on its own"
     assert note().startswith("not computed") and "--ideal" in note(), note()
     report = _hil("report", str(out), "--ideal", cwd=tmp_path)
-    assert report.returncode in (0, 1), report.stderr[-3000:]
+    assert report.returncode == report_code(out), report.stderr[-3000:]
     assert marker.is_file() and note().startswith("simulated at Ts/10"), note()
     _move_law_away(tmp_path, "moved_law")
     _report_and_compare_without_the_law(tmp_path, out, "moved_law:MovedLaw")

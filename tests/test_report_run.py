@@ -19,6 +19,7 @@ from hil.sim.replay import latencies_from_run
 from tests.run_helpers import assert_negative_verdict_explained
 from tests.scenario_text import CIRCLE_TABLE1
 from tests.test_report import RUN_SECTIONS, check_html, check_images
+from tests.verdict_codes import run_code
 
 SCENARIO = (
     CIRCLE_TABLE1
@@ -46,7 +47,7 @@ def test_report_of_a_real_run_with_both_paths(tmp_path: Path, spawn) -> None:
         _, err = proc.communicate(timeout=180)
     except Exception:
         pytest.fail("hil run did not finish within 180 s")
-    assert proc.returncode in (0, 1), err.decode()[-2000:]
+    assert proc.returncode == run_code(run_dir), err.decode()[-2000:]
     if proc.returncode == 1:  # only with its reason (the certificate on a loaded host)
         summary = json.loads((run_dir / "summary.json").read_text())
         assert_negative_verdict_explained(summary, err.decode())

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.verdict_codes import run_code
+
 pytestmark = pytest.mark.realtime
 
 LINE = re.compile(r"result: (PASS|FAIL|INCONCLUSIVE): .*; (report|run folder): (\S+)$")
@@ -29,7 +31,7 @@ def _run(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
 def test_hil_run_ends_with_one_line_naming_the_outcome_and_the_report(tmp_path: Path) -> None:
     out = tmp_path / "run"
     proc = _run(tmp_path, "--out", str(out))
-    assert proc.returncode in (0, 1), proc.stderr[-3000:]
+    assert proc.returncode == run_code(out), proc.stderr[-3000:]
     lines = proc.stdout.strip().splitlines()
     assert len(lines) == 1, proc.stdout  # no JSON blob without --json
     m = LINE.fullmatch(lines[0])
@@ -44,7 +46,7 @@ def test_hil_run_ends_with_one_line_naming_the_outcome_and_the_report(tmp_path: 
 def test_hil_run_json_gives_the_brief_on_stdout_and_the_line_on_stderr(tmp_path: Path) -> None:
     out = tmp_path / "run"
     proc = _run(tmp_path, "--out", str(out), "--json", "--no-report")
-    assert proc.returncode in (0, 1), proc.stderr[-3000:]
+    assert proc.returncode == run_code(out), proc.stderr[-3000:]
     brief = json.loads(proc.stdout)
     assert Path(brief["run_dir"]) == out and brief["verdict"] in ("PASS", "FAIL", "INCONCLUSIVE")
     m = LINE.fullmatch(proc.stderr.strip().splitlines()[0])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html
 import json
 import signal
 import subprocess
@@ -108,7 +109,7 @@ def test_sweep_finds_the_break_point_of_a_design_near_its_limits(tmp_path: Path)
     assert by[(0.005, 0.1)]["overshoot_v"] > 1.0
     # the measured peaks never exceed the certified bound at their own timing
     assert all(r["within_bound"] for r in rows)
-    assert "break at Ts = 0.005 s, delay = 0.1 s" in (out / "sweep.md").read_text()
+    assert "first break at Ts = 0.005 s with a delay of 0.1 s" in (out / "sweep.md").read_text()
     csv_rows = (out / "sweep.csv").read_text().splitlines()
     assert len(csv_rows) == 5
     assert doc["figures"]
@@ -187,10 +188,26 @@ def test_ctrl_c_keeps_the_groups_already_done(tmp_path: Path, spawn) -> None:
     except subprocess.TimeoutExpired:
         pytest.fail("sweep did not stop on SIGINT")
     err = proc.stderr.read().decode(errors="replace")
+    said = proc.stdout.read().decode(errors="replace")
     assert proc.returncode == 130, err[-2000:]
     assert f"interrupted: partial results kept in {out}" in err
     doc = json.loads((out / "sweep.json").read_text())
     assert doc["interrupted"] is True and doc["groups_done"] == 1
     assert {r["ts"] for r in doc["rows"] if r["complete"]} == {0.05}
     assert all(not r["complete"] for r in doc["rows"] if r["ts"] == 0.001)
-    assert (out / "sweep.md").read_text().count("INTERRUPTED") == 1
+    md = (out / "sweep.md").read_text()
+    assert md.count("INTERRUPTED") == 1
+    # What it did not cover, said on every output; never "held everywhere" (c20de4f: "break
+    # point: none, the limits held everywhere" after 2 of 4 loops). The Ts = 1 ms group was
+    # cut short (its rows kept, complete: false) or not reached at all.
+    cut = sum(1 for r in doc["rows"] if not r["complete"])
+    assert doc["coverage"] == {"loops": 4, "covered": 2, "cut_short": cut, "not_run": 2 - cut}
+    parts = ", ".join(
+        f"{n} {w}" for n, w in ((cut, "cut short"), (2 - cut, "not run")) if n
+    )  # fmt: skip
+    missing = f"covered 2 of 4 loops; 2 not covered ({parts}): no claim about them"
+    page = html.unescape((out / "sweep.html").read_text())
+    for text in (said, md, page):
+        assert missing in text.replace("\n", " ") or missing[0].upper() + missing[1:] in text
+        assert "held everywhere" not in text and "held in all" not in text
+    assert "among the loops run" in said, said

@@ -40,6 +40,7 @@ DOC = {
         "first": {"ts": 0.01, "delay": 0.05, "jitter": 0.0, "seed": 0},
     },
     "certificate": {"first_uncertified": None},
+    "coverage": {"loops": 5, "covered": 5, "cut_short": 0, "not_run": 0},
     "figures": [{"title": "max |v| / phi1 against Ts", "png": "a.png", "data": "a.csv"}],
 }
 
@@ -102,3 +103,63 @@ def test_hil_sweep_writes_the_page(tmp_path: Path) -> None:
     words = html.unescape(re.sub(r"<[^>]+>", " ", page))
     assert not unglossed(words), unglossed(words)
     assert "|v| ≤ φ1 = 1.6 m/s and |ω| ≤ φ2 = 5.1 rad/s" in words
+    # the certificate's sentence names exactly the table's points where it does not hold
+    no, run = _table_uncertified(page)
+    sentence = _certificate_sentence(page)
+    assert _said_uncertified(sentence, run) == no, (sentence, no)
+    assert ("guarantees (2) at every" in sentence) is (not no), sentence
+
+
+def _certificate_sentence(page: str) -> str:
+    words = html.unescape(re.sub(r"<[^>]+>", " ", page))
+    return next(s for s in re.split(r"(?<=\.)\s", words) if "The certificate" in s)
+
+
+def _said_uncertified(sentence: str, ts_by_delay: dict[float, list[float]]) -> set:
+    """The (Ts, delay) points the sentence says the certificate does not guarantee (2) at."""
+    said = set()
+    for delay, which in re.findall(r"delay = ([0-9.e-]+) s: (every Ts run|Ts = [^;]+ s)", sentence):
+        d = float(delay)
+        ts = ts_by_delay[d] if which == "every Ts run" else [
+            float(x) for x in which[len("Ts = ") : -len(" s")].split(", ")
+        ]  # fmt: skip
+        said |= {(t, d) for t in ts}
+    return said
+
+
+def _table_uncertified(page: str) -> tuple[set, dict[float, list[float]]]:
+    """The results table's points whose "certificate holds" cell is NO, and the Ts run per delay."""
+    (_, results) = tables(page)
+    head = results[0]
+    i_ts, i_d = head.index("Ts [s]"), head.index("delay [s]")
+    i_c = head.index("certificate holds (age ≤ D*)")
+    no, run = set(), {}
+    for row in results[1:]:
+        ts, d = float(row[i_ts]), float(row[i_d])
+        run.setdefault(d, []).append(ts)
+        if row[i_c] == "NO":
+            no.add((ts, d))
+    return no, {d: sorted(set(v)) for d, v in run.items()}
+
+
+def test_the_certificate_sentence_is_its_tables_no_points():
+    """Issue 35: the page said the certificate stops guaranteeing (2) "from Ts = 0.02 s, delay
+    = 0.01 s" (the smallest age not certified) while its own table showed NO at Ts = 0.001 s,
+    delay = 0.05 s (a larger age, a smaller Ts): the sentence now lists the table's points."""
+    certified = {(0.001, 0.0): True, (0.02, 0.0): True, (0.001, 0.01): True,
+                 (0.02, 0.01): False, (0.001, 0.05): False, (0.02, 0.05): False}  # fmt: skip
+    rows = [{**_row(ts, d, 0.5, 0), "certified": c} for (ts, d), c in certified.items()]
+    doc = {**DOC, "law": "unified", "rows": rows,
+           "grid": {"ts": [0.001, 0.02], "delay": [0.0, 0.01, 0.05], "jitter": [0.0], "seeds": 1},
+           "coverage": {"loops": 6, "covered": 6, "cut_short": 0, "not_run": 0},
+           "break_point": {"violating_points": 0, "first": None},
+           # the prediction over the grid, as sweep.json keeps it: not what the page says
+           "certificate": {"first_uncertified": {"ts": 0.02, "delay": 0.01, "jitter": 0.0,
+                                                 "age": 0.03}}}  # fmt: skip
+    page = sweep_html(doc)
+    sentence = _certificate_sentence(page)
+    no, run = _table_uncertified(page)
+    assert no == {(0.02, 0.01), (0.001, 0.05), (0.02, 0.05)}
+    assert _said_uncertified(sentence, run) == no, sentence
+    assert "from Ts" not in sentence and "3 of the 6 (Ts, delay) points run" in sentence
+    assert "delay = 0.05 s: every Ts run" in sentence and "delay = 0.01 s: Ts = 0.02 s" in sentence

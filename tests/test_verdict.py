@@ -2,9 +2,9 @@
 
 FAIL is the system under test's (controller, its host, the transport); INCONCLUSIVE the bench's
 (plant emulator, recorder, the bench's host) or logs that cannot relate a figure; PASS neither.
-The same stalls and thresholds land on different sides by their owner, and hil run's exit code
-follows (1 only for a broken limit or a certificate the system's own timing broke, unless
---strict)."""
+The same stalls and thresholds land on different sides by their owner, and every command's exit
+code follows the outcome (hil.verdict.EXIT_CODE: PASS 0, FAIL 1 whatever made it, INCONCLUSIVE
+4; --strict changes nothing)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,17 @@ import pytest
 
 from hil.commands.run import _raise_on_negative
 from hil.errors import NegativeVerdictError
-from hil.verdict import FAIL, INCONCLUSIVE, PASS, RunFacts, constraints_from_peaks, judge
+from hil.verdict import (
+    BENCH_ADVICE,
+    EXIT_CODE,
+    FAIL,
+    INCONCLUSIVE,
+    PASS,
+    RunFacts,
+    constraints_from_peaks,
+    exit_code,
+    judge,
+)
 
 LIMITS = {"phi1": 1.6, "phi2": 5.1, "varpi1": 3.3, "varpi2": 51.0}
 PEAKS = {"max_abs_v": 0.8, "max_abs_omega": 1.0, "max_abs_tau1": 3.3, "max_abs_tau2": 51.0}
@@ -55,7 +65,7 @@ def test_a_clean_run_passes():
 
 def test_a_plant_stall_past_d_star_is_inconclusive_and_names_the_plant():
     v = _judge(_cert(0.043, 0.0035, [_stall(0.043, "plant_late", "bench")]))
-    assert v.outcome == INCONCLUSIVE and not v.fail_reasons and not v.blocking
+    assert v.outcome == INCONCLUSIVE and not v.fail_reasons
     (reason,) = v.inconclusive_reasons
     assert "the plant emulator stalled at t = 2.000 s" in reason and "3.500 ms <= D*" in reason
     assert v.advice and "fifo" in v.advice[0]
@@ -63,7 +73,7 @@ def test_a_plant_stall_past_d_star_is_inconclusive_and_names_the_plant():
 
 def test_the_same_stall_of_the_controller_fails_the_system():
     v = _judge(_cert(0.045, 0.045, [_stall(0.045, "controller_late", "system")]))
-    assert v.outcome == FAIL and v.blocking == v.fail_reasons
+    assert v.outcome == FAIL and len(v.fail_reasons) == 1
     assert (
         "by the system's own timing; worst: t = 2.000 s, 45.000 ms, controller_late"
         in (v.fail_reasons[0])
@@ -87,11 +97,11 @@ def test_a_limit_broken_while_only_the_bench_stalled_is_inconclusive():
     cert["v_bound"] = 2.2  # the bound at D = 50 ms: the break stays within it
     v = _judge(cert, peaks, violations={"v": 12})
     assert v.limits == "broken" and v.limits_broken == ["v"]
-    assert v.outcome == INCONCLUSIVE and not v.blocking
+    assert v.outcome == INCONCLUSIVE and not v.fail_reasons
     assert any("the bench's host stalled" in r for r in v.inconclusive_reasons)
     # Without the bench's stall the same break is the system's.
     v = _judge(_cert(0.004, 0.004, []), peaks, violations={"v": 12})
-    assert v.outcome == FAIL and v.blocking[0].startswith("limits of (2) broken: |v|")
+    assert v.outcome == FAIL and v.fail_reasons[0].startswith("limits of (2) broken: |v|")
 
 
 def test_a_can_matching_the_logs_cannot_decide_is_unknown_never_held():
@@ -115,7 +125,6 @@ def test_missed_slots_inside_the_bench_stalls_are_not_the_systems(in_bench, outc
     v = _judge(_cert(0.003, 0.003, []), timing=timing)
     assert v.outcome == outcome
     assert v.timing["deadline_misses"] == {"count": 40, "slots": 2000, "rate": 0.02}
-    assert not v.blocking  # a threshold alone never makes hil run exit 1 without --strict
 
 
 def test_a_run_cut_short_and_a_refused_real_time_policy_say_so():
@@ -128,7 +137,10 @@ def test_a_run_cut_short_and_a_refused_real_time_policy_say_so():
         scheduling=sched,
     )
     assert v.outcome == PASS
-    assert v.notes[0] == "interrupted after 1.234 s of 10 s: the verdict covers only that"
+    assert v.notes[0] == (
+        "interrupted after 1.234 s of 10 s: the verdict covers only those 1.234 s and makes no "
+        "claim about the 8.766 s not run"
+    )
     assert "asked for SCHED_FIFO and got SCHED_OTHER" in v.notes[1]
 
 
@@ -144,21 +156,51 @@ def test_a_refused_cpu_latency_request_is_said():
     assert _judge(_cert(0.003, 0.003, []), scheduling=held).notes == []
 
 
-def test_hil_run_exits_1_on_the_systems_failure_and_with_strict_on_anything_but_pass():
+def test_the_exit_code_table():
+    assert EXIT_CODE == {PASS: 0, FAIL: 1, INCONCLUSIVE: 4}
+    assert [exit_code(o) for o in (PASS, FAIL, INCONCLUSIVE)] == [0, 1, 4]
+
+
+def test_hil_run_exits_with_its_verdicts_code_every_fail_included():
+    """On c20de4f only "blocking" FAILs (a limit, the certificate) exited 1: a FAIL from missed
+    slots or samples without a command exited 0, and INCONCLUSIVE 0 unless --strict."""
     inconclusive = {"verdict": _judge(
         _cert(0.043, 0.0035, [_stall(0.043, "plant_late", "bench")])
     ).as_dict()}  # fmt: skip
     fail = {"verdict": _judge(
         _cert(0.045, 0.045, [_stall(0.045, "controller_late", "system")])
     ).as_dict()}  # fmt: skip
+    timing = {"deadline_misses": 40, "slots": 2000, "deadline_miss_rate": 0.02}
+    misses = {"verdict": _judge(_cert(0.003, 0.003, []), timing=timing).as_dict()}
     passed = {"verdict": _judge(_cert(0.003, 0.003, [])).as_dict()}
-    _raise_on_negative(inconclusive)  # the default: the bench's stall is no failure of yours
-    _raise_on_negative(passed, strict=True)
-    with pytest.raises(NegativeVerdictError, match="INCONCLUSIVE \\(--strict\\)"):
-        _raise_on_negative(inconclusive, strict=True)
-    for strict in (False, True):
-        with pytest.raises(NegativeVerdictError, match="certificate not held"):
-            _raise_on_negative(fail, strict=strict)
+    assert "blocking" not in passed["verdict"]
+    _raise_on_negative(passed)
+    for summary, outcome, words in (
+        (inconclusive, INCONCLUSIVE, "the plant emulator stalled"),
+        (fail, FAIL, "certificate not held"),
+        (misses, FAIL, "deadline misses: 40 of 2000 slots"),
+        ({**passed, "error": "services did not become ready"}, FAIL, "did not become ready"),
+    ):
+        with pytest.raises(NegativeVerdictError, match=words) as caught:
+            _raise_on_negative(summary)
+        assert caught.value.outcome == outcome
+
+
+def test_the_bench_advice_stands_only_under_inconclusive():
+    """ "the bench stalled, not your system" under a FAIL (c20de4f: beside any bench stall)."""
+    bench = _stall(0.043, "plant_late", "bench")
+    v = _judge(_cert(0.043, 0.0035, [bench]))
+    assert v.outcome == INCONCLUSIVE and v.advice == [BENCH_ADVICE]
+    # The same bench stall beside the system's own failure: FAIL, and no such advice.
+    system = _stall(0.03, "command_lost", "system", 3.0)
+    v = _judge(_cert(0.043, 0.03, [bench, system]))
+    assert v.outcome == FAIL and v.advice == []
+    timing = {"deadline_misses": 40, "slots": 2000, "deadline_miss_rate": 0.02}
+    v = _judge(_cert(0.003, 0.003, [bench]), timing=timing)
+    assert v.outcome == FAIL and v.advice == []
+    # INCONCLUSIVE for another reason than a stall of the bench: no stall advice either.
+    v = _judge(_cert(0.003, 0.003, []), messages={"torque_can": {"value_mismatches": 3}})
+    assert v.outcome == INCONCLUSIVE and v.advice == []
 
 
 def test_the_report_shows_figures_a_trigger_does_not_measure_as_n_a_never_0():

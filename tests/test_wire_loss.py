@@ -31,6 +31,7 @@ from hil.scenario import ImpairConfig
 from protocol.can.codec import Heartbeat, SetInputTorque, frame_id
 from protocol.can.codec import encode as can_encode
 from protocol.can.drive_link import to_message
+from tests.verdict_codes import run_code
 
 ROOT = Path(__file__).resolve().parents[1]
 EVERY = 49  # odd: the two drives' frames alternate on the wire, so both lose frames
@@ -152,7 +153,7 @@ def _hil_run(spawn, args: list[str]) -> tuple[int, dict, str]:
     proc = spawn.python(["-m", "hil", *args], cwd=ROOT, text=True)
     _, err = proc.communicate(timeout=240)
     out = Path(args[args.index("--out") + 1])
-    assert proc.returncode in (0, 1), (proc.returncode, err[-3000:])
+    assert proc.returncode == run_code(out), (proc.returncode, err[-3000:])
     return proc.returncode, json.loads((out / "summary.json").read_text()), err
 
 

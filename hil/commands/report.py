@@ -33,20 +33,25 @@ def report(
         ),
     ] = None,
     max_deadline_miss_ratio: Annotated[
-        float, typer.Option(help="Deadline misses above this fraction of cycles: negative verdict.")
+        float,
+        typer.Option(
+            help="Missed slots above this fraction of the slots: FAIL (INCONCLUSIVE when only "
+            "those inside the bench's stalls put them over)."
+        ),
     ] = 0.01,
     max_lost_ratio: Annotated[
         float,
         typer.Option(
             help="Lost messages (State and the applied command path) above this fraction "
-            "of those sent: negative verdict."
+            "of those sent: FAIL."
         ),
     ] = 0.01,
     max_samples_without_command_ratio: Annotated[
         float,
         typer.Option(
-            help="Plant samples whose command never landed above this fraction of the "
-            "samples: negative verdict."
+            help="Samples without a command above this fraction of the samples the "
+            "controller was meant to answer (one per control period): FAIL (INCONCLUSIVE when "
+            "only those inside the bench's stalls put them over)."
         ),
     ] = 0.01,
 ) -> None:
@@ -56,9 +61,10 @@ def report(
     ideal one), v, ω, τ1, τ2 against (2), motor torques and drive states, tracking error,
     quasi-sliding bands, switching and saturation; for a run, latency histograms/CDFs,
     wake-up lateness, command age over time and every timing figure (summary.json, from
-    hil.measure). Exit 0 all good, 1 negative verdict (limit broken, certificate not held
-    or exceeded, too many deadline misses, samples without a command or lost messages),
-    2 not a run folder."""
+    hil.measure). Exit with the verdict's code: 0 PASS, 1 FAIL (limit broken, certificate
+    not held or exceeded by the system's own timing, too many deadline misses, samples
+    without a command or lost messages), 4 INCONCLUSIVE (the bench stalled, or the logs
+    cannot relate a figure); 2 not a run folder (docs/reports.md, "Verdict and exit code")."""
     from hil.folder import load_folder
     from hil.report.build import Thresholds, build_report, write_report
     from hil.report.ideal import ideal_from_simulator
@@ -79,8 +85,8 @@ def report(
     paths = write_report(rep, out or folder)
     typer.echo(f"report: {paths['html']}")
     v = rep.data["verdict"]
-    if not v["ok"]:
-        raise NegativeVerdictError("; ".join(v["reasons"]))
+    if v["outcome"] != "PASS":  # FAIL exits 1, INCONCLUSIVE 4 (hil.verdict.EXIT_CODE)
+        raise NegativeVerdictError("; ".join(v["reasons"]), v["outcome"])
     typer.echo("verdict: PASS")
 
 

@@ -81,9 +81,9 @@ FleetLiveOpt = live_opt("every robot of the fleet, each on its own topics hil/ro
 StrictOpt = Annotated[
     bool,
     typer.Option(
-        help="Exit 1 on any verdict but PASS (FAIL, or INCONCLUSIVE: the bench stalled or the "
-        "logs cannot relate a figure), for CI. Without it, exit 1 only when a limit of (2) "
-        "broke or the certificate is not held through the system's own timing."
+        help="Accepted so that older scripts run; changes nothing: every verdict has its own "
+        'exit code (PASS 0, FAIL 1, INCONCLUSIVE 4; docs/reports.md, "Verdict and exit '
+        'code"), so CI can act on each without it.'
     ),
 ]
 ReportOpt = Annotated[
@@ -91,7 +91,7 @@ ReportOpt = Annotated[
     typer.Option(
         help="Write the sampling-effect report (report.html/.md/.json, as hil report "
         "does) into the run folder. Its verdict is printed; the exit code stays the "
-        "run's own (1 only when a limit of (2) was broken).",
+        "run's own verdict's.",
     ),
 ]
 JsonOpt = Annotated[
@@ -119,28 +119,32 @@ def _brief(summary: dict[str, Any], cmd_path: str) -> dict[str, Any]:
     }
 
 
-def _raise_on_negative(summary: dict[str, Any], strict: bool = False) -> None:
-    """Exit 1 (NegativeVerdictError) on a run error, a limit of (2) broken or a certificate
-    not held through the system's own timing; with ``strict``, on any verdict but PASS."""
-    if summary.get("error"):
-        raise NegativeVerdictError(str(summary["error"]))
+def _raise_on_negative(summary: dict[str, Any]) -> None:
+    """Exit with the run's verdict's code (hil.verdict.EXIT_CODE, through hil.cli): nothing
+    for PASS, NegativeVerdictError for FAIL (1) or INCONCLUSIVE (4); a run stopped by an
+    error of its own is a FAIL (hil.verdict.run_outcome)."""
+    from hil.verdict import PASS, run_outcome
+
+    outcome = run_outcome(summary)
+    if outcome == PASS:
+        return
     v = summary.get("verdict") or {}
-    if v.get("blocking"):
-        raise NegativeVerdictError("; ".join(v["blocking"]))
-    if strict and v.get("outcome") != "PASS":
-        raise NegativeVerdictError(f"{v.get('outcome')} (--strict): {'; '.join(v['reasons'])}")
+    why = [str(summary["error"])] if summary.get("error") else list(v.get("reasons") or [])
+    raise NegativeVerdictError("; ".join(why) or "no reason recorded", outcome)
 
 
 def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
     """One plain line: the outcome, why, D against D* where there is a certificate, notes,
     and where to read more (the report, else the run folder)."""
-    from hil.verdict import short_reason
+    from hil.verdict import run_outcome, short_reason
 
     v = summary.get("verdict") or {}
     cert = summary.get("certificate") or {}
     d, ds = cert.get("d_max_s"), cert.get("d_star_s")
     age = f"D {d * 1e3:.2f} ms of D* {ds * 1e3:.2f} ms" if d is not None and ds else ""
-    reasons = v.get("reasons") or []
+    # The outcome the run exits with: a run stopped by its own error is a FAIL, said first.
+    reasons = [str(summary["error"])] if summary.get("error") else []
+    reasons += v.get("reasons") or []
     # 320: a law's fault (hil.verdict.LawEnd) names the law, the time, the state and the
     # exception in one sentence, which must not lose its end
     why = short_reason(reasons[0], 320) if reasons else f"limits {v.get('limits', '?')}"
@@ -149,7 +153,7 @@ def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
     if "D* =" in why:
         age = ""  # the reason already says D against D*
     notes = "; ".join(v.get("notes") or [])
-    line = f"{v.get('outcome', '?')}: " + ", ".join(x for x in (why, age) if x)
+    line = f"{run_outcome(summary)}: " + ", ".join(x for x in (why, age) if x)
     if notes:
         line += f" ({notes})"
     if report:
@@ -241,7 +245,8 @@ def run(
         # hil.cli exits 130: hil.run.orchestrate recorded the signal in hil.interrupts.
         interrupts.note(f"run folder written to {run_dir}")
         return
-    _raise_on_negative(summary, strict)
+    del strict  # accepted, changes nothing (StrictOpt)
+    _raise_on_negative(summary)
 
 
 @app.command("fleet")
@@ -280,7 +285,8 @@ def fleet_cmd(
     2-core machine then fits about 32 robots at 100 Hz and 8 at 500 Hz (docs/fleet.md).
     --live serves every robot of the fleet on one Foxglove WebSocket server (docs/live.md).
 
-    Exit 1 when a robot's verdict is negative."""
+    The fleet's verdict is its robots': FAIL (exit 1) when a robot's is FAIL or its run left
+    no verdict, else INCONCLUSIVE (exit 4) when a robot's is, else PASS (exit 0)."""
     from hil.fleet import report
     from hil.fleet.run import FleetOptions, execute, robot_ids
     from hil.live import launch
@@ -305,10 +311,6 @@ def fleet_cmd(
     if stop:
         interrupts.note(f"fleet folder written to {out}")
         return
-    bad = [r for r in summary["per_robot"] if r.get("exit_code") not in (0,)]
-    if bad:
-        why = "; ".join(f"{r['robot']}: {r['reason']}" for r in bad if r.get("reason"))
-        raise NegativeVerdictError(
-            f"robots with a negative verdict or an error: {', '.join(r['robot'] for r in bad)}"
-            + (f" ({why})" if why else "")
-        )
+    f = summary["fleet"]
+    if f["verdict"] != "PASS":  # the fleet's verdict's exit code (hil.fleet.report)
+        raise NegativeVerdictError(report.verdict_sentence(f), f["verdict"])

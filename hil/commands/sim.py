@@ -83,7 +83,10 @@ def sim(
         folder = write_run_folder(result, target)
     s = result.summary
     if result.interrupted:
-        interrupts.note(f"at t = {s['duration']:.3f} s; wrote what was computed to {folder}")
+        interrupts.note(
+            f"at t = {s['duration']:.3f} s of {sc.run.duration:g} s; wrote what was computed to "
+            f"{folder} (no claim about the rest)"
+        )
     typer.echo(
         f"{folder}: final position error {s['final_position_error']:.4g} m, heading "
         f"{s['final_heading_error']:.4g} rad; max |v| {s['max_abs_v']:.4g}, |omega| "
@@ -130,7 +133,11 @@ def paper(
     if table.get("interrupted"):
         # hil.cli exits 130: the interrupt was recorded by hil.interrupts.
         done = len(list(folder.glob("fig*.png")))
-        interrupts.note(f"kept {done} figures and the table of the runs done in {folder}")
+        missing = ", ".join(table.get("runs_not_done") or []) or "none"
+        interrupts.note(
+            f"kept {done} figures and the table of the runs done in {folder}; runs not done: "
+            f"{missing} (no claim about them, the paper's claims not checked)"
+        )
         return
     failed = [c["check"] for c in table["checks"] if c["passed"] is False]
     if failed:

@@ -27,10 +27,10 @@ SWEEP_HELP = (
     "--duration says otherwise.\n\n"
     'jitter_kind = "replay" with \\[timing] replay naming a run folder or .mcap (PATH::zenoh '
     "or PATH::can for one path) replays that run's measured latencies.\n\n"
-    "Ctrl-C keeps the Ts groups already done (exit 130). Exit 0 (also when a break point is "
-    "found, unless --strict), 1 when the law failed at a point (raised, returned the wrong "
-    "type or a non-finite torque: that point is a FAIL, never held) or with --strict when a "
-    "limit broke, 2 on bad input."
+    "Ctrl-C keeps the Ts groups already done and says which loops it did not cover (exit "
+    "130). The break point is the sweep's answer, not a failure: exit 0 (PASS) also when a "
+    "limit broke somewhere; 1 (FAIL) when the law faulted in a loop, or with --strict when "
+    "any loop broke a limit; 2 on bad input (docs/reports.md)."
 )
 
 
@@ -48,7 +48,9 @@ OutOpt = Annotated[
 DurationOpt = Annotated[
     float | None, typer.Option(help="Seconds per loop (default: the scenario's, at most 20 s).")
 ]
-StrictOpt = Annotated[bool, typer.Option(help="Exit 1 when any loop of the grid broke a limit.")]
+StrictOpt = Annotated[
+    bool, typer.Option(help="FAIL (exit 1) when any loop of the grid broke a limit.")
+]
 WorstOpt = Annotated[
     bool,
     typer.Option(
@@ -128,8 +130,37 @@ def sweep(
         doc = write_outputs(target, outcome.rows, grid, meta)
         page = write_sweep_page(target, doc)
     typer.echo(f"sweep: {page} (also sweep.md, sweep.csv, sweep.json)")
-    first, fault = _say_break_point(doc)
-    if worst_disturbance and first is not None:
+    _say_and_judge(doc, outcome, target, strict, worst_disturbance)
+
+
+def _say_and_judge(
+    doc: dict[str, Any], outcome: Any, target: Path, strict: bool, worst: bool
+) -> None:
+    """The sweep's lines (what it did not cover first, where the law failed, never "held
+    everywhere" for a grid it did not cover or where the law failed), then its verdict's exit
+    (hil.sweep.grid.sweep_outcome) or, interrupted, 130 through hil.cli."""
+    from hil.sweep.grid import coverage_sentence, sweep_outcome
+
+    bp = doc["break_point"]
+    first, fault = bp.get("first"), bp.get("first_law_fault")
+    missing = coverage_sentence(doc["coverage"])
+    if missing:
+        typer.echo(missing)
+    if fault is not None:  # those points did not run to the end: never "held" there
+        typer.echo(
+            f"law fault at {bp['law_faults']} of {len(doc['rows'])} points (first at "
+            f"Ts={fault['ts']:g} s, delay={fault['delay']:g} s): {fault['law_fault']}"
+        )
+    among = " among the loops run" if missing else ""
+    if first is not None:
+        typer.echo(f"break point{among}: Ts={first['ts']:g} s, delay={first['delay']:g} s")
+    elif fault is not None:
+        typer.echo(f"break point: none{among} where the law ran to the end")
+    elif missing:
+        typer.echo(f"break point: none{among}, no limit broke in the {len(doc['rows'])} loops run")
+    else:
+        typer.echo("break point: none, the limits held everywhere")
+    if worst and first is not None:
         from hil.sweep.worst import worst_at_break
 
         typer.echo(f"broken by: {worst_at_break(outcome.rows, first)}")
@@ -137,29 +168,9 @@ def sweep(
         # hil.cli exits 130: the interrupt was recorded by hil.interrupts.
         interrupts.note(f"partial results kept in {target}")
         return
-    if fault is not None:  # a broken law is a FAIL of the law, --strict or not
-        raise NegativeVerdictError(f"FAIL: {fault['law_fault']}")
-    if strict and first is not None:
-        raise NegativeVerdictError("a limit of (2) broke inside the grid")
-
-
-def _say_break_point(doc: dict[str, Any]) -> tuple[Any, Any]:
-    """The lines of the result: where the law failed (never "held everywhere" then), the break
-    point; returns the break point and the first law fault (None each when there is none)."""
-    bp = doc["break_point"]
-    first, fault = bp.get("first"), bp.get("first_law_fault")
-    if fault is not None:  # never "held everywhere": those points did not run to the end
-        typer.echo(
-            f"law fault at {bp['law_faults']} of {len(doc['rows'])} points (first at "
-            f"Ts={fault['ts']:g} s, delay={fault['delay']:g} s): {fault['law_fault']}"
-        )
-    if first is not None:
-        typer.echo(f"break point: Ts={first['ts']:g} s, delay={first['delay']:g} s")
-    elif fault is not None:
-        typer.echo("break point: none where the law ran to the end")
-    else:
-        typer.echo("break point: none, the limits held everywhere")
-    return first, fault
+    verdict, why = sweep_outcome(outcome.rows, strict)
+    if verdict != "PASS":
+        raise NegativeVerdictError(f"{why}: {fault['law_fault']}" if fault else why, verdict)
 
 
 def _checked_sweep(

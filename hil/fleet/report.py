@@ -1,6 +1,10 @@
-"""The fleet report: per robot the verdict and D against D*, for the fleet the command age's
-p99, the samples without a command and the deadline misses (``fleet.json``, ``fleet.md``,
-``fleet.png``)."""
+"""The fleet report: per robot the verdict and D against D*, for the fleet its verdict, the
+command age's p99, the samples without a command and the deadline misses (``fleet.json``,
+``fleet.md``, ``fleet.png``).
+
+The fleet's verdict is its robots': FAIL when a robot's is FAIL or its run left no verdict
+(no summary.json, or a run stopped by its own error), else INCONCLUSIVE when a robot's is,
+else PASS; ``hil fleet`` exits with its code (hil.verdict.EXIT_CODE)."""
 
 from __future__ import annotations
 
@@ -11,6 +15,8 @@ from typing import Any
 import matplotlib
 import matplotlib.pyplot as plt
 
+from hil.verdict import FAIL, INCONCLUSIVE, PASS, run_outcome
+
 
 def _robot(folder: Path, code: int | None) -> dict[str, Any]:
     row: dict[str, Any] = {"robot": folder.name, "folder": folder.name, "exit_code": code}
@@ -19,12 +25,12 @@ def _robot(folder: Path, code: int | None) -> dict[str, Any]:
     except (OSError, ValueError):
         return {**row, "verdict": "NO RUN", "error": "no summary.json"}
     t, cert = s.get("timing") or {}, s.get("certificate") or {}
-    verdict = s.get("verdict") or {}
-    row["verdict"] = verdict.get("outcome")
-    row["reason"] = next(iter(verdict.get("reasons") or []), None)  # the first: a law's fault
+    row["verdict"] = run_outcome(s)  # as that robot's hil run exits
+    reasons = (s.get("verdict") or {}).get("reasons") or []
+    row["reason"] = str(s["error"]) if s.get("error") else next(iter(reasons), None)
     row.update({k: cert.get(k) for k in ("d_max_s", "d_star_s", "held")})
     row["command_age_p99_us"] = (t.get("command_age_zenoh") or {}).get("p99_us")
-    keys = ("samples_without_command", "samples_judged", "deadline_misses", "ticks")
+    keys = ("samples_without_command", "samples_judged", "deadline_misses", "slots")
     row.update({k: t.get(k) for k in keys})
     return {**row, "error": s.get("error")}
 
@@ -35,17 +41,31 @@ def _ratio(rows: list[dict[str, Any]], num: str, den: str) -> float | None:
     return n / d if d else None
 
 
+def fleet_outcome(rows: list[dict[str, Any]]) -> tuple[str, list[str]]:
+    """The fleet's verdict from its robots' (module docstring) and the robots that made it
+    (those FAIL or without a verdict, or, for INCONCLUSIVE, those INCONCLUSIVE)."""
+    failed = [r["robot"] for r in rows if r.get("verdict") not in (PASS, INCONCLUSIVE)]
+    if failed:
+        return FAIL, failed
+    unsure = [r["robot"] for r in rows if r.get("verdict") == INCONCLUSIVE]
+    return (INCONCLUSIVE, unsure) if unsure else (PASS, [])
+
+
 def fleet_summary(out: Path, codes: dict[str, int | None], facts: dict[str, Any]) -> dict[str, Any]:
     rows = [_robot(out / robot, code) for robot, code in codes.items()]
     p99 = [r["command_age_p99_us"] for r in rows if r.get("command_age_p99_us") is not None]
+    outcome, robots = fleet_outcome(rows)
     fleet = {
+        "verdict": outcome,
+        "verdict_robots": robots,
         "robots": len(rows),
-        "passed": sum(r.get("verdict") == "PASS" for r in rows),
+        "passed": sum(r.get("verdict") == PASS for r in rows),
         "certificates_held": sum(bool(r.get("held")) for r in rows),
         "command_age_p99_us_max": max(p99, default=None),
         "command_age_p99_us_median": sorted(p99)[len(p99) // 2] if p99 else None,
         "samples_without_command_rate": _ratio(rows, "samples_without_command", "samples_judged"),
-        "deadline_miss_rate": _ratio(rows, "deadline_misses", "ticks"),
+        # missed slots over every slot, as each robot's deadline_miss_rate (docs/realtime.md)
+        "deadline_miss_rate": _ratio(rows, "deadline_misses", "slots"),
     }
     return {**facts, "fleet": fleet, "per_robot": rows}
 
@@ -54,15 +74,31 @@ def _ms(x: float | None) -> str:
     return "-" if x is None else f"{x * 1e3:.2f}"
 
 
+def _pct(x: float | None) -> str:
+    return "n/a" if x is None else f"{100.0 * x:.3f} %"
+
+
+def verdict_sentence(f: dict[str, Any]) -> str:
+    """The fleet's verdict in one sentence, from its robots' (the table below it)."""
+    names = ", ".join(f["verdict_robots"])
+    if f["verdict"] == FAIL:
+        return f"Verdict: FAIL (robots FAIL or without a verdict: {names})."
+    if f["verdict"] == INCONCLUSIVE:
+        return f"Verdict: INCONCLUSIVE (robots INCONCLUSIVE: {names}; none FAIL)."
+    return f"Verdict: PASS (every robot of {f['robots']})."
+
+
 def markdown(summary: dict[str, Any]) -> str:
     f = summary["fleet"]
+    p99 = f["command_age_p99_us_max"]
     lines = [
         f"# Fleet of {f['robots']} robots",
         "",
+        verdict_sentence(f),
         f"PASS {f['passed']} of {f['robots']}; certificates held {f['certificates_held']}.",
-        f"Command age p99 (max over robots) {f['command_age_p99_us_max']} us; samples without "
-        f"a command {f['samples_without_command_rate']}; deadline miss rate "
-        f"{f['deadline_miss_rate']}.",
+        f"Command age p99 (max over robots) {'n/a' if p99 is None else f'{p99:.0f}'} us; "
+        f"samples without a command {_pct(f['samples_without_command_rate'])} of those judged; "
+        f"deadline misses {_pct(f['deadline_miss_rate'])} of the slots.",
         "",
         "| robot | verdict | D (ms) | D* (ms) | held | command age p99 (us) |",
         "|---|---|---|---|---|---|",

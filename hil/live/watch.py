@@ -136,7 +136,7 @@ def _mirror(msg: Any) -> dict[str, Any]:
 
 def bounds_of(settings: RunSettings, resolved: Path | None) -> Bounds:
     """D* from the resolved scenario as the run's summary computes it (None: no certificate),
-    Ts and the limits (2) from the settings."""
+    Ts, the limits (2), the plant's sample period and the trigger from the settings."""
     d_star = None
     if resolved is not None and resolved.is_file():
         try:
@@ -146,7 +146,11 @@ def bounds_of(settings: RunSettings, resolved: Path | None) -> Bounds:
         except Exception as exc:  # a design the certificate refuses: no D*, still a view
             print(f"live: no D* ({exc})", file=sys.stderr)
     lim = settings.limits
-    return Bounds(d_star, float(settings.ts), float(lim["phi1"]), float(lim["phi2"]))
+    periodic = settings.trigger == "periodic" and not settings.lockstep
+    return Bounds(
+        d_star, float(settings.ts), float(lim["phi1"]), float(lim["phi2"]),
+        float(settings.sensor_ts), periodic,
+    )  # fmt: skip
 
 
 def reference_of(settings: RunSettings) -> Any:

@@ -114,6 +114,13 @@ class Measurement:
         }
 
 
+def control_slot(sample_ns: Any, origin_ns: int, period_ns: int) -> Any:
+    """The control slot meant to answer a plant sample taken at ``sample_ns`` (an int or an
+    array), on a controller's grid of deadlines ``origin_ns + k period_ns``: the first slot
+    whose deadline is at or after the sample (docs/realtime.md, ``samples_without_command``)."""
+    return -((origin_ns - sample_ns) // period_ns)
+
+
 def _in(x: np.ndarray, lo: int, hi: int) -> np.ndarray:
     return (x >= lo) & (x <= hi)
 
@@ -346,6 +353,32 @@ class _Run:
         b = ap["outcome"] == ApplyOutcome.BURST
         return Stamped.by_time(ap["apply_ns"][b], hop=(ap["apply_ns"] - ap["recv_ns"])[b])
 
+    @cached_property
+    def sample_slots(self) -> np.ndarray | None:
+        """Per plant sample, the control slot meant to answer it, when the controller answers
+        one sample per control period (periodic, its period longer than the plant's sample
+        period); None when it is meant to answer every sample (the rates equal, a slower
+        sensor, on_state, lockstep). A sample's slot is the first whose deadline is at or
+        after the sample (:func:`control_slot`): that slot's tick takes the newest State in
+        hand, one of the samples taken since the previous deadline. The deadlines are the
+        controller's own (its ticks', a learnt phase's shift included; the slots it skipped
+        on their grid); with no tick, the nominal grid half a period after the epoch."""
+        if self.trigger != "periodic" or self.lockstep or self.sensor_period >= self.period:
+            return None
+        sn = self.samples["sample_ns"]
+        t = self.ticks
+        mine = t["k"] >= 0
+        k, deadline = t["k"][mine], t["deadline_ns"][mine]
+        if k.size == 0:
+            return control_slot(sn, self.epoch + self.period // 2, self.period)
+        k, first = np.unique(k, return_index=True)
+        deadline = deadline[first]
+        every = np.arange(int(k[0]), int(k[-1]) + 1)
+        pos = np.searchsorted(k, every, side="right") - 1
+        grid = deadline[pos] + (every - k[pos]) * self.period
+        # Samples before the first tick belong to it, those after the last to one more slot.
+        return np.searchsorted(grid, sn, side="left")
+
     def tick_of(self, cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(tick row, found) of each command sequence number."""
         return _lookup(self.cmd_keys, self.cmd_rows, np.asarray(cmd, np.int64), ordered=True)
@@ -527,8 +560,23 @@ def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
             continue
         timing["startup_hold_s"] = (int(land[0]) - r.w0) / 1e9 if land.size else None
         landed = np.unique(samp)
-        without = judged & ~np.isin(s["sample_ns"], landed)
-        r.series_without = s["sample_ns"][without]
+        answered = np.isin(s["sample_ns"], landed)
+        slots = r.sample_slots
+        if slots is None:  # the controller was meant to answer every sample
+            without = judged & ~answered
+            r.series_without = s["sample_ns"][without]
+        else:  # one sample per control period: a slot with none of its samples answered
+            _, slot = np.unique(slots, return_inverse=True)
+            n_slots = int(slot.max()) + 1
+            got = np.zeros(n_slots, bool)
+            np.logical_or.at(got, slot, answered)
+            whole = np.ones(n_slots, bool)  # every sample of the slot judged
+            np.logical_and.at(whole, slot, judged)
+            last = np.zeros(n_slots, np.int64)  # the slot's newest sample, the one a tick takes
+            np.maximum.at(last, slot, s["sample_ns"])
+            without = whole & ~got
+            n_judged = int(whole.sum())
+            r.series_without = last[without]
         timing["samples_without_command"] = int(without.sum())
         timing["samples_judged"] = n_judged
         timing["samples_without_command_rate"] = int(without.sum()) / n_judged if n_judged else None

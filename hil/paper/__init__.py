@@ -343,8 +343,12 @@ def _write_table(
     note += " Initial conditions: see the scenario files."
     if interrupted:
         missing = ", ".join(r for r in RUNS if r not in results) or "none"
-        note += f" INTERRUPTED: partial results, checks not judged; runs not done: {missing}."
+        note += (
+            f" INTERRUPTED: {len(done)} of {len(RUNS)} runs done; not done: {missing} (no claim "
+            "about them); the checks of the paper's claims not judged."
+        )
     table = dict(note=note, runs=rows, checks=check_rows, quick=quick, interrupted=interrupted)
+    table["runs_not_done"] = [r for r in RUNS if r not in results]
     write_json(out / "table.json", table)
     (out / "table.md").write_text(_markdown(rows, check_rows, note))
     return table

@@ -17,7 +17,7 @@ import numpy as np
 
 from hil.margin.record import MarginRecord, summary_lines
 from hil.report.figures import Figure
-from hil.verdict import UNITS, LawEnd
+from hil.verdict import EXIT_CODE, UNITS, LawEnd
 
 #: Each signal of (2) and its limit's symbol (its unit is hil.verdict's).
 LIMITS = {"v": "φ1", "omega": "φ2", "tau1": "ϖ1", "tau2": "ϖ2"}
@@ -245,7 +245,11 @@ def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, A
     rate = timing.get("samples_without_command_rate")
     what = "Samples without a command:"
     if data["kind"] == "run" and isinstance(n, int) and isinstance(rate, int | float):
-        text = f"{what} {n} of {judged} ({100.0 * rate:.3f} %)."
+        text = (
+            f"{what} {n} of {judged} ({100.0 * rate:.3f} %), of the samples the controller "
+            "was meant to answer (one per control period when it runs below the plant's "
+            "sample rate)."
+        )
         return {"count": n, "judged": judged, "rate": rate}, text
     if data["kind"] == "run":
         text = f"{what} not measured (the run has no such figure)."
@@ -305,21 +309,31 @@ def _verdict(s: Section, data: dict[str, Any]) -> None:
         s.p("FAIL: the system under test (controller, its host, the transport):")
         s.items(list(v["fail_reasons"]))
     if v.get("inconclusive_reasons"):
-        s.p("INCONCLUSIVE: the bench, or logs that cannot relate a figure, not your system:")
+        # Beside a FAIL these are found too, and do not change it (the system's failure stands).
+        s.p(
+            "Also found, the bench's or logs that cannot relate a figure (alone they would "
+            "make the verdict INCONCLUSIVE):"
+            if v.get("fail_reasons")
+            else "INCONCLUSIVE: the bench, or logs that cannot relate a figure, not your system:"
+        )
         s.items(list(v["inconclusive_reasons"]))
     if not v["reasons"]:
-        s.p("No reason for a negative verdict.")
+        s.p("No reason for a FAIL or an INCONCLUSIVE: PASS.")
     for line in (*v.get("advice", ()), *v.get("notes", ())):
         s.p(line)
     th = v["thresholds"]
     s.p(
-        "Negative when the law failed (raised, returned the wrong type or a non-finite "
-        "torque), the controller process ended before the run, the state became non-finite, "
-        "a limit of (2) is broken, the certificate is not held, or deadline "
-        f"misses exceed {th['max_deadline_miss_ratio']:.2%} of ticks, samples without a "
-        f"command {th['max_samples_without_command_ratio']:.2%} of samples, lost messages "
-        f"{th['max_lost_ratio']:.2%} of those sent (State and the applied path; a shadow path "
-        "never counts)."
+        "FAIL when the law failed (raised, returned the wrong type or a non-finite torque), "
+        "the controller process ended before the run, the state became non-finite, a limit "
+        "of (2) is broken, the certificate is not held or exceeded through "
+        "the system's own timing, or missed slots exceed "
+        f"{th['max_deadline_miss_ratio']:.2%} of the slots, samples without a command "
+        f"{th['max_samples_without_command_ratio']:.2%} of the samples the controller was "
+        f"meant to answer, lost messages {th['max_lost_ratio']:.2%} of those sent (State and "
+        "the applied path; a shadow path never counts). INCONCLUSIVE instead when only the "
+        "bench's stalls put a figure over, or the logs cannot relate one. Exit code: "
+        + ", ".join(f"{k} {c}" for k, c in EXIT_CODE.items())
+        + "."
     )
 
 
@@ -556,14 +570,20 @@ def _messages(s: Section, data: dict[str, Any]) -> None:
             "counts below include them, and the certificate's stalls name them in their evidence."
         )
     impair = data["timing"].get("impair")
+    msgs = data["timing"].get("messages") or {}
     if isinstance(impair, dict):
+        # Said as counted, side by side: a dropped packet is not always one lost message (a CAN
+        # command is two frames), and whether the two agree is for the reader to see.
+        streams = [st for st in msgs.values() if isinstance(st, dict)]
+        lost = sum(int(st.get("lost") or 0) for st in streams)
+        injected = sum(int(st.get("injected_drops") or 0) for st in streams)
+        of_faults = f" ({injected} of them dropped by [faults] on purpose)" if injected else ""
         s.p(
             f"The link was impaired on purpose ([impair], docs/impair.md): {impair.get('packets')}"
             f" in a {impair.get('namespace')}; nftables matched {impair.get('matched_packets')} "
-            f"packets and dropped {impair.get('dropped_packets')}. The lost counts below can only "
-            "be those (and any the faults above injected)."
+            f"packets and dropped {impair.get('dropped_packets')}. The streams below lost {lost} "
+            f"messages in all{of_faults}."
         )
-    msgs = data["timing"].get("messages") or {}
     keys = ("sent", "received", "lost", "duplicated", "reordered")
     rows = []
     for name, st in msgs.items():

@@ -43,6 +43,7 @@ from hil.run.orchestrate import (
 )
 from hil.run.secure import RunIdentities
 from hil.supervisor import Supervisor
+from hil.verdict import FAIL, INCONCLUSIVE, INTERRUPTED, PASS, exit_code, run_outcome
 from protocol.keys import observed_keys
 from protocol.settings import RunSettings, period_ns
 from runtime.signals import stop_on_signals
@@ -189,9 +190,8 @@ def _results(spec: GroupSpec, robots: list[_Robot], codes: dict[str, int | None]
         if ended is not None:  # the process ended: every robot it served lost its controller
             extra["controller_exit"] = ended
         summary = _write_results(r.run_dir, r.scenario, r.settings, r.info, extra)
-        # The exit code hil run gives this summary (hil.commands.run, not strict).
-        blocking = (summary.get("verdict") or {}).get("blocking")
-        out[r.id] = 1 if summary.get("error") or blocking else 0
+        # The exit code hil run gives this summary (hil.commands.run).
+        out[r.id] = exit_code(run_outcome(summary))
     # Where hil fleet reads each robot's exit code (as ``hil run`` would exit for it).
     (Path(spec.out) / f".group-{spec.robots[0]}.codes.json").write_text(json.dumps(out) + "\n")
     return out
@@ -207,7 +207,13 @@ def main(argv: list[str] | None = None) -> int:
     placed = placement.enter(spec.options(), False, True)
     with stop_on_signals() as stop:
         codes = execute(spec, stop, placed)
-    return 130 if stop else max(codes.values(), default=0)
+    if stop:
+        return INTERRUPTED
+    # The group's worst robot: any FAIL, else any INCONCLUSIVE (hil fleet reads each robot's).
+    for outcome in (FAIL, INCONCLUSIVE):
+        if exit_code(outcome) in codes.values():
+            return exit_code(outcome)
+    return exit_code(PASS)
 
 
 if __name__ == "__main__":

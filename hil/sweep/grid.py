@@ -13,6 +13,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from hil.verdict import FAIL, PASS
+
 # Defaults when the scenario has no [sweep] table: Ts from 0.5 ms to 50 ms around the paper's
 # 1 ms; delays from none to 50 ms (the probe of docs/design.md, section 2, broke phi1 at
 # Ts = 50 ms, 100 ms delay only with m1 near its bound); no extra jitter; one seed.
@@ -136,3 +138,61 @@ def aggregate(
     if how == "mean":
         return {k: sum(v) / len(v) for k, v in groups.items()}
     return {k: max(v) for k, v in groups.items()}
+
+
+def coverage(rows: Sequence[Mapping[str, Any]], loops: int) -> dict[str, int]:
+    """How much of a grid of ``loops`` loops the rows cover: ``covered`` (loops run to their
+    end), ``cut_short`` (a loop the interrupt stopped: a limit it broke is a break, a limit it
+    held says nothing of the rest) and ``not_run``."""
+    covered = sum(1 for r in rows if r.get("complete", True))
+    return {
+        "loops": loops,
+        "covered": covered,
+        "cut_short": len(rows) - covered,
+        "not_run": max(0, loops - len(rows)),
+    }
+
+
+def coverage_sentence(cov: Mapping[str, int]) -> str | None:
+    """What a cut-short sweep did not cover, in one sentence (None when it covered all)."""
+    missing = cov["loops"] - cov["covered"]
+    if missing <= 0:
+        return None
+    parts = [f"{n} {what}" for n, what in ((cov["cut_short"], "cut short"),
+                                           (cov["not_run"], "not run")) if n]  # fmt: skip
+    return (
+        f"covered {cov['covered']} of {cov['loops']} loops; {missing} not covered "
+        f"({', '.join(parts)}): no claim about them"
+    )
+
+
+def break_sentence(bp: Mapping[str, Any], cov: Mapping[str, int], rows: int) -> str:
+    """The sweep's answer in one sentence, from its break point and what it covered: never
+    "held everywhere" for a grid it did not cover."""
+    first = bp.get("first")
+    if first is None:
+        if cov["covered"] < cov["loops"]:
+            return f"No limit of (2) broke in the loops run: {coverage_sentence(cov)}."
+        if bp.get("law_faults"):  # where the law failed nothing ran to the end
+            return "No limit of (2) broke where the law ran to the end."
+        return f"The limits (2) held in all {cov['loops']} loops of the grid."
+    among = " among the loops run" if cov["covered"] < cov["loops"] else ""
+    return (
+        f"The limits (2) first break{among} at Ts = {first['ts']:g} s with a delay of "
+        f"{first['delay']:g} s (jitter {first['jitter']:g} s, seed {first['seed']}): "
+        f"{bp.get('violating_points', '?')} of {rows} loops broke a limit."
+    )
+
+
+def sweep_outcome(rows: Sequence[Mapping[str, Any]], strict: bool) -> tuple[str, str]:
+    """The sweep's verdict and its reason: the break point is the sweep's answer, not a
+    failure (PASS, exit 0); FAIL when the law faulted in a loop (``law_fault``: a law that
+    raised or returned a non-finite torque is the user's failure wherever it happens), or,
+    ``strict``, when any loop broke a limit (the grid was to hold everywhere)."""
+    faulted = [r for r in rows if r.get("law_fault")]
+    if faulted:
+        return FAIL, f"the law faulted in {len(faulted)} of {len(rows)} loops"
+    broke = [r for r in rows if r.get("violation")]
+    if strict and broke:
+        return FAIL, f"a limit of (2) broke in {len(broke)} of {len(rows)} loops (--strict)"
+    return PASS, ""

@@ -12,7 +12,14 @@ import numpy as np
 
 from hil.folder.jsonio import jsonable, write_json
 from hil.report import figures as fg
-from hil.sweep.grid import SweepGrid, aggregate, break_points
+from hil.sweep.grid import (
+    SweepGrid,
+    aggregate,
+    break_points,
+    break_sentence,
+    coverage,
+    coverage_sentence,
+)
 from hil.sweep.runner import LAW_FAULT_RECORD
 from protocol.versions import SWEEP_SCHEMA_VERSION
 
@@ -98,6 +105,7 @@ def write_outputs(
         "schema_version": SWEEP_SCHEMA_VERSION,
         "grid": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(grid).items()},
         **meta,
+        "coverage": coverage(rows, len(grid)),
         "break_point": jsonable({**bp, "ts_by_delay": by_delay, "delay_by_ts": by_ts}),
         "law_fault": _first_record(records, bp.get("first_law_fault")),
         "rows": rows,
@@ -120,8 +128,47 @@ def _first_record(
     return records[0][LAW_FAULT_RECORD] if records else None
 
 
+def certificate_sentence(rows: Sequence[dict[str, Any]], law: Any) -> str:
+    """What the certificate says over the loops run, from their ``certified`` column (the
+    results table's "certificate holds"): the points where it does not guarantee (2), listed
+    per delay (and jitter), never a "from" that the table may contradict (the certificate is
+    not monotone in Ts at a fixed delay, nor in the delay at a fixed Ts)."""
+    if law not in ("unified", "unified_boundary"):
+        return "The certificate covers the unified laws only: not evaluated for this law."
+    points: dict[tuple[float, float, float], Any] = {}
+    for r in rows:
+        points[(r["ts"], r["delay"], r["jitter"])] = r.get("certified")
+    if not points:
+        return "No loop ran: the certificate was not evaluated."
+    jitters = len({j for _, _, j in points}) > 1
+    what = "(Ts, delay, jitter)" if jitters else "(Ts, delay)"
+    no = sorted(k for k, held in points.items() if held is False)
+    unknown = sum(1 for held in points.values() if held is None)
+    if not no and not unknown:
+        return (
+            f"The certificate (docs/sampled_data_bound.md) guarantees (2) at every {what} "
+            f"point run ({len(points)})."
+        )
+    parts = []
+    for key in sorted({(d, j if jitters else 0.0) for _, d, j in no}):
+        where = f"delay = {key[0]:g} s" + (f", jitter = {key[1]:g} s" if jitters else "")
+        mine = sorted(t for t, d, j in points if (d, j if jitters else 0.0) == key)
+        bad = sorted(t for t, d, j in no if (d, j if jitters else 0.0) == key)
+        ts = "every Ts run" if bad == mine else "Ts = " + ", ".join(f"{t:g}" for t in bad) + " s"
+        parts.append(f"{where}: {ts}")
+    text = (
+        f"The certificate does not guarantee (2) at {len(no)} of the {len(points)} {what} "
+        f"points run"
+    )
+    text += (": " + "; ".join(parts)) if parts else ""
+    if unknown:
+        text += f"; at {unknown} it could not be evaluated"
+    return text + "; a limit may still hold there (the heat map shows where one broke)."
+
+
 def _markdown(doc: dict[str, Any], bp: dict[str, Any], files: list[dict[str, str]]) -> str:
     g = doc["grid"]
+    cov = doc["coverage"]
     lines = [
         "# Sweep",
         "",
@@ -144,28 +191,19 @@ def _markdown(doc: dict[str, Any], bp: dict[str, Any], files: list[dict[str, str
             f"{fault['delay']:g} s: {fault['law_fault']}.",
             "",
         ]
-    lines += ["## Break point", ""]
-    first = bp.get("first")
-    if first is None and fault is not None:
-        lines.append("No limit of (2) broke where the law ran to the end.")
-    elif first is None:
-        lines.append("The limits (2) held at every point of the grid.")
-    else:
-        lines.append(
-            f"The limits first break at Ts = {first['ts']:g} s, delay = {first['delay']:g} s "
-            f"(jitter {first['jitter']:g} s, seed {first['seed']}); "
-            f"{bp['violating_points']} of {len(doc['rows'])} loops broke a limit."
-        )
-        lines += ["", "| delay [s] | smallest Ts that broke a limit [s] |", "|---|---|"]
+    lines += ["## Break point", "", break_sentence(bp, cov, len(doc["rows"]))]
+    if bp.get("first") is not None:
+        lines += [
+            "",
+            "| delay [s] | smallest Ts that broke a limit [s] (none: held at every Ts run) |",
+            "|---|---|",
+        ]
         for d, ts in bp["ts_by_delay"].items():
-            lines.append(f"| {d:g} | {'held' if ts is None else f'{ts:g}'} |")
-    cb = (doc.get("certificate") or {}).get("first_uncertified")
-    cert = "every point certified."
-    if cb is not None:
-        cert = (
-            f"(2) no longer guaranteed from Ts = {cb['ts']:g} s, delay = {cb['delay']:g} s"
-            f" (age {cb['age']:g} s)."
-        )
+            lines.append(f"| {d:g} | {'none' if ts is None else f'{ts:g}'} |")
+    missing = coverage_sentence(cov)
+    if missing and bp.get("first") is not None:  # without a break the sentence above says it
+        lines += ["", missing[0].upper() + missing[1:] + "."]
+    cert = certificate_sentence(doc["rows"], doc.get("law"))
     lines += ["", f"Certificate: {cert}", "", "## Figures", ""]
     for f in files:
         lines += [f"![{f['title']}]({f['png']}) (data: [{f['data']}]({f['data']}))", ""]

@@ -14,7 +14,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from hil.sweep.grid import aggregate
+from hil.sweep.grid import aggregate, break_sentence, coverage, coverage_sentence
+from hil.sweep.outputs import certificate_sentence
 
 # Heat-map colours of the worst overshoot max(|v|/phi1, |omega|/phi2): well inside, near, broken.
 NEAR = 0.9  # from 90 % of a limit a cell is "near"
@@ -42,7 +43,7 @@ STYLE = """
 body { font-family: system-ui, sans-serif; margin: 24px auto; max-width: 1200px; color: #222; }
 h1 { font-size: 1.5em; } h2 { font-size: 1.2em; margin-top: 1.6em; }
 .answer { font-size: 1.15em; padding: 12px 16px; border-radius: 6px; }
-.held { background: #d8f0d8; } .broke { background: #f4b4b4; }
+.held { background: #d8f0d8; } .broke { background: #f4b4b4; } .partial { background: #fbe8a6; }
 table { border-collapse: collapse; font-size: 0.9em; }
 th, td { border: 1px solid #bbb; padding: 4px 8px; text-align: right; }
 th { background: #f2f2f2; }
@@ -72,33 +73,27 @@ def _fmt(value: Any, spec: str) -> str:
 
 def _answer(doc: Mapping[str, Any]) -> str:
     bp = doc.get("break_point") or {}
-    first = bp.get("first")
-    n = len(doc.get("rows") or [])
-    partial = " (interrupted: partial results)" if doc.get("interrupted") else ""
+    rows = doc.get("rows") or []
+    n = len(rows)
+    grid = doc.get("grid") or {}
+    loops = len(grid.get("ts") or []) * len(grid.get("delay") or [])
+    loops *= len(grid.get("jitter") or []) * int(grid.get("seeds") or 1)
+    cov = doc.get("coverage") or coverage(rows, max(loops, n))
     if not n:
         return '<p class="answer broke">No loop finished: nothing to show.</p>'
     fault = bp.get("first_law_fault")
+    text = break_sentence(bp, cov, n)
+    missing = coverage_sentence(cov)
+    if missing and bp.get("first") is not None:
+        text += f" Interrupted: {missing}."
     if fault is not None:
         text = (
-            f"FAIL: the law failed at {bp.get('law_faults', '?')} of {n} loops{partial} (those "
-            f"points never count as held); first at Ts = {fault['ts']:g} s, delay = "
-            f"{fault['delay']:g} s: {fault['law_fault']}."
+            f"FAIL: the law failed at {bp.get('law_faults', '?')} of {n} loops (those points "
+            f"never count as held); first at Ts = {fault['ts']:g} s, delay = "
+            f"{fault['delay']:g} s: {fault['law_fault']}. " + text
         )
-        if first is not None:
-            text += (
-                f" Where it ran to the end, the limits (2) first break at Ts = {first['ts']:g} s "
-                f"with a delay of {first['delay']:g} s."
-            )
-        return f'<p class="answer broke">{_e(text)}</p>'
-    if first is None:
-        text = f"The limits (2) held in all {n} loops of the grid{partial}."
-        return f'<p class="answer held">{_e(text)}</p>'
-    text = (
-        f"The limits (2) first break at Ts = {first['ts']:g} s with a delay of "
-        f"{first['delay']:g} s (jitter {first['jitter']:g} s, seed {first['seed']}): "
-        f"{bp.get('violating_points', '?')} of {n} loops broke a limit{partial}."
-    )
-    return f'<p class="answer broke">{_e(text)}</p>'
+    kind = "broke" if bp.get("first") is not None or fault else ("partial" if missing else "held")
+    return f'<p class="answer {kind}">{_e(text)}</p>'
 
 
 def _terms(doc: Mapping[str, Any]) -> str:
@@ -121,15 +116,7 @@ def _terms(doc: Mapping[str, Any]) -> str:
 
 
 def _certificate_line(doc: Mapping[str, Any]) -> str:
-    cb = (doc.get("certificate") or {}).get("first_uncertified")
-    if doc.get("law") not in ("unified", "unified_boundary"):
-        return "The certificate covers the unified laws only: not evaluated for this law."
-    if cb is None:
-        return "The certificate (docs/sampled_data_bound.md) guarantees (2) at every point."
-    return (
-        f"The certificate no longer guarantees (2) from Ts = {cb['ts']:g} s, delay = "
-        f"{cb['delay']:g} s (command age {cb['age']:g} s); a limit may still hold beyond it."
-    )
+    return certificate_sentence(doc.get("rows") or [], doc.get("law"))
 
 
 def heat_cells(rows: Sequence[Mapping[str, Any]]) -> dict[tuple[float, float], tuple[float, bool]]:
@@ -159,6 +146,7 @@ def _heat_map(doc: Mapping[str, Any]) -> str:
     delays = sorted(grid.get("delay") or [])
     cells = heat_cells(doc.get("rows") or [])
     faulted = fault_cells(doc.get("rows") or [])
+    cut = {(r["ts"], r["delay"]) for r in doc.get("rows") or [] if not r.get("complete", True)}
     head = "".join(f"<th>Ts = {ts:g} s</th>" for ts in ts_values)
     body = []
     for d in delays:
@@ -174,6 +162,8 @@ def _heat_map(doc: Mapping[str, Any]) -> str:
             worst, broke = cell
             kind = "broke" if broke else ("near" if worst >= NEAR else "inside")
             mark = " ✗" if broke else ""
+            # A loop the interrupt stopped: what it broke counts, what it held says nothing.
+            mark += " (cut short)" if (ts, d) in cut and not broke else ""
             tds.append(f'<td style="background:{COLOURS[kind]}">{worst:.2f}{mark}</td>')
         body.append(f"<tr><th>delay = {d:g} s</th>{''.join(tds)}</tr>")
     legend = (

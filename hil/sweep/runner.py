@@ -168,8 +168,10 @@ def run_sweep(
 
 
 def certified_break(scenario: Scenario, grid: SweepGrid) -> dict[str, Any]:
-    """The certificate's own prediction over the grid: the smallest age Ts + delay at which
-    (2) is no longer guaranteed (None when every point is certified)."""
+    """The certificate's own prediction over the whole grid (run or not): the point of the
+    smallest age Ts + worst delay at which (2) is not guaranteed (None when every point is
+    certified). Not a frontier: points of a larger age may be certified; the pages list the
+    points run that are not (hil.sweep.outputs.certificate_sentence)."""
     try:
         controller, _ref, context = build_loop(scenario)
         resolved = resolved_dict(scenario, controller, context)
@@ -178,7 +180,9 @@ def certified_break(scenario: Scenario, grid: SweepGrid) -> dict[str, Any]:
     sv = view(resolved)
     first = None
     for ts, d, j in itertools.product(grid.ts, grid.delay, grid.jitter):
-        c = certificate(sv, ts, d + j)
-        if c.held is False and (first is None or ts + d + j < first["age"]):
-            first = {"ts": ts, "delay": d, "jitter": j, "age": ts + d + j}
+        # The worst delay as each row's ``certified`` has it (the jitter's bound, not j).
+        worst = worst_age(SweepPoint(ts, d, j, 0), sv.jitter_kind)
+        c = certificate(sv, ts, worst)
+        if c.held is False and (first is None or ts + worst < first["age"]):
+            first = {"ts": ts, "delay": d, "jitter": j, "age": ts + worst}
     return {"first_uncertified": first}
