@@ -134,7 +134,7 @@ def certify_scenario(
         rec = empirical_break(scenario, ts_used, delay_used)
         fault = margin_record.law_fault_sentence(rec)
         if fault is not None:  # the law failed in the search: no empirical break to give
-            raise NegativeVerdictError(f"FAIL: {fault}")
+            raise NegativeVerdictError(str(fault))
         facts["empirical"] = {
             "age_at_break_s": rec.age_at_break_s,
             "k_star": rec.k_star,
@@ -297,6 +297,6 @@ def margin(
     typer.echo(f"margin: {written}")
     fault = record.law_fault_sentence(result)
     if fault is not None:  # the law failed in a loop: a FAIL of the law, whatever k
-        raise NegativeVerdictError(f"FAIL: {fault}")
+        raise NegativeVerdictError(str(fault))
     if result.k_star is not None and result.k_star <= 1.0:
         raise NegativeVerdictError("a limit breaks at the measured timing (k* <= 1)")

@@ -105,7 +105,7 @@ def _law_failed_at_once(folder: Path) -> None:
     samples = summary.get("samples")
     if first is not None and isinstance(samples, int) and samples < 2:
         raise NegativeVerdictError(
-            f"FAIL: {first} (no report: the trace ends at the fault, before its second sample)"
+            f"{first} (no report: the trace ends at the fault, before its second sample)"
         )
 
 

@@ -95,7 +95,7 @@ def sim(
     )
     first = law_ended(s)  # the law's own failure, or a state that became non-finite
     if first is not None:
-        raise NegativeVerdictError(f"FAIL: {first}")
+        raise NegativeVerdictError(str(first))
     if not s["limits_held"]:
         raise NegativeVerdictError(f"a limit of (2) was broken: violations {s['violations']}")
 
