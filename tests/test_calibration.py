@@ -490,13 +490,13 @@ def _check_held(run: Run, h: Held, what: str) -> None:
 )
 @calibrates(
     "skipped_slots",
-    injects="the same SIGSTOP",
+    injects="a 40 ms SIGSTOP of the controller, sent 0.5 ms before its deadline at 2.001 s",
     found="at the held tick: (SIGCONT - its deadline) // Ts to (SIGCONT + 3 ms - its deadline) "
     "// Ts",
 )
 @calibrates(
     "period_jitter",
-    injects="the same SIGSTOP",
+    injects="a 40 ms SIGSTOP of the controller, sent 0.5 ms before its deadline at 2.001 s",
     found="the held tick's jitter = its lateness - the previous tick's (both raw), so in "
     "[L - Ts - 1 ms - the previous lateness, L + 3 ms]; the next tick's is the held lateness "
     "less its own; the clean run's jitter there under Ts",
@@ -511,6 +511,7 @@ def test_a_controller_sigstop_is_its_held_ticks_lateness_and_jitter(controller_s
     # The summary's figures are the raw log's: the held tick's lateness is among them.
     assert_same("wakeup_lateness", t["wakeup_lateness"], raw.wakeup_lateness())
     assert t["wakeup_lateness"]["max_us"] * 1000 >= h.wake - h.due
+    assert t["skipped_slots"] == raw.ticks["skipped"][raw.win_ticks].sum() >= h.skipped
     # period_jitter: |wake_k - wake_(k-1) - (k - (k-1)) Ts| is the lateness's step.
     w = raw.win_ticks
     jit = raw.period_jitter()
@@ -533,7 +534,7 @@ def test_a_controller_sigstop_is_its_held_ticks_lateness_and_jitter(controller_s
     "deadline_misses",
     "slots",
     "deadline_miss_rate",
-    injects="the same 40 ms SIGSTOP of the controller",
+    injects="a 40 ms SIGSTOP of the controller, sent 0.5 ms before its deadline at 2.001 s",
     found="the held tick and the slots it skipped are the slots due until the SIGCONT, +0/+2; "
     "the totals are the raw log's late ticks plus skipped slots over its slots, exactly",
 )
@@ -556,7 +557,7 @@ def test_a_controller_sigstop_misses_its_slots_and_fails_the_controller(controll
 
 @calibrates(
     "command_age_zenoh (applied)",
-    injects="the same 40 ms SIGSTOP of the controller",
+    injects="a 40 ms SIGSTOP of the controller, sent 0.5 ms before its deadline at 2.001 s",
     found="the stall's age is the raw next landing - the sample in force, within [L, L + 2 Ts "
     "+ 3 ms + that command's own sample_to_apply]; it crossed the threshold max(3 Ts, D*/2) "
     "(D* from the scenario) after that sample; D = the raw largest age",
@@ -564,14 +565,14 @@ def test_a_controller_sigstop_misses_its_slots_and_fails_the_controller(controll
 @calibrates(
     "samples_without_command",
     "samples_without_command_rate",
-    injects="the same 40 ms SIGSTOP of the controller",
+    injects="a 40 ms SIGSTOP of the controller, sent 0.5 ms before its deadline at 2.001 s",
     found="every judged sample taken while it was stopped, but the newest at its SIGCONT, "
     "is without a command (at most one more: a State in flight); the rest are exactly the raw "
     "log's",
 )
 @calibrates(
     "sample_gap",
-    injects="the same 40 ms SIGSTOP of the controller",
+    injects="a 40 ms SIGSTOP of the controller, sent 0.5 ms before its deadline at 2.001 s",
     found="the gap across the stop within [L - 2 Ts, L + 2 Ts + 3 ms]; all gaps the raw log's",
 )
 def test_a_controller_sigstop_is_the_age_the_gap_and_the_samples_it_left(controller_stop):
@@ -589,6 +590,7 @@ def test_a_controller_sigstop_is_the_age_the_gap_and_the_samples_it_left(control
     # The samples taken while it was stopped got no command, but the newest one at the resume.
     without = raw.samples_without_command()
     assert t["samples_without_command"] == without.size
+    assert t["samples_without_command_rate"] == without.size / int(raw.judged().sum())
     s = raw.samples["sample_ns"]
     during = s[(s > stop.by) & (s < cont.at)]
     missed = np.isin(during, without)
@@ -619,7 +621,7 @@ def test_a_controller_sigstop_is_the_age_the_gap_and_the_samples_it_left(control
 )
 @calibrates(
     "plant_sample_to_send",
-    injects="the same SIGSTOP of the plant",
+    injects="a 40 ms SIGSTOP of the plant, sent 0.5 ms before its sample at 2.0 s",
     found="the held sample's State leaves in [SIGCONT - its slot, + 3 ms]; the clean run's "
     "State of that slot left within Ts",
 )
@@ -627,7 +629,7 @@ def test_a_controller_sigstop_is_the_age_the_gap_and_the_samples_it_left(control
     "plant_deadline_misses",
     "plant_slots",
     "plant_deadline_miss_rate",
-    injects="the same SIGSTOP of the plant",
+    injects="a 40 ms SIGSTOP of the plant, sent 0.5 ms before its sample at 2.0 s",
     found="the held sample and the slots skipped are those due until the SIGCONT, +0/+2; the "
     "totals the raw log's, exactly",
 )
@@ -651,6 +653,7 @@ def test_a_plant_sigstop_is_its_held_samples_lateness_and_blamed_on_the_plant(pl
     assert passed <= 1 + h.skipped <= passed + 2, (h, passed)
     plate, pskip = raw.plant_wakeup_lateness(), raw.plant_skipped()
     assert t["plant_deadline_misses"] == (plate >= P).sum() + pskip.sum() >= 1 + h.skipped
+    assert t["plant_skipped_slots"] == pskip.sum() >= h.skipped
     assert t["plant_slots"] == plate.size + pskip.sum()
     assert t["plant_deadline_miss_rate"] == t["plant_deadline_misses"] / t["plant_slots"]
     stall, _ = _stall_at(plant_stop, cont.at)
@@ -704,21 +707,23 @@ def test_a_late_controller_start_is_the_startup_hold(held, base):
 @calibrates(
     "state_send_to_cmd_recv",
     "loop_transport_compute",
-    injects="the same held State and command",
+    injects="State k (sample at 1.5 s) held by the SIGSTOPped controller, its command by the "
+    "SIGSTOPped plant (let go 10 ms and 24 ms after the first stop)",
     found="plant receive - State send in [plant SIGCONT - send, + 3 ms]; the loop figure = "
     "its raw hop_state + compute + hop_cmd_zenoh, each within its own bounds",
 )
 @calibrates(
     "sample_to_apply_zenoh (applied)",
     "sample_to_apply_can (shadow)",
-    injects="the same held command (delay 0: it lands as it arrives)",
+    injects="the command of State k held by the SIGSTOPped plant; delay 0, so it lands as it "
+    "arrives",
     found="landing (Zenoh) and both frames' arrival (CAN shadow) - sample k in [plant "
     "SIGCONT - sample, + 3 ms]",
 )
 @calibrates(
     "command_age_can (shadow)",
     "sample_gap",
-    injects="the same held command",
+    injects="the command of State k held by the SIGSTOPped plant",
     found="the stall's age: next landing - the sample in force, in [plant SIGCONT - that "
     "sample, + 3 ms]; the gap from the last landed sample before the plant's SIGCONT (k, or "
     "k + 1, the slot it slept toward) to the next in [SIGCONT - k - Ts, SIGCONT + 3 ms + Ts - k]",
@@ -896,13 +901,14 @@ def _check_delay(raw: RawRun, path: CmdPath, delay: int) -> tuple[np.ndarray, np
 )
 @calibrates(
     "command_age_zenoh (applied)",
-    injects="the same 0.6 ms delay (three plant steps)",
+    injects="[timing] delay = 0.6 ms (three plant steps) on the applied (Zenoh) path",
     found="the age's p50 = the p50 of the age computed from the arrivals (the test's own) + "
     "0.6 ms, within one plant step (the window's ends move a few steps)",
 )
 @calibrates(
     "sample_to_apply_can (shadow)",
-    injects="the same delay (after the arrival, applied path only)",
+    injects="[timing] delay = 0.6 ms on the applied (Zenoh) path: after the arrival, applied path "
+    "only",
     found="the CAN shadow's arrival - sample is the raw log's, unmoved: no 0.6 ms in it",
 )
 def test_a_constant_delay_is_in_every_landing_and_in_no_arrival(loaded, base):
@@ -984,7 +990,7 @@ def test_a_law_slower_on_every_other_sample_is_200us_more_compute_there(loaded):
 )
 @calibrates(
     "sample_gap",
-    injects="the same drops",
+    injects="[faults] state_drop_every = 10, command_drop_every = 7",
     found="each dropped sample whose neighbours landed is one gap of exactly 2 Ts",
 )
 def test_dropped_states_and_commands_are_the_samples_without_command(loaded):
