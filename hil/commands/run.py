@@ -278,7 +278,7 @@ def fleet_cmd(
     2-core machine then fits about 32 robots at 100 Hz and 8 at 500 Hz (docs/fleet.md).
     --live serves every robot of the fleet on one Foxglove WebSocket server (docs/live.md).
 
-    Exit 1 when a robot's verdict is negative."""
+    Exit 1 when a robot's verdict is FAIL or a robot has no verdict (docs/fleet.md)."""
     from hil.fleet import report
     from hil.fleet.run import FleetOptions, execute, robot_ids
     from hil.live import launch
@@ -303,6 +303,6 @@ def fleet_cmd(
     if stop:
         interrupts.note(f"fleet folder written to {out}")
         return
-    bad = [r["robot"] for r in summary["per_robot"] if r.get("exit_code") not in (0,)]
-    if bad:
-        raise NegativeVerdictError(f"robots with a negative verdict or an error: {', '.join(bad)}")
+    negative = report.negative(summary)
+    if negative:
+        raise NegativeVerdictError(negative)
