@@ -105,6 +105,11 @@ class RawRun:
         sn = self.samples["sample_ns"]
         self.w0, self.w1 = int(sn[0]), int(sn[-1])  # the window: first to last plant sample
 
+    @staticmethod
+    def epoch_of(folder: Path) -> int:
+        """The run's epoch from the controller's hop log (KeyError before the start)."""
+        return int(read_hoplog(Path(folder) / "controller.hoplog").meta["epoch_ns"])
+
     def t(self, ns: Any) -> Any:
         """Seconds after the epoch."""
         return (np.asarray(ns) - self.epoch) / 1e9
@@ -352,3 +357,64 @@ class RawRun:
     def sample_gap(self) -> np.ndarray:
         landed = np.unique(self.landings(self.cmd_path).sample)
         return np.diff(landed[self.in_window(landed)])
+
+
+FIGURES = {
+    "wakeup_lateness": lambda r: r.wakeup_lateness(),
+    "period_jitter": lambda r: r.period_jitter(),
+    "plant_wakeup_lateness": lambda r: r.plant_wakeup_lateness(),
+    "plant_sample_to_send": lambda r: r.plant_sample_to_send(),
+    "compute": lambda r: r.compute(),
+    "hop_state": lambda r: r.hop_state(),
+    "wait_for_tick": lambda r: r.wait_for_tick(),
+    "hop_cmd_zenoh": lambda r: r.hop_cmd_zenoh(),
+    "hop_cmd_can": lambda r: r.hop_cmd_can(),
+    "loop_transport_compute": lambda r: r.loop_transport_compute(),
+    "state_send_to_cmd_recv": lambda r: r.state_send_to_cmd_recv(),
+    "sample_to_apply_zenoh": lambda r: r.sample_to_apply("zenoh"),
+    "sample_to_apply_can": lambda r: r.sample_to_apply("can"),
+    "sample_gap": lambda r: r.sample_gap(),
+}
+
+
+def check_summary_against_raw(summary: dict[str, Any], raw: RawRun) -> None:
+    """Every timing figure and count of ``summary`` equals the raw logs' own evaluation."""
+    t = summary["timing"]
+    for name, values in FIGURES.items():
+        got = values(raw)
+        if name not in t and got.size == 0:
+            continue  # a path not live
+        assert_same(name, t[name], got)
+    for path in ("zenoh", "can"):
+        if path != raw.cmd_path and not raw.landings(path).land.size:
+            assert f"command_age_{path}" not in t  # a path not live: no figure
+            continue
+        ages, peak = raw.command_age(path)
+        age = t[f"command_age_{path}"]
+        want = stats(ages)
+        assert (age["count"], age["p50_us"], age["p99_us"]) == (
+            want["count"],
+            want["p50_us"],
+            want["p99_us"],
+        ), (path, age, want)
+        assert age["max_us"] == peak / 1000.0, (path, age, peak)
+    assert abs(summary["certificate"]["d_max_s"] * 1e9 - raw.command_age(raw.cmd_path)[1]) <= 1
+    late = raw.wakeup_lateness()
+    skipped = raw.ticks["skipped"][raw.win_ticks]
+    misses = int((late >= raw.ts).sum() + skipped.sum())
+    assert (t["late_ticks"], t["skipped_slots"]) == ((late >= raw.ts).sum(), skipped.sum())
+    assert (t["deadline_misses"], t["slots"]) == (misses, late.size + skipped.sum())
+    assert t["deadline_miss_rate"] == misses / t["slots"]
+    plate, pskip = raw.plant_wakeup_lateness(), raw.plant_skipped()
+    pmiss = int((plate >= raw.sensor_ts).sum() + pskip.sum())
+    assert (t["plant_deadline_misses"], t["plant_skipped_slots"]) == (pmiss, pskip.sum())
+    assert t["plant_slots"] == plate.size + pskip.sum()
+    assert t["plant_deadline_miss_rate"] == pmiss / t["plant_slots"]
+    judged = int(raw.judged().sum())
+    assert t["samples_judged"] == judged
+    assert t["samples_without_command"] == raw.samples_without_command().size
+    assert t["samples_without_command_rate"] == raw.samples_without_command().size / judged
+    assert t["late_commands"] == raw.late_commands().size
+    assert t["late_commands_rate"] == raw.late_commands().size / judged
+    lg = raw.landings(raw.cmd_path)
+    assert t["startup_hold_s"] == (int(lg.land[0]) - raw.w0) / 1e9

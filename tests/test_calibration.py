@@ -46,7 +46,14 @@ from hil.bundled import bundled_path
 from protocol.hoplog import SAMPLE_DROPPED, TICK_DROPPED, TICK_NO_SEND, CmdPath, read_hoplog
 from tests.calibrates import calibrates
 from tests.procs import Spawner, spawned, wait_until
-from tests.raw_hoplogs import LANDED, RawRun, assert_same, stats
+from tests.raw_hoplogs import (
+    FIGURES,
+    LANDED,
+    RawRun,
+    assert_same,
+    check_summary_against_raw,
+    stats,
+)
 from tests.run_helpers import assert_negative_verdict_explained
 
 pytestmark = [
@@ -370,61 +377,9 @@ def loaded(tmp_path_factory) -> Run:
 # Every figure in summary.json is the raw logs' evaluation of its definition
 # =================================================================================================
 
-FIGURES = {
-    "wakeup_lateness": lambda r: r.wakeup_lateness(),
-    "period_jitter": lambda r: r.period_jitter(),
-    "plant_wakeup_lateness": lambda r: r.plant_wakeup_lateness(),
-    "plant_sample_to_send": lambda r: r.plant_sample_to_send(),
-    "compute": lambda r: r.compute(),
-    "hop_state": lambda r: r.hop_state(),
-    "wait_for_tick": lambda r: r.wait_for_tick(),
-    "hop_cmd_zenoh": lambda r: r.hop_cmd_zenoh(),
-    "hop_cmd_can": lambda r: r.hop_cmd_can(),
-    "loop_transport_compute": lambda r: r.loop_transport_compute(),
-    "state_send_to_cmd_recv": lambda r: r.state_send_to_cmd_recv(),
-    "sample_to_apply_zenoh": lambda r: r.sample_to_apply("zenoh"),
-    "sample_to_apply_can": lambda r: r.sample_to_apply("can"),
-    "sample_gap": lambda r: r.sample_gap(),
-}
-
 
 def _check_against_raw(run: Run) -> None:
-    """Every timing figure and count of summary.json equals the raw logs' own evaluation."""
-    t, raw = run.timing, run.raw
-    for name, values in FIGURES.items():
-        assert_same(name, t[name], values(raw))
-    for path in ("zenoh", "can"):
-        ages, peak = raw.command_age(path)
-        age = t[f"command_age_{path}"]
-        want = stats(ages)
-        assert (age["count"], age["p50_us"], age["p99_us"]) == (
-            want["count"],
-            want["p50_us"],
-            want["p99_us"],
-        ), (path, age, want)
-        assert age["max_us"] == peak / 1000.0, (path, age, peak)
-    assert run.summary["certificate"]["d_max_s"] * 1e9 == pytest.approx(
-        raw.command_age(raw.cmd_path)[1], abs=1
-    )
-    late = raw.wakeup_lateness()
-    skipped = raw.ticks["skipped"][raw.win_ticks]
-    misses = int((late >= P).sum() + skipped.sum())
-    assert (t["late_ticks"], t["skipped_slots"]) == ((late >= P).sum(), skipped.sum())
-    assert (t["deadline_misses"], t["slots"]) == (misses, late.size + skipped.sum())
-    assert t["deadline_miss_rate"] == misses / t["slots"]
-    plate, pskip = raw.plant_wakeup_lateness(), raw.plant_skipped()
-    pmiss = int((plate >= P).sum() + pskip.sum())
-    assert (t["plant_deadline_misses"], t["plant_skipped_slots"]) == (pmiss, pskip.sum())
-    assert t["plant_slots"] == plate.size + pskip.sum()
-    assert t["plant_deadline_miss_rate"] == pmiss / t["plant_slots"]
-    judged = int(raw.judged().sum())
-    assert t["samples_judged"] == judged
-    assert t["samples_without_command"] == raw.samples_without_command().size
-    assert t["samples_without_command_rate"] == raw.samples_without_command().size / judged
-    assert t["late_commands"] == raw.late_commands().size
-    assert t["late_commands_rate"] == raw.late_commands().size / judged
-    lg = raw.landings(raw.cmd_path)
-    assert t["startup_hold_s"] == (int(lg.land[0]) - raw.w0) / 1e9
+    check_summary_against_raw(run.summary, run.raw)
 
 
 @pytest.mark.parametrize("name", ["base", "controller_stop", "plant_stop", "held", "loaded"])
