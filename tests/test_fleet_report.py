@@ -35,15 +35,15 @@ def _robot(out: Path, name: str, verdict: str | None = "PASS", **timing) -> None
     (folder / "summary.json").write_text(json.dumps(summary))
 
 
-ISSUE = dict(deadline_misses=15, ticks=485, slots=500, samples_without_command=3,
+MISSED_15 = dict(deadline_misses=15, ticks=485, slots=500, samples_without_command=3,
              samples_judged=498, late_commands=7, plant_deadline_misses=2,
              plant_slots=500)  # fmt: skip
 
 
 def test_a_one_robot_fleet_has_its_robots_rates_exactly(tmp_path):
-    """The issue's robot: 15 missed slots, 485 ticks, 500 slots: its rate is 15/500 = 0.03, and
+    """A robot with 15 missed slots, 485 ticks, 500 slots: its rate is 15/500 = 0.03, and
     so is its fleet's (the report divided by ticks: 15/485 = 0.0309)."""
-    _robot(tmp_path, "robot1", **ISSUE, command_age_zenoh={"p99_us": 3100.0})
+    _robot(tmp_path, "robot1", **MISSED_15, command_age_zenoh={"p99_us": 3100.0})
     summary = json.loads((tmp_path / "robot1" / "summary.json").read_text())
     f = fleet_summary(tmp_path, {"robot1": 0}, {})["fleet"]
     assert f["deadline_miss_rate"] == 0.03
@@ -54,7 +54,7 @@ def test_a_one_robot_fleet_has_its_robots_rates_exactly(tmp_path):
 
 def test_fleet_rates_pool_the_robots_counts_over_their_denominators(tmp_path):
     robots = {
-        "robot1": dict(ISSUE, command_age_zenoh={"p99_us": 3100.0}),
+        "robot1": dict(MISSED_15, command_age_zenoh={"p99_us": 3100.0}),
         "robot2": dict(deadline_misses=0, ticks=500, slots=500, samples_without_command=0,
                        samples_judged=498, late_commands=1, plant_deadline_misses=0,
                        plant_slots=500, command_age_zenoh={"p99_us": 2900.0}),
