@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from hil.folder.rates import RATES
 from hil.recording import read_messages
+from hil.verdict import EXIT_CODE
 from tests.lab_helpers import ROOT, lab, lab_name, lab_skip_reason
 from tests.verdict_codes import fleet_code, report_code
 
@@ -51,6 +53,25 @@ def test_a_fleet_over_loopback_gives_each_robot_its_own_loop_and_folder(tmp_path
     assert done.returncode == fleet_code(out), done.stderr[-3000:]
     fleet = _check_robot_folders(out, 2)
     assert fleet["fleet"]["robots"] == 2
+    # The aggregates are the robots' own figures pooled by the one rule (hil.folder.rates), and
+    # the exit code is the fleet's verdict's (hil.verdict.EXIT_CODE).
+    summaries = [json.loads((out / f"robot{i}" / "summary.json").read_text()) for i in (1, 2)]
+    for rate, (count, over) in RATES.items():
+        robots = [s["timing"] for s in summaries if rate in s["timing"]]
+        if not robots:
+            continue
+        total = sum(t[over] for t in robots)
+        assert fleet["fleet"][rate] == sum(t[count] for t in robots) / total, rate
+    outcomes = [s["verdict"]["outcome"] for s in summaries]
+    assert [r["verdict"] for r in fleet["per_robot"]] == outcomes
+    want = "FAIL" if "FAIL" in outcomes else "PASS" if set(outcomes) == {"PASS"} else "INCONCLUSIVE"
+    assert fleet["fleet"]["verdict"] == want
+    assert done.returncode == EXIT_CODE[want], (want, done.stderr[-2000:])
+    p99 = sorted(s["timing"]["command_age_zenoh"]["p99_us"] for s in summaries)
+    assert (
+        fleet["fleet"]["command_age_p99_us_max"],
+        fleet["fleet"]["command_age_p99_us_median"],
+    ) == (p99[1], p99[0])
     # Each robot's folder is a complete run folder: hil report reads it.
     report = subprocess.run(
         [sys.executable, "-m", "hil", "report", str(out / "robot2")],

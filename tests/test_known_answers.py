@@ -27,6 +27,7 @@ import pytest
 
 from hil.measure import load_folder_logs, measure
 from hil.measure.figures import BoundInputs, Measurement
+from tests.calibrates import calibrates
 from tests.synthetic_run import MS, US, Loop, write
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -73,6 +74,30 @@ def clean(tmp_path_factory) -> Measurement:
 # --- the clean loop: every figure is the stamps' difference -------------------------------------
 
 
+@calibrates(
+    "wakeup_lateness",
+    "period_jitter",
+    "plant_wakeup_lateness",
+    "plant_sample_to_send",
+    "compute",
+    "hop_state",
+    "wait_for_tick",
+    "hop_cmd_zenoh",
+    "hop_cmd_can",
+    "loop_transport_compute",
+    "state_send_to_cmd_recv",
+    "sample_to_apply_zenoh (applied)",
+    "sample_to_apply_can (shadow)",
+    "sample_gap",
+    "startup_hold_s",
+    "command_age_zenoh (applied)",
+    "command_age_can (shadow)",
+    "late_commands",
+    "samples_without_command",
+    injects="nothing: a clean scripted loop, every stamp known (tests/synthetic_run.py)",
+    found="the difference of the figure's two scripted stamps, to the nanosecond (the test "
+    "spells each value out)",
+)
 def test_the_clean_loop_gives_each_figure_its_scripted_value(clean):
     t = clean.timing
     _constant(t["wakeup_lateness"], TICK_WAKE, TICKS)
@@ -103,6 +128,14 @@ def test_the_clean_loop_gives_each_figure_its_scripted_value(clean):
 # --- controller wake-ups ------------------------------------------------------------------------
 
 
+@calibrates(
+    "wakeup_lateness",
+    "period_jitter",
+    "wait_for_tick",
+    injects="ticks 0, 100, 300 µs late in turn",
+    found="lateness p50 115 µs, max 315 µs; jitter p50 200 µs, max 300 µs; wait p50 +100 "
+    "µs, exactly",
+)
 def test_a_known_wake_pattern_gives_lateness_and_jitter_exactly(tmp_path):
     """Ticks wake 0, 100, 300 µs later in turn (k mod 3): lateness is 15 µs plus that; the
     jitter |wake_k - wake_(k-1) - P| is 100, 200, 300 µs in turn."""
@@ -124,6 +157,12 @@ def test_a_known_wake_pattern_gives_lateness_and_jitter_exactly(tmp_path):
     assert t["late_commands"] == 0 and t["deadline_misses"] == 0
 
 
+@calibrates(
+    "late_commands",
+    "late_commands_rate",
+    injects="every fifth tick 900 µs late",
+    found="exactly those commands late: 99 of 498 judged samples",
+)
 def test_ticks_900us_late_make_exactly_those_commands_late(tmp_path):
     """Every fifth tick wakes 900 µs late: its command lands 2110 µs after its sample, more
     than one period; the others (1210 µs) are in time."""
@@ -137,6 +176,17 @@ def test_ticks_900us_late_make_exactly_those_commands_late(tmp_path):
     assert t["sample_to_apply_zenoh"]["max_us"] == S2A_ZENOH + 900
 
 
+@calibrates(
+    "wakeup_lateness",
+    "skipped_slots",
+    "period_jitter",
+    "samples_without_command",
+    "sample_gap",
+    "command_age_zenoh (applied)",
+    injects="no tick from 400 ms to 430 ms",
+    found="lateness max 29 ms, 14 skipped slots, jitter max 28.985 ms, 14 samples without"
+    " a command, a 30 ms gap, D = 32.195 ms, exactly",
+)
 def test_a_30ms_controller_stall_gives_each_figure_exactly(tmp_path):
     """SIGSTOP-like: no tick from 400 ms to 430 ms. The tick due at 401 ms wakes at 430 ms
     (29 ms late, never re-based), 14 slots are skipped, and it computes from the newest state,
@@ -162,6 +212,13 @@ def test_a_30ms_controller_stall_gives_each_figure_exactly(tmp_path):
     assert worst["t_s"] == pytest.approx(0.398 + cert["stall_threshold_s"], abs=1e-9)
 
 
+@calibrates(
+    "plant_wakeup_lateness",
+    "plant_skipped_slots",
+    "plant_sample_to_send",
+    injects="no plant sample from 600 ms to 630 ms",
+    found="lateness max 30.02 ms, 15 skipped sensor slots, sample_to_send max 30.12 ms, exactly",
+)
 def test_a_30ms_plant_stall_gives_each_plant_figure_exactly(tmp_path):
     """The plant's sample due at 600 ms wakes at 630.02 ms (30.02 ms late) and the next is at
     632 ms: 15 sensor slots skipped. Its State goes out 100 µs after the wake."""
@@ -185,6 +242,15 @@ def test_a_30ms_plant_stall_gives_each_plant_figure_exactly(tmp_path):
 # --- the plant's samples ------------------------------------------------------------------------
 
 
+@calibrates(
+    "plant_wakeup_lateness",
+    "plant_sample_to_send",
+    "state_send_to_cmd_recv",
+    "wait_for_tick",
+    injects="samples 0, 0, 300 µs late in turn, each State sent 400 µs (not 100 µs) after its wake",
+    found="lateness p50 20 µs, max 320 µs; sample_to_send 420 µs, 720 µs; the wait and "
+    "state_send_to_cmd_recv 300 µs shorter, exactly",
+)
 def test_plant_wake_pattern_and_send_delay_are_found_exactly(tmp_path):
     """Samples wake 0, 0, 300 µs later in turn, and each State goes out 400 µs (not 100) after
     its wake: the plant's figures move by exactly that, the controller's do not."""
@@ -206,6 +272,13 @@ def test_plant_wake_pattern_and_send_delay_are_found_exactly(tmp_path):
 # --- the hops and the law -----------------------------------------------------------------------
 
 
+@calibrates(
+    "compute",
+    "loop_transport_compute",
+    "state_send_to_cmd_recv",
+    injects="a law 200 µs slower",
+    found="compute 230 µs; what contains it +200 µs, the hops unmoved, exactly",
+)
 def test_a_200us_slower_law_raises_compute_and_what_contains_it_by_200us(tmp_path, clean):
     m = _measure(tmp_path, "run", compute=(COMPUTE + 200) * US)
     t, c = m.timing, clean.timing
@@ -217,6 +290,14 @@ def test_a_200us_slower_law_raises_compute_and_what_contains_it_by_200us(tmp_pat
         assert t[fig] == c[fig], fig
 
 
+@calibrates(
+    "hop_state",
+    "wait_for_tick",
+    "loop_transport_compute",
+    injects="every State 300 µs longer on the wire",
+    found="hop_state 500 µs, the wait 300 µs shorter (the tick absorbs it), the loop +300"
+    " µs, exactly",
+)
 def test_a_300us_longer_state_hop_is_found_and_absorbed_by_the_tick(tmp_path, clean):
     m = _measure(tmp_path, "run", hop_state=(HOP_STATE + 300) * US)
     t, c = m.timing, clean.timing
@@ -228,6 +309,14 @@ def test_a_300us_longer_state_hop_is_found_and_absorbed_by_the_tick(tmp_path, cl
         assert t[fig] == c[fig], fig
 
 
+@calibrates(
+    "hop_cmd_zenoh",
+    "loop_transport_compute",
+    "state_send_to_cmd_recv",
+    "sample_to_apply_zenoh (applied)",
+    injects="every Zenoh command 300 µs longer on the wire",
+    found="hop_cmd_zenoh 450 µs, and +300 µs in what contains it, exactly",
+)
 def test_a_300us_longer_command_hop_on_zenoh_is_found_exactly(tmp_path, clean):
     m = _measure(tmp_path, "run", hop_cmd=(HOP_CMD + 300) * US)
     t, c = m.timing, clean.timing
@@ -240,6 +329,15 @@ def test_a_300us_longer_command_hop_on_zenoh_is_found_exactly(tmp_path, clean):
         assert t[fig] == c[fig], fig
 
 
+@calibrates(
+    "hop_cmd_can",
+    "sample_to_apply_can (applied)",
+    "command_age_can (applied)",
+    injects="the applied CAN path, then every frame 300 µs slower; frames named by the "
+    "bus and in bus order",
+    found="hop_cmd_can 250 µs then 550 µs, sample_to_apply 1315 µs + the same, D a period"
+    " past it, exactly",
+)
 @pytest.mark.parametrize("named", [True, False], ids=["named_frames", "bus_order"])
 def test_can_latencies_are_found_exactly_and_a_slower_bus_by_exactly_its_delay(tmp_path, named):
     """The applied CAN path's absolute latencies (both matchings: frames named by the bus, and
@@ -258,6 +356,15 @@ def test_can_latencies_are_found_exactly_and_a_slower_bus_by_exactly_its_delay(t
     assert a.timing["startup_hold_s"] == S2A_CAN * US / 1e9
 
 
+@calibrates(
+    "sample_to_apply_zenoh (applied)",
+    "command_age_zenoh (applied)",
+    "late_commands",
+    "late_commands_rate",
+    injects="[timing] delay = 5 ms",
+    found="sample_to_apply +5 ms, the age's p50 2200 -> 7200 µs, every judged command "
+    "late (495 of 495), the hops unmoved, exactly",
+)
 def test_a_5ms_delay_shifts_apply_and_age_by_exactly_5ms_and_no_hop(tmp_path, clean):
     m = _measure(tmp_path, "run", delay=5 * MS)
     t, c = m.timing, clean.timing
@@ -276,6 +383,13 @@ def test_a_5ms_delay_shifts_apply_and_age_by_exactly_5ms_and_no_hop(tmp_path, cl
 # --- what never landed -------------------------------------------------------------------------
 
 
+@calibrates(
+    "samples_without_command",
+    "samples_without_command_rate",
+    "sample_gap",
+    injects="10 States lost in a row",
+    found="10 samples without a command of 498 judged, a 22 ms gap, exactly",
+)
 def test_lost_states_are_exactly_the_samples_without_command_and_the_gap(tmp_path):
     m = _measure(tmp_path, "run", lose_states=set(range(100, 110)))
     t = m.timing
@@ -288,6 +402,11 @@ def test_lost_states_are_exactly_the_samples_without_command_and_the_gap(tmp_pat
     assert t["command_age_zenoh"]["max_us"] == 11 * P / US + S2A_ZENOH
 
 
+@calibrates(
+    "samples_without_command",
+    injects="every 7th State dropped ([faults])",
+    found="71 samples without a command, gaps of 4 ms, lost = injected drops, exactly",
+)
 def test_dropped_states_every_7th_are_exactly_the_samples_without_command(tmp_path):
     m = _measure(tmp_path, "run", drop_state_every=7)
     dropped = len(range(6, JUDGED, 7))  # samples 6, 13, ... judged (k < 498)
@@ -348,6 +467,13 @@ def test_a_controller_on_state_answers_every_sample_whatever_its_period(tmp_path
 # =================================================================================================
 
 
+@calibrates(
+    "deadline_misses",
+    "slots",
+    "deadline_miss_rate",
+    injects="no tick from 400 ms to 430 ms",
+    found="1 late tick + 14 skipped = 15 missed of 499 slots, exactly",
+)
 def test_new_a_30ms_controller_stall_is_15_missed_slots(tmp_path):
     """1 late tick + 14 skipped slots = 15 misses, over the 499 slots of the window."""
     t = _measure(tmp_path, "run", controller_stall=(400 * MS, 30 * MS)).timing
@@ -364,6 +490,14 @@ def test_new_a_clean_loop_misses_no_slot(clean):
     assert (t["plant_deadline_misses"], t["plant_slots"]) == (0, 500)
 
 
+@calibrates(
+    "plant_deadline_misses",
+    "plant_slots",
+    "plant_deadline_miss_rate",
+    "plant_skipped_slots",
+    injects="no plant sample from 600 ms to 630 ms",
+    found="1 late sample + 15 skipped = 16 missed of 500 sensor slots, exactly",
+)
 def test_new_a_30ms_plant_stall_is_16_missed_sensor_slots(tmp_path):
     """1 late sample + 15 skipped sensor slots, over the 500 slots of the window."""
     t = _measure(tmp_path, "run", plant_stall=(600 * MS, 30 * MS)).timing
@@ -381,6 +515,13 @@ def test_new_on_state_runs_have_no_periodic_figures(tmp_path):
     assert t["compute"]["count"] > 0 and "plant_deadline_misses" in t
 
 
+@calibrates(
+    "startup_hold_s",
+    "command_age_zenoh (applied)",
+    injects="the controller's first tick at 40 ms",
+    found="startup_hold 40.195 ms, D = 40.195 ms counted from t = 0, every plant step of "
+    "the window counted, exactly",
+)
 def test_new_the_command_age_counts_from_the_first_sample(tmp_path, clean):
     """The controller wakes first at 40 ms (a late start): the plant holds zero torque until
     the first command lands at 40.195 ms, so D = 40.195 ms (age from t = 0), and the age is
@@ -463,63 +604,72 @@ def test_new_states_held_on_the_wire_and_superseded_before_use_are_transport_lat
 
 
 # =================================================================================================
-# docs/realtime.md: every figure of the table has a calibration entry, and none is uncalibrated.
+# docs/realtime.md's calibration table is written from the @calibrates of the tests that exist
 # =================================================================================================
 
 
-def _section(text: str, heading: str) -> str:
-    """The body of the markdown section whose heading line starts with ``heading``."""
-    lines = text.splitlines()
-    start = next(i for i, line in enumerate(lines) if line.startswith(heading))
-    level = len(heading) - len(heading.lstrip("#"))
-    body = []
-    for line in lines[start + 1 :]:
-        m = re.match(r"(#+) ", line)
-        if m and len(m.group(1)) <= level:
-            break
-        body.append(line)
-    return "\n".join(body)
+def _own_text(source: str) -> str:
+    """A test's source without its docstring: the figures it reads, not those it mentions."""
+    import ast
+
+    body = ast.parse(source).body[0].body
+    if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+        lines = source.splitlines()
+        source = "\n".join(lines[: body[0].lineno - 1] + lines[body[0].end_lineno :])
+    return source
 
 
-def _table_figures(section: str) -> set[str]:
-    """The figure names in the first column of the section's table; a bare ``_rate`` is the
-    preceding name's rate."""
-    names: set[str] = set()
-    for line in section.splitlines():
-        if not line.startswith("| `"):
-            continue
-        prev = ""
-        for name in re.findall(r"`([^`]+)`", line.split("|")[1]):
-            name = prev + name if name.startswith("_") else name
-            names.add(name)
-            prev = name
-    return names
+def _coverage_problems(decls, figures) -> list[str]:
+    """What is wrong with the declarations against the document's figures."""
+    declared = {f for d in decls for f in d.figures}
+    problems = [f"declared but not a figure of the table: {f}" for f in declared - set(figures)]
+    for kind in ("synthetic logs", "real processes"):
+        for f in figures:
+            if not any(f in d.figures and d.kind == kind for d in decls):
+                problems.append(f"no {kind} known answer for {f}")
+    for d in decls:
+        text = _own_text(d.source)
+        for f in d.figures:
+            name = f.split(" (")[0]
+            if not re.search(rf"\b{re.escape(name)}\b", text):
+                problems.append(f"{d.module}::{d.test} declares {f} and never reads it")
+    return problems
 
 
-def _items(section: str) -> list[str]:
-    """The section's list items, each with its continuation lines joined."""
-    items: list[str] = []
-    for line in section.splitlines():
-        if line.startswith("- "):
-            items.append(line[2:])
-        elif line.startswith("  ") and items:
-            items[-1] += " " + line.strip()
-    return items
+def test_every_figure_has_a_synthetic_and_a_real_known_answer_and_the_doc_lists_them():
+    from tools.calibration_table import DOC, declarations, doc_figures, generated, render
+
+    text = DOC.read_text()
+    figures = doc_figures(text)
+    some = {"wakeup_lateness", "hop_cmd_can", "sample_gap", "late_commands_rate"}
+    assert some | {"sample_to_apply_can (applied)", "command_age_can (shadow)"} <= set(figures)
+    decls = declarations()
+    assert _coverage_problems(decls, figures) == []
+    assert generated(text) == render(decls, figures), (
+        "docs/realtime.md's calibration table is not the tests': "
+        "python -m tools.calibration_table --write"
+    )
 
 
-def test_every_figure_of_the_docs_table_is_calibrated():
-    text = (ROOT / "docs" / "realtime.md").read_text()
-    timing = _section(text, "## Timing figures")
-    figures = _table_figures(timing)
-    assert {"wakeup_lateness", "hop_cmd_can", "sample_gap", "late_commands_rate"} <= figures
-    calibrated: set[str] = set()
-    for item in _items(_section(timing, "### Calibration")):
-        head, _, how = item.partition(": ")
-        calibrated |= set(re.findall(r"`([^`]+)`", head))
-        refs = re.findall(r"(test_\w+\.py)::(\w+)", how)
-        assert refs, f"no test named for {head}"
-        for module, test in refs:
-            source = (ROOT / "tests" / module).read_text()
-            assert re.search(rf"^def {test}\(", source, re.M), f"{module}::{test} ({head})"
-    assert figures - calibrated == set(), "figures without a calibration entry"
-    assert _items(_section(timing, "### Uncalibrated figures")) == []
+def test_the_coverage_check_finds_a_missing_a_stray_and_an_unread_figure(tmp_path):
+    """The check above can fail: a figure no real test calibrates, a declared name that is no
+    figure, and a declaration whose test never reads the figure (a docstring does not count)."""
+    from tools.calibration_table import declarations
+
+    synthetic, real = tmp_path / "ka.py", tmp_path / "cal.py"
+    synthetic.write_text(
+        "@calibrates('hop_state', 'compute', injects='x', found='y')\n"
+        "def test_a():\n    t['hop_state'], t['compute']\n"
+    )
+    real.write_text(
+        "@calibrates('hop_state', injects='x', found='y')\n"
+        'def test_b():\n    """hop_state, compute: mentioned"""\n    pass\n'
+        "@calibrates('hop_sate', injects='x', found='y')\ndef test_c():\n    t['hop_sate']\n"
+    )
+    decls = declarations({"synthetic logs": (synthetic,), "real processes": (real,)})
+    assert [d.test for d in decls] == ["test_a", "test_b", "test_c"]
+    assert sorted(_coverage_problems(decls, ["hop_state", "compute"])) == [
+        "cal.py::test_b declares hop_state and never reads it",
+        "declared but not a figure of the table: hop_sate",
+        "no real processes known answer for compute",
+    ]

@@ -1,6 +1,7 @@
-"""The fleet report: per robot the verdict and D against D*, for the fleet its verdict, the
-command age's p99, the samples without a command and the deadline misses (``fleet.json``,
-``fleet.md``, ``fleet.png``).
+"""The fleet report: per robot its verdict and D against D*; for the fleet its verdict and each
+robot's figure aggregated by one written rule (docs/fleet.md, "The fleet report"): rates pooled
+as a run pools them (:mod:`hil.folder.rates`), the command age's p99 as its worst and its median
+robot (``fleet.json``, ``fleet.md``, ``fleet.png``).
 
 The fleet's verdict is its robots': FAIL when a robot's is FAIL or its run left no verdict
 (no summary.json, or a run stopped by its own error), else INCONCLUSIVE when a robot's is,
@@ -15,30 +16,31 @@ from typing import Any
 import matplotlib
 import matplotlib.pyplot as plt
 
+from hil.folder.rates import RATES, pooled
+from hil.measure.stats import exact_percentile
 from hil.verdict import FAIL, INCONCLUSIVE, PASS, run_outcome
+
+NO_RUN = "NO RUN"  # a robot whose folder has no summary.json: it has no verdict
 
 
 def _robot(folder: Path, code: int | None) -> dict[str, Any]:
+    """A robot's row: its verdict, D against D*, its applied path's command age p99, and the
+    counts and rates of RATES from its summary.json."""
     row: dict[str, Any] = {"robot": folder.name, "folder": folder.name, "exit_code": code}
     try:
         s = json.loads((folder / "summary.json").read_text())
     except (OSError, ValueError):
-        return {**row, "verdict": "NO RUN", "error": "no summary.json"}
+        return {**row, "verdict": NO_RUN, "error": "no summary.json"}
     t, cert = s.get("timing") or {}, s.get("certificate") or {}
     row["verdict"] = run_outcome(s)  # as that robot's hil run exits
     reasons = (s.get("verdict") or {}).get("reasons") or []
     row["reason"] = str(s["error"]) if s.get("error") else next(iter(reasons), None)
     row.update({k: cert.get(k) for k in ("d_max_s", "d_star_s", "held")})
-    row["command_age_p99_us"] = (t.get("command_age_zenoh") or {}).get("p99_us")
-    keys = ("samples_without_command", "samples_judged", "deadline_misses", "slots")
-    row.update({k: t.get(k) for k in keys})
+    age = t.get(f"command_age_{cert.get('path') or s.get('cmd_path') or 'zenoh'}") or {}
+    row["command_age_p99_us"] = age.get("p99_us")
+    for rate, (count, over) in RATES.items():
+        row.update({k: t.get(k) for k in (count, over, rate)})
     return {**row, "error": s.get("error")}
-
-
-def _ratio(rows: list[dict[str, Any]], num: str, den: str) -> float | None:
-    n = sum(r.get(num) or 0 for r in rows)
-    d = sum(r.get(den) or 0 for r in rows)
-    return n / d if d else None
 
 
 def fleet_outcome(rows: list[dict[str, Any]]) -> tuple[str, list[str]]:
@@ -55,18 +57,16 @@ def fleet_summary(out: Path, codes: dict[str, int | None], facts: dict[str, Any]
     rows = [_robot(out / robot, code) for robot, code in codes.items()]
     p99 = [r["command_age_p99_us"] for r in rows if r.get("command_age_p99_us") is not None]
     outcome, robots = fleet_outcome(rows)
-    fleet = {
+    fleet: dict[str, Any] = {
         "verdict": outcome,
         "verdict_robots": robots,
         "robots": len(rows),
         "passed": sum(r.get("verdict") == PASS for r in rows),
         "certificates_held": sum(bool(r.get("held")) for r in rows),
         "command_age_p99_us_max": max(p99, default=None),
-        "command_age_p99_us_median": sorted(p99)[len(p99) // 2] if p99 else None,
-        "samples_without_command_rate": _ratio(rows, "samples_without_command", "samples_judged"),
-        # missed slots over every slot, as each robot's deadline_miss_rate (docs/realtime.md)
-        "deadline_miss_rate": _ratio(rows, "deadline_misses", "slots"),
+        "command_age_p99_us_median": exact_percentile(p99, 50.0),
     }
+    fleet.update({rate: pooled(rows, rate) for rate in RATES})
     return {**facts, "fleet": fleet, "per_robot": rows}
 
 
@@ -98,7 +98,8 @@ def markdown(summary: dict[str, Any]) -> str:
         f"PASS {f['passed']} of {f['robots']}; certificates held {f['certificates_held']}.",
         f"Command age p99 (max over robots) {'n/a' if p99 is None else f'{p99:.0f}'} us; "
         f"samples without a command {_pct(f['samples_without_command_rate'])} of those judged; "
-        f"deadline misses {_pct(f['deadline_miss_rate'])} of the slots.",
+        f"deadline misses {_pct(f['deadline_miss_rate'])} of the slots; late commands "
+        f"{_pct(f['late_commands_rate'])} of those judged.",
         "",
         "| robot | verdict | D (ms) | D* (ms) | held | command age p99 (us) |",
         "|---|---|---|---|---|---|",

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from controller_service.certificate import certify, critical_age
+from hil.folder.rates import ratio
 from hil.folder.records import Certificate, Summary
 from hil.measure import age as agemod
 from hil.measure.can_match import UNMATCHED, match_node
@@ -450,7 +451,7 @@ def _missed_slots(
     late_n = int((late >= period).sum())
     skipped_n = int(skipped.sum())
     slots = int(late.size) + skipped_n
-    rate = (late_n + skipped_n) / slots if slots else None
+    rate = ratio(late_n + skipped_n, slots)  # hil.folder.rates: the fleet pools the same
     figures = (late_n + skipped_n, late_n, skipped_n, int(late.size), slots, rate)
     return {k: v for k, v in zip(keys, figures, strict=True) if k is not None}
 
@@ -579,10 +580,10 @@ def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
             r.series_without = last[without]
         timing["samples_without_command"] = int(without.sum())
         timing["samples_judged"] = n_judged
-        timing["samples_without_command_rate"] = int(without.sum()) / n_judged if n_judged else None
+        timing["samples_without_command_rate"] = ratio(int(without.sum()), n_judged)
         late = (lat > r.ts) & (samp[inwin] <= judged_until)
         timing["late_commands"] = int(late.sum())
-        timing["late_commands_rate"] = int(late.sum()) / n_judged if n_judged else None
+        timing["late_commands_rate"] = ratio(int(late.sum()), n_judged)
         timing["sample_gap"] = summarize_ns(np.diff(landed[_in(landed, r.w0, r.w1)]))
         series["applied_path"] = path
 

@@ -11,6 +11,14 @@ import numpy as np
 PERCENTILES = (("p50_us", 50.0), ("p90_us", 90.0), ("p99_us", 99.0), ("p999_us", 99.9))
 
 
+def exact_percentile(values: Any, q: float) -> float | None:
+    """The ``q``-th percentile as every percentile of the bench: one of the values (numpy's
+    ``inverted_cdf``: the smallest value with at least q % of them at or below it); None for
+    no values."""
+    v = np.asarray(values, dtype=float).ravel()
+    return float(np.percentile(v, q, method="inverted_cdf")) if v.size else None
+
+
 def empty_summary() -> dict[str, Any]:
     return {"count": 0, **dict.fromkeys([name for name, _ in PERCENTILES] + ["max_us", "mean_us"])}
 
