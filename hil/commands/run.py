@@ -313,4 +313,4 @@ def fleet_cmd(
         return
     f = summary["fleet"]
     if f["verdict"] != "PASS":  # the fleet's verdict's exit code (hil.fleet.report)
-        raise NegativeVerdictError(report.verdict_sentence(f), f["verdict"])
+        raise NegativeVerdictError(report.negative_reason(summary), f["verdict"])

@@ -78,6 +78,16 @@ def _pct(x: float | None) -> str:
     return "n/a" if x is None else f"{100.0 * x:.3f} %"
 
 
+def negative_reason(summary: dict[str, Any]) -> str:
+    """Why the fleet is not PASS, for its exit line: the robots that made its verdict, each with
+    its first reason (a law's fault sentence names the law, the time and the input)."""
+    f = summary["fleet"]
+    made = set(f["verdict_robots"])
+    why = [f"{r['robot']}: {r['reason']}" for r in summary["per_robot"]
+           if r["robot"] in made and r.get("reason")]  # fmt: skip
+    return verdict_sentence(f).removeprefix("Verdict: ") + (f" {'; '.join(why)}" if why else "")
+
+
 def verdict_sentence(f: dict[str, Any]) -> str:
     """The fleet's verdict in one sentence, from its robots' (the table below it)."""
     names = ", ".join(f["verdict_robots"])
