@@ -11,6 +11,10 @@ The drive model (:mod:`plant_emulator.odrive`) is pure; this module moves frames
   path of a run, with its injected delay).
 - The cyclic thread sends each due Heartbeat / Get_Encoder_Estimates / ... at its own rate, on
   absolute deadlines, whatever the plant's loop does.
+- The reader reads the kernel's drop count of the bus's receiving socket after every receive
+  (protocol.can.rx_queue: what ``SO_RXQ_OVFL`` reports): frames that queue dropped while the
+  reader was behind are logged to the hop log's ``socket_drops`` table, a loss of the bench's
+  own, never the wire's (hil.measure).
 - Frames this process sent and hears back (``udp_multicast`` loops them back) are recognized
   by content within a second and dropped as ``own_frames``, never counted as rejections.
 
@@ -30,8 +34,9 @@ from typing import Any
 
 from protocol.can.codec import BROADCAST_NODE, Cmd, Frame, is_request, split_id
 from protocol.can.drive_link import from_message, to_message
+from protocol.can.rx_queue import RxQueueDrops
 from protocol.faults import Faults, frame_lost
-from protocol.hoplog import NO_SEQ, NO_STAMP, CmdPath, CmdRxRow, RxVerdict
+from protocol.hoplog import NO_SEQ, NO_STAMP, CmdPath, CmdRxRow, RxVerdict, SocketDropRow
 
 ECHO_WINDOW_NS = 1_000_000_000
 
@@ -126,6 +131,12 @@ class CanDrives:
         self.send_errors = 0
         self.recv_errors = 0
         self.error_frames = 0
+        self._rx_drops = RxQueueDrops(bus)
+        # Frames the receiving socket dropped (None: a bus without a socket, not countable).
+        first = self._rx_drops.read()
+        self.socket_drops: int | None = None if first is None else 0
+        self._drops_base = first or 0
+        self._last_read_ns = time.monotonic_ns()
         self._threads = [
             threading.Thread(target=self._reader, name="can-reader", daemon=True),
             threading.Thread(target=self._cyclic, name="can-cyclic", daemon=True),
@@ -146,9 +157,10 @@ class CanDrives:
                 self.recv_errors += 1
                 self._stop.wait(0.01)
                 continue
+            recv_ns = time.monotonic_ns()
+            self._count_drops(recv_ns)
             if msg is None:
                 continue
-            recv_ns = time.monotonic_ns()
             if msg.is_error_frame:
                 self.error_frames += 1
                 continue
@@ -201,6 +213,19 @@ class CanDrives:
             else:
                 self.inbox.append((recv_ns, frame, index))
 
+    def _count_drops(self, now_ns: int) -> None:
+        """Log what the socket dropped since the last read (module docstring)."""
+        n = self._rx_drops.read()
+        if n is None or self.socket_drops is None:
+            return
+        grown = n - self._drops_base - self.socket_drops
+        if grown > 0:
+            self.socket_drops += grown
+            if self.hoplog is not None:
+                row = SocketDropRow(since_ns=self._last_read_ns, seen_ns=now_ns, dropped=grown)
+                self.hoplog.append("socket_drops", row)
+        self._last_read_ns = now_ns
+
     # --- cyclic frames -----------------------------------------------------------------------
     def _cyclic(self) -> None:
         while not self._stop.is_set():
@@ -241,6 +266,7 @@ class CanDrives:
             "send_errors": self.send_errors,
             "recv_errors": self.recv_errors,
             "error_frames": self.error_frames,
+            "socket_drops": self.socket_drops,
             **drives,
         }
 
@@ -269,5 +295,7 @@ class CanDrives:
         for t in self._threads:
             if t.is_alive():
                 t.join(timeout=1.0)
+        self._count_drops(time.monotonic_ns())
+        self._rx_drops.close()
         with contextlib.suppress(Exception):  # a bus already gone is fine on the way out
             self.bus.shutdown()

@@ -77,6 +77,10 @@ class Loop:
     # (from ns after epoch, length ns): States sent in it are held on the wire and all arrive
     # at its end, in order (TCP's head-of-line blocking behind a retransmission)
     hold_states: tuple[int, int] | None = None
+    # (since, seen, n) ns after the epoch: the drives' receiving socket dropped n frames
+    # between two reads (the plant's socket_drops table); the frames themselves are lost with
+    # lose_can_frames
+    socket_drops: tuple[tuple[int, int, int], ...] = ()
 
 
 def _cyclic(pattern: tuple[int, ...], k: int) -> int:
@@ -233,5 +237,7 @@ def write(folder: Path, loop: Loop) -> None:
             refused = cseq in loop.refuse_can_frames  # the drive refuses it: no landing
             outcome = ApplyOutcome.REFUSED if refused else ApplyOutcome.LANDED
             p.append("apply", (CAN, i, node, recv, recv + loop.delay, 0.0, 0.0, outcome))
+    for since, seen, n in loop.socket_drops:
+        p.append("socket_drops", (E + since, E + seen, n))
     c.close({"deadline_misses": 0})
     p.close({"extremes": {}})
