@@ -298,8 +298,8 @@ def test_lost_messages_the_bench_dropped_are_not_the_system_s():
     from hil.verdict import FAIL, INCONCLUSIVE, judge
 
     def lost(by_bench: int) -> str:
-        messages = {"state": {"sent": 1000, "lost": 0},
-                    "torque_can": {"sent": 1000, "lost": 30, "lost_by_bench": by_bench}}  # fmt: skip
+        can = {"sent": 1000, "lost": 30, "lost_by_bench": by_bench}
+        messages = {"state": {"sent": 1000, "lost": 0}, "torque_can": can}
         return judge({}, {}, {"path": "can"}, {}, messages).outcome
 
     assert lost(25) == INCONCLUSIVE
