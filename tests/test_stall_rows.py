@@ -279,8 +279,16 @@ def test_each_bench_stall_gets_the_bench_s_cause(bench_run: Run, what: str):
     stall = bench_run.stall_of(inj)
     msg = f"{what}: stall {stall}\n{bench_run.machine()}"
     assert stall is not None, msg
-    assert (stall["cause"], stall["owner"]) == (inj.cause, inj.owner), msg
-    # Its age is the stop's, not more: a loaded host adds at most a few periods here.
+    assert stall["owner"] == "bench", msg
+    if (inj.cause, stall["cause"]) == ("plant_late", "host_stalled"):
+        # The host also stalled the controller during the plant's stop (the host samples show
+        # it waiting for a CPU, or the hypervisor stealing it): then both stalled together,
+        # the host's, as the table says. A controller stall the host samples do not explain
+        # fails here.
+        assert stall["evidence"].get("controller_starved"), f"controller late too: {msg}"
+        print(f"\nnote: the host stalled the controller during the plant's stop: {msg}")
+    else:
+        assert stall["cause"] == inj.cause, msg
     assert stall["age_s"] >= inj.end - inj.start, msg
 
 
@@ -354,3 +362,66 @@ def test_the_system_s_stalls_fail_the_run(system_run: Run):
     assert t["deadline_misses"] - t.get("deadline_misses_in_bench_stalls", 0) >= 0.8 * (
         SPIN_MS / 1e3 / P_S
     ), (t, msg)
+
+
+# --- the bench's own socket: frames its queue dropped ------------------------------------------
+
+
+def _netns_unavailable() -> str | None:
+    import shutil
+
+    if os.geteuid() != 0:
+        return "needs root: [impair] runs hil run in its own network namespace"
+    for tool in ("unshare", "ip", "nft"):
+        if shutil.which(tool) is None:
+            return f"{tool} not installed"
+    return None
+
+
+@pytest.fixture(scope="module")
+def socket_run(tmp_path_factory) -> Run:
+    """The CAN path over python-can's udp_multicast, in the run's own network namespace with
+    nftables counting every CAN packet and dropping none (``[impair] loss = 0``); the plant is
+    stopped for 1 s: its drives' UDP receive queue fills and the kernel drops what comes next
+    (counted by the socket, ``SO_RXQ_OVFL``), not the wire."""
+    why = _netns_unavailable()
+    if why:
+        pytest.skip(why)
+    from bench.wire_loss import hil_run_args
+
+    tmp = tmp_path_factory.mktemp("socket_run")
+    scenario = tmp / "scenario.toml"
+    extra = '\n[realtime]\nscheduling = "fifo"\n\n[impair]\non = "can"\nloss = 0.0\n'
+    scenario.write_text(bundled_path("paper_tracking").read_text() + extra)
+    out = tmp / "run"
+    with cpu_hog(2), spawned() as spawn:
+        proc = spawn.python(["-m", "hil", *hil_run_args(scenario, out, duration=4.0, rate=RATE)])
+        epoch = _epoch(out, proc)
+        pids = json.loads((out / "processes.json").read_text())
+        a, b = _stop([pids["plant"]], epoch, 1.5, 1.0)
+        return _finish(proc, out, [Injection("plant SIGSTOP 1 s", "plant_late", "bench", a, b)])
+
+
+def test_frames_the_drives_own_socket_dropped_are_the_bench_s(socket_run: Run):
+    s = socket_run.summary
+    can, kernel = s["messages"]["torque_can"], s["impair"]
+    msg = f"{json.dumps(can)}\nnftables {kernel}\n{socket_run.machine()}"
+    # The wire dropped nothing (nftables' own count), yet frames were lost: the drives' socket
+    # counted them dropped, and the bench names every lost frame its own.
+    assert kernel["matched_packets"] > 1000 and kernel["dropped_packets"] == 0, msg
+    assert can["frames_lost"] > 0 and can["frames_dropped_by_bench_socket"] >= can["frames_lost"]
+    assert can["frames_lost_by_bench"] == can["frames_lost"], msg
+    assert can["lost_by_bench"] == can["lost"] and can["frames_lost_on_wire"] == 0, msg
+    # No arming storm: a re-arm after the drives' heartbeats stopped waits for a new one.
+    assert can["lifecycle_frames_sent"] <= 32, msg
+    inj = socket_run.injections[0]
+    stall = socket_run.stall_of(inj)
+    # plant_late, or host_stalled where the shared host also stalled the controller for a
+    # period or more during that second (seen: 39 ms, waiting for a CPU): the bench's either way.
+    assert stall is not None and stall["owner"] == "bench", f"{stall}\n{msg}"
+    assert stall["cause"] in ("plant_late", "host_stalled"), f"{stall}\n{msg}"
+    assert stall["evidence"].get("frames_dropped_by_bench", 0) > 0, stall
+    # Lost messages over the threshold, every one the bench's: INCONCLUSIVE, never FAIL.
+    v = s["verdict"]
+    assert v["outcome"] == "INCONCLUSIVE" and socket_run.code != 1, f"{v['reasons']}\n{msg}"
+    assert any("the bench's own socket dropped" in r for r in v["inconclusive_reasons"]), v

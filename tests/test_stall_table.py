@@ -190,6 +190,48 @@ def test_stretches_union_intersection_and_difference():
     assert (gaps.lo.tolist(), gaps.hi.tolist()) == ([2, 11], [10, 30])
 
 
+def test_a_lost_stretch_is_measured_between_the_delivered_messages_around_it():
+    from hil.measure.stalls import _gaps
+
+    t = np.arange(10, dtype=np.int64) * 10
+    ok = np.ones(10, bool)
+    assert _gaps(t, ok, 0, 90) == 0
+    ok[3:6] = False  # 30, 40, 50 lost: from 20 to 60
+    assert _gaps(t, ok, 0, 90) == 40
+    assert _gaps(t, ok, 35, 90) == 60 - 35  # clipped to the stall
+    ok[:] = True
+    ok[7:] = False  # lost to the end, the last one at the stall's end itself
+    assert _gaps(t, ok, 0, 90) == 90 - 60
+    ok[:] = False  # nothing delivered at all
+    assert _gaps(t, ok, 0, 90) == 90
+    ok[:] = True
+    ok[0] = False  # the first lost, nothing delivered before the stall
+    assert _gaps(t, ok, 0, 90) == 10
+
+
+def test_a_receiver_s_stall_lasts_until_it_drained_its_queue():
+    """A plant stopped over [100, 1100] ms reads the commands queued meanwhile back to back for
+    20 ms after it resumes, then a fresh one (hop 0.3 ms): its stall is [100, 1120] ms, and a
+    command that waited in that queue is its delay, not the wire's (seen on a real run: 16 ms
+    of queue after a 1 s SIGSTOP read as transport_late)."""
+    ms = 1_000_000
+    stall = Stretches.of(np.array([100 * ms]), np.array([1100 * ms]))
+    recv = np.array([1100.5, 1105, 1110, 1119.9, 1120, 1122]) * ms
+    hop = np.array([1000, 800, 500, 20, 0.3, 0.3]) * ms
+    got = stall.drained(recv.astype(np.int64), hop.astype(np.int64), 2 * ms)
+    assert (got.lo.tolist(), got.hi.tolist()) == ([100 * ms], [1120 * ms])
+    # Nothing fresh within the stall's own length after it: to the last stale receipt there.
+    got = stall.drained(recv[:4].astype(np.int64), hop[:4].astype(np.int64), 2 * ms)
+    assert got.hi.tolist() == [int(1119.9 * ms)]
+    # A fresh receipt at once: the stall ends there.
+    got = stall.drained(np.array([1100_300_000]), np.array([300_000]), 2 * ms)
+    assert got.hi.tolist() == [1100_300_000]
+    # No receipt at all: the stall keeps its end.
+    assert stall.drained(np.zeros(0, np.int64), np.zeros(0, np.int64), 2 * ms).hi.tolist() == [
+        1100 * ms
+    ]
+
+
 # --- the pipeline on scripted hop logs: the misattributions of issue 35 -----------------------
 
 
@@ -222,7 +264,7 @@ def test_a_host_stall_with_a_state_held_across_it_is_host_stalled_not_the_wire(t
                 hold_states=(998 * MS, 107_100 * US))  # fmt: skip
     stall = _stall_at(tmp_path, loop, 1000)
     ev = stall["evidence"]
-    assert ev["transport_worst_s"] < 0.010, ev  # what is left of the hop on the wire
+    assert ev.get("transport_worst_s", 0.0) < 0.010, ev  # what is left of the hop on the wire
     assert ev["both_stalled_s"] >= 0.045, ev
     assert (stall["cause"], stall["owner"]) == ("host_stalled", "bench"), stall
 

@@ -405,7 +405,9 @@ class _Run:
     def controller_stalls(self) -> Stretches:
         """Where the controller stalled (hil.measure.stalls): ticks a period or more late
         (deadline to wake-up), and silences of two periods or more of every stamp its
-        threads logged; periodic trigger only (on_state and lockstep wait for States by design)."""
+        threads logged, each until it drained the States queued for it meanwhile
+        (:meth:`Stretches.drained`); periodic trigger only (on_state and lockstep wait for States
+        by design)."""
         if self.trigger != "periodic" or self.lockstep or self.period <= 0:
             return Stretches.none()
         t = self.ticks
@@ -414,20 +416,36 @@ class _Run:
             [t["wake_ns"], t["compute_start_ns"], t["compute_end_ns"], t["zenoh_send_ns"],
              self.logs["state_rx"]["recv_ns"], self.logs["can_tx"]["send_ns"]]
         )  # fmt: skip
-        quiet = Stretches.silences(stamps, SILENT_PERIODS * self.period)
-        return quiet.union(Stretches.of(t["deadline_ns"][late], t["wake_ns"][late]))
+        quiet = Stretches.silences(self._in_run(stamps), SILENT_PERIODS * self.period)
+        stalls = quiet.union(Stretches.of(t["deadline_ns"][late], t["wake_ns"][late]))
+        s = self.state_hops_sorted  # the States it receives: drained after each stall
+        recv = s.hop_start + s.hop
+        order = np.argsort(recv, kind="stable")
+        return stalls.drained(recv[order], s.hop[order], self.period)
 
     @cached_property
     def plant_stalls(self) -> Stretches:
         """Where the plant stalled: samples a sensor period or more late (due to wake-up), and
-        silences of a sensor period or more of every stamp it logged; not in lockstep."""
+        silences of two sensor periods or more of every stamp it logged, each until it drained
+        the commands queued for it meanwhile; not in lockstep."""
         if self.lockstep or self.sensor_period <= 0:
             return Stretches.none()
         s = self.samples
         late = (s["wake_ns"] - s["sample_ns"]) >= self.sensor_period
         stamps = np.concatenate([s["wake_ns"], s["send_ns"], self.logs["cmd_rx"]["recv_ns"]])
-        quiet = Stretches.silences(stamps, SILENT_PERIODS * self.sensor_period)
-        return quiet.union(Stretches.of(s["sample_ns"][late], s["wake_ns"][late]))
+        quiet = Stretches.silences(self._in_run(stamps), SILENT_PERIODS * self.sensor_period)
+        stalls = quiet.union(Stretches.of(s["sample_ns"][late], s["wake_ns"][late]))
+        c = self.commands_sorted  # the commands it receives: drained after each stall
+        ok = c.arrived & (c.hop >= 0)
+        recv = (c.stamps + c.hop)[ok]
+        order = np.argsort(recv, kind="stable")
+        return stalls.drained(recv[order], c.hop[ok][order], self.period)
+
+    def _in_run(self, stamps: np.ndarray) -> np.ndarray:
+        """A service's stamps from the run's start (the plant's first sample) on, that start
+        among them: what it did before (arming the drives) is no stall, and a service silent
+        from the start was not running."""
+        return np.concatenate([[self.w0], stamps[stamps >= self.w0]])
 
     @cached_property
     def bench_drop_stamps(self) -> Stamped:

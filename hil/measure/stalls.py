@@ -170,6 +170,26 @@ class Stretches:
         """How much of [a, b] these stretches cover."""
         return self.clip(a, b).total()
 
+    def drained(self, recv: np.ndarray, hop: np.ndarray, period: int) -> Stretches:
+        """These stalls of a receiver, each carried on until it had drained what queued up for
+        it: to its first receipt after the stall whose hop is under ``period`` (``recv`` the
+        receipts' times, sorted, ``hop`` their hops), or while none is, to its last receipt
+        within the stall's own length after it (a receiver drains faster than it was fed). A
+        message that waited in a stalled receiver's queue, behind the ones that came in while
+        it was stopped, is that receiver's delay, not the wire's."""
+        if self.lo.size == 0 or recv.size == 0:
+            return self
+        fresh = recv[hop < period]
+        cap = self.hi + (self.hi - self.lo) + period
+        if fresh.size:
+            k = np.searchsorted(fresh, self.hi, side="left")
+            first = np.where(k < fresh.size, fresh[np.minimum(k, fresh.size - 1)], cap + 1)
+        else:
+            first = cap + 1
+        last = recv[np.maximum(np.searchsorted(recv, cap, side="right") - 1, 0)]
+        end = np.where(first <= cap, first, np.where(last >= self.hi, last, self.hi))
+        return Stretches.of(self.lo, np.maximum(self.hi, end))
+
     def minus(self, other: Stretches) -> Stretches:
         """These stretches less ``other``."""
         out_lo: list[int] = []
@@ -593,7 +613,8 @@ def _gaps(stamps: np.ndarray, delivered: np.ndarray, lo: int, hi: int) -> int:
     edges = np.concatenate(
         [before[-1:] if before.size else [lo], t[ok], after[:1] if after.size else [hi]]
     ).astype(np.int64)
-    i = np.searchsorted(edges, t[~ok], side="right")  # the delivered one just after each lost
+    # the delivered one just after each lost (the stall's end where none is)
+    i = np.clip(np.searchsorted(edges, t[~ok], side="right"), 1, edges.size - 1)
     span = np.minimum(edges[i], hi) - np.maximum(edges[i - 1], lo)
     return int(span.max())
 
