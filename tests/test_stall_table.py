@@ -301,6 +301,12 @@ def test_lost_states_and_commands_are_the_system_s(tmp_path):
     stall = _stall_at(tmp_path / "s", states, 1000)
     assert (stall["cause"], stall["owner"]) == ("state_lost", "system"), stall
     assert stall["evidence"]["states_lost"] == 15
+    write(tmp_path / "m", states)
+    logs = load_folder_logs(tmp_path / "m")
+    assert logs is not None
+    st = measure(logs, _bound()).messages["state"]
+    assert st["lost_not_injected"] == 15 and st["injected_drops"] == 0
+    assert st["lost_not_injected_t_s"] == [1.0, 1.028]  # samples 500..514 at 2 ms
     cmds = Loop(n=1500, cmd_path="can", lose_can_frames=set(range(499, 514)))
     stall = _stall_at(tmp_path / "c", cmds, 1000)
     assert (stall["cause"], stall["owner"]) == ("command_lost", "system"), stall

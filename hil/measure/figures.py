@@ -672,6 +672,14 @@ def _messages(r: _Run) -> dict[str, Any]:
     state = _stream_counts(s["seq"], r.logs["state_rx"]["seq"])
     state["injected_drops"] = int(((s["flags"] & SAMPLE_DROPPED) != 0).sum())
     state["injected_duplicates"] = int(((s["flags"] & SAMPLE_DUPLICATED) != 0).sum())
+    # States lost that no [faults] drop explains: on the wire, or in Zenoh's own queues (a DROP
+    # publisher whose queue stayed full; not countable apart), with when (docs/reports.md).
+    unexplained = ~r.state_received & ~r.state_injected_drop
+    state["lost_not_injected"] = int(unexplained.sum())
+    when = s["sample_ns"][unexplained]
+    state["lost_not_injected_t_s"] = (
+        [(int(when[0]) - r.epoch) / 1e9, (int(when[-1]) - r.epoch) / 1e9] if when.size else None
+    )
     out: dict[str, Any] = {"state": state}
     zsent = (t["zenoh_send_ns"] > 0) & (t["cmd_seq"] >= 0)
     # Commands count while the plant still listens: sent up to 2 Ts + delay + jitter before
