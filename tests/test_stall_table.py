@@ -353,3 +353,34 @@ def test_lost_messages_the_bench_dropped_are_not_the_system_s():
     assert lost(25) == INCONCLUSIVE
     assert lost(0) == FAIL
     assert lost(5) == FAIL  # 25 of 2,000 is still 1.25 % > 1 %: the system's
+
+
+def test_a_lost_and_ambiguous_can_stretch_leaves_the_certificate_unknown(tmp_path):
+    """Unnamed CAN frames (SocketCAN, udp_multicast) of a saturated law (every frame the same
+    bytes), the arming zeros and the first two commands' frames lost on the wire: nothing
+    before the first arrival anchors the match, so "these are the first sends, 2 periods late"
+    and "the first two were lost" fit alike (hil.measure.can_match). Every CAN figure they feed
+    says ``not_relatable``, D is known only between 5.3 and 7.3 ms, and with D* = 5.7 ms
+    between (the gains' m = 0.9) the certificate is unknown: ``held`` null, INCONCLUSIVE.
+    Reached from hop logs through the whole pipeline, not from a certificate written by hand."""
+    from controller_service.laws.base import DesignContext
+    from hil.verdict import INCONCLUSIVE, judge
+    from protocol.hoplog import NO_SEQ
+
+    loop = Loop(cmd_path="can", named_frames=False, constant_can_values=True,
+                lose_can_frames={NO_SEQ, 0, 1})  # fmt: skip
+    write(tmp_path / "run", loop)
+    params = SimpleNamespace(m1=0.9, m2=0.9, l1=0.5, l2=0.5, lam=1.0, rho=1.0)
+    logs = load_folder_logs(tmp_path / "run")
+    assert logs is not None
+    m = measure(logs, BoundInputs(params, DesignContext(), False))
+    c = m.certificate
+    assert c is not None and c["held"] is None, c
+    assert c["d_max_s"] <= c["d_star_s"] < c["d_max_upper_s"], c
+    assert c["d_max_upper_s"] - c["d_max_s"] == pytest.approx(2 * P / 1e9)  # two spacings
+    assert m.timing["hop_cmd_can"]["not_relatable"] > 0
+    assert m.timing["command_age_can"]["not_relatable"] > 0
+    assert m.messages["torque_can"]["frames_ambiguous"] > 0
+    v = judge({}, {}, c, m.timing, m.messages)
+    assert v.outcome == INCONCLUSIVE and v.certificate == "unknown", v
+    assert v.inconclusive_reasons[0].startswith("certificate unknown: the CAN logs allow D")
