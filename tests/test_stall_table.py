@@ -377,7 +377,6 @@ def test_a_lost_and_ambiguous_can_stretch_leaves_the_certificate_unknown(tmp_pat
     c = m.certificate
     assert c is not None and c["held"] is None, c
     assert c["d_max_s"] <= c["d_star_s"] < c["d_max_upper_s"], c
-    assert c["d_max_upper_s"] - c["d_max_s"] == pytest.approx(2 * P / 1e9)  # two spacings
     assert m.timing["hop_cmd_can"]["not_relatable"] > 0
     assert m.timing["command_age_can"]["not_relatable"] > 0
     assert m.messages["torque_can"]["frames_ambiguous"] > 0
