@@ -412,6 +412,8 @@ def test_frames_the_drives_own_socket_dropped_are_the_bench_s(socket_run: Run):
     assert can["frames_lost"] > 0 and can["frames_dropped_by_bench_socket"] >= can["frames_lost"]
     assert can["frames_lost_by_bench"] == can["frames_lost"], msg
     assert can["lost_by_bench"] == can["lost"] and can["frames_lost_on_wire"] == 0, msg
+    # The recorder's own CAN socket is counted too (a real socket: a number, never absent).
+    assert isinstance(s["recorder"]["can_frames_dropped_by_socket"], int), s["recorder"]
     # No arming storm: a re-arm after the drives' heartbeats stopped waits for a new one.
     assert can["lifecycle_frames_sent"] <= 32, msg
     inj = socket_run.injections[0]
