@@ -73,6 +73,7 @@ class ZenohCommandPath:
         self._tap = tap
         self.faults = faults or Faults()
         self.injected = {"drops": 0, "duplicates": 0, "reorders": 0}
+        self.epoch_ns = 0  # set at the start: drop bursts are placed in run time
         self._held: bytes | None = None  # a command a [faults] reorder publishes after the next
         self._last: bytes | None = None
 
@@ -93,7 +94,7 @@ class ZenohCommandPath:
 
     def send(self, cmd: TorqueCommand) -> Sent:
         self._last = encode(cmd)
-        return Sent(cmd.send_time_ns, self._put(self._last, cmd.seq, cmd.flags))
+        return Sent(cmd.send_time_ns, self._put(self._last, cmd.seq, cmd.flags, cmd.send_time_ns))
 
     def resend_last(self) -> bool:
         """Publish the last command again, unchanged (lockstep: the plant re-sent the state
@@ -103,14 +104,15 @@ class ZenohCommandPath:
         self._pub_put(self._last)
         return True
 
-    def _put(self, payload: bytes, seq: int, flags: int) -> int:
+    def _put(self, payload: bytes, seq: int, flags: int, send_ns: int = 0) -> int:
         """Put one command through the [faults] injections; returns the tick's fault flags."""
         f = self.faults
         held, self._held = self._held, None
         out_flags = 0
+        t_s = (send_ns - self.epoch_ns) / 1e9 if self.epoch_ns > 0 else -1.0
         if flags & FLAG_STOP:
             pass
-        elif every_nth(seq, f.command_drop_every):
+        elif f.command_dropped(seq, t_s):
             self.injected["drops"] += 1
             if held is not None:
                 self._pub_put(held)

@@ -169,6 +169,7 @@ class ControllerService:
         # Observers read what this service sent from its tap (protocol.tap), not the loop's keys.
         self.tap = Tap(session, robot_id, "controller")
         self.zenoh = ZenohCommandPath(session, robot_id, self.faults, self.tap)
+        self.zenoh.epoch_ns = self.epoch_ns
         self.paths: list[CommandPath] = [self.zenoh] if can_path is None else [self.zenoh, can_path]
         self._pub_tel = publisher(session, keys.telemetry_key(robot_id))
         self._pub_status = publisher(session, keys.status_key(robot_id))
@@ -716,6 +717,7 @@ def _run_service(s: RunSettings, parts: Parts, stop: Any, sched: SchedulingRepor
                 return 1
             epoch_ns = svc.epoch_ns = epoch_on_local_clock(got, parts.clock)
         hoplog.update_meta({"epoch_ns": epoch_ns})
+        svc.zenoh.epoch_ns = epoch_ns
         if can_path is not None:
             can_path.epoch_ns = epoch_ns
         end_ns = None if s.lockstep else epoch_ns + int((s.duration + 2.0) * 1e9)

@@ -165,7 +165,7 @@ class FaultsConfig(Faults):
                 "[faults] can_frame_loss must be a probability in [0, 1], "
                 f"got {self.can_frame_loss}"
             )
-        for what in ("delay_burst", "can_bus_off"):
+        for what in ("delay_burst", "can_bus_off", "state_drop_burst", "command_drop_burst"):
             every, length = getattr(self, f"{what}_every"), getattr(self, f"{what}_length")
             if every > 0 and not 0 < length <= every:
                 raise BadInputError(

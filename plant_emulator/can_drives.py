@@ -11,6 +11,11 @@ The drive model (:mod:`plant_emulator.odrive`) is pure; this module moves frames
   path of a run, with its injected delay).
 - The cyclic thread sends each due Heartbeat / Get_Encoder_Estimates / ... at its own rate, on
   absolute deadlines, whatever the plant's loop does.
+- The reader reads the kernel's drop count of the bus's receiving socket after every receive
+  (protocol.can.rx_queue: what ``SO_RXQ_OVFL`` reports): frames that queue dropped while the
+  reader was behind are logged to the hop log's ``socket_drops`` table, a loss of the bench's
+  own, never the wire's (hil.measure). At the stop, what is still queued unread is read and
+  logged (``unread_at_stop``): it reached the bench, it was not lost.
 - Frames this process sent and hears back (``udp_multicast`` loops them back) are recognized
   by content within a second and dropped as ``own_frames``, never counted as rejections.
 
@@ -30,10 +35,12 @@ from typing import Any
 
 from protocol.can.codec import BROADCAST_NODE, Cmd, Frame, is_request, split_id
 from protocol.can.drive_link import from_message, to_message
+from protocol.can.rx_queue import RxQueueDrops
 from protocol.faults import Faults, frame_lost
-from protocol.hoplog import NO_SEQ, NO_STAMP, CmdPath, CmdRxRow, RxVerdict
+from protocol.hoplog import NO_SEQ, NO_STAMP, CmdPath, CmdRxRow, RxVerdict, SocketDropRow
 
 ECHO_WINDOW_NS = 1_000_000_000
+UNREAD_MAX = 100_000  # frames read back from the receive queue at the stop, at most
 
 
 class EchoFilter:
@@ -126,6 +133,13 @@ class CanDrives:
         self.send_errors = 0
         self.recv_errors = 0
         self.error_frames = 0
+        self.unread_at_stop = 0  # frames still queued when the reader stopped (close)
+        self._rx_drops = RxQueueDrops(bus)
+        # Frames the receiving socket dropped (None: a bus without a socket, not countable).
+        first = self._rx_drops.read()
+        self.socket_drops: int | None = None if first is None else 0
+        self._drops_base = first or 0
+        self._last_read_ns = time.monotonic_ns()
         self._threads = [
             threading.Thread(target=self._reader, name="can-reader", daemon=True),
             threading.Thread(target=self._cyclic, name="can-cyclic", daemon=True),
@@ -146,60 +160,81 @@ class CanDrives:
                 self.recv_errors += 1
                 self._stop.wait(0.01)
                 continue
-            if msg is None:
-                continue
             recv_ns = time.monotonic_ns()
-            if msg.is_error_frame:
-                self.error_frames += 1
-                continue
-            frame = from_message(msg)
-            if self.echo.take(frame, recv_ns):
-                self.own_frames += 1
-                continue
-            self.frames_in += 1
-            node, cmd = self._split(frame.arbitration_id)
-            index = NO_SEQ
-            if cmd == self._torque_cmd and not frame.is_remote:
-                # Logged with its index among the node's torque frames, its torque and, where
-                # the bus names frames (zenoh_can), that name: hil.measure matches it to the
-                # controller's can_tx by the name, else by the order.
-                i = self._torque_frames.get(node, 0)
-                self._torque_frames[node] = i + 1
-                lost = frame_lost(self.faults.can_frame_loss, self.faults.seed, node, i)
-                if self.hoplog is not None:
-                    q = struct.unpack_from("<f", frame.data)[0] if len(frame.data) >= 4 else nan
-                    named = (self._sent_at(msg) if self._sent_at is not None else None) or NO_STAMP
-                    row = CmdRxRow(
-                        path=CmdPath.CAN,
-                        seq=i,
-                        state_seq=NO_SEQ,
-                        state_sample_ns=NO_STAMP,
-                        compute_start_ns=NO_STAMP,
-                        send_ns=named,
-                        recv_ns=recv_ns,
-                        tau1=q,
-                        tau2=0.0,
-                        node=node,
-                        verdict=RxVerdict.LOST_BY_FAULT if lost else RxVerdict.ACCEPTED,
-                    )
-                    self.hoplog.append("cmd_rx", row)
-                if lost:  # the drive's receiver never sees it ([faults] frame loss)
-                    self.injected_frame_losses += 1
-                    continue
-                index = i
-            if is_request(frame) and (node in self.pair.nodes or node == BROADCAST_NODE):
-                with self.lock:
-                    if self.refresh is not None:
-                        self.refresh(recv_ns)
-                    answers = self.pair.receive(recv_ns / 1e9, frame)
-                self.requests += 1
-                self.send(answers)
-            elif self.immediate:
-                with self.lock:
-                    answers = self.on_frame(recv_ns, frame)
-                self.send(answers)
-            else:
-                self.inbox.append((recv_ns, frame, index))
+            self._count_drops(recv_ns)
+            if msg is not None:
+                self._take(msg, recv_ns)
+
+    def _take(self, msg: Any, recv_ns: int, act: bool = True) -> None:
+        """One frame read from the bus: logged (a torque frame in ``cmd_rx``), then answered,
+        applied or queued for the plant's loop; with ``act`` false only logged (a frame left
+        in the receive queue when the plant stopped, :meth:`close`)."""
+        if msg.is_error_frame:
+            self.error_frames += 1
+            return
+        frame = from_message(msg)
+        if self.echo.take(frame, recv_ns):
+            self.own_frames += 1
+            return
+        self.frames_in += 1
+        node, cmd = self._split(frame.arbitration_id)
+        index = NO_SEQ
+        if cmd == self._torque_cmd and not frame.is_remote:
+            # Logged with its index among the node's torque frames, its torque and, where
+            # the bus names frames (zenoh_can), that name: hil.measure matches it to the
+            # controller's can_tx by the name, else by the order.
+            i = self._torque_frames.get(node, 0)
+            self._torque_frames[node] = i + 1
+            lost = frame_lost(self.faults.can_frame_loss, self.faults.seed, node, i)
+            if self.hoplog is not None:
+                q = struct.unpack_from("<f", frame.data)[0] if len(frame.data) >= 4 else nan
+                named = (self._sent_at(msg) if self._sent_at is not None else None) or NO_STAMP
+                row = CmdRxRow(
+                    path=CmdPath.CAN,
+                    seq=i,
+                    state_seq=NO_SEQ,
+                    state_sample_ns=NO_STAMP,
+                    compute_start_ns=NO_STAMP,
+                    send_ns=named,
+                    recv_ns=recv_ns,
+                    tau1=q,
+                    tau2=0.0,
+                    node=node,
+                    verdict=RxVerdict.LOST_BY_FAULT if lost else RxVerdict.ACCEPTED,
+                )
+                self.hoplog.append("cmd_rx", row)
+            if lost:  # the drive's receiver never sees it ([faults] frame loss)
+                self.injected_frame_losses += 1
+                return
+            index = i
+        if not act:
+            return
+        if is_request(frame) and (node in self.pair.nodes or node == BROADCAST_NODE):
+            with self.lock:
+                if self.refresh is not None:
+                    self.refresh(recv_ns)
+                answers = self.pair.receive(recv_ns / 1e9, frame)
+            self.requests += 1
+            self.send(answers)
+        elif self.immediate:
+            with self.lock:
+                answers = self.on_frame(recv_ns, frame)
+            self.send(answers)
+        else:
+            self.inbox.append((recv_ns, frame, index))
+
+    def _count_drops(self, now_ns: int) -> None:
+        """Log what the socket dropped since the last read (module docstring)."""
+        n = self._rx_drops.read()
+        if n is None or self.socket_drops is None:
+            return
+        grown = n - self._drops_base - self.socket_drops
+        if grown > 0:
+            self.socket_drops += grown
+            if self.hoplog is not None:
+                row = SocketDropRow(since_ns=self._last_read_ns, seen_ns=now_ns, dropped=grown)
+                self.hoplog.append("socket_drops", row)
+        self._last_read_ns = now_ns
 
     # --- cyclic frames -----------------------------------------------------------------------
     def _cyclic(self) -> None:
@@ -241,6 +276,8 @@ class CanDrives:
             "send_errors": self.send_errors,
             "recv_errors": self.recv_errors,
             "error_frames": self.error_frames,
+            "socket_drops": self.socket_drops,
+            "unread_at_stop": self.unread_at_stop,
             **drives,
         }
 
@@ -269,5 +306,17 @@ class CanDrives:
         for t in self._threads:
             if t.is_alive():
                 t.join(timeout=1.0)
+        self._count_drops(time.monotonic_ns())
+        self._rx_drops.close()
+        # What came in and was never read (a reader behind when the plant stopped: seen in
+        # the QEMU guest, 300 ms behind) is logged as received now, not lost on the wire: it
+        # reached the bench's own queue (hil.measure counts it arrived after the plant stopped).
+        with contextlib.suppress(Exception):
+            for _ in range(UNREAD_MAX):
+                msg = self.bus.recv(timeout=0)
+                if msg is None:
+                    break
+                self.unread_at_stop += 1
+                self._take(msg, time.monotonic_ns(), act=False)
         with contextlib.suppress(Exception):  # a bus already gone is fine on the way out
             self.bus.shutdown()

@@ -255,7 +255,7 @@ class PlantService:
         )
         self._state_seq += 1
         flags = 0
-        if every_nth(msg.seq, self.faults.state_drop_every):
+        if self.faults.state_dropped(msg.seq, (sample_ns - self.epoch_ns) / 1e9):
             flags |= SAMPLE_DROPPED
             self.injected["state_drops"] += 1
         else:

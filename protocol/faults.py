@@ -6,8 +6,9 @@ its hop log (so a run's lost/duplicated/reordered counts and its stalls can name
 
 - every n-th: drops, duplicates and reorders of States and commands (``k % n == n - 1``);
 - bursts: windows of ``length`` seconds, one per ``every`` seconds, starting at a seeded random
-  offset inside each period (:func:`in_burst`): extra delay on the applied command path, and
-  CAN bus-off at the controller's CAN edge (its sends fail);
+  offset inside each period (:func:`in_burst`): extra delay on the applied command path, CAN
+  bus-off at the controller's CAN edge (its sends fail), and every State (by its sample time) or
+  Zenoh command (by its send time) dropped;
 - CAN frame loss: each Set_Input_Torque frame lost at the drive's receiver with probability
   ``p``, decided per (seed, node, frame index) (:func:`frame_lost`).
 """
@@ -62,6 +63,10 @@ class Faults:
     can_frame_loss: float = 0.0
     can_bus_off_every: float = 0.0
     can_bus_off_length: float = 0.0
+    state_drop_burst_every: float = 0.0
+    state_drop_burst_length: float = 0.0
+    command_drop_burst_every: float = 0.0
+    command_drop_burst_length: float = 0.0
     seed: int = 0
 
     @classmethod
@@ -76,3 +81,16 @@ class Faults:
 
     def bus_off(self, t_s: float) -> bool:
         return in_burst(t_s, self.can_bus_off_every, self.can_bus_off_length, self.seed, 2)
+
+    def state_dropped(self, seq: int, t_s: float) -> bool:
+        """Whether the plant drops State ``seq`` sampled at ``t_s`` (every n-th, or a burst)."""
+        burst = in_burst(
+            t_s, self.state_drop_burst_every, self.state_drop_burst_length, self.seed, 3
+        )
+        return every_nth(seq, self.state_drop_every) or burst
+
+    def command_dropped(self, seq: int, t_s: float) -> bool:
+        """Whether the controller drops command ``seq`` sent at ``t_s`` (every m-th, or a
+        burst)."""
+        every, length = self.command_drop_burst_every, self.command_drop_burst_length
+        return every_nth(seq, self.command_drop_every) or in_burst(t_s, every, length, self.seed, 4)

@@ -210,6 +210,17 @@ class ZeroRow(NamedTuple):
     applied_ns: int
 
 
+class SocketDropRow(NamedTuple):
+    """Frames the plant's own receiving socket (the virtual drives' CAN bus) dropped because
+    its queue was full: the kernel's count of the socket's drops (what ``SO_RXQ_OVFL``
+    reports, protocol.can.rx_queue) rose by ``dropped`` between two reads, at ``since_ns`` and
+    ``seen_ns``: the frames were dropped in between. A loss of the bench's, not the wire's."""
+
+    since_ns: int
+    seen_ns: int
+    dropped: int
+
+
 class HostRow(NamedTuple):
     """What the bench's host did (written by ``hil run``, every 0.1 s): CPU time in clock ticks
     since boot, all CPUs together (/proc/stat: total, idle + iowait, steal: time the hypervisor
@@ -240,6 +251,7 @@ PLANT_TABLES: dict[str, tuple[str, ...]] = {
     "cmd_rx": CmdRxRow._fields,
     "apply": ApplyRow._fields,
     "zero": ZeroRow._fields,
+    "socket_drops": SocketDropRow._fields,
 }
 HOST_TABLES: dict[str, tuple[str, ...]] = {"host": HostRow._fields}
 

@@ -80,6 +80,10 @@ class Loop:
     # The plant's sample period (0: the control period); a shorter one gives a controller
     # below the plant's sample rate, answering one sample per control period.
     sensor_period: int = 0
+    # (since, seen, n) ns after the epoch: the drives' receiving socket dropped n frames
+    # between two reads (the plant's socket_drops table); the frames themselves are lost with
+    # lose_can_frames
+    socket_drops: tuple[tuple[int, int, int], ...] = ()
 
 
 def _cyclic(pattern: tuple[int, ...], k: int) -> int:
@@ -237,5 +241,7 @@ def write(folder: Path, loop: Loop) -> None:
             refused = cseq in loop.refuse_can_frames  # the drive refuses it: no landing
             outcome = ApplyOutcome.REFUSED if refused else ApplyOutcome.LANDED
             p.append("apply", (CAN, i, node, recv, recv + loop.delay, 0.0, 0.0, outcome))
+    for since, seen, n in loop.socket_drops:
+        p.append("socket_drops", (E + since, E + seen, n))
     c.close({"deadline_misses": 0})
     p.close({"extremes": {}})

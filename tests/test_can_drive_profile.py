@@ -114,6 +114,21 @@ def test_can_heartbeat_timeout_is_a_fault():
     assert host.phase is Phase.FAULT and "timeout" in host.fault_reason
 
 
+def test_a_rearm_after_a_heartbeat_timeout_waits_for_a_new_heartbeat():
+    """A drive silent past the timeout faults; the re-arm must not go ACTIVE on the heartbeat
+    heard before it (then fault again at once and re-arm again: a storm of arming frames that
+    overflowed the drives' and the recorder's receive queues, issue 35)."""
+    host, pair = HostLifecycle(node_right=1, node_left=0), VirtualDrivePair(1, 0, LIMIT)
+    _exchange(host, pair, host.start(0.0), 0.0)
+    host.tick(0.6)
+    assert host.phase is Phase.FAULT
+    rearm = host.start(0.6)
+    host.tick(0.61)
+    assert host.phase is Phase.ARMING and host.tick(0.62) == []  # no storm, no fault
+    _exchange(host, pair, rearm, 0.7)  # the drives answer: a fresh heartbeat
+    assert host.phase is Phase.ACTIVE
+
+
 def test_can_torque_beyond_limit_is_clamped_and_non_finite_never_applies():
     # a vel_limit set for the motor, as a user does: with the firmware's 2 rev/s, torque
     # control at rest is capped at 2 rev/s x vel_gain = 0.33 Nm (the torque-mode limiter)

@@ -20,9 +20,9 @@ from hil.folder.rates import ratio
 from hil.folder.records import Certificate, Summary
 from hil.measure import age as agemod
 from hil.measure.can_match import UNMATCHED, match_node
-from hil.measure.host import host_figures
+from hil.measure.host import RECORDER_SILENT_NS, host_figures
 from hil.measure.logs import RunLogs
-from hil.measure.stalls import Stamped, find_stalls
+from hil.measure.stalls import Stamped, Stretches, find_stalls
 from hil.measure.stats import summarize_ns
 from protocol.can.codec import MAX_NODE_ID
 from protocol.hoplog import (
@@ -40,6 +40,13 @@ from protocol.hoplog import (
 PATHS = ("zenoh", "can")
 _NODES = MAX_NODE_ID + 1  # the node part of a frame key (_frame_keys)
 LANDINGS = (ApplyOutcome.LANDED, ApplyOutcome.BURST)  # apply outcomes that put a command in force
+# A torque frame dropped by the drives' own socket was sent at most this long before the read
+# that found the drop's window open (its flight on the bus to the socket: microseconds).
+BUS_FLIGHT_NS = 2_000_000
+# A service that logs nothing for this many of its periods was not running (stopped, or its host
+# not running it): a loop on time logs every period, and its stamps' jitter alone can stretch
+# one gap a little past a period.
+SILENT_PERIODS = 2
 
 
 @dataclass(frozen=True)
@@ -315,7 +322,9 @@ class _Run:
         tick uses it, and only its arrival row shows the hold."""
         rx = self.logs["state_rx"]
         ok = (rx["recv_ns"] > 0) & (rx["send_ns"] > 0)
-        return Stamped.by_time(rx["sample_ns"][ok], hop=(rx["recv_ns"] - rx["send_ns"])[ok])
+        return Stamped.by_time(
+            rx["sample_ns"][ok], hop=(rx["recv_ns"] - rx["send_ns"])[ok], start=rx["send_ns"][ok]
+        )
 
     @cached_property
     def commands_sorted(self) -> Stamped:
@@ -330,6 +339,7 @@ class _Run:
             stamps, cmd = t["zenoh_send_ns"][sent], t["cmd_seq"][sent]
             injected = (t["flags"][sent] & (TICK_DROPPED | TICK_REORDERED)) != 0
             off_bus = np.zeros(cmd.size, bool)
+            by_bench = np.zeros(cmd.size, bool)  # Zenoh's own drops are not countable
         else:
             c = self._can
             got = (c["cmd"] >= 0) & ~c["lost"]
@@ -343,9 +353,54 @@ class _Run:
             lost_by_fault = np.unique(c["cmd"][c["lost"] & (c["cmd"] >= 0)])
             injected = np.isin(cmd, lost_by_fault)
             off_bus = put <= 0
+            by_bench = np.isin(cmd, self.commands_dropped_by_bench)
         arr, found = _lookup(seq, recv, cmd)
         hop = np.where(found, arr - stamps, -1)
-        return Stamped.by_time(stamps, arrived=found, injected=injected, hop=hop, off_bus=off_bus)
+        return Stamped.by_time(
+            stamps, arrived=found, injected=injected, hop=hop, off_bus=off_bus, by_bench=by_bench
+        )
+
+    @cached_property
+    def frames_dropped_by_bench(self) -> np.ndarray:
+        """Per can_tx row: a torque frame put on the bus, never received, and dropped by the
+        drives' own receiving socket (its queue full: the plant's ``socket_drops`` log). Each
+        drop the socket counted explains at most one frame sent in its window (less the bus's
+        flight, :data:`BUS_FLIGHT_NS`), oldest first."""
+        tx, c = self.logs["can_tx"], self._can
+        out = np.zeros(tx["node"].size, bool)
+        d = self.logs["socket_drops"]
+        if d["dropped"].size == 0:
+            return out
+        got = (c["cmd"] >= 0) & ~c["lost"]
+        received = np.unique(_frame_keys(c["cmd"][got], c["node"][got]))
+        sent = (tx["cmd_seq"] >= 0) & (tx["send_ns"] > 0)
+        lost = sent & ~np.isin(_frame_keys(tx["cmd_seq"], tx["node"]), received)
+        rows = np.nonzero(lost)[0]
+        rows = rows[np.argsort(tx["send_ns"][rows], kind="stable")]
+        at = tx["send_ns"][rows]
+        for since, seen, n in zip(d["since_ns"].tolist(), d["seen_ns"].tolist(),
+                                  d["dropped"].tolist(), strict=True):  # fmt: skip
+            sl = slice(*np.searchsorted(at, [since - BUS_FLIGHT_NS, seen], side="right"))
+            free = rows[sl][~out[rows[sl]]]
+            out[free[: int(n)]] = True
+        return out
+
+    @cached_property
+    def commands_dropped_by_bench(self) -> np.ndarray:
+        """Commands with a frame lost, every lost frame of them dropped by the drives' own
+        socket (:attr:`frames_dropped_by_bench`)."""
+        tx = self.logs["can_tx"]
+        by = self.frames_dropped_by_bench
+        if not by.any():
+            return np.zeros(0, np.int64)
+        cand = np.unique(tx["cmd_seq"][by])
+        c = self._can
+        got = (c["cmd"] >= 0) & ~c["lost"]
+        received = np.unique(_frame_keys(c["cmd"][got], c["node"][got]))
+        sent = (tx["cmd_seq"] >= 0) & (tx["send_ns"] > 0)
+        lost = sent & ~np.isin(_frame_keys(tx["cmd_seq"], tx["node"]), received)
+        other = np.unique(tx["cmd_seq"][lost & ~by])  # a frame lost elsewhere too
+        return cand[~np.isin(cand, other)]
 
     @cached_property
     def burst_sorted(self) -> Stamped:
@@ -379,6 +434,79 @@ class _Run:
         grid = deadline[pos] + (every - k[pos]) * self.period
         # Samples before the first tick belong to it, those after the last to one more slot.
         return np.searchsorted(grid, sn, side="left")
+
+    @cached_property
+    def controller_stalls(self) -> Stretches:
+        """Where the controller stalled (hil.measure.stalls): ticks a period or more late
+        (deadline to wake-up), and silences of two periods or more of every stamp its
+        threads logged, each until it drained the States queued for it meanwhile
+        (:meth:`Stretches.drained`); periodic trigger only (on_state and lockstep wait for States
+        by design)."""
+        if self.trigger != "periodic" or self.lockstep or self.period <= 0:
+            return Stretches.none()
+        t = self.ticks
+        late = (t["wake_ns"] - t["deadline_ns"]) >= self.period
+        stamps = np.concatenate(
+            [t["wake_ns"], t["compute_start_ns"], t["compute_end_ns"], t["zenoh_send_ns"],
+             self.logs["state_rx"]["recv_ns"], self.logs["can_tx"]["send_ns"]]
+        )  # fmt: skip
+        quiet = Stretches.silences(self._in_run(stamps), SILENT_PERIODS * self.period)
+        stalls = quiet.union(Stretches.of(t["deadline_ns"][late], t["wake_ns"][late]))
+        s = self.state_hops_sorted  # the States it receives: drained after each stall
+        recv = s.hop_start + s.hop
+        order = np.argsort(recv, kind="stable")
+        return stalls.drained(recv[order], s.hop[order], self.period)
+
+    @cached_property
+    def plant_stalls(self) -> Stretches:
+        """Where the plant stalled: samples a sensor period or more late (due to wake-up), and
+        silences of two sensor periods or more of every stamp it logged, each until it drained
+        the commands queued for it meanwhile; not in lockstep."""
+        if self.lockstep or self.sensor_period <= 0:
+            return Stretches.none()
+        s = self.samples
+        late = (s["wake_ns"] - s["sample_ns"]) >= self.sensor_period
+        stamps = np.concatenate([s["wake_ns"], s["send_ns"], self.logs["cmd_rx"]["recv_ns"]])
+        quiet = Stretches.silences(self._in_run(stamps), SILENT_PERIODS * self.sensor_period)
+        stalls = quiet.union(Stretches.of(s["sample_ns"][late], s["wake_ns"][late]))
+        c = self.commands_sorted  # the commands it receives: drained after each stall
+        ok = c.arrived & (c.hop >= 0)
+        recv = (c.stamps + c.hop)[ok]
+        order = np.argsort(recv, kind="stable")
+        return stalls.drained(recv[order], c.hop[ok][order], self.period)
+
+    def _in_run(self, stamps: np.ndarray) -> np.ndarray:
+        """A service's stamps from the run's start (the plant's first sample) on, that start
+        among them: what it did before (arming the drives) is no stall, and a service silent
+        from the start was not running."""
+        return np.concatenate([[self.w0], stamps[stamps >= self.w0]])
+
+    @cached_property
+    def bench_drop_stamps(self) -> Stamped:
+        """The drives' socket drops: when each was seen, and how many frames (as ``hop``)."""
+        d = self.logs["socket_drops"]
+        return Stamped.by_time(d["seen_ns"], hop=d["dropped"].astype(np.int64))
+
+    @cached_property
+    def bench_drops(self) -> Stretches:
+        """The stretches the commands the bench's own socket dropped left without a landing:
+        from the delivered command before each to the one after (by compute time)."""
+        c = self.commands_sorted
+        if not c.by_bench.any():
+            return Stretches.none()
+        ok = np.nonzero(c.arrived)[0]
+        i = np.nonzero(c.by_bench & ~c.arrived)[0]
+        pos = np.searchsorted(ok, i)
+        before = np.where(pos > 0, c.stamps[ok[np.maximum(pos - 1, 0)]], c.stamps[i])
+        after = np.where(pos < ok.size, c.stamps[ok[np.minimum(pos, ok.size - 1)]], c.stamps[i])
+        return Stretches.of(before, after)
+
+    @cached_property
+    def host_gaps(self) -> Stretches:
+        """Where the recorder's host sampler (a thread of ``hil run``) logged nothing for
+        :data:`RECORDER_SILENT_NS` or more: the recorder stopped or starved."""
+        host = self.logs.tables.get("host") or {}
+        return Stretches.silences(host.get("time_ns", np.zeros(0, np.int64)), RECORDER_SILENT_NS)
 
     def tick_of(self, cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(tick row, found) of each command sequence number."""
@@ -593,6 +721,14 @@ def _messages(r: _Run) -> dict[str, Any]:
     state = _stream_counts(s["seq"], r.logs["state_rx"]["seq"])
     state["injected_drops"] = int(((s["flags"] & SAMPLE_DROPPED) != 0).sum())
     state["injected_duplicates"] = int(((s["flags"] & SAMPLE_DUPLICATED) != 0).sum())
+    # States lost that no [faults] drop explains: on the wire, or in Zenoh's own queues (a DROP
+    # publisher whose queue stayed full; not countable apart), with when (docs/reports.md).
+    unexplained = ~r.state_received & ~r.state_injected_drop
+    state["lost_not_injected"] = int(unexplained.sum())
+    when = s["sample_ns"][unexplained]
+    state["lost_not_injected_t_s"] = (
+        [(int(when[0]) - r.epoch) / 1e9, (int(when[-1]) - r.epoch) / 1e9] if when.size else None
+    )
     out: dict[str, Any] = {"state": state}
     zsent = (t["zenoh_send_ns"] > 0) & (t["cmd_seq"] >= 0)
     # Commands count while the plant still listens: sent up to 2 Ts + delay + jitter before
@@ -670,6 +806,7 @@ def _can_messages(r: _Run) -> dict[str, Any]:
         "frames_received": frames_rx,
         "frames_lost": frames_sent - frames_rx,
         "frames_not_on_bus": int((mine & (tx["send_ns"] <= 0)).sum()),
+        **_bench_losses(r, mine, sent_cmds, frames_sent - frames_rx),
         "frames_ambiguous": int((c["ambiguous"] & ours).sum()),
         "frames_realigned": r.can_realigned,
         "injected_frame_losses": int((c["lost"] & ours).sum()),
@@ -682,6 +819,30 @@ def _can_messages(r: _Run) -> dict[str, Any]:
     if r.applied == "can":
         out.update(_can_fates(r, received, n_wheels))
     return out
+
+
+def _bench_losses(
+    r: _Run, mine: np.ndarray, sent_cmds: np.ndarray, frames_lost: int
+) -> dict[str, Any]:
+    """Whose the window's lost frames were: the drives' own receiving socket's (the bench's, its
+    queue full: ``frames_lost_by_bench``, of the ``frames_dropped_by_bench_socket`` it counted,
+    any frame; None where the bus has no socket to count on), a [faults] injection's, never put
+    on the bus (bus-off), or the wire's (``frames_lost_on_wire``: the rest)."""
+    d = r.logs["socket_drops"]
+    window = _in(d["seen_ns"], r.w0, r.w1 + r.settle)
+    counted = (
+        d["dropped"].size > 0 or (r.logs.pinfo.get("can") or {}).get("socket_drops") is not None
+    )
+    by_frame = r.frames_dropped_by_bench & mine
+    c, tx = r._can, r.logs["can_tx"]
+    injected = int((c["lost"] & np.isin(c["cmd"], sent_cmds)).sum())
+    off_bus = int((mine & (tx["send_ns"] <= 0)).sum())
+    return {
+        "frames_dropped_by_bench_socket": int(d["dropped"][window].sum()) if counted else None,
+        "frames_lost_by_bench": int(by_frame.sum()),
+        "lost_by_bench": int(np.isin(sent_cmds, r.commands_dropped_by_bench).sum()),
+        "frames_lost_on_wire": max(0, frames_lost - int(by_frame.sum()) - injected - off_bus),
+    }
 
 
 def _frame_keys(cmd: np.ndarray, node: np.ndarray) -> np.ndarray:

@@ -55,6 +55,7 @@ COLUMNS: dict[str, dict[str, Any]] = {
     "apply": {"path": _I1, "seq": _I8, "node": _I2, "recv_ns": _I8, "apply_ns": _I8,
               "outcome": _I1},
     "zero": {"timeout_ns": _I8, "applied_ns": _I8},
+    "socket_drops": {"since_ns": _I8, "seen_ns": _I8, "dropped": _I8},
     "host": {c: _I8 for c in HOST_TABLES["host"]},
 }  # fmt: skip
 NARROW = {"k", "skipped", "state_seq", "cmd_seq", "seq"}

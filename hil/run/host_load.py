@@ -12,10 +12,9 @@ import threading
 import time
 from pathlib import Path
 
+from hil.measure.host import INTERVAL_S
 from hil.measure.logs import HOST_FILE
 from protocol.hoplog import HOST_TABLES, HopLogWriter, HostRow
-
-INTERVAL_S = 0.1
 
 
 def _cpu_line() -> tuple[int, int, int]:

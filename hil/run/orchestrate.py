@@ -55,6 +55,7 @@ from hil.scenario import (
     resolved_dict,
 )
 from hil.supervisor import Supervisor
+from protocol.can.rx_queue import RxQueueDrops
 from protocol.hoplog import LAW_FAULT_EXIT
 from protocol.keys import is_valid_robot_id, observed_keys
 from protocol.messages import DecodeError, Status, decode
@@ -125,6 +126,8 @@ class Recorder:
         self.states = 0
         self.statuses: dict[str, Any] = {}
         self.status_ns: dict[str, int] = {}  # when each role's newest status arrived
+        # Frames the recorder's CAN socket dropped (None: no CAN, or a bus with no socket).
+        self.can_socket_drops: int | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._drain, name="recorder", daemon=True)
         self._thread.start()
@@ -189,14 +192,16 @@ class Recorder:
         self.writer.close()
 
 
-def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any] | None:
-    """A python-can Notifier on the run's bus feeding the recorder (None if no CAN)."""
+def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any, Any] | None:
+    """A python-can Notifier on the run's bus feeding the recorder, and the drop count of its
+    receiving socket (protocol.can.rx_queue; None if no CAN)."""
     try:
         bus = settings.open_can_bus()
         if bus is None:
             return None
         channel = str(settings.can.get("channel", "can"))
-        return bus, can.Notifier(bus, [lambda m: recorder.on_can(channel, m)], timeout=0.1)
+        drops = RxQueueDrops(bus)
+        return bus, can.Notifier(bus, [lambda m: recorder.on_can(channel, m)], timeout=0.1), drops
     except Exception as exc:
         print(f"warning: CAN recording off: {exc}", file=sys.stderr)
         return None
@@ -450,6 +455,10 @@ def execute(opts: RunOptions) -> dict[str, Any]:
                 sub.undeclare()
             if can_rec is not None:
                 can_rec[1].stop()
+                # Frames the recorder's own socket dropped (its queue full): the recording's
+                # loss, the bench's, never the system's.
+                recorder.can_socket_drops = can_rec[2].read()
+                can_rec[2].close()
                 with contextlib.suppress(Exception):  # a bus already gone is fine here
                     can_rec[0].shutdown()
             if session is not None:
@@ -475,7 +484,10 @@ def run_extra(
         "exit_codes": codes,
         "recording": layout.RECORDING,
         "recorded_messages": recorder.writer.count,
-        "recorder": recorder.taps.counts(),
+        "recorder": {
+            **recorder.taps.counts(),
+            "can_frames_dropped_by_socket": recorder.can_socket_drops,
+        },
         "secure": secure,
     }
 

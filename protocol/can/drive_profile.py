@@ -148,7 +148,12 @@ class HostLifecycle:
         self._update(now)
 
     def _ready(self, view: DriveView) -> bool:
-        return view.axis_state == AxisState.CLOSED_LOOP_CONTROL and view.axis_error == 0
+        """In closed loop without error, by a heartbeat heard since the arming was sent: a view
+        from before it (a drive that went silent and faulted) is not its answer. Taken for one,
+        a re-arm went ACTIVE at once on the stale heartbeat and faulted again at the next frame
+        heard, a re-arm storm (~14,000 frames/s on udp_multicast, which hears its own frames)."""
+        fresh = view.last_heartbeat is not None and view.last_heartbeat >= self._last_arm
+        return fresh and view.axis_state == AxisState.CLOSED_LOOP_CONTROL and view.axis_error == 0
 
     def _update(self, now: float) -> None:
         views = [self.drives[n] for n in (self.node_right, self.node_left)]
