@@ -173,25 +173,6 @@ def setup_scheduling(
             report.idle = "poll"
         except OSError as exc:
             report.errors["idle"] = str(exc)
-    if scheduling == "fifo":
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            report.policy = "SCHED_FIFO"
-            report.priority = priority
-        except (PermissionError, OSError, AttributeError) as exc:
-            report.errors["fifo"] = str(exc)
-            print(
-                f"warning: SCHED_FIFO refused ({exc}): running SCHED_OTHER, so wake-up "
-                "lateness and the command age are those of a time-shared host (root or "
-                "CAP_SYS_NICE gives the real-time policy)",
-                file=sys.stderr,
-                flush=True,
-            )
-        else:
-            # Every other thread of the process (Zenoh's runtime, the CAN readers) one step
-            # below: they take the GIL to deliver messages, and a SCHED_OTHER thread holding
-            # the GIL while preempted by outside load stalls the loop (priority inversion).
-            report.helper_threads = _raise_helper_threads(priority - 1)
     if cpu is not None:
         try:
             os.sched_setaffinity(0, {cpu})
@@ -213,6 +194,29 @@ def setup_scheduling(
         gc.freeze()
         gc.disable()
         report.gc_frozen = True
+    # The real-time policy last: locking every page of the process (tens of ms for a service
+    # with numpy and Zenoh loaded) and the full collection above would otherwise run at
+    # FIFO 80 on the pinned CPU and stall every other real-time process there, another
+    # bench run's service among them.
+    if scheduling == "fifo":
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            report.policy = "SCHED_FIFO"
+            report.priority = priority
+        except (PermissionError, OSError, AttributeError) as exc:
+            report.errors["fifo"] = str(exc)
+            print(
+                f"warning: SCHED_FIFO refused ({exc}): running SCHED_OTHER, so wake-up "
+                "lateness and the command age are those of a time-shared host (root or "
+                "CAP_SYS_NICE gives the real-time policy)",
+                file=sys.stderr,
+                flush=True,
+            )
+        else:
+            # Every other thread of the process (Zenoh's runtime, the CAN readers) one step
+            # below: they take the GIL to deliver messages, and a SCHED_OTHER thread holding
+            # the GIL while preempted by outside load stalls the loop (priority inversion).
+            report.helper_threads = _raise_helper_threads(priority - 1)
     return report
 
 
