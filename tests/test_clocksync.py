@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from runtime.clocksync import ClockEcho, ClockFilter, ClockProbe, Exchange
 from tests.lab_helpers import ROOT, lab, lab_argv, lab_name, lab_skip_reason
 from tests.procs import Lines, free_tcp_port, wait_until
+from tests.run_helpers import PASSES, clean_scenario, hil_run
 
 US = 1_000
 
@@ -72,15 +73,7 @@ def test_same_host_offset_is_zero_within_its_uncertainty():
 
 def test_a_service_run_records_its_offset_to_the_plant(tmp_path):
     out = tmp_path / "run"
-    args = ["--duration", "1.5", "--quiet", "--no-report", "--out", str(out)]
-    done = subprocess.run(
-        [sys.executable, "-m", "hil", "run", *args],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=120,
-    )
-    assert done.returncode in (0, 1), done.stderr
+    hil_run(out, str(clean_scenario(tmp_path)), "--duration", "1.5", expect=PASSES, timeout=120)
     rows = (out / "clock-controller.csv").read_text().splitlines()
     assert rows[0].startswith("t1_ns,t2_ns,t3_ns,t4_ns")
     assert len(rows) >= 4  # a burst of four exchanges every 0.25 s from the controller's start
