@@ -19,7 +19,6 @@ from tests.procs import Lines, free_tcp_port, wait_until
 from tests.run_helpers import PASSES, clean_scenario, hil_run
 
 
-
 @given(
     offset=st.integers(-(10**12), 10**12),
     t1=st.integers(0, 10**12),
