@@ -346,11 +346,13 @@ def clean_scenario(folder: Path, extra: str = "") -> Path:
     return path
 
 
-def clean_bounds(path: str, clock_us: float = 0.0) -> dict[str, tuple[float, str]]:
-    """Each figure's largest value in a clean run on the ``path`` command path (µs), and why.
-    ``clock_us``: how far the controller's clock may be from the plant's once related (a lab
-    run's offset uncertainty; 0 on one host), for the figures that relate the two."""
-    p, clock = CLEAN_P_US, f" and the clock relation's {clock_us:.0f} µs" if clock_us else ""
+def clean_bounds(
+    path: str, clock_us: float = 0.0, rate_hz: float = CLEAN_RATE_HZ
+) -> dict[str, tuple[float, str]]:
+    """Each figure's largest value in a clean run on the ``path`` command path at ``rate_hz``
+    (µs), and why. ``clock_us``: how far the controller's clock may be from the plant's once
+    related (a lab run's offset uncertainty; 0 on one host), for the figures relating the two."""
+    p, clock = 1e6 / rate_hz, f" and the clock relation's {clock_us:.0f} µs" if clock_us else ""
     return {
         "wakeup_lateness": (HOST_US, "the controller's wake-up: the host's allowance"),
         "plant_wakeup_lateness": (HOST_US, "the plant's wake-up: the host's allowance"),
@@ -370,21 +372,29 @@ def clean_bounds(path: str, clock_us: float = 0.0) -> dict[str, tuple[float, str
 
 
 def check_clean_run(
-    s: dict[str, Any], path: str, run_dir: Path, clock_us: float = 0.0
+    s: dict[str, Any],
+    path: str,
+    run_dir: Path,
+    clock_us: float = 0.0,
+    duration_s: float = CLEAN_DURATION_S,
+    rate_hz: float = CLEAN_RATE_HZ,
 ) -> dict[str, float]:
-    """Every bound of a clean run on ``path`` (:func:`clean_bounds`), and nothing lost; the
-    measured maxima (µs, D as "D"). A broken bound fails with :func:`machine_report`."""
+    """Every bound of a clean run of ``duration_s`` at ``rate_hz`` on ``path``
+    (:func:`clean_bounds`; the host's allowance must stay under half a period), and nothing
+    lost; the measured maxima (µs, D as "D"). A broken bound fails with :func:`machine_report`."""
     cert, t = s["certificate"], s["timing"]
     assert cert["path"] == path, cert["path"]
     # The scenario is what CLEAN_50HZ says it is: D* many periods away.
     assert abs(cert["d_star_s"] - CLEAN_D_STAR_S) < 1e-3, cert["d_star_s"]
-    bounds = clean_bounds(path, clock_us)
+    period_us = 1e6 / rate_hz
+    assert period_us / 2 >= HOST_US, "the host's allowance must fit in half a period"
+    bounds = clean_bounds(path, clock_us, rate_hz)
     broken, seen = [], {}
     for figure, (limit, why) in bounds.items():
         got = t[figure]
         seen[figure] = got["max_us"]
         # Measured on (nearly) every period: a clean run loses nothing.
-        if got["count"] < 0.8 * CLEAN_DURATION_S * CLEAN_RATE_HZ:
+        if got["count"] < 0.8 * duration_s * rate_hz:
             broken.append(f"{figure}: only {got['count']} measured")
         if not 0 <= got["max_us"] <= limit:
             broken.append(f"{figure} max {got['max_us']:.0f} µs > {limit:.0f} µs ({why})")
@@ -393,8 +403,8 @@ def check_clean_run(
     # D is the applied path's largest command age (one definition): at least a whole period
     # (a command is never replaced before the next sample's), at most the command age's bound.
     d_limit = bounds[f"command_age_{path}"][0]
-    if not CLEAN_P_US <= d_us <= d_limit:
-        broken.append(f"D = {d_us:.0f} µs outside [{CLEAN_P_US:.0f}, {d_limit:.0f}] µs")
+    if not period_us <= d_us <= d_limit:
+        broken.append(f"D = {d_us:.0f} µs outside [{period_us:.0f}, {d_limit:.0f}] µs")
     if t["deadline_misses"] or t["samples_without_command"]:
         broken.append(
             f"{t['deadline_misses']} deadline misses, {t['samples_without_command']} samples "

@@ -16,7 +16,13 @@ from hil.cli import main
 from hil.measure.certificate import CONTRACT_KEYS
 from hil.measure.folder import measure_folder
 from hil.sim.replay import latencies_from_run
-from tests.run_helpers import PASSES, check_verdict, clean_scenario, expected_exit
+from tests.run_helpers import (
+    PASSES,
+    check_clean_run,
+    check_verdict,
+    clean_scenario,
+    expected_exit,
+)
 from tests.test_report import RUN_SECTIONS, check_html, check_images
 
 
@@ -36,6 +42,7 @@ def test_report_of_a_real_run_with_both_paths(tmp_path: Path, spawn) -> None:
     assert (run_dir / "summary.json").is_file(), err.decode()[-2000:]
     summary = json.loads((run_dir / "summary.json").read_text())
     check_verdict(summary, PASSES, proc.returncode, run_dir, context=err.decode()[-2000:])
+    check_clean_run(summary, "zenoh", run_dir)  # and within a clean run's bounds
     assert list(run_dir.glob("*.mcap")), "the run left no recording"
     # hil run writes the report itself; hil report below rewrites it from the folder alone.
     written_by_run = json.loads((run_dir / "report.json").read_text())

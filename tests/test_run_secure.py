@@ -21,7 +21,7 @@ from protocol import keys, zenoh_acl
 from protocol.hoplog import read_hoplog
 from runtime import credentials as cr
 from tests.procs import Lines, spawned, wait_until
-from tests.run_helpers import PASSES, alive, check_verdict, clean_scenario
+from tests.run_helpers import PASSES, alive, check_clean_run, check_verdict, clean_scenario
 
 pytestmark = pytest.mark.realtime
 
@@ -122,6 +122,8 @@ def baseline(tmp_path_factory):
 def test_secure_run_closes_the_loop(baseline) -> None:
     s = json.loads((baseline["out"] / "summary.json").read_text())
     check_verdict(s, PASSES, baseline["code"], baseline["out"], context=baseline["err"][-3000:])
+    # Within a clean run's bounds, through the secure run's router too.
+    check_clean_run(s, "zenoh", baseline["out"])
     assert s["secure"] is True and not s["error"]
     assert all(n == 0 for n in s["violations"].values()), s["violations"]
     for stream in ("state", "torque_zenoh"):

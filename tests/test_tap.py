@@ -248,7 +248,7 @@ def test_a_run_records_what_each_service_sent_and_refused_through_its_tap(tmp_pa
     each logged at its sender's own send stamp (the taps', not a receipt), and each refused
     payload as the controller refused it; no batch lost."""
     from hil.recording import read_messages
-    from tests.run_helpers import PASSES, check_verdict, clean_scenario, load_log
+    from tests.run_helpers import PASSES, check_clean_run, check_verdict, clean_scenario, load_log
 
     out = tmp_path / "run"
     # A clean run (CLEAN_50HZ): the stranger's puts are refused, its verdict stays PASS.
@@ -281,6 +281,7 @@ def test_a_run_records_what_each_service_sent_and_refused_through_its_tap(tmp_pa
             stranger.close()
     summary = json.loads((out / "summary.json").read_text())
     check_verdict(summary, PASSES, code, out, context=run.stderr.read()[-3000:].decode())
+    check_clean_run(summary, "zenoh", out)  # the stranger's puts cost the loop nothing
     assert summary["recorder"]["tap_batches_lost"] == 0
     assert summary["recorder"]["tap_batches_refused"] == {}
     rec = out / "recording.mcap"
