@@ -6,7 +6,8 @@ gate) on zenoh_can (bit-time model off): the rate of node 1's cyclic Get_Encoder
 (Get_Torques, not cyclic, so every answer is the answer) from this process: send the RTR frame,
 wait for the answer, on time.monotonic_ns. Repeated runs, medians of their percentiles (the
 machine is shared); the same run's plain zenoh_can echo round trip (bench_can_roundtrip) is the
-baseline the ratio is quoted against.
+baseline the ratio is quoted against. And how long each mode takes from SIGINT to its exit,
+over as many stops as repeats (median and worst).
 
     python bench/bench_drives.py              # 2000 requests x 5 runs, 5 s rate windows
     python bench/bench_drives.py --quick      # 300 x 3, 3 s
@@ -161,6 +162,37 @@ def measure(mode: str, args: argparse.Namespace) -> dict:
     }
 
 
+def stop_times(mode: str, repeats: int) -> dict:
+    """SIGINT to exit of ``mode``'s process, serving its bus (heard once), ``repeats`` times:
+    the median and the worst, ms (docs/can.md quotes ``hil drives``'s; its test only bounds a
+    hang)."""
+    times = []
+    for _ in range(repeats):
+        endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        channel = "hil0" if mode == "emulator" else f"b{os.getpid()}"
+        with tempfile.TemporaryDirectory() as workdir:
+            proc = _start(mode, channel, endpoint, workdir)
+            try:
+                bus = can.Bus(interface="zenoh_can", channel=channel, endpoint=endpoint)
+                try:
+                    deadline = time.monotonic() + 60
+                    while (msg := bus.recv(0.1)) is None or msg.arbitration_id >> 5 != NODE:
+                        if time.monotonic() > deadline or proc.poll() is not None:
+                            raise RuntimeError(f"{mode}: no frame within 60 s")
+                finally:
+                    bus.shutdown()
+                t0 = time.monotonic()
+                os.killpg(proc.pid, signal.SIGINT)
+                proc.wait(timeout=30)
+                times.append((time.monotonic() - t0) * 1e3)
+            finally:
+                if proc.poll() is None:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+    return {"mode": mode, "stops": len(times), "stop_ms_median": statistics.median(times),
+            "stop_ms_max": max(times)}  # fmt: skip
+
+
 def baseline(args: argparse.Namespace) -> dict:
     """The plain zenoh_can echo round trip of this machine, now (bench_can_roundtrip)."""
     from bench import bench_can_roundtrip as rt
@@ -182,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.count, args.repeats, args.window = 300, 3, 3.0
     results = [measure(mode, args) for mode in ("drives", "emulator")]
+    for r in results:
+        r["stop"] = stop_times(r["mode"], args.repeats)
     base = baseline(args)
     for r in results:
         r["rtr_p50_over_echo_p50"] = r["rtr_p50_us_median"] / base["p50_us_median"]

@@ -7,7 +7,9 @@ whole run: the view's worst case, every message serialized and sent. The order a
 between repeats, so a machine that slows down over the benchmark does not favour one side.
 Figures (bench/bench_rt_loop.py's, from each run's summary.json): loop (transport + compute)
 p50/p99, wake-up lateness p50/p99, deadline misses, command age max, the certificate's stall
-count; then the change with the view (target: loop p50 within 5 %, no new stalls).
+count; then the change with the view (target: loop p50 within 5 %, no new stalls), and the
+view's own cadence: the gaps between its timing snapshots, due once a second (median over the
+repeats; tests/test_live.py checks only that they come, in order).
 
     python bench/bench_live.py                  # 30 s per run, 3 repeats, 1 kHz
     python bench/bench_live.py --quick          # 5 s per run, 1 repeat
@@ -17,7 +19,10 @@ Prints one JSON object (also written with --out FILE).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
+import statistics
+import struct
 import subprocess
 import sys
 import tempfile
@@ -36,13 +41,14 @@ ROOT = Path(__file__).resolve().parent.parent
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 
 
-def _client(url: str, stop: threading.Event, counts: dict[str, int]) -> None:
-    """Subscribe to every advertised channel (also those advertised later) until ``stop``."""
+def _client(url: str, stop: threading.Event, counts: dict[str, Any]) -> None:
+    """Subscribe to every advertised channel (also those advertised later) until ``stop``;
+    the log times of the view's timing snapshots go to ``counts["timing_ns"]``."""
     from websockets.exceptions import ConnectionClosed
     from websockets.sync.client import connect
 
     with connect(url, subprotocols=SUBPROTOCOLS, open_timeout=30, max_size=None) as ws:
-        next_id = 1
+        next_id, timing_ids = 1, set()
         while not stop.is_set():
             try:
                 frame = ws.recv(timeout=0.2)
@@ -53,13 +59,28 @@ def _client(url: str, stop: threading.Event, counts: dict[str, int]) -> None:
             if isinstance(frame, bytes):
                 counts["messages"] = counts.get("messages", 0) + 1
                 counts["bytes"] = counts.get("bytes", 0) + len(frame)
+                sub, log_ns = struct.unpack_from("<IQ", frame, 1)
+                if sub in timing_ids:
+                    counts.setdefault("timing_ns", []).append(log_ns)
                 continue
             msg = json.loads(frame)
             if msg.get("op") == "advertise":
                 subs = [{"id": next_id + i, "channelId": ch["id"]}
                         for i, ch in enumerate(msg["channels"])]  # fmt: skip
+                timing_ids |= {next_id + i for i, ch in enumerate(msg["channels"])
+                               if ch["topic"].endswith("/live/timing")}  # fmt: skip
                 next_id += len(subs)
                 ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
+
+def _cadence(timing_ns: list[int]) -> dict[str, Any]:
+    """The gaps between the view's timing snapshots (due once a second; the view runs at nice
+    10, below the run's services): median and extremes, s."""
+    gaps = [(b - a) / 1e9 for a, b in itertools.pairwise(timing_ns)]
+    if not gaps:
+        return {"count": 0}
+    return {"count": len(gaps), "p50_s": statistics.median(gaps), "min_s": min(gaps),
+            "max_s": max(gaps)}  # fmt: skip
 
 
 def _url(out: Path, proc: subprocess.Popen, timeout: float = 120.0) -> str:
@@ -100,6 +121,7 @@ def run_once(rate: float, duration: float, live: bool, out: Path) -> dict[str, A
     summary = json.loads((out / "summary.json").read_text())
     figs = figures_of(summary, rate, "periodic", out)
     figs["stalls"] = len((summary.get("certificate") or {}).get("stalls") or [])
+    figs["cadence"] = _cadence(counts.pop("timing_ns", [])) if live else None
     figs["client"] = counts if live else None
     return figs
 
@@ -141,6 +163,15 @@ def main(argv: list[str] | None = None) -> int:
         combined = combine(rs)
         combined["stalls"] = [r["stalls"] for r in rs]
         result[mode] = combined
+    # The view's snapshot cadence: the median over the repeats of each run's median gap (a
+    # loaded host delays the nice-10 view; its schedule then catches up).
+    cadences = [r["cadence"] for r in runs["live"] if (r["cadence"] or {}).get("count")]
+    result["live"]["timing_cadence"] = {
+        "p50_s": statistics.median(c["p50_s"] for c in cadences) if cadences else None,
+        "min_s": min((c["min_s"] for c in cadences), default=None),
+        "max_s": max((c["max_s"] for c in cadences), default=None),
+        "runs": cadences,
+    }
     result["change_with_live"] = _change(result["off"], result["live"])
     text = json.dumps(result, indent=2, default=str)
     print(text)

@@ -8,12 +8,21 @@ repeats, and once with it (a second simulation at Ts/10 dominates that figure).
 
     python bench/bench_report.py              # simulated folder, 3 repeats, plus --ideal once
     python bench/bench_report.py --quick      # synthetic folder, 1 repeat, no ideal
+    python bench/bench_report.py --two-million   # ``hil report`` of 2 M samples, 3 repeats
+
+``--two-million``: the synthetic run folder of 2,000 s at 1 kHz (2 M samples, 33 minutes),
+``hil report --no-ideal`` in a subprocess, its wall time and peak resident memory (``wait4``):
+median and worst of the repeats (target: under 60 s and 1 GB on a 2-core machine;
+tests/test_long_run.py checks only the memory, which load does not move).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -48,14 +57,39 @@ def once(folder: Path, ideal: bool) -> float:
     return time.perf_counter() - t0
 
 
+def two_million(root: Path, repeats: int) -> None:
+    """``hil report`` of the 2 M-sample synthetic folder in a subprocess: wall s, peak MB."""
+    folder = write_synthetic_folder(root / "long", duration=2000.0, rate=1000.0)
+    walls, peaks = [], []
+    for _ in range(repeats):
+        t0 = time.monotonic()
+        proc = subprocess.Popen([sys.executable, "-m", "hil", "report", str(folder), "--no-ideal"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+        _, status, usage = os.wait4(proc.pid, 0)
+        walls.append(time.monotonic() - t0)
+        peaks.append(usage.ru_maxrss / 1024)
+        if os.waitstatus_to_exitcode(status) != 0:
+            raise SystemExit(f"hil report exited {os.waitstatus_to_exitcode(status)}")
+    print(
+        f"2 M samples: hil report --no-ideal median {statistics.median(walls):.1f} s (worst "
+        f"{max(walls):.1f}), peak {statistics.median(peaks):.0f} MB (worst {max(peaks):.0f}) "
+        f"over {repeats}"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--synthetic", action="store_true")
     ap.add_argument("--repeats", type=int, default=None)
     ap.add_argument("--no-ideal", action="store_true", help="skip the timing with --ideal")
+    ap.add_argument("--two-million", action="store_true", help="hil report of 2 M samples")
     a = ap.parse_args()
     repeats = a.repeats or (1 if a.quick else 3)
+    if a.two_million:
+        with tempfile.TemporaryDirectory() as tmp:
+            two_million(Path(tmp), repeats)
+        return
     with tempfile.TemporaryDirectory() as tmp:
         folder = make_folder(Path(tmp), a.synthetic or a.quick)
         rows = len((folder / "trace.csv").read_text().splitlines()) - 1

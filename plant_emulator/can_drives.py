@@ -6,9 +6,9 @@ The drive model (:mod:`plant_emulator.odrive`) is pure; this module moves frames
   payload) are answered at once from the drives' current state. Every ``Set_Input_Torque``
   arrival is logged to the hop log's ``cmd_rx`` table with its index among that node's torque
   frames (the controller's ``can_tx`` log is matched to it in per-node order). Other frames are
-  applied at once (``immediate``: ``hil drives``, a run's start gate, the CAN path as a shadow)
-  or queued in ``inbox`` for the plant's loop, which lands them at their time (the applied CAN
-  path of a run, with its injected delay).
+  applied at once (``immediate``: ``hil drives``, a run's time before its epoch, the CAN path as
+  a shadow) or queued in ``inbox`` for the plant's loop, which lands them at their time (the
+  applied CAN path of a run, with its injected delay).
 - The cyclic thread sends each due Heartbeat / Get_Encoder_Estimates / ... at its own rate, on
   absolute deadlines, whatever the plant's loop does.
 - The reader reads the kernel's drop count of the bus's receiving socket after every receive
@@ -113,6 +113,9 @@ class CanDrives:
         self.on_frame = on_frame or (lambda ns, f: self.pair.receive(ns / 1e9, f))
         self.refresh = refresh
         self.immediate = immediate
+        # Frames received before this (a run's epoch) are applied at once however
+        # ``immediate`` is set: the drives armed while the start is announced act before t = 0.
+        self.immediate_until_ns = 0
         self.faults = faults or Faults()
         self.injected_frame_losses = 0
         # The bus's name for a received frame, where it has one (zenoh_can): exact matching.
@@ -216,7 +219,7 @@ class CanDrives:
                 answers = self.pair.receive(recv_ns / 1e9, frame)
             self.requests += 1
             self.send(answers)
-        elif self.immediate:
+        elif self.immediate or recv_ns < self.immediate_until_ns:
             with self.lock:
                 answers = self.on_frame(recv_ns, frame)
             self.send(answers)

@@ -781,7 +781,11 @@ def _serve(
         svc.epoch_ns = got
     hoplog.update_meta({"epoch_ns": svc.epoch_ns})
     if can is not None:
-        # From t = 0 the applied CAN path lands each frame at its time in the plant's loop.
+        # From t = 0 the applied CAN path lands each frame at its time in the plant's loop;
+        # until then (the start is announced up to a few hundred ms ahead) the controller's
+        # arming acts at once, or the drives would arm only at t = 0 and report it in their
+        # next heartbeat, up to 100 ms into the run: samples without a command, D raised.
+        can.immediate_until_ns = svc.epoch_ns
         can.immediate = svc.applied_path != CmdPath.CAN
     print(f"running epoch_ns={svc.epoch_ns} scheduling={sched.policy}", flush=True)
     if s.lockstep:

@@ -173,25 +173,6 @@ def setup_scheduling(
             report.idle = "poll"
         except OSError as exc:
             report.errors["idle"] = str(exc)
-    if scheduling == "fifo":
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            report.policy = "SCHED_FIFO"
-            report.priority = priority
-        except (PermissionError, OSError, AttributeError) as exc:
-            report.errors["fifo"] = str(exc)
-            print(
-                f"warning: SCHED_FIFO refused ({exc}): running SCHED_OTHER, so wake-up "
-                "lateness and the command age are those of a time-shared host (root or "
-                "CAP_SYS_NICE gives the real-time policy)",
-                file=sys.stderr,
-                flush=True,
-            )
-        else:
-            # Every other thread of the process (Zenoh's runtime, the CAN readers) one step
-            # below: they take the GIL to deliver messages, and a SCHED_OTHER thread holding
-            # the GIL while preempted by outside load stalls the loop (priority inversion).
-            report.helper_threads = _raise_helper_threads(priority - 1)
     if cpu is not None:
         try:
             os.sched_setaffinity(0, {cpu})
@@ -213,22 +194,49 @@ def setup_scheduling(
         gc.freeze()
         gc.disable()
         report.gc_frozen = True
+    # The real-time policy last: locking every page of the process (tens of ms for a service
+    # with numpy and Zenoh loaded) and the full collection above would otherwise run at
+    # FIFO 80 on the pinned CPU and stall every other real-time process there, another
+    # bench run's service among them.
+    if scheduling == "fifo":
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            report.policy = "SCHED_FIFO"
+            report.priority = priority
+        except (PermissionError, OSError, AttributeError) as exc:
+            report.errors["fifo"] = str(exc)
+            print(
+                f"warning: SCHED_FIFO refused ({exc}): running SCHED_OTHER, so wake-up "
+                "lateness and the command age are those of a time-shared host (root or "
+                "CAP_SYS_NICE gives the real-time policy)",
+                file=sys.stderr,
+                flush=True,
+            )
+        else:
+            # Every other thread of the process (Zenoh's runtime, the CAN readers) one step
+            # below: they take the GIL to deliver messages, and a SCHED_OTHER thread holding
+            # the GIL while preempted by outside load stalls the loop (priority inversion).
+            report.helper_threads = _raise_helper_threads(priority - 1)
     return report
 
 
 def _raise_helper_threads(priority: int) -> int:
     """SCHED_FIFO at ``priority`` for every thread of this process but the caller."""
-    me = threading.get_native_id()
+    return _set_all_threads(os.SCHED_FIFO, max(1, priority), but=threading.get_native_id())
+
+
+def _set_all_threads(policy: int, priority: int, but: int | None = None) -> int:
+    """``policy`` at ``priority`` for every thread of this process (but ``but``); how many."""
     n = 0
     try:
         tids = [int(t) for t in os.listdir("/proc/self/task")]
     except OSError:
         return 0
     for tid in tids:
-        if tid == me:
+        if tid == but:
             continue
         try:
-            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(max(1, priority)))
+            os.sched_setscheduler(tid, policy, os.sched_param(priority))
             n += 1
         except OSError:
             pass
@@ -259,5 +267,18 @@ def hold_cpu_latency(path: str | None = None) -> None:
 
 
 def restore_gc() -> None:
+    """The run is over: every thread of the process back to SCHED_OTHER, then the collector
+    back on. A service's teardown (the hop log's last flush, Zenoh closed, the interpreter's
+    exit with its locked pages: 20 ms and more) at FIFO 80 on its pinned CPU stalled another
+    bench run's service there (a plant 46 ms late while a second run's services ended)."""
+    if _policy() == os.SCHED_FIFO:
+        _set_all_threads(os.SCHED_OTHER, 0)
     gc.enable()
     gc.unfreeze()
+
+
+def _policy() -> int | None:
+    try:
+        return os.sched_getscheduler(0)
+    except (OSError, AttributeError):
+        return None

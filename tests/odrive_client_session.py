@@ -168,6 +168,8 @@ async def session(a: argparse.Namespace) -> dict[str, Any]:
             "span_s": span,
             "pos_dev": pos_dev,
             "vel_dev": vel_dev,
+            # the positions' span: the drive's own time, at its velocity
+            "pos_span": max(p[1] for p in got) - min(p[1] for p in got) if got else 0.0,
             "vel": got[-1][2] if got else None,
             "pos": got[-1][1] if got else None,
         }
@@ -253,6 +255,8 @@ async def session(a: argparse.Namespace) -> dict[str, Any]:
         for d in drives.values():
             d.clear_errors()
             d.set_controller_mode("TORQUE_CONTROL", "PASSTHROUGH")
+        # The right drive's last command (its watchdog's last feed) leaves after this stamp.
+        t_fed = time.monotonic()
         for d in drives.values():
             await d.set_axis_state("CLOSED_LOOP_CONTROL")
         res["recovered"] = {s: str(d.axis_state) for s, d in drives.items()}
@@ -268,6 +272,7 @@ async def session(a: argparse.Namespace) -> dict[str, Any]:
             res["watchdog"] = {
                 "idle": expired,
                 "after_s": time.monotonic() - t_silent,
+                "since_feed_s": time.monotonic() - t_fed,
                 "heartbeat": plain(right._last_heartbeat.data),
                 "error": plain(await request(right, "Get_Error")),
             }

@@ -41,3 +41,21 @@ def circle(initial: dict[str, float] = FAR, **tables: dict[str, Any] | None) -> 
 
 
 CIRCLE_TABLE1 = circle(controller=TABLE1)
+
+#: A loop whose timing cannot honestly fail on a working machine (tests/test_clean_run.py):
+#: 50 Hz control and sensing with torque limits low against the speed limits, so that the
+#: certificate allows a command age D* = 498 ms (``hil certify``: 25 periods) while a working
+#: loop's D is 1.5 periods and the host's scheduling. Tests of something else than the verdict
+#: run it too, so that their verdict is known: PASS.
+CLEAN_RATE_HZ = 50.0
+CLEAN_D_STAR_S = 0.498
+CLEAN_50HZ = circle(
+    NEAR,
+    limits={"phi1": 1.6, "phi2": 5.1, "varpi1": 1.0, "varpi2": 8.0},
+    controller={**TABLE1, "l1": 0.3, "l2": 0.3, "lam": 0.5, "rho": 0.05},
+    # Control and sensing at 1 / ts (``--rate`` moves both: sensor_rate is the control rate).
+    timing={"ts": 1.0 / CLEAN_RATE_HZ},
+    # The plant's watchdog (zero torque after command_timeout without a command) is outside
+    # the certificate's assumptions below D*: 2 s keeps it out of a clean run's way.
+    realtime={"command_timeout": 2.0},
+)

@@ -21,6 +21,7 @@ import cantools
 import pytest
 
 from hil.run.defaults import PAPER_TRACKING_TOML
+from plant_emulator.odrive import CATCH_UP
 from protocol.can import codec
 from tests.procs import Lines, free_tcp_port, wait_until
 
@@ -70,15 +71,18 @@ def _check_session(res: dict) -> None:
     assert res["error"] == {"Active_Errors": "NONE", "Disarm_Reason": "NONE"}
     assert res["temperature"] == {"FET_Temperature": 25.0, "Motor_Temperature": 25.0}
 
-    # coasting: the cyclic frames (every 10 ms) and the ten RTR answers lie on one line
+    # Coasting: the cyclic frames (every 10 ms) and the ten RTR answers come from one coasting
+    # model. By content, not by the busy client's arrival stamps (a loaded host delays them; the
+    # rates are bench/bench_drives.py's): one velocity in every frame (an answer of 0/0 would
+    # break it), and the positions it covers give the drive's own time span, in which at most
+    # a frame every 10 ms and the RTR answers fit (a grid sends nothing ahead of it; 2 for
+    # the frames at the span's ends, and up to CATCH_UP = 5 frames due before the span that
+    # a stall sent back to back at its start), and at least the answers and a cyclic frame.
     coast = res["coast"]
-    periodic = coast["span_s"] / 0.01
-    assert periodic + coast["rtr_sent"] - 2 <= coast["frames"] <= periodic + coast["rtr_sent"] + 2
     assert coast["vel"] > 5.0 and coast["pos"] > 1.0
     assert coast["vel_dev"] < 1e-4
-    # rev, against arrival times stamped in a busy client: 0.1 rev is 8 ms at 13 rev/s, well
-    # below an answer of 0/0 or one a control period (20 ms at 50 Hz) old
-    assert coast["pos_dev"] < 0.1
+    most = coast["pos_span"] / coast["vel"] / 0.01 + coast["rtr_sent"] + 2 + CATCH_UP
+    assert coast["rtr_sent"] + 1 <= coast["frames"] <= most, coast
 
     # right forward, left back: the right wheel speeds up, the left slows down (a left turn)
     assert res["turn"]["right"]["Vel_Estimate"] > vel + 2.0
@@ -103,9 +107,11 @@ def _check_session(res: dict) -> None:
     assert estop["check_errors"].startswith("DriveError")
     assert estop["rearm_refused"] == "IDLE"
     assert res["recovered"] == {"right": "CLOSED_LOOP_CONTROL", "left": "CLOSED_LOOP_CONTROL"}
-    # a silent host: the watchdog disarms with WATCHDOG_TIMER_EXPIRED
+    # A silent host: the watchdog disarms with WATCHDOG_TIMER_EXPIRED, never before WATCHDOG
+    # after its last feed (stamped before that command left, on the same host's clock); how
+    # soon after is the heartbeat's and the host's (within the wait's WATCHDOG + 1 s).
     wd = res["watchdog"]
-    assert wd["idle"] and wd["after_s"] < WATCHDOG + 0.3
+    assert wd["idle"] and wd["since_feed_s"] >= WATCHDOG, wd
     assert wd["heartbeat"]["Axis_Error"] == "WATCHDOG_TIMER_EXPIRED"
     assert wd["error"]["Disarm_Reason"] == "WATCHDOG_TIMER_EXPIRED"
     assert res["idle_at_end"]

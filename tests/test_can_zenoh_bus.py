@@ -242,15 +242,14 @@ def test_can_zenoh_bus_does_not_keep_a_script_alive_that_forgets_shutdown(spawn,
             timeout=30,
             interval=0.05,
         )
-        exited_by = time.monotonic()  # at most one poll interval after it exited
         assert answered
-        # The old bus never exited (a non-daemon Zenoh callback thread); ours must within 1 s
-        # of the script's last statement, as python-can's own interfaces do.
+        # The old bus never exited (a non-daemon Zenoh callback thread held the interpreter);
+        # ours ends with the script's last statement, as python-can's own interfaces do (how
+        # long an interpreter's teardown takes on a loaded host is no property of the bus:
+        # 10 s bounds a hang).
         out, err = proc.communicate(timeout=10)
         # 0, not an abort: frames still arriving while it ends must not crash it either
         assert proc.returncode == 0, (proc.returncode, err)
-        assert "got 0x22" in out
-        end = float(out.split("end ")[1].split()[0])
-        assert exited_by - end < 1.0, f"exited {exited_by - end:.2f} s after its last statement"
+        assert "got 0x22" in out and "end " in out, out
     finally:
         ours.shutdown()

@@ -17,10 +17,6 @@ REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("protocol", "runtime", "controller_service", "plant_emulator", "hil")
 MAX_LINES = 80
 
-# Functions allowed over the limit: none. (The set stays so that a future exception is written
-# down with its reason; an entry that is no longer long fails the test.)
-PENDING: set[str] = set()
-
 
 def function_lengths(root: Path = REPO) -> dict[str, int]:
     """``path::name`` -> lines of every function of the product packages (the longest when a
@@ -42,17 +38,12 @@ def long_functions(lengths: dict[str, int]) -> dict[str, int]:
 
 
 def test_no_product_function_is_longer_than_the_limit():
-    too_long = {k: n for k, n in long_functions(function_lengths()).items() if k not in PENDING}
+    # No exception: a function that must be longer is split into named pieces instead.
+    too_long = long_functions(function_lengths())
     assert not too_long, (
         f"functions over {MAX_LINES} lines (split them into named pieces): "
         + ", ".join(f"{k} ({n})" for k, n in sorted(too_long.items()))
     )
-
-
-def test_every_pending_entry_is_still_long():
-    lengths = function_lengths()
-    stale = sorted(k for k in PENDING if lengths.get(k, 0) <= MAX_LINES)
-    assert not stale, f"no longer over {MAX_LINES} lines (or gone): remove from PENDING: {stale}"
 
 
 @pytest.mark.parametrize("extra", [MAX_LINES - 1, MAX_LINES])

@@ -18,7 +18,7 @@ from protocol.hoplog import read_hoplog
 from protocol.settings import RunSettings
 from runtime.group import check_group
 from tests.lab_helpers import ROOT, lab, lab_name, lab_skip_reason
-from tests.verdict_codes import fleet_code, report_code
+from tests.run_helpers import PASSES, check_verdict, clean_scenario, expected_exit
 
 ROBOTS, PER_PROCESS, RATE = 4, 2, 100
 
@@ -36,10 +36,21 @@ def _hil(*args: str) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("grouped") / "fleet"
-    args = ["paper_tracking", "--robots", str(ROBOTS), "--per-process", str(PER_PROCESS)]
+    scenario = str(clean_scenario(out.parent))
+    args = [scenario, "--robots", str(ROBOTS), "--per-process", str(PER_PROCESS)]
     done = _hil("fleet", *args, "--duration", "2", "--rate", str(RATE), "--out", str(out))
-    assert done.returncode == fleet_code(out), done.stderr[-3000:]
+    _check_passed(out, ROBOTS, done)
     return out
+
+
+def _check_passed(out: Path, robots: int, done: subprocess.CompletedProcess) -> None:
+    """Clean runs at 100 Hz (CLEAN_50HZ, --rate 100: D* = 498 ms): every robot's verdict is
+    PASS, sharing its processes or not, and the fleet's exit code that of PASS."""
+    for i in range(1, robots + 1):
+        folder = out / f"robot{i}"
+        summary = json.loads((folder / "summary.json").read_text())
+        check_verdict(summary, PASSES, None, folder, context=done.stderr[-3000:])
+    assert done.returncode == expected_exit("PASS"), done.stderr[-3000:]
 
 
 def test_four_robots_run_in_two_plant_and_two_controller_processes(fleet: Path) -> None:
@@ -94,8 +105,8 @@ def test_each_robot_keeps_its_own_deadlines_interleaved(fleet: Path) -> None:
 
 def test_a_grouped_robots_folder_is_a_complete_run_folder(fleet: Path) -> None:
     done = _hil("report", str(fleet / "robot2"), "--no-ideal")
-    assert done.returncode == report_code(fleet / "robot2"), done.stderr[-2000:]
     data = json.loads((fleet / "robot2" / "report.json").read_text())
+    check_verdict(data, PASSES, done.returncode, fleet / "robot2", command="report")
     assert "latency" in data["sections"] and data["certificate"]["d_max_s"] > 0
 
 
@@ -120,11 +131,12 @@ def test_a_grouped_fleet_across_two_lab_hosts(tmp_path: Path) -> None:
     """Two robots per process, plants on h1 and controllers on h2 whose clocks differ: every
     robot's loop closes through the two routers, each controller relates its own clock."""
     out = tmp_path / "fleet"
+    scenario = str(clean_scenario(tmp_path))
     with lab(lab_name("g"), "--hosts", "2", "--offset=h2=-1.7") as name:
-        args = ["paper_tracking", "--robots", "4", "--per-process", "2", "--lab", name]
+        args = [scenario, "--robots", "4", "--per-process", "2", "--lab", name]
         args += ["--plant-host", "h1", "--controller-host", "h2", "--duration", "2"]
         done = _hil("fleet", *args, "--rate", str(RATE), "--out", str(out))
-    assert done.returncode == fleet_code(out), done.stderr[-3000:]
+    _check_passed(out, 4, done)
     for i in range(1, 5):
         folder = out / f"robot{i}"
         topo = json.loads((folder / "topology.json").read_text())

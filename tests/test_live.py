@@ -26,6 +26,7 @@ from hil.live.launch import expand_live_flag
 from hil.live.timing import Bounds, LiveTiming
 from protocol.messages import State, TorqueCommand
 from tests.procs import free_tcp_port
+from tests.run_helpers import clean_scenario
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 MESSAGE_DATA = 0x01
@@ -108,9 +109,11 @@ def _rate(samples: list[tuple[int, dict]]) -> float:
 def test_a_websocket_client_sees_the_run_live_and_ctrl_c_closes_it(spawn, tmp_path):
     out = tmp_path / "run"
     port = free_tcp_port()
+    # A clean loop (CLEAN_50HZ at 200 Hz: D* = 498 ms): the view's verdict is PASS.
+    scenario = str(clean_scenario(tmp_path))
     run = spawn.python(
-        ["-m", "hil", "run", "--duration", "60", "--rate", "200", "--quiet", "--no-report",
-         "--out", str(out), "--live", str(port)],
+        ["-m", "hil", "run", scenario, "--duration", "60", "--rate", "200", "--quiet",
+         "--no-report", "--out", str(out), "--live", str(port)],
         stderr=subprocess.PIPE,
     )  # fmt: skip
     url = _wait_url(out, run)
@@ -157,14 +160,19 @@ def _watch(client: _Client, out: Path, run: subprocess.Popen) -> bool:
     assert len(client.got["hil/robot0/pose"]) >= len(states) - 5  # one pose per State
     assert abs(_rate(client.got["hil/robot0/cmd/torque"]) / 200 - 1) < 0.05
     assert client.got["hil/robot0/reference"], "the reference pose, once the epoch is known"
+    # The view's figures, on its own schedule (a tick a second at nice 10: how regular that
+    # is on a loaded host is bench/bench_live.py's figure, not a test's): several snapshots in
+    # the 4 s, in time order, each counting what the view received by then.
     timing = client.got["hil/robot0/live/timing"]
     assert len(timing) >= 3
-    gaps = [(b - a) / 1e9 for (a, _), (b, _) in itertools.pairwise(timing)]
-    assert all(0.5 < g < 1.5 for g in gaps), gaps  # once a second
+    stamps = [t for t, _ in timing]
+    assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps), stamps
+    counts = [d["states"] for _, d in timing]
+    assert counts == sorted(counts) and counts[-1] > counts[0], counts
     last = timing[-1][1]
     assert last["states"] > 0 and last.get("command_age_max_ms") is not None
-    assert last["d_star_ms"] == pytest.approx(20.44, abs=0.01)  # the paper circle's D*
-    assert last["verdict"] in ("PASS", "INCONCLUSIVE", "FAIL")
+    assert last["d_star_ms"] == pytest.approx(498.2, abs=0.1)  # CLEAN_50HZ's D*
+    assert last["verdict"] == "PASS", last  # limits held, D well under D*: a clean loop
     assert client.got[can_topic] and all("dlc" in d for _, d in client.got[can_topic])
     run.send_signal(signal.SIGINT)
     closed = False

@@ -2,30 +2,21 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
 from hil.bundled import bundled_path
 from hil.scenario import load_scenario
 from hil.sim.core import simulate
+from tests.run_helpers import PASSES, hil_run
 
 COLUMNS = ("t", "x", "y", "theta", "v", "omega", "tau1", "tau2", "tau1_cmd", "tau2_cmd")
 
 
 def _run(tmp_path, *args: str) -> dict:
-    out = tmp_path / "run"
-    proc = subprocess.run(
-        [sys.executable, "-m", "hil", "run", *args, "--quiet", "--no-report", "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads((out / "summary.json").read_text())
+    """A lockstep run: its timing is the scenario's, simulated (D = ts + delay + jitter, well
+    under D*), so its verdict is PASS wherever it runs."""
+    return hil_run(tmp_path / "run", *args, expect=PASSES)
 
 
 @pytest.mark.realtime
@@ -64,6 +55,8 @@ def test_lockstep_with_delay_and_jitter_equals_simulator(tmp_path):
         )
     )
     scen.write_text(text)
+    timing = load_scenario(scen).timing  # the replacement took: the run is the delayed one
+    assert (timing.ts, timing.delay, timing.jitter, timing.seed) == (0.002, 0.003, 0.001, 7)
     _run(tmp_path, str(scen), "--lockstep", "--no-can", "--duration", "0.4")
     sim = simulate(load_scenario(scen).with_overrides(duration=0.4))
     run = np.genfromtxt(tmp_path / "run" / "trace.csv", delimiter=",", names=True)

@@ -18,8 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.run_helpers import assert_negative_verdict_explained
-from tests.verdict_codes import run_code
+from tests.run_helpers import LOADED_HOST, PASSES, check_verdict
 
 ROOT = Path(__file__).resolve().parent.parent
 MAIN_JOB = "hil run"
@@ -87,15 +86,16 @@ def test_readme_first_command_works_in_a_clean_clone(tmp_path):
         text=True,
         timeout=300,
     )
-    # The verdict's code (0 PASS, 1 FAIL with its reason on a loaded host, 4 INCONCLUSIVE
-    # when the bench stalled); a crash (exit 3) leaves no summary.
+    # A crash leaves no summary. The README's first command runs the paper's circle at 1 kHz
+    # (D* = 20 ms): PASS, or what a loaded host does to a loop of that period, explained by
+    # the run's own logs, with that verdict's exit code.
     written = (elsewhere / "run" / "summary.json").is_file()
-    assert written and run.returncode == run_code(elsewhere / "run"), (
+    assert written, (
         f"hil run failed ({run.returncode}):\n{run.stdout[-3000:]}\n{run.stderr[-3000:]}"
     )
     summary = json.loads((elsewhere / "run" / "summary.json").read_text())
-    if run.returncode == 1:
-        assert_negative_verdict_explained(summary, run.stderr)
+    check_verdict(summary, (PASSES, *LOADED_HOST), run.returncode, elsewhere / "run",
+                  context=run.stderr[-3000:])  # fmt: skip
     assert summary["duration"] > 1.5
     assert (elsewhere / "run" / "report.html").exists()
 

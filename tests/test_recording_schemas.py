@@ -54,10 +54,10 @@ def _channels_and_messages(path: Path):
 
 @pytest.mark.realtime
 def test_every_message_of_a_real_run_validates_against_its_channels_typed_schema(tmp_path):
-    from tests.run_helpers import hil_run
+    from tests.run_helpers import PASSES, clean_scenario, hil_run
 
     out = tmp_path / "run"
-    hil_run(out, "--duration", "1")
+    hil_run(out, str(clean_scenario(tmp_path)), "--duration", "1", expect=PASSES)
     rec = out / "recording.mcap"
     validators: dict[int, jsonschema.Draft202012Validator] = {}
     per_topic: dict[str, int] = {}

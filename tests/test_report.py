@@ -25,6 +25,7 @@ from hil.cli import main
 from hil.measure.certificate import CONTRACT_KEYS
 from hil.report.build import SOURCE
 from tests.page_tables import numbers_without_unit, tables, unglossed
+from tests.run_helpers import PASSES, expected_exit
 from tests.synthetic_folder import write_synthetic_folder
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -567,8 +568,10 @@ def test_a_report_needs_no_user_law_after_the_run(tmp_path: Path) -> None:
     toml.write_text(
         text[:start] + '[controller]\nlaw = "no_such_user_module:MyLaw"\ngain = 2.0\n' + text[end:]
     )
-    assert main(["report", str(folder)]) in (0, 1)  # the verdict's own exit code, never 2
+    # The verdict's own exit code, never 2: the synthetic folder's timing is clean, PASS.
+    assert main(["report", str(folder)]) == expected_exit("PASS", command="report")
     data = json.loads((folder / "report.json").read_text())
+    assert PASSES.check(data["verdict"]) is None, data["verdict"]
     assert data["scenario"]["law"] == "no_such_user_module:MyLaw"
     note = data["metrics"]["deviation_from_ideal_note"]
     assert note.startswith("not computed") and "no_such_user_module:MyLaw" in note

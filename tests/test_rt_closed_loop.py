@@ -2,15 +2,19 @@
 
 Checks: the tracking error falls, and |v|, |omega| stay within the sampled-data bound of
 docs/sampled_data_bound.md evaluated at the run's measured D (the applied path's largest
-command age).
+command age). The verdict at 500 Hz and 2 kHz: PASS, or what a loaded host does to a loop of
+that period (tests/run_helpers.py ``LOADED_HOST``), each count explained by the run's own
+logs; tests/test_clean_run.py requires PASS where the timing cannot honestly fail.
 """
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from hil.bundled import bundled_path
-from tests.run_helpers import check_certified_bound, hil_run
+from tests.run_helpers import LOADED_HOST, PASSES, check_certified_bound, hil_run
 
 pytestmark = pytest.mark.realtime
 
@@ -38,27 +42,28 @@ def _check_tracking(summary: dict) -> None:
 @pytest.mark.slow
 def test_paper_circle_over_zenoh_at_500hz(tmp_path):
     scenario = _scenario(tmp_path)
-    s = hil_run(
-        tmp_path / "run",
-        scenario,
-        "--rate",
-        "500",
-        "--duration",
-        "5",
-        "--cmd-path",
-        "zenoh",
-    )
+    s = hil_run(tmp_path / "run", scenario, "--rate", "500", "--duration", "5", "--cmd-path",
+                "zenoh", expect=(PASSES, *LOADED_HOST))  # fmt: skip
     _check_tracking(s)
     _check_bound(s, scenario)
     t = s["timing"]
     # Most samples produced an applied command and most ticks ran (a loaded host skips some).
     assert t["sample_to_apply_zenoh"]["count"] >= 0.4 * 2500
     assert t["wakeup_lateness"]["count"] >= 0.5 * 2500
-    for key in ("p50_us", "p90_us", "p99_us", "p999_us", "max_us"):
-        assert t["compute"][key] is not None
+    # The law's compute time, measured on every tick: its percentiles in order, each a
+    # positive time (a column of zeros or a quantile of the wrong stamps would break this).
+    compute = [t["compute"][k] for k in ("p50_us", "p90_us", "p99_us", "p999_us", "max_us")]
+    assert compute[0] > 0 and compute == sorted(compute), t["compute"]
+    assert t["compute"]["count"] >= t["sample_to_apply_zenoh"]["count"], t["compute"]
     # The CAN path was live as a shadow and measured too.
     assert s["messages"]["torque_can"]["received"] > 0
-    assert s["scheduling"]["controller"]["policy"] in ("SCHED_FIFO", "SCHED_OTHER")
+    # The policy asked for (fifo): got where permitted (root here, as in CI), else refused
+    # with the reason.
+    got = s["scheduling"]["controller"]
+    if os.geteuid() == 0:
+        assert got["policy"] == "SCHED_FIFO" and got["priority"] == 80, got
+    else:
+        assert got["policy"] == "SCHED_OTHER" and got["errors"]["fifo"], got
     # [realtime] idle = "poll" by default: held by both services, or refused with the reason.
     for role in ("controller", "plant"):
         got = s["scheduling"][role]
@@ -68,16 +73,8 @@ def test_paper_circle_over_zenoh_at_500hz(tmp_path):
 @pytest.mark.slow
 def test_paper_circle_over_can_at_500hz(tmp_path):
     scenario = _scenario(tmp_path)
-    s = hil_run(
-        tmp_path / "run",
-        scenario,
-        "--rate",
-        "500",
-        "--duration",
-        "5",
-        "--cmd-path",
-        "can",
-    )
+    s = hil_run(tmp_path / "run", scenario, "--rate", "500", "--duration", "5", "--cmd-path",
+                "can", expect=(PASSES, *LOADED_HOST))  # fmt: skip
     _check_tracking(s)
     _check_bound(s, scenario)
     assert s["timing"]["sample_to_apply_can"]["count"] > 0.4 * 2 * 2500
@@ -99,7 +96,7 @@ def test_a_command_landing_just_before_a_sample_lands_at_its_own_time(tmp_path):
         + '\n[realtime]\nscheduling = "fifo"\ntrigger = "on_state"\n'
     )
     hil_run(tmp_path / "run", str(path), "--rate", "2000", "--duration", "4", "--cmd-path",
-            "zenoh", "--no-can")  # fmt: skip
+            "zenoh", "--no-can", expect=(PASSES, *LOADED_HOST))  # fmt: skip
     logs = load_folder_logs(tmp_path / "run")
     a, s = logs["apply"], logs["samples"]
     landed = a["outcome"] == ApplyOutcome.LANDED

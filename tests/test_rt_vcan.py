@@ -6,44 +6,35 @@ it receives as Set_Input_Torque frames on vcan0 (drive lifecycle honoured), Zeno
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
-from hil.bundled import bundled_path
-from hil.scenario import load_scenario
-from tests.run_helpers import check_certified_bound, hil_run
+from tests.run_helpers import PASSES, check_certified_bound, clean_scenario, fails, hil_run
 
 # Enough commands for the hop's statistics; the slowest guest seen sent 65 in 6 s.
 MIN_COMMANDS = 40
+#: The guest runs Python ~25x slower than its host (TCG): the loop misses slots (each a sample
+#: without a command), stalls of a second age a command past D* (seen: D = 1.7 s, the
+#: controller 1.07 s late), and its slow controller misses a few States (seen: 8 of 257; the
+#: CAN frames, checked below, none). The guest's timing is not the system's under test here:
+#: its verdict is PASS, or those, each count explained by the run's own logs; never a limit
+#: or a frame matched to another torque.
+GUEST = (
+    PASSES,
+    fails(also=("deadline_misses", "samples_without_command", "certificate_system",
+                "certificate_unknown_stall", "bench_stalled", "lost_messages")),
+)  # fmt: skip
 
 pytestmark = [pytest.mark.vcan, pytest.mark.realtime, pytest.mark.timeout(900)]
 
 
 def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
-    # The emulated guest stalls a process for longer than a real drive's 0.5 s heartbeat
-    # timeout now and then; a fault there would only re-arm the drives, so relax it.
-    scenario = str(tmp_path / "tracking_slow_host.toml")
-    text = bundled_path("paper_tracking").read_text()
-    Path(scenario).write_text(text + "\n[can]\nheartbeat_timeout = 5.0\n")
-    s = hil_run(
-        tmp_path / "run",
-        scenario,
-        "--rate",
-        "50",
-        "--duration",
-        "10",
-        "--cmd-path",
-        "can",
-        "--can-interface",
-        "socketcan",
-        "--can-channel",
-        "vcan0",
-        timeout=800,
-        # At 50 Hz, with the guest's delays, the sampled-data bound on omega exceeds phi2: the
-        # run may break |omega| <= phi2 (exit 1); it must stay within the bound below.
-        ok_codes=(0, 1),
-    )
+    # A clean 50 Hz loop (CLEAN_50HZ: D* = 498 ms). The emulated guest stalls a process for
+    # longer than a real drive's 0.5 s heartbeat timeout now and then; a fault there would only
+    # re-arm the drives, so relax it.
+    scenario = str(clean_scenario(tmp_path, "\n[can]\nheartbeat_timeout = 5.0\n"))
+    args = ["--duration", "10", "--cmd-path", "can", "--can-interface", "socketcan"]
+    s = hil_run(tmp_path / "run", scenario, *args, "--can-channel", "vcan0", timeout=800,
+                expect=GUEST)  # fmt: skip
     can = s["messages"]["torque_can"]
     # Torques reached the plant as frames on vcan0 and every one was applied. How many the
     # controller sends depends on the guest's speed, not on the code under test: in the
@@ -56,16 +47,10 @@ def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
     assert can["frames_received"] == can["frames_sent"] and can["value_mismatches"] == 0, can
     # Every received command was applied, or came after the plant's last sample (a guest stall
     # longer than 2 Ts between send and receive at the window's end; CI saw one): none refused,
-    # none dropped unexplained, and the latency figure covers every one applied.
+    # none dropped unexplained. The latency figure counts the changes of the command in force
+    # (every wheel's frame of it landed, newest wins): at most one per command applied.
     assert can["refused_by_drive"] == 0 and can["unaccounted"] == 0, can
     assert can["applied"] + can["arrived_after_plant_stopped"] == can["received"], can
-    assert s["timing"]["sample_to_apply_can"]["count"] >= can["applied"]
+    assert 0 < s["timing"]["sample_to_apply_can"]["count"] <= can["applied"], can
     check_certified_bound(s, scenario)
-    sc = load_scenario(scenario)
-    assert s["violations"]["tau1"] == 0 and s["violations"]["tau2"] == 0
-    if s["_exit_code"] == 1:
-        # Exit 1 here has one allowed reason: |v| or |omega| beyond phi at 50 Hz, within the
-        # bound at the measured D (checked above), which then must exceed phi itself.
-        assert s["certificate"]["v_bound"] > sc.limits.phi1 or (
-            s["certificate"]["omega_bound"] > sc.limits.phi2
-        ), s["certificate"]
+    assert s["violations"] == dict.fromkeys(("v", "omega", "tau1", "tau2"), 0), s["violations"]

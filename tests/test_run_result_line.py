@@ -11,46 +11,51 @@ from pathlib import Path
 
 import pytest
 
-from tests.verdict_codes import run_code
+from tests.run_helpers import PASSES, check_verdict, clean_scenario
 
 pytestmark = pytest.mark.realtime
 
 LINE = re.compile(r"result: (PASS|FAIL|INCONCLUSIVE): .*; (report|run folder): (\S+)$")
 
 
-def _run(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "hil", "run", "--duration", "1", "--quiet", *args],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
+def _run(tmp_path: Path, out: Path, *args: str) -> tuple[subprocess.CompletedProcess[str], dict]:
+    """A clean run (CLEAN_50HZ: its verdict is PASS, checked with its exit code)."""
+    scenario = clean_scenario(tmp_path)
+    proc = subprocess.run(
+        [sys.executable, "-m", "hil", "run", str(scenario), "--duration", "1", "--quiet",
+         "--out", str(out), *args],
+        cwd=tmp_path, capture_output=True, text=True, timeout=240,
+    )  # fmt: skip
+    assert (out / "summary.json").is_file(), proc.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    check_verdict(summary, PASSES, proc.returncode, out, context=proc.stderr[-3000:])
+    return proc, summary
 
 
 def test_hil_run_ends_with_one_line_naming_the_outcome_and_the_report(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    proc = _run(tmp_path, "--out", str(out))
-    assert proc.returncode == run_code(out), proc.stderr[-3000:]
+    proc, summary = _run(tmp_path, out)
     lines = proc.stdout.strip().splitlines()
     assert len(lines) == 1, proc.stdout  # no JSON blob without --json
     m = LINE.fullmatch(lines[0])
     assert m and m.group(2) == "report", lines[0]
     assert Path(m.group(3)) == out / "report.html" and (out / "report.html").is_file()
-    summary = json.loads((out / "summary.json").read_text())
-    assert m.group(1) == summary["verdict"]["outcome"]
-    if summary["certificate"].get("d_star_s"):
-        assert (" ms of D* " in lines[0]) != ("D* = " in lines[0])  # D against D*, said once
+    assert m.group(1) == summary["verdict"]["outcome"] == "PASS", lines[0]
+    d, ds = summary["certificate"]["d_max_s"], summary["certificate"]["d_star_s"]
+    assert f"D {d * 1e3:.2f} ms of D* {ds * 1e3:.2f} ms" in lines[0], lines[0]  # said once
+    assert "D* = " not in lines[0], lines[0]
 
 
 def test_hil_run_json_gives_the_brief_on_stdout_and_the_line_on_stderr(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    proc = _run(tmp_path, "--out", str(out), "--json", "--no-report")
-    assert proc.returncode == run_code(out), proc.stderr[-3000:]
+    proc, summary = _run(tmp_path, out, "--json", "--no-report")
     brief = json.loads(proc.stdout)
-    assert Path(brief["run_dir"]) == out and brief["verdict"] in ("PASS", "FAIL", "INCONCLUSIVE")
+    assert Path(brief["run_dir"]) == out
+    assert brief["verdict"] == summary["verdict"]["outcome"] == "PASS", brief
+    assert brief["reasons"] == summary["verdict"]["reasons"] == [], brief
     m = LINE.fullmatch(proc.stderr.strip().splitlines()[0])
-    assert m and m.group(2) == "run folder" and Path(m.group(3)) == out, proc.stderr
+    assert m and m.group(1) == "PASS" and m.group(2) == "run folder", proc.stderr
+    assert Path(m.group(3)) == out, proc.stderr
 
 
 def test_the_line_quotes_a_long_reason_up_to_its_details_and_d_once() -> None:

@@ -21,8 +21,7 @@ from protocol import keys, zenoh_acl
 from protocol.hoplog import read_hoplog
 from runtime import credentials as cr
 from tests.procs import Lines, spawned, wait_until
-from tests.run_helpers import alive, assert_negative_verdict_explained
-from tests.verdict_codes import run_code
+from tests.run_helpers import PASSES, alive, check_clean_run, check_verdict, clean_scenario
 
 pytestmark = pytest.mark.realtime
 
@@ -34,9 +33,12 @@ NO_ENV = dict.fromkeys(cr.ENV_VARS, "")
 
 
 def _start(spawner, out: Path, tmp: Path, *args: str) -> subprocess.Popen:
+    """``hil run --secure`` of a clean run (CLEAN_50HZ: its verdict is PASS)."""
     tmp.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, **NO_ENV, "TMPDIR": str(tmp)}
-    argv = ["-m", "hil", "run", "--secure", *args, "--no-report", "--quiet", "--out", str(out)]
+    scenario = str(clean_scenario(tmp))
+    argv = ["-m", "hil", "run", scenario, "--secure", *args, "--no-report", "--quiet", "--out",
+            str(out)]  # fmt: skip
     return spawner.python(argv, env=env, text=True)
 
 
@@ -99,11 +101,11 @@ def _finish(proc: subprocess.Popen, timeout: float = 240) -> tuple[int, str]:
 
 @pytest.fixture(scope="module")
 def baseline(tmp_path_factory):
-    """``hil run --secure --duration 3 --rate 200 --no-report`` with nobody else around."""
+    """``hil run --secure --duration 3 --no-report`` of a clean run with nobody else around."""
     base = tmp_path_factory.mktemp("secure-baseline")
     out, tmp = base / "run", base / "tmp"
     with spawned() as sp:
-        proc = _start(sp, out, tmp, "--duration", "3", "--rate", "200")
+        proc = _start(sp, out, tmp, "--duration", "3")
         assert wait_until(lambda: _secrets(tmp) is not None or proc.poll() is not None, 120)
         folder = _secrets(tmp)
         assert folder is not None, proc.communicate(timeout=60)
@@ -118,19 +120,18 @@ def baseline(tmp_path_factory):
 
 
 def test_secure_run_closes_the_loop(baseline) -> None:
-    assert baseline["code"] == run_code(baseline["out"]), baseline["err"][-3000:]
     s = json.loads((baseline["out"] / "summary.json").read_text())
-    if baseline["code"] == 1:  # a loaded host: only the certificate, with its reason
-        assert_negative_verdict_explained(s, baseline["err"])
+    check_verdict(s, PASSES, baseline["code"], baseline["out"], context=baseline["err"][-3000:])
+    # Within a clean run's bounds, through the secure run's router too.
+    check_clean_run(s, "zenoh", baseline["out"])
     assert s["secure"] is True and not s["error"]
     assert all(n == 0 for n in s["violations"].values()), s["violations"]
     for stream in ("state", "torque_zenoh"):
         m = s["messages"][stream]
         assert m["received"] > 0.9 * m["sent"] > 0, (stream, m)
-    # The certificate is the applied path's; held unless the host stalled the loop past D*
-    # (then exit 1 with that reason, checked above).
+    # The certificate is the applied path's, held (the verdict is PASS).
     assert s["certificate"]["path"] == "zenoh", s["certificate"]
-    assert s["certificate"]["held"] == (baseline["code"] == 0), s["certificate"]
+    assert s["certificate"]["held"] is True, s["certificate"]
     assert s["exit_codes"] == {"plant": 0, "controller": 0, "router": 0}
     settings = json.loads((baseline["out"] / "run_settings.json").read_text())
     assert settings["zenoh_mode"] == "router"
@@ -177,7 +178,7 @@ def _report(proc: subprocess.Popen, lines: Lines) -> dict:
 def test_intruders_reach_nothing_and_forged_robot_ids_are_counted(baseline, tmp_path) -> None:
     out, tmp = tmp_path / "run", tmp_path / "tmp"
     with spawned() as sp:
-        run = _start(sp, out, tmp, "--duration", "8", "--rate", "200")
+        run = _start(sp, out, tmp, "--duration", "8")
         assert wait_until(lambda: _secrets(tmp) is not None or run.poll() is not None, 120)
         folder = _secrets(tmp)
         assert folder is not None, run.communicate(timeout=60)
@@ -222,18 +223,17 @@ def test_intruders_reach_nothing_and_forged_robot_ids_are_counted(baseline, tmp_
     # The authenticated ones without the right to publish torque flooded for 2 s at 1 kHz.
     for name in ("monitor", "emulator"):
         assert reports[name]["opened"] and reports[name]["published"] >= 1000, reports[name]
-    assert reports["monitor"]["states_received"] > 100, "the monitor may read hil/**"
+    # 2 s of the run's 50 States a second: the monitor may read hil/**.
+    assert reports["monitor"]["states_received"] > 50, "the monitor may read hil/**"
     for name in ("torque", "state"):
         assert reports[name]["opened"] and reports[name]["published"] == FORGED_COUNT
 
-    # The verdict is the one of the undisturbed secure run: the limits held, no error. Six
-    # flooding processes on two cores may still stall the loop past D* (exit 1), and then only
-    # with that reason, checked against the summary.
+    # The verdict is the one of the undisturbed secure run: PASS. Six flooding processes on
+    # two cores run below the services' real-time policy; the router they flood is on the
+    # loop's path, and a 50 Hz loop leaves it 10 ms a hop (tests/run_helpers.py HOST_US).
     s = json.loads((out / "summary.json").read_text())
     b = json.loads((baseline["out"] / "summary.json").read_text())
-    assert code == run_code(out), err[-3000:]
-    if code == 1:
-        assert_negative_verdict_explained(s, err)
+    check_verdict(s, PASSES, code, out, context=err[-3000:])
     assert s["violations"] == b["violations"] == dict.fromkeys(("v", "omega", "tau1", "tau2"), 0)
     assert not s["error"]
 

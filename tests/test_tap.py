@@ -248,11 +248,12 @@ def test_a_run_records_what_each_service_sent_and_refused_through_its_tap(tmp_pa
     each logged at its sender's own send stamp (the taps', not a receipt), and each refused
     payload as the controller refused it; no batch lost."""
     from hil.recording import read_messages
-    from tests.run_helpers import load_log
+    from tests.run_helpers import PASSES, check_clean_run, check_verdict, clean_scenario, load_log
 
     out = tmp_path / "run"
-    argv = [sys.executable, "-m", "hil", "run", "--duration", "2", "--rate", "200", "--no-can",
-            "--quiet", "--no-report", "--out", str(out)]  # fmt: skip
+    # A clean run (CLEAN_50HZ): the stranger's puts are refused, its verdict stays PASS.
+    argv = [sys.executable, "-m", "hil", "run", str(clean_scenario(tmp_path)), "--duration", "3",
+            "--no-can", "--quiet", "--no-report", "--out", str(out)]  # fmt: skip
     run = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     stranger = None
     try:
@@ -270,7 +271,7 @@ def test_a_run_records_what_each_service_sent_and_refused_through_its_tap(tmp_pa
 
         t = threading.Thread(target=pester, daemon=True)
         t.start()
-        assert run.wait(timeout=180) in (0, 1), run.stderr.read()[-3000:]
+        code = run.wait(timeout=180)
         stop.set()
         t.join()
     finally:
@@ -279,6 +280,8 @@ def test_a_run_records_what_each_service_sent_and_refused_through_its_tap(tmp_pa
         if stranger is not None:
             stranger.close()
     summary = json.loads((out / "summary.json").read_text())
+    check_verdict(summary, PASSES, code, out, context=run.stderr.read()[-3000:].decode())
+    check_clean_run(summary, "zenoh", out)  # the stranger's puts cost the loop nothing
     assert summary["recorder"]["tap_batches_lost"] == 0
     assert summary["recorder"]["tap_batches_refused"] == {}
     rec = out / "recording.mcap"

@@ -31,7 +31,7 @@ from hil.scenario import ImpairConfig
 from protocol.can.codec import Heartbeat, SetInputTorque, frame_id
 from protocol.can.codec import encode as can_encode
 from protocol.can.drive_link import to_message
-from tests.verdict_codes import run_code
+from tests.run_helpers import Expect, check_verdict, fails
 
 ROOT = Path(__file__).resolve().parents[1]
 EVERY = 49  # odd: the two drives' frames alternate on the wire, so both lose frames
@@ -148,13 +148,21 @@ def test_an_impaired_run_without_nft_exits_2_with_one_line(tmp_path: Path) -> No
 # --- real runs ------------------------------------------------------------------------------
 
 
-def _hil_run(spawn, args: list[str]) -> tuple[int, dict, str]:
-    """``python -m hil ARGS`` (stopped by PID whatever happens); exit code, summary, stderr."""
+#: At 500 Hz a loaded host may add these to what the loss causes (tests/run_helpers.py
+#: LOADED_HOST), each explained by the run's own logs; nothing else.
+LOAD = ("deadline_misses", "bench_stalled")
+
+
+def _hil_run(spawn, args: list[str], expect: Expect) -> tuple[int, dict, str]:
+    """``python -m hil ARGS`` (stopped by PID whatever happens); exit code, summary, stderr.
+    Its verdict is ``expect``, with that verdict's exit code."""
     proc = spawn.python(["-m", "hil", *args], cwd=ROOT, text=True)
     _, err = proc.communicate(timeout=240)
     out = Path(args[args.index("--out") + 1])
-    assert proc.returncode == run_code(out), (proc.returncode, err[-3000:])
-    return proc.returncode, json.loads((out / "summary.json").read_text()), err
+    assert (out / "summary.json").is_file(), (proc.returncode, err[-3000:])
+    summary = json.loads((out / "summary.json").read_text())
+    check_verdict(summary, expect, proc.returncode, out, context=err[-3000:])
+    return proc.returncode, summary, err
 
 
 @pytest.mark.realtime
@@ -163,7 +171,10 @@ def test_a_torque_frame_dropped_on_the_wire_is_one_lost_frame(spawn, tmp_path: P
     scenario = tmp_path / "s.toml"
     scenario.write_text(scenario_text(EVERY, torque_only=True))
     out = tmp_path / "run"
-    code, s, err = _hil_run(spawn, hil_run_args(scenario, out, duration=5.0, rate=500.0))
+    # Every 49th torque frame dropped: its command lost (2 % of the messages) and its sample
+    # without a command; D stays a few periods (a lost command widens the gap by one).
+    expect = fails("lost_messages", "samples_without_command", also=LOAD)
+    code, s, err = _hil_run(spawn, hil_run_args(scenario, out, duration=5.0, rate=500.0), expect)
     can_, kernel = s["messages"]["torque_can"], s["impair"]
     exp = expected_losses(out, EVERY)
     hop = s["timing"]["hop_cmd_can"]
@@ -198,7 +209,10 @@ def test_tcp_loss_under_zenoh_shows_as_stalls_with_a_cause(spawn, tmp_path: Path
     )
     out = tmp_path / "run"
     args = ["run", str(scenario), "--duration", "5", "--rate", "500", "--quiet", "--no-report"]
-    code, s, err = _hil_run(spawn, [*args, "--out", str(out)])
+    # TCP resends what was dropped, late: D > D* by the transport (the system's), and the
+    # States and commands that come in a burst after a resend leave samples without a command.
+    expect = fails("certificate_system", "samples_without_command", also=LOAD)
+    code, s, err = _hil_run(spawn, [*args, "--out", str(out)], expect)
     kernel, cert = s["impair"], s["certificate"]
     stalls = cert["stalls"]
     verdict = [line for line in err.splitlines() if line.startswith("verdict:")]
@@ -218,6 +232,6 @@ def test_tcp_loss_under_zenoh_shows_as_stalls_with_a_cause(spawn, tmp_path: Path
     decisive = [st for st in stalls if st["age_s"] > cert["d_star_s"]]
     assert decisive and all(st["cause"] != "unknown" for st in decisive), decisive
     assert stalls[0]["cause"] in TRANSPORT_CAUSES, stalls[0]
-    assert code == 1 and verdict, err[-2000:]
+    assert verdict, err[-2000:]
     assert "worst:" in verdict[-1] and stalls[0]["cause"] in verdict[-1], verdict
     assert s["verdict"]["outcome"] == "FAIL" and stalls[0]["owner"] == "system", s["verdict"]
