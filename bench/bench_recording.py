@@ -19,7 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hil.recording import RecordingWriter, read_messages
+from hil.folder.recording import RecordingWriter, read_messages
 
 
 def rerecord(messages: list, interval: float, out: Path) -> tuple[int, float]:

@@ -2,8 +2,8 @@
 
 The folder is simulated once (``hil.sim``, the paper's circle at Ts = 1 ms) or, with
 ``--synthetic``, written by ``tests.synthetic_folder`` as a run folder with both services' hop
-logs (both paths live) measured by hil.measure. Times ``hil report`` (load, metrics, the run's
-measurement, 9-14 figures, report.html/md/json) without the ideal trajectory, median of
+logs (both paths live) measured by hil.analysis.measure. Times ``hil report`` (load, metrics, the
+run's measurement, 9-14 figures, report.html/md/json) without the ideal trajectory, median of
 repeats, and once with it (a second simulation at Ts/10 dominates that figure).
 
     python bench/bench_report.py              # simulated folder, 3 repeats, plus --ideal once
@@ -29,9 +29,9 @@ from pathlib import Path
 
 import _here  # noqa: F401  (this checkout first on sys.path)
 
+from hil.analysis.report.build import build_report, write_report
+from hil.analysis.report.ideal import ideal_from_simulator
 from hil.folder import load_folder
-from hil.report.build import build_report, write_report
-from hil.report.ideal import ideal_from_simulator
 from tests.scenario_text import circle
 from tests.synthetic_folder import write_synthetic_folder
 

@@ -15,7 +15,7 @@ slots and rate of misses as the worst repeat's (one stalled repeat of three show
 - deadline-miss rate, periodic mode only (target < 0.1 % at 1 kHz; n/a in on_state, which has
   no tick to miss) and the highest rate meeting it, beside the
   share of samples that got no command and of commands applied more than a period late
-  (hil.measure's true counts: a miss skips slots, a late state skips a sample);
+  (hil.analysis.measure's true counts: a miss skips slots, a late state skips a sample);
 - the applied path's command age p50 and max (D) beside D*, the certificate's limit.
 
     python bench/bench_rt_loop.py            # 30 s per run, 3 repeats
@@ -205,7 +205,7 @@ def paced_pingpong(rate: float, n: int) -> dict[str, Any]:
     import socket
     import time
 
-    from hil.measure.stats import summarize_ns
+    from hil.analysis.measure.stats import summarize_ns
     from protocol.zenoh_config import COMMAND_QOS
     from runtime.realtime import wait_until_ns
     from runtime.zsession import open_session, publisher

@@ -22,7 +22,7 @@ from typing import Any
 
 import _here  # noqa: F401  (this checkout first on sys.path)
 
-from hil.run.defaults import PAPER_TRACKING_TOML
+from hil.bench.defaults import PAPER_TRACKING_TOML
 from hil.scenario import loads_scenario
 from hil.sweep.chunks import chunks_of, run_chunked
 from hil.sweep.executors import DaskCluster, InProcess, ProcessPool

@@ -2,7 +2,7 @@
 
 At a fixed Ts the command delay is bisected for the smallest delay at which some loop breaks a
 limit of (2), once under the scenario's random disturbance (uniform in [-s, s], held 0.1 s, one
-seed per loop) and once under the worst disturbance searched by :mod:`hil.adversary` (the same
+seed per loop) and once under the worst disturbance searched by :mod:`hil.sim.adversary` (the same
 number of loops, the same initial states), and both are compared with the certificate's D*.
 
 Set-ups (``--setup``): ``paper`` is Section 4 of the paper (Table 1 gains, its circle, its start,
@@ -24,10 +24,10 @@ import time
 import _here  # noqa: F401  (this checkout first on sys.path)
 
 from controller_service.certificate import critical_age
-from hil.adversary import scenario_schedule, worst_disturbance
-from hil.adversary.loop import initial_states
 from hil.scenario import build_loop, loads_scenario
 from hil.sim import RobotVariation, simulate_batch
+from hil.sim.adversary import scenario_schedule, worst_disturbance
+from hil.sim.adversary.loop import initial_states
 from plant_emulator.dynamics import VIOLATION_RTOL
 from tests.scenario_text import NEAR, circle
 

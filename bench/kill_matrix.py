@@ -323,7 +323,7 @@ def _stall_matches(cert: dict[str, Any], epoch: int, kill_ns: int, back_ns: int,
     within STALL_TIME_TOL_S of ``back_ns``; in size, its largest command age is the outage's
     within STALL_SIZE_TOL (the age also counts the last command's sample-to-landing time before
     the kill, a few ms). A stall's ``t_s`` is when the age crossed ``stall_threshold_s``, so
-    the excursion started that much earlier (hil.measure's find_stalls)."""
+    the excursion started that much earlier (hil.analysis.measure's find_stalls)."""
     stalls = cert.get("stalls") or []
     threshold = cert.get("stall_threshold_s")
     if not stalls or threshold is None:
@@ -402,7 +402,7 @@ def router_restart(tmp: Path, seed: int) -> Trial:
         if kill_ns is None:
             return t
         settings = json.loads((tmp / "run" / "run_settings.json").read_text())
-        back = run.start([sys.executable, "-m", "hil.run.router", settings["zenoh_endpoint"]],
+        back = run.start([sys.executable, "-m", "hil.bench.router", settings["zenoh_endpoint"]],
                          "router-restarted.log")  # fmt: skip
         wait_until(lambda: b"router up" in (tmp / "run" / "router-restarted.log").read_bytes(), 30)
         up = time.monotonic_ns()
@@ -426,7 +426,7 @@ def _epoch_ns(out: Path) -> int | None:
 def _states_missing(out: Path, kill_ns: int) -> tuple[int, int]:
     """(States the plant sent before the kill that the recording does not hold, States in the
     recording restored from the plant's hop log)."""
-    from hil.recording import read_messages
+    from hil.folder.recording import read_messages
     from protocol.hoplog import SAMPLE_DROPPED
 
     plant = read_hoplog(out / "plant.hoplog")
@@ -446,8 +446,8 @@ def _report_recovers(out: Path, t: Trial) -> bool:
     """``hil report`` on the killed folder: exit 0 or 1, a complete MCAP with the hop logs
     attached, summary.json marked recovered (unless the kill came after hil run had written
     the folder whole: nothing to recover), report.html written."""
-    from hil.recording import is_complete, read_attachments
-    from hil.run.recover import needs_recovery
+    from hil.bench.repair import needs_recovery
+    from hil.folder.recording import is_complete, read_attachments
 
     t.detail["needed_recovery"] = needs_recovery(out)
 

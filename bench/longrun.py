@@ -131,16 +131,17 @@ def growth_verdict(memory: dict[str, dict[str, Any]], names: tuple[str, ...]) ->
 
 def per_minute(run_dir: Path) -> list[dict[str, Any]]:
     """Wake-up lateness and applied-path command age, p99 and max (µs), per minute of the run,
-    from one :func:`hil.measure.measure` of the whole run (:func:`hil.measure.windows.per_window`:
+    from one :func:`hil.analysis.measure.measure` of the whole run
+    (:func:`hil.analysis.measure.windows.per_window`:
     a stall across a minute's edge counts whole in the minute where it ended, never clipped)."""
-    from hil.measure import load_folder_logs, measure
-    from hil.measure.windows import MINUTE_NS, per_window
+    from hil.analysis.measure import load_folder_logs, measure
+    from hil.analysis.measure.windows import MINUTE_NS, per_window
 
     logs = load_folder_logs(run_dir)
     if logs is None:
         return []
     m = measure(logs)
-    # the plant's step, with hil.measure's own fallback (a tenth of the control period)
+    # the plant's step, with hil.analysis.measure's own fallback (a tenth of the control period)
     step = int(
         logs.pmeta.get("plant_step_ns")
         or max(1, int(logs.pmeta.get("control_period_ns") or 1_000_000) // 10)

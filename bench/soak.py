@@ -6,9 +6,9 @@ Prints, as JSON and a short table: each process's resident memory after warm-up 
 (target: growth under 5 MB for each: the plant, the controller, and hil run over its
 recording phase, which ends when the services exit; its analysis afterwards is a peak),
 wake-up lateness and command-age p99 and max per minute (first against last; from one
-hil.measure of the whole run, a stall counted whole in the minute where it ended:
-hil.measure.windows), messages lost per stream (none unless injected), and the run's largest
-stall with its cause. A process whose memory growth could not be measured (too few readings)
+hil.analysis.measure of the whole run, a stall counted whole in the minute where it ended:
+hil.analysis.measure.windows), messages lost per stream (none unless injected), and the run's
+largest stall with its cause. A process whose memory growth could not be measured (too few readings)
 fails the target, named on stderr.
 """
 

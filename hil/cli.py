@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
 def _dispatch(argv: list[str] | None) -> int:
     """The command's exit code. After an interrupt any outcome means 130 (see :func:`main`),
     so nothing is printed for it here."""
-    from hil.live.launch import expand_live_flag
+    from hil.bench.live.launch import expand_live_flag
 
     argv = expand_live_flag(sys.argv[1:] if argv is None else argv)  # --live [PORT]
     try:

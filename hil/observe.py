@@ -15,7 +15,7 @@ from __future__ import annotations
 import heapq
 from typing import Any, NamedTuple
 
-from hil.recording import to_jsonable
+from hil.folder.recording import to_jsonable
 from protocol.can.codec import decode as can_decode
 from protocol.can.drive_link import from_message
 from protocol.keys import is_tap_key

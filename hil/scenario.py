@@ -180,7 +180,7 @@ RATE_BPS_MIN, RATE_BPS_MAX = 1000.0, 1e11  # bit/s, [impair] rate_bps (0 = no li
 class ImpairConfig:
     """[impair]: packets of the run's own links dropped (``loss`` at random or every
     ``loss_every``-th) and the loopback rate-limited, by the kernel in the run's private network
-    namespace (:mod:`hil.run.impair`); only ``hil run`` reads it."""
+    namespace (:mod:`hil.bench.impair`); only ``hil run`` reads it."""
 
     loss: float = 0.0
     loss_every: int = 0

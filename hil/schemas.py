@@ -1,5 +1,5 @@
-"""JSON Schemas of everything ``hil`` records (:mod:`hil.recording`) or serves live
-(:mod:`hil.live`), derived from the definitions.
+"""JSON Schemas of everything ``hil`` records (:mod:`hil.folder.recording`) or serves live
+(:mod:`hil.bench.live`), derived from the definitions.
 
 A protocol message's schema comes from ``protocol.messages.SPECS`` (field order, kind and range),
 a CAN frame's from the CANSimple dataclasses of ``protocol.can.codec``, so a field added to the
@@ -80,7 +80,7 @@ def _object(title: str, props: dict[str, Any], doc: str | None = None) -> dict[s
 MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {cls.__name__: message_schema(cls) for cls in pm.SPECS}
 
 # A float signal decoded from the wire may be NaN or infinite: the recorder writes those as
-# the strings hil.recording.to_jsonable gives (JSON has no NaN).
+# the strings hil.folder.recording.to_jsonable gives (JSON has no NaN).
 _NON_FINITE = [repr(math.nan), repr(math.inf), repr(-math.inf)]
 _CAN_TYPES: dict[str, dict[str, Any]] = {
     "int": {"type": "integer"},

@@ -36,9 +36,9 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from controller_service.laws.guard import LawFault
+from hil.analysis.trace_metrics import LIMIT_REL_TOL, ConstraintFigure
 from hil.folder import layout
 from hil.folder.records import ControllerExit, Summary
-from hil.trace_metrics import LIMIT_REL_TOL, ConstraintFigure
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
 #: The exit code of each outcome, for every command that has a verdict (docs/reports.md).
@@ -295,7 +295,7 @@ def run_outcome(summary: Summary) -> str:
 @dataclass(frozen=True)
 class Evidence:
     """What a verdict is judged from, as far as it is known: what the live view has while the
-    run goes (hil.live.timing), the same figures the final verdict reads from summary.json.
+    run goes (hil.bench.live.timing), the same figures the final verdict reads from summary.json.
     Each figure not known is None: absent from the verdict, never 0."""
 
     #: max |x| of each signal of (2) seen ("v", "omega", "tau1", "tau2"), and the limits

@@ -1,4 +1,4 @@
-"""Helpers for the tests that build a lab (hil.lab): why they cannot run here, the ``hil``
+"""Helpers for the tests that build a lab (hil.bench.lab): why they cannot run here, the ``hil``
 command, a lab built and always taken down."""
 
 from __future__ import annotations

@@ -2,11 +2,11 @@
 services' format (protocol.hoplog) and every figure of docs/realtime.md ("Timing figures")
 evaluated here from its written definition, with numpy alone.
 
-Nothing here imports hil.measure: a calibration test compares summary.json (hil.measure's one
-result) with what this module finds in the raw stamps, and the injected quantity with what the
-raw stamps show where it was injected. Only what the calibration runs need is covered: the
-Zenoh path, and CAN frames on a bus that names them (zenoh_can: each arrival carries the name
-its send logged as ``bus_end_ns``, so the matching is a join, not an inference).
+Nothing here imports hil.analysis.measure: a calibration test compares summary.json
+(hil.analysis.measure's one result) with what this module finds in the raw stamps, and the injected
+quantity with what the raw stamps show where it was injected. Only what the calibration runs need is
+covered: the Zenoh path, and CAN frames on a bus that names them (zenoh_can: each arrival carries
+the name its send logged as ``bus_end_ns``, so the matching is a join, not an inference).
 """
 
 from __future__ import annotations

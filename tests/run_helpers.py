@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.measure.host import host_figures
+from hil.analysis.measure.host import host_figures
 from hil.verdict import EXIT_CODE
 from protocol.hoplog import (
     TICK_DROPPED,

@@ -9,8 +9,8 @@ A synthetic *run* folder is a run in every way the report can see: the two servi
 (``controller.hoplog``, ``plant.hoplog``, :mod:`protocol.hoplog`) with a periodic controller,
 the Zenoh path applied and the CAN path as a live shadow (slower than Zenoh, so that a figure
 taken from the wrong path shows), and a summary.json whose ``timing``, ``messages`` and
-``certificate`` come from :func:`hil.measure.folder.measure_folder`, as ``hil run`` writes them.
-``stall = (t_s, length_s)`` loses every Zenoh command sampled in that window on the wire (the
+``certificate`` come from :func:`hil.analysis.measure.folder.measure_folder`, as ``hil run`` writes
+them. ``stall = (t_s, length_s)`` loses every Zenoh command sampled in that window on the wire (the
 controller sent it, the plant never received it): a command-age stall with cause
 ``command_lost``.
 """
@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.report.figures import write_columns
+from hil.analysis.report.figures import write_columns
 from protocol.versions import RUN_SCHEMA_VERSION, SIM_SCHEMA_VERSION
 
 EPOCH_NS = 1_000_000_000_000
@@ -291,9 +291,9 @@ def _write_hop_logs(
 
 
 def _measured_summary(out: Path, cols: dict[str, np.ndarray]) -> dict[str, Any]:
-    """What ``hil run`` adds to a run's summary.json: hil.measure's timing, messages and
+    """What ``hil run`` adds to a run's summary.json: hil.analysis.measure's timing, messages and
     certificate (JSON-clean), the applied path, CAN states and rejection counts."""
-    from hil.measure.folder import measure_folder
+    from hil.analysis.measure.folder import measure_folder
 
     m = measure_folder(out)
     assert m is not None

@@ -1,5 +1,5 @@
 """A run's two hop logs written from a script: a loop whose every stamp is known, with stalls,
-losses and re-arms injected where a test wants them (known answers for hil.measure)."""
+losses and re-arms injected where a test wants them (known answers for hil.analysis.measure)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from protocol.hoplog import (
 )
 
 # Rows are written as positional tuples, as the services wrote them before the row types of
-# protocol.hoplog (the same bytes on disk): hil.measure must keep reading such logs.
+# protocol.hoplog (the same bytes on disk): hil.analysis.measure must keep reading such logs.
 ZENOH, CAN, ACCEPTED = CmdPath.ZENOH, CmdPath.CAN, RxVerdict.ACCEPTED
 
 MS = 1_000_000

@@ -1,4 +1,4 @@
-"""The worst-disturbance search (hil.adversary): its loop is the simulator's loop, each mode is
+"""The worst-disturbance search (hil.sim.adversary): its loop is the simulator's loop, each mode is
 the bang-bang it names, and, over more than 10,000 adversarial loops, nothing breaks (2) below
 the certificate's D* while the same search does break it above (the soundness check of the
 sampled-data bound, docs/sampled_data_bound.md)."""
@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from controller_service.certificate import certify, critical_age
-from hil.adversary import MODES, Schedule, run_loops, scenario_schedule, worst_disturbance
-from hil.adversary.loop import LOST, initial_states
 from hil.cli import main
 from hil.scenario import build_loop, loads_scenario
 from hil.sim import RobotVariation, simulate_batch
+from hil.sim.adversary import MODES, Schedule, run_loops, scenario_schedule, worst_disturbance
+from hil.sim.adversary.loop import LOST, initial_states
 from plant_emulator.dynamics import PlantState
 from tests.scenario_text import NEAR, circle
 

@@ -7,7 +7,7 @@ Zenoh threads can), a constant ``[timing] delay``, a law that busy-waits on ever
 ``[faults]`` drops, a CAN re-arm. Every action is stamped just before and just after it
 (CLOCK_MONOTONIC, the services' clock).
 
-Each test reads the truth without hil.measure: the services' hop logs parsed by
+Each test reads the truth without hil.analysis.measure: the services' hop logs parsed by
 tests/raw_hoplogs.py (the figures evaluated from their written definitions) and the outside
 stamps of the injection. Two sides for each figure:
 
@@ -1100,7 +1100,7 @@ def _every_frame_carries_its_commands_torque(raw: RawRun, scenario: Path) -> Non
 
 
 def test_replay_from_the_recording_equals_replay_from_the_folder(tmp_path):
-    from hil.sim.replay import latencies_from_run
+    from hil.folder.replay import latencies_from_run
 
     out = tmp_path / "run"
     proc = subprocess.run(

@@ -17,7 +17,7 @@ import can
 import pytest
 from odrive_can import ODriveCAN
 
-from hil.run.defaults import PAPER_TRACKING_TOML
+from hil.bench.defaults import PAPER_TRACKING_TOML
 from protocol import keys
 from protocol.can import codec
 from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, wheel_rates

@@ -20,7 +20,7 @@ import can
 import cantools
 import pytest
 
-from hil.run.defaults import PAPER_TRACKING_TOML
+from hil.bench.defaults import PAPER_TRACKING_TOML
 from plant_emulator.odrive import CATCH_UP
 from protocol.can import codec
 from tests.procs import Lines, free_tcp_port, wait_until

@@ -11,9 +11,9 @@ from pathlib import Path
 import can
 import pytest
 
-from hil.run.defaults import PAPER_TRACKING_TOML
-from hil.run.drives import DrivesOptions, drives_settings
-from hil.run.settings import scenario_settings
+from hil.bench.defaults import PAPER_TRACKING_TOML
+from hil.bench.drives import DrivesOptions, drives_settings
+from hil.bench.settings import scenario_settings
 from hil.scenario import loads_scenario
 from plant_emulator.can_drives import EchoFilter
 from plant_emulator.drive_plant import (

@@ -108,8 +108,8 @@ def test_no_ticket_numbers_in_docs_code_or_output() -> None:
 
 def test_robot_id_is_an_integer_in_scenarios_and_robot_n_on_the_wire() -> None:
     """docs/scenario.md and docs/protocol.md tell one story, the code's."""
+    from hil.bench.settings import robot_id_of
     from hil.errors import BadInputError
-    from hil.run.settings import robot_id_of
     from hil.scenario import loads_scenario
 
     base = '[reference]\nkind = "circle"\n[initial]\n[zenoh]\n'

@@ -5,9 +5,9 @@ On c20de4f ``hil report`` exited 1 for INCONCLUSIVE, ``hil run`` 0 for INCONCLUS
 FAIL from missed slots or samples without a command (only "blocking" FAILs exited 1, and
 ``--strict`` made INCONCLUSIVE 1), and the report said "the bench stalled, not your system"
 under a FAIL. Folders are synthetic (tests/synthetic_folder.py: hop logs measured by
-hil.measure, as ``hil run`` writes them); an INCONCLUSIVE one is the command-loss stall whose
-summary names the stall the plant's (the report reads summary.json's certificate), so the
-verdict is known by construction whatever hil.measure.stalls decides.
+hil.analysis.measure, as ``hil run`` writes them); an INCONCLUSIVE one is the command-loss stall
+whose summary names the stall the plant's (the report reads summary.json's certificate), so the
+verdict is known by construction whatever hil.analysis.measure.stalls decides.
 """
 
 from __future__ import annotations
@@ -115,7 +115,7 @@ def test_hil_run_exits_with_its_verdicts_code_and_strict_changes_nothing(
 ):
     """``hil run`` end to end through the CLI, its run replaced by a summary of known verdict:
     FAIL from missed slots alone exits 1, INCONCLUSIVE 4, with or without --strict."""
-    import hil.run.orchestrate as orchestrate
+    import hil.bench.lifecycle as orchestrate
 
     monkeypatch.setattr(orchestrate, "execute", lambda opts: _summary(verdict_of))
     argv = ["run", "--no-report", "--quiet", "--out", str(tmp_path / "run")]
@@ -131,7 +131,7 @@ def test_hil_run_strict_says_it_changes_nothing():
 def test_the_fleets_verdict_is_its_robots_and_its_exit_code_follows(tmp_path):
     """hil fleet: FAIL when a robot FAILs (or left no verdict), else INCONCLUSIVE when one is,
     else PASS; the miss rate over the robots' slots, as each robot's (c20de4f: over ticks)."""
-    from hil.fleet import report
+    from hil.analysis import fleet_report as report
 
     def robot(name: str, outcome: str | None, misses: int = 0) -> None:
         folder = tmp_path / name
@@ -180,7 +180,7 @@ def test_the_sweeps_verdict_is_not_its_break_point():
 def test_a_run_stopped_by_its_own_error_says_fail_and_exits_1(monkeypatch, tmp_path, capsys):
     """The result line is the exit's outcome: a run whose services never became ready is a
     FAIL (exit 1), said first, whatever its figures' verdict."""
-    import hil.run.orchestrate as orchestrate
+    import hil.bench.lifecycle as orchestrate
 
     summary = _summary(PASS, error="services did not become ready")
     monkeypatch.setattr(orchestrate, "execute", lambda opts: summary)

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from hil.folder.rates import RATES
-from hil.recording import read_messages
+from hil.folder.recording import read_messages
 from hil.verdict import EXIT_CODE
 from tests.lab_helpers import ROOT, lab, lab_name, lab_skip_reason
 from tests.run_helpers import PASSES, check_verdict, clean_scenario, expected_exit

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from hil.recording import read_messages
-from hil.run.group import phase_ns
+from hil.bench.group import phase_ns
+from hil.folder.recording import read_messages
 from protocol.errors import BadInputError
 from protocol.hoplog import read_hoplog
 from protocol.settings import RunSettings

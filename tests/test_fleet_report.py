@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hil.fleet.report import fleet_outcome, fleet_summary
+from hil.analysis.fleet_report import fleet_outcome, fleet_summary
 from hil.folder.rates import RATES, pooled, ratio
 from hil.verdict import EXIT_CODE
 
 
 def _robot(out: Path, name: str, verdict: str | None = "PASS", **timing) -> None:
     """A robot's folder with a summary.json holding ``timing`` (and the rates of its counts,
-    as hil.measure writes them)."""
+    as hil.analysis.measure writes them)."""
     folder = out / name
     folder.mkdir(parents=True)
     if verdict is None:

@@ -1,5 +1,5 @@
 """Typed hop-log rows write the same bytes as the positional tuples logs were written with, and
-hil.measure reads both: logs written before the row types read unchanged."""
+hil.analysis.measure reads both: logs written before the row types read unchanged."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 import msgpack
 import numpy as np
 
-from hil.measure.logs import ALL_COLUMNS, RunLogs
+from hil.analysis.measure.logs import ALL_COLUMNS, RunLogs
 from protocol.hoplog import (
     CONTROLLER_TABLES,
     HOST_TABLES,
@@ -147,8 +147,8 @@ def test_typed_rows_write_the_bytes_of_positional_tuples(tmp_path):
 
 
 def test_measure_reads_typed_and_old_logs_alike(tmp_path):
-    """hil.measure reads every column of both logs to the same values, and the enums compare
-    with what it read."""
+    """hil.analysis.measure reads every column of both logs to the same values, and the enums
+    compare with what it read."""
     runs = {}
     for untyped in (False, True):
         p = _both(tmp_path, untyped)

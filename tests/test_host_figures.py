@@ -1,5 +1,5 @@
-"""Known answers for the host figures the stall table reads (hil.measure.host, written by
-hil.run.host_load's sampler): processes of known CPU share, measured by the real sampler.
+"""Known answers for the host figures the stall table reads (hil.analysis.measure.host, written by
+hil.bench.host_load's sampler): processes of known CPU share, measured by the real sampler.
 
 - A duty-cycle hog (bench/duty_hog.py) busy 20 ms of CPU time in every 40 ms reads as 50 % of one
   CPU (``*_cpu_pct``) within 10 points. It runs SCHED_FIFO at priority 1, above every time-shared
@@ -23,9 +23,9 @@ import pytest
 
 from bench.duty_hog import duty_hog
 from bench.kill_matrix import cpu_hog
-from hil.measure.host import host_figures
-from hil.measure.logs import RunLogs
-from hil.run.host_load import HostSampler
+from hil.analysis.measure.host import host_figures
+from hil.analysis.measure.logs import RunLogs
+from hil.bench.host_load import HostSampler
 
 pytestmark = [pytest.mark.realtime]
 

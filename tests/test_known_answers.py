@@ -25,8 +25,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hil.measure import load_folder_logs, measure
-from hil.measure.figures import BoundInputs, Measurement
+from hil.analysis.measure import load_folder_logs, measure
+from hil.analysis.measure.figures import BoundInputs, Measurement
 from tests.calibrates import calibrates
 from tests.synthetic_run import MS, US, Loop, write
 

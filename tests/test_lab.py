@@ -1,4 +1,4 @@
-"""The lab (hil.lab): hosts as network namespaces through a bridge, each with its own
+"""The lab (hil.bench.lab): hosts as network namespaces through a bridge, each with its own
 CLOCK_MONOTONIC offset and router; impaired links; everything it made removed, also after the
 command that built it was interrupted or killed, and nothing it did not make."""
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from hil.lab.state import ROOT as LAB_ROOT
+from hil.bench.lab.state import ROOT as LAB_ROOT
 from tests.lab_helpers import ROOT, hil, lab, lab_argv, lab_name, lab_skip_reason
 from tests.procs import wait_until
 

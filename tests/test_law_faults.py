@@ -26,8 +26,8 @@ import pytest
 
 from controller_service.laws.base import ControlOutput, ReferenceSample, RobotState
 from controller_service.laws.guard import LawFault, LawFaultError, checked_update
+from hil.bench.lifecycle import GONE_GRACE_S
 from hil.law.template import write_law
-from hil.run.orchestrate import GONE_GRACE_S
 from hil.scenario import loads_scenario
 from hil.sim import RobotVariation, simulate, simulate_batch
 from hil.verdict import BENCH_ADVICE, FAIL, LawEnd, judge, law_ended

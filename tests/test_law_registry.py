@@ -105,7 +105,7 @@ def test_user_controller_loads_by_import_path_and_runs():
 
 @pytest.mark.parametrize("law", BUILTIN_LAWS)
 def test_every_law_takes_its_initial_adaptive_states_explicitly(law):
-    # One call for every law (hil.sim and hil.run pass [initial] z1, z2 without asking the law).
+    # One call for every law (hil.sim and hil.bench pass [initial] z1, z2 without asking the law).
     table = {"law": law, **({"eps1": 0.1, "eps2": 0.1} if law == "unified_boundary" else {})}
     controller = build_controller(table, CONTEXT)
     one = controller.initial_memory(None, z1=0.2, z2=-0.1)

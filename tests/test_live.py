@@ -1,4 +1,4 @@
-"""The live view (hil.live) seen by a client nobody here wrote: the ``websockets`` package
+"""The live view (hil.bench.live) seen by a client nobody here wrote: the ``websockets`` package
 speaking the published Foxglove WebSocket protocol (``foxglove.websocket.v1``: serverInfo and
 advertise as JSON text, subscribe, binary message frames of opcode 1 = subscription id u32,
 log time u64 ns, payload; little endian). foxglove-sdk's server names the same protocol
@@ -22,8 +22,8 @@ import pytest
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
-from hil.live.launch import expand_live_flag
-from hil.live.timing import Bounds, LiveTiming
+from hil.bench.live.launch import expand_live_flag
+from hil.bench.live.timing import Bounds, LiveTiming
 from protocol.messages import State, TorqueCommand
 from tests.procs import free_tcp_port
 from tests.run_helpers import clean_scenario
@@ -314,7 +314,7 @@ def test_a_busy_live_port_is_refused_before_anything_starts(tmp_path):
 
 
 def test_binding_beyond_loopback_warns_that_it_exposes_the_run(capsys):
-    from hil.live.launch import check
+    from hil.bench.live.launch import check
 
     check(0, "127.0.0.1")
     assert capsys.readouterr().err == ""

@@ -2,9 +2,9 @@
 live view said INCONCLUSIVE for a run whose final verdict was FAIL).
 
 Each scripted run (tests/synthetic_run.py) is judged twice: finally, as ``hil run`` does
-(hil.measure on its hop logs, then hil.verdict.judge), and live, by replaying the same run's
-messages into hil.live.timing.LiveTiming in the order the view would receive them (every State
-the controller received, every command the plant received, each at that arrival). The two
+(hil.analysis.measure on its hop logs, then hil.verdict.judge), and live, by replaying the same
+run's messages into hil.bench.live.timing.LiveTiming in the order the view would receive them (every
+State the controller received, every command the plant received, each at that arrival). The two
 outcomes must be the same: a controller stall past D*, commands dropped below the plant's
 sample rate, and the clean loops at both rates.
 """
@@ -16,9 +16,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from hil.live.timing import Bounds, LiveTiming
-from hil.measure import load_folder_logs, measure
-from hil.measure.figures import BoundInputs
+from hil.analysis.measure import load_folder_logs, measure
+from hil.analysis.measure.figures import BoundInputs
+from hil.bench.live.timing import Bounds, LiveTiming
 from hil.verdict import FAIL, PASS, constraints_from_peaks, judge
 from protocol.hoplog import CmdPath, read_hoplog
 from protocol.messages import State, TorqueCommand

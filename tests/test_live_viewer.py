@@ -14,7 +14,7 @@ import jsonschema
 import pytest
 
 from hil import schemas
-from hil.live.timing import Bounds, LiveTiming
+from hil.bench.live.timing import Bounds, LiveTiming
 from protocol.hoplog import NO_STAMP
 from protocol.messages import FLAG_WATCHDOG_ZERO, State, TorqueCommand
 

@@ -1,5 +1,5 @@
 """Long runs in bounded memory, in short: a 20 s run at 1 kHz with both paths live, whose
-logs read in chunks (hil.measure, as ``hil run`` and ``hil report`` read them) give every
+logs read in chunks (hil.analysis.measure, as ``hil run`` and ``hil report`` read them) give every
 figure an independent in-memory reading gives; and the report of a 2 M-sample trace, which
 stays within a memory bound and draws each figure from its bins' extremes (a regression to
 per-sample plotting or per-sample Python objects breaks them). How long they take and how the
@@ -42,8 +42,9 @@ def _json(obj: Any) -> str:
 
 def _in_memory_logs(run_dir: Path) -> Any:
     """The run's hop logs read whole (protocol.hoplog.read_hoplog, every row a Python list)
-    and turned into the columns hil.measure joins, without hil.measure.logs' chunked reader."""
-    from hil.measure.logs import COLUMNS, LogHead, RunLogs
+    and turned into the columns hil.analysis.measure joins, without hil.analysis.measure.logs'
+    chunked reader."""
+    from hil.analysis.measure.logs import COLUMNS, LogHead, RunLogs
     from protocol.hoplog import CONTROLLER_TABLES, HOST_TABLES, PLANT_TABLES, read_hoplog
 
     logs = RunLogs(None, None)
@@ -82,8 +83,8 @@ def test_a_20s_run_keeps_service_memory_flat_and_its_chunked_analysis_is_exact(
     sys.path.insert(0, str(ROOT / "bench"))
     from longrun import run_sampled
 
-    from hil.measure import measure
-    from hil.measure.folder import bound_inputs, measure_folder, resolved_scenario
+    from hil.analysis.measure import measure
+    from hil.analysis.measure.folder import bound_inputs, measure_folder, resolved_scenario
 
     run_dir = tmp_path / "run"
     sampled = run_sampled(run_dir, 20.0, rate=1000.0)

@@ -93,7 +93,7 @@ def test_a_lazy_trace_reads_the_rarely_read_columns_only_when_asked(
 
 def test_figure_data_and_run_traces_are_written_as_one_csv_row_per_sample(tmp_path: Path) -> None:
     """The chunked writers give the same bytes as ``csv.writer`` with ``repr`` per cell."""
-    from hil.report import figures as fg
+    from hil.analysis.report import figures as fg
 
     cols = {
         "t": np.arange(150_001) * 1e-3,
@@ -114,8 +114,8 @@ def test_the_run_trace_is_the_row_by_row_trace(tmp_path: Path) -> None:
     """hil run's trace.csv, written column by column a chunk at a time, is byte for byte the
     one the row-by-row writer wrote (here against a copy of that writer)."""
     from controller_service.references import Circle
-    from hil.measure.logs import ALL_COLUMNS, load_folder_logs
-    from hil.run import results
+    from hil.analysis.measure.logs import ALL_COLUMNS, load_folder_logs
+    from hil.bench import results
     from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
     from protocol.hoplog import TICK_NO_SEND
     from tests.synthetic_folder import write_synthetic_folder
@@ -172,7 +172,7 @@ def test_the_run_trace_is_the_row_by_row_trace(tmp_path: Path) -> None:
 
 
 def test_envelopes_keep_every_bins_extremes_and_gaps() -> None:
-    from hil.report.figures import MAX_DRAWN_POINTS, cdf_indices, envelope_indices
+    from hil.analysis.report.figures import MAX_DRAWN_POINTS, cdf_indices, envelope_indices
 
     n = 1_000_003
     t = np.arange(n) * 1e-3
@@ -206,7 +206,7 @@ def test_envelopes_keep_every_bins_extremes_and_gaps() -> None:
 
 
 def test_a_long_series_figure_draws_its_envelope_and_says_so() -> None:
-    from hil.report import figures as fg
+    from hil.analysis.report import figures as fg
 
     n = 400_000
     t = np.arange(n) * 1e-3
@@ -223,7 +223,7 @@ def test_a_long_series_figure_draws_its_envelope_and_says_so() -> None:
 
 
 def _recording(path: Path, streamed: bool, blob: Path, n: int = 3000) -> None:
-    from hil.recording import RecordingWriter
+    from hil.folder.recording import RecordingWriter
 
     w = RecordingWriter(path, metadata={"robot_id": "r"}, flush_interval=0.0)
     for i in range(n):
@@ -241,7 +241,7 @@ def _recording(path: Path, streamed: bool, blob: Path, n: int = 3000) -> None:
 
 
 def test_streamed_attachments_are_the_same_recording(tmp_path: Path) -> None:
-    from hil.recording import read_attachments
+    from hil.folder.recording import read_attachments
 
     blob = tmp_path / "blob"
     blob.write_bytes(os.urandom(3 * 2**20 + 17))
@@ -252,8 +252,8 @@ def test_streamed_attachments_are_the_same_recording(tmp_path: Path) -> None:
 
 
 def test_telemetry_read_by_message_index_equals_the_mcap_reader(tmp_path: Path) -> None:
-    from hil.recording import read_messages, read_topic_payloads
-    from hil.report.telemetry import recorded_telemetry, sliding_from_recordings
+    from hil.analysis.report.telemetry import recorded_telemetry, sliding_from_recordings
+    from hil.folder.recording import read_messages, read_topic_payloads
 
     blob = tmp_path / "blob"
     blob.write_bytes(b"x")
@@ -275,8 +275,8 @@ def test_telemetry_messages_that_do_not_carry_a_group_are_skipped_in_place(tmp_p
     numbers (a bool, a string, null) is skipped for that
     group only; a payload that is not JSON is None in its place, so the others keep their own
     log times (the batch is then decoded one by one, NaN by the standard library)."""
-    from hil.recording import RecordingWriter
-    from hil.report.telemetry import _decode, recorded_telemetry
+    from hil.analysis.report.telemetry import _decode, recorded_telemetry
+    from hil.folder.recording import RecordingWriter
 
     assert _decode([b'{"a": 1}', b"not json", b'{"a": NaN}', b"[1]"])[:2] == [{"a": 1}, None]
     assert math.isnan(_decode([b'{"a": NaN}'])[0]["a"])
@@ -426,9 +426,9 @@ def test_the_windowed_ideal_of_an_ideal_loop_is_the_loop(tmp_path: Path, monkeyp
     """Restarted at each window from the robot's state and the law's memory (the trace's own
     columns here), the ideal retraces an ideal loop on both routes; with the law's initial
     memory at each restart it does not."""
+    from hil.analysis.report import ideal_sim
+    from hil.analysis.report.ideal import ideal_from_simulator, memory_source
     from hil.folder import load_folder
-    from hil.report import ideal_sim
-    from hil.report.ideal import ideal_from_simulator, memory_source
 
     folder = load_folder(_ideal_run_folder(tmp_path, 12.0))
     tr = folder.trace
@@ -454,9 +454,9 @@ def test_the_windowed_ideal_spread_over_processes_equals_it_in_one(tmp_path: Pat
     """An hour's ideal spreads its windows over the CPUs: the windows split into runs of
     consecutive windows, the second run simulated in a spawned process, the rows joined back
     in order: the same numbers as all windows in this process."""
+    from hil.analysis.report import ideal_sim
+    from hil.analysis.report.ideal import memory_source
     from hil.folder import load_folder
-    from hil.report import ideal_sim
-    from hil.report.ideal import memory_source
 
     folder = load_folder(_ideal_run_folder(tmp_path, 12.0))
     tr, source = folder.trace, memory_source(folder)
@@ -477,9 +477,9 @@ def test_the_windowed_ideal_on_the_compiled_kernel_equals_the_numpy_one(
     """The bundled law on the common plant (here with no disturbance): all windows go, as one
     part, to one worker process (the kernel uses every CPU itself), and that part's batch on
     the compiled kernel gives the numpy batch path's ideal to 1e-12."""
+    from hil.analysis.report import ideal_sim
+    from hil.analysis.report.ideal import memory_source
     from hil.folder import load_folder
-    from hil.report import ideal_sim
-    from hil.report.ideal import memory_source
     from hil.sim import compiled
 
     folder = load_folder(_ideal_run_folder(tmp_path, 12.0, kind="none"))
@@ -514,7 +514,7 @@ def test_the_windowed_ideal_on_the_compiled_kernel_equals_the_numpy_one(
 
 @pytest.mark.parametrize("bad_row", [(1, 2), tuple(range(9))])
 def test_a_hop_log_row_of_the_wrong_width_is_refused_by_name(tmp_path: Path, bad_row) -> None:
-    from hil.measure.logs import FIGURE_COLUMNS, RunLogs, read_columns
+    from hil.analysis.measure.logs import FIGURE_COLUMNS, RunLogs, read_columns
     from protocol.hoplog import PLANT_TABLES, HopLogError, HopLogWriter
 
     path = tmp_path / "plant.hoplog"

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hil.analysis.margin import record
+from hil.analysis.margin.record import MarginProbe, MarginRecord
+from hil.analysis.margin.timing import from_run, run_scenario, scaled
 from hil.cli import main
-from hil.margin import record
-from hil.margin.record import MarginProbe, MarginRecord
-from hil.margin.timing import from_run, run_scenario, scaled
 from tests.run_helpers import PASSES, expected_exit, fails
 from tests.scenario_text import NEAR, circle
 from tests.synthetic_folder import write_synthetic_folder

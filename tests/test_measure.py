@@ -1,4 +1,5 @@
-"""Known answers for hil.measure: hop logs written with known stamps, the figures found again.
+"""Known answers for hil.analysis.measure: hop logs written with known stamps, the figures found
+again.
 
 Each test injects what a figure measures (a stall, a delay, a loss, a duplicate, a CAN re-arm)
 into a scripted loop (tests/synthetic_run.py) and checks the one pipeline reports exactly it.
@@ -10,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hil.measure import load_folder_logs, measure
-from hil.measure.age import age_summary, envelope, max_age, segments
-from hil.measure.stats import summarize_ns
+from hil.analysis.measure import load_folder_logs, measure
+from hil.analysis.measure.age import age_summary, envelope, max_age, segments
+from hil.analysis.measure.stats import summarize_ns
 from protocol.hoplog import HopLogError, HopLogWriter, iter_records, read_hoplog
 from tests.synthetic_run import MS, US, Loop, write
 
@@ -28,7 +29,7 @@ def _paper_bound():
     from types import SimpleNamespace
 
     from controller_service.laws.base import DesignContext
-    from hil.measure.figures import BoundInputs
+    from hil.analysis.measure.figures import BoundInputs
 
     params = SimpleNamespace(m1=0.5, m2=0.5, l1=0.5, l2=0.5, lam=1.0, rho=1.0)
     return BoundInputs(params, DesignContext(), False)
@@ -222,7 +223,7 @@ def test_when_both_embeddings_fit_alike_the_match_is_ambiguous():
     """Identical payloads every 2 ms, three of five received, nothing else to go by: a constant
     4.5 ms delay with the last two lost, or 0.5 ms with the first two lost. The logs cannot
     decide: every arrival is ambiguous and the bound is the oldest sends."""
-    from hil.measure.can_match import match_node
+    from hil.analysis.measure.can_match import match_node
 
     sends = np.arange(5, dtype=np.int64) * 2 * MS
     value = np.full(5, 1.5, np.float32)

@@ -1,11 +1,11 @@
-"""hil.measure.clocks: the controller's stamps on the plant's clock, only when the estimates
-prove the clocks differ; the plant's own stamps and the "no stamp" zeros never move."""
+"""hil.analysis.measure.clocks: the controller's stamps on the plant's clock, only when the
+estimates prove the clocks differ; the plant's own stamps and the "no stamp" zeros never move."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from hil.measure.clocks import CONTROLLER_CLOCK, read_track, to_plant_clock
+from hil.analysis.measure.clocks import CONTROLLER_CLOCK, read_track, to_plant_clock
 from runtime.clocksync import CLOCK_FILE, COLUMNS
 
 OFFSET = 4_900_000_000  # plant minus controller

@@ -1,5 +1,5 @@
-"""Known answers for hil.measure.windows: figures per window (a soak's minutes) with nothing
-clipped at the windows' edges.
+"""Known answers for hil.analysis.measure.windows: figures per window (a soak's minutes) with
+nothing clipped at the windows' edges.
 
 The reference for every percentile is brute force: the age at every plant step of the
 segments a window owns, enumerated one by one, and numpy's ``inverted_cdf`` over them."""
@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hil.measure.age import AgeSegments, age_summary
-from hil.measure.windows import MINUTE_NS, age_windows, lateness_windows, per_window
+from hil.analysis.measure.age import AgeSegments, age_summary
+from hil.analysis.measure.windows import MINUTE_NS, age_windows, lateness_windows, per_window
 
 MS = 1_000_000
 US = 1_000
@@ -138,10 +138,10 @@ def test_per_window_leaves_an_unmeasured_figure_none_not_zero() -> None:
 
 
 def test_per_window_over_hil_measure_of_a_run_with_a_stall_across_an_edge(tmp_path) -> None:
-    """The same through hil.measure: a scripted run (tests/synthetic_run.py) whose controller
-    stalls 32 ms across the edge of 1 s windows; the window where the stall ended holds the
-    run's D, the window before holds only the regular age."""
-    from hil.measure import load_folder_logs, measure
+    """The same through hil.analysis.measure: a scripted run (tests/synthetic_run.py) whose
+    controller stalls 32 ms across the edge of 1 s windows; the window where the stall ended holds
+    the run's D, the window before holds only the regular age."""
+    from hil.analysis.measure import load_folder_logs, measure
     from tests.synthetic_run import MS as SMS
     from tests.synthetic_run import Loop, write
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from controller_service.laws.base import Limits
 from controller_service.laws.unified import UnifiedParams
+from hil.bench.defaults import PAPER_TRACKING_TOML
 from hil.bundled import bundled_path
-from hil.run.defaults import PAPER_TRACKING_TOML
 from protocol.paper import PAPER_LIMITS, TABLE1
 
 REPO = Path(__file__).resolve().parents[1]

@@ -17,7 +17,7 @@ import pytest
 from controller_service.laws.base import DesignContext
 from controller_service.registry import build_controller
 from hil.bundled import resolve_scenario
-from hil.commands.law_option import LAW_HELP
+from hil.commands.new_law import LAW_HELP
 from hil.errors import BadInputError
 from hil.law.batch import PerRobot, batch_note, for_batch
 from hil.law.option import with_law

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from controller_service.laws.base import Limits
+from hil.bench.settings import scenario_settings
 from hil.bundled import bundled_names, resolve_scenario
 from hil.errors import BadInputError
-from hil.run.settings import scenario_settings
 from hil.scenario import load_scenario, loads_scenario, scenario_dict
 from plant_emulator.disturbances import Disturbance
 from plant_emulator.dynamics import NO_DRAG, Drag, Extremes, PlantState, rk4_array, rk4_float

@@ -5,8 +5,8 @@ verdict was FAIL by construction, on a quiet machine too).
 
 Two real runs (real processes, Zenoh on loopback): nothing injected, then every 10th command
 dropped by the controller ([faults] command_drop_every = 10). The slots without a command are
-recounted here from the raw hop logs (protocol.hoplog, not hil.measure): the plant's samples,
-the controller's deadlines and the plant's landings. The definition (docs/realtime.md): a
+recounted here from the raw hop logs (protocol.hoplog, not hil.analysis.measure): the plant's
+samples, the controller's deadlines and the plant's landings. The definition (docs/realtime.md): a
 sample's slot is the first whose deadline is at or after it; a slot is judged when its newest
 sample is at least 2 Ts + delay + jitter before the last sample, and without a command when no
 command computed from one of its samples landed on the applied path.
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hil.run.defaults import default_scenario_text
+from hil.bench.defaults import default_scenario_text
 from hil.verdict import EXIT_CODE
 from protocol.hoplog import TICK_DROPPED, ApplyOutcome, CmdPath, read_hoplog
 from tests.calibrates import calibrates

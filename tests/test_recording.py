@@ -1,4 +1,5 @@
-"""MCAP recordings (hil.recording): JSON mirror channels readable back by topic and log time."""
+"""MCAP recordings (hil.folder.recording): JSON mirror channels readable back by topic and log
+time."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import math
 
 from mcap.reader import make_reader
 
-from hil.recording import RecordingWriter, list_topics, read_messages, read_metadata
+from hil.folder.recording import RecordingWriter, list_topics, read_messages, read_metadata
 from protocol.messages import State, decode, encode
 
 

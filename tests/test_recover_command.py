@@ -12,7 +12,7 @@ exact comparison with the normal path is the same hop logs through both paths:
 2. a run really SIGKILLed mid-way (the services die with it: PR_SET_PDEATHSIG), recovered by
    the command: the folder is whole, marked recovered and cut short, and every figure of the
    rebuilt summary.json is the definition evaluated on the hop logs the kill left (the
-   calibration tests' own reader, tests/raw_hoplogs.py, not hil.measure).
+   calibration tests' own reader, tests/raw_hoplogs.py, not hil.analysis.measure).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from hil.folder import layout
-from hil.recording import is_complete, read_messages
+from hil.folder.recording import is_complete, read_messages
 from tests.procs import spawned, wait_until
 from tests.raw_hoplogs import RawRun, check_summary_against_raw
 from tests.run_helpers import PASSES, alive, clean_scenario, hil_run
@@ -38,7 +38,7 @@ from tests.run_helpers import PASSES, alive, clean_scenario, hil_run
 # streamed by them while they run).
 WRITTEN_AT_THE_END = (layout.SUMMARY, layout.TRACE, layout.SERIES, layout.TRAJECTORY_PNG)
 # What says how the folder was made: the only keys a recovered summary may differ in. hil run
-# adds its own facts (hil.run.orchestrate: wall time, the children's exit codes, the recorder's
+# adds its own facts (hil.bench.lifecycle: wall time, the children's exit codes, the recorder's
 # counts, secure), which a recovery cannot know; hil recover adds recovered, note, and cuts
 # the duration to what ran.
 HOW_MADE = {"interrupted", "error", "wall_time_s", "exit_codes", "recording", "recorded_messages",

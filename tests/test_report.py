@@ -21,9 +21,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
+from hil.analysis.report.build import SOURCE
 from hil.cli import main
-from hil.measure.certificate import CONTRACT_KEYS
-from hil.report.build import SOURCE
+from hil.sim.certificate import CONTRACT_KEYS
 from tests.page_tables import numbers_without_unit, tables, unglossed
 from tests.run_helpers import PASSES, expected_exit
 from tests.synthetic_folder import write_synthetic_folder
@@ -316,7 +316,7 @@ def test_every_figure_is_written_as_data_beside_its_picture(run_folder: Path) ->
 
 
 def test_report_figures_match_the_trace_and_the_measurement(run_folder: Path) -> None:
-    from hil.measure.folder import measure_folder
+    from hil.analysis.measure.folder import measure_folder
     from protocol.can.wheel_mapping import RobotGeometry, motor_torques
 
     main(["report", str(run_folder), "--no-ideal"])
@@ -326,7 +326,8 @@ def test_report_figures_match_the_trace_and_the_measurement(run_folder: Path) ->
     band = data["metrics"]["bands"]["v_tilde"]
     assert band["band_max"] == pytest.approx(3.3 * 1.5e-3 / 2)
     assert data["metrics"]["saturation_share"] == {"tau1": 1.0, "tau2": 1.0}
-    # the latency plot draws hil.measure's samples; their exact percentiles are the summary's
+    # the latency plot draws hil.analysis.measure's samples; their exact percentiles are the
+    # summary's
     lat = np.genfromtxt(run_folder / "report_latency.csv", delimiter=",", names=True)
     zen = lat["zenoh_sorted_us"][np.isfinite(lat["zenoh_sorted_us"])]
     m = measure_folder(run_folder)
@@ -413,8 +414,8 @@ def test_lost_messages_over_threshold_are_negative(tmp_path: Path, run_folder: P
 
 def test_ideal_trajectory_of_a_trace_that_starts_late(tmp_path: Path) -> None:
     """The ideal simulation starts from the trace's first state and time, wherever that is."""
+    from hil.analysis.report.ideal import ideal_from_simulator
     from hil.folder import load_folder
-    from hil.report.ideal import ideal_from_simulator
 
     folder = write_synthetic_folder(tmp_path / "late", start=0.5, duration=1.0, rate=200.0)
     loaded = load_folder(folder)
@@ -463,7 +464,7 @@ def test_exit_codes_through_the_installed_command(tmp_path: Path) -> None:
 
 
 def test_compare_two_folders(tmp_path: Path, run_folder: Path, stall_folder: Path) -> None:
-    from hil.measure.folder import measure_folder
+    from hil.analysis.measure.folder import measure_folder
 
     other = write_synthetic_folder(tmp_path / "slow", rate=200.0, delay=0.002)
     out = tmp_path / "cmp"
@@ -479,7 +480,7 @@ def test_compare_two_folders(tmp_path: Path, run_folder: Path, stall_folder: Pat
     assert "certificate.d_max_s" not in rows or rows["certificate.d_max_s"]["b"] is None
     for f in data["figures"]:
         assert (out / f["png"]).is_file() and (out / f["data"]).is_file()
-    # two runs: their measured figures, as hil.measure gives them
+    # two runs: their measured figures, as hil.analysis.measure gives them
     out2 = tmp_path / "cmp2"
     assert main(["compare", str(run_folder), str(stall_folder), "--out", str(out2)]) == 0
     rows = {r["figure"]: r for r in json.loads((out2 / "compare.json").read_text())["rows"]}
@@ -528,7 +529,7 @@ def test_compare_two_folders(tmp_path: Path, run_folder: Path, stall_folder: Pat
 def test_a_switching_torque_is_drawn_as_its_envelope_and_duty() -> None:
     """A torque that switches between +limit and -limit with an 80 % duty: each bin (10
     samples) has a band of [-1, 1] and a mean of 0.6, which a solid block of lines would hide."""
-    from hil.report import figures as fg
+    from hil.analysis.report import figures as fg
 
     t = np.arange(4000) * 1e-3
     tau = np.where(np.arange(4000) % 5 == 0, -1.0, 1.0)
@@ -539,7 +540,7 @@ def test_a_switching_torque_is_drawn_as_its_envelope_and_duty() -> None:
 
 
 def test_a_far_latency_outlier_is_left_off_the_axis_and_listed() -> None:
-    from hil.report import figures as fg
+    from hil.analysis.report import figures as fg
 
     values = np.concatenate([np.full(2000, 1000.0) + np.arange(2000) % 50, [170_000.0]])
     f = fg.histogram_and_cdf("latency", "latency", {"zenoh": values})
@@ -602,7 +603,7 @@ def test_every_table_gives_units_and_every_symbol_its_sentence(
 def test_the_headline_names_no_d_star_for_a_law_without_one() -> None:
     """A user's law with no certificate still has stalls (above 3 Ts); the headline lists them
     as the longest and never speaks of a D* it does not have. The paper's law keeps its rule."""
-    from hil.report.content import _stalls
+    from hil.analysis.report.content import _stalls
 
     stall = {"t_s": 1.5, "age_s": 0.012, "cause": "controller_late", "owner": "bench"}
     cert = {"path": "zenoh", "stall_threshold_s": 0.003, "stalls": [stall], "stall_count": 1,

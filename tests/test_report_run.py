@@ -1,6 +1,6 @@
 """``hil report`` on a real run (controller and plant processes, Zenoh and the CAN path both
 live): every section is produced, the report's certificate and timing figures are summary.json's
-(one pipeline, hil.measure), its first lines answer the four questions with summary.json's
+(one pipeline, hil.analysis.measure), its first lines answer the four questions with summary.json's
 numbers, the HTML stays self-contained, and latency replay gives the same array from the run
 folder and from its recording alone."""
 
@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hil.analysis.measure.folder import measure_folder
 from hil.cli import main
-from hil.measure.certificate import CONTRACT_KEYS
-from hil.measure.folder import measure_folder
-from hil.sim.replay import latencies_from_run
+from hil.folder.replay import latencies_from_run
+from hil.sim.certificate import CONTRACT_KEYS
 from tests.run_helpers import (
     PASSES,
     check_clean_run,
@@ -91,7 +91,8 @@ def test_report_of_a_real_run_with_both_paths(tmp_path: Path, spawn) -> None:
     ) in head
     assert data["headline"]["command_age"]["d_max_s"] == cert["d_max_s"]
 
-    # the latency plot draws hil.measure's samples: their exact percentiles are the summary's
+    # the latency plot draws hil.analysis.measure's samples: their exact percentiles are the
+    # summary's
     lat = np.genfromtxt(run_dir / "report_latency.csv", delimiter=",", names=True)
     zen = lat["zenoh_sorted_us"][np.isfinite(lat["zenoh_sorted_us"])]
     s2a = summary["timing"]["sample_to_apply_zenoh"]

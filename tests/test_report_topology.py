@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
+from hil.bench.lifecycle import Recorder, attachment_files
 from hil.cli import main
-from hil.recording import RecordingWriter, read_attachments
-from hil.run.orchestrate import Recorder, attachment_files
+from hil.folder.recording import RecordingWriter, read_attachments
 from runtime.clocksync import CLOCK_FILE, COLUMNS
 from tests.synthetic_folder import write_synthetic_folder
 from tests.test_report import RUN_SECTIONS, check_html, check_images

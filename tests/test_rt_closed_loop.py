@@ -86,7 +86,7 @@ def test_a_command_landing_just_before_a_sample_lands_at_its_own_time(tmp_path):
     that last part must still land at its own time (its receive time: no [timing] delay), never
     at the sample or at the early point. At 2 kHz on_state a command arrives 0.2-0.5 ms after
     its sample, so the slower ones arrive in the last 150 us of the 500 us period."""
-    from hil.measure.logs import load_folder_logs
+    from hil.analysis.measure.logs import load_folder_logs
     from plant_emulator.service import INTEGRATE_AFTER_SAMPLE_NS
     from protocol.hoplog import ApplyOutcome
 

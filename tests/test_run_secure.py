@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from hil.recording import read_messages
-from hil.run.secure import DICTIONARY_NAME, credentials_file_name
+from hil.bench.secure import DICTIONARY_NAME, credentials_file_name
+from hil.folder.recording import read_messages
 from protocol import keys, zenoh_acl
 from protocol.hoplog import read_hoplog
 from runtime import credentials as cr

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from hil.recording import list_topics, read_messages
+from hil.folder.recording import list_topics, read_messages
 from tests.procs import wait_until
 from tests.run_helpers import (
     PASSES,

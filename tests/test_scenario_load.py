@@ -9,11 +9,11 @@ from pathlib import Path
 import pytest
 
 from controller_service.laws.base import Limits
+from hil.bench.lifecycle import RunOptions, prepare
 from hil.bundled import bundled_dir
 from hil.cli import main
 from hil.errors import BadInputError
 from hil.provenance import dumps_toml
-from hil.run.orchestrate import RunOptions, prepare
 from hil.scenario import (
     FaultsConfig,
     ImpairConfig,

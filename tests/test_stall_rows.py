@@ -1,5 +1,6 @@
 """The stall table's rows on real processes, beside CPU hogs: each injected stall gets its cause,
-its owner and the verdict the table promises (hil/measure/stalls.py, docs/reports.md "Stalls").
+its owner and the verdict the table promises (hil/analysis/measure/stalls.py, docs/reports.md
+"Stalls").
 
 Two real ``hil run`` at 500 Hz (Zenoh on loopback, SCHED_FIFO services), each beside two ``yes``
 hogs (bench.kill_matrix.cpu_hog), every injection by PID at a known moment after the run's epoch:
@@ -10,7 +11,7 @@ hogs (bench.kill_matrix.cpu_hog), every injection by PID at a known moment after
   the system's there; the bench's if it shows at all), and a SCHED_FIFO hog above the services
   spinning 50 ms on the controller's CPU (bench/duty_hog.py: the controller runnable but starved,
   ``host_overloaded``). Its ``timing.*_in_bench_stalls`` are checked against the controller's
-  own hop log read here (raw, not through hil.measure).
+  own hop log read here (raw, not through hil.analysis.measure).
 - the system's run (FAIL): a law that busy-waits 60 ms once (tests/stall_law.py:
   ``controller_late``), a 30 ms ``[faults]`` State drop burst (``state_lost``) and a 30 ms command
   drop burst (``command_lost``), placed by the seed at known moments.
@@ -315,8 +316,8 @@ def test_the_bench_s_stalls_make_the_run_inconclusive_never_fail(bench_run: Run)
 
 
 def test_the_bench_s_share_of_missed_slots_is_counted_from_the_run(bench_run: Run):
-    """``timing.deadline_misses_in_bench_stalls`` (hil.measure.figures._bench_shares) on a real
-    run: at least the slots the controller's own hop log shows missed inside the two injected
+    """``timing.deadline_misses_in_bench_stalls`` (hil.analysis.measure.figures._bench_shares) on a
+    real run: at least the slots the controller's own hop log shows missed inside the two injected
     stalls that stopped or starved it (read here from the raw log), at most every missed slot."""
     log = read_hoplog(bench_run.out / "controller.hoplog")
     epoch = int(log.meta["epoch_ns"])

@@ -1,11 +1,11 @@
-"""The stall table (hil/measure/stalls.py) on synthetic evidence: every row, the precedence
+"""The stall table (hil/analysis/measure/stalls.py) on synthetic evidence: every row, the precedence
 between rows, the two misattributions issue 35 reported rebuilt from hop logs, and the docs
 holding the table the code runs.
 
 Two layers: :func:`decide` on an :class:`Evidence` written by hand (each row and each pair of
-rows whose order matters), and the whole pipeline (hil.measure.measure) on hop logs scripted by
-tests/synthetic_run.py, so the evidence is what the joins find in logs, not what a test assumed.
-The same rows on real processes beside CPU hogs are in tests/test_stall_rows.py.
+rows whose order matters), and the whole pipeline (hil.analysis.measure.measure) on hop logs
+scripted by tests/synthetic_run.py, so the evidence is what the joins find in logs, not what a test
+assumed. The same rows on real processes beside CPU hogs are in tests/test_stall_rows.py.
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hil.measure import load_folder_logs, measure
-from hil.measure.figures import BoundInputs
-from hil.measure.stalls import (
+from hil.analysis.measure import load_folder_logs, measure
+from hil.analysis.measure.figures import BoundInputs
+from hil.analysis.measure.stalls import (
     BENCH,
     OWNER,
     SYSTEM,
@@ -66,7 +66,7 @@ def test_the_table_is_ordered_bench_that_accounts_then_system_then_partial_bench
 
 
 def test_the_docstring_and_docs_reports_hold_the_table_the_code_runs():
-    import hil.measure.stalls as stalls
+    import hil.analysis.measure.stalls as stalls
 
     doc = stalls.__doc__ or ""
     assert f"{TABLE_BEGIN}\n{table_text()}\n{TABLE_END}" in doc
@@ -191,7 +191,7 @@ def test_stretches_union_intersection_and_difference():
 
 
 def test_a_lost_stretch_is_measured_between_the_delivered_messages_around_it():
-    from hil.measure.stalls import _gaps
+    from hil.analysis.measure.stalls import _gaps
 
     t = np.arange(10, dtype=np.int64) * 10
     ok = np.ones(10, bool)
@@ -359,8 +359,8 @@ def test_a_lost_and_ambiguous_can_stretch_leaves_the_certificate_unknown(tmp_pat
     """Unnamed CAN frames (SocketCAN, udp_multicast) of a saturated law (every frame the same
     bytes), the arming zeros and the first two commands' frames lost on the wire: nothing
     before the first arrival anchors the match, so "these are the first sends, 2 periods late"
-    and "the first two were lost" fit alike (hil.measure.can_match). Every CAN figure they feed
-    says ``not_relatable``, D is known only between 5.3 and 7.3 ms, and with D* = 5.7 ms
+    and "the first two were lost" fit alike (hil.analysis.measure.can_match). Every CAN figure they
+    feed says ``not_relatable``, D is known only between 5.3 and 7.3 ms, and with D* = 5.7 ms
     between (the gains' m = 0.9) the certificate is unknown: ``held`` null, INCONCLUSIVE.
     Reached from hop logs through the whole pipeline, not from a certificate written by hand."""
     from controller_service.laws.base import DesignContext

@@ -1,4 +1,5 @@
-"""Timing summaries (hil.measure.stats): exact percentiles in µs from nanosecond samples."""
+"""Timing summaries (hil.analysis.measure.stats): exact percentiles in µs from nanosecond
+samples."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.measure.stats import summarize_ns as summarize
+from hil.analysis.measure.stats import summarize_ns as summarize
 
 
 def test_summary_has_the_contract_keys_in_microseconds():

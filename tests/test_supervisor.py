@@ -1,4 +1,4 @@
-"""hil.supervisor: children die with their parent (PR_SET_PDEATHSIG) and stop by PID."""
+"""hil.bench.supervisor: children die with their parent (PR_SET_PDEATHSIG) and stop by PID."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from tests.run_helpers import alive
 PARENT = textwrap.dedent(
     """
     import sys, time
-    from hil.supervisor import Supervisor
+    from hil.bench.supervisor import Supervisor
     sup = Supervisor()
     c = sup.start("sleeper", [sys.executable, "-c", "import time; time.sleep(600)"])
     print(c.pid, flush=True)
@@ -32,7 +32,7 @@ def test_child_dies_when_parent_is_sigkilled(spawn):
 def test_stop_escalates_and_reports_exit_code(tmp_path):
     import sys
 
-    from hil.supervisor import Supervisor
+    from hil.bench.supervisor import Supervisor
 
     sup = Supervisor()
     # A child that ignores SIGINT must still be stopped (SIGTERM follows after the grace).

@@ -13,7 +13,7 @@ import pytest
 
 from hil.cli import main
 from hil.errors import BadInputError
-from hil.sim.replay import latencies_from_run
+from hil.folder.replay import latencies_from_run
 from hil.sweep.grid import DEFAULT_DELAY, DEFAULT_TS, break_points, make_grid
 from tests.procs import wait_until
 from tests.scenario_text import CIRCLE_TABLE1
@@ -146,10 +146,10 @@ def test_sweep_bad_input_exits_2(tmp_path: Path) -> None:
 
 
 def test_replay_latencies_from_a_run_folder(tmp_path: Path) -> None:
-    from hil.measure.folder import measure_folder
+    from hil.analysis.measure.folder import measure_folder
 
     run = write_synthetic_folder(tmp_path / "run", duration=0.5, run=True)
-    lat = measure_folder(run).latency_us()  # the run's one result (hil.measure)
+    lat = measure_folder(run).latency_us()  # the run's one result (hil.analysis.measure)
     got = latencies_from_run(run)
     assert np.array_equal(got, np.concatenate([lat["zenoh"], lat["can"]]) * 1e-6)
     assert np.array_equal(latencies_from_run(f"{run}::can"), lat["can"] * 1e-6)

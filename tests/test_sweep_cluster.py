@@ -14,8 +14,8 @@ import time
 
 import pytest
 
+from hil.bench.defaults import PAPER_TRACKING_TOML
 from hil.errors import BadInputError
-from hil.run.defaults import PAPER_TRACKING_TOML
 from hil.scenario import loads_scenario
 from hil.sweep.chunks import chunks_of, run_chunked
 from hil.sweep.executors import DaskCluster, ProcessPool, executor_for

@@ -247,7 +247,7 @@ def test_a_run_records_what_each_service_sent_and_refused_through_its_tap(tmp_pa
     key: the recording holds every State the plant sent and every command the controller sent,
     each logged at its sender's own send stamp (the taps', not a receipt), and each refused
     payload as the controller refused it; no batch lost."""
-    from hil.recording import read_messages
+    from hil.folder.recording import read_messages
     from tests.run_helpers import PASSES, check_clean_run, check_verdict, clean_scenario, load_log
 
     out = tmp_path / "run"

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from controller_service.tick_phase import PhaseLearner, choose_phase
+from hil.analysis.measure import load_folder_logs
 from hil.bundled import bundled_path
-from hil.measure import load_folder_logs
 from tests.run_helpers import LOADED_HOST, PASSES, hil_run
 
 US = 1000

@@ -1,4 +1,4 @@
-"""Sampling-effect metrics (hil/trace_metrics.py): exact percentiles against numpy, bands,
+"""Sampling-effect metrics (hil/analysis/trace_metrics.py): exact percentiles against numpy, bands,
 switching rates, constraint figures, deviation from the ideal trajectory."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil import trace_metrics
+from hil.analysis import trace_metrics
 
 KNOWN = [3.0, 1.0, 4.0, 1.0, 5.0, 9.0, 2.0, 6.0, 5.0, 3.0, 5.0]
 
@@ -52,8 +52,9 @@ def test_percentile_rejects_empty_and_out_of_range() -> None:
 
 
 def test_percentiles_agree_with_the_run_summaries() -> None:
-    """The report's percentiles and summary.json's (hil.measure.stats) are one definition."""
-    from hil.measure.stats import summarize_ns
+    """The report's percentiles and summary.json's (hil.analysis.measure.stats) are one
+    definition."""
+    from hil.analysis.measure.stats import summarize_ns
 
     rng = np.random.default_rng(7)
     ns = np.concatenate([rng.gamma(4.0, 50_000.0, 20_000), rng.uniform(1e6, 5e7, 50)])

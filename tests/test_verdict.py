@@ -204,7 +204,7 @@ def test_the_bench_advice_stands_only_under_inconclusive():
 
 
 def test_the_report_shows_figures_a_trigger_does_not_measure_as_n_a_never_0():
-    from hil.report.content import Section, _lateness
+    from hil.analysis.report.content import Section, _lateness
 
     on_state = {"plant_wakeup_lateness": {"p50_us": 20.0}, "plant_deadline_misses": 0}
     s = Section("lateness", "")

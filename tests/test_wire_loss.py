@@ -1,5 +1,5 @@
 """Loss on a real wire: ``[impair]`` drops packets of a run's real links with nftables, in
-``hil run``'s own network namespace (hil/run/impair.py, docs/impair.md).
+``hil run``'s own network namespace (hil/bench/impair.py, docs/impair.md).
 
 On the CAN path over python-can's ``udp_multicast`` only the drives' Set_Input_Torque frames are
 dropped, every N-th on the wire. Their wire order is the controller's ``can_tx`` order, so which
@@ -25,8 +25,8 @@ import pytest
 from can.interfaces.udp_multicast.utils import pack_message
 
 from bench.wire_loss import expected_losses, hil_run_args, scenario_text
+from hil.bench import impair
 from hil.errors import BadInputError
-from hil.run import impair
 from hil.scenario import ImpairConfig
 from protocol.can.codec import Heartbeat, SetInputTorque, frame_id
 from protocol.can.codec import encode as can_encode
@@ -108,7 +108,7 @@ def test_a_plan_names_what_it_drops_or_refuses_what_the_run_cannot_impair() -> N
 def test_an_impaired_run_is_refused_outside_the_hil_command(tmp_path: Path) -> None:
     """execute() called in process cannot move its caller into a namespace: a clear error,
     nothing written."""
-    from hil.run.orchestrate import RunOptions, execute
+    from hil.bench.lifecycle import RunOptions, execute
 
     scenario = tmp_path / "s.toml"
     scenario.write_text(scenario_text(EVERY, torque_only=False))

@@ -39,7 +39,7 @@ def _router(spawn, tmp_path, ep: str) -> dict[str, Credentials]:
     creds = {u: Credentials(u, os.urandom(9).hex()) for u in zenoh_acl.logins(ROBOTS)}
     cr.write_private(tmp_path / "users", cr.dictionary_text(creds.values()))
     env = {**os.environ, **NO_ENV, cr.ENV_DICTIONARY: str(tmp_path / "users")}
-    argv = ["-m", "hil.run.router", ep, "--secure", f"--robots={','.join(ROBOTS)}"]
+    argv = ["-m", "hil.bench.router", ep, "--secure", f"--robots={','.join(ROBOTS)}"]
     proc = spawn.python(argv, env=env, stderr=subprocess.STDOUT, text=True)
     out = Lines(proc.stdout)
     assert wait_until(lambda: out.seen("router up") or proc.poll() is not None, 60), out.text()

@@ -123,7 +123,7 @@ def _allowed(role: str, stream: str) -> bool:
     return stream in zenoh_acl.role(role).publishes
 
 
-ACL_ROBOT = zenoh_acl.DEPLOY_ROBOTS[0]  # the deploy file's robot; hil.run.router's default
+ACL_ROBOT = zenoh_acl.DEPLOY_ROBOTS[0]  # the deploy file's robot; hil.bench.router's default
 
 
 def _users(tmp_path: Path) -> dict[str, Credentials]:
@@ -139,7 +139,7 @@ def _users(tmp_path: Path) -> dict[str, Credentials]:
 def _start_router(spawn, tmp_path: Path, ep: str) -> None:
     env = {**os.environ, **NO_ENV, cr.ENV_DICTIONARY: str(tmp_path / "users")}
     proc = spawn.python(
-        ["-m", "hil.run.router", ep, "--secure"], env=env, stderr=subprocess.STDOUT, text=True
+        ["-m", "hil.bench.router", ep, "--secure"], env=env, stderr=subprocess.STDOUT, text=True
     )
     out = Lines(proc.stdout)
     assert wait_until(lambda: out.seen("router up") or proc.poll() is not None, 60), out.text()
@@ -153,13 +153,13 @@ def _deploy_router(tmp_path: Path, ep: str):
     return zenoh.open(conf)
 
 
-@pytest.mark.parametrize("router", ["hil.run.router", "deploy file"])
+@pytest.mark.parametrize("router", ["hil.bench.router", "deploy file"])
 def test_router_grants_each_role_exactly_its_rights(spawn, tmp_path, router) -> None:
     creds = _users(tmp_path)
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
     sessions = []
     try:
-        if router == "hil.run.router":
+        if router == "hil.bench.router":
             _start_router(spawn, tmp_path, ep)
         else:
             sessions.append(_deploy_router(tmp_path, ep))
@@ -215,7 +215,7 @@ def test_router_refuses_a_readable_dictionary_and_a_missing_one(spawn, tmp_path)
         ({}, "--secure needs HIL_ZENOH_DICTIONARY"),
     ):
         proc = spawn.python(
-            ["-m", "hil.run.router", ep, "--secure"],
+            ["-m", "hil.bench.router", ep, "--secure"],
             env={**os.environ, **NO_ENV, **env},
             text=True,
         )
@@ -246,7 +246,7 @@ def test_a_service_with_bad_credentials_exits_2_before_writing_its_log(spawn, tm
 
 
 def test_init_writes_private_deployment_credentials(tmp_path, monkeypatch, capsys) -> None:
-    from hil.run.secure import main
+    from hil.bench.secure import main
 
     monkeypatch.delenv(cr.SYSTEMD_CREDENTIALS_DIR, raising=False)
     assert main(["init", str(tmp_path / "etc")]) == 0
@@ -263,7 +263,7 @@ def test_init_writes_private_deployment_credentials(tmp_path, monkeypatch, capsy
 
 
 def test_a_scenario_cannot_carry_credentials() -> None:
-    from hil.run.defaults import PAPER_TRACKING_TOML
+    from hil.bench.defaults import PAPER_TRACKING_TOML
     from hil.scenario import loads_scenario
 
     for key in ("user", "password"):

@@ -1,4 +1,4 @@
-"""``hil lab up|down|status|exec``: a lab of hosts on this machine (see hil.lab, docs/lab.md)."""
+"""``hil lab up|down|status|exec``: a lab of hosts on this machine (hil.bench.lab, docs/lab.md)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def _pairs(values: list[str], option: str) -> dict[str, float]:
 
 
 def _impairments(loss: list[str], rate: list[str]) -> dict[str, object]:
-    from hil.lab.net import LinkImpairment
+    from hil.bench.lab.net import LinkImpairment
 
     losses = _pairs(loss, "--loss")
     rates = _pairs(rate, "--rate-bps")
@@ -68,7 +68,7 @@ def up_cmd(
     """Build the lab: h1..hN, a router on each (tcp/127.0.0.1:7447 from inside the host,
     tcp/10.231.0.i:7447 between hosts). Ctrl-C while it builds removes what was made; a
     lab left by a killed `up` is removed by the next `up` or `down`."""
-    from hil.lab.lab import up
+    from hil.bench.lab.lab import up
 
     state = up(name, hosts, _pairs(offset, "--offset"), _impairments(loss, rate_bps))
     typer.echo(json.dumps({"lab": name, "hosts": state.hosts}, indent=2))
@@ -78,7 +78,7 @@ def up_cmd(
 def down_cmd(name: NameOpt = LAB_NAME) -> None:
     """Remove the lab: its processes (proven by PID, start time and the lab's mark), its
     namespaces and their links, its time namespaces and its folder."""
-    from hil.lab.lab import down
+    from hil.bench.lab.lab import down
 
     typer.echo(json.dumps(down(name)))
 
@@ -88,7 +88,7 @@ def status_cmd(
     name: Annotated[str | None, typer.Option(help="One lab (default: all).")] = None,
 ) -> None:
     """Each lab's hosts: offset, address, router, impairment and its kernel counters."""
-    from hil.lab.lab import status
+    from hil.bench.lab.lab import status
 
     typer.echo(json.dumps(status(name), indent=2))
 
@@ -101,8 +101,8 @@ def exec_cmd(
 ) -> None:
     """Run a command on a host: `hil lab exec h2 -- python -c '...'` (its network and its
     clock; its router is tcp/127.0.0.1:7447). Exits with the command's code."""
-    from hil.lab.lab import host_command, host_env, require_root
-    from hil.lab.state import load
+    from hil.bench.lab.lab import host_command, host_env, require_root
+    from hil.bench.lab.state import load
 
     require_root("hil lab exec")
     state = load(name)

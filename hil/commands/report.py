@@ -1,11 +1,7 @@
-"""The commands on a finished folder: ``hil report DIR`` (report.html / report.md / report.json
-of a run or simulation folder), ``hil compare DIR_A DIR_B`` (two folders side by side) and
-``hil recover DIR`` (make a killed run's folder whole, see hil.run.recover)."""
+"""``hil report DIR``: report.html / report.md / report.json of a run or simulation folder."""
 
 from __future__ import annotations
 
-import json
-import time
 from functools import partial
 from pathlib import Path
 from typing import Annotated
@@ -65,10 +61,10 @@ def report(
     not held or exceeded by the system's own timing, too many deadline misses, samples
     without a command or lost messages), 4 INCONCLUSIVE (the bench stalled, or the logs
     cannot relate a figure); 2 not a run folder (docs/reports.md, "Verdict and exit code")."""
+    from hil.analysis.report.build import Thresholds, build_report, write_report
+    from hil.analysis.report.ideal import ideal_from_simulator
+    from hil.bench.repair import is_run_folder, needs_recovery, recover
     from hil.folder import load_folder
-    from hil.report.build import Thresholds, build_report, write_report
-    from hil.report.ideal import ideal_from_simulator
-    from hil.run.recover import is_run_folder, needs_recovery, recover
 
     number("--max-deadline-miss-ratio", max_deadline_miss_ratio, 0.0, 1.0)
     number("--max-lost-ratio", max_lost_ratio, 0.0, 1.0)
@@ -107,42 +103,3 @@ def _law_failed_at_once(folder: Path) -> None:
         raise NegativeVerdictError(
             f"{first} (no report: the trace ends at the fault, before its second sample)"
         )
-
-
-@app.command("compare")
-def compare(
-    dir_a: Annotated[Path, typer.Argument(help="First run or simulation folder (A).")],
-    dir_b: Annotated[Path, typer.Argument(help="Second folder (B).")],
-    out: Annotated[
-        Path | None, typer.Option(help="Where to write (default: a new folder under runs/).")
-    ] = None,
-) -> None:
-    """Overlaid trajectories, v, ω, τ1, τ2, position error and (runs) latency CDFs of two
-    folders (the Zenoh path against the CAN path, two rates, a run against its
-    simulation) and a table of summary, sampling-effect and measured timing figures
-    (hil.measure: timing, messages, certificate) with their differences (B - A):
-    compare.html, compare.md, compare.json, PNG + CSV per figure. Exit 0, or 2 when a
-    folder is not a run."""
-    from hil.folder import load_folder
-    from hil.report.compare import build_compare
-
-    out_dir("--out", out, default="runs")
-    target = out or Path("runs") / time.strftime("compare-%Y%m%d-%H%M%S")
-    build_compare(load_folder(dir_a), load_folder(dir_b), target)
-    typer.echo(f"compare: {target / 'compare.html'}")
-
-
-@app.command("recover")
-def recover_cmd(
-    run_dir: Annotated[Path, typer.Argument(help="A run folder whose hil run was killed.")],
-) -> None:
-    """Rewrite a truncated recording as a complete, indexed MCAP (the services' hop logs
-    and the resolved scenario attached), restore into it every State the plant sent that
-    the recorder had not written yet (from the plant's hop log, marked restored_from), and
-    rebuild trace.csv and summary.json from the hop logs. Nothing to do for a whole folder.
-    `hil report` runs this by itself.
-
-    Exit 2 when DIR is not a run folder or the run was killed before its first sample."""
-    from hil.run.recover import recover
-
-    typer.echo(json.dumps(recover(run_dir), indent=2))

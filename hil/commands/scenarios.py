@@ -1,5 +1,4 @@
-"""What ships with the package: ``hil scenarios`` (the bundled scenarios, one line each) and
-``hil version`` (the package version, also stamped into every run's provenance)."""
+"""What ships with the package: ``hil scenarios`` (the bundled scenarios, one line each)."""
 
 from __future__ import annotations
 
@@ -9,7 +8,6 @@ import typer
 
 from hil.bundled import bundled_dir, bundled_names, bundled_path, description
 from hil.commands import app
-from hil.provenance import package_version
 
 
 @app.command("scenarios")
@@ -34,9 +32,3 @@ def scenarios(
     width = max((len(n) for n in names), default=0)
     for name in names:
         typer.echo(f"{name:<{width}}  {description(bundled_dir() / f'{name}.toml')}")
-
-
-@app.command("version")
-def version() -> None:
-    """Print the package version."""
-    typer.echo(package_version())

@@ -11,7 +11,7 @@ import typer
 
 from hil import interrupts
 from hil.commands import app
-from hil.commands.law_option import LawOpt
+from hil.commands.new_law import LawOpt
 from hil.errors import BadInputError, NegativeVerdictError
 
 DEFAULT_MAX_DURATION = 20.0
@@ -101,7 +101,7 @@ def sweep(
     target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
     target.mkdir(parents=True, exist_ok=True)
     if latencies is not None:  # the run's latencies, replayed from replay.json in the folder
-        from hil.sim.replay import write_latency_file
+        from hil.folder.replay import write_latency_file
 
         t = scenario.timing
         lat = write_latency_file(latencies, target / "replay.json", scenario.base_dir / t.replay)
@@ -188,6 +188,7 @@ def _checked_sweep(
     (BadInputError: exit 2)."""
     from hil import options
     from hil.bundled import resolve_scenario
+    from hil.folder.replay import is_run_source, jitter_samples_from, latencies_from_run
     from hil.law.batch import batch_note
     from hil.law.option import with_law
     from hil.scenario import (
@@ -200,7 +201,6 @@ def _checked_sweep(
         check_loop_size,
         load_scenario,
     )
-    from hil.sim.replay import is_run_source, jitter_samples_from, latencies_from_run
     from hil.sweep.grid import make_grid
 
     # Options first: a bad one is refused before the plotting and runner modules load.

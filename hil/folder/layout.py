@@ -30,7 +30,7 @@ TRAJECTORY_PNG = "trajectory.png"
 REPORT_JSON = "report.json"
 REPORT_MD = "report.md"
 REPORT_HTML = "report.html"
-#: hil margin's result (hil.margin.record).
+#: hil margin's result (hil.analysis.margin.record).
 MARGIN = "margin.json"
 #: The law's failure (controller_service.laws.guard.LawFault), when it failed: written by the
 #: controller service in a run (its name is the services' contract, protocol.hoplog), by hil sim.

@@ -1,7 +1,7 @@
 """The rates of a run's ``timing`` (summary.json): each one count over what it counts against.
 
-One definition for a robot's run (:mod:`hil.measure.figures` writes each rate with
-:func:`ratio`) and for a fleet (:mod:`hil.fleet.report` pools the robots' counts with
+One definition for a robot's run (:mod:`hil.analysis.measure.figures` writes each rate with
+:func:`ratio`) and for a fleet (:mod:`hil.analysis.fleet_report` pools the robots' counts with
 :func:`pooled`): a fleet's rate is the same count over the same denominator, summed over its
 robots, so one robot's fleet has its robot's rate exactly (docs/fleet.md).
 """

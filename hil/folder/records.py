@@ -17,8 +17,8 @@ class Stall(TypedDict, total=False):
 
 
 class Certificate(TypedDict, total=False):
-    """The sampled-data certificate at the measured command age D (``hil.measure``), or at a
-    simulation's D = Ts + worst delay (``hil.measure.certificate.scenario_certificate``)."""
+    """The sampled-data certificate at the measured command age D (``hil.analysis.measure``), or at
+    a simulation's D = Ts + worst delay (``hil.sim.certificate.scenario_certificate``)."""
 
     path: str | None  # the applied path, never a shadow
     d_max_s: float | None  # the command age D, on the plant's clock
@@ -52,7 +52,7 @@ class ControllerExit(TypedDict, total=False):
 
 
 class Summary(TypedDict, total=False):
-    """summary.json of a run (``hil.run.results.analyze``) or a simulation (``hil.sim``)."""
+    """summary.json of a run (``hil.analysis.analyze.analyze``) or a simulation (``hil.sim``)."""
 
     schema_version: int
     kind: str  # "run"; absent for a simulation

@@ -2,7 +2,7 @@
 
 At each sample k (t_k = k Ts) the law gets the measured state (noise and quantization of
 [plant]), the reference sample and the law time t_k; its command lands at
-t_k + delay + extra_k rounded to the plant step h (see :mod:`hil.sim.replay`); when delays
+t_k + delay + extra_k rounded to the plant step h (see :mod:`hil.folder.replay`); when delays
 reorder commands the newest by sequence number wins and older ones are dropped (counted).
 Between landings the command is held (zero-order hold) and model (1) is integrated by RK4 at
 step h = Ts / ceil(Ts / [plant] step). Before the first command lands the torque is zero.
@@ -34,12 +34,12 @@ from controller_service.from_settings import initial_memory
 from controller_service.laws.base import ReferenceSample, RobotState
 from controller_service.laws.guard import LawFault, LawFaultError, checked_update
 from controller_service.references import sample_array
+from hil.folder.replay import jitter_samples_from
 from hil.folder.scenario_view import view
 from hil.law.batch import batch_update, for_batch
-from hil.measure.certificate import scenario_certificate
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
 from hil.sim import compiled
-from hil.sim.replay import jitter_samples_from
+from hil.sim.certificate import scenario_certificate
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from plant_emulator.dynamics import Extremes, PlantState, track_initial
 from plant_emulator.landing import extra_delays, landing_offsets

@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from hil.analysis.report import figures as fg
 from hil.folder.jsonio import jsonable, write_json
-from hil.report import figures as fg
 from hil.sweep.grid import (
     SweepGrid,
     aggregate,

@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 
 from controller_service.laws.guard import LawFault
-from hil import trace_metrics
+from hil.analysis import trace_metrics
 from hil.folder.scenario_view import view
-from hil.measure.certificate import certificate
 from hil.scenario import Scenario, build_loop, resolved_dict, scenario_dict
 from hil.sim import BatchResult, RobotVariation, simulate_batch
+from hil.sim.certificate import certificate
 from hil.sim.core import Progress
 from hil.sweep.grid import SweepGrid, SweepPoint
 

@@ -1,7 +1,7 @@
 """``hil sweep --worst-disturbance``: each grid point under the worst disturbance found.
 
 Instead of one loop per point under the scenario's own disturbance, each point (Ts, delay,
-jitter, seed) gets a search (:func:`hil.adversary.search.worst_disturbance`) over ``POPULATION``
+jitter, seed) gets a search (:func:`hil.sim.adversary.search.worst_disturbance`) over ``POPULATION``
 loops x ``ROUNDS`` rounds from around the scenario's initial state, within the scenario's s1, s2;
 its row reports the worst loop found (same columns as :func:`hil.sweep.runner.point_row`, plus
 ``disturbance``, the pattern in words). Ctrl-C keeps the groups already done.
@@ -16,11 +16,11 @@ from typing import Any
 import numpy as np
 
 from controller_service.laws.guard import LawFault, LawFaultError
-from hil.adversary.loop import initial_states, scenario_schedule
-from hil.adversary.search import worst_disturbance
 from hil.folder.scenario_view import view
-from hil.measure.certificate import certificate
 from hil.scenario import Scenario, build_loop, resolved_dict
+from hil.sim.adversary.loop import initial_states, scenario_schedule
+from hil.sim.adversary.search import worst_disturbance
+from hil.sim.certificate import certificate
 from hil.sweep.grid import SweepGrid
 from hil.sweep.runner import LAW_FAULT_RECORD, SweepOutcome, point_row, scenario_at, worst_age
 

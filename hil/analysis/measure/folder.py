@@ -1,0 +1,86 @@
+"""A run folder's measurement: made once from its hop logs, saved, and read back.
+
+:func:`measure_and_save` is the one producer (``hil run`` and ``hil recover`` call it through
+:func:`hil.analysis.analyze.analyze`; a folder written before series.npz existed gets it on first
+read). Everything after the run reads :func:`measured` and computes no figure of its own.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import tomllib
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+from hil.analysis.measure.figures import BoundInputs, Measurement, measure
+from hil.analysis.measure.logs import RunLogs, load_folder_logs, load_recording_logs
+from hil.folder import RunFolder, layout, read_series, write_series
+from hil.folder.recording import read_attachments
+from hil.folder.scenario_view import UNIFIED_LAWS, view
+
+
+def bound_inputs(resolved: dict[str, Any]) -> BoundInputs | None:
+    """The certificate's inputs from a resolved scenario (None: the law has no certificate)."""
+    sv = view(resolved)
+    if sv.law not in UNIFIED_LAWS:
+        return None
+    return BoundInputs(
+        SimpleNamespace(**sv.controller), sv.context, sv.boundary_layer, sv.v0, sv.w0
+    )
+
+
+def resolved_scenario(folder: Path) -> dict[str, Any] | None:
+    try:
+        return tomllib.loads((folder / layout.SCENARIO_RESOLVED).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def measure_logs(logs: RunLogs, resolved: dict[str, Any] | None) -> Measurement:
+    return measure(logs, bound_inputs(resolved) if resolved is not None else None)
+
+
+def measure_folder(folder: str | Path) -> Measurement | None:
+    """The run folder's measurement from its hop logs (None when it has none: a simulation)."""
+    folder = Path(folder)
+    logs = load_folder_logs(folder)
+    if logs is None:
+        return None
+    return measure_logs(logs, resolved_scenario(folder))
+
+
+def measure_and_save(folder: Path, logs: RunLogs | None = None) -> Measurement | None:
+    """Measure the folder's hop logs (``logs`` when already read) and save the series."""
+    logs = logs if logs is not None else load_folder_logs(folder)
+    if logs is None or logs.plant is None:
+        return None
+    m = measure_logs(logs, resolved_scenario(folder))
+    # A read-only folder is still read; it is measured again next time.
+    with contextlib.suppress(OSError):
+        write_series(folder, m.arrays())
+    return m
+
+
+def measured(folder: RunFolder) -> Measurement | None:
+    """The run's measurement as its folder holds it: summary.json's figures and the saved
+    series (None for a simulation). A folder from before series.npz is measured once, here,
+    by the same :func:`measure_and_save`; summary.json is never rewritten."""
+    arrays = read_series(folder.path)
+    if arrays is None:
+        m = measure_and_save(folder.path)
+        if m is None:
+            return None
+        arrays = m.arrays()
+        if not isinstance(folder.summary.get("timing"), dict):
+            return m  # a summary without figures: the measurement is all there is
+    return Measurement.from_saved(folder.summary, arrays)
+
+
+def measure_recording(path: str | Path) -> Measurement | None:
+    """The same from a recording alone (its attached hop logs and resolved scenario)."""
+    logs = load_recording_logs(path)
+    if logs is None:
+        return None
+    toml = read_attachments(path, names=(layout.SCENARIO_RESOLVED,)).get(layout.SCENARIO_RESOLVED)
+    return measure_logs(logs, tomllib.loads(toml.decode()) if toml is not None else None)

@@ -1,0 +1,48 @@
+"""Exact percentile summaries of durations (nanoseconds in, microseconds out): every
+percentile is one of the measured values (:func:`hil.analysis.trace_metrics.percentile`'s
+definition), so none can exceed the maximum and nothing is rounded to a histogram bucket."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+PERCENTILES = (("p50_us", 50.0), ("p90_us", 90.0), ("p99_us", 99.0), ("p999_us", 99.9))
+
+
+def exact_percentile(values: Any, q: float) -> float | None:
+    """The ``q``-th percentile as every percentile of the bench: one of the values (numpy's
+    ``inverted_cdf``: the smallest value with at least q % of them at or below it); None for
+    no values."""
+    v = np.asarray(values, dtype=float).ravel()
+    return float(np.percentile(v, q, method="inverted_cdf")) if v.size else None
+
+
+def empty_summary() -> dict[str, Any]:
+    return {"count": 0, **dict.fromkeys([name for name, _ in PERCENTILES] + ["max_us", "mean_us"])}
+
+
+def summarize_ns(values_ns: Any) -> dict[str, Any]:
+    """count, p50/p90/p99/p999/max/mean in microseconds of durations given in nanoseconds."""
+    v = np.asarray(values_ns, dtype=np.int64).ravel()
+    if v.size == 0:
+        return empty_summary()
+    qs = np.percentile(v, [q for _, q in PERCENTILES], method="inverted_cdf")
+    quantiles = {name: q for (name, _), q in zip(PERCENTILES, qs, strict=True)}
+    out = summary_from_quantiles(v.size, quantiles, v.max(), v.mean())
+    neg = int((v < 0).sum())
+    if neg:
+        out["negative"] = neg
+    return out
+
+
+def summary_from_quantiles(
+    count: int, quantile_ns: dict[str, Any], max_ns: int, mean_ns: float
+) -> dict[str, Any]:
+    """The same object from percentiles computed elsewhere (the command age's; ``count`` > 0)."""
+    out: dict[str, Any] = {"count": int(count)}
+    out.update({name: int(quantile_ns[name]) / 1000.0 for name, _ in PERCENTILES})
+    out["max_us"] = int(max_ns) / 1000.0
+    out["mean_us"] = float(mean_ns) / 1000.0
+    return out

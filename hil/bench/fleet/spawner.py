@@ -1,0 +1,127 @@
+"""N robots' closed loops at once (docs/fleet.md): one ``hil run`` per robot ``robot1`` ..
+``robotN`` or, with ``--per-process K`` (K > 1), one ``python -m hil.bench.group`` per group of K
+robots; all started together and stopped together.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from hil.bench.fleet import barrier
+from hil.bench.supervisor import Supervisor
+from hil.errors import BadInputError
+
+ROBOTS_MAX = 64
+
+
+@dataclass
+class FleetOptions:
+    scenario: Path
+    robots: int
+    out: Path
+    duration: float | None = None
+    rate: float | None = None
+    lab: str | None = None
+    plant_host: str | None = None
+    controller_host: str | None = None
+    per_process: int = 1  # robots per plant and per controller process
+
+
+def robot_ids(n: int) -> list[str]:
+    return [f"robot{i}" for i in range(1, n + 1)]
+
+
+def run_argv(opts: FleetOptions, robot: str) -> list[str]:
+    """``hil run`` of one robot of the fleet."""
+    argv = [sys.executable, "-m", "hil", "run", str(opts.scenario), "--robot-id", robot]
+    argv += ["--out", str(opts.out / robot), "--quiet", "--no-report", "--no-can"]
+    for flag, value in (("--duration", opts.duration), ("--rate", opts.rate)):
+        if value is not None:
+            argv += [flag, repr(value)]
+    if opts.lab:
+        argv += ["--lab", opts.lab]
+        argv += ["--plant-host", opts.plant_host] if opts.plant_host else []
+        argv += ["--controller-host", opts.controller_host] if opts.controller_host else []
+    return argv
+
+
+def group_argv(opts: FleetOptions, robots: list[str]) -> list[str]:
+    """``python -m hil.bench.group`` of one group, its spec written into the fleet's folder."""
+    spec = {
+        "scenario": str(opts.scenario),
+        "robots": robots,
+        "out": str(opts.out),
+        "duration": opts.duration,
+        "rate": opts.rate,
+        "fleet_size": opts.robots,
+        "lab": opts.lab,
+        "plant_host": opts.plant_host,
+        "controller_host": opts.controller_host,
+    }
+    path = opts.out / f".group-{robots[0]}.spec.json"
+    path.write_text(json.dumps(spec, indent=2) + "\n")
+    return [sys.executable, "-m", "hil.bench.group", str(path)]
+
+
+def group_codes(opts: FleetOptions, robots: list[str], code: int | None) -> dict[str, int | None]:
+    """Each robot's exit code from its group's file (the group's own code for a robot the
+    file does not have: the group ended before it wrote it)."""
+    try:
+        got = json.loads((opts.out / f".group-{robots[0]}.codes.json").read_text())
+    except (OSError, ValueError):
+        got = {}
+    return {r: got.get(r, code if code else 1) for r in robots}
+
+
+def check(opts: FleetOptions) -> None:
+    for flag, n in (("--robots", opts.robots), ("--per-process", opts.per_process)):
+        if not 1 <= n <= ROBOTS_MAX:
+            raise BadInputError(f"{flag} {n}: 1 to {ROBOTS_MAX}")
+    if opts.out.exists() and any(opts.out.iterdir()):
+        raise BadInputError(f"--out {opts.out}: exists and is not empty")
+
+
+def execute(opts: FleetOptions, stop: Any, live: Any = None) -> dict[str, int | None]:
+    """Start every robot's ``hil run`` at once and wait for all (or for ``stop``: then each
+    gets SIGINT and writes its folder); the exit code of each. ``live``: polled, then closed."""
+    check(opts)
+    opts.out.mkdir(parents=True, exist_ok=True)
+    sup = Supervisor()
+    logs = []
+    ids, k = robot_ids(opts.robots), opts.per_process  # k robots a process (check: 1..64)
+    members = {ids[i]: ids[i : i + k] for i in range(0, len(ids), k)}  # by each group's first
+    grouped = opts.per_process > 1
+    try:
+        for first, robots in members.items():
+            log = (opts.out / f"{first}.log").open("wb")
+            logs.append(log)
+            env = barrier.env_for(opts.out, opts.robots, first)
+            argv = group_argv(opts, robots) if grouped else run_argv(opts, first)
+            sup.start(first, argv, env=env, stdout=log, stderr=log)
+        while not stop and any(c.alive() for c in sup.children):
+            if live is not None:
+                live.poll()
+            for c in sup.children:
+                if not c.alive():  # ended before the start (it may never have been ready)
+                    for robot in members[c.name]:
+                        barrier.release(opts.out, robot)
+            time.sleep(0.1)
+    finally:
+        # A run that is still going gets SIGINT (it stops its services and writes its folder).
+        codes = {c.name: c.stop(grace=60.0 + 5.0 * len(members[c.name])) for c in sup.children}
+        for log in logs:
+            log.close()
+        if live is not None:
+            live.close()
+    if not grouped:
+        return codes
+    return {
+        r: c
+        for first, code in codes.items()
+        for r, c in group_codes(opts, members[first], code).items()
+    }

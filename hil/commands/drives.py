@@ -1,0 +1,163 @@
+"""``hil drives``: the plant and its two virtual ODrives on a CAN bus, until Ctrl-C."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from hil.commands import app
+from hil.commands.run import LiveHostOpt, live_opt
+from hil.errors import BadInputError
+from hil.options import out_dir
+
+
+def _msg_rates(heartbeat_ms: float, encoder_ms: float, extra: list[str]) -> dict[int, float]:
+    """The periods (ms) of the drives' cyclic messages by command id."""
+    from plant_emulator.odrive import CYCLIC
+
+    names = {name: int(cmd) for cmd, name in CYCLIC.items()}
+    rates = {0x01: heartbeat_ms, 0x09: encoder_ms}
+    for item in extra:
+        name, sep, value = item.partition("=")
+        if not sep or name not in names:
+            raise BadInputError(
+                f"--msg-rate {item!r}: use NAME=MS with NAME one of {', '.join(names)}"
+            )
+        try:
+            rates[names[name]] = float(value)
+        except ValueError:
+            raise BadInputError(f"--msg-rate {item!r}: MS must be a number") from None
+    for cmd, ms in rates.items():
+        if not (ms >= 0.0 and ms < float("inf")):
+            raise BadInputError(f"message rate of cmd 0x{cmd:02x} must be >= 0 ms, got {ms}")
+    return rates
+
+
+# The options of ``hil drives`` longer than a line of its signature, one alias each.
+ScenarioArg = Annotated[
+    str | None,
+    typer.Argument(
+        help="Scenario TOML or bundled name: robot, limits, [can] (default: hil run's)."
+    ),
+]
+CanInterfaceOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--can-interface",
+        "--interface",
+        help="python-can interface: zenoh_can, socketcan, udp_multicast, pcan, ... "
+        "(--can-interface, as in hil run).",
+    ),
+]
+ChannelOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--can-channel",
+        "--channel",
+        help="Bus channel: hil0 (zenoh_can), vcan0, can0, ... (--can-channel, as in hil run).",
+    ),
+]
+CanEndpointOpt = Annotated[str | None, typer.Option(help="zenoh_can's Zenoh endpoint (loopback).")]
+ControlRateOpt = Annotated[float, typer.Option(help="Hz of the plant and drive controller steps.")]
+HeartbeatOpt = Annotated[float, typer.Option(help="Heartbeat period, ms (0: off; firmware 100).")]
+EncoderOpt = Annotated[
+    float, typer.Option(help="Get_Encoder_Estimates period, ms (0: off; firmware 10).")
+]
+MsgRateOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        help="More cyclic messages, NAME=MS: error, iq, temperature, bus_voltage, "
+        "torques, powers (repeatable)."
+    ),
+]
+WatchdogOpt = Annotated[
+    float | None,
+    typer.Option(
+        help="Drive watchdog, s: a drive gets no command for this long and disarms (0: off, "
+        "as the firmware ships). Default: [can] watchdog_timeout if set, else 1 s."
+    ),
+]
+StateRateOpt = Annotated[
+    float, typer.Option(help="Publish State (and Status) on Zenoh at this rate, Hz.")
+]
+EndpointOpt = Annotated[str, typer.Option(help="Zenoh endpoint for State/Status.")]
+StatusPeriodOpt = Annotated[float, typer.Option(help="Seconds between status lines (0: none).")]
+DurationOpt = Annotated[
+    float | None, typer.Option(help="Stop after this many seconds (default: Ctrl-C).")
+]
+SchedulingOpt = Annotated[str | None, typer.Option(help="fifo or other (default: the scenario's).")]
+OutOpt = Annotated[Path | None, typer.Option(help="Also write summary.json in this folder.")]
+LiveOpt = live_opt("the drives' frames (and State, with --state-rate)")
+
+
+@app.command("drives")
+def drives_cmd(
+    scenario: ScenarioArg = None,
+    can_interface: CanInterfaceOpt = None,
+    channel: ChannelOpt = None,
+    bitrate: Annotated[int | None, typer.Option(help="Bit/s (hardware, zenoh_can).")] = None,
+    can_endpoint: CanEndpointOpt = None,
+    node_left: Annotated[int | None, typer.Option(help="Left wheel's node id.")] = None,
+    node_right: Annotated[int | None, typer.Option(help="Right wheel's node id.")] = None,
+    control_rate: ControlRateOpt = 1000.0,
+    heartbeat_ms: HeartbeatOpt = 100.0,
+    encoder_ms: EncoderOpt = 10.0,
+    msg_rate: MsgRateOpt = None,
+    watchdog_timeout: WatchdogOpt = None,
+    state_rate: StateRateOpt = 0.0,
+    endpoint: EndpointOpt = "tcp/127.0.0.1:7447",
+    status_period: StatusPeriodOpt = 1.0,
+    duration: DurationOpt = None,
+    scheduling: SchedulingOpt = None,
+    out: OutOpt = None,
+    live: LiveOpt = None,
+    live_host: LiveHostOpt = "127.0.0.1",
+) -> None:
+    """Run the robot with its two virtual ODrives (CANSimple 0.6) on a CAN bus for any
+    ODrive client, free running (no start gate), until Ctrl-C or SIGTERM: one status line
+    a second, a JSON summary at the end (docs/can.md)."""
+    from hil.bench.drives import DrivesOptions, drives_settings, run_drives
+    from hil.bench.live.launch import DrivesLive, check
+
+    if scheduling not in (None, "fifo", "other"):
+        raise BadInputError("--scheduling must be fifo or other")
+    if duration is not None and not duration > 0:
+        raise BadInputError("--duration must be > 0")
+    out_dir("--out", out)  # before the drives run, not when they stop
+    opts = DrivesOptions(
+        scenario=scenario,
+        interface=can_interface,
+        channel=channel,
+        bitrate=bitrate,
+        can_endpoint=can_endpoint,
+        node_left=node_left,
+        node_right=node_right,
+        control_rate=control_rate,
+        msg_rates_ms=_msg_rates(heartbeat_ms, encoder_ms, msg_rate or []),
+        watchdog_timeout=watchdog_timeout,
+        state_rate=state_rate,
+        zenoh_endpoint=endpoint,
+        status_period=status_period,
+        duration=duration,
+        scheduling=scheduling,
+        out=out,
+    )
+    import can
+
+    check(live, live_host)
+    watcher = None
+    try:
+        if live is not None:  # the live view's process around the drives
+            settings = drives_settings(opts)
+            settings.zenoh_endpoint = opts.zenoh_endpoint  # where the drives publish State, Status
+            watcher = DrivesLive(settings, live, live_host)
+        code = run_drives(opts)
+    except (ValueError, OSError, can.CanError) as exc:  # a refused bus or configuration
+        raise BadInputError(str(exc)) from exc
+    finally:
+        if watcher is not None:
+            watcher.close()
+    if code:
+        raise typer.Exit(code)

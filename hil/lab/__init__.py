@@ -1,2 +1,0 @@
-"""A lab of hosts on one machine (docs/lab.md). ``hil lab`` is :mod:`hil.lab.lab`; what it
-made, and how leftovers are proven its own, :mod:`hil.lab.state`."""

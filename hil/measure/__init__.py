@@ -1,7 +1,0 @@
-"""The run's measurements: one pipeline from the services' hop logs (:mod:`protocol.hoplog`)
-to every figure, :func:`measure` (:mod:`hil.measure.figures`)."""
-
-from hil.measure.figures import measure
-from hil.measure.logs import load_folder_logs
-
-__all__ = ["load_folder_logs", "measure"]
