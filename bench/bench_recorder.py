@@ -21,8 +21,7 @@ from pathlib import Path
 
 import _here  # noqa: F401  (this checkout first on sys.path)
 
-from hil.bench.lifecycle import Recorder
-from hil.folder.recording import RecordingWriter
+from hil.bench.recorder import Recorder, RecordingWriter
 from protocol.can.codec import Heartbeat, SetInputTorque
 from protocol.can.codec import encode as can_encode
 from protocol.can.drive_link import to_message

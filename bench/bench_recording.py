@@ -19,7 +19,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hil.folder.recording import RecordingWriter, read_messages
+from hil.bench.recorder import RecordingWriter
+from hil.folder.recording import read_messages
 
 
 def rerecord(messages: list, interval: float, out: Path) -> tuple[int, float]:

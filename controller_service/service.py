@@ -48,6 +48,7 @@ from controller_service.tick_phase import PhaseLearner
 from protocol import keys
 from protocol.faults import Faults
 from protocol.hoplog import (
+    CONTROLLER_HOPLOG,
     CONTROLLER_TABLES,
     LAW_FAULT_EXIT,
     LAW_FAULT_FILE,
@@ -522,13 +523,10 @@ class ControllerService:
         }
 
 
-HOPLOG_NAME = "controller.hoplog"
-
-
 def _open_hoplog(s: RunSettings, previous: Any) -> HopLogWriter:
     """The controller's hop log; a predecessor's crashed log (``previous``) is continued."""
     return HopLogWriter(
-        Path(s.out_dir) / HOPLOG_NAME,
+        Path(s.out_dir) / CONTROLLER_HOPLOG,
         "controller",
         CONTROLLER_TABLES,
         {
@@ -670,7 +668,7 @@ def build_service(s: RunSettings, session: Any) -> Parts:
     faults = Faults.of(s.faults)
     # A predecessor that crashed mid-run left its log open: this is a restart, which continues
     # that log, its epoch and its command numbering (the plant's tracker sees no gap).
-    previous = crashed_log(Path(s.out_dir) / HOPLOG_NAME)
+    previous = crashed_log(Path(s.out_dir) / CONTROLLER_HOPLOG)
     hoplog = _open_hoplog(s, previous)
     can_path = _open_can_path(s, hoplog, faults)
     epoch_ns = s.epoch_ns or (int(previous.meta["epoch_ns"]) if previous is not None else 0)

@@ -13,11 +13,8 @@ which is late by that transit (about 0.1-1 ms) and never earlier than the put.
 from __future__ import annotations
 
 import heapq
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
-from hil.folder.recording import to_jsonable
-from protocol.can.codec import decode as can_decode
-from protocol.can.drive_link import from_message
 from protocol.keys import is_tap_key
 from protocol.messages import DecodeError
 from protocol.rejections import RejectionCounter
@@ -114,21 +111,3 @@ class InTimeOrder:
 
     def __len__(self) -> int:
         return len(self._heap)
-
-
-def can_frame_record(msg: Any) -> dict[str, Any]:
-    """A python-can message as the recording and the live view show it (schema
-    ``hil.CanFrame``): its fields, and the CANSimple message it decodes to (or why not)."""
-    data: dict[str, Any] = {
-        "arbitration_id": msg.arbitration_id,
-        "data": bytes(msg.data).hex(),
-        "dlc": msg.dlc,
-        "is_remote_frame": bool(msg.is_remote_frame),
-    }
-    try:
-        m = can_decode(from_message(msg))
-        data["message"] = type(m).__name__
-        data["fields"] = to_jsonable(m)
-    except Exception as exc:  # a frame the codec refuses is still recorded, with why
-        data["decode_error"] = str(exc)
-    return data

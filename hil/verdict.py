@@ -36,9 +36,9 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from controller_service.laws.guard import LawFault
-from hil.analysis.trace_metrics import LIMIT_REL_TOL, ConstraintFigure
 from hil.folder import layout
 from hil.folder.records import ControllerExit, Summary
+from hil.limits import LIMIT_REL_TOL, ConstraintFigure
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
 #: The exit code of each outcome, for every command that has a verdict (docs/reports.md).
@@ -54,6 +54,13 @@ BENCH_ADVICE = (
     'policy (scheduling = "fifo", as root or with CAP_SYS_NICE), use a quieter host, or lower '
     "the rate; then run again"
 )
+
+
+def control_slot(sample_ns: Any, origin_ns: int, period_ns: int) -> Any:
+    """The control slot meant to answer a plant sample taken at ``sample_ns`` (an int or an
+    array), on a controller's grid of deadlines ``origin_ns + k period_ns``: the first slot
+    whose deadline is at or after the sample (docs/realtime.md, ``samples_without_command``)."""
+    return -((origin_ns - sample_ns) // period_ns)
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,7 @@ from protocol import keys
 from protocol.faults import Faults, every_nth
 from protocol.hoplog import (
     NO_NODE,
+    PLANT_HOPLOG,
     PLANT_TABLES,
     SAMPLE_DROPPED,
     SAMPLE_DUPLICATED,
@@ -587,9 +588,6 @@ class PlantService:
         }
 
 
-HOPLOG_NAME = "plant.hoplog"
-
-
 def build_plant(s: RunSettings, at_rest: bool = False) -> tuple[PlantCore, Sensor]:
     """(the core, the sensor) for the run ``s`` from its settings alone (``at_rest``: the
     initial pose with v = omega = 0, as the free-running drives start)."""
@@ -692,7 +690,7 @@ def build_service(s: RunSettings, session: Any, stack: Any) -> tuple[PlantServic
     core, sensor = build_plant(s)
     sensor_ts = s.ts if s.lockstep else s.sensor_ts
     faults = Faults.of(s.faults)
-    log_path = Path(s.out_dir) / HOPLOG_NAME
+    log_path = Path(s.out_dir) / PLANT_HOPLOG
     # A predecessor that crashed mid-run left its log open: this is a restart, which continues
     # that log and the emulated robot from its last logged sample (motors unpowered meanwhile).
     previous = crashed_log(log_path)

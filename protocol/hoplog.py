@@ -49,6 +49,11 @@ SUFFIX = ".hoplog"
 # then exits with LAW_FAULT_EXIT; hil reads the file into summary.json's ``law_fault``.
 LAW_FAULT_FILE = "law_fault.json"
 LAW_FAULT_EXIT = 5
+# The names of the files the services write into the run folder (hil.folder.layout re-exports
+# them): each service's hop log, and the controller's clock probe (runtime.clocksync).
+CONTROLLER_HOPLOG = "controller" + SUFFIX
+PLANT_HOPLOG = "plant" + SUFFIX
+CLOCK_FILE = "clock-controller.csv"
 
 # The tables each service writes (docs/realtime.md defines every stamp; one host, one
 # CLOCK_MONOTONIC, nanoseconds): one NamedTuple per table, whose fields name the columns (the

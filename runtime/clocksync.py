@@ -44,8 +44,8 @@ from pathlib import Path
 from typing import Any
 
 from protocol import keys
+from protocol.hoplog import CLOCK_FILE as CLOCK_FILE  # the controller's probe, in the run folder
 
-CLOCK_FILE = "clock-controller.csv"  # the controller's probe, in the run folder
 FILTER_SAMPLES = 8  # RFC 5905's clock filter register
 BURST = 4  # exchanges per poll, back to back: the register holds the last two polls
 INTERVAL_S = 0.25  # between polls

@@ -1100,7 +1100,7 @@ def _every_frame_carries_its_commands_torque(raw: RawRun, scenario: Path) -> Non
 
 
 def test_replay_from_the_recording_equals_replay_from_the_folder(tmp_path):
-    from hil.folder.replay import latencies_from_run
+    from hil.analysis.replay import latencies_from_run
 
     out = tmp_path / "run"
     proc = subprocess.run(

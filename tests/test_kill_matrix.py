@@ -78,7 +78,8 @@ def _hil_run(out: Path, scenario: Path) -> None:
 def _cut(src: Path, dst: Path, drop: set[int]) -> int:
     """A copy of recording ``src`` without the States numbered in ``drop`` and cut as a killed
     writer leaves it (no summary, no footer); returns how many States it dropped."""
-    from hil.folder.recording import RecordingWriter, is_complete, read_messages
+    from hil.bench.recorder import RecordingWriter
+    from hil.folder.recording import is_complete, read_messages
 
     dropped = 0
     with RecordingWriter(dst) as w:
@@ -103,7 +104,7 @@ def test_recovery_restores_the_states_the_recording_lacks_as_the_recorder_wrote_
     (scattered, and the last 25); ``hil recover`` restores exactly those 40, each equal field
     for field to what the recorder had written (the measured state recomputed with the run's
     sensor model) and marked, publish time = send time; nothing for a State never sent."""
-    from hil.bench.repair import recover
+    from hil.commands.recover import recover
     from hil.folder.recording import read_messages
     from protocol.hoplog import SAMPLE_DROPPED, read_hoplog
 

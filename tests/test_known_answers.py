@@ -26,7 +26,8 @@ import numpy as np
 import pytest
 
 from hil.analysis.measure import load_folder_logs, measure
-from hil.analysis.measure.figures import BoundInputs, Measurement
+from hil.analysis.measure.figures import Measurement
+from hil.folder.scenario_view import BoundInputs
 from tests.calibrates import calibrates
 from tests.synthetic_run import MS, US, Loop, write
 

@@ -17,8 +17,8 @@ from types import SimpleNamespace
 import pytest
 
 from hil.analysis.measure import load_folder_logs, measure
-from hil.analysis.measure.figures import BoundInputs
 from hil.bench.live.timing import Bounds, LiveTiming
+from hil.folder.scenario_view import BoundInputs
 from hil.verdict import FAIL, PASS, constraints_from_peaks, judge
 from protocol.hoplog import CmdPath, read_hoplog
 from protocol.messages import State, TorqueCommand

@@ -44,7 +44,8 @@ def _in_memory_logs(run_dir: Path) -> Any:
     """The run's hop logs read whole (protocol.hoplog.read_hoplog, every row a Python list)
     and turned into the columns hil.analysis.measure joins, without hil.analysis.measure.logs'
     chunked reader."""
-    from hil.analysis.measure.logs import COLUMNS, LogHead, RunLogs
+    from hil.analysis.measure.logs import RunLogs
+    from hil.folder.hoplogs import COLUMNS, LogHead
     from protocol.hoplog import CONTROLLER_TABLES, HOST_TABLES, PLANT_TABLES, read_hoplog
 
     logs = RunLogs(None, None)
@@ -84,7 +85,8 @@ def test_a_20s_run_keeps_service_memory_flat_and_its_chunked_analysis_is_exact(
     from longrun import run_sampled
 
     from hil.analysis.measure import measure
-    from hil.analysis.measure.folder import bound_inputs, measure_folder, resolved_scenario
+    from hil.analysis.measure.folder import measure_folder, resolved_scenario
+    from hil.folder.scenario_view import bound_inputs
 
     run_dir = tmp_path / "run"
     sampled = run_sampled(run_dir, 20.0, rate=1000.0)

@@ -223,7 +223,7 @@ def test_a_long_series_figure_draws_its_envelope_and_says_so() -> None:
 
 
 def _recording(path: Path, streamed: bool, blob: Path, n: int = 3000) -> None:
-    from hil.folder.recording import RecordingWriter
+    from hil.bench.recorder import RecordingWriter
 
     w = RecordingWriter(path, metadata={"robot_id": "r"}, flush_interval=0.0)
     for i in range(n):
@@ -276,7 +276,7 @@ def test_telemetry_messages_that_do_not_carry_a_group_are_skipped_in_place(tmp_p
     group only; a payload that is not JSON is None in its place, so the others keep their own
     log times (the batch is then decoded one by one, NaN by the standard library)."""
     from hil.analysis.report.telemetry import _decode, recorded_telemetry
-    from hil.folder.recording import RecordingWriter
+    from hil.bench.recorder import RecordingWriter
 
     assert _decode([b'{"a": 1}', b"not json", b'{"a": NaN}', b"[1]"])[:2] == [{"a": 1}, None]
     assert math.isnan(_decode([b'{"a": NaN}'])[0]["a"])
@@ -514,7 +514,8 @@ def test_the_windowed_ideal_on_the_compiled_kernel_equals_the_numpy_one(
 
 @pytest.mark.parametrize("bad_row", [(1, 2), tuple(range(9))])
 def test_a_hop_log_row_of_the_wrong_width_is_refused_by_name(tmp_path: Path, bad_row) -> None:
-    from hil.analysis.measure.logs import FIGURE_COLUMNS, RunLogs, read_columns
+    from hil.analysis.measure.logs import FIGURE_COLUMNS, RunLogs
+    from hil.folder.hoplogs import read_columns
     from protocol.hoplog import PLANT_TABLES, HopLogError, HopLogWriter
 
     path = tmp_path / "plant.hoplog"

@@ -29,7 +29,7 @@ def _paper_bound():
     from types import SimpleNamespace
 
     from controller_service.laws.base import DesignContext
-    from hil.analysis.measure.figures import BoundInputs
+    from hil.folder.scenario_view import BoundInputs
 
     params = SimpleNamespace(m1=0.5, m2=0.5, l1=0.5, l2=0.5, lam=1.0, rho=1.0)
     return BoundInputs(params, DesignContext(), False)

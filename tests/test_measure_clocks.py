@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hil.analysis.measure.clocks import CONTROLLER_CLOCK, read_track, to_plant_clock
+from hil.analysis.measure.clocks import CONTROLLER_CLOCK, to_plant_clock
+from hil.folder.clocks import read_track
 from runtime.clocksync import CLOCK_FILE, COLUMNS
 
 OFFSET = 4_900_000_000  # plant minus controller

@@ -8,7 +8,8 @@ import math
 
 from mcap.reader import make_reader
 
-from hil.folder.recording import RecordingWriter, list_topics, read_messages, read_metadata
+from hil.bench.recorder import RecordingWriter
+from hil.folder.recording import list_topics, read_messages, read_metadata
 from protocol.messages import State, decode, encode
 
 

@@ -15,15 +15,13 @@ import pytest
 from mcap.reader import make_reader
 
 from hil import schemas
+from hil.bench.recorder import RecordingWriter, rewrite_complete, to_jsonable
 from hil.folder.recording import (
-    RecordingWriter,
     list_topics,
     read_attachments,
     read_messages,
     read_metadata,
     read_topic_payloads,
-    rewrite_complete,
-    to_jsonable,
 )
 from protocol.messages import SPECS, State, TorqueCommand
 
@@ -132,7 +130,7 @@ def test_pose_helpers_give_unit_quaternions_of_the_heading():
 
 
 def test_the_recorder_writes_a_rejected_payload_on_its_own_typed_channel(tmp_path):
-    from hil.bench.lifecycle import Recorder
+    from hil.bench.recorder import Recorder
     from protocol.messages import encode
 
     path = tmp_path / "r.mcap"
@@ -175,7 +173,7 @@ def test_a_recording_written_before_the_schemas_were_typed_still_reads(tmp_path)
 def test_the_recorders_formatted_pose_is_the_schemas_pose(tmp_path):
     """hil.folder.recording.write_pose formats the JSON itself (speed): it must be exactly what the
     hil.schemas helpers build, for any pose a State can carry."""
-    from hil.folder.recording import write_pose
+    from hil.bench.recorder import write_pose
 
     path = tmp_path / "p.mcap"
     poses = [State("robot0", i, 3_000_000_007 * i, 0, 1e-7 * i - 2.5, 1e5 / (i + 1),

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from hil.analysis.measure.folder import measure_folder
+from hil.analysis.replay import latencies_from_run
 from hil.cli import main
-from hil.folder.replay import latencies_from_run
 from hil.sim.certificate import CONTRACT_KEYS
 from tests.run_helpers import (
     PASSES,

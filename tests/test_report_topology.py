@@ -11,9 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from hil.bench.lifecycle import Recorder, attachment_files
+from hil.bench.lifecycle import attachment_files
+from hil.bench.recorder import Recorder, RecordingWriter
 from hil.cli import main
-from hil.folder.recording import RecordingWriter, read_attachments
+from hil.folder.recording import read_attachments
 from runtime.clocksync import CLOCK_FILE, COLUMNS
 from tests.synthetic_folder import write_synthetic_folder
 from tests.test_report import RUN_SECTIONS, check_html, check_images

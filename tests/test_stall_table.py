@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 
 from hil.analysis.measure import load_folder_logs, measure
-from hil.analysis.measure.figures import BoundInputs
 from hil.analysis.measure.stalls import (
     BENCH,
     OWNER,
@@ -33,6 +32,7 @@ from hil.analysis.measure.stalls import (
     table_markdown,
     table_text,
 )
+from hil.folder.scenario_view import BoundInputs
 from tests.synthetic_run import MS, US, Loop, write
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hil.analysis.replay import latencies_from_run
 from hil.cli import main
 from hil.errors import BadInputError
-from hil.folder.replay import latencies_from_run
 from hil.sweep.grid import DEFAULT_DELAY, DEFAULT_TS, break_points, make_grid
 from tests.procs import wait_until
 from tests.scenario_text import CIRCLE_TABLE1

@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hil.analysis import trace_metrics
+from hil.limits import ConstraintFigure
 
 KNOWN = [3.0, 1.0, 4.0, 1.0, 5.0, 9.0, 2.0, 6.0, 5.0, 3.0, 5.0]
 
@@ -115,9 +116,9 @@ def test_switching_rate_counts_sign_changes_per_second() -> None:
 
 
 def test_constraint_figure_tolerance_and_bound() -> None:
-    ok = trace_metrics.ConstraintFigure("v", 1.6 * (1 + 1e-12), 1.6, 1.7)
+    ok = ConstraintFigure("v", 1.6 * (1 + 1e-12), 1.6, 1.7)
     assert ok.held and ok.within_bound
-    bad = trace_metrics.ConstraintFigure("v", 1.65, 1.6, 1.62)
+    bad = ConstraintFigure("v", 1.65, 1.6, 1.62)
     assert not bad.held and bad.within_bound is False
     assert bad.ratio == pytest.approx(1.65 / 1.6)
 

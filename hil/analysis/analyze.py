@@ -1,4 +1,6 @@
-"""Turn the services' hop logs into the run folder's trace.csv and summary.json.
+"""Turn the services' hop logs into the run folder's trace.csv and summary.json: the analysis of
+a run the bench recorded (:class:`hil.folder.records.Recorded`; ``hil run`` and ``hil recover``
+call it after the bench, :mod:`hil.commands.run`, :mod:`hil.commands.recover`).
 
 Every timing figure, message count and the certificate come from :mod:`hil.analysis.measure` (one
 pipeline, definitions in docs/realtime.md); this module adds the trace (one row per plant
@@ -10,21 +12,23 @@ from __future__ import annotations
 import csv
 import math
 import operator
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from controller_service.laws.guard import LawFault
+from hil import interrupts
 from hil.analysis.measure.figures import Measurement
-from hil.analysis.measure.folder import measure_and_save
+from hil.analysis.measure.folder import measure_and_save, resolved_scenario
 from hil.analysis.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
+from hil.analysis.report.clockplot import write_clock_plot
 from hil.analysis.report.figures import envelope_indices, plt
-from hil.bench.settings import rate_hz
 from hil.errors import BadInputError
 from hil.folder import layout, write_summary
 from hil.folder.jsonio import read_json_object
-from hil.folder.records import Summary
+from hil.folder.records import Recorded, Summary
 from hil.folder.trace_csv import read_trace
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from hil.verdict import LawEnd, RunFacts, constraints_from_peaks, judge
@@ -87,10 +91,23 @@ def write_trace(
     return pos_err, head_err
 
 
-def analyze(
-    run_dir: Path, scenario: Any, settings: Any, reference: Any, context: Any, extra: dict[str, Any]
-) -> Summary:
+def write_results(rec: Recorded) -> Summary:
+    """trace.csv, summary.json and trajectory.png of a run the bench recorded (and clock.png of
+    one across lab hosts); a second Ctrl-C while the folder is written is recorded, not raised
+    (hil.interrupts)."""
+    with interrupts.shielded():
+        summary = analyze(rec)
+        try:
+            plot(rec.run_dir)
+        except Exception as exc:
+            print(f"warning: plots not written: {exc}", file=sys.stderr)
+        write_clock_plot(rec.run_dir)
+    return summary
+
+
+def analyze(rec: Recorded) -> Summary:
     """Write trace.csv and summary.json from the two hop logs; returns the summary."""
+    run_dir, scenario, settings = rec.run_dir, rec.scenario, rec.settings
     logs = load_folder_logs(run_dir) or RunLogs.read(None, None)
     m = (measure_and_save(run_dir, logs) if logs.plant else None) or Measurement()
     # The figures' columns go before the trace's are read: an hour's run holds one set at a
@@ -99,7 +116,7 @@ def analyze(
     lockstep = bool(settings.lockstep)
     traced = load_folder_logs(run_dir, TRACE_SOURCE_COLUMNS)
     traced = traced or RunLogs.read(None, None, TRACE_SOURCE_COLUMNS)
-    pos_err, head_err = write_trace(run_dir, traced, reference, settings.ts, lockstep)
+    pos_err, head_err = write_trace(run_dir, traced, rec.reference, settings.ts, lockstep)
     del traced
     n = len(pos_err)
     tail = pos_err[-max(1, n // 10) :].tolist() if n else []
@@ -146,7 +163,7 @@ def analyze(
         "controller": cinfo.get("scheduling"),
         "plant": logs.pmeta.get("scheduling"),
     }
-    summary.update(extra)
+    summary.update(rec.extra)
     fault = law_fault_of(run_dir)
     if fault is not None:
         summary["law_fault"] = fault
@@ -159,6 +176,15 @@ def analyze(
     # Whole or absent, never half: a kill while it is written leaves the folder to recover.
     write_summary(run_dir, summary)
     return summary
+
+
+def rate_hz(run_dir: Path, settings: Any) -> float:
+    """The control rate as the user asked for it (``--rate``, ``[realtime] rate`` or 1 / ts),
+    for summary.json: the folder's ``[provenance] rate_hz`` as ``hil run`` wrote it, else 1 / ts."""
+    value = (resolved_scenario(run_dir) or {}).get("provenance", {}).get("rate_hz")
+    if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
+        return float(value)
+    return 1.0 / settings.ts
 
 
 def run_verdict(summary: Summary, scenario: Any) -> dict[str, Any]:

@@ -17,6 +17,7 @@ import matplotlib
 import matplotlib.pyplot as plt
 
 from hil.analysis.measure.stats import exact_percentile
+from hil.folder import layout
 from hil.folder.rates import RATES, pooled
 from hil.verdict import FAIL, INCONCLUSIVE, PASS, run_outcome
 
@@ -28,7 +29,7 @@ def _robot(folder: Path, code: int | None) -> dict[str, Any]:
     counts and rates of RATES from its summary.json."""
     row: dict[str, Any] = {"robot": folder.name, "folder": folder.name, "exit_code": code}
     try:
-        s = json.loads((folder / "summary.json").read_text())
+        s = json.loads((folder / layout.SUMMARY).read_text())
     except (OSError, ValueError):
         return {**row, "verdict": NO_RUN, "error": "no summary.json"}
     t, cert = s.get("timing") or {}, s.get("certificate") or {}
@@ -146,7 +147,7 @@ def plot(summary: dict[str, Any], path: Path) -> None:
 
 def write(out: Path, codes: dict[str, int | None], facts: dict[str, Any]) -> dict[str, Any]:
     summary = fleet_summary(out, codes, facts)
-    (out / "fleet.json").write_text(json.dumps(summary, indent=2) + "\n")
-    (out / "fleet.md").write_text(markdown(summary))
-    plot(summary, out / "fleet.png")
+    (out / layout.FLEET_JSON).write_text(json.dumps(summary, indent=2) + "\n")
+    (out / layout.FLEET_MD).write_text(markdown(summary))
+    plot(summary, out / layout.FLEET_PNG)
     return summary

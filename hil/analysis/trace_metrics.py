@@ -28,16 +28,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from hil.limits import ConstraintFigure
 from protocol.angles import wrap_angle
 
 PERCENTILES: tuple[float, ...] = (50.0, 90.0, 99.0, 99.9)
-# summary.json's tolerance: a violation is beyond 1e-9 relative (docs/design.md, section 3).
-LIMIT_REL_TOL = 1e-9
 
 
 def percentile(values: Iterable[float] | np.ndarray, q: float) -> float:
@@ -125,34 +123,6 @@ def saturation_share(tau: np.ndarray, varpi: float, fraction: float = SATURATION
     if known.size == 0 or varpi <= 0:
         return 0.0
     return float(np.count_nonzero(known >= fraction * varpi) / known.size)
-
-
-@dataclass(frozen=True)
-class ConstraintFigure:
-    """One constraint of (2): the measured peak against its limit and (velocities) the
-    sampled-data bound of docs/sampled_data_bound.md / the certificate."""
-
-    name: str
-    peak: float
-    limit: float
-    bound: float | None
-
-    @property
-    def ratio(self) -> float:
-        """peak / limit: above 1 the constraint (2) is broken (overshoot = ratio - 1)."""
-        return self.peak / self.limit if self.limit > 0 else math.inf
-
-    @property
-    def held(self) -> bool:
-        return self.peak <= self.limit * (1.0 + LIMIT_REL_TOL)
-
-    @property
-    def within_bound(self) -> bool | None:
-        return None if self.bound is None else self.peak <= self.bound * (1.0 + LIMIT_REL_TOL)
-
-    def as_dict(self) -> dict[str, Any]:
-        keys = ("name", "peak", "limit", "ratio", "held", "bound", "within_bound")
-        return {k: getattr(self, k) for k in keys}
 
 
 def deviation_from_ideal(

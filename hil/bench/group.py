@@ -1,5 +1,6 @@
-"""``python -m hil.bench.group SPEC.json``: several robots' closed loops in three processes, for a
-fleet on a 2-core machine (``hil fleet --per-process K``).
+"""Several robots' closed loops in three processes, for a fleet on a 2-core machine (``hil fleet
+--per-process K``): recorded here, each robot's folder then analysed by the group's process,
+``python -m hil.commands.group SPEC.json``.
 
 Each robot keeps its own run folder (``OUT/robotI``, its keys' recording included), so
 ``hil report`` reads it unchanged and every figure keeps its definition; the K robots share one
@@ -9,44 +10,38 @@ epochs are interleaved (:func:`phase_ns`) so their deadlines do not all fall on 
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import shutil
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hil.analysis.measure.logs import HOST_FILE
 from hil.bench.fleet import barrier as fleet_barrier
 from hil.bench.host_load import HostSampler
 from hil.bench.lab import placement
 from hil.bench.lifecycle import (
     LAB_ROUTER,
-    Recorder,
     RunOptions,
     _Logs,
     _progress,
     _start_services,
     _stop_children,
     _wait_ready,
-    _write_results,
     attachment_files,
     free_port,
     prepare,
     run_extra,
 )
+from hil.bench.recorder import Recorder, RecordingWriter
 from hil.bench.secure import RunIdentities
 from hil.bench.supervisor import Supervisor
 from hil.folder import layout
-from hil.folder.recording import RecordingWriter
-from hil.folder.records import ControllerExit
-from hil.verdict import FAIL, INCONCLUSIVE, INTERRUPTED, PASS, exit_code, run_outcome
+from hil.folder.records import ControllerExit, Recorded
+from hil.folder.replay import RunLatencies
 from protocol.keys import observed_keys
 from protocol.settings import RunSettings, period_ns
-from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
 from runtime.zsession import open_session
 
@@ -87,12 +82,16 @@ class _Robot:
     recorder: Recorder
 
 
-def _prepare(spec: GroupSpec, endpoint: str | None) -> list[_Robot]:
+def _prepare(
+    spec: GroupSpec, endpoint: str | None, run_latencies: RunLatencies | None
+) -> list[_Robot]:
     """Each robot's run folder as ``hil run --robot-id R --no-can`` prepares it, on the group's
     one endpoint (None: a lab host's router, whose services' clocks are not the recorder's)."""
     robots = []
     for r in spec.robots:
-        scenario, settings, run_dir, info = prepare(spec.options(r))
+        opts = spec.options(r)
+        opts.run_latencies = run_latencies
+        scenario, settings, run_dir, info = prepare(opts)
         settings.zenoh_endpoint = endpoint or settings.zenoh_endpoint
         settings.save(run_dir / layout.RUN_SETTINGS)
         meta = {"robot_id": r, "cmd_path": settings.cmd_path, "lockstep": settings.lockstep}
@@ -138,13 +137,16 @@ def _start_and_follow(spec: GroupSpec, robots: list[_Robot], sup: Supervisor, se
     return None, _progress(robots[0].settings, robots[0].recorder, sup, stop, True, base, output)
 
 
-def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
+def record(
+    spec: GroupSpec, stop: Any, placed: Any = None, run_latencies: RunLatencies | None = None
+) -> list[Recorded]:
     """Run the group (``placed``: on a lab's hosts, this process on the recorder's); each
-    robot's exit code (also written to ``OUT/.group-<first robot>.codes.json``)."""
+    robot's raw run folder, for the analysis (:mod:`hil.commands.group`). ``run_latencies``:
+    as :class:`hil.bench.lifecycle.RunOptions`'."""
     out = Path(spec.out)
     out.mkdir(parents=True, exist_ok=True)
     endpoint = None if placed else f"tcp/127.0.0.1:{free_port()}"
-    robots = _prepare(spec, endpoint)
+    robots = _prepare(spec, endpoint, run_latencies)
     sup, logs = Supervisor(), _Logs(out)
     host = HostSampler(robots[0].run_dir)
     session, subs, error, ended = None, [], None, None
@@ -171,50 +173,24 @@ def execute(spec: GroupSpec, stop: Any, placed: Any = None) -> dict[str, int]:
         if session is not None:
             session.close()
         for r in robots:
-            if r is not robots[0] and (robots[0].run_dir / HOST_FILE).is_file():
-                shutil.copyfile(robots[0].run_dir / HOST_FILE, r.run_dir / HOST_FILE)
+            if r is not robots[0] and (robots[0].run_dir / layout.HOST_LOG).is_file():
+                shutil.copyfile(robots[0].run_dir / layout.HOST_LOG, r.run_dir / layout.HOST_LOG)
             placement.write_topology(placed, r.run_dir)  # before the recording takes it along
             r.recorder.close(attachment_files(r.run_dir))
-    return _results(spec, robots, codes, error, bool(stop), time.monotonic() - t0, ended)
+    return _recorded(spec, robots, codes, error, bool(stop), time.monotonic() - t0, ended)
 
 
-def _results(spec: GroupSpec, robots: list[_Robot], codes: dict[str, int | None],
-             error: str | None, interrupted: bool, wall: float,
-             ended: ControllerExit | None = None) -> dict[str, int]:  # fmt: skip
-    """Each robot's trace.csv, summary.json and plots, as ``hil run`` writes them."""
-    out: dict[str, int] = {}
+def _recorded(spec: GroupSpec, robots: list[_Robot], codes: dict[str, int | None],
+              error: str | None, interrupted: bool, wall: float,
+              ended: ControllerExit | None = None) -> list[Recorded]:  # fmt: skip
+    """Each robot's run as ``hil run`` records it, with what the group shares."""
+    out = []
     shared = {"robots": list(spec.robots), "processes": ["plant", "controller"]}
     for r in robots:
         extra = run_extra(interrupted, error, wall, codes, r.recorder, False)
         extra["shared_processes"] = shared
         if ended is not None:  # the process ended: every robot it served lost its controller
             extra["controller_exit"] = ended
-        summary = _write_results(r.run_dir, r.scenario, r.settings, r.info, extra)
-        # The exit code hil run gives this summary (hil.commands.run).
-        out[r.id] = exit_code(run_outcome(summary))
-    # Where hil fleet reads each robot's exit code (as ``hil run`` would exit for it).
-    (Path(spec.out) / f".group-{spec.robots[0]}.codes.json").write_text(json.dumps(out) + "\n")
+        out.append(Recorded(r.run_dir, r.scenario, r.settings, r.info["reference"],
+                            r.info["context"], extra))  # fmt: skip
     return out
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
-    if len(args) != 1:
-        print("usage: python -m hil.bench.group SPEC.json (written by hil fleet)", file=sys.stderr)
-        return 2
-    spec = GroupSpec(**json.loads(Path(args[0]).read_text()))
-    # --lab: executes this same command again on the recorder's lab host (as hil run does).
-    placed = placement.enter(spec.options(), False, True)
-    with stop_on_signals() as stop:
-        codes = execute(spec, stop, placed)
-    if stop:
-        return INTERRUPTED
-    # The group's worst robot: any FAIL, else any INCONCLUSIVE (hil fleet reads each robot's).
-    for outcome in (FAIL, INCONCLUSIVE):
-        if exit_code(outcome) in codes.values():
-            return exit_code(outcome)
-    return exit_code(PASS)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -12,8 +12,7 @@ import threading
 import time
 from pathlib import Path
 
-from hil.analysis.measure.host import INTERVAL_S
-from hil.analysis.measure.logs import HOST_FILE
+from hil.folder import layout
 from protocol.hoplog import HOST_TABLES, HopLogWriter, HostRow
 
 
@@ -41,11 +40,12 @@ def _process_cpu(pid: int | None, wait: bool = False) -> int:
 
 
 class HostSampler:
-    """A daemon thread that logs the host every :data:`INTERVAL_S` until closed."""
+    """A daemon thread that logs the host every :data:`hil.folder.layout.HOST_INTERVAL_S` until
+    closed."""
 
     def __init__(self, run_dir: Path) -> None:
         meta = {"clock_ticks_per_s": os.sysconf("SC_CLK_TCK"), "cpus": os.cpu_count() or 1}
-        self.log = HopLogWriter(run_dir / HOST_FILE, "host", HOST_TABLES, meta)
+        self.log = HopLogWriter(run_dir / layout.HOST_LOG, "host", HOST_TABLES, meta)
         self.pids: dict[str, int | None] = {"plant": None, "controller": None}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="host-sampler", daemon=True)
@@ -68,7 +68,7 @@ class HostSampler:
         self.log.append("host", row)
 
     def _run(self) -> None:
-        while not self._stop.wait(INTERVAL_S):
+        while not self._stop.wait(layout.HOST_INTERVAL_S):
             try:
                 self.sample()
             except OSError:  # no /proc (not Linux): nothing to log

@@ -26,6 +26,7 @@ import hil
 from hil.bench.settings import effective_can_table
 from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
+from hil.folder import layout
 from hil.scenario import load_scenario
 from protocol.can.codec import Cmd, frame_id
 
@@ -258,12 +259,12 @@ def finish(plan: Plan | None, run_dir: Path) -> dict[str, Any]:
     """summary.json's ``impair`` (the kernel's counters) and ``impair.nft``; {} without [impair]."""
     if plan is None:
         return {}
-    (run_dir / "impair.nft").write_text(ruleset(plan))
+    (run_dir / layout.IMPAIR_RULES).write_text(ruleset(plan))
     facts: dict[str, Any] = {
         "config": dataclasses.asdict(plan.config),
         "namespace": "private (unshare --net), loopback only",
         "packets": plan.packets,
-        "rules": "impair.nft",
+        "rules": layout.IMPAIR_RULES,
         "matched_packets": None,
         "dropped_packets": None,
         "rate_limit": None,

@@ -7,7 +7,6 @@ everything and writes the summary.
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import json
 import os
@@ -15,7 +14,6 @@ import random
 import signal
 import socket
 import sys
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,26 +24,29 @@ import can
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from hil import interrupts, options
-from hil.analysis.analyze import analyze, plot
-from hil.analysis.measure.logs import HOST_FILE
 from hil.bench import impair
 from hil.bench.defaults import PAPER_TRACKING_TOML
 from hil.bench.fleet import barrier as fleet_barrier
 from hil.bench.host_load import HostSampler
 from hil.bench.lab import placement
-from hil.bench.lab.placement import TOPOLOGY_FILE, child_argv
+from hil.bench.lab.placement import child_argv
 from hil.bench.live.launch import check as live_check
 from hil.bench.live.launch import start_for_run
+from hil.bench.recorder import Recorder, RecordingWriter
 from hil.bench.secure import RunIdentities
-from hil.bench.settings import check_can_interface, effective_can_table, scenario_settings
+from hil.bench.settings import (
+    check_can_interface,
+    effective_can_table,
+    replay_latencies,
+    scenario_settings,
+)
 from hil.bench.supervisor import Supervisor
 from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
 from hil.folder import layout, new_run_dir
-from hil.folder.recording import RecordingWriter, to_jsonable, write_pose
-from hil.folder.records import ControllerExit
+from hil.folder.records import ControllerExit, Recorded, RunExtra
+from hil.folder.replay import RunLatencies
 from hil.law.option import with_law
-from hil.observe import TapReader, can_frame_record
 from hil.provenance import dumps_toml
 from hil.scenario import (
     DURATION_MAX,
@@ -58,12 +59,10 @@ from hil.scenario import (
 from protocol.can.rx_queue import RxQueueDrops
 from protocol.hoplog import LAW_FAULT_EXIT
 from protocol.keys import is_valid_robot_id, observed_keys
-from protocol.messages import DecodeError, Status, decode
 from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
-from runtime.clocksync import CLOCK_FILE
 from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
-from runtime.zsession import open_session, payload_bytes
+from runtime.zsession import open_session
 
 LAB_ROUTER = "tcp/127.0.0.1:7447"  # a lab host's own router, from inside the host (hil.bench.lab)
 
@@ -112,84 +111,9 @@ class RunOptions:
     plant_host: str | None = None
     controller_host: str | None = None
     robot_id: str | None = None  # instead of the scenario's (hil fleet: one per robot)
-
-
-class Recorder:
-    """Receives the robot's status, its services' taps (every message they sent and every
-    payload they refused, :mod:`hil.observe`) and every CAN frame; writes them off-thread.
-    ``same_clock``: the services share this process's clock (not a lab run)."""
-
-    def __init__(self, writer: RecordingWriter, same_clock: bool = True) -> None:
-        self.writer = writer
-        self.taps = TapReader(same_clock)
-        self.queue: collections.deque[tuple[str, int, Any]] = collections.deque()
-        self.states = 0
-        self.statuses: dict[str, Any] = {}
-        self.status_ns: dict[str, int] = {}  # when each role's newest status arrived
-        # Frames the recorder's CAN socket dropped (None: no CAN, or a bus with no socket).
-        self.can_socket_drops: int | None = None
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._drain, name="recorder", daemon=True)
-        self._thread.start()
-
-    def on_zenoh(self, sample: Any) -> None:
-        self.queue.append((str(sample.key_expr), time.monotonic_ns(), payload_bytes(sample)))
-
-    def on_can(self, channel: str, msg: Any) -> None:
-        self.queue.append((f"can/{channel}", time.monotonic_ns(), msg))
-
-    def _write_one(self, topic: str, t: int, payload: Any) -> None:
-        if topic.startswith("can/"):
-            self.writer.write(topic, t, can_frame_record(payload), jsonable=True)
-            return
-        for m in self.taps.read(topic, t, payload):
-            if m.rejected:
-                self._write_rejected(m.topic, m.log_time_ns, m.payload, m.rejected, m.by)
-            else:
-                self._write_message(m.topic, m.log_time_ns, m.payload)
-
-    def _write_rejected(self, topic: str, t: int, payload: bytes, reason: str, by: str) -> None:
-        """A payload refused (by a service on receipt, or by the recorder's own decoder), on
-        its own channel: each topic's messages fit its schema."""
-        rejected = {"topic": topic, "reason": reason, "raw": payload.hex(), "by": by}
-        self.writer.write("recorder/rejected", t, rejected, jsonable=True)
-
-    def _write_message(self, topic: str, t: int, payload: bytes) -> None:
-        try:
-            m = decode(payload)
-        except DecodeError as exc:
-            self._write_rejected(topic, t, payload, exc.reason, "recorder")
-            return
-        d = to_jsonable(m)  # one walk; asdict first made a deep copy for nothing
-        d["type"] = type(m).__name__
-        publish = getattr(m, "send_time_ns", None) or getattr(m, "time_ns", None)
-        self.writer.write(topic, t, d, publish_time_ns=publish, jsonable=True)
-        if topic.endswith("/state"):
-            self.states += 1
-            write_pose(self.writer, topic, t, m)
-        if isinstance(m, Status):
-            self.statuses[m.role] = m
-            self.status_ns[m.role] = t
-
-    def _drain(self) -> None:
-        while not (self._stop.is_set() and not self.queue):
-            if not self.queue:
-                self.writer.maybe_flush()  # a quiet stretch still reaches the disk in time
-                time.sleep(0.005)
-                continue
-            topic, t, payload = self.queue.popleft()
-            try:
-                self._write_one(topic, t, payload)
-            except Exception as exc:  # a recorder must never take the run down
-                self.writer.write("recorder/errors", t, {"topic": topic, "error": repr(exc)})
-
-    def close(self, attachments: dict[str, Path] | None = None) -> None:
-        """Drain, attach the files streamed from disk (never whole in memory), finish the MCAP."""
-        self._stop.set()
-        self._thread.join(timeout=30)
-        for name, path in (attachments or {}).items():
-            self.writer.add_attachment_file(name, path)
-        self.writer.close()
+    # [timing] replay naming a real run: the reader of its latencies (the analysis's,
+    # hil.analysis.replay.latencies_from_run, handed over by the command); None: files only
+    run_latencies: RunLatencies | None = None
 
 
 def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any, Any] | None:
@@ -284,6 +208,7 @@ def _run_settings(
         delay=scenario.timing.delay,
         out_dir=str(run_dir.resolve()),
         spin_us=opts.spin_us,
+        replay=replay_latencies(scenario, opts.run_latencies),
     )
     if opts.robot_id is not None:
         settings.robot_id = opts.robot_id
@@ -410,8 +335,9 @@ def _start_and_follow(
     return None, _progress(settings, recorder, sup, stop, quiet, epoch)
 
 
-def execute(opts: RunOptions) -> dict[str, Any]:
-    """Run the pair; returns the summary (also written to the run folder)."""
+def execute(opts: RunOptions) -> Recorded:
+    """Run the pair and record it; the raw run folder written, what the analysis needs to
+    finish it (:func:`hil.analysis.analyze.write_results`, which ``hil run`` calls next)."""
     # --lab: the recorder's lab host; [impair]: the run's own network namespace (either way
     # this command is executed again there).
     impaired = bool(opts.lab) and impair.plan_of(opts, check_options) is not None
@@ -468,14 +394,12 @@ def execute(opts: RunOptions) -> dict[str, Any]:
     if ended is not None:
         extra["controller_exit"] = ended
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
-    summary = _write_results(run_dir, scenario, settings, info, extra)
-    summary["run_dir"] = str(run_dir)
-    return summary
+    return Recorded(run_dir, scenario, settings, info["reference"], info["context"], extra)
 
 
 def run_extra(
     interrupted: bool, error: str | None, wall: float, codes: Any, recorder: Recorder, secure: bool
-) -> dict[str, Any]:
+) -> RunExtra:
     """What ``hil run`` adds to summary.json about the run itself (in this key order)."""
     return {
         "interrupted": interrupted,
@@ -492,23 +416,9 @@ def run_extra(
     }
 
 
-def _write_results(
-    run_dir: Path, scenario: Any, settings: RunSettings, info: dict[str, Any], extra: dict[str, Any]
-) -> dict[str, Any]:
-    """trace.csv, summary.json and trajectory.png from the hop logs; a second Ctrl-C while
-    the folder is written is recorded, not raised (hil.interrupts)."""
-    with interrupts.shielded():
-        summary = analyze(run_dir, scenario, settings, info["reference"], info["context"], extra)
-        try:
-            plot(run_dir)
-        except Exception as exc:
-            print(f"warning: plots not written: {exc}", file=sys.stderr)
-    return summary
-
-
-# The clock exchanges and, on a lab, which host ran what (hil.bench.lab.placement.TOPOLOGY_FILE).
-ATTACHED = (layout.CONTROLLER_LOG, layout.PLANT_LOG, HOST_FILE, layout.SCENARIO_RESOLVED)
-ATTACHED += (CLOCK_FILE, TOPOLOGY_FILE)
+# The clock exchanges and, on a lab, which host ran what (hil.bench.lab.placement).
+ATTACHED = (layout.CONTROLLER_LOG, layout.PLANT_LOG, layout.HOST_LOG, layout.SCENARIO_RESOLVED)
+ATTACHED += (layout.CLOCK, layout.TOPOLOGY)
 
 
 def attachment_files(run_dir: Path) -> dict[str, Path]:

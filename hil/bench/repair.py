@@ -1,9 +1,11 @@
-"""``hil recover DIR``: a run folder made whole after ``hil run`` died (SIGKILL, power loss;
-docs/reliability.md, "Crash-safe runs").
+"""``hil recover DIR``'s repair: what a killed ``hil run`` left (SIGKILL, power loss;
+docs/reliability.md, "Crash-safe runs"), made whole as far as the bench goes.
 
 The recording, cut inside a chunk, is rewritten as a complete, indexed MCAP with the run's
 attachments and the States it lacks (:func:`missing_states`); trace.csv and summary.json are
-rebuilt from the hop logs by the code a finished run uses (:func:`hil.analysis.analyze.analyze`).
+then rebuilt from the hop logs by the code a finished run uses (:func:`hil.analysis.analyze.
+analyze`), which ``hil recover`` calls next (:mod:`hil.commands.recover`) on the run
+:func:`repair` hands it.
 """
 
 from __future__ import annotations
@@ -14,19 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from hil.analysis.analyze import analyze, plot
-from hil.analysis.measure.logs import read_columns
 from hil.bench.lifecycle import attachment_files
+from hil.bench.recorder import rewrite_complete, to_jsonable
 from hil.errors import BadInputError
 from hil.folder import layout
-from hil.folder.jsonio import write_json
-from hil.folder.recording import (
-    RecordedMessage,
-    is_complete,
-    rewrite_complete,
-    to_jsonable,
-    topic_values,
-)
+from hil.folder.hoplogs import read_columns
+from hil.folder.recording import RecordedMessage, is_complete, topic_values
+from hil.folder.records import Recorded, RunExtra
 from hil.scenario import build_loop, loads_scenario
 from plant_emulator.from_settings import sensor_of
 from plant_emulator.sensors import measure
@@ -85,16 +81,17 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
     return out
 
 
-def recover(run_dir: str | Path) -> dict[str, Any]:
-    """Make a killed run's folder whole; returns what was done. BadInputError when the folder
-    is not a run folder (no settings, no hop logs) or holds no sample to rebuild from."""
+def repair(run_dir: str | Path) -> tuple[dict[str, Any], Recorded | None]:
+    """Repair a killed run's folder: what was done (empty ``repaired``: nothing to do) and,
+    when trace.csv or summary.json is missing, the run as the analysis rebuilds them from (None
+    otherwise). BadInputError when the folder is not a run folder (no settings, no hop logs)."""
     run_dir = Path(run_dir)
     if not is_run_folder(run_dir):
         raise BadInputError(f"{run_dir}: not a hil run folder (no run_settings.json or hop logs)")
     todo = needs_recovery(run_dir)
     done: dict[str, Any] = {"folder": str(run_dir), "repaired": todo}
     if not todo:
-        return done
+        return done, None
     rec = run_dir / layout.RECORDING
     if layout.RECORDING in todo:
         tmp = run_dir / (layout.RECORDING + ".recovering")
@@ -105,28 +102,20 @@ def recover(run_dir: str | Path) -> dict[str, Any]:
             done["restore_error"] = str(exc)
         done["recording"] = rewrite_complete(rec, tmp, attachment_files(run_dir), lost)
         os.replace(tmp, rec)
-    if layout.SUMMARY in todo or layout.TRACE in todo:
-        settings = RunSettings.load(run_dir / layout.RUN_SETTINGS)
-        resolved = run_dir / layout.SCENARIO_RESOLVED
-        try:
-            scenario = loads_scenario(resolved.read_text(), run_dir)
-        except (OSError, ValueError) as exc:
-            raise BadInputError(f"{resolved}: cannot rebuild the run ({exc})") from exc
-        _, reference, context = build_loop(scenario)
-        extra = {
-            "interrupted": True,
-            "error": None,
-            "recovered": True,
-            "recording": layout.RECORDING,
-            "note": "hil run did not finish; rebuilt by hil recover from the services' hop logs",
-        }
-        summary = analyze(run_dir, scenario, settings, reference, context, extra)
-        if not summary.get("samples"):
-            raise BadInputError(f"{run_dir}: the run was killed before its first sample")
-        try:
-            plot(run_dir)
-        except Exception as exc:  # plots are a convenience; the figures are in summary.json
-            done["plot_error"] = str(exc)
-        done["samples"] = summary["samples"]
-    write_json(run_dir / layout.RECOVERED, done)
-    return done
+    if layout.SUMMARY not in todo and layout.TRACE not in todo:
+        return done, None
+    settings = RunSettings.load(run_dir / layout.RUN_SETTINGS)
+    resolved = run_dir / layout.SCENARIO_RESOLVED
+    try:
+        scenario = loads_scenario(resolved.read_text(), run_dir)
+    except (OSError, ValueError) as exc:
+        raise BadInputError(f"{resolved}: cannot rebuild the run ({exc})") from exc
+    _, reference, context = build_loop(scenario)
+    extra: RunExtra = {
+        "interrupted": True,
+        "error": None,
+        "recovered": True,
+        "recording": layout.RECORDING,
+        "note": "hil run did not finish; rebuilt by hil recover from the services' hop logs",
+    }
+    return done, Recorded(run_dir, scenario, settings, reference, context, extra)

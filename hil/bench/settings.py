@@ -13,9 +13,8 @@ from typing import Any
 import can.interfaces
 
 from controller_service.registry import law_path_for
-from hil.analysis.measure.folder import resolved_scenario
 from hil.errors import BadInputError
-from hil.folder.replay import jitter_samples_from
+from hil.folder.replay import RunLatencies, jitter_samples_from
 from plant_emulator.drive_plant import bench_drive_settings
 from protocol.settings import RunSettings
 
@@ -60,12 +59,16 @@ def robot_id_of(scenario: Any) -> str:
     return rid if isinstance(rid, str) else f"robot{rid}"
 
 
-def replay_latencies(scenario: Any) -> list[float] | None:
-    """``[timing] replay``'s latencies, read here so a bad file fails early; None: seeded jitter."""
+def replay_latencies(
+    scenario: Any, run_latencies: RunLatencies | None = None
+) -> list[float] | None:
+    """``[timing] replay``'s latencies, read here so a bad file fails early; None: seeded jitter.
+    ``run_latencies``: the reader of a real run's (the analysis's, which the bench does not
+    import: the command hands it over, :func:`hil.analysis.replay.latencies_from_run`)."""
     t = scenario.timing
     if t.jitter_kind != "replay":
         return None
-    return [float(v) for v in jitter_samples_from(scenario.base_dir / t.replay)]
+    return [float(v) for v in jitter_samples_from(scenario.base_dir / t.replay, run_latencies)]
 
 
 def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSettings:
@@ -105,12 +108,3 @@ def scenario_settings(scenario: Any, context: Any = None, **run: Any) -> RunSett
         values["design"] = {k: float(getattr(context, k)) for k in DESIGN_KEYS}
     values.update(run)
     return RunSettings(**values)
-
-
-def rate_hz(run_dir: Any, settings: RunSettings) -> float:
-    """The control rate as the user asked for it (``--rate``, ``[realtime] rate`` or 1 / ts),
-    for summary.json: the folder's ``[provenance] rate_hz`` as ``hil run`` wrote it, else 1 / ts."""
-    value = (resolved_scenario(run_dir) or {}).get("provenance", {}).get("rate_hz")
-    if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
-        return float(value)
-    return 1.0 / settings.ts

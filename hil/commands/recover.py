@@ -1,10 +1,12 @@
-"""``hil recover DIR``: make a killed run's folder whole (see hil.bench.repair)."""
+"""``hil recover DIR``: make a killed run's folder whole: the bench's repair (the recording and
+what the kill left, :mod:`hil.bench.repair`), then the analysis a finished run gets
+(:func:`hil.analysis.analyze.analyze`: trace.csv, summary.json, trajectory.png)."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -22,6 +24,30 @@ def recover_cmd(
     `hil report` runs this by itself.
 
     Exit 2 when DIR is not a run folder or the run was killed before its first sample."""
-    from hil.bench.repair import recover
-
     typer.echo(json.dumps(recover(run_dir), indent=2))
+
+
+def recover(run_dir: str | Path) -> dict[str, Any]:
+    """Make a killed run's folder whole; returns what was done (also written to recovered.json
+    when there was something to do). BadInputError when the folder is not a run folder (no
+    settings, no hop logs) or holds no sample to rebuild from."""
+    from hil.analysis.analyze import analyze, plot
+    from hil.bench.repair import repair
+    from hil.errors import BadInputError
+    from hil.folder import layout
+    from hil.folder.jsonio import write_json
+
+    done, recorded = repair(run_dir)
+    if not done["repaired"]:
+        return done
+    if recorded is not None:
+        summary = analyze(recorded)
+        if not summary.get("samples"):
+            raise BadInputError(f"{recorded.run_dir}: the run was killed before its first sample")
+        try:
+            plot(recorded.run_dir)
+        except Exception as exc:  # plots are a convenience; the figures are in summary.json
+            done["plot_error"] = str(exc)
+        done["samples"] = summary["samples"]
+    write_json(Path(run_dir) / layout.RECOVERED, done)
+    return done

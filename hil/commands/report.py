@@ -63,7 +63,8 @@ def report(
     cannot relate a figure); 2 not a run folder (docs/reports.md, "Verdict and exit code")."""
     from hil.analysis.report.build import Thresholds, build_report, write_report
     from hil.analysis.report.ideal import ideal_from_simulator
-    from hil.bench.repair import is_run_folder, needs_recovery, recover
+    from hil.bench.repair import is_run_folder, needs_recovery
+    from hil.commands.recover import recover
     from hil.folder import load_folder
 
     number("--max-deadline-miss-ratio", max_deadline_miss_ratio, 0.0, 1.0)

@@ -199,9 +199,13 @@ def run(
     live_host: LiveHostOpt = "127.0.0.1",
 ) -> None:
     """Run the controller against the emulated robot over Zenoh and CAN and record it."""
+    from hil.analysis.analyze import write_results
+    from hil.analysis.replay import latencies_from_run
     from hil.bench.lifecycle import RunOptions, execute
 
-    summary = execute(
+    # The bench records the run into its folder; the analysis then writes the figures, the
+    # trace and the verdict into it (summary.json); the report follows.
+    recorded = execute(
         RunOptions(
             scenario=scenario,
             duration=duration,
@@ -223,8 +227,11 @@ def run(
             robot_id=robot_id,
             live_port=live,
             live_host=live_host,
+            run_latencies=latencies_from_run,
         )
     )
+    summary: dict[str, Any] = dict(write_results(recorded))
+    summary["run_dir"] = str(recorded.run_dir)
     brief = _brief(summary, cmd_path)
     run_dir = summary.get("run_dir")
     stopped = summary.get("interrupted") or interrupts.happened()

@@ -77,11 +77,13 @@ def service(
     if settings is None:
         if scenario is None:
             raise BadInputError("give a scenario file or --settings")
+        from hil.analysis.replay import latencies_from_run
         from hil.bench.lifecycle import RunOptions, prepare
 
         # Resolved as hil run resolves it, with this service's own endpoints and epoch.
         run = {"duration": duration, "rate": rate, "cmd_path": cmd_path, "lockstep": lockstep}
-        _, s, run_dir, _ = prepare(RunOptions(scenario=scenario, out=out, **run))
+        opts = RunOptions(scenario=scenario, out=out, run_latencies=latencies_from_run, **run)
+        _, s, run_dir, _ = prepare(opts)
         s.zenoh_endpoint = endpoint
         s.can_endpoint = can_endpoint
         s.epoch_ns = epoch_ns

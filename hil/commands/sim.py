@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -43,12 +43,12 @@ def sim(
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+    from hil.analysis.replay import scenario_latencies
     from hil.bundled import resolve_scenario
     from hil.folder import new_run_dir
     from hil.law.option import with_law
     from hil.scenario import load_scenario
     from hil.sim import simulate, write_run_folder
-    from hil.verdict import law_ended
 
     out_dir("--out", out, default="runs")
     path = resolve_scenario(scenario)
@@ -76,7 +76,7 @@ def sim(
                 typer.echo(pending.pop(), err=True)
             bar.update(task, completed=k, total=total)
 
-        result = simulate(sc, progress=progress)
+        result = simulate(sc, progress=progress, replay=scenario_latencies(sc))
     with interrupts.shielded():  # a second Ctrl-C must not leave the folder half-written
         folder = write_run_folder(result, target)
     s = result.summary
@@ -85,6 +85,14 @@ def sim(
             f"at t = {s['duration']:.3f} s of {sc.run.duration:g} s; wrote what was computed to "
             f"{folder} (no claim about the rest)"
         )
+    _say_and_judge(folder, s)
+
+
+def _say_and_judge(folder: Path, s: Any) -> None:
+    """The simulation's line, then its verdict: the law's own failure or a state that became
+    non-finite, else a broken limit of (2), exits 1."""
+    from hil.verdict import law_ended
+
     typer.echo(
         f"{folder}: final position error {s['final_position_error']:.4g} m, heading "
         f"{s['final_heading_error']:.4g} rad; max |v| {s['max_abs_v']:.4g}, |omega| "

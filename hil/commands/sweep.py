@@ -187,8 +187,9 @@ def _checked_sweep(
     None), every option and the scenario checked before any folder is written
     (BadInputError: exit 2)."""
     from hil import options
+    from hil.analysis.replay import latencies_from_run
     from hil.bundled import resolve_scenario
-    from hil.folder.replay import is_run_source, jitter_samples_from, latencies_from_run
+    from hil.folder.replay import is_run_source, jitter_samples_from
     from hil.law.batch import batch_note
     from hil.law.option import with_law
     from hil.scenario import (

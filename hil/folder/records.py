@@ -1,4 +1,5 @@
-"""The typed records a run folder holds (docs/run-folder.md): summary.json and its certificate.
+"""The typed records a run folder holds (docs/run-folder.md): summary.json and its certificate;
+and what the bench hands the analysis with the raw folder it wrote (:class:`Recorded`).
 
 JSON objects on disk and dicts in memory (scripts read them as such); these TypedDicts say which
 keys exist and what each holds, so that a reader and a type checker agree with the writer.
@@ -6,7 +7,14 @@ keys exist and what each holds, so that a reader and a type checker agree with t
 
 from __future__ import annotations
 
-from typing import Any, TypedDict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypedDict
+
+if TYPE_CHECKING:
+    from controller_service.laws.base import DesignContext
+    from hil.scenario import Scenario
+    from protocol.settings import RunSettings
 
 
 class Stall(TypedDict, total=False):
@@ -49,6 +57,40 @@ class ControllerExit(TypedDict, total=False):
     t_s: float | None
     law_fault: bool  # it exited because its law failed (law_fault.json)
     output: str  # its console output, relative to the run folder (controller.log)
+
+
+class RunExtra(TypedDict, total=False):
+    """What the bench adds to summary.json about the run itself, in this key order
+    (:func:`hil.bench.lifecycle.run_extra`; a fleet's group, ``hil recover`` and [impair] add
+    theirs): facts of the processes and the recorder, never a figure of the hop logs."""
+
+    interrupted: bool
+    error: str | None  # the run stopped by an error of its own (its services never ready)
+    recovered: bool  # rebuilt by hil recover (hil.bench.repair)
+    wall_time_s: float
+    exit_codes: dict[str, int | None]  # each child process's, by name
+    recording: str
+    recorded_messages: int
+    recorder: dict[str, Any]  # the taps' counts and the CAN socket's drops (hil.observe)
+    secure: bool
+    note: str
+    shared_processes: dict[str, list[str]]  # a fleet's group: the robots of its processes
+    controller_exit: ControllerExit  # absent: the controller outlived the plant
+    impair: dict[str, Any]  # [impair]: the kernel's counts (hil.bench.impair)
+
+
+@dataclass
+class Recorded:
+    """One robot's run as the bench leaves it: the raw folder it wrote and what the analysis
+    (:func:`hil.analysis.analyze.analyze`) needs besides: the scenario and settings it ran, the
+    reference and design context its controller ran with, and the run's own facts."""
+
+    run_dir: Path
+    scenario: Scenario
+    settings: RunSettings
+    reference: Any  # controller_service.references' reference of the scenario
+    context: DesignContext
+    extra: RunExtra
 
 
 class Summary(TypedDict, total=False):

@@ -17,23 +17,31 @@ from __future__ import annotations
 
 import csv
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from hil.analysis.measure.folder import measure_folder, measure_recording, measured
 from hil.errors import BadInputError
-from hil.folder import load_folder
-from hil.folder.layout import SUMMARY
 
 REPLAY_MAX = 1e6  # s, the largest latency a replay file may hold (as [timing] delay)
 
 
-def jitter_samples_from(path: str | Path) -> np.ndarray:
+#: The reader of a real run's latencies (seconds), :func:`hil.analysis.replay.latencies_from_run`.
+RunLatencies = Callable[[str | Path], np.ndarray]
+
+
+def jitter_samples_from(path: str | Path, run_latencies: RunLatencies | None = None) -> np.ndarray:
     """Latencies in seconds from a JSON list (or an object with a ``latencies`` list), a CSV
-    with a ``latency`` column, one number per line, or a real run (:func:`latencies_from_run`)."""
+    with a ``latency`` column, one number per line, or a real run (``run_latencies``: its
+    reader; without it a run is refused, named)."""
     if is_run_source(path):
-        return latencies_from_run(path)
+        if run_latencies is None:
+            raise BadInputError(
+                f"[timing] replay: {path} is a run: its latencies are measured by the analysis "
+                "(hil.analysis.replay), which this caller does not run"
+            )
+        return run_latencies(path)
     p = Path(path)
     try:
         text = p.read_text()
@@ -77,46 +85,6 @@ def split_path(spec: str | Path) -> tuple[Path, str | None]:
 def is_run_source(spec: str | Path) -> bool:
     p, _ = split_path(spec)
     return p.is_dir() or p.suffix == ".mcap"
-
-
-def latencies_from_run(spec: str | Path) -> np.ndarray:
-    """Measured sample-to-apply latencies (seconds) of a run folder (its saved measurement, else
-    its hop logs measured) or recording."""
-    p, which = split_path(spec)
-    try:
-        if p.is_dir():
-            m = measured(load_folder(p, lazy=True)) if (p / SUMMARY).is_file() else None
-            m = m if m is not None else measure_folder(p)
-            where = "hop logs (controller.hoplog, plant.hoplog)"
-        elif p.suffix == ".mcap" and p.is_file():
-            m, where = measure_recording(p), "attached hop logs"
-        else:
-            raise BadInputError(f"{p} is neither a run folder nor a .mcap recording")
-        if m is None:
-            raise BadInputError(f"{p} has no {where}: not a run of hil run")
-        per_path = m.latency_us()  # µs per path
-    except BadInputError as exc:  # named once as the key it comes from
-        text = str(exc).removeprefix("[timing] replay: ")
-        raise BadInputError(f"[timing] replay: {text}") from exc
-    except Exception as exc:  # a damaged folder or recording: whatever its reader raised
-        raise BadInputError(
-            f"[timing] replay: cannot read latencies from {p}: {type(exc).__name__}: {exc}"
-        ) from exc
-    if which is not None:
-        if which not in per_path:
-            raise BadInputError(
-                f"[timing] replay: {p} has no latencies of path {which!r} "
-                f"(has: {', '.join(sorted(per_path)) or 'none'})"
-            )
-        per_path = {which: per_path[which]}
-    values = [v for v in per_path.values() if v.size]
-    if not values:
-        raise BadInputError(f"[timing] replay: no latency samples found in {p}")
-    seconds = np.concatenate(values) * 1e-6  # µs to s
-    seconds = seconds[np.isfinite(seconds) & (seconds >= 0)]
-    if seconds.size == 0:
-        raise BadInputError(f"[timing] replay: {p} holds no finite latency >= 0")
-    return seconds
 
 
 def write_latency_file(seconds: np.ndarray, out: Path, source: str | Path) -> Path:

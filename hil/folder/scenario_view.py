@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 from controller_service.laws.base import DesignContext, Limits
@@ -87,4 +88,25 @@ def view(scenario: Mapping[str, Any], base_dir: Path | None = None) -> ScenarioV
         duration=sc.run.duration if "duration" in (scenario.get("run") or {}) else None,
         v0=sc.initial.v,
         w0=sc.initial.omega,
+    )
+
+
+@dataclass(frozen=True)
+class BoundInputs:
+    """What the sampled-data bound needs besides the measured D (from the resolved scenario)."""
+
+    params: Any
+    context: Any
+    boundary_layer: bool
+    v0: float = 0.0
+    w0: float = 0.0
+
+
+def bound_inputs(resolved: dict[str, Any]) -> BoundInputs | None:
+    """The certificate's inputs from a resolved scenario (None: the law has no certificate)."""
+    sv = view(resolved)
+    if sv.law not in UNIFIED_LAWS:
+        return None
+    return BoundInputs(
+        SimpleNamespace(**sv.controller), sv.context, sv.boundary_layer, sv.v0, sv.w0
     )

@@ -250,6 +250,7 @@ def simulate(
     loop: tuple[Any, Any, Any] | None = None,
     t0: float = 0.0,
     memory: Any = None,
+    replay: np.ndarray | None = None,
 ) -> SimResult:
     """One closed loop on plain floats (the single-run path). ``progress(k, K)`` is called now
     and then; Ctrl-C stops the loop and returns what was computed with ``interrupted = True``.
@@ -257,6 +258,9 @@ def simulate(
     first sample (default 0): the law's clock, the reference and the disturbance run from there,
     as in a run whose first sample came at t0 (the initial state is then the state at t0, the
     law's memory its initial memory unless ``memory`` gives the law's memory at t0).
+    ``replay``: ``[timing] replay``'s latencies, read by the caller (a real run's are measured
+    by the analysis, :func:`hil.analysis.replay.scenario_latencies`); None: read here from the
+    scenario's latency file.
     """
     var = variation or RobotVariation()
     controller, reference, context = loop or build_loop(scenario)
@@ -267,7 +271,8 @@ def simulate(
     jseed = _or(var.jitter_seed, timing.seed)
     dseed = _or(var.disturbance_seed, scenario.disturbance.seed)
     sseed = _or(var.sensor_seed, scenario.plant.noise_seed)
-    extra = extra_delays(timing.jitter_kind, jitter, jseed, n_samples, _replay(scenario))
+    replay = replay if replay is not None else _replay(scenario)
+    extra = extra_delays(timing.jitter_kind, jitter, jseed, n_samples, replay)
     run = _Loops(
         controller,
         reference,

@@ -20,6 +20,7 @@ import numpy as np
 from controller_service.laws.guard import LawFault
 from hil.analysis import trace_metrics
 from hil.folder.scenario_view import view
+from hil.limits import LIMIT_REL_TOL
 from hil.scenario import Scenario, build_loop, resolved_dict, scenario_dict
 from hil.sim import BatchResult, RobotVariation, simulate_batch
 from hil.sim.certificate import certificate
@@ -67,7 +68,7 @@ def point_row(
     n_viol = sum(int(v) for v in summary.get("violations", {}).values())
     nonfinite = int(summary.get("nonfinite_steps") or 0)
     fault = summary.get("law_fault")
-    tol = 1 + trace_metrics.LIMIT_REL_TOL
+    tol = 1 + LIMIT_REL_TOL
     v_bound, w_bound = cert["v_bound"], cert["w_bound"]
     within = None if v_bound is None else bool(max_v <= v_bound * tol and max_w <= w_bound * tol)
     return {

@@ -24,6 +24,8 @@ from hil.analysis.measure.stalls import Stamped, Stretches, find_stalls
 from hil.analysis.measure.stats import summarize_ns
 from hil.folder.rates import ratio
 from hil.folder.records import Certificate, Summary
+from hil.folder.scenario_view import BoundInputs
+from hil.verdict import control_slot
 from protocol.can.codec import MAX_NODE_ID
 from protocol.hoplog import (
     SAMPLE_DROPPED,
@@ -47,17 +49,6 @@ BUS_FLIGHT_NS = 2_000_000
 # not running it): a loop on time logs every period, and its stamps' jitter alone can stretch
 # one gap a little past a period.
 SILENT_PERIODS = 2
-
-
-@dataclass(frozen=True)
-class BoundInputs:
-    """What the sampled-data bound needs besides the measured D (from the resolved scenario)."""
-
-    params: Any
-    context: Any
-    boundary_layer: bool
-    v0: float = 0.0
-    w0: float = 0.0
 
 
 @dataclass
@@ -121,13 +112,6 @@ class Measurement:
             for p in PATHS
             if len(self.series.get(f"sample_to_apply_{p}", ()))
         }
-
-
-def control_slot(sample_ns: Any, origin_ns: int, period_ns: int) -> Any:
-    """The control slot meant to answer a plant sample taken at ``sample_ns`` (an int or an
-    array), on a controller's grid of deadlines ``origin_ns + k period_ns``: the first slot
-    whose deadline is at or after the sample (docs/realtime.md, ``samples_without_command``)."""
-    return -((origin_ns - sample_ns) // period_ns)
 
 
 def _in(x: np.ndarray, lo: int, hi: int) -> np.ndarray:

@@ -10,24 +10,13 @@ from __future__ import annotations
 import contextlib
 import tomllib
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
-from hil.analysis.measure.figures import BoundInputs, Measurement, measure
+from hil.analysis.measure.figures import Measurement, measure
 from hil.analysis.measure.logs import RunLogs, load_folder_logs, load_recording_logs
 from hil.folder import RunFolder, layout, read_series, write_series
 from hil.folder.recording import read_attachments
-from hil.folder.scenario_view import UNIFIED_LAWS, view
-
-
-def bound_inputs(resolved: dict[str, Any]) -> BoundInputs | None:
-    """The certificate's inputs from a resolved scenario (None: the law has no certificate)."""
-    sv = view(resolved)
-    if sv.law not in UNIFIED_LAWS:
-        return None
-    return BoundInputs(
-        SimpleNamespace(**sv.controller), sv.context, sv.boundary_layer, sv.v0, sv.w0
-    )
+from hil.folder.scenario_view import bound_inputs
 
 
 def resolved_scenario(folder: Path) -> dict[str, Any] | None:

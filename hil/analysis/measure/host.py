@@ -13,8 +13,10 @@ from typing import Any
 
 import numpy as np
 
+from hil.folder import layout
+
 PROCESSES = ("plant", "controller", "recorder")
-INTERVAL_S = 0.1  # hil run samples the host this often (hil.bench.host_load)
+INTERVAL_S = layout.HOST_INTERVAL_S  # hil run samples the host this often (hil.bench.host_load)
 # The sampler, a thread of hil run, logged nothing for this long: the recorder was stopped or
 # starved (a stall's evidence says so: its host figures then span the silence).
 RECORDER_SILENT_NS = int(2.5 * INTERVAL_S * 1e9)

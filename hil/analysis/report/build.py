@@ -24,7 +24,6 @@ import numpy as np
 from hil.analysis import trace_metrics
 from hil.analysis.margin import record as margin_record
 from hil.analysis.measure.age import envelope
-from hil.analysis.measure.clocks import read_track
 from hil.analysis.measure.figures import Measurement
 from hil.analysis.measure.folder import measured
 from hil.analysis.report import figures as fg
@@ -33,11 +32,13 @@ from hil.analysis.report.content import SIGNALS, TITLES, headline, render_html, 
 from hil.analysis.report.ideal import IdealUnavailableError
 from hil.analysis.report.ideal_sim import WINDOW_S
 from hil.analysis.report.telemetry import SLIDING, folder_telemetry, forget_memory
-from hil.bench.lab.placement import TOPOLOGY_FILE
 from hil.folder import RunFolder as Folder
+from hil.folder import layout
+from hil.folder.clocks import read_track
 from hil.folder.jsonio import write_json
 from hil.folder.layout import REPORT_HTML, REPORT_JSON, REPORT_MD
 from hil.folder.scenario_view import ScenarioView, view
+from hil.limits import ConstraintFigure
 from hil.sim.certificate import no_certificate, scenario_certificate
 from hil.verdict import (
     DEFAULT_THRESHOLDS,
@@ -160,7 +161,7 @@ def _add_topology(folder: Path, data: dict[str, Any], figs: list[fg.Figure]) -> 
     """The "Where it ran" section of a run across lab hosts (``topology.json``, with report.json's
     ``topology``) and the clock figure, when the run has estimates; nothing for one host."""
     try:
-        topo = json.loads((folder / TOPOLOGY_FILE).read_text())
+        topo = json.loads((folder / layout.TOPOLOGY).read_text())
     except (OSError, ValueError):
         return
     if not isinstance(topo, dict) or not isinstance(topo.get("processes"), dict):
@@ -245,7 +246,7 @@ def _metrics(
     for key, skey in PEAK_KEYS.items():
         peak, c = folder.summary.get(skey), metrics["constraints"][key]
         if isinstance(peak, int | float) and math.isfinite(peak) and peak > c["peak"]:
-            fig = trace_metrics.ConstraintFigure(key, float(peak), c["limit"], c["bound"])
+            fig = ConstraintFigure(key, float(peak), c["limit"], c["bound"])
             metrics["constraints"][key] = fig.as_dict()
     return metrics
 

@@ -5,14 +5,15 @@ their median, so that a drift, a step or a widening bound shows."""
 from __future__ import annotations
 
 import io
+import sys
+from pathlib import Path
 
 import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 
-from hil.analysis.measure.clocks import ClockTrack
-
-CLOCK_PLOT = "clock.png"
+from hil.folder import layout
+from hil.folder.clocks import ClockTrack, read_track
 
 
 def clock_png(track: ClockTrack) -> bytes | None:
@@ -36,3 +37,17 @@ def clock_png(track: ClockTrack) -> bytes | None:
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
     return buf.getvalue()
+
+
+def write_clock_plot(run_dir: Path) -> None:
+    """clock.png of a run across lab hosts (the bench wrote its topology.json, which names the
+    plot when there are estimates), from the folder's estimates; a plot never costs the run its
+    folder."""
+    if not (run_dir / layout.TOPOLOGY).is_file():
+        return
+    try:
+        png = clock_png(read_track(run_dir))
+        if png is not None:
+            (run_dir / layout.CLOCK_PLOT).write_bytes(png)
+    except Exception as exc:
+        print(f"warning: clock plot not written: {exc}", file=sys.stderr)

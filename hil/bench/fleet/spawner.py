@@ -1,5 +1,5 @@
 """N robots' closed loops at once (docs/fleet.md): one ``hil run`` per robot ``robot1`` ..
-``robotN`` or, with ``--per-process K`` (K > 1), one ``python -m hil.bench.group`` per group of K
+``robotN`` or, with ``--per-process K`` (K > 1), one ``python -m hil.commands.group`` per group of K
 robots; all started together and stopped together.
 """
 
@@ -15,6 +15,7 @@ from typing import Any
 from hil.bench.fleet import barrier
 from hil.bench.supervisor import Supervisor
 from hil.errors import BadInputError
+from hil.folder import layout
 
 ROBOTS_MAX = 64
 
@@ -51,7 +52,7 @@ def run_argv(opts: FleetOptions, robot: str) -> list[str]:
 
 
 def group_argv(opts: FleetOptions, robots: list[str]) -> list[str]:
-    """``python -m hil.bench.group`` of one group, its spec written into the fleet's folder."""
+    """``python -m hil.commands.group`` of one group, its spec written into the fleet's folder."""
     spec = {
         "scenario": str(opts.scenario),
         "robots": robots,
@@ -63,16 +64,16 @@ def group_argv(opts: FleetOptions, robots: list[str]) -> list[str]:
         "plant_host": opts.plant_host,
         "controller_host": opts.controller_host,
     }
-    path = opts.out / f".group-{robots[0]}.spec.json"
+    path = opts.out / layout.group_spec(robots[0])
     path.write_text(json.dumps(spec, indent=2) + "\n")
-    return [sys.executable, "-m", "hil.bench.group", str(path)]
+    return [sys.executable, "-m", "hil.commands.group", str(path)]
 
 
 def group_codes(opts: FleetOptions, robots: list[str], code: int | None) -> dict[str, int | None]:
     """Each robot's exit code from its group's file (the group's own code for a robot the
     file does not have: the group ended before it wrote it)."""
     try:
-        got = json.loads((opts.out / f".group-{robots[0]}.codes.json").read_text())
+        got = json.loads((opts.out / layout.group_codes(robots[0])).read_text())
     except (OSError, ValueError):
         got = {}
     return {r: got.get(r, code if code else 1) for r in robots}

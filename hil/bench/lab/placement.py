@@ -13,14 +13,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hil.analysis.measure.clocks import read_track
-from hil.analysis.report.clockplot import CLOCK_PLOT, clock_png
 from hil.bench.lab.lab import LOCAL_ROUTER, host_command, host_env, host_of, require_root
 from hil.bench.lab.state import load
 from hil.errors import BadInputError
+from hil.folder import layout
+from hil.folder.clocks import read_track
 
 PLACED_ENV = "HIL_LAB_PLACED"  # the PID of the ``hil run`` placed on the recorder's host
-TOPOLOGY_FILE = "topology.json"
 
 
 @dataclass(frozen=True)
@@ -134,11 +133,7 @@ def write_topology(p: Placement | None, run_dir: Path) -> None:
             f"{', '.join(CROSS_HOST)} mix two clocks and are not valid",
             file=sys.stderr,
         )
-    try:
-        png = clock_png(track)
-        if png is not None:
-            (run_dir / CLOCK_PLOT).write_bytes(png)
-        clock["plot"] = None if png is None else CLOCK_PLOT
-    except Exception as exc:  # a plot must never cost the run its folder
-        print(f"warning: clock plot not written: {exc}", file=sys.stderr)
-    (run_dir / TOPOLOGY_FILE).write_text(json.dumps(facts, indent=2) + "\n")
+    # Drawn from the same estimates by the analysis (hil.analysis.report.clockplot), which the
+    # bench does not import: named here when there are estimates to draw.
+    clock["plot"] = layout.CLOCK_PLOT if track.at_ns.size else None
+    (run_dir / layout.TOPOLOGY).write_text(json.dumps(facts, indent=2) + "\n")

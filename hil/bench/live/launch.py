@@ -18,6 +18,7 @@ from typing import Any
 from hil import options
 from hil.bench.supervisor import Supervisor
 from hil.errors import BadInputError
+from hil.folder import layout
 
 DEFAULT_PORT = 8765
 START_TIMEOUT_S = 30.0
@@ -100,9 +101,9 @@ def start_for_run(
     sup: Any, run_dir: Path, port: int, host: str, logs: Any, other_clocks: bool = False
 ) -> None:
     """The live process of ``hil run`` (a supervised child, stopped with the others)."""
-    argv = argv_for([run_dir / "run_settings.json"], port, host,
-                    run_dir / "scenario.resolved.toml", "client", other_clocks)  # fmt: skip
-    _start(sup, argv, logs.open("live"), run_dir / "live.log")
+    argv = argv_for([run_dir / layout.RUN_SETTINGS], port, host,
+                    run_dir / layout.SCENARIO_RESOLVED, "client", other_clocks)  # fmt: skip
+    _start(sup, argv, logs.open("live"), run_dir / layout.LIVE_LOG)
 
 
 class FleetLive:
@@ -112,11 +113,11 @@ class FleetLive:
     def __init__(
         self, out: Path, robots: Sequence[str], port: int, host: str, lab: bool = False
     ) -> None:
-        self.settings = [out / r / "run_settings.json" for r in robots]
+        self.settings = [out / r / layout.RUN_SETTINGS for r in robots]
         self.lab = lab
-        self.resolved = out / robots[0] / "scenario.resolved.toml"
+        self.resolved = out / robots[0] / layout.SCENARIO_RESOLVED
         self.port, self.host = port, host
-        self.log_path = out / "live.log"
+        self.log_path = out / layout.LIVE_LOG
         self._sup = Supervisor()
         self._log: Any = None
 

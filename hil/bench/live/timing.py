@@ -21,8 +21,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
-from hil.analysis.measure.figures import control_slot
-from hil.verdict import Evidence, judge_evidence
+from hil.verdict import Evidence, control_slot, judge_evidence
 from protocol.hoplog import NO_STAMP
 from protocol.messages import State, Status, TorqueCommand
 
@@ -72,7 +71,7 @@ class LiveTiming:
 
     def _key(self, seq: int, sample_ns: int) -> int:
         """What one answer covers: the State itself, or its control slot (one State per
-        control period; hil.analysis.measure.figures.control_slot, on the controller's nominal grid
+        control period; hil.verdict.control_slot, on the controller's nominal grid
         half a period after the epoch)."""
         if not self.bounds.one_per_period:
             return seq

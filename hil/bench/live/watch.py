@@ -29,10 +29,10 @@ import foxglove
 from controller_service.certificate import critical_age
 from controller_service.references import build_reference
 from hil import schemas
-from hil.analysis.measure.folder import bound_inputs
 from hil.bench.live.timing import Bounds, LiveTiming
-from hil.folder.recording import to_jsonable
-from hil.observe import InTimeOrder, TapReader, can_frame_record
+from hil.bench.recorder import can_frame_record, to_jsonable
+from hil.folder.scenario_view import bound_inputs
+from hil.observe import InTimeOrder, TapReader
 from protocol.keys import observed_keys
 from protocol.messages import DecodeError, State, Status, Telemetry, TorqueCommand, decode
 from protocol.settings import RunSettings

@@ -1,0 +1,40 @@
+"""The constraints (2) as figures: a measured peak against its limit and the sampled-data bound,
+judged with summary.json's tolerance. Below both wings: the verdict (:mod:`hil.verdict`), the
+analysis's metrics (:mod:`hil.analysis.trace_metrics`) and the sweep judge with the same."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+# summary.json's tolerance: a violation is beyond 1e-9 relative (docs/design.md, section 3).
+LIMIT_REL_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class ConstraintFigure:
+    """One constraint of (2): the measured peak against its limit and (velocities) the
+    sampled-data bound of docs/sampled_data_bound.md / the certificate."""
+
+    name: str
+    peak: float
+    limit: float
+    bound: float | None
+
+    @property
+    def ratio(self) -> float:
+        """peak / limit: above 1 the constraint (2) is broken (overshoot = ratio - 1)."""
+        return self.peak / self.limit if self.limit > 0 else math.inf
+
+    @property
+    def held(self) -> bool:
+        return self.peak <= self.limit * (1.0 + LIMIT_REL_TOL)
+
+    @property
+    def within_bound(self) -> bool | None:
+        return None if self.bound is None else self.peak <= self.bound * (1.0 + LIMIT_REL_TOL)
+
+    def as_dict(self) -> dict[str, Any]:
+        keys = ("name", "peak", "limit", "ratio", "held", "bound", "within_bound")
+        return {k: getattr(self, k) for k in keys}
