@@ -1,5 +1,6 @@
 """Imports only point down (docs/architecture.md): import-linter's contracts of pyproject.toml
-hold, and no two modules of the product import each other, directly or around a loop."""
+hold, the bench wing and the analysis wing of hil never import each other, and no two modules
+of the product import each other, directly or around a loop."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
+import tomllib
 from pathlib import Path
 
 import grimp
@@ -82,6 +84,20 @@ def test_import_contracts_hold() -> None:
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "broken" in proc.stdout and " 0 broken" in proc.stdout, proc.stdout
+
+
+def test_the_bench_and_the_analysis_never_import_each_other() -> None:
+    """The two wings of hil (docs/architecture.md, "Inside hil") are kept apart by a contract of
+    their own, and no chain of imports joins them in either direction."""
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]
+    wings = {"hil.bench", "hil.analysis"}
+    assert any(
+        c["type"] == "independence" and set(c["modules"]) == wings for c in contracts["contracts"]
+    )
+    graph = grimp.build_graph("hil", cache_dir=None)
+    for importer, imported in (("hil.bench", "hil.analysis"), ("hil.analysis", "hil.bench")):
+        chain = graph.find_shortest_chain(importer, imported, as_packages=True)
+        assert chain is None, f"{importer} reaches {imported}: {' -> '.join(chain or ())}"
 
 
 def test_no_module_imports_itself_around_a_loop() -> None:
