@@ -17,6 +17,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -106,6 +107,17 @@ def _summary(verdict_of: str, **extra: Any) -> dict[str, Any]:
             "timing": timing, **extra}  # fmt: skip
 
 
+def _run_gives(monkeypatch: pytest.MonkeyPatch, summary: dict[str, Any]) -> None:
+    """``hil run``'s two wings replaced: the bench records nothing (its folder is the summary's
+    run_dir), the analysis gives ``summary``."""
+    import hil.analysis.analyze as analyze
+    import hil.bench.lifecycle as lifecycle
+
+    recorded = SimpleNamespace(run_dir=Path(summary["run_dir"]))
+    monkeypatch.setattr(lifecycle, "execute", lambda opts: recorded)
+    monkeypatch.setattr(analyze, "write_results", lambda rec: summary)
+
+
 @pytest.mark.parametrize(
     ("verdict_of", "code"), [(PASS, 0), ("misses", 1), (INCONCLUSIVE, 4)]
 )  # fmt: skip
@@ -115,9 +127,7 @@ def test_hil_run_exits_with_its_verdicts_code_and_strict_changes_nothing(
 ):
     """``hil run`` end to end through the CLI, its run replaced by a summary of known verdict:
     FAIL from missed slots alone exits 1, INCONCLUSIVE 4, with or without --strict."""
-    import hil.bench.lifecycle as orchestrate
-
-    monkeypatch.setattr(orchestrate, "execute", lambda opts: _summary(verdict_of))
+    _run_gives(monkeypatch, _summary(verdict_of))
     argv = ["run", "--no-report", "--quiet", "--out", str(tmp_path / "run")]
     assert main([*argv, *(["--strict"] if strict else [])]) == code
 
@@ -180,10 +190,7 @@ def test_the_sweeps_verdict_is_not_its_break_point():
 def test_a_run_stopped_by_its_own_error_says_fail_and_exits_1(monkeypatch, tmp_path, capsys):
     """The result line is the exit's outcome: a run whose services never became ready is a
     FAIL (exit 1), said first, whatever its figures' verdict."""
-    import hil.bench.lifecycle as orchestrate
-
-    summary = _summary(PASS, error="services did not become ready")
-    monkeypatch.setattr(orchestrate, "execute", lambda opts: summary)
+    _run_gives(monkeypatch, _summary(PASS, error="services did not become ready"))
     argv = ["run", "--no-report", "--quiet", "--out", str(tmp_path / "run")]
     assert main(argv) == 1
     said = capsys.readouterr()

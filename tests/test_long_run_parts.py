@@ -114,8 +114,8 @@ def test_the_run_trace_is_the_row_by_row_trace(tmp_path: Path) -> None:
     """hil run's trace.csv, written column by column a chunk at a time, is byte for byte the
     one the row-by-row writer wrote (here against a copy of that writer)."""
     from controller_service.references import Circle
+    from hil.analysis import analyze as results
     from hil.analysis.measure.logs import ALL_COLUMNS, load_folder_logs
-    from hil.bench import results
     from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
     from protocol.hoplog import TICK_NO_SEND
     from tests.synthetic_folder import write_synthetic_folder
