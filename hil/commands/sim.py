@@ -5,7 +5,7 @@ figures)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -50,7 +50,6 @@ def sim(
     from hil.law.option import with_law
     from hil.scenario import load_scenario
     from hil.sim import simulate, write_run_folder
-    from hil.verdict import law_ended
 
     out_dir("--out", out, default="runs")
     path = resolve_scenario(scenario)
@@ -81,10 +80,18 @@ def sim(
         result = simulate(sc, progress=progress)
     with interrupts.shielded():  # a second Ctrl-C must not leave the folder half-written
         folder = write_run_folder(result, target)
+    _say_and_judge(result, folder, sc.run.duration)
+
+
+def _say_and_judge(result: Any, folder: Path, planned_s: float) -> None:
+    """The simulation's result line, then its verdict's exit (a law's fault, a non-finite
+    state, a broken limit: FAIL) or, interrupted, what it did not cover."""
+    from hil.verdict import law_ended
+
     s = result.summary
     if result.interrupted:
         interrupts.note(
-            f"at t = {s['duration']:.3f} s of {sc.run.duration:g} s; wrote what was computed to "
+            f"at t = {s['duration']:.3f} s of {planned_s:g} s; wrote what was computed to "
             f"{folder} (no claim about the rest)"
         )
     typer.echo(
