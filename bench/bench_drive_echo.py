@@ -1,4 +1,4 @@
-"""What the virtual drives add at the bus: each figure beside a raw python-can peer, same bus, same run.
+"""What the virtual drives add at the bus: each figure beside a raw python-can peer, same run.
 
 Three processes on one python-can bus: ``hil drives`` (the two virtual ODrives, nodes 0 and 1,
 idle), the raw peer (bench/raw_can_peer.py: python-can and the standard library only, nodes 16
@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import gc
+import itertools
 import json
 import os
 import shlex
@@ -80,6 +81,8 @@ CYCLIC = {"heartbeat": Cmd.HEARTBEAT, "encoder": Cmd.GET_ENCODER_ESTIMATES}
 ANSWER_TIMEOUT_S = 1.0
 TARGET = 1.2  # drives / peer, p50 and p99 (issue 37 item 5)
 NETNS_ENV = "HIL_BENCH_IN_NETNS"
+# what the drives' summary says they did (a check that they answered and sent)
+DRIVES_COUNTERS = ("frames_in", "frames_out", "requests", "send_errors", "socket_drops")
 
 
 def can_id(node: int, cmd: int) -> int:
@@ -103,15 +106,19 @@ def percentile(sorted_values: list[float], q: float) -> float:
 
 def period_jitter_us(stamps_s: list[float], period_s: float) -> list[float]:
     """``|t[i+1] - t[i] - T|`` in us for consecutive receive stamps of one frame id."""
-    return [abs((b - a) - period_s) * 1e6 for a, b in zip(stamps_s, stamps_s[1:], strict=False)]
+    return [abs((b - a) - period_s) * 1e6 for a, b in itertools.pairwise(stamps_s)]
 
 
 def summarize(values_us: list[float]) -> dict[str, float | int]:
     s = sorted(values_us)
     if not s:
         return {"count": 0}
-    return {"count": len(s), "p50_us": percentile(s, 0.5), "p99_us": percentile(s, 0.99),
-            "max_us": s[-1]}  # fmt: skip
+    return {
+        "count": len(s),
+        "p50_us": percentile(s, 0.5),
+        "p99_us": percentile(s, 0.99),
+        "max_us": s[-1],
+    }
 
 
 # --- measuring on a bus -----------------------------------------------------------------------
@@ -197,12 +204,16 @@ def peer_argv(bus: BusConfig, answer: list[str], cyclic: list[str], *extra: str)
 
 @contextlib.contextmanager
 def started(
-    argv: list[str], stdout: IO[str] | int, stderr: IO[str] | int | None, ready: str | None = None
+    argv: list[str],
+    stdout: IO[str] | int,
+    stderr: IO[str] | int | None,
+    ready: str | None = None,
+    cwd: Path = ROOT,
 ) -> Iterator[subprocess.Popen]:
     """A process in its own group (stopped by PID on the way out); with ``ready``, after it
     printed that line."""
     proc = subprocess.Popen(
-        argv, stdout=stdout, stderr=stderr, text=True, start_new_session=True, cwd=ROOT
+        argv, stdout=stdout, stderr=stderr, text=True, start_new_session=True, cwd=cwd
     )
     try:
         if ready is not None and proc.stdout is not None:
@@ -240,12 +251,19 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     bus_cfg = BusConfig(args.interface, args.channel, endpoint, args.bitrate)
     cmd = REQUESTS[args.request]
     periods_ms = {"heartbeat": args.heartbeat_ms, "encoder": args.encoder_ms}
-    drives_argv = [sys.executable, "-m", "hil", "drives", "--can-interface", args.interface,
-                   "--channel", args.channel, "--status-period", "0",
-                   "--heartbeat-ms", str(args.heartbeat_ms), "--encoder-ms", str(args.encoder_ms),
-                   "--control-rate", str(args.control_rate), "--scheduling", args.scheduling]  # fmt: skip
+    options = {
+        "--can-interface": args.interface,
+        "--channel": args.channel,
+        "--status-period": 0,
+        "--heartbeat-ms": args.heartbeat_ms,
+        "--encoder-ms": args.encoder_ms,
+        "--control-rate": args.control_rate,
+        "--scheduling": args.scheduling,
+    }
     if args.interface == "zenoh_can":
-        drives_argv += ["--can-endpoint", endpoint, "--bitrate", str(args.bitrate)]
+        options.update({"--can-endpoint": endpoint, "--bitrate": args.bitrate})
+    drives_argv = [sys.executable, "-m", "hil", "drives"]
+    drives_argv += [str(x) for kv in options.items() for x in kv]
     cyclic = [f"{can_id(n, CYCLIC[k])}:{ms}" for n in PEER_NODES for k, ms in periods_ms.items()]
     answer = [str(can_id(PEER_NODES[0], cmd))]
     peer_extra = ["--cyclic-mode", args.cyclic_mode, "--scheduling", args.scheduling]
@@ -256,11 +274,16 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     }
     targets = {"drives": can_id(DRIVE_NODES[1], cmd), "peer": can_id(PEER_NODES[0], cmd)}
     with tempfile.TemporaryFile("w+") as drives_out, contextlib.ExitStack() as stack:
-        drives = stack.enter_context(started(drives_argv, drives_out, subprocess.STDOUT))
-        peer_cmd = peer_argv(bus_cfg, answer, cyclic, *peer_extra)
-        peer = stack.enter_context(started(peer_cmd, subprocess.PIPE, None, raw_can_peer.READY))
+        # This process' bus first: on zenoh_can it owns the well-known endpoint, both devices
+        # connect to it and each is one hop from it (a device that owned it would be the
+        # other's first route).
         bus = open_measurer_bus(bus_cfg)
         stack.callback(bus.shutdown)
+        drives = stack.enter_context(
+            started(drives_argv, drives_out, subprocess.STDOUT, cwd=args.drives_root)
+        )
+        peer_cmd = peer_argv(bus_cfg, answer, cyclic, *peer_extra)
+        peer = stack.enter_context(started(peer_cmd, subprocess.PIPE, None, raw_can_peer.READY))
         sched_errors = raw_can_peer.apply_scheduling(args.scheduling)
         heard = {ids[0] for ids in series.values()}
         wait_for(bus, heard, [drives, peer], timeout=120.0)
@@ -269,8 +292,9 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         gc.disable()  # no collection of this process inside a figure (it is re-enabled below)
         try:
             for _ in range(args.repeats):
-                stamps = collect_stamps(bus, {i for ids in series.values() for i in ids},
-                                        args.window)  # fmt: skip
+                stamps = collect_stamps(
+                    bus, {i for ids in series.values() for i in ids}, args.window
+                )
                 period_s = {k: ms / 1000.0 for k, ms in periods_ms.items()}
                 jitter = {
                     f"{who}/{kind}": summarize(
@@ -296,9 +320,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         "periods_ms": periods_ms,
         "runs": runs,
         "measurer_scheduling_errors": sched_errors,
-        "drives_can_counters": {k: drives_summary.get("can", {}).get(k) for k in
-                                ("frames_in", "frames_out", "requests", "send_errors",
-                                 "own_frames", "socket_drops")},  # fmt: skip
+        "drives_can_counters": {k: drives_summary.get("can", {}).get(k) for k in DRIVES_COUNTERS},
         "drives_scheduling": drives_summary.get("scheduling"),
     }
 
@@ -327,8 +349,10 @@ def rows(result: dict[str, Any]) -> list[dict[str, Any]]:
     """One row per figure: the medians over repeats of drives and peer, their ratios."""
     runs = result["runs"]
     figures = [("request -> reply", ("rtr", "drives"), ("rtr", "peer"))]
-    figures += [(f"{kind} period jitter", ("jitter", f"drives/{kind}"), ("jitter", f"peer/{kind}"))
-                for kind in CYCLIC]  # fmt: skip
+    figures += [
+        (f"{kind} period jitter", ("jitter", f"drives/{kind}"), ("jitter", f"peer/{kind}"))
+        for kind in CYCLIC
+    ]
     out = []
     for name, d_path, p_path in figures:
         row: dict[str, Any] = {"figure": name}
@@ -346,8 +370,10 @@ def table(result: dict[str, Any]) -> str:
     def num(x: float | None, fmt: str) -> str:
         return "-" if x is None else format(x, fmt)
 
-    head = (f"{'figure':<26}{'drives p50':>11}{'p99':>9}{'peer p50':>10}{'p99':>9}"
-            f"{'ratio p50':>11}{'p99':>7}  <= {TARGET}x")  # fmt: skip
+    head = (
+        f"{'figure':<26}{'drives p50':>11}{'p99':>9}{'peer p50':>10}{'p99':>9}"
+        f"{'ratio p50':>11}{'p99':>7}  <= {TARGET}x"
+    )
     lines = [head, "-" * len(head)]
     for r in result["rows"]:
         met = {True: "yes", False: "NO", None: "-"}[r["met"]]
@@ -357,7 +383,9 @@ def table(result: dict[str, Any]) -> str:
             f"{num(r['peer_p99_us'], '.0f'):>9}{num(r['ratio_p50'], '.2f'):>11}"
             f"{num(r['ratio_p99'], '.2f'):>7}  {met}"
         )
-    lost = {who: sum(run["rtr"][who]["lost"] for run in result["runs"]) for who in ("drives", "peer")}
+    lost = {
+        who: sum(run["rtr"][who]["lost"] for run in result["runs"]) for who in ("drives", "peer")
+    }
     lines.append(f"unanswered requests: drives {lost['drives']}, peer {lost['peer']}")
     return "\n".join(lines)
 
@@ -368,12 +396,17 @@ def reexec_in_netns(argv: list[str]) -> int:
     (udp_multicast sends to a group on the default interface: nothing may leave the host)."""
     unshare = shutil.which("unshare")
     if unshare is None or os.geteuid() != 0:
-        print("error: udp_multicast runs in a private network namespace: root and unshare "
-              "(util-linux) needed", file=sys.stderr)  # fmt: skip
+        print(
+            "error: udp_multicast runs in a private network namespace: root and unshare "
+            "(util-linux) needed",
+            file=sys.stderr,
+        )
         return 2
     me = " ".join(shlex.quote(a) for a in [sys.executable, os.path.abspath(__file__), *argv])
-    script = ("set -e; ip link set lo up; ip link set lo multicast on; "
-              f"ip route add 224.0.0.0/4 dev lo; exec {me}")  # fmt: skip
+    script = (
+        "set -e; ip link set lo up; ip link set lo multicast on; "
+        f"ip route add 224.0.0.0/4 dev lo; exec {me}"
+    )
     env = {**os.environ, NETNS_ENV: "1"}
     env["PATH"] = env.get("PATH", "") + ":/usr/sbin:/sbin"
     return subprocess.call([unshare, "-n", "sh", "-c", script], env=env)
@@ -381,12 +414,20 @@ def reexec_in_netns(argv: list[str]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--interface", default="zenoh_can",
-                   choices=("zenoh_can", "udp_multicast", "socketcan"))  # fmt: skip
-    p.add_argument("--channel", default=None,
-                   help="default: bench_echo (zenoh_can), 239.74.163.2 (udp_multicast), vcan0")  # fmt: skip
-    p.add_argument("--bitrate", type=int, default=1_000_000,
-                   help="the devices' zenoh_can bit-time model (the measurer's is off)")  # fmt: skip
+    p.add_argument(
+        "--interface", default="zenoh_can", choices=("zenoh_can", "udp_multicast", "socketcan")
+    )
+    p.add_argument(
+        "--channel",
+        default=None,
+        help="bench_echo (zenoh_can), 239.74.163.2 (udp_multicast), vcan0 (socketcan)",
+    )
+    p.add_argument(
+        "--bitrate",
+        type=int,
+        default=1_000_000,
+        help="the devices' zenoh_can bit-time model (the measurer's: off)",
+    )
     p.add_argument("--request", choices=sorted(REQUESTS), default="bus_voltage_current")
     p.add_argument("--count", type=int, default=2000, help="request pairs per repeat")
     p.add_argument("--warmup", type=int, default=50, help="request pairs before the first repeat")
@@ -395,10 +436,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--heartbeat-ms", type=float, default=100.0)
     p.add_argument("--encoder-ms", type=float, default=10.0)
     p.add_argument("--control-rate", type=float, default=1000.0, help="the drives' plant, Hz")
-    p.add_argument("--cyclic-mode", choices=("loop", "send_periodic"), default="loop",
-                   help="the peer's periodic sender (bench/raw_can_peer.py)")  # fmt: skip
-    p.add_argument("--scheduling", choices=("fifo", "other"), default="fifo",
-                   help="of the drives, the peer and this process (the drives' default: fifo)")  # fmt: skip
+    p.add_argument(
+        "--cyclic-mode",
+        choices=("loop", "send_periodic"),
+        default="loop",
+        help="the peer's periodic sender (bench/raw_can_peer.py)",
+    )
+    p.add_argument(
+        "--scheduling",
+        choices=("fifo", "other"),
+        default="fifo",
+        help="of the drives, the peer and this process (drives' default)",
+    )
+    p.add_argument(
+        "--drives-root",
+        type=Path,
+        default=ROOT,
+        help="the checkout whose `python -m hil drives` runs (e.g. an older commit's\n"
+        "git archive, for a before/after); default: this one",
+    )
     p.add_argument("--quick", action="store_true", help="3 repeats of 3 s and 300 pairs")
     p.add_argument("--out", default=None, help="also write the JSON to this file")
     args = p.parse_args(argv)
@@ -427,6 +483,7 @@ def main(argv: list[str] | None = None) -> int:
         "repeats": args.repeats,
         "window_s": args.window,
         "pairs_per_repeat": args.count,
+        "drives_root": str(args.drives_root),
         **result,
     }
     text = json.dumps(report, indent=2)

@@ -1,4 +1,4 @@
-"""A raw python-can peer: the baseline the virtual drives are measured against (bench/bench_drive_echo.py).
+"""A raw python-can peer: the baseline of the virtual drives in bench/bench_drive_echo.py.
 
 It imports python-can and the standard library only (tests/test_drive_echo_bench.py checks it):
 what it costs to answer a request and to keep a period is what python-can and Python cost on
@@ -14,7 +14,9 @@ this bus, with no drive model behind it.
 - ``--scheduling fifo`` applies what the drives' process applies to itself
   (runtime/realtime.py's ``setup_scheduling``): GIL switch interval 0.5 ms, the CPU latency
   request held at 0 us, every page locked, the collector's objects frozen, SCHED_FIFO 80 for
-  the main thread and 79 for every other thread.
+  the threads that serve the bus (the main thread, which answers, and the cyclic sender) and
+  79 for every other thread (python-can's and Zenoh's helpers), as the drives' reader and
+  cyclic sender run at 80 (runtime.realtime.raise_threads).
 
 Known-answer injections (tests only; off by default): ``--answer ID:DELAY_MS`` waits DELAY_MS
 before answering that id; ``--late-every K --late-ms D`` sends every K-th frame of each cyclic
@@ -44,9 +46,12 @@ FIFO_PRIORITY = 80
 MCL_CURRENT, MCL_FUTURE = 1, 2
 
 
-def apply_scheduling(policy: str, priority: int = FIFO_PRIORITY) -> list[str]:
+def apply_scheduling(
+    policy: str, serving: tuple[int, ...] = (), priority: int = FIFO_PRIORITY
+) -> list[str]:
     """``policy`` ("fifo" or "other") for this process as the drives apply theirs (module
-    docstring); what could not be applied, as text (empty: all of it)."""
+    docstring): ``priority`` for the calling thread and the ``serving`` threads (native ids),
+    one below for every other; what could not be applied, as text (empty: all of it)."""
     if policy != "fifo":
         return []
     errors = []
@@ -61,9 +66,9 @@ def apply_scheduling(policy: str, priority: int = FIFO_PRIORITY) -> list[str]:
         errors.append(f"mlockall: {os.strerror(ctypes.get_errno())}")
     gc.collect()
     gc.freeze()
-    me = threading.get_native_id()
+    top = {threading.get_native_id(), *serving}
     for tid in (int(t) for t in os.listdir("/proc/self/task")):
-        prio = priority if tid == me else priority - 1
+        prio = priority if tid in top else priority - 1
         try:
             os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(prio))
         except OSError as exc:
@@ -140,17 +145,24 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     bus = open_bus(a.interface, a.channel, a.endpoint, a.bitrate)
     tasks = []
+    senders: list[threading.Thread] = []
     try:
         if cyclic and a.cyclic_mode == "loop":
             late = (a.late_every, a.late_ms / 1000.0)
-            threading.Thread(
-                target=cyclic_loop, args=(bus, cyclic, stopped, *late), daemon=True
-            ).start()
+            senders.append(
+                threading.Thread(
+                    target=cyclic_loop, args=(bus, cyclic, stopped, *late), daemon=True
+                )
+            )
+            senders[0].start()
         else:
             for ident, ms in cyclic:
                 msg = can.Message(arbitration_id=ident, data=REPLY, is_extended_id=False)
                 tasks.append(bus.send_periodic(msg, ms / 1000.0))
-        for error in apply_scheduling(a.scheduling):
+                if isinstance(getattr(tasks[-1], "thread", None), threading.Thread):
+                    senders.append(tasks[-1].thread)  # python-can's thread (not the BCM's)
+        serving = tuple(t.native_id for t in senders if t.native_id is not None)
+        for error in apply_scheduling(a.scheduling, serving):
             print(f"warning: {error}", file=sys.stderr, flush=True)
         print(READY, flush=True)
         while not stopped.is_set():

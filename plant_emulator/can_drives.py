@@ -152,6 +152,10 @@ class CanDrives:
         for t in self._threads:
             t.start()
 
+    def native_ids(self) -> list[int]:
+        """The kernel's ids of the reader and the cyclic sender (started threads only)."""
+        return [t.native_id for t in self._threads if t.native_id is not None]
+
     # --- receive -------------------------------------------------------------------------
     def _reader(self) -> None:
         while not self._stop.is_set():
