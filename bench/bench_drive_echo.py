@@ -22,7 +22,7 @@ the drives' own ``setup_scheduling``, the peer's stdlib copy of it; this process
 
 Each repeat: a window of cyclic frames (nothing else sent), then the request pairs. Per repeat
 p50 and p99 (nearest rank) of each figure; the table quotes the median over repeats and the
-ratio drives / peer, against the target of 1.2 (issue 37). The machine is shared: run it on a
+ratio drives / peer, against the target of 1.2. The machine is shared: run it on a
 quiet one and quote the medians.
 
     python bench/bench_drive_echo.py                         # zenoh_can, 5 x (5 s, 2000 pairs)
@@ -79,7 +79,7 @@ REQUESTS = {
 }
 CYCLIC = {"heartbeat": Cmd.HEARTBEAT, "encoder": Cmd.GET_ENCODER_ESTIMATES}
 ANSWER_TIMEOUT_S = 1.0
-TARGET = 1.2  # drives / peer, p50 and p99 (issue 37 item 5)
+TARGET = 1.2  # drives / peer, p50 and p99: what the bench may add at the bus
 NETNS_ENV = "HIL_BENCH_IN_NETNS"
 # what the drives' summary says they did (a check that they answered and sent)
 DRIVES_COUNTERS = ("frames_in", "frames_out", "requests", "send_errors", "socket_drops")
