@@ -64,7 +64,7 @@ import can  # noqa: E402
 
 from bench import raw_can_peer  # noqa: E402
 from protocol.can.bus_factory import CanSettings, in_private_netns  # noqa: E402
-from protocol.can.codec import Cmd  # noqa: E402
+from protocol.can.codec import Cmd, frame_id  # noqa: E402
 
 PEER = Path(raw_can_peer.__file__)
 DRIVE_NODES = (CanSettings().node_left, CanSettings().node_right)  # hil drives' defaults
@@ -83,10 +83,6 @@ TARGET = 1.2  # drives / peer, p50 and p99: what the bench may add at the bus
 NETNS_ENV = "HIL_BENCH_IN_NETNS"
 # what the drives' summary says they did (a check that they answered and sent)
 DRIVES_COUNTERS = ("frames_in", "frames_out", "requests", "send_errors", "socket_drops")
-
-
-def can_id(node: int, cmd: int) -> int:
-    return node << 5 | cmd
 
 
 @dataclass(frozen=True)
@@ -264,15 +260,15 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         options.update({"--can-endpoint": endpoint, "--bitrate": args.bitrate})
     drives_argv = [sys.executable, "-m", "hil", "drives"]
     drives_argv += [str(x) for kv in options.items() for x in kv]
-    cyclic = [f"{can_id(n, CYCLIC[k])}:{ms}" for n in PEER_NODES for k, ms in periods_ms.items()]
-    answer = [str(can_id(PEER_NODES[0], cmd))]
+    cyclic = [f"{frame_id(n, CYCLIC[k])}:{ms}" for n in PEER_NODES for k, ms in periods_ms.items()]
+    answer = [str(frame_id(PEER_NODES[0], cmd))]
     peer_extra = ["--cyclic-mode", args.cyclic_mode, "--scheduling", args.scheduling]
     series = {
-        (who, kind): [can_id(n, CYCLIC[kind]) for n in nodes]
+        (who, kind): [frame_id(n, CYCLIC[kind]) for n in nodes]
         for who, nodes in (("drives", DRIVE_NODES), ("peer", PEER_NODES))
         for kind in CYCLIC
     }
-    targets = {"drives": can_id(DRIVE_NODES[1], cmd), "peer": can_id(PEER_NODES[0], cmd)}
+    targets = {"drives": frame_id(DRIVE_NODES[1], cmd), "peer": frame_id(PEER_NODES[0], cmd)}
     with tempfile.TemporaryFile("w+") as drives_out, contextlib.ExitStack() as stack:
         # This process' bus first: on zenoh_can it owns the well-known endpoint, both devices
         # connect to it and each is one hop from it (a device that owned it would be the
