@@ -16,6 +16,7 @@ import heapq
 from typing import Any, NamedTuple
 
 from hil.recording import to_jsonable
+from protocol.can.codec import CanDecodeError
 from protocol.can.codec import decode as can_decode
 from protocol.can.drive_link import from_message
 from protocol.keys import is_tap_key
@@ -128,7 +129,8 @@ def can_frame_record(msg: Any) -> dict[str, Any]:
     try:
         m = can_decode(from_message(msg))
         data["message"] = type(m).__name__
-        data["fields"] = to_jsonable(m)
+        data["fields"] = to_jsonable(m)  # finite numbers: the codec refuses non-finite ones
     except Exception as exc:  # a frame the codec refuses is still recorded, with why
+        data["decode_reason"] = exc.reason if isinstance(exc, CanDecodeError) else "malformed"
         data["decode_error"] = str(exc)
     return data
