@@ -2,7 +2,7 @@
 
 A module of :mod:`hil.commands` adds its commands to ``hil.commands.app`` when imported;
 modules are discovered, so adding a command never edits this file. Exit codes are the table of
-:mod:`hil.verdict` (docs/reports.md, "Verdict and exit code"): 0 PASS or success, 1 FAIL, 4
+:mod:`hil.errors` (docs/reports.md, "Verdict and exit code"): 0 PASS or success, 1 FAIL, 4
 INCONCLUSIVE, 2 bad usage or input, 3 the tool itself failed (an unexpected exception: its
 traceback is printed; a script must not read it as a verdict), 130 interrupted (Ctrl-C; what
 was done is kept). The interrupt is recorded by the project's own SIGINT handler
@@ -21,8 +21,15 @@ import typer
 
 from hil import commands, interrupts
 from hil.commands import app
-from hil.errors import BadInputError, NegativeVerdictError, one_line
-from hil.verdict import BAD_INPUT, INTERNAL_ERROR, INTERRUPTED, exit_code
+from hil.errors import (
+    BAD_INPUT,
+    INTERNAL_ERROR,
+    INTERRUPTED,
+    BadInputError,
+    NegativeVerdictError,
+    exit_code,
+    one_line,
+)
 
 # Every command of hil.commands, listed by ``hil --help`` in alphabetical order.
 for _info in pkgutil.iter_modules(commands.__path__):

@@ -79,21 +79,23 @@ def _object(title: str, props: dict[str, Any], doc: str | None = None) -> dict[s
 
 MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {cls.__name__: message_schema(cls) for cls in pm.SPECS}
 
-# A float signal decoded from the wire may be NaN or infinite: the recorder writes those as
-# the strings hil.folder.recording.to_jsonable gives (JSON has no NaN).
-_NON_FINITE = [repr(math.nan), repr(math.inf), repr(-math.inf)]
+# One JSON type per field: a Foxglove-family viewer's JSON Schema parser takes one "type" name
+# and drops the whole channel for a union (docs/live.md). A decoded float signal is a finite
+# number: the codec refuses a frame carrying NaN or an infinity (CanDecodeError "non_finite"),
+# which is recorded as refused, its value in decode_error and its bytes in data.
 _CAN_TYPES: dict[str, dict[str, Any]] = {
     "int": {"type": "integer"},
     "Cmd": {"type": "integer", "minimum": 0, "maximum": 0x1F},
     "bool": {"type": "boolean"},
-    "float": {"anyOf": [{"type": "number"}, {"type": "string", "enum": _NON_FINITE}]},
+    "float": {"type": "number"},
 }
 
 
 def can_frame_schema() -> dict[str, Any]:
     """A CAN frame as the recorder writes it: the raw frame, and either the CANSimple message
     it decodes to (``message``: the class name, ``fields``: its signals, each typed from the
-    class) or ``decode_error``."""
+    class) or why the codec refused it (``decode_reason``: the codec's word, e.g.
+    ``non_finite``; ``decode_error``: with the detail)."""
     signals: dict[str, dict[str, Any]] = {}
     classes: list[type] = codec.Message.__subclasses__()
     for cls in classes:  # every message class: the list grows while it is walked
@@ -118,12 +120,16 @@ def can_frame_schema() -> dict[str, Any]:
                 "required": ["node"],
                 "additionalProperties": False,
             },
+            "decode_reason": {"type": "string", "pattern": "^[a-z_]+$"},
             "decode_error": {"type": "string"},
         },
         "A CAN frame and what the CANSimple codec decodes it to.",
     )
     frame["required"] = ["arbitration_id", "data", "dlc", "is_remote_frame"]
-    frame["oneOf"] = [{"required": ["message", "fields"]}, {"required": ["decode_error"]}]
+    frame["oneOf"] = [
+        {"required": ["message", "fields"]},
+        {"required": ["decode_reason", "decode_error"]},
+    ]
     return frame
 
 

@@ -36,17 +36,20 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from controller_service.laws.guard import LawFault
+from hil.errors import (  # noqa: F401 (the exit table, re-exported: hil.verdict.EXIT_CODE)
+    BAD_INPUT,
+    EXIT_CODE,
+    FAIL,
+    INCONCLUSIVE,
+    INTERNAL_ERROR,
+    INTERRUPTED,
+    PASS,
+    exit_code,
+)
 from hil.folder import layout
 from hil.folder.records import ControllerExit, Summary
 from hil.limits import LIMIT_REL_TOL, ConstraintFigure
 
-PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
-#: The exit code of each outcome, for every command that has a verdict (docs/reports.md).
-EXIT_CODE = {PASS: 0, FAIL: 1, INCONCLUSIVE: 4}
-#: The rest of the table: bad usage or input, a fault of hil itself (its traceback printed,
-#: never a verdict; Python's own code for an uncaught exception would be 1, FAIL's), and an
-#: interrupt (Ctrl-C or SIGTERM, after what ran was written).
-BAD_INPUT, INTERNAL_ERROR, INTERRUPTED = 2, 3, 130
 LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
 UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "m/s²", "tau2": "rad/s²"}
 BENCH_ADVICE = (
@@ -283,11 +286,6 @@ def _after_the_controller_ended(v: Verdict, ended: LawEnd | None) -> None:
     moved = "; ".join(short_reason(r, 100) for r in v.inconclusive_reasons)
     v.notes.append(f"not judged, the controller had ended: {moved}")
     v.inconclusive_reasons.clear()
-
-
-def exit_code(outcome: str) -> int:
-    """The exit code of a verdict's outcome (:data:`EXIT_CODE`); KeyError for anything else."""
-    return EXIT_CODE[outcome]
 
 
 def run_outcome(summary: Summary) -> str:

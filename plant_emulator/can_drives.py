@@ -152,6 +152,10 @@ class CanDrives:
         for t in self._threads:
             t.start()
 
+    def native_ids(self) -> list[int]:
+        """The kernel's ids of the reader and the cyclic sender (started threads only)."""
+        return [t.native_id for t in self._threads if t.native_id is not None]
+
     # --- receive -------------------------------------------------------------------------
     def _reader(self) -> None:
         while not self._stop.is_set():
@@ -163,10 +167,11 @@ class CanDrives:
                 self.recv_errors += 1
                 self._stop.wait(0.01)
                 continue
-            recv_ns = time.monotonic_ns()
-            self._count_drops(recv_ns)
             if msg is not None:
-                self._take(msg, recv_ns)
+                self._take(msg, time.monotonic_ns())
+            # after the answer, not before it (a system call on a socket's bus), stamped when
+            # read: the drops it finds happened before that
+            self._count_drops(time.monotonic_ns())
 
     def _take(self, msg: Any, recv_ns: int, act: bool = True) -> None:
         """One frame read from the bus: logged (a torque frame in ``cmd_rx``), then answered,
@@ -176,7 +181,8 @@ class CanDrives:
             self.error_frames += 1
             return
         frame = from_message(msg)
-        if self.echo.take(frame, recv_ns):
+        # the drives send no remote frame: a request is never their own coming back
+        if not frame.is_remote and self.echo.take(frame, recv_ns):
             self.own_frames += 1
             return
         self.frames_in += 1

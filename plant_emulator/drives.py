@@ -32,7 +32,7 @@ from plant_emulator.drive_plant import DrivePlant, run_drive_config
 from plant_emulator.odrive import VirtualDrivePair
 from plant_emulator.service import build_plant
 from protocol import keys
-from protocol.can.codec import AxisState, Cmd, Frame
+from protocol.can.codec import AxisState, Cmd, Frame, frame_for_other_node
 from protocol.settings import RunSettings, period_ns, period_s
 
 # The drives' settings a summary records (docs/can.md, "Defaults").
@@ -121,7 +121,11 @@ class DrivesRunner:
         return self.t0_ns / 1e9 + self.core.t
 
     def _on_frame(self, recv_ns: int, frame: Frame) -> list[Frame]:
-        """A frame lands at its arrival: the plant runs up to it, then the drives take it."""
+        """A frame lands at its arrival: the plant runs up to it, then the drives take it.
+        Another node's frame changes nothing here: counted (ignored) without a plant step,
+        as every frame of a busy bus would otherwise cost one."""
+        if frame_for_other_node(frame, self.pair.nodes):
+            return self.pair.receive(self.t0_ns / 1e9 + self.core.t, frame)
         now = self._advance(recv_ns)
         self.drive_plant.feedback(now, self.core.t, self.core.state)
         answers = self.pair.receive(now, frame)
@@ -249,7 +253,7 @@ class DrivesRunner:
 
     # --- the loop ----------------------------------------------------------------------------
     def run(self, stop: Any) -> dict[str, Any]:
-        from runtime.realtime import DeadlineClock, setup_scheduling
+        from runtime.realtime import DeadlineClock, raise_threads, setup_scheduling
 
         opts = self.opts
         self.can.start()
@@ -259,6 +263,10 @@ class DrivesRunner:
         # Threads exist now, so SCHED_FIFO reaches the reader and the cyclic sender too. The
         # collector stays on (the process runs for hours); what exists now is frozen once.
         sched = setup_scheduling(scheduling, freeze_gc=False, idle=self.settings.idle)
+        if sched.policy == "SCHED_FIFO":
+            # The bus edge at the loop's own priority, above Zenoh's helper threads: a request
+            # is answered and a cyclic frame sent as promptly as a bare python-can peer does.
+            raise_threads(self.can.native_ids(), sched.priority)
         gc.collect()
         gc.freeze()
         period = period_ns(period_s(opts.control_rate))

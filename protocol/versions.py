@@ -10,14 +10,14 @@ from __future__ import annotations
 MESSAGE_SCHEMA_VERSION = 1
 # hil sim's summary.json and the [provenance] of every scenario.resolved.toml.
 SIM_SCHEMA_VERSION = 1
-# hil run's summary.json (hil.run.results). 3: verdict.blocking gone; samples_judged one per
+# hil run's summary.json (hil.analysis.analyze). 3: verdict.blocking gone; samples_judged one per
 # control period when the controller runs below the plant's sample rate.
 RUN_SCHEMA_VERSION = 3
-# report.json (hil report, hil.report.build).
+# report.json (hil report, hil.analysis.report.build).
 REPORT_SCHEMA_VERSION = 3  # 3: verdict.blocking gone
-# compare.json (hil compare, hil.report.compare).
+# compare.json (hil compare, hil.analysis.report.compare).
 COMPARE_SCHEMA_VERSION = 1
 # sweep.json (hil sweep, hil.sweep.outputs).
 SWEEP_SCHEMA_VERSION = 2  # 2: coverage
-# margin.json (hil margin, hil.margin.record).
+# margin.json (hil margin, hil.analysis.margin.record).
 MARGIN_SCHEMA_VERSION = 1

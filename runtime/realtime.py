@@ -225,6 +225,23 @@ def _raise_helper_threads(priority: int) -> int:
     return _set_all_threads(os.SCHED_FIFO, max(1, priority), but=threading.get_native_id())
 
 
+def raise_threads(native_ids: list[int], priority: int) -> int:
+    """SCHED_FIFO at ``priority`` for these threads of this process; how many took it.
+
+    For the threads that serve a bus at the process' own priority, above the libraries'
+    helpers (one step below, :func:`setup_scheduling`): the virtual drives' reader at 79 waited
+    for Zenoh's threads at 79 on two cores, their answer to a request 40 us later than a
+    python-can peer's at 80 (bench/bench_drive_echo.py, docs/can.md)."""
+    n = 0
+    for tid in native_ids:
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            n += 1
+        except OSError:
+            pass
+    return n
+
+
 def _set_all_threads(policy: int, priority: int, but: int | None = None) -> int:
     """``policy`` at ``priority`` for every thread of this process (but ``but``); how many."""
     n = 0

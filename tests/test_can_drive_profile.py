@@ -117,7 +117,7 @@ def test_can_heartbeat_timeout_is_a_fault():
 def test_a_rearm_after_a_heartbeat_timeout_waits_for_a_new_heartbeat():
     """A drive silent past the timeout faults; the re-arm must not go ACTIVE on the heartbeat
     heard before it (then fault again at once and re-arm again: a storm of arming frames that
-    overflowed the drives' and the recorder's receive queues, issue 35)."""
+    overflowed the drives' and the recorder's receive queues)."""
     host, pair = HostLifecycle(node_right=1, node_left=0), VirtualDrivePair(1, 0, LIMIT)
     _exchange(host, pair, host.start(0.0), 0.0)
     host.tick(0.6)

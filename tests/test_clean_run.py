@@ -1,4 +1,4 @@
-"""A clean run must PASS (issue 35): on each command path a real ``hil run`` whose timing
+"""A clean run must PASS: on each command path a real ``hil run`` whose timing
 cannot honestly fail on a working machine is required to PASS, with absolute upper bounds on D
 and on the hops, each bound's reason beside it.
 

@@ -42,7 +42,7 @@ def test_ctrl_c_of_hil_sim_writes_what_was_computed(spawn, tmp_path: Path) -> No
     summary = json.loads((out / "summary.json").read_text())
     assert summary["interrupted"] is True
     assert 0 < summary["duration"] < 600
-    # what it did not cover, said (issue 35: a cut-short command says so)
+    # what it did not cover, said (a cut-short command says so)
     said = f"interrupted: at t = {summary['duration']:.3f} s of 600 s; wrote what was computed"
     assert said in err.text(5) and "(no claim about the rest)" in err.text(5), err.text(5)
     with (out / "trace.csv").open() as f:

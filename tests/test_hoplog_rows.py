@@ -48,7 +48,7 @@ OLD_PLANT = {
                "recv_ns", "tau1", "tau2", "node", "verdict"],
     "apply": ["path", "seq", "node", "recv_ns", "apply_ns", "tau1", "tau2", "outcome"],
     "zero": ["timeout_ns", "applied_ns"],
-    "socket_drops": ["since_ns", "seen_ns", "dropped"],  # since the stall table (issue 35)
+    "socket_drops": ["since_ns", "seen_ns", "dropped"],  # the bench's socket drops
 }  # fmt: skip
 OLD_HOST = {
     "host": ["time_ns", "cpu_total", "cpu_idle", "cpu_steal", "runnable", "plant_cpu",

@@ -1,4 +1,4 @@
-"""The live view's verdict is the final verdict's function on the same evidence (issue 35: the
+"""The live view's verdict is the final verdict's function on the same evidence (the
 live view said INCONCLUSIVE for a run whose final verdict was FAIL).
 
 Each scripted run (tests/synthetic_run.py) is judged twice: finally, as ``hil run`` does

@@ -1,5 +1,5 @@
 """``hil run --rate 100`` on the default 500 Hz plant: samples without a command are counted
-against the samples the controller was meant to answer, one per control period (issue 35, "a
+against the samples the controller was meant to answer, one per control period ("a
 documented option fails every run": on c20de4f 80 % of the samples "got no command" and the
 verdict was FAIL by construction, on a quiet machine too).
 

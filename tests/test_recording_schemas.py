@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import struct
 from pathlib import Path
 
 import jsonschema
@@ -24,6 +25,7 @@ from hil.folder.recording import (
     read_topic_payloads,
 )
 from protocol.messages import SPECS, State, TorqueCommand
+from tests.viewer_schema import viewer_refuses
 
 FIXTURE = Path(__file__).parent / "fixtures" / "recording_untyped.mcap"
 
@@ -66,6 +68,7 @@ def test_every_message_of_a_real_run_validates_against_its_channels_typed_schema
             jsonschema.Draft202012Validator.check_schema(doc)
             assert not _untyped_properties(doc), (channel.topic, _untyped_properties(doc))
             assert doc["additionalProperties"] is False, channel.topic
+            assert viewer_refuses(doc) == [], channel.topic  # Foxglove parses every channel
             validators[channel.id] = jsonschema.Draft202012Validator(doc)
         errors = list(validators[channel.id].iter_errors(json.loads(message.data)))
         assert not errors, (channel.topic, message.data[:300], errors[0].message)
@@ -111,11 +114,14 @@ def test_a_wrong_message_fails_its_schema():
     assert not _valid("hil/robot0/state", good | {"type": "TorqueCommand"})
     assert not _valid("hil/robot0/cmd/torque", good)  # a State is not a TorqueCommand
     frame = {"arbitration_id": 46, "data": "00", "dlc": 1, "is_remote_frame": False}
-    assert _valid("can/hil0", frame | {"decode_error": "short"})
+    refused = {"decode_reason": "wrong_dlc", "decode_error": "wrong_dlc: 1 byte"}
+    assert _valid("can/hil0", frame | refused)
+    assert not _valid("can/hil0", frame | {"decode_error": "short"})  # without its reason
     assert not _valid("can/hil0", frame)  # neither decoded nor refused
     decoded = frame | {"message": "SetInputTorque", "fields": {"node": 1, "torque_nm": 0.5}}
     assert _valid("can/hil0", decoded)
     assert not _valid("can/hil0", decoded | {"fields": {"node": 1, "torque_nm": True}})
+    assert not _valid("can/hil0", decoded | {"fields": {"node": 1, "torque_nm": "nan"}})
     assert not _valid("can/hil0", decoded | {"message": "NoSuchMessage"})
 
 
@@ -186,3 +192,92 @@ def test_the_recorders_formatted_pose_is_the_schemas_pose(tmp_path):
         t, x, y, th = st.sample_time_ns, st.x, st.y, st.theta
         assert got[("hil/robot0/pose", st.seq)] == schemas.pose_in_frame(t, x, y, th)
         assert got[("hil/robot0/tf", st.seq)] == schemas.frame_transform(t, "robot0", x, y, th)
+
+
+# Every topic a recording holds, by kind (hil.schemas.schema_for_topic).
+RECORDED_TOPICS = [
+    *(f"hil/robot0/{suffix}" for suffix in ("state", "cmd/torque", "status", "telemetry",
+                                            schemas.POSE, schemas.TF, schemas.REFERENCE,
+                                            schemas.TIMING)),
+    "recorder/errors", "recorder/rejected", "can/hil0",
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("topic", RECORDED_TOPICS)
+def test_no_recorded_channel_has_a_field_of_two_types(topic):
+    """One JSON type per field in every recorded channel's schema: no union of number and
+    string (the CAN float signals' first schema), no list of types, no anyOf -- a
+    Foxglove-family viewer refuses such a schema and drops the channel (tests/viewer_schema.py
+    states its parser's rules; the old CAN schema is refused by them, test_live_viewer.py)."""
+    schema = schemas.schema_for_topic(topic)
+    assert schema is not schemas.GENERIC
+    assert viewer_refuses(schema) == []
+
+
+def test_a_recording_of_a_nan_torque_frame_validates_and_parses_in_the_viewers(tmp_path):
+    """Frames sent on a real zenoh_can bus, received through python-can's Notifier into the
+    run's Recorder (as hil run records its CAN bus), written to an MCAP file: a NaN and an
+    infinite Set_Input_Torque are refused frames (decode_reason non_finite, the value in
+    decode_error, no fields), the finite ones decoded with their floats as numbers; every
+    message validates against its channel's schema, which a viewer parses."""
+    import can
+
+    from hil.bench.recorder import Recorder
+    from tests.procs import free_tcp_port
+
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    torque = 1 << 5 | 0x0E  # node 1's Set_Input_Torque
+    sent = [
+        can.Message(arbitration_id=torque, data=struct.pack("<ff", math.nan, 0.0)),
+        can.Message(arbitration_id=torque, data=struct.pack("<ff", -math.inf, 0.0)),
+        can.Message(arbitration_id=torque, data=struct.pack("<ff", 0.25, 0.0)),
+        can.Message(arbitration_id=1 << 5 | 0x09, data=struct.pack("<ff", 1.5, -0.5)),
+        can.Message(arbitration_id=1 << 5 | 0x17, is_remote_frame=True),
+    ]
+    for m in sent:
+        m.is_extended_id = False
+    path = tmp_path / "r.mcap"
+    rec = Recorder(RecordingWriter(path))
+    rx = can.Bus(interface="zenoh_can", channel="nan0", endpoint=endpoint)
+    tx = can.Bus(interface="zenoh_can", channel="nan0", endpoint=endpoint)
+    try:
+        notifier = can.Notifier(rx, [lambda m: rec.on_can("nan0", m)], timeout=0.05)
+        try:
+            # the two members meet (Zenoh's discovery): a probe frame that comes through
+            probe = can.Message(arbitration_id=0x7FF, data=b"", is_extended_id=False)
+            heard = can.BufferedReader()
+            notifier.add_listener(heard)
+            for _ in range(200):
+                tx.send(probe)
+                if heard.get_message(0.05) is not None:
+                    break
+            else:
+                pytest.fail("the two zenoh_can members never met")
+            for m in sent:
+                tx.send(m)
+            got = 0  # every frame sent has reached the recorder (then close() writes it)
+            while got < len(sent) and (msg := heard.get_message(10.0)) is not None:
+                got += msg.arbitration_id != 0x7FF
+            assert got == len(sent)
+        finally:
+            notifier.stop()
+    finally:
+        tx.shutdown()
+        rx.shutdown()
+    rec.close()
+    with open(path, "rb") as f:
+        messages = list(make_reader(f).iter_messages())
+    assert messages
+    for schema, _channel, message in messages:
+        doc = json.loads(schema.data)
+        assert schema.name == "hil.CanFrame" and viewer_refuses(doc) == []
+        jsonschema.Draft202012Validator(doc).validate(json.loads(message.data))
+    records = [m.data for m in read_messages(path) if m.data["arbitration_id"] != 0x7FF]
+    assert len(records) == len(sent)
+    nan, inf, finite, estimates, request = records
+    for refused, value in ((nan, "nan"), (inf, "-inf")):
+        assert refused["decode_reason"] == "non_finite" and "fields" not in refused
+        assert refused["decode_error"] == f"non_finite: Input_Torque={value}"
+    assert finite["fields"] == {"node": 1, "torque_nm": 0.25}
+    assert estimates["fields"] == {"node": 1, "pos_rev": 1.5, "vel_rev_s": -0.5}
+    assert request["message"] == "Request" and request["fields"] == {"node": 1, "cmd": 0x17}

@@ -48,9 +48,12 @@ def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
     # Every received command was applied, or came after the plant's last sample (a guest stall
     # longer than 2 Ts between send and receive at the window's end; CI saw one): none refused,
     # none dropped unexplained. The latency figure counts the changes of the command in force
-    # (every wheel's frame of it landed, newest wins): at most one per command applied.
+    # (every wheel's frame of it landed, newest wins) whose sample is in the window: at most one
+    # per command applied, or sent after the message window closed (its sample inside the
+    # window, its frames put in the last settle period: CI saw 470 against 469 applied).
     assert can["refused_by_drive"] == 0 and can["unaccounted"] == 0, can
     assert can["applied"] + can["arrived_after_plant_stopped"] == can["received"], can
-    assert 0 < s["timing"]["sample_to_apply_can"]["count"] <= can["applied"], can
+    landed_changes = s["timing"]["sample_to_apply_can"]["count"]
+    assert 0 < landed_changes <= can["applied"] + can["sent_after_window"], can
     check_certified_bound(s, scenario)
     assert s["violations"] == dict.fromkeys(("v", "omega", "tau1", "tau2"), 0), s["violations"]

@@ -1,5 +1,5 @@
 """The stall table (hil/analysis/measure/stalls.py) on synthetic evidence: every row, the precedence
-between rows, the two misattributions issue 35 reported rebuilt from hop logs, and the docs
+between rows, two misattributions seen on loaded hosts rebuilt from hop logs, and the docs
 holding the table the code runs.
 
 Two layers: :func:`decide` on an :class:`Evidence` written by hand (each row and each pair of
@@ -232,7 +232,7 @@ def test_a_receiver_s_stall_lasts_until_it_drained_its_queue():
     ]
 
 
-# --- the pipeline on scripted hop logs: the misattributions of issue 35 -----------------------
+# --- the pipeline on scripted hop logs: misattributions seen on loaded hosts --------------------
 
 
 def _bound() -> BoundInputs:
@@ -254,7 +254,7 @@ def _stall_at(tmp_path: Path, loop: Loop, t_ms: float) -> dict:
 
 
 def test_a_host_stall_with_a_state_held_across_it_is_host_stalled_not_the_wire(tmp_path):
-    """Issue 35's README run: the controller 48.6 ms late inside a 99.7 ms plant stall (the
+    """A README run on a loaded host: the controller 48.6 ms late inside a 99.7 ms plant stall (the
     host stopped both), and the State the plant stamped just before it stopped left only when
     it resumed and arrived 5.5 ms later (its receiver catching up). c20de4f compared that
     State's 107 ms hop with the larger lateness plus a period (101.7 ms), named the stall
@@ -270,7 +270,7 @@ def test_a_host_stall_with_a_state_held_across_it_is_host_stalled_not_the_wire(t
 
 
 def test_a_command_held_by_the_stopped_plant_is_the_plant_s_stall_not_the_wire(tmp_path):
-    """Issue 35's 40 ms plant SIGSTOP: the command sent 1 ms before the stop was read by the
+    """A 40 ms plant SIGSTOP on a loaded host: the command sent 1 ms before the stop was read by the
     plant's receiver 4 ms after it resumed (its main loop catching up first). c20de4f took
     the 45 ms hop for the wire's (more than the plant's 42 ms silence plus a period) and
     blamed ``transport_late`` (system); the plant held that command while stopped."""

@@ -143,7 +143,7 @@ def _table_uncertified(page: str) -> tuple[set, dict[float, list[float]]]:
 
 
 def test_the_certificate_sentence_is_its_tables_no_points():
-    """Issue 35: the page said the certificate stops guaranteeing (2) "from Ts = 0.02 s, delay
+    """The page once said the certificate stops guaranteeing (2) "from Ts = 0.02 s, delay
     = 0.01 s" (the smallest age not certified) while its own table showed NO at Ts = 0.001 s,
     delay = 0.05 s (a larger age, a smaller Ts): the sentence now lists the table's points."""
     certified = {(0.001, 0.0): True, (0.02, 0.0): True, (0.001, 0.01): True,

@@ -36,6 +36,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 from hil.folder.recording import RecordedMessage, stream_records
 from hil.observe import TapReader
 from hil.schemas import POSE, TF, WORLD_FRAME, schema_for_topic, schema_name
+from protocol.can.codec import CanDecodeError
 from protocol.can.codec import decode as can_decode
 from protocol.can.drive_link import from_message
 from protocol.messages import DecodeError, Status, decode
@@ -359,8 +360,9 @@ def can_frame_record(msg: Any) -> dict[str, Any]:
     try:
         m = can_decode(from_message(msg))
         data["message"] = type(m).__name__
-        data["fields"] = to_jsonable(m)
+        data["fields"] = to_jsonable(m)  # finite numbers: the codec refuses non-finite ones
     except Exception as exc:  # a frame the codec refuses is still recorded, with why
+        data["decode_reason"] = exc.reason if isinstance(exc, CanDecodeError) else "malformed"
         data["decode_error"] = str(exc)
     return data
 

@@ -79,10 +79,17 @@ def sim(
         result = simulate(sc, progress=progress, replay=scenario_latencies(sc))
     with interrupts.shielded():  # a second Ctrl-C must not leave the folder half-written
         folder = write_run_folder(result, target)
+    _say_and_judge(result, folder, sc.run.duration)
+
+
+def _say_and_judge(result: Any, folder: Path, planned_s: float) -> None:
+    """The simulation's result line, then its verdict's exit (a law's fault, a non-finite
+    state, a broken limit: FAIL) or, interrupted, what it did not cover."""
+
     s = result.summary
     if result.interrupted:
         interrupts.note(
-            f"at t = {s['duration']:.3f} s of {sc.run.duration:g} s; wrote what was computed to "
+            f"at t = {s['duration']:.3f} s of {planned_s:g} s; wrote what was computed to "
             f"{folder} (no claim about the rest)"
         )
     _say_and_judge(folder, s)

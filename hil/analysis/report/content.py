@@ -245,11 +245,7 @@ def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, A
     rate = timing.get("samples_without_command_rate")
     what = "Samples without a command:"
     if data["kind"] == "run" and isinstance(n, int) and isinstance(rate, int | float):
-        text = (
-            f"{what} {n} of {judged} ({100.0 * rate:.3f} %), of the samples the controller "
-            "was meant to answer (one per control period when it runs below the plant's "
-            "sample rate)."
-        )
+        text = f"{what} {n} of {judged} ({100.0 * rate:.3f} %)."
         return {"count": n, "judged": judged, "rate": rate}, text
     if data["kind"] == "run":
         text = f"{what} not measured (the run has no such figure)."
@@ -323,14 +319,11 @@ def _verdict(s: Section, data: dict[str, Any]) -> None:
         s.p(line)
     th = v["thresholds"]
     s.p(
-        "FAIL when the law failed (raised, returned the wrong type or a non-finite torque), "
-        "the controller process ended before the run, the state became non-finite, a limit "
-        "of (2) is broken, the certificate is not held or exceeded through "
-        "the system's own timing, or missed slots exceed "
-        f"{th['max_deadline_miss_ratio']:.2%} of the slots, samples without a command "
-        f"{th['max_samples_without_command_ratio']:.2%} of the samples the controller was "
-        f"meant to answer, lost messages {th['max_lost_ratio']:.2%} of those sent (State and "
-        "the applied path; a shadow path never counts). INCONCLUSIVE instead when only the "
+        "FAIL: the law failed or ended early, the state became non-finite, a limit of (2) "
+        "broke, the certificate is not held through the system's own timing, or "
+        f"missed slots exceed {th['max_deadline_miss_ratio']:.2%}, samples without a command "
+        f"{th['max_samples_without_command_ratio']:.2%}, lost messages "
+        f"{th['max_lost_ratio']:.2%} (State and the applied path). INCONCLUSIVE: only the "
         "bench's stalls put a figure over, or the logs cannot relate one. Exit code: "
         + ", ".join(f"{k} {c}" for k, c in EXIT_CODE.items())
         + "."
@@ -588,7 +581,8 @@ def _messages(s: Section, data: dict[str, Any]) -> None:
     rows = []
     for name, st in msgs.items():
         if isinstance(st, dict):
-            more = {k: v for k, v in st.items() if k not in keys}
+            # What was not measured (None) says nothing here: summary.json keeps it.
+            more = {k: v for k, v in st.items() if k not in keys and v is not None}
             rows.append([name, *(st.get(k) for k in keys), more])
     s.table(["stream", *keys, "more"], rows)
 
