@@ -85,17 +85,16 @@ def sim(
 def _say_and_judge(result: Any, folder: Path, planned_s: float) -> None:
     """The simulation's result line, then its verdict's exit (a law's fault, a non-finite
     state, a broken limit: FAIL) or, interrupted, what it did not cover."""
-
     s = result.summary
     if result.interrupted:
         interrupts.note(
             f"at t = {s['duration']:.3f} s of {planned_s:g} s; wrote what was computed to "
             f"{folder} (no claim about the rest)"
         )
-    _say_and_judge(folder, s)
+    _line_and_verdict(folder, s)
 
 
-def _say_and_judge(folder: Path, s: Any) -> None:
+def _line_and_verdict(folder: Path, s: Any) -> None:
     """The simulation's line, then its verdict: the law's own failure or a state that became
     non-finite, else a broken limit of (2), exits 1."""
     from hil.verdict import law_ended
