@@ -32,7 +32,8 @@ judges with the same :func:`judge` (:func:`judge_evidence`), from the figures it
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 from controller_service.laws.guard import LawFault
@@ -188,6 +189,11 @@ class Verdict:
     @property
     def reasons(self) -> list[str]:
         return [*self.fail_reasons, *self.inconclusive_reasons]
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Verdict:
+        """The verdict summary.json holds (:meth:`as_dict`), judged once by the analysis."""
+        return cls(**{f.name: data[f.name] for f in fields(cls) if f.name in data})
 
     def as_dict(self) -> dict[str, Any]:
         out = asdict(self)

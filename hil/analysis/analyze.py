@@ -13,6 +13,7 @@ import csv
 import math
 import operator
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,7 @@ from hil.errors import BadInputError
 from hil.folder import layout, write_summary
 from hil.folder.jsonio import read_json_object
 from hil.folder.records import Recorded, Summary
+from hil.folder.scenario_view import as_resolved
 from hil.folder.trace_csv import read_trace
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from hil.verdict import LawEnd, RunFacts, constraints_from_peaks, judge
@@ -108,8 +110,10 @@ def write_results(rec: Recorded) -> Summary:
 def analyze(rec: Recorded) -> Summary:
     """Write trace.csv and summary.json from the two hop logs; returns the summary."""
     run_dir, scenario, settings = rec.run_dir, rec.scenario, rec.settings
+    tables = resolved_scenario(run_dir) or {}
     logs = load_folder_logs(run_dir) or RunLogs.read(None, None)
-    m = (measure_and_save(run_dir, logs) if logs.plant else None) or Measurement()
+    resolved = as_resolved(scenario, tables)  # the folder's scenario, not parsed again
+    m = (measure_and_save(run_dir, logs, resolved) if logs.plant else None) or Measurement()
     # The figures' columns go before the trace's are read: an hour's run holds one set at a
     # time (the two reads cost a second pass over the logs, ~10 s an hour).
     logs.tables.clear()
@@ -138,7 +142,7 @@ def analyze(rec: Recorded) -> Summary:
         "lockstep": lockstep,
         "cmd_path": settings.cmd_path,
         "trigger": "on_state" if lockstep else settings.trigger,
-        "rate_hz": rate_hz(run_dir, settings),
+        "rate_hz": rate_hz(tables, settings),
         "timing": m.timing,
         "messages": m.messages,
         "certificate": m.certificate,
@@ -178,10 +182,10 @@ def analyze(rec: Recorded) -> Summary:
     return summary
 
 
-def rate_hz(run_dir: Path, settings: Any) -> float:
+def rate_hz(resolved: Mapping[str, Any], settings: Any) -> float:
     """The control rate as the user asked for it (``--rate``, ``[realtime] rate`` or 1 / ts),
     for summary.json: the folder's ``[provenance] rate_hz`` as ``hil run`` wrote it, else 1 / ts."""
-    value = (resolved_scenario(run_dir) or {}).get("provenance", {}).get("rate_hz")
+    value = resolved.get("provenance", {}).get("rate_hz")
     if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
         return float(value)
     return 1.0 / settings.ts

@@ -27,7 +27,7 @@ from hil.bench.settings import effective_can_table
 from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
 from hil.folder import layout
-from hil.scenario import load_scenario
+from hil.scenario import Scenario, load_scenario
 from protocol.can.codec import Cmd, frame_id
 
 NETNS_ENV = "HIL_IMPAIR_NETNS"  # the PID of the ``hil run`` that made this namespace
@@ -136,13 +136,16 @@ def ruleset(plan: Plan) -> str:
     return "\n".join([*lines, "  }", "}", ""])
 
 
-def plan_of(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
+def plan_of(
+    opts: Any, check_options: Callable[[Any], None], load: Callable[[], Scenario] | None = None
+) -> Plan | None:
     """The run's plan, or None when its scenario has no [impair] table; ``check_options``
-    (hil run's) first, so a bad option is reported as it always is."""
+    (hil run's) first, so a bad option is reported as it always is; ``load``: the scenario
+    file's parse, shared with the run."""
     if opts.scenario is None:
         return None
     check_options(opts)
-    scenario = load_scenario(resolve_scenario(opts.scenario))
+    scenario = load() if load is not None else load_scenario(resolve_scenario(opts.scenario))
     if scenario.impair is None:
         return None
     can = effective_can_table(scenario, opts.can_interface)
@@ -203,11 +206,13 @@ def _install(plan: Plan) -> None:
         _run(["tc", "qdisc", "add", "dev", "lo", "root", "tbf", *tbf])
 
 
-def enter(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
+def enter(
+    opts: Any, check_options: Callable[[Any], None], load: Callable[[], Scenario] | None = None
+) -> Plan | None:
     """Before ``hil run`` prepares anything: None without [impair]; else, the first time,
     re-execute this command in a fresh network namespace (never returns), and inside it install
     the impairment and return its plan. BadInputError (exit 2) when that cannot be done."""
-    plan = plan_of(opts, check_options)
+    plan = plan_of(opts, check_options, load)
     if plan is None:
         return None
     # Not yet in the namespace this very hil run made (a child inherits the variable, not the PID).

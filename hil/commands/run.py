@@ -158,15 +158,22 @@ def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
     return f"{line}; run folder: {run_dir}" if run_dir else line
 
 
-def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
-    """The report of the finished run, as ``hil report RUN_DIR`` writes it."""
+def _write_report(recorded: Any, summary: dict[str, Any], quiet: bool) -> dict[str, object]:
+    """The report of the finished run, as ``hil report RUN_DIR`` writes it, from the run's
+    scenario and verdict as this process holds them (neither parsed nor judged again)."""
     from hil.analysis.report.build import build_report, write_report
     from hil.analysis.report.ideal import ideal_from_simulator
     from hil.folder import load_folder
+    from hil.folder.scenario_view import as_resolved
+    from hil.verdict import Verdict
 
     if not quiet:
         typer.echo("writing the report (and the ideal-trajectory simulation) ...", err=True)
-    rep = build_report(load_folder(run_dir, lazy=True), ideal=ideal_from_simulator)
+    run_dir = recorded.run_dir
+    folder = load_folder(run_dir, lazy=True)
+    folder.typed = as_resolved(recorded.scenario, folder.scenario)
+    judged = Verdict.from_dict(summary["verdict"]) if summary.get("verdict") else None
+    rep = build_report(folder, ideal=ideal_from_simulator, verdict=judged)
     paths = write_report(rep, run_dir)
     verdict = rep.data["verdict"]
     return {"html": str(paths["html"]), "ok": verdict["ok"], "reasons": verdict["reasons"]}
@@ -236,7 +243,7 @@ def run(
     run_dir = summary.get("run_dir")
     stopped = summary.get("interrupted") or interrupts.happened()
     if report and run_dir and not stopped and not summary.get("error"):
-        brief["report"] = _write_report(Path(run_dir), quiet)
+        brief["report"] = _write_report(recorded, summary, quiet)
     report_html = (brief.get("report") or {}).get("html")
     line = f"result: {verdict_line(summary, report_html)}"
     # One plain line ends the run (a negative exit prints its own reason, hil.cli, after

@@ -35,7 +35,7 @@ from controller_service.laws.base import ReferenceSample, RobotState
 from controller_service.laws.guard import LawFault, LawFaultError, checked_update
 from controller_service.references import sample_array
 from hil.folder.replay import jitter_samples_from
-from hil.folder.scenario_view import view
+from hil.folder.scenario_view import as_resolved, view_of
 from hil.law.batch import batch_update, for_batch
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
 from hil.sim import compiled
@@ -299,7 +299,7 @@ def simulate(
     summary = _summaries(scenario, run, len(rows), per_robot)[0]
     resolved = resolved_dict(scenario, controller, context)
     # The bound at the scenario's timing, once, here: the report reads it, as it reads a run's.
-    summary["certificate"] = scenario_certificate(view(resolved))
+    summary["certificate"] = scenario_certificate(view_of(as_resolved(scenario, resolved)))
     return SimResult(scenario, resolved, columns, trace, summary, run.interrupted)
 
 

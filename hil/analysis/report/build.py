@@ -47,6 +47,7 @@ from hil.verdict import (
     LawEnd,
     RunFacts,
     Thresholds,
+    Verdict,
     judge,
 )
 from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
@@ -104,9 +105,12 @@ def build_report(
     *,
     ideal: IdealProvider | None = None,
     thresholds: Thresholds = DEFAULT_THRESHOLDS,
+    verdict: Verdict | None = None,
 ) -> Report:
-    """The report of one run or simulation folder: metrics, certificate, verdict, figures."""
-    sv = view(folder.scenario)
+    """The report of one run or simulation folder: metrics, certificate, verdict, figures;
+    ``verdict``: the one the analysis judged already (``hil run``'s summary.json), not judged
+    again."""
+    sv = view(folder.scenario, parsed=folder.typed_scenario())
     m = measured(folder)  # first: its peak (the hop logs' columns) before the trace's
     tr = folder.trace
     kind = "run" if m is not None else folder.kind
@@ -125,9 +129,10 @@ def build_report(
     timing, messages = (m.timing, m.messages or {}) if m is not None else (None, None)
     violations, facts = folder.summary.get("violations") or {}, RunFacts.of(folder.summary)
     ended = LawEnd.of(folder.summary)  # the law's fault, the controller's end, a NaN state
-    verdict = judge(
-        metrics["constraints"], violations, cert, timing, messages, facts, thresholds, ended
-    )
+    if verdict is None:
+        verdict = judge(
+            metrics["constraints"], violations, cert, timing, messages, facts, thresholds, ended
+        )
     margin = margin_record.read(folder.path)  # hil margin's record, None if it never ran
     drives, q = drives_block(folder, sv)
     figs, sections = _figures(folder, sv, cert, m, (ideal_traj, sliding), q, drives, metrics)
