@@ -8,6 +8,38 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+
+@dataclass(frozen=True)
+class Limit:
+    """One limit of the constraints (2): the signal it bounds (``key``, as in the trace), its
+    [limits] key, the paper's symbol for it, the signal's symbol and unit (model (1)'s inputs
+    tau1, tau2 are normalized: accelerations)."""
+
+    key: str
+    name: str
+    symbol: str
+    signal: str
+    unit: str
+
+    @property
+    def peak_key(self) -> str:
+        """summary.json's key of the signal's peak over every plant step."""
+        return f"max_abs_{self.key}"
+
+
+#: The four limits of (2), in the order every page lists them.
+LIMITS = (
+    Limit("v", "phi1", "φ1", "v", "m/s"),
+    Limit("omega", "phi2", "φ2", "ω", "rad/s"),
+    Limit("tau1", "varpi1", "ϖ1", "τ1", "m/s²"),
+    Limit("tau2", "varpi2", "ϖ2", "τ2", "rad/s²"),
+)
+LIMIT_NAMES = {lim.key: lim.name for lim in LIMITS}  # signal -> [limits] key
+PEAK_KEYS = {lim.key: lim.peak_key for lim in LIMITS}  # signal -> summary.json's peak key
+UNITS = {lim.key: lim.unit for lim in LIMITS}
+SYMBOLS = {lim.key: lim.symbol for lim in LIMITS}  # signal -> the limit's symbol
+SIGNALS = {lim.key: lim.signal for lim in LIMITS}  # signal -> its symbol
+
 # summary.json's tolerance: a violation is beyond 1e-9 relative (docs/design.md, section 3).
 LIMIT_REL_TOL = 1e-9
 

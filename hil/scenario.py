@@ -27,6 +27,7 @@ from controller_service.references import check_table as check_reference
 from controller_service.registry import build_controller, law_path_for, resolved_controller_table
 from controller_service.registry import check_table as check_controller
 from hil.errors import BadInputError
+from hil.limits import LIMIT_NAMES
 from hil.options import choice, describe, locator, number, plain_string, type_name
 from hil.provenance import provenance
 from plant_emulator.disturbances import KINDS as DISTURBANCE_KINDS
@@ -37,7 +38,7 @@ from protocol.can.bus_factory import CanSettings
 from protocol.can.wheel_mapping import RobotGeometry
 from protocol.faults import Faults
 from protocol.messages import ANGLE_MAX, POSITION_MAX, SPEED_MAX, TORQUE_MAX, TURN_RATE_MAX
-from protocol.settings import IDLE_POLICIES, TICK_PHASES, TRIGGERS
+from protocol.settings import IDLE_POLICIES, SCHEDULING, TICK_PHASES, TRIGGERS
 from protocol.versions import SIM_SCHEMA_VERSION as SCHEMA_VERSION  # hil.sim.core's name
 
 _REL_TOL = 1e-12
@@ -289,7 +290,7 @@ _CHOICES: dict[tuple[str, str], tuple[str, ...]] = {
     ("timing", "jitter_kind"): ("uniform", "normal", "replay"),
     ("realtime", "trigger"): TRIGGERS,
     ("realtime", "tick_phase"): TICK_PHASES,
-    ("realtime", "scheduling"): ("fifo", "other"),
+    ("realtime", "scheduling"): SCHEDULING,
     ("realtime", "idle"): IDLE_POLICIES,
     ("zenoh", "mode"): ("peer", "client", "router"),
     ("impair", "on"): ("all", "can", "zenoh"),
@@ -341,7 +342,7 @@ _RANGES: dict[tuple[str, str], tuple[float, float]] = {
     ("impair", "rate_bps"): (0.0, RATE_BPS_MAX),
 }
 _POSITIVE = (
-    _keys("limits", "phi1", "phi2", "varpi1", "varpi2")
+    _keys("limits", *LIMIT_NAMES.values())
     | _keys("timing", "ts")
     | _keys("run", "duration")
     | _keys("plant", "step", "max_speed")
@@ -579,7 +580,7 @@ def build_reference(scenario: Scenario) -> Any:
 
 # Where each symbol of the design conditions is set (DesignError names conditions, not keys).
 _SYMBOL_KEYS = {
-    **{k: "limits" for k in ("phi1", "phi2", "varpi1", "varpi2")},
+    **dict.fromkeys(LIMIT_NAMES.values(), "limits"),
     **{k: "disturbance" for k in ("s1", "s2")},
     **{k: "reference" for k in ("mu1", "mu2", "k1", "k2")},
     **{k: "controller" for k in ("m1", "m2", "l1", "l2", "lam", "rho", "eps1", "eps2")},

@@ -49,10 +49,9 @@ from hil.errors import (  # noqa: F401 (the exit table, re-exported: hil.verdict
 )
 from hil.folder import layout
 from hil.folder.records import ControllerExit, Summary
-from hil.limits import LIMIT_REL_TOL, ConstraintFigure
+from hil.limits import LIMIT_NAMES, LIMIT_REL_TOL, PEAK_KEYS, UNITS, ConstraintFigure
+from hil.units import ms
 
-LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
-UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "m/s²", "tau2": "rad/s²"}
 BENCH_ADVICE = (
     "the bench stalled, not your system: run fewer processes beside it, keep the real-time "
     'policy (scheduling = "fifo", as root or with CAP_SYS_NICE), use a quieter host, or lower '
@@ -205,9 +204,6 @@ class Verdict:
         return out
 
 
-PEAK_KEYS = {key: f"max_abs_{key}" for key in LIMIT_NAMES}
-
-
 def constraints_from_peaks(summary: Summary, limits: dict[str, float]) -> dict[str, dict[str, Any]]:
     """Per limit of (2) its peak over every plant step (summary.json's ``max_abs_*``), the
     limit and whether it held (peaks not measured are left out)."""
@@ -224,10 +220,6 @@ def _pct(x: float) -> str:
     return f"{100.0 * x:.3f} %"
 
 
-def _ms(seconds: float) -> str:
-    return f"{seconds * 1e3:.3f} ms"
-
-
 def _bench_stalls(cert: dict[str, Any] | None) -> list[dict[str, Any]]:
     return [s for s in (cert or {}).get("stalls") or [] if s.get("owner") == "bench"]
 
@@ -239,7 +231,7 @@ def _stall_words(s: dict[str, Any]) -> str:
         "host_overloaded": "the bench's host (busy with other processes)",
         "bench_dropped": "the bench's own socket (frames dropped, its queue full)",
     }.get(s.get("cause", ""), s.get("cause", ""))
-    return f"{who} stalled at t = {s['t_s']:.3f} s (command age {_ms(s['age_s'])}, {s['cause']})"
+    return f"{who} stalled at t = {s['t_s']:.3f} s (command age {ms(s['age_s'])}, {s['cause']})"
 
 
 def judge(
@@ -396,8 +388,8 @@ def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) 
     if held is None:
         up = cert.get("d_max_upper_s")
         v.inconclusive_reasons.append(
-            f"certificate unknown: the CAN logs allow D from {_ms(d)} to {_ms(up)}{where}, and "
-            f"D* = {_ms(ds)} lies between (frames that could match more than one send)"
+            f"certificate unknown: the CAN logs allow D from {ms(d)} to {ms(up)}{where}, and "
+            f"D* = {ms(ds)} lies between (frames that could match more than one send)"
         )
         return
     if held:
@@ -409,7 +401,7 @@ def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) 
     else:
         failed = ", ".join(cert.get("failed_conditions") or []) or "see the certificate"
         v.fail_reasons.append(
-            f"certificate not held: design conditions broken ({failed}) at D = {_ms(d)}"
+            f"certificate not held: design conditions broken ({failed}) at D = {ms(d)}"
         )
 
 
@@ -421,20 +413,20 @@ def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
     stalls = cert.get("stalls") or []
     failed = cert.get("failed_conditions") or []
     also = f"; failing: {', '.join(failed)}" if failed else ""
-    head = f"command age D = {_ms(d)} > D* = {_ms(ds)}{where} (margin {_ms(ds - d)}{also})"
+    head = f"command age D = {ms(d)} > D* = {ms(ds)}{where} (margin {ms(ds - d)}{also})"
     if d_sys > ds:
         mine = [s for s in stalls if s.get("owner") == "system" and s["age_s"] > ds]
         unknown = [s for s in stalls if s.get("owner") == "unknown" and s["age_s"] > ds]
         if not mine and unknown:
             v.inconclusive_reasons.append(
                 f"certificate not held: {head}, by a stall whose cause the logs cannot tell "
-                f"(t = {unknown[0]['t_s']:.3f} s, {_ms(unknown[0]['age_s'])})"
+                f"(t = {unknown[0]['t_s']:.3f} s, {ms(unknown[0]['age_s'])})"
             )
             return
         text = f"certificate not held: {head} by the system's own timing"
         if mine:
             w = mine[0]
-            text += f"; worst: t = {w['t_s']:.3f} s, {_ms(w['age_s'])}, {w['cause']}"
+            text += f"; worst: t = {w['t_s']:.3f} s, {ms(w['age_s'])}, {w['cause']}"
         v.fail_reasons.append(text)
         return
     bench = [st for st in _bench_stalls(cert) if st["age_s"] > ds] or _bench_stalls(cert)
@@ -443,7 +435,7 @@ def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
     _bench_stalled(
         v,
         f"inconclusive, the bench stalled: {head} only because {what}{more}; without the "
-        f"bench's stalls D = {_ms(d_sys)} <= D*",
+        f"bench's stalls D = {ms(d_sys)} <= D*",
     )
 
 

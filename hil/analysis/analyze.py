@@ -32,6 +32,7 @@ from hil.folder.jsonio import read_json_object
 from hil.folder.records import Recorded, Summary
 from hil.folder.scenario_view import as_resolved
 from hil.folder.trace_csv import read_trace
+from hil.limits import LIMIT_NAMES, PEAK_KEYS
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from hil.verdict import LawEnd, RunFacts, constraints_from_peaks, judge
 from protocol.angles import wrap_angle as wrap
@@ -133,7 +134,7 @@ def analyze(rec: Recorded) -> Summary:
         "final_heading_error": head_err if n else None,
         "rms_position_error": math.sqrt(sum(e * e for e in tail) / len(tail)) if tail else None,
         "initial_position_error": float(pos_err[0]) if n else None,
-        **{k: ext.get(k) for k in ("max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2")},
+        **{k: ext.get(k) for k in PEAK_KEYS.values()},
         "violations": ext.get("violations", {}),
         "nonfinite_steps": int(ext.get("nonfinite_steps") or 0),
         "nonfinite_first_t_s": ext.get("nonfinite_first_t_s"),
@@ -193,7 +194,7 @@ def rate_hz(resolved: Mapping[str, Any], settings: Any) -> float:
 
 def run_verdict(summary: Summary, scenario: Any) -> dict[str, Any]:
     """The run's verdict (hil.verdict.judge at the default thresholds) from its summary."""
-    limits = {k: float(getattr(scenario.limits, k)) for k in ("phi1", "phi2", "varpi1", "varpi2")}
+    limits = {k: float(getattr(scenario.limits, k)) for k in LIMIT_NAMES.values()}
     return judge(
         constraints_from_peaks(summary, limits),
         summary.get("violations") or {},

@@ -19,6 +19,7 @@ import matplotlib.pyplot as plt
 from hil.analysis.measure.stats import exact_percentile
 from hil.folder import layout
 from hil.folder.rates import RATES, pooled
+from hil.units import ms_or
 from hil.verdict import FAIL, INCONCLUSIVE, PASS, run_outcome
 
 NO_RUN = "NO RUN"  # a robot whose folder has no summary.json: it has no verdict
@@ -71,10 +72,6 @@ def fleet_summary(out: Path, codes: dict[str, int | None], facts: dict[str, Any]
     return {**facts, "fleet": fleet, "per_robot": rows}
 
 
-def _ms(x: float | None) -> str:
-    return "-" if x is None else f"{x * 1e3:.2f}"
-
-
 def _pct(x: float | None) -> str:
     return "n/a" if x is None else f"{100.0 * x:.3f} %"
 
@@ -117,8 +114,9 @@ def markdown(summary: dict[str, Any]) -> str:
     ]
     for r in summary["per_robot"]:
         lines.append(
-            f"| {r['robot']} | {r.get('verdict')} | {_ms(r.get('d_max_s'))} | "
-            f"{_ms(r.get('d_star_s'))} | {r.get('held')} | {r.get('command_age_p99_us')} |"
+            f"| {r['robot']} | {r.get('verdict')} | {ms_or(r.get('d_max_s'), '-', 2, '')} | "
+            f"{ms_or(r.get('d_star_s'), '-', 2, '')} | {r.get('held')} | "
+            f"{r.get('command_age_p99_us')} |"
         )
     why = [r for r in summary["per_robot"] if r.get("verdict") != "PASS" and r.get("reason")]
     if why:

@@ -62,7 +62,7 @@ from hil.scenario import (
 from protocol.can.rx_queue import RxQueueDrops
 from protocol.hoplog import LAW_FAULT_EXIT
 from protocol.keys import is_valid_robot_id, observed_keys
-from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
+from protocol.settings import CMD_PATHS, SCHEDULING, TRIGGERS, RunSettings, period_s
 from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
 from runtime.zsession import open_session
@@ -143,7 +143,7 @@ def check_options(opts: RunOptions) -> None:
     if opts.trigger is not None:
         options.choice("--trigger", opts.trigger, TRIGGERS)
     if opts.scheduling is not None:
-        options.choice("--scheduling", opts.scheduling, ("fifo", "other"))
+        options.choice("--scheduling", opts.scheduling, SCHEDULING)
     options.optional_number("--rate", opts.rate, 0.1, RATE_MAX)
     options.optional_number("--duration", opts.duration, 0.0, DURATION_MAX, positive=True)
     options.number("--spin-us", opts.spin_us, 0.0, SPIN_US_MAX)

@@ -29,13 +29,14 @@ def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool,
     in [0, 1] and z1, z2 in [-m, m], all the bound uses (docs/laws.md): the same certificate."""
     from controller_service.design import DesignError, resolve_auto
     from controller_service.registry import EPS_DEFAULT, TABLE1
+    from hil.law.facts import Law
 
-    law = table.get("law", "unified")
-    if law not in ("unified", "unified_boundary"):
+    law = Law.of(table)
+    if not law.has_certificate:
         raise BadInputError(
-            f"[controller] law = {law!r}: the certificate covers the unified laws only"
+            f"[controller] law = {law.name!r}: the certificate covers the unified laws only"
         )
-    boundary = law == "unified_boundary"
+    boundary = law.boundary_layer
     values: dict[str, Any] = {**TABLE1, **(EPS_DEFAULT if boundary else {})}
     values.update({k: v for k, v in table.items() if k in values})
     try:

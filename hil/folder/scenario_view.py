@@ -13,9 +13,9 @@ from typing import Any
 
 from controller_service.laws.base import DesignContext, Limits
 from hil.errors import BadInputError
+from hil.law.facts import Law
 from hil.scenario import Scenario, build_reference, design_context, parse_scenario
 
-UNIFIED_LAWS = ("unified", "unified_boundary")
 BOUND_KEYS = ("mu1", "mu2", "k1", "k2")  # Assumption 2's bounds, in a resolved [reference]
 
 
@@ -35,7 +35,7 @@ class ScenarioView:
 
     @property
     def boundary_layer(self) -> bool:
-        return self.law == "unified_boundary"
+        return Law(self.law).boundary_layer
 
     @property
     def eps1(self) -> float:
@@ -139,7 +139,7 @@ def bound_inputs(resolved: dict[str, Any]) -> BoundInputs | None:
 
 def bound_inputs_of(sv: ScenarioView) -> BoundInputs | None:
     """The certificate's inputs from a scenario's view (None: the law has no certificate)."""
-    if sv.law not in UNIFIED_LAWS:
+    if not Law(sv.law).has_certificate:
         return None
     return BoundInputs(
         SimpleNamespace(**sv.controller), sv.context, sv.boundary_layer, sv.v0, sv.w0

@@ -23,6 +23,7 @@ from hil import interrupts
 from hil.bundled import bundled_dir
 from hil.folder import layout, write_summary
 from hil.folder.jsonio import write_json
+from hil.limits import LIMIT_NAMES, PEAK_KEYS
 from hil.paper import figures as fg
 from hil.provenance import dumps_toml
 from hil.scenario import load_scenario
@@ -76,7 +77,7 @@ def velocity_jolt(
 # The summary's figures in each row of the table, after the run, its law and its scenario.
 _ROW_KEYS = (
     *("duration", "ts", "plant_step", "final_position_error", "final_heading_error"),
-    *("rms_position_error", "max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2"),
+    *("rms_position_error", *PEAK_KEYS.values()),
     "violations",
 )
 
@@ -153,10 +154,10 @@ def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note
     return "\n".join(lines) + "\n"
 
 
-# The unit of each signal drawn against its limit of (2), and the name of that limit.
-_SIGNALS = dict(
-    v=("m/s", "phi1"), omega=("rad/s", "phi2"), tau1=("N m", "varpi1"), tau2=("N m", "varpi2")
-)
+# The unit of each signal drawn against its limit of (2) (the figures' own), and the name of
+# that limit.
+_UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "N m", "tau2": "N m"}
+_SIGNALS = {k: (unit, LIMIT_NAMES[k]) for k, unit in _UNITS.items()}
 
 
 def _signals(out: Path, first: int, stem: str, title: str, runs: fg.Runs, cols: str) -> list[Path]:

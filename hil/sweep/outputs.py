@@ -12,6 +12,7 @@ import numpy as np
 
 from hil.analysis.report import figures as fg
 from hil.folder.jsonio import jsonable, write_json
+from hil.law.facts import Law
 from hil.sweep.grid import (
     SweepGrid,
     aggregate,
@@ -133,7 +134,7 @@ def certificate_sentence(rows: Sequence[dict[str, Any]], law: Any) -> str:
     results table's "certificate holds"): the points where it does not guarantee (2), listed
     per delay (and jitter), never a "from" that the table may contradict (the certificate is
     not monotone in Ts at a fixed delay, nor in the delay at a fixed Ts)."""
-    if law not in ("unified", "unified_boundary"):
+    if not Law(str(law)).has_certificate:
         return "The certificate covers the unified laws only: not evaluated for this law."
     points: dict[tuple[float, float, float], Any] = {}
     for r in rows:

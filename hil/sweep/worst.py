@@ -17,6 +17,7 @@ import numpy as np
 
 from controller_service.laws.guard import LawFault, LawFaultError
 from hil.folder.scenario_view import view
+from hil.limits import PEAK_KEYS
 from hil.scenario import Scenario, build_loop, resolved_dict
 from hil.sim.adversary.loop import initial_states, scenario_schedule
 from hil.sim.adversary.search import worst_disturbance
@@ -30,9 +31,8 @@ SPREAD = 0.05  # m, rad, m/s, rad/s around the scenario's initial state
 
 
 def _summary(best: Any) -> dict[str, Any]:
-    peaks = ("max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2")
     return {
-        **{k: best.peaks[k] for k in peaks},
+        **{k: best.peaks[k] for k in PEAK_KEYS.values()},
         "final_position_error": best.peaks["max_late_error"],
         "rms_position_error": float("nan"),
         "violations": {"worst": int(best.broke)},
@@ -43,8 +43,7 @@ def _summary(best: Any) -> dict[str, Any]:
 def _faulted_row(p: Any, fault: LawFault, cert: dict[str, Any], limits: Any) -> dict[str, Any]:
     """The row of a point whose search stopped at a law fault: no peaks, the fault."""
     nan = float("nan")
-    peaks = ("max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2")
-    summary = {**dict.fromkeys(peaks, nan), "final_position_error": nan}
+    summary = {**dict.fromkeys(PEAK_KEYS.values(), nan), "final_position_error": nan}
     summary |= {"rms_position_error": nan, "violations": {}, "commands_dropped": 0}
     summary["law_fault"] = fault.to_dict()
     row = point_row(p, summary, cert, limits, None, None, True)

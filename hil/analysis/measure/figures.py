@@ -38,8 +38,9 @@ from protocol.hoplog import (
     CmdPath,
     RxVerdict,
 )
+from protocol.settings import CMD_PATHS
 
-PATHS = ("zenoh", "can")
+PATHS = CMD_PATHS
 _NODES = MAX_NODE_ID + 1  # the node part of a frame key (_frame_keys)
 LANDINGS = (ApplyOutcome.LANDED, ApplyOutcome.BURST)  # apply outcomes that put a command in force
 # A torque frame dropped by the drives' own socket was sent at most this long before the read

@@ -51,6 +51,7 @@ from hil.verdict import (
     judge,
 )
 from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
+from protocol.settings import CMD_PATHS
 from protocol.versions import REPORT_SCHEMA_VERSION
 
 FIGURE_PREFIX = "report_"
@@ -373,7 +374,7 @@ def _run_figures(m: Measurement, cert: dict[str, Any]) -> list[fg.Figure]:
     if late:
         figs.append(fg.over_time("lateness", "Wake-up lateness over time", "µs", late))
     env = {}
-    for p in sorted(("zenoh", "can"), key=lambda p: p != applied):  # the applied path first
+    for p in sorted(CMD_PATHS, key=lambda p: p != applied):  # the applied path first
         seg = m.series.get(f"command_age_{p}")
         if seg is not None and len(seg) and m.epoch_ns is not None:
             env[f"{p} ({'applied' if p == applied else 'shadow'})"] = envelope(seg, m.epoch_ns)

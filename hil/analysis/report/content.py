@@ -17,11 +17,13 @@ import numpy as np
 
 from hil.analysis.margin.record import MarginRecord, summary_lines
 from hil.analysis.report.figures import Figure
-from hil.verdict import EXIT_CODE, UNITS, LawEnd
+from hil.limits import SIGNALS, SYMBOLS, UNITS
+from hil.units import ms
+from hil.verdict import EXIT_CODE, LawEnd
+from protocol.settings import CMD_PATHS
 
-#: Each signal of (2) and its limit's symbol (its unit is hil.verdict's).
-LIMITS = {"v": "φ1", "omega": "φ2", "tau1": "ϖ1", "tau2": "ϖ2"}
-SYMBOL = {"v": "v", "omega": "ω", "tau1": "τ1", "tau2": "τ2"}
+#: Each signal of (2) and its limit's symbol, the signal's own (hil.limits.LIMITS).
+LIMITS, SYMBOL = SYMBOLS, SIGNALS
 TOP_STALLS = 3
 
 NORMALIZED = (
@@ -137,9 +139,7 @@ def _pct_rows(
 
 def _per_path(prefix: str, applied: str | None, shadow: str) -> list[tuple[str, str]]:
     """The figure ``prefix + path`` of each path, labelled applied or ``shadow``."""
-    return [
-        (prefix + p, f"{p} ({'applied' if p == applied else shadow})") for p in ("zenoh", "can")
-    ]
+    return [(prefix + p, f"{p} ({'applied' if p == applied else shadow})") for p in CMD_PATHS]
 
 
 def sections(data: dict[str, Any]) -> Iterator[Section]:
@@ -152,10 +152,6 @@ def sections(data: dict[str, Any]) -> Iterator[Section]:
 
 def _headline(s: Section, data: dict[str, Any]) -> None:
     s.items([line["text"] for line in data["headline"]["lines"]])
-
-
-def ms(seconds: float) -> str:
-    return f"{seconds * 1e3:.3f} ms"
 
 
 def _limits(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, Any], str]:
