@@ -34,7 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any
+from typing import Any, cast
 
 from controller_service.laws.guard import LawFault
 from hil.errors import (  # noqa: F401 (the exit table, re-exported: hil.verdict.EXIT_CODE)
@@ -48,7 +48,17 @@ from hil.errors import (  # noqa: F401 (the exit table, re-exported: hil.verdict
     exit_code,
 )
 from hil.folder import layout
-from hil.folder.records import ControllerExit, Summary
+from hil.folder.records import (
+    Certificate,
+    Constraint,
+    ControllerExit,
+    Messages,
+    Scheduling,
+    Stall,
+    Summary,
+    Timing,
+    VerdictRecord,
+)
 from hil.limits import LIMIT_NAMES, LIMIT_REL_TOL, PEAK_KEYS, UNITS, ConstraintFigure
 from hil.units import ms
 
@@ -85,7 +95,7 @@ class RunFacts:
     interrupted: bool = False
     duration_s: float | None = None  # planned
     duration_run_s: float | None = None  # the plant's window actually run
-    scheduling: dict[str, Any] | None = None  # requested and obtained, per service
+    scheduling: dict[str, Scheduling | None] | None = None  # requested and obtained, per service
 
     @classmethod
     def of(cls, summary: Summary) -> RunFacts | None:
@@ -182,7 +192,7 @@ class Verdict:
     limits: str = "held"
     limits_broken: list[str] = field(default_factory=list)
     certificate: str = "not applicable"
-    timing: dict[str, Any] = field(default_factory=dict)
+    timing: Timing = field(default_factory=lambda: Timing())
     thresholds: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -194,8 +204,8 @@ class Verdict:
         """The verdict summary.json holds (:meth:`as_dict`), judged once by the analysis."""
         return cls(**{f.name: data[f.name] for f in fields(cls) if f.name in data})
 
-    def as_dict(self) -> dict[str, Any]:
-        out = asdict(self)
+    def as_dict(self) -> VerdictRecord:
+        out = cast(VerdictRecord, asdict(self))
         out["ok"] = self.outcome == PASS
         out["reasons"] = self.reasons
         for key in ("deadline_misses", "samples_without_command", "lost_messages"):
@@ -204,7 +214,7 @@ class Verdict:
         return out
 
 
-def constraints_from_peaks(summary: Summary, limits: dict[str, float]) -> dict[str, dict[str, Any]]:
+def constraints_from_peaks(summary: Summary, limits: dict[str, float]) -> dict[str, Constraint]:
     """Per limit of (2) its peak over every plant step (summary.json's ``max_abs_*``), the
     limit and whether it held (peaks not measured are left out)."""
     out = {}
@@ -220,11 +230,11 @@ def _pct(x: float) -> str:
     return f"{100.0 * x:.3f} %"
 
 
-def _bench_stalls(cert: dict[str, Any] | None) -> list[dict[str, Any]]:
+def _bench_stalls(cert: Certificate | None) -> list[Stall]:
     return [s for s in (cert or {}).get("stalls") or [] if s.get("owner") == "bench"]
 
 
-def _stall_words(s: dict[str, Any]) -> str:
+def _stall_words(s: Stall) -> str:
     who = {
         "plant_late": "the plant emulator",
         "host_stalled": "the bench's host",
@@ -235,11 +245,11 @@ def _stall_words(s: dict[str, Any]) -> str:
 
 
 def judge(
-    cons: dict[str, dict[str, Any]],
-    violations: dict[str, Any],
-    cert: dict[str, Any] | None,
-    timing: dict[str, Any] | None,
-    messages: dict[str, Any] | None,
+    cons: dict[str, Constraint],
+    violations: dict[str, int],
+    cert: Certificate | None,
+    timing: Timing | None,
+    messages: Messages | None,
     facts: RunFacts | None = None,
     thresholds: Thresholds = DEFAULT_THRESHOLDS,
     ended: LawEnd | None = None,
@@ -322,7 +332,7 @@ def judge_evidence(ev: Evidence, thresholds: Thresholds = DEFAULT_THRESHOLDS) ->
     if ev.d_star_s is not None:
         held = ev.d_max_s is not None and ev.d_max_s <= ev.d_star_s
         cert = {"path": ev.path, "d_max_s": ev.d_max_s, "d_star_s": ev.d_star_s, "held": held}
-    timing: dict[str, Any] = {}
+    timing: Timing = {}
     for n, over, names in (
         (ev.samples_without_command, ev.samples_judged,
          ("samples_without_command", "samples_judged", "samples_without_command_rate")),
@@ -342,7 +352,7 @@ def _bench_stalled(v: Verdict, text: str) -> None:
 
 
 def _limits(
-    v: Verdict, cons: dict[str, Any], violations: dict[str, Any], cert: dict[str, Any] | None
+    v: Verdict, cons: dict[str, Constraint], violations: dict[str, int], cert: Certificate | None
 ) -> None:
     broken = []
     for key, c in cons.items():
@@ -368,7 +378,7 @@ def _limits(
     v.limits = "broken" if broken else "held"
 
 
-def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) -> None:
+def _certificate(v: Verdict, cons: dict[str, Constraint], cert: Certificate | None) -> None:
     if not cert or cert.get("d_star_s") is None:
         return
     held = cert.get("held")
@@ -405,7 +415,7 @@ def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) 
         )
 
 
-def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
+def _age_beyond(v: Verdict, cert: Certificate, where: str) -> None:
     """D > D*: whose stalls pushed it there."""
     d, ds = cert["d_max_s"], cert["d_star_s"]
     # Without the stalls' owners (a simulation, an older summary) all of D is the system's.
@@ -440,7 +450,7 @@ def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
 
 
 def _thresholds(
-    v: Verdict, timing: dict[str, Any], messages: dict[str, Any], path: str | None, th: Thresholds
+    v: Verdict, timing: Timing, messages: Messages, path: str | None, th: Thresholds
 ) -> None:
     """Deadline misses, samples without a command and lost messages of the applied path and
     the State stream against their thresholds (the shadow path never counts)."""
@@ -498,7 +508,7 @@ def _thresholds(
                 v.fail_reasons.append(words)
 
 
-def _relatable(v: Verdict, messages: dict[str, Any]) -> None:
+def _relatable(v: Verdict, messages: Messages) -> None:
     """Figures the logs cannot relate: CAN frames whose torque differs from their send's."""
     can = messages.get("torque_can") or {}
     if int(can.get("value_mismatches") or 0) > 0:

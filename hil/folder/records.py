@@ -47,6 +47,156 @@ class Certificate(TypedDict, total=False):
     error: str  # the design the certificate rejected, and why
 
 
+class Percentiles(TypedDict, total=False):
+    """One timing figure's distribution, in microseconds (hil.analysis.measure.stats)."""
+
+    count: int
+    p50_us: float | None
+    p90_us: float | None
+    p99_us: float | None
+    p999_us: float | None
+    max_us: float | None
+    mean_us: float | None
+    not_relatable: int  # CAN frames the logs could match to more than one send
+
+
+class TickPhase(TypedDict, total=False):
+    """Where the periodic ticks fell after the sample (controller_service.tick_phase); "auto"
+    adds what the phase was learnt from."""
+
+    rule: str  # "half" or "auto" (protocol.settings.TICK_PHASES)
+    phase_us: float
+    arrival_p99_us: float
+    path_p99_us: float
+    window_open: bool
+    clocks_related: bool
+    from_tick: int
+
+
+# summary.json's ``timing``: each figure of docs/realtime.md by name (the per-path figures once
+# per command path, protocol.settings.CMD_PATHS); a run measures the ones its logs allow.
+class Timing(TypedDict, total=False):
+    units: str
+    window_s: float
+    wakeup_lateness: Percentiles
+    deadline_misses: int
+    late_ticks: int
+    skipped_slots: int
+    ticks: int
+    slots: int
+    deadline_miss_rate: float
+    period_jitter: Percentiles
+    tick_phase: TickPhase
+    plant_wakeup_lateness: Percentiles
+    plant_deadline_misses: int
+    plant_late_samples: int
+    plant_skipped_slots: int
+    plant_slots: int
+    plant_deadline_miss_rate: float
+    plant_sample_to_send: Percentiles
+    compute: Percentiles
+    hop_state: Percentiles
+    wait_for_tick: Percentiles
+    hop_cmd_zenoh: Percentiles
+    hop_cmd_can: Percentiles
+    loop_transport_compute: Percentiles
+    state_send_to_cmd_recv: Percentiles
+    sample_to_apply_zenoh: Percentiles
+    sample_to_apply_can: Percentiles
+    command_age_zenoh: Percentiles
+    command_age_can: Percentiles
+    startup_hold_s: float
+    samples_without_command: int
+    samples_judged: int
+    samples_without_command_rate: float
+    late_commands: int
+    late_commands_rate: float
+    sample_gap: Percentiles
+
+
+class StreamCounts(TypedDict, total=False):
+    """One stream's messages (summary.json's ``messages``: "state", "torque_zenoh",
+    "torque_can"): sent, received, lost, duplicated, reordered, and what was injected; the CAN
+    stream adds its frames' counts."""
+
+    sent: int
+    received: int
+    lost: int
+    duplicated: int
+    reordered: int
+    injected_drops: int
+    injected_duplicates: int
+    injected_reorders: int
+    lost_not_injected: int
+    lost_not_injected_t_s: list[float]
+    sent_after_window: int
+    ambiguous: int
+
+
+Messages = dict[str, StreamCounts]  # stream name -> its counts
+
+
+class HostLoad(TypedDict, total=False):
+    """The host over the run's window (hil.bench.host_load's samples, hil.analysis.measure.host)."""
+
+    from_s: str
+    busy_pct: float
+    steal_pct: float
+    runnable_max: int
+    cpus: int
+    plant_cpu_pct: float
+    controller_cpu_pct: float
+    recorder_cpu_pct: float
+    plant_wait_s: float
+    controller_wait_s: float
+
+
+class Constraint(TypedDict, total=False):
+    """One constraint of (2) judged (hil.limits.ConstraintFigure.as_dict)."""
+
+    name: str
+    peak: float
+    limit: float
+    ratio: float
+    held: bool
+    bound: float | None
+    within_bound: bool | None
+
+
+class VerdictRecord(TypedDict, total=False):
+    """hil.verdict.Verdict.as_dict(): summary.json's and report.json's ``verdict``."""
+
+    outcome: str
+    fail_reasons: list[str]
+    inconclusive_reasons: list[str]
+    advice: list[str]
+    notes: list[str]
+    limits: str
+    limits_broken: list[str]
+    certificate: str
+    timing: Timing
+    thresholds: dict[str, float]
+    ok: bool
+    reasons: list[str]
+    deadline_misses: int | None
+    samples_without_command: int | None
+    lost_messages: int | None
+
+
+class Scheduling(TypedDict, total=False):
+    """How a service ran (runtime.realtime): the policy asked for and the one obtained."""
+
+    requested: str
+    policy: str
+    priority: int
+    affinity: list[int]
+    mlockall: bool
+    gc_frozen: bool
+    helper_threads: int
+    idle: str
+    errors: dict[str, str]
+
+
 class ControllerExit(TypedDict, total=False):
     """The controller process ended before the plant did (``hil run`` then stops the run at
     once): its exit code, or the signal that killed it, and when, in seconds from the run's
@@ -119,26 +269,152 @@ class Summary(TypedDict, total=False):
     cmd_path: str
     trigger: str
     rate_hz: float
-    timing: dict[str, Any]  # figure name -> percentiles or count (docs/realtime.md)
-    messages: dict[str, Any]  # stream -> sent, received, lost, duplicated, reordered
+    timing: Timing  # figure name -> percentiles or count (docs/realtime.md)
+    messages: Messages  # stream -> sent, received, lost, duplicated, reordered
     certificate: Certificate | None
-    host: dict[str, Any] | None
+    host: HostLoad | None
     logs_complete: dict[str, bool]
     rejections: dict[str, Any]
     watchdog: dict[str, int]
     can: dict[str, Any]
     faults: dict[str, Any]
-    scheduling: dict[str, Any]
+    scheduling: dict[str, Scheduling | None]  # service -> how it ran
     interrupted: bool
     recovered: bool
     error: str | None
     duration_run_s: float | None
     duration_planned_s: float
     controller_exit: ControllerExit  # absent: the controller outlived the plant
-    verdict: dict[str, Any]  # hil.verdict.Verdict.as_dict()
+    verdict: VerdictRecord
     # a simulation
     limits: dict[str, float]
     law: str
     ts: float
     plant_step: float
     seeds: dict[str, int]
+
+
+class ScenarioBlock(TypedDict, total=False):
+    """report.json's ``scenario``: what of the resolved scenario the report states."""
+
+    law: str
+    ts: float
+    delay: float
+    jitter: float
+    jitter_kind: str
+    limits: dict[str, float]  # [limits]: phi1, phi2, varpi1, varpi2
+    eps1: float
+    eps2: float
+
+
+class Metrics(TypedDict, total=False):
+    """report.json's ``metrics``: the sampling effects of the trace
+    (hil.analysis.trace_metrics.sampling_effects) with summary.json's peaks folded in."""
+
+    duration: float
+    samples: int
+    tracking: dict[str, float | None]
+    bands: dict[str, dict[str, float] | None]
+    switching_rate: dict[str, float]
+    saturation_share: dict[str, float]
+    constraints: dict[str, Constraint]  # signal (hil.limits.LIMITS) -> its constraint
+    deviation_from_ideal: dict[str, float] | None
+    deviation_from_ideal_note: str
+    bands_source: str
+
+
+class DrivesBlock(TypedDict, total=False):
+    """report.json's ``drives``: the motor torques the wheel mapping makes of tau1, tau2, the
+    drives' states and the rejection counts (hil.analysis.report.build.drives_block)."""
+
+    geometry: dict[str, float] | None  # protocol.can.wheel_mapping.RobotGeometry
+    note: str
+    motor_torque_limit_nm: float
+    max_abs_q_right_nm: float
+    max_abs_q_left_nm: float
+    can: dict[str, Any] | None  # summary.json's ``can``, as the services wrote it
+    rejections: dict[str, Any] | None  # summary.json's ``rejections``
+    rejection_counts: dict[str, int] | None
+
+
+class ReportTiming(TypedDict, total=False):
+    """report.json's ``timing``: summary.json's figures and where they came from."""
+
+    summary: Timing | None
+    messages: Messages | None
+    source: str | None
+    applied_path: str | None
+    series: str | None
+    faults: dict[str, Any] | None
+    scheduling: dict[str, Scheduling | None] | None
+    impair: dict[str, Any] | None
+
+
+class LimitShare(TypedDict):
+    max: float
+    limit: float
+    percent_of_limit: float
+    violations: int | None  # plant steps beyond it
+
+
+class LimitsAnswer(TypedDict, total=False):
+    held: bool
+    v: LimitShare
+    omega: LimitShare
+    tau1: LimitShare
+    tau2: LimitShare
+
+
+class AgeAnswer(TypedDict, total=False):
+    path: str | None
+    d_max_s: float | None
+    d_star_s: float | None
+    margin_s: float | None
+    held: bool | None
+    source: str
+
+
+class StallsAnswer(TypedDict, total=False):
+    threshold_s: float | None
+    listed: int
+    count: int
+    top: list[Stall]
+    stalled_time_s: float | None
+
+
+class SamplesAnswer(TypedDict):
+    count: int | None
+    judged: int | None
+    rate: float | None
+
+
+class Headline(TypedDict, total=False):
+    """report.json's ``headline``: the four answers and the verdict, as data and as the report's
+    first lines (hil.analysis.report.content.headline)."""
+
+    verdict: str
+    limits: LimitsAnswer
+    command_age: AgeAnswer
+    stalls: StallsAnswer
+    samples_without_command: SamplesAnswer
+    lines: list[dict[str, str]]  # {"key": answer, "text": its line}
+
+
+class ReportData(TypedDict, total=False):
+    """report.json (docs/reports.md): what hil report and hil run's report write."""
+
+    schema_version: int
+    folder: str
+    kind: str  # "run" or "simulation"
+    scenario: ScenarioBlock
+    sections: list[str]
+    metrics: Metrics
+    certificate: Certificate
+    drives: DrivesBlock
+    timing: ReportTiming
+    verdict: VerdictRecord
+    margin: dict[str, Any] | None  # hil.analysis.margin.record.MarginRecord.to_dict()
+    summary: dict[str, Any]  # summary.json's plain values
+    headline: Headline
+    topology: dict[str, Any]  # topology.json, with the injected offsets
+    figures: list[dict[str, str]]
