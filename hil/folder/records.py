@@ -58,6 +58,7 @@ class Percentiles(TypedDict, total=False):
     max_us: float | None
     mean_us: float | None
     not_relatable: int  # CAN frames the logs could match to more than one send
+    negative: int  # durations below zero (clocks not related)
 
 
 class TickPhase(TypedDict, total=False):

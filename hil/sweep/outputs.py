@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import csv
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -15,6 +15,7 @@ from hil.folder.jsonio import jsonable, write_json
 from hil.law.facts import Law
 from hil.sweep.grid import (
     SweepGrid,
+    SweepRow,
     aggregate,
     break_points,
     break_sentence,
@@ -42,7 +43,7 @@ FIGURES: tuple[tuple[str, str, str, float | None], ...] = (
 
 
 def _series(
-    rows: Sequence[dict[str, Any]], metric: str, how: str, along: str, grid: SweepGrid
+    rows: Sequence[SweepRow], metric: str, how: str, along: str, grid: SweepGrid
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     agg = aggregate(rows, metric, how)
     if along == "ts":
@@ -58,7 +59,7 @@ def _series(
     return np.asarray(x, dtype=float), series
 
 
-def sweep_figures(rows: Sequence[dict[str, Any]], grid: SweepGrid, bp: dict[str, Any]):
+def sweep_figures(rows: Sequence[SweepRow], grid: SweepGrid, bp: dict[str, Any]):
     figs = []
     first = bp.get("first")
     for metric, ylabel, how, hline in FIGURES:
@@ -75,7 +76,7 @@ def sweep_figures(rows: Sequence[dict[str, Any]], grid: SweepGrid, bp: dict[str,
     return figs
 
 
-def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
+def write_csv(path: Path, rows: Sequence[SweepRow]) -> None:
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(CSV_COLUMNS)
@@ -85,7 +86,7 @@ def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
 
 def write_outputs(
     out: Path,
-    rows: list[dict[str, Any]],
+    rows: list[SweepRow],
     grid: SweepGrid,
     meta: dict[str, Any],
 ) -> dict[str, Any]:
@@ -118,7 +119,7 @@ def write_outputs(
 
 
 def _first_record(
-    records: Sequence[dict[str, Any]], first: dict[str, Any] | None
+    records: Sequence[SweepRow], first: Mapping[str, Any] | None
 ) -> dict[str, Any] | None:
     """The law fault record (controller_service.laws.guard.LawFault) of the first faulted
     point, None when the law never failed."""
@@ -129,7 +130,7 @@ def _first_record(
     return records[0][LAW_FAULT_RECORD] if records else None
 
 
-def certificate_sentence(rows: Sequence[dict[str, Any]], law: Any) -> str:
+def certificate_sentence(rows: Sequence[SweepRow], law: Any) -> str:
     """What the certificate says over the loops run, from their ``certified`` column (the
     results table's "certificate holds"): the points where it does not guarantee (2), listed
     per delay (and jitter), never a "from" that the table may contradict (the certificate is

@@ -10,19 +10,20 @@ its row reports the worst loop found (same columns as :func:`hil.sweep.runner.po
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
 from controller_service.laws.guard import LawFault, LawFaultError
+from hil.folder.records import Summary
 from hil.folder.scenario_view import view
 from hil.limits import PEAK_KEYS
 from hil.scenario import Scenario, build_loop, resolved_dict
 from hil.sim.adversary.loop import initial_states, scenario_schedule
 from hil.sim.adversary.search import worst_disturbance
 from hil.sim.certificate import certificate
-from hil.sweep.grid import SweepGrid
+from hil.sweep.grid import SweepGrid, SweepRow
 from hil.sweep.runner import LAW_FAULT_RECORD, SweepOutcome, point_row, scenario_at, worst_age
 
 POPULATION = 64
@@ -30,7 +31,7 @@ ROUNDS = 3
 SPREAD = 0.05  # m, rad, m/s, rad/s around the scenario's initial state
 
 
-def _summary(best: Any) -> dict[str, Any]:
+def _summary(best: Any) -> Summary:
     return {
         **{k: best.peaks[k] for k in PEAK_KEYS.values()},
         "final_position_error": best.peaks["max_late_error"],
@@ -40,7 +41,7 @@ def _summary(best: Any) -> dict[str, Any]:
     }
 
 
-def _faulted_row(p: Any, fault: LawFault, cert: dict[str, Any], limits: Any) -> dict[str, Any]:
+def _faulted_row(p: Any, fault: LawFault, cert: dict[str, Any], limits: Any) -> SweepRow:
     """The row of a point whose search stopped at a law fault: no peaks, the fault."""
     nan = float("nan")
     summary = {**dict.fromkeys(PEAK_KEYS.values(), nan), "final_position_error": nan}
@@ -57,7 +58,7 @@ def run_worst_sweep(
     grid: SweepGrid,
     duration: float,
     progress: Callable[[float, int, int], None] | None = None,
-    on_group: Callable[[list[dict[str, Any]]], None] | None = None,
+    on_group: Callable[[list[SweepRow]], None] | None = None,
 ) -> tuple[SweepOutcome, dict[str, Any]]:
     """:func:`hil.sweep.runner.run_sweep` with the worst disturbance searched at every point."""
     outcome = SweepOutcome()
@@ -95,7 +96,7 @@ def run_worst_sweep(
     return outcome, resolved
 
 
-def worst_at_break(rows: list[dict[str, Any]], first: dict[str, Any] | None) -> str | None:
+def worst_at_break(rows: list[SweepRow], first: Mapping[str, Any] | None) -> str | None:
     """The disturbance that broke the limit at the sweep's break point, in words."""
     if first is None:
         return None
