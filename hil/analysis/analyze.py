@@ -15,7 +15,7 @@ import operator
 import sys
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from hil.analysis.report.figures import envelope_indices, plt
 from hil.errors import BadInputError
 from hil.folder import layout, write_summary
 from hil.folder.jsonio import read_json_object
-from hil.folder.records import Recorded, Summary
+from hil.folder.records import LawFaultRecord, Recorded, Summary, VerdictRecord
 from hil.folder.scenario_view import as_resolved
 from hil.folder.trace_csv import read_trace
 from hil.limits import LIMIT_NAMES, PEAK_KEYS
@@ -192,7 +192,7 @@ def rate_hz(resolved: Mapping[str, Any], settings: Any) -> float:
     return 1.0 / settings.ts
 
 
-def run_verdict(summary: Summary, scenario: Any) -> dict[str, Any]:
+def run_verdict(summary: Summary, scenario: Any) -> VerdictRecord:
     """The run's verdict (hil.verdict.judge at the default thresholds) from its summary."""
     limits = {k: float(getattr(scenario.limits, k)) for k in LIMIT_NAMES.values()}
     return judge(
@@ -206,14 +206,14 @@ def run_verdict(summary: Summary, scenario: Any) -> dict[str, Any]:
     ).as_dict()
 
 
-def law_fault_of(run_dir: Path) -> dict[str, Any] | None:
+def law_fault_of(run_dir: Path) -> LawFaultRecord | None:
     """The controller's law_fault.json (the record of its law's failure), None when there is
     none; a file that cannot be read is said in the record rather than lost."""
     path = run_dir / layout.LAW_FAULT
     if not path.is_file():
         return None
     try:
-        return LawFault.from_dict(read_json_object(path)).to_dict()
+        return cast(LawFaultRecord, LawFault.from_dict(read_json_object(path)).to_dict())
     except BadInputError as exc:
         return {"law": "?", "where": "?", "kind": "unreadable", "detail": str(exc)}
 

@@ -59,6 +59,10 @@ class Percentiles(TypedDict, total=False):
     mean_us: float | None
     not_relatable: int  # CAN frames the logs could match to more than one send
     negative: int  # durations below zero (clocks not related)
+    # a window's (hil.analysis.measure.windows): where its largest command age ended, and of
+    # how many segments
+    max_at_ns: int | None
+    segments: int
 
 
 class TickPhase(TypedDict, total=False):
@@ -198,6 +202,31 @@ class Scheduling(TypedDict, total=False):
     errors: dict[str, str]
 
 
+class LawFaultRecord(TypedDict, total=False):
+    """law_fault.json and summary.json's ``law_fault``
+    (controller_service.laws.guard.LawFault.to_dict)."""
+
+    law: str
+    where: str  # its import path, module:Class
+    kind: str  # "exception", "non_finite", "wrong_type", or "unreadable" (a bad file)
+    t_s: float | None
+    state: dict[str, float | None]
+    reference: dict[str, float | None]
+    robot: int | None
+    detail: str
+    traceback: str
+
+
+class Recovered(TypedDict, total=False):
+    """recovered.json: what hil recover repaired (hil.bench.repair.repair)."""
+
+    folder: str
+    repaired: list[str]  # the files that were missing or incomplete
+    restore_error: str
+    recording: dict[str, int]  # the recording rewritten: its counts
+    analysed: bool
+
+
 class ControllerExit(TypedDict, total=False):
     """The controller process ended before the plant did (``hil run`` then stops the run at
     once): its exit code, or the signal that killed it, and when, in seconds from the run's
@@ -262,7 +291,7 @@ class Summary(TypedDict, total=False):
     # (None: none); never "limits held" (hil.verdict)
     nonfinite_steps: int
     nonfinite_first_t_s: float | None
-    law_fault: dict[str, Any]  # controller_service.laws.guard.LawFault.to_dict(); absent: none
+    law_fault: LawFaultRecord  # absent: none
     samples: int
     duration: float
     # a run
@@ -287,6 +316,7 @@ class Summary(TypedDict, total=False):
     duration_planned_s: float
     controller_exit: ControllerExit  # absent: the controller outlived the plant
     verdict: VerdictRecord
+    run_dir: str  # hil run's own copy, not in summary.json
     # a simulation
     limits: dict[str, float]
     law: str

@@ -93,6 +93,7 @@ import numpy as np
 
 from hil.analysis.measure.age import AgeSegments
 from hil.analysis.measure.host import PROCESSES
+from hil.folder.records import HostLoad, Stall
 
 STALL_LIMIT = 20  # stalls listed, worst first
 HOST_BUSY_PCT = 90.0  # starved: the CPUs this busy over the stall ...
@@ -400,7 +401,7 @@ class _Run(Protocol):
     bench_drop_stamps: Stamped  # per drop seen: when, and how many (``hop``)
     host_gaps: Stretches  # where the recorder's host sampler logged nothing
 
-    def host_over(self, lo: int, hi: int) -> dict[str, Any] | None: ...
+    def host_over(self, lo: int, hi: int) -> HostLoad | None: ...
 
 
 @dataclass
@@ -439,7 +440,7 @@ def excursions(seg: AgeSegments, threshold_ns: int) -> Excursions:
 
 @dataclass
 class StallReport:
-    listed: list[dict[str, Any]] = field(default_factory=list)
+    listed: list[Stall] = field(default_factory=list)
     count: int = 0
     stalled_time_ns: int = 0
     by_owner: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -488,7 +489,7 @@ def _between(sorted_stamps: np.ndarray, lo: int, hi: int) -> slice:
     return slice(a, b)
 
 
-def starved(host: dict[str, Any] | None, stalled_ns: int) -> bool:
+def starved(host: HostLoad | None, stalled_ns: int) -> bool:
     """The controller starved of CPU by the host over a stall in which it was stalled for
     ``stalled_ns`` (module docstring): runnable but waiting for a CPU for at least half of it
     while the host's CPUs were nearly all busy, at least half a CPU with processes that are not

@@ -244,7 +244,7 @@ def _metrics(
     cert: Certificate,
     ideal: tuple[Columns | None, str],
     sliding: Sliding | None,
-) -> dict[str, Any]:
+) -> Metrics:
     """The sampling-effect metrics of the trace (against the ideal simulation and its note),
     with summary.json's peaks folded in."""
     tr = folder.trace
