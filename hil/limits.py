@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TypedDict
 
 
 @dataclass(frozen=True)
@@ -44,6 +44,18 @@ SIGNALS = {lim.key: lim.signal for lim in LIMITS}  # signal -> its symbol
 LIMIT_REL_TOL = 1e-9
 
 
+class Constraint(TypedDict, total=False):
+    """One constraint of (2) judged (:meth:`ConstraintFigure.as_dict`)."""
+
+    name: str
+    peak: float
+    limit: float
+    ratio: float
+    held: bool
+    bound: float | None
+    within_bound: bool | None
+
+
 @dataclass(frozen=True)
 class ConstraintFigure:
     """One constraint of (2): the measured peak against its limit and (velocities) the
@@ -67,6 +79,13 @@ class ConstraintFigure:
     def within_bound(self) -> bool | None:
         return None if self.bound is None else self.peak <= self.bound * (1.0 + LIMIT_REL_TOL)
 
-    def as_dict(self) -> dict[str, Any]:
-        keys = ("name", "peak", "limit", "ratio", "held", "bound", "within_bound")
-        return {k: getattr(self, k) for k in keys}
+    def as_dict(self) -> Constraint:
+        return Constraint(
+            name=self.name,
+            peak=self.peak,
+            limit=self.limit,
+            ratio=self.ratio,
+            held=self.held,
+            bound=self.bound,
+            within_bound=self.within_bound,
+        )

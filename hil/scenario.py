@@ -29,7 +29,7 @@ from controller_service.registry import check_table as check_controller
 from hil.errors import BadInputError
 from hil.limits import LIMIT_NAMES
 from hil.options import choice, describe, locator, number, plain_string, type_name
-from hil.provenance import provenance
+from hil.provenance import Toml, provenance
 from plant_emulator.disturbances import KINDS as DISTURBANCE_KINDS
 from plant_emulator.disturbances import Disturbance, max_abs
 from plant_emulator.dynamics import Drag
@@ -438,7 +438,7 @@ def _parse_table(name: str, raw: Any) -> Any:
         raise BadInputError(
             f"[{name}]: unknown key(s) {', '.join(unknown)} (allowed: {', '.join(fields)})"
         )
-    values: dict[str, Any] = {}
+    values: Toml = {}
     for key, value in raw.items():  # every table's annotations are strings (__future__)
         values[key] = _coerce(name, key, fields[key].type, value)
         _check(name, key, values[key])
@@ -643,7 +643,7 @@ def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
     return controller, reference, context
 
 
-def _table_dict(value: Any) -> dict[str, Any]:
+def _table_dict(value: Any) -> Toml:
     if isinstance(value, Mapping):  # [reference] and [controller], as given
         return dict(value)
     pairs = ((f.name, getattr(value, f.name)) for f in dataclasses.fields(value))
@@ -658,7 +658,7 @@ _WRITTEN = (
 )  # fmt: skip
 
 
-def scenario_dict(scenario: Scenario) -> dict[str, Any]:
+def scenario_dict(scenario: Scenario) -> Toml:
     """Every table of the scenario with every default filled in (a TOML-ready dict)."""
     tables = ((name, getattr(scenario, name)) for name in _WRITTEN)
     out = {name: _table_dict(table) for name, table in tables if table is not None}
@@ -671,7 +671,7 @@ def resolved_dict(
     controller: Any,
     context: DesignContext | None = None,
     extra_provenance: Mapping[str, Any] | None = None,
-) -> dict[str, Any]:
+) -> Toml:
     """scenario.resolved.toml: every default filled (auto lam/rho resolved) plus [provenance]."""
     out = scenario_dict(scenario)
     out["controller"] = {**dict(scenario.controller), **resolved_controller_table(controller)}

@@ -22,6 +22,7 @@ from hil.folder.jsonio import read_json_object, write_json
 from hil.folder.records import Summary
 from hil.folder.scenario_view import folder_scenario
 from hil.folder.trace_csv import TraceColumns, read_trace
+from hil.provenance import Toml
 from hil.scenario import Scenario
 
 
@@ -34,7 +35,7 @@ class RunFolder:
     #: its series never sit in memory together (:class:`hil.folder.trace_csv.TraceColumns`).
     trace: Mapping[str, np.ndarray]
     summary: Summary
-    scenario: dict[str, Any]
+    scenario: Toml  # scenario.resolved.toml's tables
     recordings: list[Path] = field(default_factory=list)
     #: What more than one part of the report reads (the recorded telemetry), read once.
     cache: dict[str, Any] = field(default_factory=dict, repr=False)
@@ -62,7 +63,7 @@ def has_hop_logs(path: Path) -> bool:
     return (path / layout.PLANT_LOG).is_file() or (path / layout.CONTROLLER_LOG).is_file()
 
 
-def read_scenario(path: Path) -> dict[str, Any]:
+def read_scenario(path: Path) -> Toml:
     """The folder's resolved scenario; BadInputError when it is missing or not TOML."""
     f = path / layout.SCENARIO_RESOLVED
     try:

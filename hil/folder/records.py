@@ -11,6 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict
 
+from hil.limits import Constraint
+
 if TYPE_CHECKING:
     from controller_service.laws.base import DesignContext
     from hil.scenario import Scenario
@@ -154,18 +156,6 @@ class HostLoad(TypedDict, total=False):
     recorder_cpu_pct: float
     plant_wait_s: float
     controller_wait_s: float
-
-
-class Constraint(TypedDict, total=False):
-    """One constraint of (2) judged (hil.limits.ConstraintFigure.as_dict)."""
-
-    name: str
-    peak: float
-    limit: float
-    ratio: float
-    held: bool
-    bound: float | None
-    within_bound: bool | None
 
 
 class VerdictRecord(TypedDict, total=False):

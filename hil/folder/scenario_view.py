@@ -14,6 +14,7 @@ from typing import Any
 from controller_service.laws.base import DesignContext, Limits
 from hil.errors import BadInputError
 from hil.law.facts import Law
+from hil.provenance import Toml
 from hil.scenario import Scenario, build_reference, design_context, parse_scenario
 
 BOUND_KEYS = ("mu1", "mu2", "k1", "k2")  # Assumption 2's bounds, in a resolved [reference]
@@ -24,7 +25,7 @@ class ScenarioView:
     limits: Limits
     context: DesignContext
     law: str
-    controller: dict[str, Any]
+    controller: Toml  # the [controller] table, resolved
     ts: float
     delay: float
     jitter: float
@@ -52,7 +53,7 @@ class ScenarioView:
         return self.delay + (4.0 if self.jitter_kind == "normal" else 1.0) * self.jitter
 
 
-def _without_none(table: Mapping[str, Any]) -> dict[str, Any]:
+def _without_none(table: Mapping[str, Any]) -> Toml:
     """The tables as scenario.resolved.toml holds them: a None (an unset optional key such as
     ``[realtime] rate``) is left out, as the TOML writer leaves it out."""
     return {
@@ -132,7 +133,7 @@ class BoundInputs:
     w0: float = 0.0
 
 
-def bound_inputs(resolved: dict[str, Any]) -> BoundInputs | None:
+def bound_inputs(resolved: Toml) -> BoundInputs | None:
     """The certificate's inputs from a resolved scenario (None: the law has no certificate)."""
     return bound_inputs_of(view(resolved))
 

@@ -15,7 +15,7 @@ import multiprocessing
 import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -82,9 +82,17 @@ _ROW_KEYS = (
 )
 
 
-def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
+class PaperCheck(TypedDict):
+    """One check of the paper's claims (table.md's and table.json's ``checks``)."""
+
+    check: str
+    passed: bool | None  # None: not judged (--quick)
+    measured: str
+
+
+def checks(results: dict[str, SimResult], quick: bool) -> list[PaperCheck]:
     """The checks of the paper's claims on its runs (convergence checks skipped when quick)."""
-    out: list[dict[str, Any]] = []
+    out: list[PaperCheck] = []
 
     def add(name: str, ok: bool | None, measured: str) -> None:
         out.append({"check": name, "passed": ok, "measured": measured})
@@ -131,7 +139,7 @@ def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
     return out
 
 
-def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note: str) -> str:
+def _markdown(rows: list[dict[str, Any]], check_rows: list[PaperCheck], note: str) -> str:
     head = (
         "| run | law | final pos. err (m) | final heading err (rad) | rms pos. err, last 10% (m) "
         "| max abs v | max abs omega | max abs tau1 | max abs tau2 | violations v/omega/tau1/tau2 |"

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from hil.provenance import Toml
 from hil.scenario import Scenario
 from hil.sweep.executors import InProcess
 from hil.sweep.grid import SweepGrid, SweepPoint, SweepRow
@@ -42,7 +43,7 @@ class ChunkResult:
     rows: list[SweepRow] = field(default_factory=list)
     robot_steps: int = 0
     interrupted: bool = False
-    resolved: dict[str, Any] = field(default_factory=dict)
+    resolved: Toml = field(default_factory=dict)
 
 
 def chunks_of(
@@ -75,7 +76,7 @@ def run_chunked(
     chunk_size: int = DEFAULT_CHUNK,
     progress: Callable[[int, int], None] | None = None,
     on_chunk: Callable[[list[SweepRow]], None] | None = None,
-) -> tuple[SweepOutcome, dict[str, Any]]:
+) -> tuple[SweepOutcome, Toml]:
     """The sweep on ``executor`` (default: in this process), as :func:`run_sweep` returns it:
     the rows in the grid's order (Ts groups longest first); ``groups_done`` counts the Ts
     groups whose every chunk finished; ``progress(chunks done, chunks in all)``. Ctrl-C keeps

@@ -13,6 +13,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, TypedDict
 
+from hil.folder.records import LawFaultRecord
 from hil.verdict import FAIL, PASS
 
 # Defaults when the scenario has no [sweep] table: Ts from 0.5 ms to 50 ms around the paper's
@@ -53,7 +54,7 @@ class SweepRow(TypedDict, total=False):
     within_bound: bool | None
     commands_dropped: int
     complete: bool
-    law_fault_record: dict[str, Any]  # controller_service.laws.guard.LawFault.to_dict()
+    law_fault_record: LawFaultRecord
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from hil.analysis import trace_metrics
 from hil.folder.records import Summary
 from hil.folder.scenario_view import view
 from hil.limits import LIMIT_REL_TOL
+from hil.provenance import Toml
 from hil.scenario import Scenario, build_loop, resolved_dict, scenario_dict
 from hil.sim import BatchResult, RobotVariation, simulate_batch
 from hil.sim.certificate import certificate
@@ -146,10 +147,10 @@ def run_sweep(
     duration: float,
     progress: ProgressFn | None = None,
     on_group: Callable[[list[SweepRow]], None] | None = None,
-) -> tuple[SweepOutcome, dict[str, Any]]:
+) -> tuple[SweepOutcome, Toml]:
     """All groups of the grid; returns the outcome and the resolved scenario (provenance)."""
     outcome = SweepOutcome()
-    resolved: dict[str, Any] = {}
+    resolved: Toml = {}
     try:
         for ts, points in grid.by_ts(scenario.timing.seed):
             report = None if progress is None else functools.partial(progress, ts)

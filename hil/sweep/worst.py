@@ -19,6 +19,7 @@ from controller_service.laws.guard import LawFault, LawFaultError
 from hil.folder.records import Summary
 from hil.folder.scenario_view import view
 from hil.limits import PEAK_KEYS
+from hil.provenance import Toml
 from hil.scenario import Scenario, build_loop, resolved_dict
 from hil.sim.adversary.loop import initial_states, scenario_schedule
 from hil.sim.adversary.search import worst_disturbance
@@ -59,7 +60,7 @@ def run_worst_sweep(
     duration: float,
     progress: Callable[[float, int, int], None] | None = None,
     on_group: Callable[[list[SweepRow]], None] | None = None,
-) -> tuple[SweepOutcome, dict[str, Any]]:
+) -> tuple[SweepOutcome, Toml]:
     """:func:`hil.sweep.runner.run_sweep` with the worst disturbance searched at every point."""
     outcome = SweepOutcome()
     loop = build_loop(scenario)

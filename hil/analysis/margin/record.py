@@ -14,6 +14,7 @@ from controller_service.laws.guard import LawFault
 from hil.errors import BadInputError
 from hil.folder import layout
 from hil.folder.jsonio import read_json_object, write_json
+from hil.folder.records import LawFaultRecord
 from protocol.versions import MARGIN_SCHEMA_VERSION
 
 
@@ -53,7 +54,7 @@ class MarginRecord:
     elapsed_s: float = 0.0
     probes: tuple[MarginProbe, ...] = field(default_factory=tuple)
     # the law failed in a loop (controller_service.laws.guard.LawFault.to_dict()): no k*
-    law_fault: dict[str, Any] | None = None
+    law_fault: LawFaultRecord | None = None
     schema_version: int = MARGIN_SCHEMA_VERSION
 
     @property

@@ -10,24 +10,24 @@ from __future__ import annotations
 import contextlib
 import tomllib
 from pathlib import Path
-from typing import Any
 
 from hil.analysis.measure.figures import Measurement, measure
 from hil.analysis.measure.logs import RunLogs, load_folder_logs, load_recording_logs
 from hil.folder import RunFolder, layout, read_series, write_series
 from hil.folder.recording import read_attachments
 from hil.folder.scenario_view import bound_inputs, bound_inputs_of, view_of
+from hil.provenance import Toml
 from hil.scenario import Scenario
 
 
-def resolved_scenario(folder: Path) -> dict[str, Any] | None:
+def resolved_scenario(folder: Path) -> Toml | None:
     try:
         return tomllib.loads((folder / layout.SCENARIO_RESOLVED).read_text())
     except (OSError, ValueError):
         return None
 
 
-def measure_logs(logs: RunLogs, resolved: dict[str, Any] | None) -> Measurement:
+def measure_logs(logs: RunLogs, resolved: Toml | None) -> Measurement:
     return measure(logs, bound_inputs(resolved) if resolved is not None else None)
 
 
