@@ -44,7 +44,7 @@ def git_commit(start: Path | None = None) -> str:
 #: A TOML document or table as tomllib reads it and :func:`dumps_toml` writes it: a scenario's
 #: tables before hil.scenario.parse_scenario checks them, scenario.resolved.toml, a [controller]
 #: table (a user's law takes the parameters it declares). Free-form by nature: the typed form is
-#: hil.scenario.Scenario (docs/architecture.md, "Where dict[str, Any] remains").
+#: hil.scenario.Scenario (docs/architecture.md, "Free-form records").
 Toml = dict[str, Any]
 
 

@@ -21,7 +21,7 @@ from protocol.can import codec
 from protocol.keys import ROBOT_ID_RE
 
 #: A JSON Schema document (draft 2020-12) or a Foxglove message as JSON: free-form by nature,
-#: its keys the standard's (docs/architecture.md, "Where dict[str, Any] remains").
+#: its keys the standard's (docs/architecture.md, "Free-form records").
 Json = dict[str, Any]
 
 GENERIC: Json = {"type": "object", "additionalProperties": True}

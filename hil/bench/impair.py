@@ -27,6 +27,7 @@ from hil.bench.settings import effective_can_table
 from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
 from hil.folder import layout
+from hil.folder.records import ImpairFacts, RateLimit, RunExtra
 from hil.scenario import Scenario, load_scenario
 from protocol.can.codec import Cmd, frame_id
 
@@ -246,7 +247,7 @@ def _nft_counters() -> dict[str, int]:
     }
 
 
-def _tc_counters() -> dict[str, Any]:
+def _tc_counters() -> RateLimit:
     """The loopback's token bucket: packets sent, dropped, held over the limit."""
     data = json.loads(_run(["tc", "-s", "-j", "qdisc", "show", "dev", "lo"]))
     tbf = next((q for q in data if q.get("kind") == "tbf"), {})
@@ -260,12 +261,12 @@ def _tc_counters() -> dict[str, Any]:
     }
 
 
-def finish(plan: Plan | None, run_dir: Path) -> dict[str, Any]:
+def finish(plan: Plan | None, run_dir: Path) -> RunExtra:
     """summary.json's ``impair`` (the kernel's counters) and ``impair.nft``; {} without [impair]."""
     if plan is None:
         return {}
     (run_dir / layout.IMPAIR_RULES).write_text(ruleset(plan))
-    facts: dict[str, Any] = {
+    facts: ImpairFacts = {
         "config": dataclasses.asdict(plan.config),
         "namespace": "private (unshare --net), loopback only",
         "packets": plan.packets,

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 from types import SimpleNamespace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -21,8 +21,11 @@ from hil.bundled import resolve_scenario
 from hil.commands import app
 from hil.errors import BadInputError, NegativeVerdictError
 
+if TYPE_CHECKING:
+    from hil.provenance import Toml
 
-def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
+
+def _params(table: Toml, context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
     """The unified law's gains (Table 1 where not given, 'auto' resolved), whether it has the
     boundary layer, and the resolution's notes. The scenario's reader has checked every key
     and number of the table (controller_service.registry.check_table). The eta re-arm keeps eta
@@ -37,7 +40,7 @@ def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool,
             f"[controller] law = {law.name!r}: the certificate covers the unified laws only"
         )
     boundary = law.boundary_layer
-    values: dict[str, Any] = {**TABLE1, **(EPS_DEFAULT if boundary else {})}
+    values: Toml = {**TABLE1, **(EPS_DEFAULT if boundary else {})}
     values.update({k: v for k, v in table.items() if k in values})
     try:
         resolved = resolve_auto(values, context)

@@ -64,7 +64,7 @@ def column(buf: array | None, name: str, dtype: Any) -> np.ndarray:
 
 #: A service's own JSON in its hop log (header meta, counters, footer): written by
 #: controller_service and plant_emulator under protocol's log version, read key by key
-#: (docs/architecture.md, "Where dict[str, Any] remains").
+#: (docs/architecture.md, "Free-form records").
 ServiceFacts = dict[str, Any]
 
 

@@ -19,11 +19,39 @@ if TYPE_CHECKING:
     from protocol.settings import RunSettings
 
 
+class StallEvidence(TypedDict, total=False):
+    """What the decision table of hil.analysis.measure.stalls found in a stall's window (each
+    figure only where it was seen; docs/reports.md, "Stalls")."""
+
+    host: HostLoad
+    recorder_silent_s: float
+    controller_stalled_s: float
+    plant_stalled_s: float
+    both_stalled_s: float
+    bench_stalled_s: float
+    controller_starved: bool
+    frames_dropped_by_bench: int
+    row: int  # the decision table's row that matched
+    controller_lateness_s: float
+    controller_silent_s: float
+    plant_lateness_s: float
+    plant_silent_s: float
+    states_lost: int
+    states_dropped_by_faults: int
+    commands_lost: int
+    commands_dropped_by_faults: int
+    frames_not_on_bus: int
+    commands_dropped_by_bench: int
+    transport_worst_s: float
+    landings_delayed_by_faults: int
+
+
 class Stall(TypedDict, total=False):
     t_s: float
     age_s: float
     cause: str
     owner: str
+    evidence: StallEvidence
 
 
 class Certificate(TypedDict, total=False):
@@ -229,6 +257,32 @@ class ControllerExit(TypedDict, total=False):
     output: str  # its console output, relative to the run folder (controller.log)
 
 
+class RateLimit(TypedDict, total=False):
+    """The loopback's token bucket of an [impair] rate limit (tc's counters)."""
+
+    rate_bps: float
+    packets: int | None
+    dropped_packets: int | None
+    overlimits: int | None
+    burst_bytes: int | None
+    latency: str
+    mtu: int
+
+
+class ImpairFacts(TypedDict, total=False):
+    """summary.json's ``impair``: the [impair] table and the kernel's counts
+    (hil.bench.impair.finish)."""
+
+    config: dict[str, float | str]  # [impair] as it ran
+    namespace: str
+    packets: str
+    rules: str  # the nftables rules' file in the folder
+    matched_packets: int | None
+    dropped_packets: int | None
+    rate_limit: RateLimit | None
+    error: str
+
+
 class RunExtra(TypedDict, total=False):
     """What the bench adds to summary.json about the run itself, in this key order
     (:func:`hil.bench.lifecycle.run_extra`; a fleet's group, ``hil recover`` and [impair] add
@@ -246,7 +300,7 @@ class RunExtra(TypedDict, total=False):
     note: str
     shared_processes: dict[str, list[str]]  # a fleet's group: the robots of its processes
     controller_exit: ControllerExit  # absent: the controller outlived the plant
-    impair: dict[str, Any]  # [impair]: the kernel's counts (hil.bench.impair)
+    impair: ImpairFacts
 
 
 @dataclass
@@ -368,7 +422,7 @@ class ReportTiming(TypedDict, total=False):
     series: str | None
     faults: dict[str, Any] | None
     scheduling: dict[str, Scheduling | None] | None
-    impair: dict[str, Any] | None
+    impair: ImpairFacts | None
 
 
 class LimitShare(TypedDict):
@@ -421,6 +475,21 @@ class Headline(TypedDict, total=False):
     lines: list[dict[str, str]]  # {"key": answer, "text": its line}
 
 
+class Topology(TypedDict, total=False):
+    """topology.json of a run across lab hosts (hil.bench.lab.placement.write_topology), and
+    report.json's ``topology`` (with the injected offsets)."""
+
+    lab: str
+    processes: dict[str, str]  # process -> its host
+    hosts: dict[str, dict[str, Any]]  # host -> address, offset_s, router, impair
+    session_endpoint: str
+    router_hops: dict[str, list[str]]  # stream -> the routers it crosses
+    clock_source: str
+    clock: dict[str, Any]  # hil.folder.clocks.ClockTrack.facts(), the cross-host figures
+    injected_offsets_s: list[float | None]
+    injected_difference_s: float | None
+
+
 class ReportData(TypedDict, total=False):
     """report.json (docs/reports.md): what hil report and hil run's report write."""
 
@@ -437,5 +506,5 @@ class ReportData(TypedDict, total=False):
     margin: dict[str, Any] | None  # hil.analysis.margin.record.MarginRecord.to_dict()
     summary: dict[str, Any]  # summary.json's plain values
     headline: Headline
-    topology: dict[str, Any]  # topology.json, with the injected offsets
+    topology: Topology
     figures: list[dict[str, str]]

@@ -6,6 +6,7 @@ older reader."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -68,7 +69,7 @@ class MarginRecord:
         return {**dataclasses.asdict(self), "conservatism": self.conservatism}
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> MarginRecord:
+    def from_dict(cls, data: Mapping[str, Any]) -> MarginRecord:
         names = {f.name for f in dataclasses.fields(cls)}
         values = {k: v for k, v in data.items() if k in names}
         probe_names = {f.name for f in dataclasses.fields(MarginProbe)}

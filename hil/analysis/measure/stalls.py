@@ -87,13 +87,13 @@ from __future__ import annotations
 import textwrap
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
 from hil.analysis.measure.age import AgeSegments
 from hil.analysis.measure.host import PROCESSES
-from hil.folder.records import HostLoad, Stall
+from hil.folder.records import HostLoad, Stall, StallEvidence
 
 STALL_LIMIT = 20  # stalls listed, worst first
 HOST_BUSY_PCT = 90.0  # starved: the CPUs this busy over the stall ...
@@ -514,10 +514,10 @@ def starved(host: HostLoad | None, stalled_ns: int) -> bool:
 
 def evidence_of(
     r: _Run, lo: int, hi: int, age_ns: int, threshold_ns: int
-) -> tuple[Evidence, dict[str, Any]]:
+) -> tuple[Evidence, StallEvidence]:
     """The evidence over the stall [lo, hi] (module docstring), and the figures behind it as
     the stall's ``evidence`` lists them (seconds, counts)."""
-    ev: dict[str, Any] = {}
+    ev: StallEvidence = {}
     C = r.controller_stalls.clip(lo, hi)
     P = r.plant_stalls.clip(lo, hi)
     both = C.intersect(P).total()
@@ -557,7 +557,7 @@ def evidence_of(
     for key, value in (("controller", e.controller_ns), ("plant", e.plant_ns),
                        ("both", e.both_ns), ("bench", e.bench_ns)):  # fmt: skip
         if value:
-            ev[f"{key}_stalled_s"] = value / 1e9
+            ev[f"{key}_stalled_s"] = value / 1e9  # type: ignore[literal-required]
     if is_starved:
         ev["controller_starved"] = True
     if dropped:
@@ -567,7 +567,7 @@ def evidence_of(
 
 def cause_of(
     r: _Run, lo: int, hi: int, age_ns: int, threshold_ns: int
-) -> tuple[str, str, dict[str, Any]]:
+) -> tuple[str, str, StallEvidence]:
     """(cause, owner, evidence) of the stall over [lo, hi] whose peak age is ``age_ns``: the
     first row of the table that matches (module docstring)."""
     e, ev = evidence_of(r, lo, hi, age_ns, threshold_ns)
@@ -576,7 +576,7 @@ def cause_of(
     return cause, owner, ev
 
 
-def _lateness(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> None:
+def _lateness(r: _Run, lo: int, hi: int, ev: StallEvidence) -> None:
     """The worst wake-up lateness of either service there, and its longest silence (as the
     evidence lists them)."""
     w, s = r.wake_sorted, r.samples
@@ -622,7 +622,7 @@ def _gaps(stamps: np.ndarray, delivered: np.ndarray, lo: int, hi: int) -> int:
     return int(span.max())
 
 
-def _lost(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> tuple[int, int]:
+def _lost(r: _Run, lo: int, hi: int, ev: StallEvidence) -> tuple[int, int]:
     """The longest stretches of lost States and commands (the system's), with their counts."""
     s = r.samples
     sl = _between(s["sample_ns"], lo, hi)
@@ -650,7 +650,7 @@ def _lost(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> tuple[int, int]:
     return states_ns, commands_ns
 
 
-def _wire(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> int:
+def _wire(r: _Run, lo: int, hi: int, ev: StallEvidence) -> int:
     """The longest time a State or command of the stall spent on the wire: its hop less the
     time either end was stalled in it (a message held up by a stalled sender, stamped and then
     stopped before it left, or by a stalled receiver is that end's stall, not the wire's)."""
@@ -668,7 +668,7 @@ def _wire(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> int:
     return worst
 
 
-def _burst(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> int:
+def _burst(r: _Run, lo: int, hi: int, ev: StallEvidence) -> int:
     b = r.burst_sorted
     sl = _between(b.stamps, lo, hi)
     if sl.stop <= sl.start:

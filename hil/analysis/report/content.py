@@ -27,6 +27,7 @@ from hil.folder.records import (
     Summary,
     TickPhase,
     Timing,
+    Topology,
 )
 from hil.limits import SIGNALS, SYMBOLS, UNITS
 from hil.units import ms
@@ -636,7 +637,7 @@ HOP_FIGURES: tuple[tuple[str, str | None, tuple[str, ...]], ...] = (
 )
 
 
-def _routers(topo: dict[str, Any], stream: str | None) -> list[str]:
+def _routers(topo: Topology, stream: str | None) -> list[str]:
     hops = topo.get("router_hops") or {}
     out: list[str] = []
     for part in stream.split("+") if stream else ():
@@ -644,7 +645,7 @@ def _routers(topo: dict[str, Any], stream: str | None) -> list[str]:
     return out
 
 
-def _hop_rows(topo: dict[str, Any], timing: Timing, unc_us: float | None) -> list[list]:
+def _hop_rows(topo: Topology, timing: Timing, unc_us: float | None) -> list[list]:
     """One row per timing figure: hosts, routers crossed, clocks and the correction's bound."""
     procs = topo["processes"]
     cross = set((topo.get("clock") or {}).get("cross_host_figures") or [])
@@ -662,7 +663,7 @@ def _hop_rows(topo: dict[str, Any], timing: Timing, unc_us: float | None) -> lis
     return rows
 
 
-def _clock_text(f: dict[str, Any]) -> str:
+def _clock_text(f: Topology) -> str:
     clock = f.get("clock") or {}
     if not clock.get("related"):
         warning = clock.get("warning") or "the cross-host figures are not valid"
