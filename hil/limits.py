@@ -6,10 +6,54 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TypedDict
+
+
+@dataclass(frozen=True)
+class Limit:
+    """One limit of the constraints (2): the signal it bounds (``key``, as in the trace), its
+    [limits] key, the paper's symbol for it, the signal's symbol and unit (model (1)'s inputs
+    tau1, tau2 are normalized: accelerations)."""
+
+    key: str
+    name: str
+    symbol: str
+    signal: str
+    unit: str
+
+    @property
+    def peak_key(self) -> str:
+        """summary.json's key of the signal's peak over every plant step."""
+        return f"max_abs_{self.key}"
+
+
+#: The four limits of (2), in the order every page lists them.
+LIMITS = (
+    Limit("v", "phi1", "φ1", "v", "m/s"),
+    Limit("omega", "phi2", "φ2", "ω", "rad/s"),
+    Limit("tau1", "varpi1", "ϖ1", "τ1", "m/s²"),
+    Limit("tau2", "varpi2", "ϖ2", "τ2", "rad/s²"),
+)
+LIMIT_NAMES = {lim.key: lim.name for lim in LIMITS}  # signal -> [limits] key
+PEAK_KEYS = {lim.key: lim.peak_key for lim in LIMITS}  # signal -> summary.json's peak key
+UNITS = {lim.key: lim.unit for lim in LIMITS}
+SYMBOLS = {lim.key: lim.symbol for lim in LIMITS}  # signal -> the limit's symbol
+SIGNALS = {lim.key: lim.signal for lim in LIMITS}  # signal -> its symbol
 
 # summary.json's tolerance: a violation is beyond 1e-9 relative (docs/design.md, section 3).
 LIMIT_REL_TOL = 1e-9
+
+
+class Constraint(TypedDict, total=False):
+    """One constraint of (2) judged (:meth:`ConstraintFigure.as_dict`)."""
+
+    name: str
+    peak: float
+    limit: float
+    ratio: float
+    held: bool
+    bound: float | None
+    within_bound: bool | None
 
 
 @dataclass(frozen=True)
@@ -35,6 +79,13 @@ class ConstraintFigure:
     def within_bound(self) -> bool | None:
         return None if self.bound is None else self.peak <= self.bound * (1.0 + LIMIT_REL_TOL)
 
-    def as_dict(self) -> dict[str, Any]:
-        keys = ("name", "peak", "limit", "ratio", "held", "bound", "within_bound")
-        return {k: getattr(self, k) for k in keys}
+    def as_dict(self) -> Constraint:
+        return Constraint(
+            name=self.name,
+            peak=self.peak,
+            limit=self.limit,
+            ratio=self.ratio,
+            held=self.held,
+            bound=self.bound,
+            within_bound=self.within_bound,
+        )

@@ -41,7 +41,14 @@ def git_commit(start: Path | None = None) -> str:
         return ""
 
 
-def provenance(seeds: Mapping[str, Any], start_time: _dt.datetime | None = None) -> dict[str, Any]:
+#: A TOML document or table as tomllib reads it and :func:`dumps_toml` writes it: a scenario's
+#: tables before hil.scenario.parse_scenario checks them, scenario.resolved.toml, a [controller]
+#: table (a user's law takes the parameters it declares). Free-form by nature: the typed form is
+#: hil.scenario.Scenario (docs/architecture.md, "Free-form records").
+Toml = dict[str, Any]
+
+
+def provenance(seeds: Mapping[str, Any], start_time: _dt.datetime | None = None) -> Toml:
     """The [provenance] table of scenario.resolved.toml."""
     start = start_time or _dt.datetime.now(_dt.UTC)
     return {

@@ -27,8 +27,9 @@ from controller_service.references import check_table as check_reference
 from controller_service.registry import build_controller, law_path_for, resolved_controller_table
 from controller_service.registry import check_table as check_controller
 from hil.errors import BadInputError
+from hil.limits import LIMIT_NAMES
 from hil.options import choice, describe, locator, number, plain_string, type_name
-from hil.provenance import provenance
+from hil.provenance import Toml, provenance
 from plant_emulator.disturbances import KINDS as DISTURBANCE_KINDS
 from plant_emulator.disturbances import Disturbance, max_abs
 from plant_emulator.dynamics import Drag
@@ -37,7 +38,7 @@ from protocol.can.bus_factory import CanSettings
 from protocol.can.wheel_mapping import RobotGeometry
 from protocol.faults import Faults
 from protocol.messages import ANGLE_MAX, POSITION_MAX, SPEED_MAX, TORQUE_MAX, TURN_RATE_MAX
-from protocol.settings import IDLE_POLICIES, TICK_PHASES, TRIGGERS
+from protocol.settings import IDLE_POLICIES, SCHEDULING, TICK_PHASES, TRIGGERS
 from protocol.versions import SIM_SCHEMA_VERSION as SCHEMA_VERSION  # hil.sim.core's name
 
 _REL_TOL = 1e-12
@@ -289,7 +290,7 @@ _CHOICES: dict[tuple[str, str], tuple[str, ...]] = {
     ("timing", "jitter_kind"): ("uniform", "normal", "replay"),
     ("realtime", "trigger"): TRIGGERS,
     ("realtime", "tick_phase"): TICK_PHASES,
-    ("realtime", "scheduling"): ("fifo", "other"),
+    ("realtime", "scheduling"): SCHEDULING,
     ("realtime", "idle"): IDLE_POLICIES,
     ("zenoh", "mode"): ("peer", "client", "router"),
     ("impair", "on"): ("all", "can", "zenoh"),
@@ -341,7 +342,7 @@ _RANGES: dict[tuple[str, str], tuple[float, float]] = {
     ("impair", "rate_bps"): (0.0, RATE_BPS_MAX),
 }
 _POSITIVE = (
-    _keys("limits", "phi1", "phi2", "varpi1", "varpi2")
+    _keys("limits", *LIMIT_NAMES.values())
     | _keys("timing", "ts")
     | _keys("run", "duration")
     | _keys("plant", "step", "max_speed")
@@ -437,7 +438,7 @@ def _parse_table(name: str, raw: Any) -> Any:
         raise BadInputError(
             f"[{name}]: unknown key(s) {', '.join(unknown)} (allowed: {', '.join(fields)})"
         )
-    values: dict[str, Any] = {}
+    values: Toml = {}
     for key, value in raw.items():  # every table's annotations are strings (__future__)
         values[key] = _coerce(name, key, fields[key].type, value)
         _check(name, key, values[key])
@@ -579,7 +580,7 @@ def build_reference(scenario: Scenario) -> Any:
 
 # Where each symbol of the design conditions is set (DesignError names conditions, not keys).
 _SYMBOL_KEYS = {
-    **{k: "limits" for k in ("phi1", "phi2", "varpi1", "varpi2")},
+    **dict.fromkeys(LIMIT_NAMES.values(), "limits"),
     **{k: "disturbance" for k in ("s1", "s2")},
     **{k: "reference" for k in ("mu1", "mu2", "k1", "k2")},
     **{k: "controller" for k in ("m1", "m2", "l1", "l2", "lam", "rho", "eps1", "eps2")},
@@ -642,7 +643,7 @@ def build_loop(scenario: Scenario) -> tuple[Any, Any, DesignContext]:
     return controller, reference, context
 
 
-def _table_dict(value: Any) -> dict[str, Any]:
+def _table_dict(value: Any) -> Toml:
     if isinstance(value, Mapping):  # [reference] and [controller], as given
         return dict(value)
     pairs = ((f.name, getattr(value, f.name)) for f in dataclasses.fields(value))
@@ -657,7 +658,7 @@ _WRITTEN = (
 )  # fmt: skip
 
 
-def scenario_dict(scenario: Scenario) -> dict[str, Any]:
+def scenario_dict(scenario: Scenario) -> Toml:
     """Every table of the scenario with every default filled in (a TOML-ready dict)."""
     tables = ((name, getattr(scenario, name)) for name in _WRITTEN)
     out = {name: _table_dict(table) for name, table in tables if table is not None}
@@ -670,7 +671,7 @@ def resolved_dict(
     controller: Any,
     context: DesignContext | None = None,
     extra_provenance: Mapping[str, Any] | None = None,
-) -> dict[str, Any]:
+) -> Toml:
     """scenario.resolved.toml: every default filled (auto lam/rho resolved) plus [provenance]."""
     out = scenario_dict(scenario)
     out["controller"] = {**dict(scenario.controller), **resolved_controller_table(controller)}

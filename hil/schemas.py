@@ -20,7 +20,11 @@ from protocol import messages as pm
 from protocol.can import codec
 from protocol.keys import ROBOT_ID_RE
 
-GENERIC: dict[str, Any] = {"type": "object", "additionalProperties": True}
+#: A JSON Schema document (draft 2020-12) or a Foxglove message as JSON: free-form by nature,
+#: its keys the standard's (docs/architecture.md, "Free-form records").
+Json = dict[str, Any]
+
+GENERIC: Json = {"type": "object", "additionalProperties": True}
 
 _KIND_SCHEMA = {
     pm._ROBOT_ID: {"type": "string", "pattern": f"^{ROBOT_ID_RE.pattern}$"},
@@ -29,7 +33,7 @@ _KIND_SCHEMA = {
 }
 
 
-def _field_schema(kind: int, lo: float, hi: float) -> dict[str, Any]:
+def _field_schema(kind: int, lo: float, hi: float) -> Json:
     if kind == pm._INT:
         return {"type": "integer", "minimum": int(lo), "maximum": int(hi)}
     if kind == pm._FLOAT:
@@ -47,9 +51,9 @@ def _field_schema(kind: int, lo: float, hi: float) -> dict[str, Any]:
     return dict(_KIND_SCHEMA[kind])
 
 
-def message_schema(cls: type) -> dict[str, Any]:
+def message_schema(cls: type) -> Json:
     """The schema of the recorder's JSON of one protocol message class (``SPECS[cls]``)."""
-    props: dict[str, Any] = {
+    props: Json = {
         "TAG": {"type": "integer", "const": cls.TAG},  # type: ignore[attr-defined]
         "type": {"type": "string", "const": cls.__name__},
         **{name: _field_schema(kind, lo, hi) for name, kind, lo, hi in pm.SPECS[cls]},
@@ -57,7 +61,7 @@ def message_schema(cls: type) -> dict[str, Any]:
     return _object(f"hil.{cls.__name__}", props, cls.__doc__)
 
 
-def _struct(title: str, props: dict[str, Any]) -> dict[str, Any]:
+def _struct(title: str, props: Json) -> Json:
     """An object with exactly these properties, every one required."""
     return {
         "type": "object",
@@ -68,22 +72,22 @@ def _struct(title: str, props: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _object(title: str, props: dict[str, Any], doc: str | None = None) -> dict[str, Any]:
+def _object(title: str, props: Json, doc: str | None = None) -> Json:
     """A channel's schema: :func:`_struct` under the draft's ``$schema``, the title first."""
     draft = "https://json-schema.org/draft/2020-12/schema"
-    out: dict[str, Any] = {"$schema": draft, "title": title, **_struct(title, props)}
+    out: Json = {"$schema": draft, "title": title, **_struct(title, props)}
     if doc:
         out["description"] = " ".join(doc.split())
     return out
 
 
-MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {cls.__name__: message_schema(cls) for cls in pm.SPECS}
+MESSAGE_SCHEMAS: dict[str, Json] = {cls.__name__: message_schema(cls) for cls in pm.SPECS}
 
 # One JSON type per field: a Foxglove-family viewer's JSON Schema parser takes one "type" name
 # and drops the whole channel for a union (docs/live.md). A decoded float signal is a finite
 # number: the codec refuses a frame carrying NaN or an infinity (CanDecodeError "non_finite"),
 # which is recorded as refused, its value in decode_error and its bytes in data.
-_CAN_TYPES: dict[str, dict[str, Any]] = {
+_CAN_TYPES: dict[str, Json] = {
     "int": {"type": "integer"},
     "Cmd": {"type": "integer", "minimum": 0, "maximum": 0x1F},
     "bool": {"type": "boolean"},
@@ -91,12 +95,12 @@ _CAN_TYPES: dict[str, dict[str, Any]] = {
 }
 
 
-def can_frame_schema() -> dict[str, Any]:
+def can_frame_schema() -> Json:
     """A CAN frame as the recorder writes it: the raw frame, and either the CANSimple message
     it decodes to (``message``: the class name, ``fields``: its signals, each typed from the
     class) or why the codec refused it (``decode_reason``: the codec's word, e.g.
     ``non_finite``; ``decode_error``: with the detail)."""
-    signals: dict[str, dict[str, Any]] = {}
+    signals: dict[str, Json] = {}
     classes: list[type] = codec.Message.__subclasses__()
     for cls in classes:  # every message class: the list grows while it is walked
         classes.extend(cls.__subclasses__())
@@ -190,7 +194,7 @@ TF = "tf"  # hil/<robot_id>/tf: foxglove.FrameTransform world -> <robot_id>
 CAN_FRAME = can_frame_schema()
 
 
-def schema_for_topic(topic: str) -> dict[str, Any]:
+def schema_for_topic(topic: str) -> Json:
     """The schema of a recorded topic (:data:`GENERIC` for a topic nobody defined)."""
     if topic.startswith("can/"):
         return CAN_FRAME
@@ -198,7 +202,7 @@ def schema_for_topic(topic: str) -> dict[str, Any]:
     return _SUFFIX_SCHEMA.get(m.group(1), GENERIC) if m else _FIXED.get(topic, GENERIC)
 
 
-def schema_name(topic: str, schema: dict[str, Any]) -> str:
+def schema_name(topic: str, schema: Json) -> str:
     """The MCAP schema name: the schema's title (Foxglove matches well-known ones by it), or
     the topic with dots for an untitled one."""
     return str(schema.get("title") or topic.replace("/", "."))
@@ -213,7 +217,7 @@ def _quaternion(theta: float) -> dict[str, float]:
     return {"x": 0.0, "y": 0.0, "z": math.sin(theta / 2.0), "w": math.cos(theta / 2.0)}
 
 
-def pose_in_frame(t_ns: int, x: float, y: float, theta: float) -> dict[str, Any]:
+def pose_in_frame(t_ns: int, x: float, y: float, theta: float) -> Json:
     """foxglove.PoseInFrame of a planar pose (x, y, heading theta) in the world frame."""
     return {
         "timestamp": _stamp(t_ns),
@@ -222,7 +226,7 @@ def pose_in_frame(t_ns: int, x: float, y: float, theta: float) -> dict[str, Any]
     }
 
 
-def frame_transform(t_ns: int, child: str, x: float, y: float, theta: float) -> dict[str, Any]:
+def frame_transform(t_ns: int, child: str, x: float, y: float, theta: float) -> Json:
     """foxglove.FrameTransform world -> ``child`` of a planar pose."""
     return {
         "timestamp": _stamp(t_ns),
@@ -233,15 +237,15 @@ def frame_transform(t_ns: int, child: str, x: float, y: float, theta: float) -> 
     }
 
 
-def _num(description: str) -> dict[str, Any]:
+def _num(description: str) -> Json:
     return {"type": "number", "description": description, "minimum": 0}
 
 
-def _count(description: str) -> dict[str, Any]:
+def _count(description: str) -> Json:
     return {"type": "integer", "minimum": 0, "description": description}
 
 
-def _unknown_at_first(description: str) -> dict[str, Any]:
+def _unknown_at_first(description: str) -> Json:
     return {"type": "number", "minimum": 0, "description": description + " (absent until known)"}
 
 

@@ -32,8 +32,9 @@ judges with the same :func:`judge` (:func:`judge_evidence`), from the figures it
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, cast
 
 from controller_service.laws.guard import LawFault
 from hil.errors import (  # noqa: F401 (the exit table, re-exported: hil.verdict.EXIT_CODE)
@@ -47,11 +48,20 @@ from hil.errors import (  # noqa: F401 (the exit table, re-exported: hil.verdict
     exit_code,
 )
 from hil.folder import layout
-from hil.folder.records import ControllerExit, Summary
-from hil.limits import LIMIT_REL_TOL, ConstraintFigure
+from hil.folder.records import (
+    Certificate,
+    Constraint,
+    ControllerExit,
+    Messages,
+    Scheduling,
+    Stall,
+    Summary,
+    Timing,
+    VerdictRecord,
+)
+from hil.limits import LIMIT_NAMES, LIMIT_REL_TOL, PEAK_KEYS, UNITS, ConstraintFigure
+from hil.units import ms
 
-LIMIT_NAMES = {"v": "phi1", "omega": "phi2", "tau1": "varpi1", "tau2": "varpi2"}
-UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "m/s²", "tau2": "rad/s²"}
 BENCH_ADVICE = (
     "the bench stalled, not your system: run fewer processes beside it, keep the real-time "
     'policy (scheduling = "fifo", as root or with CAP_SYS_NICE), use a quieter host, or lower '
@@ -85,7 +95,7 @@ class RunFacts:
     interrupted: bool = False
     duration_s: float | None = None  # planned
     duration_run_s: float | None = None  # the plant's window actually run
-    scheduling: dict[str, Any] | None = None  # requested and obtained, per service
+    scheduling: dict[str, Scheduling | None] | None = None  # requested and obtained, per service
 
     @classmethod
     def of(cls, summary: Summary) -> RunFacts | None:
@@ -182,15 +192,20 @@ class Verdict:
     limits: str = "held"
     limits_broken: list[str] = field(default_factory=list)
     certificate: str = "not applicable"
-    timing: dict[str, Any] = field(default_factory=dict)
+    timing: Timing = field(default_factory=lambda: Timing())
     thresholds: dict[str, float] = field(default_factory=dict)
 
     @property
     def reasons(self) -> list[str]:
         return [*self.fail_reasons, *self.inconclusive_reasons]
 
-    def as_dict(self) -> dict[str, Any]:
-        out = asdict(self)
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Verdict:
+        """The verdict summary.json holds (:meth:`as_dict`), judged once by the analysis."""
+        return cls(**{f.name: data[f.name] for f in fields(cls) if f.name in data})
+
+    def as_dict(self) -> VerdictRecord:
+        out = cast(VerdictRecord, asdict(self))
         out["ok"] = self.outcome == PASS
         out["reasons"] = self.reasons
         for key in ("deadline_misses", "samples_without_command", "lost_messages"):
@@ -199,10 +214,7 @@ class Verdict:
         return out
 
 
-PEAK_KEYS = {key: f"max_abs_{key}" for key in LIMIT_NAMES}
-
-
-def constraints_from_peaks(summary: Summary, limits: dict[str, float]) -> dict[str, dict[str, Any]]:
+def constraints_from_peaks(summary: Summary, limits: dict[str, float]) -> dict[str, Constraint]:
     """Per limit of (2) its peak over every plant step (summary.json's ``max_abs_*``), the
     limit and whether it held (peaks not measured are left out)."""
     out = {}
@@ -218,30 +230,26 @@ def _pct(x: float) -> str:
     return f"{100.0 * x:.3f} %"
 
 
-def _ms(seconds: float) -> str:
-    return f"{seconds * 1e3:.3f} ms"
-
-
-def _bench_stalls(cert: dict[str, Any] | None) -> list[dict[str, Any]]:
+def _bench_stalls(cert: Certificate | None) -> list[Stall]:
     return [s for s in (cert or {}).get("stalls") or [] if s.get("owner") == "bench"]
 
 
-def _stall_words(s: dict[str, Any]) -> str:
+def _stall_words(s: Stall) -> str:
     who = {
         "plant_late": "the plant emulator",
         "host_stalled": "the bench's host",
         "host_overloaded": "the bench's host (busy with other processes)",
         "bench_dropped": "the bench's own socket (frames dropped, its queue full)",
     }.get(s.get("cause", ""), s.get("cause", ""))
-    return f"{who} stalled at t = {s['t_s']:.3f} s (command age {_ms(s['age_s'])}, {s['cause']})"
+    return f"{who} stalled at t = {s['t_s']:.3f} s (command age {ms(s['age_s'])}, {s['cause']})"
 
 
 def judge(
-    cons: dict[str, dict[str, Any]],
-    violations: dict[str, Any],
-    cert: dict[str, Any] | None,
-    timing: dict[str, Any] | None,
-    messages: dict[str, Any] | None,
+    cons: dict[str, Constraint],
+    violations: dict[str, int],
+    cert: Certificate | None,
+    timing: Timing | None,
+    messages: Messages | None,
     facts: RunFacts | None = None,
     thresholds: Thresholds = DEFAULT_THRESHOLDS,
     ended: LawEnd | None = None,
@@ -324,7 +332,7 @@ def judge_evidence(ev: Evidence, thresholds: Thresholds = DEFAULT_THRESHOLDS) ->
     if ev.d_star_s is not None:
         held = ev.d_max_s is not None and ev.d_max_s <= ev.d_star_s
         cert = {"path": ev.path, "d_max_s": ev.d_max_s, "d_star_s": ev.d_star_s, "held": held}
-    timing: dict[str, Any] = {}
+    timing: Timing = {}
     for n, over, names in (
         (ev.samples_without_command, ev.samples_judged,
          ("samples_without_command", "samples_judged", "samples_without_command_rate")),
@@ -344,7 +352,7 @@ def _bench_stalled(v: Verdict, text: str) -> None:
 
 
 def _limits(
-    v: Verdict, cons: dict[str, Any], violations: dict[str, Any], cert: dict[str, Any] | None
+    v: Verdict, cons: dict[str, Constraint], violations: dict[str, int], cert: Certificate | None
 ) -> None:
     broken = []
     for key, c in cons.items():
@@ -370,7 +378,7 @@ def _limits(
     v.limits = "broken" if broken else "held"
 
 
-def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) -> None:
+def _certificate(v: Verdict, cons: dict[str, Constraint], cert: Certificate | None) -> None:
     if not cert or cert.get("d_star_s") is None:
         return
     held = cert.get("held")
@@ -390,8 +398,8 @@ def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) 
     if held is None:
         up = cert.get("d_max_upper_s")
         v.inconclusive_reasons.append(
-            f"certificate unknown: the CAN logs allow D from {_ms(d)} to {_ms(up)}{where}, and "
-            f"D* = {_ms(ds)} lies between (frames that could match more than one send)"
+            f"certificate unknown: the CAN logs allow D from {ms(d)} to {ms(up)}{where}, and "
+            f"D* = {ms(ds)} lies between (frames that could match more than one send)"
         )
         return
     if held:
@@ -403,11 +411,11 @@ def _certificate(v: Verdict, cons: dict[str, Any], cert: dict[str, Any] | None) 
     else:
         failed = ", ".join(cert.get("failed_conditions") or []) or "see the certificate"
         v.fail_reasons.append(
-            f"certificate not held: design conditions broken ({failed}) at D = {_ms(d)}"
+            f"certificate not held: design conditions broken ({failed}) at D = {ms(d)}"
         )
 
 
-def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
+def _age_beyond(v: Verdict, cert: Certificate, where: str) -> None:
     """D > D*: whose stalls pushed it there."""
     d, ds = cert["d_max_s"], cert["d_star_s"]
     # Without the stalls' owners (a simulation, an older summary) all of D is the system's.
@@ -415,20 +423,20 @@ def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
     stalls = cert.get("stalls") or []
     failed = cert.get("failed_conditions") or []
     also = f"; failing: {', '.join(failed)}" if failed else ""
-    head = f"command age D = {_ms(d)} > D* = {_ms(ds)}{where} (margin {_ms(ds - d)}{also})"
+    head = f"command age D = {ms(d)} > D* = {ms(ds)}{where} (margin {ms(ds - d)}{also})"
     if d_sys > ds:
         mine = [s for s in stalls if s.get("owner") == "system" and s["age_s"] > ds]
         unknown = [s for s in stalls if s.get("owner") == "unknown" and s["age_s"] > ds]
         if not mine and unknown:
             v.inconclusive_reasons.append(
                 f"certificate not held: {head}, by a stall whose cause the logs cannot tell "
-                f"(t = {unknown[0]['t_s']:.3f} s, {_ms(unknown[0]['age_s'])})"
+                f"(t = {unknown[0]['t_s']:.3f} s, {ms(unknown[0]['age_s'])})"
             )
             return
         text = f"certificate not held: {head} by the system's own timing"
         if mine:
             w = mine[0]
-            text += f"; worst: t = {w['t_s']:.3f} s, {_ms(w['age_s'])}, {w['cause']}"
+            text += f"; worst: t = {w['t_s']:.3f} s, {ms(w['age_s'])}, {w['cause']}"
         v.fail_reasons.append(text)
         return
     bench = [st for st in _bench_stalls(cert) if st["age_s"] > ds] or _bench_stalls(cert)
@@ -437,12 +445,12 @@ def _age_beyond(v: Verdict, cert: dict[str, Any], where: str) -> None:
     _bench_stalled(
         v,
         f"inconclusive, the bench stalled: {head} only because {what}{more}; without the "
-        f"bench's stalls D = {_ms(d_sys)} <= D*",
+        f"bench's stalls D = {ms(d_sys)} <= D*",
     )
 
 
 def _thresholds(
-    v: Verdict, timing: dict[str, Any], messages: dict[str, Any], path: str | None, th: Thresholds
+    v: Verdict, timing: Timing, messages: Messages, path: str | None, th: Thresholds
 ) -> None:
     """Deadline misses, samples without a command and lost messages of the applied path and
     the State stream against their thresholds (the shadow path never counts)."""
@@ -500,7 +508,7 @@ def _thresholds(
                 v.fail_reasons.append(words)
 
 
-def _relatable(v: Verdict, messages: dict[str, Any]) -> None:
+def _relatable(v: Verdict, messages: Messages) -> None:
     """Figures the logs cannot relate: CAN frames whose torque differs from their send's."""
     can = messages.get("torque_can") or {}
     if int(can.get("value_mismatches") or 0) > 0:

@@ -24,6 +24,8 @@ from protocol.errors import BadInputError
 from protocol.robot import Limits
 
 CMD_PATHS = ("zenoh", "can")
+# the services' scheduling policy: SCHED_FIFO (real-time priority) or the default SCHED_OTHER
+SCHEDULING = ("fifo", "other")
 TRIGGERS = ("periodic", "on_state")
 # where the periodic controller ticks after the sample (controller_service.tick_phase)
 TICK_PHASES = ("half", "auto")
@@ -139,7 +141,7 @@ class RunSettings:
             raise BadInputError(f"duration must be positive, got {self.duration!r}")
         if self.ts < TS_MIN * (1 - 1e-12):
             raise BadInputError("[realtime] rate above 20 kHz is not supported")
-        if self.scheduling not in ("fifo", "other"):
+        if self.scheduling not in SCHEDULING:
             raise BadInputError("[realtime] scheduling must be 'fifo' or 'other'")
         if self.idle not in IDLE_POLICIES:
             raise BadInputError(f"[realtime] idle must be one of {IDLE_POLICIES}")

@@ -13,8 +13,9 @@ import csv
 import math
 import operator
 import sys
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -28,8 +29,10 @@ from hil.analysis.report.figures import envelope_indices, plt
 from hil.errors import BadInputError
 from hil.folder import layout, write_summary
 from hil.folder.jsonio import read_json_object
-from hil.folder.records import Recorded, Summary
+from hil.folder.records import LawFaultRecord, Recorded, Summary, VerdictRecord
+from hil.folder.scenario_view import as_resolved
 from hil.folder.trace_csv import read_trace
+from hil.limits import LIMIT_NAMES, PEAK_KEYS
 from hil.trace import COMMAND_COLUMNS, TRACE_COLUMNS
 from hil.verdict import LawEnd, RunFacts, constraints_from_peaks, judge
 from protocol.angles import wrap_angle as wrap
@@ -108,8 +111,10 @@ def write_results(rec: Recorded) -> Summary:
 def analyze(rec: Recorded) -> Summary:
     """Write trace.csv and summary.json from the two hop logs; returns the summary."""
     run_dir, scenario, settings = rec.run_dir, rec.scenario, rec.settings
+    tables = resolved_scenario(run_dir) or {}
     logs = load_folder_logs(run_dir) or RunLogs.read(None, None)
-    m = (measure_and_save(run_dir, logs) if logs.plant else None) or Measurement()
+    resolved = as_resolved(scenario, tables)  # the folder's scenario, not parsed again
+    m = (measure_and_save(run_dir, logs, resolved) if logs.plant else None) or Measurement()
     # The figures' columns go before the trace's are read: an hour's run holds one set at a
     # time (the two reads cost a second pass over the logs, ~10 s an hour).
     logs.tables.clear()
@@ -129,7 +134,7 @@ def analyze(rec: Recorded) -> Summary:
         "final_heading_error": head_err if n else None,
         "rms_position_error": math.sqrt(sum(e * e for e in tail) / len(tail)) if tail else None,
         "initial_position_error": float(pos_err[0]) if n else None,
-        **{k: ext.get(k) for k in ("max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2")},
+        **{k: ext.get(k) for k in PEAK_KEYS.values()},
         "violations": ext.get("violations", {}),
         "nonfinite_steps": int(ext.get("nonfinite_steps") or 0),
         "nonfinite_first_t_s": ext.get("nonfinite_first_t_s"),
@@ -138,7 +143,7 @@ def analyze(rec: Recorded) -> Summary:
         "lockstep": lockstep,
         "cmd_path": settings.cmd_path,
         "trigger": "on_state" if lockstep else settings.trigger,
-        "rate_hz": rate_hz(run_dir, settings),
+        "rate_hz": rate_hz(tables, settings),
         "timing": m.timing,
         "messages": m.messages,
         "certificate": m.certificate,
@@ -178,18 +183,18 @@ def analyze(rec: Recorded) -> Summary:
     return summary
 
 
-def rate_hz(run_dir: Path, settings: Any) -> float:
+def rate_hz(resolved: Mapping[str, Any], settings: Any) -> float:
     """The control rate as the user asked for it (``--rate``, ``[realtime] rate`` or 1 / ts),
     for summary.json: the folder's ``[provenance] rate_hz`` as ``hil run`` wrote it, else 1 / ts."""
-    value = (resolved_scenario(run_dir) or {}).get("provenance", {}).get("rate_hz")
+    value = resolved.get("provenance", {}).get("rate_hz")
     if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
         return float(value)
     return 1.0 / settings.ts
 
 
-def run_verdict(summary: Summary, scenario: Any) -> dict[str, Any]:
+def run_verdict(summary: Summary, scenario: Any) -> VerdictRecord:
     """The run's verdict (hil.verdict.judge at the default thresholds) from its summary."""
-    limits = {k: float(getattr(scenario.limits, k)) for k in ("phi1", "phi2", "varpi1", "varpi2")}
+    limits = {k: float(getattr(scenario.limits, k)) for k in LIMIT_NAMES.values()}
     return judge(
         constraints_from_peaks(summary, limits),
         summary.get("violations") or {},
@@ -201,14 +206,14 @@ def run_verdict(summary: Summary, scenario: Any) -> dict[str, Any]:
     ).as_dict()
 
 
-def law_fault_of(run_dir: Path) -> dict[str, Any] | None:
+def law_fault_of(run_dir: Path) -> LawFaultRecord | None:
     """The controller's law_fault.json (the record of its law's failure), None when there is
     none; a file that cannot be read is said in the record rather than lost."""
     path = run_dir / layout.LAW_FAULT
     if not path.is_file():
         return None
     try:
-        return LawFault.from_dict(read_json_object(path)).to_dict()
+        return cast(LawFaultRecord, LawFault.from_dict(read_json_object(path)).to_dict())
     except BadInputError as exc:
         return {"law": "?", "where": "?", "kind": "unreadable", "detail": str(exc)}
 

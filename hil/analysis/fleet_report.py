@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import matplotlib
 import matplotlib.pyplot as plt
@@ -19,15 +19,67 @@ import matplotlib.pyplot as plt
 from hil.analysis.measure.stats import exact_percentile
 from hil.folder import layout
 from hil.folder.rates import RATES, pooled
+from hil.units import ms_or
 from hil.verdict import FAIL, INCONCLUSIVE, PASS, run_outcome
 
 NO_RUN = "NO RUN"  # a robot whose folder has no summary.json: it has no verdict
 
 
-def _robot(folder: Path, code: int | None) -> dict[str, Any]:
+class _Rates(TypedDict, total=False):
+    """The counts and rates of hil.folder.rates.RATES (a robot's, or pooled over the fleet)."""
+
+    deadline_misses: int | None
+    slots: int | None
+    deadline_miss_rate: float | None
+    plant_deadline_misses: int | None
+    plant_slots: int | None
+    plant_deadline_miss_rate: float | None
+    samples_without_command: int | None
+    samples_judged: int | None
+    samples_without_command_rate: float | None
+    late_commands: int | None
+    late_commands_rate: float | None
+
+
+class RobotRow(_Rates, total=False):
+    """One robot of fleet.json's ``per_robot``: its verdict, D against D*, its applied path's
+    command age p99, and the counts and rates of its summary.json."""
+
+    robot: str
+    folder: str
+    exit_code: int | None
+    verdict: str
+    reason: str | None
+    error: str | None
+    d_max_s: float | None
+    d_star_s: float | None
+    held: bool | None
+    command_age_p99_us: float | None
+
+
+class FleetFigures(_Rates, total=False):
+    """fleet.json's ``fleet``: the fleet's verdict and its figures over the robots."""
+
+    verdict: str
+    verdict_robots: list[str]
+    robots: int
+    passed: int
+    certificates_held: int
+    command_age_p99_us_max: float | None
+    command_age_p99_us_median: float | None
+
+
+class FleetSummary(TypedDict, total=False):
+    """fleet.json: the fleet command's facts (free-form, :func:`write`'s ``facts``), then these."""
+
+    fleet: FleetFigures
+    per_robot: list[RobotRow]
+
+
+def _robot(folder: Path, code: int | None) -> RobotRow:
     """A robot's row: its verdict, D against D*, its applied path's command age p99, and the
     counts and rates of RATES from its summary.json."""
-    row: dict[str, Any] = {"robot": folder.name, "folder": folder.name, "exit_code": code}
+    row: RobotRow = {"robot": folder.name, "folder": folder.name, "exit_code": code}
     try:
         s = json.loads((folder / layout.SUMMARY).read_text())
     except (OSError, ValueError):
@@ -44,7 +96,7 @@ def _robot(folder: Path, code: int | None) -> dict[str, Any]:
     return {**row, "error": s.get("error")}
 
 
-def fleet_outcome(rows: list[dict[str, Any]]) -> tuple[str, list[str]]:
+def fleet_outcome(rows: list[RobotRow]) -> tuple[str, list[str]]:
     """The fleet's verdict from its robots' (module docstring) and the robots that made it
     (those FAIL or without a verdict, or, for INCONCLUSIVE, those INCONCLUSIVE)."""
     failed = [r["robot"] for r in rows if r.get("verdict") not in (PASS, INCONCLUSIVE)]
@@ -54,11 +106,11 @@ def fleet_outcome(rows: list[dict[str, Any]]) -> tuple[str, list[str]]:
     return (INCONCLUSIVE, unsure) if unsure else (PASS, [])
 
 
-def fleet_summary(out: Path, codes: dict[str, int | None], facts: dict[str, Any]) -> dict[str, Any]:
+def fleet_summary(out: Path, codes: dict[str, int | None], facts: dict[str, Any]) -> FleetSummary:
     rows = [_robot(out / robot, code) for robot, code in codes.items()]
     p99 = [r["command_age_p99_us"] for r in rows if r.get("command_age_p99_us") is not None]
     outcome, robots = fleet_outcome(rows)
-    fleet: dict[str, Any] = {
+    fleet: FleetFigures = {
         "verdict": outcome,
         "verdict_robots": robots,
         "robots": len(rows),
@@ -71,15 +123,11 @@ def fleet_summary(out: Path, codes: dict[str, int | None], facts: dict[str, Any]
     return {**facts, "fleet": fleet, "per_robot": rows}
 
 
-def _ms(x: float | None) -> str:
-    return "-" if x is None else f"{x * 1e3:.2f}"
-
-
 def _pct(x: float | None) -> str:
     return "n/a" if x is None else f"{100.0 * x:.3f} %"
 
 
-def negative_reason(summary: dict[str, Any]) -> str:
+def negative_reason(summary: FleetSummary) -> str:
     """Why the fleet is not PASS, for its exit line: the robots that made its verdict, each with
     its first reason (a law's fault sentence names the law, the time and the input)."""
     f = summary["fleet"]
@@ -89,7 +137,7 @@ def negative_reason(summary: dict[str, Any]) -> str:
     return verdict_sentence(f).removeprefix("Verdict: ") + (f" {'; '.join(why)}" if why else "")
 
 
-def verdict_sentence(f: dict[str, Any]) -> str:
+def verdict_sentence(f: FleetFigures) -> str:
     """The fleet's verdict in one sentence, from its robots' (the table below it)."""
     names = ", ".join(f["verdict_robots"])
     if f["verdict"] == FAIL:
@@ -99,7 +147,7 @@ def verdict_sentence(f: dict[str, Any]) -> str:
     return f"Verdict: PASS (every robot of {f['robots']})."
 
 
-def markdown(summary: dict[str, Any]) -> str:
+def markdown(summary: FleetSummary) -> str:
     f = summary["fleet"]
     p99 = f["command_age_p99_us_max"]
     lines = [
@@ -117,8 +165,9 @@ def markdown(summary: dict[str, Any]) -> str:
     ]
     for r in summary["per_robot"]:
         lines.append(
-            f"| {r['robot']} | {r.get('verdict')} | {_ms(r.get('d_max_s'))} | "
-            f"{_ms(r.get('d_star_s'))} | {r.get('held')} | {r.get('command_age_p99_us')} |"
+            f"| {r['robot']} | {r.get('verdict')} | {ms_or(r.get('d_max_s'), '-', 2, '')} | "
+            f"{ms_or(r.get('d_star_s'), '-', 2, '')} | {r.get('held')} | "
+            f"{r.get('command_age_p99_us')} |"
         )
     why = [r for r in summary["per_robot"] if r.get("verdict") != "PASS" and r.get("reason")]
     if why:
@@ -127,7 +176,7 @@ def markdown(summary: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plot(summary: dict[str, Any], path: Path) -> None:
+def plot(summary: FleetSummary, path: Path) -> None:
     """D of each robot against its D*."""
     matplotlib.use("Agg")
     rows = summary["per_robot"]
@@ -145,7 +194,7 @@ def plot(summary: dict[str, Any], path: Path) -> None:
     plt.close(fig)
 
 
-def write(out: Path, codes: dict[str, int | None], facts: dict[str, Any]) -> dict[str, Any]:
+def write(out: Path, codes: dict[str, int | None], facts: dict[str, Any]) -> FleetSummary:
     summary = fleet_summary(out, codes, facts)
     (out / layout.FLEET_JSON).write_text(json.dumps(summary, indent=2) + "\n")
     (out / layout.FLEET_MD).write_text(markdown(summary))

@@ -28,10 +28,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
+from hil.folder.records import Metrics
 from hil.limits import ConstraintFigure
 from protocol.angles import wrap_angle
 
@@ -160,7 +161,7 @@ def sampling_effects(
     eps2: float = 0.0,
     ideal: Mapping[str, np.ndarray] | None = None,
     sliding: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
-) -> dict[str, Any]:
+) -> Metrics:
     """Every sampling-effect figure of one trace (trace.csv's columns as arrays: t, x, y, theta,
     v, omega, xd, yd, thetad, tau1, tau2). The bands use its v_tilde / w_tilde columns, else
     ``sliding`` (name -> (t, values), e.g. a run's recorded telemetry), else are None."""
@@ -170,7 +171,7 @@ def sampling_effects(
     # RMS over the last 10 % of the run (as summary.json's rms_position_error).
     tail = pos[t >= t[-1] - 0.1 * (t[-1] - t[0])]
     rms = float(np.sqrt(np.mean(tail**2))) if tail.size else math.nan
-    out: dict[str, Any] = {
+    out: Metrics = {
         "duration": float(t[-1] - t[0]) if t.size else 0.0,
         "samples": int(t.size),
         "tracking": {
@@ -180,7 +181,7 @@ def sampling_effects(
             "rms_position_error_last10": rms,
         },
     }
-    bands: dict[str, Any] = {}
+    bands: dict[str, dict[str, float] | None] = {}
     for name, eps in (("v_tilde", eps1), ("w_tilde", eps2)):
         t_s, col = t, trace.get(name)
         if col is None and sliding and name in sliding and len(sliding[name][0]) > 1:

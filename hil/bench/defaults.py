@@ -7,16 +7,15 @@ differ from the bundled file, never its initial condition, gains or reference.""
 from __future__ import annotations
 
 import tomllib
-from typing import Any
 
 from hil.bundled import bundled_path
-from hil.provenance import dumps_toml
+from hil.provenance import Toml, dumps_toml
 
 DEFAULT_DURATION = 10.0
 DEFAULT_SCENARIO = "paper_tracking"
 
 # Laid over the bundled scenario, table by table (a key here replaces the scenario's).
-RUN_DEFAULTS: dict[str, dict[str, Any]] = {
+RUN_DEFAULTS: Toml = {
     "run": {"duration": DEFAULT_DURATION},
     "realtime": {
         "rate": 500.0,

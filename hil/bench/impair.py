@@ -27,7 +27,8 @@ from hil.bench.settings import effective_can_table
 from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
 from hil.folder import layout
-from hil.scenario import load_scenario
+from hil.folder.records import ImpairFacts, RateLimit, RunExtra
+from hil.scenario import Scenario, load_scenario
 from protocol.can.codec import Cmd, frame_id
 
 NETNS_ENV = "HIL_IMPAIR_NETNS"  # the PID of the ``hil run`` that made this namespace
@@ -136,13 +137,16 @@ def ruleset(plan: Plan) -> str:
     return "\n".join([*lines, "  }", "}", ""])
 
 
-def plan_of(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
+def plan_of(
+    opts: Any, check_options: Callable[[Any], None], load: Callable[[], Scenario] | None = None
+) -> Plan | None:
     """The run's plan, or None when its scenario has no [impair] table; ``check_options``
-    (hil run's) first, so a bad option is reported as it always is."""
+    (hil run's) first, so a bad option is reported as it always is; ``load``: the scenario
+    file's parse, shared with the run."""
     if opts.scenario is None:
         return None
     check_options(opts)
-    scenario = load_scenario(resolve_scenario(opts.scenario))
+    scenario = load() if load is not None else load_scenario(resolve_scenario(opts.scenario))
     if scenario.impair is None:
         return None
     can = effective_can_table(scenario, opts.can_interface)
@@ -203,11 +207,13 @@ def _install(plan: Plan) -> None:
         _run(["tc", "qdisc", "add", "dev", "lo", "root", "tbf", *tbf])
 
 
-def enter(opts: Any, check_options: Callable[[Any], None]) -> Plan | None:
+def enter(
+    opts: Any, check_options: Callable[[Any], None], load: Callable[[], Scenario] | None = None
+) -> Plan | None:
     """Before ``hil run`` prepares anything: None without [impair]; else, the first time,
     re-execute this command in a fresh network namespace (never returns), and inside it install
     the impairment and return its plan. BadInputError (exit 2) when that cannot be done."""
-    plan = plan_of(opts, check_options)
+    plan = plan_of(opts, check_options, load)
     if plan is None:
         return None
     # Not yet in the namespace this very hil run made (a child inherits the variable, not the PID).
@@ -241,7 +247,7 @@ def _nft_counters() -> dict[str, int]:
     }
 
 
-def _tc_counters() -> dict[str, Any]:
+def _tc_counters() -> RateLimit:
     """The loopback's token bucket: packets sent, dropped, held over the limit."""
     data = json.loads(_run(["tc", "-s", "-j", "qdisc", "show", "dev", "lo"]))
     tbf = next((q for q in data if q.get("kind") == "tbf"), {})
@@ -255,12 +261,12 @@ def _tc_counters() -> dict[str, Any]:
     }
 
 
-def finish(plan: Plan | None, run_dir: Path) -> dict[str, Any]:
+def finish(plan: Plan | None, run_dir: Path) -> RunExtra:
     """summary.json's ``impair`` (the kernel's counters) and ``impair.nft``; {} without [impair]."""
     if plan is None:
         return {}
     (run_dir / layout.IMPAIR_RULES).write_text(ruleset(plan))
-    facts: dict[str, Any] = {
+    facts: ImpairFacts = {
         "config": dataclasses.asdict(plan.config),
         "namespace": "private (unshare --net), loopback only",
         "packets": plan.packets,

@@ -8,6 +8,7 @@ everything and writes the summary.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import random
@@ -15,6 +16,7 @@ import signal
 import socket
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from subprocess import STDOUT
@@ -51,6 +53,7 @@ from hil.provenance import dumps_toml
 from hil.scenario import (
     DURATION_MAX,
     RATE_MAX,
+    Scenario,
     build_loop,
     load_scenario,
     loads_scenario,
@@ -59,7 +62,7 @@ from hil.scenario import (
 from protocol.can.rx_queue import RxQueueDrops
 from protocol.hoplog import LAW_FAULT_EXIT
 from protocol.keys import is_valid_robot_id, observed_keys
-from protocol.settings import CMD_PATHS, TRIGGERS, RunSettings, period_s
+from protocol.settings import CMD_PATHS, SCHEDULING, TRIGGERS, RunSettings, period_s
 from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
 from runtime.zsession import open_session
@@ -140,7 +143,7 @@ def check_options(opts: RunOptions) -> None:
     if opts.trigger is not None:
         options.choice("--trigger", opts.trigger, TRIGGERS)
     if opts.scheduling is not None:
-        options.choice("--scheduling", opts.scheduling, ("fifo", "other"))
+        options.choice("--scheduling", opts.scheduling, SCHEDULING)
     options.optional_number("--rate", opts.rate, 0.1, RATE_MAX)
     options.optional_number("--duration", opts.duration, 0.0, DURATION_MAX, positive=True)
     options.number("--spin-us", opts.spin_us, 0.0, SPIN_US_MAX)
@@ -218,8 +221,11 @@ def _run_settings(
     return settings
 
 
-def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
-    """Resolve the scenario and the run's settings; write the folder's first files."""
+def prepare(
+    opts: RunOptions, load: Callable[[], Scenario] | None = None
+) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
+    """Resolve the scenario (``load``: the user's file, parsed once) and the run's settings;
+    write the folder's first files."""
     check_options(opts)  # every option before the scenario: no folder, no process yet
     if opts.secure and opts.cmd_path == "can":
         raise BadInputError("--secure guards the Zenoh command path; the CAN bus has no login")
@@ -236,7 +242,7 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
         scenario = with_law(loads_scenario(PAPER_TRACKING_TOML, run_dir), opts.law)
         scenario_path = run_dir / layout.SCENARIO
     else:
-        scenario = with_law(load_scenario(given), opts.law)
+        scenario = with_law(load() if load is not None else load_scenario(given), opts.law)
         scenario_path = given.resolve()
     rate, rate_name = _control_rate(opts, scenario)
     duration = opts.duration if opts.duration is not None else scenario.run.duration
@@ -340,10 +346,12 @@ def execute(opts: RunOptions) -> Recorded:
     finish it (:func:`hil.analysis.analyze.write_results`, which ``hil run`` calls next)."""
     # --lab: the recorder's lab host; [impair]: the run's own network namespace (either way
     # this command is executed again there).
-    impaired = bool(opts.lab) and impair.plan_of(opts, check_options) is not None
+    # the user's scenario file parsed once, when first needed (hil.scenario.load_scenario)
+    load = functools.cache(lambda: load_scenario(resolve_scenario(opts.scenario)))
+    impaired = bool(opts.lab) and impair.plan_of(opts, check_options, load) is not None
     placed = placement.enter(opts, impaired, impair.started_as_hil_run())
-    impairment = None if placed else impair.enter(opts, check_options)
-    scenario, settings, run_dir, info = prepare(opts)
+    impairment = None if placed else impair.enter(opts, check_options, load)
+    scenario, settings, run_dir, info = prepare(opts, load)
     sup = Supervisor()
     metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})

@@ -26,7 +26,7 @@ import time
 import zlib
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, TypedDict
 
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
@@ -348,10 +348,23 @@ def write_pose(writer: RecordingWriter, state_topic: str, log_time_ns: int, stat
     writer.write_payload(f"{base}/{TF}", log_time_ns, tf.encode(), t)
 
 
-def can_frame_record(msg: Any) -> dict[str, Any]:
+class CanFrameRecord(TypedDict, total=False):
+    """A CAN frame as the recording and the live view show it (schema ``hil.CanFrame``)."""
+
+    arbitration_id: int
+    data: str  # hex
+    dlc: int
+    is_remote_frame: bool
+    message: str  # the CANSimple message it decodes to
+    fields: dict[str, Any]  # that message's fields (protocol.can.codec.to_jsonable)
+    decode_reason: str  # or why it does not decode
+    decode_error: str
+
+
+def can_frame_record(msg: Any) -> CanFrameRecord:
     """A python-can message as the recording and the live view show it (schema
     ``hil.CanFrame``): its fields, and the CANSimple message it decodes to (or why not)."""
-    data: dict[str, Any] = {
+    data: CanFrameRecord = {
         "arbitration_id": msg.arbitration_id,
         "data": bytes(msg.data).hex(),
         "dlc": msg.dlc,

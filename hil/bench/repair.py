@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -22,7 +21,7 @@ from hil.errors import BadInputError
 from hil.folder import layout
 from hil.folder.hoplogs import read_columns
 from hil.folder.recording import RecordedMessage, is_complete, topic_values
-from hil.folder.records import Recorded, RunExtra
+from hil.folder.records import Recorded, Recovered, RunExtra
 from hil.scenario import build_loop, loads_scenario
 from plant_emulator.from_settings import sensor_of
 from plant_emulator.sensors import measure
@@ -81,7 +80,7 @@ def missing_states(run_dir: Path, recording: Path) -> list[RecordedMessage]:
     return out
 
 
-def repair(run_dir: str | Path) -> tuple[dict[str, Any], Recorded | None]:
+def repair(run_dir: str | Path) -> tuple[Recovered, Recorded | None]:
     """Repair a killed run's folder: what was done (empty ``repaired``: nothing to do) and,
     when trace.csv or summary.json is missing, the run as the analysis rebuilds them from (None
     otherwise). BadInputError when the folder is not a run folder (no settings, no hop logs)."""
@@ -89,7 +88,7 @@ def repair(run_dir: str | Path) -> tuple[dict[str, Any], Recorded | None]:
     if not is_run_folder(run_dir):
         raise BadInputError(f"{run_dir}: not a hil run folder (no run_settings.json or hop logs)")
     todo = needs_recovery(run_dir)
-    done: dict[str, Any] = {"folder": str(run_dir), "repaired": todo}
+    done: Recovered = {"folder": str(run_dir), "repaired": todo}
     if not todo:
         return done, None
     rec = run_dir / layout.RECORDING

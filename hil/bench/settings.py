@@ -15,6 +15,7 @@ import can.interfaces
 from controller_service.registry import law_path_for
 from hil.errors import BadInputError
 from hil.folder.replay import RunLatencies, jitter_samples_from
+from hil.provenance import Toml
 from plant_emulator.drive_plant import bench_drive_settings
 from protocol.settings import RunSettings
 
@@ -26,7 +27,7 @@ TABLES = ("limits", "initial", "disturbance", "faults")
 DESIGN_KEYS = ("s1", "s2", "mu1", "mu2", "k1", "k2")  # of the design context
 
 
-def effective_can_table(scenario: Any, interface: str | None = None) -> dict[str, Any]:
+def effective_can_table(scenario: Any, interface: str | None = None) -> Toml:
     """[can] as the run uses it. python-can's ``virtual`` bus is in-process only, so between
     the two processes it is replaced by ``zenoh_can`` (loopback, no kernel CAN needed)."""
     t = dataclasses.asdict(scenario.can)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 from types import SimpleNamespace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -21,22 +21,26 @@ from hil.bundled import resolve_scenario
 from hil.commands import app
 from hil.errors import BadInputError, NegativeVerdictError
 
+if TYPE_CHECKING:
+    from hil.provenance import Toml
 
-def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
+
+def _params(table: Toml, context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
     """The unified law's gains (Table 1 where not given, 'auto' resolved), whether it has the
     boundary layer, and the resolution's notes. The scenario's reader has checked every key
     and number of the table (controller_service.registry.check_table). The eta re-arm keeps eta
     in [0, 1] and z1, z2 in [-m, m], all the bound uses (docs/laws.md): the same certificate."""
     from controller_service.design import DesignError, resolve_auto
     from controller_service.registry import EPS_DEFAULT, TABLE1
+    from hil.law.facts import Law
 
-    law = table.get("law", "unified")
-    if law not in ("unified", "unified_boundary"):
+    law = Law.of(table)
+    if not law.has_certificate:
         raise BadInputError(
-            f"[controller] law = {law!r}: the certificate covers the unified laws only"
+            f"[controller] law = {law.name!r}: the certificate covers the unified laws only"
         )
-    boundary = law == "unified_boundary"
-    values: dict[str, Any] = {**TABLE1, **(EPS_DEFAULT if boundary else {})}
+    boundary = law.boundary_layer
+    values: Toml = {**TABLE1, **(EPS_DEFAULT if boundary else {})}
     values.update({k: v for k, v in table.items() if k in values})
     try:
         resolved = resolve_auto(values, context)

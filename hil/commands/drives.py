@@ -120,8 +120,9 @@ def drives_cmd(
     a second, a JSON summary at the end (docs/can.md)."""
     from hil.bench.drives import DrivesOptions, drives_settings, run_drives
     from hil.bench.live.launch import DrivesLive, check
+    from protocol.settings import SCHEDULING
 
-    if scheduling not in (None, "fifo", "other"):
+    if scheduling is not None and scheduling not in SCHEDULING:
         raise BadInputError("--scheduling must be fifo or other")
     if duration is not None and not duration > 0:
         raise BadInputError("--duration must be > 0")

@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from hil.commands import app
+
+if TYPE_CHECKING:
+    from hil.folder.records import Recovered
 
 
 @app.command("recover")
@@ -27,7 +30,7 @@ def recover_cmd(
     typer.echo(json.dumps(recover(run_dir), indent=2))
 
 
-def recover(run_dir: str | Path) -> dict[str, Any]:
+def recover(run_dir: str | Path) -> Recovered:
     """Make a killed run's folder whole; returns what was done (also written to recovered.json
     when there was something to do). BadInputError when the folder is not a run folder (no
     settings, no hop logs) or holds no sample to rebuild from."""

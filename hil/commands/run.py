@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -13,6 +13,9 @@ from hil import interrupts
 from hil.commands import app
 from hil.commands.new_law import LawOpt
 from hil.errors import NegativeVerdictError
+
+if TYPE_CHECKING:
+    from hil.folder.records import Summary
 
 # ``--live [PORT]`` and ``--live-host``, one spelling for every command that serves a live view
 # (run, drives, fleet; docs/live.md).
@@ -100,7 +103,7 @@ JsonOpt = Annotated[
 ]
 
 
-def _brief(summary: dict[str, Any], cmd_path: str) -> dict[str, Any]:
+def _brief(summary: Summary, cmd_path: str) -> dict[str, Any]:
     """The lines of summary.json that ``hil run`` prints."""
     t = summary.get("timing", {})
     v = summary.get("verdict") or {}
@@ -115,7 +118,7 @@ def _brief(summary: dict[str, Any], cmd_path: str) -> dict[str, Any]:
     }
 
 
-def _raise_on_negative(summary: dict[str, Any]) -> None:
+def _raise_on_negative(summary: Summary) -> None:
     """Exit with the run's verdict's code (hil.verdict.EXIT_CODE, through hil.cli): nothing
     for PASS, NegativeVerdictError for FAIL (1) or INCONCLUSIVE (4); a run stopped by an
     error of its own is a FAIL (hil.verdict.run_outcome)."""
@@ -129,7 +132,7 @@ def _raise_on_negative(summary: dict[str, Any]) -> None:
     raise NegativeVerdictError("; ".join(why) or "no reason recorded", outcome)
 
 
-def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
+def verdict_line(summary: Summary, report: str | None = None) -> str:
     """One plain line: the outcome, why, D against D* where there is a certificate, notes,
     and where to read more (the report, else the run folder)."""
     from hil.verdict import run_outcome, short_reason
@@ -158,15 +161,22 @@ def verdict_line(summary: dict[str, Any], report: str | None = None) -> str:
     return f"{line}; run folder: {run_dir}" if run_dir else line
 
 
-def _write_report(run_dir: Path, quiet: bool) -> dict[str, object]:
-    """The report of the finished run, as ``hil report RUN_DIR`` writes it."""
+def _write_report(recorded: Any, summary: Summary, quiet: bool) -> dict[str, object]:
+    """The report of the finished run, as ``hil report RUN_DIR`` writes it, from the run's
+    scenario and verdict as this process holds them (neither parsed nor judged again)."""
     from hil.analysis.report.build import build_report, write_report
     from hil.analysis.report.ideal import ideal_from_simulator
     from hil.folder import load_folder
+    from hil.folder.scenario_view import as_resolved
+    from hil.verdict import Verdict
 
     if not quiet:
         typer.echo("writing the report (and the ideal-trajectory simulation) ...", err=True)
-    rep = build_report(load_folder(run_dir, lazy=True), ideal=ideal_from_simulator)
+    run_dir = recorded.run_dir
+    folder = load_folder(run_dir, lazy=True)
+    folder.typed = as_resolved(recorded.scenario, folder.scenario)
+    judged = Verdict.from_dict(summary["verdict"]) if summary.get("verdict") else None
+    rep = build_report(folder, ideal=ideal_from_simulator, verdict=judged)
     paths = write_report(rep, run_dir)
     verdict = rep.data["verdict"]
     return {"html": str(paths["html"]), "ok": verdict["ok"], "reasons": verdict["reasons"]}
@@ -230,13 +240,13 @@ def run(
             run_latencies=latencies_from_run,
         )
     )
-    summary: dict[str, Any] = dict(write_results(recorded))
+    summary: Summary = write_results(recorded).copy()
     summary["run_dir"] = str(recorded.run_dir)
     brief = _brief(summary, cmd_path)
     run_dir = summary.get("run_dir")
     stopped = summary.get("interrupted") or interrupts.happened()
     if report and run_dir and not stopped and not summary.get("error"):
-        brief["report"] = _write_report(Path(run_dir), quiet)
+        brief["report"] = _write_report(recorded, summary, quiet)
     report_html = (brief.get("report") or {}).get("html")
     line = f"result: {verdict_line(summary, report_html)}"
     # One plain line ends the run (a negative exit prints its own reason, hil.cli, after

@@ -91,10 +91,10 @@ def _say_and_judge(result: Any, folder: Path, planned_s: float) -> None:
             f"at t = {s['duration']:.3f} s of {planned_s:g} s; wrote what was computed to "
             f"{folder} (no claim about the rest)"
         )
-    _line_and_verdict(folder, s)
+    _say_and_exit(folder, s)
 
 
-def _line_and_verdict(folder: Path, s: Any) -> None:
+def _say_and_exit(folder: Path, s: Any) -> None:
     """The simulation's line, then its verdict: the law's own failure or a state that became
     non-finite, else a broken limit of (2), exits 1."""
     from hil.verdict import law_ended

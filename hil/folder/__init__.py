@@ -20,7 +20,10 @@ from hil.errors import BadInputError
 from hil.folder import layout
 from hil.folder.jsonio import read_json_object, write_json
 from hil.folder.records import Summary
+from hil.folder.scenario_view import folder_scenario
 from hil.folder.trace_csv import TraceColumns, read_trace
+from hil.provenance import Toml
+from hil.scenario import Scenario
 
 
 @dataclass
@@ -32,10 +35,19 @@ class RunFolder:
     #: its series never sit in memory together (:class:`hil.folder.trace_csv.TraceColumns`).
     trace: Mapping[str, np.ndarray]
     summary: Summary
-    scenario: dict[str, Any]
+    scenario: Toml  # scenario.resolved.toml's tables
     recordings: list[Path] = field(default_factory=list)
     #: What more than one part of the report reads (the recorded telemetry), read once.
     cache: dict[str, Any] = field(default_factory=dict, repr=False)
+    #: ``scenario`` parsed (:func:`typed_scenario`): handed down by a process that holds it
+    #: already (``hil run``), else parsed on first use, once.
+    typed: Scenario | None = field(default=None, repr=False)
+
+    def typed_scenario(self) -> Scenario:
+        """The folder's resolved scenario as a :class:`hil.scenario.Scenario`, parsed once."""
+        if self.typed is None:
+            self.typed = folder_scenario(self.scenario)
+        return self.typed
 
     @property
     def kind(self) -> str:
@@ -51,7 +63,7 @@ def has_hop_logs(path: Path) -> bool:
     return (path / layout.PLANT_LOG).is_file() or (path / layout.CONTROLLER_LOG).is_file()
 
 
-def read_scenario(path: Path) -> dict[str, Any]:
+def read_scenario(path: Path) -> Toml:
     """The folder's resolved scenario; BadInputError when it is missing or not TOML."""
     f = path / layout.SCENARIO_RESOLVED
     try:

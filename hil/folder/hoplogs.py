@@ -62,20 +62,26 @@ def column(buf: array | None, name: str, dtype: Any) -> np.ndarray:
     return a
 
 
+#: A service's own JSON in its hop log (header meta, counters, footer): written by
+#: controller_service and plant_emulator under protocol's log version, read key by key
+#: (docs/architecture.md, "Free-form records").
+ServiceFacts = dict[str, Any]
+
+
 @dataclass
 class LogHead:
     """A hop log's non-row parts: meta (header, merged with later meta records), the newest
     counters, the footer, and whether the service exited cleanly."""
 
-    meta: dict[str, Any] = field(default_factory=dict)
-    counters: dict[str, Any] = field(default_factory=dict)
-    final: dict[str, Any] | None = None
+    meta: ServiceFacts = field(default_factory=dict)
+    counters: ServiceFacts = field(default_factory=dict)
+    final: ServiceFacts | None = None
     complete: bool = False
     truncated: bool = False
     restarts: int = 0
 
     @property
-    def info(self) -> dict[str, Any]:
+    def info(self) -> ServiceFacts:
         return self.final if self.final is not None else self.counters
 
 

@@ -42,7 +42,11 @@ def write_json(path: Path, obj: Any) -> Path:
     return path
 
 
-def read_json_object(path: Path) -> dict[str, Any]:
+#: A JSON object read from a run folder's file, before the reader checks it into its record.
+JsonObject = dict[str, Any]
+
+
+def read_json_object(path: Path) -> JsonObject:
     """A JSON object from ``path``; BadInputError naming the file otherwise."""
     try:
         data = json.loads(path.read_text())

@@ -32,6 +32,7 @@ from controller_service.laws.guard import (
 )
 from controller_service.registry import BUILTIN_LAWS, resolved_controller_table
 from hil.errors import BadInputError
+from hil.provenance import Toml
 
 # Two robots that differ in every state field, so a law that mixes robots up is seen.
 _PROBE_OFFSETS = (0.0, 0.1)
@@ -47,7 +48,7 @@ class PerRobot:
         self.probe_fault = probe_fault  # the law failed on one robot before the loop
         self.name = str(getattr(law, "name", type(law).__name__))
 
-    def resolved_table(self) -> dict[str, Any]:
+    def resolved_table(self) -> Toml:
         return resolved_controller_table(self.law)
 
     def initial_memory(self, n: int | None = None, z1: Any = 0.0, z2: Any = 0.0) -> Any:

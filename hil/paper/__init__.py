@@ -15,7 +15,7 @@ import multiprocessing
 import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -23,6 +23,7 @@ from hil import interrupts
 from hil.bundled import bundled_dir
 from hil.folder import layout, write_summary
 from hil.folder.jsonio import write_json
+from hil.limits import LIMIT_NAMES, PEAK_KEYS
 from hil.paper import figures as fg
 from hil.provenance import dumps_toml
 from hil.scenario import load_scenario
@@ -76,14 +77,22 @@ def velocity_jolt(
 # The summary's figures in each row of the table, after the run, its law and its scenario.
 _ROW_KEYS = (
     *("duration", "ts", "plant_step", "final_position_error", "final_heading_error"),
-    *("rms_position_error", "max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2"),
+    *("rms_position_error", *PEAK_KEYS.values()),
     "violations",
 )
 
 
-def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
+class PaperCheck(TypedDict):
+    """One check of the paper's claims (table.md's and table.json's ``checks``)."""
+
+    check: str
+    passed: bool | None  # None: not judged (--quick)
+    measured: str
+
+
+def checks(results: dict[str, SimResult], quick: bool) -> list[PaperCheck]:
     """The checks of the paper's claims on its runs (convergence checks skipped when quick)."""
-    out: list[dict[str, Any]] = []
+    out: list[PaperCheck] = []
 
     def add(name: str, ok: bool | None, measured: str) -> None:
         out.append({"check": name, "passed": ok, "measured": measured})
@@ -130,7 +139,7 @@ def checks(results: dict[str, SimResult], quick: bool) -> list[dict[str, Any]]:
     return out
 
 
-def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note: str) -> str:
+def _markdown(rows: list[dict[str, Any]], check_rows: list[PaperCheck], note: str) -> str:
     head = (
         "| run | law | final pos. err (m) | final heading err (rad) | rms pos. err, last 10% (m) "
         "| max abs v | max abs omega | max abs tau1 | max abs tau2 | violations v/omega/tau1/tau2 |"
@@ -153,10 +162,10 @@ def _markdown(rows: list[dict[str, Any]], check_rows: list[dict[str, Any]], note
     return "\n".join(lines) + "\n"
 
 
-# The unit of each signal drawn against its limit of (2), and the name of that limit.
-_SIGNALS = dict(
-    v=("m/s", "phi1"), omega=("rad/s", "phi2"), tau1=("N m", "varpi1"), tau2=("N m", "varpi2")
-)
+# The unit of each signal drawn against its limit of (2) (the figures' own), and the name of
+# that limit.
+_UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "N m", "tau2": "N m"}
+_SIGNALS = {k: (unit, LIMIT_NAMES[k]) for k, unit in _UNITS.items()}
 
 
 def _signals(out: Path, first: int, stem: str, title: str, runs: fg.Runs, cols: str) -> list[Path]:

@@ -13,7 +13,8 @@ from typing import Any
 
 from controller_service.certificate import certify, critical_age
 from hil.folder.records import Certificate
-from hil.folder.scenario_view import UNIFIED_LAWS, ScenarioView
+from hil.folder.scenario_view import ScenarioView
+from hil.law.facts import Law
 
 
 @dataclass(frozen=True)
@@ -31,7 +32,7 @@ class CertificateFigures:
 
 
 def certificate(sv: ScenarioView, ts: float, delay: float) -> CertificateFigures:
-    if sv.law not in UNIFIED_LAWS:
+    if not Law(sv.law).has_certificate:
         return CertificateFigures(ts, delay, None, None, None, "none (not a unified law)", {})
     source = "controller_service.certificate"
     params = SimpleNamespace(**sv.controller)
@@ -64,7 +65,7 @@ def scenario_certificate(sv: ScenarioView) -> Certificate:
     out = no_certificate(
         None, d, "scenario: D = Ts + worst delay (an upper bound of the simulated ages)"
     )
-    if sv.law not in UNIFIED_LAWS:
+    if not Law(sv.law).has_certificate:
         out["source"] = "none (not a unified law)"
         return out
     params = SimpleNamespace(**sv.controller)

@@ -34,9 +34,11 @@ from controller_service.from_settings import initial_memory
 from controller_service.laws.base import ReferenceSample, RobotState
 from controller_service.laws.guard import LawFault, LawFaultError, checked_update
 from controller_service.references import sample_array
+from hil.folder.records import Summary
 from hil.folder.replay import jitter_samples_from
-from hil.folder.scenario_view import view
+from hil.folder.scenario_view import as_resolved, view_of
 from hil.law.batch import batch_update, for_batch
+from hil.provenance import Toml
 from hil.scenario import SCHEMA_VERSION, Scenario, build_loop, resolved_dict
 from hil.sim import compiled
 from hil.sim.certificate import scenario_certificate
@@ -73,10 +75,10 @@ class SimResult:
     """One simulated loop: the trace (one row per control sample) and its summary."""
 
     scenario: Scenario
-    resolved: dict[str, Any]
+    resolved: Toml  # scenario.resolved.toml's tables
     columns: list[str]
     trace: np.ndarray
-    summary: dict[str, Any]
+    summary: Summary
     interrupted: bool = False
 
     def column(self, name: str) -> np.ndarray:
@@ -88,9 +90,9 @@ class BatchResult:
     """N simulated loops: a summary per robot and the traces of the recorded robots."""
 
     scenario: Scenario
-    resolved: dict[str, Any]
+    resolved: Toml  # scenario.resolved.toml's tables
     variations: list[RobotVariation]
-    summaries: list[dict[str, Any]]
+    summaries: list[Summary]
     columns: list[str]
     traces: dict[int, np.ndarray] = field(default_factory=dict)
     interrupted: bool = False
@@ -113,7 +115,7 @@ def _replay(scenario: Scenario) -> np.ndarray | None:
 
 def _summaries(
     scenario: Scenario, run: _Loops, samples: int, per_robot: tuple[Any, ...]
-) -> list[dict[str, Any]]:
+) -> list[Summary]:
     """Each robot's summary.json from ``run.ext`` (peaks and violation counts of (2)) and
     ``per_robot`` (final position and heading errors, RMS position error, commands dropped,
     timing, disturbance and sensor seeds): floats for one robot, arrays for a batch. Built by
@@ -299,7 +301,7 @@ def simulate(
     summary = _summaries(scenario, run, len(rows), per_robot)[0]
     resolved = resolved_dict(scenario, controller, context)
     # The bound at the scenario's timing, once, here: the report reads it, as it reads a run's.
-    summary["certificate"] = scenario_certificate(view(resolved))
+    summary["certificate"] = scenario_certificate(view_of(as_resolved(scenario, resolved)))
     return SimResult(scenario, resolved, columns, trace, summary, run.interrupted)
 
 

@@ -14,9 +14,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from hil.provenance import Toml
 from hil.scenario import Scenario
 from hil.sweep.executors import InProcess
-from hil.sweep.grid import SweepGrid, SweepPoint
+from hil.sweep.grid import SweepGrid, SweepPoint, SweepRow
 from hil.sweep.runner import RECORD_LIMIT, SweepOutcome, scenario_at, simulate_points
 
 # Points per chunk: the batch path's cost per robot falls with the batch's size (numpy's
@@ -39,10 +40,10 @@ class Chunk:
 @dataclass
 class ChunkResult:
     index: int
-    rows: list[dict[str, Any]] = field(default_factory=list)
+    rows: list[SweepRow] = field(default_factory=list)
     robot_steps: int = 0
     interrupted: bool = False
-    resolved: dict[str, Any] = field(default_factory=dict)
+    resolved: Toml = field(default_factory=dict)
 
 
 def chunks_of(
@@ -74,8 +75,8 @@ def run_chunked(
     executor: Any = None,
     chunk_size: int = DEFAULT_CHUNK,
     progress: Callable[[int, int], None] | None = None,
-    on_chunk: Callable[[list[dict[str, Any]]], None] | None = None,
-) -> tuple[SweepOutcome, dict[str, Any]]:
+    on_chunk: Callable[[list[SweepRow]], None] | None = None,
+) -> tuple[SweepOutcome, Toml]:
     """The sweep on ``executor`` (default: in this process), as :func:`run_sweep` returns it:
     the rows in the grid's order (Ts groups longest first); ``groups_done`` counts the Ts
     groups whose every chunk finished; ``progress(chunks done, chunks in all)``. Ctrl-C keeps

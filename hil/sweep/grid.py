@@ -11,8 +11,9 @@ import itertools
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
+from hil.folder.records import LawFaultRecord
 from hil.verdict import FAIL, PASS
 
 # Defaults when the scenario has no [sweep] table: Ts from 0.5 ms to 50 ms around the paper's
@@ -22,6 +23,38 @@ DEFAULT_TS: tuple[float, ...] = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05)
 DEFAULT_DELAY: tuple[float, ...] = (0.0, 0.002, 0.01, 0.05)
 DEFAULT_JITTER: tuple[float, ...] = (0.0,)
 DEFAULT_SEEDS = 1
+
+
+class SweepRow(TypedDict, total=False):
+    """One point of a sweep as sweep.csv writes it (hil.sweep.runner.point_row, in this order;
+    ``law_fault_record``: the first law fault's whole record, taken out before it is written)."""
+
+    ts: float
+    delay: float
+    jitter: float
+    seed: int
+    age: float
+    final_position_error: float
+    rms_position_error: float
+    max_abs_v: float
+    max_abs_omega: float
+    max_abs_tau1: float
+    max_abs_tau2: float
+    overshoot_v: float
+    overshoot_omega: float
+    band_v: float | None
+    band_w: float | None
+    violations: int
+    violation: bool
+    nonfinite_steps: int
+    law_fault: str | None
+    v_bound: float | None
+    w_bound: float | None
+    certified: bool | None
+    within_bound: bool | None
+    commands_dropped: int
+    complete: bool
+    law_fault_record: LawFaultRecord
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import csv
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -12,8 +12,10 @@ import numpy as np
 
 from hil.analysis.report import figures as fg
 from hil.folder.jsonio import jsonable, write_json
+from hil.law.facts import Law
 from hil.sweep.grid import (
     SweepGrid,
+    SweepRow,
     aggregate,
     break_points,
     break_sentence,
@@ -41,7 +43,7 @@ FIGURES: tuple[tuple[str, str, str, float | None], ...] = (
 
 
 def _series(
-    rows: Sequence[dict[str, Any]], metric: str, how: str, along: str, grid: SweepGrid
+    rows: Sequence[SweepRow], metric: str, how: str, along: str, grid: SweepGrid
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     agg = aggregate(rows, metric, how)
     if along == "ts":
@@ -57,7 +59,7 @@ def _series(
     return np.asarray(x, dtype=float), series
 
 
-def sweep_figures(rows: Sequence[dict[str, Any]], grid: SweepGrid, bp: dict[str, Any]):
+def sweep_figures(rows: Sequence[SweepRow], grid: SweepGrid, bp: dict[str, Any]):
     figs = []
     first = bp.get("first")
     for metric, ylabel, how, hline in FIGURES:
@@ -74,7 +76,7 @@ def sweep_figures(rows: Sequence[dict[str, Any]], grid: SweepGrid, bp: dict[str,
     return figs
 
 
-def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
+def write_csv(path: Path, rows: Sequence[SweepRow]) -> None:
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(CSV_COLUMNS)
@@ -84,7 +86,7 @@ def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
 
 def write_outputs(
     out: Path,
-    rows: list[dict[str, Any]],
+    rows: list[SweepRow],
     grid: SweepGrid,
     meta: dict[str, Any],
 ) -> dict[str, Any]:
@@ -117,7 +119,7 @@ def write_outputs(
 
 
 def _first_record(
-    records: Sequence[dict[str, Any]], first: dict[str, Any] | None
+    records: Sequence[SweepRow], first: Mapping[str, Any] | None
 ) -> dict[str, Any] | None:
     """The law fault record (controller_service.laws.guard.LawFault) of the first faulted
     point, None when the law never failed."""
@@ -128,12 +130,12 @@ def _first_record(
     return records[0][LAW_FAULT_RECORD] if records else None
 
 
-def certificate_sentence(rows: Sequence[dict[str, Any]], law: Any) -> str:
+def certificate_sentence(rows: Sequence[SweepRow], law: Any) -> str:
     """What the certificate says over the loops run, from their ``certified`` column (the
     results table's "certificate holds"): the points where it does not guarantee (2), listed
     per delay (and jitter), never a "from" that the table may contradict (the certificate is
     not monotone in Ts at a fixed delay, nor in the delay at a fixed Ts)."""
-    if law not in ("unified", "unified_boundary"):
+    if not Law(str(law)).has_certificate:
         return "The certificate covers the unified laws only: not evaluated for this law."
     points: dict[tuple[float, float, float], Any] = {}
     for r in rows:

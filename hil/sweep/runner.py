@@ -19,13 +19,15 @@ import numpy as np
 
 from controller_service.laws.guard import LawFault
 from hil.analysis import trace_metrics
+from hil.folder.records import Summary
 from hil.folder.scenario_view import view
 from hil.limits import LIMIT_REL_TOL
+from hil.provenance import Toml
 from hil.scenario import Scenario, build_loop, resolved_dict, scenario_dict
 from hil.sim import BatchResult, RobotVariation, simulate_batch
 from hil.sim.certificate import certificate
 from hil.sim.core import Progress
-from hil.sweep.grid import SweepGrid, SweepPoint
+from hil.sweep.grid import SweepGrid, SweepPoint, SweepRow
 
 RECORD_LIMIT = 64
 SWEEP_JSON = "sweep.json"  # holds the first law fault's whole record (hil.sweep.outputs)
@@ -35,7 +37,7 @@ ProgressFn = Callable[[float, int, int], None]  # (ts, samples done, samples in 
 
 @dataclass
 class SweepOutcome:
-    rows: list[dict[str, Any]] = field(default_factory=list)
+    rows: list[SweepRow] = field(default_factory=list)
     interrupted: bool = False
     groups_done: int = 0
     robot_steps: int = 0
@@ -56,13 +58,13 @@ def _band(trace: np.ndarray, columns: list[str], name: str, eps: float) -> float
 
 def point_row(
     point: SweepPoint,
-    summary: dict[str, Any],
+    summary: Summary,
     cert: dict[str, Any],
     limits: Any,
     band_v: float | None,
     band_w: float | None,
     complete: bool,
-) -> dict[str, Any]:
+) -> SweepRow:
     max_v = float(summary["max_abs_v"])
     max_w = float(summary["max_abs_omega"])
     n_viol = sum(int(v) for v in summary.get("violations", {}).values())
@@ -110,7 +112,7 @@ def worst_age(point: SweepPoint, jitter_kind: str) -> float:
 
 def simulate_points(
     sc: Scenario, points: Sequence[SweepPoint], record: bool, progress: Progress | None = None
-) -> tuple[list[dict[str, Any]], BatchResult]:
+) -> tuple[list[SweepRow], BatchResult]:
     """One batch of ``points`` (one Ts, the scenario ``sc`` at it) and their rows, each with the
     certificate of the design at the point's worst age (the resolved controller table has auto
     lam/rho filled in) and, where ``record`` kept the traces, the quasi-sliding band."""
@@ -144,11 +146,11 @@ def run_sweep(
     grid: SweepGrid,
     duration: float,
     progress: ProgressFn | None = None,
-    on_group: Callable[[list[dict[str, Any]]], None] | None = None,
-) -> tuple[SweepOutcome, dict[str, Any]]:
+    on_group: Callable[[list[SweepRow]], None] | None = None,
+) -> tuple[SweepOutcome, Toml]:
     """All groups of the grid; returns the outcome and the resolved scenario (provenance)."""
     outcome = SweepOutcome()
-    resolved: dict[str, Any] = {}
+    resolved: Toml = {}
     try:
         for ts, points in grid.by_ts(scenario.timing.seed):
             report = None if progress is None else functools.partial(progress, ts)

@@ -10,18 +10,21 @@ its row reports the worst loop found (same columns as :func:`hil.sweep.runner.po
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
 from controller_service.laws.guard import LawFault, LawFaultError
+from hil.folder.records import Summary
 from hil.folder.scenario_view import view
+from hil.limits import PEAK_KEYS
+from hil.provenance import Toml
 from hil.scenario import Scenario, build_loop, resolved_dict
 from hil.sim.adversary.loop import initial_states, scenario_schedule
 from hil.sim.adversary.search import worst_disturbance
 from hil.sim.certificate import certificate
-from hil.sweep.grid import SweepGrid
+from hil.sweep.grid import SweepGrid, SweepRow
 from hil.sweep.runner import LAW_FAULT_RECORD, SweepOutcome, point_row, scenario_at, worst_age
 
 POPULATION = 64
@@ -29,10 +32,9 @@ ROUNDS = 3
 SPREAD = 0.05  # m, rad, m/s, rad/s around the scenario's initial state
 
 
-def _summary(best: Any) -> dict[str, Any]:
-    peaks = ("max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2")
+def _summary(best: Any) -> Summary:
     return {
-        **{k: best.peaks[k] for k in peaks},
+        **{k: best.peaks[k] for k in PEAK_KEYS.values()},
         "final_position_error": best.peaks["max_late_error"],
         "rms_position_error": float("nan"),
         "violations": {"worst": int(best.broke)},
@@ -40,11 +42,10 @@ def _summary(best: Any) -> dict[str, Any]:
     }
 
 
-def _faulted_row(p: Any, fault: LawFault, cert: dict[str, Any], limits: Any) -> dict[str, Any]:
+def _faulted_row(p: Any, fault: LawFault, cert: dict[str, Any], limits: Any) -> SweepRow:
     """The row of a point whose search stopped at a law fault: no peaks, the fault."""
     nan = float("nan")
-    peaks = ("max_abs_v", "max_abs_omega", "max_abs_tau1", "max_abs_tau2")
-    summary = {**dict.fromkeys(peaks, nan), "final_position_error": nan}
+    summary = {**dict.fromkeys(PEAK_KEYS.values(), nan), "final_position_error": nan}
     summary |= {"rms_position_error": nan, "violations": {}, "commands_dropped": 0}
     summary["law_fault"] = fault.to_dict()
     row = point_row(p, summary, cert, limits, None, None, True)
@@ -58,8 +59,8 @@ def run_worst_sweep(
     grid: SweepGrid,
     duration: float,
     progress: Callable[[float, int, int], None] | None = None,
-    on_group: Callable[[list[dict[str, Any]]], None] | None = None,
-) -> tuple[SweepOutcome, dict[str, Any]]:
+    on_group: Callable[[list[SweepRow]], None] | None = None,
+) -> tuple[SweepOutcome, Toml]:
     """:func:`hil.sweep.runner.run_sweep` with the worst disturbance searched at every point."""
     outcome = SweepOutcome()
     loop = build_loop(scenario)
@@ -96,7 +97,7 @@ def run_worst_sweep(
     return outcome, resolved
 
 
-def worst_at_break(rows: list[dict[str, Any]], first: dict[str, Any] | None) -> str | None:
+def worst_at_break(rows: list[SweepRow], first: Mapping[str, Any] | None) -> str | None:
     """The disturbance that broke the limit at the sweep's break point, in words."""
     if first is None:
         return None

@@ -6,6 +6,7 @@ older reader."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -14,6 +15,7 @@ from controller_service.laws.guard import LawFault
 from hil.errors import BadInputError
 from hil.folder import layout
 from hil.folder.jsonio import read_json_object, write_json
+from hil.folder.records import LawFaultRecord
 from protocol.versions import MARGIN_SCHEMA_VERSION
 
 
@@ -53,7 +55,7 @@ class MarginRecord:
     elapsed_s: float = 0.0
     probes: tuple[MarginProbe, ...] = field(default_factory=tuple)
     # the law failed in a loop (controller_service.laws.guard.LawFault.to_dict()): no k*
-    law_fault: dict[str, Any] | None = None
+    law_fault: LawFaultRecord | None = None
     schema_version: int = MARGIN_SCHEMA_VERSION
 
     @property
@@ -67,7 +69,7 @@ class MarginRecord:
         return {**dataclasses.asdict(self), "conservatism": self.conservatism}
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> MarginRecord:
+    def from_dict(cls, data: Mapping[str, Any]) -> MarginRecord:
         names = {f.name for f in dataclasses.fields(cls)}
         values = {k: v for k, v in data.items() if k in names}
         probe_names = {f.name for f in dataclasses.fields(MarginProbe)}

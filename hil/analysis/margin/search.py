@@ -20,12 +20,11 @@ import numpy as np
 
 from controller_service.certificate import critical_age
 from controller_service.laws.guard import LawFaultError
-from controller_service.registry import BUILTIN_LAWS
 from hil.analysis.margin.record import MarginProbe, MarginRecord
 from hil.analysis.margin.timing import BaseTiming, scaled
 from hil.errors import BadInputError
-from hil.folder.scenario_view import UNIFIED_LAWS
 from hil.law.batch import array_problem
+from hil.law.facts import Law
 from hil.scenario import Scenario, build_loop
 from hil.sim.adversary.loop import initial_states, run_loops
 from hil.sim.adversary.search import LIMIT_NAMES, scores, worst_disturbance
@@ -137,7 +136,7 @@ def find_margin(
     controller, _ref, context = loop
     params = getattr(controller, "params", None)  # D*: the certificate's, for a unified law
     d_star = None
-    if params is not None and str(scenario.controller.get("law", "unified")) in UNIFIED_LAWS:
+    if params is not None and Law.of(scenario.controller).has_certificate:
         ini = scenario.initial
         d_star = critical_age(params, context, params.eps1 is not None, v0=ini.v, w0=ini.omega)
     return MarginRecord(
@@ -166,13 +165,13 @@ def _takes_arrays(scenario: Scenario, loop: tuple[Any, Any, Any], seeds: int) ->
     """The batch path runs the law on arrays: a law written for floats only is refused by name
     (BadInputError) before any probe; a law that fails even on one robot raises its
     LawFaultError here (a fault of the law, at t = 0)."""
-    law = str(scenario.controller.get("law", "unified"))
-    if law in BUILTIN_LAWS:
+    law = Law.of(scenario.controller)
+    if law.takes_arrays:
         return
     controller, reference, _ = loop
     problem = array_problem(controller, scenario, reference)
     if problem is not None:
         raise BadInputError(
-            f"[controller] law {law!r} failed on the batch path (numpy arrays of {seeds} "
+            f"[controller] law {law.name!r} failed on the batch path (numpy arrays of {seeds} "
             f"robots): {problem}"
         )

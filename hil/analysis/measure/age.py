@@ -13,11 +13,11 @@ largest age: max over j of a_(j+1) - s_j, the last step before each next landing
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from hil.analysis.measure.stats import PERCENTILES, empty_summary, summary_from_quantiles
+from hil.folder.records import Percentiles
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,7 @@ def segments(
     return AgeSegments(land, end, samp)
 
 
-def age_summary(seg: AgeSegments, g0: int, h: int) -> dict[str, Any]:
+def age_summary(seg: AgeSegments, g0: int, h: int) -> Percentiles:
     """count, p50/p90/p99/p999, max, mean (µs) of the age at every plant step g0 + i h."""
     if len(seg) == 0 or h <= 0:
         return empty_summary()

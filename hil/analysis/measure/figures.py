@@ -23,7 +23,16 @@ from hil.analysis.measure.logs import RunLogs
 from hil.analysis.measure.stalls import Stamped, Stretches, find_stalls
 from hil.analysis.measure.stats import summarize_ns
 from hil.folder.rates import ratio
-from hil.folder.records import Certificate, Summary
+from hil.folder.records import (
+    Certificate,
+    HostLoad,
+    Messages,
+    Percentiles,
+    StreamCounts,
+    Summary,
+    TickPhase,
+    Timing,
+)
 from hil.folder.scenario_view import BoundInputs
 from hil.verdict import control_slot
 from protocol.can.codec import MAX_NODE_ID
@@ -38,8 +47,9 @@ from protocol.hoplog import (
     CmdPath,
     RxVerdict,
 )
+from protocol.settings import CMD_PATHS
 
-PATHS = ("zenoh", "can")
+PATHS = CMD_PATHS
 _NODES = MAX_NODE_ID + 1  # the node part of a frame key (_frame_keys)
 LANDINGS = (ApplyOutcome.LANDED, ApplyOutcome.BURST)  # apply outcomes that put a command in force
 # A torque frame dropped by the drives' own socket was sent at most this long before the read
@@ -51,18 +61,22 @@ BUS_FLIGHT_NS = 2_000_000
 SILENT_PERIODS = 2
 
 
+#: The measurement's per-sample series (numpy arrays) and the applied path's name.
+Series = dict[str, "np.ndarray | str"]
+
+
 @dataclass
 class Measurement:
     """The one result: the contract's ``timing``, ``messages`` and ``certificate`` objects, and
     the per-sample series that plots and latency replay read."""
 
-    timing: dict[str, Any] = field(default_factory=dict)
-    messages: dict[str, Any] = field(default_factory=dict)
+    timing: Timing = field(default_factory=lambda: Timing())
+    messages: Messages = field(default_factory=dict)
     certificate: Certificate | None = None
-    series: dict[str, Any] = field(default_factory=dict)
+    series: Series = field(default_factory=dict)
     window_ns: tuple[int, int] = (0, 0)
     # the bench's host over the window (hil.analysis.measure.host)
-    host: dict[str, Any] | None = None
+    host: HostLoad | None = None
     epoch_ns: int | None = None  # the run's time origin (trace.csv's t = 0)
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -83,7 +97,7 @@ class Measurement:
     def from_saved(cls, summary: Summary, arrays: dict[str, np.ndarray]) -> Measurement:
         """The measurement as a folder holds it: summary.json's objects and the saved series
         (:meth:`arrays`), nothing recomputed."""
-        series: dict[str, Any] = {}
+        series: Series = {}
         for key, value in arrays.items():
             name, _, part = key.partition(".")
             if part == "start":
@@ -281,7 +295,7 @@ class _Run:
             "outcome": ap["outcome"][m],
         }
 
-    def host_over(self, lo: int, hi: int) -> dict[str, Any] | None:
+    def host_over(self, lo: int, hi: int) -> HostLoad | None:
         """The bench's host over [lo, hi] (hil.analysis.measure.host), None without a host log."""
         meta = self.logs.host.meta if self.logs.host is not None else {}
         return host_figures(self.logs["host"], meta, lo, hi) if "host" in self.logs.tables else None
@@ -559,7 +573,7 @@ _PLANT_SLOTS = ("plant_deadline_misses", "plant_late_samples", "plant_skipped_sl
 
 def _missed_slots(
     keys: tuple[str | None, ...], late: np.ndarray, skipped: np.ndarray, period: int
-) -> dict[str, Any]:
+) -> Timing:
     """Missed slots: every slot whose deadline passed without its wake-up within one period
     (the late wake-ups) plus the slots never run (skipped), over every slot of the window."""
     late_n = int((late >= period).sum())
@@ -570,11 +584,11 @@ def _missed_slots(
     return {k: v for k, v in zip(keys, figures, strict=True) if k is not None}
 
 
-def _tick_phase(r: _Run) -> dict[str, Any]:
+def _tick_phase(r: _Run) -> TickPhase:
     """Where the periodic ticks fell after the sample: the rule, and for "auto" the phase
     learnt and what it was learnt from (controller_service.tick_phase), in µs."""
     cm = r.logs.cmeta
-    out: dict[str, Any] = {"rule": str(cm.get("tick_phase") or "half"), "phase_us": r.period / 2e3}
+    out: TickPhase = {"rule": str(cm.get("tick_phase") or "half"), "phase_us": r.period / 2e3}
     if cm.get("tick_phase_phase_ns") is not None:
         us = {"phase_ns": "phase_us", "arrival_q_ns": "arrival_p99_us", "path_q_ns": "path_p99_us"}
         out.update({v: int(cm[f"tick_phase_{k}"]) / 1e3 for k, v in us.items()})
@@ -584,7 +598,7 @@ def _tick_phase(r: _Run) -> dict[str, Any]:
     return out
 
 
-def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
+def _wakeups(r: _Run, timing: Timing, series: Series) -> None:
     """Wake-up figures where the trigger mode measures them; absent (never 0) elsewhere."""
     t = r.ticks
     win = _in(t["deadline_ns"], r.w0, r.w1)
@@ -613,14 +627,14 @@ def _wakeups(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
     timing["plant_sample_to_send"] = summarize_ns(s["send_ns"] - s["sample_ns"])
 
 
-def _relatable(summary: dict[str, Any], ambiguous: int) -> dict[str, Any]:
+def _relatable(summary: Percentiles, ambiguous: int) -> Percentiles:
     """Mark a CAN figure fed by frames the logs could match to more than one send."""
     if ambiguous:
         summary["not_relatable"] = int(ambiguous)
     return summary
 
 
-def _hops(r: _Run, timing: dict[str, Any]) -> None:
+def _hops(r: _Run, timing: Timing) -> None:
     t = r.ticks
     fresh = (t["state_seq"] >= 0) & ((t["flags"] & TICK_NO_SEND) == 0) & (t["state_recv_ns"] > 0)
     fresh &= _in(t["state_sample_ns"], r.w0, r.w1)
@@ -647,7 +661,7 @@ def _hops(r: _Run, timing: dict[str, Any]) -> None:
     )
 
 
-def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
+def _paths(r: _Run, timing: Timing, series: Series) -> None:
     judged_until = r.w1 - r.settle
     s = r.samples
     judged = s["sample_ns"] <= judged_until
@@ -702,7 +716,7 @@ def _paths(r: _Run, timing: dict[str, Any], series: dict[str, Any]) -> None:
         series["applied_path"] = path
 
 
-def _messages(r: _Run) -> dict[str, Any]:
+def _messages(r: _Run) -> Messages:
     s, t = r.samples, r.ticks
     state = _stream_counts(s["seq"], r.logs["state_rx"]["seq"])
     state["injected_drops"] = int(((s["flags"] & SAMPLE_DROPPED) != 0).sum())
@@ -715,7 +729,7 @@ def _messages(r: _Run) -> dict[str, Any]:
     state["lost_not_injected_t_s"] = (
         [(int(when[0]) - r.epoch) / 1e9, (int(when[-1]) - r.epoch) / 1e9] if when.size else None
     )
-    out: dict[str, Any] = {"state": state}
+    out: Messages = {"state": state}
     zsent = (t["zenoh_send_ns"] > 0) & (t["cmd_seq"] >= 0)
     # Commands count while the plant still listens: sent up to 2 Ts + delay + jitter before
     # its last sample (later ones may land after it stopped: "sent_after_window", not lost).
@@ -756,7 +770,7 @@ def _can_window(r: _Run) -> tuple[np.ndarray, np.ndarray, int]:
     return ids[in_window], mine, int((last_put > end).sum())
 
 
-def _can_messages(r: _Run) -> dict[str, Any]:
+def _can_messages(r: _Run) -> StreamCounts:
     """Per command (every wheel's frame of one cycle) and per frame, with a per-wheel split;
     lifecycle zeros apart."""
     tx, c = r.logs["can_tx"], r._can
@@ -809,7 +823,7 @@ def _can_messages(r: _Run) -> dict[str, Any]:
 
 def _bench_losses(
     r: _Run, mine: np.ndarray, sent_cmds: np.ndarray, frames_lost: int
-) -> dict[str, Any]:
+) -> StreamCounts:
     """Whose the window's lost frames were: the drives' own receiving socket's (the bench's, its
     queue full: ``frames_lost_by_bench``, of the ``frames_dropped_by_bench_socket`` it counted,
     any frame; None where the bus has no socket to count on), a [faults] injection's, never put
@@ -873,7 +887,7 @@ def _in_windows(stamps: np.ndarray, windows: list[tuple[int, int]]) -> np.ndarra
     return inside
 
 
-def _bench_shares(r: _Run, windows: list[tuple[int, int]], timing: dict[str, Any]) -> None:
+def _bench_shares(r: _Run, windows: list[tuple[int, int]], timing: Timing) -> None:
     """How much of the missed slots and of the samples without a command fell inside the
     bench's stalls (the verdict does not lay them on the system under test)."""
     if not windows:
@@ -888,9 +902,7 @@ def _bench_shares(r: _Run, windows: list[tuple[int, int]], timing: dict[str, Any
         timing["samples_without_command_in_bench_stalls"] = int(_in_windows(without, windows).sum())
 
 
-def _certificate(
-    r: _Run, b: BoundInputs | None, series: dict[str, Any], timing: dict[str, Any]
-) -> Certificate:
+def _certificate(r: _Run, b: BoundInputs | None, series: Series, timing: Timing) -> Certificate:
     """The sampled-data certificate at the measured D (for a law with the bound; for any other
     law D, D* None), with every stall counted and owned. ``held`` is True only if the bound
     holds for every matching of CAN frames the logs allow (at the upper bound of D), False if

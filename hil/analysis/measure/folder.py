@@ -10,23 +10,24 @@ from __future__ import annotations
 import contextlib
 import tomllib
 from pathlib import Path
-from typing import Any
 
 from hil.analysis.measure.figures import Measurement, measure
 from hil.analysis.measure.logs import RunLogs, load_folder_logs, load_recording_logs
 from hil.folder import RunFolder, layout, read_series, write_series
 from hil.folder.recording import read_attachments
-from hil.folder.scenario_view import bound_inputs
+from hil.folder.scenario_view import bound_inputs, bound_inputs_of, view_of
+from hil.provenance import Toml
+from hil.scenario import Scenario
 
 
-def resolved_scenario(folder: Path) -> dict[str, Any] | None:
+def resolved_scenario(folder: Path) -> Toml | None:
     try:
         return tomllib.loads((folder / layout.SCENARIO_RESOLVED).read_text())
     except (OSError, ValueError):
         return None
 
 
-def measure_logs(logs: RunLogs, resolved: dict[str, Any] | None) -> Measurement:
+def measure_logs(logs: RunLogs, resolved: Toml | None) -> Measurement:
     return measure(logs, bound_inputs(resolved) if resolved is not None else None)
 
 
@@ -39,12 +40,18 @@ def measure_folder(folder: str | Path) -> Measurement | None:
     return measure_logs(logs, resolved_scenario(folder))
 
 
-def measure_and_save(folder: Path, logs: RunLogs | None = None) -> Measurement | None:
-    """Measure the folder's hop logs (``logs`` when already read) and save the series."""
+def measure_and_save(
+    folder: Path, logs: RunLogs | None = None, scenario: Scenario | None = None
+) -> Measurement | None:
+    """Measure the folder's hop logs (``logs`` when already read) and save the series;
+    ``scenario``: the folder's resolved scenario as the caller holds it (else read and parsed)."""
     logs = logs if logs is not None else load_folder_logs(folder)
     if logs is None or logs.plant is None:
         return None
-    m = measure_logs(logs, resolved_scenario(folder))
+    if scenario is not None:
+        m = measure(logs, bound_inputs_of(view_of(scenario)))
+    else:
+        m = measure_logs(logs, resolved_scenario(folder))
     # A read-only folder is still read; it is measured again next time.
     with contextlib.suppress(OSError):
         write_series(folder, m.arrays())

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from hil.folder import layout
+from hil.folder.records import HostLoad
 
 PROCESSES = ("plant", "controller", "recorder")
 INTERVAL_S = layout.HOST_INTERVAL_S  # hil run samples the host this often (hil.bench.host_load)
@@ -24,7 +25,7 @@ RECORDER_SILENT_NS = int(2.5 * INTERVAL_S * 1e9)
 
 def host_figures(
     h: dict[str, np.ndarray], meta: dict[str, Any], lo: int, hi: int
-) -> dict[str, Any] | None:
+) -> HostLoad | None:
     t = h.get("time_ns")
     if t is None or t.size < 2:
         return None
@@ -38,7 +39,7 @@ def host_figures(
     if d_total <= 0 or seconds <= 0:
         return None
     tick = float(meta.get("clock_ticks_per_s") or 100)
-    out: dict[str, Any] = {
+    out: HostLoad = {
         "from_s": seconds,
         "busy_pct": 100.0 * (1.0 - int(h["cpu_idle"][b] - h["cpu_idle"][a]) / d_total),
         "steal_pct": 100.0 * int(h["cpu_steal"][b] - h["cpu_steal"][a]) / d_total,

@@ -12,13 +12,12 @@ from __future__ import annotations
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from hil.analysis.measure.clocks import to_plant_clock
 from hil.folder import layout
-from hil.folder.hoplogs import COLUMNS, LogHead, column, read_columns
+from hil.folder.hoplogs import COLUMNS, LogHead, ServiceFacts, column, read_columns
 from hil.folder.recording import read_attachments
 from protocol.hoplog import (
     CONTROLLER_TABLES,
@@ -85,19 +84,19 @@ class RunLogs:
         return self.tables[table]
 
     @property
-    def cmeta(self) -> dict[str, Any]:
+    def cmeta(self) -> ServiceFacts:
         return self.controller.meta if self.controller is not None else {}
 
     @property
-    def pmeta(self) -> dict[str, Any]:
+    def pmeta(self) -> ServiceFacts:
         return self.plant.meta if self.plant is not None else {}
 
     @property
-    def cinfo(self) -> dict[str, Any]:
+    def cinfo(self) -> ServiceFacts:
         return self.controller.info if self.controller is not None else {}
 
     @property
-    def pinfo(self) -> dict[str, Any]:
+    def pinfo(self) -> ServiceFacts:
         return self.plant.info if self.plant is not None else {}
 
     @property

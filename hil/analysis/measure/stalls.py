@@ -87,12 +87,13 @@ from __future__ import annotations
 import textwrap
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
 from hil.analysis.measure.age import AgeSegments
 from hil.analysis.measure.host import PROCESSES
+from hil.folder.records import HostLoad, Stall, StallEvidence
 
 STALL_LIMIT = 20  # stalls listed, worst first
 HOST_BUSY_PCT = 90.0  # starved: the CPUs this busy over the stall ...
@@ -400,7 +401,7 @@ class _Run(Protocol):
     bench_drop_stamps: Stamped  # per drop seen: when, and how many (``hop``)
     host_gaps: Stretches  # where the recorder's host sampler logged nothing
 
-    def host_over(self, lo: int, hi: int) -> dict[str, Any] | None: ...
+    def host_over(self, lo: int, hi: int) -> HostLoad | None: ...
 
 
 @dataclass
@@ -439,7 +440,7 @@ def excursions(seg: AgeSegments, threshold_ns: int) -> Excursions:
 
 @dataclass
 class StallReport:
-    listed: list[dict[str, Any]] = field(default_factory=list)
+    listed: list[Stall] = field(default_factory=list)
     count: int = 0
     stalled_time_ns: int = 0
     by_owner: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -488,7 +489,7 @@ def _between(sorted_stamps: np.ndarray, lo: int, hi: int) -> slice:
     return slice(a, b)
 
 
-def starved(host: dict[str, Any] | None, stalled_ns: int) -> bool:
+def starved(host: HostLoad | None, stalled_ns: int) -> bool:
     """The controller starved of CPU by the host over a stall in which it was stalled for
     ``stalled_ns`` (module docstring): runnable but waiting for a CPU for at least half of it
     while the host's CPUs were nearly all busy, at least half a CPU with processes that are not
@@ -513,10 +514,10 @@ def starved(host: dict[str, Any] | None, stalled_ns: int) -> bool:
 
 def evidence_of(
     r: _Run, lo: int, hi: int, age_ns: int, threshold_ns: int
-) -> tuple[Evidence, dict[str, Any]]:
+) -> tuple[Evidence, StallEvidence]:
     """The evidence over the stall [lo, hi] (module docstring), and the figures behind it as
     the stall's ``evidence`` lists them (seconds, counts)."""
-    ev: dict[str, Any] = {}
+    ev: StallEvidence = {}
     C = r.controller_stalls.clip(lo, hi)
     P = r.plant_stalls.clip(lo, hi)
     both = C.intersect(P).total()
@@ -556,7 +557,7 @@ def evidence_of(
     for key, value in (("controller", e.controller_ns), ("plant", e.plant_ns),
                        ("both", e.both_ns), ("bench", e.bench_ns)):  # fmt: skip
         if value:
-            ev[f"{key}_stalled_s"] = value / 1e9
+            ev[f"{key}_stalled_s"] = value / 1e9  # type: ignore[literal-required]
     if is_starved:
         ev["controller_starved"] = True
     if dropped:
@@ -566,7 +567,7 @@ def evidence_of(
 
 def cause_of(
     r: _Run, lo: int, hi: int, age_ns: int, threshold_ns: int
-) -> tuple[str, str, dict[str, Any]]:
+) -> tuple[str, str, StallEvidence]:
     """(cause, owner, evidence) of the stall over [lo, hi] whose peak age is ``age_ns``: the
     first row of the table that matches (module docstring)."""
     e, ev = evidence_of(r, lo, hi, age_ns, threshold_ns)
@@ -575,7 +576,7 @@ def cause_of(
     return cause, owner, ev
 
 
-def _lateness(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> None:
+def _lateness(r: _Run, lo: int, hi: int, ev: StallEvidence) -> None:
     """The worst wake-up lateness of either service there, and its longest silence (as the
     evidence lists them)."""
     w, s = r.wake_sorted, r.samples
@@ -621,7 +622,7 @@ def _gaps(stamps: np.ndarray, delivered: np.ndarray, lo: int, hi: int) -> int:
     return int(span.max())
 
 
-def _lost(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> tuple[int, int]:
+def _lost(r: _Run, lo: int, hi: int, ev: StallEvidence) -> tuple[int, int]:
     """The longest stretches of lost States and commands (the system's), with their counts."""
     s = r.samples
     sl = _between(s["sample_ns"], lo, hi)
@@ -649,7 +650,7 @@ def _lost(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> tuple[int, int]:
     return states_ns, commands_ns
 
 
-def _wire(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> int:
+def _wire(r: _Run, lo: int, hi: int, ev: StallEvidence) -> int:
     """The longest time a State or command of the stall spent on the wire: its hop less the
     time either end was stalled in it (a message held up by a stalled sender, stamped and then
     stopped before it left, or by a stalled receiver is that end's stall, not the wire's)."""
@@ -667,7 +668,7 @@ def _wire(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> int:
     return worst
 
 
-def _burst(r: _Run, lo: int, hi: int, ev: dict[str, Any]) -> int:
+def _burst(r: _Run, lo: int, hi: int, ev: StallEvidence) -> int:
     b = r.burst_sorted
     sl = _between(b.stamps, lo, hi)
     if sl.stop <= sl.start:

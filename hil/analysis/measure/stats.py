@@ -4,9 +4,12 @@ definition), so none can exceed the maximum and nothing is rounded to a histogra
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, cast
 
 import numpy as np
+
+from hil.folder.records import Percentiles
 
 PERCENTILES = (("p50_us", 50.0), ("p90_us", 90.0), ("p99_us", 99.0), ("p999_us", 99.9))
 
@@ -19,11 +22,12 @@ def exact_percentile(values: Any, q: float) -> float | None:
     return float(np.percentile(v, q, method="inverted_cdf")) if v.size else None
 
 
-def empty_summary() -> dict[str, Any]:
-    return {"count": 0, **dict.fromkeys([name for name, _ in PERCENTILES] + ["max_us", "mean_us"])}
+def empty_summary() -> Percentiles:
+    none = dict.fromkeys([name for name, _ in PERCENTILES] + ["max_us", "mean_us"])
+    return cast(Percentiles, {"count": 0, **none})
 
 
-def summarize_ns(values_ns: Any) -> dict[str, Any]:
+def summarize_ns(values_ns: Any) -> Percentiles:
     """count, p50/p90/p99/p999/max/mean in microseconds of durations given in nanoseconds."""
     v = np.asarray(values_ns, dtype=np.int64).ravel()
     if v.size == 0:
@@ -38,10 +42,10 @@ def summarize_ns(values_ns: Any) -> dict[str, Any]:
 
 
 def summary_from_quantiles(
-    count: int, quantile_ns: dict[str, Any], max_ns: int, mean_ns: float
-) -> dict[str, Any]:
+    count: int, quantile_ns: Mapping[str, float], max_ns: int, mean_ns: float
+) -> Percentiles:
     """The same object from percentiles computed elsewhere (the command age's; ``count`` > 0)."""
-    out: dict[str, Any] = {"count": int(count)}
+    out: Percentiles = {"count": int(count)}
     out.update({name: int(quantile_ns[name]) / 1000.0 for name, _ in PERCENTILES})
     out["max_us"] = int(max_ns) / 1000.0
     out["mean_us"] = float(mean_ns) / 1000.0

@@ -21,13 +21,14 @@ import numpy as np
 
 from hil.analysis.measure.age import AgeSegments, age_summary
 from hil.analysis.measure.stats import summarize_ns
+from hil.folder.records import Percentiles
 
 MINUTE_NS = 60_000_000_000
 
 
 def lateness_windows(
     t_s: np.ndarray, late_ns: np.ndarray, origin_s: float, width_s: float, n: int
-) -> list[dict[str, Any]]:
+) -> list[Percentiles]:
     """Wake-up lateness summary (µs, :func:`hil.analysis.measure.stats.summarize_ns`) per window,
     each tick in the window of its deadline ``t_s`` (seconds on the same clock as ``origin_s``)."""
     t = np.asarray(t_s, dtype=float)
@@ -38,7 +39,7 @@ def lateness_windows(
 
 def age_windows(
     seg: AgeSegments, grid0_ns: int, step_ns: int, origin_ns: int, width_ns: int, n: int
-) -> list[dict[str, Any]]:
+) -> list[Percentiles]:
     """Command-age summary (µs) per window on the plant's step grid ``grid0_ns``/``step_ns``
     (module docstring), with ``max_at_ns``: the end of the largest peak's segment (None in a
     window without a segment). Segments ending outside the windows go to the first or last."""

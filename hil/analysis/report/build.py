@@ -37,6 +37,14 @@ from hil.folder import layout
 from hil.folder.clocks import read_track
 from hil.folder.jsonio import write_json
 from hil.folder.layout import REPORT_HTML, REPORT_JSON, REPORT_MD
+from hil.folder.records import (
+    Certificate,
+    DrivesBlock,
+    Metrics,
+    ReportData,
+    ScenarioBlock,
+    Summary,
+)
 from hil.folder.scenario_view import ScenarioView, view
 from hil.limits import ConstraintFigure
 from hil.sim.certificate import no_certificate, scenario_certificate
@@ -47,9 +55,11 @@ from hil.verdict import (
     LawEnd,
     RunFacts,
     Thresholds,
+    Verdict,
     judge,
 )
 from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit, motor_torques
+from protocol.settings import CMD_PATHS
 from protocol.versions import REPORT_SCHEMA_VERSION
 
 FIGURE_PREFIX = "report_"
@@ -62,15 +72,15 @@ _GEOMETRY = [f.name for f in fields(RobotGeometry)]
 
 
 class Report(NamedTuple):
-    data: dict[str, Any]
+    data: ReportData
     figures: list[fg.Figure]
 
 
-def drives_block(folder: Folder, sv: ScenarioView) -> tuple[dict[str, Any], np.ndarray | None]:
+def drives_block(folder: Folder, sv: ScenarioView) -> tuple[DrivesBlock, np.ndarray | None]:
     """The motor torques (N·m) the wheel mapping of [robot] makes of the applied tau1, tau2
     (protocol.can.wheel_mapping.motor_torques), the drives' states and the rejection counts."""
     robot = folder.scenario.get("robot") or {}
-    out: dict[str, Any] = {"geometry": None, "note": ""}
+    out: DrivesBlock = {"geometry": None, "note": ""}
     q = None
     try:
         g = RobotGeometry(**{k: float(robot[k]) for k in _GEOMETRY if k in robot})
@@ -104,9 +114,12 @@ def build_report(
     *,
     ideal: IdealProvider | None = None,
     thresholds: Thresholds = DEFAULT_THRESHOLDS,
+    verdict: Verdict | None = None,
 ) -> Report:
-    """The report of one run or simulation folder: metrics, certificate, verdict, figures."""
-    sv = view(folder.scenario)
+    """The report of one run or simulation folder: metrics, certificate, verdict, figures;
+    ``verdict``: the one the analysis judged already (``hil run``'s summary.json), not judged
+    again."""
+    sv = view(folder.scenario, parsed=folder.typed_scenario())
     m = measured(folder)  # first: its peak (the hop logs' columns) before the trace's
     tr = folder.trace
     kind = "run" if m is not None else folder.kind
@@ -125,9 +138,10 @@ def build_report(
     timing, messages = (m.timing, m.messages or {}) if m is not None else (None, None)
     violations, facts = folder.summary.get("violations") or {}, RunFacts.of(folder.summary)
     ended = LawEnd.of(folder.summary)  # the law's fault, the controller's end, a NaN state
-    verdict = judge(
-        metrics["constraints"], violations, cert, timing, messages, facts, thresholds, ended
-    )
+    if verdict is None:
+        verdict = judge(
+            metrics["constraints"], violations, cert, timing, messages, facts, thresholds, ended
+        )
     margin = margin_record.read(folder.path)  # hil margin's record, None if it never ran
     drives, q = drives_block(folder, sv)
     figs, sections = _figures(folder, sv, cert, m, (ideal_traj, sliding), q, drives, metrics)
@@ -157,7 +171,7 @@ def build_report(
     return Report(data, figs)
 
 
-def _add_topology(folder: Path, data: dict[str, Any], figs: list[fg.Figure]) -> None:
+def _add_topology(folder: Path, data: ReportData, figs: list[fg.Figure]) -> None:
     """The "Where it ran" section of a run across lab hosts (``topology.json``, with report.json's
     ``topology``) and the clock figure, when the run has estimates; nothing for one host."""
     try:
@@ -187,8 +201,8 @@ def _add_topology(folder: Path, data: dict[str, Any], figs: list[fg.Figure]) -> 
 
 
 def _folder_certificate(
-    sv: ScenarioView, m: Measurement | None, kind: str, summary: dict[str, Any]
-) -> dict[str, Any]:
+    sv: ScenarioView, m: Measurement | None, kind: str, summary: Summary
+) -> Certificate:
     """A run's certificate (a copy of summary.json's: the report never edits it), with where it
     came from and the design conditions failing at its D; else the simulation's."""
     if m is not None and m.certificate is None:
@@ -227,10 +241,10 @@ def _recorded_sliding(folder: Folder, tr: Columns, m: Measurement | None) -> Sli
 def _metrics(
     folder: Folder,
     sv: ScenarioView,
-    cert: dict[str, Any],
+    cert: Certificate,
     ideal: tuple[Columns | None, str],
     sliding: Sliding | None,
-) -> dict[str, Any]:
+) -> Metrics:
     """The sampling-effect metrics of the trace (against the ideal simulation and its note),
     with summary.json's peaks folded in."""
     tr = folder.trace
@@ -251,7 +265,7 @@ def _metrics(
     return metrics
 
 
-def _scenario_block(sv: ScenarioView) -> dict[str, Any]:
+def _scenario_block(sv: ScenarioView) -> ScenarioBlock:
     out = {k: getattr(sv, k) for k in ("law", "ts", "delay", "jitter", "jitter_kind")}
     return {**out, "limits": asdict(sv.limits), "eps1": sv.eps1, "eps2": sv.eps2}
 
@@ -273,12 +287,12 @@ def _ideal_note(ideal_traj: Columns | None, tr: Columns) -> str:
 def _figures(
     folder: Folder,
     sv: ScenarioView,
-    cert: dict[str, Any],
+    cert: Certificate,
     m: Measurement | None,
     extra: tuple[Columns | None, Sliding | None],
     q: np.ndarray | None,
-    drives: dict[str, Any],
-    metrics: dict[str, Any],
+    drives: DrivesBlock,
+    metrics: Metrics,
 ) -> tuple[list[fg.Figure], list[str]]:
     """Every figure, and the report's sections in order (see hil.analysis.report.content);
     ``extra``: the ideal trajectory and the recorded sliding variables, where there are."""
@@ -316,7 +330,7 @@ def _figures(
 
 
 def _state_figures(
-    tr: Columns, sv: ScenarioView, cert: dict[str, Any], ideal_traj: Columns | None
+    tr: Columns, sv: ScenarioView, cert: Certificate, ideal_traj: Columns | None
 ) -> list[fg.Figure]:
     """The trajectory and the velocities against (2) and their bounds."""
     traj = [("reference", tr["xd"], tr["yd"]), ("robot", tr["x"], tr["y"])]
@@ -346,7 +360,7 @@ def _tracking_error_figure(tr: Columns, ideal_traj: Columns | None) -> fg.Figure
     return fg.signal_with_limits("tracking_error", "Tracking error (4)", "error", t, err_series)
 
 
-def _run_figures(m: Measurement, cert: dict[str, Any]) -> list[fg.Figure]:
+def _run_figures(m: Measurement, cert: Certificate) -> list[fg.Figure]:
     """Latency histograms/CDFs, wake-up lateness and command age over time, all from the
     measurement's per-sample series."""
     figs = []
@@ -368,7 +382,7 @@ def _run_figures(m: Measurement, cert: dict[str, Any]) -> list[fg.Figure]:
     if late:
         figs.append(fg.over_time("lateness", "Wake-up lateness over time", "µs", late))
     env = {}
-    for p in sorted(("zenoh", "can"), key=lambda p: p != applied):  # the applied path first
+    for p in sorted(CMD_PATHS, key=lambda p: p != applied):  # the applied path first
         seg = m.series.get(f"command_age_{p}")
         if seg is not None and len(seg) and m.epoch_ns is not None:
             env[f"{p} ({'applied' if p == applied else 'shadow'})"] = envelope(seg, m.epoch_ns)

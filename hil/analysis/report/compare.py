@@ -22,6 +22,7 @@ from hil.analysis.report import figures as fg
 from hil.folder import RunFolder as Folder
 from hil.folder.jsonio import write_json
 from hil.folder.scenario_view import view
+from hil.units import ms_or
 from hil.verdict import LIMIT_NAMES, short_reason
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
@@ -99,15 +100,11 @@ def _outcome(folder: Folder) -> str:
     return "limits held" if held else ("limits broken" if held is False else "n/a")
 
 
-def _ms(x: Any) -> str:
-    return f"{x * 1e3:.3f} ms" if isinstance(x, int | float) and math.isfinite(x) else "n/a"
-
-
 def _age(folder: Folder) -> str:
     c = folder.summary.get("certificate")
     if not isinstance(c, dict):
         return "D n/a"
-    return f"D = {_ms(c.get('d_max_s'))} of D* = {_ms(c.get('d_star_s'))}"
+    return f"D = {ms_or(c.get('d_max_s'), 'n/a')} of D* = {ms_or(c.get('d_star_s'), 'n/a')}"
 
 
 def _why(folder: Folder) -> str | None:

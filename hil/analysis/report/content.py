@@ -11,17 +11,31 @@ import html
 import math
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from hil.analysis.margin.record import MarginRecord, summary_lines
 from hil.analysis.report.figures import Figure
-from hil.verdict import EXIT_CODE, UNITS, LawEnd
+from hil.folder.records import (
+    AgeAnswer,
+    Headline,
+    LimitsAnswer,
+    ReportData,
+    SamplesAnswer,
+    StallsAnswer,
+    Summary,
+    TickPhase,
+    Timing,
+    Topology,
+)
+from hil.limits import SIGNALS, SYMBOLS, UNITS
+from hil.units import ms
+from hil.verdict import EXIT_CODE, LawEnd
+from protocol.settings import CMD_PATHS
 
-#: Each signal of (2) and its limit's symbol (its unit is hil.verdict's).
-LIMITS = {"v": "φ1", "omega": "φ2", "tau1": "ϖ1", "tau2": "ϖ2"}
-SYMBOL = {"v": "v", "omega": "ω", "tau1": "τ1", "tau2": "τ2"}
+#: Each signal of (2) and its limit's symbol, the signal's own (hil.limits.LIMITS).
+LIMITS, SYMBOL = SYMBOLS, SIGNALS
 TOP_STALLS = 3
 
 NORMALIZED = (
@@ -121,7 +135,7 @@ _STALL_RULE = ("stall threshold max(3 Ts, D*/2) [ms]", "stall threshold 3 Ts (no
 
 
 def _pct_rows(
-    timing: dict[str, Any], names: list[tuple[str, str]], always: tuple[str, ...] = ()
+    timing: Timing, names: list[tuple[str, str]], always: tuple[str, ...] = ()
 ) -> list[list[Any]]:
     """Percentile rows; a figure in ``always`` that the run did not measure (its trigger mode
     has none) shows as n/a, never as 0."""
@@ -137,12 +151,10 @@ def _pct_rows(
 
 def _per_path(prefix: str, applied: str | None, shadow: str) -> list[tuple[str, str]]:
     """The figure ``prefix + path`` of each path, labelled applied or ``shadow``."""
-    return [
-        (prefix + p, f"{p} ({'applied' if p == applied else shadow})") for p in ("zenoh", "can")
-    ]
+    return [(prefix + p, f"{p} ({'applied' if p == applied else shadow})") for p in CMD_PATHS]
 
 
-def sections(data: dict[str, Any]) -> Iterator[Section]:
+def sections(data: ReportData) -> Iterator[Section]:
     for sid in data["sections"]:
         title, build = SECTIONS[sid]
         s = Section(sid, title)
@@ -150,18 +162,14 @@ def sections(data: dict[str, Any]) -> Iterator[Section]:
         yield s
 
 
-def _headline(s: Section, data: dict[str, Any]) -> None:
+def _headline(s: Section, data: ReportData) -> None:
     s.items([line["text"] for line in data["headline"]["lines"]])
 
 
-def ms(seconds: float) -> str:
-    return f"{seconds * 1e3:.3f} ms"
-
-
-def _limits(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, Any], str]:
+def _limits(data: ReportData, summary: Summary) -> tuple[LimitsAnswer, str]:
     cons = data["metrics"]["constraints"]
     violations = summary.get("violations") or {}
-    out: dict[str, Any] = {"held": data["verdict"]["limits"] == "held"}
+    out: LimitsAnswer = {"held": data["verdict"]["limits"] == "held"}
     parts, broken = [], []
     for key, name in LIMITS.items():
         unit, c, sym = UNITS[key], cons[key], SYMBOL[key]
@@ -188,11 +196,12 @@ def _limits(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, An
     return out, f"Limits of (2) {state}, {every}: " + "; ".join(parts) + "."
 
 
-def _command_age(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
+def _command_age(data: ReportData) -> tuple[AgeAnswer, str]:
     cert = data["certificate"]
     d, ds, margin = cert.get("d_max_s"), cert.get("d_star_s"), cert.get("margin_s")
     path = cert.get("path")
-    out = {k: cert.get(k) for k in ("path", "d_max_s", "d_star_s", "margin_s", "held", "source")}
+    keys = ("path", "d_max_s", "d_star_s", "margin_s", "held", "source")
+    out = cast(AgeAnswer, {k: cert.get(k) for k in keys})
     if data["kind"] != "run" or path is None:
         what = f"Command age D ≤ Ts + worst delay = {ms(d)} (the scenario's timing)"
     elif d is None:
@@ -211,13 +220,13 @@ def _command_age(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
     return out, f"{what} against D* = {ms(ds)}: margin {ms(margin)}, {state}."
 
 
-def _stalls(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
+def _stalls(data: ReportData) -> tuple[StallsAnswer, str]:
     cert = data["certificate"]
     stalls = list(cert.get("stalls") or [])
     thr = cert.get("stall_threshold_s")
     top = [{k: s.get(k) for k in ("t_s", "age_s", "cause", "owner")} for s in stalls[:TOP_STALLS]]
     total, stalled = cert.get("stall_count", len(stalls)), cert.get("stalled_time_s")
-    out = {"threshold_s": thr, "listed": len(stalls), "count": total, "top": top}
+    out: StallsAnswer = {"threshold_s": thr, "listed": len(stalls), "count": total, "top": top}
     out["stalled_time_s"] = stalled
     if data["kind"] != "run" or cert.get("path") is None:
         return out, "Stalls: not measured in a simulation (every command lands after its delay)."
@@ -239,7 +248,7 @@ def _stalls(data: dict[str, Any]) -> tuple[dict[str, Any], str]:
     return out, f"Stalls {which} (top {len(top)} of {total} above {ms(thr)}{spent}): {items}."
 
 
-def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, Any], str]:
+def _samples(data: ReportData, summary: Summary) -> tuple[SamplesAnswer, str]:
     timing = (data.get("timing") or {}).get("summary") or {}
     n, judged = timing.get("samples_without_command"), timing.get("samples_judged")
     rate = timing.get("samples_without_command_rate")
@@ -256,7 +265,7 @@ def _samples(data: dict[str, Any], summary: dict[str, Any]) -> tuple[dict[str, A
     return {"count": 0, "judged": None, "rate": 0.0}, text
 
 
-def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
+def headline(data: ReportData, summary: Summary) -> Headline:
     """The four answers and the verdict, as data and as the report's first lines: the limits of
     (2) and each peak's share of its limit; D against D* and the margin; the stalls closest to
     D* (when, how long, why); the plant samples that never got a command. Every number is one
@@ -279,7 +288,7 @@ def headline(data: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _terms(s: Section, data: dict[str, Any]) -> None:
+def _terms(s: Section, data: ReportData) -> None:
     for text in (NORMALIZED, WHAT_2, WHAT_4, WHAT_CERT):
         s.p(text)
 
@@ -288,7 +297,7 @@ def _na(value: Any) -> Any:
     return NOT_MEASURED if value is None else value
 
 
-def _verdict(s: Section, data: dict[str, Any]) -> None:
+def _verdict(s: Section, data: ReportData) -> None:
     v = data["verdict"]
     s.title = f"Verdict: {data['headline']['verdict']}"
     s.table(
@@ -330,7 +339,7 @@ def _verdict(s: Section, data: dict[str, Any]) -> None:
     )
 
 
-def _certificate(s: Section, data: dict[str, Any]) -> None:
+def _certificate(s: Section, data: ReportData) -> None:
     c = data["certificate"]
     s.p(f"Source: {c.get('source')}.")
     s.table(
@@ -375,7 +384,7 @@ def _certificate(s: Section, data: dict[str, Any]) -> None:
     s.figure("command_age")
 
 
-def _trajectory(s: Section, data: dict[str, Any]) -> None:
+def _trajectory(s: Section, data: ReportData) -> None:
     s.p(
         "Robot (wide light-blue solid line), reference (black, dashed) and, when computed, the "
         "ideal trajectory (dark-green dots): the same scenario simulated at Ts/10 with no "
@@ -391,7 +400,7 @@ TITLES = {"v": "Linear velocity v", "omega": "Angular velocity ω"}
 TITLES |= {k: f"{SYMBOL[k]} of model (1) (normalized)" for k in ("tau1", "tau2")}
 
 
-def _constraints(s: Section, data: dict[str, Any], text: str, names: tuple[str, ...]) -> None:
+def _constraints(s: Section, data: ReportData, text: str, names: tuple[str, ...]) -> None:
     """``text``, then the signals' figures against (2) and their bounds, as a table and plots."""
     s.p(text)
     cons = data["metrics"]["constraints"]
@@ -411,16 +420,16 @@ BOUND_GLOSS = (
 )
 
 
-def _velocities(s: Section, data: dict[str, Any]) -> None:
+def _velocities(s: Section, data: ReportData) -> None:
     _constraints(s, data, BOUND_GLOSS, ("v", "omega"))
 
 
-def _torques(s: Section, data: dict[str, Any]) -> None:
+def _torques(s: Section, data: ReportData) -> None:
     text = "τ1 in m/s², τ2 in rad/s²: the normalized inputs of model (1) (see above)."
     _constraints(s, data, text, ("tau1", "tau2"))
 
 
-def _drives(s: Section, data: dict[str, Any]) -> None:
+def _drives(s: Section, data: ReportData) -> None:
     d = data["drives"]
     if d.get("geometry"):
         robot = ", ".join(f"{k} {fmt(v)}" for k, v in d["geometry"].items())
@@ -458,7 +467,7 @@ def _drives(s: Section, data: dict[str, Any]) -> None:
     s.figure("motor_torques")
 
 
-def _tracking_error(s: Section, data: dict[str, Any]) -> None:
+def _tracking_error(s: Section, data: ReportData) -> None:
     m = data["metrics"]
     s.p(
         "(4): the position and heading error of the robot against the reference, seen from "
@@ -482,7 +491,7 @@ TRACKING = {
 }
 
 
-def _bands(s: Section, data: dict[str, Any]) -> None:
+def _bands(s: Section, data: ReportData) -> None:
     m = data["metrics"]
     keys = ("reaching_time", "band_p99", "band_max", "band_spread")
     names = {"v_tilde": "v~ [m/s]", "w_tilde": "w~ [rad/s]"}
@@ -500,7 +509,7 @@ def _bands(s: Section, data: dict[str, Any]) -> None:
     s.figure("bands")
 
 
-def _latency(s: Section, data: dict[str, Any]) -> None:
+def _latency(s: Section, data: ReportData) -> None:
     timing = data["timing"]["summary"] or {}
     names = _per_path("sample_to_apply_", data["timing"].get("applied_path"), "shadow: receive")
     names += [("hop_cmd_zenoh", "command hop zenoh"), ("hop_cmd_can", "command hop can")]
@@ -514,7 +523,7 @@ def _latency(s: Section, data: dict[str, Any]) -> None:
     s.figure("latency")
 
 
-def _lateness(s: Section, data: dict[str, Any]) -> None:
+def _lateness(s: Section, data: ReportData) -> None:
     timing = data["timing"]["summary"] or {}
     names = [
         ("wakeup_lateness", "controller wake-up lateness"),
@@ -546,7 +555,7 @@ def _lateness(s: Section, data: dict[str, Any]) -> None:
     s.figure("lateness")
 
 
-def _messages(s: Section, data: dict[str, Any]) -> None:
+def _messages(s: Section, data: ReportData) -> None:
     faults = data["timing"].get("faults") or {}
     on = {k: v for k, v in (faults.get("config") or {}).items() if v and k != "seed"}
     if on:
@@ -587,7 +596,7 @@ def _messages(s: Section, data: dict[str, Any]) -> None:
     s.table(["stream", *keys, "more"], rows)
 
 
-def _tick_phase_line(p: dict[str, Any]) -> str:
+def _tick_phase_line(p: TickPhase) -> str:
     """Where the periodic ticks fell after the sample (controller_service.tick_phase)."""
     line = f"The periodic controller ticked {p['phase_us']:.0f} µs after each sample ({p['rule']}"
     if "arrival_p99_us" not in p:
@@ -601,7 +610,7 @@ def _tick_phase_line(p: dict[str, Any]) -> str:
     )
 
 
-def _timing_summary(s: Section, data: dict[str, Any]) -> None:
+def _timing_summary(s: Section, data: ReportData) -> None:
     timing = data["timing"]["summary"] or {}
     s.p(f"From {data['timing'].get('source')}; definitions in docs/realtime.md.")
     phase = timing.get("tick_phase")
@@ -628,7 +637,7 @@ HOP_FIGURES: tuple[tuple[str, str | None, tuple[str, ...]], ...] = (
 )
 
 
-def _routers(topo: dict[str, Any], stream: str | None) -> list[str]:
+def _routers(topo: Topology, stream: str | None) -> list[str]:
     hops = topo.get("router_hops") or {}
     out: list[str] = []
     for part in stream.split("+") if stream else ():
@@ -636,7 +645,7 @@ def _routers(topo: dict[str, Any], stream: str | None) -> list[str]:
     return out
 
 
-def _hop_rows(topo: dict[str, Any], timing: dict[str, Any], unc_us: float | None) -> list[list]:
+def _hop_rows(topo: Topology, timing: Timing, unc_us: float | None) -> list[list]:
     """One row per timing figure: hosts, routers crossed, clocks and the correction's bound."""
     procs = topo["processes"]
     cross = set((topo.get("clock") or {}).get("cross_host_figures") or [])
@@ -654,7 +663,7 @@ def _hop_rows(topo: dict[str, Any], timing: dict[str, Any], unc_us: float | None
     return rows
 
 
-def _clock_text(f: dict[str, Any]) -> str:
+def _clock_text(f: Topology) -> str:
     clock = f.get("clock") or {}
     if not clock.get("related"):
         warning = clock.get("warning") or "the cross-host figures are not valid"
@@ -675,7 +684,7 @@ def _clock_text(f: dict[str, Any]) -> str:
     return text
 
 
-def _topology(s: Section, data: dict[str, Any]) -> None:
+def _topology(s: Section, data: ReportData) -> None:
     """Where a run across lab hosts ran: hosts, clocks and the routers each hop figure crossed, so
     that a reader can tell a network delay (through routers, corrected by the clock offset
     estimate within its uncertainty) from a scheduling delay (one host's clock, no correction)."""
@@ -710,7 +719,7 @@ def _topology(s: Section, data: dict[str, Any]) -> None:
 
 
 #: Each section's title and the function that writes its blocks.
-SECTIONS: dict[str, tuple[str, Callable[[Section, dict[str, Any]], None]]] = {
+SECTIONS: dict[str, tuple[str, Callable[[Section, ReportData], None]]] = {
     "headline": ("The answers first", _headline),
     "terms": ("What the words mean", _terms),
     "verdict": ("Verdict", _verdict),
@@ -828,7 +837,7 @@ def _md_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
     return "\n".join(lines)
 
 
-def render_markdown(data: dict[str, Any], files: Sequence[dict[str, str]]) -> str:
+def render_markdown(data: ReportData, files: Sequence[dict[str, str]]) -> str:
     """report.md: the sections, figures as PNG files beside it; the headline first."""
     by_name = {f["name"]: f for f in files}
     s = data["scenario"]
@@ -912,7 +921,7 @@ def _grid(figures: list[str]) -> list[str]:
     return ['<div class="figs">', *figures, "</div>"] if len(figures) > 1 else figures
 
 
-def render_html(data: dict[str, Any], figs: Sequence[Figure]) -> str:
+def render_html(data: ReportData, figs: Sequence[Figure]) -> str:
     by_name = {f.name: f for f in figs}
     s = data["scenario"]
     parts = [

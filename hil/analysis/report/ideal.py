@@ -82,7 +82,13 @@ def ideal_from_simulator(folder: Folder, user_law: bool = False) -> dict[str, np
             "figure is the run's own and needs no law)"
         )
     try:
-        return simulate_ideal(folder.scenario, folder.path, folder.trace, memory_source(folder))
+        return simulate_ideal(
+            folder.scenario,
+            folder.path,
+            folder.trace,
+            memory_source(folder),
+            parsed=folder.typed_scenario(),
+        )
     except Exception as exc:  # the user's module, maybe edited since the run, may raise anything
         if not own:
             raise  # a built-in law's failure is the bench's bug: shown, not explained away

@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from hil.scenario import build_loop, parse_scenario
+from hil.folder.scenario_view import folder_scenario
+from hil.scenario import Scenario, build_loop
 from hil.sim import compiled, simulate, simulate_batch
 from hil.sim.core import RobotVariation, _initial_memory
 
@@ -45,16 +46,14 @@ PARALLEL_MIN_WINDOWS = 32
 MemorySource = Callable[[tuple[str, ...], np.ndarray], dict[str, np.ndarray]]
 
 
-def ideal_scenario(
-    resolved: Mapping[str, Any], base_dir: Path, start: Mapping[str, float] | None = None
-) -> Any:
+def ideal_scenario(resolved: Scenario, start: Mapping[str, float] | None = None) -> Scenario:
     """The resolved scenario at Ts/FINE_FACTOR without delay and jitter, its plant step at most
     the fine period; ``start``: the initial state (:data:`START_STATE`) and ``duration``."""
-    data = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in resolved.items()}
+    sc = resolved
     if start is not None:
-        data["initial"] = {**data.get("initial", {}), **{k: start[k] for k in START_STATE}}
-        data["run"] = {**data.get("run", {}), "duration": start["duration"]}
-    sc = parse_scenario(data, base_dir)
+        initial = dataclasses.replace(sc.initial, **{k: start[k] for k in START_STATE})
+        run = dataclasses.replace(sc.run, duration=start["duration"])
+        sc = dataclasses.replace(sc, initial=initial, run=run)
     fine = sc.timing.ts / FINE_FACTOR
     timing = dataclasses.replace(
         sc.timing, ts=fine, delay=0.0, jitter=0.0, jitter_kind="uniform", replay=""
@@ -95,14 +94,18 @@ def simulate_ideal(
     trace: Mapping[str, np.ndarray] | None = None,
     memory_source: MemorySource | None = None,
     window: float = WINDOW_S,
+    parsed: Scenario | None = None,
 ) -> dict[str, np.ndarray] | None:
     """The ideal trajectory (t, x, y, theta): at the fine period's times for a trace of at most
-    ``window`` seconds, else windowed, at the trace's times, with ``window_start_t``."""
+    ``window`` seconds, else windowed, at the trace's times, with ``window_start_t``;
+    ``parsed``: ``resolved`` already parsed (:func:`hil.folder.scenario_view.folder_scenario`)."""
     base = base_dir_of(resolved, folder)
+    sc = parsed if parsed is not None else folder_scenario(resolved)
+    sc = dataclasses.replace(sc, base_dir=base)
     if trace is not None and float(trace["t"][-1] - trace["t"][0]) > window * (1.0 + 1e-9):
-        return _windowed(resolved, base, trace, memory_source, window)
+        return _windowed(sc, trace, memory_source, window)
     start = trace_start(trace) if trace is not None else None
-    sc = ideal_scenario(resolved, base, start)
+    sc = ideal_scenario(sc, start)
     result = simulate(sc, t0=start["t0"] if start is not None else 0.0)
     return {name: result.column(name) for name in ("t", "x", "y", "theta")}
 
@@ -126,8 +129,7 @@ def _window_memories(
 
 
 def _windowed(
-    resolved: Mapping[str, Any],
-    base: Path,
+    resolved: Scenario,
     trace: Mapping[str, np.ndarray],
     memory_source: MemorySource | None,
     window: float,
@@ -135,14 +137,14 @@ def _windowed(
     t = np.asarray(trace["t"], dtype=float)
     starts = window_starts(t, window)
     start0 = trace_start(trace)
-    sc0 = ideal_scenario(resolved, base, start0)
+    sc0 = ideal_scenario(resolved, start0)
     t_stop = np.append(t[starts[1:]], t[-1])
     # fine samples 0 .. steps of every window reach its last row (the next window's start)
     steps = max(1, math.ceil(float(np.max(t_stop - t[starts])) / sc0.timing.ts - 1e-9) + 1)
     loop = build_loop(sc0)
     memory, known = _window_memories(loop[0], sc0, starts, memory_source)
     states = {s: np.asarray(trace[s], dtype=float)[starts] for s in START_STATE}
-    whole = _Windows(dict(resolved), base, start0, t, starts, memory, known, states, steps)
+    whole = _Windows(resolved, start0, t, starts, memory, known, states, steps)
     if starts.size < BATCH_MIN_WINDOWS:
         out = _one_by_one(whole, loop)
     elif compiled.chosen(loop[0], sc0, starts.size * steps):
@@ -167,8 +169,7 @@ class _Windows:
     """Consecutive windows of a trace, all a process needs to simulate them (picklable): their
     rows' times, each window's first row in them, law memory and starting state."""
 
-    resolved: dict[str, Any]
-    base: Path
+    resolved: Scenario  # the folder's, its base_dir the ideal's (base_dir_of)
     start0: dict[str, float]  # the whole trace's first state: the scenario the ideal runs
     t: np.ndarray
     starts: np.ndarray
@@ -201,7 +202,7 @@ class _Windows:
 
     def scenario(self, steps: int) -> Any:
         """The ideal's scenario, run for ``steps`` fine periods."""
-        sc = ideal_scenario(self.resolved, self.base, self.start0)
+        sc = ideal_scenario(self.resolved, self.start0)
         run = dataclasses.replace(sc.run, duration=steps * sc.timing.ts)
         return dataclasses.replace(sc, run=run)
 

@@ -14,7 +14,17 @@ from typing import Any
 
 from hil import interrupts
 from hil.bench.lab import net
-from hil.bench.lab.state import MARK_ENV, PREFIX, LabState, Made, lab_dir, load, names, proc_start
+from hil.bench.lab.state import (
+    MARK_ENV,
+    PREFIX,
+    LabHost,
+    LabState,
+    Made,
+    lab_dir,
+    load,
+    names,
+    proc_start,
+)
 
 NAME_RE = re.compile(r"[a-z0-9]{1,12}")
 HOSTS_MAX = 32
@@ -62,7 +72,7 @@ def require_root(what: str = "hil lab") -> None:
             raise net.LabError(f"{what} needs {tool} (Debian package {package}): not found")
 
 
-def host_of(state: LabState, host: str) -> dict[str, Any]:
+def host_of(state: LabState, host: str) -> LabHost:
     for h in state.hosts:
         if h["name"] == host:
             return h
@@ -91,8 +101,15 @@ def _make_host(state: LabState, index: int, offset: float, imp: net.LinkImpairme
     state.intend(Made("timens", str(tfile)))
     net.run([sys.executable, "-m", "hil.bench.lab.timens", str(tfile), repr(offset)])
     net.impair(ns, imp)  # nothing without loss or rate
-    host = {"name": name, "netns": ns, "timens": str(tfile), "address": net.host_address(index)}
-    host.update({"offset_s": offset, "router": router_endpoint(index), "impair": asdict(imp)})
+    host = LabHost(
+        name=name,
+        netns=ns,
+        timens=str(tfile),
+        address=net.host_address(index),
+        offset_s=offset,
+        router=router_endpoint(index),
+        impair=asdict(imp),
+    )
     state.hosts.append(host)
     state.save()
 

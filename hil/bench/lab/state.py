@@ -17,7 +17,7 @@ import os
 import secrets
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 ROOT = Path(os.environ.get("HIL_LAB_ROOT", "/run/hillab"))
 PREFIX = "hillab-"
@@ -39,6 +39,18 @@ def proc_start(pid: int) -> int | None:
     return int(text.rsplit(")", 1)[1].split()[19])
 
 
+class LabHost(TypedDict):
+    """One host of a lab as its state file keeps it (hil.bench.lab.lab.up)."""
+
+    name: str
+    netns: str  # its network namespace
+    timens: str  # the file that holds its time namespace
+    address: str
+    offset_s: float  # its clock's injected offset
+    router: str  # its Zenoh router's endpoint
+    impair: dict[str, float]  # its link's impairment (hil.bench.lab.net.Impair)
+
+
 @dataclass
 class Made:
     """One object of the lab: ``kind`` netns, timens or proc."""
@@ -56,7 +68,7 @@ class LabState:
     phase: str = "building"  # building -> up; removed at down
     owner_pid: int = field(default_factory=os.getpid)
     owner_start: int = 0
-    hosts: list[dict[str, Any]] = field(default_factory=list)
+    hosts: list[LabHost] = field(default_factory=list)
     made: list[Made] = field(default_factory=list)
 
     @property

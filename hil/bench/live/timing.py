@@ -19,8 +19,8 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import Any
 
+from hil import schemas
 from hil.verdict import Evidence, control_slot, judge_evidence
 from protocol.hoplog import NO_STAMP
 from protocol.messages import State, Status, TorqueCommand
@@ -147,7 +147,7 @@ class LiveTiming:
         v = judge_evidence(self.evidence())
         return v.outcome, "; ".join(v.reasons)
 
-    def snapshot(self, now_ns: int, backlog: int = 0) -> dict[str, Any]:
+    def snapshot(self, now_ns: int, backlog: int = 0) -> schemas.Json:
         """The figures now (the ``hil.LiveTiming`` message); ``backlog``: the view's queue.
         A figure not known yet (or D* without a certificate) is left out, not null."""
         self._expire(now_ns)

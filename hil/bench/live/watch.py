@@ -61,7 +61,7 @@ class LiveView:
         self.reference = reference
         self.epochs: dict[str, int] = {}
         self.context = foxglove.Context()
-        self._channels: dict[str, Any] = {}
+        self._channels: dict[str, foxglove.Channel] = {}
         self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
         self.port = int(self.server.port)
         for robot in self.timings:
@@ -79,7 +79,7 @@ class LiveView:
             )
         return self._channels[topic]
 
-    def _log(self, topic: str, data: dict[str, Any], log_time: int) -> None:
+    def _log(self, topic: str, data: schemas.Json, log_time: int) -> None:
         ch = self.channel(topic)
         if ch.has_sinks():  # nobody subscribed: no JSON to build
             ch.log(data, log_time=int(log_time))
@@ -116,7 +116,7 @@ class LiveView:
             x, y, th = self.reference((t - epoch) / 1e9)
             self._log(f"{base}/{schemas.REFERENCE}", schemas.pose_in_frame(t, x, y, th), t)
 
-    def on_can(self, channel: str, frame: dict[str, Any], recv_ns: int) -> None:
+    def on_can(self, channel: str, frame: schemas.Json, recv_ns: int) -> None:
         """One CAN frame as the recorder's JSON (:func:`can_frame_record`)."""
         self._log(f"can/{channel}", frame, recv_ns)
 
@@ -130,7 +130,7 @@ class LiveView:
         self.server.stop()
 
 
-def _mirror(msg: Any) -> dict[str, Any]:
+def _mirror(msg: Any) -> schemas.Json:
     return {**to_jsonable(msg), "type": type(msg).__name__}
 
 
