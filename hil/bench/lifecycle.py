@@ -43,7 +43,7 @@ from hil.bench.settings import (
 from hil.bench.supervisor import Supervisor
 from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
-from hil.folder import layout, new_run_dir
+from hil.folder import claim, layout, new_run_dir
 from hil.folder.records import ControllerExit, Recorded, RunExtra
 from hil.folder.replay import RunLatencies
 from hil.law.option import with_law
@@ -111,6 +111,9 @@ class RunOptions:
     plant_host: str | None = None
     controller_host: str | None = None
     robot_id: str | None = None  # instead of the scenario's (hil fleet: one per robot)
+    force: bool = False  # --force: replace a folder that holds files (hil.folder.claim)
+    # False: hil controller / hil emulator, two services that share one folder (default ".")
+    fresh_out: bool = True
     # [timing] replay naming a real run: the reader of its latencies (the analysis's,
     # hil.analysis.replay.latencies_from_run, handed over by the command); None: files only
     run_latencies: RunLatencies | None = None
@@ -148,7 +151,10 @@ def check_options(opts: RunOptions) -> None:
         options.plain_string("--can-interface", opts.can_interface, empty=False)
     if opts.can_channel is not None:
         options.plain_string("--can-channel", opts.can_channel, empty=False)
-    options.out_dir("--out", opts.out, default="runs")
+    if opts.fresh_out:
+        claim.check("--out", opts.out, opts.force, default="runs")
+    else:
+        options.out_dir("--out", opts.out, default="runs")
     if opts.robot_id is not None and not is_valid_robot_id(opts.robot_id):
         raise BadInputError(f"--robot-id {opts.robot_id!r}: 1-64 characters of [A-Za-z0-9_.-]")
     live_check(opts.live_port, opts.live_host)
@@ -250,6 +256,8 @@ def prepare(opts: RunOptions) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
     )
     controller, reference, context = build_loop(scenario)
     settings = _run_settings(opts, scenario, context, scenario_path, run_dir, rate)
+    if opts.fresh_out:
+        claim.take(run_dir, "run")
     run_dir.mkdir(parents=True, exist_ok=True)
     if given is None:
         scenario_path.write_text(PAPER_TRACKING_TOML)

@@ -10,7 +10,7 @@ import typer
 
 from hil import interrupts
 from hil.bundled import resolve_scenario
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.commands.run import LiveHostOpt, live_opt
 from hil.errors import NegativeVerdictError
 from hil.options import out_dir
@@ -42,6 +42,7 @@ def fleet_cmd(
     ] = 1,
     live: FleetLiveOpt = None,
     live_host: LiveHostOpt = "127.0.0.1",
+    force: ForceOpt = False,
 ) -> None:
     """Run N robots' closed loops at once, each its own `hil run` with its own robot id
     (robotI: keys hil/robotI/...), controller, plant and run folder OUT/robotI (a complete
@@ -64,7 +65,7 @@ def fleet_cmd(
     out_dir("--out", out)
     path = resolve_scenario(scenario)
     opts = FleetOptions(
-        path, robots, out, duration, rate, lab, plant_host, controller_host, per_process
+        path, robots, out, duration, rate, lab, plant_host, controller_host, per_process, force
     )
     launch.check(live, live_host)  # the port, before any robot starts
     ids = robot_ids(robots)

@@ -14,7 +14,7 @@ import typer
 
 from hil import options
 from hil.bundled import resolve_scenario
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.errors import NegativeVerdictError
 
 
@@ -76,17 +76,22 @@ def margin(
     out: Annotated[
         Path | None, typer.Option(help="Folder for margin.json when the source is a scenario.")
     ] = None,
+    force: ForceOpt = False,
 ) -> None:
     """How much worse may the timing get before a limit of (2) breaks? (k*)"""
     from hil.analysis.margin import record
     from hil.analysis.margin.search import MarginOptions, find_margin
+    from hil.folder import claim
 
     options.integer("--seeds", seeds, 1, 100_000)
     options.optional_number("--k-max", k_max, 1.0, 1e6)
     options.optional_number("--error-bound", error_bound, 0.0, 1e6, positive=True)
     options.optional_number("--duration", duration, 0.0, 3600.0, positive=True)
-    options.out_dir("--out", out)
     scenario, base, folder = _source(source, seeds)
+    if folder is None:  # margin.json into a folder of its own; else beside the run's report
+        claim.check("--out", out, force)
+    else:
+        options.out_dir("--out", out)
     loop_s = duration if duration is not None else min(scenario.run.duration, 20.0)
     k_max = MarginOptions.k_max if k_max is None else k_max
     opts = MarginOptions(
@@ -100,8 +105,10 @@ def margin(
         )
 
     result = find_margin(scenario, base, opts, show)
-    target = folder or out or Path("runs") / time.strftime("margin-%Y%m%d-%H%M%S")
-    target.mkdir(parents=True, exist_ok=True)
+    if folder is not None:
+        target = folder
+    else:
+        target = claim.take(out or Path("runs") / time.strftime("margin-%Y%m%d-%H%M%S"), "margin")
     written = record.write(target, result)
     for line in record.summary_lines(result):
         typer.echo(line)

@@ -9,9 +9,8 @@ from typing import Annotated
 import typer
 
 from hil import interrupts
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.errors import NegativeVerdictError
-from hil.options import out_dir
 
 
 @app.command("paper")
@@ -26,6 +25,7 @@ def paper(
     traces: Annotated[
         bool, typer.Option("--traces", help="Also write each run's full trace.csv.")
     ] = False,
+    force: ForceOpt = False,
 ) -> None:
     """Reproduce the paper's tracking, stabilization, chattering reduction (19) and both
     comparisons ([7] on the tracking run, [19] on circle_then_stop) offline, at Ts = 1 ms
@@ -34,11 +34,11 @@ def paper(
     figures is written as soon as its runs are done; Ctrl-C keeps what was written (and a
     table of the runs done) and exits 130. Exit 1 when a check of the paper's claims
     fails. Takes about 2-4 minutes on 2 cores (--quick: under a minute)."""
-    from hil.folder import new_run_dir
+    from hil.folder import claim, new_run_dir
     from hil.paper import run_paper
 
-    out_dir("--out", out, default="runs")
-    folder = out or new_run_dir("runs", "paper")
+    claim.check("--out", out, force, default="runs")
+    folder = claim.take(out or new_run_dir("runs", "paper"), "paper")
     table = run_paper(
         folder, quick=quick, jobs=jobs, traces=traces, log=lambda m: typer.echo(m, err=True)
     )

@@ -8,10 +8,9 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.commands.new_law import LawOpt
 from hil.errors import NegativeVerdictError
-from hil.options import out_dir
 
 
 @app.command("sim")
@@ -31,6 +30,7 @@ def sim(
         float | None, typer.Option(help="Override [timing] ts, the control period (s).")
     ] = None,
     law: LawOpt = None,
+    force: ForceOpt = False,
 ) -> None:
     """Simulate one closed loop offline (law at Ts with zero-order hold, RK4 plant, delay and
     jitter as the scenario says) and write scenario.resolved.toml, trace.csv, summary.json.
@@ -45,12 +45,12 @@ def sim(
 
     from hil.analysis.replay import scenario_latencies
     from hil.bundled import resolve_scenario
-    from hil.folder import new_run_dir
+    from hil.folder import claim, new_run_dir
     from hil.law.option import with_law
     from hil.scenario import load_scenario
     from hil.sim import simulate, write_run_folder
 
-    out_dir("--out", out, default="runs")
+    claim.check("--out", out, force, default="runs")
     path = resolve_scenario(scenario)
     sc = with_law(load_scenario(path), law).with_overrides(duration=duration, ts=ts)
     target = out or new_run_dir("runs", "sim")
@@ -78,11 +78,11 @@ def sim(
 
         result = simulate(sc, progress=progress, replay=scenario_latencies(sc))
     with interrupts.shielded():  # a second Ctrl-C must not leave the folder half-written
-        folder = write_run_folder(result, target)
-    _say_and_judge(result, folder, sc.run.duration)
+        folder = write_run_folder(result, claim.take(target, "sim"))
+    _finish(result, folder, sc.run.duration)
 
 
-def _say_and_judge(result: Any, folder: Path, planned_s: float) -> None:
+def _finish(result: Any, folder: Path, planned_s: float) -> None:
     """The simulation's result line, then its verdict's exit (a law's fault, a non-finite
     state, a broken limit: FAIL) or, interrupted, what it did not cover."""
 

@@ -10,7 +10,7 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.commands.new_law import LawOpt
 from hil.errors import BadInputError, NegativeVerdictError
 
@@ -87,19 +87,20 @@ def sweep(
     workers: WorkersOpt = None,
     scheduler: SchedulerOpt = None,
     chunk_size: ChunkSizeOpt = None,
+    force: ForceOpt = False,
 ) -> None:
     """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
+    from hil.folder import claim
     from hil.sweep import cluster
 
     scenario, grid, loop_s, latencies = _checked_sweep(
-        scenario_file, out, ts, delay, jitter, seeds, duration, law
+        scenario_file, out, ts, delay, jitter, seeds, duration, law, force
     )
     chunked = cluster.wanted(workers, scheduler, chunk_size)
     if chunked and worst_disturbance:
         raise BadInputError("--worst-disturbance runs in this process only (no chunks yet)")
     executor = cluster.open_executor(workers, scheduler, chunk_size) if chunked else None
-    target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
-    target.mkdir(parents=True, exist_ok=True)
+    target = claim.take(out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S"), "sweep")
     if latencies is not None:  # the run's latencies, replayed from replay.json in the folder
         from hil.folder.replay import write_latency_file
 
@@ -182,6 +183,7 @@ def _checked_sweep(
     seeds: int | None,
     duration: float | None,
     law: str | None = None,
+    force: bool = False,
 ) -> tuple[Any, Any, float, Any]:
     """The scenario, its grid, the loop length and the latencies of a run it replays (or
     None), every option and the scenario checked before any folder is written
@@ -189,6 +191,7 @@ def _checked_sweep(
     from hil import options
     from hil.analysis.replay import latencies_from_run
     from hil.bundled import resolve_scenario
+    from hil.folder import claim
     from hil.folder.replay import is_run_source, jitter_samples_from
     from hil.law.batch import batch_note
     from hil.law.option import with_law
@@ -211,7 +214,7 @@ def _checked_sweep(
     if seeds is not None:
         options.integer("--seeds", seeds, 1, SWEEP_SEEDS_MAX)
     options.optional_number("--duration", duration, 0.0, DURATION_MAX, positive=True)
-    options.out_dir("--out", out, default="runs")
+    claim.check("--out", out, force, default="runs")
     scenario = with_law(load_scenario(resolve_scenario(scenario_file)), law)
     sw = scenario.sweep
     try:

@@ -15,7 +15,7 @@ from typing import Any
 from hil.bench.fleet import barrier
 from hil.bench.supervisor import Supervisor
 from hil.errors import BadInputError
-from hil.folder import layout
+from hil.folder import claim, layout
 
 ROBOTS_MAX = 64
 
@@ -31,6 +31,7 @@ class FleetOptions:
     plant_host: str | None = None
     controller_host: str | None = None
     per_process: int = 1  # robots per plant and per controller process
+    force: bool = False  # --force: replace a folder that holds files (hil.folder.claim)
 
 
 def robot_ids(n: int) -> list[str]:
@@ -83,15 +84,14 @@ def check(opts: FleetOptions) -> None:
     for flag, n in (("--robots", opts.robots), ("--per-process", opts.per_process)):
         if not 1 <= n <= ROBOTS_MAX:
             raise BadInputError(f"{flag} {n}: 1 to {ROBOTS_MAX}")
-    if opts.out.exists() and any(opts.out.iterdir()):
-        raise BadInputError(f"--out {opts.out}: exists and is not empty")
+    claim.check("--out", opts.out, opts.force)
 
 
 def execute(opts: FleetOptions, stop: Any, live: Any = None) -> dict[str, int | None]:
     """Start every robot's ``hil run`` at once and wait for all (or for ``stop``: then each
     gets SIGINT and writes its folder); the exit code of each. ``live``: polled, then closed."""
     check(opts)
-    opts.out.mkdir(parents=True, exist_ok=True)
+    claim.take(opts.out, "fleet")
     sup = Supervisor()
     logs = []
     ids, k = robot_ids(opts.robots), opts.per_process  # k robots a process (check: 1..64)
