@@ -18,7 +18,7 @@ from hil.errors import BAD_INPUT
 from hil.folder import claim
 
 S = "paper_tracking"
-OLD = "report.html"  # an older run's report: the stale file the issue found beside a new run
+OLD = "report.html"  # an older run's report: the stale file a reused folder kept beside a new run
 
 
 def _old_run(folder: Path) -> Path:
