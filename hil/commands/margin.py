@@ -15,25 +15,28 @@ import typer
 from hil import options
 from hil.bundled import resolve_scenario
 from hil.commands import ForceOpt, app
+from hil.commands.new_law import LawOpt
 from hil.errors import NegativeVerdictError
 
 
-def _source(text: str, seeds: int):
-    """(scenario, base timing, folder for margin.json or None)."""
+def _source(text: str, seeds: int, law: str | None = None):
+    """(scenario, base timing, folder for margin.json or None); ``law``: --law instead of the
+    scenario's."""
     from hil.analysis.margin.timing import from_run, from_scenario, run_scenario
     from hil.folder import has_hop_logs, load_folder
+    from hil.law.option import with_law
     from hil.scenario import load_scenario
 
     path = Path(text)
     if path.is_dir():
-        scenario = run_scenario(path)
+        scenario = with_law(run_scenario(path), law)
         if has_hop_logs(path):
             return scenario, from_run(path, scenario), path
         # A simulation's folder: nothing was measured, so its scenario's [timing] is replayed
         # and margin.json goes beside the simulation's report.
         load_folder(path, lazy=True)  # BadInputError when it is no folder of hil sim either
         return scenario, from_scenario(scenario, seeds), path
-    scenario = load_scenario(resolve_scenario(text))
+    scenario = with_law(load_scenario(resolve_scenario(text)), law)
     return scenario, from_scenario(scenario, seeds), None
 
 
@@ -76,6 +79,7 @@ def margin(
     out: Annotated[
         Path | None, typer.Option(help="Folder for margin.json when the source is a scenario.")
     ] = None,
+    law: LawOpt = None,
     force: ForceOpt = False,
 ) -> None:
     """How much worse may the timing get before a limit of (2) breaks? (k*)"""
@@ -87,7 +91,7 @@ def margin(
     options.optional_number("--k-max", k_max, 1.0, 1e6)
     options.optional_number("--error-bound", error_bound, 0.0, 1e6, positive=True)
     options.optional_number("--duration", duration, 0.0, 3600.0, positive=True)
-    scenario, base, folder = _source(source, seeds)
+    scenario, base, folder = _source(source, seeds, law)
     if folder is None:  # margin.json into a folder of its own; else beside the run's report
         claim.check("--out", out, force)
     else:
@@ -104,6 +108,7 @@ def margin(
             f"{p.score:.3f} of its limit: {'BREAKS' if p.broke else 'holds'}"
         )
 
+    _say_once_if_one_robot_at_a_time(scenario)
     result = find_margin(scenario, base, opts, show)
     if folder is not None:
         target = folder
@@ -118,3 +123,15 @@ def margin(
         raise NegativeVerdictError(str(fault))
     if result.k_star is not None and result.k_star <= 1.0:
         raise NegativeVerdictError("a limit breaks at the measured timing (k* <= 1)")
+
+
+def _say_once_if_one_robot_at_a_time(scenario) -> None:
+    """A law that takes only floats runs one robot at a time on the batch path: said once,
+    before the search (as hil sweep says it)."""
+    from hil.law.batch import batch_note
+    from hil.scenario import build_loop
+
+    controller, reference, _ = build_loop(scenario)
+    note = batch_note(controller, scenario, reference)
+    if note:
+        typer.echo(note, err=True)

@@ -20,12 +20,11 @@ import numpy as np
 
 from controller_service.certificate import critical_age
 from controller_service.laws.guard import LawFaultError
-from controller_service.registry import BUILTIN_LAWS
 from hil.analysis.margin.record import MarginProbe, MarginRecord
 from hil.analysis.margin.timing import BaseTiming, scaled
 from hil.errors import BadInputError
 from hil.folder.scenario_view import UNIFIED_LAWS
-from hil.law.batch import array_problem
+from hil.law.batch import for_batch
 from hil.scenario import Scenario, build_loop
 from hil.sim.adversary.loop import initial_states, run_loops
 from hil.sim.adversary.search import LIMIT_NAMES, scores, worst_disturbance
@@ -107,7 +106,9 @@ def find_margin(
     guard: raises, returns the wrong type or a non-finite torque) ends the search, and the
     record says so (``law_fault``) instead of a k*."""
     started = time.perf_counter()
-    loop = build_loop(scenario)
+    built = build_loop(scenario)
+    # A law that takes only floats runs one robot at a time (hil.law.batch), as in hil sweep.
+    loop = (for_batch(built[0], scenario, built[1]), built[1], built[2])
     probes: list[MarginProbe] = []
     loops = 0
 
@@ -122,7 +123,6 @@ def find_margin(
 
     fault = None
     try:
-        _takes_arrays(scenario, loop, opts.seeds)
         lo, hi = _bracket(test, opts)
         while lo is not None and math.isfinite(hi) and hi / lo > 1.0 + opts.rel_tol:
             mid = math.sqrt(lo * hi)
@@ -134,7 +134,7 @@ def find_margin(
         fault, lo, hi = exc.fault, None, math.inf
     broke = {p.k: p for p in probes}.get(hi)
     _, replay = scaled(scenario, base, 1.0, opts.seeds, opts.duration)
-    controller, _ref, context = loop
+    controller, _ref, context = built
     params = getattr(controller, "params", None)  # D*: the certificate's, for a unified law
     d_star = None
     if params is not None and str(scenario.controller.get("law", "unified")) in UNIFIED_LAWS:
@@ -160,19 +160,3 @@ def find_margin(
         probes=tuple(probes),
         law_fault=None if fault is None else fault.to_dict(),
     )
-
-
-def _takes_arrays(scenario: Scenario, loop: tuple[Any, Any, Any], seeds: int) -> None:
-    """The batch path runs the law on arrays: a law written for floats only is refused by name
-    (BadInputError) before any probe; a law that fails even on one robot raises its
-    LawFaultError here (a fault of the law, at t = 0)."""
-    law = str(scenario.controller.get("law", "unified"))
-    if law in BUILTIN_LAWS:
-        return
-    controller, reference, _ = loop
-    problem = array_problem(controller, scenario, reference)
-    if problem is not None:
-        raise BadInputError(
-            f"[controller] law {law!r} failed on the batch path (numpy arrays of {seeds} "
-            f"robots): {problem}"
-        )
