@@ -23,7 +23,7 @@ from typing import Any
 import can
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from hil import interrupts, options
+from hil import interrupts, options, ticker
 from hil.bench import impair
 from hil.bench.defaults import PAPER_TRACKING_TOML
 from hil.bench.fleet import barrier as fleet_barrier
@@ -352,6 +352,7 @@ def execute(opts: RunOptions) -> Recorded:
     placed = placement.enter(opts, impaired, impair.started_as_hil_run())
     impairment = None if placed else impair.enter(opts, check_options)
     scenario, settings, run_dir, info = prepare(opts)
+    _say_start(opts, scenario, settings, run_dir)
     sup = Supervisor()
     metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
@@ -456,6 +457,14 @@ def _wait_port(endpoint: str, stop: Any, timeout: float) -> bool:
     return False
 
 
+def _say_start(opts: RunOptions, scenario: Any, settings: RunSettings, run_dir: Path) -> None:
+    """The run's start line (hil.ticker): what runs, for how long, where it writes."""
+    name = Path(opts.scenario).name if opts.scenario else "paper_tracking (default)"
+    law = scenario.controller.get("law", "unified")
+    what = f"{name}, law {law}, {1 / settings.ts:g} Hz, commands on {settings.cmd_path}"
+    ticker.start_line("run", what, f"{settings.duration:g} s", run_dir)
+
+
 def _wait_ready(recorder: Recorder, sup: Supervisor, stop: Any, timeout: float) -> bool:
     deadline = time.monotonic() + timeout
     while not stop and time.monotonic() < deadline:
@@ -500,6 +509,7 @@ def _progress(
         disable=quiet or not sys.stderr.isatty(),  # then only the wait
     ) as prog:
         task = prog.add_task("run", total=1.0, info="")
+        tick = ticker.Ticker("hil run", enabled=not quiet and not sys.stderr.isatty())
         while not stop and plant.alive() and time.monotonic() < limit:
             if controller is not None and gone_ns is None and not controller.alive():
                 gone_ns = time.monotonic_ns()
@@ -512,7 +522,11 @@ def _progress(
                 info = f"cycles {c.get('cycles', 0)} misses {c.get('deadline_misses', 0)}"
             done = recorder.states / total if total else (time.monotonic() - t0) / settings.duration
             prog.update(task, completed=min(1.0, done), info=info)
+            elapsed = time.monotonic() - t0
+            tick.tick(f"{elapsed:.0f} s of {settings.duration:g} s" + (f", {info}" if info else ""))
             time.sleep(0.05)
+    if not quiet:  # the phases after the run take seconds on a long one
+        ticker.say("hil run: the run ended; stopping the services, then measuring and judging")
     # The controller outlives the plant (its end is 2 s past the plant's) until it is stopped:
     # found ended here, it ended on its own, before the run's end.
     if controller is None or controller.alive():

@@ -21,6 +21,7 @@ from hil import options
 from hil.bundled import resolve_scenario
 from hil.commands import ForceOpt, app
 from hil.errors import BadInputError, NegativeVerdictError
+from hil.ticker import start_line
 
 
 def _params(table: dict[str, Any], context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
@@ -186,6 +187,9 @@ def certify_command(
     from hil.folder import claim
 
     claim.check("--out", out, force)
+    if empirical:  # the long part: a search in simulation
+        what = f"{scenario}, the certificate and the break under the worst disturbance"
+        start_line("certify", what, "seconds to minutes", out or "the terminal only")
     cert, proposal, facts = certify_scenario(scenario, ts, delay, empirical)
     doc = _document(cert, proposal, facts)
     if out is not None:

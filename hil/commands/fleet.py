@@ -14,6 +14,7 @@ from hil.commands import ForceOpt, app
 from hil.commands.run import LiveHostOpt, live_opt
 from hil.errors import NegativeVerdictError
 from hil.options import out_dir
+from hil.ticker import start_line
 
 FleetLiveOpt = live_opt("every robot of the fleet, each on its own topics hil/robotI/...,")
 
@@ -58,7 +59,7 @@ def fleet_cmd(
     The fleet's verdict is its robots': FAIL (exit 1) when a robot's is FAIL or its run left
     no verdict, else INCONCLUSIVE (exit 4) when a robot's is, else PASS (exit 0)."""
     from hil.analysis import fleet_report as report
-    from hil.bench.fleet.spawner import FleetOptions, execute, robot_ids
+    from hil.bench.fleet.spawner import FleetOptions, check, execute, robot_ids
     from hil.bench.live import launch
     from runtime.signals import stop_on_signals
 
@@ -68,7 +69,11 @@ def fleet_cmd(
         path, robots, out, duration, rate, lab, plant_host, controller_host, per_process, force
     )
     launch.check(live, live_host)  # the port, before any robot starts
+    check(opts)  # the options and the folder, before the start line
     ids = robot_ids(robots)
+    what = f"{path.name}, {robots} robots ({per_process} a process), each its own hil run"
+    long = f"{duration:g} s each" if duration is not None else "the scenario's duration each"
+    start_line("fleet", what, long, out)
     watcher = None if live is None else launch.FleetLive(out, ids, live, live_host, lab is not None)
     with stop_on_signals() as stop:
         codes = execute(opts, stop, watcher)

@@ -17,6 +17,7 @@ from hil.bundled import resolve_scenario
 from hil.commands import ForceOpt, app
 from hil.commands.new_law import LawOpt
 from hil.errors import NegativeVerdictError
+from hil.ticker import start_line
 
 
 def _source(text: str, seeds: int, law: str | None = None):
@@ -108,12 +109,8 @@ def margin(
             f"{p.score:.3f} of its limit: {'BREAKS' if p.broke else 'holds'}"
         )
 
-    _say_once_if_one_robot_at_a_time(scenario)
+    target = _start(source, scenario, opts, folder or claim.take(_folder(out), "margin"))
     result = find_margin(scenario, base, opts, show)
-    if folder is not None:
-        target = folder
-    else:
-        target = claim.take(out or Path("runs") / time.strftime("margin-%Y%m%d-%H%M%S"), "margin")
     written = record.write(target, result)
     for line in record.summary_lines(result):
         typer.echo(line)
@@ -135,3 +132,17 @@ def _say_once_if_one_robot_at_a_time(scenario) -> None:
     note = batch_note(controller, scenario, reference)
     if note:
         typer.echo(note, err=True)
+
+
+def _folder(out: Path | None) -> Path:
+    return out or Path("runs") / time.strftime("margin-%Y%m%d-%H%M%S")
+
+
+def _start(source: str, scenario, opts, target: Path) -> Path:
+    """The start line (hil.ticker) and, for a law on floats only, its note; ``target``."""
+    law = scenario.controller.get("law", "unified")
+    what = f"{source}, law {law}, k* searched up to {opts.k_max:g} ({opts.seeds} loops a scale)"
+    long = f"{opts.duration:g} s simulated a loop, a line a scale"
+    start_line("margin", what, long, target / "margin.json")
+    _say_once_if_one_robot_at_a_time(scenario)
+    return target

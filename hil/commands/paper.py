@@ -11,6 +11,7 @@ import typer
 from hil import interrupts
 from hil.commands import ForceOpt, app
 from hil.errors import NegativeVerdictError
+from hil.ticker import start_line
 
 
 @app.command("paper")
@@ -39,6 +40,9 @@ def paper(
 
     claim.check("--out", out, force, default="runs")
     folder = claim.take(out or new_run_dir("runs", "paper"), "paper")
+    how_long = "under a minute (--quick)" if quick else "about 2-4 minutes on 2 cores"
+    what = f"the paper's Section 4 offline, {jobs} processes, a line as each run ends"
+    start_line("paper", what, how_long, folder)
     table = run_paper(
         folder, quick=quick, jobs=jobs, traces=traces, log=lambda m: typer.echo(m, err=True)
     )

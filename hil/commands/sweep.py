@@ -13,6 +13,7 @@ from hil import interrupts
 from hil.commands import ForceOpt, app
 from hil.commands.new_law import LawOpt
 from hil.errors import BadInputError, NegativeVerdictError
+from hil.ticker import Ticker, start_line
 
 DEFAULT_MAX_DURATION = 20.0
 SWEEP_HELP = (
@@ -101,6 +102,9 @@ def sweep(
         raise BadInputError("--worst-disturbance runs in this process only (no chunks yet)")
     executor = cluster.open_executor(workers, scheduler, chunk_size) if chunked else None
     target = claim.take(out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S"), "sweep")
+    law = scenario.controller.get("law", "unified")
+    what = f"{Path(scenario_file).name}, law {law}, {len(grid)} loops ({len(grid.ts)} Ts groups)"
+    start_line("sweep", what, f"{loop_s:g} s simulated each", target)
     if latencies is not None:  # the run's latencies, replayed from replay.json in the folder
         from hil.folder.replay import write_latency_file
 
@@ -271,6 +275,7 @@ def _run_with_progress(
         task = bar.add_task(f"{len(grid)} loops", total=sum(counts.values()) * per_group)
         base: dict[float, int] = {}
         acc = 0
+        tick = Ticker("hil sweep")
 
         def progress(ts_value: float, done: int, n: int) -> None:
             nonlocal acc
@@ -279,6 +284,10 @@ def _run_with_progress(
                 acc += counts[ts_value] * per_group
             completed = base[ts_value] + done * per_group
             bar.update(task, completed=completed, description=f"Ts={ts_value:g} s")
+            total = sum(counts.values()) * per_group
+            tick.tick(
+                f"Ts = {ts_value:g} s, {100 * completed / max(total, 1):.0f}% of the robot-steps"
+            )
 
         # sweep.csv grows group by group, so even a killed sweep leaves what it finished.
         return run_sweep(

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hil import ticker
 from hil.bench.fleet import barrier
 from hil.bench.supervisor import Supervisor
 from hil.errors import BadInputError
@@ -104,7 +105,12 @@ def execute(opts: FleetOptions, stop: Any, live: Any = None) -> dict[str, int | 
             env = barrier.env_for(opts.out, opts.robots, first)
             argv = group_argv(opts, robots) if grouped else run_argv(opts, first)
             sup.start(first, argv, env=env, stdout=log, stderr=log)
+        tick, t0 = ticker.Ticker("hil fleet", enabled=True), time.monotonic()
         while not stop and any(c.alive() for c in sup.children):
+            running = sum(c.alive() for c in sup.children)
+            tick.tick(
+                f"{time.monotonic() - t0:.0f} s, {running} of {len(members)} processes running"
+            )
             if live is not None:
                 live.poll()
             for c in sup.children:
