@@ -33,6 +33,7 @@ class FleetOptions:
     controller_host: str | None = None
     per_process: int = 1  # robots per plant and per controller process
     force: bool = False  # --force: replace a folder that holds files (hil.folder.claim)
+    law: str | None = None  # --law: every robot's law instead of the scenario's
 
 
 def robot_ids(n: int) -> list[str]:
@@ -46,6 +47,7 @@ def run_argv(opts: FleetOptions, robot: str) -> list[str]:
     for flag, value in (("--duration", opts.duration), ("--rate", opts.rate)):
         if value is not None:
             argv += [flag, repr(value)]
+    argv += ["--law", opts.law] if opts.law else []
     if opts.lab:
         argv += ["--lab", opts.lab]
         argv += ["--plant-host", opts.plant_host] if opts.plant_host else []
@@ -65,6 +67,7 @@ def group_argv(opts: FleetOptions, robots: list[str]) -> list[str]:
         "lab": opts.lab,
         "plant_host": opts.plant_host,
         "controller_host": opts.controller_host,
+        "law": opts.law,
     }
     path = opts.out / layout.group_spec(robots[0])
     path.write_text(json.dumps(spec, indent=2) + "\n")
