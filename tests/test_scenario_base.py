@@ -88,3 +88,22 @@ def test_a_bad_base_is_one_line_and_exit_2(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and says in err[0], err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["sweep", "SC", "--ts", "0.01", "--delay", "0", "--duration", "0.2"],
+        ["margin", "SC", "--seeds", "1", "--duration", "0.2", "--k-max", "2"],
+    ],
+    ids=lambda a: a[0],
+)
+def test_sweep_and_margin_write_the_scenario_they_ran_whole(
+    tmp_path: Path, argv: list[str]
+) -> None:
+    path = _write(tmp_path, "mine.toml", ONE_GAIN)
+    out = tmp_path / "out"
+    assert main([str(path) if a == "SC" else a for a in argv] + ["--out", str(out)]) in (0, 1)
+    resolved = tomllib.loads((out / "scenario.resolved.toml").read_text())
+    assert "base" not in resolved and resolved["controller"]["rho"] == 0.5
+    assert resolved["reference"]["kind"] == "circle" and resolved["initial"]["x"] == -1.0

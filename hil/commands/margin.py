@@ -110,6 +110,8 @@ def margin(
         )
 
     target = _start(source, scenario, opts, folder or claim.take(_folder(out), "margin"))
+    if folder is None:  # a scenario's margin: what ran, whole (a run's folder has its own)
+        claim.write_scenario(target, scenario)
     result = find_margin(scenario, base, opts, show)
     written = record.write(target, result)
     for line in record.summary_lines(result):

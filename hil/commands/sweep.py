@@ -102,6 +102,7 @@ def sweep(
         raise BadInputError("--worst-disturbance runs in this process only (no chunks yet)")
     executor = cluster.open_executor(workers, scheduler, chunk_size) if chunked else None
     target = claim.take(out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S"), "sweep")
+    claim.write_scenario(target, scenario)  # what ran, whole (docs/scenario.md)
     law = scenario.controller.get("law", "unified")
     what = f"{Path(scenario_file).name}, law {law}, {len(grid)} loops ({len(grid.ts)} Ts groups)"
     start_line("sweep", what, f"{loop_s:g} s simulated each", target)

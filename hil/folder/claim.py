@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import Any
 
 from hil.errors import BadInputError
 from hil.folder import layout
@@ -57,4 +58,16 @@ def take(path: Path, command: str) -> Path:
                 child.unlink()
     path.mkdir(parents=True, exist_ok=True)
     (path / MARKER).write_text(f"hil {command}\n", encoding="utf-8")
+    return path
+
+
+def write_scenario(folder: Path, scenario: Any) -> Path:
+    """The scenario a command ran, resolved whole (every table and key, any ``base`` merged
+    in; :func:`hil.scenario.resolved_dict`), into ``folder`` as a run folder holds it."""
+    from hil.provenance import dumps_toml
+    from hil.scenario import build_loop, resolved_dict
+
+    controller, _, context = build_loop(scenario)
+    path = folder / layout.SCENARIO_RESOLVED
+    path.write_text(dumps_toml(resolved_dict(scenario, controller, context)), encoding="utf-8")
     return path
