@@ -123,6 +123,8 @@ def find_margin(
 
     fault = None
     try:
+        if getattr(loop[0], "probe_fault", None) is not None:  # it failed on one robot, at t = 0
+            raise LawFaultError(loop[0].probe_fault)
         lo, hi = _bracket(test, opts)
         while lo is not None and math.isfinite(hi) and hi / lo > 1.0 + opts.rel_tol:
             mid = math.sqrt(lo * hi)
