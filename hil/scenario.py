@@ -26,6 +26,7 @@ from controller_service.references import build_reference as _build
 from controller_service.references import check_table as check_reference
 from controller_service.registry import build_controller, law_path_for, resolved_controller_table
 from controller_service.registry import check_table as check_controller
+from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
 from hil.limits import LIMIT_NAMES
 from hil.options import choice, describe, locator, number, plain_string, type_name
@@ -559,7 +560,66 @@ def load_scenario(path: str | Path) -> Scenario:
         data = tomllib.loads(text.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise BadInputError(f"scenario {p} is not valid TOML: {exc}") from exc
+    data = with_base(data, p.resolve().parent, (p.resolve(),))
     return parse_scenario(data, p.resolve().parent, str(p))
+
+
+#: How deep ``base`` may chain (a scenario on a scenario on ...): a guard, not a design limit.
+BASE_DEPTH_MAX = 8
+
+
+def with_base(
+    data: Mapping[str, Any], base_dir: Path, chain: tuple[Path, ...] = ()
+) -> dict[str, Any]:
+    """``data`` on top of the scenario its top-level ``base`` names (docs/scenario.md,
+    "Starting from another scenario"): the base's tables, each key the file sets replacing the
+    base's; [reference] and [controller] replaced whole when the file names another ``kind`` or
+    ``law`` (the other's keys would not fit). ``base`` is a scenario file (relative to this
+    one's folder) or a bundled scenario's name, and may have a base itself."""
+    if "base" not in data:
+        return dict(data)
+    name = data["base"]
+    if not isinstance(name, str) or not name.strip():
+        raise BadInputError(
+            f"base must be a scenario file or a bundled scenario's name, got "
+            f"{type_name(name)} {name!r}"
+        )
+    nearby = base_dir / name
+    try:
+        path = (nearby if nearby.is_file() else resolve_scenario(name)).resolve()
+    except BadInputError as exc:
+        raise BadInputError(f"base = {name!r}: {exc}") from exc
+    if path in chain:
+        raise BadInputError(f"base = {name!r}: {path.name} starts from itself (a cycle)")
+    if len(chain) > BASE_DEPTH_MAX:
+        raise BadInputError(f"base = {name!r}: more than {BASE_DEPTH_MAX} bases in a chain")
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise BadInputError(f"base = {name!r}: {path} cannot be read as TOML: {exc}") from exc
+    merged = with_base(raw, path.parent, (*chain, path))
+    merged.pop("provenance", None)  # the base's own record, not this scenario's
+    for key, value in data.items():
+        if key == "base":
+            continue
+        below = merged.get(key)
+        if (
+            isinstance(value, Mapping)
+            and isinstance(below, Mapping)
+            and not _replaces(key, below, value)
+        ):
+            merged[key] = {**below, **value}
+        else:
+            merged[key] = value
+    return merged
+
+
+def _replaces(table: str, below: Mapping[str, Any], own: Mapping[str, Any]) -> bool:
+    """Whether ``own`` replaces the base's table whole: another reference kind or law."""
+    what = {"reference": ("kind", None), "controller": ("law", "unified")}.get(table)
+    if what is None or what[0] not in own:
+        return False
+    return own[what[0]] != below.get(what[0], what[1])
 
 
 def loads_scenario(text: str, base_dir: Path | None = None) -> Scenario:
@@ -567,7 +627,7 @@ def loads_scenario(text: str, base_dir: Path | None = None) -> Scenario:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise BadInputError(f"scenario is not valid TOML: {exc}") from exc
-    return parse_scenario(data, base_dir or Path.cwd())
+    return parse_scenario(with_base(data, base_dir or Path.cwd()), base_dir or Path.cwd())
 
 
 def build_reference(scenario: Scenario) -> Any:

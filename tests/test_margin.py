@@ -148,16 +148,23 @@ def test_certify_prints_d_star_and_with_empirical_the_break_and_their_ratio(tmp_
     assert emp["first_broken"] in ("|v|", "|omega|") and "d1" in emp["disturbance"]
 
 
-def test_a_law_that_cannot_run_on_arrays_is_refused_by_name(tmp_path, capsys):
-    path = tmp_path / "pd.toml"
-    path.write_text(
-        USER_LAW.replace(
-            "tests.margin_user_law:SaturatedTracker", "tests.example_user_controller:SaturatedPD"
-        ).replace("gain = 20.0", "gain = 5.0")
-    )
-    assert main(["margin", str(path), "--out", str(tmp_path / "o"), "--seeds", "2"]) == 2
-    assert "SaturatedPD' failed on the batch path" in capsys.readouterr().err
-    assert not (tmp_path / "o" / "margin.json").exists()
+def test_a_law_on_floats_only_runs_one_robot_at_a_time_said_once_and_law_picks_it(tmp_path, capsys):
+    """A law written for one robot on floats runs on the batch path one robot at a time (as
+    hil sweep runs it), the user told once; --law runs it on a scenario that names another
+    law (margin.json names the law that ran)."""
+    pd = "tests.example_user_controller:SaturatedPD"
+    text = USER_LAW.replace("tests.margin_user_law:SaturatedTracker", pd)
+    args = ("--seeds", "2", "--duration", "2")
+    code, named = _margin(tmp_path, text.replace("gain = 20.0", "gain = 5.0"), "pd", *args)
+    err = capsys.readouterr().err
+    assert err.count("one robot at a time") == 1, err
+    assert code in (0, 1) and named.law == pd and named.probes  # it ran: no refusal
+    other = tmp_path / "unified.toml"
+    other.write_text(DISTURBED)
+    out = tmp_path / "by-option"
+    main(["margin", str(other), "--law", pd, "--out", str(out), *args])
+    by_option = record.read(out)
+    assert by_option is not None and by_option.law == pd and by_option.probes
 
 
 def test_margin_of_a_simulation_folder_is_its_scenarios_and_lands_in_its_report(tmp_path):

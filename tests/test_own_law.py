@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -24,6 +25,8 @@ from hil.law.option import with_law
 from hil.scenario import build_loop, load_scenario
 from hil.sim import RobotVariation, simulate, simulate_batch
 from tests.run_helpers import PASSES, check_verdict, clean_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
 
 HIL = str(Path(sys.executable).with_name("hil"))  # the console script a user runs
 SCALAR_LAW = "tests.example_user_controller:SaturatedPD"  # math on floats only
@@ -213,15 +216,24 @@ def test_law_path_lookup_in_process(tmp_path: Path) -> None:
     assert law.name == "saturated_pd"
 
 
-def test_law_option_is_the_same_on_run_sim_and_sweep() -> None:
+def test_law_option_is_the_same_wherever_a_law_runs(tmp_path: Path) -> None:
+    """--law on every command that runs a law (margin and fleet included), and a fleet's
+    --law reaches each robot, one hil run each or K robots a process."""
     import typer.main
 
+    from hil.bench.fleet.spawner import FleetOptions, group_argv, run_argv
+    from hil.bench.group import GroupSpec
     from hil.cli import app
 
     group = typer.main.get_command(app)
-    for name in ("run", "sim", "sweep"):
+    for name in ("run", "sim", "sweep", "margin", "fleet"):
         params = {p.name: p for p in group.commands[name].params}  # type: ignore[attr-defined]
         assert params["law"].opts == ["--law"] and params["law"].help == LAW_HELP, name
+    opts = FleetOptions(Path("s.toml"), 2, tmp_path, law="my_law:MyLaw")
+    argv = run_argv(opts, "robot1")
+    assert argv[argv.index("--law") + 1] == "my_law:MyLaw"
+    spec = json.loads(Path(group_argv(opts, ["robot1", "robot2"])[-1]).read_text())
+    assert GroupSpec(**spec).options("robot1").law == "my_law:MyLaw"
 
 
 def test_law_option_replaces_the_table_unless_it_names_the_same_law() -> None:
@@ -315,3 +327,32 @@ def test_the_template_runs_on_arrays_as_it_is(tmp_path: Path) -> None:
     controller, reference, _ = build_loop(sc)
     assert for_batch(controller, sc, reference) is controller
     assert batch_note(controller, sc, reference) is None
+
+
+def test_the_laws_test_runs_as_printed_right_after_the_readmes_install(tmp_path: Path) -> None:
+    """The README's install has no pytest (requirements.lock holds none): the command that
+    hil new-law prints and docs/own-controller.md gives first runs the law's test without it
+    (here pytest is made unimportable, as in that install)."""
+    assert not re.search(r"^pytest==", (ROOT / "requirements.lock").read_text(), re.M)
+    doc = (ROOT / "docs" / "own-controller.md").read_text()
+    first = next(ln for ln in doc.splitlines() if "test_my_law.py" in ln and ln.startswith("py"))
+    assert first.split("#")[0].split() == ["python", "test_my_law.py"], first
+    made = _hil("new-law", "law_no_pytest", cwd=tmp_path)
+    assert made.returncode == 0, made.stderr
+    line = next(ln for ln in made.stdout.splitlines() if ln.startswith("test it:"))
+    argv = line.split(":", 1)[1].split("(")[0].split()
+    assert argv == ["python", "test_law_no_pytest.py"], line
+    shadow = tmp_path / "no-pytest"
+    shadow.mkdir()
+    (shadow / "pytest.py").write_text("raise ImportError('No module named pytest')\n")
+    env = _env() | {"PYTHONPATH": str(shadow)}
+    test = subprocess.run(
+        [sys.executable, *argv[1:]],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert test.returncode == 0, test.stdout[-2000:] + test.stderr[-2000:]
+    assert test.stdout.count("ok  test_") == 4, test.stdout

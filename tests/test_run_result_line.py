@@ -53,7 +53,9 @@ def test_hil_run_json_gives_the_brief_on_stdout_and_the_line_on_stderr(tmp_path:
     assert Path(brief["run_dir"]) == out
     assert brief["verdict"] == summary["verdict"]["outcome"] == "PASS", brief
     assert brief["reasons"] == summary["verdict"]["reasons"] == [], brief
-    m = LINE.fullmatch(proc.stderr.strip().splitlines()[0])
+    lines = proc.stderr.strip().splitlines()  # the start line (hil.ticker), then the result
+    assert lines[0].startswith("hil run: ") and str(out) in lines[0], proc.stderr
+    m = LINE.fullmatch(lines[-1])
     assert m and m.group(1) == "PASS" and m.group(2) == "run folder", proc.stderr
     assert Path(m.group(3)) == out, proc.stderr
 

@@ -116,7 +116,8 @@ def test_sweep_finds_the_break_point_of_a_design_near_its_limits(tmp_path: Path)
     for f in doc["figures"]:
         assert (out / f["png"]).read_bytes().startswith(b"\x89PNG")
         assert (out / f["data"]).stat().st_size > 0
-    assert main(["sweep", str(tmp_path / "edge.toml"), "--out", str(out), "--strict"]) == 1
+    again = ["--out", str(out), "--strict", "--force"]  # the same folder, replaced whole
+    assert main(["sweep", str(tmp_path / "edge.toml"), *again]) == 1
 
 
 def test_sweep_rows_equal_the_single_run_path(tmp_path: Path) -> None:

@@ -61,11 +61,13 @@ class GroupSpec:
     lab: str | None = None  # on a lab's hosts (hil.bench.lab.placement), through their routers
     plant_host: str | None = None
     controller_host: str | None = None
+    law: str | None = None  # hil fleet --law
 
     def options(self, robot: str | None = None) -> RunOptions:
         """``hil run``'s options for one robot of the group (``--no-can``, quiet)."""
         opts = RunOptions(scenario=Path(self.scenario), duration=self.duration, rate=self.rate)
         opts.quiet, opts.can_live, opts.robot_id = True, False, robot
+        opts.law = self.law
         opts.out = None if robot is None else Path(self.out) / robot
         for key in ("lab", "plant_host", "controller_host"):
             setattr(opts, key, getattr(self, key))

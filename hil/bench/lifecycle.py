@@ -25,7 +25,7 @@ from typing import Any
 import can
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from hil import interrupts, options
+from hil import interrupts, options, ticker
 from hil.bench import impair
 from hil.bench.defaults import PAPER_TRACKING_TOML
 from hil.bench.fleet import barrier as fleet_barrier
@@ -45,7 +45,7 @@ from hil.bench.settings import (
 from hil.bench.supervisor import Supervisor
 from hil.bundled import resolve_scenario
 from hil.errors import BadInputError
-from hil.folder import layout, new_run_dir
+from hil.folder import claim, layout, new_run_dir
 from hil.folder.records import ControllerExit, Recorded, RunExtra
 from hil.folder.replay import RunLatencies
 from hil.law.option import with_law
@@ -114,6 +114,9 @@ class RunOptions:
     plant_host: str | None = None
     controller_host: str | None = None
     robot_id: str | None = None  # instead of the scenario's (hil fleet: one per robot)
+    force: bool = False  # --force: replace a folder that holds files (hil.folder.claim)
+    # False: hil controller / hil emulator, two services that share one folder (default ".")
+    fresh_out: bool = True
     # [timing] replay naming a real run: the reader of its latencies (the analysis's,
     # hil.analysis.replay.latencies_from_run, handed over by the command); None: files only
     run_latencies: RunLatencies | None = None
@@ -151,7 +154,10 @@ def check_options(opts: RunOptions) -> None:
         options.plain_string("--can-interface", opts.can_interface, empty=False)
     if opts.can_channel is not None:
         options.plain_string("--can-channel", opts.can_channel, empty=False)
-    options.out_dir("--out", opts.out, default="runs")
+    if opts.fresh_out:
+        claim.check("--out", opts.out, opts.force, default="runs")
+    else:
+        options.out_dir("--out", opts.out, default="runs")
     if opts.robot_id is not None and not is_valid_robot_id(opts.robot_id):
         raise BadInputError(f"--robot-id {opts.robot_id!r}: 1-64 characters of [A-Za-z0-9_.-]")
     live_check(opts.live_port, opts.live_host)
@@ -256,6 +262,8 @@ def prepare(
     )
     controller, reference, context = build_loop(scenario)
     settings = _run_settings(opts, scenario, context, scenario_path, run_dir, rate)
+    if opts.fresh_out:
+        claim.take(run_dir, "run")
     run_dir.mkdir(parents=True, exist_ok=True)
     if given is None:
         scenario_path.write_text(PAPER_TRACKING_TOML)
@@ -352,6 +360,7 @@ def execute(opts: RunOptions) -> Recorded:
     placed = placement.enter(opts, impaired, impair.started_as_hil_run())
     impairment = None if placed else impair.enter(opts, check_options, load)
     scenario, settings, run_dir, info = prepare(opts, load)
+    _say_start(opts, scenario, settings, run_dir)
     sup = Supervisor()
     metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
@@ -456,6 +465,14 @@ def _wait_port(endpoint: str, stop: Any, timeout: float) -> bool:
     return False
 
 
+def _say_start(opts: RunOptions, scenario: Any, settings: RunSettings, run_dir: Path) -> None:
+    """The run's start line (hil.ticker): what runs, for how long, where it writes."""
+    name = Path(opts.scenario).name if opts.scenario else "paper_tracking (default)"
+    law = scenario.controller.get("law", "unified")
+    what = f"{name}, law {law}, {1 / settings.ts:g} Hz, commands on {settings.cmd_path}"
+    ticker.start_line("run", what, f"{settings.duration:g} s", run_dir)
+
+
 def _wait_ready(recorder: Recorder, sup: Supervisor, stop: Any, timeout: float) -> bool:
     deadline = time.monotonic() + timeout
     while not stop and time.monotonic() < deadline:
@@ -500,6 +517,7 @@ def _progress(
         disable=quiet or not sys.stderr.isatty(),  # then only the wait
     ) as prog:
         task = prog.add_task("run", total=1.0, info="")
+        tick = ticker.Ticker("hil run", enabled=not quiet and not sys.stderr.isatty())
         while not stop and plant.alive() and time.monotonic() < limit:
             if controller is not None and gone_ns is None and not controller.alive():
                 gone_ns = time.monotonic_ns()
@@ -512,7 +530,11 @@ def _progress(
                 info = f"cycles {c.get('cycles', 0)} misses {c.get('deadline_misses', 0)}"
             done = recorder.states / total if total else (time.monotonic() - t0) / settings.duration
             prog.update(task, completed=min(1.0, done), info=info)
+            elapsed = time.monotonic() - t0
+            tick.tick(f"{elapsed:.0f} s of {settings.duration:g} s" + (f", {info}" if info else ""))
             time.sleep(0.05)
+    if not quiet:  # the phases after the run take seconds on a long one
+        ticker.say("hil run: the run ended; stopping the services, then measuring and judging")
     # The controller outlives the plant (its end is 2 s past the plant's) until it is stopped:
     # found ended here, it ended on its own, before the run's end.
     if controller is None or controller.alive():

@@ -1,6 +1,18 @@
 """``hil`` subcommands: each module adds its commands to :data:`app` (see :mod:`hil.cli`)."""
 
+from typing import Annotated
+
 import typer
+
+#: ``--force`` of every command that writes a folder (hil.folder.claim): one spelling.
+ForceOpt = Annotated[
+    bool,
+    typer.Option(
+        "--force",
+        help="Replace the output folder whole when it already holds files (a folder hil "
+        "wrote); without it such a folder is refused, so no stale file stays beside new ones.",
+    ),
+]
 
 app = typer.Typer(
     name="hil",

@@ -7,9 +7,8 @@ from typing import Annotated
 
 import typer
 
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.errors import BadInputError
-from hil.options import out_dir
 
 
 @app.command("can-dbc")
@@ -20,13 +19,15 @@ def can_dbc(
     out: Annotated[
         Path | None, typer.Option(help="Write odrive_cansimple.dbc in this folder (else: stdout).")
     ] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Write the ODrive CANSimple (firmware 0.6) DBC with one message set per node id, so
     that `cantools decode` names every frame of those nodes. The file shipped in the
     package (protocol/can/odrive_cansimple.dbc) is the one for 0-7, as ODrive's own."""
+    from hil.folder import claim
     from protocol.can.dbc import parse_nodes, render
 
-    out_dir("--out", out)
+    claim.check("--out", out, force)
     try:
         text = render(parse_nodes(nodes))
     except ValueError as exc:
@@ -34,6 +35,6 @@ def can_dbc(
     if out is None:
         typer.echo(text, nl=False)
         return
-    out.mkdir(parents=True, exist_ok=True)
+    claim.take(out, "can-dbc")
     (out / "odrive_cansimple.dbc").write_text(text, encoding="utf-8")
     typer.echo(f"wrote {out / 'odrive_cansimple.dbc'} for nodes {nodes}")

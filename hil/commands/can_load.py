@@ -8,9 +8,9 @@ from typing import Annotated
 
 import typer
 
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.errors import BadInputError, NegativeVerdictError
-from hil.options import integer, number, optional_number, out_dir
+from hil.options import integer, number, optional_number
 
 RATE_MAX = 1e6  # Hz: frames per second of one kind
 BITRATE_MAX = 1e9  # bit/s
@@ -33,11 +33,13 @@ def can_load(
     out: Annotated[
         Path | None, typer.Option(help="Also write can_load.json in this folder.")
     ] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Bit length of every periodic frame (classical CAN, 11-bit id, worst-case stuffing:
     47 + 8 DLC + floor((34 + 8 DLC - 1)/4) bits, 3-bit interframe space included; Davis
     et al. 2007) and the bus load in percent. Exit code 1 (with a warning) when the load
     exceeds 100%, 2 on bad input."""
+    from hil.folder import claim
     from protocol.can.bus_load import bus_load_percent, profile_frames
 
     rate = number("--rate", rate, 0.0, RATE_MAX, positive=True)
@@ -45,7 +47,7 @@ def can_load(
     drives = integer("--drives", drives, 1, DRIVES_MAX)
     heartbeat_rate = number("--heartbeat-rate", heartbeat_rate, 0.0, RATE_MAX)
     encoder_rate = optional_number("--encoder-rate", encoder_rate, 0.0, RATE_MAX)
-    out_dir("--out", out)
+    claim.check("--out", out, force)
     try:
         frames = profile_frames(rate, drives, heartbeat_rate, encoder_rate)
         load = bus_load_percent(frames, bitrate)
@@ -69,7 +71,7 @@ def can_load(
         "load_percent": load,
     }
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
+        claim.take(out, "can-load")
         (out / "can_load.json").write_text(json.dumps(report, indent=2) + "\n")
     if as_json:
         typer.echo(json.dumps(report, indent=2))

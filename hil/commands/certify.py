@@ -11,15 +11,17 @@ standard deviations, as the report does).
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from types import SimpleNamespace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from hil import options
 from hil.bundled import resolve_scenario
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.errors import BadInputError, NegativeVerdictError
+from hil.ticker import start_line
 
 if TYPE_CHECKING:
     from hil.provenance import Toml
@@ -143,6 +145,22 @@ def certify_scenario(
     return cert, proposal, facts
 
 
+#: hil certify --out's file: what --json prints.
+CERTIFICATE_JSON = "certificate.json"
+
+
+def _document(cert: Any, proposal: Any, facts: dict[str, Any]) -> dict[str, Any]:
+    """The certificate as --json prints it and --out writes it."""
+    doc = {**facts, "certificate": cert.to_dict()}
+    if proposal is not None:
+        doc["proposal"] = {
+            "params": None if proposal.params is None else dict(vars(proposal.params)),
+            "reason": proposal.reason,
+            "changes": {k: list(v) for k, v in proposal.changes.items()},
+        }
+    return doc
+
+
 @app.command("certify")
 def certify_command(
     scenario: str = typer.Argument(
@@ -163,18 +181,26 @@ def certify_command(
         help="Also search where (2) really breaks under the worst disturbance (batch "
         "simulation, hil.margin; seconds to minutes) and print its ratio to D*.",
     ),
+    out: Annotated[
+        Path | None,
+        typer.Option(help=f"Also write the certificate ({CERTIFICATE_JSON}) in this folder."),
+    ] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Is (2) guaranteed for the sampled, delayed loop? (docs/sampled_data_bound.md)"""
+    from hil.folder import claim
+
+    claim.check("--out", out, force)
+    if empirical:  # the long part: a search in simulation
+        what = f"{scenario}, the certificate and the break under the worst disturbance"
+        start_line("certify", what, "seconds to minutes", out or "the terminal only")
     cert, proposal, facts = certify_scenario(scenario, ts, delay, empirical)
+    doc = _document(cert, proposal, facts)
+    if out is not None:
+        path = claim.take(out, "certify") / CERTIFICATE_JSON
+        path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
     if as_json:
-        out = {**facts, "certificate": cert.to_dict()}
-        if proposal is not None:
-            out["proposal"] = {
-                "params": None if proposal.params is None else dict(vars(proposal.params)),
-                "reason": proposal.reason,
-                "changes": {k: list(v) for k, v in proposal.changes.items()},
-            }
-        typer.echo(json.dumps(out, indent=2))
+        typer.echo(json.dumps(doc, indent=2))
     else:
         from rich.console import Console
 

@@ -8,8 +8,7 @@ from typing import Annotated
 
 import typer
 
-from hil.commands import app
-from hil.options import out_dir
+from hil.commands import ForceOpt, app
 
 
 @app.command("compare")
@@ -19,6 +18,7 @@ def compare(
     out: Annotated[
         Path | None, typer.Option(help="Where to write (default: a new folder under runs/).")
     ] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Overlaid trajectories, v, ω, τ1, τ2, position error and (runs) latency CDFs of two
     folders (the Zenoh path against the CAN path, two rates, a run against its
@@ -27,9 +27,10 @@ def compare(
     compare.html, compare.md, compare.json, PNG + CSV per figure. Exit 0, or 2 when a
     folder is not a run."""
     from hil.analysis.report.compare import build_compare
-    from hil.folder import load_folder
+    from hil.folder import claim, load_folder
 
-    out_dir("--out", out, default="runs")
-    target = out or Path("runs") / time.strftime("compare-%Y%m%d-%H%M%S")
-    build_compare(load_folder(dir_a), load_folder(dir_b), target)
+    claim.check("--out", out, force, default="runs")
+    a, b = load_folder(dir_a), load_folder(dir_b)
+    target = claim.take(out or Path("runs") / time.strftime("compare-%Y%m%d-%H%M%S"), "compare")
+    build_compare(a, b, target)
     typer.echo(f"compare: {target / 'compare.html'}")

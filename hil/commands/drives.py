@@ -7,10 +7,9 @@ from typing import Annotated
 
 import typer
 
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.commands.run import LiveHostOpt, live_opt
 from hil.errors import BadInputError
-from hil.options import out_dir
 
 
 def _msg_rates(heartbeat_ms: float, encoder_ms: float, extra: list[str]) -> dict[int, float]:
@@ -114,19 +113,21 @@ def drives_cmd(
     out: OutOpt = None,
     live: LiveOpt = None,
     live_host: LiveHostOpt = "127.0.0.1",
+    force: ForceOpt = False,
 ) -> None:
     """Run the robot with its two virtual ODrives (CANSimple 0.6) on a CAN bus for any
     ODrive client, free running (no start gate), until Ctrl-C or SIGTERM: one status line
     a second, a JSON summary at the end (docs/can.md)."""
     from hil.bench.drives import DrivesOptions, drives_settings, run_drives
     from hil.bench.live.launch import DrivesLive, check
+    from hil.folder import claim
     from protocol.settings import SCHEDULING
 
     if scheduling is not None and scheduling not in SCHEDULING:
         raise BadInputError("--scheduling must be fifo or other")
     if duration is not None and not duration > 0:
         raise BadInputError("--duration must be > 0")
-    out_dir("--out", out)  # before the drives run, not when they stop
+    claim.check("--out", out, force)  # before the drives run, not when they stop
     opts = DrivesOptions(
         scenario=scenario,
         interface=can_interface,
@@ -148,6 +149,8 @@ def drives_cmd(
     import can
 
     check(live, live_host)
+    if out is not None:
+        claim.take(out, "drives")
     watcher = None
     try:
         if live is not None:  # the live view's process around the drives

@@ -10,10 +10,12 @@ import typer
 
 from hil import interrupts
 from hil.bundled import resolve_scenario
-from hil.commands import app
+from hil.commands import ForceOpt, app
+from hil.commands.new_law import LawOpt
 from hil.commands.run import LiveHostOpt, live_opt
 from hil.errors import NegativeVerdictError
 from hil.options import out_dir
+from hil.ticker import start_line
 
 FleetLiveOpt = live_opt("every robot of the fleet, each on its own topics hil/robotI/...,")
 
@@ -42,6 +44,8 @@ def fleet_cmd(
     ] = 1,
     live: FleetLiveOpt = None,
     live_host: LiveHostOpt = "127.0.0.1",
+    law: LawOpt = None,
+    force: ForceOpt = False,
 ) -> None:
     """Run N robots' closed loops at once, each its own `hil run` with its own robot id
     (robotI: keys hil/robotI/...), controller, plant and run folder OUT/robotI (a complete
@@ -57,17 +61,27 @@ def fleet_cmd(
     The fleet's verdict is its robots': FAIL (exit 1) when a robot's is FAIL or its run left
     no verdict, else INCONCLUSIVE (exit 4) when a robot's is, else PASS (exit 0)."""
     from hil.analysis import fleet_report as report
-    from hil.bench.fleet.spawner import FleetOptions, execute, robot_ids
+    from hil.bench.fleet.spawner import FleetOptions, check, execute, robot_ids
     from hil.bench.live import launch
+    from hil.law.option import with_law
+    from hil.scenario import build_loop, load_scenario
     from runtime.signals import stop_on_signals
 
     out_dir("--out", out)
     path = resolve_scenario(scenario)
     opts = FleetOptions(
-        path, robots, out, duration, rate, lab, plant_host, controller_host, per_process
+        path, robots, out, duration, rate, lab, plant_host, controller_host, per_process, force
     )
+    opts.law = law
     launch.check(live, live_host)  # the port, before any robot starts
+    check(opts)  # the options, the folder and the law, before the start line
+    sc = with_law(load_scenario(path), law)
+    build_loop(sc)  # a law that cannot be built is refused here, not by every robot
     ids = robot_ids(robots)
+    what = f"{path.name}, law {sc.controller.get('law', 'unified')}, {robots} robots"
+    what += f" ({per_process} a process), each its own hil run"
+    long = f"{duration:g} s each" if duration is not None else "the scenario's duration each"
+    start_line("fleet", what, long, out)
     watcher = None if live is None else launch.FleetLive(out, ids, live, live_host, lab is not None)
     with stop_on_signals() as stop:
         codes = execute(opts, stop, watcher)

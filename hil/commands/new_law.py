@@ -41,6 +41,7 @@ def new_law(
     law = f"{name}:{class_name(name)}"
     for path in written:
         typer.echo(f"wrote {path}")
-    typer.echo(f"test it:  python -m pytest {written[1]}")
+    # Runs right after the README's install: pytest is a test tool, not one of hil's own.
+    typer.echo(f"test it:  python {written[1]}   (with pytest: python -m pytest {written[1]})")
     typer.echo(f"run it:   hil sim paper_tracking --law {law} --out runs/{name}")
     typer.echo(f"sweep it: hil sweep paper_tracking --law {law} --out runs/{name}-sweep")

@@ -9,9 +9,9 @@ from typing import Annotated
 import typer
 
 from hil import interrupts
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.errors import NegativeVerdictError
-from hil.options import out_dir
+from hil.ticker import start_line
 
 
 @app.command("paper")
@@ -26,6 +26,7 @@ def paper(
     traces: Annotated[
         bool, typer.Option("--traces", help="Also write each run's full trace.csv.")
     ] = False,
+    force: ForceOpt = False,
 ) -> None:
     """Reproduce the paper's tracking, stabilization, chattering reduction (19) and both
     comparisons ([7] on the tracking run, [19] on circle_then_stop) offline, at Ts = 1 ms
@@ -34,11 +35,14 @@ def paper(
     figures is written as soon as its runs are done; Ctrl-C keeps what was written (and a
     table of the runs done) and exits 130. Exit 1 when a check of the paper's claims
     fails. Takes about 2-4 minutes on 2 cores (--quick: under a minute)."""
-    from hil.folder import new_run_dir
+    from hil.folder import claim, new_run_dir
     from hil.paper import run_paper
 
-    out_dir("--out", out, default="runs")
-    folder = out or new_run_dir("runs", "paper")
+    claim.check("--out", out, force, default="runs")
+    folder = claim.take(out or new_run_dir("runs", "paper"), "paper")
+    how_long = "under a minute (--quick)" if quick else "about 2-4 minutes on 2 cores"
+    what = f"the paper's Section 4 offline, {jobs} processes, a line as each run ends"
+    start_line("paper", what, how_long, folder)
     table = run_paper(
         folder, quick=quick, jobs=jobs, traces=traces, log=lambda m: typer.echo(m, err=True)
     )

@@ -8,9 +8,9 @@ from typing import Annotated
 
 import typer
 
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.errors import NegativeVerdictError
-from hil.options import number, out_dir
+from hil.options import number
 
 
 @app.command("report")
@@ -50,6 +50,7 @@ def report(
             "only those inside the bench's stalls put them over)."
         ),
     ] = 0.01,
+    force: ForceOpt = False,
 ) -> None:
     """Sampling-effect report. First the answers: limits of (2) held and by what margin,
     the command age D against D* (the certificate), the stalls closest to D*, the share
@@ -65,12 +66,13 @@ def report(
     from hil.analysis.report.ideal import ideal_from_simulator
     from hil.bench.repair import is_run_folder, needs_recovery
     from hil.commands.recover import recover
-    from hil.folder import load_folder
+    from hil.folder import claim, load_folder
 
     number("--max-deadline-miss-ratio", max_deadline_miss_ratio, 0.0, 1.0)
     number("--max-lost-ratio", max_lost_ratio, 0.0, 1.0)
     number("--max-samples-without-command-ratio", max_samples_without_command_ratio, 0.0, 1.0)
-    out_dir("--out", out)
+    elsewhere = out is not None and out.resolve() != folder.resolve()
+    claim.check("--out", out if elsewhere else None, force)  # else: its own folder, rewritten
     if is_run_folder(folder) and needs_recovery(folder):
         # A killed hil run: make the folder whole first (hil recover), then report.
         typer.echo(f"recovering {folder} first: {', '.join(needs_recovery(folder))}", err=True)
@@ -79,7 +81,7 @@ def report(
     simulate = None if ideal is False else partial(ideal_from_simulator, user_law=bool(ideal))
     limits = Thresholds(max_deadline_miss_ratio, max_lost_ratio, max_samples_without_command_ratio)
     rep = build_report(load_folder(folder, lazy=True), ideal=simulate, thresholds=limits)
-    paths = write_report(rep, out or folder)
+    paths = write_report(rep, claim.take(out, "report") if out and elsewhere else folder)
     typer.echo(f"report: {paths['html']}")
     v = rep.data["verdict"]
     if v["outcome"] != "PASS":  # FAIL exits 1, INCONCLUSIVE 4 (hil.verdict.EXIT_CODE)

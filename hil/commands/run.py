@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from hil import interrupts
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.commands.new_law import LawOpt
 from hil.errors import NegativeVerdictError
 
@@ -207,6 +207,7 @@ def run(
     robot_id: RobotIdOpt = None,
     live: LiveOpt = None,
     live_host: LiveHostOpt = "127.0.0.1",
+    force: ForceOpt = False,
 ) -> None:
     """Run the controller against the emulated robot over Zenoh and CAN and record it."""
     from hil.analysis.analyze import write_results
@@ -238,6 +239,7 @@ def run(
             live_port=live,
             live_host=live_host,
             run_latencies=latencies_from_run,
+            force=force,
         )
     )
     summary: Summary = write_results(recorded).copy()

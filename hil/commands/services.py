@@ -83,6 +83,7 @@ def service(
         # Resolved as hil run resolves it, with this service's own endpoints and epoch.
         run = {"duration": duration, "rate": rate, "cmd_path": cmd_path, "lockstep": lockstep}
         opts = RunOptions(scenario=scenario, out=out, run_latencies=latencies_from_run, **run)
+        opts.fresh_out = False  # the two services may share one folder (default: here)
         _, s, run_dir, _ = prepare(opts)
         s.zenoh_endpoint = endpoint
         s.can_endpoint = can_endpoint

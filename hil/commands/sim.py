@@ -8,10 +8,10 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.commands.new_law import LawOpt
 from hil.errors import NegativeVerdictError
-from hil.options import out_dir
+from hil.ticker import Ticker, start_line
 
 
 @app.command("sim")
@@ -31,6 +31,7 @@ def sim(
         float | None, typer.Option(help="Override [timing] ts, the control period (s).")
     ] = None,
     law: LawOpt = None,
+    force: ForceOpt = False,
 ) -> None:
     """Simulate one closed loop offline (law at Ts with zero-order hold, RK4 plant, delay and
     jitter as the scenario says) and write scenario.resolved.toml, trace.csv, summary.json.
@@ -45,21 +46,24 @@ def sim(
 
     from hil.analysis.replay import scenario_latencies
     from hil.bundled import resolve_scenario
-    from hil.folder import new_run_dir
+    from hil.folder import claim, new_run_dir
     from hil.law.option import with_law
-    from hil.scenario import load_scenario
+    from hil.scenario import build_loop, load_scenario
     from hil.sim import simulate, write_run_folder
 
-    out_dir("--out", out, default="runs")
+    claim.check("--out", out, force, default="runs")
     path = resolve_scenario(scenario)
     sc = with_law(load_scenario(path), law).with_overrides(duration=duration, ts=ts)
     target = out or new_run_dir("runs", "sim")
-    # A progress bar on stderr; when that is no terminal, this line instead, once, from inside
-    # the loop (at its first progress call), so a script can tell the work has begun.
+    build_loop(sc)  # a law that cannot be built is refused before the start line (exit 2)
+    # The start line; then a progress bar on stderr, or off a terminal a line every few
+    # seconds (hil.ticker), so a script or a CI log can tell the work goes on.
     console = Console(stderr=True)
     quiet = not console.is_terminal
-    started = f"sim {path.name}: {sc.run.duration:g} s at Ts = {sc.timing.ts:g} s into {target}"
-    pending = [f"{started} (Ctrl-C writes what was computed)"] if quiet else []
+    law = sc.controller.get("law", "unified")
+    what = f"{path.name}, law {law}, Ts = {sc.timing.ts:g} s (Ctrl-C writes what was computed)"
+    start_line("sim", what, f"{sc.run.duration:g} s simulated", target)
+    tick = Ticker("hil sim", enabled=quiet)
     with Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -72,17 +76,16 @@ def sim(
         task = bar.add_task(f"sim {path.name}", total=1)
 
         def progress(k: int, total: int) -> None:
-            if pending:
-                typer.echo(pending.pop(), err=True)
+            tick.tick(f"sample {k:,} of {total:,} ({100 * k / max(total, 1):.0f}%)")
             bar.update(task, completed=k, total=total)
 
         result = simulate(sc, progress=progress, replay=scenario_latencies(sc))
     with interrupts.shielded():  # a second Ctrl-C must not leave the folder half-written
-        folder = write_run_folder(result, target)
-    _say_and_judge(result, folder, sc.run.duration)
+        folder = write_run_folder(result, claim.take(target, "sim"))
+    _finish(result, folder, sc.run.duration)
 
 
-def _say_and_judge(result: Any, folder: Path, planned_s: float) -> None:
+def _finish(result: Any, folder: Path, planned_s: float) -> None:
     """The simulation's result line, then its verdict's exit (a law's fault, a non-finite
     state, a broken limit: FAIL) or, interrupted, what it did not cover."""
     s = result.summary

@@ -10,9 +10,10 @@ from typing import Annotated, Any
 import typer
 
 from hil import interrupts
-from hil.commands import app
+from hil.commands import ForceOpt, app
 from hil.commands.new_law import LawOpt
 from hil.errors import BadInputError, NegativeVerdictError
+from hil.ticker import Ticker, start_line
 
 DEFAULT_MAX_DURATION = 20.0
 SWEEP_HELP = (
@@ -87,19 +88,24 @@ def sweep(
     workers: WorkersOpt = None,
     scheduler: SchedulerOpt = None,
     chunk_size: ChunkSizeOpt = None,
+    force: ForceOpt = False,
 ) -> None:
     """Sweep the loop over grids of Ts, delay, jitter and seeds (help: SWEEP_HELP)."""
+    from hil.folder import claim
     from hil.sweep import cluster
 
     scenario, grid, loop_s, latencies = _checked_sweep(
-        scenario_file, out, ts, delay, jitter, seeds, duration, law
+        scenario_file, out, ts, delay, jitter, seeds, duration, law, force
     )
     chunked = cluster.wanted(workers, scheduler, chunk_size)
     if chunked and worst_disturbance:
         raise BadInputError("--worst-disturbance runs in this process only (no chunks yet)")
     executor = cluster.open_executor(workers, scheduler, chunk_size) if chunked else None
-    target = out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S")
-    target.mkdir(parents=True, exist_ok=True)
+    target = claim.take(out or Path("runs") / time.strftime("sweep-%Y%m%d-%H%M%S"), "sweep")
+    claim.write_scenario(target, scenario)  # what ran, whole (docs/scenario.md)
+    law = scenario.controller.get("law", "unified")
+    what = f"{Path(scenario_file).name}, law {law}, {len(grid)} loops ({len(grid.ts)} Ts groups)"
+    start_line("sweep", what, f"{loop_s:g} s simulated each", target)
     if latencies is not None:  # the run's latencies, replayed from replay.json in the folder
         from hil.folder.replay import write_latency_file
 
@@ -182,6 +188,7 @@ def _checked_sweep(
     seeds: int | None,
     duration: float | None,
     law: str | None = None,
+    force: bool = False,
 ) -> tuple[Any, Any, float, Any]:
     """The scenario, its grid, the loop length and the latencies of a run it replays (or
     None), every option and the scenario checked before any folder is written
@@ -189,6 +196,7 @@ def _checked_sweep(
     from hil import options
     from hil.analysis.replay import latencies_from_run
     from hil.bundled import resolve_scenario
+    from hil.folder import claim
     from hil.folder.replay import is_run_source, jitter_samples_from
     from hil.law.batch import batch_note
     from hil.law.option import with_law
@@ -211,7 +219,7 @@ def _checked_sweep(
     if seeds is not None:
         options.integer("--seeds", seeds, 1, SWEEP_SEEDS_MAX)
     options.optional_number("--duration", duration, 0.0, DURATION_MAX, positive=True)
-    options.out_dir("--out", out, default="runs")
+    claim.check("--out", out, force, default="runs")
     scenario = with_law(load_scenario(resolve_scenario(scenario_file)), law)
     sw = scenario.sweep
     try:
@@ -268,6 +276,7 @@ def _run_with_progress(
         task = bar.add_task(f"{len(grid)} loops", total=sum(counts.values()) * per_group)
         base: dict[float, int] = {}
         acc = 0
+        tick = Ticker("hil sweep")
 
         def progress(ts_value: float, done: int, n: int) -> None:
             nonlocal acc
@@ -276,6 +285,10 @@ def _run_with_progress(
                 acc += counts[ts_value] * per_group
             completed = base[ts_value] + done * per_group
             bar.update(task, completed=completed, description=f"Ts={ts_value:g} s")
+            total = sum(counts.values()) * per_group
+            tick.tick(
+                f"Ts = {ts_value:g} s, {100 * completed / max(total, 1):.0f}% of the robot-steps"
+            )
 
         # sweep.csv grows group by group, so even a killed sweep leaves what it finished.
         return run_sweep(

@@ -1,5 +1,5 @@
 """``--law module:Class``: what the option does to a scenario (the option itself, the same on
-``hil run``, ``sim`` and ``sweep``, is :mod:`hil.commands.new_law`)."""
+``hil run``, ``sim``, ``sweep``, ``margin`` and ``fleet``, is :mod:`hil.commands.new_law`)."""
 
 from __future__ import annotations
 

@@ -25,7 +25,7 @@ Run it (from this folder; hil finds $name.py here or next to the scenario):
     hil sweep paper_tracking --law $name:$cls --out runs/$name-sweep
     hil run paper_tracking --law $name:$cls
 Test it:
-    python -m pytest test_$name.py      (or: python test_$name.py)
+    python test_$name.py      (with pytest installed: python -m pytest test_$name.py)
 
 The bench builds it as $cls(params, context): params is the scenario's [controller] table
 without `law` (your gains), context the design context (the limits (2) and the disturbance and
@@ -127,7 +127,7 @@ class $cls:
 ''')
 
 TEST = Template('''\
-"""Tests of $name.py: run with `python -m pytest test_$name.py` or `python test_$name.py`."""
+"""Tests of $name.py: run with `python test_$name.py` or `python -m pytest test_$name.py`."""
 
 from __future__ import annotations
 

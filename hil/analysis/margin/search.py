@@ -23,7 +23,7 @@ from controller_service.laws.guard import LawFaultError
 from hil.analysis.margin.record import MarginProbe, MarginRecord
 from hil.analysis.margin.timing import BaseTiming, scaled
 from hil.errors import BadInputError
-from hil.law.batch import array_problem
+from hil.law.batch import for_batch
 from hil.law.facts import Law
 from hil.scenario import Scenario, build_loop
 from hil.sim.adversary.loop import initial_states, run_loops
@@ -106,7 +106,9 @@ def find_margin(
     guard: raises, returns the wrong type or a non-finite torque) ends the search, and the
     record says so (``law_fault``) instead of a k*."""
     started = time.perf_counter()
-    loop = build_loop(scenario)
+    built = build_loop(scenario)
+    # A law that takes only floats runs one robot at a time (hil.law.batch), as in hil sweep.
+    loop = (for_batch(built[0], scenario, built[1]), built[1], built[2])
     probes: list[MarginProbe] = []
     loops = 0
 
@@ -121,7 +123,8 @@ def find_margin(
 
     fault = None
     try:
-        _takes_arrays(scenario, loop, opts.seeds)
+        if getattr(loop[0], "probe_fault", None) is not None:  # it failed on one robot, at t = 0
+            raise LawFaultError(loop[0].probe_fault)
         lo, hi = _bracket(test, opts)
         while lo is not None and math.isfinite(hi) and hi / lo > 1.0 + opts.rel_tol:
             mid = math.sqrt(lo * hi)
@@ -133,7 +136,7 @@ def find_margin(
         fault, lo, hi = exc.fault, None, math.inf
     broke = {p.k: p for p in probes}.get(hi)
     _, replay = scaled(scenario, base, 1.0, opts.seeds, opts.duration)
-    controller, _ref, context = loop
+    controller, _ref, context = built
     params = getattr(controller, "params", None)  # D*: the certificate's, for a unified law
     d_star = None
     if params is not None and Law.of(scenario.controller).has_certificate:
@@ -159,19 +162,3 @@ def find_margin(
         probes=tuple(probes),
         law_fault=None if fault is None else fault.to_dict(),
     )
-
-
-def _takes_arrays(scenario: Scenario, loop: tuple[Any, Any, Any], seeds: int) -> None:
-    """The batch path runs the law on arrays: a law written for floats only is refused by name
-    (BadInputError) before any probe; a law that fails even on one robot raises its
-    LawFaultError here (a fault of the law, at t = 0)."""
-    law = Law.of(scenario.controller)
-    if law.takes_arrays:
-        return
-    controller, reference, _ = loop
-    problem = array_problem(controller, scenario, reference)
-    if problem is not None:
-        raise BadInputError(
-            f"[controller] law {law.name!r} failed on the batch path (numpy arrays of {seeds} "
-            f"robots): {problem}"
-        )

@@ -12,10 +12,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hil import ticker
 from hil.bench.fleet import barrier
 from hil.bench.supervisor import Supervisor
 from hil.errors import BadInputError
-from hil.folder import layout
+from hil.folder import claim, layout
 
 ROBOTS_MAX = 64
 
@@ -31,6 +32,8 @@ class FleetOptions:
     plant_host: str | None = None
     controller_host: str | None = None
     per_process: int = 1  # robots per plant and per controller process
+    force: bool = False  # --force: replace a folder that holds files (hil.folder.claim)
+    law: str | None = None  # --law: every robot's law instead of the scenario's
 
 
 def robot_ids(n: int) -> list[str]:
@@ -44,6 +47,7 @@ def run_argv(opts: FleetOptions, robot: str) -> list[str]:
     for flag, value in (("--duration", opts.duration), ("--rate", opts.rate)):
         if value is not None:
             argv += [flag, repr(value)]
+    argv += ["--law", opts.law] if opts.law else []
     if opts.lab:
         argv += ["--lab", opts.lab]
         argv += ["--plant-host", opts.plant_host] if opts.plant_host else []
@@ -63,6 +67,7 @@ def group_argv(opts: FleetOptions, robots: list[str]) -> list[str]:
         "lab": opts.lab,
         "plant_host": opts.plant_host,
         "controller_host": opts.controller_host,
+        "law": opts.law,
     }
     path = opts.out / layout.group_spec(robots[0])
     path.write_text(json.dumps(spec, indent=2) + "\n")
@@ -83,15 +88,14 @@ def check(opts: FleetOptions) -> None:
     for flag, n in (("--robots", opts.robots), ("--per-process", opts.per_process)):
         if not 1 <= n <= ROBOTS_MAX:
             raise BadInputError(f"{flag} {n}: 1 to {ROBOTS_MAX}")
-    if opts.out.exists() and any(opts.out.iterdir()):
-        raise BadInputError(f"--out {opts.out}: exists and is not empty")
+    claim.check("--out", opts.out, opts.force)
 
 
 def execute(opts: FleetOptions, stop: Any, live: Any = None) -> dict[str, int | None]:
     """Start every robot's ``hil run`` at once and wait for all (or for ``stop``: then each
     gets SIGINT and writes its folder); the exit code of each. ``live``: polled, then closed."""
     check(opts)
-    opts.out.mkdir(parents=True, exist_ok=True)
+    claim.take(opts.out, "fleet")
     sup = Supervisor()
     logs = []
     ids, k = robot_ids(opts.robots), opts.per_process  # k robots a process (check: 1..64)
@@ -104,7 +108,12 @@ def execute(opts: FleetOptions, stop: Any, live: Any = None) -> dict[str, int | 
             env = barrier.env_for(opts.out, opts.robots, first)
             argv = group_argv(opts, robots) if grouped else run_argv(opts, first)
             sup.start(first, argv, env=env, stdout=log, stderr=log)
+        tick, t0 = ticker.Ticker("hil fleet", enabled=True), time.monotonic()
         while not stop and any(c.alive() for c in sup.children):
+            running = sum(c.alive() for c in sup.children)
+            tick.tick(
+                f"{time.monotonic() - t0:.0f} s, {running} of {len(members)} processes running"
+            )
             if live is not None:
                 live.poll()
             for c in sup.children:
