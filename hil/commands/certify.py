@@ -24,6 +24,7 @@ from hil.errors import BadInputError, NegativeVerdictError
 from hil.ticker import start_line
 
 if TYPE_CHECKING:
+    from hil.folder.jsonio import JsonObject
     from hil.provenance import Toml
 
 
@@ -149,7 +150,7 @@ def certify_scenario(
 CERTIFICATE_JSON = "certificate.json"
 
 
-def _document(cert: Any, proposal: Any, facts: dict[str, Any]) -> dict[str, Any]:
+def _document(cert: Any, proposal: Any, facts: dict[str, Any]) -> JsonObject:
     """The certificate as --json prints it and --out writes it."""
     doc = {**facts, "certificate": cert.to_dict()}
     if proposal is not None:
