@@ -17,6 +17,8 @@ from typing import Any
 from hil.errors import BadInputError
 from hil.folder import layout
 from hil.options import out_dir
+from hil.provenance import dumps_toml
+from hil.scenario import build_loop, resolved_dict
 
 #: Written into every folder a command takes: what wrote it, so that ``--force`` may replace it.
 MARKER = ".hil-output"
@@ -64,9 +66,6 @@ def take(path: Path, command: str) -> Path:
 def write_scenario(folder: Path, scenario: Any) -> Path:
     """The scenario a command ran, resolved whole (every table and key, any ``base`` merged
     in; :func:`hil.scenario.resolved_dict`), into ``folder`` as a run folder holds it."""
-    from hil.provenance import dumps_toml
-    from hil.scenario import build_loop, resolved_dict
-
     controller, _, context = build_loop(scenario)
     path = folder / layout.SCENARIO_RESOLVED
     path.write_text(dumps_toml(resolved_dict(scenario, controller, context)), encoding="utf-8")
