@@ -407,6 +407,13 @@ def iter_records(path: str | Path) -> Iterator[tuple[dict[str, Any], int]]:
                     yield rec, unpacker.tell()
 
 
+def header_tables(rec: dict, path: str | Path) -> dict[str, list[str]]:
+    """The column names per table of a header record, after checking its format and version."""
+    if rec.get("format") != FORMAT or rec.get("version") != VERSION:
+        raise HopLogError(f"{path}: not a {FORMAT} v{VERSION} file")
+    return {k: list(v) for k, v in (rec.get("tables") or {}).items()}
+
+
 def read_hoplog(path: str | Path) -> HopLog:
     """Read a hop log whole (the newest counters, the footer if any)."""
     path = Path(path)
@@ -418,9 +425,7 @@ def read_hoplog(path: str | Path) -> HopLog:
         end = offset
         kind = rec.get("r")
         if kind == "header":
-            if rec.get("format") != FORMAT or rec.get("version") != VERSION:
-                raise HopLogError(f"{path}: not a {FORMAT} v{VERSION} file")
-            fields = {k: list(v) for k, v in (rec.get("tables") or {}).items()}
+            fields = header_tables(rec, path)
             if seen_header:  # a restarted service continued the log
                 if fields != log.fields:
                     raise HopLogError(f"{path}: a restart changed the tables")

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from protocol.hoplog import FORMAT, HOST_TABLES, VERSION, HopLogError, iter_records
+from protocol.hoplog import HOST_TABLES, HopLogError, header_tables, iter_records
 
 _F8, _F4, _I8, _I4, _I2, _I1 = np.float64, np.float32, np.int64, np.int32, np.int16, np.int8
 # The columns read, with their types (every stamp int64: nanoseconds, exact). Sequence numbers
@@ -100,9 +100,7 @@ def read_columns(
         end = offset
         kind = rec.get("r")
         if kind == "header":
-            if rec.get("format") != FORMAT or rec.get("version") != VERSION:
-                raise HopLogError(f"{path}: not a {FORMAT} v{VERSION} file")
-            got = {k: list(v) for k, v in (rec.get("tables") or {}).items()}
+            got = header_tables(rec, path)
             if fields is not None:  # a restarted service continued the log
                 if got != fields:
                     raise HopLogError(f"{path}: a restart changed the tables")
