@@ -568,9 +568,7 @@ def load_scenario(path: str | Path) -> Scenario:
 BASE_DEPTH_MAX = 8
 
 
-def with_base(
-    data: Mapping[str, Any], base_dir: Path, chain: tuple[Path, ...] = ()
-) -> Toml:
+def with_base(data: Mapping[str, Any], base_dir: Path, chain: tuple[Path, ...] = ()) -> Toml:
     """``data`` on top of the scenario its top-level ``base`` names (docs/scenario.md,
     "Starting from another scenario"): the base's tables, each key the file sets replacing the
     base's; [reference] and [controller] replaced whole when the file names another ``kind`` or
