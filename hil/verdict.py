@@ -96,6 +96,9 @@ class RunFacts:
     duration_s: float | None = None  # planned
     duration_run_s: float | None = None  # the plant's window actually run
     scheduling: dict[str, Scheduling | None] | None = None  # requested and obtained, per service
+    # What stopped the run before it ran (summary.json's ``error``: the services never became
+    # ready, no outside device connected): a FAIL whatever the figures say.
+    error: str | None = None
 
     @classmethod
     def of(cls, summary: Summary) -> RunFacts | None:
@@ -114,6 +117,7 @@ class RunFacts:
             duration_s=summary.get("duration_planned_s", summary.get("duration")),
             duration_run_s=summary.get("duration_run_s"),
             scheduling=sched if isinstance(sched, dict) else None,
+            error=str(summary["error"]) if summary.get("error") else None,
         )
 
 
@@ -521,6 +525,8 @@ def _relatable(v: Verdict, messages: Messages) -> None:
 def _facts(v: Verdict, facts: RunFacts | None) -> None:
     if facts is None:
         return
+    if facts.error:
+        v.fail_reasons.insert(0, facts.error)
     if facts.interrupted:
         ran = f"{facts.duration_run_s:.3f} s" if facts.duration_run_s is not None else "?"
         planned = f" of {facts.duration_s:g} s" if facts.duration_s is not None else ""

@@ -8,6 +8,7 @@ everything and writes the summary.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import json
 import os
@@ -26,7 +27,7 @@ import can
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from hil import interrupts, options, ticker
-from hil.bench import impair
+from hil.bench import device, impair
 from hil.bench.defaults import PAPER_TRACKING_TOML
 from hil.bench.fleet import barrier as fleet_barrier
 from hil.bench.host_load import HostSampler
@@ -61,7 +62,7 @@ from hil.scenario import (
 )
 from protocol.can.rx_queue import RxQueueDrops
 from protocol.hoplog import LAW_FAULT_EXIT
-from protocol.keys import is_valid_robot_id, observed_keys
+from protocol.keys import is_valid_robot_id, observed_keys, state_key
 from protocol.settings import CMD_PATHS, SCHEDULING, TRIGGERS, RunSettings, period_s
 from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
@@ -74,6 +75,11 @@ LAB_ROUTER = "tcp/127.0.0.1:7447"  # a lab host's own router, from inside the ho
 # port from that range, free when picked, was seen taken by another process's ephemeral
 # listener or connection before the run's own listen (16 runs of a fleet at once).
 PORTS = (20000, 32000)
+
+
+def _endpoint(opts: RunOptions) -> str:
+    """The run's Zenoh endpoint: the one given (a campaign keeps its device's), else free."""
+    return opts.zenoh_endpoint or f"tcp/127.0.0.1:{free_port()}"
 
 
 def free_port() -> int:
@@ -117,21 +123,31 @@ class RunOptions:
     force: bool = False  # --force: replace a folder that holds files (hil.folder.claim)
     # False: hil controller / hil emulator, two services that share one folder (default ".")
     fresh_out: bool = True
+    # "external": no controller of the bench's; an outside device (hil.bench.device)
+    controller: str = "bench"
+    wait_device: float = device.WAIT_DEVICE_S  # s an outside device is waited for
+    zenoh_endpoint: str | None = None  # the run's Zenoh endpoint; None: a free loopback port
     # [timing] replay naming a real run: the reader of its latencies (the analysis's,
     # hil.analysis.replay.latencies_from_run, handed over by the command); None: files only
     run_latencies: RunLatencies | None = None
 
 
-def _can_recorder(settings: RunSettings, recorder: Recorder) -> tuple[Any, Any, Any] | None:
-    """A python-can Notifier on the run's bus feeding the recorder, and the drop count of its
-    receiving socket (protocol.can.rx_queue; None if no CAN)."""
+def _can_recorder(
+    settings: RunSettings, recorder: Recorder, also: Callable[[Any], None] | None = None
+) -> tuple[Any, Any, Any] | None:
+    """A python-can Notifier on the run's bus feeding the recorder (and ``also``: an outside
+    device's arrival), and the drop count of its receiving socket (protocol.can.rx_queue;
+    None if no CAN)."""
     try:
         bus = settings.open_can_bus()
         if bus is None:
             return None
         channel = str(settings.can.get("channel", "can"))
         drops = RxQueueDrops(bus)
-        return bus, can.Notifier(bus, [lambda m: recorder.on_can(channel, m)], timeout=0.1), drops
+        listeners: list[Callable[[Any], None]] = [lambda m: recorder.on_can(channel, m)]
+        if also is not None:
+            listeners.append(also)
+        return bus, can.Notifier(bus, listeners, timeout=0.1), drops
     except Exception as exc:
         print(f"warning: CAN recording off: {exc}", file=sys.stderr)
         return None
@@ -163,6 +179,25 @@ def check_options(opts: RunOptions) -> None:
     live_check(opts.live_port, opts.live_host)
     if opts.live_port is not None and opts.secure:
         raise BadInputError("--live does not log in to a --secure run's router")
+    _check_device_options(opts)
+
+
+def _check_device_options(opts: RunOptions) -> None:
+    """--controller, --wait-device, --zenoh-endpoint, and what an outside device excludes."""
+    options.choice("--controller", opts.controller, device.CONTROLLERS)
+    options.number("--wait-device", opts.wait_device, 0.0, DURATION_MAX, positive=True)
+    if opts.zenoh_endpoint is not None:
+        device.check_endpoint("--zenoh-endpoint", opts.zenoh_endpoint)
+    if opts.controller != "external":
+        return
+    for given, name in (
+        (opts.lockstep, "--lockstep (the plant would wait for each command in turn)"),
+        (opts.secure, "--secure (the device would need the run's passwords)"),
+        (opts.lab, "--lab (run the device on a lab host against a plain run instead)"),
+        (opts.law, "--law (the device is the law)"),
+    ):
+        if given:
+            raise BadInputError(f"--controller external does not take {name}")
 
 
 def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
@@ -190,7 +225,7 @@ def _run_settings(
     can_table = effective_can_table(scenario, opts.can_interface)  # with the command line's
     if opts.can_channel:
         can_table["channel"] = opts.can_channel
-    if opts.can_live or opts.cmd_path == "can":
+    if (opts.can_live and opts.controller != "external") or opts.cmd_path == "can":
         where = "--can-interface" if opts.can_interface else "[can] interface"
         check_can_interface(can_table["interface"], where)
     settings = scenario_settings(
@@ -212,7 +247,7 @@ def _run_settings(
         can=can_table,
         # On a lab, each process is a client of its own host's router (hil.bench.lab.placement).
         zenoh_mode="router" if opts.secure or opts.lab else scenario.zenoh.mode,
-        zenoh_endpoint=LAB_ROUTER if opts.lab else f"tcp/127.0.0.1:{free_port()}",
+        zenoh_endpoint=LAB_ROUTER if opts.lab else _endpoint(opts),
         can_endpoint=f"tcp/127.0.0.1:{free_port()}",
         delay=scenario.timing.delay,
         out_dir=str(run_dir.resolve()),
@@ -221,6 +256,11 @@ def _run_settings(
     )
     if opts.robot_id is not None:
         settings.robot_id = opts.robot_id
+    if opts.controller == "external":
+        # The plant waits for its start while the device is waited for.
+        settings.start_timeout = max(settings.start_timeout, opts.wait_device + 60.0)
+        if opts.cmd_path == "zenoh":
+            settings.can_live = False  # nobody would drive the CAN shadow
     if (os.cpu_count() or 1) >= 2:
         settings.cpu_controller, settings.cpu_plant = 1, 0
     settings.validate()
@@ -276,6 +316,7 @@ def prepare(
         "trigger": settings.trigger,
         "can_interface": settings.can["interface"],
         "secure": opts.secure,
+        "controller": opts.controller,
     }
     resolved = resolved_dict(scenario, controller, context, run_facts)
     (run_dir / layout.SCENARIO_RESOLVED).write_text(dumps_toml(resolved))
@@ -308,11 +349,14 @@ def _start_services(
     host: HostSampler,
     placed: Any = None,
     log_prefix: str = "",
+    roles: tuple[str, ...] = ("plant", "controller"),
 ) -> None:
     """The plant and controller processes of the run folders' robots (on their lab hosts when
     ``placed``), watched by the host sampler; their PIDs in processes.json (tests signal them)."""
     paths = [str(d / layout.RUN_SETTINGS) for d in run_dirs]
-    for name, module in (("plant", "plant_emulator"), ("controller", "controller_service")):
+    modules = {"plant": "plant_emulator", "controller": "controller_service"}
+    for name in roles:
+        module = modules[name]
         child = sup.start(
             name,
             child_argv(placed, name, [sys.executable, "-m", module, *paths]),
@@ -333,14 +377,24 @@ def _start_and_follow(
     stop: Any,
     announcer: Any,
     quiet: bool,
+    arrival: Any = None,
+    conn: device.DeviceConnection | None = None,
+    run_dir: Path | None = None,
 ) -> tuple[str | None, ControllerExit | None]:
-    """Wait for both services, announce the epoch, follow the run; an error (or None) and how
-    the controller ended when it ended before the plant (or None)."""
+    """Wait for both services (an outside device: for the plant, then for the device, whose
+    connection ``conn`` is said and saved in ``run_dir``), announce the epoch, follow the
+    run; an error (or None) and how the controller ended when it ended before the plant (or
+    None)."""
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
     # that dies is noticed at once anyway.
     ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
-    if not _wait_ready(recorder, sup, stop, timeout=ready_timeout):
+    roles = {"plant"} if arrival is not None else {"plant", "controller"}
+    if not _wait_ready(recorder, sup, stop, timeout=ready_timeout, roles=roles):
         return "services did not become ready", None
+    if arrival is not None and conn is not None and run_dir is not None:
+        error = _wait_device(arrival, conn, sup, stop, run_dir)
+        if error is not None:
+            return error, None
     fleet_barrier.wait(stop)  # a fleet's robots start together (no-op for one run)
     epoch = time.monotonic_ns() + 300_000_000
     for i in range(3):  # a start message lost to a racing link must not hang
@@ -366,7 +420,7 @@ def execute(opts: RunOptions) -> Recorded:
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
     writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer, same_clock=not placed)
-    session, subs, can_rec, ended = None, [], None, None
+    session, subs, can_rec, ended, arrival = None, [], None, None, None
     logs = _Logs(run_dir)
     t_start = time.monotonic()
     ids = RunIdentities(opts.secure, (settings.robot_id,))  # fresh passwords, or none
@@ -380,11 +434,18 @@ def execute(opts: RunOptions) -> Recorded:
                 session.declare_subscriber(key, recorder.on_zenoh)
                 for key in observed_keys(settings.robot_id)
             ]
-            can_rec = _can_recorder(settings, recorder)
+            external = opts.controller == "external"
+            conn = device.connection(settings, opts.wait_device) if external else None
+            arrival = _arrival(settings, session) if external else None
+            also = arrival.on_frame if isinstance(arrival, device.CanArrival) else None
+            can_rec = _can_recorder(settings, recorder, also)
             if opts.live_port is not None:  # its own process: no cycle of the recorder's
                 start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs, bool(placed))
-            _start_services(sup, [run_dir], ids, logs, host, placed)
-            error, ended = _start_and_follow(settings, recorder, sup, stop, announcer, opts.quiet)
+            roles = ("plant",) if external else ("plant", "controller")
+            _start_services(sup, [run_dir], ids, logs, host, placed, roles=roles)
+            error, ended = _start_and_follow(
+                settings, recorder, sup, stop, announcer, opts.quiet, arrival, conn, run_dir
+            )
             interrupted = bool(stop)
         finally:
             if stop:  # hil.cli then exits 130 once the folder is written
@@ -404,6 +465,8 @@ def execute(opts: RunOptions) -> Recorded:
                 can_rec[2].close()
                 with contextlib.suppress(Exception):  # a bus already gone is fine here
                     can_rec[0].shutdown()
+            if arrival is not None:
+                arrival.close()
             if session is not None:
                 session.close()
             recorder.close(attachment_files(run_dir))  # the hop logs attached
@@ -469,15 +532,51 @@ def _say_start(opts: RunOptions, scenario: Any, settings: RunSettings, run_dir: 
     """The run's start line (hil.ticker): what runs, for how long, where it writes."""
     name = Path(opts.scenario).name if opts.scenario else "paper_tracking (default)"
     law = scenario.controller.get("law", "unified")
+    if opts.controller == "external":
+        law = "your device (--controller external)"
     what = f"{name}, law {law}, {1 / settings.ts:g} Hz, commands on {settings.cmd_path}"
     ticker.start_line("run", what, f"{settings.duration:g} s", run_dir)
 
 
-def _wait_ready(recorder: Recorder, sup: Supervisor, stop: Any, timeout: float) -> bool:
+def _arrival(settings: RunSettings, session: Any) -> device.ZenohArrival | device.CanArrival:
+    """What shows that the run's outside device is there, on its path."""
+    if settings.cmd_path == "can":
+        return device.CanArrival((int(settings.can["node_left"]), int(settings.can["node_right"])))
+    return device.ZenohArrival(session, state_key(settings.robot_id))
+
+
+def _wait_device(
+    arrival: Any, conn: device.DeviceConnection, sup: Supervisor, stop: Any, run_dir: Path
+) -> str | None:
+    """Say how the device connects (stderr and device.json), wait for it; None once it is
+    there, else why the run cannot start (a FAIL of the device's: it never came)."""
+    conn.save(run_dir)
+    for line in conn.lines():
+        ticker.say(line)
+    how, waited = device.wait(
+        arrival, stop, conn.wait_s, lambda: all(c.alive() for c in sup.children)
+    )
+    if how is None:
+        if stop or not all(c.alive() for c in sup.children):
+            return None if stop else "the plant ended while the device was waited for"
+        where = conn.zenoh.endpoint if conn.zenoh else (conn.can.channel if conn.can else "")
+        return f"no device connected within {conn.wait_s:g} s: {arrival.nobody(where)}"
+    dataclasses.replace(conn, connected_after_s=round(waited, 3), how=how).save(run_dir)
+    ticker.say(f"device connected after {waited:.1f} s ({how}); the run starts")
+    return None
+
+
+def _wait_ready(
+    recorder: Recorder,
+    sup: Supervisor,
+    stop: Any,
+    timeout: float,
+    roles: set[str] | frozenset[str] = frozenset({"plant", "controller"}),
+) -> bool:
     deadline = time.monotonic() + timeout
     while not stop and time.monotonic() < deadline:
-        roles = {r for r, m in recorder.statuses.items() if m.state == "ready"}
-        if {"plant", "controller"} <= roles:
+        ready = {r for r, m in recorder.statuses.items() if m.state == "ready"}
+        if roles <= ready:
             return True
         if not all(c.alive() for c in sup.children):
             return False

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -101,6 +102,41 @@ JsonOpt = Annotated[
         "scripts; the plain result line then goes to stderr.",
     ),
 ]
+
+ControllerOpt = Annotated[
+    str,
+    typer.Option(
+        help="bench: the scenario's law in the bench's controller process. external: no "
+        "controller of the bench's; your device connects (printed at the start, and in "
+        "device.json) and is judged at the bus (docs/external.md)."
+    ),
+]
+WaitDeviceOpt = Annotated[
+    float,
+    typer.Option(
+        help="With --controller external: seconds to wait for the device before the run "
+        "FAILs with 'no device connected'."
+    ),
+]
+ZenohEndpointOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="The run's Zenoh endpoint, tcp/HOST:PORT (default: a free loopback port), so "
+        "that an outside device connects to the same one run after run."
+    ),
+]
+
+
+# hil run's options whose RunOptions field has another name; the rest share theirs.
+_FIELD_OF = {"can": "can_live", "live": "live_port"}
+
+
+def run_options(given: dict[str, Any], cls: Any, **extra: Any) -> Any:
+    """The bench's options record (hil.bench.lifecycle.RunOptions) from the command line's
+    values by name: one spelling of each option, no list of them kept twice."""
+    fields = {f.name for f in dataclasses.fields(cls)}
+    named = {_FIELD_OF.get(k, k): v for k, v in given.items()}
+    return cls(**{k: v for k, v in named.items() if k in fields}, **extra)
 
 
 def _brief(summary: Summary, cmd_path: str) -> dict[str, Any]:
@@ -208,40 +244,23 @@ def run(
     live: LiveOpt = None,
     live_host: LiveHostOpt = "127.0.0.1",
     force: ForceOpt = False,
+    controller: ControllerOpt = "bench",
+    wait_device: WaitDeviceOpt = 60.0,
+    zenoh_endpoint: ZenohEndpointOpt = None,
 ) -> None:
-    """Run the controller against the emulated robot over Zenoh and CAN and record it."""
+    """Run the controller against the emulated robot over Zenoh and CAN and record it.
+
+    With --controller external the controller is yours: any process, in any language, that
+    speaks the documented Zenoh messages or CANSimple to the virtual ODrives (docs/external.md).
+    The run says how to connect, waits for it, and judges it at the bus."""
+    given = dict(locals())  # the command line, by option name (first: nothing else bound yet)
     from hil.analysis.analyze import write_results
     from hil.analysis.replay import latencies_from_run
     from hil.bench.lifecycle import RunOptions, execute
 
     # The bench records the run into its folder; the analysis then writes the figures, the
     # trace and the verdict into it (summary.json); the report follows.
-    recorded = execute(
-        RunOptions(
-            scenario=scenario,
-            duration=duration,
-            rate=rate,
-            cmd_path=cmd_path,
-            lockstep=lockstep,
-            out=out,
-            trigger=trigger,
-            can_live=can,
-            can_interface=can_interface,
-            can_channel=can_channel,
-            spin_us=spin_us,
-            quiet=quiet,
-            secure=secure,
-            law=law,
-            lab=lab,
-            plant_host=plant_host,
-            controller_host=controller_host,
-            robot_id=robot_id,
-            live_port=live,
-            live_host=live_host,
-            run_latencies=latencies_from_run,
-            force=force,
-        )
-    )
+    recorded = execute(run_options(given, RunOptions, run_latencies=latencies_from_run))
     summary: Summary = write_results(recorded).copy()
     summary["run_dir"] = str(recorded.run_dir)
     brief = _brief(summary, cmd_path)

@@ -32,6 +32,8 @@ CLOCK_PLOT = "clock.png"
 IMPAIR_RULES = "impair.nft"
 #: The recorder's MCAP file (every message, the hop logs and the scenario attached).
 RECORDING = "recording.mcap"
+#: An outside device's run (hil run --controller external, hil drives): how it connects.
+DEVICE = "device.json"
 #: The services' PIDs (hil run), and what hil recover repaired.
 PROCESSES = "processes.json"
 RECOVERED = "recovered.json"

@@ -1,0 +1,102 @@
+"""``hil run --controller external``: an outside device, a process that shares no code with the
+bench, is the controller; the run says how to connect, waits for it, and writes the same run
+folder as any run (issue 37, item 1)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from hil.folder import layout
+from protocol.hoplog import read_hoplog
+from tests.external_helpers import device_json, example_controller, run_external
+
+
+def test_no_device_is_a_fail_with_the_folder_written(tmp_path, spawn):
+    out = tmp_path / "run"
+    proc = spawn.python(
+        [
+            "-m",
+            "hil",
+            "run",
+            "--controller",
+            "external",
+            "--duration",
+            "2",
+            "--wait-device",
+            "2",
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+        text=True,
+    )
+    _, err = proc.communicate(timeout=180)
+    assert proc.returncode == 1, err
+    assert "no device connected within 2 s: nothing subscribed to hil/robot0/state" in err
+    conn = device_json(out)
+    assert conn["path"] == "zenoh" and conn["connected_after_s"] is None
+    assert conn["zenoh"]["state_key"] == "hil/robot0/state"
+    assert conn["zenoh"]["command_key"] == "hil/robot0/cmd/torque"
+    summary = json.loads((out / layout.SUMMARY).read_text())
+    assert summary["verdict"]["outcome"] == "FAIL"
+    # no controller of the bench's ran
+    assert not (out / layout.CONTROLLER_OUTPUT).exists()
+    assert "controller" not in json.loads((out / layout.PROCESSES).read_text())
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--controller", "robot"],
+        ["--controller", "external", "--lockstep"],
+        ["--controller", "external", "--law", "pd"],
+        ["--controller", "external", "--zenoh-endpoint", "udp/1.2.3.4"],
+        ["--controller", "external", "--wait-device", "0"],
+    ],
+)
+def test_bad_device_options_exit_2_before_anything_runs(tmp_path, args):
+    out = tmp_path / "run"
+    p = subprocess.run(
+        [sys.executable, "-m", "hil", "run", "--out", str(out), *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert p.returncode == 2, p.stderr
+    assert not out.exists()
+
+
+def test_the_example_controller_runs_and_is_judged(tmp_path, spawn):
+    out = tmp_path / "run"
+    code, _, err = run_external(spawn, out, example_controller(), duration=2.0)
+    assert "device connected after" in err, err
+    assert "connect to tcp/127.0.0.1:" in err
+    conn = device_json(out)
+    assert conn["connected_after_s"] is not None and "subscriber" in conn["how"]
+    for name in (*layout.REQUIRED, layout.RECORDING, layout.PLANT_LOG, layout.REPORT_HTML):
+        assert (out / name).is_file(), name
+    assert not (out / layout.CONTROLLER_LOG).exists()
+    # The device's commands reached the plant and were applied: about one per State.
+    log = read_hoplog(out / layout.PLANT_LOG)
+    samples, rx = log.table("samples"), log.table("cmd_rx")
+    assert len(samples) > 500
+    assert len(rx) > 0.9 * len(samples)
+    applied = [r for r in log.table("apply") if r["outcome"] == 0]
+    assert len(applied) > 0.9 * len(samples)
+    # It asked 0.5 m/s: the robot moved (the bench applied what it asked).
+    summary = json.loads((out / layout.SUMMARY).read_text())
+    assert summary["verdict"]["outcome"] in ("PASS", "FAIL", "INCONCLUSIVE")
+    assert code in (0, 1, 4)
+    assert summary["max_abs_v"] > 0.2
+    # hil report reads the folder
+    rep = subprocess.run(
+        [sys.executable, "-m", "hil", "report", str(out), "--force"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert rep.returncode in (0, 1, 4), rep.stderr
