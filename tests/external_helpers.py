@@ -22,33 +22,21 @@ def run_external(
     timeout: float = 240.0,
 ) -> tuple[int, str, str]:
     """``hil run --controller external`` into ``out``; once it waits for its device, ``device``
-    (argv after the interpreter; ``{endpoint}`` replaced) starts. The run's exit code, its
-    stdout and stderr (the device is stopped by PID after the run)."""
-    port = free_tcp_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    run = spawn.python(
-        [
-            "-m",
-            "hil",
-            "run",
-            "--controller",
-            "external",
-            "--duration",
-            str(duration),
-            "--out",
-            str(out),
-            "--zenoh-endpoint",
-            endpoint,
-            "--quiet",
-            *run_args,
-        ],
-        text=True,
-    )
+    (argv after the interpreter; ``{endpoint}`` and ``{can_endpoint}``, the run's Zenoh and
+    zenoh_can endpoints, replaced) starts. The run's exit code, its stdout and stderr (the
+    device is stopped by PID after the run)."""
+    endpoints = {
+        "{endpoint}": f"tcp/127.0.0.1:{free_tcp_port()}",
+        "{can_endpoint}": f"tcp/127.0.0.1:{free_tcp_port()}",
+    }
+    argv = ["-m", "hil", "run", "--controller", "external", "--duration", str(duration)]
+    argv += ["--out", str(out), "--zenoh-endpoint", endpoints["{endpoint}"]]
+    argv += ["--can-endpoint", endpoints["{can_endpoint}"], "--quiet", *run_args]
+    run = spawn.python(argv, text=True)
     err = Lines(run.stderr)
     out_lines = Lines(run.stdout)
     assert wait_until(lambda: err.seen("waiting up to") or run.poll() is not None, 120), err.text()
-    argv = [a.replace("{endpoint}", endpoint) for a in device]
-    dev = spawn.python(argv, text=True)
+    dev = spawn.python([endpoints.get(a, a) for a in device], text=True)
     try:
         code = run.wait(timeout=timeout)
     finally:
@@ -66,3 +54,8 @@ def zenoh_device(*args: str) -> list[str]:
 
 def example_controller() -> list[str]:
     return [str(EXAMPLES / "zenoh_controller.py"), "{endpoint}"]
+
+
+def odrive_can_device(*args: str) -> list[str]:
+    """The odrive-can client device on the run's zenoh_can bus (nodes 0 and 1)."""
+    return [str(DEVICES / "odrive_can_device.py"), "--endpoint", "{can_endpoint}", *args]

@@ -12,7 +12,12 @@ import pytest
 
 from hil.folder import layout
 from protocol.hoplog import read_hoplog
-from tests.external_helpers import device_json, example_controller, run_external
+from tests.external_helpers import (
+    device_json,
+    example_controller,
+    odrive_can_device,
+    run_external,
+)
 
 
 def test_no_device_is_a_fail_with_the_folder_written(tmp_path, spawn):
@@ -100,3 +105,27 @@ def test_the_example_controller_runs_and_is_judged(tmp_path, spawn):
         timeout=300,
     )
     assert rep.returncode in (0, 1, 4), rep.stderr
+
+
+def test_an_odrive_can_client_drives_the_virtual_odrives(tmp_path, spawn):
+    """Device (a): the PyPI odrive-can client arms both drives and sends a torque per encoder
+    frame; the run waits for the arming, lands the frames, and writes a folder hil report
+    reads."""
+    out = tmp_path / "run"
+    code, _, err = run_external(
+        spawn, out, odrive_can_device(), duration=2.0, run_args=("--cmd-path", "can")
+    )
+    assert "device connected after" in err and "closed-loop control asked of nodes [0, 1]" in err
+    conn = device_json(out)
+    assert conn["path"] == "can" and conn["can"]["node_left"] == 0
+    assert conn["can"]["zenoh_can_endpoint"].startswith("tcp/127.0.0.1:")
+    log = read_hoplog(out / layout.PLANT_LOG)
+    rx = log.table("cmd_rx")
+    per_node = {n: sum(1 for r in rx if r["node"] == n) for n in (0, 1)}
+    # one torque per encoder frame of each wheel (the drives send them every 10 ms): 2 s
+    assert min(per_node.values()) > 100, per_node
+    drives = log.final["can"]["drives"]
+    assert {d["axis_state"] for d in drives.values()} == {8}  # both armed
+    assert code in (0, 1, 4), err
+    for name in (*layout.REQUIRED, layout.REPORT_HTML):
+        assert (out / name).is_file(), name

@@ -127,6 +127,7 @@ class RunOptions:
     controller: str = "bench"
     wait_device: float = device.WAIT_DEVICE_S  # s an outside device is waited for
     zenoh_endpoint: str | None = None  # the run's Zenoh endpoint; None: a free loopback port
+    can_endpoint: str | None = None  # the zenoh_can bus's endpoint; None: a free loopback port
     # [timing] replay naming a real run: the reader of its latencies (the analysis's,
     # hil.analysis.replay.latencies_from_run, handed over by the command); None: files only
     run_latencies: RunLatencies | None = None
@@ -186,8 +187,12 @@ def _check_device_options(opts: RunOptions) -> None:
     """--controller, --wait-device, --zenoh-endpoint, and what an outside device excludes."""
     options.choice("--controller", opts.controller, device.CONTROLLERS)
     options.number("--wait-device", opts.wait_device, 0.0, DURATION_MAX, positive=True)
-    if opts.zenoh_endpoint is not None:
-        device.check_endpoint("--zenoh-endpoint", opts.zenoh_endpoint)
+    for name, endpoint in (
+        ("--zenoh-endpoint", opts.zenoh_endpoint),
+        ("--can-endpoint", opts.can_endpoint),
+    ):
+        if endpoint is not None:
+            device.check_endpoint(name, endpoint)
     if opts.controller != "external":
         return
     for given, name in (
@@ -248,7 +253,7 @@ def _run_settings(
         # On a lab, each process is a client of its own host's router (hil.bench.lab.placement).
         zenoh_mode="router" if opts.secure or opts.lab else scenario.zenoh.mode,
         zenoh_endpoint=LAB_ROUTER if opts.lab else _endpoint(opts),
-        can_endpoint=f"tcp/127.0.0.1:{free_port()}",
+        can_endpoint=opts.can_endpoint or f"tcp/127.0.0.1:{free_port()}",
         delay=scenario.timing.delay,
         out_dir=str(run_dir.resolve()),
         spin_us=opts.spin_us,

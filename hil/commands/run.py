@@ -139,6 +139,15 @@ def run_options(given: dict[str, Any], cls: Any, **extra: Any) -> Any:
     return cls(**{k: v for k, v in named.items() if k in fields}, **extra)
 
 
+CanEndpointOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="The zenoh_can bus's endpoint, tcp/HOST:PORT (default: a free loopback port): "
+        "where a CAN device on interface zenoh_can connects, run after run."
+    ),
+]
+
+
 def _brief(summary: Summary, cmd_path: str) -> dict[str, Any]:
     """The lines of summary.json that ``hil run`` prints."""
     t = summary.get("timing", {})
@@ -247,6 +256,7 @@ def run(
     controller: ControllerOpt = "bench",
     wait_device: WaitDeviceOpt = 60.0,
     zenoh_endpoint: ZenohEndpointOpt = None,
+    can_endpoint: CanEndpointOpt = None,
 ) -> None:
     """Run the controller against the emulated robot over Zenoh and CAN and record it.
 

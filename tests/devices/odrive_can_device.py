@@ -1,0 +1,141 @@
+"""A test device over CAN written against the PyPI ``odrive-can`` client (it shares no code
+with the bench): it arms both virtual ODrives in torque control and runs a simple speed loop
+on each wheel, as a robot computer's drive node would.
+
+Modes (each a known answer for the bench's figures at its edge):
+- default (``--hz 0``): a torque frame to a wheel for each encoder-estimate frame of it, the
+  torque from that estimate (``--wait-ms W``: W ms after the frame arrived);
+- ``--hz F --jitter-ms J``: torques at F Hz of its own, each send moved by a uniform draw in
+  [-J, +J] ms around its slot, from the newest estimates;
+- ``--stall-at T --stall-ms S``: once, T s after arming, nothing is sent for S ms.
+
+    python tests/devices/odrive_can_device.py --interface zenoh_can --channel hil0 \
+        --endpoint tcp/127.0.0.1:PORT --node-left 0 --node-right 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import random
+import threading
+import time
+from typing import Any
+
+import can
+from odrive_can import ODriveCAN
+
+VEL_REF = 1.0  # turns/s of each wheel
+GAIN = 0.05  # N·m per turn/s of error
+TAU_MAX = 0.1  # N·m, inside the drives' limits
+
+
+def open_bus(a: argparse.Namespace) -> can.BusABC:
+    kw: dict[str, Any] = {"interface": a.interface, "channel": a.channel}
+    if a.interface == "zenoh_can" and a.endpoint:
+        kw["endpoint"] = a.endpoint
+    return can.Bus(**kw)
+
+
+class Device:
+    def __init__(self, a: argparse.Namespace, drives: dict[int, ODriveCAN]) -> None:
+        self.a = a
+        self.drives = drives
+        self.vel = dict.fromkeys(drives, 0.0)
+        self.lock = threading.Lock()
+        self.armed_at: float | None = None
+        self.stalled = False
+
+    def torque(self, node: int) -> float:
+        return max(-TAU_MAX, min(TAU_MAX, GAIN * (VEL_REF - self.vel[node])))
+
+    def maybe_stall(self) -> None:
+        a = self.a
+        if a.stall_at < 0 or self.stalled or self.armed_at is None:
+            return
+        if time.monotonic() - self.armed_at >= a.stall_at:
+            self.stalled = True
+            time.sleep(a.stall_ms / 1e3)
+
+    def on_frame(self, msg: can.Message) -> None:
+        """Every frame of the bus (a raw python-can listener): the encoder estimates."""
+        node, cmd = msg.arbitration_id >> 5, msg.arbitration_id & 0x1F
+        if cmd != 0x09 or msg.is_remote_frame or len(msg.data) != 8 or node not in self.drives:
+            return
+        arrived = time.monotonic()
+        vel = float(memoryview(bytes(msg.data)).cast("f")[1])
+        with self.lock:
+            self.vel[node] = vel
+            if self.a.hz or self.armed_at is None:
+                return
+            self.maybe_stall()
+            while time.monotonic() - arrived < self.a.wait_ms / 1e3:
+                pass  # busy: a sleep's wake-up lateness would blur the known answer
+            self.drives[node].set_input_torque(self.torque(node))
+
+    def periodic(self, end: float) -> None:
+        period = 1.0 / self.a.hz
+        k0, k = time.monotonic(), 0
+        while time.monotonic() < end:
+            k += 1
+            due = k0 + k * period + random.uniform(-self.a.jitter_ms, self.a.jitter_ms) / 1e3
+            if time.monotonic() > due + period:
+                continue  # a slot missed by a stall is skipped, not sent in a burst
+            while time.monotonic() < due:
+                pass
+            with self.lock:
+                self.maybe_stall()
+                for node, drv in self.drives.items():
+                    drv.set_input_torque(self.torque(node))
+
+
+async def main_async(a: argparse.Namespace) -> None:
+    drives = {a.node_left: ODriveCAN(a.node_left, open_bus(a))}
+    drives[a.node_right] = ODriveCAN(a.node_right, open_bus(a))
+    raw = open_bus(a)
+    dev = Device(a, drives)
+    notifier = can.Notifier(raw, [dev.on_frame])
+    try:
+        for d in drives.values():
+            await asyncio.wait_for(d.start(), 30.0)
+        for d in drives.values():
+            d.clear_errors()
+            d.set_controller_mode("TORQUE_CONTROL", "PASSTHROUGH")
+            d.set_input_torque(0.0)
+        for d in drives.values():
+            d.set_axis_state_no_wait("CLOSED_LOOP_CONTROL")
+        print("armed", flush=True)
+        dev.armed_at = time.monotonic()
+        end = time.monotonic() + a.duration
+        if a.hz:
+            await asyncio.to_thread(dev.periodic, end)
+        else:
+            await asyncio.sleep(a.duration)
+    finally:
+        notifier.stop()
+        for d in drives.values():
+            d.stop()
+        raw.shutdown()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--interface", default="zenoh_can")
+    ap.add_argument("--channel", default="hil0")
+    ap.add_argument("--endpoint", default="")
+    ap.add_argument("--node-left", type=int, default=0)
+    ap.add_argument("--node-right", type=int, default=1)
+    ap.add_argument("--duration", type=float, default=60.0)
+    ap.add_argument("--hz", type=float, default=0.0)
+    ap.add_argument("--jitter-ms", type=float, default=0.0)
+    ap.add_argument("--wait-ms", type=float, default=0.0)
+    ap.add_argument("--stall-at", type=float, default=-1.0)
+    ap.add_argument("--stall-ms", type=float, default=0.0)
+    a = ap.parse_args()
+    with contextlib.suppress(KeyboardInterrupt):
+        asyncio.run(main_async(a))
+
+
+if __name__ == "__main__":
+    main()
