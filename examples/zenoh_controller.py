@@ -42,7 +42,10 @@ def main() -> None:
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps("client"))
     conf.insert_json5("connect/endpoints", json.dumps([args.endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")  # no packet leaves the host
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    # Wait for the bench, and reconnect to it after each run (a campaign restarts it).
+    conf.insert_json5("connect/timeout_ms", "-1")
+    conf.insert_json5("connect/exit_on_failure", "false")  # no packet leaves the host
     session = zenoh.open(conf)
     pub = session.declare_publisher(f"hil/{args.robot}/cmd/torque")
     seq = 0

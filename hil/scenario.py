@@ -162,11 +162,11 @@ class FaultsConfig(Faults):
     (seeded; the services log every fault they inject), checked where the scenario is read."""
 
     def __post_init__(self) -> None:
-        if not self.can_frame_loss <= 1.0:
-            raise BadInputError(
-                "[faults] can_frame_loss must be a probability in [0, 1], "
-                f"got {self.can_frame_loss}"
-            )
+        for key in ("can_frame_loss", "feedback_loss"):
+            if not getattr(self, key) <= 1.0:
+                raise BadInputError(
+                    f"[faults] {key} must be a probability in [0, 1], got {getattr(self, key)}"
+                )
         for what in ("delay_burst", "can_bus_off", "state_drop_burst", "command_drop_burst"):
             every, length = getattr(self, f"{what}_every"), getattr(self, f"{what}_length")
             if every > 0 and not 0 < length <= every:
@@ -338,6 +338,8 @@ _RANGES: dict[tuple[str, str], tuple[float, float]] = {
     ("sweep", "seeds"): (1, SWEEP_SEEDS_MAX),
     **dict.fromkeys(_keys("faults", "state_drop_every", "command_drop_every"), (0, 2**31 - 1)),
     ("faults", "seed"): (0, SEED_MAX),
+    **dict.fromkeys(_keys("faults", "feedback_delay", "feedback_jitter"), (0.0, DELAY_MAX)),
+    ("faults", "feedback_loss"): (0.0, 1.0),
     ("impair", "loss"): (0.0, 1.0),
     ("impair", "loss_every"): (0, 2**31 - 1),
     ("impair", "rate_bps"): (0.0, RATE_BPS_MAX),

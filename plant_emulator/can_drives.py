@@ -38,6 +38,7 @@ from protocol.can.drive_link import from_message, to_message
 from protocol.can.rx_queue import RxQueueDrops
 from protocol.faults import Faults, frame_lost
 from protocol.hoplog import NO_SEQ, NO_STAMP, CmdPath, CmdRxRow, RxVerdict, SocketDropRow
+from runtime.delay_line import DelayLine
 
 ECHO_WINDOW_NS = 1_000_000_000
 UNREAD_MAX = 100_000  # frames read back from the receive queue at the stop, at most
@@ -118,6 +119,11 @@ class CanDrives:
         self.immediate_until_ns = 0
         self.faults = faults or Faults()
         self.injected_frame_losses = 0
+        # [faults] feedback_*: encoder-estimate frames held (or lost) on the way to the device
+        held = self.faults.feedback_held
+        self.feedback = DelayLine(lambda f: self.send([f]), "encoder-delay") if held else None
+        self._estimates: dict[int, int] = {}  # per node: encoder-estimate frames due so far
+        self.feedback_losses = 0
         # The bus's name for a received frame, where it has one (zenoh_can): exact matching.
         self._sent_at = getattr(bus, "sent_at_ns", None)
         self.lock = threading.RLock()
@@ -259,7 +265,27 @@ class CanDrives:
                 if self.refresh is not None:
                     self.refresh(now_ns)
                 frames = self.pair.due_frames(now_ns / 1e9)
-            self.send(frames)
+            self.send(self._hold_estimates(frames, now_ns))
+
+    def _hold_estimates(self, frames: list[Frame], now_ns: int) -> list[Frame]:
+        """The frames to send now: the encoder estimates go through the feedback delay line
+        (or are lost) when [faults] asks for it."""
+        if self.feedback is None:
+            return frames
+        now: list[Frame] = []
+        for f in frames:
+            node, cmd = self._split(f.arbitration_id)
+            if cmd != Cmd.GET_ENCODER_ESTIMATES or f.is_remote:
+                now.append(f)
+                continue
+            i = self._estimates.get(node, 0)
+            self._estimates[node] = i + 1
+            if self.faults.feedback_lost(i, 1 + node):
+                self.feedback_losses += 1
+                continue
+            held = round(self.faults.feedback_extra_s(i, 1 + node) * 1e9)
+            self.feedback.put(now_ns + held, f)
+        return now
 
     # --- transmit -------------------------------------------------------------------------------
     def send(self, frames: list[Frame]) -> None:
@@ -312,6 +338,8 @@ class CanDrives:
 
     def close(self) -> None:
         self._stop.set()
+        if self.feedback is not None:
+            self.feedback.close()
         for t in self._threads:
             if t.is_alive():
                 t.join(timeout=1.0)

@@ -47,6 +47,7 @@ from protocol.hoplog import (
     PLANT_TABLES,
     SAMPLE_DROPPED,
     SAMPLE_DUPLICATED,
+    SAMPLE_FEEDBACK_LOST,
     ApplyOutcome,
     ApplyRow,
     CmdPath,
@@ -61,6 +62,7 @@ from protocol.rejections import RejectionCounter
 from protocol.robot import Limits
 from protocol.sequence import SequenceTracker
 from protocol.settings import RunSettings, period_ns
+from runtime.delay_line import DelayLine
 from runtime.realtime import DeadlineClock, setup_scheduling, sleep_until_ns
 from runtime.tap import Tap
 
@@ -210,7 +212,16 @@ class PlantService:
             raise ValueError("the plant service needs a hop log")
         self.hoplog = hoplog
         self.faults = faults or Faults()
-        self.injected = {"state_drops": 0, "state_duplicates": 0, "delay_bursts": 0}
+        self.injected = {
+            "state_drops": 0,
+            "state_duplicates": 0,
+            "delay_bursts": 0,
+            "feedback_losses": 0,
+        }
+        # [faults] feedback_*: States held (or lost) on their way to the controller
+        self.feedback = (
+            DelayLine(self._put_state, "state-delay") if self.faults.feedback_held else None
+        )
         self.samples = 0
         self.clock: DeadlineClock | None = None
         self._state_seq = 0
@@ -267,11 +278,20 @@ class PlantService:
                 copies = 2
             try:
                 payload = encode(msg)
-                for _ in range(copies):
-                    self._pub_state.put(payload)
-                    self.tap.sent(keys.STATE, send_ns, payload)
             except ValueError:
                 self.rejections.count("state_unencodable")
+                copies = 0
+            if copies and self.feedback is not None and self.faults.feedback_lost(msg.seq):
+                flags |= SAMPLE_FEEDBACK_LOST
+                self.injected["feedback_losses"] += 1
+                copies = 0
+            for _ in range(copies):
+                self.tap.sent(keys.STATE, send_ns, payload)  # entering the path, as sent
+                if self.feedback is None:
+                    self._pub_state.put(payload)
+                else:
+                    held = round(self.faults.feedback_extra_s(msg.seq) * 1e9)
+                    self.feedback.put(send_ns + held, payload)
         self.samples += 1
         s = c.state
         row = SampleRow(
@@ -293,6 +313,9 @@ class PlantService:
         if log:
             self.hoplog.append("samples", row)
         return row
+
+    def _put_state(self, payload: bytes) -> None:
+        self._pub_state.put(payload)
 
     def publish_status(self, state: str = "running") -> None:
         counters = {
@@ -580,6 +603,7 @@ class PlantService:
             "injected": {
                 **self.injected,
                 "can_frame_losses": self.can.injected_frame_losses if self.can else 0,
+                "encoder_feedback_losses": self.can.feedback_losses if self.can else 0,
             },
             "deadline_misses": self.clock.misses if self.clock else 0,
             "skipped_slots": self.clock.skipped if self.clock else 0,
@@ -734,6 +758,8 @@ def build_service(s: RunSettings, session: Any, stack: Any) -> tuple[PlantServic
         faults=faults,
     )
     box.append(svc)
+    if svc.feedback is not None:
+        stack.callback(svc.feedback.close)
     if previous is not None:
         svc.continue_after(previous)
     return svc, hoplog

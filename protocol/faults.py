@@ -10,7 +10,12 @@ its hop log (so a run's lost/duplicated/reordered counts and its stalls can name
   bus-off at the controller's CAN edge (its sends fail), and every State (by its sample time) or
   Zenoh command (by its send time) dropped;
 - CAN frame loss: each Set_Input_Torque frame lost at the drive's receiver with probability
-  ``p``, decided per (seed, node, frame index) (:func:`frame_lost`).
+  ``p``, decided per (seed, node, frame index) (:func:`frame_lost`);
+- the feedback path toward the controller (States on Zenoh, encoder-estimate frames on CAN):
+  each item held ``feedback_delay`` plus a uniform draw in [0, ``feedback_jitter``] seconds
+  before it reaches the wire, or lost with probability ``feedback_loss``, decided per (seed,
+  index) (:meth:`Faults.feedback_extra_s`, :meth:`Faults.feedback_lost`). What an outside
+  device is measured against, run after run, by ``hil margin --external``.
 """
 
 from __future__ import annotations
@@ -67,6 +72,9 @@ class Faults:
     state_drop_burst_length: float = 0.0
     command_drop_burst_every: float = 0.0
     command_drop_burst_length: float = 0.0
+    feedback_delay: float = 0.0
+    feedback_jitter: float = 0.0
+    feedback_loss: float = 0.0
     seed: int = 0
 
     @classmethod
@@ -94,3 +102,21 @@ class Faults:
         burst)."""
         every, length = self.command_drop_burst_every, self.command_drop_burst_length
         return every_nth(seq, self.command_drop_every) or in_burst(t_s, every, length, self.seed, 4)
+
+    @property
+    def feedback_held(self) -> bool:
+        """Whether the feedback path delays, jitters or loses anything."""
+        return self.feedback_delay > 0 or self.feedback_jitter > 0 or self.feedback_loss > 0
+
+    def feedback_extra_s(self, index: int, stream: int = 0) -> float:
+        """The time (s) the index-th feedback item of ``stream`` (0: States; 1 + node: a
+        drive's encoder estimates) is held before the wire."""
+        if self.feedback_jitter <= 0.0:
+            return self.feedback_delay
+        return self.feedback_delay + self.feedback_jitter * _uniform(self.seed, 8, stream, index)
+
+    def feedback_lost(self, index: int, stream: int = 0) -> bool:
+        """Whether the index-th feedback item of ``stream`` is lost on the way."""
+        return (
+            self.feedback_loss > 0.0 and _uniform(self.seed, 9, stream, index) < self.feedback_loss
+        )

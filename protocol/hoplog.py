@@ -74,6 +74,7 @@ TICK_DUPLICATED = 1 << 10  # published twice: a [faults] duplicate
 TICK_REORDERED = 1 << 11  # published after the next command: a [faults] reorder
 SAMPLE_DROPPED = 1  # a plant sample whose State was not published: a [faults] drop
 SAMPLE_DUPLICATED = 2  # a State published twice: a [faults] duplicate
+SAMPLE_FEEDBACK_LOST = 4  # a State lost on the feedback path: a [faults] feedback_loss
 
 
 class CmdPath(IntEnum):
