@@ -160,6 +160,71 @@ def _step_scenario(out: Path, base: str, key: str, value: float, k: int) -> Path
     return path
 
 
+def _run_steps(
+    record: Campaign,
+    folder: Path,
+    base: str,
+    tried: list[float],
+    run_options: dict[str, Any],
+    wait_device: float,
+    keep_going: bool,
+) -> None:
+    """One ``hil run --controller external`` per value, until one breaks (or all ran)."""
+    from hil.analysis.analyze import write_results
+    from hil.bench.lifecycle import RunOptions, execute
+
+    for k, value in enumerate(tried):
+        ticker.say(
+            f"hil campaign: run {k + 1} of {len(tried)}: {record.key} = {record.shown(value)}"
+        )
+        recorded = execute(
+            RunOptions(
+                scenario=_step_scenario(folder, base, record.key, value, k),
+                out=folder / f"run-{k:03d}",
+                quiet=True,
+                controller="external",
+                wait_device=wait_device if k == 0 else LATER_WAIT_S,
+                **run_options,
+            )
+        )
+        summary = write_results(recorded)
+        if summary.get("interrupted") or interrupts.happened():
+            record.interrupted = True
+            return
+        s = judge_step(value, recorded.run_dir, summary, record.tracking_bound)
+        record.steps.append(s)
+        ticker.say(
+            f"hil campaign: {record.key} = {record.shown(value)}: "
+            + ("held" if s.held else f"broke ({', '.join(s.broken) or summary.get('error')})")
+        )
+        if s.held and record.first_broken is None:
+            record.largest_held = value
+        elif record.first_broken is None:
+            record.first_broken = value
+            if not keep_going:
+                return
+        record.save(folder)
+
+
+def _folder_and_base(
+    scenario: str | None, out: Path | None, force: bool, vary: str
+) -> tuple[Path, str]:
+    """The campaign's folder (claimed), and the scenario each run starts from (its path)."""
+    from hil.bench.defaults import PAPER_TRACKING_TOML
+    from hil.bundled import resolve_scenario
+    from hil.folder import claim, new_run_dir
+
+    base = None if scenario is None else str(resolve_scenario(scenario).resolve())
+    claim.check("--out", out, force, default="runs")
+    folder = out or new_run_dir(prefix=f"campaign-{vary}")
+    claim.take(folder, "campaign")
+    folder.mkdir(parents=True, exist_ok=True)
+    if base is None:  # hil run's default, written where each run's scenario can name it
+        (folder / "scenario.toml").write_text(PAPER_TRACKING_TOML)
+        base = str((folder / "scenario.toml").resolve())
+    return folder, base
+
+
 @app.command("campaign")
 def campaign(
     scenario: Annotated[
@@ -199,11 +264,7 @@ def campaign(
     """Measure how much added delay (or jitter, or loss) on the path toward YOUR device it
     holds before a limit of (2) breaks: runs `hil run --controller external` again and again
     on the same endpoint, the device kept running (docs/external.md, "Campaign")."""
-    from hil.analysis.analyze import write_results
-    from hil.bench.defaults import PAPER_TRACKING_TOML
-    from hil.bench.lifecycle import RunOptions, execute, free_port
-    from hil.bundled import resolve_scenario
-    from hil.folder import claim, new_run_dir
+    from hil.bench.lifecycle import free_port
 
     if vary not in VARIED:
         raise BadInputError(f"--vary {vary!r}: one of {', '.join(VARIED)}")
@@ -211,26 +272,12 @@ def campaign(
     step, end = step if step is not None else step0, end if end is not None else end0
     if not step > 0 or not end >= step or (vary == "loss" and end > 1):
         raise BadInputError(f"--step {step:g} and --end {end:g}: 0 < step <= end (loss: end <= 1)")
-    claim.check("--out", out, force, default="runs")
-    folder = out or new_run_dir(prefix=f"campaign-{vary}")
-    claim.take(folder, "campaign")
-    folder.mkdir(parents=True, exist_ok=True)
-    if scenario is None:
-        (folder / "scenario.toml").write_text(PAPER_TRACKING_TOML)
-        base = str((folder / "scenario.toml").resolve())
-    else:
-        base = str(resolve_scenario(scenario).resolve())
+    folder, base = _folder_and_base(scenario, out, force, vary)
     zenoh_endpoint = zenoh_endpoint or f"tcp/127.0.0.1:{free_port()}"
     can_endpoint = can_endpoint or f"tcp/127.0.0.1:{free_port()}"
-    record = Campaign(
-        vary,
-        key,
-        unit,
-        scenario or "paper_tracking (default)",
-        cmd_path,
-        zenoh_endpoint if cmd_path == "zenoh" else can_endpoint,
-        tracking_bound,
-    )
+    endpoint = zenoh_endpoint if cmd_path == "zenoh" else can_endpoint
+    name = scenario or "paper_tracking (default)"
+    record = Campaign(vary, key, unit, name, cmd_path, endpoint, tracking_bound)
     tried = values(step, end)
     ticker.start_line(
         "campaign",
@@ -238,40 +285,15 @@ def campaign(
         f"about {len(tried) * (duration + 10):.0f} s",
         folder,
     )
-    for k, value in enumerate(tried):
-        ticker.say(f"hil campaign: run {k + 1} of {len(tried)}: {key} = {record.shown(value)}")
-        recorded = execute(
-            RunOptions(
-                scenario=_step_scenario(folder, base, key, value, k),
-                duration=duration,
-                cmd_path=cmd_path,
-                can_interface=can_interface,
-                can_channel=can_channel,
-                out=folder / f"run-{k:03d}",
-                quiet=True,
-                controller="external",
-                wait_device=wait_device if k == 0 else LATER_WAIT_S,
-                zenoh_endpoint=zenoh_endpoint,
-                can_endpoint=can_endpoint,
-            )
-        )
-        summary = write_results(recorded)
-        if summary.get("interrupted") or interrupts.happened():
-            record.interrupted = True
-            break
-        s = judge_step(value, recorded.run_dir, summary, tracking_bound)
-        record.steps.append(s)
-        ticker.say(
-            f"hil campaign: {key} = {record.shown(value)}: "
-            + ("held" if s.held else f"broke ({', '.join(s.broken) or summary.get('error')})")
-        )
-        if s.held and record.first_broken is None:
-            record.largest_held = value
-        elif record.first_broken is None:
-            record.first_broken = value
-            if not keep_going:
-                break
-        record.save(folder)
+    run_options = {
+        "duration": duration,
+        "cmd_path": cmd_path,
+        "can_interface": can_interface,
+        "can_channel": can_channel,
+        "zenoh_endpoint": zenoh_endpoint,
+        "can_endpoint": can_endpoint,
+    }
+    _run_steps(record, folder, base, tried, run_options, wait_device, keep_going)
     record.save(folder)
     typer.echo(f"campaign: {record.answer()}; {folder / CAMPAIGN_MD}")
     if record.interrupted:
