@@ -1,5 +1,5 @@
 """``hil campaign``: an outside device measured run after run with a growing delay added on the
-feedback path toward it (issue 37, item 3). Known answer: an added delay of X raises the
+feedback path toward it. Known answer: an added delay of X raises the
 device's response time (the plant's send of a State to the arrival of the command naming it,
 both on the plant's clock) by X."""
 

@@ -24,7 +24,7 @@ PATH = re.compile(
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 MD_NAME = re.compile(r"(?<![\w/.-])([\w-]+\.md)\b")
 # Files the bench writes into a run, sweep, comparison or paper folder: named, not shipped.
-WRITTEN = {"report.md", "compare.md", "sweep.md", "table.md"}
+WRITTEN = {"report.md", "compare.md", "sweep.md", "table.md", "campaign.md"}
 
 
 def _tracked(*patterns: str) -> list[Path]:

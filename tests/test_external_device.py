@@ -1,6 +1,6 @@
 """``hil run --controller external``: an outside device, a process that shares no code with the
 bench, is the controller; the run says how to connect, waits for it, and writes the same run
-folder as any run (issue 37, item 1)."""
+folder as any run."""
 
 from __future__ import annotations
 
