@@ -24,6 +24,7 @@ from hil import interrupts
 from hil.analysis.measure.figures import Measurement
 from hil.analysis.measure.folder import measure_and_save, resolved_scenario
 from hil.analysis.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
+from hil.analysis.measure.reactions import reactions
 from hil.analysis.report.clockplot import write_clock_plot
 from hil.analysis.report.figures import envelope_indices, plt
 from hil.errors import BadInputError
@@ -115,6 +116,7 @@ def analyze(rec: Recorded) -> Summary:
     logs = load_folder_logs(run_dir) or RunLogs.read(None, None)
     resolved = as_resolved(scenario, tables)  # the folder's scenario, not parsed again
     m = (measure_and_save(run_dir, logs, resolved) if logs.plant else None) or Measurement()
+    drive_reactions = [r.as_dict() for r in reactions(logs.tables, logs.epoch_ns)]
     # The figures' columns go before the trace's are read: an hour's run holds one set at a
     # time (the two reads cost a second pass over the logs, ~10 s an hour).
     logs.tables.clear()
@@ -164,6 +166,8 @@ def analyze(rec: Recorded) -> Summary:
         "config": logs.pmeta.get("faults") or {},
         "injected": {"controller": cinfo.get("injected"), "plant": pinfo.get("injected")},
     }
+    # How the device reacted to each drive's disarm (hil.analysis.measure.reactions)
+    summary["drive_reactions"] = drive_reactions
     summary["scheduling"] = {
         "controller": cinfo.get("scheduling"),
         "plant": logs.pmeta.get("scheduling"),

@@ -352,6 +352,8 @@ class Summary(TypedDict, total=False):
     watchdog: dict[str, int]
     can: dict[str, Any]
     faults: dict[str, Any]
+    # each drive's disarm and the device's reaction (hil.analysis.measure.reactions)
+    drive_reactions: list[dict[str, Any]]
     scheduling: dict[str, Scheduling | None]  # service -> how it ran
     interrupted: bool
     recovered: bool
