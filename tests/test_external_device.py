@@ -129,3 +129,28 @@ def test_an_odrive_can_client_drives_the_virtual_odrives(tmp_path, spawn):
     assert code in (0, 1, 4), err
     for name in (*layout.REQUIRED, layout.REPORT_HTML):
         assert (out / name).is_file(), name
+
+
+def test_the_devices_share_no_code_with_the_bench():
+    """The example controller and the test devices import only the standard library,
+    eclipse-zenoh, msgpack, python-can and odrive-can: nothing of this project."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    ours = {"hil", "protocol", "runtime", "controller_service", "plant_emulator", "tests", "bench"}
+    files = [
+        root / "examples" / "zenoh_controller.py",
+        *sorted((root / "tests" / "devices").glob("*.py")),
+    ]
+    assert len(files) >= 3
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            else:
+                continue
+            for name in names:
+                assert name.split(".")[0] not in ours, (path.name, name)
