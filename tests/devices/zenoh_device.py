@@ -8,6 +8,8 @@ Modes (each a known answer for the bench's figures at its edge):
   draw in [-J, +J] ms around its slot, naming the newest State it has;
 - ``--stall-at T --stall-ms S``: once, T s after the first State, nothing is sent for S ms
   (the device's stall).
+- ``--fifo``: the device runs SCHED_FIFO (a real-time device), so that its own response does
+  not vary with the host's load and an added delay reads as itself;
 - ``--garbage``: also publishes malformed payloads (not msgpack, wrong types, NaN torques)
   beside its commands, which the bench must count and refuse.
 """
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import random
 import threading
 import time
@@ -38,7 +41,12 @@ def main() -> None:
     ap.add_argument("--stall-ms", type=float, default=0.0)
     ap.add_argument("--tau", type=float, default=0.05, help="constant torque asked (N·m)")
     ap.add_argument("--garbage", action="store_true")
+    ap.add_argument(
+        "--fifo", action="store_true", help="run SCHED_FIFO (every thread, Zenoh's included)"
+    )
     args = ap.parse_args()
+    if args.fifo:  # before the session: its threads inherit the policy
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
 
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps("client"))
