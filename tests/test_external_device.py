@@ -154,3 +154,68 @@ def test_the_devices_share_no_code_with_the_bench():
                 continue
             for name in names:
                 assert name.split(".")[0] not in ours, (path.name, name)
+
+
+def test_an_open_ended_session_ends_on_ctrl_c_with_a_judged_folder(tmp_path, spawn):
+    """--until-stopped: the run lasts until SIGINT, its planned end (not exit 130)."""
+    import signal
+    import time
+
+    from tests.external_helpers import zenoh_device
+    from tests.procs import Lines, free_tcp_port, wait_until
+
+    out = tmp_path / "run"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    run = spawn.python(
+        [
+            "-m",
+            "hil",
+            "run",
+            "--controller",
+            "external",
+            "--until-stopped",
+            "--out",
+            str(out),
+            "--zenoh-endpoint",
+            endpoint,
+            "--quiet",
+        ],
+        text=True,
+    )
+    err = Lines(run.stderr)
+    assert wait_until(lambda: err.seen("until Ctrl-C"), 120), err.text()
+    spawn.python([a.replace("{endpoint}", endpoint) for a in zenoh_device()])
+    assert wait_until(lambda: err.seen("device connected"), 120), err.text()
+    started = time.monotonic()
+    # the plant has run a while: its hop log holds more than a second of samples
+    assert wait_until(lambda: time.monotonic() - started > 1.5, 5)
+    run.send_signal(signal.SIGINT)
+    code = run.wait(timeout=240)
+    assert code in (0, 1, 4), err.text(5)
+    summary = json.loads((out / layout.SUMMARY).read_text())
+    assert summary["until_stopped"] is True and summary["interrupted"] is False
+    assert 1.0 < summary["duration"] < 60.0  # the session's length, not a planned one
+    assert not any("interrupted" in n for n in summary["verdict"]["notes"])
+    assert (out / layout.REPORT_HTML).is_file()
+
+
+def test_until_stopped_takes_no_duration(tmp_path):
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "hil",
+            "run",
+            "--controller",
+            "external",
+            "--until-stopped",
+            "--duration",
+            "3",
+            "--out",
+            str(tmp_path / "r"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert p.returncode == 2 and "--until-stopped" in p.stderr

@@ -176,10 +176,12 @@ def analyze(rec: Recorded) -> Summary:
     fault = law_fault_of(run_dir)
     if fault is not None:
         summary["law_fault"] = fault
-    # What ran (the plant's window): a run cut short says so here and in its verdict.
+    # What ran (the plant's window): a run cut short says so here and in its verdict; an
+    # open-ended one (--until-stopped) lasted that long.
     summary["duration_run_s"] = m.timing.get("window_s")
     summary["duration_planned_s"] = summary["duration"]
-    if summary.get("interrupted") and summary["duration_run_s"] is not None:
+    ended_early = summary.get("interrupted") or summary.get("until_stopped")
+    if ended_early and summary["duration_run_s"] is not None:
         summary["duration"] = summary["duration_run_s"]
     summary["verdict"] = run_verdict(summary, scenario)
     # Whole or absent, never half: a kill while it is written leaves the folder to recover.
