@@ -408,3 +408,29 @@ def write_report(report: Report, out: Path) -> dict[str, Path]:
     paths["md"].write_text(render_markdown(data, files))
     paths["html"].write_text(render_html(data, report.figures))
     return paths
+
+
+def folder_verdict(folder: Folder, thresholds: Thresholds = DEFAULT_THRESHOLDS) -> dict[str, Any]:
+    """The folder's verdict as a dict: summary.json's (``hil run`` judged it), else judged here as
+    :func:`build_report` judges (a simulation, a folder the report alone judged), without the
+    ideal trajectory or any figure."""
+    saved = folder.summary.get("verdict")
+    if isinstance(saved, dict) and saved.get("outcome"):
+        return dict(saved)
+    sv = view(folder.scenario, parsed=folder.typed_scenario())
+    m = measured(folder)
+    kind = "run" if m is not None else folder.kind
+    cert = _folder_certificate(sv, m, kind, folder.summary)
+    metrics = _metrics(folder, sv, cert, (None, "not requested"), None)
+    timing, messages = (m.timing, m.messages or {}) if m is not None else (None, None)
+    verdict = judge(
+        metrics["constraints"],
+        folder.summary.get("violations") or {},
+        cert,
+        timing,
+        messages,
+        RunFacts.of(folder.summary),
+        thresholds,
+        LawEnd.of(folder.summary),
+    )
+    return dict(verdict.as_dict())

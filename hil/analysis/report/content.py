@@ -761,6 +761,9 @@ NAMES = {
     "timing.startup_hold_s": "start-up hold: first command landed after the first sample",
     "timing.late_commands": "late commands (applied more than Ts after their sample)",
     "timing.late_commands_rate": "late commands, share of the samples",
+    "timing.samples_without_command_rate": "samples without a command, share of those judged",
+    "timing.deadline_miss_rate": "missed slots, share of the controller's slots",
+    "verdict.lost_messages_rate": "lost messages (State and the applied path), share of those sent",
     "band_p99.v_tilde": "band of v~ = v − α_v (p99 of |v~| once reached)",
     "band_p99.w_tilde": "band of w~ = ω − α_ω (p99 of |w~| once reached)",
 }
