@@ -6,6 +6,7 @@ of (10) are explained only where a compared law has them (hil.law.facts.Law)."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -94,3 +95,12 @@ def test_the_sliding_variables_are_explained_only_for_a_law_that_has_them(
     assert SLIDING_WORDS not in (tmp_path / "cmp" / "compare.md").read_text()
     assert SLIDING_WORDS not in (tmp_path / "cmp" / "compare.html").read_text()
     assert SLIDING_WORDS in compared["md"]  # the unified law has them: said
+
+
+def test_the_figures_are_named_in_the_papers_symbols(compared: dict) -> None:
+    """The compare page's names (its first column) say |ω|, τ1, φ2, never "max abs omega";
+    the keys (compare.json's, second column) stay as scripts read them."""
+    ascii_names = re.compile(r"\b(phi[12]|varpi[12]|omega|tau[12]|max abs)\b")
+    names = [line.split(" | ")[0] for line in compared["md"].splitlines() if line.startswith("| ")]
+    assert names and not [n for n in names if ascii_names.search(n)], names
+    assert any("max \\|ω\\|" in n for n in names), names

@@ -837,10 +837,12 @@ def label_of(key: str) -> str:
     group = parts[0] if len(parts) > 1 else ""
     words = []
     for part in parts[1:] if group else parts:
+        if part.startswith("max_abs_"):  # a peak, in the paper's symbols: max |ω|
+            part = f"max |{part.removeprefix('max_abs_')}|"
         for suffix in ("_us", "_hz", "_s"):
             part = part.removesuffix(suffix)
         words.append(part.replace("_", " ").replace("p999", "p99.9"))
-    name = ", ".join(words)
+    name = in_symbols(", ".join(words))
     where = GROUPS.get(group, group.replace("_", " "))
     return f"{where}: {name}" if where else name
 
