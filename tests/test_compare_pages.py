@@ -1,4 +1,4 @@
-"""``hil compare`` says what moved by what matters (issue 38, item 4): the figures the verdicts'
+"""``hil compare`` says what moved by what matters: the figures the verdicts'
 reasons name first, then figures against their limits or thresholds, never the relative change
 of numbers at the noise level; "why B" lists every reason of B's verdict; the sliding variables
 of (10) are explained only where a compared law has them (hil.law.facts.Law)."""

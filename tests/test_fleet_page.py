@@ -1,4 +1,4 @@
-"""The fleet's page (issue 38, item 4): fleet.md and fleet.html give every number formatted in
+"""The fleet's page: fleet.md and fleet.html give every number formatted in
 its unit, fleet.png's legend covers no bar, and each robot's folder gets its report.html from
 the fleet report itself (``hil fleet`` writes it; tests/test_fleet.py runs a real fleet)."""
 

@@ -1,4 +1,4 @@
-"""``hil paper``'s page (issue 38, item 4): paper.html beside the PNGs and table.md opens with
+"""``hil paper``'s page: paper.html beside the PNGs and table.md opens with
 the paper's claims checked, draws a switching torque as the run report does (its envelope and
 duty per bin, not raw chattering), and labels each quantity in its unit once (τ1 in m/s², τ2 in
 rad/s²: the normalized inputs of model (1), never "N m")."""

@@ -396,7 +396,7 @@ def test_a_design_that_breaks_the_papers_conditions_names_them(tmp_path: Path) -
     assert "(9) m1 < phi1 - mu1" in cert["failed_conditions"]
     (reason,) = data["verdict"]["reasons"]
     assert reason.startswith("certificate not held: command age D = 1.000 ms > D* = 0.000 ms")
-    assert "(9) m1 < phi1 - mu1" in reason
+    assert "(9) m1 < φ1 - mu1" in reason  # the page's symbols (hil.limits.in_symbols)
 
 
 def test_lost_messages_over_threshold_are_negative(tmp_path: Path, run_folder: Path) -> None:
@@ -493,10 +493,11 @@ def test_compare_two_folders(tmp_path: Path, run_folder: Path, stall_folder: Pat
     head = json.loads((out2 / "compare.json").read_text())["headline"]
     assert head["lines"][0].startswith("Verdict: A ")
     d_a, d_b = ma.certificate["d_max_s"] * 1e3, mb.certificate["d_max_s"] * 1e3
-    age = head["lines"][1]
+    assert head["lines"][1].startswith("Why B: certificate not held")  # B's one reason
+    age = head["lines"][2]
     assert f"A D = {d_a:.3f} ms of D* = " in age and f"B D = {d_b:.3f} ms" in age
     assert "D: the longest a command stayed in force" in age  # each symbol said in words
-    assert head["lines"][2].startswith("Limits of (2), the bounds φ1, φ2 on the velocities")
+    assert head["lines"][3].startswith("Limits of (2), the bounds φ1, φ2 on the velocities")
     moved = {r[0]: r for r in head["most_moved"]}
     # the stall moved D, which the verdict's reason names: listed with its unit, its name in
     # words, and what it is measured against (tests/test_compare_pages.py: the ranking)

@@ -1,4 +1,4 @@
-"""The run report and the result line read as one page (issue 38, item 4): one symbol style
+"""The run report and the result line read as one page: one symbol style
 (the paper's, from hil.limits.LIMITS) everywhere, the stall table in one piece, whole result
 lines, no "INCONCLUSIVE: inconclusive" headline, and no section for a path that did not run."""
 

@@ -1,4 +1,4 @@
-"""The sweep's progress names the grid points running now (issue 38, item 4): every group of
+"""The sweep's progress names the grid points running now: every group of
 one Ts says its Ts, its delays and how many loops run at once, and which group of how many it
 is (the label stayed "Ts=0.001 s" for the whole grid); --worst-disturbance names each point."""
 

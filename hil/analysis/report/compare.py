@@ -56,6 +56,11 @@ RATE_THRESHOLDS = {
     ),
     "lost_messages": ("verdict.lost_messages_rate", "max_lost_ratio"),
 }
+RATE_WORDS = {
+    "deadline_misses": "missed slots",
+    "samples_without_command": "samples without a command",
+}
+RATE_WORDS["lost_messages"] = "lost messages"
 
 
 def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]:
@@ -172,7 +177,7 @@ def _reason_keys(v: dict[str, Any]) -> dict[str, str]:
         fig, th_key = RATE_THRESHOLDS.get(name, ("", ""))
         rate = judged.get("rate") if isinstance(judged, dict) else None
         if _number(rate) and _number(th.get(th_key)) and rate > th[th_key]:
-            out[fig] = f"{name.replace('_', ' ')} over the threshold"
+            out[fig] = f"{RATE_WORDS.get(name, name)} over the threshold"
     return out
 
 
@@ -292,6 +297,17 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
     return data
 
 
+#: The headline's table in a reader's units (compare.json keeps SI): shares in %, seconds in ms.
+_READABLE = {"fraction": (100.0, "%"), "s": (1e3, "ms")}
+
+
+def _readable(cells: list[Any]) -> list[Any]:
+    """[A, B, B − A, unit] scaled to the reader's unit of :data:`_READABLE`."""
+    a, b, diff, unit = cells
+    scale, shown = _READABLE.get(unit, (1.0, unit))
+    return [*(None if x is None else x * scale for x in (a, b, diff)), shown]
+
+
 def _write_pages(
     out: Path,
     data: dict[str, Any],
@@ -307,7 +323,7 @@ def _write_pages(
     header = ["figure", "key (compare.json)", la, lb, "B − A", "unit"]
     every = [[ct.label_of(k), k, a, b, d, ct.unit_of(k)] for k, a, b, d in rows]
     moved_header = ["figure", la, lb, "B − A", "unit", "against", "listed for"]
-    moved = [[r[5], *r[1:5], r[6], r[7]] for r in head["most_moved"]]
+    moved = [[r[5], *_readable(r[1:5]), r[6], r[7]] for r in head["most_moved"]]
     md = [f"# Comparison: {fa} vs {fb}", "", *(f"- {t}" for t in head["lines"]), ""]
     md += ["## The figures that moved most", "", MOVED_NOTE, "", ct._md_table(moved_header, moved)]
     md += ["", "## Every figure", "", *([sliding, ""] if sliding else [])]
