@@ -1,7 +1,7 @@
 """The pages as a reader sees them: report.html, compare.html, sweep.html, fleet.html and
 paper.html rendered by headless Chromium at 1280 px (tools/screenshot.py). Each answers first,
-fits the width, and stays a page one scrolls, not a wall (the run report was 10,500 px tall before its figures shared rows and its
-long tables were folded)."""
+fits the width, and stays a page one scrolls, not a wall (the run report was 10,500 px tall
+before its figures shared rows and its long tables were folded)."""
 
 from __future__ import annotations
 
