@@ -5,6 +5,7 @@ analysis's metrics (:mod:`hil.analysis.trace_metrics`) and the sweep judge with 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import TypedDict
 
@@ -39,6 +40,35 @@ PEAK_KEYS = {lim.key: lim.peak_key for lim in LIMITS}  # signal -> summary.json'
 UNITS = {lim.key: lim.unit for lim in LIMITS}
 SYMBOLS = {lim.key: lim.symbol for lim in LIMITS}  # signal -> the limit's symbol
 SIGNALS = {lim.key: lim.signal for lim in LIMITS}  # signal -> its symbol
+
+# The ASCII spellings (the [limits] keys, the trace's columns) and their paper symbols, longest
+# first so that "varpi1" is never read as "pi1"; "w" is the certificate's name for ω.
+_ASCII = sorted(
+    [(lim.name, lim.symbol) for lim in LIMITS]
+    + [(lim.key, lim.signal) for lim in LIMITS if lim.key != lim.signal]
+    + [("w", "ω")],
+    key=lambda kv: -len(kv[0]),
+)
+_WORD = re.compile(
+    r"(?<![A-Za-z0-9_.])(" + "|".join(re.escape(k) for k, _ in _ASCII) + r")(?![A-Za-z0-9_])"
+)
+
+
+def in_symbols(text: str) -> str:
+    """``text`` with the limits' ASCII names as the paper's symbols (phi2 -> φ2, |omega| ->
+    |ω|, tau1 -> τ1), the one symbol style of every page; only whole words, and "w" only between
+    bars (|w|), so keys such as ``max_abs_tau1`` or words such as "w~" are left alone."""
+    table = dict(_ASCII)
+
+    def sub(m: re.Match[str]) -> str:
+        word = m.group(1)
+        if word == "w":
+            before, after = m.string[m.start() - 1 : m.start()], m.string[m.end() : m.end() + 1]
+            return "ω" if before == "|" and after == "|" else word
+        return table[word]
+
+    return _WORD.sub(sub, text)
+
 
 # summary.json's tolerance: a violation is beyond 1e-9 relative (docs/design.md, section 3).
 LIMIT_REL_TOL = 1e-9

@@ -59,7 +59,16 @@ from hil.folder.records import (
     Timing,
     VerdictRecord,
 )
-from hil.limits import LIMIT_NAMES, LIMIT_REL_TOL, PEAK_KEYS, UNITS, ConstraintFigure
+from hil.limits import (
+    LIMIT_NAMES,
+    LIMIT_REL_TOL,
+    PEAK_KEYS,
+    SIGNALS,
+    SYMBOLS,
+    UNITS,
+    ConstraintFigure,
+    in_symbols,
+)
 from hil.units import ms
 
 BENCH_ADVICE = (
@@ -369,10 +378,11 @@ def _limits(
             continue
         broken.append(key)
         where = f"at {n} plant steps" if n > 0 else "at its peak sample"
+        sig, sym = SIGNALS[key], SYMBOLS[key]  # the pages' one symbol style (hil.limits)
         text = (
-            f"limits of (2) broken: |{key}| beyond {LIMIT_NAMES[key]} = {c['limit']:.4g} "
-            f"{UNITS[key]} {where} (max |{key}| = {c['peak']:.4g} {UNITS[key]}, "
-            f"{100 * c['ratio']:.1f} % of {LIMIT_NAMES[key]})"
+            f"limits of (2) broken: |{sig}| beyond {sym} = {c['limit']:.4g} "
+            f"{UNITS[key]} {where} (max |{sig}| = {c['peak']:.4g} {UNITS[key]}, "
+            f"{100 * c['ratio']:.1f} % of {sym})"
         )
         bench = _bench_stalls(cert)
         d_sys, d_star = (cert or {}).get("d_system_s"), (cert or {}).get("d_star_s")
@@ -398,7 +408,7 @@ def _certificate(v: Verdict, cons: dict[str, Constraint], cert: Certificate | No
     ]
     for k, b in beyond:
         v.fail_reasons.append(
-            f"measured beyond the sampled-data bound: max |{k}| = {cons[k]['peak']:.4g} "
+            f"measured beyond the sampled-data bound: max |{SIGNALS[k]}| = {cons[k]['peak']:.4g} "
             f"{UNITS[k]} > {b:.4g} {UNITS[k]}",
         )
     v.certificate = "broken" if beyond else {True: "held", False: "not held"}.get(held, "unknown")
@@ -416,7 +426,7 @@ def _certificate(v: Verdict, cons: dict[str, Constraint], cert: Certificate | No
     elif d > ds:
         _age_beyond(v, cert, where)
     else:
-        failed = ", ".join(cert.get("failed_conditions") or []) or "see the certificate"
+        failed = in_symbols(", ".join(cert.get("failed_conditions") or [])) or "see the certificate"
         v.fail_reasons.append(
             f"certificate not held: design conditions broken ({failed}) at D = {ms(d)}"
         )
@@ -429,7 +439,7 @@ def _age_beyond(v: Verdict, cert: Certificate, where: str) -> None:
     d_sys = cert["d_system_s"] if cert.get("d_system_s") is not None else d
     stalls = cert.get("stalls") or []
     failed = cert.get("failed_conditions") or []
-    also = f"; failing: {', '.join(failed)}" if failed else ""
+    also = f"; failing: {in_symbols(', '.join(failed))}" if failed else ""
     head = f"command age D = {ms(d)} > D* = {ms(ds)}{where} (margin {ms(ds - d)}{also})"
     if d_sys > ds:
         mine = [s for s in stalls if s.get("owner") == "system" and s["age_s"] > ds]
@@ -451,7 +461,7 @@ def _age_beyond(v: Verdict, cert: Certificate, where: str) -> None:
     more = f" (and {len(bench) - 3} more)" if len(bench) > 3 else ""
     _bench_stalled(
         v,
-        f"inconclusive, the bench stalled: {head} only because {what}{more}; without the "
+        f"the bench stalled: {head} only because {what}{more}; without the "
         f"bench's stalls D = {ms(d_sys)} <= D*",
     )
 
@@ -558,15 +568,17 @@ def _facts(v: Verdict, facts: RunFacts | None) -> None:
             )
 
 
-def short_reason(text: str, limit: int = 200) -> str:
+def short_reason(text: str, limit: int | None = None) -> str:
     """A reason as one line quotes it: up to its first "; " outside parentheses (the rest are
-    its details, which the report keeps), cut at a word within ``limit`` characters."""
+    its details, which the report keeps), whole: a sentence cut mid-way ("at t = (…)") reads as
+    a bug. ``limit`` (a note's quote of another reason) cuts it at a word within as many
+    characters."""
     depth = 0
     for i, ch in enumerate(text):
         depth += {"(": 1, ")": -1}.get(ch, 0)
         if depth == 0 and text.startswith("; ", i):
             text = text[:i]
             break
-    if len(text) <= limit:
+    if limit is None or len(text) <= limit:
         return text
     return text[:limit].rsplit(" ", 1)[0] + " (…)"

@@ -49,7 +49,7 @@ REASON_KINDS: dict[str, re.Pattern[str]] = {
         "design": r"certificate not held: design conditions broken",
         "certificate_unknown_stall": r"certificate not held: .* by a stall whose cause",
         "certificate_system": r"certificate not held: command age D = .* by the system's own",
-        "bench_stalled": r"inconclusive, the bench stalled",
+        "bench_stalled": r"the bench stalled",
         "certificate_undecided": r"certificate unknown",
         "deadline_misses": r"deadline misses",
         "samples_without_command": r"samples without a command",

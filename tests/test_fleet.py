@@ -80,6 +80,13 @@ def test_a_fleet_over_loopback_gives_each_robot_its_own_loop_and_folder(tmp_path
         fleet["fleet"]["command_age_p99_us_max"],
         fleet["fleet"]["command_age_p99_us_median"],
     ) == (p99[1], p99[0])
+    # Each robot's report, written by hil fleet itself (no `hil report` by hand), with the
+    # verdict its run judged; the fleet's page links each.
+    for i, s in enumerate(summaries, 1):
+        folder = out / f"robot{i}"
+        assert (folder / "report.html").is_file()
+        assert json.loads((folder / "report.json").read_text())["verdict"] == s["verdict"]
+        assert f'href="robot{i}/report.html"' in (out / "fleet.html").read_text()
     # Each robot's folder is a complete run folder: hil report reads it.
     report = subprocess.run(
         [sys.executable, "-m", "hil", "report", str(out / "robot2")],

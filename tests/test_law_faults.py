@@ -331,7 +331,7 @@ def test_the_verdict_fails_first_on_a_law_fault_a_dead_controller_or_a_non_finit
         assert v.outcome == FAIL and v.fail_reasons[0] == first, name
         if name != "nan":  # the controller ended: the bench's stall is no reason of the verdict
             assert not v.inconclusive_reasons and BENCH_ADVICE not in v.advice, name
-            note = "not judged, the controller had ended: inconclusive, the bench stalled"
+            note = "not judged, the controller had ended: the bench stalled"
             assert any(n.startswith(note) for n in v.notes), (name, v.notes)
     # The same evidence without the end: the bench's stall makes it INCONCLUSIVE, as before.
     assert judge({}, {}, cert, {}, {}, None).outcome == "INCONCLUSIVE"

@@ -1,7 +1,7 @@
-"""The pages as a reader sees them: report.html, compare.html and sweep.html rendered by headless
-Chromium at 1280 px (tools/screenshot.py). Each answers first, fits the width, and stays a page one
-scrolls, not a wall (the run report was 10,500 px tall before its figures shared rows and its
-long tables were folded)."""
+"""The pages as a reader sees them: report.html, compare.html, sweep.html, fleet.html and
+paper.html rendered by headless Chromium at 1280 px (tools/screenshot.py). Each answers first,
+fits the width, and stays a page one scrolls, not a wall (the run report was 10,500 px tall
+before its figures shared rows and its long tables were folded)."""
 
 from __future__ import annotations
 
@@ -57,3 +57,40 @@ def test_the_sweep_page_answers_first_and_fits_the_screen(tmp_path: Path) -> Non
     height = screenshot(out / "sweep.html", tmp_path / "sweep.png")
     h, fits = _fits(tmp_path / "sweep.png")
     assert height == h and h < MAX_HEIGHT and fits, (h, fits)
+
+
+def test_the_fleet_page_answers_first_and_fits_the_screen(tmp_path: Path) -> None:
+    from hil.analysis import fleet_report
+
+    out = tmp_path / "fleet"
+    for i in (1, 2):
+        write_synthetic_folder(out / f"robot{i}", run=True, duration=1.0, seed=i)
+    fleet_report.write(out, {"robot1": 0, "robot2": 0}, {})
+    page = (out / "fleet.html").read_text()
+    assert page.index('class="verdict') < page.index("<table>") < page.index("<img")
+    height = screenshot(out / "fleet.html", tmp_path / "fleet.png")
+    h, fits = _fits(tmp_path / "fleet.png")
+    assert height == h and h < MAX_HEIGHT and fits, (h, fits)
+
+
+def test_the_paper_page_answers_first_and_fits_the_width(tmp_path: Path) -> None:
+    """hil paper's page from its own writers on 2 s runs (the page, not the claims)."""
+    from hil.bundled import bundled_dir
+    from hil.paper import FIGURE_GROUPS, PAPER_HTML, RUNS, _write_table
+    from hil.scenario import load_scenario
+    from hil.sim import simulate
+
+    results = {
+        name: simulate(
+            load_scenario(bundled_dir() / f"paper_{name}.toml").with_overrides(duration=2.0)
+        )
+        for name in RUNS
+    }
+    for _, write in FIGURE_GROUPS:
+        write(results, tmp_path)
+    _write_table(tmp_path, results, quick=True, interrupted=False)
+    page = (tmp_path / PAPER_HTML).read_text()
+    assert page.index('class="verdict') < page.index("Measured figures") < page.index("<img")
+    screenshot(tmp_path / PAPER_HTML, tmp_path / "paper.png")
+    _, fits = _fits(tmp_path / "paper.png")
+    assert fits  # 19 figures two to a row: a page one scrolls, but never wider than 1280 px

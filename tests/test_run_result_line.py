@@ -66,8 +66,8 @@ def test_the_line_quotes_a_long_reason_up_to_its_details_and_d_once() -> None:
     from hil.commands.run import verdict_line
 
     stall = (
-        "inconclusive, the bench stalled: command age D = 85.690 ms > D* = 20.442 ms on the "
-        "zenoh path (margin -65.248 ms; failing: sampled |w| bound <= phi2) only because the "
+        "the bench stalled: command age D = 85.690 ms > D* = 20.442 ms on the "
+        "zenoh path (margin -65.248 ms; failing: sampled |ω| bound <= φ2) only because the "
         "plant emulator stalled at t = 9.478 s (command age 85.690 ms, plant_late)"
     )
     summary = {
@@ -75,7 +75,7 @@ def test_the_line_quotes_a_long_reason_up_to_its_details_and_d_once() -> None:
         "certificate": {"d_max_s": 0.08569, "d_star_s": 0.020442},
     }
     line = verdict_line(summary, "runs/r/report.html")
-    assert line.startswith("INCONCLUSIVE: inconclusive, the bench stalled: command age D = ")
+    assert line.startswith("INCONCLUSIVE: the bench stalled: command age D = ")
     assert line.endswith("; report: runs/r/report.html") and len(line) < 300, line
     assert "another stall" not in line and line.count("D* ") == 1, line
     summary = {

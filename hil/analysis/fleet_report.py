@@ -9,18 +9,23 @@ else PASS; ``hil fleet`` exits with its code (hil.verdict.EXIT_CODE)."""
 
 from __future__ import annotations
 
+import base64
+import io
 import json
 from pathlib import Path
 from typing import Any, TypedDict
 
 import matplotlib
 import matplotlib.pyplot as plt
+from matplotlib.figure import Figure
 
 from hil.analysis.measure.stats import exact_percentile
-from hil.folder import layout
+from hil.analysis.report import content as ct
+from hil.analysis.report.build import build_report, write_report
+from hil.folder import layout, load_folder
 from hil.folder.rates import RATES, pooled
 from hil.units import ms_or
-from hil.verdict import FAIL, INCONCLUSIVE, PASS, run_outcome
+from hil.verdict import FAIL, INCONCLUSIVE, PASS, Verdict, run_outcome
 
 NO_RUN = "NO RUN"  # a robot whose folder has no summary.json: it has no verdict
 
@@ -127,6 +132,10 @@ def _pct(x: float | None) -> str:
     return "n/a" if x is None else f"{100.0 * x:.3f} %"
 
 
+def _us(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.0f}"
+
+
 def negative_reason(summary: FleetSummary) -> str:
     """Why the fleet is not PASS, for its exit line: the robots that made its verdict, each with
     its first reason (a law's fault sentence names the law, the time and the input)."""
@@ -147,56 +156,144 @@ def verdict_sentence(f: FleetFigures) -> str:
     return f"Verdict: PASS (every robot of {f['robots']})."
 
 
-def markdown(summary: FleetSummary) -> str:
-    f = summary["fleet"]
-    p99 = f["command_age_p99_us_max"]
-    lines = [
-        f"# Fleet of {f['robots']} robots",
-        "",
+def _lines(f: FleetFigures) -> list[str]:
+    """The fleet's answer, first on both pages: its verdict and its figures over the robots."""
+    return [
         verdict_sentence(f),
         f"PASS {f['passed']} of {f['robots']}; certificates held {f['certificates_held']}.",
-        f"Command age p99 (max over robots) {'n/a' if p99 is None else f'{p99:.0f}'} us; "
+        f"Command age p99 (max over robots) {_us(f['command_age_p99_us_max'])} µs; "
         f"samples without a command {_pct(f['samples_without_command_rate'])} of those judged; "
         f"deadline misses {_pct(f['deadline_miss_rate'])} of the slots; late commands "
         f"{_pct(f['late_commands_rate'])} of those judged.",
-        "",
-        "| robot | verdict | D (ms) | D* (ms) | held | command age p99 (us) |",
-        "|---|---|---|---|---|---|",
     ]
+
+
+#: The per-robot table's columns (both pages), each with its unit.
+HEADER = ["robot", "verdict", "D [ms]", "D* [ms]", "certificate held", "command age p99 [µs]"]
+HEADER += ["samples without a command", "deadline misses"]
+
+
+def _cells(r: RobotRow) -> list[str]:
+    """A robot's row, every number formatted in its unit (never a raw float)."""
+    held = {True: "yes", False: "no"}.get(r.get("held"), "n/a")  # type: ignore[arg-type]
+    return [
+        r.get("verdict") or NO_RUN,
+        ms_or(r.get("d_max_s"), "n/a", 2, ""),
+        ms_or(r.get("d_star_s"), "n/a", 2, ""),
+        held,
+        _us(r.get("command_age_p99_us")),
+        _pct(r.get("samples_without_command_rate")),
+        _pct(r.get("deadline_miss_rate")),
+    ]
+
+
+def _why(summary: FleetSummary) -> list[RobotRow]:
+    return [r for r in summary["per_robot"] if r.get("verdict") != PASS and r.get("reason")]
+
+
+def markdown(summary: FleetSummary) -> str:
+    f = summary["fleet"]
+    lines = [f"# Fleet of {f['robots']} robots", "", *_lines(f), ""]
+    lines += ["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
     for r in summary["per_robot"]:
-        lines.append(
-            f"| {r['robot']} | {r.get('verdict')} | {ms_or(r.get('d_max_s'), '-', 2, '')} | "
-            f"{ms_or(r.get('d_star_s'), '-', 2, '')} | {r.get('held')} | "
-            f"{r.get('command_age_p99_us')} |"
-        )
-    why = [r for r in summary["per_robot"] if r.get("verdict") != "PASS" and r.get("reason")]
-    if why:
+        name = f"[{r['robot']}]({r['robot']}/{layout.REPORT_HTML})"  # its report (hil fleet's)
+        lines.append("| " + " | ".join([name, *_cells(r)]) + " |")
+    if why := _why(summary):
         lines += ["", "Why (each robot's first reason):", ""]
         lines += [f"- {r['robot']}: {r['reason']}" for r in why]
+    lines += ["", f"![D of each robot against its D*]({layout.FLEET_PNG})"]
     return "\n".join(lines) + "\n"
 
 
-def plot(summary: FleetSummary, path: Path) -> None:
-    """D of each robot against its D*."""
+def html_page(summary: FleetSummary, png: bytes) -> str:
+    """fleet.html: self-contained as the run report (inline CSS, the plot as a data URI), the
+    answer first, each robot linked to its report.html."""
+    f = summary["fleet"]
+    cls = {PASS: "ok", INCONCLUSIVE: "unsure"}.get(f["verdict"], "bad")
+    rows = []
+    for r in summary["per_robot"]:
+        link = f'<a href="{ct.esc(r["robot"])}/{layout.REPORT_HTML}">{ct.esc(r["robot"])}</a>'
+        rows.append(
+            "<tr><td>"
+            + link
+            + "</td>"
+            + "".join(f"<td>{ct.esc(c)}</td>" for c in _cells(r))
+            + "</tr>"
+        )
+    head = "".join(f"<th>{ct.esc(h)}</th>" for h in HEADER)
+    why = "".join(f"<li>{ct.esc(r['robot'])}: {ct.esc(r['reason'])}</li>" for r in _why(summary))
+    b64 = base64.b64encode(png).decode("ascii")
+    return "\n".join(
+        [
+            "<!DOCTYPE html>",
+            '<html lang="en"><head><meta charset="utf-8">',
+            f"<title>Fleet of {f['robots']} robots</title><style>{ct.CSS}</style></head><body>",
+            f"<h1>Fleet of {f['robots']} robots</h1>",
+            f'<div class="verdict {cls}"><strong>{ct.esc(f["verdict"])}</strong><ul>',
+            *(f"<li>{ct.esc(line)}</li>" for line in _lines(f)),
+            "</ul></div>",
+            "<h2>Each robot</h2>",
+            "<p>D: the longest a command stayed in force after the sample it was computed from; "
+            "D*: the longest the paper's bound allows while still guaranteeing the limits (2). "
+            "Each robot's name links to its own report.</p>",
+            f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>",
+            *([f"<h2>Why</h2><ul>{why}</ul>"] if why else []),
+            "<h2>D of each robot against its D*</h2>",
+            f'<figure><img alt="D of each robot against its D*" src="data:image/png;base64,{b64}">'
+            f"<figcaption>data: fleet.json</figcaption></figure>",
+            "</body></html>",
+        ]
+    )
+
+
+def figure(summary: FleetSummary) -> Figure:
+    """D of each robot against its D*; the legend above the axes, never over a bar."""
     matplotlib.use("Agg")
     rows = summary["per_robot"]
     names = [r["robot"] for r in rows]
     d = [(r.get("d_max_s") or 0) * 1e3 for r in rows]
     ds = [(r.get("d_star_s") or 0) * 1e3 for r in rows]
-    fig, ax = plt.subplots(figsize=(max(4.0, 0.35 * len(rows) + 2), 3.2))
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.35 * len(rows) + 2), 3.6))
     ax.bar(names, d, label="D (measured)")
-    ax.plot(names, ds, "r_", markersize=14, label="D*")
+    ax.plot(names, ds, "r_", markersize=14, markeredgewidth=2, label="D* (the bound's)")
     ax.set_ylabel("command age (ms)")
-    ax.tick_params(axis="x", rotation=90)
-    ax.legend()
+    ax.set_ylim(0, 1.05 * max([*d, *ds, 1e-3]))
+    ax.tick_params(axis="x", rotation=90 if len(rows) > 8 else 0)
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.02), ncol=2, frameon=False)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    return fig
+
+
+def plot(summary: FleetSummary, path: Path) -> bytes:
+    fig = figure(summary)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
+    path.write_bytes(buf.getvalue())
+    return buf.getvalue()
+
+
+def write_robot_reports(out: Path, summary: FleetSummary) -> list[Path]:
+    """Each robot's report.html (and report.md, report.json), as ``hil run`` writes it, from its
+    folder and the verdict its run judged; without the ideal trajectory (``hil report
+    OUT/robotI`` adds it). A robot without summary.json has no run to report."""
+    written = []
+    for r in summary["per_robot"]:
+        folder = out / r["robot"]
+        if r.get("verdict") == NO_RUN:
+            continue
+        loaded = load_folder(folder, lazy=True)
+        saved = loaded.summary.get("verdict")
+        judged = Verdict.from_dict(saved) if isinstance(saved, dict) else None
+        written.append(write_report(build_report(loaded, verdict=judged), folder)["html"])
+    return written
 
 
 def write(out: Path, codes: dict[str, int | None], facts: dict[str, Any]) -> FleetSummary:
     summary = fleet_summary(out, codes, facts)
     (out / layout.FLEET_JSON).write_text(json.dumps(summary, indent=2) + "\n")
     (out / layout.FLEET_MD).write_text(markdown(summary))
-    plot(summary, out / layout.FLEET_PNG)
+    png = plot(summary, out / layout.FLEET_PNG)
+    (out / layout.FLEET_HTML).write_text(html_page(summary, png))
+    write_robot_reports(out, summary)
     return summary

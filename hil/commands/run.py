@@ -199,9 +199,9 @@ def verdict_line(summary: Summary, report: str | None = None) -> str:
     # The outcome the run exits with: a run stopped by its own error is a FAIL, said first.
     reasons = [str(summary["error"])] if summary.get("error") else []
     reasons += v.get("reasons") or []
-    # 320: a law's fault (hil.verdict.LawEnd) names the law, the time, the state and the
-    # exception in one sentence, which must not lose its end
-    why = short_reason(reasons[0], 320) if reasons else f"limits {v.get('limits', '?')}"
+    # The first reason's first clause, whole: a law's fault (hil.verdict.LawEnd) names the law,
+    # the time, the state and the exception in one sentence, which must not lose its end.
+    why = short_reason(reasons[0]) if reasons else f"limits {v.get('limits', '?')}"
     if len(reasons) > 1:
         why += f" (and {len(reasons) - 1} more reason{'s' if len(reasons) > 2 else ''})"
     if "D* =" in why:

@@ -278,17 +278,17 @@ def _run_with_progress(
         acc = 0
         tick = Ticker("hil sweep")
 
-        def progress(ts_value: float, done: int, n: int) -> None:
+        def progress(ts_value: float, done: int, n: int, label: str = "") -> None:
             nonlocal acc
             if ts_value not in base:
                 base[ts_value] = acc
                 acc += counts[ts_value] * per_group
             completed = base[ts_value] + done * per_group
-            bar.update(task, completed=completed, description=f"Ts={ts_value:g} s")
+            # the grid point(s) running now (hil.sweep.grid.points_label), not only their Ts
+            where = label or f"Ts = {ts_value:g} s"
+            bar.update(task, completed=completed, description=where)
             total = sum(counts.values()) * per_group
-            tick.tick(
-                f"Ts = {ts_value:g} s, {100 * completed / max(total, 1):.0f}% of the robot-steps"
-            )
+            tick.tick(f"{where}, {100 * completed / max(total, 1):.0f}% of the robot-steps")
 
         # sweep.csv grows group by group, so even a killed sweep leaves what it finished.
         return run_sweep(

@@ -58,6 +58,7 @@ LAW_FAULT = LAW_FAULT_FILE
 FLEET_JSON = "fleet.json"
 FLEET_MD = "fleet.md"
 FLEET_PNG = "fleet.png"
+FLEET_HTML = "fleet.html"
 
 
 def group_spec(first: str) -> str:

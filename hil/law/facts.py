@@ -14,6 +14,9 @@ from controller_service.registry import BUILTIN_LAWS
 #: or without its boundary layer.
 CERTIFIED_LAWS = ("unified", "unified_boundary")
 BOUNDARY_LAYER_LAW = "unified_boundary"
+#: The laws with the sliding variables v~ = v − α_v, w~ = ω − α_ω of (10) (their telemetry's
+#: v_tilde, w_tilde): the unified law's. [7], [19] and a user's law (a PD loop) have none.
+SLIDING_LAWS = CERTIFIED_LAWS
 
 
 @dataclass(frozen=True)
@@ -38,6 +41,11 @@ class Law:
     @property
     def boundary_layer(self) -> bool:
         return self.name == BOUNDARY_LAYER_LAW
+
+    @property
+    def sliding_variables(self) -> bool:
+        """True for a law with the sliding variables v~, w~ of (10), which a page explains."""
+        return self.name in SLIDING_LAWS
 
     @property
     def takes_arrays(self) -> bool:

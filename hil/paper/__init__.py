@@ -4,12 +4,15 @@ The runs are the bundled scenarios ``hil/scenarios/paper_NAME.toml`` (NAME in :d
 initial conditions stated there), each on the single-run float simulator at Ts = 1 ms,
 h = 0.1 ms for its file's duration (150 s, 300 s, 100 s), spread over ``jobs`` processes
 (default 2: the machine's cores); ``quick`` divides every duration by 5 for smoke tests (then
-the convergence checks are not judged). ``table.md`` and ``table.json`` hold the measured
-figures and the checks of the paper's claims; each figure group's docstring names its figures.
+the convergence checks are not judged). ``paper.html`` opens with the checks of the paper's
+claims, then the measured figures and every figure (drawn as the run report draws them: a
+switching torque as its envelope and duty); ``table.md`` and ``table.json`` hold the same table
+and checks; each figure group's docstring names its figures.
 """
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import multiprocessing
 import signal
@@ -20,16 +23,20 @@ from typing import Any, TypedDict
 import numpy as np
 
 from hil import interrupts
+from hil.analysis.report import content as ct
+from hil.analysis.report import figures as report_figures
+from hil.analysis.report.content import NORMALIZED, WHAT_2
 from hil.bundled import bundled_dir
 from hil.folder import layout, write_summary
 from hil.folder.jsonio import write_json
-from hil.limits import LIMIT_NAMES, PEAK_KEYS
+from hil.limits import LIMIT_NAMES, PEAK_KEYS, SIGNALS, UNITS
 from hil.paper import figures as fg
 from hil.provenance import dumps_toml
 from hil.scenario import load_scenario
 from hil.sim import SimResult, simulate
 from hil.sim.folder import write_run_folder
 
+PAPER_HTML = "paper.html"
 QUICK_FACTOR = 5.0
 JOLT_WINDOW = 0.5
 JOLT_SPAN = 5.0
@@ -107,7 +114,9 @@ def checks(results: dict[str, SimResult], quick: bool) -> list[PaperCheck]:
         add("tracking: position error < 0.02 m by t = 150 s", e < 0.02, f"{e:.4g} m")
     for name in ("tracking", "stabilization", "chattering", "circle_then_stop_unified"):
         v = results[name].summary["violations"]
-        add(f"{name}: limits (2) hold at every plant step", not any(v.values()), str(v))
+        beyond = ", ".join(f"{SIGNALS[k]} {v[k]}" for k in PEAK_KEYS)
+        add(f"{name}: limits (2) hold at every plant step", not any(v.values()),
+            f"plant steps beyond (2): {beyond}")  # fmt: skip
     st = results["stabilization"]
     if quick:
         add("stabilization: position error at 300 s < 0.6 m", None, "not judged (--quick)")
@@ -117,9 +126,10 @@ def checks(results: dict[str, SimResult], quick: bool) -> list[PaperCheck]:
     j7 = results["compare_jiang1997"].summary
     u = tr.summary
     add(
-        "[7] breaks |v| <= phi1 on the tracking run, the unified law does not",
+        "[7] breaks |v| ≤ φ1 on the tracking run, the unified law does not",
         j7["violations"]["v"] > 0 and u["violations"]["v"] == 0,
-        f"[7] max |v| {j7['max_abs_v']:.4g}, unified {u['max_abs_v']:.4g}",
+        f"max |v|: [7] {j7['max_abs_v']:.4g} m/s, unified {u['max_abs_v']:.4g} m/s, "
+        f"φ1 = {tr.scenario.limits.phi1:.4g} m/s",
     )
     j19 = results["compare_jiang2001"]
     un = results["circle_then_stop_unified"]
@@ -139,50 +149,142 @@ def checks(results: dict[str, SimResult], quick: bool) -> list[PaperCheck]:
     return out
 
 
-def _markdown(rows: list[dict[str, Any]], check_rows: list[PaperCheck], note: str) -> str:
-    head = (
-        "| run | law | final pos. err (m) | final heading err (rad) | rms pos. err, last 10% (m) "
-        "| max abs v | max abs omega | max abs tau1 | max abs tau2 | violations v/omega/tau1/tau2 |"
-    )
-    lines = ["# Li et al. 2024, Section 4, reproduced offline", "", note, "", head]
-    lines.append("|" + "---|" * 10)
-    for r in rows:
-        v = r["violations"]
-        lines.append(
-            f"| {r['run']} | {r['law']} | {r['final_position_error']:.4g} | "
-            f"{r['final_heading_error']:.4g} | {r['rms_position_error']:.4g} | "
-            f"{r['max_abs_v']:.4g} | {r['max_abs_omega']:.4g} | {r['max_abs_tau1']:.4g} | "
-            f"{r['max_abs_tau2']:.4g} | {v['v']}/{v['omega']}/{v['tau1']}/{v['tau2']} |"
-        )
-    lines += ["", "## Checks of the paper's claims", ""]
-    lines += ["| check | result | measured |", "|---|---|---|"]
-    for c in check_rows:
-        verdict = {True: "pass", False: "FAIL", None: "not judged"}[c["passed"]]
-        lines.append(f"| {c['check']} | {verdict} | {c['measured']} |")
+TITLE = "Li et al. 2024, Section 4, reproduced offline"
+#: The table's columns (table.md and paper.html), each with its unit; the limits' symbols and
+#: units are hil.limits.LIMITS'.
+RUN_HEADER = ["run", "law", "final position error [m]", "final heading error [rad]"]
+RUN_HEADER += ["RMS position error, last 10 % [m]"]
+RUN_HEADER += [f"max |{SIGNALS[k]}| [{UNITS[k]}]" for k in PEAK_KEYS]
+RUN_HEADER += ["plant steps beyond (2): " + "/".join(SIGNALS[k] for k in PEAK_KEYS)]
+CHECK_HEADER = ["check of the paper's claim", "result", "measured"]
+
+
+def _run_cells(r: dict[str, Any]) -> list[str]:
+    v = r["violations"]
+    cells = [r["run"], r["law"]]
+    cells += [f"{r[k]:.4g}" for k in ("final_position_error", "final_heading_error")]
+    cells += [f"{r['rms_position_error']:.4g}", *(f"{r[k]:.4g}" for k in PEAK_KEYS.values())]
+    return [*cells, "/".join(str(v[k]) for k in PEAK_KEYS)]
+
+
+def _check_cells(c: PaperCheck) -> list[str]:
+    return [
+        c["check"],
+        {True: "pass", False: "FAIL", None: "not judged"}[c["passed"]],
+        c["measured"],
+    ]
+
+
+def answer(check_rows: list[PaperCheck], interrupted: bool) -> tuple[str, str]:
+    """The page's first line, and its class (ok, bad, unsure): how many of the paper's claims
+    held."""
+    judged = [c for c in check_rows if c["passed"] is not None]
+    failed = [c["check"] for c in judged if c["passed"] is False]
+    if interrupted:
+        return "INTERRUPTED: the paper's claims were not checked (see the note).", "unsure"
+    if failed:
+        return f"{len(failed)} of {len(judged)} claims judged FAIL: {'; '.join(failed)}.", "bad"
+    if not judged:
+        return "No claim judged (--quick: the runs are too short to judge them).", "unsure"
+    rest = len(check_rows) - len(judged)
+    more = f" ({rest} not judged: --quick)" if rest else ""
+    return f"Every claim judged holds: {len(judged)} of {len(judged)}{more}.", "ok"
+
+
+def _md_row(cells: list[str]) -> str:
+    return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+
+
+def _markdown(
+    rows: list[dict[str, Any]], check_rows: list[PaperCheck], note: str, interrupted: bool
+) -> str:
+    """table.md: the claims checked first (the answer), then the measured figures."""
+    lines = [f"# {TITLE}", "", answer(check_rows, interrupted)[0], "", note, ""]
+    lines += ["## Checks of the paper's claims", ""]
+    lines += [_md_row(CHECK_HEADER), "|" + "---|" * len(CHECK_HEADER)]
+    lines += [_md_row(_check_cells(c)) for c in check_rows]
+    lines += ["", "## Measured figures", "", NORMALIZED, ""]
+    lines += [_md_row(RUN_HEADER), "|" + "---|" * len(RUN_HEADER)]
+    lines += [_md_row(_run_cells(r)) for r in rows]
     return "\n".join(lines) + "\n"
 
 
-# The unit of each signal drawn against its limit of (2) (the figures' own), and the name of
-# that limit.
-_UNITS = {"v": "m/s", "omega": "rad/s", "tau1": "N m", "tau2": "N m"}
-_SIGNALS = {k: (unit, LIMIT_NAMES[k]) for k, unit in _UNITS.items()}
+def _html(
+    out: Path,
+    rows: list[dict[str, Any]],
+    check_rows: list[PaperCheck],
+    note: str,
+    interrupted: bool,
+) -> str:
+    """paper.html: self-contained as the run report (inline CSS, figures as data URIs); the
+    claims checked first, then the measured figures, then every figure written."""
+    text, cls = answer(check_rows, interrupted)
+    figures = []
+    for png in sorted(out.glob("fig*.png")):
+        b64 = base64.b64encode(png.read_bytes()).decode("ascii")
+        figures.append(
+            f'<figure><img alt="{ct.esc(png.stem)}" src="data:image/png;base64,{b64}">'
+            f"<figcaption>{ct.esc(png.stem)} (data: <code>{ct.esc(png.stem)}.csv</code>)"
+            "</figcaption></figure>"
+        )
+    return "\n".join(
+        [
+            "<!DOCTYPE html>",
+            '<html lang="en"><head><meta charset="utf-8">',
+            f"<title>{ct.esc(TITLE)}</title><style>{ct.CSS}</style></head><body>",
+            f"<h1>{ct.esc(TITLE)}</h1>",
+            f'<section id="headline"><div class="verdict {cls}"><strong>{ct.esc(text)}</strong>',
+            ct.table(CHECK_HEADER, [_check_cells(c) for c in check_rows]),
+            "</div>",
+            f"<p>{ct.esc(note)}</p></section>",
+            '<section id="runs"><h2>Measured figures</h2>',
+            f"<p>{ct.esc(NORMALIZED)} {ct.esc(WHAT_2)}</p>",
+            ct.table(RUN_HEADER, [_run_cells(r) for r in rows]),
+            "</section>",
+            '<section id="figures"><h2>The paper\'s figures</h2>',
+            f"<p>{ct.esc(FIGURES_NOTE)}</p>",
+            '<div class="figs">',
+            *figures,
+            "</div></section></body></html>",
+        ]
+    )
+
+
+FIGURES_NOTE = (
+    "Each figure as the paper numbers it (fig02 is its Figure 2), with its data as CSV beside "
+    "it; the limits of (2) are the red dashed lines. A switching torque τ1, τ2 is drawn as "
+    "the run report draws it: per time bin its min-max range (the envelope) and its mean (the "
+    "duty), not a solid block of lines."
+)
+
+
+def axis_label(col: str) -> str:
+    """A signal's axis as every page labels it, from hil.limits.LIMITS: "τ1 [m/s²]"."""
+    return f"{SIGNALS[col]} [{UNITS[col]}]"
 
 
 def _signals(out: Path, first: int, stem: str, title: str, runs: fg.Runs, cols: str) -> list[Path]:
     """Figures ``first``, ``first + 1``, ...: each signal of ``cols`` (space-separated) over time
-    against its limit of (2) (the last run's), titled ``title.format(signal)``."""
+    against its limit of (2) (the last run's), titled ``title.format(symbol)``, its axis in the
+    signal's unit (hil.limits: τ1 in m/s², τ2 in rad/s², the normalized inputs of model (1)).
+    A torque switches faster than a plot shows: drawn as the run report draws it, its envelope
+    and duty per time bin (hil.analysis.report.figures.switching_band)."""
     limits = runs[-1][1].scenario.limits
-    return [
-        fg.over_time(
-            out / f"fig{first + i:02d}_{stem}_{col}.png",
-            title.format(col),
-            f"{col} ({_SIGNALS[col][0]})",
-            [col],
-            runs,
-            getattr(limits, _SIGNALS[col][1]),
-        )
-        for i, col in enumerate(cols.split())
-    ]
+    paths = []
+    for i, col in enumerate(cols.split()):
+        path = out / f"fig{first + i:02d}_{stem}_{col}.png"
+        label, limit = axis_label(col), getattr(limits, LIMIT_NAMES[col])
+        if col.startswith("tau"):
+            t = runs[0][1].column("t")
+            series = [(name, run.column(col)[: len(t)]) for name, run in runs]
+            band = report_figures.switching_band(
+                path.stem, title.format(SIGNALS[col]), label, t, series, limit
+            )
+            band.write(out, "")
+        else:
+            fg.over_time(path, title.format(SIGNALS[col]), label, [col], runs, limit)
+        paths.append(path)
+    return paths
 
 
 def _xy_and_signals(
@@ -359,5 +461,6 @@ def _write_table(
     table = dict(note=note, runs=rows, checks=check_rows, quick=quick, interrupted=interrupted)
     table["runs_not_done"] = [r for r in RUNS if r not in results]
     write_json(out / "table.json", table)
-    (out / "table.md").write_text(_markdown(rows, check_rows, note))
+    (out / "table.md").write_text(_markdown(rows, check_rows, note, interrupted))
+    (out / PAPER_HTML).write_text(_html(out, rows, check_rows, note, interrupted))
     return table

@@ -86,6 +86,24 @@ class SweepGrid:
         return len(self.ts) * len(self.delay) * len(self.jitter) * self.seeds
 
 
+def _span(values: Iterable[float]) -> str:
+    got = sorted(set(values))
+    return f"{got[0]:g} s" if len(got) == 1 else f"{got[0]:g}–{got[-1]:g} s"
+
+
+def points_label(points: Sequence[SweepPoint], index: int, count: int, what: str = "group") -> str:
+    """The grid point(s) running now, for the progress line: their Ts, delays, jitters and
+    seeds, and which ``what`` (a group of one Ts, or one point) of ``count`` they are."""
+    parts = [f"Ts = {_span(p.ts for p in points)}", f"delay {_span(p.delay for p in points)}"]
+    if any(p.jitter for p in points):
+        parts.append(f"jitter {_span(p.jitter for p in points)}")
+    seeds = len({p.seed for p in points})
+    if seeds > 1:
+        parts.append(f"{seeds} seeds")
+    at_once = f", {len(points)} loops at once" if len(points) > 1 else ""
+    return f"{', '.join(parts)} ({what} {index} of {count}{at_once})"
+
+
 def _values(name: str, raw: Iterable[Any], positive: bool) -> tuple[float, ...]:
     out = []
     for v in raw:

@@ -27,12 +27,14 @@ from hil.scenario import Scenario, build_loop, resolved_dict, scenario_dict
 from hil.sim import BatchResult, RobotVariation, simulate_batch
 from hil.sim.certificate import certificate
 from hil.sim.core import Progress
-from hil.sweep.grid import SweepGrid, SweepPoint, SweepRow
+from hil.sweep.grid import SweepGrid, SweepPoint, SweepRow, points_label
 
 RECORD_LIMIT = 64
 SWEEP_JSON = "sweep.json"  # holds the first law fault's whole record (hil.sweep.outputs)
 LAW_FAULT_RECORD = "law_fault_record"  # a row's key for it, taken out when the rows are written
-ProgressFn = Callable[[float, int, int], None]  # (ts, samples done, samples in this group)
+#: (ts, samples done, samples in this group; keyword ``label``: the grid points running now,
+#: hil.sweep.grid.points_label)
+ProgressFn = Callable[..., None]
 
 
 @dataclass
@@ -152,8 +154,10 @@ def run_sweep(
     outcome = SweepOutcome()
     resolved: Toml = {}
     try:
-        for ts, points in grid.by_ts(scenario.timing.seed):
-            report = None if progress is None else functools.partial(progress, ts)
+        groups = grid.by_ts(scenario.timing.seed)
+        for k, (ts, points) in enumerate(groups, 1):
+            label = points_label(points, k, len(groups))
+            report = None if progress is None else functools.partial(progress, ts, label=label)
             sc = scenario_at(scenario, ts, duration)
             rows, result = simulate_points(sc, points, len(points) <= RECORD_LIMIT, report)
             resolved = resolved or result.resolved

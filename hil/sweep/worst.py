@@ -24,7 +24,7 @@ from hil.scenario import Scenario, build_loop, resolved_dict
 from hil.sim.adversary.loop import initial_states, scenario_schedule
 from hil.sim.adversary.search import worst_disturbance
 from hil.sim.certificate import certificate
-from hil.sweep.grid import SweepGrid, SweepRow
+from hil.sweep.grid import SweepGrid, SweepRow, points_label
 from hil.sweep.runner import LAW_FAULT_RECORD, SweepOutcome, point_row, scenario_at, worst_age
 
 POPULATION = 64
@@ -67,8 +67,10 @@ def run_worst_sweep(
     resolved = resolved_dict(scenario, loop[0], loop[2])
     sv = view(resolved)
     try:
+        at = 0
         for ts, points in grid.by_ts(scenario.timing.seed):
             for i, p in enumerate(points):
+                at += 1
                 sc = scenario_at(scenario, ts, duration)
                 timing = dataclasses.replace(sc.timing, delay=p.delay, jitter=p.jitter, seed=p.seed)
                 sc = dataclasses.replace(sc, timing=timing)
@@ -88,7 +90,9 @@ def run_worst_sweep(
                 outcome.rows.append(row)
                 outcome.robot_steps += best.loops * schedule.samples
                 if progress is not None:
-                    progress(ts, (i + 1) * schedule.samples // len(points), schedule.samples)
+                    done = (i + 1) * schedule.samples // len(points)
+                    label = points_label([p], at, len(grid), "point")
+                    progress(ts, done, schedule.samples, label=label)
             if on_group is not None:
                 on_group(outcome.rows)
             outcome.groups_done += 1

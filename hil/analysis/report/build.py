@@ -102,6 +102,13 @@ def drives_block(folder: Folder, sv: ScenarioView) -> tuple[DrivesBlock, np.ndar
     return out, q
 
 
+def can_ran(drives: DrivesBlock) -> bool:
+    """True when the folder's run had CAN drives (summary.json's ``can`` holds a side's
+    counters): a simulation or a ``--no-can`` run has none, and no page section for them."""
+    can = drives.get("can")
+    return isinstance(can, dict) and any(isinstance(v, dict) and v for v in can.values())
+
+
 def _count(obj: Any) -> int:
     """The sum of every count in a (nested) rejection dict."""
     if isinstance(obj, dict):
@@ -317,12 +324,13 @@ def _figures(
     if panels:
         src = "trace" if "v_tilde" in tr else "recorded telemetry"
         figs.append(fg.stacked("bands", f"Sliding variables v~ and w~ of (10) ({src})", panels))
-    if q is not None:
+    can = can_ran(drives)  # no section, no figure for a path that did not run
+    if q is not None and can:
         title = "Motor torques sent to the drives (wheel mapping of [robot])"
         series, limit = [("right", q[0]), ("left", q[1])], drives.get("motor_torque_limit_nm")
         figs.append(fg.switching_band("motor_torques", title, "q [N·m]", tr["t"], series, limit))
     sections = ["headline", "terms", "verdict", "certificate", "trajectory", "velocities"]
-    sections += ["torques", "drives", "tracking_error", "bands"]
+    sections += ["torques", *(["drives"] if can else []), "tracking_error", "bands"]
     if m is not None:
         figs += _run_figures(m, cert)
         sections += ["latency", "lateness", "messages", "timing_summary"]
@@ -408,3 +416,29 @@ def write_report(report: Report, out: Path) -> dict[str, Path]:
     paths["md"].write_text(render_markdown(data, files))
     paths["html"].write_text(render_html(data, report.figures))
     return paths
+
+
+def folder_verdict(folder: Folder, thresholds: Thresholds = DEFAULT_THRESHOLDS) -> dict[str, Any]:
+    """The folder's verdict as a dict: summary.json's (``hil run`` judged it), else judged here as
+    :func:`build_report` judges (a simulation, a folder the report alone judged), without the
+    ideal trajectory or any figure."""
+    saved = folder.summary.get("verdict")
+    if isinstance(saved, dict) and saved.get("outcome"):
+        return dict(saved)
+    sv = view(folder.scenario, parsed=folder.typed_scenario())
+    m = measured(folder)
+    kind = "run" if m is not None else folder.kind
+    cert = _folder_certificate(sv, m, kind, folder.summary)
+    metrics = _metrics(folder, sv, cert, (None, "not requested"), None)
+    timing, messages = (m.timing, m.messages or {}) if m is not None else (None, None)
+    verdict = judge(
+        metrics["constraints"],
+        folder.summary.get("violations") or {},
+        cert,
+        timing,
+        messages,
+        RunFacts.of(folder.summary),
+        thresholds,
+        LawEnd.of(folder.summary),
+    )
+    return dict(verdict.as_dict())

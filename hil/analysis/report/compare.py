@@ -19,22 +19,48 @@ from hil.analysis.measure.figures import Measurement
 from hil.analysis.measure.folder import measured
 from hil.analysis.report import content as ct
 from hil.analysis.report import figures as fg
+from hil.analysis.report.build import folder_verdict
 from hil.folder import RunFolder as Folder
 from hil.folder.jsonio import write_json
 from hil.folder.scenario_view import view
+from hil.law.facts import Law
+from hil.limits import SYMBOLS as LIMIT_SYMBOLS
 from hil.units import ms_or
 from hil.verdict import LIMIT_NAMES, short_reason
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
 PREFIX = "compare_"
-#: How many of the most-moved figures the headline lists.
+#: How many of the most-moved figures the headline lists (the verdicts' reasons always are).
 MOST_MOVED = 8
-#: How much of a verdict's first reason the headline quotes (the reports have all of it).
-WHY_CHARS = 200
 MOVED_NOTE = (
-    "The figures whose value changed most from A to B, relative to A's value (the change "
-    "itself where A is 0), largest first."
+    "What moved, by what matters: first the figures the verdicts' reasons name (what decided "
+    "them), then the figures that have a limit or a threshold, by how far they moved in units "
+    "of it (max |v| / φ1, samples without a command against the verdict's threshold, D against "
+    "D*), then the others by their relative change; a figure below its unit's noise level in "
+    "both folders (a position error of 1e-12 m) is never listed."
 )
+#: Below this in both folders a figure is numerical noise, in its unit (hil.analysis.report
+#: .content.unit_of): a micrometre, a microradian, a microsecond.
+NOISE = {"m": 1e-6, "rad": 1e-6, "m/s": 1e-6, "rad/s": 1e-6, "s": 1e-6, "fraction": 1e-9}
+NOISE |= {"m/s²": 1e-6, "rad/s²": 1e-6, "µs": 1e-3}
+#: Settings of the scenario, not figures of what ran: never "moved".
+SETTINGS = ("ts", "delay", "jitter", "summary.ts", "summary.plant_step", "summary.duration")
+SETTINGS += ("summary.samples", "summary.plant_steps", "summary.nonfinite_first_t_s")
+#: The verdict's rates (its record's ``timing``): their figure's key here, and their
+#: threshold's name in the record (hil.verdict.Thresholds).
+RATE_THRESHOLDS = {
+    "deadline_misses": ("timing.deadline_miss_rate", "max_deadline_miss_ratio"),
+    "samples_without_command": (
+        "timing.samples_without_command_rate",
+        "max_samples_without_command_ratio",
+    ),
+    "lost_messages": ("verdict.lost_messages_rate", "max_lost_ratio"),
+}
+RATE_WORDS = {
+    "deadline_misses": "missed slots",
+    "samples_without_command": "samples without a command",
+}
+RATE_WORDS["lost_messages"] = "lost messages"
 
 
 def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]:
@@ -59,6 +85,10 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
         out.update({f"{group}.{k}": r for k, r in eff[group].items()})
     if m is not None:
         out.update(measured_figures(m))
+    for key, judged in (folder_verdict(folder).get("timing") or {}).items():
+        rate = judged.get("rate") if isinstance(judged, dict) else None
+        if key in RATE_THRESHOLDS and _number(rate):
+            out.setdefault(RATE_THRESHOLDS[key][0], float(rate))  # as the verdict held it
     return out
 
 
@@ -92,12 +122,8 @@ def compare_rows(a: dict[str, float], b: dict[str, float]) -> list[list[Any]]:
     ]
 
 
-def _outcome(folder: Folder) -> str:
-    v = folder.summary.get("verdict")
-    if isinstance(v, dict) and v.get("outcome"):
-        return str(v["outcome"])
-    held = folder.summary.get("limits_held")
-    return "limits held" if held else ("limits broken" if held is False else "n/a")
+def _outcome(v: dict[str, Any]) -> str:
+    return str(v.get("outcome") or "n/a")
 
 
 def _age(folder: Folder) -> str:
@@ -107,36 +133,102 @@ def _age(folder: Folder) -> str:
     return f"D = {ms_or(c.get('d_max_s'), 'n/a')} of D* = {ms_or(c.get('d_star_s'), 'n/a')}"
 
 
-def _why(folder: Folder) -> str | None:
-    """The first reason of a verdict that is not PASS, up to its details."""
-    v = folder.summary.get("verdict")
-    if not isinstance(v, dict) or v.get("outcome") in (None, "PASS") or not v.get("reasons"):
+def _why(name: str, v: dict[str, Any]) -> str | None:
+    """Every reason of a verdict that is not PASS, each whole up to its details (the reports
+    have those): one line."""
+    reasons = [short_reason(str(r)).rstrip(".") for r in v.get("reasons") or []]
+    if v.get("outcome") in (None, "PASS") or not reasons:
         return None
-    return short_reason(str(v["reasons"][0]), WHY_CHARS)
+    if len(reasons) == 1:
+        return f"Why {name}: {reasons[0]}."
+    listed = "; ".join(f"({i}) {r}" for i, r in enumerate(reasons, 1))
+    return f"Why {name}, {len(reasons)} reasons: {listed}."
 
 
-def most_moved(rows: list[list[Any]], n: int = MOST_MOVED) -> list[list[Any]]:
-    """The rows whose value changed most relative to A (absolute change where A is 0)."""
-    scored = []
+def _scale(key: str, v: dict[str, Any], a: dict[str, float]) -> tuple[float, str] | None:
+    """What a figure is measured against, and that in words: its limit of (2), the verdict's
+    threshold for a rate, D* for D; None for a figure without one."""
+    group, _, last = key.partition(".")
+    if group == "max_over_limit":
+        return 1.0, f"{LIMIT_SYMBOLS[last]} (1 = at the limit)"
+    th = v.get("thresholds") or {}
+    for fig, th_key in RATE_THRESHOLDS.values():
+        if key == fig and _number(th.get(th_key)):
+            return float(th[th_key]), f"threshold {100 * th[th_key]:g} %"
+    d_star = a.get("certificate.d_star_s")
+    if key == "certificate.d_max_s" and d_star:
+        return d_star, f"D* = {ms_or(d_star, 'n/a')}"
+    return None
+
+
+def _reason_keys(v: dict[str, Any]) -> dict[str, str]:
+    """The figures a verdict's reasons name (hil.verdict's record: the limits broken, the
+    certificate, the rates over their thresholds), each with the reason in a few words."""
+    if v.get("outcome") in (None, "PASS"):
+        return {}
+    out = {
+        f"max_over_limit.{k}": f"limit {LIMIT_SYMBOLS[k]} broken"
+        for k in v.get("limits_broken") or []
+    }
+    if v.get("certificate") in ("not held", "broken"):
+        out["certificate.d_max_s"] = f"certificate {v['certificate']}"
+    th = v.get("thresholds") or {}
+    for name, judged in (v.get("timing") or {}).items():
+        fig, th_key = RATE_THRESHOLDS.get(name, ("", ""))
+        rate = judged.get("rate") if isinstance(judged, dict) else None
+        if _number(rate) and _number(th.get(th_key)) and rate > th[th_key]:
+            out[fig] = f"{RATE_WORDS.get(name, name)} over the threshold"
+    return out
+
+
+def most_moved(
+    rows: list[list[Any]],
+    verdicts: tuple[dict[str, Any], dict[str, Any]] = ({}, {}),
+    n: int = MOST_MOVED,
+) -> list[list[Any]]:
+    """The figures that moved, by what matters (:data:`MOVED_NOTE`): each row [key, A, B, B − A,
+    unit, label, measured against, why listed]. The verdicts' reasons' figures come first
+    (all of them), then up to ``n`` in all."""
+    va, vb = verdicts
+    named = {**_reason_keys(va), **_reason_keys(vb)}
+    a_of = {r[0]: r[1] for r in rows if r[1] is not None}
+    tiers: list[tuple[int, float, str, list[Any]]] = []
     for key, a, b, diff in rows:
-        if diff is None or not math.isfinite(diff) or diff == 0 or key in ("ts", "delay"):
+        if key in SETTINGS or key.startswith("summary.max_abs_") or key == "certificate.margin_s":
+            continue  # a setting, or a figure listed under its limit (peak / limit, D)
+        if diff is None or not math.isfinite(diff) or a is None or b is None:
             continue
-        base = abs(a) if a else 1.0
-        scored.append((abs(diff) / base, [key, a, b, diff, ct.unit_of(key), ct.label_of(key)]))
-    scored.sort(key=lambda s: -s[0])
+        unit = ct.unit_of(key)
+        scale = _scale(key, vb or va, a_of)
+        against = scale[1] if scale else ""
+        row = [key, a, b, diff, unit, ct.label_of(key), against]
+        if key in named:
+            size = abs(diff) / scale[0] if scale else abs(diff)
+            tiers.append((0, -size, key, [*row, f"the verdict: {named[key]}"]))
+        elif diff == 0:
+            continue
+        elif scale is not None:
+            tiers.append((1, -abs(diff) / scale[0], key, [*row, "moved in units of its limit"]))
+        elif max(abs(a), abs(b)) >= NOISE.get(unit, 0.0):
+            change = abs(diff) / max(abs(a), abs(b))
+            tiers.append((2, -change, key, [*row, "relative change"]))
+    tiers.sort(key=lambda t: t[:3])
     once: dict[tuple[Any, ...], list[Any]] = {}
-    for _, row in scored:  # one figure under two keys (summary and tracking) is listed once
-        once.setdefault((row[5], row[1], row[2]), row)
-    return list(once.values())[:n]
+    for tier, _, _, row in tiers:  # one figure under two keys (summary and tracking) once
+        if tier == 0 or len(once) < n:
+            once.setdefault((row[5], row[1], row[2]), row)
+    return list(once.values())
 
 
 def compare_headline(
     fa: Folder, fb: Folder, a: dict[str, float], b: dict[str, float], rows: list[list[Any]]
 ) -> dict[str, Any]:
-    """What compare says first, with units: both folders' verdicts, D against D* and limits of
-    (2), then the figures that moved most. Every number is one the two folders already hold."""
-    lines = [f"Verdict: A {_outcome(fa)}, B {_outcome(fb)}."]
-    lines += [f"Why {n}: {why.rstrip('.')}." for n, f in (("A", fa), ("B", fb)) if (why := _why(f))]
+    """What compare says first, with units: both folders' verdicts and every reason of each,
+    D against D* and limits of (2), then the figures that moved most. Every number is one the
+    two folders already hold."""
+    va, vb = folder_verdict(fa), folder_verdict(fb)
+    lines = [f"Verdict: A {_outcome(va)}, B {_outcome(vb)}."]
+    lines += [why for n, v in (("A", va), ("B", vb)) if (why := _why(n, v))]
     lines.append(
         f"Command age: A {_age(fa)}; B {_age(fb)} (D: the longest a command stayed in force "
         "after the sample it was computed from; D*: the longest the paper's bound allows "
@@ -152,7 +244,7 @@ def compare_headline(
             "Limits of (2), the bounds φ1, φ2 on the velocities and ϖ1, ϖ2 on the inputs the "
             f"law must keep, as peak / limit from A to B (1 = at the limit): {'; '.join(limits)}."
         )
-    return {"lines": lines, "most_moved": most_moved(rows)}
+    return {"lines": lines, "most_moved": most_moved(rows, (va, vb))}
 
 
 def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b: str = "B"):
@@ -199,12 +291,30 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
         "figures": files,
     }
     write_json(out / "compare.json", data)
-    _write_pages(out, data, (la, lb), rows, figs)
+    # v~, w~ are explained only where a law has them (hil.law.facts.Law)
+    sliding = any(Law(view(f.scenario).law).sliding_variables for f in (fa, fb))
+    _write_pages(out, data, (la, lb), rows, figs, ct.SLIDING if sliding else "")
     return data
 
 
+#: The headline's table in a reader's units (compare.json keeps SI): shares in %, seconds in ms.
+_READABLE = {"fraction": (100.0, "%"), "s": (1e3, "ms")}
+
+
+def _readable(cells: list[Any]) -> list[Any]:
+    """[A, B, B − A, unit] scaled to the reader's unit of :data:`_READABLE`."""
+    a, b, diff, unit = cells
+    scale, shown = _READABLE.get(unit, (1.0, unit))
+    return [*(None if x is None else x * scale for x in (a, b, diff)), shown]
+
+
 def _write_pages(
-    out: Path, data: dict[str, Any], labels: tuple[str, str], rows: list[list[Any]], figs: list
+    out: Path,
+    data: dict[str, Any],
+    labels: tuple[str, str],
+    rows: list[list[Any]],
+    figs: list,
+    sliding: str,
 ) -> None:
     """compare.md and compare.html: the headline first, then every figure and the overlays."""
     la, lb = labels
@@ -212,11 +322,12 @@ def _write_pages(
     fa, fb = data["a"], data["b"]
     header = ["figure", "key (compare.json)", la, lb, "B − A", "unit"]
     every = [[ct.label_of(k), k, a, b, d, ct.unit_of(k)] for k, a, b, d in rows]
-    moved_header = ["figure", la, lb, "B − A", "unit"]
-    moved = [[r[5], *r[1:5]] for r in head["most_moved"]]
+    moved_header = ["figure", la, lb, "B − A", "unit", "against", "listed for"]
+    moved = [[r[5], *_readable(r[1:5]), r[6], r[7]] for r in head["most_moved"]]
     md = [f"# Comparison: {fa} vs {fb}", "", *(f"- {t}" for t in head["lines"]), ""]
     md += ["## The figures that moved most", "", MOVED_NOTE, "", ct._md_table(moved_header, moved)]
-    md += ["", "## Every figure", "", ct.SLIDING, "", ct._md_table(header, every), ""]
+    md += ["", "## Every figure", "", *([sliding, ""] if sliding else [])]
+    md += [ct._md_table(header, every), ""]
     md += ["## Overlays", "", ct.NORMALIZED, ""]
     for f in files:
         md += [f"![{f['title']}]({f['png']})", "", f"Data: [{f['data']}]({f['data']})", ""]
@@ -234,7 +345,7 @@ def _write_pages(
         ct.table(moved_header, moved),
         "</section>",
         '<section id="figures_table"><h2>Every figure</h2>',
-        f"<p>{ct.esc(ct.SLIDING)}</p>",
+        *([f"<p>{ct.esc(sliding)}</p>"] if sliding else []),
         f"<details><summary>{len(rows)} figures of A and B, each with its unit</summary>",
         ct.table(header, every),
         "</details></section>",

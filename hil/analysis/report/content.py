@@ -29,7 +29,7 @@ from hil.folder.records import (
     Timing,
     Topology,
 )
-from hil.limits import SIGNALS, SYMBOLS, UNITS
+from hil.limits import SIGNALS, SYMBOLS, UNITS, in_symbols
 from hil.units import ms
 from hil.verdict import EXIT_CODE, LawEnd
 from protocol.settings import CMD_PATHS
@@ -41,8 +41,11 @@ TOP_STALLS = 3
 NORMALIZED = (
     "Model (1) is normalized: v' = τ1 + d1 and ω' = τ2 + d2, so τ1 is an acceleration (m/s²) "
     "and τ2 an angular acceleration (rad/s²), per unit mass and yaw inertia, although the "
-    "paper labels τ1, τ2 in N·m. The torques that really go to the drives, in N·m, are in the "
-    "section on CAN and drives."
+    "paper labels τ1, τ2 in N·m."
+)
+#: Said only on a page that has the drives' section (a run on the CAN path).
+DRIVES_NOTE = (
+    "The torques that really go to the drives, in N·m, are in the section on CAN and drives."
 )
 WHAT_2 = (
     "The constraints (2) are the limits the law must never exceed: |v| ≤ φ1 and |ω| ≤ φ2 on "
@@ -215,7 +218,7 @@ def _command_age(data: ReportData) -> tuple[AgeAnswer, str]:
     elif d is not None and d > ds:
         state = "certificate NOT held (D > D*)"
     else:
-        failed = ", ".join(cert.get("failed_conditions") or []) or "design conditions"
+        failed = in_symbols(", ".join(cert.get("failed_conditions") or [])) or "design conditions"
         state = f"certificate NOT held ({failed})"
     return out, f"{what} against D* = {ms(ds)}: margin {ms(margin)}, {state}."
 
@@ -289,7 +292,8 @@ def headline(data: ReportData, summary: Summary) -> Headline:
 
 
 def _terms(s: Section, data: ReportData) -> None:
-    for text in (NORMALIZED, WHAT_2, WHAT_4, WHAT_CERT):
+    drives = f" {DRIVES_NOTE}" if "drives" in data["sections"] else ""
+    for text in (NORMALIZED + drives, WHAT_2, WHAT_4, WHAT_CERT):
         s.p(text)
 
 
@@ -353,7 +357,10 @@ def _certificate(s: Section, data: ReportData) -> None:
             ["v bound [m/s]", c.get("v_bound")],
             ["ω bound [rad/s]", c.get("omega_bound")],
             [_STALL_RULE[c.get("d_star_s") is None], _ms(c.get("stall_threshold_s"))],
-            ["failed design conditions", ", ".join(c.get("failed_conditions") or []) or "none"],
+            [
+                "failed design conditions",
+                in_symbols(", ".join(c.get("failed_conditions") or [])) or "none",
+            ],
         ],
     )
     if data.get("margin"):  # hil margin's record, when it ran on the folder
@@ -379,8 +386,7 @@ def _certificate(s: Section, data: ReportData) -> None:
             [st.get("t_s"), _ms(st.get("age_s")), st.get("cause"), st.get("evidence")]
             for st in stalls
         ]
-        s.table(header, rows[:TOP_STALLS])  # the headline's stalls; the rest one click away
-        s.table(header, rows[TOP_STALLS:], fold=f"{len(rows) - TOP_STALLS} more stalls")
+        s.table(header, rows)  # one table, folded when long (the headline names the first)
     s.figure("command_age")
 
 
@@ -459,12 +465,17 @@ def _drives(s: Section, data: ReportData) -> None:
         s.table(["side", "drive/bus state", "value", "unit"], rows)
     else:
         s.p("No CAN bus in this folder (a simulation, or a run without CAN).")
+    _rejections(s, d)
+    s.figure("motor_torques")
+
+
+def _rejections(s: Section, d: Any) -> None:
+    """The inputs each side rejected (counted, by reason)."""
     counts = d.get("rejection_counts")
     if isinstance(counts, dict):
         rej = d.get("rejections") or {}
         rows = [[k, n, rej.get(k)] for k, n in counts.items()]
         s.table(["where", "rejections", "by reason"], rows)
-    s.figure("motor_torques")
 
 
 def _tracking_error(s: Section, data: ReportData) -> None:
@@ -594,6 +605,10 @@ def _messages(s: Section, data: ReportData) -> None:
             more = {k: v for k, v in st.items() if k not in keys and v is not None}
             rows.append([name, *(st.get(k) for k in keys), more])
     s.table(["stream", *keys, "more"], rows)
+    drives = data.get("drives") or {}
+    if "drives" not in data["sections"] and any((drives.get("rejection_counts") or {}).values()):
+        s.p("Inputs rejected (counted, by reason; this run had no CAN drives):")
+        _rejections(s, drives)
 
 
 def _tick_phase_line(p: TickPhase) -> str:
@@ -761,6 +776,9 @@ NAMES = {
     "timing.startup_hold_s": "start-up hold: first command landed after the first sample",
     "timing.late_commands": "late commands (applied more than Ts after their sample)",
     "timing.late_commands_rate": "late commands, share of the samples",
+    "timing.samples_without_command_rate": "samples without a command, share of those judged",
+    "timing.deadline_miss_rate": "missed slots, share of the controller's slots",
+    "verdict.lost_messages_rate": "lost messages (State and the applied path), share of those sent",
     "band_p99.v_tilde": "band of v~ = v − α_v (p99 of |v~| once reached)",
     "band_p99.w_tilde": "band of w~ = ω − α_ω (p99 of |w~| once reached)",
 }
@@ -819,10 +837,12 @@ def label_of(key: str) -> str:
     group = parts[0] if len(parts) > 1 else ""
     words = []
     for part in parts[1:] if group else parts:
+        if part.startswith("max_abs_"):  # a peak, in the paper's symbols: max |ω|
+            part = f"max |{part.removeprefix('max_abs_')}|"
         for suffix in ("_us", "_hz", "_s"):
             part = part.removesuffix(suffix)
         words.append(part.replace("_", " ").replace("p999", "p99.9"))
-    name = ", ".join(words)
+    name = in_symbols(", ".join(words))
     where = GROUPS.get(group, group.replace("_", " "))
     return f"{where}: {name}" if where else name
 
