@@ -140,8 +140,9 @@ def build_report(
     ended = LawEnd.of(folder.summary)  # the law's fault, the controller's end, a NaN state
     if verdict is None:
         verdict = judge(
-            metrics["constraints"], violations, cert, timing, messages, facts, thresholds, ended
-        )
+            metrics["constraints"], violations, cert, timing, messages, facts, thresholds, ended,
+            m.device if m is not None else None,
+        )  # fmt: skip
     margin = margin_record.read(folder.path)  # hil margin's record, None if it never ran
     drives, q = drives_block(folder, sv)
     figs, sections = _figures(folder, sv, cert, m, (ideal_traj, sliding), q, drives, metrics)
