@@ -1,0 +1,400 @@
+"""Figures of a device at the bus (hil.analysis.measure.device; docs/realtime.md, "Figures of a
+device at the bus"), each a two-sided known answer: what was injected is found, and nothing is
+found where nothing was injected.
+
+The fast tests write plant hop logs with :class:`protocol.hoplog.HopLogWriter` from constructed
+rows (no controller log: an outside device) and measure them with the one pipeline
+(:func:`hil.analysis.measure.folder.measure_folder`). The real-process tests run ``hil run``
+with a hosted law that stalls once (tests/stall_law.py), the plant seeing the bench's controller
+as a device like any other, and ``hil report`` on a hosted run's folder stripped of the
+controller's log."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hil.analysis.measure.folder import measure_folder
+from hil.folder import layout
+from hil.folder.device import DeviceFigures, DeviceLimits
+from hil.verdict import FAIL, INCONCLUSIVE, PASS, judge
+from protocol.hoplog import (
+    NO_NODE,
+    NO_SEQ,
+    PLANT_TABLES,
+    ApplyOutcome,
+    ApplyRow,
+    CmdPath,
+    CmdRxRow,
+    EncTxRow,
+    HopLogWriter,
+    RxVerdict,
+    SampleRow,
+)
+from tests.synthetic_folder import _scenario_text
+
+EPOCH = 10**12  # any origin on the plant's clock
+P = 5_000_000  # 200 Hz: the nominal control period of the constructed runs
+MS = 1_000_000
+# The resolved scenario the measurement reads (limits of (2) with the paper's values, [robot]'s
+# defaults, a 200 Hz period, the unified law).
+LIMITS_TOML = _scenario_text(0.5, 0.2, "unified", P / 1e9, 0.0, 1, 3.0)
+
+
+def _write_plant(
+    folder: Path,
+    n_samples: int,
+    commands: Iterable[tuple[int, int, float, float]] = (),
+    frames: Iterable[tuple[int, int, float]] = (),
+    estimates: Iterable[tuple[int, int, int]] = (),
+    path: str = "zenoh",
+    tables: dict | None = None,
+    garbage_stamp: bool = True,
+) -> Path:
+    """A plant.hoplog of ``n_samples`` samples every P from EPOCH (State sent 100 µs after
+    each), Zenoh ``commands`` (recv_ns, state_seq named, tau1, tau2), CAN torque ``frames``
+    (node, recv_ns, torque) and encoder ``estimates`` (node, sample_ns, send_ns); each command
+    lands 10 µs after it arrives. ``garbage_stamp``: the commands carry a wrong sample stamp of
+    their own (the figures must not read it)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / layout.SCENARIO_RESOLVED).write_text(LIMITS_TOML)
+    meta = {
+        "epoch_ns": EPOCH, "control_period_ns": P, "sensor_period_ns": P,
+        "plant_step_ns": P // 10, "cmd_path": path, "lockstep": False,
+    }  # fmt: skip
+    log = HopLogWriter(folder / layout.PLANT_LOG, "plant", tables or PLANT_TABLES, meta)
+    for k in range(n_samples):
+        t = EPOCH + k * P
+        log.append("samples", SampleRow(k, t, t + 50_000, t + 100_000, *([0.0] * 9), 0))
+    for i, (recv, named, tau1, tau2) in enumerate(commands):
+        stamp = 12345 if garbage_stamp else EPOCH + named * P
+        log.append("cmd_rx", CmdRxRow(CmdPath.ZENOH, i, named, stamp, 0, 0, recv, tau1, tau2,
+                                      NO_NODE, RxVerdict.ACCEPTED))  # fmt: skip
+        log.append("apply", ApplyRow(CmdPath.ZENOH, i, NO_NODE, recv, recv + 10_000, tau1, tau2,
+                                     ApplyOutcome.LANDED))  # fmt: skip
+    counts: dict[int, int] = {}
+    for node, recv, q in frames:
+        i = counts[node] = counts.get(node, -1) + 1
+        log.append("cmd_rx", CmdRxRow(CmdPath.CAN, i, NO_SEQ, 0, 0, 0, recv, q, 0.0, node,
+                                      RxVerdict.ACCEPTED))  # fmt: skip
+        log.append("apply", ApplyRow(CmdPath.CAN, i, node, recv, recv + 10_000, q, 0.0,
+                                     ApplyOutcome.LANDED))  # fmt: skip
+    for node, sample, send in estimates:
+        if "enc_tx" in (tables or PLANT_TABLES):
+            log.append("enc_tx", EncTxRow(node, sample, send))
+    log.close({"timeouts": 0})
+    return folder
+
+
+def _device(folder: Path) -> DeviceFigures:
+    m = measure_folder(folder)
+    assert m is not None and m.device is not None
+    return m.device
+
+
+def _answering(n: int, delay_ns: int = 1 * MS, stall_at: int | None = None, stall_ns: int = 0):
+    """A device answering each State ``delay_ns`` after its send, naming it; from sample
+    ``stall_at`` on, every answer is ``stall_ns`` later until the device has caught up (it
+    answers the newest State then: those sent meanwhile are skipped)."""
+    out = []
+    resume = None
+    for k in range(n):
+        recv = EPOCH + k * P + 100_000 + delay_ns
+        if stall_at is not None and k == stall_at:
+            resume = recv + stall_ns
+            out.append((resume, k, 0.1, 0.0))
+            continue
+        if resume is not None and recv <= resume:
+            continue
+        out.append((recv, k, 0.1, 0.0))
+    return out
+
+
+# --- command period, jitter, gaps -------------------------------------------------------------
+
+
+def test_a_40_ms_stall_reads_as_a_40_ms_gap(tmp_path):
+    n = 600  # 3 s at 200 Hz
+    stalled = _device(
+        _write_plant(tmp_path / "s", n, _answering(n, stall_at=200, stall_ns=40 * MS))
+    )
+    (z,) = stalled.streams
+    assert z.gap_count == 1
+    (gap,) = z.gaps
+    # The command due at t = 1 s came 40 ms late: the gap is that lateness (interval - P).
+    assert abs(gap.length_s - 0.040) <= 0.002
+    assert abs(gap.interval_s - 0.045) <= 0.002
+    assert abs(gap.start_s - (199 * P + 1.1 * MS) / 1e9) <= 1e-6  # the command before it
+    assert gap.owner == "device"  # the plant was on time throughout
+    # The samples taken inside it after its first period: (40 ms - 0) / 5 ms, about 8.
+    assert 7 <= stalled.samples_in_gaps <= 9
+    clean = _device(_write_plant(tmp_path / "c", n, _answering(n)))
+    assert clean.streams[0].gap_count == 0 and clean.samples_in_gaps == 0
+    assert clean.streams[0].gap_longest_s is None
+
+
+def test_a_200_hz_device_with_uniform_1_ms_jitter_reads_as_5_ms_and_that_jitter(tmp_path):
+    rng = np.random.default_rng(37)
+    n = 4000  # 20 s
+    jitter = rng.uniform(-1 * MS, 1 * MS, n).astype(np.int64)
+    cmds = [(EPOCH + k * P + 2 * MS + int(jitter[k]), k, 0.1, 0.0) for k in range(n)]
+    dev = _device(_write_plant(tmp_path / "j", n + 2, cmds))
+    (z,) = dev.streams
+    assert abs(z.period_mean_s - 0.005) <= 0.00001
+    assert abs(z.period["p50_us"] - 5000.0) <= 100.0
+    # Each inter-arrival is the difference of two uniform draws in [-1, 1] ms: triangular on
+    # [-2, 2] ms, so |dev| reaches near 2 ms and its median is 2 (1 - 1/sqrt 2) = 0.586 ms.
+    assert 1800.0 <= z.jitter["max_us"] <= 2000.0
+    assert abs(z.jitter["p50_us"] - 585.8) <= 40.0
+    assert z.gap_count == 0
+    steady = [(EPOCH + k * P + 2 * MS, k, 0.1, 0.0) for k in range(n)]
+    (s,) = _device(_write_plant(tmp_path / "s", n + 2, steady)).streams
+    assert s.jitter["max_us"] == 0.0 and s.period_mean_s == pytest.approx(0.005, abs=1e-12)
+
+
+def test_can_streams_are_per_node(tmp_path):
+    n = 400
+    frames = [(node, EPOCH + k * P + 300_000, 0.1) for k in range(n) for node in (0, 1)]
+    # node 1 stalls 40 ms once: its frame due at sample 100 comes 40 ms late, those due
+    # meanwhile are not sent
+    frames = [
+        (nd, t + (40 * MS if nd == 1 and t == EPOCH + 100 * P + 300_000 else 0), q)
+        for nd, t, q in frames
+        if not (nd == 1 and EPOCH + 100 * P + 300_000 < t <= EPOCH + 100 * P + 300_000 + 40 * MS)
+    ]
+    dev = _device(_write_plant(tmp_path / "c", n, frames=sorted(frames, key=lambda f: f[1]),
+                               path="can"))  # fmt: skip
+    by = {s.name: s for s in dev.streams}
+    assert by["node 0"].gap_count == 0
+    assert by["node 1"].gap_count == 1
+    assert abs(by["node 1"].gaps[0].length_s - 0.040) <= 0.002
+
+
+# --- response time and age --------------------------------------------------------------------
+
+
+def test_a_device_that_waits_3_ms_reads_3_ms_slower(tmp_path):
+    n = 400
+    base = _device(_write_plant(tmp_path / "b", n, _answering(n, delay_ns=1 * MS)))
+    slow = _device(_write_plant(tmp_path / "s", n, _answering(n, delay_ns=4 * MS)))
+    # Response: the State's send (100 µs after its sample) to the command naming it.
+    assert base.response["p50_us"] == pytest.approx(1000.0, abs=1.0)
+    assert slow.response["p50_us"] - base.response["p50_us"] == pytest.approx(3000.0, abs=500.0)
+    # Age at landing: apply (arrival + 10 µs) - the plant's own sample time of the named State
+    # (the commands' own stamp, 12345 ns, is never read).
+    assert base.age["p50_us"] == pytest.approx(1110.0, abs=1.0)
+    assert slow.age["max_us"] == pytest.approx(4110.0, abs=1.0)
+    assert base.d_max_s == pytest.approx(1.11e-3, abs=1e-6) and not base.age_is_bound
+    assert base.unnamed == 0 and base.responses_unanswered == 0
+
+
+def test_a_name_that_matches_no_state_is_counted_and_gives_no_age(tmp_path):
+    n = 100
+    cmds = _answering(n)
+    cmds[50] = (cmds[50][0], 10**6, 0.1, 0.0)  # names a State never sent
+    dev = _device(_write_plant(tmp_path / "u", n, cmds))
+    clean = _device(_write_plant(tmp_path / "c", n, _answering(n)))
+    assert dev.unnamed == 1 and clean.unnamed == 0
+    assert dev.age["count"] == clean.age["count"] - 1
+    assert dev.responses_unanswered == clean.responses_unanswered + 1  # State 50, never named
+    # The run's command age D (the certificate's) reads the plant's own sample times too: the
+    # unnamed command renews nothing, so D spans two periods there, one elsewhere.
+    d_max = measure_folder(tmp_path / "u").certificate["d_max_s"]
+    assert d_max == pytest.approx((2 * P + 1_110_000) / 1e9, abs=1e-9)
+    assert measure_folder(tmp_path / "c").certificate["d_max_s"] == pytest.approx(
+        (P + 1_110_000) / 1e9, abs=1e-9
+    )
+
+
+def test_can_response_from_each_encoder_frame_and_the_age_bound(tmp_path):
+    n = 400
+    enc_period = 10 * MS
+
+    def folder(name: str, wait_ns: int) -> DeviceFigures:
+        est, frames = [], []
+        for j in range(n * P // enc_period - 1):
+            sample = EPOCH + j * enc_period + 200_000
+            for node in (0, 1):
+                est.append((node, sample, sample + 30_000))  # on the bus 30 µs later
+                frames.append((node, sample + 30_000 + 500_000 + wait_ns, 0.1))
+        frames.sort(key=lambda f: f[1])
+        return _device(_write_plant(tmp_path / name, n, frames=frames, estimates=est, path="can"))
+
+    base, slow = folder("b", 0), folder("s", 3 * MS)
+    assert base.response["p50_us"] == pytest.approx(530.0, abs=1.0)
+    assert slow.response["p50_us"] - base.response["p50_us"] == pytest.approx(3000.0, abs=500.0)
+    assert base.response["count"] > 0 and base.responses_unanswered <= 2
+    # The bound: apply - the newest estimate's sample on the bus before the frame arrived.
+    assert base.age_is_bound
+    assert base.age["max_us"] == pytest.approx(540.0, abs=1.0)
+    assert slow.age["max_us"] == pytest.approx(3540.0, abs=1.0)
+
+
+def test_a_log_without_the_encoder_table_still_reads(tmp_path):
+    old = {k: v for k, v in PLANT_TABLES.items() if k != "enc_tx"}
+    frames = [(node, EPOCH + k * P + 300_000, 0.1) for k in range(100) for node in (0, 1)]
+    dev = _device(_write_plant(tmp_path / "o", 100, frames=frames, path="can", tables=old))
+    assert dev.response["count"] == 0 and dev.age["count"] == 0 and dev.d_max_s is None
+    assert {s.name for s in dev.streams} == {"node 0", "node 1"}
+
+
+# --- limits -----------------------------------------------------------------------------------
+
+
+def test_torques_asked_beyond_the_limits_are_counted_with_the_worst(tmp_path):
+    n = 100
+    cmds = _answering(n)
+    cmds[10] = (cmds[10][0], 10, 5.0, 0.0)  # |tau1| 5 > varpi1 = 3.3
+    cmds[20] = (cmds[20][0], 20, -7.5, 0.0)
+    cmds[30] = (cmds[30][0], 30, 3.3, -51.0)  # at the limits: legal
+    dev = _device(_write_plant(tmp_path / "l", n, cmds))
+    (b,) = dev.beyond_limits
+    assert (b.signal, b.limit, b.count, b.worst) == ("tau1", 3.3, 2, -7.5)
+    at_limits = [c if i != 10 else (c[0], 10, 3.3, 51.0) for i, c in enumerate(_answering(n))]
+    ok = _device(_write_plant(tmp_path / "k", n, at_limits))
+    assert ok.beyond_limits == []
+
+
+def test_can_torques_beyond_the_motor_limit(tmp_path):
+    # [robot]'s defaults: varpi1 = 3.3, varpi2 = 51 ask at most 0.40 N·m of one motor
+    frames = [(node, EPOCH + k * P + 300_000, 0.3) for k in range(100) for node in (0, 1)]
+    frames[41] = (1, frames[41][1], 2.0)
+    dev = _device(_write_plant(tmp_path / "c", 100, frames=frames, path="can"))
+    (b,) = dev.beyond_limits
+    assert b.signal == "q node 1" and b.count == 1 and b.worst == 2.0
+    assert 0.39 < b.limit < 0.41
+
+
+# --- the verdict reads them -------------------------------------------------------------------
+
+
+def _verdict(dev: DeviceFigures, timing: dict | None = None):
+    return judge({}, {}, None, timing or {}, {}, None, device=dev)
+
+
+def test_the_verdict_reads_the_device_figures(tmp_path):
+    n = 600
+    clean = _device(_write_plant(tmp_path / "c", n, _answering(n)))
+    assert _verdict(clean).outcome == PASS
+    # CAN, outside: no samples_without_command in timing, the device's gaps are judged.
+    stalled = _device(_write_plant(tmp_path / "s", n, _answering(n, stall_at=200,
+                                                                 stall_ns=200 * MS)))  # fmt: skip
+    v = _verdict(stalled)
+    assert v.outcome == FAIL and v.fail_reasons[0].startswith("the device stalled: ")
+    # ... unless the hosted figure judges it already (the same thing, said once)
+    assert _verdict(stalled, {"samples_without_command": 0}).outcome == PASS
+    bench = DeviceFigures.from_dict(
+        {**stalled.as_dict(), "samples_in_gaps": 0,
+         "samples_in_bench_gaps": stalled.samples_in_gaps}
+    )  # fmt: skip
+    assert _verdict(bench).outcome == INCONCLUSIVE
+    asked = [(c[0], c[1], 9.0 if i == 5 else c[2], 0.0) for i, c in enumerate(_answering(n))]
+    beyond = _device(_write_plant(tmp_path / "b", n, asked))
+    v = _verdict(beyond)
+    assert v.outcome == FAIL and "beyond the limits of (2): |tau1| up to 9" in v.fail_reasons[0]
+
+
+def test_the_record_round_trips_through_json(tmp_path):
+    dev = _device(
+        _write_plant(tmp_path / "r", 300, _answering(300, stall_at=100, stall_ns=40 * MS))
+    )
+    back = DeviceFigures.from_dict(json.loads(json.dumps(dev.as_dict())))
+    assert back == dev
+
+
+def test_device_limits_of_a_scenario():
+    assert DeviceLimits(3.3, 51.0, None).motor_nm is None
+
+
+# --- real processes ---------------------------------------------------------------------------
+
+STALL_LAW = (
+    '[controller]\nlaw = "tests.stall_law:SpinOnceUnified"\nspin_ms = 40.0\nspin_at_s = 1.0\n'
+)
+
+
+def _hil_run(tmp_path: Path, name: str, *args: str) -> tuple[Path, dict]:
+    scen = tmp_path / "stall.toml"
+    scen.write_text(STALL_LAW)
+    out = tmp_path / name
+    p = subprocess.run(
+        [sys.executable, "-m", "hil", "run", str(scen), "--duration", "2.5", "--rate", "200",
+         "--out", str(out), "--quiet", *args],
+        capture_output=True, text=True, timeout=400,
+    )  # fmt: skip
+    assert p.returncode in (0, 1, 4), p.stderr
+    return out, json.loads((out / layout.SUMMARY).read_text())
+
+
+def _stall_gap(summary: dict, stream: str | None = None) -> list[dict]:
+    """The gaps of the device (the hosted controller) near t = 1 s."""
+    dev = summary["device"]
+    streams = [s for s in dev["streams"] if stream is None or s["name"] == stream]
+    return [g for s in streams for g in s["gaps"] if 0.9 <= g["start_s"] <= 1.2]
+
+
+def test_a_hosted_law_that_stalls_40_ms_reads_as_a_40_ms_gap(tmp_path):
+    out, summary = _hil_run(tmp_path, "z")
+    gaps = _stall_gap(summary)
+    assert gaps, summary["device"]["streams"]
+    # The law spins 40 ms in its update at t = 1 s: its next command came 40 ms late.
+    worst = max(gaps, key=lambda g: g["length_s"])
+    assert abs(worst["length_s"] - 0.040) <= 0.002, gaps
+    dev = summary["device"]
+    assert dev["outside"] is False and dev["path"] == "zenoh"
+    assert dev["response"]["count"] > 300 and dev["age"]["count"] > 300
+    # Elsewhere the stream is regular: no other gap of the device's outside the stall
+    others = [
+        g for s in dev["streams"] for g in s["gaps"] if g not in gaps and g["owner"] == "device"
+    ]
+    assert not others, others
+    _stripped_folder_reports(tmp_path, out)
+
+
+def _stripped_folder_reports(tmp_path: Path, hosted: Path) -> None:
+    """The hosted run's folder without controller.hoplog and the clock file (what an outside
+    device's run holds), its derived files removed: ``hil report`` measures it again from the
+    plant's log, gives the device's figures and a verdict, and exits with its code."""
+    folder = tmp_path / "stripped"
+    shutil.copytree(hosted, folder)
+    for name in (layout.CONTROLLER_LOG, layout.CLOCK, layout.SUMMARY, layout.TRACE,
+                 layout.SERIES, layout.REPORT_HTML, layout.REPORT_MD):  # fmt: skip
+        (folder / name).unlink(missing_ok=True)
+    p = subprocess.run(
+        [sys.executable, "-m", "hil", "report", str(folder), "--no-ideal"],
+        capture_output=True, text=True, timeout=400,
+    )  # fmt: skip
+    summary = json.loads((folder / layout.SUMMARY).read_text())
+    outcome = summary["verdict"]["outcome"]
+    assert p.returncode == {PASS: 0, FAIL: 1, INCONCLUSIVE: 4}[outcome], p.stderr
+    dev = summary["device"]
+    assert dev["outside"] is True
+    gaps = _stall_gap(summary)
+    assert gaps and abs(max(g["length_s"] for g in gaps) - 0.040) <= 0.002
+    # what needs the controller's log is absent, never 0
+    timing = summary["timing"]
+    for key in ("compute", "hop_state", "hop_cmd_zenoh", "deadline_misses", "wakeup_lateness"):
+        assert key not in timing, key
+    assert summary["messages"] == {}
+    report = (folder / layout.REPORT_MD).read_text()
+    assert "The device at the bus" in report
+
+
+@pytest.mark.parametrize("interface", ["zenoh_can"])
+def test_the_same_stall_on_the_can_path_reads_per_wheel(tmp_path, interface):
+    _, summary = _hil_run(tmp_path, "c", "--cmd-path", "can", "--can-interface", interface)
+    dev = summary["device"]
+    assert dev["path"] == "can"
+    for node in ("node 0", "node 1"):
+        gaps = _stall_gap(summary, node)
+        assert gaps, (node, dev["streams"])
+        assert abs(max(g["length_s"] for g in gaps) - 0.040) <= 0.002, gaps
+    # encoder estimates were logged and answered
+    assert dev["response"]["count"] > 100 and dev["age_is_bound"] is True
