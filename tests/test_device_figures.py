@@ -38,6 +38,7 @@ from protocol.hoplog import (
     RxVerdict,
     SampleRow,
 )
+from tests.scenario_text import NEAR, TABLE1, circle
 from tests.synthetic_folder import _scenario_text
 
 EPOCH = 10**12  # any origin on the plant's clock
@@ -315,9 +316,11 @@ def test_device_limits_of_a_scenario():
 
 # --- real processes ---------------------------------------------------------------------------
 
-STALL_LAW = (
-    '[controller]\nlaw = "tests.stall_law:SpinOnceUnified"\nspin_ms = 40.0\nspin_at_s = 1.0\n'
-)
+# The unified law of Table 1 whose update at t = 1 s spins 40 ms once (tests/stall_law.py).
+STALL_LAW = circle(
+    NEAR, controller={**TABLE1, "law": "tests.stall_law:SpinOnceUnified", "spin_ms": 40.0,
+                      "spin_at_s": 1.0},
+)  # fmt: skip
 
 
 def _hil_run(tmp_path: Path, name: str, *args: str) -> tuple[Path, dict]:

@@ -29,6 +29,7 @@ from hil.analysis.measure.folder import measured
 from hil.analysis.report import figures as fg
 from hil.analysis.report.clockplot import clock_png
 from hil.analysis.report.content import SIGNALS, TITLES, headline, render_html, render_markdown
+from hil.analysis.report.device import add_device
 from hil.analysis.report.ideal import IdealUnavailableError
 from hil.analysis.report.ideal_sim import WINDOW_S
 from hil.analysis.report.telemetry import SLIDING, folder_telemetry, forget_memory
@@ -168,6 +169,7 @@ def build_report(
         "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
     }
     _add_topology(folder.path, data, figs)  # "Where it ran", for a run across lab hosts
+    add_device(data, m.device if m is not None else None)  # "The device at the bus"
     data["headline"] = headline(data, folder.summary)
     return Report(data, figs)
 

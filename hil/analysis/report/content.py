@@ -16,6 +16,9 @@ from typing import Any, cast
 import numpy as np
 
 from hil.analysis.margin.record import MarginRecord, summary_lines
+from hil.analysis.report.device import SECTION as DEVICE_SECTION
+from hil.analysis.report.device import TITLE as DEVICE_TITLE
+from hil.analysis.report.device import device_section
 from hil.analysis.report.figures import Figure
 from hil.folder.records import (
     AgeAnswer,
@@ -724,6 +727,7 @@ SECTIONS: dict[str, tuple[str, Callable[[Section, ReportData], None]]] = {
     "terms": ("What the words mean", _terms),
     "verdict": ("Verdict", _verdict),
     "certificate": ("Command age and the certificate", _certificate),
+    DEVICE_SECTION: (DEVICE_TITLE, device_section),  # hil.analysis.report.device
     "trajectory": ("Trajectory in the plane", _trajectory),
     "velocities": ("Velocities v and ω against (2)", _velocities),
     "torques": ("Inputs τ1 and τ2 of model (1) against (2)", _torques),
