@@ -205,26 +205,7 @@ def device_figures(
     on_path = rx["path"] == (CmdPath.CAN if path == "can" else CmdPath.ZENOH)
     inwin = on_path & _in(rx["recv_ns"], w0, w1)
 
-    streams: list[CommandStream] = []
-    silences: list[tuple[int, int, str]] = []
-    if path == "can":
-        for n in np.unique(rx["node"][inwin]).tolist():
-            st, sil = _stream(f"node {n}", int(n), rx["recv_ns"][inwin & (rx["node"] == n)],
-                              period, epoch, bench)  # fmt: skip
-            streams.append(st)
-            silences += sil
-    else:
-        st, silences = _stream("zenoh", None, rx["recv_ns"][inwin], period, epoch, bench)
-        streams.append(st)
-
-    judged = sn  # every sample the plant took
-    in_dev = np.zeros(judged.size, bool)
-    in_bench = np.zeros(judged.size, bool)
-    for lo, hi, owner in silences:
-        m = (judged > lo) & (judged < hi)
-        (in_bench if owner == "bench" else in_dev)[m] = True
-    in_bench &= ~in_dev
-
+    streams, in_dev, in_bench = _streams(rx, inwin, path, sn, period, epoch, bench)
     sample_of_seq = (s["seq"], sn)
     unnamed = 0
     beyond: list[Beyond] = []
@@ -262,10 +243,35 @@ def device_figures(
         unnamed=unnamed,
         beyond_limits=beyond,
         bus=bus_activity(pinfo, path),
-        samples_judged=int(judged.size),
-        samples_in_gaps=int(in_dev.sum()),
-        samples_in_bench_gaps=int(in_bench.sum()),
+        samples_judged=int(sn.size),
+        samples_in_gaps=in_dev,
+        samples_in_bench_gaps=in_bench,
     )
+
+
+def _streams(
+    rx, inwin: np.ndarray, path: str, sn: np.ndarray, period: int, epoch: int, bench: Stretches
+) -> tuple[list[CommandStream], int, int]:
+    """The command streams (Zenoh, or one per CAN node) and the samples (every one the plant
+    took) inside the device's own gaps and inside the bench's, after each gap's first period."""
+    streams: list[CommandStream] = []
+    silences: list[tuple[int, int, str]] = []
+    if path == "can":
+        for n in np.unique(rx["node"][inwin]).tolist():
+            st, sil = _stream(f"node {n}", int(n), rx["recv_ns"][inwin & (rx["node"] == n)],
+                              period, epoch, bench)  # fmt: skip
+            streams.append(st)
+            silences += sil
+    else:
+        st, silences = _stream("zenoh", None, rx["recv_ns"][inwin], period, epoch, bench)
+        streams.append(st)
+    in_dev = np.zeros(sn.size, bool)
+    in_bench = np.zeros(sn.size, bool)
+    for lo, hi, owner in silences:
+        m = (sn > lo) & (sn < hi)
+        (in_bench if owner == "bench" else in_dev)[m] = True
+    in_bench &= ~in_dev
+    return streams, int(in_dev.sum()), int(in_bench.sum())
 
 
 def _zenoh_age(s, rx, ap, on_path, w0: int, w1: int) -> np.ndarray:

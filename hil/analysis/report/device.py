@@ -56,6 +56,13 @@ def device_section(s: Any, data: Any) -> None:
         f"read. Path: {d.path}; nominal period P = {d.nominal_period_s * 1e3:.3f} ms "
         '(docs/realtime.md, "Figures of a device at the bus").'
     )
+    _streams(s, d)
+    _timing(s, d)
+    _limits_and_bus(s, d)
+
+
+def _streams(s: Any, d: DeviceFigures) -> None:
+    """Per stream its period, jitter and gaps; the longest gaps; the samples inside them."""
     s.table(
         ["stream", "commands", "period mean [ms]", "period p50 / p99 [ms]",
          "jitter |interval − P| p50 / p99 / max [ms]", "gaps (≥ 2 P)", "longest gap [ms]",
@@ -88,6 +95,10 @@ def device_section(s: Any, data: Any) -> None:
         f"Samples inside the device's own gaps: {d.samples_in_gaps} of {d.samples_judged} "
         f"({share:.3%}); inside gaps the bench made: {d.samples_in_bench_gaps}."
     )
+
+
+def _timing(s: Any, d: DeviceFigures) -> None:
+    """Response time and command age at landing."""
     start = (
         "the plant's send of each State to the first command naming it"
         if d.path == "zenoh"
@@ -119,6 +130,10 @@ def device_section(s: Any, data: Any) -> None:
             "outside device on CAN.",
         ]
     )
+
+
+def _limits_and_bus(s: Any, d: DeviceFigures) -> None:
+    """Torques asked beyond (2); what the device did on the bus."""
     if d.beyond_limits:
         s.p("Commands the device asked beyond the limits of (2) (before the bench clamped them):")
         s.table(
