@@ -38,6 +38,7 @@ from protocol.hoplog import (
     RxVerdict,
     SampleRow,
 )
+from tests.external_helpers import odrive_can_device, run_external, zenoh_device
 from tests.scenario_text import NEAR, TABLE1, circle
 from tests.synthetic_folder import _scenario_text
 
@@ -401,3 +402,64 @@ def test_the_same_stall_on_the_can_path_reads_per_wheel(tmp_path, interface):
         assert abs(max(g["length_s"] for g in gaps) - 0.040) <= 0.002, gaps
     # encoder estimates were logged and answered
     assert dev["response"]["count"] > 100 and dev["age_is_bound"] is True
+
+
+# --- outside devices (hil run --controller external; tests/devices/, no code of the bench's) --
+
+
+def _external(
+    spawn, tmp_path: Path, name: str, device: list[str], *run_args: str, rate: float = 200.0
+) -> dict:
+    """An outside device's run whose rate, the nominal P, is the device's: 200 Hz (P = 5 ms)
+    on Zenoh, the plant's States at that rate too; 100 Hz on CAN, the drives' encoder
+    estimates' rate, which a device answering each one keeps."""
+    scen = tmp_path / f"{name}.toml"
+    scen.write_text(circle(NEAR, controller=TABLE1, realtime={"rate": rate, "sensor_rate": rate}))
+    out = tmp_path / name
+    args = (*run_args, str(scen))
+    code, _, err = run_external(spawn, out, device, duration=2.0, run_args=args)
+    assert code in (0, 1, 4), err
+    summary = json.loads((out / layout.SUMMARY).read_text())
+    assert summary["device"]["outside"] is True
+    assert not (out / layout.CONTROLLER_LOG).exists()
+    return summary["device"]
+
+
+def test_an_outside_zenoh_device_stall_jitter_and_wait_read_as_injected(tmp_path, spawn):
+    stalled = _external(
+        spawn, tmp_path, "stall", zenoh_device("--stall-at", "1", "--stall-ms", "40")
+    )
+    (z,) = stalled["streams"]
+    # It answers each State; once, 1 s after its first, it sleeps 40 ms before answering: that
+    # answer comes 40 ms late (the sleep's own wake-up lateness is well under 2 ms here).
+    worst = max(z["gaps"], key=lambda g: g["length_s"])
+    assert abs(worst["length_s"] - 0.040) <= 0.002 and worst["owner"] == "device", z["gaps"]
+    assert 0.9 <= worst["start_s"] <= 1.5, worst  # 1 s after its first State
+    assert z["jitter"]["p50_us"] < 200.0  # it follows the plant's States: no jitter of its own
+    jittered = _external(spawn, tmp_path, "jitter", zenoh_device("--hz", "200", "--jitter-ms", "1"))
+    (j,) = jittered["streams"]
+    assert abs(j["period_mean_s"] - 0.005) <= 0.00005
+    # |difference of two uniform draws in [-1, 1] ms|: median 2 (1 - 1/sqrt 2) = 0.586 ms
+    assert abs(j["jitter"]["p50_us"] - 585.8) <= 150.0, j["jitter"]
+    assert j["gap_count"] == 0
+    slow = _external(spawn, tmp_path, "wait", zenoh_device("--wait-ms", "3"))
+    # without the stall: no gap near its length (a Python device's own hiccups are a few ms)
+    assert (slow["streams"][0]["gap_longest_s"] or 0.0) < 0.020, slow["streams"][0]["gaps"]
+    raised = slow["response"]["p50_us"] - stalled["response"]["p50_us"]
+    assert abs(raised - 3000.0) <= 500.0, (slow["response"], stalled["response"])
+    assert slow["age"]["p50_us"] - stalled["age"]["p50_us"] == pytest.approx(3000.0, abs=500.0)
+    assert stalled["unnamed"] == 0 and stalled["beyond_limits"] == []
+
+
+def test_an_outside_can_device_that_waits_3_ms_reads_3_ms_slower(tmp_path, spawn):
+    can = ("--cmd-path", "can")
+    base = _external(spawn, tmp_path, "base", odrive_can_device(), *can, rate=100.0)
+    slow = _external(spawn, tmp_path, "wait", odrive_can_device("--wait-ms", "3"), *can, rate=100.0)
+    assert base["path"] == "can" and {s["name"] for s in base["streams"]} == {"node 0", "node 1"}
+    raised = slow["response"]["p50_us"] - base["response"]["p50_us"]
+    assert abs(raised - 3000.0) <= 500.0, (slow["response"], base["response"])
+    # what the device did on the bus: it armed both drives (state requests, closed loop)
+    assert base["bus"]["state_requests"] >= 2 and base["bus"]["armed"] >= 2
+    assert base["age_is_bound"] is True and base["age"]["count"] > 0
+    for st in base["streams"]:  # it answers each 100 Hz estimate: the period, no stall
+        assert abs(st["period_mean_s"] - 0.010) <= 0.0005, st
