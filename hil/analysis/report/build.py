@@ -29,7 +29,7 @@ from hil.analysis.measure.folder import measured
 from hil.analysis.report import figures as fg
 from hil.analysis.report.clockplot import clock_png
 from hil.analysis.report.content import SIGNALS, TITLES, headline, render_html, render_markdown
-from hil.analysis.report.device import add_device
+from hil.analysis.report.device import NO_D_ON_CAN, add_device
 from hil.analysis.report.ideal import IdealUnavailableError
 from hil.analysis.report.ideal_sim import WINDOW_S
 from hil.analysis.report.telemetry import SLIDING, folder_telemetry, forget_memory
@@ -208,6 +208,10 @@ def _folder_certificate(
 ) -> Certificate:
     """A run's certificate (a copy of summary.json's: the report never edits it), with where it
     came from and the design conditions failing at its D; else the simulation's."""
+    if m is not None and m.certificate is None and m.device is not None and m.device.outside:
+        # An outside device on CAN: a frame names no State, D is not measured (a lower bound
+        # of the age at landing is, in "The device at the bus").
+        return dict(no_certificate(m.device.path, None, NO_D_ON_CAN))
     if m is not None and m.certificate is None:
         # No certificate in the run (not a unified law): D is still measured.
         path = str(m.series["applied_path"]) if m.series.get("applied_path") else None

@@ -16,6 +16,9 @@ from hil.folder.records import Percentiles
 SECTION = "device"
 TITLE = "The device at the bus"
 LISTED = 10  # gaps listed in the page (the longest; summary.json lists more)
+# The certificate's source for an outside device on CAN (hil.analysis.report.build), which the
+# headline quotes (hil.analysis.report.content).
+NO_D_ON_CAN = "an outside device's CAN frames name no State, so D is not measured"
 
 
 def add_device(data: Any, device: DeviceFigures | None) -> None:
