@@ -67,8 +67,8 @@ def device_section(s: Any, data: Any) -> None:
 def _streams(s: Any, d: DeviceFigures) -> None:
     """Per stream its period, jitter and gaps; the longest gaps; the samples inside them."""
     s.table(
-        ["stream", "commands", "period mean [ms]", "period p50 / p99 [ms]",
-         "jitter |interval − P| p50 / p99 / max [ms]", "gaps (≥ 2 P)", "longest gap [ms]",
+        ["stream", "commands (count)", "period mean [ms]", "period p50 / p99 [ms]",
+         "jitter |interval − P| p50 / p99 / max [ms]", "gaps ≥ 2 P (count)", "longest gap [ms]",
          "first command [s]"],
         [
             [st.name, st.commands, _ms_s(st.period_mean_s),
@@ -140,7 +140,7 @@ def _limits_and_bus(s: Any, d: DeviceFigures) -> None:
     if d.beyond_limits:
         s.p("Commands the device asked beyond the limits of (2) (before the bench clamped them):")
         s.table(
-            ["signal", "limit", "commands beyond", "worst asked"],
+            ["signal", "limit", "commands beyond (count)", "worst asked [the limit's unit]"],
             [[b.signal, f"{b.limit:.4g}", b.count, f"{b.worst:.4g}"] for b in d.beyond_limits],
         )
     else:
