@@ -533,8 +533,8 @@ def _device(v: Verdict, dev: DeviceFigures, timing: Timing, th: Thresholds) -> N
     for b in dev.beyond_limits:
         name = b.signal if b.signal.startswith("q ") else f"|{b.signal}|"
         v.fail_reasons.append(
-            f"the device asked torques beyond the limits of (2): {name} up to {b.worst:.4g} > "
-            f"{b.limit:.4g} in {b.count} commands (the bench clamped them)"
+            f"the device asked torques beyond the limits of (2): {name} up to "
+            f"{b.worst_words()} > {b.limit:.4g} in {b.count} commands (the bench clamped them)"
         )
     n, bench, over = dev.samples_in_gaps, dev.samples_in_bench_gaps, dev.samples_judged
     if "samples_without_command" not in timing and over > 0:

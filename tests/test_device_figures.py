@@ -21,9 +21,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hil.analysis.measure.folder import measure_folder
+from hil.analysis.measure.folder import device_limits, measure_folder
 from hil.folder import layout
 from hil.folder.device import DeviceFigures, DeviceLimits
+from hil.folder.jsonio import jsonable
 from hil.verdict import FAIL, INCONCLUSIVE, PASS, judge
 from protocol.hoplog import (
     NO_NODE,
@@ -256,9 +257,13 @@ def test_torques_asked_beyond_the_limits_are_counted_with_the_worst(tmp_path):
     cmds[10] = (cmds[10][0], 10, 5.0, 0.0)  # |tau1| 5 > varpi1 = 3.3
     cmds[20] = (cmds[20][0], 20, -7.5, 0.0)
     cmds[30] = (cmds[30][0], 30, 3.3, -51.0)  # at the limits: legal
+    cmds[40] = (cmds[40][0], 40, float("nan"), 0.0)  # never within a limit
     dev = _device(_write_plant(tmp_path / "l", n, cmds))
     (b,) = dev.beyond_limits
-    assert (b.signal, b.limit, b.count, b.worst) == ("tau1", 3.3, 2, -7.5)
+    assert (b.signal, b.limit, b.count, b.worst, b.non_finite) == ("tau1", 3.3, 3, -7.5, 1)
+    # through summary.json (NaN is no JSON: None) and back, said in words
+    back = DeviceFigures.from_dict(json.loads(json.dumps(jsonable(dev.as_dict()))))
+    assert back.beyond_limits[0].worst_words() == "-7.5 (and 1 non-finite)"
     at_limits = [c if i != 10 else (c[0], 10, 3.3, 51.0) for i, c in enumerate(_answering(n))]
     ok = _device(_write_plant(tmp_path / "k", n, at_limits))
     assert ok.beyond_limits == []
@@ -312,7 +317,14 @@ def test_the_record_round_trips_through_json(tmp_path):
 
 
 def test_device_limits_of_a_scenario():
-    assert DeviceLimits(3.3, 51.0, None).motor_nm is None
+    """The limits a device is judged against: varpi1, varpi2 as given; on CAN the largest motor
+    torque they ask of one wheel of [robot] (the defaults: about 0.40 N·m), plus the float32
+    hair the drives allow; none without [limits]."""
+    lim = device_limits({"varpi1": 3.3, "varpi2": 51.0}, {})
+    assert lim == DeviceLimits(3.3, 51.0, pytest.approx(0.4012e0, rel=2e-3))
+    heavier = device_limits({"varpi1": 3.3, "varpi2": 51.0}, {"mass": 20.0})
+    assert heavier.motor_nm > lim.motor_nm
+    assert device_limits({}, {}) is None
 
 
 # --- real processes ---------------------------------------------------------------------------

@@ -63,7 +63,15 @@ class Beyond:
     signal: str
     limit: float
     count: int
-    worst: float
+    worst: float | None  # the largest |value| asked, signed (None: every one was non-finite)
+    non_finite: int = 0  # of the count: NaN or infinite torques
+
+    def worst_words(self) -> str:
+        """The worst value asked, in words."""
+        nf = f"{self.non_finite} non-finite" if self.non_finite else ""
+        if self.worst is None:
+            return nf
+        return f"{self.worst:.4g}" + (f" (and {nf})" if nf else "")
 
 
 @dataclass(frozen=True)

@@ -149,8 +149,9 @@ def _beyond(signal: str, values: np.ndarray, limit: float | None) -> Beyond | No
     if not over.any():
         return None
     bad = v[over]
-    worst = float(bad[np.argmax(np.where(np.isfinite(bad), np.abs(bad), np.inf))])
-    return Beyond(signal, float(limit), int(over.sum()), worst)
+    finite = bad[np.isfinite(bad)]
+    worst = float(finite[np.argmax(np.abs(finite))]) if finite.size else None
+    return Beyond(signal, float(limit), int(over.sum()), worst, int(bad.size - finite.size))
 
 
 def bus_activity(pinfo: Mapping[str, Any], path: str) -> BusActivity:

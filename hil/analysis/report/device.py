@@ -141,7 +141,7 @@ def _limits_and_bus(s: Any, d: DeviceFigures) -> None:
         s.p("Commands the device asked beyond the limits of (2) (before the bench clamped them):")
         s.table(
             ["signal", "limit", "commands beyond (count)", "worst asked [the limit's unit]"],
-            [[b.signal, f"{b.limit:.4g}", b.count, f"{b.worst:.4g}"] for b in d.beyond_limits],
+            [[b.signal, f"{b.limit:.4g}", b.count, b.worst_words()] for b in d.beyond_limits],
         )
     else:
         s.p("Every torque the device asked was within the limits of (2).")
