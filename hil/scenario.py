@@ -167,7 +167,13 @@ class FaultsConfig(Faults):
                 raise BadInputError(
                     f"[faults] {key} must be a probability in [0, 1], got {getattr(self, key)}"
                 )
-        for what in ("delay_burst", "can_bus_off", "state_drop_burst", "command_drop_burst"):
+        for what in (
+            "delay_burst",
+            "can_bus_off",
+            "state_drop_burst",
+            "command_drop_burst",
+            "drive_silent",
+        ):
             every, length = getattr(self, f"{what}_every"), getattr(self, f"{what}_length")
             if every > 0 and not 0 < length <= every:
                 raise BadInputError(
@@ -340,6 +346,7 @@ _RANGES: dict[tuple[str, str], tuple[float, float]] = {
     ("faults", "seed"): (0, SEED_MAX),
     **dict.fromkeys(_keys("faults", "feedback_delay", "feedback_jitter"), (0.0, DELAY_MAX)),
     ("faults", "feedback_loss"): (0.0, 1.0),
+    ("faults", "drive_fault_node"): (0, 63),
     ("impair", "loss"): (0.0, 1.0),
     ("impair", "loss_every"): (0, 2**31 - 1),
     ("impair", "rate_bps"): (0.0, RATE_BPS_MAX),

@@ -100,6 +100,8 @@ class RunFacts:
     # What stopped the run before it ran (summary.json's ``error``: the services never became
     # ready, no outside device connected): a FAIL whatever the figures say.
     error: str | None = None
+    # What the device did when a drive disarmed (hil.analysis.measure.reactions): notes.
+    reactions: tuple[str, ...] = ()
 
     @classmethod
     def of(cls, summary: Summary) -> RunFacts | None:
@@ -119,6 +121,7 @@ class RunFacts:
             duration_run_s=summary.get("duration_run_s"),
             scheduling=sched if isinstance(sched, dict) else None,
             error=str(summary["error"]) if summary.get("error") else None,
+            reactions=tuple(str(r.get("sentence")) for r in summary.get("drive_reactions") or []),
         )
 
 
@@ -592,6 +595,7 @@ def _facts(v: Verdict, facts: RunFacts | None) -> None:
         return
     if facts.error:
         v.fail_reasons.insert(0, facts.error)
+    v.notes.extend(facts.reactions)
     if facts.interrupted:
         ran = f"{facts.duration_run_s:.3f} s" if facts.duration_run_s is not None else "?"
         planned = f" of {facts.duration_s:g} s" if facts.duration_s is not None else ""

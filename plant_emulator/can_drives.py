@@ -37,7 +37,17 @@ from protocol.can.codec import BROADCAST_NODE, Cmd, Frame, is_request, split_id
 from protocol.can.drive_link import from_message, to_message
 from protocol.can.rx_queue import RxQueueDrops
 from protocol.faults import Faults, frame_lost
-from protocol.hoplog import NO_SEQ, NO_STAMP, CmdPath, CmdRxRow, EncTxRow, RxVerdict, SocketDropRow
+from protocol.hoplog import (
+    NO_SEQ,
+    NO_STAMP,
+    CmdPath,
+    CmdRxRow,
+    DriveEvent,
+    DriveEventRow,
+    EncTxRow,
+    RxVerdict,
+    SocketDropRow,
+)
 from runtime.delay_line import DelayLine
 
 ECHO_WINDOW_NS = 1_000_000_000
@@ -127,6 +137,7 @@ class CanDrives:
         )
         self._estimates: dict[int, int] = {}  # per node: encoder-estimate frames due so far
         self.feedback_losses = 0
+        self.silenced = 0  # frames not sent: the drives were silent ([faults] drive_silent_*)
         # The bus's name for a received frame, where it has one (zenoh_can): exact matching.
         self._sent_at = getattr(bus, "sent_at_ns", None)
         self.lock = threading.RLock()
@@ -268,7 +279,25 @@ class CanDrives:
                 if self.refresh is not None:
                     self.refresh(now_ns)
                 frames = self.pair.due_frames(now_ns / 1e9)
+                self._drain_events()
             self.send(self._hold_estimates(frames, now_ns), now_ns)
+
+    def _silent(self, now_ns: int) -> bool:
+        """Whether the drives are silent now ([faults] drive_silent_every/length, by the
+        run's time: from its epoch)."""
+        f = self.faults
+        if f.drive_silent_every <= 0 or self.immediate_until_ns <= 0:
+            return False
+        return f.drive_silent((now_ns - self.immediate_until_ns) / 1e9)
+
+    def _drain_events(self) -> None:
+        """The drives' events into the hop log (protocol.hoplog.DriveEventRow)."""
+        drain = getattr(self.pair, "drain_log", None)
+        if self.hoplog is None or drain is None:
+            return
+        for node, t, event, detail in drain():
+            row = DriveEventRow(node, round(t * 1e9), DriveEvent[event.upper()], detail)
+            self.hoplog.append("drive_events", row)
 
     def _hold_estimates(self, frames: list[Frame], now_ns: int) -> list[Frame]:
         """The frames to send now: the encoder estimates go through the feedback delay line
@@ -295,6 +324,9 @@ class CanDrives:
         """Put ``frames`` on the bus; ``sample_ns``: when their content was taken (the drives'
         feedback brought up to then). Each encoder-estimate frame sent is logged (enc_tx):
         what a device's response time and its torques' age are measured from."""
+        if frames and self._silent(time.monotonic_ns()):
+            self.silenced += len(frames)  # [faults] drive_silent_*: the drives send nothing
+            return
         for f in frames:
             with self._send_lock:
                 self.echo.sent(f, time.monotonic_ns())
@@ -326,6 +358,8 @@ class CanDrives:
             "error_frames": self.error_frames,
             "socket_drops": self.socket_drops,
             "unread_at_stop": self.unread_at_stop,
+            "silenced_frames": self.silenced,
+            "feedback_losses": self.feedback_losses,
             **drives,
         }
 
@@ -351,6 +385,8 @@ class CanDrives:
 
     def close(self) -> None:
         self._stop.set()
+        with self.lock:
+            self._drain_events()
         if self.feedback is not None:
             self.feedback.close()
         for t in self._threads:

@@ -28,7 +28,7 @@ from typing import Any, NamedTuple, Protocol
 from plant_emulator.can_drives import CanDrives
 from plant_emulator.drive_plant import DrivePlant
 from protocol import keys
-from protocol.can.codec import Cmd, Frame, split_id
+from protocol.can.codec import Cmd, Frame, ODriveError, split_id
 from protocol.hoplog import (
     NO_NODE,
     ApplyOutcome,
@@ -210,6 +210,7 @@ class CanCommands:
     def __init__(self, drives: CanDrives, drive_plant: DrivePlant) -> None:
         self.drives = drives
         self.drive_plant = drive_plant
+        self._drive_fault_done = False  # [faults] drive_fault_at fires once
         self.applied = False
 
     def arrivals(self) -> list[Arrival]:
@@ -251,5 +252,17 @@ class CanCommands:
         """The drives' feedback at plant time ``t`` and one controller step (watchdog,
         loops); the torques they apply then."""
         with self.drives.lock:
+            self._inject_drive_fault(now, t)
             self.drive_plant.update(now, t, state)
             return self.drive_plant.torques()
+
+    def _inject_drive_fault(self, now: float, t: float) -> None:
+        """[faults] drive_fault_at: once, at plant time t, the drive disarms with an
+        over-speed error, as a real ODrive does when its velocity limit is exceeded."""
+        f = self.drives.faults
+        if f.drive_fault_at <= 0.0 or t < f.drive_fault_at or self._drive_fault_done:
+            return
+        self._drive_fault_done = True
+        drive = self.drives.pair.drives.get(int(f.drive_fault_node))
+        if drive is not None:
+            drive.disarm(ODriveError.VELOCITY_LIMIT_VIOLATION, "injected_overspeed", now)

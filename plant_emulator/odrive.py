@@ -265,6 +265,12 @@ class ODriveAxis:
         self.pos_motor = 0.0
         self.vel = 0.0
         self.t_control: float | None = None
+        # What happened, when (drives' clock, s): (time, event, detail), drained into the
+        # plant's hop log (protocol.hoplog.DriveEventRow) so that a device's reaction to a
+        # disarm can be timed. ``_now``: the time of the step or frame being handled.
+        self.log: list[tuple[float, str, int]] = []
+        self._now = 0.0
+        self._inputs_refused = False  # an input refused since the last disarm was logged
         self._boot()
         self.identify = 0
         self.reboots = 0
@@ -341,6 +347,7 @@ class ODriveAxis:
 
     def update(self, now: float, pos_motor: float, vel: float) -> None:
         """Feedback at ``now``, then one controller step (watchdog, limits, loops)."""
+        self._now = now
         self.feedback(now, pos_motor, vel)
         dt = 0.0 if self.t_control is None else max(0.0, now - self.t_control)
         self.t_control = now
@@ -351,12 +358,18 @@ class ODriveAxis:
                 return
         self._control(now, dt)
 
-    def disarm(self, error: int, event: str) -> None:
+    def disarm(self, error: int, event: str, now: float | None = None) -> None:
         """Leave closed loop with ``error`` latched (active and as the disarm reason)."""
+        if now is not None:
+            self._now = now
         self.active_errors |= int(error)
         self.disarm_reason |= int(error)
+        was_armed = self.armed
         self.axis_state = AxisState.IDLE
         self.events[event] += 1
+        if was_armed:
+            self.log.append((self._now, "disarmed", int(error)))
+            self._inputs_refused = False
         self._zero_inputs()
 
     def _arm(self, now: float) -> None:
@@ -366,6 +379,7 @@ class ODriveAxis:
         self.last_feed = now
         self.t_control = now
         self.events["armed"] += 1
+        self.log.append((now, "armed", 0))
 
     def _control(self, now: float, dt: float) -> None:
         """One step of the firmware's controller over ``dt`` seconds (0: outputs only)."""
@@ -488,6 +502,7 @@ class ODriveAxis:
 
         Returns (frames to answer with, whether it fed the watchdog: every accepted
         host -> drive command does; requests and refused frames do not)."""
+        self._now = now
         if isinstance(msg, Request):
             return [self.answer(now, msg.cmd)], False
         if isinstance(msg, codec.DRIVE_TO_HOST):
@@ -514,7 +529,9 @@ class ODriveAxis:
             self.disarm_reason = 0
             self.identify = msg.identify
             self.events["clear_errors"] += 1
+            self.log.append((now, "clear_errors", 0))
         elif isinstance(msg, SetAxisState):
+            self.log.append((now, "state_request", int(msg.requested_state)))
             return self._request_state(now, msg.requested_state)
         elif isinstance(msg, SetControllerMode):
             self.control_mode = ControlMode(msg.control_mode)
@@ -608,6 +625,9 @@ class ODriveAxis:
         if not self.armed:
             if any(v for v in (vel, torque)) or pos is not None:
                 self.rejections.count("input_while_disarmed")  # would be stale when armed
+                if not self._inputs_refused:  # the first after a disarm: the device kept on
+                    self.log.append((now, "input_while_disarmed", 0))
+                    self._inputs_refused = True
                 return False
             return True  # a zero (a host's "no torque" before arming): nothing to ignore
         if pos is not None:
@@ -800,6 +820,14 @@ class VirtualDrivePair:
     def feedback(self, now: float, motion: dict[int, tuple[float, float]]) -> None:
         for node, (pos, vel) in motion.items():
             self.drives[node].feedback(now, pos, vel)
+
+    def drain_log(self) -> list[tuple[int, float, str, int]]:
+        """Every axis' events since the last drain: (node, time s, event, detail)."""
+        out = []
+        for node, d in self.drives.items():
+            out += [(node, *e) for e in d.log]
+            d.log.clear()
+        return sorted(out, key=lambda e: e[1])
 
     def update(self, now: float, motion: dict[int, tuple[float, float]]) -> None:
         """Each axis' motor (position rev, velocity rev/s) at ``now`` and a controller step."""

@@ -75,6 +75,10 @@ class Faults:
     feedback_delay: float = 0.0
     feedback_jitter: float = 0.0
     feedback_loss: float = 0.0
+    drive_fault_at: float = 0.0
+    drive_fault_node: int = 0
+    drive_silent_every: float = 0.0
+    drive_silent_length: float = 0.0
     seed: int = 0
 
     @classmethod
@@ -120,3 +124,7 @@ class Faults:
         return (
             self.feedback_loss > 0.0 and _uniform(self.seed, 9, stream, index) < self.feedback_loss
         )
+
+    def drive_silent(self, t_s: float) -> bool:
+        """Whether the drives send nothing at run time ``t_s``."""
+        return in_burst(t_s, self.drive_silent_every, self.drive_silent_length, self.seed, 5)

@@ -227,6 +227,25 @@ class ZeroRow(NamedTuple):
     applied_ns: int
 
 
+class DriveEvent(IntEnum):
+    """What a virtual drive did (drive_events.event)."""
+
+    ARMED = 0  # closed loop entered
+    DISARMED = 1  # left closed loop; detail: the ODrive error bits latched
+    CLEAR_ERRORS = 2
+    STATE_REQUEST = 3  # detail: the axis state asked
+    INPUT_WHILE_DISARMED = 4  # the first input refused after a disarm: the device kept on
+
+
+class DriveEventRow(NamedTuple):
+    """What a virtual drive did, when (the drives' CLOCK_MONOTONIC, ns)."""
+
+    node: int
+    time_ns: int
+    event: DriveEvent
+    detail: int
+
+
 class SocketDropRow(NamedTuple):
     """Frames the plant's own receiving socket (the virtual drives' CAN bus) dropped because
     its queue was full: the kernel's count of the socket's drops (what ``SO_RXQ_OVFL``
@@ -270,6 +289,7 @@ PLANT_TABLES: dict[str, tuple[str, ...]] = {
     "apply": ApplyRow._fields,
     "zero": ZeroRow._fields,
     "socket_drops": SocketDropRow._fields,
+    "drive_events": DriveEventRow._fields,
 }
 HOST_TABLES: dict[str, tuple[str, ...]] = {"host": HostRow._fields}
 

@@ -28,7 +28,10 @@ def response_ms(run_dir) -> float:
 
 def campaign(spawn, out, *args: str) -> subprocess.CompletedProcess:
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    device = spawn.python([a.replace("{endpoint}", endpoint) for a in zenoh_device()])
+    # A real-time device: its own response then does not move with the host's load (a
+    # SCHED_OTHER device beside two CPU hogs answered 1.3 ms later in one run than another).
+    argv = [a.replace("{endpoint}", endpoint) for a in zenoh_device("--fifo")]
+    device = spawn.python(argv)
     try:
         return subprocess.run(
             [

@@ -129,3 +129,93 @@ def test_an_odrive_can_client_drives_the_virtual_odrives(tmp_path, spawn):
     assert code in (0, 1, 4), err
     for name in (*layout.REQUIRED, layout.REPORT_HTML):
         assert (out / name).is_file(), name
+
+
+def test_the_devices_share_no_code_with_the_bench():
+    """The example controller and the test devices import only the standard library,
+    eclipse-zenoh, msgpack, python-can and odrive-can: nothing of this project."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    ours = {"hil", "protocol", "runtime", "controller_service", "plant_emulator", "tests", "bench"}
+    files = [
+        root / "examples" / "zenoh_controller.py",
+        *sorted((root / "tests" / "devices").glob("*.py")),
+    ]
+    assert len(files) >= 3
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            else:
+                continue
+            for name in names:
+                assert name.split(".")[0] not in ours, (path.name, name)
+
+
+def test_an_open_ended_session_ends_on_ctrl_c_with_a_judged_folder(tmp_path, spawn):
+    """--until-stopped: the run lasts until SIGINT, its planned end (not exit 130)."""
+    import signal
+    import time
+
+    from tests.external_helpers import zenoh_device
+    from tests.procs import Lines, free_tcp_port, wait_until
+
+    out = tmp_path / "run"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    run = spawn.python(
+        [
+            "-m",
+            "hil",
+            "run",
+            "--controller",
+            "external",
+            "--until-stopped",
+            "--out",
+            str(out),
+            "--zenoh-endpoint",
+            endpoint,
+            "--quiet",
+        ],
+        text=True,
+    )
+    err = Lines(run.stderr)
+    assert wait_until(lambda: err.seen("until Ctrl-C"), 120), err.text()
+    spawn.python([a.replace("{endpoint}", endpoint) for a in zenoh_device()])
+    assert wait_until(lambda: err.seen("device connected"), 120), err.text()
+    started = time.monotonic()
+    # the plant has run a while: its hop log holds more than a second of samples
+    assert wait_until(lambda: time.monotonic() - started > 1.5, 5)
+    run.send_signal(signal.SIGINT)
+    code = run.wait(timeout=240)
+    assert code in (0, 1, 4), err.text(5)
+    summary = json.loads((out / layout.SUMMARY).read_text())
+    assert summary["until_stopped"] is True and summary["interrupted"] is False
+    assert 1.0 < summary["duration"] < 60.0  # the session's length, not a planned one
+    assert not any("interrupted" in n for n in summary["verdict"]["notes"])
+    assert (out / layout.REPORT_HTML).is_file()
+
+
+def test_until_stopped_takes_no_duration(tmp_path):
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "hil",
+            "run",
+            "--controller",
+            "external",
+            "--until-stopped",
+            "--duration",
+            "3",
+            "--out",
+            str(tmp_path / "r"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert p.returncode == 2 and "--until-stopped" in p.stderr

@@ -22,6 +22,8 @@ from protocol.hoplog import (
     CanTxRow,
     CmdPath,
     CmdRxRow,
+    DriveEvent,
+    DriveEventRow,
     EncTxRow,
     HopLogWriter,
     HostRow,
@@ -53,6 +55,7 @@ OLD_PLANT = {
     "apply": ["path", "seq", "node", "recv_ns", "apply_ns", "tau1", "tau2", "outcome"],
     "zero": ["timeout_ns", "applied_ns"],
     "socket_drops": ["since_ns", "seen_ns", "dropped"],  # the bench's socket drops
+    "drive_events": ["node", "time_ns", "event", "detail"],  # what the virtual drives did
 }  # fmt: skip
 OLD_HOST = {
     "host": ["time_ns", "cpu_total", "cpu_idle", "cpu_steal", "runnable", "plant_cpu",
@@ -98,6 +101,8 @@ TYPED_PLANT = [
     ("apply", ApplyRow(path=CmdPath.ZENOH, seq=1, node=NO_NODE, recv_ns=T0 + 2700,
                        apply_ns=T0 + 9000, tau1=0.0, tau2=0.0, outcome=ApplyOutcome.BURST)),
     ("zero", ZeroRow(timeout_ns=T0 + 60_000, applied_ns=T0 + 60_100)),
+    ("drive_events", DriveEventRow(node=0, time_ns=T0 + 70_000, event=DriveEvent.DISARMED,
+                                   detail=0x8000)),
 ]  # fmt: skip
 TYPED_HOST = [
     ("host", HostRow(time_ns=T0, cpu_total=100, cpu_idle=40, cpu_steal=1, runnable=3,

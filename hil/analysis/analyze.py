@@ -24,6 +24,7 @@ from hil import interrupts
 from hil.analysis.measure.figures import Measurement
 from hil.analysis.measure.folder import measure_and_save, resolved_scenario
 from hil.analysis.measure.logs import TRACE_SOURCE_COLUMNS, RunLogs, load_folder_logs
+from hil.analysis.measure.reactions import reactions
 from hil.analysis.report.clockplot import write_clock_plot
 from hil.analysis.report.figures import envelope_indices, plt
 from hil.errors import BadInputError
@@ -116,6 +117,7 @@ def analyze(rec: Recorded) -> Summary:
     logs = load_folder_logs(run_dir) or RunLogs.read(None, None)
     resolved = as_resolved(scenario, tables)  # the folder's scenario, not parsed again
     m = (measure_and_save(run_dir, logs, resolved) if logs.plant else None) or Measurement()
+    drive_reactions = [r.as_dict() for r in reactions(logs.tables, logs.epoch_ns)]
     # The figures' columns go before the trace's are read: an hour's run holds one set at a
     # time (the two reads cost a second pass over the logs, ~10 s an hour).
     logs.tables.clear()
@@ -166,6 +168,8 @@ def analyze(rec: Recorded) -> Summary:
         "config": logs.pmeta.get("faults") or {},
         "injected": {"controller": cinfo.get("injected"), "plant": pinfo.get("injected")},
     }
+    # How the device reacted to each drive's disarm (hil.analysis.measure.reactions)
+    summary["drive_reactions"] = drive_reactions
     summary["scheduling"] = {
         "controller": cinfo.get("scheduling"),
         "plant": logs.pmeta.get("scheduling"),
@@ -174,10 +178,12 @@ def analyze(rec: Recorded) -> Summary:
     fault = law_fault_of(run_dir)
     if fault is not None:
         summary["law_fault"] = fault
-    # What ran (the plant's window): a run cut short says so here and in its verdict.
+    # What ran (the plant's window): a run cut short says so here and in its verdict; an
+    # open-ended one (--until-stopped) lasted that long.
     summary["duration_run_s"] = m.timing.get("window_s")
     summary["duration_planned_s"] = summary["duration"]
-    if summary.get("interrupted") and summary["duration_run_s"] is not None:
+    ended_early = summary.get("interrupted") or summary.get("until_stopped")
+    if ended_early and summary["duration_run_s"] is not None:
         summary["duration"] = summary["duration_run_s"]
     summary["verdict"] = run_verdict(summary, scenario)
     # Whole or absent, never half: a kill while it is written leaves the folder to recover.

@@ -53,6 +53,7 @@ from hil.law.option import with_law
 from hil.provenance import dumps_toml
 from hil.scenario import (
     DURATION_MAX,
+    MAX_SAMPLES,
     RATE_MAX,
     Scenario,
     build_loop,
@@ -128,6 +129,8 @@ class RunOptions:
     wait_device: float = device.WAIT_DEVICE_S  # s an outside device is waited for
     zenoh_endpoint: str | None = None  # the run's Zenoh endpoint; None: a free loopback port
     can_endpoint: str | None = None  # the zenoh_can bus's endpoint; None: a free loopback port
+    # --until-stopped: no duration; Ctrl-C (SIGINT/SIGTERM) is the run's planned end
+    until_stopped: bool = False
     # [timing] replay naming a real run: the reader of its latencies (the analysis's,
     # hil.analysis.replay.latencies_from_run, handed over by the command); None: files only
     run_latencies: RunLatencies | None = None
@@ -193,7 +196,11 @@ def _check_device_options(opts: RunOptions) -> None:
     ):
         if endpoint is not None:
             device.check_endpoint(name, endpoint)
+    if opts.until_stopped and opts.duration is not None:
+        raise BadInputError("--until-stopped runs until Ctrl-C: it takes no --duration")
     if opts.controller != "external":
+        if opts.until_stopped:
+            raise BadInputError("--until-stopped is for --controller external (a device's session)")
         return
     for given, name in (
         (opts.lockstep, "--lockstep (the plant would wait for each command in turn)"),
@@ -297,6 +304,8 @@ def prepare(
         scenario_path = given.resolve()
     rate, rate_name = _control_rate(opts, scenario)
     duration = opts.duration if opts.duration is not None else scenario.run.duration
+    if opts.until_stopped:  # until Ctrl-C, at most the longest loop a scenario may ask
+        duration = min(DURATION_MAX, (MAX_SAMPLES - 1) / rate)
     scenario = scenario.with_overrides(
         duration=duration,
         ts=scenario.timing.ts if not rate_name else period_s(rate),
@@ -426,6 +435,7 @@ def execute(opts: RunOptions) -> Recorded:
     writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer, same_clock=not placed)
     session, subs, can_rec, ended, arrival = None, [], None, None, None
+    planned_end = False
     logs = _Logs(run_dir)
     t_start = time.monotonic()
     ids = RunIdentities(opts.secure, (settings.robot_id,))  # fresh passwords, or none
@@ -451,9 +461,11 @@ def execute(opts: RunOptions) -> Recorded:
             error, ended = _start_and_follow(
                 settings, recorder, sup, stop, announcer, opts.quiet, arrival, conn, run_dir
             )
-            interrupted = bool(stop)
+            # An open-ended run's stop is its end, not an interruption (once it has started).
+            planned_end = opts.until_stopped and error is None and bool(stop)
+            interrupted = bool(stop) and not planned_end
         finally:
-            if stop:  # hil.cli then exits 130 once the folder is written
+            if stop and not planned_end:  # hil.cli then exits 130 once the folder is written
                 interrupts.record(stop.signal or signal.SIGINT)
             codes = _stop_children(sup, settings)
             host.close()
@@ -478,6 +490,8 @@ def execute(opts: RunOptions) -> Recorded:
     extra = run_extra(interrupted, error, time.monotonic() - t_start, codes, recorder, opts.secure)
     if ended is not None:
         extra["controller_exit"] = ended
+    if opts.until_stopped:
+        extra["until_stopped"] = True
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
     return Recorded(run_dir, scenario, settings, info["reference"], info["context"], extra)
 
@@ -540,7 +554,8 @@ def _say_start(opts: RunOptions, scenario: Any, settings: RunSettings, run_dir: 
     if opts.controller == "external":
         law = "your device (--controller external)"
     what = f"{name}, law {law}, {1 / settings.ts:g} Hz, commands on {settings.cmd_path}"
-    ticker.start_line("run", what, f"{settings.duration:g} s", run_dir)
+    length = "until Ctrl-C" if opts.until_stopped else f"{settings.duration:g} s"
+    ticker.start_line("run", what, length, run_dir)
 
 
 def _arrival(settings: RunSettings, session: Any) -> device.ZenohArrival | device.CanArrival:

@@ -147,6 +147,16 @@ CanEndpointOpt = Annotated[
     ),
 ]
 
+UntilStoppedOpt = Annotated[
+    bool,
+    typer.Option(
+        help="With --controller external: no duration; the run lasts until Ctrl-C (or "
+        "SIGTERM; at most 10 million control samples, 5.5 h at 500 Hz), its planned end: the "
+        "folder, the report and the verdict follow as for any run (a free-running session "
+        "with your device, recorded and judged)."
+    ),
+]
+
 
 def _brief(summary: Summary, cmd_path: str) -> dict[str, Any]:
     """The lines of summary.json that ``hil run`` prints."""
@@ -257,6 +267,7 @@ def run(
     wait_device: WaitDeviceOpt = 60.0,
     zenoh_endpoint: ZenohEndpointOpt = None,
     can_endpoint: CanEndpointOpt = None,
+    until_stopped: UntilStoppedOpt = False,
 ) -> None:
     """Run the controller against the emulated robot over Zenoh and CAN and record it.
 

@@ -46,6 +46,7 @@ COLUMNS: dict[str, dict[str, Any]] = {
               "outcome": _I1},
     "zero": {"timeout_ns": _I8, "applied_ns": _I8},
     "socket_drops": {"since_ns": _I8, "seen_ns": _I8, "dropped": _I8},
+    "drive_events": {"node": _I2, "time_ns": _I8, "event": _I1, "detail": _I8},
     "host": {c: _I8 for c in HOST_TABLES["host"]},
 }  # fmt: skip
 NARROW = {"k", "skipped", "state_seq", "cmd_seq", "seq"}

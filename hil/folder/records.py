@@ -289,6 +289,7 @@ class RunExtra(TypedDict, total=False):
     theirs): facts of the processes and the recorder, never a figure of the hop logs."""
 
     interrupted: bool
+    until_stopped: bool  # --until-stopped: ended by Ctrl-C as planned
     error: str | None  # the run stopped by an error of its own (its services never ready)
     recovered: bool  # rebuilt by hil recover (hil.bench.repair)
     wall_time_s: float
@@ -355,8 +356,11 @@ class Summary(TypedDict, total=False):
     watchdog: dict[str, int]
     can: dict[str, Any]
     faults: dict[str, Any]
+    # each drive's disarm and the device's reaction (hil.analysis.measure.reactions)
+    drive_reactions: list[dict[str, Any]]
     scheduling: dict[str, Scheduling | None]  # service -> how it ran
     interrupted: bool
+    until_stopped: bool
     recovered: bool
     error: str | None
     duration_run_s: float | None

@@ -7,7 +7,10 @@ Modes (each a known answer for the bench's figures at its edge):
   torque from that estimate (``--wait-ms W``: W ms after the frame arrived);
 - ``--hz F --jitter-ms J``: torques at F Hz of its own, each send moved by a uniform draw in
   [-J, +J] ms around its slot, from the newest estimates;
-- ``--stall-at T --stall-ms S``: once, T s after arming, nothing is sent for S ms.
+- ``--stall-at T --stall-ms S``: once, T s after arming, nothing is sent for S ms;
+- ``--rearm``: a drive whose heartbeat says it left closed loop is re-armed (Clear_Errors,
+  then Set_Axis_State 8), as a robot's drive node recovers from an over-speed trip. Without
+  it, the device keeps sending torques to the disarmed drive.
 
     python tests/devices/odrive_can_device.py --interface zenoh_can --channel hil0 \
         --endpoint tcp/127.0.0.1:PORT --node-left 0 --node-right 1
@@ -46,6 +49,7 @@ class Device:
         self.lock = threading.Lock()
         self.armed_at: float | None = None
         self.stalled = False
+        self.rearmed: dict[int, float] = {}
 
     def torque(self, node: int) -> float:
         return max(-TAU_MAX, min(TAU_MAX, GAIN * (VEL_REF - self.vel[node])))
@@ -59,8 +63,11 @@ class Device:
             time.sleep(a.stall_ms / 1e3)
 
     def on_frame(self, msg: can.Message) -> None:
-        """Every frame of the bus (a raw python-can listener): the encoder estimates."""
+        """Every frame of the bus (a raw python-can listener): heartbeats, encoder estimates."""
         node, cmd = msg.arbitration_id >> 5, msg.arbitration_id & 0x1F
+        if cmd == 0x01 and len(msg.data) >= 5 and node in self.drives:
+            self.on_heartbeat(node, msg.data[4])
+            return
         if cmd != 0x09 or msg.is_remote_frame or len(msg.data) != 8 or node not in self.drives:
             return
         arrived = time.monotonic()
@@ -81,6 +88,19 @@ class Device:
                 # frame would be stamped only after this wait, and wait twice
                 time.sleep(0)
             self.drives[node].set_input_torque(self.torque(node))
+
+    def on_heartbeat(self, node: int, axis_state: int) -> None:
+        now = time.monotonic()
+        if not self.a.rearm or self.armed_at is None or axis_state == 8:
+            return
+        if now - self.rearmed.get(node, 0.0) < 0.2:
+            return  # one attempt per 200 ms: the next heartbeat shows whether it took
+        self.rearmed[node] = now
+        with self.lock:
+            drv = self.drives[node]
+            drv.clear_errors()
+            drv.set_controller_mode("TORQUE_CONTROL", "PASSTHROUGH")
+            drv.set_axis_state_no_wait("CLOSED_LOOP_CONTROL")
 
     def periodic(self, end: float) -> None:
         period = 1.0 / self.a.hz
@@ -140,6 +160,7 @@ def main() -> None:
     ap.add_argument("--wait-ms", type=float, default=0.0)
     ap.add_argument("--stall-at", type=float, default=-1.0)
     ap.add_argument("--stall-ms", type=float, default=0.0)
+    ap.add_argument("--rearm", action="store_true")
     a = ap.parse_args()
     with contextlib.suppress(KeyboardInterrupt):
         asyncio.run(main_async(a))

@@ -11,6 +11,8 @@ Modes (each a known answer for the bench's figures at its edge):
 - ``--log FILE``: each command's seq and send time (its own CLOCK_MONOTONIC, ns) written to
   FILE at exit, for a test to compare what the bench measured with what the device did (the
   bench never reads it).
+- ``--fifo``: the device runs SCHED_FIFO (a real-time device), so that its own response does
+  not vary with the host's load and an added delay reads as itself;
 - ``--garbage``: also publishes malformed payloads (not msgpack, wrong types, NaN torques)
   beside its commands, which the bench must count and refuse.
 """
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import random
 import threading
 import time
@@ -42,7 +45,12 @@ def main() -> None:
     ap.add_argument("--tau", type=float, default=0.05, help="constant torque asked (N·m)")
     ap.add_argument("--garbage", action="store_true")
     ap.add_argument("--log", default="")
+    ap.add_argument(
+        "--fifo", action="store_true", help="run SCHED_FIFO (every thread, Zenoh's included)"
+    )
     args = ap.parse_args()
+    if args.fifo:  # before the session: its threads inherit the policy
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
 
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps("client"))
