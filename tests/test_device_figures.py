@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from hil.analysis.measure.folder import device_limits, measure_folder
+from hil.analysis.report.device import add_device, has_news
 from hil.folder import layout
 from hil.folder.device import DeviceFigures, DeviceLimits
 from hil.folder.jsonio import jsonable
@@ -488,3 +489,23 @@ def test_an_outside_can_device_that_waits_3_ms_reads_3_ms_slower(tmp_path, spawn
     assert base["age_is_bound"] is True and base["age"]["count"] > 0
     for st in base["streams"]:  # it answers each 100 Hz estimate: the period, no stall
         assert abs(st["period_mean_s"] - 0.010) <= 0.0005, st
+
+
+def test_the_report_section_speaks_when_the_device_has_news(tmp_path):
+    """The section is always there for an outside device; for the bench's own controller (its
+    hops and wake-ups are in the other sections) only with a gap of its own, a torque beyond
+    (2), a State named that was never sent or a refusal on the bus."""
+    n = 400
+    clean = _device(_write_plant(tmp_path / "c", n, _answering(n)))
+    stalled = _device(
+        _write_plant(tmp_path / "s", n, _answering(n, stall_at=100, stall_ns=40 * MS))
+    )
+    assert clean.outside and has_news(clean)
+    hosted = DeviceFigures.from_dict({**clean.as_dict(), "outside": False})
+    assert not has_news(hosted)
+    assert has_news(DeviceFigures.from_dict({**stalled.as_dict(), "outside": False}))
+    data = {"sections": ["headline", "certificate", "trajectory"]}
+    add_device(data, hosted)
+    assert "device" in data and data["sections"] == ["headline", "certificate", "trajectory"]
+    add_device(data, stalled)
+    assert data["sections"] == ["headline", "certificate", "device", "trajectory"]

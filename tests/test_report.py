@@ -42,7 +42,7 @@ SIM_SECTIONS = {
     "tracking_error",
     "bands",
 }
-RUN_SECTIONS = SIM_SECTIONS | {"device", "latency", "lateness", "messages", "timing_summary"}
+RUN_SECTIONS = SIM_SECTIONS | {"latency", "lateness", "messages", "timing_summary"}
 
 
 class Checker(HTMLParser):
@@ -141,7 +141,6 @@ def test_report_of_a_run_folder_has_every_section(run_folder: Path) -> None:
         "terms",
         "verdict",
         "certificate",
-        "device",
         "trajectory",
         "velocities",
         "torques",

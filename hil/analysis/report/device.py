@@ -21,12 +21,28 @@ LISTED = 10  # gaps listed in the page (the longest; summary.json lists more)
 NO_D_ON_CAN = "an outside device's CAN frames name no State, so D is not measured"
 
 
+def has_news(device: DeviceFigures) -> bool:
+    """Whether the section has something to say: always for an outside device; for the bench's
+    own controller (whose hops, compute and wake-ups the other sections show) only when it left
+    a gap of its own, asked beyond (2), named a State never sent or was refused on the bus."""
+    own_gap = any(g.owner == "device" for g in device.gaps)
+    return (
+        device.outside
+        or own_gap
+        or bool(device.beyond_limits)
+        or device.unnamed > 0
+        or device.bus.any_trouble
+    )
+
+
 def add_device(data: Any, device: DeviceFigures | None) -> None:
-    """Put the device's figures and its section (after the certificate's) into a report's
-    data; nothing without them (a simulation)."""
+    """Put the device's figures into a report's data (report.json) and its section after the
+    certificate's where it has news (:func:`has_news`); nothing without them (a simulation)."""
     if device is None:
         return
     data[SECTION] = device.as_dict()
+    if not has_news(device):
+        return
     sections = data["sections"]
     at = sections.index("certificate") + 1 if "certificate" in sections else len(sections)
     sections.insert(at, SECTION)
@@ -48,16 +64,14 @@ def device_section(s: Any, data: Any) -> None:
         s.p("No device figures: the folder holds no plant hop log.")
         return
     d = DeviceFigures.from_dict(raw)
-    who = (
-        "an outside device (no controller log: every figure is the plant's)"
-        if d.outside
-        else "the bench's own controller, seen from the plant like any device"
-    )
+    who = "an outside device" if d.outside else "the bench's own controller, seen as a device"
+    share = d.samples_in_gaps / d.samples_judged if d.samples_judged else 0.0
     s.p(
-        f"What the device did, measured at the bench's edge: {who}. Every stamp is the plant's "
-        "(its hop log alone, one clock); the device's clock and its messages' stamps are never "
-        f"read. Path: {d.path}; nominal period P = {d.nominal_period_s * 1e3:.3f} ms "
-        '(docs/realtime.md, "Figures of a device at the bus").'
+        f"What {who} did on the {d.path} path, from the plant's hop log alone (its clock; the "
+        f"device's stamps are never read), against P = {d.nominal_period_s * 1e3:.3f} ms. "
+        f"Samples inside its gaps (inter-arrivals ≥ 2 P): {d.samples_in_gaps} of "
+        f"{d.samples_judged} ({share:.3%}), {d.samples_in_bench_gaps} more in gaps the bench's "
+        'own stalls made (docs/realtime.md, "Figures of a device at the bus").'
     )
     _streams(s, d)
     _timing(s, d)
@@ -65,86 +79,60 @@ def device_section(s: Any, data: Any) -> None:
 
 
 def _streams(s: Any, d: DeviceFigures) -> None:
-    """Per stream its period, jitter and gaps; the longest gaps; the samples inside them."""
+    """Per stream its period, jitter and gaps; the longest gaps, folded."""
     s.table(
-        ["stream", "commands (count)", "period mean [ms]", "period p50 / p99 [ms]",
-         "jitter |interval − P| p50 / p99 / max [ms]", "gaps ≥ 2 P (count)", "longest gap [ms]",
-         "first command [s]"],
+        ["stream", "commands (count)", "period mean [ms]", "|interval − P| p50 / p99 / max [ms]",
+         "gaps (count)", "longest gap [ms]"],
         [
             [st.name, st.commands, _ms_s(st.period_mean_s),
-             f"{_ms(st.period, 'p50_us')} / {_ms(st.period, 'p99_us')}",
              f"{_ms(st.jitter, 'p50_us')} / {_ms(st.jitter, 'p99_us')} / "
              f"{_ms(st.jitter, 'max_us')}",
-             st.gap_count, _ms_s(st.gap_longest_s),
-             f"{st.first_command_s:.3f}" if st.first_command_s is not None else "–"]
+             st.gap_count, _ms_s(st.gap_longest_s)]
             for st in d.streams
         ],
     )  # fmt: skip
     gaps = sorted(d.gaps, key=lambda g: -g.length_s)[:LISTED]
     if gaps:
-        s.p(
-            "The device's gaps, longest first: an inter-arrival of at least 2 P; its length is "
-            "how much later than due the next command came (interval − P). A gap the bench's "
-            "own stalls (the plant late or silent, the recorder's host) cover at least half of "
-            "is the bench's."
-        )
         s.table(
-            ["at t [s]", "interval [ms]", "length [ms]", "whose"],
+            ["at t [s]", "interval [ms]", "length: interval − P [ms]", "whose"],
             [[f"{g.start_s:.3f}", _ms_s(g.interval_s), _ms_s(g.length_s), g.owner]
              for g in gaps],
+            fold=f"the {len(gaps)} longest gaps (the bench's: its stalls cover half or more)",
         )  # fmt: skip
-    share = d.samples_in_gaps / d.samples_judged if d.samples_judged else 0.0
-    s.p(
-        f"Samples inside the device's own gaps: {d.samples_in_gaps} of {d.samples_judged} "
-        f"({share:.3%}); inside gaps the bench made: {d.samples_in_bench_gaps}."
-    )
 
 
 def _timing(s: Any, d: DeviceFigures) -> None:
-    """Response time and command age at landing."""
+    """Response time and command age at landing, each with its two stamps."""
     start = (
-        "the plant's send of each State to the first command naming it"
+        "State sent → first command naming it"
         if d.path == "zenoh"
-        else "each encoder-estimate frame's entry into the path to the next torque frame of "
-        "its node after it was on the bus"
+        else "encoder frame → next torque frame of its node"
     )
-    age = (
-        "a lower bound (apply − the sample time of the newest encoder estimate on the bus "
-        "before the torque frame arrived: the device may have used an older one)"
-        if d.age_is_bound
-        else "exact (apply − the plant's own sample time of the State the command names)"
-    )
+    age = "lower bound: apply − newest estimate sent" if d.age_is_bound else "apply − named State"
     s.table(
-        ["figure", "count", "p50 [ms]", "p99 [ms]", "max [ms]"],
+        ["figure", "stamps (the plant's)", "count", "p50 [ms]", "p99 [ms]", "max [ms]"],
         [
-            ["response time", d.response.get("count", 0), _ms(d.response, "p50_us"),
+            ["response time", start, d.response.get("count", 0), _ms(d.response, "p50_us"),
              _ms(d.response, "p99_us"), _ms(d.response, "max_us")],
-            ["command age at landing", d.age.get("count", 0), _ms(d.age, "p50_us"),
+            ["command age at landing", age, d.age.get("count", 0), _ms(d.age, "p50_us"),
              _ms(d.age, "p99_us"), _ms(d.age, "max_us")],
         ],
     )  # fmt: skip
-    s.items(
-        [
-            f"Response time: from {start}; {d.responses_unanswered} never answered.",
-            f"Command age at landing: {age}.",
-            f"States named that the bench never sent: {d.unnamed} (counted, no age)."
-            if d.path == "zenoh"
-            else "A torque frame names no State: the certificate's D is not measured for an "
-            "outside device on CAN.",
-        ]
-    )
 
 
 def _limits_and_bus(s: Any, d: DeviceFigures) -> None:
-    """Torques asked beyond (2); what the device did on the bus."""
-    if d.beyond_limits:
-        s.p("Commands the device asked beyond the limits of (2) (before the bench clamped them):")
-        s.table(
-            ["signal", "limit", "commands beyond (count)", "worst asked [the limit's unit]"],
-            [[b.signal, f"{b.limit:.4g}", b.count, b.worst_words()] for b in d.beyond_limits],
-        )
-    else:
-        s.p("Every torque the device asked was within the limits of (2).")
+    """Torques asked beyond (2), what else was counted; what the device did on the bus."""
+    beyond = "; ".join(
+        f"{b.signal} {b.count} times beyond {b.limit:.4g} (worst {b.worst_words()})"
+        for b in d.beyond_limits
+    )
+    named = f" It named {d.unnamed} States the bench never sent (no age)." if d.unnamed else ""
+    unanswered = f" {d.responses_unanswered} never answered." if d.responses_unanswered else ""
+    s.p(
+        (f"Asked beyond the limits of (2), before the bench clamped: {beyond}."
+         if beyond else "Every torque it asked was within the limits of (2).")
+        + named + unanswered
+    )  # fmt: skip
     b = d.bus
     s.table(
         ["on the bus", "count"],
@@ -159,8 +147,8 @@ def _limits_and_bus(s: Any, d: DeviceFigures) -> None:
                 ("unknown frames (command, node, id)", b.unknown),
                 ("refused (decoded, not accepted)", b.refused),
                 ("command timeouts of the plant (zero torque)", b.command_timeouts),
+                *((f"rejected: {k}", n) for k, n in b.rejections.items()),
             )
         ],
+        fold="what the device did on the bus (counted, never fatal)",
     )
-    if b.rejections:
-        s.items([f"{k}: {n}" for k, n in b.rejections.items()])
