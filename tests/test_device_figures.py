@@ -77,10 +77,13 @@ def _write_plant(
     for k in range(n_samples):
         t = EPOCH + k * P
         log.append("samples", SampleRow(k, t, t + 50_000, t + 100_000, *([0.0] * 9), 0))
-    for i, (recv, named, tau1, tau2) in enumerate(commands):
+    for i, (recv, named, tau1, tau2, *again) in enumerate(commands):
         stamp = 12345 if garbage_stamp else EPOCH + named * P
         log.append("cmd_rx", CmdRxRow(CmdPath.ZENOH, i, named, stamp, 0, 0, recv, tau1, tau2,
                                       NO_NODE, RxVerdict.ACCEPTED))  # fmt: skip
+        for t in again:  # the same command arriving again (a duplicate on the way)
+            log.append("cmd_rx", CmdRxRow(CmdPath.ZENOH, i, named, stamp, 0, 0, t, tau1, tau2,
+                                          NO_NODE, RxVerdict.DUPLICATE))  # fmt: skip
         log.append("apply", ApplyRow(CmdPath.ZENOH, i, NO_NODE, recv, recv + 10_000, tau1, tau2,
                                      ApplyOutcome.LANDED))  # fmt: skip
     counts: dict[int, int] = {}
@@ -161,6 +164,13 @@ def test_a_200_hz_device_with_uniform_1_ms_jitter_reads_as_5_ms_and_that_jitter(
     steady = [(EPOCH + k * P + 2 * MS, k, 0.1, 0.0) for k in range(n)]
     (s,) = _device(_write_plant(tmp_path / "s", n + 2, steady)).streams
     assert s.jitter["max_us"] == 0.0 and s.period_mean_s == pytest.approx(0.005, abs=1e-12)
+
+
+def test_a_command_that_arrives_twice_is_one_command_of_the_stream(tmp_path):
+    n = 400
+    cmds = [(*c, c[0] + 200_000) if c[1] % 10 == 0 else c for c in _answering(n)]
+    (z,) = _device(_write_plant(tmp_path / "d", n, cmds)).streams
+    assert z.commands == n - 1 and z.jitter["max_us"] == 0.0  # (the last lands after the window)
 
 
 def test_can_streams_are_per_node(tmp_path):

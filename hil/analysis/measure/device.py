@@ -55,7 +55,13 @@ from hil.folder.device import (
     Gap,
 )
 from hil.limits import LIMIT_REL_TOL
-from protocol.hoplog import ApplyOutcome, CmdPath
+from protocol.hoplog import (
+    SAMPLE_DROPPED,
+    SAMPLE_FEEDBACK_LOST,
+    ApplyOutcome,
+    CmdPath,
+    RxVerdict,
+)
 
 GAP_PERIODS = 2  # an inter-arrival of at least this many nominal periods is a gap
 BENCH_SHARE = 0.5  # a gap is the bench's when its stalls cover at least this share of it
@@ -204,6 +210,9 @@ def device_figures(
     path = str(pmeta.get("cmd_path") or "zenoh")
     bench = bench if bench is not None else Stretches.none()
     on_path = rx["path"] == (CmdPath.CAN if path == "can" else CmdPath.ZENOH)
+    # A Zenoh command that arrived twice was sent once: its second arrival is no command of the
+    # stream (a CAN frame carries no number to tell).
+    on_path &= rx["verdict"] != RxVerdict.DUPLICATE
     inwin = on_path & _in(rx["recv_ns"], w0, w1)
 
     streams, in_dev, in_bench = _streams(rx, inwin, path, sn, period, epoch, bench)
@@ -219,6 +228,7 @@ def device_figures(
             beyond += [b] if b is not None else []
     else:
         sent = (s["send_ns"] > 0) & _in(s["send_ns"], w0, w1)
+        sent &= (s["flags"] & (SAMPLE_DROPPED | SAMPLE_FEEDBACK_LOST)) == 0  # never on the wire
         named, first = _first_arrival(rx["state_seq"][on_path], rx["recv_ns"][on_path])
         send_of, found = _lookup(s["seq"][sent], s["send_ns"][sent], named)
         response = (first - send_of)[found]
