@@ -26,7 +26,7 @@ from hil.analysis.report.device import add_device, has_news
 from hil.folder import layout
 from hil.folder.device import DeviceFigures, DeviceLimits
 from hil.folder.jsonio import jsonable
-from hil.verdict import FAIL, INCONCLUSIVE, PASS, judge
+from hil.verdict import EXIT_CODE, FAIL, INCONCLUSIVE, PASS, judge
 from protocol.hoplog import (
     NO_NODE,
     NO_SEQ,
@@ -400,7 +400,7 @@ def _stripped_folder_reports(tmp_path: Path, hosted: Path) -> None:
     )  # fmt: skip
     summary = json.loads((folder / layout.SUMMARY).read_text())
     outcome = summary["verdict"]["outcome"]
-    assert p.returncode == {PASS: 0, FAIL: 1, INCONCLUSIVE: 4}[outcome], p.stderr
+    assert p.returncode == EXIT_CODE[outcome], p.stderr  # hil/errors.py's table
     dev = summary["device"]
     assert dev["outside"] is True
     gaps = _stall_gap(summary)
