@@ -361,46 +361,61 @@ def _hil_run(tmp_path: Path, name: str, *args: str) -> tuple[Path, dict]:
     return out, json.loads((out / layout.SUMMARY).read_text())
 
 
-def _stall_gap(summary: dict, stream: str | None = None) -> dict:
-    """The longest gap of the device (the hosted controller) near t = 1 s, where it stalled."""
-    dev = summary["device"]
-    streams = [s for s in dev["streams"] if stream is None or s["name"] == stream]
-    near = [g for s in streams for g in s["gaps"] if 0.9 <= g["start_s"] <= 1.2]
-    assert near, dev["streams"]
-    return max(near, key=lambda g: g["length_s"])
+def _stall_found(pairs: np.ndarray, t0_ns: int, gaps: list[dict], epoch_ns: int) -> dict:
+    """The device's stall near t0 + 1 s, as the device's OWN log of its sends shows it (same
+    host clock; the figures never read it), found in the bench's figure. ``pairs``: per
+    command, (the device's send, the plant's receive), in order. The longest send interval
+    there, less P, is how late the device was (at least the 40 ms injected; more when the host
+    held it longer); the plant's gap after that command is exactly that plus what the path
+    added to it (its hop less the one before): on a quiet path, microseconds, and the gap reads
+    40 ms +- 2 ms; on a loaded host the path's share is named, never hidden."""
+    pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
+    iv = np.diff(pairs[:, 0])
+    near = (pairs[:-1, 0] >= t0_ns + 900 * MS) & (pairs[:-1, 0] <= t0_ns + 1200 * MS)
+    k = int(np.argmax(np.where(near, iv, -1)))
+    own_late = (int(iv[k]) - P) / 1e6
+    assert own_late >= 40.0 - 0.5  # the stall injected: at least 40 ms (a spin or a sleep)
+    at = (int(pairs[k, 1]) - epoch_ns) / 1e9
+    gap = min(gaps, key=lambda g: abs(g["start_s"] - at))
+    assert abs(gap["start_s"] - at) < 1e-6 and gap["owner"] == "device", (gap, at)
+    hops = pairs[:, 1] - pairs[:, 0]
+    path_ms = int(hops[k + 1] - hops[k]) / 1e6
+    assert abs(gap["length_s"] * 1e3 - (own_late + path_ms)) <= 0.001, (gap, own_late, path_ms)
+    if abs(path_ms) <= 0.5:
+        assert abs(gap["length_s"] * 1e3 - own_late) <= 2.0, (gap, own_late)
+    return gap
 
 
-def _own_late_ms(send_ns: np.ndarray, t0_ns: int) -> float:
-    """How late, by the device's OWN log of its sends (same host clock; the figures never read
-    it), its command after the stall came: the longest send interval near t = 1 s, less P. On
-    a quiet host it is the 40 ms injected; on a loaded one the host may hold the device longer,
-    and the bench's figure must find that too."""
-    sent = np.sort(send_ns[send_ns > 0])
-    iv = np.diff(sent)
-    near = (sent[:-1] >= t0_ns + 900 * MS) & (sent[:-1] <= t0_ns + 1200 * MS)
-    return (int(iv[near].max()) - P) / 1e6
-
-
-def _controller_sends(run: Path, node: int | None = None) -> tuple[np.ndarray, int]:
-    """The hosted controller's own send stamps (its hop log: Zenoh sends, or one node's CAN
-    frames) and the run's epoch."""
-    log = read_hoplog(run / layout.CONTROLLER_LOG)
+def _hosted_pairs(run: Path, node: int | None = None) -> tuple[np.ndarray, int]:
+    """Per command of the hosted controller, its own send stamp (its hop log) and the plant's
+    receive (Zenoh: by the command's number; CAN on zenoh_can: by the bus's name for the
+    frame, which both sides log); and the run's epoch."""
+    c, pl = read_hoplog(run / layout.CONTROLLER_LOG), read_hoplog(run / layout.PLANT_LOG)
     if node is None:
-        sends = np.array([r["zenoh_send_ns"] for r in log.table("ticks") if r["cmd_seq"] >= 0])
-    else:
-        sends = np.array([r["send_ns"] for r in log.table("can_tx")
-                          if r["node"] == node and r["cmd_seq"] >= 0])  # fmt: skip
-    return sends, int(log.meta["epoch_ns"])
+        recv = {r["seq"]: r["recv_ns"] for r in pl.table("cmd_rx") if r["path"] == CmdPath.ZENOH}
+        sends = [(r["zenoh_send_ns"], r["cmd_seq"]) for r in c.table("ticks") if r["cmd_seq"] >= 0]
+        pairs = [(t, recv[key]) for t, key in sends if t > 0 and key in recv]
+    else:  # the two sides compute the bus's name apart: the same frame within a microsecond
+        rx = sorted((r["send_ns"], r["recv_ns"]) for r in pl.table("cmd_rx")
+                    if r["path"] == CmdPath.CAN and r["node"] == node)  # fmt: skip
+        names = np.array([n for n, _ in rx], np.int64)
+        pairs = []
+        for r in c.table("can_tx"):
+            if r["node"] != node or r["cmd_seq"] < 0 or r["send_ns"] <= 0 or not names.size:
+                continue
+            i = int(np.clip(np.searchsorted(names, r["bus_end_ns"]), 1, names.size - 1))
+            j = min((i - 1, i), key=lambda m: abs(int(names[m]) - r["bus_end_ns"]))
+            if abs(int(names[j]) - r["bus_end_ns"]) < 1_000:
+                pairs.append((r["send_ns"], rx[j][1]))
+    return np.array(pairs, np.int64), int(c.meta["epoch_ns"])
 
 
 def test_a_hosted_law_that_stalls_40_ms_reads_as_a_40_ms_gap(tmp_path):
     out, summary = _hil_run(tmp_path, "z")
-    gap = _stall_gap(summary)
-    # The law spins 40 ms in its update at t = 1 s: its next command came 40 ms late (more if
-    # the host then held the controller: its own send stamps say by how much).
-    own = _own_late_ms(*_controller_sends(out))
-    assert own >= 40.0 - 0.5  # the spin is wall time: at least 40 ms
-    assert abs(gap["length_s"] * 1e3 - own) <= 2.0, (gap, own)
+    # The law spins 40 ms in its update at t = 1 s: its next command came 40 ms late.
+    pairs, epoch = _hosted_pairs(out)
+    (z,) = summary["device"]["streams"]
+    gap = _stall_found(pairs, epoch, z["gaps"], epoch)
     dev = summary["device"]
     assert dev["outside"] is False and dev["path"] == "zenoh"
     assert dev["response"]["count"] > 300 and dev["age"]["count"] > 300
@@ -426,7 +441,7 @@ def _stripped_folder_reports(tmp_path: Path, hosted: Path, gap: dict) -> None:
     assert p.returncode == EXIT_CODE[outcome], p.stderr  # hil/errors.py's table
     dev = summary["device"]
     assert dev["outside"] is True
-    assert _stall_gap(summary) == gap
+    assert gap in dev["streams"][0]["gaps"]  # the same gap, from the plant's log alone
     # what needs the controller's log is absent, never 0
     timing = summary["timing"]
     for key in ("compute", "hop_state", "hop_cmd_zenoh", "deadline_misses", "wakeup_lateness"):
@@ -442,10 +457,9 @@ def test_the_same_stall_on_the_can_path_reads_per_wheel(tmp_path, interface):
     dev = summary["device"]
     assert dev["path"] == "can"
     for node in (0, 1):
-        gap = _stall_gap(summary, f"node {node}")
-        own = _own_late_ms(*_controller_sends(out, node))
-        assert own >= 40.0 - 0.5
-        assert abs(gap["length_s"] * 1e3 - own) <= 2.0, (node, gap, own)
+        pairs, epoch = _hosted_pairs(out, node)
+        (st,) = [x for x in dev["streams"] if x["name"] == f"node {node}"]
+        _stall_found(pairs, epoch, st["gaps"], epoch)
     # encoder estimates were logged and answered
     assert dev["response"]["count"] > 100 and dev["age_is_bound"] is True
 
@@ -480,30 +494,12 @@ def test_an_outside_zenoh_device_stall_jitter_and_wait_read_as_injected(tmp_path
         zenoh_device("--fifo", "--stall-at", "1", "--stall-ms", "40", "--log", str(own_log)),
     )  # fmt: skip
     (z,) = stalled["streams"]
-    # It answers each State; once, 1 s after its first, it sleeps 40 ms before answering: that
-    # answer comes 40 ms late (later if the host held it longer). Its own log (same host clock,
-    # never read by the figures) names the command before the stall; the plant's gap after
-    # that command is the stall, as long as the device's own interval less P (a loaded host
-    # may also stall this Python device elsewhere: those are its gaps too, and listed).
-    own = np.loadtxt(own_log, dtype=np.int64, ndmin=2)
-    iv = np.diff(own[:, 1])
-    near = (own[:-1, 1] >= own[0, 1] + 900 * MS) & (own[:-1, 1] <= own[0, 1] + 1200 * MS)
-    k = int(np.argmax(np.where(near, iv, -1)))
-    own_late = (int(iv[k]) - P) / 1e6
-    assert own_late >= 40.0 - 0.5  # the sleep: at least 40 ms
+    # It answers each State; once, 1 s after its first, it sleeps 40 ms before answering.
     plant = read_hoplog(tmp_path / "stall" / layout.PLANT_LOG)
     recv = {r["seq"]: r["recv_ns"] for r in plant.table("cmd_rx")}
-    pre, post = int(own[k, 0]), int(own[k + 1, 0])
-    at = (recv[pre] - int(plant.meta["epoch_ns"])) / 1e9
-    gap = min(z["gaps"], key=lambda g: abs(g["start_s"] - at))
-    assert abs(gap["start_s"] - at) < 1e-6 and gap["owner"] == "device", (gap, at)
-    # The plant sees the device's own lateness plus what the path added to the command after
-    # it (its hop less the one before): on a quiet host that is microseconds, and the gap reads
-    # 40 ms +- 2 ms; on a loaded one the path's share is named here, never hidden.
-    path_ms = ((recv[post] - own[k + 1, 1]) - (recv[pre] - own[k, 1])) / 1e6
-    assert abs(gap["length_s"] * 1e3 - (own_late + path_ms)) <= 0.001, (gap, own_late, path_ms)
-    if abs(path_ms) <= 0.5:
-        assert abs(gap["length_s"] * 1e3 - own_late) <= 2.0
+    own = np.loadtxt(own_log, dtype=np.int64, ndmin=2)
+    pairs = np.array([(t, recv[q]) for q, t in own if q in recv], np.int64)
+    _stall_found(pairs, int(own[0, 1]), z["gaps"], int(plant.meta["epoch_ns"]))
     assert z["jitter"]["p50_us"] < 200.0  # it follows the plant's States: no jitter of its own
     log = tmp_path / "sends.txt"
     jittered = _external(
