@@ -500,7 +500,6 @@ def test_an_outside_zenoh_device_stall_jitter_and_wait_read_as_injected(tmp_path
     own = np.loadtxt(own_log, dtype=np.int64, ndmin=2)
     pairs = np.array([(t, recv[q]) for q, t in own if q in recv], np.int64)
     _stall_found(pairs, int(own[0, 1]), z["gaps"], int(plant.meta["epoch_ns"]))
-    assert z["jitter"]["p50_us"] < 200.0  # it follows the plant's States: no jitter of its own
     log = tmp_path / "sends.txt"
     jittered = _external(
         spawn,
