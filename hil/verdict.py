@@ -48,6 +48,7 @@ from hil.errors import (  # noqa: F401 (the exit table, re-exported: hil.verdict
     exit_code,
 )
 from hil.folder import layout
+from hil.folder.device import DeviceFigures
 from hil.folder.records import (
     Certificate,
     Constraint,
@@ -269,17 +270,21 @@ def judge(
     facts: RunFacts | None = None,
     thresholds: Thresholds = DEFAULT_THRESHOLDS,
     ended: LawEnd | None = None,
+    device: DeviceFigures | None = None,
 ) -> Verdict:
     """The verdict (module docstring). ``cons``: per limit of (2) its peak, limit and whether
     it held; ``violations``: plant steps beyond each limit; ``cert``: the certificate object
     (summary.json's, or a simulation's); ``timing``/``messages``: the run's (None for a
-    simulation); ``ended``: how the law's loop ended early (:meth:`LawEnd.of` the summary)."""
+    simulation); ``ended``: how the law's loop ended early (:meth:`LawEnd.of` the summary);
+    ``device``: the device's figures at the bus (summary.json's ``device``)."""
     v = Verdict(thresholds=asdict(thresholds))
     _law_ended(v, ended)
     _limits(v, cons, violations, cert)
-    _certificate(v, cons, cert)
+    _certificate(v, cons, cert, outside=device is not None and device.outside)
     if timing is not None:
         _thresholds(v, timing, messages or {}, (cert or {}).get("path"), thresholds)
+    if device is not None:
+        _device(v, device, timing or {}, thresholds)
     _relatable(v, messages or {})
     _facts(v, facts)
     _after_the_controller_ended(v, ended)
@@ -395,7 +400,9 @@ def _limits(
     v.limits = "broken" if broken else "held"
 
 
-def _certificate(v: Verdict, cons: dict[str, Constraint], cert: Certificate | None) -> None:
+def _certificate(
+    v: Verdict, cons: dict[str, Constraint], cert: Certificate | None, outside: bool = False
+) -> None:
     if not cert or cert.get("d_star_s") is None:
         return
     held = cert.get("held")
@@ -424,7 +431,7 @@ def _certificate(v: Verdict, cons: dict[str, Constraint], cert: Certificate | No
     if d is None:
         v.fail_reasons.append(f"certificate not held: no command ever landed{where} (D unknown)")
     elif d > ds:
-        _age_beyond(v, cert, where)
+        _age_beyond(v, cert, where, outside)
     else:
         failed = in_symbols(", ".join(cert.get("failed_conditions") or [])) or "see the certificate"
         v.fail_reasons.append(
@@ -432,8 +439,10 @@ def _certificate(v: Verdict, cons: dict[str, Constraint], cert: Certificate | No
         )
 
 
-def _age_beyond(v: Verdict, cert: Certificate, where: str) -> None:
-    """D > D*: whose stalls pushed it there."""
+def _age_beyond(v: Verdict, cert: Certificate, where: str, outside: bool = False) -> None:
+    """D > D*: whose stalls pushed it there. For an outside device (no controller log), a
+    stall that is not the bench's is the device's: nothing else sits between the States the
+    bench sent and the commands it received."""
     d, ds = cert["d_max_s"], cert["d_star_s"]
     # Without the stalls' owners (a simulation, an older summary) all of D is the system's.
     d_sys = cert["d_system_s"] if cert.get("d_system_s") is not None else d
@@ -444,7 +453,9 @@ def _age_beyond(v: Verdict, cert: Certificate, where: str) -> None:
     if d_sys > ds:
         mine = [s for s in stalls if s.get("owner") == "system" and s["age_s"] > ds]
         unknown = [s for s in stalls if s.get("owner") == "unknown" and s["age_s"] > ds]
-        if not mine and unknown:
+        if outside:
+            mine += unknown
+        elif not mine and unknown:
             v.inconclusive_reasons.append(
                 f"certificate not held: {head}, by a stall whose cause the logs cannot tell "
                 f"(t = {unknown[0]['t_s']:.3f} s, {ms(unknown[0]['age_s'])})"
@@ -523,6 +534,60 @@ def _thresholds(
                 )
             else:
                 v.fail_reasons.append(words)
+
+
+def _device(v: Verdict, dev: DeviceFigures, timing: Timing, th: Thresholds) -> None:
+    """The device's own figures at the bus (hil.analysis.measure.device): torques asked beyond
+    the limits of (2) (FAIL, even though the bench clamped them); its command gaps, where the
+    hosted figure ``samples_without_command`` is not measured (an outside device on CAN): the
+    samples inside its own gaps over the threshold FAIL, those inside gaps the bench's stalls
+    made are the bench's; what it did on the bus and the States it named that were never sent
+    are counted, never fatal (notes)."""
+    for b in dev.beyond_limits:
+        name = b.signal if b.signal.startswith("q ") else f"|{b.signal}|"
+        v.fail_reasons.append(
+            f"the device asked torques beyond the limits of (2): {name} up to "
+            f"{b.worst_words()} > {b.limit:.4g} in {b.count} commands (the bench clamped them)"
+        )
+    n, bench, over = dev.samples_in_gaps, dev.samples_in_bench_gaps, dev.samples_judged
+    if "samples_without_command" not in timing and over > 0:
+        limit = th.max_samples_without_command_ratio
+        gaps = sorted(dev.gaps, key=lambda g: -g.length_s)
+        worst = next((g for g in gaps if g.owner == "device"), gaps[0] if gaps else None)
+        at = f"; longest gap {ms(worst.length_s)} at t = {worst.start_s:.3f} s" if worst else ""
+        words = (
+            f"the device stalled: {n} of {over} samples fell in its command gaps "
+            f"({_pct(n / over)}) > {_pct(limit)}{at}"
+        )
+        if n / over > limit:
+            v.fail_reasons.append(words)
+        elif (n + bench) / over > limit:
+            _bench_stalled(
+                v,
+                f"samples without a device command: {n + bench} of {over} "
+                f"({_pct((n + bench) / over)}) > {_pct(limit)}, but {bench} of them fell in gaps "
+                f"the bench's stalls made; without them {_pct(n / over)}",
+            )
+    if dev.unnamed:
+        v.notes.append(
+            f"the device named {dev.unnamed} States the bench never sent (counted, refused "
+            "as a name: their age is not known)"
+        )
+    bus = dev.bus
+    said = [
+        f"{k} {x}"
+        for k, x in (("malformed", bus.malformed), ("unknown", bus.unknown),
+                     ("refused", bus.refused), ("watchdog trips", bus.watchdog_trips))
+        if x
+    ]  # fmt: skip
+    if said:
+        v.notes.append(f"the device on the bus: {', '.join(said)} (counted, never fatal)")
+    if dev.outside and dev.age_is_bound and dev.d_max_s is not None:
+        v.notes.append(
+            f"the command age D is not measured on CAN for an outside device (a torque frame "
+            f"names no encoder estimate); at landing it was at least {ms(dev.d_max_s)} "
+            "(a lower bound), so the certificate is not judged"
+        )
 
 
 def _relatable(v: Verdict, messages: Messages) -> None:

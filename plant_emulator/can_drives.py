@@ -44,6 +44,7 @@ from protocol.hoplog import (
     CmdRxRow,
     DriveEvent,
     DriveEventRow,
+    EncTxRow,
     RxVerdict,
     SocketDropRow,
 )
@@ -130,7 +131,10 @@ class CanDrives:
         self.injected_frame_losses = 0
         # [faults] feedback_*: encoder-estimate frames held (or lost) on the way to the device
         held = self.faults.feedback_held
-        self.feedback = DelayLine(lambda f: self.send([f]), "encoder-delay") if held else None
+        # (the held item: the frame and when its content was taken, for the hop log's enc_tx)
+        self.feedback = (
+            DelayLine(lambda item: self.send([item[1]], item[0]), "encoder-delay") if held else None
+        )
         self._estimates: dict[int, int] = {}  # per node: encoder-estimate frames due so far
         self.feedback_losses = 0
         self.silenced = 0  # frames not sent: the drives were silent ([faults] drive_silent_*)
@@ -240,7 +244,7 @@ class CanDrives:
                     self.refresh(recv_ns)
                 answers = self.pair.receive(recv_ns / 1e9, frame)
             self.requests += 1
-            self.send(answers)
+            self.send(answers, recv_ns)
         elif self.immediate or recv_ns < self.immediate_until_ns:
             with self.lock:
                 answers = self.on_frame(recv_ns, frame)
@@ -276,7 +280,7 @@ class CanDrives:
                     self.refresh(now_ns)
                 frames = self.pair.due_frames(now_ns / 1e9)
                 self._drain_events()
-            self.send(self._hold_estimates(frames, now_ns))
+            self.send(self._hold_estimates(frames, now_ns), now_ns)
 
     def _silent(self, now_ns: int) -> bool:
         """Whether the drives are silent now ([faults] drive_silent_every/length, by the
@@ -312,11 +316,14 @@ class CanDrives:
                 self.feedback_losses += 1
                 continue
             held = round(self.faults.feedback_extra_s(i, 1 + node) * 1e9)
-            self.feedback.put(now_ns + held, f)
+            self.feedback.put(now_ns + held, (now_ns, f))
         return now
 
     # --- transmit -------------------------------------------------------------------------------
-    def send(self, frames: list[Frame]) -> None:
+    def send(self, frames: list[Frame], sample_ns: int | None = None) -> None:
+        """Put ``frames`` on the bus; ``sample_ns``: when their content was taken (the drives'
+        feedback brought up to then). Each encoder-estimate frame sent is logged (enc_tx):
+        what a device's response time and its torques' age are measured from."""
         if frames and self._silent(time.monotonic_ns()):
             self.silenced += len(frames)  # [faults] drive_silent_*: the drives send nothing
             return
@@ -328,6 +335,13 @@ class CanDrives:
                     self.frames_out += 1
                 except Exception:
                     self.send_errors += 1
+                    continue
+            if self.hoplog is not None and not f.is_remote:
+                node, cmd = self._split(f.arbitration_id)
+                if cmd == Cmd.GET_ENCODER_ESTIMATES:
+                    sent = time.monotonic_ns()
+                    row = EncTxRow(node, sent if sample_ns is None else sample_ns, sent)
+                    self.hoplog.append("enc_tx", row)
 
     # --- counters --------------------------------------------------------------------------------
     def counters(self) -> dict[str, Any]:

@@ -642,6 +642,7 @@ class ODriveAxis:
         return True
 
     def _request_state(self, now: float, state: int) -> bool:
+        self.events["state_requests"] += 1  # every Set_Axis_State, granted or not
         if state == AxisState.UNDEFINED:
             return True
         if state == AxisState.IDLE:

@@ -195,6 +195,17 @@ class CmdRxRow(NamedTuple):
     verdict: RxVerdict
 
 
+class EncTxRow(NamedTuple):
+    """Every Get_Encoder_Estimates frame the virtual drives put on the bus (cyclic, or the
+    answer to a request): its node, ``sample_ns`` when its content was taken (the drives'
+    feedback brought up to that time: the frame's entry into the path toward the device) and
+    ``send_ns`` when it was handed to the bus (later by a ``[faults] feedback_*`` hold)."""
+
+    node: int
+    sample_ns: int
+    send_ns: int
+
+
 class ApplyRow(NamedTuple):
     """Every landing on the applied path, in time order (node NO_NODE on Zenoh)."""
 
@@ -274,6 +285,7 @@ CONTROLLER_TABLES: dict[str, tuple[str, ...]] = {
 PLANT_TABLES: dict[str, tuple[str, ...]] = {
     "samples": SampleRow._fields,
     "cmd_rx": CmdRxRow._fields,
+    "enc_tx": EncTxRow._fields,  # absent from logs written before it: read as empty
     "apply": ApplyRow._fields,
     "zero": ZeroRow._fields,
     "socket_drops": SocketDropRow._fields,

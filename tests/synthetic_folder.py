@@ -308,6 +308,7 @@ def _measured_summary(out: Path, cols: dict[str, np.ndarray]) -> dict[str, Any]:
         "timing": clean["t"],
         "messages": clean["m"],
         "certificate": clean["c"],
+        "device": json.loads(json.dumps(_plain(m.device.as_dict()))) if m.device else None,
         "logs_complete": {"controller": True, "plant": True},
         "rejections": {"controller": {}, "plant": {}, "drives": {}},
         "can": {

@@ -24,6 +24,7 @@ from protocol.hoplog import (
     CmdRxRow,
     DriveEvent,
     DriveEventRow,
+    EncTxRow,
     HopLogWriter,
     HostRow,
     RxVerdict,
@@ -48,6 +49,9 @@ OLD_PLANT = {
                 "tau1", "tau2", "cmd1", "cmd2", "flags"],
     "cmd_rx": ["path", "seq", "state_seq", "state_sample_ns", "compute_start_ns", "send_ns",
                "recv_ns", "tau1", "tau2", "node", "verdict"],
+    # the encoder estimates the drives sent (a log without it reads as empty: the device's
+    # figures, tests/test_device_figures.py)
+    "enc_tx": ["node", "sample_ns", "send_ns"],
     "apply": ["path", "seq", "node", "recv_ns", "apply_ns", "tau1", "tau2", "outcome"],
     "zero": ["timeout_ns", "applied_ns"],
     "socket_drops": ["since_ns", "seen_ns", "dropped"],  # the bench's socket drops
@@ -88,6 +92,7 @@ TYPED_PLANT = [
     ("cmd_rx", CmdRxRow(path=CmdPath.CAN, seq=3, state_seq=NO_SEQ, state_sample_ns=NO_STAMP,
                         compute_start_ns=NO_STAMP, send_ns=NO_STAMP, recv_ns=T0 + 2400,
                         tau1=0.125, tau2=0.0, node=1, verdict=RxVerdict.LOST_BY_FAULT)),
+    ("enc_tx", EncTxRow(node=1, sample_ns=T0 + 1000, send_ns=T0 + 1030)),
     ("apply", ApplyRow(path=CmdPath.ZENOH, seq=0, node=NO_NODE, recv_ns=T0 + 2300,
                        apply_ns=T0 + 2500, tau1=0.25, tau2=-1.5,
                        outcome=ApplyOutcome.LANDED)),

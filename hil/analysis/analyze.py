@@ -29,6 +29,7 @@ from hil.analysis.report.clockplot import write_clock_plot
 from hil.analysis.report.figures import envelope_indices, plt
 from hil.errors import BadInputError
 from hil.folder import layout, write_summary
+from hil.folder.device import DeviceFigures
 from hil.folder.jsonio import read_json_object
 from hil.folder.records import LawFaultRecord, Recorded, Summary, VerdictRecord
 from hil.folder.scenario_view import as_resolved
@@ -149,6 +150,7 @@ def analyze(rec: Recorded) -> Summary:
         "timing": m.timing,
         "messages": m.messages,
         "certificate": m.certificate,
+        **({"device": m.device.as_dict()} if m.device is not None else {}),
         "host": m.host,
         "logs_complete": logs.complete,
     }
@@ -201,6 +203,7 @@ def rate_hz(resolved: Mapping[str, Any], settings: Any) -> float:
 def run_verdict(summary: Summary, scenario: Any) -> VerdictRecord:
     """The run's verdict (hil.verdict.judge at the default thresholds) from its summary."""
     limits = {k: float(getattr(scenario.limits, k)) for k in LIMIT_NAMES.values()}
+    device = summary.get("device")
     return judge(
         constraints_from_peaks(summary, limits),
         summary.get("violations") or {},
@@ -209,6 +212,7 @@ def run_verdict(summary: Summary, scenario: Any) -> VerdictRecord:
         summary.get("messages") or {},
         RunFacts.of(summary),
         ended=LawEnd.of(summary),
+        device=DeviceFigures.from_dict(device) if isinstance(device, dict) else None,
     ).as_dict()
 
 

@@ -36,8 +36,12 @@ COLUMNS: dict[str, dict[str, Any]] = {
         "theta": _F8, "v": _F8, "omega": _F8, "tau1": _F8, "tau2": _F8, "cmd1": _F8,
         "cmd2": _F8, "flags": _I1,
     },
+    # tau1, tau2 as sent (a Zenoh command's float64; a CAN frame's float32 is exact in it):
+    # the torques a device asked are judged against the limits of (2) at their own precision.
     "cmd_rx": {"path": _I1, "seq": _I8, "recv_ns": _I8, "node": _I2, "verdict": _I1,
-               "tau1": _F4, "send_ns": _I8, "state_sample_ns": _I8},
+               "tau1": _F8, "tau2": _F8, "send_ns": _I8, "state_sample_ns": _I8,
+               "state_seq": _I8},
+    "enc_tx": {"node": _I2, "sample_ns": _I8, "send_ns": _I8},
     "apply": {"path": _I1, "seq": _I8, "node": _I2, "recv_ns": _I8, "apply_ns": _I8,
               "outcome": _I1},
     "zero": {"timeout_ns": _I8, "applied_ns": _I8},

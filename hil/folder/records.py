@@ -347,6 +347,9 @@ class Summary(TypedDict, total=False):
     timing: Timing  # figure name -> percentiles or count (docs/realtime.md)
     messages: Messages  # stream -> sent, received, lost, duplicated, reordered
     certificate: Certificate | None
+    # the device at the bus, from plant.hoplog alone (hil.analysis.measure.device's
+    # DeviceFigures, as_dict/from_dict); absent: no plant sample
+    device: dict[str, Any]
     host: HostLoad | None
     logs_complete: dict[str, bool]
     rejections: dict[str, Any]

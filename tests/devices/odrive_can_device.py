@@ -71,6 +71,11 @@ class Device:
         if cmd != 0x09 or msg.is_remote_frame or len(msg.data) != 8 or node not in self.drives:
             return
         arrived = time.monotonic()
+        if msg.timestamp:
+            # Waited for from the frame's own arrival (the bus's stamp, wall clock), not from
+            # when this one thread got to it: the other wheel's frame, which came at the same
+            # time, is not made to wait twice.
+            arrived -= max(0.0, time.time() - msg.timestamp)
         vel = float(memoryview(bytes(msg.data)).cast("f")[1])
         with self.lock:
             self.vel[node] = vel
@@ -78,7 +83,10 @@ class Device:
                 return
             self.maybe_stall()
             while time.monotonic() - arrived < self.a.wait_ms / 1e3:
-                pass  # busy: a sleep's wake-up lateness would blur the known answer
+                # busy (a timed sleep's wake-up lateness would blur the known answer), yet
+                # letting the bus's receiving thread take the GIL: else the other wheel's
+                # frame would be stamped only after this wait, and wait twice
+                time.sleep(0)
             self.drives[node].set_input_torque(self.torque(node))
 
     def on_heartbeat(self, node: int, axis_state: int) -> None:

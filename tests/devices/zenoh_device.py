@@ -8,6 +8,9 @@ Modes (each a known answer for the bench's figures at its edge):
   draw in [-J, +J] ms around its slot, naming the newest State it has;
 - ``--stall-at T --stall-ms S``: once, T s after the first State, nothing is sent for S ms
   (the device's stall).
+- ``--log FILE``: each command's seq and send time (its own CLOCK_MONOTONIC, ns) written to
+  FILE at exit, for a test to compare what the bench measured with what the device did (the
+  bench never reads it).
 - ``--fifo``: the device runs SCHED_FIFO (a real-time device), so that its own response does
   not vary with the host's load and an added delay reads as itself;
 - ``--garbage``: also publishes malformed payloads (not msgpack, wrong types, NaN torques)
@@ -41,6 +44,7 @@ def main() -> None:
     ap.add_argument("--stall-ms", type=float, default=0.0)
     ap.add_argument("--tau", type=float, default=0.05, help="constant torque asked (N·m)")
     ap.add_argument("--garbage", action="store_true")
+    ap.add_argument("--log", default="")
     ap.add_argument(
         "--fifo", action="store_true", help="run SCHED_FIFO (every thread, Zenoh's included)"
     )
@@ -62,6 +66,7 @@ def main() -> None:
     first_ns: list[int] = []
     seq = 0
     stalled = False
+    sent: list[tuple[int, int]] = []  # (seq, send ns): --log
     stop = threading.Event()
 
     def send(state_seq: int, sample_ns: int) -> None:
@@ -83,6 +88,7 @@ def main() -> None:
         ]
         seq += 1
         pub.put(msgpack.packb(out, use_bin_type=True))
+        sent.append((seq - 1, now))
         if args.garbage and seq % 10 == 0:
             pub.put(b"\xc1not msgpack")
             bad = [
@@ -156,6 +162,9 @@ def main() -> None:
         stop.set()
         sub.undeclare()
         session.close()
+        if args.log:
+            with open(args.log, "w") as f:
+                f.writelines(f"{k} {t}\n" for k, t in sent)
 
 
 if __name__ == "__main__":

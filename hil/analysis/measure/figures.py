@@ -18,6 +18,7 @@ import numpy as np
 from controller_service.certificate import certify, critical_age
 from hil.analysis.measure import age as agemod
 from hil.analysis.measure.can_match import UNMATCHED, match_node
+from hil.analysis.measure.device import DeviceFigures, DeviceLimits, device_figures
 from hil.analysis.measure.host import RECORDER_SILENT_NS, host_figures
 from hil.analysis.measure.logs import RunLogs
 from hil.analysis.measure.stalls import Stamped, Stretches, find_stalls
@@ -78,6 +79,8 @@ class Measurement:
     # the bench's host over the window (hil.analysis.measure.host)
     host: HostLoad | None = None
     epoch_ns: int | None = None  # the run's time origin (trace.csv's t = 0)
+    # the device at the bus, from the plant's log alone (hil.analysis.measure.device)
+    device: DeviceFigures | None = None
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The series as flat named arrays (what the folder saves as series.npz): an age
@@ -109,6 +112,7 @@ class Measurement:
             elif not part and key != "epoch_ns":
                 series[key] = str(value) if value.dtype.kind == "U" else value
         timing = summary.get("timing")
+        device = summary.get("device")
         return cls(
             timing=timing if isinstance(timing, dict) else {},
             messages=summary.get("messages") or {},
@@ -116,6 +120,7 @@ class Measurement:
             series=series,
             host=summary.get("host"),
             epoch_ns=int(arrays["epoch_ns"]) if "epoch_ns" in arrays else None,
+            device=DeviceFigures.from_dict(device) if isinstance(device, dict) else None,
         )
 
     def latency_us(self) -> dict[str, np.ndarray]:
@@ -517,13 +522,17 @@ class _Run:
         out = np.zeros(rows.size, np.int64)
         out[found] = self.ticks["state_sample_ns"][rows[found]]
         if not found.all():
-            # A command the controller sent but never logged (killed: its log's last chunk
-            # lost) still carries its sample's time in the message the plant received.
+            # A command the controller never logged (killed: its log's last chunk lost; an
+            # outside device: no log at all) names its State: that State's sample time is the
+            # plant's own (its samples table), never the message's stamp. A name that matches
+            # no State sent gives no sample (hil.analysis.measure.device counts it).
             rx = self.logs["cmd_rx"]
-            z = (rx["path"] == 0) & (rx["state_sample_ns"] > 0)
-            seq, samp = _first_per_key(rx["seq"][z], rx["state_sample_ns"][z])
-            got, has = _lookup(seq, samp, np.asarray(cmd, np.int64)[~found], missing=0)
-            out[~found] = np.where(has, got, 0)
+            z = rx["path"] == CmdPath.ZENOH
+            seq, named = _first_per_key(rx["seq"][z], rx["state_seq"][z])
+            name, has = _lookup(seq, named, np.asarray(cmd, np.int64)[~found], missing=-1)
+            s = self.samples
+            samp, known = _lookup(s["seq"], s["sample_ns"], name, missing=0)
+            out[~found] = np.where(has & known, samp, 0)
         return out
 
     def _in_force(self, node: np.ndarray, land: np.ndarray, cmd: np.ndarray):
@@ -547,20 +556,33 @@ class _Run:
         return land, self._sample_of(eff), eff
 
 
-def measure(logs: RunLogs, bound: BoundInputs | None = None) -> Measurement:
-    """The run's figures (see the module docstring and docs/realtime.md)."""
+def measure(
+    logs: RunLogs, bound: BoundInputs | None = None, limits: DeviceLimits | None = None
+) -> Measurement:
+    """The run's figures (see the module docstring and docs/realtime.md). Without the
+    controller's log (an outside device) every figure that needs it is absent, never 0: the
+    controller's hops and wake-ups, the message counts (what it sent is not known), and on CAN
+    the applied path's age and the certificate (a frame names no State); the device's figures
+    (``device``, from the plant's log alone) are there for every run."""
     r = _Run(logs)
     out = Measurement(window_ns=(r.w0, r.w1), epoch_ns=logs.epoch_ns)
     if r.samples["sample_ns"].size == 0:
         out.timing = {"units": "us", "note": "no plant samples: the plant never ran"}
         return out
     out.timing = timing = {"units": "us", "window_s": (r.w1 - r.w0) / 1e9}
+    hosted = logs.controller is not None
     _wakeups(r, timing, out.series)
-    _hops(r, timing)
+    if hosted:
+        _hops(r, timing)
     _paths(r, timing, out.series)
-    out.messages = _messages(r)
+    out.messages = _messages(r) if hosted else {}
     out.host = r.host_over(r.w0, r.w1)
-    out.certificate = _certificate(r, bound, out.series, timing)
+    if hosted or r.applied != "can":
+        out.certificate = _certificate(r, bound, out.series, timing)
+    out.device = device_figures(
+        logs.tables, logs.pmeta, logs.pinfo, limits, r.plant_stalls.union(r.host_gaps),
+        outside=not hosted,
+    )  # fmt: skip
     return out
 
 
@@ -669,6 +691,8 @@ def _paths(r: _Run, timing: Timing, series: Series) -> None:
     can_ambiguous = int((r._can["ambiguous"] & _in(r._can["recv"], r.w0, r.w1)).sum())
     for path in PATHS:
         applied = path == r.applied
+        if path == "can" and r.logs.controller is None:
+            continue  # no send log to match the frames to: their samples are not known
         land, samp, _cmd = r.landings(path, applied)
         if land.size == 0 and not applied:
             continue

@@ -9,8 +9,12 @@ from __future__ import annotations
 
 import contextlib
 import tomllib
+from collections.abc import Mapping
+from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
+from hil.analysis.measure.device import DeviceLimits
 from hil.analysis.measure.figures import Measurement, measure
 from hil.analysis.measure.logs import RunLogs, load_folder_logs, load_recording_logs
 from hil.folder import RunFolder, layout, read_series, write_series
@@ -18,6 +22,27 @@ from hil.folder.recording import read_attachments
 from hil.folder.scenario_view import bound_inputs, bound_inputs_of, view_of
 from hil.provenance import Toml
 from hil.scenario import Scenario
+from protocol.can.wheel_mapping import RobotGeometry, motor_torque_limit
+
+# The drives' own torque limit leaves this much above the largest legal motor torque (the
+# float32 a frame carries: plant_emulator.drive_plant.FLOAT32_HAIR); a frame within it is legal.
+FLOAT32_HAIR = 1e-6
+
+
+def device_limits(limits: Mapping[str, Any], robot: Mapping[str, Any]) -> DeviceLimits | None:
+    """What a device's torques are judged against: [limits] varpi1, varpi2 and the largest
+    motor torque they ask of one wheel of [robot] (None without the limits)."""
+    try:
+        varpi1, varpi2 = float(limits["varpi1"]), float(limits["varpi2"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    names = RobotGeometry.__dataclass_fields__
+    try:
+        g = RobotGeometry(**{k: float(v) for k, v in robot.items() if k in names})
+        motor = motor_torque_limit(g, varpi1, varpi2) * (1.0 + FLOAT32_HAIR)
+    except (TypeError, ValueError):
+        motor = None
+    return DeviceLimits(varpi1, varpi2, motor)
 
 
 def resolved_scenario(folder: Path) -> Toml | None:
@@ -28,7 +53,13 @@ def resolved_scenario(folder: Path) -> Toml | None:
 
 
 def measure_logs(logs: RunLogs, resolved: Toml | None) -> Measurement:
-    return measure(logs, bound_inputs(resolved) if resolved is not None else None)
+    bound = bound_inputs(resolved) if resolved is not None else None
+    limits = (
+        device_limits(resolved.get("limits") or {}, resolved.get("robot") or {})
+        if resolved is not None
+        else None
+    )
+    return measure(logs, bound, limits)
 
 
 def measure_folder(folder: str | Path) -> Measurement | None:
@@ -49,7 +80,8 @@ def measure_and_save(
     if logs is None or logs.plant is None:
         return None
     if scenario is not None:
-        m = measure(logs, bound_inputs_of(view_of(scenario)))
+        limits = device_limits(asdict(scenario.limits), asdict(scenario.robot))
+        m = measure(logs, bound_inputs_of(view_of(scenario)), limits)
     else:
         m = measure_logs(logs, resolved_scenario(folder))
     # A read-only folder is still read; it is measured again next time.

@@ -29,6 +29,7 @@ from hil.analysis.measure.folder import measured
 from hil.analysis.report import figures as fg
 from hil.analysis.report.clockplot import clock_png
 from hil.analysis.report.content import SIGNALS, TITLES, headline, render_html, render_markdown
+from hil.analysis.report.device import NO_D_ON_CAN, add_device
 from hil.analysis.report.ideal import IdealUnavailableError
 from hil.analysis.report.ideal_sim import WINDOW_S
 from hil.analysis.report.telemetry import SLIDING, folder_telemetry, forget_memory
@@ -147,8 +148,9 @@ def build_report(
     ended = LawEnd.of(folder.summary)  # the law's fault, the controller's end, a NaN state
     if verdict is None:
         verdict = judge(
-            metrics["constraints"], violations, cert, timing, messages, facts, thresholds, ended
-        )
+            metrics["constraints"], violations, cert, timing, messages, facts, thresholds, ended,
+            m.device if m is not None else None,
+        )  # fmt: skip
     margin = margin_record.read(folder.path)  # hil margin's record, None if it never ran
     drives, q = drives_block(folder, sv)
     figs, sections = _figures(folder, sv, cert, m, (ideal_traj, sliding), q, drives, metrics)
@@ -174,6 +176,7 @@ def build_report(
         "summary": {k: v for k, v in folder.summary.items() if not isinstance(v, dict | list)},
     }
     _add_topology(folder.path, data, figs)  # "Where it ran", for a run across lab hosts
+    add_device(data, m.device if m is not None else None)  # "The device at the bus"
     data["headline"] = headline(data, folder.summary)
     return Report(data, figs)
 
@@ -212,6 +215,10 @@ def _folder_certificate(
 ) -> Certificate:
     """A run's certificate (a copy of summary.json's: the report never edits it), with where it
     came from and the design conditions failing at its D; else the simulation's."""
+    if m is not None and m.certificate is None and m.device is not None and m.device.outside:
+        # An outside device on CAN: a frame names no State, D is not measured (a lower bound
+        # of the age at landing is, in "The device at the bus").
+        return dict(no_certificate(m.device.path, None, NO_D_ON_CAN))
     if m is not None and m.certificate is None:
         # No certificate in the run (not a unified law): D is still measured.
         path = str(m.series["applied_path"]) if m.series.get("applied_path") else None

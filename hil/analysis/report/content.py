@@ -16,6 +16,9 @@ from typing import Any, cast
 import numpy as np
 
 from hil.analysis.margin.record import MarginRecord, summary_lines
+from hil.analysis.report.device import NO_D_ON_CAN, device_section
+from hil.analysis.report.device import SECTION as DEVICE_SECTION
+from hil.analysis.report.device import TITLE as DEVICE_TITLE
 from hil.analysis.report.figures import Figure
 from hil.folder.records import (
     AgeAnswer,
@@ -207,6 +210,8 @@ def _command_age(data: ReportData) -> tuple[AgeAnswer, str]:
     out = cast(AgeAnswer, {k: cert.get(k) for k in keys})
     if data["kind"] != "run" or path is None:
         what = f"Command age D ≤ Ts + worst delay = {ms(d)} (the scenario's timing)"
+    elif d is None and cert.get("source") == NO_D_ON_CAN:
+        return out, f"Command age D: not measured ({NO_D_ON_CAN})."
     elif d is None:
         return out, f"Command age: no command ever landed on the {path} path (D unknown)."
     else:
@@ -739,6 +744,7 @@ SECTIONS: dict[str, tuple[str, Callable[[Section, ReportData], None]]] = {
     "terms": ("What the words mean", _terms),
     "verdict": ("Verdict", _verdict),
     "certificate": ("Command age and the certificate", _certificate),
+    DEVICE_SECTION: (DEVICE_TITLE, device_section),  # hil.analysis.report.device
     "trajectory": ("Trajectory in the plane", _trajectory),
     "velocities": ("Velocities v and ω against (2)", _velocities),
     "torques": ("Inputs τ1 and τ2 of model (1) against (2)", _torques),
