@@ -200,6 +200,8 @@ class _Run:
         self.cmd_keys = seq[self.cmd_rows]
         self._can = self._match_can()
         self.series_without: np.ndarray | None = None  # sample times left without a command
+        # Per sample (or slot) left without a command: its State left the plant too late
+        self.without_sent_late: np.ndarray | None = None
 
     def _match_can(self) -> dict[str, np.ndarray]:
         """Every CAN torque frame a drive received, matched to its send
@@ -422,18 +424,43 @@ class _Run:
         if self.trigger != "periodic" or self.lockstep or self.sensor_period >= self.period:
             return None
         sn = self.samples["sample_ns"]
+        grid = self._deadline_grid
+        if grid is None:
+            return control_slot(sn, self.epoch + self.period // 2, self.period)
+        # Samples before the first tick belong to it, those after the last to one more slot.
+        return np.searchsorted(grid, sn, side="left")
+
+    @cached_property
+    def _deadline_grid(self) -> np.ndarray | None:
+        """The controller's deadlines, one per slot from its first tick to its last (its
+        ticks', a learnt phase's shift included; the slots it skipped on their grid); None
+        with no tick."""
         t = self.ticks
         mine = t["k"] >= 0
         k, deadline = t["k"][mine], t["deadline_ns"][mine]
         if k.size == 0:
-            return control_slot(sn, self.epoch + self.period // 2, self.period)
+            return None
         k, first = np.unique(k, return_index=True)
         deadline = deadline[first]
         every = np.arange(int(k[0]), int(k[-1]) + 1)
         pos = np.searchsorted(k, every, side="right") - 1
-        grid = deadline[pos] + (every - k[pos]) * self.period
-        # Samples before the first tick belong to it, those after the last to one more slot.
-        return np.searchsorted(grid, sn, side="left")
+        return deadline[pos] + (every - k[pos]) * self.period
+
+    @cached_property
+    def sample_deadlines(self) -> np.ndarray | None:
+        """Per plant sample, the deadline of the control slot meant to answer it (the first at
+        or after the sample, :attr:`sample_slots`); None without deadlines (on_state,
+        lockstep)."""
+        if self.trigger != "periodic" or self.lockstep:
+            return None
+        sn = self.samples["sample_ns"]
+        grid = self._deadline_grid
+        if grid is None:
+            slot = control_slot(sn, self.epoch + self.period // 2, self.period)
+            return self.epoch + self.period // 2 + slot * self.period
+        i = np.searchsorted(grid, sn, side="left")
+        past = np.maximum(i - (grid.size - 1), 0)  # after the last tick: slots on its grid
+        return grid[np.minimum(i, grid.size - 1)] + past * self.period
 
     @cached_property
     def controller_stalls(self) -> Stretches:
@@ -691,9 +718,16 @@ def _paths(r: _Run, timing: Timing, series: Series) -> None:
         landed = np.unique(samp)
         answered = np.isin(s["sample_ns"], landed)
         slots = r.sample_slots
+        # When the plant's State left: a sample the plant sent at or after the deadline of the
+        # slot meant to answer it came too late for any controller (the bench's emulator was
+        # late, as a physical robot's sensor never is). [faults] drops are the system's.
+        sent = np.where(s["flags"] & SAMPLE_DROPPED, -1, s["send_ns"])
+        deadlines = r.sample_deadlines
         if slots is None:  # the controller was meant to answer every sample
             without = judged & ~answered
             r.series_without = s["sample_ns"][without]
+            if deadlines is not None:
+                r.without_sent_late = (sent >= deadlines)[without]
         else:  # one sample per control period: a slot with none of its samples answered
             _, slot = np.unique(slots, return_inverse=True)
             n_slots = int(slot.max()) + 1
@@ -706,6 +740,12 @@ def _paths(r: _Run, timing: Timing, series: Series) -> None:
             without = whole & ~got
             n_judged = int(whole.sum())
             r.series_without = last[without]
+            if deadlines is not None:  # none of the slot's States left before its deadline
+                early = np.full(n_slots, np.iinfo(np.int64).max, np.int64)
+                np.minimum.at(early, slot, np.where(sent < 0, np.iinfo(np.int64).min, sent))
+                due = np.zeros(n_slots, np.int64)
+                np.maximum.at(due, slot, deadlines)
+                r.without_sent_late = (early >= due)[without]
         timing["samples_without_command"] = int(without.sum())
         timing["samples_judged"] = n_judged
         timing["samples_without_command_rate"] = ratio(int(without.sum()), n_judged)
@@ -889,7 +929,15 @@ def _in_windows(stamps: np.ndarray, windows: list[tuple[int, int]]) -> np.ndarra
 
 def _bench_shares(r: _Run, windows: list[tuple[int, int]], timing: Timing) -> None:
     """How much of the missed slots and of the samples without a command fell inside the
-    bench's stalls (the verdict does not lay them on the system under test)."""
+    bench's stalls, and how many samples without a command the plant itself sent too late
+    (after the deadline of the tick meant to answer them) outside those stalls: the verdict
+    lays neither on the system under test."""
+    inside = None
+    if r.series_without is not None:
+        inside = _in_windows(r.series_without, windows)
+        if r.without_sent_late is not None and "samples_without_command" in timing:
+            late = int((r.without_sent_late & ~inside).sum())
+            timing["samples_without_command_sent_late_by_plant"] = late
     if not windows:
         return
     t = r.ticks
@@ -897,9 +945,8 @@ def _bench_shares(r: _Run, windows: list[tuple[int, int]], timing: Timing) -> No
         win = _in(t["deadline_ns"], r.w0, r.w1) & _in_windows(t["deadline_ns"], windows)
         late = (t["wake_ns"] - t["deadline_ns"])[win] >= r.period
         timing["deadline_misses_in_bench_stalls"] = int(late.sum() + t["skipped"][win].sum())
-    if r.series_without is not None:
-        without = r.series_without
-        timing["samples_without_command_in_bench_stalls"] = int(_in_windows(without, windows).sum())
+    if inside is not None:
+        timing["samples_without_command_in_bench_stalls"] = int(inside.sum())
 
 
 def _certificate(r: _Run, b: BoundInputs | None, series: Series, timing: Timing) -> Certificate:
