@@ -477,10 +477,10 @@ def _thresholds(
         if rate <= limit:
             continue
         # Over its threshold: the system's failure, unless only the bench's share put it over:
-        # those inside the bench's stalls, and samples whose State the plant (the bench's
-        # emulator) sent only after the deadline of the tick meant to answer it.
+        # those inside the bench's stalls, and samples the plant's (the bench's emulator's)
+        # own late wake-up left without a command (hil.analysis.measure.figures._bench_shares).
         stalled = int(timing.get(f"{key}_in_bench_stalls") or 0)
-        plant_late = int(timing.get(f"{key}_sent_late_by_plant") or 0)
+        plant_late = int(timing.get(f"{key}_plant_late") or 0)
         bench = stalled + plant_late
         system_rate = (n - bench) / over if over else 0.0
         words = text.format(n=n, over=over) + f" ({_pct(rate)}) > {_pct(limit)}"
@@ -490,8 +490,8 @@ def _thresholds(
             shares = [f"{stalled} of them fell inside the bench's stalls"] if stalled else []
             if plant_late:
                 shares.append(
-                    f"the plant sent {plant_late} of them only after the deadline of the tick "
-                    "meant to answer them"
+                    f"the plant's late wake-ups left {plant_late} of them: their States came "
+                    "after the tick meant to answer them, in time had the plant been on time"
                 )
             _bench_stalled(
                 v, f"{words}, but {' and '.join(shares)}; without them {_pct(system_rate)}"

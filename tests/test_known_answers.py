@@ -416,6 +416,56 @@ def test_dropped_states_every_7th_are_exactly_the_samples_without_command(tmp_pa
     assert m.messages["state"]["lost"] == m.messages["state"]["injected_drops"] == 500 // 7
 
 
+# The plant wakes late for every 50th sample (49, 99, ..., 449 judged: 9 of 498, 1.8 %). Its
+# State then arrives at d + 20 µs + late + 100 µs + 200 µs; the tick meant for it woke at
+# d + 1015 µs and the next takes sample k + 1: the sample is left without a command when
+# late > 695 µs. Less the plant's lateness the State would have arrived at d + 320 µs.
+PLANT_LATE_EVERY, PLANT_LATE_LEFT = 50, 9
+
+
+def _plant_late_every_50th(late_ns: int) -> tuple[int, ...]:
+    return (0,) * (PLANT_LATE_EVERY - 1) + (late_ns,)
+
+
+def _judged(m: Measurement):
+    from hil.verdict import judge
+
+    return judge({}, {}, None, m.timing, {})
+
+
+def test_samples_the_plants_late_wakeups_left_without_a_command_are_the_benchs(tmp_path):
+    """A plant woken 1 ms late (its State after the tick, in hand by 695 µs had the plant been
+    on time) leaves its sample without a command: 9 of 498, all the plant's, none the
+    system's; the verdict is the bench's (INCONCLUSIVE), never the system's FAIL."""
+    m = _measure(tmp_path, "run", sample_late=_plant_late_every_50th(1 * MS))
+    t = m.timing
+    assert t["samples_without_command"] == PLANT_LATE_LEFT
+    assert t["samples_without_command_plant_late"] == PLANT_LATE_LEFT
+    v = _judged(m)
+    assert v.outcome == "INCONCLUSIVE" and not v.fail_reasons, v
+    assert "the plant's late wake-ups left 9 of them" in v.inconclusive_reasons[0]
+    # Control: 0.6 ms late, its State still before the tick (d + 920 µs): nothing left.
+    t = _measure(tmp_path, "early", sample_late=_plant_late_every_50th(600 * US)).timing
+    assert (t["samples_without_command"], t["samples_without_command_plant_late"]) == (0, 0)
+
+
+def test_samples_left_by_the_system_stay_the_systems_beside_a_late_plant(tmp_path):
+    """The same 9 States lost on the wire instead (the system's): 9 without a command, none the
+    plant's, a FAIL; and a State the plant sent on time that the transport held past the
+    tick (TCP behind a retransmission) is the system's too, however late the plant was
+    elsewhere."""
+    lost = set(range(PLANT_LATE_EVERY - 1, JUDGED, PLANT_LATE_EVERY))
+    m = _measure(tmp_path, "lost", lose_states=lost)
+    t = m.timing
+    assert (t["samples_without_command"], t["samples_without_command_plant_late"]) == (9, 0)
+    assert _judged(m).outcome == "FAIL"
+    # States sent from 400 ms to 430 ms all arrive at 430.2 ms: 15 samples without a command
+    # (400 .. 428 ms: at the tick of 431 ms the 430 ms State is the newest), none the plant's.
+    t = _measure(tmp_path, "held", hold_states=(400 * MS, 30 * MS)).timing
+    assert t["samples_without_command"] == 15
+    assert t["samples_without_command_plant_late"] == 0
+
+
 # A 100 Hz controller on a 500 Hz plant (hil run --rate 100): slot k is due at 10 k + 5 ms and
 # takes the newest State of the samples since the last deadline (10 k - 4 .. 10 k + 4 ms; slot
 # 0: 0, 2, 4 ms). 500 samples (0 .. 998 ms) are judged up to 998 - 2 x 10 = 978 ms: the slots
@@ -441,6 +491,19 @@ def test_commands_dropped_below_the_plants_rate_are_exactly_the_slots_without(tm
     assert (t["samples_without_command"], t["samples_judged"]) == (dropped, SLOW_JUDGED) == (14, 98)
     assert t["samples_without_command_rate"] == 14 / 98
     assert t["sample_gap"]["max_us"] == 2 * SLOW_P / US  # across each dropped command
+
+
+def test_a_slot_the_plants_stall_left_without_a_command_is_the_benchs(tmp_path):
+    """Below the plant's rate: the plant stalls from 396 ms to 406 ms, so none of slot 40's
+    samples (396 .. 404 ms, due 405 ms) is in hand at its tick (396's State arrives at
+    406.32 ms; 402 .. 404 are never taken) and slot 41 takes 414 ms's: one slot without a
+    command, the plant's. A command dropped instead (slot 6's) stays the system's."""
+    t = _measure(tmp_path, "run", period=SLOW_P, sensor_period=FAST_S,
+                 plant_stall=(396 * MS, 10 * MS)).timing  # fmt: skip
+    assert (t["samples_without_command"], t["samples_without_command_plant_late"]) == (1, 1)
+    t = _measure(tmp_path, "drop", period=SLOW_P, sensor_period=FAST_S,
+                 drop_command_every=7).timing  # fmt: skip
+    assert (t["samples_without_command"], t["samples_without_command_plant_late"]) == (14, 0)
 
 
 def test_a_sensor_slower_than_the_controller_has_every_sample_judged(tmp_path):

@@ -144,8 +144,8 @@ class Timing(TypedDict, total=False):
     samples_without_command: int
     samples_judged: int
     samples_without_command_rate: float
-    # samples without a command whose State the plant sent after their slot's deadline
-    samples_without_command_sent_late_by_plant: int
+    # samples without a command the plant's own late wake-up left so (the bench's)
+    samples_without_command_plant_late: int
     late_commands: int
     late_commands_rate: float
     sample_gap: Percentiles

@@ -200,8 +200,8 @@ class _Run:
         self.cmd_keys = seq[self.cmd_rows]
         self._can = self._match_can()
         self.series_without: np.ndarray | None = None  # sample times left without a command
-        # Per sample (or slot) left without a command: its State left the plant too late
-        self.without_sent_late: np.ndarray | None = None
+        # Per sample (or slot) left without a command: the plant's lateness made it so
+        self.without_plant_late: np.ndarray | None = None
 
     def _match_can(self) -> dict[str, np.ndarray]:
         """Every CAN torque frame a drive received, matched to its send
@@ -447,20 +447,33 @@ class _Run:
         return deadline[pos] + (every - k[pos]) * self.period
 
     @cached_property
-    def sample_deadlines(self) -> np.ndarray | None:
-        """Per plant sample, the deadline of the control slot meant to answer it (the first at
-        or after the sample, :attr:`sample_slots`); None without deadlines (on_state,
-        lockstep)."""
+    def state_timing_at_tick(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Per plant sample, against the tick of the slot meant to answer it (the first due at
+        or after the sample): (its State was in hand when that tick woke; its State came after,
+        yet would have been in hand had the plant woken on time: its arrival less the plant's
+        wake-up lateness). None without deadlines (on_state, lockstep). A State never
+        received, or a slot with no tick (skipped, after the last), is neither."""
         if self.trigger != "periodic" or self.lockstep:
             return None
-        sn = self.samples["sample_ns"]
+        s, t = self.samples, self.ticks
         grid = self._deadline_grid
+        n = s["sample_ns"].size
         if grid is None:
-            slot = control_slot(sn, self.epoch + self.period // 2, self.period)
-            return self.epoch + self.period // 2 + slot * self.period
-        i = np.searchsorted(grid, sn, side="left")
-        past = np.maximum(i - (grid.size - 1), 0)  # after the last tick: slots on its grid
-        return grid[np.minimum(i, grid.size - 1)] + past * self.period
+            return np.zeros(n, bool), np.zeros(n, bool)
+        mine = t["k"] >= 0
+        k, first = np.unique(t["k"][mine], return_index=True)
+        wake_of_slot = np.full(grid.size, -1, np.int64)  # -1: no tick woke for the slot
+        wake_of_slot[k - k[0]] = t["wake_ns"][mine][first]
+        slot = np.searchsorted(grid, s["sample_ns"], side="left")
+        wake = np.where(slot < grid.size, wake_of_slot[np.minimum(slot, grid.size - 1)], -1)
+        rx = self.logs["state_rx"]
+        seq, recv = _first_per_key(rx["seq"], rx["recv_ns"])
+        recv, got = _lookup(seq, recv, s["seq"], ordered=True)
+        ticked = got & (wake >= 0)
+        in_hand = ticked & (recv <= wake)
+        plant_late = np.maximum(s["wake_ns"] - s["sample_ns"], 0)
+        missed_by_plant = ticked & (recv > wake) & (recv - plant_late <= wake)
+        return in_hand, missed_by_plant
 
     @cached_property
     def controller_stalls(self) -> Stretches:
@@ -718,16 +731,15 @@ def _paths(r: _Run, timing: Timing, series: Series) -> None:
         landed = np.unique(samp)
         answered = np.isin(s["sample_ns"], landed)
         slots = r.sample_slots
-        # When the plant's State left: a sample the plant sent at or after the deadline of the
-        # slot meant to answer it came too late for any controller (the bench's emulator was
-        # late, as a physical robot's sensor never is). [faults] drops are the system's.
-        sent = np.where(s["flags"] & SAMPLE_DROPPED, -1, s["send_ns"])
-        deadlines = r.sample_deadlines
+        # Whose lateness left a sample without a command: its State came after the tick meant
+        # to answer it only because the plant (the bench's emulator: a physical robot's sensor
+        # is never late) woke late.
+        at_tick = r.state_timing_at_tick
         if slots is None:  # the controller was meant to answer every sample
             without = judged & ~answered
             r.series_without = s["sample_ns"][without]
-            if deadlines is not None:
-                r.without_sent_late = (sent >= deadlines)[without]
+            if at_tick is not None:
+                r.without_plant_late = at_tick[1][without]
         else:  # one sample per control period: a slot with none of its samples answered
             _, slot = np.unique(slots, return_inverse=True)
             n_slots = int(slot.max()) + 1
@@ -740,12 +752,12 @@ def _paths(r: _Run, timing: Timing, series: Series) -> None:
             without = whole & ~got
             n_judged = int(whole.sum())
             r.series_without = last[without]
-            if deadlines is not None:  # none of the slot's States left before its deadline
-                early = np.full(n_slots, np.iinfo(np.int64).max, np.int64)
-                np.minimum.at(early, slot, np.where(sent < 0, np.iinfo(np.int64).min, sent))
-                due = np.zeros(n_slots, np.int64)
-                np.maximum.at(due, slot, deadlines)
-                r.without_sent_late = (early >= due)[without]
+            if at_tick is not None:  # none of the slot's States in hand, one for the plant
+                in_hand = np.zeros(n_slots, bool)
+                np.logical_or.at(in_hand, slot, at_tick[0])
+                missed = np.zeros(n_slots, bool)
+                np.logical_or.at(missed, slot, at_tick[1])
+                r.without_plant_late = (missed & ~in_hand)[without]
         timing["samples_without_command"] = int(without.sum())
         timing["samples_judged"] = n_judged
         timing["samples_without_command_rate"] = ratio(int(without.sum()), n_judged)
@@ -929,15 +941,15 @@ def _in_windows(stamps: np.ndarray, windows: list[tuple[int, int]]) -> np.ndarra
 
 def _bench_shares(r: _Run, windows: list[tuple[int, int]], timing: Timing) -> None:
     """How much of the missed slots and of the samples without a command fell inside the
-    bench's stalls, and how many samples without a command the plant itself sent too late
-    (after the deadline of the tick meant to answer them) outside those stalls: the verdict
-    lays neither on the system under test."""
+    bench's stalls, and how many samples without a command outside them the plant's own
+    lateness left so (their State came after the tick meant to answer them, and would have
+    been in hand had the plant woken on time): the verdict lays neither on the system."""
     inside = None
     if r.series_without is not None:
         inside = _in_windows(r.series_without, windows)
-        if r.without_sent_late is not None and "samples_without_command" in timing:
-            late = int((r.without_sent_late & ~inside).sum())
-            timing["samples_without_command_sent_late_by_plant"] = late
+        if r.without_plant_late is not None:
+            late = int((r.without_plant_late & ~inside).sum())
+            timing["samples_without_command_plant_late"] = late
     if not windows:
         return
     t = r.ticks
