@@ -7,6 +7,7 @@ catching up after a 1 s stop) is made here inside the read itself: a known answe
 
 from __future__ import annotations
 
+import itertools
 import time
 
 from plant_emulator.can_drives import CanDrives
@@ -53,5 +54,5 @@ def test_each_drop_a_read_counts_is_inside_its_window():
     for r, at in zip(rows, slow.dropped_at, strict=True):
         assert r.since_ns <= at <= r.seen_ns, (r, at)
     # Consecutive windows meet or overlap (a drop between two reads is in one of them).
-    for a, b in zip(rows, rows[1:], strict=False):
+    for a, b in itertools.pairwise(rows):
         assert b.since_ns <= a.seen_ns
