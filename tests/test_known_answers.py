@@ -430,7 +430,7 @@ def _plant_late_every_50th(late_ns: int) -> tuple[int, ...]:
 def _judged(m: Measurement):
     from hil.verdict import judge
 
-    return judge({}, {}, None, m.timing, {})
+    return judge({}, {}, m.certificate, m.timing, m.messages)
 
 
 def test_samples_the_plants_late_wakeups_left_without_a_command_are_the_benchs(tmp_path):
@@ -464,6 +464,43 @@ def test_samples_left_by_the_system_stay_the_systems_beside_a_late_plant(tmp_pat
     t = _measure(tmp_path, "held", hold_states=(400 * MS, 30 * MS)).timing
     assert t["samples_without_command"] == 15
     assert t["samples_without_command_plant_late"] == 0
+
+
+# TCP holds what was sent from 900 ms on behind a retransmission until 1.1 s, and the run
+# stops its receivers a period after the last sample (998 ms): what was held never arrives,
+# and nothing sent after it did.
+HELD = (900 * MS, 200 * MS)
+
+
+def test_messages_held_by_the_transport_when_the_run_stopped_are_in_flight_not_lost(tmp_path):
+    """Held at the end, never lost: every one of them in flight at the stop, none lost, no
+    lost-messages reason; the wait is in the command age. States 900 .. 998 ms (50); commands
+    (States flowing) up to 998 - 2 P = 994 ms, sent from 901.2 ms (sample 900 ms's) on: 47."""
+    m = _measure(tmp_path, "states", hold_states=HELD, receivers_stop=P)
+    st = m.messages["state"]
+    assert (st["lost"], st["in_flight_at_stop"], st["lost_not_injected"]) == (0, 50, 0)
+    assert st["received"] + st["in_flight_at_stop"] == st["sent"] == 500
+    assert m.timing["command_age_zenoh"]["max_us"] > 90_000  # the wait, in D
+    assert not any(r.startswith("lost messages") for r in _judged(m).reasons)
+    m = _measure(tmp_path, "commands", hold_commands=HELD, receivers_stop=P)
+    z = m.messages["torque_zenoh"]
+    assert (z["lost"], z["in_flight_at_stop"]) == (0, 47)
+    assert z["received"] + z["in_flight_at_stop"] == z["sent"]
+    assert m.timing["command_age_zenoh"]["max_us"] > 90_000
+    assert not any(r.startswith("lost messages") for r in _judged(m).reasons)
+
+
+def test_messages_missing_before_one_that_arrived_are_lost_even_at_the_end(tmp_path):
+    """The same States and commands lost on the wire, the last one of each arriving: all lost,
+    none in flight; and [faults] drops at the end stay lost (injected), never in flight."""
+    last = 499
+    states = set(range(450, last))  # 900 .. 996 ms lost, 998 ms's arrives
+    m = _measure(tmp_path, "lost", lose_states=states, receivers_stop=P)
+    st = m.messages["state"]
+    assert (st["lost"], st["in_flight_at_stop"], st["lost_not_injected"]) == (49, 0, 49)
+    m = _measure(tmp_path, "dropped", drop_state_every=2, receivers_stop=P)
+    st = m.messages["state"]
+    assert st["in_flight_at_stop"] == 0 and st["lost"] == st["injected_drops"] == 250
 
 
 # A 100 Hz controller on a 500 Hz plant (hil run --rate 100): slot k is due at 10 k + 5 ms and

@@ -167,6 +167,8 @@ class StreamCounts(TypedDict, total=False):
     lost_not_injected: int
     lost_not_injected_t_s: list[float]
     sent_after_window: int
+    # sent after the newest that arrived, never received: in flight when the receiver stopped
+    in_flight_at_stop: int
     ambiguous: int
 
 

@@ -155,20 +155,40 @@ def _lookup(
     return out, found
 
 
-def _stream_counts(sent_ids: np.ndarray, rx_ids: np.ndarray) -> dict[str, int]:
-    """sent, received (distinct ids that were sent), lost, duplicated, reordered: one definition
-    for every stream. Reordered: an arrival older than one that arrived before it."""
+def _in_flight(sent_ids: np.ndarray, rx_ids: np.ndarray, known_lost: np.ndarray) -> np.ndarray:
+    """Of ``sent_ids`` (ids in the order sent), those sent after the newest that arrived and
+    never received, less ``known_lost`` (the [faults] drops): in flight when the receiver
+    stopped. Zenoh delivers one publisher's messages in order over its reliable link (TCP), so
+    a message older than one that arrived and missing is lost, but one of these may only have
+    been held up (a retransmission at the run's end) when the run stopped its receiver: the
+    logs cannot call it lost, and its wait is in the command age. None arrived: none."""
+    sent = np.unique(sent_ids)
+    rx = rx_ids[np.isin(rx_ids, sent)]
+    if rx.size == 0:
+        return sent[:0]
+    late = sent[sent > rx.max()]
+    return late[~np.isin(late, known_lost)]
+
+
+def _stream_counts(
+    sent_ids: np.ndarray, rx_ids: np.ndarray, known_lost: np.ndarray | None = None
+) -> dict[str, int]:
+    """sent, received (distinct ids that were sent), lost, duplicated, reordered and
+    in_flight_at_stop (:func:`_in_flight`): one definition for every stream; received + lost +
+    in_flight_at_stop = sent. Reordered: an arrival older than one that arrived before it."""
     sent = np.unique(sent_ids)
     rx = rx_ids[np.isin(rx_ids, sent)]
     distinct, idx = np.unique(rx, return_index=True)
     first = np.zeros(rx.size, bool)
     first[idx] = True
+    flying = _in_flight(sent_ids, rx_ids, known_lost if known_lost is not None else sent[:0])
     return {
         "sent": int(sent.size),
         "received": int(distinct.size),
-        "lost": int(sent.size - distinct.size),
+        "lost": int(sent.size - distinct.size - flying.size),
         "duplicated": int(rx.size - distinct.size),
         "reordered": int(((rx[1:] < np.maximum.accumulate(rx)[:-1]) & first[1:]).sum()),
+        "in_flight_at_stop": int(flying.size),
     }
 
 
@@ -770,12 +790,14 @@ def _paths(r: _Run, timing: Timing, series: Series) -> None:
 
 def _messages(r: _Run) -> Messages:
     s, t = r.samples, r.ticks
-    state = _stream_counts(s["seq"], r.logs["state_rx"]["seq"])
+    state_rx = r.logs["state_rx"]["seq"]
+    state = _stream_counts(s["seq"], state_rx, s["seq"][r.state_injected_drop])
     state["injected_drops"] = int(((s["flags"] & SAMPLE_DROPPED) != 0).sum())
     state["injected_duplicates"] = int(((s["flags"] & SAMPLE_DUPLICATED) != 0).sum())
     # States lost that no [faults] drop explains: on the wire, or in Zenoh's own queues (a DROP
     # publisher whose queue stayed full; not countable apart), with when (docs/reports.md).
-    unexplained = ~r.state_received & ~r.state_injected_drop
+    flying = np.isin(s["seq"], _in_flight(s["seq"], state_rx, s["seq"][r.state_injected_drop]))
+    unexplained = ~r.state_received & ~r.state_injected_drop & ~flying
     state["lost_not_injected"] = int(unexplained.sum())
     when = s["sample_ns"][unexplained]
     state["lost_not_injected_t_s"] = (
@@ -788,7 +810,10 @@ def _messages(r: _Run) -> Messages:
     end = r.w1 - r.settle
     inwin = zsent & _in(t["zenoh_send_ns"], r.w0, end)
     rx = r.logs["cmd_rx"]
-    z = _stream_counts(t["cmd_seq"][inwin], rx["seq"][rx["path"] == CmdPath.ZENOH])
+    dropped = inwin & ((t["flags"] & TICK_DROPPED) != 0)
+    z = _stream_counts(
+        t["cmd_seq"][inwin], rx["seq"][rx["path"] == CmdPath.ZENOH], t["cmd_seq"][dropped]
+    )
     z["injected_drops"] = int(((t["flags"][inwin] & TICK_DROPPED) != 0).sum())
     z["injected_duplicates"] = int(((t["flags"][inwin] & TICK_DUPLICATED) != 0).sum())
     z["injected_reorders"] = int(((t["flags"][inwin] & TICK_REORDERED) != 0).sum())
