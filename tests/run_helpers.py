@@ -156,7 +156,9 @@ def explain_timing(run_dir: Path, summary: dict[str, Any]) -> list[str]:
     used = set(ticks["state_seq"][sent & (ticks["state_seq"] >= 0)].tolist())
     unused = len(set(plant.columns("samples").get("seq", [])) - used)
     messages = summary.get("messages") or {}
-    lost = int((messages.get(f"torque_{summary.get('cmd_path')}") or {}).get("lost") or 0)
+    torque = messages.get(f"torque_{summary.get('cmd_path')}") or {}
+    # Never arrived: lost, or held by the transport when the plant stopped (in flight).
+    lost = int(torque.get("lost") or 0) + int(torque.get("in_flight_at_stop") or 0)
     path = int(CmdPath.CAN if summary.get("cmd_path") == "can" else CmdPath.ZENOH)
     rx, ap = plant.columns("cmd_rx"), plant.columns("apply")
     arrived = {
@@ -172,7 +174,7 @@ def explain_timing(run_dir: Path, summary: dict[str, Any]) -> list[str]:
     if isinstance(swc, int) and swc > unused + lost + unlanded:
         wrong.append(
             f"{swc} samples without a command, but only {unused} samples fed no tick, "
-            f"{lost} commands were lost and {unlanded} arrived and never landed"
+            f"{lost} commands never arrived and {unlanded} arrived and never landed"
         )
     return wrong
 
