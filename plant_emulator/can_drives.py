@@ -159,10 +159,11 @@ class CanDrives:
         self.unread_at_stop = 0  # frames still queued when the reader stopped (close)
         self._rx_drops = RxQueueDrops(bus)
         # Frames the receiving socket dropped (None: a bus without a socket, not countable).
+        # Stamped before the read: what it does not count was dropped after that stamp.
+        self._last_read_ns = time.monotonic_ns()
         first = self._rx_drops.read()
         self.socket_drops: int | None = None if first is None else 0
         self._drops_base = first or 0
-        self._last_read_ns = time.monotonic_ns()
         self._threads = [
             threading.Thread(target=self._reader, name="can-reader", daemon=True),
             threading.Thread(target=self._cyclic, name="can-cyclic", daemon=True),
@@ -189,9 +190,8 @@ class CanDrives:
                 continue
             if msg is not None:
                 self._take(msg, time.monotonic_ns())
-            # after the answer, not before it (a system call on a socket's bus), stamped when
-            # read: the drops it finds happened before that
-            self._count_drops(time.monotonic_ns())
+            # after the answer, not before it (a system call on a socket's bus)
+            self._count_drops()
 
     def _take(self, msg: Any, recv_ns: int, act: bool = True) -> None:
         """One frame read from the bus: logged (a torque frame in ``cmd_rx``), then answered,
@@ -252,18 +252,25 @@ class CanDrives:
         else:
             self.inbox.append((recv_ns, frame, index))
 
-    def _count_drops(self, now_ns: int) -> None:
-        """Log what the socket dropped since the last read (module docstring)."""
+    def _count_drops(self) -> None:
+        """Log what the socket dropped since the last read (module docstring). The read is
+        bracketed by two stamps: the drops it counts happened before the stamp after it
+        (``seen_ns``), and after the stamp before the previous read (``since_ns``). A thread
+        switch between a stamp and the read (the GIL handed to the plant's loop catching up
+        after a stall: milliseconds on a loaded host) must not leave a frame dropped then
+        outside its window, to be called lost on the wire."""
+        before = time.monotonic_ns()
         n = self._rx_drops.read()
+        seen = time.monotonic_ns()
         if n is None or self.socket_drops is None:
             return
         grown = n - self._drops_base - self.socket_drops
         if grown > 0:
             self.socket_drops += grown
             if self.hoplog is not None:
-                row = SocketDropRow(since_ns=self._last_read_ns, seen_ns=now_ns, dropped=grown)
+                row = SocketDropRow(since_ns=self._last_read_ns, seen_ns=seen, dropped=grown)
                 self.hoplog.append("socket_drops", row)
-        self._last_read_ns = now_ns
+        self._last_read_ns = before
 
     # --- cyclic frames -----------------------------------------------------------------------
     def _cyclic(self) -> None:
@@ -392,7 +399,7 @@ class CanDrives:
         for t in self._threads:
             if t.is_alive():
                 t.join(timeout=1.0)
-        self._count_drops(time.monotonic_ns())
+        self._count_drops()
         self._rx_drops.close()
         # What came in and was never read (a reader behind when the plant stopped: seen in
         # the QEMU guest, 300 ms behind) is logged as received now, not lost on the wire: it

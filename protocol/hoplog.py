@@ -249,8 +249,9 @@ class DriveEventRow(NamedTuple):
 class SocketDropRow(NamedTuple):
     """Frames the plant's own receiving socket (the virtual drives' CAN bus) dropped because
     its queue was full: the kernel's count of the socket's drops (what ``SO_RXQ_OVFL``
-    reports, protocol.can.rx_queue) rose by ``dropped`` between two reads, at ``since_ns`` and
-    ``seen_ns``: the frames were dropped in between. A loss of the bench's, not the wire's."""
+    reports, protocol.can.rx_queue) rose by ``dropped`` between two reads, ``since_ns`` stamped
+    just before the first and ``seen_ns`` just after the second: the frames were dropped in
+    between. A loss of the bench's, not the wire's."""
 
     since_ns: int
     seen_ns: int

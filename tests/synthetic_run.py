@@ -77,6 +77,11 @@ class Loop:
     # (from ns after epoch, length ns): States sent in it are held on the wire and all arrive
     # at its end, in order (TCP's head-of-line blocking behind a retransmission)
     hold_states: tuple[int, int] | None = None
+    # The same for the Zenoh commands sent in it (from ns after epoch, length ns)
+    hold_commands: tuple[int, int] | None = None
+    # ns after the last sample: the receivers stop (the run ends); what arrives later is never
+    # logged (None: every message arrives, however late)
+    receivers_stop: int | None = None
     # The plant's sample period (0: the control period); a shorter one gives a controller
     # below the plant's sample rate, answering one sample per control period.
     sensor_period: int = 0
@@ -138,6 +143,9 @@ def write(folder: Path, loop: Loop) -> None:
             state_arrival[s] = send + loop.hop_state
             if loop.hold_states and 0 <= send - E - loop.hold_states[0] < loop.hold_states[1]:
                 state_arrival[s] = E + sum(loop.hold_states) + loop.hop_state
+    if loop.receivers_stop is not None:
+        stop = E + (loop.n - 1) * S + loop.receivers_stop
+        state_arrival = {q: a for q, a in state_arrival.items() if a <= stop}
     # --- the controller: ticks at + P/2, the newest state in hand ---
     arrivals = sorted((t, s) for s, t in state_arrival.items())
     for t, s in arrivals:
@@ -188,7 +196,12 @@ def write(folder: Path, loop: Loop) -> None:
                 recv = send + loop.hop_cmd
                 if loop.late_command and cmd_seq == loop.late_command[0]:
                     recv += loop.late_command[1]
+                held = loop.hold_commands
+                if held and 0 <= send - E - held[0] < held[1]:
+                    recv = E + sum(held) + loop.hop_cmd
                 copies = 2 if cmd_seq in loop.duplicate_commands else 1
+                if loop.receivers_stop is not None and recv > last_sample + loop.receivers_stop:
+                    copies = 0  # arrives after the plant stopped: never logged
                 for _ in range(copies):
                     p.append("cmd_rx", (ZENOH, cmd_seq, s, d, c0, send, recv, 0.1, 0.2, NO_NODE,
                                         ACCEPTED))  # fmt: skip

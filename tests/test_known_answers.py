@@ -416,6 +416,93 @@ def test_dropped_states_every_7th_are_exactly_the_samples_without_command(tmp_pa
     assert m.messages["state"]["lost"] == m.messages["state"]["injected_drops"] == 500 // 7
 
 
+# The plant wakes late for every 50th sample (49, 99, ..., 449 judged: 9 of 498, 1.8 %). Its
+# State then arrives at d + 20 µs + late + 100 µs + 200 µs; the tick meant for it woke at
+# d + 1015 µs and the next takes sample k + 1: the sample is left without a command when
+# late > 695 µs. Less the plant's lateness the State would have arrived at d + 320 µs.
+PLANT_LATE_EVERY, PLANT_LATE_LEFT = 50, 9
+
+
+def _plant_late_every_50th(late_ns: int) -> tuple[int, ...]:
+    return (0,) * (PLANT_LATE_EVERY - 1) + (late_ns,)
+
+
+def _judged(m: Measurement):
+    from hil.verdict import judge
+
+    return judge({}, {}, m.certificate, m.timing, m.messages)
+
+
+def test_samples_the_plants_late_wakeups_left_without_a_command_are_the_benchs(tmp_path):
+    """A plant woken 1 ms late (its State after the tick, in hand by 695 µs had the plant been
+    on time) leaves its sample without a command: 9 of 498, all the plant's, none the
+    system's; the verdict is the bench's (INCONCLUSIVE), never the system's FAIL."""
+    m = _measure(tmp_path, "run", sample_late=_plant_late_every_50th(1 * MS))
+    t = m.timing
+    assert t["samples_without_command"] == PLANT_LATE_LEFT
+    assert t["samples_without_command_plant_late"] == PLANT_LATE_LEFT
+    v = _judged(m)
+    assert v.outcome == "INCONCLUSIVE" and not v.fail_reasons, v
+    assert "the plant's late wake-ups left 9 of them" in v.inconclusive_reasons[0]
+    # Control: 0.6 ms late, its State still before the tick (d + 920 µs): nothing left.
+    t = _measure(tmp_path, "early", sample_late=_plant_late_every_50th(600 * US)).timing
+    assert (t["samples_without_command"], t["samples_without_command_plant_late"]) == (0, 0)
+
+
+def test_samples_left_by_the_system_stay_the_systems_beside_a_late_plant(tmp_path):
+    """The same 9 States lost on the wire instead (the system's): 9 without a command, none the
+    plant's, a FAIL; and a State the plant sent on time that the transport held past the
+    tick (TCP behind a retransmission) is the system's too, however late the plant was
+    elsewhere."""
+    lost = set(range(PLANT_LATE_EVERY - 1, JUDGED, PLANT_LATE_EVERY))
+    m = _measure(tmp_path, "lost", lose_states=lost)
+    t = m.timing
+    assert (t["samples_without_command"], t["samples_without_command_plant_late"]) == (9, 0)
+    assert _judged(m).outcome == "FAIL"
+    # States sent from 400 ms to 430 ms all arrive at 430.2 ms: 15 samples without a command
+    # (400 .. 428 ms: at the tick of 431 ms the 430 ms State is the newest), none the plant's.
+    t = _measure(tmp_path, "held", hold_states=(400 * MS, 30 * MS)).timing
+    assert t["samples_without_command"] == 15
+    assert t["samples_without_command_plant_late"] == 0
+
+
+# TCP holds what was sent from 900 ms on behind a retransmission until 1.1 s, and the run
+# stops its receivers a period after the last sample (998 ms): what was held never arrives,
+# and nothing sent after it did.
+HELD = (900 * MS, 200 * MS)
+
+
+def test_messages_held_by_the_transport_when_the_run_stopped_are_in_flight_not_lost(tmp_path):
+    """Held at the end, never lost: every one of them in flight at the stop, none lost, no
+    lost-messages reason; the wait is in the command age. States 900 .. 998 ms (50); commands
+    (States flowing) up to 998 - 2 P = 994 ms, sent from 901.2 ms (sample 900 ms's) on: 47."""
+    m = _measure(tmp_path, "states", hold_states=HELD, receivers_stop=P)
+    st = m.messages["state"]
+    assert (st["lost"], st["in_flight_at_stop"], st["lost_not_injected"]) == (0, 50, 0)
+    assert st["received"] + st["in_flight_at_stop"] == st["sent"] == 500
+    assert m.timing["command_age_zenoh"]["max_us"] > 90_000  # the wait, in D
+    assert not any(r.startswith("lost messages") for r in _judged(m).reasons)
+    m = _measure(tmp_path, "commands", hold_commands=HELD, receivers_stop=P)
+    z = m.messages["torque_zenoh"]
+    assert (z["lost"], z["in_flight_at_stop"]) == (0, 47)
+    assert z["received"] + z["in_flight_at_stop"] == z["sent"]
+    assert m.timing["command_age_zenoh"]["max_us"] > 90_000
+    assert not any(r.startswith("lost messages") for r in _judged(m).reasons)
+
+
+def test_messages_missing_before_one_that_arrived_are_lost_even_at_the_end(tmp_path):
+    """The same States and commands lost on the wire, the last one of each arriving: all lost,
+    none in flight; and [faults] drops at the end stay lost (injected), never in flight."""
+    last = 499
+    states = set(range(450, last))  # 900 .. 996 ms lost, 998 ms's arrives
+    m = _measure(tmp_path, "lost", lose_states=states, receivers_stop=P)
+    st = m.messages["state"]
+    assert (st["lost"], st["in_flight_at_stop"], st["lost_not_injected"]) == (49, 0, 49)
+    m = _measure(tmp_path, "dropped", drop_state_every=2, receivers_stop=P)
+    st = m.messages["state"]
+    assert st["in_flight_at_stop"] == 0 and st["lost"] == st["injected_drops"] == 250
+
+
 # A 100 Hz controller on a 500 Hz plant (hil run --rate 100): slot k is due at 10 k + 5 ms and
 # takes the newest State of the samples since the last deadline (10 k - 4 .. 10 k + 4 ms; slot
 # 0: 0, 2, 4 ms). 500 samples (0 .. 998 ms) are judged up to 998 - 2 x 10 = 978 ms: the slots
@@ -441,6 +528,19 @@ def test_commands_dropped_below_the_plants_rate_are_exactly_the_slots_without(tm
     assert (t["samples_without_command"], t["samples_judged"]) == (dropped, SLOW_JUDGED) == (14, 98)
     assert t["samples_without_command_rate"] == 14 / 98
     assert t["sample_gap"]["max_us"] == 2 * SLOW_P / US  # across each dropped command
+
+
+def test_a_slot_the_plants_stall_left_without_a_command_is_the_benchs(tmp_path):
+    """Below the plant's rate: the plant stalls from 396 ms to 406 ms, so none of slot 40's
+    samples (396 .. 404 ms, due 405 ms) is in hand at its tick (396's State arrives at
+    406.32 ms; 402 .. 404 are never taken) and slot 41 takes 414 ms's: one slot without a
+    command, the plant's. A command dropped instead (slot 6's) stays the system's."""
+    t = _measure(tmp_path, "run", period=SLOW_P, sensor_period=FAST_S,
+                 plant_stall=(396 * MS, 10 * MS)).timing  # fmt: skip
+    assert (t["samples_without_command"], t["samples_without_command_plant_late"]) == (1, 1)
+    t = _measure(tmp_path, "drop", period=SLOW_P, sensor_period=FAST_S,
+                 drop_command_every=7).timing  # fmt: skip
+    assert (t["samples_without_command"], t["samples_without_command_plant_late"]) == (14, 0)
 
 
 def test_a_sensor_slower_than_the_controller_has_every_sample_judged(tmp_path):

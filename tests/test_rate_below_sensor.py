@@ -99,9 +99,11 @@ def test_a_100hz_controller_on_a_500hz_plant_answers_every_control_period(spawn,
     # One slot per 10 ms over ~3 s, never one per 2 ms sample (c20de4f: ~1,400 judged, 80 %
     # of them "without a command": a FAIL by construction).
     assert 250 <= judged <= 300, judged
-    # The system's share (outside the bench's stalls, which a loaded host has: the verdict
-    # lays those on the bench) stays below the threshold, so this figure FAILs nothing.
+    # The system's share (outside the bench's stalls, which a loaded host has, and the slots
+    # the plant's own late wake-ups left: the verdict lays those on the bench) stays below the
+    # threshold, so this figure FAILs nothing.
     in_bench = int(t.get("samples_without_command_in_bench_stalls") or 0)
+    in_bench += int(t.get("samples_without_command_plant_late") or 0)
     assert (without - in_bench) / judged <= WITHOUT_MAX, (without, in_bench, judged)
     assert not any("samples without a command" in r for r in clean["verdict"]["fail_reasons"])
 
@@ -109,8 +111,9 @@ def test_a_100hz_controller_on_a_500hz_plant_answers_every_control_period(spawn,
     t = lossy["timing"]
     judged, without, dropped = _recount(tmp_path / "lossy")
     in_bench = int(t.get("samples_without_command_in_bench_stalls") or 0)
+    in_bench += int(t.get("samples_without_command_plant_late") or 0)
     print(f"--rate {RATE}, every {DROP_EVERY}th command dropped: {t['samples_without_command']} "
-          f"of {t['samples_judged']} slots without ({in_bench} in the bench's stalls); "
+          f"of {t['samples_judged']} slots without ({in_bench} the bench's); "
           f"recounted {without} of {judged}, {dropped} dropped; verdict "
           f"{lossy['verdict']['outcome']}")  # fmt: skip
     assert (t["samples_without_command"], t["samples_judged"]) == (without, judged)

@@ -32,7 +32,7 @@ from hil.folder import layout
 from hil.folder.recording import is_complete, read_messages
 from tests.procs import spawned, wait_until
 from tests.raw_hoplogs import RawRun, check_summary_against_raw
-from tests.run_helpers import PASSES, alive, clean_scenario, hil_run
+from tests.run_helpers import BENCH_LATE_OR_PASS, alive, clean_scenario, hil_run
 
 # What a killed hil run does not write (the rest is written before the services start, or
 # streamed by them while they run).
@@ -73,7 +73,10 @@ def _topics(recording: Path) -> dict[str, int]:
 
 def test_recovering_a_finished_runs_logs_gives_the_finished_runs_folder(tmp_path):
     finished = tmp_path / "finished"
-    hil_run(finished, str(clean_scenario(tmp_path)), "--duration", "2", expect=PASSES)
+    # What is compared is the two paths, not the verdict: the clean run PASSes, or on a loaded
+    # host is INCONCLUSIVE when the bench itself was late (a plant woken past half a period
+    # leaves its sample without a command: the verdict's bench share), never FAIL.
+    hil_run(finished, str(clean_scenario(tmp_path)), "--duration", "2", expect=BENCH_LATE_OR_PASS)
     killed = tmp_path / "killed"
     killed.mkdir()
     for path in finished.iterdir():

@@ -144,6 +144,8 @@ class Timing(TypedDict, total=False):
     samples_without_command: int
     samples_judged: int
     samples_without_command_rate: float
+    # samples without a command the plant's own late wake-up left so (the bench's)
+    samples_without_command_plant_late: int
     late_commands: int
     late_commands_rate: float
     sample_gap: Percentiles
@@ -165,6 +167,8 @@ class StreamCounts(TypedDict, total=False):
     lost_not_injected: int
     lost_not_injected_t_s: list[float]
     sent_after_window: int
+    # sent after the newest that arrived, never received: in flight when the receiver stopped
+    in_flight_at_stop: int
     ambiguous: int
 
 

@@ -160,20 +160,40 @@ def _lookup(
     return out, found
 
 
-def _stream_counts(sent_ids: np.ndarray, rx_ids: np.ndarray) -> dict[str, int]:
-    """sent, received (distinct ids that were sent), lost, duplicated, reordered: one definition
-    for every stream. Reordered: an arrival older than one that arrived before it."""
+def _in_flight(sent_ids: np.ndarray, rx_ids: np.ndarray, known_lost: np.ndarray) -> np.ndarray:
+    """Of ``sent_ids`` (ids in the order sent), those sent after the newest that arrived and
+    never received, less ``known_lost`` (the [faults] drops): in flight when the receiver
+    stopped. Zenoh delivers one publisher's messages in order over its reliable link (TCP), so
+    a message older than one that arrived and missing is lost, but one of these may only have
+    been held up (a retransmission at the run's end) when the run stopped its receiver: the
+    logs cannot call it lost, and its wait is in the command age. None arrived: none."""
+    sent = np.unique(sent_ids)
+    rx = rx_ids[np.isin(rx_ids, sent)]
+    if rx.size == 0:
+        return sent[:0]
+    late = sent[sent > rx.max()]
+    return late[~np.isin(late, known_lost)]
+
+
+def _stream_counts(
+    sent_ids: np.ndarray, rx_ids: np.ndarray, known_lost: np.ndarray | None = None
+) -> dict[str, int]:
+    """sent, received (distinct ids that were sent), lost, duplicated, reordered and
+    in_flight_at_stop (:func:`_in_flight`): one definition for every stream; received + lost +
+    in_flight_at_stop = sent. Reordered: an arrival older than one that arrived before it."""
     sent = np.unique(sent_ids)
     rx = rx_ids[np.isin(rx_ids, sent)]
     distinct, idx = np.unique(rx, return_index=True)
     first = np.zeros(rx.size, bool)
     first[idx] = True
+    flying = _in_flight(sent_ids, rx_ids, known_lost if known_lost is not None else sent[:0])
     return {
         "sent": int(sent.size),
         "received": int(distinct.size),
-        "lost": int(sent.size - distinct.size),
+        "lost": int(sent.size - distinct.size - flying.size),
         "duplicated": int(rx.size - distinct.size),
         "reordered": int(((rx[1:] < np.maximum.accumulate(rx)[:-1]) & first[1:]).sum()),
+        "in_flight_at_stop": int(flying.size),
     }
 
 
@@ -205,6 +225,8 @@ class _Run:
         self.cmd_keys = seq[self.cmd_rows]
         self._can = self._match_can()
         self.series_without: np.ndarray | None = None  # sample times left without a command
+        # Per sample (or slot) left without a command: the plant's lateness made it so
+        self.without_plant_late: np.ndarray | None = None
 
     def _match_can(self) -> dict[str, np.ndarray]:
         """Every CAN torque frame a drive received, matched to its send
@@ -427,18 +449,56 @@ class _Run:
         if self.trigger != "periodic" or self.lockstep or self.sensor_period >= self.period:
             return None
         sn = self.samples["sample_ns"]
+        grid = self._deadline_grid
+        if grid is None:
+            return control_slot(sn, self.epoch + self.period // 2, self.period)
+        # Samples before the first tick belong to it, those after the last to one more slot.
+        return np.searchsorted(grid, sn, side="left")
+
+    @cached_property
+    def _deadline_grid(self) -> np.ndarray | None:
+        """The controller's deadlines, one per slot from its first tick to its last (its
+        ticks', a learnt phase's shift included; the slots it skipped on their grid); None
+        with no tick."""
         t = self.ticks
         mine = t["k"] >= 0
         k, deadline = t["k"][mine], t["deadline_ns"][mine]
         if k.size == 0:
-            return control_slot(sn, self.epoch + self.period // 2, self.period)
+            return None
         k, first = np.unique(k, return_index=True)
         deadline = deadline[first]
         every = np.arange(int(k[0]), int(k[-1]) + 1)
         pos = np.searchsorted(k, every, side="right") - 1
-        grid = deadline[pos] + (every - k[pos]) * self.period
-        # Samples before the first tick belong to it, those after the last to one more slot.
-        return np.searchsorted(grid, sn, side="left")
+        return deadline[pos] + (every - k[pos]) * self.period
+
+    @cached_property
+    def state_timing_at_tick(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Per plant sample, against the tick of the slot meant to answer it (the first due at
+        or after the sample): (its State was in hand when that tick woke; its State came after,
+        yet would have been in hand had the plant woken on time: its arrival less the plant's
+        wake-up lateness). None without deadlines (on_state, lockstep). A State never
+        received, or a slot with no tick (skipped, after the last), is neither."""
+        if self.trigger != "periodic" or self.lockstep:
+            return None
+        s, t = self.samples, self.ticks
+        grid = self._deadline_grid
+        n = s["sample_ns"].size
+        if grid is None:
+            return np.zeros(n, bool), np.zeros(n, bool)
+        mine = t["k"] >= 0
+        k, first = np.unique(t["k"][mine], return_index=True)
+        wake_of_slot = np.full(grid.size, -1, np.int64)  # -1: no tick woke for the slot
+        wake_of_slot[k - k[0]] = t["wake_ns"][mine][first]
+        slot = np.searchsorted(grid, s["sample_ns"], side="left")
+        wake = np.where(slot < grid.size, wake_of_slot[np.minimum(slot, grid.size - 1)], -1)
+        rx = self.logs["state_rx"]
+        seq, recv = _first_per_key(rx["seq"], rx["recv_ns"])
+        recv, got = _lookup(seq, recv, s["seq"], ordered=True)
+        ticked = got & (wake >= 0)
+        in_hand = ticked & (recv <= wake)
+        plant_late = np.maximum(s["wake_ns"] - s["sample_ns"], 0)
+        missed_by_plant = ticked & (recv > wake) & (recv - plant_late <= wake)
+        return in_hand, missed_by_plant
 
     @cached_property
     def controller_stalls(self) -> Stretches:
@@ -715,9 +775,15 @@ def _paths(r: _Run, timing: Timing, series: Series) -> None:
         landed = np.unique(samp)
         answered = np.isin(s["sample_ns"], landed)
         slots = r.sample_slots
+        # Whose lateness left a sample without a command: its State came after the tick meant
+        # to answer it only because the plant (the bench's emulator: a physical robot's sensor
+        # is never late) woke late.
+        at_tick = r.state_timing_at_tick
         if slots is None:  # the controller was meant to answer every sample
             without = judged & ~answered
             r.series_without = s["sample_ns"][without]
+            if at_tick is not None:
+                r.without_plant_late = at_tick[1][without]
         else:  # one sample per control period: a slot with none of its samples answered
             _, slot = np.unique(slots, return_inverse=True)
             n_slots = int(slot.max()) + 1
@@ -730,6 +796,12 @@ def _paths(r: _Run, timing: Timing, series: Series) -> None:
             without = whole & ~got
             n_judged = int(whole.sum())
             r.series_without = last[without]
+            if at_tick is not None:  # none of the slot's States in hand, one for the plant
+                in_hand = np.zeros(n_slots, bool)
+                np.logical_or.at(in_hand, slot, at_tick[0])
+                missed = np.zeros(n_slots, bool)
+                np.logical_or.at(missed, slot, at_tick[1])
+                r.without_plant_late = (missed & ~in_hand)[without]
         timing["samples_without_command"] = int(without.sum())
         timing["samples_judged"] = n_judged
         timing["samples_without_command_rate"] = ratio(int(without.sum()), n_judged)
@@ -742,12 +814,14 @@ def _paths(r: _Run, timing: Timing, series: Series) -> None:
 
 def _messages(r: _Run) -> Messages:
     s, t = r.samples, r.ticks
-    state = _stream_counts(s["seq"], r.logs["state_rx"]["seq"])
+    state_rx = r.logs["state_rx"]["seq"]
+    state = _stream_counts(s["seq"], state_rx, s["seq"][r.state_injected_drop])
     state["injected_drops"] = int(((s["flags"] & SAMPLE_DROPPED) != 0).sum())
     state["injected_duplicates"] = int(((s["flags"] & SAMPLE_DUPLICATED) != 0).sum())
     # States lost that no [faults] drop explains: on the wire, or in Zenoh's own queues (a DROP
     # publisher whose queue stayed full; not countable apart), with when (docs/reports.md).
-    unexplained = ~r.state_received & ~r.state_injected_drop
+    flying = np.isin(s["seq"], _in_flight(s["seq"], state_rx, s["seq"][r.state_injected_drop]))
+    unexplained = ~r.state_received & ~r.state_injected_drop & ~flying
     state["lost_not_injected"] = int(unexplained.sum())
     when = s["sample_ns"][unexplained]
     state["lost_not_injected_t_s"] = (
@@ -760,7 +834,10 @@ def _messages(r: _Run) -> Messages:
     end = r.w1 - r.settle
     inwin = zsent & _in(t["zenoh_send_ns"], r.w0, end)
     rx = r.logs["cmd_rx"]
-    z = _stream_counts(t["cmd_seq"][inwin], rx["seq"][rx["path"] == CmdPath.ZENOH])
+    dropped = inwin & ((t["flags"] & TICK_DROPPED) != 0)
+    z = _stream_counts(
+        t["cmd_seq"][inwin], rx["seq"][rx["path"] == CmdPath.ZENOH], t["cmd_seq"][dropped]
+    )
     z["injected_drops"] = int(((t["flags"][inwin] & TICK_DROPPED) != 0).sum())
     z["injected_duplicates"] = int(((t["flags"][inwin] & TICK_DUPLICATED) != 0).sum())
     z["injected_reorders"] = int(((t["flags"][inwin] & TICK_REORDERED) != 0).sum())
@@ -913,7 +990,15 @@ def _in_windows(stamps: np.ndarray, windows: list[tuple[int, int]]) -> np.ndarra
 
 def _bench_shares(r: _Run, windows: list[tuple[int, int]], timing: Timing) -> None:
     """How much of the missed slots and of the samples without a command fell inside the
-    bench's stalls (the verdict does not lay them on the system under test)."""
+    bench's stalls, and how many samples without a command outside them the plant's own
+    lateness left so (their State came after the tick meant to answer them, and would have
+    been in hand had the plant woken on time): the verdict lays neither on the system."""
+    inside = None
+    if r.series_without is not None:
+        inside = _in_windows(r.series_without, windows)
+        if r.without_plant_late is not None:
+            late = int((r.without_plant_late & ~inside).sum())
+            timing["samples_without_command_plant_late"] = late
     if not windows:
         return
     t = r.ticks
@@ -921,9 +1006,8 @@ def _bench_shares(r: _Run, windows: list[tuple[int, int]], timing: Timing) -> No
         win = _in(t["deadline_ns"], r.w0, r.w1) & _in_windows(t["deadline_ns"], windows)
         late = (t["wake_ns"] - t["deadline_ns"])[win] >= r.period
         timing["deadline_misses_in_bench_stalls"] = int(late.sum() + t["skipped"][win].sum())
-    if r.series_without is not None:
-        without = r.series_without
-        timing["samples_without_command_in_bench_stalls"] = int(_in_windows(without, windows).sum())
+    if inside is not None:
+        timing["samples_without_command_in_bench_stalls"] = int(inside.sum())
 
 
 def _certificate(r: _Run, b: BoundInputs | None, series: Series, timing: Timing) -> Certificate:
