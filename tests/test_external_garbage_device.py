@@ -55,8 +55,9 @@ GARBAGE: tuple[tuple[str, tuple[str, ...], int], ...] = (
     ("random_torque_0", ("-g", "25", "-I", "00E", "-L", "4", "-D", "r"), 100),
     ("random_torque_1", ("-g", "25", "-I", "02E", "-L", "8", "-D", "r"), 100),
 )
-#: cangen -v prints each frame it sent: "  vcan0  5A1   [3]  11 22 33" (or "remote request").
-SENT = re.compile(r"^\s*\S+\s+([0-9A-F]{3})\s+\[(\d)\]\s*(.*)$", re.MULTILINE)
+#: cangen -v prints each frame it sent in candump's compact form: "  vcan0  5A1#11.22.33", an
+#: empty payload "5A1#", a remote frame "5A1#R" (a length may follow the R).
+SENT = re.compile(r"^\s*\S+\s+([0-9A-F]{3})#(\S*)\s*$", re.MULTILINE)
 
 
 def cangen_argvs() -> list[list[str]]:
@@ -74,9 +75,9 @@ def other_node_frames(run: DeviceRun) -> int:
         _, text = run.devices[-len(GARBAGE) + i]
         frames = SENT.findall(text)
         assert len(frames) == GARBAGE[i][2], f"cangen -v listed {len(frames)} frames:\n{text}"
-        for hex_id, dlc, data in frames:
+        for hex_id, data in frames:
             can_id = int(hex_id, 16)
-            request = "remote" in data or int(dlc) == 0
+            request = data == "" or data.startswith("R")
             if can_id >> 5 in NODES or (can_id == ADDRESS_REQUEST_ID and request):
                 continue
             count += 1
@@ -90,6 +91,7 @@ def check_garbage_counted(run: DeviceRun) -> dict:
     log = run.plant()
     assert log.final is not None, "the plant did not end cleanly (no hop-log footer)"
     can = log.final["can"]
+    print(f"plant's CAN counters: {can}")
     drops = can["socket_drops"]
     ext = can["ignored"].get("extended_id", 0)
     other = can["ignored"].get("other_node", 0)
