@@ -40,6 +40,17 @@ class DeviceRun:
     devices: list[tuple[int | None, str]]
     out: Path
 
+    def judged(self) -> dict:
+        """The run's verdict, with its report written beside it (report.html, report.json)."""
+        assert self.code in (0, 1, 4), self.stderr  # a verdict, never the bench's fault (3)
+        for name in (*layout.REQUIRED, layout.REPORT_HTML, layout.REPORT_JSON):
+            assert (self.out / name).is_file(), name
+        verdict = self.summary()["verdict"]
+        assert verdict["outcome"] in ("PASS", "FAIL", "INCONCLUSIVE"), verdict
+        report = json.loads((self.out / layout.REPORT_JSON).read_text())
+        assert report["verdict"]["outcome"] == verdict["outcome"], report["verdict"]
+        return verdict
+
     def summary(self) -> dict:
         return json.loads((self.out / layout.SUMMARY).read_text())
 
@@ -91,15 +102,17 @@ def run_devices(
     finite: tuple[list[str], ...] = (),
     timeout: float = 600.0,
 ) -> DeviceRun:
-    """``hil run --controller external --cmd-path can`` on socketcan/vcan0 into ``out`` (no
-    report: the test asks ``hil report`` for it). Once it waits for its device, every argv of
+    """``hil run --controller external --cmd-path can`` on socketcan/vcan0 into ``out``, its
+    report written by the run (as ``hil report`` writes it, from the folder: in the guest a
+    second process to import the report's modules costs a minute, the run's own report a few
+    seconds). Once it waits for its device, every argv of
     ``devices`` (run until stopped) and ``finite`` (each ends by itself and must do so while
     the run still runs, so that all it sent met the bench) starts."""
     require_vcan0()
     argv = ["-m", "hil", "run", "--controller", "external", "--cmd-path", "can"]
     argv += ["--can-interface", "socketcan", "--can-channel", CHANNEL]
     argv += ["--rate", str(GUEST_RATE_HZ), "--duration", str(duration)]
-    argv += ["--wait-device", str(wait_device), "--out", str(out), "--no-report", "--quiet"]
+    argv += ["--wait-device", str(wait_device), "--out", str(out), "--quiet"]
     t0 = time.monotonic()
     run = spawn.python(argv, text=True)
     err, std = Lines(run.stderr), Lines(run.stdout)
@@ -133,8 +146,7 @@ def report(out: Path) -> subprocess.CompletedProcess:
     """``hil report FOLDER``: the folder of an outside device's run is read like any other."""
     t0 = time.monotonic()
     res = subprocess.run(
-        # --no-ideal: the ideal trajectory's fine simulation costs a minute in the guest
-        [sys.executable, "-m", "hil", "report", str(out), "--no-ideal", "--force"],
+        [sys.executable, "-m", "hil", "report", str(out), "--force"],
         capture_output=True,
         text=True,
         timeout=600,
