@@ -39,6 +39,7 @@ class DeviceRun:
     stderr: str
     devices: list[tuple[int | None, str]]
     out: Path
+    finite_end_ns: int  # CLOCK_MONOTONIC when the last finite device had exited
 
     def judged(self) -> dict:
         """The run's verdict, with its report written beside it (report.html, report.json)."""
@@ -124,6 +125,7 @@ def run_devices(
     errors = [Lines(p.stderr) for p in procs]
     ended = procs[len(devices) :]
     assert wait_until(lambda: all(p.poll() is not None for p in ended), timeout), "devices hang"
+    finite_end_ns = time.monotonic_ns()
     assert run.poll() is None, (
         "the run ended before every finite device had sent all of its frames: lengthen it\n"
         + err.text()
@@ -139,7 +141,7 @@ def run_devices(
         (p.returncode, o.text(5.0) + e.text(5.0))
         for p, o, e in zip(procs, outputs, errors, strict=True)
     ]
-    return DeviceRun(code, std.text(5.0), err.text(5.0), devs, out)
+    return DeviceRun(code, std.text(5.0), err.text(5.0), devs, out, finite_end_ns)
 
 
 def report(out: Path) -> subprocess.CompletedProcess:
