@@ -1,4 +1,4 @@
-"""Device (b) of issue 37: a controller written in C against Linux SocketCAN
+"""An outside device (b): a controller written in C against Linux SocketCAN
 (examples/socketcan_controller.c, nothing of the bench), compiled with the system's gcc during
 the test, drives the virtual ODrives of ``hil run --controller external --cmd-path can`` on a
 real vcan0 (the QEMU guest lane), and the run ends in a folder that ``hil report`` reads.
