@@ -9,9 +9,11 @@ never 3), every garbage frame is counted where it belongs (ignored: another node
 extended frame; refused: a wrong length, a non-finite value), no torque outside the limits (2)
 was applied, and the folder is one ``hil report`` reads.
 
-Seen (and left to hil.bench.device and hil.analysis): alone, the garbage was let in as the
-device by a Set_Input_Torque frame of 2 bytes (a wrong length, refused by the drive) and the
-run's verdict was PASS ("limits held") although nothing was ever commanded.
+Seen, and left to hil.bench.device and hil.analysis (so not asserted here): alone, the garbage
+was let in as the device by its first frame with an input's id (a Set_Input_Torque of 2 bytes,
+or a random Set_Input_Pos; the drives refused both) and the run's verdict was PASS ("limits
+held") although no drive was ever armed; beside the C device, with a drive tripped at
+104 rev/s, ``hil run`` said PASS and ``hil report`` on the same folder FAIL.
 
 Counts allow for the frames the plant's own socket dropped (``socket_drops``, the kernel's
 count) or still held unread when the plant stopped (``unread_at_stop``; the guest's plant, in
