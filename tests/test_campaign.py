@@ -70,9 +70,13 @@ def test_an_added_delay_raises_the_response_time_by_itself(tmp_path, spawn):
     assert doc["largest_held"] == 0.02 and doc["first_broken"] is None
     assert "largest delay added that held: 20 ms" in (out / CAMPAIGN_MD).read_text()
     base = response_ms(out / "run-000")
+    steps = doc["steps"]
     for k, added_ms in ((1, 10.0), (2, 20.0)):
         raised = response_ms(out / f"run-{k:03d}") - base
         assert abs(raised - added_ms) < 0.5, (k, base, raised)
+        # the bench's own figure (summary.json device.response, campaign.json) agrees
+        moved = steps[k]["response_p50_ms"] - steps[0]["response_p50_ms"]
+        assert abs(moved - added_ms) < 0.5, (k, steps[0]["response_p50_ms"], moved)
 
 
 def test_a_break_at_the_start_is_a_fail_with_no_margin(tmp_path, spawn):
