@@ -550,6 +550,14 @@ def _device(v: Verdict, dev: DeviceFigures, timing: Timing, th: Thresholds) -> N
     samples inside its own gaps over the threshold FAIL, those inside gaps the bench's stalls
     made are the bench's; what it did on the bus and the States it named that were never sent
     are counted, never fatal (notes)."""
+    commands = sum(s.commands for s in dev.streams)
+    if dev.outside and commands == 0:
+        v.fail_reasons.append("the device sent no command the bench received in the run")
+    elif dev.outside and dev.path == "can" and dev.bus.armed == 0:
+        v.fail_reasons.append(
+            f"the device never armed the drives (no closed-loop control accepted): its "
+            f"{commands} input frames moved nothing"
+        )
     for b in dev.beyond_limits:
         name = b.signal if b.signal.startswith("q ") else f"|{b.signal}|"
         v.fail_reasons.append(

@@ -565,3 +565,24 @@ def test_the_report_section_speaks_when_the_device_has_news(tmp_path):
     assert "device" in data and data["sections"] == ["headline", "certificate", "trajectory"]
     add_device(data, stalled)
     assert data["sections"] == ["headline", "certificate", "device", "trajectory"]
+
+
+def test_a_device_that_sent_nothing_or_never_armed_the_drives_fails(tmp_path):
+    """Garbage that merely looked like a device (cangen) must not PASS: an outside device that
+    sent no command, or on CAN never armed a drive, FAILs; the same figures with a command
+    stream and armed drives do not."""
+    n = 300
+    clean = _device(_write_plant(tmp_path / "c", n, _answering(n)))
+    outside = {**clean.as_dict(), "outside": True}
+    assert _verdict(DeviceFigures.from_dict(outside)).outcome == PASS
+    silent = DeviceFigures.from_dict(
+        {**outside, "streams": [{**s, "commands": 0} for s in outside["streams"]]}
+    )
+    v = _verdict(silent)
+    assert v.outcome == FAIL and "sent no command" in v.fail_reasons[0]
+    bus = {**outside["bus"], "armed": 0}
+    never = DeviceFigures.from_dict({**outside, "path": "can", "bus": bus})
+    v = _verdict(never)
+    assert v.outcome == FAIL and "never armed the drives" in v.fail_reasons[0]
+    armed = DeviceFigures.from_dict({**outside, "path": "can", "bus": {**bus, "armed": 2}})
+    assert _verdict(armed).outcome == PASS

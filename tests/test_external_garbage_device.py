@@ -9,11 +9,10 @@ never 3), every garbage frame is counted where it belongs (ignored: another node
 extended frame; refused: a wrong length, a non-finite value), no torque outside the limits (2)
 was applied, and the folder is one ``hil report`` reads.
 
-Seen, and left to hil.bench.device and hil.analysis (so not asserted here): alone, the garbage
-was let in as the device by its first frame with an input's id (a Set_Input_Torque of 2 bytes,
-or a random Set_Input_Pos; the drives refused both) and the run's verdict was PASS ("limits
-held") although no drive was ever armed; beside the C device, with a drive tripped at
-104 rev/s, ``hil run`` said PASS and ``hil report`` on the same folder FAIL.
+Verdicts: garbage alone never armed a drive, so it is a FAIL ("no device connected", or,
+when a frame with an input's id let it in, "the device never armed the drives"), never a
+PASS; beside the C device, ``hil report`` says what ``hil run`` judged (the verdict is judged
+once, by the analysis).
 
 Counts allow for the frames the plant's own socket dropped (``socket_drops``, the kernel's
 count) or still held unread when the plant stopped (``unread_at_stop``; the guest's plant, in
@@ -138,6 +137,7 @@ def test_garbage_beside_a_c_device_is_counted_and_refused(tmp_path, spawn):
     # The most hostile folder of these tests: hil report reads it too, on its own.
     rep = report(run.out)
     assert rep.returncode in (0, 1, 4), rep.stderr
+    assert rep.returncode == run.code, (run.code, rep.returncode)  # one verdict, judged once
     extremes = run.plant().info["extremes"]
     print(f"garbage beside the C device: exit {run.code}, hil report exit {rep.returncode};")
     print(f"  {run.stdout.strip()}; the plant's extremes {extremes}")
@@ -145,7 +145,7 @@ def test_garbage_beside_a_c_device_is_counted_and_refused(tmp_path, spawn):
 
 def test_garbage_alone_is_counted_and_applies_nothing(tmp_path, spawn):
     """No device but cangen: every frame counted, the drives never armed, nothing applied,
-    a folder with a verdict. (Which verdict is the bench's to say: see the module's notes.)"""
+    a folder with a FAIL verdict."""
     garbage = cangen_argvs()
     run = run_devices(spawn, tmp_path / "run", [], duration=5.0, wait_device=8.0, finite=garbage)
     can = check_garbage_counted(run)
@@ -157,4 +157,8 @@ def test_garbage_alone_is_counted_and_applies_nothing(tmp_path, spawn):
     samples = run.plant().table("samples")
     assert all(r["tau1"] == 0.0 and r["tau2"] == 0.0 for r in samples)
     torques_within_limits(run, need_samples=False)
+    # nothing armed, nothing applied: a FAIL, never a PASS
+    assert run.code == 1, (run.code, run.stdout, run.stderr)
+    said = run.stdout + run.stderr
+    assert "no device connected within" in said or "never armed the drives" in said, said
     print(f"garbage alone: exit {run.code}; connected: {conn['how']!r}; {run.stdout.strip()}")

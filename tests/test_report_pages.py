@@ -110,3 +110,33 @@ def test_a_run_without_can_has_no_can_section(tmp_path: Path) -> None:
     can = write_synthetic_folder(tmp_path / "can", run=True, delay=0.0005, duration=2.0)
     assert main(["report", str(can), "--no-ideal"]) == 0
     assert "## CAN and drives" in (can / "report.md").read_text()
+
+
+def test_hil_report_keeps_the_verdict_the_analysis_judged(tmp_path):
+    """The verdict is judged once: hil report on a folder whose summary.json holds one shows
+    that one (a run's report said FAIL where hil run had said PASS, with the drives' figures
+    read differently); with other thresholds asked it judges again."""
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "run"
+    subprocess.run(
+        [sys.executable, "-m", "hil", "run", "--duration", "2", "--no-report", "--quiet",
+         "--out", str(out)],
+        capture_output=True, timeout=300,
+    )  # fmt: skip
+    summary = json.loads((out / "summary.json").read_text())
+    planted = "a reason only the analysis gave"
+    summary["verdict"] = {**summary["verdict"], "outcome": "FAIL", "ok": False,
+                          "fail_reasons": [planted], "reasons": [planted]}  # fmt: skip
+    (out / "summary.json").write_text(json.dumps(summary))
+    p = subprocess.run(
+        [sys.executable, "-m", "hil", "report", str(out), "--no-ideal"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert p.returncode == 1, p.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"]["reasons"] == [planted]

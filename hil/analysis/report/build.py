@@ -146,6 +146,10 @@ def build_report(
     timing, messages = (m.timing, m.messages or {}) if m is not None else (None, None)
     violations, facts = folder.summary.get("violations") or {}, RunFacts.of(folder.summary)
     ended = LawEnd.of(folder.summary)  # the law's fault, the controller's end, a NaN state
+    saved = folder.summary.get("verdict")
+    judged = isinstance(saved, dict) and bool(saved.get("outcome"))
+    if verdict is None and thresholds == DEFAULT_THRESHOLDS and judged:
+        verdict = Verdict.from_dict(saved)  # judged once, by the analysis (run, recover)
     if verdict is None:
         verdict = judge(
             metrics["constraints"], violations, cert, timing, messages, facts, thresholds, ended,
