@@ -1,7 +1,7 @@
 """The window the virtual drives log for each rise of their socket's drop count
 (plant_emulator.can_drives, the hop log's ``socket_drops``): every drop a read counts happened
 inside [since_ns, seen_ns]. hil.analysis.measure names a lost frame the bench's only when it
-was sent in such a window, so a drop outside it is called lost on the wire (issue 35: 4 of 178
+was sent in such a window, so a drop outside it is called lost on the wire (seen: 4 of 178
 frames on a loaded host). The thread switch that did it (the GIL handed to the plant's loop
 catching up after a 1 s stop) is made here inside the read itself: a known answer, no luck."""
 
