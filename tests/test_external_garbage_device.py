@@ -125,7 +125,7 @@ def test_garbage_beside_a_c_device_is_counted_and_refused(tmp_path, spawn):
     binary = build_c_controller(tmp_path)
     # at a rate of its own here (the C device test has it answer each encoder frame)
     device = [str(binary), "-i", CHANNEL, "-l", "0", "-r", "1", "-f", "100"]
-    run = run_devices(spawn, tmp_path / "run", [device], duration=6.0, finite=cangen_argvs())
+    run = run_devices(spawn, tmp_path / "run", [device], duration=10.0, finite=cangen_argvs())
     assert "device connected after" in run.stderr, run.stderr
     can = check_garbage_counted(run)
     # The torques of 3.4e38 reached an armed drive and were clamped to its limit, as the
