@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from hil.analysis.measure.stalls import Stretches
-from hil.analysis.measure.stats import summarize_ns
+from hil.analysis.measure.stats import lookup, summarize_ns, within
 from hil.folder.device import (
     Beyond,
     BusActivity,
@@ -75,10 +75,6 @@ MALFORMED = frozenset(
     {"malformed", "wrong_dlc", "out_of_range", "non_finite", "bad_id", "unexpected_rtr"}
 )
 UNKNOWN = frozenset({"unknown_cmd", "unknown_node"})
-
-
-def _in(x: np.ndarray, lo: int, hi: int) -> np.ndarray:
-    return (x >= lo) & (x <= hi)
 
 
 def _stream(
@@ -132,19 +128,6 @@ def _first_arrival(keys: np.ndarray, recv: np.ndarray) -> tuple[np.ndarray, np.n
     first = np.ones(k.size, bool)
     first[1:] = k[1:] != k[:-1]
     return k[first], r[first]
-
-
-def _lookup(keys: np.ndarray, values: np.ndarray, query: np.ndarray):
-    """values of ``query`` among distinct ``keys`` (found mask beside)."""
-    out = np.zeros(query.size, np.int64)
-    if keys.size == 0 or query.size == 0:
-        return out, np.zeros(query.size, bool)
-    order = np.argsort(keys, kind="stable")
-    ks, vs = keys[order], values[order]
-    pos = np.clip(np.searchsorted(ks, query), 0, ks.size - 1)
-    found = ks[pos] == query
-    out[found] = vs[pos[found]]
-    return out, found
 
 
 def _beyond(signal: str, values: np.ndarray, limit: float | None) -> Beyond | None:
@@ -213,7 +196,7 @@ def device_figures(
     # A Zenoh command that arrived twice was sent once: its second arrival is no command of the
     # stream (a CAN frame carries no number to tell).
     on_path &= rx["verdict"] != RxVerdict.DUPLICATE
-    inwin = on_path & _in(rx["recv_ns"], w0, w1)
+    inwin = on_path & within(rx["recv_ns"], w0, w1)
 
     streams, in_dev, in_bench = _streams(rx, inwin, path, sn, period, epoch, bench)
     sample_of_seq = (s["seq"], sn)
@@ -227,13 +210,13 @@ def device_figures(
             b = _beyond(f"q node {n}", rx["tau1"][inwin & (rx["node"] == n)], mot)
             beyond += [b] if b is not None else []
     else:
-        sent = (s["send_ns"] > 0) & _in(s["send_ns"], w0, w1)
+        sent = (s["send_ns"] > 0) & within(s["send_ns"], w0, w1)
         sent &= (s["flags"] & (SAMPLE_DROPPED | SAMPLE_FEEDBACK_LOST)) == 0  # never on the wire
         named, first = _first_arrival(rx["state_seq"][on_path], rx["recv_ns"][on_path])
-        send_of, found = _lookup(s["seq"][sent], s["send_ns"][sent], named)
+        send_of, found = lookup(s["seq"][sent], s["send_ns"][sent], named, missing=0)
         response = (first - send_of)[found]
         unanswered = int(sent.sum()) - int(found.sum())
-        _, known = _lookup(*sample_of_seq, rx["state_seq"][inwin])
+        _, known = lookup(*sample_of_seq, rx["state_seq"][inwin], missing=0)
         unnamed = int((~known).sum())
         age = _zenoh_age(s, rx, ap, on_path, w0, w1)
         for sig, col, lim in (("tau1", "tau1", limits and limits.varpi1),
@@ -288,12 +271,12 @@ def _streams(
 def _zenoh_age(s, rx, ap, on_path, w0: int, w1: int) -> np.ndarray:
     """apply_ns - the plant's own sample_ns of the State each landed command names."""
     landed = np.isin(ap["outcome"], LANDINGS) & (ap["path"] == CmdPath.ZENOH)
-    landed &= _in(ap["apply_ns"], w0, w1)
+    landed &= within(ap["apply_ns"], w0, w1)
     # the command's name for its State, from its first arrival (never its own stamps)
     seq, first_row = np.unique(rx["seq"][on_path], return_index=True)
     names = rx["state_seq"][on_path][first_row]
-    named, has = _lookup(seq, names, ap["seq"][landed])
-    sample, known = _lookup(s["seq"], s["sample_ns"], named)
+    named, has = lookup(seq, names, ap["seq"][landed], missing=0)
+    sample, known = lookup(s["seq"], s["sample_ns"], named, missing=0)
     ok = has & known
     return (ap["apply_ns"][landed] - sample)[ok]
 
@@ -304,7 +287,7 @@ def _can_response(enc, rx, on_path, w0: int, w1: int) -> tuple[np.ndarray, int]:
     if not enc or enc["node"].size == 0:
         return np.zeros(0, np.int64), 0
     out, unanswered = [], 0
-    inwin = _in(enc["sample_ns"], w0, w1)
+    inwin = within(enc["sample_ns"], w0, w1)
     for n in np.unique(enc["node"][inwin]).tolist():
         mine = inwin & (enc["node"] == n)
         recv = np.sort(rx["recv_ns"][on_path & (rx["node"] == n)])
@@ -320,7 +303,7 @@ def _can_age_bound(enc, ap, w0: int, w1: int) -> np.ndarray:
     """Per landed torque frame: apply_ns - the sample time of the newest encoder estimate (any
     node) on the bus before the frame was received (a lower bound of its age)."""
     landed = np.isin(ap["outcome"], LANDINGS) & (ap["path"] == CmdPath.CAN)
-    landed &= _in(ap["apply_ns"], w0, w1)
+    landed &= within(ap["apply_ns"], w0, w1)
     if not enc or enc["node"].size == 0 or not landed.any():
         return np.zeros(0, np.int64)
     order = np.argsort(enc["send_ns"], kind="stable")

@@ -22,7 +22,9 @@ from hil.analysis.measure.device import DeviceFigures, DeviceLimits, device_figu
 from hil.analysis.measure.host import RECORDER_SILENT_NS, host_figures
 from hil.analysis.measure.logs import RunLogs
 from hil.analysis.measure.stalls import Stamped, Stretches, find_stalls
+from hil.analysis.measure.stats import lookup as _lookup
 from hil.analysis.measure.stats import summarize_ns
+from hil.analysis.measure.stats import within as _in
 from hil.folder.rates import ratio
 from hil.folder.records import (
     Certificate,
@@ -133,31 +135,10 @@ class Measurement:
         }
 
 
-def _in(x: np.ndarray, lo: int, hi: int) -> np.ndarray:
-    return (x >= lo) & (x <= hi)
-
-
 def _first_per_key(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(distinct keys, the value of each key's first occurrence)."""
     uniq, first = np.unique(keys, return_index=True)
     return uniq, values[first]
-
-
-def _lookup(
-    keys: np.ndarray, values: np.ndarray, query: np.ndarray, missing: int = -1, ordered=False
-):
-    """values[keys == q] for each q (keys distinct), ``missing`` where absent; vectorised.
-    ``ordered``: the keys are already ascending (no sort)."""
-    out = np.full(query.size, missing, dtype=values.dtype if values.size else np.int64)
-    if keys.size == 0:
-        return out, np.zeros(query.size, bool)
-    if not ordered:
-        order = np.argsort(keys, kind="stable")
-        keys, values = keys[order], values[order]
-    pos = np.clip(np.searchsorted(keys, query), 0, keys.size - 1)
-    found = keys[pos] == query
-    out[found] = values[pos[found]]
-    return out, found
 
 
 def _in_flight(sent_ids: np.ndarray, rx_ids: np.ndarray, known_lost: np.ndarray) -> np.ndarray:

@@ -50,3 +50,25 @@ def summary_from_quantiles(
     out["max_us"] = int(max_ns) / 1000.0
     out["mean_us"] = float(mean_ns) / 1000.0
     return out
+
+
+def within(x: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """The mask of ``x`` inside [lo, hi]."""
+    return (x >= lo) & (x <= hi)
+
+
+def lookup(
+    keys: np.ndarray, values: np.ndarray, query: np.ndarray, missing: int = -1, ordered=False
+):
+    """values[keys == q] for each q (keys distinct), ``missing`` where absent; vectorised.
+    ``ordered``: the keys are already ascending (no sort)."""
+    out = np.full(query.size, missing, dtype=values.dtype if values.size else np.int64)
+    if keys.size == 0:
+        return out, np.zeros(query.size, bool)
+    if not ordered:
+        order = np.argsort(keys, kind="stable")
+        keys, values = keys[order], values[order]
+    pos = np.clip(np.searchsorted(keys, query), 0, keys.size - 1)
+    found = keys[pos] == query
+    out[found] = values[pos[found]]
+    return out, found
