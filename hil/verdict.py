@@ -111,6 +111,9 @@ class RunFacts:
     error: str | None = None
     # What the device did when a drive disarmed (hil.analysis.measure.reactions): notes.
     reactions: tuple[str, ...] = ()
+    # Why nothing of the run could be measured (a log the bench could not read, no plant
+    # sample): never a PASS, the bench's INCONCLUSIVE (a FAIL when ``error`` says more).
+    unmeasured: str | None = None
 
     @classmethod
     def of(cls, summary: Summary) -> RunFacts | None:
@@ -131,7 +134,19 @@ class RunFacts:
             scheduling=sched if isinstance(sched, dict) else None,
             error=str(summary["error"]) if summary.get("error") else None,
             reactions=tuple(str(r.get("sentence")) for r in summary.get("drive_reactions") or []),
+            unmeasured=_unmeasured(summary),
         )
+
+
+def _unmeasured(summary: Summary) -> str | None:
+    """Why a run's figures are absent (None: they were measured)."""
+    unreadable = summary.get("logs_unreadable") or {}
+    if unreadable:
+        why = "; ".join(f"{role}: {text}" for role, text in sorted(unreadable.items()))
+        return f"the bench could not read its own logs, so the run was not measured ({why})"
+    if "window_s" not in (summary.get("timing") or {}):
+        return "the run was not measured: the plant took no sample the bench could read"
+    return None
 
 
 @dataclass(frozen=True)
@@ -206,7 +221,7 @@ class Verdict:
     inconclusive_reasons: list[str] = field(default_factory=list)
     advice: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
-    limits: str = "held"
+    limits: str = "held"  # "broken", or "not measured" (no peak known)
     limits_broken: list[str] = field(default_factory=list)
     certificate: str = "not applicable"
     timing: Timing = field(default_factory=lambda: Timing())
@@ -376,12 +391,18 @@ def _limits(
     v: Verdict, cons: dict[str, Constraint], violations: dict[str, int], cert: Certificate | None
 ) -> None:
     broken = []
-    for key, c in cons.items():
+    for key in (k for k in SIGNALS if k in cons or k in violations):
         n = violations.get(key)
         n = int(n) if isinstance(n, int | float) and not isinstance(n, bool) else 0
-        if n <= 0 and c["held"]:
+        c = cons.get(key)
+        if n <= 0 and (c is None or c["held"]):
             continue
         broken.append(key)
+        if c is None:  # steps counted beyond the limit, its peak not known
+            v.fail_reasons.append(
+                f"limits of (2) broken: |{SIGNALS[key]}| beyond {SYMBOLS[key]} at {n} plant steps"
+            )
+            continue
         where = f"at {n} plant steps" if n > 0 else "at its peak sample"
         sig, sym = SIGNALS[key], SYMBOLS[key]  # the pages' one symbol style (hil.limits)
         text = (
@@ -397,7 +418,8 @@ def _limits(
         else:
             v.fail_reasons.append(text)
     v.limits_broken = sorted(broken)
-    v.limits = "broken" if broken else "held"
+    # No peak measured (the plant's log unread): the limits are not known to have held.
+    v.limits = "broken" if broken else ("held" if cons else "not measured")
 
 
 def _certificate(
@@ -620,6 +642,8 @@ def _facts(v: Verdict, facts: RunFacts | None) -> None:
         return
     if facts.error:
         v.fail_reasons.insert(0, facts.error)
+    if facts.unmeasured:
+        v.inconclusive_reasons.insert(0, facts.unmeasured)
     v.notes.extend(facts.reactions)
     if facts.interrupted:
         ran = f"{facts.duration_run_s:.3f} s" if facts.duration_run_s is not None else "?"

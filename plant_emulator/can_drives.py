@@ -144,7 +144,6 @@ class CanDrives:
         self._send_lock = threading.Lock()
         self._stop = threading.Event()
         self.echo = EchoFilter()
-        self._torque_cmd = Cmd.SET_INPUT_TORQUE
         self._split = split_id
         self._torque_frames: dict[int, int] = {}  # per node: Set_Input_Torque frames seen
         # (receive ns, frame, index among the node's torque frames or NO_SEQ)
@@ -193,6 +192,15 @@ class CanDrives:
             # after the answer, not before it (a system call on a socket's bus)
             self._count_drops()
 
+    def torque_input_node(self, frame: Frame) -> int | None:
+        """The node of one of these drives a frame asks a torque of (Set_Input_Torque, a data
+        frame, CANSimple's 11-bit id), else None: another node's frame, or an extended one
+        (another protocol's), is no command of these drives (they count it as ignored)."""
+        node, cmd = self._split(frame.arbitration_id)
+        if cmd != Cmd.SET_INPUT_TORQUE or frame.is_remote or frame.is_extended:
+            return None
+        return node if node in self.pair.nodes else None
+
     def _take(self, msg: Any, recv_ns: int, act: bool = True) -> None:
         """One frame read from the bus: logged (a torque frame in ``cmd_rx``), then answered,
         applied or queued for the plant's loop; with ``act`` false only logged (a frame left
@@ -206,9 +214,9 @@ class CanDrives:
             self.own_frames += 1
             return
         self.frames_in += 1
-        node, cmd = self._split(frame.arbitration_id)
+        node = self.torque_input_node(frame)
         index = NO_SEQ
-        if cmd == self._torque_cmd and not frame.is_remote:
+        if node is not None:
             # Logged with its index among the node's torque frames, its torque and, where
             # the bus names frames (zenoh_can), that name: hil.measure matches it to the
             # controller's can_tx by the name, else by the order.
@@ -238,7 +246,8 @@ class CanDrives:
             index = i
         if not act:
             return
-        if is_request(frame) and (node in self.pair.nodes or node == BROADCAST_NODE):
+        to = self._split(frame.arbitration_id)[0]
+        if is_request(frame) and (to in self.pair.nodes or to == BROADCAST_NODE):
             with self.lock:
                 if self.refresh is not None:
                     self.refresh(recv_ns)

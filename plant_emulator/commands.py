@@ -28,7 +28,7 @@ from typing import Any, NamedTuple, Protocol
 from plant_emulator.can_drives import CanDrives
 from plant_emulator.drive_plant import DrivePlant
 from protocol import keys
-from protocol.can.codec import Cmd, Frame, ODriveError, split_id
+from protocol.can.codec import Frame, ODriveError
 from protocol.hoplog import (
     NO_NODE,
     ApplyOutcome,
@@ -231,14 +231,14 @@ class CanCommands:
         frame = arrival.frame
         assert frame is not None
         edge = self.drives
-        node, cmd = split_id(frame.arbitration_id)
+        node = edge.torque_input_node(frame)
         with edge.lock:
             answers = edge.pair.receive(apply_ns / 1e9, frame)
             fed = edge.pair.last_fed
             t1, t2 = self.drive_plant.torques()
         if answers:
             edge.send(answers)
-        if cmd != Cmd.SET_INPUT_TORQUE or frame.is_remote:
+        if node is None:  # a lifecycle frame, or none of these drives'
             return Landing((t1, t2), None)
         # Refused by the drive (non-finite, short, disarmed...): the torque in force stays.
         outcome = ApplyOutcome.LANDED if fed else ApplyOutcome.REFUSED

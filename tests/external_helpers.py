@@ -59,3 +59,8 @@ def example_controller() -> list[str]:
 def odrive_can_device(*args: str) -> list[str]:
     """The odrive-can client device on the run's zenoh_can bus (nodes 0 and 1)."""
     return [str(DEVICES / "odrive_can_device.py"), "--endpoint", "{can_endpoint}", *args]
+
+
+def foreign_can_frames(*args: str) -> list[str]:
+    """A device on the run's zenoh_can bus that never arms a drive (tests/devices)."""
+    return [str(DEVICES / "foreign_can_frames.py"), "--endpoint", "{can_endpoint}", *args]

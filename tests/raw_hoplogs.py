@@ -256,10 +256,28 @@ class RawRun:
         return c["recv"][ok] - c["send"][ok]
 
     # --- landings and what follows from them ---------------------------------------------------
+    @cached_property
+    def _named_sample(self) -> dict[int, int]:
+        """Command number -> the plant's sample time of the State its first Zenoh arrival
+        names (for a command the controller's log lost: killed before its last chunk)."""
+        rx, s = self.cmd_rx, self.samples
+        sample = dict(zip(s["seq"].tolist(), s["sample_ns"].tolist(), strict=True))
+        out: dict[int, int] = {}
+        z = rx["path"] == int(CmdPath.ZENOH)
+        for q, named in zip(rx["seq"][z].tolist(), rx["state_seq"][z].tolist(), strict=True):
+            if q not in out and named in sample:
+                out[q] = sample[named]
+        return out
+
     def _sample_of(self, cmd: np.ndarray) -> np.ndarray:
+        """The sample each command was computed from: its tick's (the controller's log), else
+        the sample of the State it named (docs/realtime.md, sample_to_apply), else 0."""
         row = self.tick_of_cmd(cmd)
         out = np.zeros(row.size, np.int64)
         out[row >= 0] = self.ticks["state_sample_ns"][row[row >= 0]]
+        named = self._named_sample
+        for i in np.nonzero(row < 0)[0].tolist():
+            out[i] = named.get(int(cmd[i]), 0)
         return out
 
     def _in_force(self, node: np.ndarray, land: np.ndarray, cmd: np.ndarray) -> Landings:

@@ -15,6 +15,7 @@ from protocol.hoplog import read_hoplog
 from tests.external_helpers import (
     device_json,
     example_controller,
+    foreign_can_frames,
     odrive_can_device,
     run_external,
 )
@@ -133,6 +134,27 @@ def test_an_odrive_can_client_drives_the_virtual_odrives(tmp_path, spawn):
     assert code in (0, 1, 4), err
     for name in (*layout.REQUIRED, layout.REPORT_HTML):
         assert (out / name).is_file(), name
+
+
+def test_frames_that_arm_nothing_are_a_fail_and_foreign_ones_no_command(tmp_path, spawn):
+    """A device that sends torques to an idle drive, another node's torques and an extended
+    frame whose low bits read as one: the run's logs stay readable (a foreign node number once
+    made the plant's log unreadable and the verdict a PASS of nothing measured), only the
+    drives' own frames are arrivals, and the verdict is a FAIL of the device."""
+    out = tmp_path / "run"
+    code, stdout, err = run_external(
+        spawn, out, foreign_can_frames(), duration=2.0, run_args=("--cmd-path", "can")
+    )
+    summary = json.loads((out / layout.SUMMARY).read_text())
+    assert "logs_unreadable" not in summary, summary["logs_unreadable"]
+    rx = read_hoplog(out / layout.PLANT_LOG).table("cmd_rx")
+    nodes = {r["node"] for r in rx}
+    assert nodes == {0}, nodes  # the idle drive's own frames, nothing of node 28 or extended
+    can = summary["can"]["plant"]
+    assert can["ignored"].get("other_node", 0) > 0 and can["ignored"].get("extended_id", 0) > 0
+    verdict = summary["verdict"]
+    assert verdict["outcome"] == "FAIL" and code == 1, (code, stdout, err)
+    assert any("never armed the drives" in r for r in verdict["fail_reasons"]), verdict
 
 
 def test_the_devices_share_no_code_with_the_bench():

@@ -156,6 +156,34 @@ def test_a_refused_cpu_latency_request_is_said():
     assert _judge(_cert(0.003, 0.003, []), scheduling=held).notes == []
 
 
+def test_a_run_not_measured_is_never_a_pass(tmp_path):
+    """A plant log the bench cannot read (once: a foreign node number in a column) left every
+    figure unmeasured, and the verdict said PASS, limits held. Now the unread log is named and
+    the verdict is the bench's INCONCLUSIVE; a run that stopped on an error stays a FAIL."""
+    from hil.analysis.measure.logs import RunLogs
+
+    bad = tmp_path / "plant.hoplog"
+    bad.write_bytes(b"\x00not a hop log\xff" * 64)
+    logs = RunLogs.read(None, bad)
+    assert logs.plant is None and "plant" in logs.unreadable
+    summary = {"kind": "run", "timing": {}, "logs_unreadable": logs.unreadable}
+    v = judge(constraints_from_peaks({}, LIMITS), {}, None, {}, {}, RunFacts.of(summary))
+    assert v.outcome == INCONCLUSIVE and v.limits == "not measured", v
+    assert v.inconclusive_reasons[0].startswith("the bench could not read its own logs")
+    assert "plant: " in v.inconclusive_reasons[0]
+    no_sample = {"kind": "run", "timing": {"note": "no plant samples: the plant never ran"}}
+    v = judge(constraints_from_peaks({}, LIMITS), {}, None, {}, {}, RunFacts.of(no_sample))
+    assert v.outcome == INCONCLUSIVE and "not measured" in v.inconclusive_reasons[0]
+    failed = {**no_sample, "error": "no device connected within 2 s"}
+    assert judge({}, {}, None, {}, {}, RunFacts.of(failed)).outcome == FAIL
+    # steps counted beyond a limit whose peak is not known: broken all the same
+    v = judge({}, {"omega": 761}, None, {}, {}, RunFacts.of(no_sample))
+    assert v.outcome == FAIL and v.limits_broken == ["omega"], v
+    measured = {"kind": "run", "timing": {"window_s": 5.0}}
+    v = judge(constraints_from_peaks(PEAKS, LIMITS), {}, None, {}, {}, RunFacts.of(measured))
+    assert v.outcome == PASS and v.limits == "held"
+
+
 def test_the_exit_code_table():
     assert EXIT_CODE == {PASS: 0, FAIL: 1, INCONCLUSIVE: 4}
     assert [exit_code(o) for o in (PASS, FAIL, INCONCLUSIVE)] == [0, 1, 4]

@@ -153,6 +153,7 @@ def analyze(rec: Recorded) -> Summary:
         **({"device": m.device.as_dict()} if m.device is not None else {}),
         "host": m.host,
         "logs_complete": logs.complete,
+        **({"logs_unreadable": logs.unreadable} if logs.unreadable else {}),
     }
     summary["rejections"] = {
         "controller": cinfo.get("rejections", {}),

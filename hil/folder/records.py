@@ -356,6 +356,7 @@ class Summary(TypedDict, total=False):
     device: dict[str, Any]
     host: HostLoad | None
     logs_complete: dict[str, bool]
+    logs_unreadable: dict[str, str]  # service -> why its log could not be read; absent: none
     rejections: dict[str, Any]
     watchdog: dict[str, int]
     can: dict[str, Any]

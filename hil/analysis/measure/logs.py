@@ -48,6 +48,8 @@ class RunLogs:
     plant: LogHead | None
     tables: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     host: LogHead | None = None  # hil run's samples of the host, when it wrote them
+    # role -> why its log, present, could not be read (the figures are then not measured)
+    unreadable: dict[str, str] = field(default_factory=dict)
 
     @classmethod
     def read(
@@ -74,8 +76,9 @@ class RunLogs:
                 try:
                     head, cols = read_columns(path, wanted)
                     logs.tables.update(cols)
-                except (OSError, ValueError):
+                except (OSError, ValueError) as exc:
                     head = None
+                    logs.unreadable[role] = str(exc)
             setattr(logs, role, head)
         to_plant_clock(logs.tables, controller.parent if controller is not None else None)
         return logs
