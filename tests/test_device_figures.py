@@ -252,6 +252,20 @@ def test_can_response_from_each_encoder_frame_and_the_age_bound(tmp_path):
     assert slow.age["max_us"] == pytest.approx(3540.0, abs=1.0)
 
 
+def test_the_age_bound_counts_from_the_window_start(tmp_path):
+    """Estimates the drives sent while the bench waited for the device (the plant not yet
+    stepping) are as old as the wait: a first torque frame answering one 1 s old reads from
+    the window's start, as the hosted age does (seen: 1.04 s in the C device's run)."""
+    est = [(0, EPOCH - 1_000 * MS, EPOCH - 999 * MS)]  # before the window, 1 s old
+    est += [(0, EPOCH + 10 * MS, EPOCH + 10 * MS + 30_000)]
+    frames = [(0, EPOCH + 2 * MS, 0.1), (0, EPOCH + 11 * MS, 0.1)]
+    dev = _device(_write_plant(tmp_path / "w", 50, frames=frames, estimates=est, path="can"))
+    assert dev.age["count"] == 2
+    # first: apply (2 ms + 10 µs) - the window's start; second: apply - its estimate's sample
+    assert dev.age["max_us"] == pytest.approx(2010.0, abs=0.01)
+    assert dev.age["p50_us"] == pytest.approx(1010.0, abs=0.01)
+
+
 def test_a_log_without_the_encoder_table_still_reads(tmp_path):
     old = {k: v for k, v in PLANT_TABLES.items() if k != "enc_tx"}
     frames = [(node, EPOCH + k * P + 300_000, 0.1) for k in range(100) for node in (0, 1)]

@@ -301,7 +301,11 @@ def _can_response(enc, rx, on_path, w0: int, w1: int) -> tuple[np.ndarray, int]:
 
 def _can_age_bound(enc, ap, w0: int, w1: int) -> np.ndarray:
     """Per landed torque frame: apply_ns - the sample time of the newest encoder estimate (any
-    node) on the bus before the frame was received (a lower bound of its age)."""
+    node) on the bus before the frame was received (a lower bound of its age), counted from the
+    window's start at the earliest, as the hosted age is: before the run the plant does not
+    step, and the estimates the drives sent while the bench waited for the device are as old
+    as that wait (seen: 1.04 s at the first landing), which is the bench's start, not the
+    device's age."""
     landed = np.isin(ap["outcome"], LANDINGS) & (ap["path"] == CmdPath.CAN)
     landed &= within(ap["apply_ns"], w0, w1)
     if not enc or enc["node"].size == 0 or not landed.any():
@@ -311,4 +315,4 @@ def _can_age_bound(enc, ap, w0: int, w1: int) -> np.ndarray:
     newest = np.maximum.accumulate(samp)  # the newest content on the bus by then
     k = np.searchsorted(sent, ap["recv_ns"][landed], side="left") - 1
     ok = k >= 0
-    return (ap["apply_ns"][landed][ok] - newest[k[ok]]).astype(np.int64)
+    return (ap["apply_ns"][landed][ok] - np.maximum(newest[k[ok]], w0)).astype(np.int64)
