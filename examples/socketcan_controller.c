@@ -9,7 +9,10 @@
  *   2. a speed loop per wheel: the torque tau = clamp(GAIN (vel_ref - vel), +-TAU_MAX) from the
  *      drive's own Vel_Estimate (its cyclic Get_Encoder_Estimates frame), sent either once per
  *      encoder frame of that drive (default) or at a fixed rate of its own (-f HZ);
- *   3. on SIGINT / SIGTERM (or after -d seconds): torque 0, Set_Axis_State IDLE, a summary line.
+ *   3. with -a, a drive whose heartbeat says it is not in closed loop (it tripped, or a new
+ *      bench run's drives came up) is armed again as in 1., at most every 0.5 s: a device kept
+ *      running through `hil campaign`'s runs;
+ *   4. on SIGINT / SIGTERM (or after -d seconds): torque 0, Set_Axis_State IDLE, a summary line.
  *
  * Build (a static binary runs unchanged in a chroot or a minimal guest):
  *
@@ -23,7 +26,7 @@
  *     hil report runs/c-device
  *
  * Options: -i IFNAME (vcan0), -l NODE (left, 0), -r NODE (right, 1), -v VEL_REF (motor rev/s,
- * 5), -f HZ (0: one torque per encoder frame), -d SECONDS (0: until a signal).
+ * 5), -f HZ (0: one torque per encoder frame), -d SECONDS (0: until a signal), -a (re-arm).
  * Exit code 0 after a clean stop; 2 for bad options; 1 when the bus cannot be opened or written.
  */
 #define _GNU_SOURCE
@@ -68,6 +71,8 @@ struct wheel {
     unsigned long estimates; /* encoder frames read */
     unsigned long torques;   /* torque frames sent */
     int axis_state;          /* from the newest heartbeat, -1 before one */
+    double armed_at;         /* CLOCK_MONOTONIC s of the last arming */
+    unsigned long rearms;    /* armed again after a heartbeat said idle (-a) */
 };
 
 static struct {
@@ -182,7 +187,8 @@ static int open_bus(const char *ifname) {
 }
 
 static void usage(const char *argv0) {
-    fprintf(stderr, "usage: %s [-i IFNAME] [-l NODE] [-r NODE] [-v VEL_REF] [-f HZ] [-d S]\n",
+    fprintf(stderr,
+            "usage: %s [-i IFNAME] [-l NODE] [-r NODE] [-v VEL_REF] [-f HZ] [-d S] [-a]\n",
             argv0);
 }
 
@@ -191,9 +197,9 @@ int main(int argc, char **argv) {
     int node_left = 0, node_right = 1;
     double hz = 0.0, duration = 0.0;
     float vel_ref = 5.0f;
-    int opt;
+    int opt, rearm = 0;
     char *end;
-    while ((opt = getopt(argc, argv, "i:l:r:v:f:d:h")) != -1) {
+    while ((opt = getopt(argc, argv, "i:l:r:v:f:d:ah")) != -1) {
         errno = 0;
         end = optarg ? optarg + strlen(optarg) : NULL;
         switch (opt) {
@@ -203,6 +209,7 @@ int main(int argc, char **argv) {
         case 'v': vel_ref = strtof(optarg, &end); break;
         case 'f': hz = strtod(optarg, &end); break;
         case 'd': duration = strtod(optarg, &end); break;
+        case 'a': rearm = 1; continue;
         default: usage(argv[0]); return 2;
         }
         if (errno || *end || (opt != 'i' && end == optarg)) {
@@ -224,9 +231,11 @@ int main(int argc, char **argv) {
 
     bus.fd = open_bus(ifname);
     if (bus.fd < 0) return 1;
-    struct wheel wheels[2] = {{node_left, 0, 0, 0, -1}, {node_right, 0, 0, 0, -1}};
-    for (int i = 0; i < 2; i++)
+    struct wheel wheels[2] = {{node_left, 0, 0, 0, -1, 0, 0}, {node_right, 0, 0, 0, -1, 0, 0}};
+    for (int i = 0; i < 2; i++) {
         if (arm(&wheels[i]) < 0) return 1;
+        wheels[i].armed_at = now_s();
+    }
     printf("armed nodes %d and %d on %s (torque control, %s)\n", node_left, node_right, ifname,
            hz > 0 ? "own rate" : "one torque per encoder frame");
     fflush(stdout);
@@ -272,6 +281,11 @@ int main(int argc, char **argv) {
             if (period == 0) rc = send_torque(w, law(w, vel_ref));
         } else if (w && cmd == CMD_HEARTBEAT && fr.can_dlc >= 5) {
             w->axis_state = fr.data[4];
+            if (rearm && w->axis_state != AXIS_CLOSED_LOOP && t - w->armed_at >= 0.5) {
+                rc = arm(w);
+                w->armed_at = t;
+                w->rearms++;
+            }
         } else {
             bus.other_frames++;
         }
@@ -286,9 +300,10 @@ int main(int argc, char **argv) {
     close(bus.fd);
     printf("stopped after %.2f s: node %d: %lu estimates, %lu torques, axis state %d; "
            "node %d: %lu estimates, %lu torques, axis state %d; %lu other frames, "
-           "%lu frames dropped by a full queue\n",
+           "%lu frames dropped by a full queue, %lu re-arms\n",
            now_s() - t0, wheels[0].node, wheels[0].estimates, wheels[0].torques,
            wheels[0].axis_state, wheels[1].node, wheels[1].estimates, wheels[1].torques,
-           wheels[1].axis_state, bus.other_frames, bus.write_errors);
+           wheels[1].axis_state, bus.other_frames, bus.write_errors,
+           wheels[0].rearms + wheels[1].rearms);
     return rc == 0 ? 0 : 1;
 }

@@ -173,6 +173,7 @@ class FaultsConfig(Faults):
             "state_drop_burst",
             "command_drop_burst",
             "drive_silent",
+            "feedback_frozen",
         ):
             every, length = getattr(self, f"{what}_every"), getattr(self, f"{what}_length")
             if every > 0 and not 0 < length <= every:

@@ -642,7 +642,7 @@ def _facts(v: Verdict, facts: RunFacts | None) -> None:
         return
     if facts.error:
         v.fail_reasons.insert(0, facts.error)
-    if facts.unmeasured:
+    if facts.unmeasured and not facts.error:  # a run that never started says only why
         v.inconclusive_reasons.insert(0, facts.unmeasured)
     v.notes.extend(facts.reactions)
     if facts.interrupted:

@@ -138,6 +138,10 @@ class CanDrives:
         self._estimates: dict[int, int] = {}  # per node: encoder-estimate frames due so far
         self.feedback_losses = 0
         self.silenced = 0  # frames not sent: the drives were silent ([faults] drive_silent_*)
+        # [faults] feedback_frozen_*: per node the last estimate sent before a burst (its data,
+        # when its content was taken), and the estimates sent with it instead of their own
+        self._unfrozen: dict[int, tuple[bytes, int]] = {}
+        self.frozen_frames = 0
         # The bus's name for a received frame, where it has one (zenoh_can): exact matching.
         self._sent_at = getattr(bus, "sent_at_ns", None)
         self.lock = threading.RLock()
@@ -306,6 +310,21 @@ class CanDrives:
             return False
         return f.drive_silent((now_ns - self.immediate_until_ns) / 1e9)
 
+    def _estimate(self, f: Frame, content_ns: int, now_ns: int) -> tuple[Frame, int]:
+        """An encoder-estimate frame as it goes out, and when its content was taken: in a
+        [faults] feedback_frozen_* burst (by the run's time) the node's last estimate before
+        it, sent again on time."""
+        node = self._split(f.arbitration_id)[0]
+        t = self.faults
+        run_s = (now_ns - self.immediate_until_ns) / 1e9
+        frozen = t.feedback_frozen_every > 0 and self.immediate_until_ns > 0
+        if frozen and t.feedback_frozen(run_s) and node in self._unfrozen:
+            data, content_ns = self._unfrozen[node]
+            self.frozen_frames += 1
+            return f._replace(data=data), content_ns
+        self._unfrozen[node] = (bytes(f.data), content_ns)
+        return f, content_ns
+
     def _drain_events(self) -> None:
         """The drives' events into the hop log (protocol.hoplog.DriveEventRow)."""
         drain = getattr(self.pair, "drain_log", None)
@@ -344,6 +363,11 @@ class CanDrives:
             self.silenced += len(frames)  # [faults] drive_silent_*: the drives send nothing
             return
         for f in frames:
+            node, cmd = self._split(f.arbitration_id)
+            estimate = cmd == Cmd.GET_ENCODER_ESTIMATES and not f.is_remote
+            if estimate:
+                now = time.monotonic_ns()
+                f, content_ns = self._estimate(f, now if sample_ns is None else sample_ns, now)
             with self._send_lock:
                 self.echo.sent(f, time.monotonic_ns())
                 try:
@@ -352,12 +376,8 @@ class CanDrives:
                 except Exception:
                     self.send_errors += 1
                     continue
-            if self.hoplog is not None and not f.is_remote:
-                node, cmd = self._split(f.arbitration_id)
-                if cmd == Cmd.GET_ENCODER_ESTIMATES:
-                    sent = time.monotonic_ns()
-                    row = EncTxRow(node, sent if sample_ns is None else sample_ns, sent)
-                    self.hoplog.append("enc_tx", row)
+            if self.hoplog is not None and estimate:
+                self.hoplog.append("enc_tx", EncTxRow(node, content_ns, time.monotonic_ns()))
 
     # --- counters --------------------------------------------------------------------------------
     def counters(self) -> dict[str, Any]:
@@ -376,6 +396,7 @@ class CanDrives:
             "unread_at_stop": self.unread_at_stop,
             "silenced_frames": self.silenced,
             "feedback_losses": self.feedback_losses,
+            "frozen_frames": self.frozen_frames,
             **drives,
         }
 

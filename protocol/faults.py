@@ -15,7 +15,10 @@ its hop log (so a run's lost/duplicated/reordered counts and its stalls can name
   each item held ``feedback_delay`` plus a uniform draw in [0, ``feedback_jitter``] seconds
   before it reaches the wire, or lost with probability ``feedback_loss``, decided per (seed,
   index) (:meth:`Faults.feedback_extra_s`, :meth:`Faults.feedback_lost`). What an outside
-  device is measured against, run after run, by ``hil margin --external``.
+  device is measured against, run after run, by ``hil campaign``;
+- the virtual drives toward an outside device: an over-speed error at a time, bursts of
+  silence, and bursts in which their encoder estimates are frozen (sent on time with stale
+  content, :meth:`Faults.feedback_frozen`).
 """
 
 from __future__ import annotations
@@ -79,6 +82,8 @@ class Faults:
     drive_fault_node: int = 0
     drive_silent_every: float = 0.0
     drive_silent_length: float = 0.0
+    feedback_frozen_every: float = 0.0
+    feedback_frozen_length: float = 0.0
     seed: int = 0
 
     @classmethod
@@ -128,3 +133,9 @@ class Faults:
     def drive_silent(self, t_s: float) -> bool:
         """Whether the drives send nothing at run time ``t_s``."""
         return in_burst(t_s, self.drive_silent_every, self.drive_silent_length, self.seed, 5)
+
+    def feedback_frozen(self, t_s: float) -> bool:
+        """Whether the drives' encoder estimates are frozen at run time ``t_s``: sent on time,
+        with the content of the last one before the burst (a stuck sensor)."""
+        every, length = self.feedback_frozen_every, self.feedback_frozen_length
+        return in_burst(t_s, every, length, self.seed, 6)

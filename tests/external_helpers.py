@@ -44,6 +44,23 @@ def run_external(
     return code, out_lines.text(5.0), err.text(5.0)
 
 
+#: A verdict's exit code (hil.verdict.EXIT_CODE), spelled here so the tests check the product.
+EXIT_OF = {"PASS": 0, "FAIL": 1, "INCONCLUSIVE": 4}
+#: What a working device may still be failed for on a loaded host: its own stalls (a Python
+#: device starved of the CPU is the device's stall, judged as any device's).
+DEVICE_TIMING = ("the device stalled",)
+
+
+def judged(out: Path, code: int, may_fail_for: tuple[str, ...] = DEVICE_TIMING) -> dict:
+    """The run's verdict (summary.json): ``hil run`` exited with its code, and a FAIL is only
+    for the reasons ``may_fail_for`` begins (never a limit, never the bench's fault)."""
+    verdict = json.loads((out / layout.SUMMARY).read_text())["verdict"]
+    assert code == EXIT_OF[verdict["outcome"]], (code, verdict)
+    for reason in verdict["fail_reasons"]:
+        assert reason.startswith(may_fail_for), verdict["fail_reasons"]
+    return verdict
+
+
 def device_json(out: Path) -> dict:
     return json.loads((out / layout.DEVICE).read_text())
 

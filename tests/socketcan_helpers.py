@@ -17,6 +17,7 @@ import pytest
 
 from hil.folder import layout
 from protocol.hoplog import HopLog, read_hoplog
+from tests.external_helpers import EXIT_OF
 from tests.procs import Lines, Spawner, stop_pid, wait_until
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -47,7 +48,7 @@ class DeviceRun:
         for name in (*layout.REQUIRED, layout.REPORT_HTML, layout.REPORT_JSON):
             assert (self.out / name).is_file(), name
         verdict = self.summary()["verdict"]
-        assert verdict["outcome"] in ("PASS", "FAIL", "INCONCLUSIVE"), verdict
+        assert self.code == EXIT_OF[verdict["outcome"]], (self.code, verdict)
         report = json.loads((self.out / layout.REPORT_JSON).read_text())
         assert report["verdict"]["outcome"] == verdict["outcome"], report["verdict"]
         return verdict

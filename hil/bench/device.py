@@ -44,6 +44,9 @@ class ZenohConnection:
     state_key: str  # the device subscribes: State, one per plant sample
     command_key: str  # the device publishes: TorqueCommand
     docs: str = "docs/protocol.md"
+    # --lab: the lab and the host the device runs on (endpoint: that host's own router)
+    lab: str = ""
+    lab_host: str = ""
 
 
 @dataclass(frozen=True)
@@ -77,6 +80,11 @@ class DeviceConnection:
         out = [f"waiting up to {self.wait_s:g} s for your device (robot {self.robot_id}):"]
         if self.zenoh is not None:
             z = self.zenoh
+            if z.lab:
+                out.append(
+                    f"  on lab {z.lab}'s host {z.lab_host}: hil lab exec {z.lab_host} --name "
+                    f"{z.lab} -- YOUR-DEVICE (its router below; docs/lab.md)"
+                )
             out += [
                 f"  zenoh: connect to {z.endpoint} (mode peer or client, scouting off)",
                 f"  subscribe {z.state_key} (State), publish {z.command_key} (TorqueCommand);"
@@ -98,8 +106,11 @@ class DeviceConnection:
         (run_dir / layout.DEVICE).write_text(json.dumps(asdict(self), indent=2) + "\n")
 
 
-def connection(settings: RunSettings, wait_s: float) -> DeviceConnection:
-    """The device's connection for a run's settings (its applied path decides which)."""
+def connection(
+    settings: RunSettings, wait_s: float, lab: tuple[str, str] | None = None
+) -> DeviceConnection:
+    """The device's connection for a run's settings (its applied path decides which);
+    ``lab``: (the lab, the device's host) of a run across lab hosts (Zenoh only)."""
     rid = settings.robot_id
     if settings.cmd_path == "can":
         c = settings.can
@@ -112,7 +123,10 @@ def connection(settings: RunSettings, wait_s: float) -> DeviceConnection:
             zenoh_can_endpoint=settings.can_endpoint if c["interface"] == "zenoh_can" else "",
         )
         return DeviceConnection(rid, "can", wait_s, can=can)
-    z = ZenohConnection(settings.zenoh_endpoint, state_key(rid), torque_key(rid))
+    lab_name, lab_host = lab or ("", "")
+    z = ZenohConnection(
+        settings.zenoh_endpoint, state_key(rid), torque_key(rid), lab=lab_name, lab_host=lab_host
+    )
     return DeviceConnection(rid, "zenoh", wait_s, zenoh=z)
 
 

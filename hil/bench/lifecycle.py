@@ -205,7 +205,6 @@ def _check_device_options(opts: RunOptions) -> None:
     for given, name in (
         (opts.lockstep, "--lockstep (the plant would wait for each command in turn)"),
         (opts.secure, "--secure (the device would need the run's passwords)"),
-        (opts.lab, "--lab (run the device on a lab host against a plain run instead)"),
         (opts.law, "--law (the device is the law)"),
     ):
         if given:
@@ -450,7 +449,8 @@ def execute(opts: RunOptions) -> Recorded:
                 for key in observed_keys(settings.robot_id)
             ]
             external = opts.controller == "external"
-            conn = device.connection(settings, opts.wait_device) if external else None
+            lab = (placed.lab, placed.controller) if placed else None
+            conn = device.connection(settings, opts.wait_device, lab) if external else None
             arrival = _arrival(settings, session) if external else None
             also = arrival.on_frame if isinstance(arrival, device.CanArrival) else None
             can_rec = _can_recorder(settings, recorder, also)
@@ -471,7 +471,8 @@ def execute(opts: RunOptions) -> Recorded:
             host.close()
             ids.close()
             logs.close()
-            placement.write_topology(placed, run_dir)  # before the recording takes it along
+            # before the recording takes it along
+            placement.write_topology(placed, run_dir, device=opts.controller == "external")
             for sub in subs:
                 sub.undeclare()
             if can_rec is not None:

@@ -88,6 +88,35 @@ DurationOpt = Annotated[
 ]
 SchedulingOpt = Annotated[str | None, typer.Option(help="fifo or other (default: the scenario's).")]
 OutOpt = Annotated[Path | None, typer.Option(help="Also write summary.json in this folder.")]
+RecordOpt = Annotated[
+    Path | None,
+    typer.Option(
+        help="Record the session into this run folder, judged and reported as any run: hil "
+        "run --controller external --cmd-path can --until-stopped (--duration: that long). "
+        "Waits for your device (--wait-device); the drives at the firmware's periods, nodes, "
+        "bitrate and watchdog from the scenario's [can] (docs/external.md)."
+    ),
+]
+WaitDeviceOpt = Annotated[
+    float, typer.Option(help="With --record: seconds to wait for your device to arm the drives.")
+]
+# Options the recorded form takes from the scenario or the firmware's defaults, and their
+# defaults here: with --record, any other value is refused (it would not be honoured).
+_NOT_RECORDED = {
+    "bitrate": (None, "the scenario's [can] bitrate"),
+    "node_left": (None, "the scenario's [can] node_left"),
+    "node_right": (None, "the scenario's [can] node_right"),
+    "watchdog_timeout": (None, "the scenario's [can] watchdog_timeout"),
+    "control_rate": (1000.0, "the run's plant step"),
+    "heartbeat_ms": (100.0, "the firmware's 100 ms"),
+    "encoder_ms": (10.0, "the firmware's 10 ms"),
+    "msg_rate": (None, "the firmware's cyclic messages"),
+    "state_rate": (0.0, "the run's States (every sample)"),
+    "endpoint": ("tcp/127.0.0.1:7447", "the run's own Zenoh endpoint"),
+    "status_period": (1.0, "the run's progress line"),
+    "out": (None, "--record's folder"),
+    "scheduling": (None, "the scenario's [realtime] scheduling"),
+}
 LiveOpt = live_opt("the drives' frames (and State, with --state-rate)")
 
 
@@ -114,10 +143,15 @@ def drives_cmd(
     live: LiveOpt = None,
     live_host: LiveHostOpt = "127.0.0.1",
     force: ForceOpt = False,
+    record: RecordOpt = None,
+    wait_device: WaitDeviceOpt = 60.0,
 ) -> None:
     """Run the robot with its two virtual ODrives (CANSimple 0.6) on a CAN bus for any
     ODrive client, free running (no start gate), until Ctrl-C or SIGTERM: one status line
-    a second, a JSON summary at the end (docs/can.md)."""
+    a second, a JSON summary at the end (docs/can.md). With --record, the same session ends in
+    a run folder that hil report reads: recording, trace, figures at the bus and a verdict."""
+    if record is not None:
+        return _record(dict(locals()))
     from hil.bench.drives import DrivesOptions, drives_settings, run_drives
     from hil.bench.live.launch import DrivesLive, check
     from hil.folder import claim
@@ -165,3 +199,37 @@ def drives_cmd(
             watcher.close()
     if code:
         raise typer.Exit(code)
+
+
+def _refuse_unrecorded(given: dict[str, object]) -> None:
+    """Exit 2 on an option --record would not honour (module table _NOT_RECORDED)."""
+    for name, (default, instead) in _NOT_RECORDED.items():
+        if given[name] != default and given[name] != []:
+            flag = "--" + name.replace("_", "-")
+            raise BadInputError(f"{flag} is not taken with --record: the session uses {instead}")
+
+
+def _record(given: dict[str, object]) -> None:
+    """The recorded form: ``hil run --controller external --cmd-path can``, open-ended unless
+    --duration; its exit code is the verdict's. An option it would not honour is refused."""
+    from hil.commands.run import run
+
+    _refuse_unrecorded(given)
+
+    duration = given["duration"]
+    scenario = given["scenario"]
+    run(
+        scenario=Path(str(scenario)) if scenario is not None else None,
+        duration=duration,  # type: ignore[arg-type]
+        until_stopped=duration is None,
+        cmd_path="can",
+        controller="external",
+        can_interface=given["can_interface"],  # type: ignore[arg-type]
+        can_channel=given["channel"],  # type: ignore[arg-type]
+        can_endpoint=given["can_endpoint"],  # type: ignore[arg-type]
+        wait_device=given["wait_device"],  # type: ignore[arg-type]
+        out=given["record"],  # type: ignore[arg-type]
+        live=given["live"],  # type: ignore[arg-type]
+        live_host=given["live_host"],  # type: ignore[arg-type]
+        force=given["force"],  # type: ignore[arg-type]
+    )

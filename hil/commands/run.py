@@ -198,7 +198,7 @@ def verdict_line(summary: Summary, report: str | None = None) -> str:
     age = f"D {d * 1e3:.2f} ms of D* {ds * 1e3:.2f} ms" if d is not None and ds else ""
     # The outcome the run exits with: a run stopped by its own error is a FAIL, said first.
     reasons = [str(summary["error"])] if summary.get("error") else []
-    reasons += v.get("reasons") or []
+    reasons += [r for r in v.get("reasons") or [] if r not in reasons]  # the verdict has it too
     # The first reason's first clause, whole: a law's fault (hil.verdict.LawEnd) names the law,
     # the time, the state and the exception in one sentence, which must not lose its end.
     why = short_reason(reasons[0]) if reasons else f"limits {v.get('limits', '?')}"

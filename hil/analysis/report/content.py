@@ -685,6 +685,11 @@ def _hop_rows(topo: Topology, timing: Timing, unc_us: float | None) -> list[list
 
 def _clock_text(f: Topology) -> str:
     clock = f.get("clock") or {}
+    if "device" in f["processes"]:  # an outside device: no clock of its is ever read
+        return (
+            "Every figure of this run is the plant's host's clock alone: the device's clock is "
+            "never read (its figures are measured at the bench's edge)."
+        )
     if not clock.get("related"):
         warning = clock.get("warning") or "the cross-host figures are not valid"
         return f"The controller's clock was never related to the plant's: {warning}."

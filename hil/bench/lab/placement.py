@@ -47,7 +47,8 @@ def placement_of(opts: Any, impaired: bool = False) -> Placement | None:
         return None
     if opts.secure:
         raise BadInputError("--lab runs through the lab's own (open) routers: not with --secure")
-    if opts.cmd_path == "can" or opts.can_live:
+    external = getattr(opts, "controller", "bench") == "external"
+    if opts.cmd_path == "can" or (opts.can_live and not external):
         raise BadInputError(
             "--lab carries the Zenoh command path between hosts: add --no-can (a CAN bus "
             "does not cross the lab's routers)"
@@ -102,10 +103,12 @@ def child_argv(p: Placement | None, process: str, argv: list[str]) -> list[str]:
 CROSS_HOST = ("hop_state", "hop_cmd_zenoh", "loop_transport_compute")
 
 
-def write_topology(p: Placement | None, run_dir: Path) -> None:
+def write_topology(p: Placement | None, run_dir: Path, device: bool = False) -> None:
     """``topology.json``: which host ran what, each host's injected offset, the routers a
     message crosses and the clocks; a warning when the controller's clock could not be related
-    to the plant's across hosts (its cross-host figures then compare nothing)."""
+    to the plant's across hosts (its cross-host figures then compare nothing). ``device``: the
+    controller host runs an outside device: no clock of its is read, every figure is the
+    plant's (hil.analysis.measure.device)."""
     if p is None:
         return
     state = load(p.lab)
@@ -117,7 +120,11 @@ def write_topology(p: Placement | None, run_dir: Path) -> None:
     path = [f"router@{p.controller}"] + ([] if same else [f"router@{p.plant}"])
     facts = {
         "lab": p.lab,
-        "processes": {"plant": p.plant, "controller": p.controller, "recorder": p.recorder},
+        "processes": {
+            "plant": p.plant,
+            ("device" if device else "controller"): p.controller,
+            "recorder": p.recorder,
+        },
         "hosts": hosts,
         "session_endpoint": LOCAL_ROUTER,
         "router_hops": {"command": path, "state": path[::-1]},
@@ -125,8 +132,10 @@ def write_topology(p: Placement | None, run_dir: Path) -> None:
     }
     track = read_track(run_dir)
     clock = facts["clock"] = track.facts()
-    clock["cross_host_figures"] = [] if same else list(CROSS_HOST)
-    if not same and track.at_ns.size == 0:
+    clock["cross_host_figures"] = [] if same or device else list(CROSS_HOST)
+    if device:
+        clock["source"] = "the plant's host only: an outside device's clock is never read"
+    elif not same and track.at_ns.size == 0:
         clock["warning"] = "clocks not related: the cross-host figures are not valid"
         print(
             f"warning: the controller's clock was not related to the plant's: "
