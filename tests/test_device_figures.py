@@ -266,6 +266,50 @@ def test_the_age_bound_counts_from_the_window_start(tmp_path):
     assert dev.age["p50_us"] == pytest.approx(1010.0, abs=0.01)
 
 
+def _can_answering(n: int, stall: tuple[int, int] | None = None, silent: tuple[int, int] = (0, 0)):
+    """A CAN device answering each 10 ms encoder estimate of both nodes 500 µs after it was on
+    the bus, beside a plant sampling every P (5 ms): ``stall`` = (node, ns) once at 1 s (that
+    node answers none of the estimates of the ns from then); ``silent`` = (from, to) ns after
+    EPOCH: no estimate (the bench's drives silent), so no answer either."""
+    est, frames = [], []
+    for j in range(n * P // (10 * MS) - 1):
+        sample = EPOCH + j * 10 * MS + 200_000
+        if silent[0] <= sample - EPOCH < silent[1]:
+            continue
+        for node in (0, 1):
+            est.append((node, sample, sample + 30_000))
+            if stall and node == stall[0] and 0 <= sample - EPOCH - 1000 * MS < stall[1]:
+                continue
+            frames.append((node, sample + 30_000 + 500_000, 0.1))
+    frames.sort(key=lambda f: f[1])
+    return frames, est
+
+
+def test_an_outside_device_is_judged_at_its_own_rate_not_the_plants(tmp_path):
+    """A CAN device at the drives' 100 Hz beside a 200 Hz plant: P is its own median interval
+    (10 ms), no gap and no sample in one (at the plant's 5 ms it was a 'stall' every other
+    sample: a working device FAILed by construction); a 40 ms stall of one node reads 40 ms."""
+    frames, est = _can_answering(400)
+    dev = _device(_write_plant(tmp_path / "a", 400, frames=frames, estimates=est, path="can"))
+    assert dev.nominal_period_from == "device median"
+    assert dev.nominal_period_s == pytest.approx(0.010, abs=1e-9)
+    assert dev.gap_count == 0 and dev.samples_in_gaps == 0, dev.gaps
+    frames, est = _can_answering(400, stall=(0, 40 * MS))
+    dev = _device(_write_plant(tmp_path / "s", 400, frames=frames, estimates=est, path="can"))
+    (gap,) = dev.gaps
+    assert gap.owner == "device" and gap.length_s == pytest.approx(0.040, abs=1e-9)
+    assert dev.samples_in_gaps == 8  # (50 ms - P) past its due time, every 5 ms
+
+
+def test_a_device_gap_where_the_drives_fell_silent_is_the_benchs(tmp_path):
+    """The drives send no estimate for 100 ms: a device that answers each sends nothing either;
+    its gap is the bench's (INCONCLUSIVE at most), never the device's stall."""
+    frames, est = _can_answering(400, silent=(1000 * MS, 1100 * MS))
+    dev = _device(_write_plant(tmp_path / "q", 400, frames=frames, estimates=est, path="can"))
+    assert {g.owner for g in dev.gaps} == {"bench"} and len(dev.gaps) == 2  # both nodes
+    assert dev.samples_in_gaps == 0 and dev.samples_in_bench_gaps > 0
+
+
 def test_a_log_without_the_encoder_table_still_reads(tmp_path):
     old = {k: v for k, v in PLANT_TABLES.items() if k != "enc_tx"}
     frames = [(node, EPOCH + k * P + 300_000, 0.1) for k in range(100) for node in (0, 1)]
@@ -375,7 +419,9 @@ def _hil_run(tmp_path: Path, name: str, *args: str) -> tuple[Path, dict]:
     return out, json.loads((out / layout.SUMMARY).read_text())
 
 
-def _stall_found(pairs: np.ndarray, t0_ns: int, gaps: list[dict], epoch_ns: int) -> dict:
+def _stall_found(
+    pairs: np.ndarray, t0_ns: int, gaps: list[dict], epoch_ns: int, period: int = P
+) -> dict:
     """The device's stall near t0 + 1 s, as the device's OWN log of its sends shows it (same
     host clock; the figures never read it), found in the bench's figure. ``pairs``: per
     command, (the device's send, the plant's receive), in order. The longest send interval
@@ -387,10 +433,10 @@ def _stall_found(pairs: np.ndarray, t0_ns: int, gaps: list[dict], epoch_ns: int)
     iv = np.diff(pairs[:, 0])
     near = (pairs[:-1, 0] >= t0_ns + 900 * MS) & (pairs[:-1, 0] <= t0_ns + 1200 * MS)
     k = int(np.argmax(np.where(near, iv, -1)))
-    own_late = (int(iv[k]) - P) / 1e6
+    own_late = (int(iv[k]) - period) / 1e6
     # The stall injected: at least 40 ms (a spin or a sleep), less what the send before it was
     # itself late (its own interval past P; beside two CPU hogs own_late alone read 37.9 ms)
-    before = max(0, int(iv[k - 1]) - P) / 1e6 if k > 0 else 0.0
+    before = max(0, int(iv[k - 1]) - period) / 1e6 if k > 0 else 0.0
     assert own_late + before >= 40.0 - 0.5, (own_late, before)
     at = (int(pairs[k, 1]) - epoch_ns) / 1e9
     gap = min(gaps, key=lambda g: abs(g["start_s"] - at))
@@ -458,7 +504,13 @@ def _stripped_folder_reports(tmp_path: Path, hosted: Path, gap: dict) -> None:
     assert p.returncode == EXIT_CODE[outcome], p.stderr  # hil/errors.py's table
     dev = summary["device"]
     assert dev["outside"] is True
-    assert gap in dev["streams"][0]["gaps"]  # the same gap, from the plant's log alone
+    # the same gap, from the plant's log alone; its length against the outside device's own P
+    # (the median of its intervals, within microseconds of the hosted run's 5 ms)
+    (same,) = [g for g in dev["streams"][0]["gaps"] if g["start_s"] == gap["start_s"]]
+    assert same["interval_s"] == gap["interval_s"] and same["owner"] == gap["owner"]
+    assert dev["nominal_period_from"] == "device median"
+    assert same["length_s"] == pytest.approx(gap["interval_s"] - dev["nominal_period_s"], abs=1e-9)
+    assert dev["nominal_period_s"] == pytest.approx(P / 1e9, abs=20e-6)
     # what needs the controller's log is absent, never 0
     timing = summary["timing"]
     for key in ("compute", "hop_state", "hop_cmd_zenoh", "deadline_misses", "wakeup_lateness"):
@@ -516,7 +568,9 @@ def test_an_outside_zenoh_device_stall_jitter_and_wait_read_as_injected(tmp_path
     recv = {r["seq"]: r["recv_ns"] for r in plant.table("cmd_rx")}
     own = np.loadtxt(own_log, dtype=np.int64, ndmin=2)
     pairs = np.array([(t, recv[q]) for q, t in own if q in recv], np.int64)
-    _stall_found(pairs, int(own[0, 1]), z["gaps"], int(plant.meta["epoch_ns"]))
+    # against the figures' P: an outside device's own median interval (about 5 ms here)
+    nominal = round(stalled["nominal_period_s"] * 1e9)
+    _stall_found(pairs, int(own[0, 1]), z["gaps"], int(plant.meta["epoch_ns"]), nominal)
     log = tmp_path / "sends.txt"
     jittered = _external(
         spawn,

@@ -134,6 +134,12 @@ def test_an_odrive_can_client_drives_the_virtual_odrives(tmp_path, spawn):
     drives = log.final["can"]["drives"]
     assert {d["axis_state"] for d in drives.values()} == {8}  # both armed
     judged(out, code)
+    # judged at its own 100 Hz (the estimates' rate), not the plant's 500 Hz: once, every
+    # interval was a 'gap' and 80 % of the samples fell in them (FAIL by construction)
+    dev = json.loads((out / layout.SUMMARY).read_text())["device"]
+    assert dev["nominal_period_from"] == "device median"
+    assert abs(dev["nominal_period_s"] - 0.010) < 0.001, dev["nominal_period_s"]
+    assert dev["samples_in_gaps"] < 0.2 * dev["samples_judged"], dev
     for name in (*layout.REQUIRED, layout.REPORT_HTML):
         assert (out / name).is_file(), name
 

@@ -112,6 +112,9 @@ class DeviceFigures:
     samples_judged: int
     samples_in_gaps: int  # inside the device's own gaps
     samples_in_bench_gaps: int  # inside gaps the bench's stalls made
+    # what P is: "control period" (the bench's own controller), "device median" (an outside
+    # device: the median of its own command intervals, its rate not known to the bench)
+    nominal_period_from: str = "control period"
 
     @property
     def gaps(self) -> list[Gap]:

@@ -11,13 +11,19 @@ definition; in short:
 
 - **command period** (per stream: the Zenoh commands, or each CAN node's ``Set_Input_Torque``
   frames): the inter-arrivals of consecutive commands, ``cmd_rx.recv_ns[i] - recv_ns[i-1]``;
-  **jitter**: each inter-arrival's deviation from the nominal period P (the run's control
-  period, ``control_period_ns`` of the plant's log), ``|interval - P|``;
+  **jitter**: each inter-arrival's deviation from the nominal period P, ``|interval - P|``: for
+  the bench's own controller the run's control period (``control_period_ns`` of the plant's
+  log); for an outside device, whose rate the bench does not know, the median of its own
+  command intervals in the window (pooled over its streams), so a device at 100 Hz beside a
+  500 Hz plant is judged at its 10 ms, never as a stall every sample;
 - **gaps** (the device's stalls): inter-arrivals of at least 2 P; each with its start (the
   command before it, s since the epoch), its ``interval`` and its ``length`` = interval - P
   (how much later than due the next command came: a device that stalls S ms once reads S);
   a gap is the bench's (``owner = "bench"``) when the bench's own stalls (the plant late or
-  silent, the recorder's host silent) cover at least half its length, else the device's; the
+  silent, the recorder's host silent; for an outside device on CAN also the silences of its
+  drive's encoder estimates, ``enc_tx.send_ns`` intervals of at least twice their median: a
+  device answering each estimate can only be as regular as they are) cover at least half its
+  length, else the device's; the
   samples taken inside a device's gap after its first period (``samples_in_gaps``) are what the
   verdict judges (hil.verdict) where the hosted figure ``samples_without_command`` is absent;
 - **response time**: Zenoh, from the plant's send of a State (``samples.send_ns``, its entry
@@ -197,6 +203,12 @@ def device_figures(
     # stream (a CAN frame carries no number to tell).
     on_path &= rx["verdict"] != RxVerdict.DUPLICATE
     inwin = on_path & within(rx["recv_ns"], w0, w1)
+    period_from = "control period"
+    if outside:
+        own = _median_interval(rx, inwin, path)
+        period, period_from = (own, "device median") if own > 0 else (period, period_from)
+        if path == "can":
+            bench = bench.union(_feedback_silences(enc, w0, w1, GAP_PERIODS * period))
 
     streams, in_dev, in_bench = _streams(rx, inwin, path, sn, period, epoch, bench)
     sample_of_seq = (s["seq"], sn)
@@ -240,7 +252,31 @@ def device_figures(
         samples_judged=int(sn.size),
         samples_in_gaps=in_dev,
         samples_in_bench_gaps=in_bench,
+        nominal_period_from=period_from,
     )
+
+
+def _median_interval(rx, inwin: np.ndarray, path: str) -> int:
+    """The median of a device's command intervals in the window, pooled over its streams
+    (each CAN node's own), in ns; 0 with fewer than two commands in any stream."""
+    keys = rx["node"][inwin] if path == "can" else np.zeros(int(inwin.sum()), np.int64)
+    recv = rx["recv_ns"][inwin]
+    ivs = [np.diff(np.sort(recv[keys == k])) for k in np.unique(keys).tolist()]
+    pooled = np.concatenate(ivs) if ivs else np.zeros(0, np.int64)
+    return int(np.median(pooled)) if pooled.size else 0
+
+
+def _feedback_silences(enc, w0: int, w1: int, at_least: int) -> Stretches:
+    """Where a drive's encoder estimates went silent for ``at_least`` ns or more (per node;
+    the device's own gap length): the bench's silence toward a device that answers them."""
+    if not enc or enc["node"].size == 0:
+        return Stretches.none()
+    out = Stretches.none()
+    sent = enc["send_ns"]
+    for n in np.unique(enc["node"]).tolist():
+        mine = sent[(enc["node"] == n) & within(sent, w0, w1)]
+        out = out.union(Stretches.silences(mine, at_least))
+    return out
 
 
 def _streams(

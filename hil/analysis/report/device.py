@@ -57,6 +57,12 @@ def _ms_s(value: float | None) -> str:
     return f"{value * 1e3:.3f}" if value is not None else "–"
 
 
+_P_FROM = {
+    "control period": "the run's control period",
+    "device median": "the median of the device's own command intervals: its rate is its own",
+}
+
+
 def device_section(s: Any, data: Any) -> None:
     """The section (module docstring); docs/reports.md, "The device at the bus"."""
     raw = data.get(SECTION)
@@ -68,7 +74,8 @@ def device_section(s: Any, data: Any) -> None:
     share = d.samples_in_gaps / d.samples_judged if d.samples_judged else 0.0
     s.p(
         f"What {who} did on the {d.path} path, from the plant's hop log alone (its clock; the "
-        f"device's stamps are never read), against P = {d.nominal_period_s * 1e3:.3f} ms. "
+        f"device's stamps are never read), against P = {d.nominal_period_s * 1e3:.3f} ms "
+        f"({_P_FROM.get(d.nominal_period_from, d.nominal_period_from)}). "
         f"Samples inside its gaps (inter-arrivals ≥ 2 P): {d.samples_in_gaps} of "
         f"{d.samples_judged} ({share:.3%}), {d.samples_in_bench_gaps} more in gaps the bench's "
         'own stalls made (docs/realtime.md, "Figures of a device at the bus").'
