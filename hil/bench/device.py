@@ -74,10 +74,18 @@ class DeviceConnection:
     can: CanConnection | None = None
     connected_after_s: float | None = None
     how: str = ""  # what showed the device was there
+    # [impair]: the PID whose private network namespace the run is in (the device must join
+    # it: the run's loopback and its udp_multicast bus are not reachable from outside)
+    netns_pid: int | None = None
 
     def lines(self) -> list[str]:
         """What a user reads before the run: one thing to do per line."""
         out = [f"waiting up to {self.wait_s:g} s for your device (robot {self.robot_id}):"]
+        if self.netns_pid is not None:
+            out.append(
+                f"  in this run's own network namespace ([impair]): nsenter "
+                f"--net=/proc/{self.netns_pid}/ns/net -- YOUR-DEVICE (docs/impair.md)"
+            )
         if self.zenoh is not None:
             z = self.zenoh
             if z.lab:
@@ -107,10 +115,14 @@ class DeviceConnection:
 
 
 def connection(
-    settings: RunSettings, wait_s: float, lab: tuple[str, str] | None = None
+    settings: RunSettings,
+    wait_s: float,
+    lab: tuple[str, str] | None = None,
+    netns_pid: int | None = None,
 ) -> DeviceConnection:
     """The device's connection for a run's settings (its applied path decides which);
-    ``lab``: (the lab, the device's host) of a run across lab hosts (Zenoh only)."""
+    ``lab``: (the lab, the device's host) of a run across lab hosts (Zenoh only);
+    ``netns_pid``: the run's own network namespace's process ([impair])."""
     rid = settings.robot_id
     if settings.cmd_path == "can":
         c = settings.can
@@ -122,12 +134,12 @@ def connection(
             node_right=int(c["node_right"]),
             zenoh_can_endpoint=settings.can_endpoint if c["interface"] == "zenoh_can" else "",
         )
-        return DeviceConnection(rid, "can", wait_s, can=can)
+        return DeviceConnection(rid, "can", wait_s, can=can, netns_pid=netns_pid)
     lab_name, lab_host = lab or ("", "")
     z = ZenohConnection(
         settings.zenoh_endpoint, state_key(rid), torque_key(rid), lab=lab_name, lab_host=lab_host
     )
-    return DeviceConnection(rid, "zenoh", wait_s, zenoh=z)
+    return DeviceConnection(rid, "zenoh", wait_s, zenoh=z, netns_pid=netns_pid)
 
 
 class ZenohArrival:

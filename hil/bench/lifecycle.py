@@ -450,7 +450,8 @@ def execute(opts: RunOptions) -> Recorded:
             ]
             external = opts.controller == "external"
             lab = (placed.lab, placed.controller) if placed else None
-            conn = device.connection(settings, opts.wait_device, lab) if external else None
+            netns = os.getpid() if impairment is not None else None  # unshare exec'd: same PID
+            conn = device.connection(settings, opts.wait_device, lab, netns) if external else None
             arrival = _arrival(settings, session) if external else None
             also = arrival.on_frame if isinstance(arrival, device.CanArrival) else None
             can_rec = _can_recorder(settings, recorder, also)

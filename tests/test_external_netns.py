@@ -1,0 +1,88 @@
+"""An outside device beside a run with ``[impair]``: the run is in its own network namespace
+(``unshare --net``), whose loopback nothing outside reaches; the run says how to join it
+(``nsenter --net=/proc/PID/ns/net``), and a device started so connects and is judged."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+
+import pytest
+
+from hil.folder import layout
+from tests.external_helpers import EXAMPLES, judged, odrive_can_device
+from tests.procs import Lines, free_tcp_port, stop_pid, wait_until
+
+
+def _why_not() -> str | None:
+    if os.geteuid() != 0:
+        return "needs root: [impair] runs hil run in its own network namespace"
+    for tool in ("unshare", "ip", "nft", "nsenter"):
+        if shutil.which(tool) is None:
+            return f"{tool} not installed"
+    return None
+
+
+pytestmark = pytest.mark.skipif(_why_not() is not None, reason=_why_not() or "")
+
+
+def test_a_device_joins_the_runs_own_namespace_as_it_is_told(tmp_path, spawn):
+    scenario = tmp_path / "impaired.toml"
+    scenario.write_text('base = "paper_tracking"\n\n[impair]\non = "zenoh"\nloss = 0.0\n')
+    out = tmp_path / "run"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    argv = ["-m", "hil", "run", str(scenario), "--controller", "external", "--duration", "2"]
+    argv += ["--zenoh-endpoint", endpoint, "--out", str(out), "--quiet"]
+    run = spawn.python(argv, text=True)
+    err = Lines(run.stderr)
+    assert wait_until(lambda: err.seen("waiting up to") or run.poll() is not None, 120)
+    join = f"nsenter --net=/proc/{run.pid}/ns/net -- YOUR-DEVICE"
+    assert join in err.text(), err.text()
+    device = spawn.start(
+        ["nsenter", f"--net=/proc/{run.pid}/ns/net", "--", sys.executable,
+         str(EXAMPLES / "zenoh_controller.py"), endpoint]
+    )  # fmt: skip
+    try:
+        code = run.wait(timeout=240)
+    finally:
+        stop_pid(device)
+    assert "device connected after" in err.text(5), err.text()
+    assert json.loads((out / layout.DEVICE).read_text())["netns_pid"] == run.pid
+    summary = json.loads((out / layout.SUMMARY).read_text())
+    judged(out, code)
+    assert summary["device"]["response"]["count"] > 100
+    assert summary["max_abs_v"] > 0.2  # the device's commands moved the robot
+
+
+GROUP = "239.74.163.2"  # a udp_multicast group, only ever inside the run's namespace
+
+
+def test_a_can_device_on_udp_multicast_joins_the_runs_namespace(tmp_path, spawn):
+    """python-can's udp_multicast, the bench's CAN bus between processes without vcan, only
+    inside a private namespace: the odrive-can client joins the run's and drives the drives."""
+    scenario = tmp_path / "impaired.toml"
+    scenario.write_text('base = "paper_tracking"\n\n[impair]\non = "can"\nloss = 0.0\n')
+    out = tmp_path / "run"
+    argv = ["-m", "hil", "run", str(scenario), "--controller", "external", "--cmd-path", "can"]
+    argv += ["--can-interface", "udp_multicast", "--can-channel", GROUP, "--duration", "2"]
+    argv += ["--out", str(out), "--quiet"]
+    run = spawn.python(argv, text=True)
+    err = Lines(run.stderr)
+    assert wait_until(lambda: err.seen("waiting up to") or run.poll() is not None, 120)
+    assert f"nsenter --net=/proc/{run.pid}/ns/net" in err.text(), err.text()
+    device = spawn.start(
+        ["nsenter", f"--net=/proc/{run.pid}/ns/net", "--", sys.executable,
+         odrive_can_device()[0], "--interface", "udp_multicast", "--channel", GROUP]
+    )  # fmt: skip
+    try:
+        code = run.wait(timeout=240)
+    finally:
+        stop_pid(device)
+    assert "closed-loop control asked of nodes [0, 1]" in err.text(5), err.text()
+    summary = json.loads((out / layout.SUMMARY).read_text())
+    judged(out, code)
+    dev = summary["device"]
+    assert dev["path"] == "can" and dev["bus"]["armed"] >= 2
+    assert sum(s["commands"] for s in dev["streams"]) > 200  # each wheel at 100 Hz for 2 s
