@@ -4,6 +4,8 @@ both stopped by their PIDs."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 from hil.folder import layout
@@ -59,6 +61,17 @@ def judged(out: Path, code: int, may_fail_for: tuple[str, ...] = DEVICE_TIMING) 
     for reason in verdict["fail_reasons"]:
         assert reason.startswith(may_fail_for), verdict["fail_reasons"]
     return verdict
+
+
+def report_again(out: Path) -> int:
+    """``hil report OUT --force`` on the run's folder: its exit code (the saved verdict's)."""
+    rep = subprocess.run(
+        [sys.executable, "-m", "hil", "report", str(out), "--force"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    return rep.returncode
 
 
 def device_json(out: Path) -> dict:

@@ -415,8 +415,9 @@ def _hil_run(tmp_path: Path, name: str, *args: str) -> tuple[Path, dict]:
          "--out", str(out), "--quiet", *args],
         capture_output=True, text=True, timeout=400,
     )  # fmt: skip
-    assert p.returncode in (0, 1, 4), p.stderr
-    return out, json.loads((out / layout.SUMMARY).read_text())
+    summary = json.loads((out / layout.SUMMARY).read_text())
+    assert p.returncode == EXIT_CODE[summary["verdict"]["outcome"]], p.stderr
+    return out, summary
 
 
 def _stall_found(
@@ -547,8 +548,8 @@ def _external(
     out = tmp_path / name
     args = (*run_args, str(scen))
     code, _, err = run_external(spawn, out, device, duration=2.0, run_args=args)
-    assert code in (0, 1, 4), err
     summary = json.loads((out / layout.SUMMARY).read_text())
+    assert code == EXIT_CODE[summary["verdict"]["outcome"]], err
     assert summary["device"]["outside"] is True
     assert not (out / layout.CONTROLLER_LOG).exists()
     return summary["device"]

@@ -19,6 +19,7 @@ from tests.external_helpers import (
     foreign_can_frames,
     judged,
     odrive_can_device,
+    report_again,
     run_external,
 )
 from tests.procs import Lines, free_tcp_port, stop_pid, wait_until
@@ -105,13 +106,7 @@ def test_the_example_controller_runs_and_is_judged(tmp_path, spawn):
     judged(out, code)
     assert summary["max_abs_v"] > 0.2
     # hil report reads the folder
-    rep = subprocess.run(
-        [sys.executable, "-m", "hil", "report", str(out), "--force"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert rep.returncode == code, rep.stderr  # the saved verdict, read again
+    assert report_again(out) == code  # the saved verdict, read again
 
 
 def test_an_odrive_can_client_drives_the_virtual_odrives(tmp_path, spawn):
@@ -191,13 +186,7 @@ def test_hil_drives_record_is_the_recorded_session(tmp_path, spawn):
     assert device_json(out)["path"] == "can"
     dev = summary["device"]
     assert dev["outside"] and sum(s["commands"] for s in dev["streams"]) > 200  # 100 Hz x 2
-    rep = subprocess.run(
-        [sys.executable, "-m", "hil", "report", str(out), "--force"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert rep.returncode == code, rep.stderr  # the saved verdict, read again
+    assert report_again(out) == code  # the saved verdict, read again
 
 
 @pytest.mark.parametrize("option", [["--heartbeat-ms", "50"], ["--node-left", "3"]])

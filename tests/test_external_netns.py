@@ -28,28 +28,33 @@ def _why_not() -> str | None:
 pytestmark = pytest.mark.skipif(_why_not() is not None, reason=_why_not() or "")
 
 
-def test_a_device_joins_the_runs_own_namespace_as_it_is_told(tmp_path, spawn):
+def _joined(spawn, tmp_path, impair_on: str, run_args: list[str], device: list[str]):
+    """``hil run --controller external`` of a scenario with ``[impair] on = IMPAIR_ON``; once it
+    says how to join its namespace, ``device`` (argv after the interpreter) started so; the
+    run's exit code, its stderr lines and its PID (the device stopped by its PID)."""
     scenario = tmp_path / "impaired.toml"
-    scenario.write_text('base = "paper_tracking"\n\n[impair]\non = "zenoh"\nloss = 0.0\n')
-    out = tmp_path / "run"
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    scenario.write_text(f'base = "paper_tracking"\n\n[impair]\non = "{impair_on}"\nloss = 0.0\n')
     argv = ["-m", "hil", "run", str(scenario), "--controller", "external", "--duration", "2"]
-    argv += ["--zenoh-endpoint", endpoint, "--out", str(out), "--quiet"]
-    run = spawn.python(argv, text=True)
+    run = spawn.python([*argv, *run_args, "--out", str(tmp_path / "run"), "--quiet"], text=True)
     err = Lines(run.stderr)
     assert wait_until(lambda: err.seen("waiting up to") or run.poll() is not None, 120)
-    join = f"nsenter --net=/proc/{run.pid}/ns/net -- YOUR-DEVICE"
-    assert join in err.text(), err.text()
-    device = spawn.start(
-        ["nsenter", f"--net=/proc/{run.pid}/ns/net", "--", sys.executable,
-         str(EXAMPLES / "zenoh_controller.py"), endpoint]
-    )  # fmt: skip
+    join = f"nsenter --net=/proc/{run.pid}/ns/net"
+    assert f"{join} -- YOUR-DEVICE" in err.text(), err.text()
+    proc = spawn.start([*join.split(), "--", sys.executable, *device])
     try:
         code = run.wait(timeout=240)
     finally:
-        stop_pid(device)
+        stop_pid(proc)
+    return code, err, run.pid
+
+
+def test_a_device_joins_the_runs_own_namespace_as_it_is_told(tmp_path, spawn):
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    device = [str(EXAMPLES / "zenoh_controller.py"), endpoint]
+    code, err, pid = _joined(spawn, tmp_path, "zenoh", ["--zenoh-endpoint", endpoint], device)
+    out = tmp_path / "run"
     assert "device connected after" in err.text(5), err.text()
-    assert json.loads((out / layout.DEVICE).read_text())["netns_pid"] == run.pid
+    assert json.loads((out / layout.DEVICE).read_text())["netns_pid"] == pid
     summary = json.loads((out / layout.SUMMARY).read_text())
     judged(out, code)
     assert summary["device"]["response"]["count"] > 100
@@ -62,24 +67,10 @@ GROUP = "239.74.163.2"  # a udp_multicast group, only ever inside the run's name
 def test_a_can_device_on_udp_multicast_joins_the_runs_namespace(tmp_path, spawn):
     """python-can's udp_multicast, the bench's CAN bus between processes without vcan, only
     inside a private namespace: the odrive-can client joins the run's and drives the drives."""
-    scenario = tmp_path / "impaired.toml"
-    scenario.write_text('base = "paper_tracking"\n\n[impair]\non = "can"\nloss = 0.0\n')
+    bus = ["--can-interface", "udp_multicast", "--can-channel", GROUP]
+    device = [odrive_can_device()[0], "--interface", "udp_multicast", "--channel", GROUP]
+    code, err, _ = _joined(spawn, tmp_path, "can", ["--cmd-path", "can", *bus], device)
     out = tmp_path / "run"
-    argv = ["-m", "hil", "run", str(scenario), "--controller", "external", "--cmd-path", "can"]
-    argv += ["--can-interface", "udp_multicast", "--can-channel", GROUP, "--duration", "2"]
-    argv += ["--out", str(out), "--quiet"]
-    run = spawn.python(argv, text=True)
-    err = Lines(run.stderr)
-    assert wait_until(lambda: err.seen("waiting up to") or run.poll() is not None, 120)
-    assert f"nsenter --net=/proc/{run.pid}/ns/net" in err.text(), err.text()
-    device = spawn.start(
-        ["nsenter", f"--net=/proc/{run.pid}/ns/net", "--", sys.executable,
-         odrive_can_device()[0], "--interface", "udp_multicast", "--channel", GROUP]
-    )  # fmt: skip
-    try:
-        code = run.wait(timeout=240)
-    finally:
-        stop_pid(device)
     assert "closed-loop control asked of nodes [0, 1]" in err.text(5), err.text()
     summary = json.loads((out / layout.SUMMARY).read_text())
     judged(out, code)
