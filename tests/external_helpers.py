@@ -46,6 +46,21 @@ def run_external(
     return code, out_lines.text(5.0), err.text(5.0)
 
 
+#: What shows a CAN device armed both drives (node 0 and 1) or sent a first input
+#: (hil.bench.device.CanArrival): which comes first is a race of the device's own frames (a
+#: client may send node 0 a torque before it arms node 1).
+CAN_ARRIVALS = (
+    "closed-loop control asked of nodes [0, 1]",
+    "a SET_INPUT_TORQUE frame to node 0",
+    "a SET_INPUT_TORQUE frame to node 1",
+)
+
+
+def can_device_arrived(err: str) -> bool:
+    """The run's stderr says a CAN device connected, by one of its signs."""
+    return "device connected after" in err and any(h in err for h in CAN_ARRIVALS)
+
+
 #: A verdict's exit code (hil.verdict.EXIT_CODE), spelled here so the tests check the product.
 EXIT_OF = {"PASS": 0, "FAIL": 1, "INCONCLUSIVE": 4}
 #: What a working device may still be failed for on a loaded host: its own stalls (a Python

@@ -14,6 +14,7 @@ import re
 
 import pytest
 
+from tests.external_helpers import can_device_arrived
 from tests.socketcan_helpers import (
     C_CONTROLLER,
     CHANNEL,
@@ -50,9 +51,7 @@ def test_a_c_socketcan_controller_is_run_and_judged(tmp_path, spawn):
 
     # The run waited for it and let it in: by its arming of both drives, or by the zero torque
     # it sends each drive just before (hil.bench.device: a first input frame also counts).
-    assert "device connected after" in run.stderr, run.stderr
-    how = ("closed-loop control asked of nodes [0, 1]", "a SET_INPUT_TORQUE frame to node 0")
-    assert any(h in run.stderr for h in how), run.stderr
+    assert can_device_arrived(run.stderr), run.stderr
     conn = run.device_json()
     assert conn["path"] == "can" and conn["connected_after_s"] is not None
     assert conn["can"]["interface"] == "socketcan" and conn["can"]["channel"] == CHANNEL
