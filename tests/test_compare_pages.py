@@ -13,6 +13,7 @@ import pytest
 
 from hil.analysis.report.compare import most_moved
 from hil.cli import main
+from hil.verdict import Verdict
 from tests.synthetic_folder import write_synthetic_folder
 
 SLIDING_WORDS = "are the sliding variables of (10)"
@@ -72,7 +73,7 @@ def test_numbers_at_the_noise_level_never_top_the_list() -> None:
         ["timing.samples_without_command_rate", 0.0, 0.005, 0.005],
         ["messages.state.sent", 1000.0, 1010.0, 10.0],
     ]
-    verdict = {"outcome": "PASS", "thresholds": {"max_samples_without_command_ratio": 0.01}}
+    verdict = Verdict(thresholds={"max_samples_without_command_ratio": 0.01})
     moved = [r[0] for r in most_moved(rows, (verdict, verdict))]
     assert moved == [
         "timing.samples_without_command_rate",  # 0.5 of its threshold

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import pytest
 
@@ -130,3 +131,23 @@ def test_auto_refuses_a_design_breaking_9_before_computing_a_bound():
     with pytest.raises(DesignError) as info:
         resolve_auto({"m1": 0.5, "m2": 6.0, "l1": 0.5, "l2": 0.5, "lam": "auto", "rho": 1}, PAPER)
     assert info.value.condition == "(9) m2 < phi2 - mu2"
+
+
+def test_free_form_records_are_as_few_as_docs_architecture_says() -> None:
+    """Facts cross modules as typed records; ``dict[str, Any]`` stays only where
+    docs/architecture.md ("Free-form records") says why, in as many places as it says (at most
+    60), and its four reasons add up to that number."""
+    import re
+
+    root = Path(__file__).resolve().parent.parent
+    places = sum(
+        line.count("dict[str, Any]") > 0
+        for path in (root / "hil").rglob("*.py")
+        for line in path.read_text().splitlines()
+    )
+    doc = (root / "docs" / "architecture.md").read_text()
+    said = re.search(r"`dict\[str, Any\]`\s+remains\s+in (\d+) places", doc)
+    assert said is not None, "docs/architecture.md no longer counts the free-form records"
+    reasons = [int(n) for n in re.findall(r"^- \*\*[^*]+\*\* \((\d+)\)", doc, re.M)]
+    assert places == int(said.group(1)) == sum(reasons), (places, said.group(1), reasons)
+    assert places <= 60

@@ -24,6 +24,7 @@ import pytest
 from hil.analysis.report.build import SOURCE
 from hil.cli import main
 from hil.sim.certificate import CONTRACT_KEYS
+from hil.verdict import Verdict
 from tests.page_tables import numbers_without_unit, tables, unglossed
 from tests.run_helpers import PASSES, expected_exit
 from tests.synthetic_folder import write_synthetic_folder
@@ -519,7 +520,7 @@ def test_compare_two_folders(tmp_path: Path, run_folder: Path, stall_folder: Pat
     shutil.copytree(stall_folder, judged)
     summary = json.loads((judged / "summary.json").read_text())
     reason = "samples without a command: 30 of 100 (30.000 %; all at 2 s) > 1.000 %; and more"
-    summary["verdict"] = {"outcome": "FAIL", "reasons": [reason]}
+    summary["verdict"] = Verdict(outcome="FAIL", fail_reasons=[reason]).as_dict()
     (judged / "summary.json").write_text(json.dumps(summary))
     assert main(["compare", str(run_folder), str(judged), "--out", str(tmp_path / "c3")]) == 0
     lines = json.loads((tmp_path / "c3" / "compare.json").read_text())["headline"]["lines"]

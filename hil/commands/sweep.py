@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -14,6 +14,10 @@ from hil.commands import ForceOpt, app
 from hil.commands.new_law import LawOpt
 from hil.errors import BadInputError, NegativeVerdictError
 from hil.ticker import Ticker, start_line
+
+if TYPE_CHECKING:  # the sweep's modules load when a sweep runs, not with the CLI
+    from hil.sweep.cluster import ExecutorFacts
+    from hil.sweep.outputs import SweepDocument, SweepMeta
 
 DEFAULT_MAX_DURATION = 20.0
 SWEEP_HELP = (
@@ -116,7 +120,7 @@ def sweep(
     started = time.perf_counter()
     if executor is None:
         outcome, resolved = _run_with_progress(scenario, grid, loop_s, target, worst_disturbance)
-        where: dict[str, Any] = {}
+        where: ExecutorFacts | None = None
     else:
         outcome, resolved, where = cluster.run_with_executor(
             scenario, grid, loop_s, target, executor, chunk_size
@@ -129,7 +133,7 @@ def sweep(
     meta.update(
         disturbance="worst searched" if worst_disturbance else "the scenario's",
         provenance=resolved.get("provenance", {}),
-        **where,
+        **(where or {}),
     )
     # A second Ctrl-C while the results are written would leave them half-written.
     with interrupts.shielded():
@@ -140,7 +144,7 @@ def sweep(
 
 
 def _say_and_judge(
-    doc: dict[str, Any], outcome: Any, target: Path, strict: bool, worst: bool
+    doc: SweepDocument, outcome: Any, target: Path, strict: bool, worst: bool
 ) -> None:
     """The sweep's lines (what it did not cover first, where the law failed, never "held
     everywhere" for a grid it did not cover or where the law failed), then its verdict's exit
@@ -298,12 +302,12 @@ def _run_with_progress(
 
 def _meta(
     scenario: Any, scenario_file: Path, grid: Any, loop_s: float, outcome: Any, elapsed: float
-) -> dict[str, Any]:
+) -> SweepMeta:
     """What sweep.json says of the sweep beside its rows: the scenario, its law and limits
     (the page names them), the loop length, how far it got and how fast, the certificate."""
     from hil.sweep.runner import certified_break
 
-    return {
+    return {  # hil.sweep.outputs.SweepMeta
         "scenario_file": str(scenario_file),
         "law": str(scenario.controller.get("law", "unified")),
         "limits": {"phi1": scenario.limits.phi1, "phi2": scenario.limits.phi2},

@@ -7,7 +7,7 @@ unified laws (10) and (19) have a certificate.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any
 
@@ -25,10 +25,7 @@ class CertificateFigures:
     w_bound: float | None
     held: bool | None  # None: the law has no certificate
     source: str
-    detail: dict[str, Any]
-
-    def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
+    detail: dict[str, Any]  # controller_service.certificate's figures, or the error
 
 
 def certificate(sv: ScenarioView, ts: float, delay: float) -> CertificateFigures:

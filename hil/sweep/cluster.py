@@ -5,7 +5,7 @@ bar counting chunks done."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -22,6 +22,14 @@ def wanted(workers: int | None, scheduler: str | None, chunk_size: int | None) -
     return workers is not None or scheduler is not None or chunk_size is not None
 
 
+class ExecutorFacts(TypedDict):
+    """Where a sweep ran beyond this process (sweep.json)."""
+
+    executor: str
+    chunks: int
+    chunk_size: int
+
+
 def open_executor(workers: int | None, scheduler: str | None, chunk_size: int | None) -> Any:
     """The executor, every option checked first (BadInputError: exit 2, before any folder)."""
     if chunk_size is not None:
@@ -31,7 +39,7 @@ def open_executor(workers: int | None, scheduler: str | None, chunk_size: int | 
 
 def run_with_executor(
     scenario: Any, grid: Any, loop_s: float, target: Path, executor: Any, chunk_size: int | None
-) -> tuple[Any, dict[str, Any], dict[str, Any]]:
+) -> tuple[Any, dict[str, Any], ExecutorFacts]:
     """(outcome, resolved, what to add to sweep.json's meta); the executor closed after."""
     size = chunk_size or DEFAULT_CHUNK
     n = len(chunks_of(scenario, grid, loop_s, size))
@@ -50,4 +58,4 @@ def run_with_executor(
             )  # fmt: skip
     finally:
         executor.close()
-    return outcome, resolved, {"executor": executor.name, "chunks": n, "chunk_size": size}
+    return outcome, resolved, ExecutorFacts(executor=executor.name, chunks=n, chunk_size=size)

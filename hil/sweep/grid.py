@@ -135,7 +135,42 @@ def make_grid(
     )
 
 
-def break_points(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+class GridPoint(TypedDict):
+    """One loop of the grid: its period, delay, jitter and seed."""
+
+    ts: float
+    delay: float
+    jitter: float
+    seed: int
+
+
+class LawFaultPoint(GridPoint):
+    law_fault: str  # the sentence of hil.verdict.LawEnd
+
+
+class BreakPoints(TypedDict, total=False):
+    """Where the limits stop holding (:func:`break_points`; sweep.json ``break_point``)."""
+
+    held_everywhere: bool | None  # None: no loop ran
+    violating_points: int
+    law_faults: int
+    first_law_fault: LawFaultPoint | None
+    ts_by_delay: dict[float, float | None]
+    delay_by_ts: dict[float, float | None]
+    first: GridPoint | None
+
+
+class CertifiedBreak(TypedDict):
+    """The certificate's own prediction over the grid (hil.sweep.runner.certified_break)."""
+
+    first_uncertified: dict[str, float] | None  # ts, delay, jitter, age = ts + worst delay
+
+
+def _point(r: Mapping[str, Any]) -> GridPoint:
+    return GridPoint(ts=r["ts"], delay=r["delay"], jitter=r["jitter"], seed=r["seed"])
+
+
+def break_points(rows: Sequence[Mapping[str, Any]]) -> BreakPoints:
     """Where the limits stop holding.
 
     - ``ts_by_delay``: for each delay, the smallest Ts at which any loop (any jitter, seed)
@@ -159,19 +194,18 @@ def break_points(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     }
     first = min(bad, key=lambda r: (r["ts"] + r["delay"], r["ts"]), default=None)
     first_fault = min(faulted, key=lambda r: (r["ts"] + r["delay"], r["ts"]), default=None)
-    return {
-        "held_everywhere": not bad and not faulted,
-        "violating_points": len(bad),
-        "law_faults": len(faulted),
-        "first_law_fault": None
-        if first_fault is None
-        else {k: first_fault[k] for k in ("ts", "delay", "jitter", "seed", "law_fault")},
-        "ts_by_delay": ts_by_delay,
-        "delay_by_ts": delay_by_ts,
-        "first": None
-        if first is None
-        else {k: first[k] for k in ("ts", "delay", "jitter", "seed")},
-    }
+    fault_at = None
+    if first_fault is not None:
+        fault_at = LawFaultPoint(**_point(first_fault), law_fault=first_fault["law_fault"])
+    return BreakPoints(
+        held_everywhere=not bad and not faulted,
+        violating_points=len(bad),
+        law_faults=len(faulted),
+        first_law_fault=fault_at,
+        ts_by_delay=ts_by_delay,
+        delay_by_ts=delay_by_ts,
+        first=None if first is None else _point(first),
+    )
 
 
 def aggregate(

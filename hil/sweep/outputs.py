@@ -6,14 +6,19 @@ import csv
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
 from hil.analysis.report import figures as fg
 from hil.folder.jsonio import jsonable, write_json
+from hil.folder.records import LawFaultRecord
 from hil.law.facts import Law
 from hil.sweep.grid import (
+    BreakPoints,
+    CertifiedBreak,
+    GridPoint,
+    LawFaultPoint,
     SweepGrid,
     SweepRow,
     aggregate,
@@ -59,7 +64,7 @@ def _series(
     return np.asarray(x, dtype=float), series
 
 
-def sweep_figures(rows: Sequence[SweepRow], grid: SweepGrid, bp: dict[str, Any]):
+def sweep_figures(rows: Sequence[SweepRow], grid: SweepGrid, bp: BreakPoints):
     figs = []
     first = bp.get("first")
     for metric, ylabel, how, hline in FIGURES:
@@ -84,17 +89,61 @@ def write_csv(path: Path, rows: Sequence[SweepRow]) -> None:
             w.writerow(["" if r.get(c) is None else r.get(c) for c in CSV_COLUMNS])
 
 
+class SweepMeta(TypedDict, total=False):
+    """What sweep.json says of the sweep beside its rows (hil.commands.sweep)."""
+
+    scenario_file: str
+    law: str
+    limits: dict[str, float]  # phi1, phi2 of (2)
+    duration: float  # s per loop
+    interrupted: bool
+    groups_done: int
+    robot_steps: int
+    elapsed_s: float
+    robot_steps_per_s: float | None
+    certificate: CertifiedBreak
+    disturbance: str
+    provenance: dict[str, str]
+    executor: str  # with --workers or --scheduler (hil.sweep.cluster.ExecutorFacts)
+    chunks: int
+    chunk_size: int
+
+
+class BreakPointsJson(TypedDict, total=False):
+    """sweep.json's ``break_point``: :class:`BreakPoints` with its two maps as lists."""
+
+    held_everywhere: bool | None
+    violating_points: int
+    law_faults: int
+    first_law_fault: LawFaultPoint | None
+    ts_by_delay: list[dict[str, float | None]]  # {"delay", "ts"}
+    delay_by_ts: list[dict[str, float | None]]  # {"ts", "delay"}
+    first: GridPoint | None
+
+
+class SweepDocument(SweepMeta, total=False):
+    """sweep.json (docs/reports.md, "hil sweep")."""
+
+    schema_version: int
+    grid: dict[str, list[float] | list[str] | int]  # hil.sweep.grid.SweepGrid's fields
+    coverage: dict[str, int]
+    break_point: BreakPointsJson
+    law_fault: LawFaultRecord | None
+    rows: list[SweepRow]
+    figures: list[dict[str, str]]
+
+
 def write_outputs(
     out: Path,
     rows: list[SweepRow],
     grid: SweepGrid,
-    meta: dict[str, Any],
-) -> dict[str, Any]:
+    meta: SweepMeta,
+) -> SweepDocument:
     out.mkdir(parents=True, exist_ok=True)
     # The first faulted point's whole record (traceback) once, not one per row.
     records = [r for r in rows if r.get(LAW_FAULT_RECORD) is not None]
     rows = [{k: v for k, v in r.items() if k != LAW_FAULT_RECORD} for r in rows]
-    bp = break_points(rows) if rows else {"held_everywhere": None, "first": None}
+    bp = break_points(rows) if rows else BreakPoints(held_everywhere=None, first=None)
     write_csv(out / "sweep.csv", rows)
     figs = sweep_figures(rows, grid, bp) if rows else []
     files = []
@@ -103,7 +152,7 @@ def write_outputs(
         files.append({"name": fig.name, "title": fig.title, "png": png.name, "data": data.name})
     by_delay = [{"delay": k, "ts": v} for k, v in bp.get("ts_by_delay", {}).items()]
     by_ts = [{"ts": k, "delay": v} for k, v in bp.get("delay_by_ts", {}).items()]
-    doc = {
+    doc: SweepDocument = {
         "schema_version": SWEEP_SCHEMA_VERSION,
         "grid": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(grid).items()},
         **meta,
@@ -120,7 +169,7 @@ def write_outputs(
 
 def _first_record(
     records: Sequence[SweepRow], first: Mapping[str, Any] | None
-) -> dict[str, Any] | None:
+) -> LawFaultRecord | None:
     """The law fault record (controller_service.laws.guard.LawFault) of the first faulted
     point, None when the law never failed."""
     keys = ("ts", "delay", "jitter", "seed")
@@ -168,7 +217,7 @@ def certificate_sentence(rows: Sequence[SweepRow], law: Any) -> str:
     return text + "; a limit may still hold there (the heat map shows where one broke)."
 
 
-def _markdown(doc: dict[str, Any], bp: dict[str, Any], files: list[dict[str, str]]) -> str:
+def _markdown(doc: SweepDocument, bp: BreakPoints, files: list[dict[str, str]]) -> str:
     g = doc["grid"]
     cov = doc["coverage"]
     lines = [

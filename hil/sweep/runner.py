@@ -25,9 +25,9 @@ from hil.limits import LIMIT_REL_TOL
 from hil.provenance import Toml
 from hil.scenario import Scenario, build_loop, resolved_dict, scenario_dict
 from hil.sim import BatchResult, RobotVariation, simulate_batch
-from hil.sim.certificate import certificate
+from hil.sim.certificate import CertificateFigures, certificate
 from hil.sim.core import Progress
-from hil.sweep.grid import SweepGrid, SweepPoint, SweepRow, points_label
+from hil.sweep.grid import CertifiedBreak, SweepGrid, SweepPoint, SweepRow, points_label
 
 RECORD_LIMIT = 64
 SWEEP_JSON = "sweep.json"  # holds the first law fault's whole record (hil.sweep.outputs)
@@ -61,7 +61,7 @@ def _band(trace: np.ndarray, columns: list[str], name: str, eps: float) -> float
 def point_row(
     point: SweepPoint,
     summary: Summary,
-    cert: dict[str, Any],
+    cert: CertificateFigures,
     limits: Any,
     band_v: float | None,
     band_w: float | None,
@@ -73,7 +73,7 @@ def point_row(
     nonfinite = int(summary.get("nonfinite_steps") or 0)
     fault = summary.get("law_fault")
     tol = 1 + LIMIT_REL_TOL
-    v_bound, w_bound = cert["v_bound"], cert["w_bound"]
+    v_bound, w_bound = cert.v_bound, cert.w_bound
     within = None if v_bound is None else bool(max_v <= v_bound * tol and max_w <= w_bound * tol)
     return {
         "ts": point.ts,
@@ -99,7 +99,7 @@ def point_row(
         "law_fault": None if fault is None else LawFault.from_dict(fault).sentence(SWEEP_JSON),
         "v_bound": v_bound,
         "w_bound": w_bound,
-        "certified": cert["held"],
+        "certified": cert.held,
         "within_bound": within,
         "commands_dropped": int(summary.get("commands_dropped", 0)),
         "complete": complete,
@@ -123,14 +123,14 @@ def simulate_points(
     result = simulate_batch(sc, robots, record=record_at, progress=progress)
     sv = view(result.resolved)
     # Points of a group share few (delay, jitter) pairs: certify each pair once.
-    certs: dict[float, dict[str, Any]] = {}
+    certs: dict[float, CertificateFigures] = {}
     rows = []
     complete = not result.interrupted
     for i, p in enumerate(points):
         worst = worst_age(p, sv.jitter_kind)
         fault = result.summaries[i].get("law_fault")
         if worst not in certs:
-            certs[worst] = certificate(sv, sc.timing.ts, worst).as_dict()
+            certs[worst] = certificate(sv, sc.timing.ts, worst)
         trace = result.traces.get(i)
         bv = bw = None
         if trace is not None and len(trace) > 1:
@@ -174,7 +174,7 @@ def run_sweep(
     return outcome, resolved
 
 
-def certified_break(scenario: Scenario, grid: SweepGrid) -> dict[str, Any]:
+def certified_break(scenario: Scenario, grid: SweepGrid) -> CertifiedBreak:
     """The certificate's own prediction over the whole grid (run or not): the point of the
     smallest age Ts + worst delay at which (2) is not guaranteed (None when every point is
     certified). Not a frontier: points of a larger age may be certified; the pages list the
@@ -192,4 +192,4 @@ def certified_break(scenario: Scenario, grid: SweepGrid) -> dict[str, Any]:
         c = certificate(sv, ts, worst)
         if c.held is False and (first is None or ts + worst < first["age"]):
             first = {"ts": ts, "delay": d, "jitter": j, "age": ts + worst}
-    return {"first_uncertified": first}
+    return CertifiedBreak(first_uncertified=first)

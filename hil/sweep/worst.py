@@ -23,7 +23,7 @@ from hil.provenance import Toml
 from hil.scenario import Scenario, build_loop, resolved_dict
 from hil.sim.adversary.loop import initial_states, scenario_schedule
 from hil.sim.adversary.search import worst_disturbance
-from hil.sim.certificate import certificate
+from hil.sim.certificate import CertificateFigures, certificate
 from hil.sweep.grid import SweepGrid, SweepRow, points_label
 from hil.sweep.runner import LAW_FAULT_RECORD, SweepOutcome, point_row, scenario_at, worst_age
 
@@ -42,7 +42,7 @@ def _summary(best: Any) -> Summary:
     }
 
 
-def _faulted_row(p: Any, fault: LawFault, cert: dict[str, Any], limits: Any) -> SweepRow:
+def _faulted_row(p: Any, fault: LawFault, cert: CertificateFigures, limits: Any) -> SweepRow:
     """The row of a point whose search stopped at a law fault: no peaks, the fault."""
     nan = float("nan")
     summary = {**dict.fromkeys(PEAK_KEYS.values(), nan), "final_position_error": nan}
@@ -76,7 +76,7 @@ def run_worst_sweep(
                 sc = dataclasses.replace(sc, timing=timing)
                 schedule = scenario_schedule(sc, POPULATION)
                 init = initial_states(sc, POPULATION, SPREAD, p.seed)
-                cert = certificate(sv, ts, worst_age(p, sv.jitter_kind)).as_dict()
+                cert = certificate(sv, ts, worst_age(p, sv.jitter_kind))
                 try:
                     best = worst_disturbance(
                         sc, schedule, init, rounds=ROUNDS, seed=p.seed, loop=loop

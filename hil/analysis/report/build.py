@@ -429,13 +429,13 @@ def write_report(report: Report, out: Path) -> dict[str, Path]:
     return paths
 
 
-def folder_verdict(folder: Folder, thresholds: Thresholds = DEFAULT_THRESHOLDS) -> dict[str, Any]:
-    """The folder's verdict as a dict: summary.json's (``hil run`` judged it), else judged here as
+def folder_verdict(folder: Folder, thresholds: Thresholds = DEFAULT_THRESHOLDS) -> Verdict:
+    """The folder's verdict: summary.json's (``hil run`` judged it), else judged here as
     :func:`build_report` judges (a simulation, a folder the report alone judged), without the
     ideal trajectory or any figure."""
     saved = folder.summary.get("verdict")
     if isinstance(saved, dict) and saved.get("outcome"):
-        return dict(saved)
+        return Verdict.from_dict(saved)
     sv = view(folder.scenario, parsed=folder.typed_scenario())
     m = measured(folder)
     kind = "run" if m is not None else folder.kind
@@ -452,4 +452,4 @@ def folder_verdict(folder: Folder, thresholds: Thresholds = DEFAULT_THRESHOLDS) 
         thresholds,
         LawEnd.of(folder.summary),
     )
-    return dict(verdict.as_dict())
+    return verdict

@@ -26,7 +26,7 @@ from hil.folder.scenario_view import view
 from hil.law.facts import Law
 from hil.limits import SYMBOLS as LIMIT_SYMBOLS
 from hil.units import ms_or
-from hil.verdict import LIMIT_NAMES, short_reason
+from hil.verdict import LIMIT_NAMES, PASS, Verdict, short_reason
 from protocol.versions import COMPARE_SCHEMA_VERSION
 
 PREFIX = "compare_"
@@ -85,7 +85,7 @@ def figures_of(folder: Folder, m: Measurement | None = None) -> dict[str, float]
         out.update({f"{group}.{k}": r for k, r in eff[group].items()})
     if m is not None:
         out.update(measured_figures(m))
-    for key, judged in (folder_verdict(folder).get("timing") or {}).items():
+    for key, judged in folder_verdict(folder).timing.items():
         rate = judged.get("rate") if isinstance(judged, dict) else None
         if key in RATE_THRESHOLDS and _number(rate):
             out.setdefault(RATE_THRESHOLDS[key][0], float(rate))  # as the verdict held it
@@ -122,8 +122,8 @@ def compare_rows(a: dict[str, float], b: dict[str, float]) -> list[list[Any]]:
     ]
 
 
-def _outcome(v: dict[str, Any]) -> str:
-    return str(v.get("outcome") or "n/a")
+def _outcome(v: Verdict) -> str:
+    return v.outcome or "n/a"
 
 
 def _age(folder: Folder) -> str:
@@ -133,11 +133,11 @@ def _age(folder: Folder) -> str:
     return f"D = {ms_or(c.get('d_max_s'), 'n/a')} of D* = {ms_or(c.get('d_star_s'), 'n/a')}"
 
 
-def _why(name: str, v: dict[str, Any]) -> str | None:
+def _why(name: str, v: Verdict) -> str | None:
     """Every reason of a verdict that is not PASS, each whole up to its details (the reports
     have those): one line."""
-    reasons = [short_reason(str(r)).rstrip(".") for r in v.get("reasons") or []]
-    if v.get("outcome") in (None, "PASS") or not reasons:
+    reasons = [short_reason(str(r)).rstrip(".") for r in v.reasons]
+    if v.outcome == PASS or not reasons:
         return None
     if len(reasons) == 1:
         return f"Why {name}: {reasons[0]}."
@@ -145,13 +145,13 @@ def _why(name: str, v: dict[str, Any]) -> str | None:
     return f"Why {name}, {len(reasons)} reasons: {listed}."
 
 
-def _scale(key: str, v: dict[str, Any], a: dict[str, float]) -> tuple[float, str] | None:
+def _scale(key: str, v: Verdict, a: dict[str, float]) -> tuple[float, str] | None:
     """What a figure is measured against, and that in words: its limit of (2), the verdict's
     threshold for a rate, D* for D; None for a figure without one."""
     group, _, last = key.partition(".")
     if group == "max_over_limit":
         return 1.0, f"{LIMIT_SYMBOLS[last]} (1 = at the limit)"
-    th = v.get("thresholds") or {}
+    th = v.thresholds
     for fig, th_key in RATE_THRESHOLDS.values():
         if key == fig and _number(th.get(th_key)):
             return float(th[th_key]), f"threshold {100 * th[th_key]:g} %"
@@ -161,19 +161,16 @@ def _scale(key: str, v: dict[str, Any], a: dict[str, float]) -> tuple[float, str
     return None
 
 
-def _reason_keys(v: dict[str, Any]) -> dict[str, str]:
-    """The figures a verdict's reasons name (hil.verdict's record: the limits broken, the
-    certificate, the rates over their thresholds), each with the reason in a few words."""
-    if v.get("outcome") in (None, "PASS"):
+def _reason_keys(v: Verdict) -> dict[str, str]:
+    """The figures a verdict's reasons name (the limits broken, the certificate, the rates over
+    their thresholds), each with the reason in a few words."""
+    if v.outcome == PASS:
         return {}
-    out = {
-        f"max_over_limit.{k}": f"limit {LIMIT_SYMBOLS[k]} broken"
-        for k in v.get("limits_broken") or []
-    }
-    if v.get("certificate") in ("not held", "broken"):
-        out["certificate.d_max_s"] = f"certificate {v['certificate']}"
-    th = v.get("thresholds") or {}
-    for name, judged in (v.get("timing") or {}).items():
+    out = {f"max_over_limit.{k}": f"limit {LIMIT_SYMBOLS[k]} broken" for k in v.limits_broken}
+    if v.certificate in ("not held", "broken"):
+        out["certificate.d_max_s"] = f"certificate {v.certificate}"
+    th = v.thresholds
+    for name, judged in v.timing.items():
         fig, th_key = RATE_THRESHOLDS.get(name, ("", ""))
         rate = judged.get("rate") if isinstance(judged, dict) else None
         if _number(rate) and _number(th.get(th_key)) and rate > th[th_key]:
@@ -183,7 +180,7 @@ def _reason_keys(v: dict[str, Any]) -> dict[str, str]:
 
 def most_moved(
     rows: list[list[Any]],
-    verdicts: tuple[dict[str, Any], dict[str, Any]] = ({}, {}),
+    verdicts: tuple[Verdict, Verdict] = (Verdict(), Verdict()),
     n: int = MOST_MOVED,
 ) -> list[list[Any]]:
     """The figures that moved, by what matters (:data:`MOVED_NOTE`): each row [key, A, B, B − A,
@@ -199,7 +196,7 @@ def most_moved(
         if diff is None or not math.isfinite(diff) or a is None or b is None:
             continue
         unit = ct.unit_of(key)
-        scale = _scale(key, vb or va, a_of)
+        scale = _scale(key, vb, a_of)
         against = scale[1] if scale else ""
         row = [key, a, b, diff, unit, ct.label_of(key), against]
         if key in named:
