@@ -618,7 +618,8 @@ def _device(v: Verdict, dev: DeviceFigures, timing: Timing, th: Thresholds) -> N
         if x
     ]  # fmt: skip
     if said:
-        v.notes.append(f"the device on the bus: {', '.join(said)} (counted, never fatal)")
+        who = "the device" if dev.outside else "the controller"  # yours, or the law hosted
+        v.notes.append(f"{who} on the bus: {', '.join(said)} (counted, never fatal)")
     if dev.outside and dev.age_is_bound and dev.d_max_s is not None:
         v.notes.append(
             f"the command age D is not measured on CAN for an outside device (a torque frame "

@@ -245,3 +245,18 @@ def test_the_report_shows_figures_a_trigger_does_not_measure_as_n_a_never_0():
     assert rows["plant deadline misses"] == [0, "count"]
     assert any("asked fifo, got SCHED_FIFO" in b[1] for b in s.blocks if b[0] == "p")
     assert any("CPU idle os" in b[1] for b in s.blocks if b[0] == "p")  # an old folder's
+
+
+@pytest.mark.parametrize("outside, who", [(True, "the device"), (False, "the controller")])
+def test_the_bus_note_names_whose_commands_were_refused(outside: bool, who: str) -> None:
+    """A refused command is noted as the device's when the device is outside, as the
+    controller's when the bench hosts the law (never "the device" for a law it runs)."""
+    from hil.folder.device import BusActivity, DeviceFigures
+    from hil.verdict import DEFAULT_THRESHOLDS, Verdict, _device
+
+    bus = BusActivity(None, None, None, None, malformed=0, unknown=0, refused=1,
+                      command_timeouts=0)  # fmt: skip
+    dev = DeviceFigures("zenoh", outside, 0.002, [], {}, 0, {}, False, None, 0, [], bus, 100, 0, 0)
+    v = Verdict()
+    _device(v, dev, {}, DEFAULT_THRESHOLDS)
+    assert f"{who} on the bus: refused 1 (counted, never fatal)" in v.notes, v.notes
