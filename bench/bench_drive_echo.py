@@ -259,6 +259,10 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     if args.interface == "zenoh_can":
         options.update({"--can-endpoint": endpoint, "--bitrate": args.bitrate})
     drives_argv = [sys.executable, "-m", "hil", "drives"]
+    # The light form's flag since hil drives records by default; an older checkout has none.
+    commands = (args.drives_root / "hil" / "commands").glob("*.py")
+    if any("--no-record" in f.read_text() for f in commands):
+        drives_argv.append("--no-record")
     drives_argv += [str(x) for kv in options.items() for x in kv]
     cyclic = [f"{frame_id(n, CYCLIC[k])}:{ms}" for n in PEER_NODES for k, ms in periods_ms.items()]
     answer = [str(frame_id(PEER_NODES[0], cmd))]

@@ -45,8 +45,8 @@ def _percentile(sorted_us: list[float], q: float) -> float:
 
 def _start(mode: str, channel: str, endpoint: str, workdir: str) -> subprocess.Popen:
     if mode == "drives":
-        argv = ["-m", "hil", "drives", "--can-interface", "zenoh_can", "--channel", channel]
-        argv += ["--can-endpoint", endpoint, "--status-period", "0"]
+        argv = ["-m", "hil", "drives", "--no-record", "--can-interface", "zenoh_can"]
+        argv += ["--channel", channel, "--can-endpoint", endpoint, "--status-period", "0"]
     else:  # the emulator in its start gate (nobody announces the start)
         argv = ["-m", "hil", "emulator", "paper_tracking", "--cmd-path", "can"]
         argv += ["--can-endpoint", endpoint, "--endpoint", f"tcp/127.0.0.1:{_free_port()}"]

@@ -60,6 +60,7 @@ def test_hil_drives_runs_free_publishes_and_stops_within_a_second(spawn, sig):
                 "-m",
                 "hil",
                 "drives",
+                "--no-record",
                 *bus_args,
                 "--state-rate",
                 "50",
@@ -216,10 +217,8 @@ def test_hil_drives_watchdog_is_on_by_default_and_clear_errors_rearms_after_any_
     status line); Clear_Errors then Set_Axis_State re-arm it, as the firmware does, after the
     watchdog and after an Estop."""
     bus_args, channel, can_endpoint = _zenoh_can()
-    drives = spawn.python(
-        ["-m", "hil", "drives", *bus_args, "--status-period", "0.3", "--scheduling", "other"],
-        text=True,
-    )
+    argv = ["-m", "hil", "drives", "--no-record", *bus_args, "--status-period", "0.3"]
+    drives = spawn.python([*argv, "--scheduling", "other"], text=True)
     out = Lines(drives.stdout)
     assert wait_until(lambda: out.seen("hil drives:"), 60), drives.stderr.read()
     assert "watchdog 1s" in out.text()
@@ -275,6 +274,7 @@ def test_hil_drives_robot_with_friction_settles_and_stops_when_the_watchdog_disa
             "-m",
             "hil",
             "drives",
+            "--no-record",
             str(scenario),
             *bus_args,
             "--duration",
@@ -334,7 +334,7 @@ def test_hil_drives_hold_an_odrive_can_client_s_torque_at_vel_limit_and_report_o
     bus_args, channel, can_endpoint = _zenoh_can()
     drives = spawn.python(
         [
-            *("-m", "hil", "drives", *bus_args, "--watchdog-timeout", "0.5"),
+            *("-m", "hil", "drives", "--no-record", *bus_args, "--watchdog-timeout", "0.5"),
             *("--status-period", "0", "--scheduling", "other"),
         ],
         text=True,

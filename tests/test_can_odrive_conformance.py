@@ -167,6 +167,7 @@ def test_can_odrive_can_client_drives_hil_drives_over_zenoh_can(spawn, tmp_path)
             "-m",
             "hil",
             "drives",
+            "--no-record",
             "--can-interface",
             "zenoh_can",
             *bus,
@@ -230,7 +231,7 @@ ip link set lo up
 ip link set lo multicast on
 ip route add 224.0.0.0/4 dev lo
 cd {shlex.quote(str(REPO))}
-{py} -m hil drives --can-interface udp_multicast --channel {GROUP} {drives_opts} \
+{py} -m hil drives --no-record --can-interface udp_multicast --channel {GROUP} {drives_opts} \
     > {t}/drives.out 2> {t}/drives.err &
 drives=$!
 PYTHONUNBUFFERED=1 {py} -c {logger_cmd} -i udp_multicast -c {GROUP} -f {t}/bus.log \

@@ -120,7 +120,8 @@ def test_can_two_processes_run_the_drive_lifecycle(spawn, kind):
     slow = [] if kind == "zenoh" else ["--control-rate", "50", "--encoder-ms", "50"]
     slow += [] if kind == "zenoh" else ["--watchdog-timeout", "0"]
     drives = spawn.python(
-        ["-m", "hil", "drives", *_drives_bus(bus), "--status-period", "0", *slow], text=True
+        ["-m", "hil", "drives", "--no-record", *_drives_bus(bus), "--status-period", "0", *slow],
+        text=True,
     )
     _wait_ready(drives, timeout=120.0)
     cycles = 150 if kind == "zenoh" else 40

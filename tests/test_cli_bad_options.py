@@ -73,8 +73,10 @@ CASES: list[tuple[list[str], str]] = [
     (["controller", S, "--write-settings", "UNWRITABLE"], "--write-settings"),
     (["emulator", S, "--write-settings", "DIR"], "--write-settings"),
     # hil drives, hil fleet (no --duration: drives that started would never end)
-    (["drives", "--out", "UNWRITABLE"], "--out"),
-    (["drives", "--out", "FILE"], "--out"),
+    (["drives", "--no-record", "--out", "UNWRITABLE"], "--out"),
+    (["drives", "--record", "UNWRITABLE"], "--record"),
+    (["drives", "--no-record", "--out", "FILE"], "--out"),
+    (["drives", "--record", "FILE"], "--record"),
     (["fleet", S, "--robots", "1", "--out", "UNWRITABLE"], "--out"),
     (["fleet", S, "--robots", "1", "--out", "FILE"], "--out"),
     # hil sweep
@@ -195,8 +197,14 @@ def sim_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.mark.parametrize(
     "args",
-    [["sim", S], ["sweep", S, "--ts", "0.01", "--duration", "0.1"], ["run"], ["paper", "--quick"]],
-    ids=["sim", "sweep", "run", "paper"],
+    [
+        ["sim", S],
+        ["sweep", S, "--ts", "0.01", "--duration", "0.1"],
+        ["run"],
+        ["paper", "--quick"],
+        ["drives"],
+    ],
+    ids=["sim", "sweep", "run", "paper", "drives"],
 )
 def test_an_unwritable_default_folder_is_refused_before_any_work(args: list[str]) -> None:
     """Without --out, the default runs/ under the working directory is checked first."""
@@ -209,7 +217,8 @@ def test_an_unwritable_default_folder_is_refused_before_any_work(args: list[str]
         env=_env(),
     )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
-    assert proc.stderr.startswith("error: --out not given, so its default runs: cannot write in")
+    where = "--record" if args[0] == "drives" else "--out"  # hil drives records into a folder
+    assert proc.stderr.startswith(f"error: {where} not given, so its default runs: cannot write")
 
 
 def _env() -> dict[str, str]:

@@ -38,7 +38,8 @@ COMMANDS = [
     ["paper", "--quick", "--out", "OUT"],
     ["compare", "A", "B", "--out", "OUT"],
     ["fleet", S, "--robots", "1", "--duration", "1", "--out", "OUT"],
-    ["drives", "--duration", "0.1", "--out", "OUT"],
+    ["drives", "--no-record", "--duration", "0.1", "--out", "OUT"],
+    ["drives", "--duration", "0.1", "--record", "OUT"],
     ["certify", S, "--ts", "0.001", "--delay", "0", "--out", "OUT"],
     ["report", "A", "--out", "OUT"],
     ["can-load", "--rate", "100", "--bitrate", "500000", "--out", "OUT"],
@@ -55,7 +56,8 @@ def test_a_folder_holding_a_run_is_refused_before_anything_runs(
     args = [{"OUT": str(out), "A": str(tmp_path), "B": str(tmp_path)}.get(a, a) for a in argv]
     assert main(args) == BAD_INPUT
     lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and "--out" in lines[0] and "--force" in lines[0], lines
+    where = "--record" if "--record" in argv else "--out"  # the option that named the folder
+    assert len(lines) == 1 and where in lines[0] and "--force" in lines[0], lines
     assert OLD in lines[0]  # the line says what is there
     assert sorted(p.name for p in out.iterdir()) == before  # nothing written, nothing removed
 

@@ -163,14 +163,14 @@ def test_frames_that_arm_nothing_are_a_fail_and_foreign_ones_no_command(tmp_path
     assert any("never armed the drives" in r for r in verdict["fail_reasons"]), verdict
 
 
-def test_hil_drives_record_is_the_recorded_session(tmp_path, spawn):
-    """``hil drives --record DIR`` is ``hil run --controller external --cmd-path can``: the
-    odrive-can client arms the drives and drives them, Ctrl-C (here SIGINT) is the planned end,
-    and the folder is a judged run folder that hil report reads."""
-    out = tmp_path / "rec"
+def test_hil_drives_is_the_recorded_session(tmp_path, spawn):
+    """``hil drives`` is ``hil run --controller external --cmd-path can --until-stopped`` into
+    runs/drives-* (or --record DIR): the odrive-can client arms the drives and drives them,
+    Ctrl-C (here SIGINT) is the planned end, and the folder is a judged run folder that hil
+    report reads."""
     bus = f"tcp/127.0.0.1:{free_tcp_port()}"
-    argv = ["-m", "hil", "drives", "--record", str(out), "--can-endpoint", bus]
-    drives = spawn.python(argv, text=True)
+    argv = ["-m", "hil", "drives", "--can-endpoint", bus]
+    drives = spawn.python(argv, text=True, cwd=tmp_path)
     err = Lines(drives.stderr)
     assert wait_until(lambda: err.seen("waiting up to") or drives.poll() is not None, 120)
     device = spawn.python([*odrive_can_device()[:2], bus], text=True)
@@ -182,6 +182,7 @@ def test_hil_drives_record_is_the_recorded_session(tmp_path, spawn):
         code = drives.wait(timeout=240)
     finally:
         stop_pid(device)
+    (out,) = (tmp_path / "runs").glob("drives-*")  # the default folder, and nothing else
     summary = json.loads((out / layout.SUMMARY).read_text())
     assert summary["until_stopped"] is True and summary["cmd_path"] == "can"
     assert summary["duration_run_s"] > 1.0
@@ -201,7 +202,7 @@ def test_hil_drives_record_refuses_what_it_would_not_honour(tmp_path, option):
         text=True,
         timeout=60,
     )
-    assert p.returncode == 2 and "is not taken with --record" in p.stderr, p.stderr
+    assert p.returncode == 2 and "is the light form's (--no-record)" in p.stderr, p.stderr
     assert not out.exists()
 
 

@@ -248,7 +248,8 @@ def test_hil_drives_live_serves_the_drives_frames_and_state(spawn):
     port = free_tcp_port()
     try:
         drives = spawn.python(
-            ["-m", "hil", "drives", "--can-interface", "zenoh_can", "--can-channel", channel,
+            ["-m", "hil", "drives", "--no-record", "--can-interface", "zenoh_can",
+             "--can-channel", channel,
              "--can-endpoint", f"tcp/127.0.0.1:{free_tcp_port()}", "--state-rate", "50",
              "--endpoint", zenoh_endpoint, "--status-period", "0", "--scheduling", "other",
              "--live", str(port)],

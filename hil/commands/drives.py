@@ -1,4 +1,5 @@
-"""``hil drives``: the plant and its two virtual ODrives on a CAN bus, until Ctrl-C."""
+"""``hil drives``: the plant and its two virtual ODrives on a CAN bus, until Ctrl-C: recorded
+into a run folder, or free running with ``--no-record`` (the light form)."""
 
 from __future__ import annotations
 
@@ -59,49 +60,70 @@ ChannelOpt = Annotated[
     ),
 ]
 CanEndpointOpt = Annotated[str | None, typer.Option(help="zenoh_can's Zenoh endpoint (loopback).")]
-ControlRateOpt = Annotated[float, typer.Option(help="Hz of the plant and drive controller steps.")]
-HeartbeatOpt = Annotated[float, typer.Option(help="Heartbeat period, ms (0: off; firmware 100).")]
+ControlRateOpt = Annotated[
+    float, typer.Option(help="Hz of the plant and drive controller steps (light form).")
+]
+HeartbeatOpt = Annotated[
+    float, typer.Option(help="Heartbeat period, ms (0: off; firmware 100; light form).")
+]
 EncoderOpt = Annotated[
-    float, typer.Option(help="Get_Encoder_Estimates period, ms (0: off; firmware 10).")
+    float, typer.Option(help="Get_Encoder_Estimates period, ms (0: off; firmware 10; light form).")
 ]
 MsgRateOpt = Annotated[
     list[str] | None,
     typer.Option(
         help="More cyclic messages, NAME=MS: error, iq, temperature, bus_voltage, "
-        "torques, powers (repeatable)."
+        "torques, powers (repeatable; light form)."
     ),
 ]
 WatchdogOpt = Annotated[
     float | None,
     typer.Option(
         help="Drive watchdog, s: a drive gets no command for this long and disarms (0: off, "
-        "as the firmware ships). Default: [can] watchdog_timeout if set, else 1 s."
+        "as the firmware ships). Default: [can] watchdog_timeout if set, else 1 s (light form)."
     ),
 ]
 StateRateOpt = Annotated[
-    float, typer.Option(help="Publish State (and Status) on Zenoh at this rate, Hz.")
+    float, typer.Option(help="Publish State (and Status) on Zenoh at this rate, Hz (light form).")
 ]
-EndpointOpt = Annotated[str, typer.Option(help="Zenoh endpoint for State/Status.")]
-StatusPeriodOpt = Annotated[float, typer.Option(help="Seconds between status lines (0: none).")]
+EndpointOpt = Annotated[str, typer.Option(help="Zenoh endpoint for State/Status (light form).")]
+StatusPeriodOpt = Annotated[
+    float, typer.Option(help="Seconds between status lines (0: none; light form).")
+]
 DurationOpt = Annotated[
     float | None, typer.Option(help="Stop after this many seconds (default: Ctrl-C).")
 ]
-SchedulingOpt = Annotated[str | None, typer.Option(help="fifo or other (default: the scenario's).")]
-OutOpt = Annotated[Path | None, typer.Option(help="Also write summary.json in this folder.")]
+SchedulingOpt = Annotated[
+    str | None, typer.Option(help="fifo or other (default: the scenario's; light form).")
+]
+OutOpt = Annotated[
+    Path | None, typer.Option(help="Write summary.json in this folder (light form).")
+]
 RecordOpt = Annotated[
     Path | None,
     typer.Option(
-        help="Record the session into this run folder, judged and reported as any run: hil "
-        "run --controller external --cmd-path can --until-stopped (--duration: that long). "
-        "Waits for your device (--wait-device); the drives at the firmware's periods, nodes, "
-        "bitrate and watchdog from the scenario's [can] (docs/external.md)."
+        help="The run folder the session is recorded into (default runs/drives-*), judged and "
+        "reported as any run: hil run --controller external --cmd-path can --until-stopped "
+        "(--duration: that long). Waits for your device (--wait-device); the drives at the "
+        "firmware's periods, nodes, bitrate and watchdog from the scenario's [can] "
+        "(docs/external.md)."
+    ),
+]
+NoRecordOpt = Annotated[
+    bool,
+    typer.Option(
+        "--no-record",
+        help="The light form: the drives free running from the start (no wait for a device), "
+        "tuned by the options marked (light form), one status line a second and a JSON "
+        "summary (--out) instead of a run folder (docs/can.md).",
     ),
 ]
 WaitDeviceOpt = Annotated[
-    float, typer.Option(help="With --record: seconds to wait for your device to arm the drives.")
+    float, typer.Option(help="Seconds to wait for your device to arm the drives (recorded form).")
 ]
-# Options the recorded form takes from the scenario or the firmware's defaults, and their
-# defaults here: with --record, any other value is refused (it would not be honoured).
+# Options only the light form (--no-record) takes, and their defaults here: the recorded form
+# takes these from the scenario or the firmware's defaults, and refuses any other value (it
+# would not be honoured).
 _NOT_RECORDED = {
     "bitrate": (None, "the scenario's [can] bitrate"),
     "node_left": (None, "the scenario's [can] node_left"),
@@ -125,10 +147,16 @@ def drives_cmd(
     scenario: ScenarioArg = None,
     can_interface: CanInterfaceOpt = None,
     channel: ChannelOpt = None,
-    bitrate: Annotated[int | None, typer.Option(help="Bit/s (hardware, zenoh_can).")] = None,
+    bitrate: Annotated[
+        int | None, typer.Option(help="Bit/s (hardware, zenoh_can; light form).")
+    ] = None,
     can_endpoint: CanEndpointOpt = None,
-    node_left: Annotated[int | None, typer.Option(help="Left wheel's node id.")] = None,
-    node_right: Annotated[int | None, typer.Option(help="Right wheel's node id.")] = None,
+    node_left: Annotated[
+        int | None, typer.Option(help="Left wheel's node id (light form).")
+    ] = None,
+    node_right: Annotated[
+        int | None, typer.Option(help="Right wheel's node id (light form).")
+    ] = None,
     control_rate: ControlRateOpt = 1000.0,
     heartbeat_ms: HeartbeatOpt = 100.0,
     encoder_ms: EncoderOpt = 10.0,
@@ -144,14 +172,18 @@ def drives_cmd(
     live_host: LiveHostOpt = "127.0.0.1",
     force: ForceOpt = False,
     record: RecordOpt = None,
+    no_record: NoRecordOpt = False,
     wait_device: WaitDeviceOpt = 60.0,
 ) -> None:
-    """Run the robot with its two virtual ODrives (CANSimple 0.6) on a CAN bus for any
-    ODrive client, free running (no start gate), until Ctrl-C or SIGTERM: one status line
-    a second, a JSON summary at the end (docs/can.md). With --record, the same session ends in
-    a run folder that hil report reads: recording, trace, figures at the bus and a verdict."""
-    if record is not None:
+    """Run the robot with its two virtual ODrives (CANSimple 0.6) on a CAN bus for any ODrive
+    client or controller of yours, until Ctrl-C or SIGTERM (or --duration). The session is
+    recorded into a run folder that hil report reads, as any run's: recording, trace, figures
+    at the bus and a verdict (docs/external.md). --no-record: the light form, free running
+    from the start, one status line a second and a JSON summary (docs/can.md)."""
+    if not no_record:
         return _record(dict(locals()))
+    if record is not None:
+        raise BadInputError("--record and --no-record: choose one")
     from hil.bench.drives import DrivesOptions, drives_settings, run_drives
     from hil.bench.live.launch import DrivesLive, check
     from hil.folder import claim
@@ -206,15 +238,20 @@ def _refuse_unrecorded(given: dict[str, object]) -> None:
     for name, (default, instead) in _NOT_RECORDED.items():
         if given[name] != default and given[name] != []:
             flag = "--" + name.replace("_", "-")
-            raise BadInputError(f"{flag} is not taken with --record: the session uses {instead}")
+            raise BadInputError(
+                f"{flag} is the light form's (--no-record): the recorded session uses {instead}"
+            )
 
 
 def _record(given: dict[str, object]) -> None:
     """The recorded form: ``hil run --controller external --cmd-path can``, open-ended unless
     --duration; its exit code is the verdict's. An option it would not honour is refused."""
     from hil.commands.run import run
+    from hil.folder import claim, new_run_dir
 
     _refuse_unrecorded(given)
+    record = given["record"]
+    claim.check("--record", record, bool(given["force"]), default="runs")  # type: ignore[arg-type]
 
     duration = given["duration"]
     scenario = given["scenario"]
@@ -228,7 +265,7 @@ def _record(given: dict[str, object]) -> None:
         can_channel=given["channel"],  # type: ignore[arg-type]
         can_endpoint=given["can_endpoint"],  # type: ignore[arg-type]
         wait_device=given["wait_device"],  # type: ignore[arg-type]
-        out=given["record"],  # type: ignore[arg-type]
+        out=record or new_run_dir(prefix="drives"),  # type: ignore[arg-type]
         live=given["live"],  # type: ignore[arg-type]
         live_host=given["live_host"],  # type: ignore[arg-type]
         force=given["force"],  # type: ignore[arg-type]
