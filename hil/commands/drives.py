@@ -4,13 +4,16 @@ into a run folder, or free running with ``--no-record`` (the light form)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from hil.commands import ForceOpt, app
 from hil.commands.run import LiveHostOpt, live_opt
 from hil.errors import BadInputError
+
+if TYPE_CHECKING:  # loaded when the drives run, not with the CLI
+    from hil.bench.drives import DrivesOptions
 
 
 def _msg_rates(heartbeat_ms: float, encoder_ms: float, extra: list[str]) -> dict[int, float]:
@@ -184,8 +187,7 @@ def drives_cmd(
         return _record(dict(locals()))
     if record is not None:
         raise BadInputError("--record and --no-record: choose one")
-    from hil.bench.drives import DrivesOptions, drives_settings, run_drives
-    from hil.bench.live.launch import DrivesLive, check
+    from hil.bench.drives import DrivesOptions
     from hil.folder import claim
     from protocol.settings import SCHEDULING
 
@@ -212,11 +214,21 @@ def drives_cmd(
         scheduling=scheduling,
         out=out,
     )
+    _run_light(opts, live, live_host)
+
+
+def _run_light(opts: DrivesOptions, live: int | None, live_host: str) -> None:
+    """The light form's session (its options checked): the drives, with the live view's
+    process around them when asked; exit with the drives' code."""
     import can
 
+    from hil.bench.drives import drives_settings, run_drives
+    from hil.bench.live.launch import DrivesLive, check
+    from hil.folder import claim
+
     check(live, live_host)
-    if out is not None:
-        claim.take(out, "drives")
+    if opts.out is not None:
+        claim.take(opts.out, "drives")
     watcher = None
     try:
         if live is not None:  # the live view's process around the drives
