@@ -27,6 +27,7 @@ from protocol.hoplog import (
     HopLog,
     read_hoplog,
 )
+from protocol.messages import FLAG_WATCHDOG_ZERO
 from tests.procs import spawned
 from tests.scenario_text import CLEAN_50HZ, CLEAN_D_STAR_S, CLEAN_RATE_HZ
 
@@ -128,8 +129,10 @@ BENCH_LATE_OR_PASS = (PASSES, inconclusive(also=(*_TIMING, "bench_stalled")))
 def explain_timing(run_dir: Path, summary: dict[str, Any]) -> list[str]:
     """Where summary.json's timing counts are more than the services' own logs explain, why:
     every deadline miss is a slot the controller woke a period or more late for (a late tick
-    or a slot it skipped), every sample without a command one no tick computed from, or whose
-    command was lost or never landed (a newer one was there first)."""
+    or a slot it skipped), every sample without a command one no tick computed a command from
+    that went out on the applied path (on CAN none goes out while the drives are not armed: a
+    guest stalled at start arms them late), or whose command was lost or never landed (a newer
+    one was there first)."""
     t = summary.get("timing") or {}
     try:
         log = read_hoplog(run_dir / "controller.hoplog")
@@ -152,14 +155,18 @@ def explain_timing(run_dir: Path, summary: dict[str, Any]) -> list[str]:
     # A sample gets no command when no tick computed from its State (it came late, or with
     # newer ones, or a slot was skipped), or when that command was lost, or never landed: it
     # arrived after a newer one, or with a newer one within the same plant step.
-    sent = (ticks["flags"] & (TICK_NO_SEND | TICK_DROPPED)) == 0
+    # Sent on the applied path: not a [faults] drop nor a watchdog's zero (computed from no
+    # sample), and stamped on that path (CAN: not sent while the drives were not yet armed).
+    on_can = summary.get("cmd_path") == "can"
+    sent = (ticks["flags"] & (TICK_NO_SEND | TICK_DROPPED | FLAG_WATCHDOG_ZERO)) == 0
+    sent &= ticks["can_send_ns" if on_can else "zenoh_send_ns"] > 0
     used = set(ticks["state_seq"][sent & (ticks["state_seq"] >= 0)].tolist())
     unused = len(set(plant.columns("samples").get("seq", [])) - used)
     messages = summary.get("messages") or {}
     torque = messages.get(f"torque_{summary.get('cmd_path')}") or {}
     # Never arrived: lost, or held by the transport when the plant stopped (in flight).
     lost = int(torque.get("lost") or 0) + int(torque.get("in_flight_at_stop") or 0)
-    path = int(CmdPath.CAN if summary.get("cmd_path") == "can" else CmdPath.ZENOH)
+    path = int(CmdPath.CAN if on_can else CmdPath.ZENOH)
     rx, ap = plant.columns("cmd_rx"), plant.columns("apply")
     arrived = {
         (n, q) for p, n, q in zip(rx["path"], rx["node"], rx["seq"], strict=True) if p == path
