@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from hil.bench.group import phase_ns
+from hil.bench.lifecycle import phase_ns
 from hil.folder.recording import read_messages
 from protocol.errors import BadInputError
 from protocol.hoplog import read_hoplog

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from controller_service.laws.base import Limits
-from hil.bench.lifecycle import RunOptions, prepare
+from hil.bench.prepare import RunOptions, prepare
 from hil.bundled import bundled_dir
 from hil.cli import main
 from hil.errors import BadInputError

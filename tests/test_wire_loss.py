@@ -108,7 +108,8 @@ def test_a_plan_names_what_it_drops_or_refuses_what_the_run_cannot_impair() -> N
 def test_an_impaired_run_is_refused_outside_the_hil_command(tmp_path: Path) -> None:
     """execute() called in process cannot move its caller into a namespace: a clear error,
     nothing written."""
-    from hil.bench.lifecycle import RunOptions, execute
+    from hil.bench.lifecycle import execute
+    from hil.bench.prepare import RunOptions
 
     scenario = tmp_path / "s.toml"
     scenario.write_text(scenario_text(EVERY, torque_only=False))

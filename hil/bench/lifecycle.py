@@ -1,4 +1,6 @@
-"""``hil run``: start the pair (and a router if asked), record everything, write the folder.
+"""``hil run``: start the pair (and a router if asked), record everything, write the folder
+(:mod:`hil.bench.prepare` wrote its first files). One lifecycle for K robots
+(:func:`record_robots`): ``hil run`` is K = 1, a fleet's group (:mod:`hil.bench.group`) K > 1.
 
 The children die with this process (PR_SET_PDEATHSIG) and are stopped by PID, the controller
 first, with SIGINT so they flush their logs. Ctrl-C or SIGTERM at any point still stops
@@ -12,12 +14,13 @@ import dataclasses
 import functools
 import json
 import os
-import random
+import re
+import shutil
 import signal
 import socket
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from subprocess import STDOUT
@@ -26,114 +29,31 @@ from typing import Any
 import can
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from hil import interrupts, options, ticker
+from hil import interrupts, ticker
 from hil.bench import device, impair
-from hil.bench.defaults import PAPER_TRACKING_TOML
 from hil.bench.fleet import barrier as fleet_barrier
 from hil.bench.host_load import HostSampler
 from hil.bench.lab import placement
 from hil.bench.lab.placement import child_argv
-from hil.bench.live.launch import check as live_check
 from hil.bench.live.launch import start_for_run
+from hil.bench.prepare import RunOptions, check_options, prepare
 from hil.bench.recorder import Recorder, RecordingWriter
 from hil.bench.secure import RunIdentities
-from hil.bench.settings import (
-    check_can_interface,
-    effective_can_table,
-    replay_latencies,
-    scenario_settings,
-)
 from hil.bench.supervisor import Supervisor
 from hil.bundled import resolve_scenario
-from hil.errors import BadInputError
-from hil.folder import claim, layout, new_run_dir
+from hil.folder import layout
 from hil.folder.records import ControllerExit, Recorded, RunExtra
-from hil.folder.replay import RunLatencies
-from hil.law.option import with_law
-from hil.provenance import dumps_toml
 from hil.scenario import (
-    DURATION_MAX,
-    MAX_SAMPLES,
-    RATE_MAX,
     Scenario,
-    build_loop,
     load_scenario,
-    loads_scenario,
-    resolved_dict,
 )
 from protocol.can.rx_queue import RxQueueDrops
 from protocol.hoplog import LAW_FAULT_EXIT
-from protocol.keys import is_valid_robot_id, observed_keys, state_key
-from protocol.settings import CMD_PATHS, SCHEDULING, TRIGGERS, RunSettings, period_s
+from protocol.keys import observed_keys, state_key
+from protocol.settings import RunSettings, period_ns
 from runtime.signals import stop_on_signals
 from runtime.startgate import announce_start
 from runtime.zsession import open_session
-
-LAB_ROUTER = "tcp/127.0.0.1:7447"  # a lab host's own router, from inside the host (hil.bench.lab)
-
-
-# Ports the kernel never hands out on its own (below Linux's ephemeral range, 32768-60999): a
-# port from that range, free when picked, was seen taken by another process's ephemeral
-# listener or connection before the run's own listen (16 runs of a fleet at once).
-PORTS = (20000, 32000)
-
-
-def _endpoint(opts: RunOptions) -> str:
-    """The run's Zenoh endpoint: the one given (a campaign keeps its device's), else free."""
-    return opts.zenoh_endpoint or f"tcp/127.0.0.1:{free_port()}"
-
-
-def free_port() -> int:
-    """A loopback TCP port nothing listens on now, outside the ephemeral range."""
-    for _ in range(200):
-        port = random.randrange(*PORTS)
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            return port
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-@dataclass
-class RunOptions:
-    scenario: Path | None = None
-    duration: float | None = None
-    rate: float | None = None
-    cmd_path: str = "zenoh"
-    lockstep: bool = False
-    out: Path | None = None
-    trigger: str | None = None
-    can_live: bool = True
-    can_interface: str | None = None
-    can_channel: str | None = None
-    spin_us: float = 0.0
-    scheduling: str | None = None
-    quiet: bool = False
-    secure: bool = False  # router with authentication and access control (hil.bench.secure)
-    live_port: int | None = None  # serve the run live (hil.bench.live) on this port; None: no
-    live_host: str = "127.0.0.1"
-    law: str | None = None  # --law: the [controller] law instead of the scenario's
-    lab: str | None = None  # run on a lab's hosts (hil.bench.lab.placement)
-    plant_host: str | None = None
-    controller_host: str | None = None
-    robot_id: str | None = None  # instead of the scenario's (hil fleet: one per robot)
-    force: bool = False  # --force: replace a folder that holds files (hil.folder.claim)
-    # False: hil controller / hil emulator, two services that share one folder (default ".")
-    fresh_out: bool = True
-    # "external": no controller of the bench's; an outside device (hil.bench.device)
-    controller: str = "bench"
-    wait_device: float = device.WAIT_DEVICE_S  # s an outside device is waited for
-    zenoh_endpoint: str | None = None  # the run's Zenoh endpoint; None: a free loopback port
-    can_endpoint: str | None = None  # the zenoh_can bus's endpoint; None: a free loopback port
-    # --until-stopped: no duration; Ctrl-C (SIGINT/SIGTERM) is the run's planned end
-    until_stopped: bool = False
-    # [timing] replay naming a real run: the reader of its latencies (the analysis's,
-    # hil.analysis.replay.latencies_from_run, handed over by the command); None: files only
-    run_latencies: RunLatencies | None = None
 
 
 def _can_recorder(
@@ -157,204 +77,24 @@ def _can_recorder(
         return None
 
 
-SPIN_US_MAX = 1e6
-
-
-def check_options(opts: RunOptions) -> None:
-    """``hil run``'s options (also a service's alone), each named in a BadInputError."""
-    options.choice("--cmd-path", opts.cmd_path, CMD_PATHS)
-    if opts.trigger is not None:
-        options.choice("--trigger", opts.trigger, TRIGGERS)
-    if opts.scheduling is not None:
-        options.choice("--scheduling", opts.scheduling, SCHEDULING)
-    options.optional_number("--rate", opts.rate, 0.1, RATE_MAX)
-    options.optional_number("--duration", opts.duration, 0.0, DURATION_MAX, positive=True)
-    options.number("--spin-us", opts.spin_us, 0.0, SPIN_US_MAX)
-    if opts.can_interface is not None:
-        options.plain_string("--can-interface", opts.can_interface, empty=False)
-    if opts.can_channel is not None:
-        options.plain_string("--can-channel", opts.can_channel, empty=False)
-    if opts.fresh_out:
-        claim.check("--out", opts.out, opts.force, default="runs")
-    else:
-        options.out_dir("--out", opts.out, default="runs")
-    if opts.robot_id is not None and not is_valid_robot_id(opts.robot_id):
-        raise BadInputError(f"--robot-id {opts.robot_id!r}: 1-64 characters of [A-Za-z0-9_.-]")
-    live_check(opts.live_port, opts.live_host)
-    if opts.live_port is not None and opts.secure:
-        raise BadInputError("--live does not log in to a --secure run's router")
-    _check_device_options(opts)
-
-
-def _check_device_options(opts: RunOptions) -> None:
-    """--controller, --wait-device, --zenoh-endpoint, and what an outside device excludes."""
-    options.choice("--controller", opts.controller, device.CONTROLLERS)
-    options.number("--wait-device", opts.wait_device, 0.0, DURATION_MAX, positive=True)
-    for name, endpoint in (
-        ("--zenoh-endpoint", opts.zenoh_endpoint),
-        ("--can-endpoint", opts.can_endpoint),
-    ):
-        if endpoint is not None:
-            device.check_endpoint(name, endpoint)
-    if opts.until_stopped and opts.duration is not None:
-        raise BadInputError("--until-stopped runs until Ctrl-C: it takes no --duration")
-    if opts.controller != "external":
-        if opts.until_stopped:
-            raise BadInputError("--until-stopped is for --controller external (a device's session)")
-        return
-    for given, name in (
-        (opts.lockstep, "--lockstep (the plant would wait for each command in turn)"),
-        (opts.secure, "--secure (the device would need the run's passwords)"),
-        (opts.law, "--law (the device is the law)"),
-    ):
-        if given:
-            raise BadInputError(f"--controller external does not take {name}")
-
-
-def _control_rate(opts: RunOptions, scenario: Any) -> tuple[float, str]:
-    """The control rate (Hz) and the name of what set it ("" for the scenario's own Ts)."""
-    if opts.rate is not None:
-        return opts.rate, "--rate"
-    if scenario.realtime.rate:
-        return scenario.realtime.rate, "[realtime] rate"
-    rate = 1.0 / scenario.timing.ts
-    if rate > RATE_MAX:
-        raise BadInputError(
-            f"[timing] ts = {scenario.timing.ts:g} s is a control rate of {rate:g} Hz, above "
-            f"the {RATE_MAX:g} Hz hil run supports (set [realtime] rate or --rate)"
-        )
-    return rate, ""
-
-
-def _run_settings(
-    opts: RunOptions, scenario: Any, context: Any, scenario_path: Path, run_dir: Path, rate: float
-) -> RunSettings:
-    """The settings both services read (:class:`protocol.settings.RunSettings`)."""
-    rt = scenario.realtime
-    ts_s = scenario.timing.ts  # already 1 / rate when a rate overrode it (prepare)
-    sensor_rate = rate if opts.lockstep else (rt.sensor_rate or rate)
-    can_table = effective_can_table(scenario, opts.can_interface)  # with the command line's
-    if opts.can_channel:
-        can_table["channel"] = opts.can_channel
-    if (opts.can_live and opts.controller != "external") or opts.cmd_path == "can":
-        where = "--can-interface" if opts.can_interface else "[can] interface"
-        check_can_interface(can_table["interface"], where)
-    settings = scenario_settings(
-        scenario,
-        context,
-        scenario_path=str(scenario_path),
-        epoch_ns=0,
-        # The scenario's Ts bit for bit when no rate overrides it (1 / (1 / ts) may differ in
-        # the last bit, and lockstep must see the simulator's sample times exactly).
-        ts=ts_s,
-        sensor_ts=ts_s if sensor_rate == rate else period_s(sensor_rate),
-        trigger=opts.trigger or rt.trigger,
-        lockstep=opts.lockstep,
-        # Lockstep is about values, not timing; and a SCHED_FIFO main thread there was seen to
-        # starve Zenoh's helper threads (seconds-long stalls with the CAN path live).
-        scheduling="other" if opts.lockstep else (opts.scheduling or rt.scheduling),
-        cmd_path=opts.cmd_path,
-        can_live=opts.can_live,
-        can=can_table,
-        # On a lab, each process is a client of its own host's router (hil.bench.lab.placement).
-        zenoh_mode="router" if opts.secure or opts.lab else scenario.zenoh.mode,
-        zenoh_endpoint=LAB_ROUTER if opts.lab else _endpoint(opts),
-        can_endpoint=opts.can_endpoint or f"tcp/127.0.0.1:{free_port()}",
-        delay=scenario.timing.delay,
-        out_dir=str(run_dir.resolve()),
-        spin_us=opts.spin_us,
-        replay=replay_latencies(scenario, opts.run_latencies),
-    )
-    if opts.robot_id is not None:
-        settings.robot_id = opts.robot_id
-    if opts.controller == "external":
-        # The plant waits for its start while the device is waited for.
-        settings.start_timeout = max(settings.start_timeout, opts.wait_device + 60.0)
-        if opts.cmd_path == "zenoh":
-            settings.can_live = False  # nobody would drive the CAN shadow
-    if (os.cpu_count() or 1) >= 2:
-        settings.cpu_controller, settings.cpu_plant = 1, 0
-    settings.validate()
-    return settings
-
-
-def prepare(
-    opts: RunOptions, load: Callable[[], Scenario] | None = None
-) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
-    """Resolve the scenario (``load``: the user's file, parsed once) and the run's settings;
-    write the folder's first files."""
-    check_options(opts)  # every option before the scenario: no folder, no process yet
-    if opts.secure and opts.cmd_path == "can":
-        raise BadInputError("--secure guards the Zenoh command path; the CAN bus has no login")
-    if opts.lockstep and opts.cmd_path == "can":
-        # The lockstep plant waits for the Zenoh command computed from each State (docs/
-        # realtime.md, "Lockstep"): a CAN applied path would never land a command.
-        raise BadInputError(
-            "--lockstep exchanges each State and its command on Zenoh: --cmd-path can is not "
-            "supported with it (the CAN path still runs beside it as a shadow)"
-        )
-    run_dir = Path(opts.out) if opts.out else new_run_dir()
-    given = None if opts.scenario is None else resolve_scenario(opts.scenario)  # file or name
-    if given is None:  # the paper's tracking circle, written into the folder
-        scenario = with_law(loads_scenario(PAPER_TRACKING_TOML, run_dir), opts.law)
-        scenario_path = run_dir / layout.SCENARIO
-    else:
-        scenario = with_law(load() if load is not None else load_scenario(given), opts.law)
-        scenario_path = given.resolve()
-    rate, rate_name = _control_rate(opts, scenario)
-    duration = opts.duration if opts.duration is not None else scenario.run.duration
-    if opts.until_stopped:  # until Ctrl-C, at most the longest loop a scenario may ask
-        duration = min(DURATION_MAX, (MAX_SAMPLES - 1) / rate)
-    scenario = scenario.with_overrides(
-        duration=duration,
-        ts=scenario.timing.ts if not rate_name else period_s(rate),
-        names=(
-            "--duration" if opts.duration is not None else "[run] duration",
-            f"1 / {rate_name}" if rate_name else "[timing] ts",
-        ),
-    )
-    controller, reference, context = build_loop(scenario)
-    settings = _run_settings(opts, scenario, context, scenario_path, run_dir, rate)
-    if opts.fresh_out:
-        claim.take(run_dir, "run")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    if given is None:
-        scenario_path.write_text(PAPER_TRACKING_TOML)
-    settings.save(run_dir / layout.RUN_SETTINGS)
-    run_facts = {
-        "command": "hil run",
-        "cmd_path": settings.cmd_path,
-        "lockstep": settings.lockstep,
-        "rate_hz": float(rate),
-        "trigger": settings.trigger,
-        "can_interface": settings.can["interface"],
-        "secure": opts.secure,
-        "controller": opts.controller,
-    }
-    resolved = resolved_dict(scenario, controller, context, run_facts)
-    (run_dir / layout.SCENARIO_RESOLVED).write_text(dumps_toml(resolved))
-    info = {"reference": reference, "context": context, "rate_hz": float(rate)}
-    return scenario, settings, run_dir, info
-
-
-def _open_recorder_session(
-    settings: RunSettings, ids: Any, sup: Supervisor, logs: _Logs, stop: Any, lab: bool = False
-) -> Any:
-    """The recorder's Zenoh session: on the run's endpoint, or a router's client (started
-    here) in router mode, or the client of the lab host's own router."""
-    if lab:
+def _open_recorder_session(rec: Recording, logs: _Logs, stop: Any) -> Any:
+    """The recorder's Zenoh session: the client of the lab host's own router, or of the
+    run's router (started here), or a peer on the run's endpoint."""
+    settings = rec.robots[0].settings
+    if rec.placed:
         return open_session(settings.zenoh_endpoint, mode="client", credentials=None)
-    if settings.zenoh_mode == "router":
-        router_args = ["-m", "hil.bench.router", settings.zenoh_endpoint, *ids.router_args()]
-        env = ids.child_env("router")
+    if rec.own_router:
+        router_args = ["-m", "hil.bench.router", settings.zenoh_endpoint, *rec.ids.router_args()]
+        env = rec.ids.child_env("router")
+        sup = rec.sup
         sup.start_python("router", router_args, env=env, stdout=logs.open("router"), stderr=STDOUT)
         _wait_port(settings.zenoh_endpoint, stop, 30.0)
-        creds = ids.credentials("recorder")
+        creds = rec.ids.credentials("recorder")
         return open_session(settings.zenoh_endpoint, mode="client", credentials=creds)
     return open_session(settings.zenoh_endpoint, listen_endpoint=True, credentials=None)
 
 
-def _start_services(
+def start_services(
     sup: Supervisor,
     run_dirs: list[Path],
     ids: Any,
@@ -383,37 +123,172 @@ def _start_services(
         (d / layout.PROCESSES).write_text(pids)
 
 
-def _start_and_follow(
-    settings: RunSettings,
-    recorder: Recorder,
-    sup: Supervisor,
+@dataclass
+class RobotRun:
+    """One robot of a recording: its folder as :func:`prepare` wrote it, and its recorder."""
+
+    id: str
+    scenario: Scenario
+    settings: RunSettings
+    run_dir: Path
+    info: dict[str, Any]
+    recorder: Recorder
+
+    def recorded(self, extra: RunExtra) -> Recorded:
+        """The raw run folder, with what the analysis needs to finish it."""
+        ref, ctx = self.info["reference"], self.info["context"]
+        return Recorded(self.run_dir, self.scenario, self.settings, ref, ctx, extra)
+
+
+#: What starts a recording's services and follows the run: (recording, the recorder's
+#: session, the children's logs, the host sampler, the recording's resources to add to);
+#: returns an error (or None) and how the controller process ended when it ended first.
+Follow = Callable[
+    ["Recording", Any, "_Logs", HostSampler, contextlib.ExitStack],
+    tuple[str | None, ControllerExit | None],
+]
+
+
+@dataclass
+class Recording:
+    """One recording of K robots (``hil run``: K = 1; a fleet's group, K > 1): what they share
+    (one Zenoh session, one supervisor, one host sampler, the children's logs) and, once
+    :func:`record_robots` returned, how it ended."""
+
+    robots: list[RobotRun]
+    ids: RunIdentities
+    logs_dir: Path  # the children's console logs (log_prefix + <name>.log)
+    placed: Any = None  # on a lab's hosts (hil.bench.lab.placement)
+    own_router: bool = False  # start the run's router (its settings' zenoh_mode "router")
+    device: bool = False  # an outside device is the controller (the topology says so)
+    group: bool = False  # a fleet's group: its robots share the processes (summary.json says)
+    sup: Supervisor = dataclasses.field(default_factory=Supervisor)
+    codes: dict[str, int | None] = dataclasses.field(default_factory=dict)
+    error: str | None = None
+    ended: ControllerExit | None = None
+    wall_s: float = 0.0
+
+    def extra(self, interrupted: bool, secure: bool = False) -> list[RunExtra]:
+        """What each robot's summary.json says about the run itself (in this key order)."""
+        out = []
+        for r in self.robots:
+            extra = run_extra(interrupted, self.error, self.wall_s, self.codes, r.recorder, secure)
+            if self.group:
+                extra["shared_processes"] = {
+                    "robots": [x.id for x in self.robots],
+                    "processes": ["plant", "controller"],
+                }
+            if self.ended is not None:  # every robot the process served lost its controller
+                extra["controller_exit"] = self.ended
+            out.append(extra)
+        return out
+
+
+def record_robots(rec: Recording, stop: Any, follow: Follow) -> None:
+    """The one lifecycle of a recording: the recorder's session and each robot's keys into
+    its own recording, then ``follow`` (which starts the services); on the way out, in this
+    order, whatever happened: the services stopped by PID (their codes in ``rec.codes``),
+    the host sampler, the logs, the identities, ``follow``'s own resources, the
+    subscriptions, the session, then each robot's topology and recording (the hop logs
+    attached)."""
+    first = rec.robots[0]
+    t0 = time.monotonic()
+    with contextlib.ExitStack() as held:  # closed in the reverse order of their entry
+        for r in rec.robots:
+            held.callback(_close_recording, r, first.run_dir, rec.placed, rec.device)
+        held.callback(rec.ids.close)
+        logs = held.enter_context(_Logs(rec.logs_dir))
+        host = HostSampler(first.run_dir)
+        held.callback(host.close)
+        with _services_stopped(rec):
+            session = _open_recorder_session(rec, logs, stop)
+            held.callback(session.close)
+            for r in rec.robots:  # the robot's own keys only: robots may share the routers
+                for key in observed_keys(r.id):
+                    held.callback(session.declare_subscriber(key, r.recorder.on_zenoh).undeclare)
+            rec.error, rec.ended = follow(rec, session, logs, host, held)
+    rec.wall_s = time.monotonic() - t0
+
+
+@contextlib.contextmanager
+def _services_stopped(rec: Recording) -> Iterator[None]:
+    """Every child of the recording stopped by its PID on the way out (their exit codes)."""
+    try:
+        yield
+    finally:
+        rec.codes = _stop_children(rec.sup, rec.robots[0].settings)
+
+
+def _close_recording(r: RobotRun, first_dir: Path, placed: Any, device: bool) -> None:
+    """A robot's folder completed (the shared host log, which host ran what), then its
+    recording closed with the files it carries."""
+    if r.run_dir != first_dir and (first_dir / layout.HOST_LOG).is_file():
+        shutil.copyfile(first_dir / layout.HOST_LOG, r.run_dir / layout.HOST_LOG)
+    placement.write_topology(placed, r.run_dir, device=device)  # before the recording takes it
+    r.recorder.close(attachment_files(r.run_dir))
+
+
+# A fleet's groups start on a grid: released together within the barrier's poll, they pick
+# the same base (one host, one clock), so the robots' phases interleave across groups too.
+START_GRID_NS = 500_000_000
+
+
+def phase_ns(robot: str, position: int, n: int, period: int) -> int:
+    """Robot I's epoch shift, (I - 1) / N of a period (I: from ``robotI``, else its position)."""
+    m = re.fullmatch(r"robot(\d+)", robot)
+    index = int(m.group(1)) - 1 if m else position
+    return period * (index % n) // n if n > 0 else 0
+
+
+def start_and_follow(
+    rec: Recording,
     stop: Any,
     announcer: Any,
     quiet: bool,
+    *,
     arrival: Any = None,
     conn: device.DeviceConnection | None = None,
-    run_dir: Path | None = None,
+    fleet_size: int | None = None,
+    output: str = layout.CONTROLLER_OUTPUT,
 ) -> tuple[str | None, ControllerExit | None]:
-    """Wait for both services (an outside device: for the plant, then for the device, whose
-    connection ``conn`` is said and saved in ``run_dir``), announce the epoch, follow the
-    run; an error (or None) and how the controller ended when it ended before the plant (or
-    None)."""
+    """Wait for every robot's services (an outside device: for the plant, then for the
+    device, whose connection ``conn`` is said and saved in its folder), start them together
+    with the rest of the fleet, follow the run; an error (or None) and how the controller
+    ended when it ended before the plant (or None). ``fleet_size``: the robots' epochs
+    interleaved (:func:`phase_ns`) on a grid shared by the fleet's groups; None: one epoch,
+    now. ``output``: the controller's console log, relative to the run folder."""
+    robots = rec.robots
     # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
     # that dies is noticed at once anyway.
-    ready_timeout = float(os.environ.get("HIL_READY_TIMEOUT", "300"))
+    deadline = time.monotonic() + float(os.environ.get("HIL_READY_TIMEOUT", "300"))
     roles = {"plant"} if arrival is not None else {"plant", "controller"}
-    if not _wait_ready(recorder, sup, stop, timeout=ready_timeout, roles=roles):
-        return "services did not become ready", None
-    if arrival is not None and conn is not None and run_dir is not None:
-        error = _wait_device(arrival, conn, sup, stop, run_dir)
+    for r in robots:
+        if not _wait_ready(r.recorder, rec.sup, stop, max(0.0, deadline - time.monotonic()), roles):
+            whose = f" of {r.id}" if len(robots) > 1 else ""
+            return f"services{whose} did not become ready", None
+    if arrival is not None and conn is not None:
+        error = _wait_device(arrival, conn, rec.sup, stop, robots[0].run_dir)
         if error is not None:
             return error, None
+    barrier = os.environ.get(fleet_barrier.ENV)
+    if barrier:  # every robot of this recording is ready
+        for r in robots:
+            fleet_barrier.release(Path(barrier.rsplit(":", 2)[0]), r.id)
     fleet_barrier.wait(stop)  # a fleet's robots start together (no-op for one run)
-    epoch = time.monotonic_ns() + 300_000_000
-    for i in range(3):  # a start message lost to a racing link must not hang
-        announce_start(announcer, settings.robot_id, epoch, seq=i)
+    if fleet_size is None:
+        base = time.monotonic_ns() + 300_000_000
+        epochs = [base]
+    else:
+        base = -(-(time.monotonic_ns() + 300_000_000) // START_GRID_NS) * START_GRID_NS
+        n = fleet_size or len(robots)
+        periods = [period_ns(r.settings.ts) for r in robots]
+        epochs = [base + phase_ns(r.id, i, n, periods[i]) for i, r in enumerate(robots)]
+    for seq in range(3):  # a start message lost to a racing link must not hang
+        for r, epoch in zip(robots, epochs, strict=True):
+            announce_start(announcer, r.id, epoch, seq=seq)
         time.sleep(0.02)
-    return None, _progress(settings, recorder, sup, stop, quiet, epoch)
+    first = robots[0]
+    return None, _progress(first.settings, first.recorder, rec.sup, stop, quiet, base, output)
 
 
 def execute(opts: RunOptions) -> Recorded:
@@ -428,74 +303,66 @@ def execute(opts: RunOptions) -> Recorded:
     impairment = None if placed else impair.enter(opts, check_options, load)
     scenario, settings, run_dir, info = prepare(opts, load)
     _say_start(opts, scenario, settings, run_dir)
-    sup = Supervisor()
     metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
     writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer, same_clock=not placed)
-    session, subs, can_rec, ended, arrival = None, [], None, None, None
+    robot = RobotRun(settings.robot_id, scenario, settings, run_dir, info, recorder)
+    external = opts.controller == "external"
+    rec = Recording(
+        [robot],
+        RunIdentities(opts.secure, (settings.robot_id,)),  # fresh passwords, or none
+        run_dir,
+        placed,
+        own_router=settings.zenoh_mode == "router",
+        device=external,
+    )
+
+    def follow(rec: Recording, session: Any, logs: _Logs, host: HostSampler,
+               held: contextlib.ExitStack) -> tuple[str | None, ControllerExit | None]:  # fmt: skip
+        announcer = rec.ids.announcer(session, settings.zenoh_endpoint)
+        lab = (placed.lab, placed.controller) if placed else None
+        netns = os.getpid() if impairment is not None else None  # unshare exec'd: same PID
+        conn = device.connection(settings, opts.wait_device, lab, netns) if external else None
+        arrival = _arrival(settings, session) if external else None
+        if arrival is not None:
+            held.callback(arrival.close)
+        also = arrival.on_frame if isinstance(arrival, device.CanArrival) else None
+        can_rec = _can_recorder(settings, robot.recorder, also)
+        if can_rec is not None:
+            held.callback(_stop_can_recorder, can_rec, robot.recorder)
+        if opts.live_port is not None:  # its own process: no cycle of the recorder's
+            start_for_run(rec.sup, run_dir, opts.live_port, opts.live_host, logs, bool(placed))
+        roles = ("plant",) if external else ("plant", "controller")
+        start_services(rec.sup, [run_dir], rec.ids, logs, host, placed, roles=roles)
+        return start_and_follow(rec, stop, announcer, opts.quiet, arrival=arrival, conn=conn)
+
     planned_end = False
-    logs = _Logs(run_dir)
-    t_start = time.monotonic()
-    ids = RunIdentities(opts.secure, (settings.robot_id,))  # fresh passwords, or none
-    host = HostSampler(run_dir)
     with stop_on_signals() as stop:
         try:
-            session = _open_recorder_session(settings, ids, sup, logs, stop, bool(placed))
-            announcer = ids.announcer(session, settings.zenoh_endpoint)
-            # The run's own robot only: a fleet's robots may share the routers.
-            subs = [
-                session.declare_subscriber(key, recorder.on_zenoh)
-                for key in observed_keys(settings.robot_id)
-            ]
-            external = opts.controller == "external"
-            lab = (placed.lab, placed.controller) if placed else None
-            netns = os.getpid() if impairment is not None else None  # unshare exec'd: same PID
-            conn = device.connection(settings, opts.wait_device, lab, netns) if external else None
-            arrival = _arrival(settings, session) if external else None
-            also = arrival.on_frame if isinstance(arrival, device.CanArrival) else None
-            can_rec = _can_recorder(settings, recorder, also)
-            if opts.live_port is not None:  # its own process: no cycle of the recorder's
-                start_for_run(sup, run_dir, opts.live_port, opts.live_host, logs, bool(placed))
-            roles = ("plant",) if external else ("plant", "controller")
-            _start_services(sup, [run_dir], ids, logs, host, placed, roles=roles)
-            error, ended = _start_and_follow(
-                settings, recorder, sup, stop, announcer, opts.quiet, arrival, conn, run_dir
-            )
+            record_robots(rec, stop, follow)
             # An open-ended run's stop is its end, not an interruption (once it has started).
-            planned_end = opts.until_stopped and error is None and bool(stop)
-            interrupted = bool(stop) and not planned_end
+            planned_end = opts.until_stopped and rec.error is None and bool(stop)
         finally:
             if stop and not planned_end:  # hil.cli then exits 130 once the folder is written
                 interrupts.record(stop.signal or signal.SIGINT)
-            codes = _stop_children(sup, settings)
-            host.close()
-            ids.close()
-            logs.close()
-            # before the recording takes it along
-            placement.write_topology(placed, run_dir, device=opts.controller == "external")
-            for sub in subs:
-                sub.undeclare()
-            if can_rec is not None:
-                can_rec[1].stop()
-                # Frames the recorder's own socket dropped (its queue full): the recording's
-                # loss, the bench's, never the system's.
-                recorder.can_socket_drops = can_rec[2].read()
-                can_rec[2].close()
-                with contextlib.suppress(Exception):  # a bus already gone is fine here
-                    can_rec[0].shutdown()
-            if arrival is not None:
-                arrival.close()
-            if session is not None:
-                session.close()
-            recorder.close(attachment_files(run_dir))  # the hop logs attached
-    extra = run_extra(interrupted, error, time.monotonic() - t_start, codes, recorder, opts.secure)
-    if ended is not None:
-        extra["controller_exit"] = ended
+        interrupted = bool(stop) and not planned_end
+    (extra,) = rec.extra(interrupted, opts.secure)
     if opts.until_stopped:
         extra["until_stopped"] = True
     extra.update(impair.finish(impairment, run_dir))  # the kernel's counts of what it dropped
-    return Recorded(run_dir, scenario, settings, info["reference"], info["context"], extra)
+    return robot.recorded(extra)
+
+
+def _stop_can_recorder(can_rec: tuple[Any, Any, Any], recorder: Recorder) -> None:
+    """The CAN recording's notifier stopped and its bus shut down; the frames its own socket
+    dropped (its queue full) counted: the recording's loss, the bench's, never the system's."""
+    bus, notifier, drops = can_rec
+    notifier.stop()
+    recorder.can_socket_drops = drops.read()
+    drops.close()
+    with contextlib.suppress(Exception):  # a bus already gone is fine here
+        bus.shutdown()
 
 
 def run_extra(

@@ -171,7 +171,8 @@ def _run_steps(
 ) -> None:
     """One ``hil run --controller external`` per value, until one breaks (or all ran)."""
     from hil.analysis.analyze import write_results
-    from hil.bench.lifecycle import RunOptions, execute
+    from hil.bench.lifecycle import execute
+    from hil.bench.prepare import RunOptions
 
     for k, value in enumerate(tried):
         ticker.say(
@@ -264,7 +265,7 @@ def campaign(
     """Measure how much added delay (or jitter, or loss) on the path toward YOUR device it
     holds before a limit of (2) breaks: runs `hil run --controller external` again and again
     on the same endpoint, the device kept running (docs/external.md, "Campaign")."""
-    from hil.bench.lifecycle import free_port
+    from hil.bench.prepare import free_port
 
     if vary not in VARIED:
         raise BadInputError(f"--vary {vary!r}: one of {', '.join(VARIED)}")

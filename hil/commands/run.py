@@ -132,7 +132,7 @@ _FIELD_OF = {"can": "can_live", "live": "live_port"}
 
 
 def run_options(given: dict[str, Any], cls: Any, **extra: Any) -> Any:
-    """The bench's options record (hil.bench.lifecycle.RunOptions) from the command line's
+    """The bench's options record (hil.bench.prepare.RunOptions) from the command line's
     values by name: one spelling of each option, no list of them kept twice."""
     fields = {f.name for f in dataclasses.fields(cls)}
     named = {_FIELD_OF.get(k, k): v for k, v in given.items()}
@@ -277,7 +277,8 @@ def run(
     given = dict(locals())  # the command line, by option name (first: nothing else bound yet)
     from hil.analysis.analyze import write_results
     from hil.analysis.replay import latencies_from_run
-    from hil.bench.lifecycle import RunOptions, execute
+    from hil.bench.lifecycle import execute
+    from hil.bench.prepare import RunOptions
 
     # The bench records the run into its folder; the analysis then writes the figures, the
     # trace and the verdict into it (summary.json); the report follows.

@@ -78,7 +78,7 @@ def service(
         if scenario is None:
             raise BadInputError("give a scenario file or --settings")
         from hil.analysis.replay import latencies_from_run
-        from hil.bench.lifecycle import RunOptions, prepare
+        from hil.bench.prepare import RunOptions, prepare
 
         # Resolved as hil run resolves it, with this service's own endpoints and epoch.
         run = {"duration": duration, "rate": rate, "cmd_path": cmd_path, "lockstep": lockstep}
