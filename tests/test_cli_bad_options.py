@@ -79,6 +79,7 @@ CASES: list[tuple[list[str], str]] = [
     (["drives", "--record", "FILE"], "--record"),
     (["fleet", S, "--robots", "1", "--out", "UNWRITABLE"], "--out"),
     (["fleet", S, "--robots", "1", "--out", "FILE"], "--out"),
+    (["fleet", S, "--robots", "1", "--plant-host", "h1", "--out", "OUT"], "--plant-host"),
     # hil sweep
     (["sweep", S, "--ts", "0", "--out", "OUT"], "--ts"),
     (["sweep", S, "--ts", "0.001,nan", "--out", "OUT"], "--ts"),

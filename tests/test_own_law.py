@@ -223,17 +223,18 @@ def test_law_option_is_the_same_wherever_a_law_runs(tmp_path: Path) -> None:
 
     from hil.bench.fleet.spawner import FleetOptions, group_argv, run_argv
     from hil.bench.group import GroupSpec
+    from hil.bench.prepare import RunOptions
     from hil.cli import app
 
     group = typer.main.get_command(app)
     for name in ("run", "sim", "sweep", "margin", "fleet"):
         params = {p.name: p for p in group.commands[name].params}  # type: ignore[attr-defined]
         assert params["law"].opts == ["--law"] and params["law"].help == LAW_HELP, name
-    opts = FleetOptions(Path("s.toml"), 2, tmp_path, law="my_law:MyLaw")
+    opts = FleetOptions(RunOptions(Path("s.toml"), law="my_law:MyLaw"), 2, tmp_path)
     argv = run_argv(opts, "robot1")
     assert argv[argv.index("--law") + 1] == "my_law:MyLaw"
-    spec = json.loads(Path(group_argv(opts, ["robot1", "robot2"])[-1]).read_text())
-    assert GroupSpec(**spec).options("robot1").law == "my_law:MyLaw"
+    spec = GroupSpec.read(Path(group_argv(opts, ["robot1", "robot2"])[-1]))
+    assert spec.options("robot1").law == "my_law:MyLaw"
 
 
 def test_law_option_replaces_the_table_unless_it_names_the_same_law() -> None:

@@ -13,6 +13,8 @@ same instant.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,28 +37,29 @@ from hil.folder.replay import RunLatencies
 
 @dataclass
 class GroupSpec:
-    """One group of a fleet: its robots, the fleet's folder and the run's options."""
+    """One group of a fleet: its robots' ``hil run`` options, its robots, the fleet's folder."""
 
-    scenario: str
+    run: RunOptions  # every robot's options (hil.bench.fleet.spawner.FleetOptions.robot)
     robots: list[str]
-    out: str
-    duration: float | None = None
-    rate: float | None = None
+    out: Path
     fleet_size: int = 0  # N: robot I's epoch is shifted by (I - 1) / N of a period
-    lab: str | None = None  # on a lab's hosts (hil.bench.lab.placement), through their routers
-    plant_host: str | None = None
-    controller_host: str | None = None
-    law: str | None = None  # hil fleet --law
 
     def options(self, robot: str | None = None) -> RunOptions:
-        """``hil run``'s options for one robot of the group (``--no-can``, quiet)."""
-        opts = RunOptions(scenario=Path(self.scenario), duration=self.duration, rate=self.rate)
-        opts.quiet, opts.can_live, opts.robot_id = True, False, robot
-        opts.law = self.law
-        opts.out = None if robot is None else Path(self.out) / robot
-        for key in ("lab", "plant_host", "controller_host"):
-            setattr(opts, key, getattr(self, key))
-        return opts
+        """One robot's options (``robot`` None: the group's, as for its lab placement)."""
+        out = None if robot is None else self.out / robot
+        return dataclasses.replace(self.run, robot_id=robot, out=out)
+
+    def write(self, path: Path) -> None:
+        doc = {"run": self.run.to_json(), "robots": self.robots, "out": str(self.out)}
+        doc["fleet_size"] = self.fleet_size
+        path.write_text(json.dumps(doc, indent=2) + "\n")
+
+    @classmethod
+    def read(cls, path: Path) -> GroupSpec:
+        """The spec :meth:`write` wrote (by hil fleet, for the group's process)."""
+        doc = json.loads(path.read_text())
+        run = RunOptions.from_json(doc["run"])
+        return cls(run, list(doc["robots"]), Path(doc["out"]), int(doc["fleet_size"]))
 
 
 def _prepare(
@@ -85,7 +88,7 @@ def record(
     """Run the group (``placed``: on a lab's hosts, this process on the recorder's); each
     robot's raw run folder, for the analysis (:mod:`hil.commands.group`). ``run_latencies``:
     as :class:`hil.bench.prepare.RunOptions`'."""
-    out = Path(spec.out)
+    out = spec.out
     out.mkdir(parents=True, exist_ok=True)
     endpoint = None if placed else f"tcp/127.0.0.1:{free_port()}"
     robots = _prepare(spec, endpoint, run_latencies)

@@ -6,10 +6,11 @@ written. :mod:`hil.bench.lifecycle` then records the run in that folder.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import random
 import socket
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -108,6 +109,54 @@ class RunOptions:
     # [timing] replay naming a real run: the reader of its latencies (the analysis's,
     # hil.analysis.replay.latencies_from_run, handed over by the command); None: files only
     run_latencies: RunLatencies | None = None
+
+    def argv(self) -> list[str]:
+        """``hil run``'s arguments for these options (what ``hil.commands.run.run_options``
+        reads back): the scenario, then each field that differs from its default under its
+        option; a field ``hil run`` has no option for must be at its default."""
+        args = [] if self.scenario is None else [str(self.scenario)]
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name == "scenario" or value == f.default:
+                continue
+            if f.name in _NOT_OPTIONS:
+                raise ValueError(f"hil run has no option for {f.name} = {value!r}")
+            flag = "--" + _OPTION_OF_FIELD.get(f.name, f.name).replace("_", "-")
+            if isinstance(value, bool):
+                args.append(flag if value else "--no-" + flag[2:])
+            else:
+                args += [flag, repr(value) if isinstance(value, float) else str(value)]
+        return args
+
+    def to_json(self) -> dict[str, JsonValue]:
+        """The options as JSON values (a fleet's group spec). The latencies reader is not
+        one: each process that needs it is handed its own."""
+        if self.run_latencies is not None:
+            raise ValueError("run_latencies is a reader, not a value: hand it over instead")
+        out: dict[str, JsonValue] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name != "run_latencies":
+                out[f.name] = str(value) if isinstance(value, Path) else value
+        return out
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, JsonValue]) -> RunOptions:
+        """The options :meth:`to_json` wrote."""
+        opts = cls(**data)  # type: ignore[arg-type]
+        for name in ("scenario", "out"):
+            if getattr(opts, name) is not None:
+                setattr(opts, name, Path(str(getattr(opts, name))))
+        return opts
+
+
+JsonValue = str | float | int | bool | None
+
+#: ``hil run``'s options whose RunOptions field is named otherwise; the rest share theirs.
+FIELD_OF_OPTION = {"can": "can_live", "live": "live_port"}
+_OPTION_OF_FIELD = {field: option for option, field in FIELD_OF_OPTION.items()}
+#: RunOptions' fields ``hil run`` has no option for: set by the bench, never by a user.
+_NOT_OPTIONS = ("scheduling", "fresh_out", "run_latencies")
 
 
 SPIN_US_MAX = 1e6

@@ -63,16 +63,16 @@ def fleet_cmd(
     from hil.analysis import fleet_report as report
     from hil.bench.fleet.spawner import FleetOptions, check, execute, robot_ids
     from hil.bench.live import launch
+    from hil.bench.prepare import RunOptions
     from hil.law.option import with_law
     from hil.scenario import build_loop, load_scenario
     from runtime.signals import stop_on_signals
 
     out_dir("--out", out)
     path = resolve_scenario(scenario)
-    opts = FleetOptions(
-        path, robots, out, duration, rate, lab, plant_host, controller_host, per_process, force
-    )
-    opts.law = law
+    run = RunOptions(scenario=path, duration=duration, rate=rate, law=law, lab=lab)
+    run.plant_host, run.controller_host = plant_host, controller_host
+    opts = FleetOptions(run, robots, out, per_process, force)
     launch.check(live, live_host)  # the port, before any robot starts
     check(opts)  # the options, the folder and the law, before the start line
     sc = with_law(load_scenario(path), law)
@@ -87,7 +87,7 @@ def fleet_cmd(
         codes = execute(opts, stop, watcher)
         if stop:
             interrupts.record(stop.signal)
-    facts = {"scenario": str(opts.scenario), "rate_hz": rate, "duration_s": duration, "lab": lab}
+    facts = {"scenario": str(path), "rate_hz": rate, "duration_s": duration, "lab": lab}
     facts["per_process"] = per_process
     summary = report.write(out, codes, facts)
     typer.echo(json.dumps(summary["fleet"], indent=2))

@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
             "usage: python -m hil.commands.group SPEC.json (written by hil fleet)", file=sys.stderr
         )
         return 2
-    spec = GroupSpec(**json.loads(Path(args[0]).read_text()))
+    spec = GroupSpec.read(Path(args[0]))
     # --lab: executes this same command again on the recorder's lab host (as hil run does).
     placed = placement.enter(spec.options(), False, True)
     with stop_on_signals() as stop:

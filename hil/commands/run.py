@@ -127,15 +127,14 @@ ZenohEndpointOpt = Annotated[
 ]
 
 
-# hil run's options whose RunOptions field has another name; the rest share theirs.
-_FIELD_OF = {"can": "can_live", "live": "live_port"}
-
-
 def run_options(given: dict[str, Any], cls: Any, **extra: Any) -> Any:
     """The bench's options record (hil.bench.prepare.RunOptions) from the command line's
-    values by name: one spelling of each option, no list of them kept twice."""
+    values by name: one spelling of each option, no list of them kept twice (its
+    :meth:`~hil.bench.prepare.RunOptions.argv` is the way back)."""
+    from hil.bench.prepare import FIELD_OF_OPTION
+
     fields = {f.name for f in dataclasses.fields(cls)}
-    named = {_FIELD_OF.get(k, k): v for k, v in given.items()}
+    named = {FIELD_OF_OPTION.get(k, k): v for k, v in given.items()}
     return cls(**{k: v for k, v in named.items() if k in fields}, **extra)
 
 

@@ -5,6 +5,7 @@ robots; all started together and stopped together.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 import time
@@ -14,6 +15,9 @@ from typing import Any
 
 from hil import ticker
 from hil.bench.fleet import barrier
+from hil.bench.group import GroupSpec
+from hil.bench.lab import placement
+from hil.bench.prepare import RunOptions
 from hil.bench.supervisor import Supervisor
 from hil.errors import BadInputError
 from hil.folder import claim, layout
@@ -23,17 +27,20 @@ ROBOTS_MAX = 64
 
 @dataclass
 class FleetOptions:
-    scenario: Path
+    """``hil fleet``'s options: every robot's ``hil run`` options (``run``: its scenario,
+    duration, rate, law, lab hosts) and the fleet's own."""
+
+    run: RunOptions
     robots: int
     out: Path
-    duration: float | None = None
-    rate: float | None = None
-    lab: str | None = None
-    plant_host: str | None = None
-    controller_host: str | None = None
     per_process: int = 1  # robots per plant and per controller process
     force: bool = False  # --force: replace a folder that holds files (hil.folder.claim)
-    law: str | None = None  # --law: every robot's law instead of the scenario's
+
+    def robot(self, robot: str) -> RunOptions:
+        """One robot's ``hil run``: its robot id, its folder OUT/robot, quiet, no CAN shadow."""
+        return dataclasses.replace(
+            self.run, robot_id=robot, out=self.out / robot, quiet=True, can_live=False
+        )
 
 
 def robot_ids(n: int) -> list[str]:
@@ -41,36 +48,16 @@ def robot_ids(n: int) -> list[str]:
 
 
 def run_argv(opts: FleetOptions, robot: str) -> list[str]:
-    """``hil run`` of one robot of the fleet."""
-    argv = [sys.executable, "-m", "hil", "run", str(opts.scenario), "--robot-id", robot]
-    argv += ["--out", str(opts.out / robot), "--quiet", "--no-report", "--no-can"]
-    for flag, value in (("--duration", opts.duration), ("--rate", opts.rate)):
-        if value is not None:
-            argv += [flag, repr(value)]
-    argv += ["--law", opts.law] if opts.law else []
-    if opts.lab:
-        argv += ["--lab", opts.lab]
-        argv += ["--plant-host", opts.plant_host] if opts.plant_host else []
-        argv += ["--controller-host", opts.controller_host] if opts.controller_host else []
-    return argv
+    """``hil run`` of one robot of the fleet (its report is the fleet's)."""
+    return [sys.executable, "-m", "hil", "run", *opts.robot(robot).argv(), "--no-report"]
 
 
 def group_argv(opts: FleetOptions, robots: list[str]) -> list[str]:
     """``python -m hil.commands.group`` of one group, its spec written into the fleet's folder."""
-    spec = {
-        "scenario": str(opts.scenario),
-        "robots": robots,
-        "out": str(opts.out),
-        "duration": opts.duration,
-        "rate": opts.rate,
-        "fleet_size": opts.robots,
-        "lab": opts.lab,
-        "plant_host": opts.plant_host,
-        "controller_host": opts.controller_host,
-        "law": opts.law,
-    }
+    run = dataclasses.replace(opts.run, quiet=True, can_live=False)
+    spec = GroupSpec(run, robots, opts.out, fleet_size=opts.robots)
     path = opts.out / layout.group_spec(robots[0])
-    path.write_text(json.dumps(spec, indent=2) + "\n")
+    spec.write(path)
     return [sys.executable, "-m", "hil.commands.group", str(path)]
 
 
@@ -89,6 +76,7 @@ def check(opts: FleetOptions) -> None:
         if not 1 <= n <= ROBOTS_MAX:
             raise BadInputError(f"{flag} {n}: 1 to {ROBOTS_MAX}")
     claim.check("--out", opts.out, opts.force)
+    placement.placement_of(opts.robot("robot1"))  # --plant-host without --lab, and the like
 
 
 def execute(opts: FleetOptions, stop: Any, live: Any = None) -> dict[str, int | None]:
