@@ -13,7 +13,6 @@ same instant.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,8 +45,7 @@ class GroupSpec:
 
     def options(self, robot: str | None = None) -> RunOptions:
         """One robot's options (``robot`` None: the group's, as for its lab placement)."""
-        out = None if robot is None else self.out / robot
-        return dataclasses.replace(self.run, robot_id=robot, out=out)
+        return self.run.fleet_robot(robot, self.out)
 
     def write(self, path: Path) -> None:
         doc = {"run": self.run.to_json(), "robots": self.robots, "out": str(self.out)}
@@ -78,7 +76,7 @@ def _prepare(
         meta.update({"rate_hz": info["rate_hz"], "group": ",".join(spec.robots)})
         writer = RecordingWriter(run_dir / layout.RECORDING, metadata=meta)
         recorder = Recorder(writer, same_clock=endpoint is not None)
-        robots.append(RobotRun(r, scenario, settings, run_dir, info, recorder))
+        robots.append(RobotRun(scenario, settings, run_dir, info, recorder))
     return robots
 
 

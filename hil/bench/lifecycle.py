@@ -127,12 +127,16 @@ def start_services(
 class RobotRun:
     """One robot of a recording: its folder as :func:`prepare` wrote it, and its recorder."""
 
-    id: str
     scenario: Scenario
     settings: RunSettings
     run_dir: Path
     info: dict[str, Any]
     recorder: Recorder
+
+    @property
+    def id(self) -> str:
+        """The robot's id: its keys hil/<id>/..., as its services read it."""
+        return self.settings.robot_id
 
     def recorded(self, extra: RunExtra) -> Recorded:
         """The raw run folder, with what the analysis needs to finish it."""
@@ -307,7 +311,7 @@ def execute(opts: RunOptions) -> Recorded:
     metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
     writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer, same_clock=not placed)
-    robot = RobotRun(settings.robot_id, scenario, settings, run_dir, info, recorder)
+    robot = RobotRun(scenario, settings, run_dir, info, recorder)
     external = opts.controller == "external"
     rec = Recording(
         [robot],

@@ -110,6 +110,12 @@ class RunOptions:
     # hil.analysis.replay.latencies_from_run, handed over by the command); None: files only
     run_latencies: RunLatencies | None = None
 
+    def fleet_robot(self, robot: str | None, fleet_out: Path) -> RunOptions:
+        """A fleet robot's ``hil run``: its robot id and folder FLEET_OUT/robot (None: the
+        fleet's options, no robot's), quiet, no CAN shadow."""
+        out = None if robot is None else fleet_out / robot
+        return dataclasses.replace(self, robot_id=robot, out=out, quiet=True, can_live=False)
+
     def argv(self) -> list[str]:
         """``hil run``'s arguments for these options (what ``hil.commands.run.run_options``
         reads back): the scenario, then each field that differs from its default under its

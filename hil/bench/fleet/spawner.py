@@ -5,7 +5,6 @@ robots; all started together and stopped together.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import sys
 import time
@@ -37,10 +36,8 @@ class FleetOptions:
     force: bool = False  # --force: replace a folder that holds files (hil.folder.claim)
 
     def robot(self, robot: str) -> RunOptions:
-        """One robot's ``hil run``: its robot id, its folder OUT/robot, quiet, no CAN shadow."""
-        return dataclasses.replace(
-            self.run, robot_id=robot, out=self.out / robot, quiet=True, can_live=False
-        )
+        """One robot's ``hil run`` (:meth:`hil.bench.prepare.RunOptions.fleet_robot`)."""
+        return self.run.fleet_robot(robot, self.out)
 
 
 def robot_ids(n: int) -> list[str]:
@@ -54,8 +51,7 @@ def run_argv(opts: FleetOptions, robot: str) -> list[str]:
 
 def group_argv(opts: FleetOptions, robots: list[str]) -> list[str]:
     """``python -m hil.commands.group`` of one group, its spec written into the fleet's folder."""
-    run = dataclasses.replace(opts.run, quiet=True, can_live=False)
-    spec = GroupSpec(run, robots, opts.out, fleet_size=opts.robots)
+    spec = GroupSpec(opts.run, robots, opts.out, fleet_size=opts.robots)
     path = opts.out / layout.group_spec(robots[0])
     spec.write(path)
     return [sys.executable, "-m", "hil.commands.group", str(path)]
