@@ -20,13 +20,20 @@ the drives' own ``setup_scheduling``, the peer's stdlib copy of it; this process
   and udp_multicast, the Zenoh callback's on zenoh_can), T the configured period; both nodes'
   samples pooled per kind. A lost frame reads as a period of 2T: its jitter is T.
 
-Each repeat: a window of cyclic frames (nothing else sent), then the request pairs. Per repeat
+Each repeat starts both devices afresh, one after the other, the second once the first is heard
+on the bus, the one first on the bus alternating from repeat to repeat (drives first on even
+repeats, ``first_on_bus`` in the JSON). Every frame reaches all three processes, and on
+udp_multicast the kernel wakes a group's sockets in a fixed order given by when each joined:
+on two cores, with all three at SCHED_FIFO, the one woken second waits for a core while the one
+woken first and the measurer (reading its own request back) run. Which device joined first
+moved the request-to-reply ratio by 0.2-0.4 here; alternating puts each device in each place
+equally. Then a window of cyclic frames (nothing else sent), then the request pairs. Per repeat
 p50 and p99 (nearest rank) of each figure; the table quotes the median over repeats and the
-ratio drives / peer, against the target of 1.2. The machine is shared: run it on a
-quiet one and quote the medians.
+ratio drives / peer, against the target of 1.2. The machine is shared: run it on a quiet one
+and quote the medians.
 
-    python bench/bench_drive_echo.py                         # zenoh_can, 5 x (5 s, 2000 pairs)
-    python bench/bench_drive_echo.py --quick                 # 3 x (3 s, 300 pairs)
+    python bench/bench_drive_echo.py                         # zenoh_can, 6 x (5 s, 2000 pairs)
+    python bench/bench_drive_echo.py --quick                 # 4 x (3 s, 300 pairs)
     python bench/bench_drive_echo.py --interface udp_multicast   # re-runs itself in a private
                                                                  # network namespace (root)
     python -m tools.vcan_guest run -- python bench/bench_drive_echo.py --interface socketcan \\
@@ -69,6 +76,9 @@ from protocol.can.codec import Cmd, frame_id  # noqa: E402
 PEER = Path(raw_can_peer.__file__)
 DRIVE_NODES = (CanSettings().node_left, CanSettings().node_right)  # hil drives' defaults
 PEER_NODES = (16, 17)
+NODES = {"drives": DRIVE_NODES, "peer": PEER_NODES}
+# Which device joins the bus first, by repeat: alternated (module docstring)
+JOIN_ORDERS = ("drives", "peer")
 GROUP = "239.74.163.2"  # python-can's IPv4 group for udp_multicast
 REQUESTS = {
     "bus_voltage_current": Cmd.GET_BUS_VOLTAGE_CURRENT,
@@ -273,56 +283,85 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         for kind in CYCLIC
     }
     targets = {"drives": frame_id(DRIVE_NODES[1], cmd), "peer": frame_id(PEER_NODES[0], cmd)}
-    with tempfile.TemporaryFile("w+") as drives_out, contextlib.ExitStack() as stack:
-        # This process' bus first: on zenoh_can it owns the well-known endpoint, both devices
-        # connect to it and each is one hop from it (a device that owned it would be the
-        # other's first route).
-        bus = open_measurer_bus(bus_cfg)
-        stack.callback(bus.shutdown)
-        drives = stack.enter_context(
-            started(drives_argv, drives_out, subprocess.STDOUT, cwd=args.drives_root)
-        )
-        peer_cmd = peer_argv(bus_cfg, answer, cyclic, *peer_extra)
-        peer = stack.enter_context(started(peer_cmd, subprocess.PIPE, None, raw_can_peer.READY))
-        sched_errors = raw_can_peer.apply_scheduling(args.scheduling)
-        heard = {ids[0] for ids in series.values()}
-        wait_for(bus, heard, [drives, peer], timeout=120.0)
-        round_trips(bus, list(targets.values()), args.warmup)
-        runs = []
-        gc.disable()  # no collection of this process inside a figure (it is re-enabled below)
-        try:
-            for _ in range(args.repeats):
-                stamps = collect_stamps(
-                    bus, {i for ids in series.values() for i in ids}, args.window
-                )
-                period_s = {k: ms / 1000.0 for k, ms in periods_ms.items()}
-                jitter = {
-                    f"{who}/{kind}": summarize(
-                        [j for i in ids for j in period_jitter_us(stamps[i], period_s[kind])]
-                    )
-                    for (who, kind), ids in series.items()
-                }
-                rtts = round_trips(bus, list(targets.values()), args.count)
-                rtr = {
-                    who: {**summarize(rtts[arb]["rtt_us"]), "lost": rtts[arb]["lost"]}
-                    for who, arb in targets.items()
-                }
-                runs.append({"rtr": rtr, "jitter": jitter})
-                gc.collect()
-        finally:
-            gc.enable()
-        stack.close()  # the processes stop: the drives print their summary
-        drives_out.seek(0)
-        drives_summary = _last_json(drives_out.read()).get("summary", {})
+    # This process' bus first: on zenoh_can it owns the well-known endpoint, both devices
+    # connect to it and each is one hop from it (a device that owned it would be the
+    # other's first route).
+    bus = open_measurer_bus(bus_cfg)
+    runs, drives_summaries, sched_errors = [], [], []
+    try:
+        for k in range(args.repeats):
+            first = JOIN_ORDERS[k % 2]
+            with tempfile.TemporaryFile("w+") as drives_out, contextlib.ExitStack() as stack:
+                procs = {}
+                for who in (first, *(w for w in ("drives", "peer") if w != first)):
+                    # Each device on the bus before the next starts (module docstring).
+                    if who == "drives":
+                        procs[who] = stack.enter_context(
+                            started(
+                                drives_argv, drives_out, subprocess.STDOUT, cwd=args.drives_root
+                            )
+                        )
+                    else:
+                        peer_cmd = peer_argv(bus_cfg, answer, cyclic, *peer_extra)
+                        procs[who] = stack.enter_context(
+                            started(peer_cmd, subprocess.PIPE, None, raw_can_peer.READY)
+                        )
+                    ids = {frame_id(n, Cmd.HEARTBEAT) for n in NODES[who]}
+                    wait_for(bus, ids, list(procs.values()), timeout=120.0)
+                sched_errors = raw_can_peer.apply_scheduling(args.scheduling)
+                round_trips(bus, list(targets.values()), args.warmup)
+                gc.disable()  # no collection of this process inside a figure
+                try:
+                    run = one_repeat(bus, series, periods_ms, targets, args)
+                finally:
+                    gc.enable()
+                runs.append({"first_on_bus": first, **run})
+                stack.close()  # the processes stop: the drives print their summary
+                drives_out.seek(0)
+                drives_summaries.append(_last_json(drives_out.read()).get("summary", {}))
+    finally:
+        bus.shutdown()
+    counters = {
+        k: _sum_or_none([d.get("can", {}).get(k) for d in drives_summaries])
+        for k in DRIVES_COUNTERS
+    }
     return {
         "bus": asdict(bus_cfg),
         "request": args.request,
         "periods_ms": periods_ms,
         "runs": runs,
         "measurer_scheduling_errors": sched_errors,
-        "drives_can_counters": {k: drives_summary.get("can", {}).get(k) for k in DRIVES_COUNTERS},
-        "drives_scheduling": drives_summary.get("scheduling"),
+        "drives_can_counters": counters,
+        "drives_scheduling": drives_summaries[-1].get("scheduling") if drives_summaries else None,
     }
+
+
+def one_repeat(
+    bus: can.BusABC,
+    series: dict[tuple[str, str], list[int]],
+    periods_ms: dict[str, float],
+    targets: dict[str, int],
+    args: argparse.Namespace,
+) -> dict[str, Any]:
+    """One repeat's figures: a window of cyclic frames, then the request pairs."""
+    stamps = collect_stamps(bus, {i for ids in series.values() for i in ids}, args.window)
+    period_s = {k: ms / 1000.0 for k, ms in periods_ms.items()}
+    jitter = {
+        f"{who}/{kind}": summarize(
+            [j for i in ids for j in period_jitter_us(stamps[i], period_s[kind])]
+        )
+        for (who, kind), ids in series.items()
+    }
+    rtts = round_trips(bus, list(targets.values()), args.count)
+    rtr = {
+        who: {**summarize(rtts[arb]["rtt_us"]), "lost": rtts[arb]["lost"]}
+        for who, arb in targets.items()
+    }
+    return {"rtr": rtr, "jitter": jitter}
+
+
+def _sum_or_none(values: list[Any]) -> int | None:
+    return None if not values or any(v is None for v in values) else sum(values)
 
 
 def _last_json(text: str) -> dict[str, Any]:
@@ -345,9 +384,10 @@ def _median(runs: list[dict[str, Any]], path: tuple[str, ...], key: str) -> floa
     return statistics.median(values) if values else None
 
 
-def rows(result: dict[str, Any]) -> list[dict[str, Any]]:
-    """One row per figure: the medians over repeats of drives and peer, their ratios."""
-    runs = result["runs"]
+def rows(result: dict[str, Any], first_on_bus: str | None = None) -> list[dict[str, Any]]:
+    """One row per figure: the medians over repeats of drives and peer, their ratios (over the
+    repeats with ``first_on_bus`` first on the bus only, when given)."""
+    runs = [r for r in result["runs"] if first_on_bus in (None, r.get("first_on_bus"))]
     figures = [("request -> reply", ("rtr", "drives"), ("rtr", "peer"))]
     figures += [
         (f"{kind} period jitter", ("jitter", f"drives/{kind}"), ("jitter", f"peer/{kind}"))
@@ -387,6 +427,13 @@ def table(result: dict[str, Any]) -> str:
         who: sum(run["rtr"][who]["lost"] for run in result["runs"]) for who in ("drives", "peer")
     }
     lines.append(f"unanswered requests: drives {lost['drives']}, peer {lost['peer']}")
+    for first in JOIN_ORDERS:
+        r = rows(result, first)[0]
+        if r["ratio_p50"] is not None:
+            lines.append(
+                f"request -> reply, repeats with the {first} first on the bus: ratio p50 "
+                f"{r['ratio_p50']:.2f}, p99 {r['ratio_p99']:.2f}"
+            )
     return "\n".join(lines)
 
 
@@ -432,7 +479,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--count", type=int, default=2000, help="request pairs per repeat")
     p.add_argument("--warmup", type=int, default=50, help="request pairs before the first repeat")
     p.add_argument("--window", type=float, default=5.0, help="s of cyclic frames per repeat")
-    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument(
+        "--repeats", type=int, default=6, help="even: each device first on the bus in half"
+    )
     p.add_argument("--heartbeat-ms", type=float, default=100.0)
     p.add_argument("--encoder-ms", type=float, default=10.0)
     p.add_argument("--control-rate", type=float, default=1000.0, help="the drives' plant, Hz")
@@ -455,7 +504,7 @@ def main(argv: list[str] | None = None) -> int:
         help="the checkout whose `python -m hil drives` runs (e.g. an older commit's\n"
         "git archive, for a before/after); default: this one",
     )
-    p.add_argument("--quick", action="store_true", help="3 repeats of 3 s and 300 pairs")
+    p.add_argument("--quick", action="store_true", help="4 repeats of 3 s and 300 pairs")
     p.add_argument("--out", default=None, help="also write the JSON to this file")
     args = p.parse_args(argv)
     if args.interface == "udp_multicast" and not in_private_netns():
@@ -468,7 +517,7 @@ def main(argv: list[str] | None = None) -> int:
             args.interface, "vcan0"
         )
     if args.quick:
-        args.repeats, args.window, args.count = 3, 3.0, 300
+        args.repeats, args.window, args.count = 4, 3.0, 300
     result = measure(args)
     result["rows"] = rows(result)
     report = {

@@ -807,7 +807,7 @@ class VirtualDrivePair:
             if node == codec.BROADCAST_NODE and cmd == Cmd.ADDRESS and codec.is_request(frame):
                 return [d.answer(now, Cmd.ADDRESS) for d in self.drives.values()]
             if node not in self.nodes:
-                self.ignored["other_node"] += 1
+                self.ignore_other_node()
                 return []
         try:
             msg = codec.decode(frame)
@@ -816,6 +816,19 @@ class VirtualDrivePair:
             return []
         answers, self.last_fed = self.drives[msg.node].receive(now, msg)
         return answers
+
+    def answer_request(self, now: float, node: int, cmd: Cmd) -> list[Frame]:
+        """The answer to a request (RTR) for requestable ``cmd`` to ``node``, one of these
+        drives: what :meth:`receive` answers the request's frame with, without decoding it
+        (the bus edge's table of these ids, :class:`plant_emulator.can_drives.CanDrives`)."""
+        self.last_fed = False
+        answers, _ = self.drives[node].receive(now, Request(node, cmd))
+        return answers
+
+    def ignore_other_node(self) -> None:
+        """Count a frame of another node, as :meth:`receive` counts it (it changes nothing)."""
+        self.last_fed = False
+        self.ignored["other_node"] += 1
 
     def feedback(self, now: float, motion: dict[int, tuple[float, float]]) -> None:
         for node, (pos, vel) in motion.items():
