@@ -202,6 +202,44 @@ def test_can_fast_packing_is_cantools_encoding_of_every_message(cmd, data):
         assert packed == reference, sig
 
 
+F32_EDGES = [3.4028234663852886e38, 3.4028235e38, 3.4028236e38, 1e39, math.inf, math.nan]
+
+
+@pytest.mark.parametrize(
+    "cls", [c for c in codec._LAYOUT if codec._aligned(c) is not None], ids=lambda c: c.__name__
+)
+@settings(max_examples=200, deadline=None)
+@given(data=st.data())
+def test_can_aligned_packing_writes_what_the_general_encoding_writes(cls, data):
+    """encode() packs a byte-aligned message with one struct (codec._aligned): the same frame
+    as its general path for every value that path takes, and for every value it refuses
+    (non-finite, beyond float32, an integer out of range) the general path's refusal."""
+    cmd, names = codec._LAYOUT[cls]
+    values = data.draw(_signal_values(cmd))
+    for _, signal in names:  # the float32 edges and the non-finite, either sign
+        if isinstance(values[signal], float) and data.draw(st.booleans()):
+            values[signal] = data.draw(st.sampled_from(F32_EDGES)) * data.draw(
+                st.sampled_from([1.0, -1.0])
+            )
+    msg = cls(1, **{attr: values[signal] for attr, signal in names})
+    try:
+        want = codec._encode_general(msg)
+    except CanEncodeError:
+        with pytest.raises(CanEncodeError):
+            codec.encode(msg)
+    else:
+        assert codec.encode(msg) == want, values
+
+
+def test_can_aligned_packing_takes_every_answer_but_the_bit_fields():
+    """The drives' answers pack with one struct but Heartbeat (bit fields) and Address (a
+    48-bit serial number), which codec._pack packs."""
+    drive_to_host = {codec._CLASS_OF[Cmd(m.cmd)] for m in MESSAGES if m.sender == "drive"}
+    drive_to_host.add(codec.Address)  # a host's request, and the drive's answer to it
+    bit_fields = {c.__name__ for c in drive_to_host if codec._aligned(c) is None}
+    assert bit_fields == {"Heartbeat", "Address"}
+
+
 def test_can_fast_packing_covers_every_answer_of_a_drive():
     """Every drive -> host message is packed without cantools (the drives' answers and cyclic
     frames); only Set_Input_Pos (scaled 16-bit feed-forwards) is left to cantools."""

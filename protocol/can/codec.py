@@ -597,8 +597,71 @@ def _plan(cls: type[Message]) -> tuple[Cmd, tuple[tuple[str, str, bool], ...], A
     return cmd, tuple((a, sig, sig in floats) for a, sig in names), _packing(cmd)
 
 
+_F32_MAX = 3.4028234663852886e38  # the largest finite float32
+
+
+class _Aligned(NamedTuple):
+    """A layout whose every signal is a whole, byte-aligned field: one ``struct.Struct``."""
+
+    cmd: Cmd
+    packer: struct.Struct
+    fields: tuple[tuple[str, bool, int, int], ...]  # (attribute, is float, lo, hi) in order
+
+
+@cache
+def _aligned(cls: type[Message]) -> _Aligned | None:
+    """The :class:`_Aligned` form of ``cls``' :func:`_packing` (signals of 8, 16 or 32 bits on
+    byte boundaries, gaps and the tail zero), else None (bit fields: :func:`_pack` packs them).
+    tests/test_can_codec.py checks it writes what :func:`_pack` writes on every message."""
+    cmd, names, packing = _plan(cls)
+    if packing is None or not names:
+        return None
+    length, signals = packing
+    attr_of = {signal: attr for attr, signal, _ in names}
+    fmt, pos, fields = "<", 0, []
+    for s in sorted(signals, key=lambda s: s.start):
+        if s.start % 8 or s.start < pos or s.length not in (8, 16, 32):
+            return None
+        code = "f" if s.is_float else {8: "b", 16: "h", 32: "i"}[s.length]
+        fmt += "x" * ((s.start - pos) // 8) + (code if s.is_float or s.lo < 0 else code.upper())
+        pos = s.start + s.length
+        fields.append((attr_of[s.name], s.is_float, s.lo, s.hi))
+    fmt += "x" * (length - pos // 8)
+    packer = struct.Struct(fmt)
+    return _Aligned(cmd, packer, tuple(fields)) if packer.size == length else None
+
+
+def _pack_aligned(plan: _Aligned, msg: Message) -> bytes | None:
+    """The payload of ``msg`` by ``plan``, or None for any value :func:`encode`'s general path
+    must look at (non-finite or beyond float32, an integer out of its range, a non-number):
+    it then decides, and refuses with its own message."""
+    values: list[float | int] = []
+    for attr, is_float, lo, hi in plan.fields:
+        value = getattr(msg, attr)
+        if is_float:
+            if not isinstance(value, (float, int)) or isinstance(value, bool):
+                return None
+            value = float(value)
+            if not -_F32_MAX <= value <= _F32_MAX:  # NaN fails both sides
+                return None
+        elif not isinstance(value, int) or not lo <= value <= hi:
+            return None
+        values.append(value if is_float else int(value))
+    return plan.packer.pack(*values)
+
+
 def encode(msg: Message) -> Frame:
     """The frame of a typed message (lengths as in the DBC, unused bytes zero)."""
+    plan = _aligned(type(msg)) if type(msg) in _LAYOUT else None
+    if plan is not None:
+        data = _pack_aligned(plan, msg)
+        if data is not None:
+            return Frame(frame_id(msg.node, plan.cmd), data)
+    return _encode_general(msg)
+
+
+def _encode_general(msg: Message) -> Frame:
+    """:func:`encode` for every message and value (what :func:`_pack_aligned` declines)."""
     if isinstance(msg, Request):
         return Frame(frame_id(msg.node, msg.cmd), b"", is_remote=True)
     if type(msg) not in _LAYOUT:
