@@ -1,17 +1,19 @@
-"""The virtual drives' edge on a python-can bus: a reader thread and a cyclic sender.
+"""The virtual drives' edge on a python-can bus: one thread that takes frames and sends the
+cyclic ones.
 
 The drive model (:mod:`plant_emulator.odrive`) is pure; this module moves frames.
 
-- The reader thread stamps every frame as it arrives. Requests (RTR, or a ``Get_*`` id with no
+- The thread stamps every frame as it arrives. Requests (RTR, or a ``Get_*`` id with no
   payload) are answered at once from the drives' current state. Every ``Set_Input_Torque``
   arrival is logged to the hop log's ``cmd_rx`` table with its index among that node's torque
   frames (the controller's ``can_tx`` log is matched to it in per-node order). Other frames are
   applied at once (``immediate``: ``hil drives``, a run's time before its epoch, the CAN path as
   a shadow) or queued in ``inbox`` for the plant's loop, which lands them at their time (the
   applied CAN path of a run, with its injected delay).
-- The cyclic thread sends each due Heartbeat / Get_Encoder_Estimates / ... at its own rate, on
-  absolute deadlines, whatever the plant's loop does.
-- The reader reads the kernel's drop count of the bus's receiving socket after every receive
+- The same thread sends each due Heartbeat / Get_Encoder_Estimates / ... at its own rate, on
+  absolute deadlines, whatever the plant's loop does: it waits on the bus until the next one
+  is due, so a due frame waits at most for the frame being taken.
+- It reads the kernel's drop count of the bus's receiving socket after every receive
   (protocol.can.rx_queue: what ``SO_RXQ_OVFL`` reports): frames that queue dropped while the
   reader was behind are logged to the hop log's ``socket_drops`` table, a loss of the bench's
   own, never the wire's (hil.measure). At the stop, what is still queued unread is read and
@@ -181,8 +183,7 @@ class CanDrives:
         self.socket_drops: int | None = None if first is None else 0
         self._drops_base = first or 0
         self._threads = [
-            threading.Thread(target=self._reader, name="can-reader", daemon=True),
-            threading.Thread(target=self._cyclic, name="can-cyclic", daemon=True),
+            threading.Thread(target=self._edge, name="can-edge", daemon=True),
         ]
 
     def start(self) -> None:
@@ -190,19 +191,28 @@ class CanDrives:
             t.start()
 
     def native_ids(self) -> list[int]:
-        """The kernel's ids of the reader and the cyclic sender (started threads only)."""
+        """The kernel's id of the edge's thread (once started)."""
         return [t.native_id for t in self._threads if t.native_id is not None]
 
-    # --- receive -------------------------------------------------------------------------
-    def _reader(self) -> None:
+    # --- the edge's thread ----------------------------------------------------------------
+    def _edge(self) -> None:
+        """Frames as they come, each cyclic frame when it is due: one thread, so no GIL is
+        handed between a reader and a sender at every cyclic frame (bench/bench_drive_echo.py,
+        docs/can.md). A due frame waits at most for the frame being taken."""
         while not self._stop.is_set():
+            with self.lock:
+                due = self.pair.next_due()
+            wait = due - time.monotonic()
+            if wait <= 0.0:
+                self._send_due()
+                continue
             try:
-                msg = self.bus.recv(timeout=0.05)
+                msg = self.bus.recv(timeout=min(wait, 0.05))
             except Exception:
                 if self._stop.is_set():
                     return
                 self.recv_errors += 1
-                self._stop.wait(0.01)
+                self._stop.wait(min(wait, 0.01))
                 continue
             if msg is not None:
                 self._take(msg, time.monotonic_ns())
@@ -330,21 +340,15 @@ class CanDrives:
         self._last_read_ns = before
 
     # --- cyclic frames -----------------------------------------------------------------------
-    def _cyclic(self) -> None:
-        while not self._stop.is_set():
-            with self.lock:
-                due = self.pair.next_due()
-            wait = due - time.monotonic()
-            if wait > 0.0:
-                self._stop.wait(min(wait, 0.05))
-                continue
-            now_ns = time.monotonic_ns()
-            with self.lock:
-                if self.refresh is not None:
-                    self.refresh(now_ns)
-                frames = self.pair.due_frames(now_ns / 1e9)
-                self._drain_events()
-            self.send(self._hold_estimates(frames, now_ns), now_ns)
+    def _send_due(self) -> None:
+        """The cyclic frames due now, sent (the drives' feedback brought up to now first)."""
+        now_ns = time.monotonic_ns()
+        with self.lock:
+            if self.refresh is not None:
+                self.refresh(now_ns)
+            frames = self.pair.due_frames(now_ns / 1e9)
+            self._drain_events()
+        self.send(self._hold_estimates(frames, now_ns), now_ns)
 
     def _silent(self, now_ns: int) -> bool:
         """Whether the drives are silent now ([faults] drive_silent_every/length, by the

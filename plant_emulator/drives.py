@@ -9,8 +9,8 @@ commands the drives over CAN. Until SIGINT/SIGTERM, then it prints a summary and
 second.
 
 Threads: the bus edge (:class:`plant_emulator.can_drives.CanDrives`) receives and answers at
-once, advancing the plant to each frame's arrival first; a cyclic sender sends heartbeats and
-encoder estimates at their rates; the main loop steps the plant and the drives' controllers
+once, advancing the plant to each frame's arrival first, and sends heartbeats and encoder
+estimates at their rates; the main loop steps the plant and the drives' controllers
 (velocity/position loops, watchdog) at ``control_rate``, optionally publishes State (and Status
 with the drives' counters) on Zenoh, and prints a status line every ``status_period``.
 """
@@ -260,7 +260,7 @@ class DrivesRunner:
         if opts.state_rate > 0:
             self.open_zenoh()
         scheduling = self.settings.scheduling
-        # Threads exist now, so SCHED_FIFO reaches the reader and the cyclic sender too. The
+        # Threads exist now, so SCHED_FIFO reaches the bus edge's too. The
         # collector stays on (the process runs for hours); what exists now is frozen once.
         sched = setup_scheduling(scheduling, freeze_gc=False, idle=self.settings.idle)
         if sched.policy == "SCHED_FIFO":
