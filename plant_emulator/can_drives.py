@@ -277,12 +277,7 @@ class CanDrives:
             return
         to = self._split(frame.arbitration_id)[0]
         if is_request(frame) and (to in self.pair.nodes or to == BROADCAST_NODE):
-            with self.lock:
-                if self.refresh is not None:
-                    self.refresh(recv_ns)
-                answers = self.pair.receive(recv_ns / 1e9, frame)
-            self.requests += 1
-            self.send(answers, recv_ns)
+            self._answer(recv_ns, lambda now: self.pair.receive(now, frame))
         elif self.immediate or recv_ns < self.immediate_until_ns:
             with self.lock:
                 answers = self.on_frame(recv_ns, frame)
@@ -302,12 +297,7 @@ class CanDrives:
         request = self._requests.get(arb) if msg.is_remote_frame else None
         if request is not None:
             self.frames_in += 1
-            with self.lock:
-                if self.refresh is not None:
-                    self.refresh(recv_ns)
-                answers = self.pair.answer_request(recv_ns / 1e9, *request)
-            self.requests += 1
-            self.send(answers, recv_ns)
+            self._answer(recv_ns, lambda now: self.pair.answer_request(now, *request))
             return True
         node = arb >> 5
         if node in self._nodes or node == BROADCAST_NODE or not 0 <= arb <= 0x7FF:
@@ -318,6 +308,16 @@ class CanDrives:
         with self.lock:
             self.pair.ignore_other_node()
         return True
+
+    def _answer(self, recv_ns: int, ask: Callable[[float], list[Frame]]) -> None:
+        """Answer a request that arrived at ``recv_ns``: the drives' feedback brought up to
+        then, ``ask(now)`` under the lock, the answers sent at once."""
+        with self.lock:
+            if self.refresh is not None:
+                self.refresh(recv_ns)
+            answers = ask(recv_ns / 1e9)
+        self.requests += 1
+        self.send(answers, recv_ns)
 
     def _count_drops(self) -> None:
         """Log what the socket dropped since the last read (module docstring). The read is

@@ -612,7 +612,8 @@ class _Aligned(NamedTuple):
 def _aligned(cls: type[Message]) -> _Aligned | None:
     """The :class:`_Aligned` form of ``cls``' :func:`_packing` (signals of 8, 16 or 32 bits on
     byte boundaries, gaps and the tail zero), else None (bit fields: :func:`_pack` packs them).
-    tests/test_can_codec.py checks it writes what :func:`_pack` writes on every message."""
+    tests/test_can_codec.py checks :func:`encode` writes with it what its general path writes,
+    on every aligned message."""
     cmd, names, packing = _plan(cls)
     if packing is None or not names:
         return None
