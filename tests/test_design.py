@@ -136,7 +136,7 @@ def test_auto_refuses_a_design_breaking_9_before_computing_a_bound():
 def test_free_form_records_are_as_few_as_docs_architecture_says() -> None:
     """Facts cross modules as typed records; ``dict[str, Any]`` stays only where
     docs/architecture.md ("Free-form records") says why, in as many places as it says (at most
-    60), and its four reasons add up to that number."""
+    60), and its reasons add up to that number."""
     import re
 
     root = Path(__file__).resolve().parent.parent

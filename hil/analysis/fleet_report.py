@@ -13,7 +13,7 @@ import base64
 import io
 import json
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import TypedDict
 
 import matplotlib
 import matplotlib.pyplot as plt
@@ -74,8 +74,18 @@ class FleetFigures(_Rates, total=False):
     command_age_p99_us_median: float | None
 
 
-class FleetSummary(TypedDict, total=False):
-    """fleet.json: the fleet command's facts (free-form, :func:`write`'s ``facts``), then these."""
+class FleetFacts(TypedDict, total=False):
+    """What ``hil fleet`` ran: fleet.json's first keys (none for a fleet built in a test)."""
+
+    scenario: str
+    rate_hz: float | None  # --rate (None: the scenario's)
+    duration_s: float | None  # --duration (None: the scenario's)
+    lab: str | None  # --lab
+    per_process: int  # robots a process (--per-process)
+
+
+class FleetSummary(FleetFacts, total=False):
+    """fleet.json: what the fleet ran, then its figures and one row per robot."""
 
     fleet: FleetFigures
     per_robot: list[RobotRow]
@@ -111,7 +121,7 @@ def fleet_outcome(rows: list[RobotRow]) -> tuple[str, list[str]]:
     return (INCONCLUSIVE, unsure) if unsure else (PASS, [])
 
 
-def fleet_summary(out: Path, codes: dict[str, int | None], facts: dict[str, Any]) -> FleetSummary:
+def fleet_summary(out: Path, codes: dict[str, int | None], facts: FleetFacts) -> FleetSummary:
     rows = [_robot(out / robot, code) for robot, code in codes.items()]
     p99 = [r["command_age_p99_us"] for r in rows if r.get("command_age_p99_us") is not None]
     outcome, robots = fleet_outcome(rows)
@@ -289,7 +299,7 @@ def write_robot_reports(out: Path, summary: FleetSummary) -> list[Path]:
     return written
 
 
-def write(out: Path, codes: dict[str, int | None], facts: dict[str, Any]) -> FleetSummary:
+def write(out: Path, codes: dict[str, int | None], facts: FleetFacts) -> FleetSummary:
     summary = fleet_summary(out, codes, facts)
     (out / layout.FLEET_JSON).write_text(json.dumps(summary, indent=2) + "\n")
     (out / layout.FLEET_MD).write_text(markdown(summary))

@@ -69,14 +69,14 @@ def _prepare(
     for r in spec.robots:
         opts = spec.options(r)
         opts.run_latencies = run_latencies
-        scenario, settings, run_dir, info = prepare(opts)
+        scenario, settings, run_dir, design = prepare(opts)
         settings.zenoh_endpoint = endpoint or settings.zenoh_endpoint
         settings.save(run_dir / layout.RUN_SETTINGS)
         meta = {"robot_id": r, "cmd_path": settings.cmd_path, "lockstep": settings.lockstep}
-        meta.update({"rate_hz": info["rate_hz"], "group": ",".join(spec.robots)})
+        meta.update({"rate_hz": design.rate_hz, "group": ",".join(spec.robots)})
         writer = RecordingWriter(run_dir / layout.RECORDING, metadata=meta)
         recorder = Recorder(writer, same_clock=endpoint is not None)
-        robots.append(RobotRun(scenario, settings, run_dir, info, recorder))
+        robots.append(RobotRun(scenario, settings, run_dir, design, recorder))
     return robots
 
 

@@ -36,7 +36,7 @@ from hil.bench.host_load import HostSampler
 from hil.bench.lab import placement
 from hil.bench.lab.placement import child_argv
 from hil.bench.live.launch import start_for_run
-from hil.bench.prepare import RunOptions, check_options, prepare
+from hil.bench.prepare import LoopDesign, RunOptions, check_options, prepare
 from hil.bench.recorder import Recorder, RecordingWriter
 from hil.bench.secure import RunIdentities
 from hil.bench.supervisor import Supervisor
@@ -130,7 +130,7 @@ class RobotRun:
     scenario: Scenario
     settings: RunSettings
     run_dir: Path
-    info: dict[str, Any]
+    design: LoopDesign
     recorder: Recorder
 
     @property
@@ -140,7 +140,7 @@ class RobotRun:
 
     def recorded(self, extra: RunExtra) -> Recorded:
         """The raw run folder, with what the analysis needs to finish it."""
-        ref, ctx = self.info["reference"], self.info["context"]
+        ref, ctx = self.design.reference, self.design.context
         return Recorded(self.run_dir, self.scenario, self.settings, ref, ctx, extra)
 
 
@@ -305,13 +305,13 @@ def execute(opts: RunOptions) -> Recorded:
     impaired = bool(opts.lab) and impair.plan_of(opts, check_options, load) is not None
     placed = placement.enter(opts, impaired, impair.started_as_hil_run())
     impairment = None if placed else impair.enter(opts, check_options, load)
-    scenario, settings, run_dir, info = prepare(opts, load)
+    scenario, settings, run_dir, design = prepare(opts, load)
     _say_start(opts, scenario, settings, run_dir)
     metadata = {"robot_id": settings.robot_id, "cmd_path": settings.cmd_path}
-    metadata.update({"lockstep": settings.lockstep, "rate_hz": info["rate_hz"]})
+    metadata.update({"lockstep": settings.lockstep, "rate_hz": design.rate_hz})
     writer = RecordingWriter(run_dir / layout.RECORDING, metadata=metadata)
     recorder = Recorder(writer, same_clock=not placed)
-    robot = RobotRun(scenario, settings, run_dir, info, recorder)
+    robot = RobotRun(scenario, settings, run_dir, design, recorder)
     external = opts.controller == "external"
     rec = Recording(
         [robot],

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from controller_service.laws.base import DesignContext
 from hil import options
 from hil.bench import device
 from hil.bench.defaults import PAPER_TRACKING_TOML
@@ -71,6 +72,16 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+@dataclass(frozen=True)
+class LoopDesign:
+    """What :func:`prepare` derived from the scenario beside the run's settings: the
+    reference (3) and the design context the analysis judges with, and the control rate."""
+
+    reference: Any  # controller_service.reference's trajectory of the scenario
+    context: DesignContext
+    rate_hz: float
 
 
 @dataclass
@@ -288,7 +299,7 @@ def _run_settings(
 
 def prepare(
     opts: RunOptions, load: Callable[[], Scenario] | None = None
-) -> tuple[Any, RunSettings, Path, dict[str, Any]]:
+) -> tuple[Scenario, RunSettings, Path, LoopDesign]:
     """Resolve the scenario (``load``: the user's file, parsed once) and the run's settings;
     write the folder's first files."""
     check_options(opts)  # every option before the scenario: no folder, no process yet
@@ -341,5 +352,4 @@ def prepare(
     }
     resolved = resolved_dict(scenario, controller, context, run_facts)
     (run_dir / layout.SCENARIO_RESOLVED).write_text(dumps_toml(resolved))
-    info = {"reference": reference, "context": context, "rate_hz": float(rate)}
-    return scenario, settings, run_dir, info
+    return scenario, settings, run_dir, LoopDesign(reference, context, float(rate))

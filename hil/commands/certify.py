@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 from types import SimpleNamespace
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, NotRequired, TypedDict
 
 import typer
 
@@ -26,6 +26,29 @@ from hil.ticker import start_line
 if TYPE_CHECKING:
     from hil.folder.jsonio import JsonObject
     from hil.provenance import Toml
+
+
+class EmpiricalBreak(TypedDict):
+    """Where (2) really broke under the worst disturbance found (``--empirical``;
+    hil.analysis.margin.conservatism), certificate.json's ``empirical``."""
+
+    age_at_break_s: float | None  # None: no break up to 1024 x the age
+    k_star: float | None
+    first_broken: str | None
+    disturbance: str | None
+    loops: int
+    ratio_to_d_star: float | None  # the break over D* (docs/sampled_data_bound.md, section 10)
+
+
+class CertifyFacts(TypedDict):
+    """What certificate.json and ``--json`` hold besides the certificate and the proposal."""
+
+    scenario: str
+    law: str  # unified or unified_boundary
+    params: dict[str, float]  # the law's gains as resolved ('auto' resolved)
+    auto_notes: list[str]
+    d_star_s: float  # the largest command age the bound allows
+    empirical: NotRequired[EmpiricalBreak]
 
 
 def _params(table: Toml, context: Any) -> tuple[SimpleNamespace, bool, list[str]]:
@@ -67,7 +90,7 @@ def _table(cert: Any, law: str) -> Any:
     return table
 
 
-def _conservatism_lines(facts: dict[str, Any]) -> list[str]:
+def _conservatism_lines(facts: CertifyFacts) -> list[str]:
     lines = [f"D* = {1e3 * facts['d_star_s']:.3f} ms: the largest command age the bound allows."]
     emp = facts.get("empirical")
     if emp is None:
@@ -90,7 +113,7 @@ def _conservatism_lines(facts: dict[str, Any]) -> list[str]:
 
 def certify_scenario(
     path: str, ts: float | None, delay: float | None, empirical: bool = False
-) -> tuple[Any, Any, dict[str, Any]]:
+) -> tuple[Any, Any, CertifyFacts]:
     """(certificate, proposal or None, facts) for a scenario file; BadInputError on bad input.
     The facts hold D* and, ``empirical``, the break under the worst disturbance found and its
     ratio to D*."""
@@ -120,7 +143,7 @@ def certify_scenario(
         proposal = None if cert.held else propose(*loop, **start)
     except CertificateError as exc:
         raise BadInputError(str(exc)) from exc
-    facts: dict[str, Any] = {
+    facts: CertifyFacts = {
         "scenario": str(path),
         "law": "unified_boundary" if boundary else "unified",
         "params": dict(vars(params)),
@@ -150,7 +173,7 @@ def certify_scenario(
 CERTIFICATE_JSON = "certificate.json"
 
 
-def _document(cert: Any, proposal: Any, facts: dict[str, Any]) -> JsonObject:
+def _document(cert: Any, proposal: Any, facts: CertifyFacts) -> JsonObject:
     """The certificate as --json prints it and --out writes it."""
     doc = {**facts, "certificate": cert.to_dict()}
     if proposal is not None:

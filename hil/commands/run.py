@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, NotRequired, TypedDict
 
 import typer
 
@@ -157,12 +157,41 @@ UntilStoppedOpt = Annotated[
 ]
 
 
-def _brief(summary: Summary, cmd_path: str) -> dict[str, Any]:
+class ReportBrief(TypedDict):
+    """The run's report in ``hil run --json``: where it is and its verdict."""
+
+    html: str
+    ok: bool
+    reasons: list[str]
+
+
+class RunBrief(TypedDict):
+    """What ``hil run --json`` prints: summary.json's headline figures (units as there)."""
+
+    run_dir: str | None
+    final_position_error: float | None
+    max_abs_v: float | None
+    max_abs_omega: float | None
+    violations: dict[str, int] | None
+    wakeup_lateness_p99_us: float | None
+    sample_to_apply_p50_us: float | None  # on the applied command path
+    deadline_misses: int | None
+    interrupted: bool | None
+    verdict: str | None  # PASS, FAIL or INCONCLUSIVE
+    reasons: list[str] | None
+    report: NotRequired[ReportBrief]
+
+
+def _brief(summary: Summary, cmd_path: str) -> RunBrief:
     """The lines of summary.json that ``hil run`` prints."""
     t = summary.get("timing", {})
     v = summary.get("verdict") or {}
-    keys = ("run_dir", "final_position_error", "max_abs_v", "max_abs_omega", "violations")
-    return {k: summary.get(k) for k in keys} | {
+    return {
+        "run_dir": summary.get("run_dir"),
+        "final_position_error": summary.get("final_position_error"),
+        "max_abs_v": summary.get("max_abs_v"),
+        "max_abs_omega": summary.get("max_abs_omega"),
+        "violations": summary.get("violations"),
         "wakeup_lateness_p99_us": (t.get("wakeup_lateness") or {}).get("p99_us"),
         "sample_to_apply_p50_us": (t.get(f"sample_to_apply_{cmd_path}") or {}).get("p50_us"),
         "deadline_misses": t.get("deadline_misses"),
@@ -215,7 +244,7 @@ def verdict_line(summary: Summary, report: str | None = None) -> str:
     return f"{line}; run folder: {run_dir}" if run_dir else line
 
 
-def _write_report(recorded: Any, summary: Summary, quiet: bool) -> dict[str, object]:
+def _write_report(recorded: Any, summary: Summary, quiet: bool) -> ReportBrief:
     """The report of the finished run, as ``hil report RUN_DIR`` writes it, from the run's
     scenario and verdict as this process holds them (neither parsed nor judged again)."""
     from hil.analysis.report.build import build_report, write_report
@@ -289,7 +318,7 @@ def run(
     stopped = summary.get("interrupted") or interrupts.happened()
     if report and run_dir and not stopped and not summary.get("error"):
         brief["report"] = _write_report(recorded, summary, quiet)
-    report_html = (brief.get("report") or {}).get("html")
+    report_html = brief["report"]["html"] if "report" in brief else None
     line = f"result: {verdict_line(summary, report_html)}"
     # One plain line ends the run (a negative exit prints its own reason, hil.cli, after
     # it); --json puts the brief on stdout for scripts and the line on stderr.

@@ -18,7 +18,7 @@ import multiprocessing
 import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import TypedDict, cast
 
 import numpy as np
 
@@ -97,6 +97,37 @@ class PaperCheck(TypedDict):
     measured: str
 
 
+class PaperRun(TypedDict):
+    """One run of table.json's ``runs`` (a row of table.md): its name, law and scenario, then
+    the simulation summary's figures named in ``_ROW_KEYS`` (units as summary.json's)."""
+
+    run: str
+    law: str
+    scenario: str
+    duration: float
+    ts: float
+    plant_step: float
+    final_position_error: float
+    final_heading_error: float
+    rms_position_error: float
+    max_abs_v: float
+    max_abs_omega: float
+    max_abs_tau1: float
+    max_abs_tau2: float
+    violations: dict[str, int]  # plant steps beyond each limit of (2)
+
+
+class PaperTable(TypedDict):
+    """table.json, as ``hil paper`` writes it."""
+
+    note: str
+    runs: list[PaperRun]
+    checks: list[PaperCheck]  # none when interrupted
+    quick: bool
+    interrupted: bool
+    runs_not_done: list[str]
+
+
 def checks(results: dict[str, SimResult], quick: bool) -> list[PaperCheck]:
     """The checks of the paper's claims on its runs (convergence checks skipped when quick)."""
     out: list[PaperCheck] = []
@@ -159,7 +190,7 @@ RUN_HEADER += ["plant steps beyond (2): " + "/".join(SIGNALS[k] for k in PEAK_KE
 CHECK_HEADER = ["check of the paper's claim", "result", "measured"]
 
 
-def _run_cells(r: dict[str, Any]) -> list[str]:
+def _run_cells(r: PaperRun) -> list[str]:
     v = r["violations"]
     cells = [r["run"], r["law"]]
     cells += [f"{r[k]:.4g}" for k in ("final_position_error", "final_heading_error")]
@@ -196,7 +227,7 @@ def _md_row(cells: list[str]) -> str:
 
 
 def _markdown(
-    rows: list[dict[str, Any]], check_rows: list[PaperCheck], note: str, interrupted: bool
+    rows: list[PaperRun], check_rows: list[PaperCheck], note: str, interrupted: bool
 ) -> str:
     """table.md: the claims checked first (the answer), then the measured figures."""
     lines = [f"# {TITLE}", "", answer(check_rows, interrupted)[0], "", note, ""]
@@ -211,7 +242,7 @@ def _markdown(
 
 def _html(
     out: Path,
-    rows: list[dict[str, Any]],
+    rows: list[PaperRun],
     check_rows: list[PaperCheck],
     note: str,
     interrupted: bool,
@@ -397,7 +428,7 @@ def run_paper(
     jobs: int = 2,
     traces: bool = False,
     log: Callable[[str], None] = lambda _msg: None,
-) -> dict[str, Any]:
+) -> PaperTable:
     """Run every bundled paper scenario, write figures, table.md, table.json; return the table.
 
     Each run's folder and each group of figures is written as soon as its runs are done.
@@ -438,11 +469,14 @@ def run_paper(
 
 def _write_table(
     out: Path, results: dict[str, SimResult], quick: bool, interrupted: bool
-) -> dict[str, Any]:
+) -> PaperTable:
     done = [r for r in RUNS if r in results]
     rows = [
-        {"run": r, "law": results[r].summary["law"], "scenario": f"paper_{r}.toml"}
-        | {k: results[r].summary[k] for k in _ROW_KEYS}
+        cast(
+            PaperRun,
+            {"run": r, "law": results[r].summary["law"], "scenario": f"paper_{r}.toml"}
+            | {k: results[r].summary[k] for k in _ROW_KEYS},
+        )
         for r in done
     ]
     check_rows = [] if interrupted else checks(results, quick)
@@ -458,8 +492,14 @@ def _write_table(
             f" INTERRUPTED: {len(done)} of {len(RUNS)} runs done; not done: {missing} (no claim "
             "about them); the checks of the paper's claims not judged."
         )
-    table = dict(note=note, runs=rows, checks=check_rows, quick=quick, interrupted=interrupted)
-    table["runs_not_done"] = [r for r in RUNS if r not in results]
+    table: PaperTable = {
+        "note": note,
+        "runs": rows,
+        "checks": check_rows,
+        "quick": quick,
+        "interrupted": interrupted,
+        "runs_not_done": [r for r in RUNS if r not in results],
+    }
     write_json(out / "table.json", table)
     (out / "table.md").write_text(_markdown(rows, check_rows, note, interrupted))
     (out / PAPER_HTML).write_text(_html(out, rows, check_rows, note, interrupted))

@@ -10,6 +10,7 @@ from typing import Any, TypedDict
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from hil import options
+from hil.provenance import Toml
 from hil.sweep.chunks import DEFAULT_CHUNK, chunks_of, run_chunked
 from hil.sweep.executors import executor_for
 from hil.sweep.outputs import write_csv
@@ -39,7 +40,7 @@ def open_executor(workers: int | None, scheduler: str | None, chunk_size: int | 
 
 def run_with_executor(
     scenario: Any, grid: Any, loop_s: float, target: Path, executor: Any, chunk_size: int | None
-) -> tuple[Any, dict[str, Any], ExecutorFacts]:
+) -> tuple[Any, Toml, ExecutorFacts]:
     """(outcome, resolved, what to add to sweep.json's meta); the executor closed after."""
     size = chunk_size or DEFAULT_CHUNK
     n = len(chunks_of(scenario, grid, loop_s, size))

@@ -15,7 +15,7 @@ Windows are [origin + k w, origin + (k + 1) w). Nothing is clipped at their edge
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -24,6 +24,21 @@ from hil.analysis.measure.stats import summarize_ns
 from hil.folder.records import Percentiles
 
 MINUTE_NS = 60_000_000_000
+
+
+class WindowFigures(TypedDict):
+    """One window of :func:`per_window` (s from the run's epoch, µs; None: not measured)."""
+
+    window: int
+    start_s: float
+    end_s: float
+    wakeup_lateness_p99_us: float | None
+    wakeup_lateness_max_us: float | None
+    wakeup_lateness_count: int | None
+    command_age_p99_us: float | None
+    command_age_max_us: float | None
+    command_age_max_at_s: float | None  # when the window's largest age ended
+    command_age_steps: int | None  # plant steps of the window's age segments
 
 
 def lateness_windows(
@@ -64,7 +79,7 @@ def per_window(
     window_ns: tuple[int, int],
     step_ns: int,
     width_ns: int = MINUTE_NS,
-) -> list[dict[str, Any]]:
+) -> list[WindowFigures]:
     """Wake-up lateness and applied-path command age (p99 and max, µs) per window of
     ``width_ns`` from the run's epoch, from :func:`hil.analysis.measure.measure`'s ``series`` and
     ``window_ns`` (first, last plant sample). A figure the run did not measure (no wake-up
@@ -75,7 +90,7 @@ def per_window(
     lat = [{}] * n if late is None else lateness_windows(*late, 0.0, width_ns / 1e9, n)
     seg = series.get(f"command_age_{series.get('applied_path', 'zenoh')}")
     age = [{}] * n if seg is None else age_windows(seg, w0, step_ns, epoch_ns, width_ns, n)
-    out = []
+    out: list[WindowFigures] = []
     for i, (w, a) in enumerate(zip(lat, age, strict=True)):
         at = a.get("max_at_ns")
         out.append(

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -217,9 +217,45 @@ def most_moved(
     return list(once.values())
 
 
+class CompareHeadline(TypedDict):
+    """What compare says first (compare.json's ``headline``)."""
+
+    lines: list[str]
+    most_moved: list[list[Any]]  # :func:`most_moved`'s rows
+
+
+class CompareRow(TypedDict):
+    """One figure of both folders (compare.json's ``rows``)."""
+
+    figure: str
+    a: float | None
+    b: float | None
+    b_minus_a: float | None
+
+
+class CompareFigure(TypedDict):
+    """One overlay written (compare.json's ``figures``): its PNG and its data."""
+
+    name: str
+    title: str
+    png: str
+    data: str
+
+
+class CompareDocument(TypedDict):
+    """compare.json."""
+
+    schema_version: int
+    a: str
+    b: str
+    headline: CompareHeadline
+    rows: list[CompareRow]
+    figures: list[CompareFigure]
+
+
 def compare_headline(
     fa: Folder, fb: Folder, a: dict[str, float], b: dict[str, float], rows: list[list[Any]]
-) -> dict[str, Any]:
+) -> CompareHeadline:
     """What compare says first, with units: both folders' verdicts and every reason of each,
     D against D* and limits of (2), then the figures that moved most. Every number is one the
     two folders already hold."""
@@ -244,7 +280,9 @@ def compare_headline(
     return {"lines": lines, "most_moved": most_moved(rows, (va, vb))}
 
 
-def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b: str = "B"):
+def build_compare(
+    fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b: str = "B"
+) -> CompareDocument:
     """Write compare.html (self-contained), compare.md, compare.json and the figures with
     their data into ``out``; returns the comparison dict."""
     out.mkdir(parents=True, exist_ok=True)
@@ -275,11 +313,11 @@ def build_compare(fa: Folder, fb: Folder, out: Path, label_a: str = "A", label_b
     a_fig, b_fig = figures_of(fa, ma), figures_of(fb, mb)
     rows = compare_rows(a_fig, b_fig)
     head = compare_headline(fa, fb, a_fig, b_fig, rows)
-    files = []
+    files: list[CompareFigure] = []
     for f in figs:
         png, csv_path = f.write(out, PREFIX)
         files.append({"name": f.name, "title": f.title, "png": png.name, "data": csv_path.name})
-    data = {
+    data: CompareDocument = {
         "schema_version": COMPARE_SCHEMA_VERSION,
         "a": str(fa.path),
         "b": str(fb.path),
@@ -307,7 +345,7 @@ def _readable(cells: list[Any]) -> list[Any]:
 
 def _write_pages(
     out: Path,
-    data: dict[str, Any],
+    data: CompareDocument,
     labels: tuple[str, str],
     rows: list[list[Any]],
     figs: list,

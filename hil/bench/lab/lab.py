@@ -10,7 +10,7 @@ import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import NotRequired, TypedDict
 
 from hil import interrupts
 from hil.bench.lab import net
@@ -224,7 +224,37 @@ def teardown(state: LabState) -> list[str]:
     return problems
 
 
-def down(name: str) -> dict[str, Any]:
+class LabDown(TypedDict):
+    """What ``hil lab down`` prints (one JSON line)."""
+
+    lab: str
+    removed: bool
+    note: NotRequired[str]  # why nothing was removed
+    objects: NotRequired[int]  # how many namespaces and processes were removed
+
+
+class HostStatus(TypedDict):
+    """One host in ``hil lab status``: its state file's facts and what is there now."""
+
+    name: str
+    address: str
+    offset_s: float
+    router: str
+    impair: dict[str, float]
+    netns: str | None  # None: its network namespace is gone
+    router_running: bool
+    counters: NotRequired[dict[str, int]]  # an impaired link's loss counters
+
+
+class LabStatus(TypedDict):
+    """One lab in ``hil lab status``."""
+
+    lab: str
+    phase: str  # building, up, or leftover (built by a process that died)
+    hosts: list[HostStatus]
+
+
+def down(name: str) -> LabDown:
     require_root("hil lab down")
     check_name(name)
     state = load(name)
@@ -239,20 +269,26 @@ def down(name: str) -> dict[str, Any]:
     return {"lab": name, "removed": True, "objects": len(state.made)}
 
 
-def status(name: str | None = None) -> list[dict[str, Any]]:
+def status(name: str | None = None) -> list[LabStatus]:
     """Each lab (or the named one): phase, hosts, whether each namespace and router is there,
     the loss counters of impaired links."""
-    out = []
+    out: list[LabStatus] = []
     for lab in [name] if name else names():
         state = load(lab)
         if state is None:
             continue
         owned = {m.name: state.owns_process(m) for m in state.made if m.kind == "proc"}
-        hosts = []
+        hosts: list[HostStatus] = []
         for h in state.hosts:
-            row = {k: h[k] for k in ("name", "address", "offset_s", "router", "impair")}
-            row["netns"] = h["netns"] if net.netns_exists(h["netns"]) else None
-            row["router_running"] = owned.get(f"router-{h['name']}", False)
+            row: HostStatus = {
+                "name": h["name"],
+                "address": h["address"],
+                "offset_s": h["offset_s"],
+                "router": h["router"],
+                "impair": h["impair"],
+                "netns": h["netns"] if net.netns_exists(h["netns"]) else None,
+                "router_running": owned.get(f"router-{h['name']}", False),
+            }
             if h["impair"]["loss"] > 0 and row["netns"]:
                 row["counters"] = net.impair_counters(h["netns"])
             hosts.append(row)
