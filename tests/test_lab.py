@@ -26,8 +26,16 @@ from protocol.zenoh_config import ZenohSettings, session_config
 s = zenoh.open(session_config(ZenohSettings(mode="client", connect=("tcp/127.0.0.1:7447",))))
 got = []
 if sys.argv[1] == "sub":
+    import threading
     sub = s.declare_subscriber("lab/test", lambda smp: got.append(1))
     print("subscribed", flush=True)
+    # A line on stdin (or its end): the publisher has exited, every put is on its way through
+    # the routers. The wait for the last ones is bounded from then, not from this start: the
+    # publisher's start and its match across the lossy link take as long as the host makes them.
+    done = threading.Event()
+    threading.Thread(target=lambda: (sys.stdin.readline(), done.set()), daemon=True).start()
+    while len(got) < int(sys.argv[2]) and not done.wait(0.02):
+        pass
     deadline = time.monotonic() + 20
     while len(got) < int(sys.argv[2]) and time.monotonic() < deadline:
         time.sleep(0.02)
@@ -67,6 +75,7 @@ def _pubsub(name: str, sub_host: str, pub_host: str, n: int) -> int:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     sub = subprocess.Popen(
         lab_argv(name, sub_host, sys.executable, "-c", PUBSUB, "sub", str(n)),
+        stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
         env=env,
@@ -79,7 +88,7 @@ def _pubsub(name: str, sub_host: str, pub_host: str, n: int) -> int:
             timeout=60,
         )
         assert pub.returncode == 0
-        out, _ = sub.communicate(timeout=30)
+        out, _ = sub.communicate("published\n", timeout=30)  # the subscriber's last wait
     finally:
         if sub.poll() is None:
             sub.kill()
