@@ -87,13 +87,8 @@ def fleet_cmd(
         codes = execute(opts, stop, watcher)
         if stop:
             interrupts.record(stop.signal)
-    facts: report.FleetFacts = {
-        "scenario": str(path),
-        "rate_hz": rate,
-        "duration_s": duration,
-        "lab": lab,
-        "per_process": per_process,
-    }
+    facts: report.FleetFacts = {"scenario": str(path), "rate_hz": rate, "duration_s": duration}
+    facts.update(lab=lab, per_process=per_process)
     summary = report.write(out, codes, facts)
     typer.echo(json.dumps(summary["fleet"], indent=2))
     if stop:
