@@ -161,19 +161,24 @@ def _stream_counts(
 ) -> dict[str, int]:
     """sent, received (distinct ids that were sent), lost, duplicated, reordered and
     in_flight_at_stop (:func:`_in_flight`): one definition for every stream; received + lost +
-    in_flight_at_stop = sent. Reordered: an arrival older than one that arrived before it."""
+    in_flight_at_stop = sent. Reordered: a sent id's first arrival older than any arrival
+    before it, of whatever id (one sent just after the window overtook it all the same)."""
     sent = np.unique(sent_ids)
-    rx = rx_ids[np.isin(rx_ids, sent)]
-    distinct, idx = np.unique(rx, return_index=True)
-    first = np.zeros(rx.size, bool)
-    first[idx] = True
+    ours = np.isin(rx_ids, sent)
+    rx = rx_ids[ours]
+    distinct = np.unique(rx)
+    first_of = np.unique(rx_ids, return_index=True)[1]
+    first = np.zeros(rx_ids.size, bool)
+    first[first_of] = True
+    overtaken = np.zeros(rx_ids.size, bool)
+    overtaken[1:] = rx_ids[1:] < np.maximum.accumulate(rx_ids)[:-1]
     flying = _in_flight(sent_ids, rx_ids, known_lost if known_lost is not None else sent[:0])
     return {
         "sent": int(sent.size),
         "received": int(distinct.size),
         "lost": int(sent.size - distinct.size - flying.size),
         "duplicated": int(rx.size - distinct.size),
-        "reordered": int(((rx[1:] < np.maximum.accumulate(rx)[:-1]) & first[1:]).sum()),
+        "reordered": int((overtaken & first & ours).sum()),
         "in_flight_at_stop": int(flying.size),
     }
 
