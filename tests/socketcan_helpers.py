@@ -103,13 +103,16 @@ def run_devices(
     wait_device: float = 60.0,
     finite: tuple[list[str], ...] = (),
     timeout: float = 600.0,
+    finite_after_connect: bool = False,
 ) -> DeviceRun:
     """``hil run --controller external --cmd-path can`` on socketcan/vcan0 into ``out``, its
     report written by the run (as ``hil report`` writes it, from the folder: in the guest a
     second process to import the report's modules costs a minute, the run's own report a few
     seconds). Once it waits for its device, every argv of
     ``devices`` (run until stopped) and ``finite`` (each ends by itself and must do so while
-    the run still runs, so that all it sent met the bench) starts."""
+    the run still runs, so that all it sent met the bench) starts; with
+    ``finite_after_connect`` the finite ones once the run said the device connected (what they
+    send then meets drives the device armed, whatever order the guest started them in)."""
     require_vcan0()
     argv = ["-m", "hil", "run", "--controller", "external", "--cmd-path", "can"]
     argv += ["--can-interface", "socketcan", "--can-channel", CHANNEL]
@@ -121,7 +124,13 @@ def run_devices(
     started = wait_until(lambda: err.seen("waiting up to") or run.poll() is not None, 240)
     assert started and run.poll() is None, f"hil run did not wait for a device:\n{err.text()}"
     t_wait = time.monotonic()
-    procs = [spawn.start(d, text=True) for d in [*devices, *finite]]
+    procs = [spawn.start(d, text=True) for d in devices]
+    if finite_after_connect:
+        connected = wait_until(
+            lambda: err.seen("device connected after") or run.poll() is not None, 240
+        )
+        assert connected and run.poll() is None, f"the device did not connect:\n{err.text()}"
+    procs += [spawn.start(d, text=True) for d in finite]
     outputs = [Lines(p.stdout) for p in procs]
     errors = [Lines(p.stderr) for p in procs]
     ended = procs[len(devices) :]

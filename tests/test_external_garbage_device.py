@@ -10,9 +10,10 @@ extended frame; refused: a wrong length, a non-finite value), no torque outside 
 was applied, and the folder is one ``hil report`` reads.
 
 Verdicts: garbage alone never armed a drive, so it is a FAIL ("no device connected", or,
-when a frame with an input's id let it in, "the device never armed the drives"), never a
-PASS; beside the C device, ``hil report`` says what ``hil run`` judged (the verdict is judged
-once, by the analysis).
+when a frame with an input's id let it in, "the device never armed the drives", or "sent no
+command the bench received" when none of its frames in the run was one), never a PASS;
+beside the C device, ``hil report`` says what ``hil run`` judged (the verdict is judged once,
+by the analysis).
 
 Counts allow for the frames the plant's own socket dropped (``socket_drops``, the kernel's
 count) or still held unread when the plant stopped (``unread_at_stop``; the guest's plant, in
@@ -42,23 +43,23 @@ ADDRESS_REQUEST_ID = 0x3F << 5 | 0x06  # answered by every drive, not another no
 NAN_FRAMES = 20
 HUGE_FRAMES = 20
 SHORT_FRAMES = 4 * 20
-#: (name, cangen options, frames): about 2 s each, ~350 frames/s together (the guest's plant
-#: reads them in Python ~25x slower than its host).
+#: (name, cangen options, frames): about 4 s each, ~175 frames/s together (the guest's plant
+#: reads them in Python 25-50x slower than its host: at twice the rate its socket dropped most).
 GARBAGE: tuple[tuple[str, tuple[str, ...], int], ...] = (
-    ("random", ("-g", "8", "-I", "r", "-L", "r", "-D", "r", "-v"), 250),
-    ("rtr", ("-g", "25", "-R", "-v"), 80),
-    ("extended", ("-g", "25", "-e"), 80),
+    ("random", ("-g", "16", "-I", "r", "-L", "r", "-D", "r", "-v"), 250),
+    ("rtr", ("-g", "50", "-R", "-v"), 80),
+    ("extended", ("-g", "50", "-e"), 80),
     # wrong lengths to the drives' own ids: Set_Input_Torque (4 bytes) with 2 and 3,
     # Set_Axis_State (4) with 1, Set_Controller_Mode (8) with 5
-    ("short_torque_0", ("-g", "100", "-I", "00E", "-L", "2"), 20),
-    ("short_torque_1", ("-g", "100", "-I", "02E", "-L", "3"), 20),
-    ("short_state_1", ("-g", "100", "-I", "027", "-L", "1"), 20),
-    ("short_mode_0", ("-g", "100", "-I", "00B", "-L", "5"), 20),
+    ("short_torque_0", ("-g", "200", "-I", "00E", "-L", "2"), 20),
+    ("short_torque_1", ("-g", "200", "-I", "02E", "-L", "3"), 20),
+    ("short_state_1", ("-g", "200", "-I", "027", "-L", "1"), 20),
+    ("short_mode_0", ("-g", "200", "-I", "00B", "-L", "5"), 20),
     # Set_Input_Torque of NaN (0x7FC00000), of 3.4e38 (0x7F7FFFFF), and of random bits
-    ("nan_torque_0", ("-g", "100", "-I", "00E", "-L", "4", "-D", "0000C07F"), NAN_FRAMES),
-    ("huge_torque_1", ("-g", "100", "-I", "02E", "-L", "4", "-D", "FFFF7F7F"), HUGE_FRAMES),
-    ("random_torque_0", ("-g", "25", "-I", "00E", "-L", "4", "-D", "r"), 80),
-    ("random_torque_1", ("-g", "25", "-I", "02E", "-L", "8", "-D", "r"), 80),
+    ("nan_torque_0", ("-g", "200", "-I", "00E", "-L", "4", "-D", "0000C07F"), NAN_FRAMES),
+    ("huge_torque_1", ("-g", "200", "-I", "02E", "-L", "4", "-D", "FFFF7F7F"), HUGE_FRAMES),
+    ("random_torque_0", ("-g", "50", "-I", "00E", "-L", "4", "-D", "r"), 80),
+    ("random_torque_1", ("-g", "50", "-I", "02E", "-L", "8", "-D", "r"), 80),
 )
 #: cangen -v prints each frame it sent in candump's compact form: "  vcan0  5A1#11.22.33", an
 #: empty payload "5A1#", a remote frame "5A1#R" (a length may follow the R).
@@ -123,9 +124,12 @@ def check_garbage_counted(run: DeviceRun) -> dict:
 
 def test_garbage_beside_a_c_device_is_counted_and_refused(tmp_path, spawn):
     binary = build_c_controller(tmp_path)
-    # at a rate of its own here (the C device test has it answer each encoder frame)
-    device = [str(binary), "-i", CHANNEL, "-l", "0", "-r", "1", "-f", "100"]
-    run = run_devices(spawn, tmp_path / "run", [device], duration=10.0, finite=cangen_argvs())
+    # at 20 Hz a wheel, as in the C device test: the guest's plant reads little more
+    device = [str(binary), "-i", CHANNEL, "-l", "0", "-r", "1", "-f", "20"]
+    run = run_devices(
+        spawn, tmp_path / "run", [device], duration=14.0, finite=cangen_argvs(),
+        finite_after_connect=True,
+    )  # fmt: skip
     assert "device connected after" in run.stderr, run.stderr
     can = check_garbage_counted(run)
     # The torques of 3.4e38 reached an armed drive and were clamped to its limit, as the
@@ -147,7 +151,7 @@ def test_garbage_alone_is_counted_and_applies_nothing(tmp_path, spawn):
     """No device but cangen: every frame counted, the drives never armed, nothing applied,
     a folder with a FAIL verdict."""
     garbage = cangen_argvs()
-    run = run_devices(spawn, tmp_path / "run", [], duration=5.0, wait_device=8.0, finite=garbage)
+    run = run_devices(spawn, tmp_path / "run", [], duration=8.0, wait_device=12.0, finite=garbage)
     can = check_garbage_counted(run)
     conn = run.device_json()
     if conn["connected_after_s"] is None:
@@ -160,5 +164,7 @@ def test_garbage_alone_is_counted_and_applies_nothing(tmp_path, spawn):
     # nothing armed, nothing applied: a FAIL, never a PASS
     assert run.code == 1, (run.code, run.stdout, run.stderr)
     said = run.stdout + run.stderr
-    assert "no device connected within" in said or "never armed the drives" in said, said
+    # who let it in is the garbage's luck: an input-shaped frame in the window or none
+    refusals = ("no device connected within", "never armed the drives", "sent no command")
+    assert any(r in said for r in refusals), said
     print(f"garbage alone: exit {run.code}; connected: {conn['how']!r}; {run.stdout.strip()}")

@@ -23,13 +23,16 @@ MIN_COMMANDS = 40
 #: without a command), stalls of a second age a command past D* (seen: D = 1.7 s, the
 #: controller 1.07 s late), and its slow controller misses a few States (seen: 8 of 257; the
 #: CAN frames, checked below, none). The guest's timing is not the system's under test here:
-#: its verdict is PASS, or those, each count explained by the run's own logs; never a limit
-#: or a frame matched to another torque.
+#: its verdict is PASS, or those, each count explained by the run's own logs; never a frame
+#: matched to another torque, never a torque limit, and a velocity limit only past D*: (2)
+#: holds for D <= D*, beyond it only the sampled-data bound at the measured D (a slow host's
+#: guest: D = 981 ms > D* = 498 ms, |omega| 5 % past phi2, within the bound at D).
 _GUEST_KINDS = ("deadline_misses", "samples_without_command", "certificate_system",
                 "certificate_unknown_stall", "bench_stalled", "lost_messages")  # fmt: skip
 GUEST = (
     PASSES,
     fails(also=_GUEST_KINDS),
+    fails("certificate_system", "limits", also=_GUEST_KINDS),
     # the guest's plant woke late: the samples it left without a command are the bench's
     inconclusive(also=_GUEST_KINDS),
 )
@@ -66,4 +69,7 @@ def test_pair_over_socketcan_vcan0_at_50hz(tmp_path):
     landed_changes = s["timing"]["sample_to_apply_can"]["count"]
     assert 0 < landed_changes <= can["applied"] + can["sent_after_window"], can
     check_certified_bound(s, scenario)
-    assert s["violations"] == dict.fromkeys(("v", "omega", "tau1", "tau2"), 0), s["violations"]
+    cert = s["certificate"]
+    past = cert["d_max_s"] > cert["d_star_s"]
+    broken = {k for k, n in s["violations"].items() if n}
+    assert broken <= ({"v", "omega"} if past else set()), (s["violations"], cert["d_max_s"])
