@@ -68,7 +68,11 @@ pytestmark = [
 RATE = 500
 P = 2_000_000  # the period (ns): control and sensor at 500 Hz
 MS = 1_000_000
-RESUME_NS = 3 * MS  # a SCHED_FIFO service runs within this of its SIGCONT (or a spin's end)
+# A SCHED_FIFO service runs within this of its SIGCONT (or a spin's end). Let go, a Python
+# service first catches up the slots it slept through before its reader thread gets the CPU
+# (FIFO does not time-slice): 3.03 ms after a 24 ms stop on a host half as fast as the one 3 ms
+# was set on.
+RESUME_NS = 5 * MS
 AIM_NS = 300_000  # the test spins this long before an action's moment (a sleep wakes late)
 STOP_NS = 40 * MS  # the 40 ms SIGSTOPs
 LEAD_NS = 500_000  # a SIGSTOP lands this long before the stopped service's next deadline
@@ -317,6 +321,10 @@ def plant_stop(tmp_path_factory) -> Run:
 
 T0_A = 1.5  # s: the sample of injection (a) of the held run
 T0_B = 3.0  # s: the sample of injection (b)
+#: Injection (b) again at 3.5 s: the test takes the first whose State m arrived while the loop
+#: was held (a slow host's controller can be preempted holding the GIL its Zenoh thread needs:
+#: State m then arrives only after the spin, and there is nothing to measure)
+T0_B_AGAIN = 3.5
 L_START, L_CTRL, L_PLANT, L_SPIN, L_PLANT_B = 16 * MS, 10 * MS, 14 * MS, 12 * MS, 8 * MS
 
 
@@ -327,12 +335,13 @@ def _held_plan(inj: Injector) -> dict[str, Act]:
     (0) The controller stopped across t = 0 (from -1 ms for L_START): the plant holds zero
     torque until its first command lands. (a) A State held by its receiver and the command
     computed from it held by its own: the controller stopped LEAD_NS before sample k (t0 =
-    T0_A), the plant stopped LEAD_NS after it (State k has left, none after it); the controller
-    let go L_CTRL after its stop receives State k and sends its command, which the plant, let
-    go L_PLANT later, receives. (b) A State held in hand: the plant stopped LEAD_NS after sample
-    m (t1 = T0_B); this thread spins on the controller's CPU from AIM_NS before that until
-    L_SPIN after it: the controller's Zenoh threads receive State m on the other CPU, its
-    loop (pinned) cannot tick until the spin ends; the plant is let go L_PLANT_B later."""
+    T0_A), the plant stopped LEAD_NS before sample k + 1 (State k has left, none after it);
+    the controller let go L_CTRL after its stop receives State k and sends its command, which
+    the plant, let go L_PLANT later, receives. (b) A State held in hand: the plant stopped
+    LEAD_NS after sample m (t1 = T0_B); this thread spins on the controller's CPU from AIM_NS
+    before that until L_SPIN after it: the controller's Zenoh threads receive State m on the
+    other CPU, its loop (pinned) cannot tick until the spin ends; the plant is let go
+    L_PLANT_B later."""
     t0, t1 = inj.ns(T0_A), inj.ns(T0_B)
     acts: dict[str, Act] = {}
     with inj.realtime():
@@ -340,18 +349,21 @@ def _held_plan(inj: Injector) -> dict[str, Act]:
             "controller", inj.ns(0) - MS, L_START, "plant", "controller"
         )
         acts["a_ctrl_stop"] = inj.signal("controller", signal.SIGSTOP, t0 - LEAD_NS, "plant")
-        acts["a_plant_stop"] = inj.signal("plant", signal.SIGSTOP, t0 + LEAD_NS, "controller")
+        # late enough for State k to have left the plant's process (its Zenoh thread sends it),
+        # before the plant's next sample (CI: stopped 0.5 ms after, it held State k)
+        acts["a_plant_stop"] = inj.signal("plant", signal.SIGSTOP, t0 + P - LEAD_NS, "controller")
         acts["a_ctrl_cont"] = inj.signal(
             "controller", signal.SIGCONT, acts["a_ctrl_stop"].at + L_CTRL, "controller"
         )
         acts["a_plant_cont"] = inj.signal(
             "plant", signal.SIGCONT, acts["a_ctrl_cont"].at + L_PLANT, "plant"
         )
-        acts["b_plant_stop"] = inj.signal("plant", signal.SIGSTOP, t1 + LEAD_NS, "controller")
-        acts["b_spin"] = inj.spin(acts["b_plant_stop"].at + L_SPIN)
-        acts["b_plant_cont"] = inj.signal(
-            "plant", signal.SIGCONT, acts["b_spin"].by + L_PLANT_B, "plant"
-        )
+        for b, t in (("b", t1), ("b_again", inj.ns(T0_B_AGAIN))):
+            acts[f"{b}_plant_stop"] = inj.signal("plant", signal.SIGSTOP, t + LEAD_NS, "controller")
+            acts[f"{b}_spin"] = inj.spin(acts[f"{b}_plant_stop"].at + L_SPIN)
+            acts[f"{b}_plant_cont"] = inj.signal(
+                "plant", signal.SIGCONT, acts[f"{b}_spin"].by + L_PLANT_B, "plant"
+            )
     return acts
 
 
@@ -438,21 +450,21 @@ def _check_held(run: Run, h: Held, what: str) -> None:
     "wakeup_lateness",
     injects="a 40 ms SIGSTOP of the controller (L: SIGSTOP to SIGCONT, measured), sent 0.5 ms "
     "before its deadline at 2.001 s",
-    found="the held tick's lateness in [SIGCONT - its deadline, + 3 ms] and in [L - Ts - 1 ms, "
-    "L + 3 ms] (a stop landing just after a deadline holds the next slot); the clean run's "
+    found="the held tick's lateness in [SIGCONT - its deadline, + 5 ms] and in [L - Ts - 1 ms, "
+    "L + 5 ms] (a stop landing just after a deadline holds the next slot); the clean run's "
     "tick of that slot under Ts",
 )
 @calibrates(
     "skipped_slots",
     injects="a 40 ms SIGSTOP of the controller, sent 0.5 ms before its deadline at 2.001 s",
-    found="at the held tick: (SIGCONT - its deadline) // Ts to (SIGCONT + 3 ms - its deadline) "
+    found="at the held tick: (SIGCONT - its deadline) // Ts to (SIGCONT + 5 ms - its deadline) "
     "// Ts",
 )
 @calibrates(
     "period_jitter",
     injects="a 40 ms SIGSTOP of the controller, sent 0.5 ms before its deadline at 2.001 s",
     found="the held tick's jitter = its lateness - the previous tick's (both raw), so in "
-    "[L - Ts - 1 ms - the previous lateness, L + 3 ms]; the next tick's is the held lateness "
+    "[L - Ts - 1 ms - the previous lateness, L + 5 ms]; the next tick's is the held lateness "
     "less its own; the clean run's jitter there under Ts",
 )
 def test_a_controller_sigstop_is_its_held_ticks_lateness_and_jitter(controller_stop, base):
@@ -513,7 +525,7 @@ def test_a_controller_sigstop_misses_its_slots_and_fails_the_controller(controll
     "command_age_zenoh (applied)",
     injects="a 40 ms SIGSTOP of the controller, sent 0.5 ms before its deadline at 2.001 s",
     found="the stall's age is the raw next landing - the sample in force, within [L, L + 2 Ts "
-    "+ 3 ms + that command's own sample_to_apply]; it crossed the threshold max(3 Ts, D*/2) "
+    "+ 5 ms + that command's own sample_to_apply]; it crossed the threshold max(3 Ts, D*/2) "
     "(D* from the scenario) after that sample; D = the raw largest age",
 )
 @calibrates(
@@ -528,7 +540,7 @@ def test_a_controller_sigstop_misses_its_slots_and_fails_the_controller(controll
     "sample_gap",
     injects="a 40 ms SIGSTOP of the controller, sent 0.5 ms before its deadline at 2.001 s",
     found="the gaps from the newest sample computed before the stop to the first landed at or "
-    "after the last taken while stopped sum to [L - 2 Ts, L + 3 Ts + 3 ms], split only by "
+    "after the last taken while stopped sum to [L - 2 Ts, L + 3 Ts + 5 ms], split only by "
     "samples computed after the SIGCONT; all gaps the raw log's",
 )
 def test_a_controller_sigstop_is_the_age_the_gap_and_the_samples_it_left(controller_stop):
@@ -590,13 +602,13 @@ def test_a_controller_sigstop_is_the_age_the_gap_and_the_samples_it_left(control
     "plant_wakeup_lateness",
     "plant_skipped_slots",
     injects="a 40 ms SIGSTOP of the plant, sent 0.5 ms before its sample at 2.0 s",
-    found="as the controller's: the held sample's lateness in [SIGCONT - its slot, + 3 ms] "
-    "and [L - Ts - 1 ms, L + 3 ms], its skipped slots those due until it woke",
+    found="as the controller's: the held sample's lateness in [SIGCONT - its slot, + 5 ms] "
+    "and [L - Ts - 1 ms, L + 5 ms], its skipped slots those due until it woke",
 )
 @calibrates(
     "plant_sample_to_send",
     injects="a 40 ms SIGSTOP of the plant, sent 0.5 ms before its sample at 2.0 s",
-    found="the held sample's State leaves in [SIGCONT - its slot, + 3 ms]; the clean run's "
+    found="the held sample's State leaves in [SIGCONT - its slot, + 5 ms]; the clean run's "
     "State of that slot left within Ts",
 )
 @calibrates(
@@ -651,7 +663,7 @@ def test_a_plant_sigstop_is_its_held_samples_lateness_and_blamed_on_the_plant(pl
 @calibrates(
     "startup_hold_s",
     injects="the controller SIGSTOPped from t = -1 ms for 15 ms: no command before it resumes",
-    found="first landing - first sample in [SIGCONT, SIGCONT + Ts + 3 ms] - first sample (its "
+    found="first landing - first sample in [SIGCONT, SIGCONT + Ts + 5 ms] - first sample (its "
     "first tick computes the State in hand at the next slot); the clean run's under that floor",
 )
 def test_a_late_controller_start_is_the_startup_hold(held, base):
@@ -667,8 +679,8 @@ def test_a_late_controller_start_is_the_startup_hold(held, base):
 @calibrates(
     "hop_state",
     injects="State k (sample at 1.5 s) sent while the controller was SIGSTOPped (10 ms, from "
-    "0.5 ms before the sample) and none after it (the plant SIGSTOPped 0.5 ms after it)",
-    found="its hop (controller receive - plant send) in [SIGCONT - send, SIGCONT + 3 ms - "
+    "0.5 ms before the sample) and none after it (the plant SIGSTOPped 1.5 ms after it)",
+    found="its hop (controller receive - plant send) in [SIGCONT - send, SIGCONT + 5 ms - "
     "send]; the tick that computed from it carries that hop; the clean run's hops under Ts",
 )
 @calibrates(
@@ -676,14 +688,14 @@ def test_a_late_controller_start_is_the_startup_hold(held, base):
     "hop_cmd_can",
     injects="the command computed from State k, sent while the plant was SIGSTOPped (its "
     "SIGCONT 14 ms after the controller's); in the same run, the command of injection (b)",
-    found="the Zenoh command's and both CAN frames' hops in [plant SIGCONT - send, + 3 ms]",
+    found="the Zenoh command's and both CAN frames' hops in [plant SIGCONT - send, + 5 ms]",
 )
 @calibrates(
     "state_send_to_cmd_recv",
     "loop_transport_compute",
     injects="State k (sample at 1.5 s) held by the SIGSTOPped controller, its command by the "
     "SIGSTOPped plant (let go 10 ms and 24 ms after the first stop)",
-    found="plant receive - State send in [plant SIGCONT - send, + 3 ms]; the loop figure = "
+    found="plant receive - State send in [plant SIGCONT - send, + 5 ms]; the loop figure = "
     "its raw hop_state + compute + hop_cmd_zenoh, each within its own bounds",
 )
 @calibrates(
@@ -692,15 +704,15 @@ def test_a_late_controller_start_is_the_startup_hold(held, base):
     injects="the command of State k held by the SIGSTOPped plant; delay 0, so it lands as it "
     "arrives",
     found="landing (Zenoh) and both frames' arrival (CAN shadow) - sample k in [plant "
-    "SIGCONT - sample, + 3 ms]",
+    "SIGCONT - sample, + 5 ms]",
 )
 @calibrates(
     "command_age_can (shadow)",
     "sample_gap",
     injects="the command of State k held by the SIGSTOPped plant",
     found="the stall's age: next landing - the sample in force, in [plant SIGCONT - that "
-    "sample, + 3 ms]; the gap from the last landed sample before the plant's SIGCONT (k, or "
-    "k + 1, the slot it slept toward) to the next in [SIGCONT - k - Ts, SIGCONT + 3 ms + Ts - k]",
+    "sample, + 5 ms]; the gap from the last landed sample before the plant's SIGCONT (k, or "
+    "k + 1, the slot it slept toward) to the next in [SIGCONT - k - Ts, SIGCONT + 5 ms + Ts - k]",
 )
 def test_a_held_state_and_command_are_their_hops(held, base):
     raw, a = held.raw, held.acts
@@ -785,29 +797,44 @@ def test_a_held_state_and_command_are_their_hops(held, base):
         assert base.timing[name]["p50_us"] * 1000 < P < hop_state, name
 
 
+def _in_hand(held: Run) -> tuple[int, dict, dict, Act, Act]:
+    """(t1, State m, its receive, the spin, the plant's SIGCONT) of the first
+    injection (b) whose State m left before the plant stopped and arrived while the loop was
+    held: what the figures are then checked on."""
+    raw, a, missed = held.raw, held.acts, []
+    for b, t_s in (("b", T0_B), ("b_again", T0_B_AGAIN)):
+        stop, spin, cont = a[f"{b}_plant_stop"], a[f"{b}_spin"], a[f"{b}_plant_cont"]
+        t1 = raw.epoch + round(t_s * 1e9)
+        state = _row(raw.samples, "sample_ns", t1)
+        rx = _row(raw.state_rx, "seq", state["seq"])
+        if state["send_ns"] >= stop.at:
+            missed.append(f"at {t_s} s State m had not left when the plant stopped")
+        elif rx["recv_ns"] >= spin.by:
+            missed.append(f"at {t_s} s State m arrived {rx['recv_ns'] - spin.by} ns after the spin")
+        else:
+            return t1, state, rx, spin, cont
+    raise AssertionError("; ".join(missed))
+
+
 @calibrates(
     "wait_for_tick",
-    injects="State m (sample at 3.0 s) in hand while the controller's loop cannot tick: the "
+    injects="State m (sample at 3.0 s, or 3.5 s when at 3.0 s it came after the spin) in hand "
+    "while the controller's loop cannot tick: the "
     "plant SIGSTOPped 0.5 ms after the sample (no newer State), this thread spinning at FIFO 90 "
     "on the controller's CPU for 12 ms (its Zenoh threads receive on the other CPU)",
     found="the tick that computed from State m: compute start - its receive in [spin end - "
-    "receive, spin end + 3 ms - receive]; its lateness in [spin end - its deadline, + 3 ms]; "
+    "receive, spin end + 5 ms - receive]; its lateness in [spin end - its deadline, + 5 ms]; "
     "the clean run's wait under Ts",
 )
 @calibrates(
     "hop_cmd_zenoh",
     injects="the command of State m, sent while the plant was still SIGSTOPped (8 ms after "
     "the spin)",
-    found="its hop in [plant SIGCONT - send, + 3 ms]",
+    found="its hop in [plant SIGCONT - send, + 5 ms]",
 )
 def test_a_state_in_hand_while_the_loop_is_held_is_the_wait_for_the_tick(held, base):
-    raw, a = held.raw, held.acts
-    stop, spin, cont = a["b_plant_stop"], a["b_spin"], a["b_plant_cont"]
-    t1 = raw.epoch + round(T0_B * 1e9)
-    state = _row(raw.samples, "sample_ns", t1)
-    assert state["send_ns"] < stop.at, "State m had not left when the plant stopped"
-    rx = _row(raw.state_rx, "seq", state["seq"])
-    assert rx["recv_ns"] < spin.by, "State m did not arrive while the loop was held"
+    raw = held.raw
+    t1, state, rx, spin, cont = _in_hand(held)
     tick = _row(raw.ticks, "state_seq", state["seq"])
     assert tick["deadline_ns"] == t1 + P // 2  # the slot due during the spin
     wait = tick["compute_start_ns"] - tick["state_recv_ns"]
