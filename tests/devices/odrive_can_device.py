@@ -10,7 +10,9 @@ Modes (each a known answer for the bench's figures at its edge):
 - ``--stall-at T --stall-ms S``: once, T s after arming, nothing is sent for S ms;
 - ``--rearm``: a drive whose heartbeat says it left closed loop is re-armed (Clear_Errors,
   then Set_Axis_State 8), as a robot's drive node recovers from an over-speed trip. Without
-  it, the device keeps sending torques to the disarmed drive.
+  it, the device keeps sending torques to the disarmed drive;
+- ``--fifo``: the device runs SCHED_FIFO (a real-time device), so that its own response does
+  not move with the host's load (as tests/devices/zenoh_device.py).
 
     python tests/devices/odrive_can_device.py --interface zenoh_can --channel hil0 \
         --endpoint tcp/127.0.0.1:PORT --node-left 0 --node-right 1
@@ -21,6 +23,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import os
 import random
 import threading
 import time
@@ -161,7 +164,10 @@ def main() -> None:
     ap.add_argument("--stall-at", type=float, default=-1.0)
     ap.add_argument("--stall-ms", type=float, default=0.0)
     ap.add_argument("--rearm", action="store_true")
+    ap.add_argument("--fifo", action="store_true", help="run SCHED_FIFO (every thread)")
     a = ap.parse_args()
+    if a.fifo:  # before the bus and the loop: their threads inherit the policy
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
     with contextlib.suppress(KeyboardInterrupt):
         asyncio.run(main_async(a))
 
