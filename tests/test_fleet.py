@@ -14,7 +14,14 @@ from hil.folder.rates import RATES
 from hil.folder.recording import read_messages
 from hil.verdict import EXIT_CODE
 from tests.lab_helpers import ROOT, lab, lab_name, lab_skip_reason
-from tests.run_helpers import LOADED_HOST, PASSES, check_fleet, check_verdict, clean_scenario
+from tests.run_helpers import (
+    LOADED_HOST,
+    PASSES,
+    check_fleet,
+    check_verdict,
+    clean_scenario,
+    fleet_outcome,
+)
 
 
 def _fleet(
@@ -71,7 +78,7 @@ def test_a_fleet_over_loopback_gives_each_robot_its_own_loop_and_folder(tmp_path
         assert fleet["fleet"][rate] == sum(t[count] for t in robots) / total, rate
     outcomes = [s["verdict"]["outcome"] for s in summaries]
     assert [r["verdict"] for r in fleet["per_robot"]] == outcomes
-    want = "FAIL" if "FAIL" in outcomes else "PASS" if set(outcomes) == {"PASS"} else "INCONCLUSIVE"
+    want = fleet_outcome(outcomes)
     assert fleet["fleet"]["verdict"] == want
     assert done.returncode == EXIT_CODE[want], (want, done.stderr[-2000:])
     p99 = sorted(s["timing"]["command_age_zenoh"]["p99_us"] for s in summaries)

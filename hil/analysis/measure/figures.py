@@ -165,9 +165,8 @@ def _stream_counts(
     before it, of whatever id (one sent just after the window overtook it all the same)."""
     sent = np.unique(sent_ids)
     ours = np.isin(rx_ids, sent)
-    rx = rx_ids[ours]
-    distinct = np.unique(rx)
-    first_of = np.unique(rx_ids, return_index=True)[1]
+    ids, first_of = np.unique(rx_ids, return_index=True)
+    distinct = ids[np.isin(ids, sent)]
     first = np.zeros(rx_ids.size, bool)
     first[first_of] = True
     overtaken = np.zeros(rx_ids.size, bool)
@@ -177,7 +176,7 @@ def _stream_counts(
         "sent": int(sent.size),
         "received": int(distinct.size),
         "lost": int(sent.size - distinct.size - flying.size),
-        "duplicated": int(rx.size - distinct.size),
+        "duplicated": int(ours.sum() - distinct.size),
         "reordered": int((overtaken & first & ours).sum()),
         "in_flight_at_stop": int(flying.size),
     }
