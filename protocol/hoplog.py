@@ -264,7 +264,10 @@ class HostRow(NamedTuple):
     gave to another guest), runnable tasks (/proc/loadavg), and the CPU time (utime + stime) of
     the plant, the controller and ``hil run`` itself (the recorder) from /proc/PID/stat, and the
     ns the plant's and the controller's main threads waited runnable for a CPU
-    (/proc/PID/schedstat: a stopped or blocked process waits on no run queue)."""
+    (/proc/PID/schedstat: a stopped or blocked process waits on no run queue). ``time_ns`` is
+    stamped before the counters are read, ``read_ns`` after (absent from logs written before
+    it): on a loaded host the sampler can be preempted between the two, and a stretch's figures
+    must come from counters read before it began and after it ended."""
 
     time_ns: int
     cpu_total: int
@@ -276,6 +279,7 @@ class HostRow(NamedTuple):
     recorder_cpu: int
     plant_wait_ns: int
     controller_wait_ns: int
+    read_ns: int
 
 
 CONTROLLER_TABLES: dict[str, tuple[str, ...]] = {

@@ -89,6 +89,9 @@ class Loop:
     # between two reads (the plant's socket_drops table); the frames themselves are lost with
     # lose_can_frames
     socket_drops: tuple[tuple[int, int, int], ...] = ()
+    # (from ns after epoch, length ns): CAN frames sent in it wait in the drives' socket (the
+    # plant stopped) and are read at its end, 50 us apart, in order per node
+    hold_can_frames: tuple[int, int] | None = None
 
 
 def _cyclic(pattern: tuple[int, ...], k: int) -> int:
@@ -223,6 +226,7 @@ def write(folder: Path, loop: Loop) -> None:
             cmd_seq += 1
         k += 1 + skipped
     # --- CAN: every frame sent arrives 250 µs later, in order per node ---
+    drained = {0: 0, 1: 0}  # frames of each node read so far after hold_can_frames
     for node, send, cseq, value in can_tx_rows:
         end = send + 120 * US  # zenoh_can's name for the frame: its modelled end on the bus
         c.append("can_tx", (node, send, cseq, value, end))
@@ -234,6 +238,10 @@ def write(folder: Path, loop: Loop) -> None:
             continue
         i = tx_index[node]
         recv = send + loop.can_hop
+        held_can = loop.hold_can_frames
+        if held_can and 0 <= send - E - held_can[0] < held_can[1]:
+            recv = E + sum(held_can) + 50 * US * drained[node]
+            drained[node] += 1
         if loop.slow_can_from and cseq >= loop.slow_can_from[0]:
             recv += loop.slow_can_from[1]
         if (

@@ -61,6 +61,8 @@ OLD_HOST = {
     "host": ["time_ns", "cpu_total", "cpu_idle", "cpu_steal", "runnable", "plant_cpu",
              "controller_cpu", "recorder_cpu", "plant_wait_ns", "controller_wait_ns"],
 }  # fmt: skip
+# host logs since the sampler's second stamp: one column appended, the rest unchanged
+HOST_SINCE_READ_NS = {"host": [*OLD_HOST["host"], "read_ns"]}
 
 T0 = 1_000_000_000
 TYPED_CONTROLLER = [
@@ -107,7 +109,7 @@ TYPED_PLANT = [
 TYPED_HOST = [
     ("host", HostRow(time_ns=T0, cpu_total=100, cpu_idle=40, cpu_steal=1, runnable=3,
                      plant_cpu=7, controller_cpu=8, recorder_cpu=2, plant_wait_ns=5,
-                     controller_wait_ns=6)),
+                     controller_wait_ns=6, read_ns=T0 + 40_000)),
 ]  # fmt: skip
 
 
@@ -133,8 +135,8 @@ def _both(tmp_path: Path, untyped: bool) -> dict[str, Path]:
                              OLD_CONTROLLER if old else CONTROLLER_TABLES, TYPED_CONTROLLER, old),
         "plant": _write(d / "plant.hoplog", "plant", OLD_PLANT if old else PLANT_TABLES,
                         TYPED_PLANT, old),
-        "host": _write(d / "host.hoplog", "host", OLD_HOST if old else HOST_TABLES, TYPED_HOST,
-                       old),
+        "host": _write(d / "host.hoplog", "host", HOST_SINCE_READ_NS if old else HOST_TABLES,
+                       TYPED_HOST, old),
     }  # fmt: skip
 
 
@@ -142,7 +144,21 @@ def test_row_types_are_the_declared_tables():
     """Each table's columns are its row type's fields, in the order older logs have them."""
     assert {k: list(v) for k, v in CONTROLLER_TABLES.items()} == OLD_CONTROLLER
     assert {k: list(v) for k, v in PLANT_TABLES.items()} == OLD_PLANT
-    assert {k: list(v) for k, v in HOST_TABLES.items()} == OLD_HOST
+    assert {k: list(v) for k, v in HOST_TABLES.items()} == HOST_SINCE_READ_NS
+
+
+def test_a_host_log_from_before_read_ns_reads_its_columns_and_no_read_ns(tmp_path):
+    """A host log written before the sampler's second stamp (its header without ``read_ns``)
+    reads every column it has to its values and ``read_ns`` as empty, which the host figures
+    take as "stamped only before the reads" (tests/test_host_figures.py)."""
+    (name, row), *_ = TYPED_HOST
+    w = HopLogWriter(tmp_path / "host.hoplog", "host", OLD_HOST, {"epoch_ns": T0}, 3600.0)
+    w.append(name, _untyped(row)[: len(OLD_HOST["host"])])
+    w.close({"samples": 1})
+    logs = RunLogs.read(None, None, ALL_COLUMNS, tmp_path / "host.hoplog")
+    for c in OLD_HOST["host"]:
+        np.testing.assert_array_equal(logs["host"][c], [getattr(row, c)], err_msg=c)
+    assert logs["host"]["read_ns"].size == 0
 
 
 def test_typed_rows_write_the_bytes_of_positional_tuples(tmp_path):

@@ -107,3 +107,35 @@ def test_host_figures_over_a_stretch_use_the_samples_around_it(tmp_path: Path):
     assert f["runnable_max"] == 5
     assert f["plant_cpu_pct"] == pytest.approx(50.0) and f["controller_cpu_pct"] == 10.0
     assert f["plant_wait_s"] == pytest.approx(0.02) and f["controller_wait_s"] == 0.002
+
+
+def test_a_sample_whose_reads_ended_inside_the_stretch_does_not_open_it():
+    """A sampler preempted between its stamp and its reads (a loaded host): the sample stamped
+    at 100 ms read its counters at 160 ms, inside [150, 250] ms, after the controller's 50 ms
+    run-queue wait there was counted. The stretch opens on the sample before it, whose reads
+    were done by 150 ms, so the wait is found; it closes on the first sample that began reading
+    at or after 250 ms. On the stamps alone the wait would read as none (the old reading)."""
+    import numpy as np
+
+    ms = 1_000_000
+    h = {
+        "time_ns": np.array([0, 100, 200, 300], np.int64) * ms,
+        "read_ns": np.array([1, 160, 201, 301], np.int64) * ms,
+        "cpu_total": np.array([0, 20, 40, 60]),
+        "cpu_idle": np.array([0, 0, 0, 0]),
+        "cpu_steal": np.array([0, 0, 0, 0]),
+        "runnable": np.array([1, 3, 5, 2]),
+        "plant_cpu": np.array([0, 5, 10, 15]),
+        "controller_cpu": np.array([0, 1, 2, 3]),
+        "recorder_cpu": np.array([0, 0, 0, 0]),
+        "plant_wait_ns": np.array([0, 0, 0, 0]),
+        "controller_wait_ns": np.array([0, 50, 50, 50]) * ms,
+    }
+    meta = {"clock_ticks_per_s": 100, "cpus": 2}
+    f = host_figures(h, meta, 150 * ms, 250 * ms)
+    assert f is not None
+    assert f["controller_wait_s"] == pytest.approx(0.050)
+    assert f["from_s"] == pytest.approx(0.300)  # from the midpoint 0.5 ms to 300.5 ms
+    assert f["runnable_max"] == 5
+    old = host_figures({k: v for k, v in h.items() if k != "read_ns"}, meta, 150 * ms, 250 * ms)
+    assert old is not None and old["controller_wait_s"] == 0.0

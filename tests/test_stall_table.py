@@ -339,6 +339,36 @@ def test_frames_the_drives_socket_dropped_are_the_bench_s(tmp_path):
     assert can["frames_lost_on_wire"] == 30 and can["lost_by_bench"] == 0, can
 
 
+def test_a_frame_lost_among_identical_frames_is_the_bench_s_if_the_socket_dropped_there(tmp_path):
+    """Unnamed CAN frames all of the same bytes (a held torque) while the plant stopped for
+    100 ms (1.0 .. 1.1 s): its socket queued what was sent then and dropped the last 15
+    commands' frames (queue full), 30 drops counted by its first read after (1.08 .. 1.1 s).
+    The logs cannot tell which frames of a run of identical frames were lost (the matcher
+    here puts the losses at the start of the stop, outside the drops' window), so the drops
+    explain them: the bench's, none the wire's. Frames of other bytes stay apart: with
+    varying torques and no stop, drops counted a second after the loss explain none of it."""
+
+    def torque_can(name: str, loop: Loop) -> dict:
+        write(tmp_path / name, loop)
+        logs = load_folder_logs(tmp_path / name)
+        assert logs is not None
+        return measure(logs, _bound()).messages["torque_can"]
+
+    held = Loop(n=1500, cmd_path="can", named_frames=False, constant_can_values=True,
+                hold_can_frames=(1000 * MS, 100 * MS), lose_can_frames=set(range(535, 550)),
+                socket_drops=((1080 * MS, 1100 * MS + 10 * US, 30),))  # fmt: skip
+    can = torque_can("held", held)
+    assert can["frames_lost"] == 30 and can["frames_dropped_by_bench_socket"] == 30, can
+    assert can["frames_lost_by_bench"] == 30 and can["lost_by_bench"] == 15, can
+    assert can["frames_lost_on_wire"] == 0, can
+    varying = Loop(n=1500, cmd_path="can", named_frames=False,
+                   lose_can_frames=set(range(499, 514)),
+                   socket_drops=((1998 * MS, 2028 * MS, 30),))  # fmt: skip
+    can = torque_can("varying", varying)
+    assert can["frames_lost"] == 30 and can["frames_lost_by_bench"] == 0, can
+    assert can["frames_lost_on_wire"] == 30, can
+
+
 def test_lost_messages_the_bench_dropped_are_not_the_system_s():
     """The lost-messages rule counts the system's losses only: 30 of 1,000 CAN commands lost
     (1.5 % of the 2,000 messages with the States), 25 of them dropped by the drives' own socket,

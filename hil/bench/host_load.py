@@ -52,9 +52,10 @@ class HostSampler:
         self._thread.start()
 
     def sample(self) -> None:
+        stamp = time.monotonic_ns()
         total, idle, steal = _cpu_line()
         row = HostRow(
-            time_ns=time.monotonic_ns(),
+            time_ns=stamp,
             cpu_total=total,
             cpu_idle=idle,
             cpu_steal=steal,
@@ -64,6 +65,7 @@ class HostSampler:
             recorder_cpu=_process_cpu(os.getpid()),
             plant_wait_ns=_process_cpu(self.pids["plant"], wait=True),
             controller_wait_ns=_process_cpu(self.pids["controller"], wait=True),
+            read_ns=time.monotonic_ns(),
         )
         self.log.append("host", row)
 

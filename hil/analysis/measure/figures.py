@@ -377,7 +377,10 @@ class _Run:
         """Per can_tx row: a torque frame put on the bus, never received, and dropped by the
         drives' own receiving socket (its queue full: the plant's ``socket_drops`` log). Each
         drop the socket counted explains at most one frame sent in its window (less the bus's
-        flight, :data:`BUS_FLIGHT_NS`), oldest first."""
+        flight, :data:`BUS_FLIGHT_NS`), oldest first. Frames carry no number: a frame lost among
+        its node's frames of the same bytes sent back to back (a held zero torque while the plant
+        was stopped) is, for the logs, any one of them (hil.analysis.measure.can_match puts such
+        losses last), so a drop explains it if its window holds any frame of that run."""
         tx, c = self.logs["can_tx"], self._can
         out = np.zeros(tx["node"].size, bool)
         d = self.logs["socket_drops"]
@@ -389,12 +392,12 @@ class _Run:
         lost = sent & ~np.isin(_frame_keys(tx["cmd_seq"], tx["node"]), received)
         rows = np.nonzero(lost)[0]
         rows = rows[np.argsort(tx["send_ns"][rows], kind="stable")]
-        at = tx["send_ns"][rows]
+        first, last = _same_bytes_runs(tx)
+        first, last = first[rows], last[rows]
         for since, seen, n in zip(d["since_ns"].tolist(), d["seen_ns"].tolist(),
                                   d["dropped"].tolist(), strict=True):  # fmt: skip
-            sl = slice(*np.searchsorted(at, [since - BUS_FLIGHT_NS, seen], side="right"))
-            free = rows[sl][~out[rows[sl]]]
-            out[free[: int(n)]] = True
+            inside = (first <= seen) & (last >= since - BUS_FLIGHT_NS) & ~out[rows]
+            out[rows[np.nonzero(inside)[0][: int(n)]]] = True
         return out
 
     @cached_property
@@ -929,6 +932,28 @@ def _bench_losses(
         "lost_by_bench": int(np.isin(sent_cmds, r.commands_dropped_by_bench).sum()),
         "frames_lost_on_wire": max(0, frames_lost - int(by_frame.sum()) - injected - off_bus),
     }
+
+
+def _same_bytes_runs(tx: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Per can_tx row, the send times of the first and the last frame of its run: the frames of
+    its node on the bus, in bus order, back to back with the same float32 bytes (one frame, or
+    none put on the bus: its own send time)."""
+    send = tx["send_ns"]
+    first, last = send.copy(), send.copy()
+    on_bus = np.nonzero(send > 0)[0]
+    order = on_bus[np.lexsort((send[on_bus], tx["node"][on_bus]))]
+    if order.size == 0:
+        return first, last
+    node = tx["node"][order]
+    raw = np.asarray(tx["value"][order], np.float32).view(np.int32)
+    new = np.ones(order.size, bool)
+    new[1:] = (node[1:] != node[:-1]) | (raw[1:] != raw[:-1])
+    run = np.cumsum(new) - 1
+    starts = np.nonzero(new)[0]
+    ends = np.append(starts[1:], order.size) - 1
+    first[order] = send[order][starts][run]
+    last[order] = send[order][ends][run]
+    return first, last
 
 
 def _frame_keys(cmd: np.ndarray, node: np.ndarray) -> np.ndarray:

@@ -26,16 +26,23 @@ RECORDER_SILENT_NS = int(2.5 * INTERVAL_S * 1e9)
 def host_figures(
     h: dict[str, np.ndarray], meta: dict[str, Any], lo: int, hi: int
 ) -> HostLoad | None:
+    """The host over [lo, hi] from the two samples around it: the last whose counters were all
+    read by ``lo`` and the first that began reading them at or after ``hi`` (a sampler preempted
+    between its stamp and its reads on a loaded host would otherwise put a stall's run-queue
+    wait on the wrong side of the stretch). ``from_s`` spans the two samples' midpoints."""
     t = h.get("time_ns")
     if t is None or t.size < 2:
         return None
-    a = max(0, int(np.searchsorted(t, lo, side="right")) - 1)  # the last sample at or before lo
-    b = min(t.size - 1, int(np.searchsorted(t, hi, side="left")))  # the first at or after hi
+    done = h.get("read_ns")
+    if done is None or done.size != t.size:  # a log written before the second stamp
+        done = t
+    a = max(0, int(np.searchsorted(done, lo, side="right")) - 1)  # read by lo
+    b = min(t.size - 1, int(np.searchsorted(t, hi, side="left")))  # reading from hi on
     if b <= a:
         b = min(t.size - 1, a + 1)
         a = b - 1
     d_total = int(h["cpu_total"][b] - h["cpu_total"][a])
-    seconds = (int(t[b]) - int(t[a])) / 1e9
+    seconds = (int(t[b]) + int(done[b]) - int(t[a]) - int(done[a])) / 2e9
     if d_total <= 0 or seconds <= 0:
         return None
     tick = float(meta.get("clock_ticks_per_s") or 100)
