@@ -19,6 +19,7 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bench.duty_hog import duty_hog
@@ -81,15 +82,11 @@ def test_hogs_on_every_cpu_read_as_a_busy_host(figures):
     assert 0.0 <= figures["steal_pct"] <= 100.0
 
 
-def test_host_figures_over_a_stretch_use_the_samples_around_it(tmp_path: Path):
-    """Every figure is a difference of the two samples bracketing the stretch: the known rows
-    of a scripted host log give known figures."""
-    import numpy as np
-
-    t = np.array([0, 100, 200, 300], np.int64) * 1_000_000
+def _scripted_host(**columns: np.ndarray) -> dict[str, np.ndarray]:
+    """Four host samples 100 ms apart (2 CPUs at 100 ticks/s), ``columns`` replacing theirs."""
     h = {
-        "time_ns": t,
-        "cpu_total": np.array([0, 20, 40, 60]),  # 2 CPUs at 100 ticks/s
+        "time_ns": np.array([0, 100, 200, 300], np.int64) * 1_000_000,
+        "cpu_total": np.array([0, 20, 40, 60]),
         "cpu_idle": np.array([0, 10, 15, 20]),
         "cpu_steal": np.array([0, 0, 2, 4]),
         "runnable": np.array([1, 3, 5, 2]),
@@ -99,6 +96,13 @@ def test_host_figures_over_a_stretch_use_the_samples_around_it(tmp_path: Path):
         "plant_wait_ns": np.array([0, 0, 10_000_000, 20_000_000]),
         "controller_wait_ns": np.array([0, 1, 2, 3]) * 1_000_000,
     }
+    return {**h, **columns}
+
+
+def test_host_figures_over_a_stretch_use_the_samples_around_it(tmp_path: Path):
+    """Every figure is a difference of the two samples bracketing the stretch: the known rows
+    of a scripted host log give known figures."""
+    h = _scripted_host()
     f = host_figures(h, {"clock_ticks_per_s": 100, "cpus": 2}, 150_000_000, 250_000_000)
     assert f is not None
     # Samples at 100 and 300 ms bracket [150, 250] ms: 40 ticks, 10 idle, 4 stolen.
@@ -115,22 +119,14 @@ def test_a_sample_whose_reads_ended_inside_the_stretch_does_not_open_it():
     run-queue wait there was counted. The stretch opens on the sample before it, whose reads
     were done by 150 ms, so the wait is found; it closes on the first sample that began reading
     at or after 250 ms. On the stamps alone the wait would read as none (the old reading)."""
-    import numpy as np
-
     ms = 1_000_000
-    h = {
-        "time_ns": np.array([0, 100, 200, 300], np.int64) * ms,
-        "read_ns": np.array([1, 160, 201, 301], np.int64) * ms,
-        "cpu_total": np.array([0, 20, 40, 60]),
-        "cpu_idle": np.array([0, 0, 0, 0]),
-        "cpu_steal": np.array([0, 0, 0, 0]),
-        "runnable": np.array([1, 3, 5, 2]),
-        "plant_cpu": np.array([0, 5, 10, 15]),
-        "controller_cpu": np.array([0, 1, 2, 3]),
-        "recorder_cpu": np.array([0, 0, 0, 0]),
-        "plant_wait_ns": np.array([0, 0, 0, 0]),
-        "controller_wait_ns": np.array([0, 50, 50, 50]) * ms,
-    }
+    h = _scripted_host(
+        read_ns=np.array([1, 160, 201, 301], np.int64) * ms,
+        cpu_idle=np.zeros(4, np.int64),
+        cpu_steal=np.zeros(4, np.int64),
+        plant_wait_ns=np.zeros(4, np.int64),
+        controller_wait_ns=np.array([0, 50, 50, 50]) * ms,
+    )
     meta = {"clock_ticks_per_s": 100, "cpus": 2}
     f = host_figures(h, meta, 150 * ms, 250 * ms)
     assert f is not None
