@@ -7,8 +7,11 @@ beside a CPU hog (one busy process per CPU: the recorder's queue then holds Stat
 kill), no process left (by PID), ``hil report`` recovering the folder (exit 0 or 1, never 2)
 and, after recovery, no State the plant sent before the kill missing from the recording.
 
-CI cost: 20 trials of each kind but ``hil_run_kill``, which runs 10 (its trials take about
-twice as long beside the hog), and one short run for the restore's known answer."""
+CI cost: every trial is a real run of several seconds, so CI runs 5 of each kind's 20 seeded
+trials (4 of ``hil_run_kill``'s, whose trials take about twice as long beside the hog): by their
+seeded moments the earliest, the latest and evenly between (:func:`spread_trials`), plus one
+short run for the restore's known answer. ``python bench/kill_matrix.py --trials 20`` runs all
+20 of each kind and prints the table (docs/reliability.md)."""
 
 from __future__ import annotations
 
@@ -22,8 +25,19 @@ import pytest
 from bench.kill_matrix import FAULT_WINDOW_S, KINDS, ROOT, cpu_hog, fault_at_s, run_trial
 from tests.run_helpers import fails, hil_run
 
-TRIALS = 20
-HIL_RUN_KILL_TRIALS = 10
+TRIALS = 20  # each kind's seeded trials (bench/kill_matrix.py runs them all)
+CI_TRIALS = 5  # of them run here
+HIL_RUN_KILL_CI_TRIALS = 4
+
+
+def spread_trials(kind: str, n: int) -> list[int]:
+    """``n`` of the kind's :data:`TRIALS` trials spread over its fault window: ordered by their
+    seeded moments, the first, the last and evenly between."""
+    by_moment = sorted(range(TRIALS), key=lambda i: fault_at_s(kind, i))
+    picks = {round(j * (TRIALS - 1) / (n - 1)) for j in range(n)}
+    return sorted(by_moment[p] for p in picks)
+
+
 STATE_TOPIC = "hil/robot0/state"
 
 
@@ -37,12 +51,19 @@ def test_each_kind_draws_its_fault_moment_from_the_trial_seed() -> None:
         assert all(lo <= m <= hi for m in moments), (kind, moments)
         assert len(set(moments)) == TRIALS, (kind, moments)
         assert max(moments) - min(moments) >= 0.6 * (hi - lo), (kind, moments)
+        # the trials CI runs: distinct, and their moments reach both ends of the 20's
+        ci = spread_trials(kind, CI_TRIALS)
+        assert len(set(ci)) == CI_TRIALS, (kind, ci)
+        picked = [moments[i] for i in ci]
+        assert min(picked) == min(moments) and max(picked) == max(moments), (kind, ci)
 
 
 @pytest.mark.realtime
 @pytest.mark.slow
-@pytest.mark.parametrize("trial", range(TRIALS))
-@pytest.mark.parametrize("kind", [k for k in KINDS if k != "hil_run_kill"])
+@pytest.mark.parametrize(
+    ("kind", "trial"),
+    [(k, i) for k in KINDS if k != "hil_run_kill" for i in spread_trials(k, CI_TRIALS)],
+)
 def test_kill_matrix_trial(kind: str, trial: int) -> None:
     result = run_trial(kind, trial)
     assert result.ok, (kind, trial, result.safe_s, result.detail)
@@ -59,7 +80,7 @@ def hog():
 
 @pytest.mark.realtime
 @pytest.mark.slow
-@pytest.mark.parametrize("trial", range(HIL_RUN_KILL_TRIALS))
+@pytest.mark.parametrize("trial", spread_trials("hil_run_kill", HIL_RUN_KILL_CI_TRIALS))
 def test_hil_run_kill_under_full_cpu_load_loses_no_state(hog, trial: int) -> None:
     result = run_trial("hil_run_kill", trial)
     assert all(p.poll() is None for p in hog), "the CPU hog stopped during the trial"
