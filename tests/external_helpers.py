@@ -64,8 +64,16 @@ def can_device_arrived(err: str) -> bool:
 #: A verdict's exit code (hil.verdict.EXIT_CODE), spelled here so the tests check the product.
 EXIT_OF = {"PASS": 0, "FAIL": 1, "INCONCLUSIVE": 4}
 #: What a working device may still be failed for on a loaded host: its own stalls (a Python
-#: device starved of the CPU is the device's stall, judged as any device's).
+#: device starved of the CPU is the device's stall, judged as any device's), and the
+#: certificate where they pushed the command age past D* (the run's worst stall then the
+#: device's silence, ``controller_late``: the bench does not see an outside device's ticks).
 DEVICE_TIMING = ("the device stalled",)
+DEVICE_CERTIFICATE = ("certificate not held", "by the system's own timing", "controller_late")
+
+
+def _device_timing(reason: str) -> bool:
+    head, why, cause = DEVICE_CERTIFICATE
+    return reason.startswith(head) and why in reason and reason.endswith(cause)
 
 
 def judged(out: Path, code: int, may_fail_for: tuple[str, ...] = DEVICE_TIMING) -> dict:
@@ -74,7 +82,8 @@ def judged(out: Path, code: int, may_fail_for: tuple[str, ...] = DEVICE_TIMING) 
     verdict = json.loads((out / layout.SUMMARY).read_text())["verdict"]
     assert code == EXIT_OF[verdict["outcome"]], (code, verdict)
     for reason in verdict["fail_reasons"]:
-        assert reason.startswith(may_fail_for), verdict["fail_reasons"]
+        timing = may_fail_for == DEVICE_TIMING and _device_timing(reason)
+        assert timing or reason.startswith(may_fail_for), verdict["fail_reasons"]
     return verdict
 
 

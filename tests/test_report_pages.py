@@ -129,7 +129,8 @@ def test_hil_report_keeps_the_verdict_the_analysis_judged(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     planted = "a reason only the analysis gave"
     summary["verdict"] = {**summary["verdict"], "outcome": "FAIL", "ok": False,
-                          "fail_reasons": [planted], "reasons": [planted]}  # fmt: skip
+                          "fail_reasons": [planted], "inconclusive_reasons": [],
+                          "reasons": [planted]}  # fmt: skip
     (out / "summary.json").write_text(json.dumps(summary))
     p = subprocess.run(
         [sys.executable, "-m", "hil", "report", str(out), "--no-ideal"],

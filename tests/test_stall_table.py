@@ -296,6 +296,32 @@ def test_a_controller_stall_is_the_controller_s_and_both_together_the_host_s(tmp
     assert (stall["cause"], stall["owner"]) == ("host_stalled", "bench"), stall
 
 
+def test_an_outside_device_s_silence_is_its_stall_never_lost_states(tmp_path):
+    """An outside device (its run folder without controller.hoplog: the bench sees only what
+    reached the plant) silent 40 ms: its own stall, ``controller_late`` (system), from its
+    commands' silence at the plant; the States it may not have received are never called lost
+    (before, every State of an outside device counted as lost and its stall read
+    ``state_lost``). A plant stall there stays the bench's ``plant_late``."""
+
+    def outside_stall(name: str, loop: Loop) -> dict:
+        write(tmp_path / name, loop)
+        (tmp_path / name / "controller.hoplog").unlink()
+        logs = load_folder_logs(tmp_path / name)
+        assert logs is not None and logs.controller is None
+        cert = measure(logs, _bound()).certificate
+        assert cert is not None
+        near = [s for s in cert["stalls"] if abs(s["t_s"] - 1.0) < 0.02]
+        assert near, cert["stalls"]
+        return max(near, key=lambda s: s["age_s"])
+
+    stall = outside_stall("device", Loop(n=1500, controller_stall=(1000 * MS, 40 * MS)))
+    assert (stall["cause"], stall["owner"]) == ("controller_late", "system"), stall
+    assert stall["evidence"]["controller_stalled_s"] >= 0.040, stall
+    assert "states_lost" not in stall["evidence"], stall
+    stall = outside_stall("plant", Loop(n=1500, plant_stall=(1000 * MS, 40 * MS)))
+    assert (stall["cause"], stall["owner"]) == ("plant_late", "bench"), stall
+
+
 def test_lost_states_and_commands_are_the_system_s(tmp_path):
     states = Loop(n=1500, lose_states=set(range(500, 515)))  # 30 ms of States lost
     stall = _stall_at(tmp_path / "s", states, 1000)

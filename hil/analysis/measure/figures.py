@@ -196,6 +196,8 @@ class _Run:
         self.applied = str(pm.get("cmd_path") or cm.get("cmd_path") or "zenoh")
         self.lockstep = bool(pm.get("lockstep") or cm.get("lockstep"))
         self.trigger = str(cm.get("trigger") or "periodic")
+        # An outside device: no log of its own; the bench sees only what reached the plant.
+        self.outside = logs.controller is None
         self.settle = 2 * self.ts + int(
             1e9 * (float(pm.get("delay_s") or 0.0) + float(pm.get("jitter_s") or 0.0))
         )
@@ -320,7 +322,10 @@ class _Run:
 
     @cached_property
     def state_received(self) -> np.ndarray:
-        """Per plant sample: its State reached the controller."""
+        """Per plant sample: its State reached the controller. An outside device's receipts are
+        not seen: none is called lost (its silences are its stalls, :meth:`controller_stalls`)."""
+        if self.outside:
+            return np.ones(self.samples["seq"].size, bool)
         return np.isin(self.samples["seq"], self.logs["state_rx"]["seq"])
 
     @cached_property
@@ -494,7 +499,15 @@ class _Run:
         (deadline to wake-up), and silences of two periods or more of every stamp its
         threads logged, each until it drained the States queued for it meanwhile
         (:meth:`Stretches.drained`); periodic trigger only (on_state and lockstep wait for States
-        by design)."""
+        by design). An outside device's ticks and receipts are not seen: its stalls are its
+        commands' silences of two periods or more at the plant (the device or its transport,
+        both the system's), less the plant's own stalls (it read nothing then)."""
+        if self.outside and not self.lockstep and self.period > 0:
+            rx = self.logs["cmd_rx"]
+            mine = rx["path"] == (CmdPath.CAN if self.applied == "can" else CmdPath.ZENOH)
+            arrived = rx["recv_ns"][mine & (rx["verdict"] != RxVerdict.DUPLICATE)]
+            quiet = Stretches.silences(self._in_run(arrived), SILENT_PERIODS * self.period)
+            return quiet.minus(self.plant_stalls)  # the plant read nothing then: its own stall
         if self.trigger != "periodic" or self.lockstep or self.period <= 0:
             return Stretches.none()
         t = self.ticks

@@ -14,7 +14,9 @@ cause must account for: without that much of the stall the age would have stayed
 - *the controller stalled*: the stretches in which it woke a period or more late (deadline to
   wake-up) or logged nothing at all for two periods or more (no stamp of any of its threads:
   stopped, killed, the host not running it); periodic trigger only (on_state and lockstep wait
-  by design);
+  by design); an outside device, whose ticks and receipts the bench does not see: its commands
+  silent at the plant for two periods or more outside the plant's own stalls (the device or its
+  transport, both the system's), and none of its States is called lost;
 - *the plant stalled*: the same of the plant's samples (due to wake-up, a sensor period or more)
   and of all its stamps (two sensor periods); not in lockstep;
 - *starved*: over the stall (host samples bracketing it, hil.analysis.measure.host) the controller's
