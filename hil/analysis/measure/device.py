@@ -198,10 +198,7 @@ def device_figures(
     period = int(pmeta.get("control_period_ns") or 0) or int(pmeta.get("sensor_period_ns") or 1)
     path = str(pmeta.get("cmd_path") or "zenoh")
     bench = bench if bench is not None else Stretches.none()
-    on_path = rx["path"] == (CmdPath.CAN if path == "can" else CmdPath.ZENOH)
-    # A Zenoh command that arrived twice was sent once: its second arrival is no command of the
-    # stream (a CAN frame carries no number to tell).
-    on_path &= rx["verdict"] != RxVerdict.DUPLICATE
+    on_path = command_arrivals(rx, path)
     inwin = on_path & within(rx["recv_ns"], w0, w1)
     period_from = "control period"
     if outside:
@@ -254,6 +251,14 @@ def device_figures(
         samples_in_bench_gaps=in_bench,
         nominal_period_from=period_from,
     )
+
+
+def command_arrivals(rx: dict[str, np.ndarray], path: str) -> np.ndarray:
+    """Per cmd_rx row: an arrival of the applied path's command stream. A Zenoh command that
+    arrived twice was sent once: its second arrival is no command of the stream (a CAN frame
+    carries no number to tell)."""
+    on_path = rx["path"] == (CmdPath.CAN if path == "can" else CmdPath.ZENOH)
+    return on_path & (rx["verdict"] != RxVerdict.DUPLICATE)
 
 
 def _median_interval(rx, inwin: np.ndarray, path: str) -> int:

@@ -18,7 +18,12 @@ import numpy as np
 from controller_service.certificate import certify, critical_age
 from hil.analysis.measure import age as agemod
 from hil.analysis.measure.can_match import UNMATCHED, match_node
-from hil.analysis.measure.device import DeviceFigures, DeviceLimits, device_figures
+from hil.analysis.measure.device import (
+    DeviceFigures,
+    DeviceLimits,
+    command_arrivals,
+    device_figures,
+)
 from hil.analysis.measure.host import RECORDER_SILENT_NS, host_figures
 from hil.analysis.measure.logs import RunLogs
 from hil.analysis.measure.stalls import Stamped, Stretches, find_stalls
@@ -378,6 +383,16 @@ class _Run:
         )
 
     @cached_property
+    def can_frames_lost(self) -> np.ndarray:
+        """Per can_tx row: a torque frame put on the bus that no drive received (by the
+        matching, hil.analysis.measure.can_match; a [faults] loss counts as not received)."""
+        tx, c = self.logs["can_tx"], self._can
+        got = (c["cmd"] >= 0) & ~c["lost"]
+        received = np.unique(_frame_keys(c["cmd"][got], c["node"][got]))
+        sent = (tx["cmd_seq"] >= 0) & (tx["send_ns"] > 0)
+        return sent & ~np.isin(_frame_keys(tx["cmd_seq"], tx["node"]), received)
+
+    @cached_property
     def frames_dropped_by_bench(self) -> np.ndarray:
         """Per can_tx row: a torque frame put on the bus, never received, and dropped by the
         drives' own receiving socket (its queue full: the plant's ``socket_drops`` log). Each
@@ -386,16 +401,12 @@ class _Run:
         its node's frames of the same bytes sent back to back (a held zero torque while the plant
         was stopped) is, for the logs, any one of them (hil.analysis.measure.can_match puts such
         losses last), so a drop explains it if its window holds any frame of that run."""
-        tx, c = self.logs["can_tx"], self._can
+        tx = self.logs["can_tx"]
         out = np.zeros(tx["node"].size, bool)
         d = self.logs["socket_drops"]
         if d["dropped"].size == 0:
             return out
-        got = (c["cmd"] >= 0) & ~c["lost"]
-        received = np.unique(_frame_keys(c["cmd"][got], c["node"][got]))
-        sent = (tx["cmd_seq"] >= 0) & (tx["send_ns"] > 0)
-        lost = sent & ~np.isin(_frame_keys(tx["cmd_seq"], tx["node"]), received)
-        rows = np.nonzero(lost)[0]
+        rows = np.nonzero(self.can_frames_lost)[0]
         rows = rows[np.argsort(tx["send_ns"][rows], kind="stable")]
         first, last = _same_bytes_runs(tx)
         first, last = first[rows], last[rows]
@@ -414,12 +425,7 @@ class _Run:
         if not by.any():
             return np.zeros(0, np.int64)
         cand = np.unique(tx["cmd_seq"][by])
-        c = self._can
-        got = (c["cmd"] >= 0) & ~c["lost"]
-        received = np.unique(_frame_keys(c["cmd"][got], c["node"][got]))
-        sent = (tx["cmd_seq"] >= 0) & (tx["send_ns"] > 0)
-        lost = sent & ~np.isin(_frame_keys(tx["cmd_seq"], tx["node"]), received)
-        other = np.unique(tx["cmd_seq"][lost & ~by])  # a frame lost elsewhere too
+        other = np.unique(tx["cmd_seq"][self.can_frames_lost & ~by])  # a frame lost elsewhere too
         return cand[~np.isin(cand, other)]
 
     @cached_property
@@ -504,8 +510,7 @@ class _Run:
         both the system's), less the plant's own stalls (it read nothing then)."""
         if self.outside and not self.lockstep and self.period > 0:
             rx = self.logs["cmd_rx"]
-            mine = rx["path"] == (CmdPath.CAN if self.applied == "can" else CmdPath.ZENOH)
-            arrived = rx["recv_ns"][mine & (rx["verdict"] != RxVerdict.DUPLICATE)]
+            arrived = rx["recv_ns"][command_arrivals(rx, self.applied)]
             quiet = Stretches.silences(self._in_run(arrived), SILENT_PERIODS * self.period)
             return quiet.minus(self.plant_stalls)  # the plant read nothing then: its own stall
         if self.trigger != "periodic" or self.lockstep or self.period <= 0:
