@@ -6,7 +6,9 @@ import signal
 
 import pytest
 
+from tests import vcan_lane
 from tests.procs import Spawner
+from tests.vcan_lane import LANE_TEST
 
 
 def pytest_configure(config):
@@ -42,6 +44,10 @@ def _vcan_skip_reason() -> str | None:
 
 
 def pytest_collection_modifyitems(config, items):
+    # The vcan lane runs beside the session (tests/vcan_lane.py): its test, which waits for it,
+    # goes last so that it waits least.
+    lane = [item for item in items if item.name == LANE_TEST]
+    items[:] = [item for item in items if item.name != LANE_TEST] + lane
     vcan_items = [item for item in items if item.get_closest_marker("vcan")]
     if not vcan_items:
         return
@@ -50,3 +56,11 @@ def pytest_collection_modifyitems(config, items):
         return
     for item in vcan_items:
         item.add_marker(pytest.mark.skip(reason=reason))
+
+
+def pytest_collection_finish(session):
+    vcan_lane.start_beside(session.items, collect_only=session.config.option.collectonly)
+
+
+def pytest_sessionfinish(session):
+    vcan_lane.stop_beside()

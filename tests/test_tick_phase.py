@@ -10,7 +10,7 @@ import pytest
 from controller_service.tick_phase import PhaseLearner, choose_phase
 from hil.analysis.measure import load_folder_logs
 from hil.bundled import bundled_path
-from tests.run_helpers import LOADED_HOST_CERTIFICATE, PASSES, hil_run
+from tests.run_helpers import LOADED_HOST_CERTIFICATE, PASSES, fails, hil_run
 
 US = 1000
 P = 500 * US  # 2 kHz
@@ -47,6 +47,18 @@ def test_the_learner_answers_once_after_enough_states_and_computes():
     assert learner.choice() is None
 
 
+#: At 2 kHz the run alone can saturate a 2-core host (a fresh clone's CI: busy 98 %, run queue
+#: up to 26, other processes 0.00 CPUs, the controller 50 ms without a CPU): Zenoh then drops
+#: States it cannot deliver in time (93 of 4637, counted lost: the system's FAIL, as the verdict
+#: says). That verdict is right and not this test's subject; its counts are still explained by
+#: the run's own logs (check_verdict).
+SATURATED = fails(
+    "certificate_system",
+    "lost_messages",
+    also=("samples_without_command", "deadline_misses", "bench_stalled"),
+)
+
+
 @pytest.mark.realtime
 def test_a_run_learns_its_phase_moves_its_ticks_there_once_and_reports_it(tmp_path):
     scenario = tmp_path / "auto.toml"
@@ -57,7 +69,7 @@ def test_a_run_learns_its_phase_moves_its_ticks_there_once_and_reports_it(tmp_pa
     # The phase, not the verdict: at 2 kHz a loaded host may break the certificate through the
     # system's timing (CI: D = 49 ms), which the verdict lays on the system; the phase holds.
     s = hil_run(out, str(scenario), "--rate", "2000", "--duration", "3", "--cmd-path", "zenoh",
-                expect=(PASSES, *LOADED_HOST_CERTIFICATE))  # fmt: skip
+                expect=(PASSES, *LOADED_HOST_CERTIFICATE, SATURATED))  # fmt: skip
     phase = s["timing"]["tick_phase"]
     assert phase["rule"] == "auto" and phase["clocks_related"], phase
     assert P // 8 <= phase["phase_us"] * US <= P - P // 8

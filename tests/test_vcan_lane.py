@@ -1,8 +1,9 @@
 """The vcan lane: every ``vcan``-marked test runs on a real SocketCAN vcan0.
 
 Where this kernel has vcan0 those tests run directly in this session and the lane is skipped.
-Otherwise ``test_lane_runs_every_vcan_test_in_guest`` boots the QEMU guest (tools/vcan_guest),
-runs them there and checks that each one collected on the host passed in the guest, so a lane
+Otherwise the QEMU guest (tools/vcan_guest) runs them, beside the rest of the session from its
+start (tests/vcan_lane.py) or, with ``HIL_VCAN_LANE_BESIDE=0``, in the lane test itself, which
+checks that each one collected on the host passed in the guest, so a lane
 that silently runs nothing fails. Without native vcan and without the guest it fails, unless
 ``HIL_SKIP_VCAN_LANE=1`` says to skip it. The fast tests below check the harness's pure parts.
 """
@@ -10,7 +11,6 @@ that silently runs nothing fails. Without native vcan and without the guest it f
 from __future__ import annotations
 
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from tests import vcan_lane
+from tests.vcan_lane import LANE_MIN_TESTS, LANE_TIMEOUT_S, parse_pytest_outcome, vcan_test_files
 from tools.vcan_guest import cpio, initramfs, modules, runner
 from tools.vcan_guest.image import (
     GuestUnavailableError,
@@ -26,108 +28,87 @@ from tools.vcan_guest.image import (
     parse_version,
     prepare,
 )
-from tools.vcan_guest.native import native_vcan_status
 
 ROOT = Path(__file__).resolve().parent.parent
-#: This file's two python-can tests plus the CAN drive-lifecycle case at least.
-LANE_MIN_TESTS = 3
-# Boot ~8-20 s and ~25x slower Python under TCG on a shared 2-core machine: be generous.
-LANE_TIMEOUT_S = 1200.0
-VCAN_MARK = re.compile(r"\bpytest\.mark\.vcan\b")
-ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
+_lane_skip_reason = vcan_lane.lane_skip_reason
 
 
 # --- the lane ---------------------------------------------------------------------------------
 
 
-def _lane_skip_reason() -> str | None:
-    if os.environ.get("HIL_IN_VCAN_GUEST") == "1":
-        return "already inside the vcan guest"
-    usable, _ = native_vcan_status()
-    if usable:
-        return "vcan0 is native here: the vcan tests run directly in this session"
-    if os.environ.get("HIL_SKIP_VCAN_LANE") == "1":
-        return "HIL_SKIP_VCAN_LANE=1: the vcan guest lane was explicitly skipped"
-    return None
+def _guest_unavailable(exc: GuestUnavailableError):
+    pytest.fail(
+        f"no native vcan0 and the vcan guest cannot be built: {exc}\n"
+        "Install what is missing (see docs/vcan.md), or set HIL_SKIP_VCAN_LANE=1 to skip "
+        "this lane explicitly.",
+        pytrace=False,
+    )
 
 
 def _guest_image():
     try:
         return prepare()
     except GuestUnavailableError as exc:
-        pytest.fail(
-            f"no native vcan0 and the vcan guest cannot be built: {exc}\n"
-            "Install what is missing (see docs/vcan.md), or set HIL_SKIP_VCAN_LANE=1 to skip "
-            "this lane explicitly.",
-            pytrace=False,
-        )
+        _guest_unavailable(exc)
 
 
-def vcan_test_files(tests_dir: Path) -> list[str]:
-    """Test files that mark anything ``vcan``: the guest collects only these, since importing
-    every test module costs minutes under TCG."""
-    return sorted(
-        str(p.relative_to(tests_dir.parent))
-        for p in tests_dir.glob("test_*.py")
-        if VCAN_MARK.search(p.read_text(encoding="utf-8"))
+def _lane_result(lane: vcan_lane.Lane) -> tuple[runner.GuestResult, set[str], str]:
+    """(the guest's result, the ids it passed, its output's tail), or the test fails saying why
+    the guest did not run them."""
+    if isinstance(lane.error, GuestUnavailableError):
+        _guest_unavailable(lane.error)
+    if isinstance(lane.error, (runner.GuestError, TimeoutError)):
+        pytest.fail(str(lane.error), pytrace=False)
+    if lane.error is not None:
+        raise lane.error
+    assert lane.result is not None
+    _, passed = parse_pytest_outcome(lane.result.output)
+    return lane.result, passed, "\n".join(lane.result.output.splitlines()[-40:])
+
+
+def _beside_left() -> tuple[vcan_lane.Lane | None, list[str] | None]:
+    """(the lane run beside the session, the ids it left for the foreground: None for all)."""
+    beside = vcan_lane.take_beside(LANE_TIMEOUT_S)
+    if beside is None or beside.error is not None or beside.result is None:
+        if beside is not None:
+            print(f"vcan lane beside the session did not finish: {beside.error}")
+        return beside, None
+    _, passed = parse_pytest_outcome(beside.result.output)
+    print(
+        f"vcan lane beside the session: {beside.result.total_s:.0f} s, passed {len(passed)} "
+        f"of {len(beside.expected)} (console {beside.log})"
     )
-
-
-def parse_pytest_outcome(text: str) -> tuple[dict[str, int], set[str]]:
-    """(counts from pytest's closing line, ids listed PASSED by ``-rA``)."""
-    clean = ANSI.sub("", text)
-    counts: dict[str, int] = {}
-    closing = [ln for ln in clean.splitlines() if re.match(r"^=+ .* in [0-9.]+s", ln)]
-    if closing:
-        for n, word in re.findall(r"(\d+) (\w+)", closing[-1]):
-            counts[{"error": "errors", "warning": "warnings"}.get(word, word)] = int(n)
-    passed = set(re.findall(r"^PASSED (\S+)", clean, re.MULTILINE))
-    return counts, passed
-
-
-def _collect_vcan_ids(files: list[str]) -> set[str]:
-    argv = [sys.executable, "-m", "pytest", "--collect-only", "-q", "-m", "vcan"]
-    res = subprocess.run(
-        [*argv, "-p", "no:cacheprovider", *files],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-        check=False,
-    )
-    assert res.returncode == 0, f"host collection of vcan tests failed:\n{res.stdout}{res.stderr}"
-    return {ln.strip() for ln in res.stdout.splitlines() if "::" in ln}
+    return beside, sorted(beside.expected - passed)
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(LANE_TIMEOUT_S + 300)
+@pytest.mark.timeout(2 * LANE_TIMEOUT_S + 300)
 def test_lane_runs_every_vcan_test_in_guest(tmp_path):
+    """Run beside the session when it started so (tests/vcan_lane.py), else here; a test that
+    failed beside the session runs again here, and this run is its result."""
     if reason := _lane_skip_reason():
         pytest.skip(reason)
-    image = _guest_image()
-    files = vcan_test_files(ROOT / "tests")
-    expected = _collect_vcan_ids(files)
-    assert len(expected) >= LANE_MIN_TESTS, f"too few vcan tests collected: {sorted(expected)}"
-
-    log = tmp_path / "guest-console.log"
-    argv = ["python", "-m", "pytest", "-m", "vcan", "-p", "no:cacheprovider", "-rA"]
-    argv += ["--color=no", "--durations=5", *files]
-    try:
-        result = runner.run_in_guest(
-            argv, cwd=str(ROOT), timeout=LANE_TIMEOUT_S, log_path=log, image=image
+    beside, again = _beside_left()
+    expected = beside.expected if beside is not None and again is not None else set()
+    if again != []:
+        lane = vcan_lane.Lane(log=tmp_path / "guest-console.log")
+        vcan_lane.run_lane(lane, LANE_TIMEOUT_S, ids=again)
+        result, passed, tail = _lane_result(lane)
+        counts, _ = parse_pytest_outcome(result.output)
+        print(
+            f"vcan lane in the foreground ({'again: ' + str(again) if again else 'all'}): boot "
+            f"{result.boot_s:.1f} s, total {result.total_s:.1f} s, {counts} (console {lane.log})"
         )
-    except runner.GuestError as exc:
-        pytest.fail(str(exc), pytrace=False)
-    counts, passed = parse_pytest_outcome(result.output)
-    tail = "\n".join(result.output.splitlines()[-40:])
-    print(f"vcan lane: boot {result.boot_s:.1f} s, total {result.total_s:.1f} s, {counts}")
-    assert result.exit_code == 0, f"vcan tests failed in the guest ({log}):\n{tail}"
-    assert counts.get("failed", 0) == 0 and counts.get("errors", 0) == 0, tail
-    assert passed == expected, (
-        f"vcan tests collected on the host but not passed in the guest: "
-        f"{sorted(expected - passed)}; unexpected: {sorted(passed - expected)}\n{tail}"
-    )
-    assert counts.get("passed") == len(expected), tail
+        assert result.exit_code == 0, f"vcan tests failed in the guest ({lane.log}):\n{tail}"
+        assert counts.get("failed", 0) == 0 and counts.get("errors", 0) == 0, tail
+        missing, unexpected = sorted(lane.expected - passed), sorted(passed - lane.expected)
+        assert not missing and not unexpected, (
+            f"vcan tests collected on the host but not passed in the guest: {missing}; "
+            f"unexpected: {unexpected}\n{tail}"
+        )
+        assert counts.get("passed") == len(lane.expected), tail
+        expected |= lane.expected
+    assert len(expected) >= LANE_MIN_TESTS, f"too few vcan tests collected: {sorted(expected)}"
 
 
 @pytest.mark.timeout(300)
@@ -166,6 +147,30 @@ def test_closing_line_and_passed_ids_are_parsed():
         "tests/test_can_two_process.py::test_b[vcan]",
     }
     assert parse_pytest_outcome("===== no tests ran in 0.01s =====\n") == ({}, set())
+
+
+def test_the_lane_starts_beside_only_a_session_that_runs_its_test(monkeypatch, tmp_path):
+    """Not for --collect-only, not without the lane test, not when told not to: no guest then."""
+
+    class Item:
+        def __init__(self, name):
+            self.name = name
+
+    started = []
+    monkeypatch.setattr(vcan_lane, "_beside", None)
+    monkeypatch.setattr(vcan_lane.threading, "Thread", lambda **kw: started.append(kw))
+    monkeypatch.setattr(vcan_lane, "lane_skip_reason", lambda: None)
+    monkeypatch.setattr(vcan_lane.tempfile, "mkdtemp", lambda prefix: str(tmp_path))
+    lane_items = [Item("test_x"), Item(vcan_lane.LANE_TEST)]
+    vcan_lane.start_beside(lane_items, collect_only=True)
+    vcan_lane.start_beside([Item("test_x")], collect_only=False)
+    monkeypatch.setenv("HIL_VCAN_LANE_BESIDE", "0")
+    vcan_lane.start_beside(lane_items, collect_only=False)
+    assert started == [] and vcan_lane._beside is None
+    monkeypatch.delenv("HIL_VCAN_LANE_BESIDE")
+    with pytest.raises(AttributeError):  # the stand-in thread has no start(): it was reached
+        vcan_lane.start_beside(lane_items, collect_only=False)
+    assert started and started[0]["args"][2] == vcan_lane.BESIDE_NICE
 
 
 def test_lane_selects_files_that_mark_vcan():
