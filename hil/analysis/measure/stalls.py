@@ -485,6 +485,31 @@ def find_stalls(
     return rep
 
 
+def host_windows(r: _Run) -> list[tuple[int, int]]:
+    """The bench's host stalls, however short: each stretch the controller stalled in while the
+    plant stalled too for a period or more (the host ran neither: ``host_stalled``'s evidence)
+    or while it was starved (:func:`starved`: ``host_overloaded``'s), with the plant's stalls it
+    overlaps. One too short to raise the command age past the stall threshold makes no stall of
+    the table (at 100 Hz, D* = 498 ms: a 30 ms stop of the whole machine), yet the slots it
+    missed and the samples it left without a command are the bench's, as a longer one's are
+    (hil.analysis.measure.figures._bench_shares): the same stop is never the system's for
+    being short."""
+    C, P = r.controller_stalls, r.plant_stalls
+    lo: list[np.ndarray] = []
+    hi: list[np.ndarray] = []
+    for a, b in zip(C.lo.tolist(), C.hi.tolist(), strict=True):
+        if P.covered(a, b) < r.period and not starved(r.host_over(a, b), b - a):
+            continue
+        i = int(np.searchsorted(P.hi, a, side="left"))
+        j = int(np.searchsorted(P.lo, b, side="right"))
+        lo += [np.array([a], np.int64), P.lo[i:j]]
+        hi += [np.array([b], np.int64), P.hi[i:j]]
+    if not lo:
+        return []
+    host = Stretches.of(np.concatenate(lo), np.concatenate(hi))
+    return list(zip(host.lo.tolist(), host.hi.tolist(), strict=True))
+
+
 def _between(sorted_stamps: np.ndarray, lo: int, hi: int) -> slice:
     a = int(np.searchsorted(sorted_stamps, lo, side="left"))
     b = int(np.searchsorted(sorted_stamps, hi, side="right"))
