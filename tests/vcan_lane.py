@@ -102,7 +102,6 @@ class Lane:
     #: raised by the run (GuestUnavailableError, GuestError, AssertionError), kept for the test
     error: BaseException | None = None
     qemu_pid: int | None = None
-    beside: bool = False
     stop: threading.Event = field(default_factory=threading.Event)
 
     def started(self, pid: int) -> None:
@@ -158,7 +157,7 @@ def start_beside(items: list, collect_only: bool) -> None:
     if not any(item.name == LANE_TEST for item in items) or lane_skip_reason() is not None:
         return
     log = Path(tempfile.mkdtemp(prefix="hil-vcan-lane-")) / "guest-console.log"
-    lane = Lane(log=log, beside=True)
+    lane = Lane(log=log)
     thread = threading.Thread(
         target=run_lane, args=(lane, BESIDE_TIMEOUT_S, BESIDE_NICE), daemon=True
     )
