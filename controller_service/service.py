@@ -484,6 +484,12 @@ class ControllerService:
             {**choice.as_meta(), "tick_phase_from_k": k + 1, "tick_phase_shift_ns": shift}
         )
 
+    def stop_listening(self) -> None:
+        """No more States: what the hop log's last counters say was refused is what the tap
+        handed on (a stranger's puts go on after the run)."""
+        with contextlib.suppress(Exception):  # the session may be gone on the way out
+            self._sub.undeclare()
+
     def send_stop(self) -> None:
         """A last zero command flagged STOP, so the plant idles at once."""
         self._publish(max(self._last_used_seq, 0), 0, time.monotonic_ns(), 0.0, 0.0, FLAG_STOP, {})
@@ -728,6 +734,7 @@ def _run_service(s: RunSettings, parts: Parts, stop: Any, sched: SchedulingRepor
                 print(svc.law_fault.traceback, end="", flush=True)
             return LAW_FAULT_EXIT
     finally:
+        svc.stop_listening()
         with contextlib.suppress(Exception):  # the session may be gone on the way out
             svc.send_stop()
         svc.tap.close()  # the stop command too; a closed session is counted, not raised

@@ -3,8 +3,10 @@
 The service hands every payload it puts on the wire to :meth:`Tap.sent` (an append) and every
 payload it refuses to :meth:`Tap.rejected`; it calls :meth:`Tap.flush_if_due` at a quiet point
 of its loop (after its own message left, long before the next is due), which puts one batch
-every :data:`protocol.tap.TAP_INTERVAL_NS`, and :meth:`Tap.close` when it stops. Observers
-(``hil run``'s recorder, the live view) subscribe to the tap instead of the loop's keys.
+every :data:`protocol.tap.TAP_INTERVAL_NS`, and :meth:`Tap.close` when it stops. An entry that
+comes after the close (a refusal by a callback still running while the service shuts down) is
+put at once, so nothing the service counted is missing from the tap. Observers (``hil run``'s
+recorder, the live view) subscribe to the tap instead of the loop's keys.
 """
 
 from __future__ import annotations
@@ -44,6 +46,8 @@ class Tap:
         self.interval_ns = int(interval_ns)
         self._pub = publisher(session, tap_key(robot_id, role))
         self._lock = threading.Lock()
+        self._flush_lock = threading.Lock()  # batch numbers in order, also after the close
+        self._closed = False
         self._entries: list[TapEntry] = []
         self._bytes = 0
         self._next_ns = 0
@@ -56,6 +60,8 @@ class Tap:
         with self._lock:
             self._entries.append(TapEntry(stream, stamp_ns, payload))
             self._bytes += len(payload) + _ENTRY_OVERHEAD
+        if self._closed:
+            self.flush()
 
     def rejected(self, stream: str, recv_ns: int, payload: bytes, reason: str) -> None:
         """A payload received on ``stream`` at ``recv_ns`` and refused for ``reason``."""
@@ -63,6 +69,8 @@ class Tap:
         with self._lock:
             self._entries.append(TapEntry(stream, recv_ns, cut, reason))
             self._bytes += len(cut) + _ENTRY_OVERHEAD
+        if self._closed:
+            self.flush()
 
     def flush_if_due(self, now_ns: int) -> None:
         """Put a batch when the interval has passed, or earlier when a batch is full."""
@@ -79,18 +87,19 @@ class Tap:
         """Put everything collected, in batches that each fit a decoder's limits."""
         now_ns = time.monotonic_ns() if now_ns is None else now_ns
         self._next_ns = now_ns + self.interval_ns
-        with self._lock:
-            entries, self._entries, self._bytes = self._entries, [], 0
-        start = 0
-        while start < len(entries):
-            end, size = start, 0
-            while end < len(entries) and end - start < MAX_BATCH_ENTRIES:
-                size += len(entries[end].payload) + _ENTRY_OVERHEAD
-                if size > _BATCH_ROOM and end > start:
-                    break
-                end += 1
-            self._put(entries[start:end])
-            start = end
+        with self._flush_lock:
+            with self._lock:
+                entries, self._entries, self._bytes = self._entries, [], 0
+            start = 0
+            while start < len(entries):
+                end, size = start, 0
+                while end < len(entries) and end - start < MAX_BATCH_ENTRIES:
+                    size += len(entries[end].payload) + _ENTRY_OVERHEAD
+                    if size > _BATCH_ROOM and end > start:
+                        break
+                    end += 1
+                self._put(entries[start:end])
+                start = end
 
     def _put(self, entries: list[TapEntry]) -> None:
         seq = self.batches
@@ -102,7 +111,8 @@ class Tap:
             self.put_errors += 1
 
     def close(self) -> None:
-        """The last batch."""
+        """The last regular batch; from now on each entry is put as it comes."""
+        self._closed = True
         self.flush()
 
     def counters(self) -> dict[str, int]:

@@ -186,6 +186,27 @@ def test_a_tap_over_zenoh_delivers_every_entry_in_order_within_the_batch_limits(
     assert tap.counters() == {"tap_batches": len(got), "tap_entries": 9_000, "tap_put_errors": 0}
 
 
+def test_a_refusal_after_the_close_is_put_at_once_and_numbered_on(two_sessions):
+    """A callback still running while its service shuts down refuses a payload after the tap's
+    last regular batch: it is put at once (never left in a tap nobody flushes), with the next
+    batch number."""
+    service, observer = two_sessions
+    got: list[bytes] = []
+    sub = observer.declare_subscriber(KEY, lambda s: got.append(bytes(s.payload.to_bytes())))
+    tap = Tap(service, "robot0", "plant")
+    assert wait_until(lambda: tap._pub.matching_status.matching, 10)
+    tap.sent(keys.STATE, 1, b"a")
+    tap.close()
+    tap.rejected(keys.TORQUE, 2, b"\xc1", "malformed")
+    tap.rejected(keys.TORQUE, 3, b"\xc1", "malformed")
+    assert wait_until(lambda: len(got) >= 3, 10)
+    sub.undeclare()
+    batches = [decode_batch(p) for p in got]
+    assert [b.seq for b in batches] == [0, 1, 2]
+    assert [[e.stamp_ns for e in b.entries] for b in batches] == [[1], [2], [3]]
+    assert tap.counters() == {"tap_batches": 3, "tap_entries": 3, "tap_put_errors": 0}
+
+
 def test_the_reader_counts_a_lost_batch_and_a_restart_exactly() -> None:
     """Known answer: batches 0, 1, 3 (2 lost), then 0 again (the service restarted)."""
     reader = TapReader()
