@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from controller_service.laws.base import DesignContext
+from controller_service.laws.guard import LawFaultError, build_fault
 from controller_service.references import build_reference
 from controller_service.registry import build_controller
 from protocol.settings import RunSettings
@@ -33,9 +34,19 @@ def design_context(s: RunSettings) -> DesignContext:
 
 
 def build_law(s: RunSettings) -> tuple[Any, Any, Any, str]:
-    """(the law, the reference (3), its memory at t = 0, the law's name) for the run ``s``."""
+    """(the law, the reference (3), its memory at t = 0, the law's name) for the run ``s``; a
+    law whose module or constructor raises here raises :class:`LawFaultError` (``"build"``):
+    a fault of the law, not of the bench."""
     reference = build_reference(s.reference, Path(s.base_dir))
-    controller = build_controller(dict(s.controller), design_context(s), s.law_path)
-    memory = initial_memory(controller, None, s.initial["z1"], s.initial["z2"])
+    named = str(s.controller.get("law", "unified"))
+    try:
+        controller = build_controller(dict(s.controller), design_context(s), s.law_path)
+        memory = initial_memory(controller, None, s.initial["z1"], s.initial["z2"])
+    except Exception as exc:  # the user's module and constructor may raise anything
+        cause: BaseException = exc
+        while cause.__cause__ is not None:  # what the law raised, not the registry's wrapper
+            cause = cause.__cause__
+        module = named.partition(":")[0].rpartition(".")[2]
+        raise LawFaultError(build_fault(module, named, cause)) from exc
     law = str(s.controller.get("law", getattr(controller, "name", "unified")))
     return controller, reference, memory, law

@@ -576,6 +576,16 @@ def write_law_fault(folder: Path, fault: LawFault) -> Path:
     return path
 
 
+def _law_fault_exit(folder: Path, fault: LawFault) -> int:
+    """law_fault.json written, the sentence and the traceback said: the exit code that tells
+    ``hil run`` the law failed (it will not come back)."""
+    write_law_fault(folder, fault)
+    print(f"law fault: {fault.sentence()}", flush=True)
+    if fault.traceback:
+        print(fault.traceback, end="", flush=True)
+    return LAW_FAULT_EXIT
+
+
 def _first_free_cmd_seq(previous: Any, ts: float) -> int:
     """After a restart: past the predecessor's last logged command number, plus a second's
     worth of numbers (it may have sent commands it had not logged yet: its last chunk, up to
@@ -599,7 +609,11 @@ def main_from_settings(settings_path: str, *more: str) -> int:
     s.validate()
     check_credentials(s.zenoh_endpoint, s.zenoh_mode)  # a bad credentials file: exit before a log
     session = open_session(s.zenoh_endpoint, mode=s.zenoh_mode)
-    parts = build_service(s, session)
+    try:
+        parts = build_service(s, session)
+    except LawFaultError as exc:  # the law could not be built here: its fault, said as such
+        session.close()
+        return _law_fault_exit(Path(s.out_dir), exc.fault)
     if parts.svc.epoch_ns == 0:  # the start will be announced on the plant's clock: relate it
         parts.clock.wait_first()
     try:
@@ -629,7 +643,13 @@ def main_group(paths: list[str]) -> int:
     settings = load_group(paths)
     first = settings[0]
     session = open_session(first.zenoh_endpoint, mode=first.zenoh_mode)
-    built = [build_service(s, session) for s in settings]
+    built = []
+    for s in settings:
+        try:
+            built.append(build_service(s, session))
+        except LawFaultError as exc:  # that robot's law; the process serves them all
+            session.close()
+            return _law_fault_exit(Path(s.out_dir), exc.fault)
     try:
         for parts in built:
             if parts.svc.epoch_ns == 0:
@@ -728,11 +748,7 @@ def _run_service(s: RunSettings, parts: Parts, stop: Any, sched: SchedulingRepor
         print(f"running epoch_ns={epoch_ns} scheduling={sched.policy}", flush=True)
         svc.run(stop, end_ns, sched)
         if svc.law_fault is not None:
-            write_law_fault(Path(s.out_dir), svc.law_fault)
-            print(f"law fault: {svc.law_fault.sentence()}", flush=True)
-            if svc.law_fault.traceback:
-                print(svc.law_fault.traceback, end="", flush=True)
-            return LAW_FAULT_EXIT
+            return _law_fault_exit(Path(s.out_dir), svc.law_fault)
     finally:
         svc.stop_listening()
         with contextlib.suppress(Exception):  # the session may be gone on the way out

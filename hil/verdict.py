@@ -109,6 +109,9 @@ class RunFacts:
     # What stopped the run before it ran (summary.json's ``error``: the services never became
     # ready, no outside device connected): a FAIL whatever the figures say.
     error: str | None = None
+    # Why the bench did not start the run (summary.json's ``bench_error``: its own services
+    # never said ready): the bench's INCONCLUSIVE, never the system's FAIL.
+    bench_error: str | None = None
     # What the device did when a drive disarmed (hil.analysis.measure.reactions): notes.
     reactions: tuple[str, ...] = ()
     # Why nothing of the run could be measured (a log the bench could not read, no plant
@@ -133,6 +136,7 @@ class RunFacts:
             duration_run_s=summary.get("duration_run_s"),
             scheduling=sched if isinstance(sched, dict) else None,
             error=str(summary["error"]) if summary.get("error") else None,
+            bench_error=str(summary["bench_error"]) if summary.get("bench_error") else None,
             reactions=tuple(str(r.get("sentence")) for r in summary.get("drive_reactions") or []),
             unmeasured=_unmeasured(summary),
         )
@@ -334,8 +338,9 @@ def _after_the_controller_ended(v: Verdict, ended: LawEnd | None) -> None:
 
 def run_outcome(summary: Summary) -> str:
     """The outcome ``hil run`` (and each robot of ``hil fleet``) exits with for its summary:
-    its verdict's; a run that stopped on an error of its own (``error``: the services never
-    became ready) is a FAIL whatever its figures say."""
+    its verdict's; a run the system kept from starting (``error``: no outside device came) is
+    a FAIL whatever its figures say (one the bench did not start, ``bench_error``, is its
+    verdict's INCONCLUSIVE)."""
     if summary.get("error"):
         return FAIL
     return str((summary.get("verdict") or {}).get("outcome") or FAIL)
@@ -643,7 +648,13 @@ def _facts(v: Verdict, facts: RunFacts | None) -> None:
         return
     if facts.error:
         v.fail_reasons.insert(0, facts.error)
-    if facts.unmeasured and not facts.error:  # a run that never started says only why
+    elif facts.bench_error:  # a run that never started says only why
+        if v.fail_reasons:
+            moved = "; ".join(short_reason(r, 100) for r in v.fail_reasons)
+            v.notes.append(f"not judged, the run did not start: {moved}")
+            v.fail_reasons.clear()
+        v.inconclusive_reasons[:] = [facts.bench_error]
+    elif facts.unmeasured:
         v.inconclusive_reasons.insert(0, facts.unmeasured)
     v.notes.extend(facts.reactions)
     if facts.interrupted:

@@ -189,11 +189,31 @@ def test_the_sweeps_verdict_is_not_its_break_point():
 
 
 def test_a_run_stopped_by_its_own_error_says_fail_and_exits_1(monkeypatch, tmp_path, capsys):
-    """The result line is the exit's outcome: a run whose services never became ready is a
+    """The result line is the exit's outcome: a run whose outside device never came is a
     FAIL (exit 1), said first, whatever its figures' verdict."""
-    _run_gives(monkeypatch, _summary(PASS, error="services did not become ready"))
+    _run_gives(monkeypatch, _summary(PASS, error="no device connected within 5 s"))
     argv = ["run", "--no-report", "--quiet", "--out", str(tmp_path / "run")]
     assert main(argv) == 1
     said = capsys.readouterr()
-    assert "result: FAIL: services did not become ready" in said.out
-    assert "verdict: FAIL: services did not become ready" in said.err
+    assert "result: FAIL: no device connected within 5 s" in said.out
+    assert "verdict: FAIL: no device connected within 5 s" in said.err
+
+
+def test_the_bench_says_which_service_kept_the_run_from_starting() -> None:
+    """hil.bench.lifecycle.NotReady: the service that ended first (its code and its log,
+    beside a fleet group's folder too), else those still starting, else the stop."""
+    from hil.bench.lifecycle import NotReady
+
+    ended = NotReady(("plant",), {"plant": 1}, 2.5, False)
+    assert ended.sentence(" of robot2", "../robot1-group-") == (
+        "the bench did not start the run of robot2: the plant exited with code 1 before it was "
+        "ready (its output: ../robot1-group-plant.log)"
+    )
+    slow = NotReady(("controller",), {}, 300.0, False)
+    assert slow.sentence() == (
+        "the bench did not start the run: the controller did not say ready within 300 s (still "
+        "starting: a host too slow or too busy; output: controller.log)"
+    )
+    stopped = NotReady(("plant", "controller"), {}, 1.0, True)
+    said = "the bench did not start the run: stopped while its services started"
+    assert stopped.sentence() == said

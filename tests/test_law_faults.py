@@ -63,6 +63,16 @@ class TupleLaw(BaseLaw):
         out, mem = super().update(t, dt, state, ref, memory)
         return (out.tau1, out.tau2), mem
 """
+# Built by hil (its checks) but not in the controller process: a file only hil's folder has.
+BUILD_LAW = """import sys
+from base_law import BaseLaw
+class BuildLaw(BaseLaw):
+    name = "build_law"
+    def __init__(self, *args, **kwargs):
+        if "controller_service" in sys.argv[0]:
+            raise FileNotFoundError("calibration.json")
+        super().__init__(*args, **kwargs)
+"""
 # module -> (source, class, kind, what the sentence says it did, law time of the first fault)
 LAWS = {
     "nan_law": (NAN_LAW, "NanLaw", "non_finite", "returned a non-finite torque tau1 = nan", 1.0),
@@ -508,6 +518,49 @@ def test_hil_run_ends_at_the_laws_fault_and_fails_with_its_sentence(
     assert s["duration_run_s"] < PLANNED_S / 2
     assert s["duration_planned_s"] == PLANNED_S
     assert "law fault: the law" in (run / "controller.log").read_text()
+
+
+def test_hil_run_whose_law_cannot_be_built_in_the_controller_fails_naming_the_law(
+    spawn, tmp_path: Path
+) -> None:
+    """A law that hil built but the controller process cannot (its constructor raises there):
+    the law's FAIL with what it raised, at once, never the bench's "did not start"."""
+    folder = _laws(tmp_path)
+    (folder / "build_law.py").write_text(BUILD_LAW)
+    args = ("paper_tracking", "--law", "build_law:BuildLaw", "--duration", str(PLANNED_S))
+    code, out, err = _run(spawn, folder, *args, "--no-can", "--no-report", "--quiet", "--out", "b")
+    assert code == 1, err[-3000:]
+    said = (
+        "the law build_law (build_law:BuildLaw) could not be built in the controller process: "
+        "it raised FileNotFoundError('calibration.json') (traceback in law_fault.json)"
+    )
+    assert f"result: FAIL: {said}" in out + err
+    s = json.loads((folder / "b" / "summary.json").read_text())
+    assert s["verdict"]["reasons"] == [said] and not s["verdict"]["inconclusive_reasons"]
+    assert s["law_fault"]["kind"] == "build" and "FileNotFoundError" in s["law_fault"]["traceback"]
+    assert s["controller_exit"]["law_fault"] is True and s["bench_error"] is None
+
+
+def test_hil_run_the_bench_did_not_start_is_its_inconclusive(spawn, tmp_path: Path) -> None:
+    """Services that do not say ready in time (HIL_READY_TIMEOUT shorter than any start-up:
+    the known answer of a host too slow to start them) are the bench's INCONCLUSIVE (exit 4)
+    naming which services and their logs: never the system's FAIL."""
+    env = {**_env(), "HIL_READY_TIMEOUT": "0.2"}
+    args = [HIL, "run", "paper_tracking", "--duration", "5", "--no-can", "--no-report", "--quiet"]
+    proc = spawn.start([*args, "--out", "n"], cwd=tmp_path, env=env, text=True)
+    out, err = proc.communicate(timeout=240)
+    assert proc.returncode == 4, err[-3000:]
+    s = json.loads((tmp_path / "n" / "summary.json").read_text())
+    why = s["bench_error"]
+    assert re.fullmatch(
+        r"the bench did not start the run: the plant and the controller did not say ready "
+        r"within 0\.2\d* s \(still starting: a host too slow or too busy; output: plant\.log, "
+        r"controller\.log\)",
+        why,
+    ), why
+    v = s["verdict"]
+    assert (v["outcome"], v["reasons"], v["fail_reasons"]) == ("INCONCLUSIVE", [why], [])
+    assert s["error"] is None and f"result: INCONCLUSIVE: {why}" in out + err
 
 
 def test_hil_run_whose_controller_is_killed_fails_naming_the_signal(spawn, tmp_path: Path) -> None:

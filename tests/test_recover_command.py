@@ -41,8 +41,8 @@ WRITTEN_AT_THE_END = (layout.SUMMARY, layout.TRACE, layout.SERIES, layout.TRAJEC
 # adds its own facts (hil.bench.lifecycle: wall time, the children's exit codes, the recorder's
 # counts, secure), which a recovery cannot know; hil recover adds recovered, note, and cuts
 # the duration to what ran.
-HOW_MADE = {"interrupted", "error", "wall_time_s", "exit_codes", "recording", "recorded_messages",
-            "recorder", "secure", "recovered", "note", "duration"}  # fmt: skip
+HOW_MADE = {"interrupted", "error", "bench_error", "wall_time_s", "exit_codes", "recording",
+            "recorded_messages", "recorder", "secure", "recovered", "note", "duration"}  # fmt: skip
 
 
 def _recover(folder: Path) -> dict:

@@ -207,11 +207,31 @@ def test_hil_run_exits_with_its_verdicts_code_every_fail_included():
         (inconclusive, INCONCLUSIVE, "the plant emulator stalled"),
         (fail, FAIL, "certificate not held"),
         (misses, FAIL, "deadline misses: 40 of 2000 slots"),
-        ({**passed, "error": "services did not become ready"}, FAIL, "did not become ready"),
-    ):
+        ({**passed, "error": "no device connected within 5 s"}, FAIL, "no device connected"),
+        ({"verdict": _judge(_cert(0.003, 0.003, []), bench_error="the bench did not start "
+          "the run").as_dict(), "bench_error": "the bench did not start the run"},
+         INCONCLUSIVE, "the bench did not start the run"),
+    ):  # fmt: skip
         with pytest.raises(NegativeVerdictError, match=words) as caught:
             _raise_on_negative(summary)
         assert caught.value.outcome == outcome
+
+
+def test_a_run_the_bench_did_not_start_is_its_inconclusive_never_a_fail():
+    """Services that never said ready (summary.json's ``bench_error``): INCONCLUSIVE with that
+    sentence alone; what the empty figures would have failed on is a note, not judged. No
+    outside device coming (``error``) is the system's FAIL."""
+    from hil.verdict import run_outcome
+
+    why = "the bench did not start the run: the plant exited with code 1 before it was ready"
+    timing = {"deadline_misses": 40, "slots": 2000, "deadline_miss_rate": 0.02}
+    v = _judge(_cert(0.003, 0.003, []), timing=timing, bench_error=why, unmeasured="no sample")
+    assert (v.outcome, v.fail_reasons, v.inconclusive_reasons) == (INCONCLUSIVE, [], [why])
+    assert any(n.startswith("not judged, the run did not start: deadline misses") for n in v.notes)
+    assert run_outcome({"bench_error": why, "verdict": v.as_dict()}) == INCONCLUSIVE
+    came = _judge(_cert(0.003, 0.003, []), error="no device connected within 5 s")
+    assert came.outcome == FAIL and came.fail_reasons == ["no device connected within 5 s"]
+    assert run_outcome({"error": "no device connected", "verdict": {"outcome": PASS}}) == FAIL
 
 
 def test_the_bench_advice_stands_only_under_inconclusive():

@@ -7,7 +7,10 @@ Every caller of a law's ``update`` goes through here (the controller service's
 - raises (``kind = "exception"``),
 - returns something else than a pair ``(ControlOutput, memory)`` whose output has ``tau1``,
   ``tau2`` (numbers, or arrays of numbers) and a ``telemetry`` mapping (``"wrong_type"``), or
-- returns a torque that is not finite (``"non_finite"``)
+- returns a torque that is not finite (``"non_finite"``), or
+- cannot be built in the controller process (``"build"``: its module or constructor raised
+  there, though ``hil`` built it before starting the services; a path relative to another
+  working directory, a resource only one process may hold)
 
 gets the same answer everywhere: a :class:`LawFault` record (the law, the time, the inputs of
 the failing call, what went wrong, the traceback) and :meth:`LawFault.sentence`, one sentence
@@ -28,8 +31,8 @@ import numpy as np
 from controller_service.laws.base import ReferenceSample, RobotState
 from protocol.hoplog import LAW_FAULT_FILE
 
-EXCEPTION, NON_FINITE, WRONG_TYPE = "exception", "non_finite", "wrong_type"
-KINDS = (EXCEPTION, NON_FINITE, WRONG_TYPE)
+EXCEPTION, NON_FINITE, WRONG_TYPE, BUILD = "exception", "non_finite", "wrong_type", "build"
+KINDS = (EXCEPTION, NON_FINITE, WRONG_TYPE, BUILD)
 EXPECTED = "(ControlOutput, memory)"
 
 
@@ -94,6 +97,12 @@ class LawFault:
         }.get(self.kind, f"failed ({self.kind}: {self.detail})")
         when = "at t = ? s" if self.t_s is None else f"at t = {self.t_s:.6g} s"
         more = "traceback" if self.traceback else "details"
+        if self.kind == BUILD:
+            where = f" ({self.where})" if self.where != self.law else ""
+            return (
+                f"the law {self.law}{where} could not be built in the controller process: it "
+                f"raised {self.detail} ({more} in {details})"
+            )
         return (
             f"the law {self.law} ({self.where}) {what} {when} for {_words(self.state)} "
             f"({more} in {details})"
@@ -171,6 +180,21 @@ def fault(
         detail=detail,
         traceback=trace,
         robot=robot,
+    )
+
+
+def build_fault(law: str, where: str, exc: BaseException) -> LawFault:
+    """The record of a law that could not be built (called in the ``except`` that caught
+    ``exc``: the traceback is the current one)."""
+    return LawFault(
+        law=law,
+        where=where,
+        kind=BUILD,
+        t_s=None,
+        state={},
+        reference={},
+        detail=repr(exc),
+        traceback=tb.format_exc(),
     )
 
 

@@ -22,6 +22,7 @@ from hil.bench.host_load import HostSampler
 from hil.bench.lifecycle import (
     Recording,
     RobotRun,
+    RunError,
     record_robots,
     start_and_follow,
     start_services,
@@ -95,7 +96,7 @@ def record(
     prefix = f"{robots[0].id}-group-"
 
     def follow(rec: Recording, session: Any, logs: Any, host: HostSampler,
-               held: contextlib.ExitStack) -> tuple[str | None, ControllerExit | None]:  # fmt: skip
+               held: contextlib.ExitStack) -> tuple[RunError | None, ControllerExit | None]:  # fmt: skip  # noqa: E501
         start_services(rec.sup, [r.run_dir for r in robots], rec.ids, logs, host, placed, prefix)
         n = spec.fleet_size or len(robots)
         output = f"../{prefix}{layout.CONTROLLER_OUTPUT}"

@@ -149,8 +149,18 @@ class RobotRun:
 #: returns an error (or None) and how the controller process ended when it ended first.
 Follow = Callable[
     ["Recording", Any, "_Logs", HostSampler, contextlib.ExitStack],
-    tuple[str | None, ControllerExit | None],
+    tuple["RunError | None", ControllerExit | None],
 ]
+
+
+@dataclass(frozen=True)
+class RunError:
+    """What stopped a run before it ran, in one sentence, and whose it is: the bench's own
+    (its services never ready: summary.json's ``bench_error``, INCONCLUSIVE) or the system's
+    (no outside device came: ``error``, FAIL)."""
+
+    sentence: str
+    bench: bool
 
 
 @dataclass
@@ -168,7 +178,7 @@ class Recording:
     group: bool = False  # a fleet's group: its robots share the processes (summary.json says)
     sup: Supervisor = dataclasses.field(default_factory=Supervisor)
     codes: dict[str, int | None] = dataclasses.field(default_factory=dict)
-    error: str | None = None
+    error: RunError | None = None
     ended: ControllerExit | None = None
     wall_s: float = 0.0
 
@@ -254,7 +264,7 @@ def start_and_follow(
     conn: device.DeviceConnection | None = None,
     fleet_size: int | None = None,
     output: str = layout.CONTROLLER_OUTPUT,
-) -> tuple[str | None, ControllerExit | None]:
+) -> tuple[RunError | None, ControllerExit | None]:
     """Wait for every robot's services (an outside device: for the plant, then for the
     device, whose connection ``conn`` is said and saved in its folder), start them together
     with the rest of the fleet, follow the run; an error (or None) and how the controller
@@ -267,9 +277,15 @@ def start_and_follow(
     deadline = time.monotonic() + float(os.environ.get("HIL_READY_TIMEOUT", "300"))
     roles = {"plant"} if arrival is not None else {"plant", "controller"}
     for r in robots:
-        if not _wait_ready(r.recorder, rec.sup, stop, max(0.0, deadline - time.monotonic()), roles):
-            whose = f" of {r.id}" if len(robots) > 1 else ""
-            return f"services{whose} did not become ready", None
+        left = max(0.0, deadline - time.monotonic())
+        missing = _wait_ready(r.recorder, rec.sup, stop, left, roles)
+        if missing is None:
+            continue
+        if missing.ended.get("controller") == LAW_FAULT_EXIT:  # its law could not be built
+            return None, controller_exit(LAW_FAULT_EXIT, None, output)
+        whose = f" of {r.id}" if len(robots) > 1 else ""
+        logs = output.removesuffix(layout.CONTROLLER_OUTPUT)  # the children's logs are beside
+        return RunError(missing.sentence(whose, logs), bench=True), None
     if arrival is not None and conn is not None:
         error = _wait_device(arrival, conn, rec.sup, stop, robots[0].run_dir)
         if error is not None:
@@ -370,12 +386,18 @@ def _stop_can_recorder(can_rec: tuple[Any, Any, Any], recorder: Recorder) -> Non
 
 
 def run_extra(
-    interrupted: bool, error: str | None, wall: float, codes: Any, recorder: Recorder, secure: bool
+    interrupted: bool,
+    error: RunError | None,
+    wall: float,
+    codes: Any,
+    recorder: Recorder,
+    secure: bool,
 ) -> RunExtra:
     """What ``hil run`` adds to summary.json about the run itself (in this key order)."""
     return {
         "interrupted": interrupted,
-        "error": error,
+        "error": error.sentence if error is not None and not error.bench else None,
+        "bench_error": error.sentence if error is not None and error.bench else None,
         "wall_time_s": wall,
         "exit_codes": codes,
         "recording": layout.RECORDING,
@@ -440,9 +462,10 @@ def _arrival(settings: RunSettings, session: Any) -> device.ZenohArrival | devic
 
 def _wait_device(
     arrival: Any, conn: device.DeviceConnection, sup: Supervisor, stop: Any, run_dir: Path
-) -> str | None:
+) -> RunError | None:
     """Say how the device connects (stderr and device.json), wait for it; None once it is
-    there, else why the run cannot start (a FAIL of the device's: it never came)."""
+    there, else why the run cannot start (a FAIL of the device's: it never came; the bench's
+    when its plant ended meanwhile)."""
     conn.save(run_dir)
     for line in conn.lines():
         ticker.say(line)
@@ -451,12 +474,44 @@ def _wait_device(
     )
     if how is None:
         if stop or not all(c.alive() for c in sup.children):
-            return None if stop else "the plant ended while the device was waited for"
+            ended = "the bench did not start the run: its plant ended while waiting for the device"
+            return None if stop else RunError(ended, bench=True)
         where = conn.zenoh.endpoint if conn.zenoh else (conn.can.channel if conn.can else "")
-        return f"no device connected within {conn.wait_s:g} s: {arrival.nobody(where)}"
+        said = f"no device connected within {conn.wait_s:g} s: {arrival.nobody(where)}"
+        return RunError(said, bench=False)
     dataclasses.replace(conn, connected_after_s=round(waited, 3), how=how).save(run_dir)
     ticker.say(f"device connected after {waited:.1f} s ({how}); the run starts")
     return None
+
+
+@dataclass(frozen=True)
+class NotReady:
+    """Services that did not say "ready": ``missing`` their roles, ``ended`` the exit codes of
+    the children that ended meanwhile (by name), ``waited_s``; ``stopped``: a stop was asked."""
+
+    missing: tuple[str, ...]
+    ended: dict[str, int | None]
+    waited_s: float
+    stopped: bool
+
+    def sentence(self, whose: str = "", logs: str = "") -> str:
+        """Why the bench did not start the run (``logs``: where the children's console logs
+        are, relative to the run folder)."""
+        head = f"the bench did not start the run{whose}"
+        if self.stopped:
+            return f"{head}: stopped while its services started"
+        if self.ended:
+            name, code = next(iter(self.ended.items()))
+            return (
+                f"{head}: the {name} exited with code {code} before it was ready (its output: "
+                f"{logs}{name}.log)"
+            )
+        names = " and the ".join(self.missing)
+        outputs = ", ".join(f"{logs}{m}.log" for m in self.missing)
+        return (
+            f"{head}: the {names} did not say ready within {self.waited_s:.3g} s (still "
+            f"starting: a host too slow or too busy; output: {outputs})"
+        )
 
 
 def _wait_ready(
@@ -465,16 +520,18 @@ def _wait_ready(
     stop: Any,
     timeout: float,
     roles: set[str] | frozenset[str] = frozenset({"plant", "controller"}),
-) -> bool:
-    deadline = time.monotonic() + timeout
-    while not stop and time.monotonic() < deadline:
+) -> NotReady | None:
+    """Until each of ``roles`` said "ready" (None), a child ended, the timeout, or a stop."""
+    t0 = time.monotonic()
+    while True:
         ready = {r for r, m in recorder.statuses.items() if m.state == "ready"}
         if roles <= ready:
-            return True
-        if not all(c.alive() for c in sup.children):
-            return False
+            return None
+        ended = {c.name: c.proc.poll() for c in sup.children if not c.alive()}
+        if stop or ended or time.monotonic() - t0 >= timeout:
+            missing = tuple(sorted(roles - ready, key=("plant", "controller").index))
+            return NotReady(missing, ended, time.monotonic() - t0, bool(stop))
         time.sleep(0.02)
-    return False
 
 
 def _progress(

@@ -113,6 +113,7 @@ def repair(run_dir: str | Path) -> tuple[Recovered, Recorded | None]:
     extra: RunExtra = {
         "interrupted": True,
         "error": None,
+        "bench_error": None,
         "recovered": True,
         "recording": layout.RECORDING,
         "note": "hil run did not finish; rebuilt by hil recover from the services' hop logs",

@@ -148,7 +148,7 @@ def judge_step(value: float, run_dir: Path, summary: Any, bound: float | None) -
         rms_position_error=rms,
         peaks=peaks,
         response_p50_ms=_response_p50_ms(summary),
-        held=not broken and not summary.get("error"),
+        held=not broken and not summary.get("error") and not summary.get("bench_error"),
     )
 
 

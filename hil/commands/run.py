@@ -316,7 +316,8 @@ def run(
     brief = _brief(summary, cmd_path)
     run_dir = summary.get("run_dir")
     stopped = summary.get("interrupted") or interrupts.happened()
-    if report and run_dir and not stopped and not summary.get("error"):
+    started = not summary.get("error") and not summary.get("bench_error")
+    if report and run_dir and not stopped and started:
         brief["report"] = _write_report(recorded, summary, quiet)
     report_html = brief["report"]["html"] if "report" in brief else None
     line = f"result: {verdict_line(summary, report_html)}"

@@ -294,7 +294,8 @@ class RunExtra(TypedDict, total=False):
 
     interrupted: bool
     until_stopped: bool  # --until-stopped: ended by Ctrl-C as planned
-    error: str | None  # the run stopped by an error of its own (its services never ready)
+    error: str | None  # the system's: the run could not start (no outside device came): FAIL
+    bench_error: str | None  # the bench's: it did not start the run (INCONCLUSIVE)
     recovered: bool  # rebuilt by hil recover (hil.bench.repair)
     wall_time_s: float
     exit_codes: dict[str, int | None]  # each child process's, by name
