@@ -735,7 +735,7 @@ def _run_service(s: RunSettings, parts: Parts, stop: Any, sched: SchedulingRepor
     try:
         epoch_ns = svc.epoch_ns
         if epoch_ns == 0:
-            got = parts.gate.wait(stop, ready=svc.zenoh.matched)
+            got = parts.gate.wait(stop, timeout=s.start_timeout, ready=svc.zenoh.matched)
             if got is None:
                 print("no start: stopped or start-gate timeout", flush=True)
                 return 1

@@ -561,6 +561,10 @@ def test_hil_run_the_bench_did_not_start_is_its_inconclusive(spawn, tmp_path: Pa
     v = s["verdict"]
     assert (v["outcome"], v["reasons"], v["fail_reasons"]) == ("INCONCLUSIVE", [why], [])
     assert s["error"] is None and f"result: INCONCLUSIVE: {why}" in out + err
+    # Each service waits for its start a minute longer than hil run waits for both to be ready
+    # (a plant ready long before a slow controller must not give up first).
+    settings = json.loads((tmp_path / "n" / "run_settings.json").read_text())
+    assert settings["start_timeout"] == pytest.approx(0.2 + 60.0)
 
 
 def test_hil_run_whose_controller_is_killed_fails_naming_the_signal(spawn, tmp_path: Path) -> None:

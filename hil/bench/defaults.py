@@ -6,12 +6,26 @@ differ from the bundled file, never its initial condition, gains or reference.""
 
 from __future__ import annotations
 
+import os
 import tomllib
 
 from hil.bundled import bundled_path
 from hil.provenance import Toml, dumps_toml
 
 DEFAULT_DURATION = 10.0
+
+#: How long ``hil run`` waits for its services to say ready (seconds, this environment variable
+#: overrides it): generous, since start-up is seconds natively but minutes in an emulated (TCG)
+#: guest; a service that ends meanwhile is noticed at once.
+READY_TIMEOUT_ENV = "HIL_READY_TIMEOUT"
+READY_TIMEOUT_S = 300.0
+
+
+def ready_timeout_s() -> float:
+    """The wait for the services' readiness (:data:`READY_TIMEOUT_ENV`, else 300 s)."""
+    return float(os.environ.get(READY_TIMEOUT_ENV, READY_TIMEOUT_S))
+
+
 DEFAULT_SCENARIO = "paper_tracking"
 
 # Laid over the bundled scenario, table by table (a key here replaces the scenario's).

@@ -31,6 +31,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from hil import interrupts, ticker
 from hil.bench import device, impair
+from hil.bench.defaults import ready_timeout_s
 from hil.bench.fleet import barrier as fleet_barrier
 from hil.bench.host_load import HostSampler
 from hil.bench.lab import placement
@@ -272,9 +273,7 @@ def start_and_follow(
     interleaved (:func:`phase_ns`) on a grid shared by the fleet's groups; None: one epoch,
     now. ``output``: the controller's console log, relative to the run folder."""
     robots = rec.robots
-    # Generous: start-up is seconds natively but minutes in an emulated (TCG) guest; a child
-    # that dies is noticed at once anyway.
-    deadline = time.monotonic() + float(os.environ.get("HIL_READY_TIMEOUT", "300"))
+    deadline = time.monotonic() + ready_timeout_s()  # a child that ends is noticed at once
     roles = {"plant"} if arrival is not None else {"plant", "controller"}
     for r in robots:
         left = max(0.0, deadline - time.monotonic())

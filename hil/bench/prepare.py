@@ -18,7 +18,7 @@ from typing import Any
 from controller_service.laws.base import DesignContext
 from hil import options
 from hil.bench import device
-from hil.bench.defaults import PAPER_TRACKING_TOML
+from hil.bench.defaults import PAPER_TRACKING_TOML, ready_timeout_s
 from hil.bench.live.launch import check as live_check
 from hil.bench.settings import (
     check_can_interface,
@@ -286,11 +286,12 @@ def _run_settings(
     )
     if opts.robot_id is not None:
         settings.robot_id = opts.robot_id
-    if opts.controller == "external":
-        # The plant waits for its start while the device is waited for.
-        settings.start_timeout = max(settings.start_timeout, opts.wait_device + 60.0)
-        if opts.cmd_path == "zenoh":
-            settings.can_live = False  # nobody would drive the CAN shadow
+    # Each service waits for its start while the other starts (hil run waits that long for
+    # both to be ready), and while an outside device is waited for.
+    waited = ready_timeout_s() + (opts.wait_device if opts.controller == "external" else 0.0)
+    settings.start_timeout = max(settings.start_timeout, waited + 60.0)
+    if opts.controller == "external" and opts.cmd_path == "zenoh":
+        settings.can_live = False  # nobody would drive the CAN shadow
     if (os.cpu_count() or 1) >= 2:
         settings.cpu_controller, settings.cpu_plant = 1, 0
     settings.validate()
