@@ -64,10 +64,11 @@ def can_device_arrived(err: str) -> bool:
 #: A verdict's exit code (hil.verdict.EXIT_CODE), spelled here so the tests check the product.
 EXIT_OF = {"PASS": 0, "FAIL": 1, "INCONCLUSIVE": 4}
 #: What a working device may still be failed for on a loaded host: its own stalls (a Python
-#: device starved of the CPU is the device's stall, judged as any device's), and the
-#: certificate where they pushed the command age past D* (the run's worst stall then the
-#: device's silence, ``controller_late``: the bench does not see an outside device's ticks).
-DEVICE_TIMING = ("the device stalled",)
+#: device starved of the CPU is the device's stall, judged as any device's: in its command
+#: gaps on CAN, as samples without a command on Zenoh, where its commands name their States),
+#: and the certificate where they pushed the command age past D* (the run's worst stall then
+#: the device's silence, ``controller_late``: the bench does not see an outside device's ticks).
+DEVICE_TIMING = ("the device stalled", "samples without a command")
 DEVICE_CERTIFICATE = ("certificate not held", "by the system's own timing", "controller_late")
 
 

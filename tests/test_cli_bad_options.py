@@ -1,6 +1,7 @@
 """Bad input at every edge: every command's options.
 
-Each command runs as a real subprocess (``python -m hil ...``) with one bad value: negative,
+Each command runs as a real subprocess (``python -m hil ...``, as many at once as there are
+CPUs, each in its own folder) with one bad value: negative,
 zero where a positive number goes, NaN, infinity, out of range, text where a number goes, an
 unknown choice, an --out that is a file. Every case must exit 2 with exactly one stderr line
 naming the option, never a traceback, and leave no folder behind: the checks run before any
@@ -10,8 +11,11 @@ work (no run folder, no service process, no simulation).
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -148,41 +152,72 @@ def _id(case: tuple[list[str], str]) -> str:
     return " ".join(a for a in args if a not in (S,))
 
 
-@pytest.mark.parametrize(("args", "option"), CASES, ids=[_id(c) for c in CASES])
-def test_a_bad_option_exits_2_with_one_line_naming_it(
-    tmp_path: Path, sim_folder: Path, args: list[str], option: str
-) -> None:
-    out = tmp_path / "out"
-    file = tmp_path / "file.txt"
+@dataclass(frozen=True)
+class Case:
+    """One case's folders (each its own) and what its ``hil`` process did."""
+
+    out: Path
+    file: Path
+    proc: subprocess.CompletedProcess[str]
+
+
+def _run_case(folder: Path, sim_folder: Path, args: list[str]) -> Case:
+    folder.mkdir(parents=True)
+    out = folder / "out"
+    file = folder / "file.txt"
     file.write_text("not a folder\n")
-    settings = tmp_path / "run_settings.json"
+    settings = folder / "run_settings.json"
     settings.write_text(json.dumps({"scenario_path": S, "rate_hz": -1.0}))
     names = {
         "OUT": out,
         "FILE": file,
         "SETTINGS": settings,
-        "MISSING": tmp_path / "missing.json",
+        "MISSING": folder / "missing.json",
         # /proc takes no new folder, whoever runs the test (root's permission bits say yes)
         "UNWRITABLE": Path("/proc/hil-no-such-folder/out"),
         "SIMDIR": sim_folder,
-        "DIR": tmp_path,
+        "DIR": folder,
     }
     argv = [str(names.get(a, a)) for a in args]
     proc = subprocess.run(
         [sys.executable, "-m", "hil", *argv],
-        cwd=tmp_path,
+        cwd=folder,
         capture_output=True,
         text=True,
-        timeout=60,
+        timeout=120,
         env=_env(),
     )
+    return Case(out, file, proc)
+
+
+@pytest.fixture(scope="module")
+def cases(tmp_path_factory: pytest.TempPathFactory, sim_folder: Path) -> dict[str, Case]:
+    """Every case's own ``hil`` process, as many at a time as there are CPUs (each is a
+    Python start-up and an option check: CPU-bound and independent of the others), in its own
+    folder."""
+    root = tmp_path_factory.mktemp("bad-options")
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        running = {
+            _id(c): pool.submit(_run_case, root / f"case{i}", sim_folder, c[0])
+            for i, c in enumerate(CASES)
+        }
+        return {name: job.result() for name, job in running.items()}
+
+
+@pytest.mark.parametrize(("args", "option"), CASES, ids=[_id(c) for c in CASES])
+def test_a_bad_option_exits_2_with_one_line_naming_it(
+    cases: dict[str, Case], args: list[str], option: str
+) -> None:
+    case = cases[_id((args, option))]
+    proc = case.proc
     lines = proc.stderr.splitlines()
     assert "Traceback" not in proc.stderr, proc.stderr
     assert proc.returncode == 2, (proc.returncode, proc.stderr)
     assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
     assert option in lines[0], lines[0]
-    assert not out.exists() and not (tmp_path / "runs").exists(), "a folder was written"
-    assert file.read_text() == "not a folder\n"
+    folder = case.file.parent
+    assert not case.out.exists() and not (folder / "runs").exists(), "a folder was written"
+    assert case.file.read_text() == "not a folder\n"
 
 
 @pytest.fixture(scope="module")
@@ -223,8 +258,6 @@ def test_an_unwritable_default_folder_is_refused_before_any_work(args: list[str]
 
 
 def _env() -> dict[str, str]:
-    import os
-
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
     return env
