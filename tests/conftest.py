@@ -62,5 +62,6 @@ def pytest_collection_finish(session):
     vcan_lane.start_beside(session.items, collect_only=session.config.option.collectonly)
 
 
-def pytest_sessionfinish(session):
+def pytest_sessionfinish(session, exitstatus):
     vcan_lane.stop_beside()
+    vcan_lane.remove_beside_log(keep=exitstatus != 0)

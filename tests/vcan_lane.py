@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -174,6 +175,18 @@ def take_beside(timeout: float) -> Lane | None:
         stop_beside()
         _beside.lane.error = TimeoutError(f"the lane beside the session outlived {timeout:.0f} s")
     return _beside.lane
+
+
+def remove_beside_log(keep: bool) -> None:
+    """The lane's console log removed with its folder once the session is over, unless
+    ``keep`` (a failed session: its path is said)."""
+    if _beside is None:
+        return
+    folder = _beside.lane.log.parent
+    if keep:
+        print(f"\nvcan lane beside the session: its guest console log is {_beside.lane.log}")
+    else:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def stop_beside() -> None:
