@@ -19,7 +19,7 @@ import traceback
 
 import typer
 
-from hil import commands, interrupts
+from hil import commands, interrupts, options
 from hil.commands import app
 from hil.errors import (
     BAD_INPUT,
@@ -55,9 +55,7 @@ def main(argv: list[str] | None = None) -> int:
 def _dispatch(argv: list[str] | None) -> int:
     """The command's exit code. After an interrupt any outcome means 130 (see :func:`main`),
     so nothing is printed for it here."""
-    from hil.bench.live.launch import expand_live_flag
-
-    argv = expand_live_flag(sys.argv[1:] if argv is None else argv)  # --live [PORT]
+    argv = options.expand_live_flag(sys.argv[1:] if argv is None else argv)  # --live [PORT]
     try:
         returned = app(args=argv, standalone_mode=False)
     except KeyboardInterrupt:  # not through hil.interrupts' handler: the same meaning

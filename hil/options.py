@@ -13,11 +13,27 @@ import math
 import os
 import re
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 from hil.errors import BadInputError
+
+#: The live view's port for a bare ``--live`` (Foxglove's own).
+LIVE_DEFAULT_PORT = 8765
+
+
+def expand_live_flag(argv: Sequence[str]) -> list[str]:
+    """``argv`` with each bare ``--live`` (no port number after it) as ``--live=8765``
+    (:data:`LIVE_DEFAULT_PORT`)."""
+    out = list(argv)
+    for i, arg in enumerate(out):
+        if arg == "--":
+            break
+        if arg == "--live" and not (i + 1 < len(out) and out[i + 1].isdigit()):
+            out[i] = f"--live={LIVE_DEFAULT_PORT}"
+    return out
+
 
 # A Zenoh locator: protocol/address, e.g. tcp/127.0.0.1:7447.
 LOCATOR = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*/\S+")

@@ -22,8 +22,8 @@ import pytest
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
-from hil.bench.live.launch import expand_live_flag
 from hil.bench.live.timing import Bounds, LiveTiming
+from hil.options import expand_live_flag
 from protocol.messages import State, TorqueCommand
 from tests.procs import free_tcp_port
 from tests.run_helpers import clean_scenario

@@ -1,7 +1,7 @@
 """Starting the live view's process for ``hil run --live``, ``hil drives --live`` and
-``hil fleet --live``. A bare ``--live`` takes :data:`DEFAULT_PORT` (Foxglove's own; see
-:func:`expand_live_flag`); ``--live-host`` binds elsewhere than loopback, with a warning: the
-server has no login and no TLS, so anyone who reaches the port sees the run.
+``hil fleet --live``. A bare ``--live`` takes :data:`hil.options.LIVE_DEFAULT_PORT` (Foxglove's
+own; see :func:`hil.options.expand_live_flag`); ``--live-host`` binds elsewhere than loopback,
+with a warning: the server has no login and no TLS, so anyone who reaches the port sees the run.
 """
 
 from __future__ import annotations
@@ -20,20 +20,8 @@ from hil.bench.supervisor import Supervisor
 from hil.errors import BadInputError
 from hil.folder import layout
 
-DEFAULT_PORT = 8765
 START_TIMEOUT_S = 30.0
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
-
-
-def expand_live_flag(argv: Sequence[str]) -> list[str]:
-    """``argv`` with each bare ``--live`` (no port number after it) as ``--live=DEFAULT_PORT``."""
-    out = list(argv)
-    for i, arg in enumerate(out):
-        if arg == "--":
-            break
-        if arg == "--live" and not (i + 1 < len(out) and out[i + 1].isdigit()):
-            out[i] = f"--live={DEFAULT_PORT}"
-    return out
 
 
 def check(port: int | None, host: str) -> None:
