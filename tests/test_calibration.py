@@ -339,9 +339,9 @@ def _held_plan(inj: Injector) -> dict[str, Act]:
     T0_A), the plant stopped LEAD_NS before sample k + 1 (State k has left, none after it);
     the controller let go L_CTRL after its stop receives State k and sends its command, which
     the plant, let go L_PLANT later, receives. (b) A State held in hand: the plant stopped
-    LEAD_NS after sample m (t1: each of T0_B_TRIES); this thread spins on the controller's CPU from AIM_NS
-    before that until L_SPIN after it: the controller's Zenoh threads receive State m on the
-    other CPU, its loop (pinned) cannot tick until the spin ends; the plant is let go
+    LEAD_NS after sample m (t1: each of T0_B_TRIES); this thread spins on the controller's CPU
+    from AIM_NS before that until L_SPIN after it: the controller's Zenoh threads receive State
+    m on the other CPU, its loop (pinned) cannot tick until the spin ends; the plant is let go
     L_PLANT_B later."""
     t0 = inj.ns(T0_A)
     acts: dict[str, Act] = {}
