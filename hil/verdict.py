@@ -336,6 +336,12 @@ def _after_the_controller_ended(v: Verdict, ended: LawEnd | None) -> None:
     v.inconclusive_reasons.clear()
 
 
+def run_started(summary: Summary) -> bool:
+    """Whether the run started: neither the system (``error``) nor the bench
+    (``bench_error``) kept it from starting."""
+    return not summary.get("error") and not summary.get("bench_error")
+
+
 def run_outcome(summary: Summary) -> str:
     """The outcome ``hil run`` (and each robot of ``hil fleet``) exits with for its summary:
     its verdict's; a run the system kept from starting (``error``: no outside device came) is

@@ -57,19 +57,17 @@ class Tap:
 
     def sent(self, stream: str, stamp_ns: int, payload: bytes) -> None:
         """``payload`` left on ``hil/<robot_id>/<stream>`` at ``stamp_ns``."""
-        with self._lock:
-            self._entries.append(TapEntry(stream, stamp_ns, payload))
-            self._bytes += len(payload) + _ENTRY_OVERHEAD
-        if self._closed:
-            self.flush()
+        self._add(TapEntry(stream, stamp_ns, payload))
 
     def rejected(self, stream: str, recv_ns: int, payload: bytes, reason: str) -> None:
         """A payload received on ``stream`` at ``recv_ns`` and refused for ``reason``."""
-        cut = bytes(payload[:MAX_MESSAGE_BYTES])
+        self._add(TapEntry(stream, recv_ns, bytes(payload[:MAX_MESSAGE_BYTES]), reason))
+
+    def _add(self, entry: TapEntry) -> None:
         with self._lock:
-            self._entries.append(TapEntry(stream, recv_ns, cut, reason))
-            self._bytes += len(cut) + _ENTRY_OVERHEAD
-        if self._closed:
+            self._entries.append(entry)
+            self._bytes += len(entry.payload) + _ENTRY_OVERHEAD
+        if self._closed:  # no regular batch will come: put it now
             self.flush()
 
     def flush_if_due(self, now_ns: int) -> None:

@@ -191,15 +191,20 @@ def _run_case(folder: Path, sim_folder: Path, args: list[str]) -> Case:
 
 
 @pytest.fixture(scope="module")
-def cases(tmp_path_factory: pytest.TempPathFactory, sim_folder: Path) -> dict[str, Case]:
-    """Every case's own ``hil`` process, as many at a time as there are CPUs (each is a
+def cases(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory, sim_folder: Path
+) -> dict[str, Case]:
+    """Each selected case's own ``hil`` process, as many at a time as there are CPUs (each is a
     Python start-up and an option check: CPU-bound and independent of the others), in its own
     folder."""
+    test = test_a_bad_option_exits_2_with_one_line_naming_it.__name__
+    chosen = {i.callspec.id for i in request.session.items if i.originalname == test}
     root = tmp_path_factory.mktemp("bad-options")
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         running = {
             _id(c): pool.submit(_run_case, root / f"case{i}", sim_folder, c[0])
             for i, c in enumerate(CASES)
+            if _id(c) in chosen
         }
         return {name: job.result() for name, job in running.items()}
 

@@ -132,6 +132,8 @@ def _response_p50_ms(summary: Any) -> float | None:
 
 def judge_step(value: float, run_dir: Path, summary: Any, bound: float | None) -> Step:
     """Whether the run held: every limit of (2) held, and the tracking error within the bound."""
+    from hil.verdict import run_started
+
     violations = summary.get("violations") or {}
     broken = [name for name, n in violations.items() if n]
     rms = summary.get("rms_position_error")
@@ -148,7 +150,7 @@ def judge_step(value: float, run_dir: Path, summary: Any, bound: float | None) -
         rms_position_error=rms,
         peaks=peaks,
         response_p50_ms=_response_p50_ms(summary),
-        held=not broken and not summary.get("error") and not summary.get("bench_error"),
+        held=not broken and run_started(summary),
     )
 
 

@@ -307,6 +307,7 @@ def run(
     from hil.analysis.replay import latencies_from_run
     from hil.bench.lifecycle import execute
     from hil.bench.prepare import RunOptions
+    from hil.verdict import run_started
 
     # The bench records the run into its folder; the analysis then writes the figures, the
     # trace and the verdict into it (summary.json); the report follows.
@@ -316,8 +317,7 @@ def run(
     brief = _brief(summary, cmd_path)
     run_dir = summary.get("run_dir")
     stopped = summary.get("interrupted") or interrupts.happened()
-    started = not summary.get("error") and not summary.get("bench_error")
-    if report and run_dir and not stopped and started:
+    if report and run_dir and not stopped and run_started(summary):
         brief["report"] = _write_report(recorded, summary, quiet)
     report_html = brief["report"]["html"] if "report" in brief else None
     line = f"result: {verdict_line(summary, report_html)}"
